@@ -1,0 +1,207 @@
+"""Rotations, projection and undistortion on NumPy arrays.
+
+Poses are world->camera, ``x_cam = R @ x_world + t`` (metres). Normalised image coordinates
+are ``(x/z, y/z)`` of ``x_cam``; pixels are ``K @ [x/z, y/z, 1]`` after distortion.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from calib.rig import FISHEYE, Camera
+
+
+def euler_to_matrix(angles: np.ndarray) -> np.ndarray:
+    """R = Rz(gamma) @ Ry(beta) @ Rx(alpha), the seed paper's Euler convention.
+
+    Args:
+        angles: (..., 3) ``(alpha, beta, gamma)`` in radians.
+
+    Returns:
+        (..., 3, 3) rotation matrices.
+    """
+    a = np.asarray(angles, dtype=float)
+    ca, sa = np.cos(a[..., 0]), np.sin(a[..., 0])
+    cb, sb = np.cos(a[..., 1]), np.sin(a[..., 1])
+    cg, sg = np.cos(a[..., 2]), np.sin(a[..., 2])
+    R = np.empty(a.shape[:-1] + (3, 3))
+    R[..., 0, 0] = cg * cb
+    R[..., 0, 1] = cg * sb * sa - sg * ca
+    R[..., 0, 2] = cg * sb * ca + sg * sa
+    R[..., 1, 0] = sg * cb
+    R[..., 1, 1] = sg * sb * sa + cg * ca
+    R[..., 1, 2] = sg * sb * ca - cg * sa
+    R[..., 2, 0] = -sb
+    R[..., 2, 1] = cb * sa
+    R[..., 2, 2] = cb * ca
+    return R
+
+
+def euler_jacobian(angles: np.ndarray) -> np.ndarray:
+    """Derivatives of :func:`euler_to_matrix`.
+
+    Args:
+        angles: (..., 3) radians.
+
+    Returns:
+        (..., 3, 3, 3): element ``[..., k, :, :]`` is dR/d(angle k).
+    """
+    a = np.asarray(angles, dtype=float)
+    zero = np.zeros(a.shape[:-1])
+    one = np.ones(a.shape[:-1])
+
+    def rot(c, s, axis):
+        m = np.zeros(a.shape[:-1] + (3, 3))
+        i, j = [(1, 2), (0, 2), (0, 1)][axis]
+        k = 3 - i - j
+        m[..., k, k] = one
+        m[..., i, i] = c
+        m[..., j, j] = c
+        sign = -1 if axis != 1 else 1
+        m[..., i, j] = sign * s
+        m[..., j, i] = -sign * s
+        return m
+
+    ca, sa = np.cos(a[..., 0]), np.sin(a[..., 0])
+    cb, sb = np.cos(a[..., 1]), np.sin(a[..., 1])
+    cg, sg = np.cos(a[..., 2]), np.sin(a[..., 2])
+    Rx, Ry, Rz = rot(ca, sa, 0), rot(cb, sb, 1), rot(cg, sg, 2)
+    dRx, dRy, dRz = rot(-sa, ca, 0), rot(-sb, cb, 1), rot(-sg, cg, 2)
+    for d, axis in ((dRx, 0), (dRy, 1), (dRz, 2)):
+        i, j = [(1, 2), (0, 2), (0, 1)][axis]
+        d[..., 3 - i - j, 3 - i - j] = zero
+    out = np.empty(a.shape[:-1] + (3, 3, 3))
+    out[..., 0, :, :] = Rz @ Ry @ dRx
+    out[..., 1, :, :] = Rz @ dRy @ Rx
+    out[..., 2, :, :] = dRz @ Ry @ Rx
+    return out
+
+
+def matrix_to_euler(R: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`euler_to_matrix` (beta in [-pi/2, pi/2]).
+
+    Args:
+        R: (..., 3, 3) rotation matrices.
+
+    Returns:
+        (..., 3) ``(alpha, beta, gamma)`` radians.
+    """
+    R = np.asarray(R, dtype=float)
+    beta = np.arcsin(np.clip(-R[..., 2, 0], -1.0, 1.0))
+    alpha = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    gamma = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    return np.stack([alpha, beta, gamma], axis=-1)
+
+
+def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """(3,) axis-angle (radians) -> (3, 3) rotation."""
+    return cv2.Rodrigues(np.asarray(rotvec, dtype=float).reshape(3, 1))[0]
+
+
+def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation -> (3,) axis-angle (radians)."""
+    return cv2.Rodrigues(np.asarray(R, dtype=float))[0].ravel()
+
+
+def rotation_angle(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """Angle of ``R_a @ R_b.T`` in radians; shapes (..., 3, 3) -> (...)."""
+    rel = np.asarray(R_a) @ np.swapaxes(np.asarray(R_b), -1, -2)
+    cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def camera_centers(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Camera centres ``C = -R.T @ t``; (N, 3, 3), (N, 3) -> (N, 3) metres."""
+    return -np.einsum("nji,nj->ni", R, t)
+
+
+def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``R @ X + t`` for (3, 3), (3,), (M, 3) -> (M, 3)."""
+    return X @ R.T + t
+
+
+def project_normalized(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Pinhole projection to normalised coordinates.
+
+    Args:
+        R: (M, 3, 3) or (3, 3) world->camera rotations.
+        t: (M, 3) or (3,) translations, metres.
+        X: (M, 3) world points, metres.
+
+    Returns:
+        (M, 2) normalised image coordinates ``(x/z, y/z)``.
+    """
+    xc = np.einsum("...ij,...j->...i", R, X) + t
+    return xc[..., :2] / xc[..., 2:3]
+
+
+def depth(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """z of ``R @ X + t``; same broadcasting as :func:`project_normalized`, returns (M,)."""
+    return np.einsum("...j,...j->...", R[..., 2, :], X) + t[..., 2]
+
+
+def undistort_points(camera: Camera, uv: np.ndarray) -> np.ndarray:
+    """Raw pixels -> normalised, undistorted image coordinates.
+
+    Args:
+        camera: intrinsics.
+        uv: (M, 2) raw pixels, origin top-left, y down.
+
+    Returns:
+        (M, 2) normalised coordinates ``(x/z, y/z)``.
+    """
+    pts = np.asarray(uv, dtype=np.float64).reshape(-1, 1, 2)
+    if len(pts) == 0:
+        return np.zeros((0, 2))
+    if camera.model == FISHEYE:
+        out = cv2.fisheye.undistortPoints(pts, camera.K, camera.dist)
+    else:
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
+        out = cv2.undistortPointsIter(pts, camera.K, camera.dist, None, None, criteria)
+    return out.reshape(-1, 2)
+
+
+def distort_points(camera: Camera, xy: np.ndarray) -> np.ndarray:
+    """Normalised coordinates -> raw pixels (applies the lens model).
+
+    Args:
+        camera: intrinsics.
+        xy: (M, 2) normalised coordinates.
+
+    Returns:
+        (M, 2) raw pixels.
+    """
+    pts = np.asarray(xy, dtype=np.float64).reshape(-1, 1, 2)
+    if len(pts) == 0:
+        return np.zeros((0, 2))
+    if camera.model == FISHEYE:
+        out = cv2.fisheye.distortPoints(pts, camera.K, camera.dist)
+    else:
+        obj = np.concatenate([pts, np.ones((len(pts), 1, 1))], axis=2)
+        out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), camera.K, camera.dist)
+    return out.reshape(-1, 2)
+
+
+def project_pixels(camera: Camera, R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """World points -> raw pixels through one camera; (3,3), (3,), (M,3) -> (M,2)."""
+    return distort_points(camera, project_normalized(R, t, X))
+
+
+def kabsch(source: np.ndarray, target: np.ndarray, scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    """Best rigid (or similarity) map ``target ~ s * R @ source + t`` in least squares (Umeyama).
+
+    Args:
+        source, target: (M, 3) corresponding points, M >= 3 and not collinear.
+        scale: also fit a uniform scale.
+
+    Returns:
+        R (3, 3), t (3,), s.
+    """
+    mu_s, mu_t = source.mean(0), target.mean(0)
+    a, b = source - mu_s, target - mu_t
+    U, S, Vt = np.linalg.svd(b.T @ a)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    s = float(np.trace(np.diag(S) @ D) / np.sum(a * a)) if scale else 1.0
+    return R, mu_t - s * R @ mu_s, s

@@ -1,0 +1,164 @@
+"""Rig description and observation containers shared by every stage.
+
+Conventions (``docs/conventions.md``): pixels have their origin at the top-left, y down;
+poses are world->camera, ``x_cam = R @ x_world + t``, in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.errors import CalibrationError
+
+PINHOLE = "pinhole"
+FISHEYE = "fisheye"
+DIST_COEFFS = {PINHOLE: 5, FISHEYE: 4}
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """One camera's known intrinsics.
+
+    Args:
+        id: the camera's name, unique in the rig.
+        width, height: image size in pixels.
+        K: (3, 3) intrinsic matrix in pixels.
+        dist: (5,) OpenCV ``[k1, k2, p1, p2, k3]``, or (4,) ``[k1, k2, k3, k4]`` for fisheye.
+        model: ``"pinhole"`` or ``"fisheye"``.
+    """
+
+    id: str
+    width: int
+    height: int
+    K: np.ndarray
+    dist: np.ndarray
+    model: str = PINHOLE
+
+    def __post_init__(self) -> None:
+        where = f"camera {self.id!r}"
+        if not isinstance(self.id, str) or not self.id:
+            raise CalibrationError("a camera has an empty or non-string 'id'; give every camera a name")
+        if self.model not in DIST_COEFFS:
+            raise CalibrationError(f"{where}: 'model' must be 'pinhole' or 'fisheye', not {self.model!r}")
+        K = np.asarray(self.K, dtype=float)
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+            raise CalibrationError(f"{where}: 'K' must be a finite 3x3 matrix")
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-9 or np.any(K[2, :2] != 0):
+            raise CalibrationError(f"{where}: 'K' must have positive fx, fy and last row [0, 0, 1]")
+        dist = np.asarray(self.dist, dtype=float).ravel()
+        want = DIST_COEFFS[self.model]
+        if dist.shape != (want,) or not np.all(np.isfinite(dist)):
+            raise CalibrationError(
+                f"{where}: 'dist' must hold {want} finite coefficients for model {self.model!r}, got {dist.size}"
+            )
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise CalibrationError(f"{where}: 'width' and 'height' must be positive pixel counts")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", dist)
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+
+    @property
+    def focal(self) -> np.ndarray:
+        """(2,) fx, fy in pixels: converts normalised image coordinates to pixels."""
+        return np.array([self.K[0, 0], self.K[1, 1]])
+
+
+@dataclass(frozen=True, eq=False)
+class Rig:
+    """Cameras, the wand and the optional static object (an L-frame on the floor).
+
+    Args:
+        cameras: the cameras, in the order that observation ``camera`` indices refer to.
+        wand_length: distance between the wand's two marker centres, metres.
+        static_markers: (M, 3) marker coordinates of the static object in its own frame
+            (metres, z up), or None.
+    """
+
+    cameras: tuple[Camera, ...]
+    wand_length: float
+    static_markers: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        ids = [c.id for c in self.cameras]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise CalibrationError(f"camera id {dup[0]!r} appears more than once in the rig; ids must be unique")
+        if len(self.cameras) < 2:
+            raise CalibrationError(
+                f"the rig has {len(self.cameras)} camera(s); wand calibration needs at least two cameras"
+            )
+        length = float(self.wand_length)
+        if not np.isfinite(length) or length <= 0:
+            raise CalibrationError(f"wand.length_m must be a positive length in metres, got {self.wand_length!r}")
+        object.__setattr__(self, "cameras", tuple(self.cameras))
+        object.__setattr__(self, "wand_length", length)
+        if self.static_markers is not None:
+            markers = np.asarray(self.static_markers, dtype=float)
+            if markers.ndim != 2 or markers.shape[1] != 3 or len(markers) < 4 or not np.all(np.isfinite(markers)):
+                raise CalibrationError(
+                    "static_object.markers_m must be a list of at least 4 finite [x, y, z] points in metres"
+                )
+            object.__setattr__(self, "static_markers", markers)
+
+    @property
+    def ids(self) -> list[str]:
+        return [c.id for c in self.cameras]
+
+    def index(self, camera_id: str) -> int:
+        try:
+            return self.ids.index(camera_id)
+        except ValueError:
+            raise CalibrationError(
+                f"unknown camera id {camera_id!r}; rig.json lists {', '.join(self.ids)}"
+            ) from None
+
+
+@dataclass(frozen=True, eq=False)
+class WandObservations:
+    """Unlabeled wand-marker blobs.
+
+    Args:
+        frame: (B,) int, synchronised frame-set index.
+        camera: (B,) int, index into ``Rig.cameras``.
+        uv: (B, 2) raw (distorted) pixel coordinates, origin top-left, y down.
+    """
+
+    frame: np.ndarray
+    camera: np.ndarray
+    uv: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "frame", np.asarray(self.frame, dtype=np.int64).ravel())
+        object.__setattr__(self, "camera", np.asarray(self.camera, dtype=np.int64).ravel())
+        object.__setattr__(self, "uv", np.asarray(self.uv, dtype=float).reshape(-1, 2))
+        if not (len(self.frame) == len(self.camera) == len(self.uv)):
+            raise CalibrationError("wand observations: frame, camera and uv must have the same length")
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+
+@dataclass(frozen=True, eq=False)
+class StaticObservations:
+    """Unlabeled static-object blobs, one averaged position per marker and camera.
+
+    Args:
+        camera: (S,) int, index into ``Rig.cameras``.
+        uv: (S, 2) raw pixel coordinates.
+    """
+
+    camera: np.ndarray
+    uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "camera", np.asarray(self.camera, dtype=np.int64).ravel())
+        object.__setattr__(self, "uv", np.asarray(self.uv, dtype=float).reshape(-1, 2))
+        if len(self.camera) != len(self.uv):
+            raise CalibrationError("static observations: camera and uv must have the same length")
+
+    def for_camera(self, index: int) -> np.ndarray:
+        """(k, 2) the blobs seen by camera ``index``."""
+        return self.uv[self.camera == index]
