@@ -1,0 +1,148 @@
+"""Calibration jobs: queue one for a capture, follow its progress, fetch or cancel it."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query, Response
+from fastapi.concurrency import run_in_threadpool
+
+from service.api.deps import State, require_content_type
+from service.jobs import JobRecord, JobState
+from service.schemas import ErrorPublic, JobCreate, JobList, JobPublic, JobSummary, ResultFormat, ValidationErrorPublic
+from service.storage import CaptureNotFound
+
+router = APIRouter(prefix="/jobs", tags=["jobs"])
+
+MIN_CAMERAS = 2  # a camera pose is only defined relative to another camera's
+MEDIA_TYPES = {
+    ResultFormat.json: ("application/json", "json"),
+    ResultFormat.anipose_toml: ("application/toml", "toml"),
+    ResultFormat.opencv_yaml: ("application/x-yaml", "yaml"),
+    ResultFormat.dlt_csv: ("text/csv", "csv"),
+}
+UNKNOWN_JOB = {"model": ErrorPublic, "description": "unknown job"}
+UNAUTHORISED = {"model": ErrorPublic, "description": "missing or wrong bearer token"}
+
+
+def _job(state, job_id: str) -> JobRecord:
+    record = state.queue.refresh(job_id) if len(job_id) <= 64 else None
+    if record is None:
+        raise HTTPException(404, f"no job with id {job_id!r}; list jobs with GET /api/v1/jobs")
+    return record
+
+
+def to_public(r: JobRecord) -> JobPublic:
+    return JobPublic(
+        id=r.id, capture_id=r.capture_id, method=r.method, options=r.options, state=r.state, attempts=r.attempts,
+        created=r.created, started=r.started, finished=r.finished, progress=r.progress, error=r.error,
+        cancel_requested=r.cancel_requested, result=r.result,
+    )
+
+
+@router.post(
+    "",
+    status_code=202,
+    response_model=JobPublic,
+    dependencies=[require_content_type("application/json")],
+    responses={
+        401: UNAUTHORISED,
+        404: {"model": ErrorPublic, "description": "unknown capture"},
+        415: {"model": ErrorPublic, "description": "the body must be JSON"},
+        422: {"model": ValidationErrorPublic, "description": "invalid request or a capture that cannot be solved"},
+    },
+    summary="Queue a calibration of a capture",
+)
+def create_job(body: JobCreate, state: State) -> JobPublic:
+    try:
+        capture = state.captures.get(body.capture_id)
+    except CaptureNotFound:
+        raise HTTPException(
+            404, f"no capture with id {body.capture_id!r}; create one with POST /api/v1/captures"
+        ) from None
+    seeing = capture.cameras_seeing_wand()
+    if len(seeing) < MIN_CAMERAS:
+        if not seeing:
+            why = "no camera has wand observations yet; upload wand.csv or stream frame sets first"
+        else:
+            why = (
+                f"only camera {seeing[0]!r} saw the wand; calibration needs at least {MIN_CAMERAS} cameras "
+                "that see it, so wave the wand where the other cameras see it too"
+            )
+        raise HTTPException(422, f"capture {capture.id} cannot be calibrated: {why}")
+    record = state.queue.store.create(capture.id, body.method.value, body.options.model_dump())
+    state.queue.submit(record)
+    return to_public(record)
+
+
+@router.get("", response_model=JobList, responses={401: UNAUTHORISED}, summary="List jobs, newest first")
+def list_jobs(
+    state: State, capture_id: Annotated[str | None, Query(max_length=64)] = None
+) -> JobList:
+    records = [state.queue.refresh(r.id) if not r.state.finished else r for r in state.queue.store.list(capture_id)]
+    return JobList(jobs=[JobSummary(**to_public(r).model_dump(exclude={"result"})) for r in records if r])
+
+
+@router.get(
+    "/{job_id}", response_model=JobPublic, responses={401: UNAUTHORISED, 404: UNKNOWN_JOB},
+    summary="A job's state, progress and, when done, its wandcal-result/1 document",
+)
+def get_job(job_id: str, state: State) -> JobPublic:
+    return to_public(_job(state, job_id))
+
+
+@router.delete(
+    "/{job_id}", response_model=JobPublic,
+    responses={401: UNAUTHORISED, 404: UNKNOWN_JOB, 409: {"model": ErrorPublic, "description": "already finished"}},
+    summary="Cancel a job (at once if queued; at its next progress report if running)",
+)
+def cancel_job(job_id: str, state: State) -> JobPublic:
+    record = _job(state, job_id)
+    if record.state.finished:
+        raise HTTPException(409, f"job {job_id} is already {record.state.value}; there is nothing to cancel")
+    return to_public(state.queue.cancel(job_id))
+
+
+@router.get(
+    "/{job_id}/result",
+    responses={
+        200: {
+            "description": "the result in the requested format",
+            "content": {media: {"schema": {"type": "string"}} for media, _ in MEDIA_TYPES.values()},
+        },
+        401: UNAUTHORISED,
+        404: UNKNOWN_JOB,
+        409: {"model": ErrorPublic, "description": "the job is not done"},
+        422: {"model": ErrorPublic, "description": "the result cannot be written in that format"},
+    },
+    summary="The finished calibration as JSON, anipose TOML, OpenCV YAML or DLT CSV",
+)
+async def get_result(
+    job_id: str,
+    state: State,
+    format: ResultFormat = ResultFormat.json,
+    unit: Annotated[str, Query(pattern="^(m|mm)$", description="length unit of translations")] = "m",
+) -> Response:
+    record = await run_in_threadpool(_job, state, job_id)
+    if record.state is not JobState.done or record.result is None:
+        hint = f": {record.error}" if record.error else "; poll GET /api/v1/jobs/{id} until its state is done"
+        raise HTTPException(409, f"job {job_id} is {record.state.value}, it has no result{hint}")
+    media, ext = MEDIA_TYPES[format]
+    if format is ResultFormat.json:
+        import json
+
+        text = json.dumps(record.result, indent=2)
+    else:
+        from calib import export
+
+        rig = await run_in_threadpool(state.captures.rig, record.capture_id)
+        writer = {
+            ResultFormat.anipose_toml: export.to_anipose_toml,
+            ResultFormat.opencv_yaml: export.to_opencv_yaml,
+            ResultFormat.dlt_csv: export.to_dlt_csv,
+        }[format]
+        text = writer(record.result, rig, unit=unit)
+    return Response(
+        text, media_type=media,
+        headers={"Content-Disposition": f'attachment; filename="wandcal-{job_id[:8]}.{ext}"'},
+    )

@@ -1,0 +1,89 @@
+"""The service's SQLite database: one file under the data directory, opened per use.
+
+WAL mode lets the API read while a worker process writes progress; ``BEGIN IMMEDIATE`` makes a
+job claim atomic across processes.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+BUSY_TIMEOUT_S = 30.0  # a writer holds the lock for milliseconds; 30 s only trips on a wedged disk
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS captures (
+    id TEXT PRIMARY KEY,
+    created REAL NOT NULL,
+    source TEXT NOT NULL,
+    name TEXT NOT NULL,
+    cameras TEXT NOT NULL,          -- JSON list of camera ids, rig order
+    counts TEXT NOT NULL,           -- JSON {camera id: {"blobs": n, "pairs": n}}
+    frames INTEGER NOT NULL,        -- distinct frame indices with wand blobs
+    framesets INTEGER NOT NULL DEFAULT 0,
+    has_static INTEGER NOT NULL DEFAULT 0,
+    static_solution TEXT            -- JSON, last POST /captures/{id}/static
+);
+CREATE TABLE IF NOT EXISTS framesets (
+    capture_id TEXT NOT NULL REFERENCES captures(id),
+    frame INTEGER NOT NULL,
+    trigger_count INTEGER,
+    received REAL NOT NULL,
+    blobs TEXT NOT NULL,            -- JSON {camera id: blobs detected}
+    PRIMARY KEY (capture_id, frame)
+);
+CREATE TABLE IF NOT EXISTS jobs (
+    id TEXT PRIMARY KEY,
+    capture_id TEXT NOT NULL REFERENCES captures(id),
+    method TEXT NOT NULL,
+    options TEXT NOT NULL,
+    state TEXT NOT NULL,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    created REAL NOT NULL,
+    started REAL,
+    finished REAL,
+    progress TEXT,
+    result TEXT,
+    error TEXT,
+    cancel_requested INTEGER NOT NULL DEFAULT 0,
+    run_token TEXT,                 -- the claim that may write this job's outcome
+    worker_pid INTEGER,
+    solve_seconds REAL
+);
+CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, created);
+"""
+
+
+def init_db(path: Path) -> None:
+    """Create the database file and its tables if missing (idempotent)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with connect(path) as conn:
+        conn.execute("PRAGMA journal_mode=WAL")
+        conn.executescript(SCHEMA)
+
+
+@contextmanager
+def connect(path: Path) -> Iterator[sqlite3.Connection]:
+    """A connection in autocommit mode; use :func:`transaction` for multi-statement writes."""
+    conn = sqlite3.connect(path, timeout=BUSY_TIMEOUT_S, isolation_level=None)
+    conn.row_factory = sqlite3.Row
+    conn.execute("PRAGMA foreign_keys=ON")
+    try:
+        yield conn
+    finally:
+        conn.close()
+
+
+@contextmanager
+def transaction(path: Path) -> Iterator[sqlite3.Connection]:
+    """An immediate (write-locked) transaction: committed on success, rolled back on error."""
+    with connect(path) as conn:
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield conn
+        except BaseException:
+            conn.execute("ROLLBACK")
+            raise
+        conn.execute("COMMIT")

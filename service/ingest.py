@@ -1,0 +1,92 @@
+"""Frame-set images -> blob centres: decode each camera's image and run the blob detector.
+
+Images are checked against the rig's image size before they are decoded (PNG) and after
+(other formats), so a small file that claims a huge image cannot make the server allocate it.
+"""
+
+from __future__ import annotations
+
+import struct
+from concurrent.futures import ThreadPoolExecutor
+
+import cv2
+import numpy as np
+
+from calib.errors import CalibrationError
+from calib.rig import Camera
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# OpenCV's decoders release the GIL, so a frame set's images decode side by side; two threads
+# per core keep both cores busy while one thread waits on Python-level work.
+DECODE_THREADS = 4
+_pool: ThreadPoolExecutor | None = None
+
+
+def _executor() -> ThreadPoolExecutor:
+    global _pool
+    if _pool is None:
+        _pool = ThreadPoolExecutor(DECODE_THREADS, thread_name_prefix="wandcal-decode")
+    return _pool
+
+
+def png_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a PNG header, or None if ``data`` is not a PNG."""
+    if len(data) < 24 or not data.startswith(PNG_SIGNATURE) or data[12:16] != b"IHDR":
+        return None
+    return struct.unpack(">II", data[16:24])
+
+
+def decode_image(data: bytes, camera: Camera) -> np.ndarray:
+    """(H, W) uint8/uint16 grey image of ``camera`` from encoded bytes (PNG, TIFF, JPEG, ...)."""
+    where = f"image for camera {camera.id!r}"
+    size = png_size(data)
+    if size is not None and size != (camera.width, camera.height):
+        raise CalibrationError(
+            f"{where} is {size[0]}x{size[1]} but rig.json says {camera.width}x{camera.height}; "
+            "send full-resolution frames of that camera"
+        )
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    if image is None:
+        raise CalibrationError(f"{where} could not be decoded; send a PNG (8 or 16 bit grey)")
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    if image.shape != (camera.height, camera.width):
+        raise CalibrationError(
+            f"{where} is {image.shape[1]}x{image.shape[0]} but rig.json says {camera.width}x{camera.height}; "
+            "send full-resolution frames of that camera"
+        )
+    if image.dtype not in (np.uint8, np.uint16):
+        raise CalibrationError(f"{where} has pixel type {image.dtype}; send 8- or 16-bit grey images")
+    return image
+
+
+def detect_one(data: bytes, camera: Camera) -> np.ndarray:
+    """(K, 2) blob centres in pixels (origin top-left, y down) in one encoded image."""
+    from calib.detect import detect_blobs
+
+    return detect_blobs(decode_image(data, camera)).uv
+
+
+def detect_frameset(images: dict[str, bytes], cameras: dict[str, Camera]) -> dict[str, np.ndarray]:
+    """Blob centres per camera id of one synchronised frame set, detected in parallel."""
+    futures = {cid: _executor().submit(detect_one, data, cameras[cid]) for cid, data in images.items()}
+    return {cid: f.result() for cid, f in futures.items()}
+
+
+def detect_static(images: dict[str, list[bytes]], cameras: dict[str, Camera]) -> dict[str, np.ndarray]:
+    """Static-object marker positions per camera, averaged over each camera's images."""
+    from calib.detect import static_markers_from_frames
+
+    out = {}
+    for cid, datas in images.items():
+        frames = list(_executor().map(lambda d, c=cameras[cid]: detect_one(d, c), datas))
+        out[cid] = static_markers_from_frames(frames)
+    return out
+
+
+def detector_available() -> bool:
+    try:
+        from calib.detect import detect_blobs  # noqa: F401
+    except ImportError:
+        return False
+    return True

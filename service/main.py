@@ -1,0 +1,128 @@
+"""``create_app(settings)``: the FastAPI application. Nothing is created at import time.
+
+Run it with ``wandcal serve`` or ``uvicorn --factory service.main:app_from_env``.
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import Depends, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse
+from fastapi.staticfiles import StaticFiles
+
+from calib.errors import CalibrationError
+from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
+from service.api.deps import AppState, require_token
+from service.api.routes import captures, health, jobs
+from service.db import init_db
+from service.jobs import JobStore
+from service.limits import BodySizeLimit, RateLimiter
+from service.queue import JobQueue, SQLiteQueue
+from service.settings import Settings
+from service.storage import CaptureNotFound, CaptureStore, ReplayPathError
+
+API_PREFIX = "/api/v1"
+STATIC_DIR = Path(__file__).parent / "static"
+log = logging.getLogger("wandcal.service")
+
+
+def _queue(settings: Settings, store: JobStore, capture_store: CaptureStore) -> JobQueue:
+    if settings.queue == "redis":
+        from service.redis_queue import RedisQueue
+
+        def read_files(capture_id: str) -> dict[str, str | None]:
+            folder = capture_store.folder(capture_id)
+            static = folder / STATIC_FILE
+            return {
+                RIG_FILE: (folder / RIG_FILE).read_text(),
+                WAND_FILE: (folder / WAND_FILE).read_text(),
+                STATIC_FILE: static.read_text() if static.is_file() else None,
+            }
+
+        return RedisQueue(store, read_files, settings.redis_url, settings.redis_queue_name)
+    return SQLiteQueue(store, capture_store.load, settings.data_dir, settings.workers)
+
+
+def _validation_message(exc: RequestValidationError) -> str:
+    parts = []
+    for err in exc.errors():
+        where = ".".join(str(p) for p in err.get("loc", ()) if p != "body") or "body"
+        if err.get("type") == "json_invalid":
+            parts.append(f"the body is not valid JSON ({err.get('ctx', {}).get('error', 'parse error')})")
+        else:
+            parts.append(f"{where}: {err.get('msg')}")
+    return "; ".join(parts) or "invalid request"
+
+
+def create_app(settings: Settings) -> FastAPI:
+    """Build the app: database, capture store, job queue (started with the app), routes and page."""
+    data_dir = settings.data_dir.resolve()
+    settings = settings.model_copy(update={"data_dir": data_dir})
+    init_db(settings.db_path)
+    capture_store = CaptureStore(data_dir, settings.db_path, settings.replay_root)
+    capture_store.remove_partials()
+    queue = _queue(settings, JobStore(settings.db_path), capture_store)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        queue.start()
+        try:
+            yield
+        finally:
+            queue.stop()
+
+    app = FastAPI(
+        title="wandcal",
+        summary="Capture-and-calibrate service for multi-camera motion-capture rigs",
+        version="1",
+        lifespan=lifespan,
+    )
+    app.state.wandcal = AppState(
+        settings=settings, captures=capture_store, queue=queue, limiter=RateLimiter(settings.framesets_per_second)
+    )
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    secured = [Depends(require_token)]
+    app.include_router(health.router, prefix=API_PREFIX)
+    app.include_router(captures.router, prefix=API_PREFIX, dependencies=secured)
+    app.include_router(jobs.router, prefix=API_PREFIX, dependencies=secured)
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = [{k: v for k, v in e.items() if k in ("loc", "msg", "type")} for e in exc.errors()]
+        return JSONResponse({"detail": _validation_message(exc), "errors": errors}, status_code=422)
+
+    @app.exception_handler(CalibrationError)
+    async def bad_capture(request: Request, exc: CalibrationError) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=422)
+
+    @app.exception_handler(CaptureNotFound)
+    async def no_capture(request: Request, exc: CaptureNotFound) -> JSONResponse:
+        return JSONResponse({"detail": f"no capture with id {str(exc)!r}"}, status_code=404)
+
+    @app.exception_handler(ReplayPathError)
+    async def outside_root(request: Request, exc: ReplayPathError) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=403)
+
+    @app.exception_handler(Exception)
+    async def internal(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return JSONResponse(
+            {"detail": f"internal error ({type(exc).__name__}); this is a bug, the server log has the details"},
+            status_code=500,
+        )
+
+    @app.get("/", include_in_schema=False)
+    def page() -> FileResponse:
+        return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
+
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    return app
+
+
+def app_from_env() -> FastAPI:
+    """Factory for ``uvicorn --factory``: settings from ``WANDCAL_*`` and ``$WANDCAL_CONFIG``."""
+    return create_app(Settings.load())

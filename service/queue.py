@@ -1,0 +1,73 @@
+"""The job interface the API talks to, and its default backend: SQLite plus local worker processes.
+
+``JobQueue`` is what routes use; ``SQLiteQueue`` (here) and ``RedisQueue``
+(:mod:`service.redis_queue`) implement it. Job records always live in the service's SQLite
+database, so finished results survive whatever happens to the queue.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable, Protocol
+
+from capture.folder import Capture
+from service.jobs import JobRecord, JobStore
+from service.worker import WorkerPool, run_claim
+
+RESTART_REASON = "the server stopped while the job was running"
+
+
+class JobQueue(Protocol):
+    store: JobStore
+
+    def start(self) -> None:
+        """Recover after a restart and start executing jobs."""
+
+    def stop(self) -> None: ...
+
+    def submit(self, job: JobRecord) -> None:
+        """Queue a job whose record ``store.create`` has just written."""
+
+    def cancel(self, job_id: str) -> JobRecord | None: ...
+
+    def refresh(self, job_id: str) -> JobRecord | None:
+        """The job's record, brought up to date with the queue."""
+
+    def drain(self) -> list[JobRecord]:
+        """Run every queued job to its end in this process, oldest first (tests, benchmarks)."""
+
+
+class SQLiteQueue:
+    """The database is the queue: workers claim the oldest queued row in an immediate transaction."""
+
+    def __init__(self, store: JobStore, load_capture: Callable[[str], Capture], data_dir: Path, workers: int):
+        self.store = store
+        self.load_capture = load_capture
+        self.pool = WorkerPool(store, data_dir, workers) if workers > 0 else None
+
+    def start(self) -> None:
+        self.store.recover(RESTART_REASON)
+        if self.pool is not None:
+            self.pool.start()
+
+    def stop(self) -> None:
+        if self.pool is not None:
+            self.pool.stop()
+
+    def submit(self, job: JobRecord) -> None:
+        if self.pool is not None:
+            self.pool.notify()
+
+    def cancel(self, job_id: str) -> JobRecord | None:
+        return self.store.request_cancel(job_id)
+
+    def refresh(self, job_id: str) -> JobRecord | None:
+        return self.store.get(job_id)
+
+    def drain(self) -> list[JobRecord]:
+        done = []
+        while (claim := self.store.claim(os.getpid())) is not None:
+            run_claim(self.store, self.load_capture, claim)
+            done.append(self.store.get(claim.job.id))
+        return done

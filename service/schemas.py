@@ -1,0 +1,146 @@
+"""Request and response models: one per purpose (``JobCreate`` in, ``JobPublic`` out)."""
+
+from __future__ import annotations
+
+import enum
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from service.jobs import JobState
+
+
+class ErrorPublic(BaseModel):
+    """Every 4xx/5xx answer: a message that names the problem and says what to do."""
+
+    detail: str = Field(examples=["no capture with id 'abc'; list captures with GET /api/v1/captures"])
+
+
+class ValidationErrorPublic(ErrorPublic):
+    errors: list[dict[str, Any]] = Field(default_factory=list, description="one entry per invalid field")
+
+
+class CameraCoverage(BaseModel):
+    id: str
+    blobs: int = Field(description="wand blobs stored for this camera")
+    pairs: int = Field(description="frames in which this camera saw both wand markers")
+    framesets: dict[str, int] | None = Field(
+        None, description="streamed frame sets by blobs detected: '0', '1', '2', 'more'"
+    )
+
+
+class StaticCameraPublic(BaseModel):
+    id: str
+    ok: bool
+    R: list[list[float]] | None = Field(None, description="(3, 3) world->camera rotation")
+    t: list[float] | None = Field(None, description="(3,) world->camera translation, metres")
+    center: list[float] | None = Field(None, description="(3,) camera centre in the static object's frame, metres")
+    rms_px: float | None = Field(None, description="PnP reprojection RMS, pixels")
+    reason: str | None = Field(None, description="why PnP failed for this camera")
+
+
+class StaticSolutionPublic(BaseModel):
+    cameras: list[StaticCameraPublic]
+
+
+class CapturePublic(BaseModel):
+    id: str
+    created: float = Field(description="Unix time, seconds")
+    source: str = Field(description="'upload', 'replay' or 'stream' (rig.json alone, filled by frame sets)")
+    name: str
+    cameras: list[str]
+    frames: int = Field(description="distinct frames with wand blobs")
+    framesets: int = Field(description="frame sets received by POST /captures/{id}/framesets")
+    has_static: bool
+    coverage: list[CameraCoverage]
+    static_solution: StaticSolutionPublic | None = None
+
+
+class CaptureList(BaseModel):
+    captures: list[CapturePublic]
+
+
+class FrameSetPublic(BaseModel):
+    capture_id: str
+    frame: int
+    blobs: dict[str, int] = Field(description="blobs detected per camera")
+    wand_cameras: list[str] = Field(description="cameras that saw exactly two blobs and added wand rows")
+
+
+class Method(str, enum.Enum):
+    ba = "ba"
+    paper = "paper"
+    lp = "lp"
+
+
+class JobOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    use_static: bool = Field(True, description="use the capture's static object (if any) to fix the world frame")
+
+
+class JobCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    capture_id: str = Field(max_length=64)
+    method: Method = Method.ba
+    options: JobOptions = Field(default_factory=JobOptions)
+
+
+class JobProgress(BaseModel):
+    stage: str | None = None
+    iteration: int | None = None
+    cost: float | None = None
+    message: str | None = None
+
+
+class JobPublic(BaseModel):
+    id: str
+    capture_id: str
+    method: Method
+    options: JobOptions
+    state: JobState
+    attempts: int = Field(description="runs started; a job re-queued after a crash has 2")
+    created: float
+    started: float | None = None
+    finished: float | None = None
+    progress: JobProgress | None = None
+    error: str | None = None
+    cancel_requested: bool = False
+    result: dict[str, Any] | None = Field(None, description="the wandcal-result/1 document, once done")
+
+
+class JobSummary(BaseModel):
+    """A job without its result document (lists stay small)."""
+
+    id: str
+    capture_id: str
+    method: Method
+    state: JobState
+    attempts: int
+    created: float
+    finished: float | None = None
+    progress: JobProgress | None = None
+    error: str | None = None
+
+
+class JobList(BaseModel):
+    jobs: list[JobSummary]
+
+
+class ResultFormat(str, enum.Enum):
+    json = "json"
+    anipose_toml = "anipose-toml"
+    opencv_yaml = "opencv-yaml"
+    dlt_csv = "dlt-csv"
+
+
+class Health(BaseModel):
+    status: str = "ok"
+    version: str
+    queue: str
+    workers: int
+    jobs_queued: int
+    jobs_running: int
+    detector: bool = Field(description="frame-set detection is available")
+    solver: bool = Field(description="the calibration pipeline is available")

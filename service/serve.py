@@ -1,0 +1,50 @@
+"""``wandcal serve``: run the service under uvicorn."""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+from service.settings import Settings
+
+NO_TOKEN = (
+    "refusing to listen on {host}: a non-loopback address needs a bearer token. Set WANDCAL_TOKEN "
+    "(or 'token' in the settings file), or bind 127.0.0.1"
+)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("serve", help="run the HTTP API, the job workers and the rig page")
+    p.add_argument("--host", help="address to bind (default 127.0.0.1, or 'host' from the settings)")
+    p.add_argument("--port", type=int, help="port (default 8750)")
+    p.add_argument("--config", type=Path, help="settings TOML file (default $WANDCAL_CONFIG)")
+    p.add_argument("--data-dir", type=Path, help="data directory (default $WANDCAL_DATA_DIR or ./wandcal-data)")
+    p.add_argument("--workers", type=int, help="solver processes")
+    p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
+    p.set_defaults(run=run)
+
+
+def check_bind(settings: Settings) -> None:
+    if not settings.loopback and not settings.token:
+        raise PermissionError(NO_TOKEN.format(host=settings.host))
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from service.main import create_app
+
+    overrides = {
+        k: v for k, v in {"host": args.host, "port": args.port, "data_dir": args.data_dir, "workers": args.workers}.items()
+        if v is not None
+    }
+    settings = Settings.load(args.config, **overrides)
+    check_bind(settings)
+    # uploads larger than 1 MB spool to temporary files: keep those inside the data directory too
+    spool = settings.data_dir.resolve() / "tmp"
+    spool.mkdir(parents=True, exist_ok=True)
+    tempfile.tempdir = str(spool)
+    app = create_app(settings)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level, timeout_graceful_shutdown=10)
+    return 0

@@ -1,0 +1,92 @@
+"""Service settings: one ``BaseSettings``, read from ``WANDCAL_*`` environment variables or a TOML file.
+
+Precedence, highest first: keyword arguments, environment variables, the TOML file named by
+``WANDCAL_CONFIG`` (or passed to :meth:`Settings.load`), the defaults below.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
+
+DEFAULT_PORT = 8750
+DEFAULT_HOST = "127.0.0.1"  # loopback: a rig PC should not expose the API unless someone asks for it
+# 64 MiB holds a points-level capture of hours of waving (a row is ~30 bytes) and one frame set
+# of 8 uncompressed 1280x1024 8-bit images (~10 MiB), with room to spare.
+DEFAULT_MAX_UPLOAD_BYTES = 64 * 1024 * 1024
+# Lab cameras for wand calibration run at 30-120 Hz; streaming is usually decimated, and 60
+# frame sets per second per capture is above what detection keeps up with on a small PC.
+DEFAULT_FRAMESETS_PER_SECOND = 60.0
+
+
+class Settings(BaseSettings):
+    """Everything the service needs to know; nothing is created until :func:`service.main.create_app`."""
+
+    model_config = SettingsConfigDict(env_prefix="WANDCAL_", extra="forbid", validate_default=True)
+
+    data_dir: Path = Field(Path("wandcal-data"), description="SQLite database, stored captures and results")
+    replay_root: Path | None = Field(None, description="folder under which POST /captures may name capture folders")
+    token: str | None = Field(None, description="bearer token; required for a non-loopback bind")
+    host: str = DEFAULT_HOST
+    port: int = Field(DEFAULT_PORT, ge=1, le=65535)
+    max_upload_bytes: int = Field(DEFAULT_MAX_UPLOAD_BYTES, gt=0, description="largest request body, bytes")
+    framesets_per_second: float = Field(DEFAULT_FRAMESETS_PER_SECOND, gt=0, description="per-capture ingest limit")
+    workers: int = Field(1, ge=0, description="solver processes; 0 leaves jobs queued (tests call drain())")
+    queue: Literal["sqlite", "redis"] = "sqlite"
+    redis_url: str = "redis://127.0.0.1:6379/0"
+    redis_queue_name: str = "wandcal"
+
+    @classmethod
+    def load(cls, config_file: str | Path | None = None, **overrides) -> "Settings":
+        """Settings from ``overrides``, the environment and ``config_file`` (default ``$WANDCAL_CONFIG``)."""
+        path = config_file or os.environ.get("WANDCAL_CONFIG")
+        if path is not None and not Path(path).is_file():
+            raise FileNotFoundError(f"settings file {path} not found; see deploy/wandcal.toml for an example")
+        _TOML.file = Path(path) if path else None
+        try:
+            return cls(**overrides)
+        finally:
+            _TOML.file = None
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        sources = [init_settings, env_settings]
+        if _TOML.file is not None:
+            sources.append(TomlConfigSettingsSource(settings_cls, toml_file=_TOML.file))
+        return tuple(sources)
+
+    @property
+    def loopback(self) -> bool:
+        return is_loopback(self.host)
+
+    @property
+    def db_path(self) -> Path:
+        return self.data_dir / "wandcal.sqlite3"
+
+
+class _TOML:
+    """The TOML file of the :meth:`Settings.load` call in progress (pydantic-settings builds sources per class)."""
+
+    file: Path | None = None
+
+
+def is_loopback(host: str) -> bool:
+    """True for ``localhost`` and loopback addresses; a name that resolves elsewhere is not loopback."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False

@@ -1,0 +1,269 @@
+"""Captures stored under the data directory: a points-level capture folder per capture, plus a row.
+
+Layout: ``<data_dir>/captures/<id>/{rig.json, wand.csv, static.csv}`` (``docs/capture-format.md``).
+Capture ids are made here (32 hex digits) and checked before any path is built from one, so no
+request can point the store outside the data directory.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calib.rig import Rig, StaticObservations, WandObservations
+from capture.folder import (
+    STATIC_FILE,
+    WAND_FILE,
+    Capture,
+    CaptureFormatError,
+    parse_static_csv,
+    parse_wand_csv,
+    read_capture,
+    read_rig,
+    rig_from_json,
+    write_capture,
+)
+from service.db import connect, transaction
+
+CAPTURE_ID = re.compile(r"^[0-9a-f]{32}$")
+WAND_PAIR = 2  # a camera image showing exactly the wand's two markers contributes a wand observation
+
+
+class CaptureNotFound(LookupError):
+    pass
+
+
+class ReplayPathError(PermissionError):
+    """A replay path that is not a folder under the configured replay root."""
+
+
+class DuplicateFrameSet(ValueError):
+    """A frame set that conflicts with what the capture already holds (HTTP 409)."""
+
+
+@dataclass(frozen=True)
+class CaptureRow:
+    id: str
+    created: float
+    source: str
+    name: str
+    cameras: list[str]
+    counts: dict[str, dict[str, int]]
+    frames: int
+    framesets: int
+    has_static: bool
+    static_solution: dict | None
+
+    @classmethod
+    def from_row(cls, row) -> "CaptureRow":
+        return cls(
+            id=row["id"],
+            created=row["created"],
+            source=row["source"],
+            name=row["name"],
+            cameras=json.loads(row["cameras"]),
+            counts=json.loads(row["counts"]),
+            frames=row["frames"],
+            framesets=row["framesets"],
+            has_static=bool(row["has_static"]),
+            static_solution=json.loads(row["static_solution"]) if row["static_solution"] else None,
+        )
+
+    def cameras_seeing_wand(self) -> list[str]:
+        return [c for c in self.cameras if self.counts.get(c, {}).get("blobs", 0) > 0]
+
+
+def wand_counts(rig: Rig, wand: WandObservations) -> tuple[dict[str, dict[str, int]], int]:
+    """Per camera: blobs and frames with both wand markers; and the number of distinct frames."""
+    counts = {}
+    for i, cam in enumerate(rig.cameras):
+        frames = wand.frame[wand.camera == i]
+        _, per_frame = np.unique(frames, return_counts=True)
+        counts[cam.id] = {"blobs": int(len(frames)), "pairs": int(np.sum(per_frame == WAND_PAIR))}
+    return counts, int(len(np.unique(wand.frame)))
+
+
+class CaptureStore:
+    def __init__(self, data_dir: Path, db_path: Path, replay_root: Path | None):
+        self.root = Path(data_dir).resolve() / "captures"
+        self.db_path = db_path
+        self.replay_root = Path(replay_root).resolve() if replay_root else None
+        self._locks: dict[str, threading.Lock] = {}
+        self._locks_guard = threading.Lock()
+        self._rigs: dict[str, Rig] = {}
+
+    def folder(self, capture_id: str) -> Path:
+        if not CAPTURE_ID.match(capture_id):
+            raise CaptureNotFound(capture_id)
+        return self.root / capture_id
+
+    # -- creating -----------------------------------------------------------------------------
+    def create_from_texts(
+        self, rig_text: str, wand_text: str | None, static_text: str | None, name: str = "upload"
+    ) -> CaptureRow:
+        """Validate uploaded rig.json / wand.csv / static.csv texts and store them."""
+        try:
+            doc = json.loads(rig_text)
+        except json.JSONDecodeError as exc:
+            raise CaptureFormatError(f"rig.json: not valid JSON ({exc}); upload the rig description file") from None
+        rig = rig_from_json(doc)
+        wand = parse_wand_csv(wand_text, rig) if wand_text is not None else WandObservations([], [], np.zeros((0, 2)))
+        static = None
+        if static_text is not None:
+            static = parse_static_csv(static_text, rig)
+            if rig.static_markers is None:
+                raise CaptureFormatError(
+                    "static.csv: static blobs are given but rig.json has no 'static_object.markers_m'; "
+                    "add the static object's marker coordinates or leave static.csv out"
+                )
+        return self._store(Capture(rig=rig, wand=wand, static=static), "upload" if wand_text else "stream", name)
+
+    def create_from_replay(self, path: str) -> CaptureRow:
+        """Copy the capture folder ``path`` (relative to the replay root) into the store."""
+        if self.replay_root is None:
+            raise ReplayPathError("this server has no replay root; set WANDCAL_REPLAY_ROOT or upload the files")
+        if "\x00" in path:
+            raise ReplayPathError("the replay path contains a NUL byte")
+        folder = (self.replay_root / path).resolve()
+        if not folder.is_relative_to(self.replay_root):
+            raise ReplayPathError(
+                f"replay path {path!r} leads outside the replay root; give a folder under the replay root"
+            )
+        if not folder.is_dir():
+            raise CaptureFormatError(f"replay path {path!r}: no such folder under the replay root")
+        capture = read_capture(folder)
+        return self._store(capture, "replay", str(folder.relative_to(self.replay_root)))
+
+    def _store(self, capture: Capture, source: str, name: str) -> CaptureRow:
+        capture_id = uuid.uuid4().hex
+        final = self.folder(capture_id)
+        staging = self.root / f".{capture_id}.partial"  # a crash mid-write leaves no half capture behind
+        write_capture(staging, capture.rig, capture.wand, capture.static)
+        staging.rename(final)
+        counts, frames = wand_counts(capture.rig, capture.wand)
+        with connect(self.db_path) as conn:
+            conn.execute(
+                "INSERT INTO captures (id, created, source, name, cameras, counts, frames, has_static)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (
+                    capture_id, time.time(), source, name[:200], json.dumps(capture.rig.ids), json.dumps(counts),
+                    frames, int(capture.static is not None),
+                ),
+            )
+        return self.get(capture_id)
+
+    # -- reading ------------------------------------------------------------------------------
+    def get(self, capture_id: str) -> CaptureRow:
+        with connect(self.db_path) as conn:
+            row = conn.execute("SELECT * FROM captures WHERE id = ?", (capture_id,)).fetchone()
+        if row is None:
+            raise CaptureNotFound(capture_id)
+        return CaptureRow.from_row(row)
+
+    def list(self, limit: int = 100) -> list[CaptureRow]:
+        with connect(self.db_path) as conn:
+            rows = conn.execute("SELECT * FROM captures ORDER BY created DESC LIMIT ?", (limit,)).fetchall()
+        return [CaptureRow.from_row(r) for r in rows]
+
+    def load(self, capture_id: str) -> Capture:
+        self.get(capture_id)
+        return read_capture(self.folder(capture_id))
+
+    def rig(self, capture_id: str) -> Rig:
+        """The capture's rig (cached: a stored rig.json never changes)."""
+        rig = self._rigs.get(capture_id)
+        if rig is None:
+            self.get(capture_id)
+            rig = self._rigs[capture_id] = read_rig(self.folder(capture_id))
+        return rig
+
+    def frameset_coverage(self, capture_id: str) -> dict[str, dict[str, int]]:
+        """Per camera, how many received frame sets showed 0, 1, 2 or more blobs."""
+        with connect(self.db_path) as conn:
+            rows = conn.execute("SELECT blobs FROM framesets WHERE capture_id = ?", (capture_id,)).fetchall()
+        out: dict[str, dict[str, int]] = {}
+        for row in rows:
+            for cam, n in json.loads(row["blobs"]).items():
+                key = str(n) if n <= WAND_PAIR else "more"
+                slot = out.setdefault(cam, {"0": 0, "1": 0, "2": 0, "more": 0})
+                slot[key] += 1
+        return out
+
+    # -- streaming ----------------------------------------------------------------------------
+    def _lock(self, capture_id: str) -> threading.Lock:
+        with self._locks_guard:
+            return self._locks.setdefault(capture_id, threading.Lock())
+
+    def append_frameset(
+        self, capture_id: str, frame: int, trigger_count: int | None, blobs: dict[str, np.ndarray]
+    ) -> CaptureRow:
+        """Record one synchronised frame set: ``blobs`` maps camera id -> (K, 2) detected centres.
+
+        Cameras that saw exactly the wand's two markers append two wand.csv rows.
+        """
+        row = self.get(capture_id)
+        if row.source != "stream":
+            raise DuplicateFrameSet(
+                f"capture {capture_id} was created from files ({row.source}); stream frame sets into a capture "
+                "created by uploading rig.json alone"
+            )
+        folder = self.folder(capture_id)
+        with self._lock(capture_id), transaction(self.db_path) as conn:
+            exists = conn.execute(
+                "SELECT 1 FROM framesets WHERE capture_id = ? AND frame = ?", (capture_id, frame)
+            ).fetchone()
+            if exists:
+                raise DuplicateFrameSet(f"frame {frame} of capture {capture_id} was already received")
+            counts = row.counts
+            lines = []
+            for cam, uv in blobs.items():
+                if len(uv) == WAND_PAIR:
+                    lines += [f"{frame},{cam},{u:.4f},{v:.4f}\n" for u, v in uv]
+                    counts[cam]["blobs"] += WAND_PAIR
+                    counts[cam]["pairs"] += 1
+            new_frame = bool(lines)  # frame sets are unique per frame, checked above
+            conn.execute(
+                "INSERT INTO framesets (capture_id, frame, trigger_count, received, blobs) VALUES (?, ?, ?, ?, ?)",
+                (capture_id, frame, trigger_count, time.time(), json.dumps({c: len(uv) for c, uv in blobs.items()})),
+            )
+            conn.execute(
+                "UPDATE captures SET counts = ?, frames = frames + ?, framesets = framesets + 1 WHERE id = ?",
+                (json.dumps(counts), int(new_frame), capture_id),
+            )
+            if lines:
+                # appended before COMMIT: a failed append rolls the row back with it
+                with open(folder / WAND_FILE, "a") as fh:
+                    fh.writelines(lines)
+        return self.get(capture_id)
+
+    def set_static(self, capture_id: str, static: StaticObservations, rig: Rig) -> None:
+        """Replace the capture's static.csv with freshly detected static blobs."""
+        folder = self.folder(capture_id)
+        ids = rig.ids
+        text = "camera,u,v\n" + "".join(f"{ids[c]},{u:.4f},{v:.4f}\n" for c, (u, v) in zip(static.camera, static.uv))
+        tmp = folder / (STATIC_FILE + ".partial")
+        tmp.write_text(text)
+        tmp.replace(folder / STATIC_FILE)
+        with connect(self.db_path) as conn:
+            conn.execute("UPDATE captures SET has_static = 1 WHERE id = ?", (capture_id,))
+
+    def set_static_solution(self, capture_id: str, solution: dict) -> None:
+        with connect(self.db_path) as conn:
+            conn.execute(
+                "UPDATE captures SET static_solution = ? WHERE id = ?", (json.dumps(solution), capture_id)
+            )
+
+    def remove_partials(self) -> None:
+        """Delete staging folders left by a crash mid-upload."""
+        if self.root.is_dir():
+            for p in self.root.glob(".*.partial"):
+                shutil.rmtree(p, ignore_errors=True)
+        self.root.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,184 @@
+"""Running calibration jobs: one function shared by worker processes, ``drain()`` and Redis workers.
+
+Worker processes are started with the ``spawn`` method (a clean interpreter, no inherited
+locks or sockets) and die with the server (``PR_SET_PDEATHSIG``), so a killed server leaves no
+solver writing behind its back; the restarted server re-queues the job instead.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import multiprocessing
+import os
+import signal
+import threading
+import time
+import traceback
+from pathlib import Path
+from typing import Callable
+
+from calib.errors import CalibrationError
+from capture.folder import Capture
+from service.jobs import Claim, JobState, JobStore
+
+log = logging.getLogger("wandcal.worker")
+
+PROGRESS_INTERVAL_S = 0.2  # write progress at most this often: the page polls every second
+POLL_INTERVAL_S = 0.25  # an idle worker looks for work this often (and at once when woken)
+MONITOR_INTERVAL_S = 0.5  # the pool checks for dead workers and overdue cancellations this often
+CANCEL_GRACE_S = 2.0  # a running job asked to cancel is killed if it has not stopped by then
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+class JobStopped(Exception):
+    """Raised from the progress callback to abort ``calibrate`` (cancelled, or the job was lost)."""
+
+
+def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict], None]) -> dict:
+    """Calibrate a capture; returns the ``wandcal-result/1`` document."""
+    from calib.pipeline import calibrate  # the solver; imported here so the API process never loads it
+
+    static = capture.static if options.get("use_static", True) else None
+    result = calibrate(capture.rig, capture.wand, static=static, method=method, progress=progress)
+    return result.to_json()
+
+
+class ThrottledProgress:
+    """The progress callback: forwards at most one report per interval, and stops the solve when told."""
+
+    def __init__(self, report: Callable[[dict], bool], interval_s: float = PROGRESS_INTERVAL_S):
+        self.report = report
+        self.interval_s = interval_s
+        self.last = 0.0
+
+    def __call__(self, update: dict) -> None:
+        now = time.monotonic()
+        if now - self.last < self.interval_s:
+            return
+        self.last = now
+        clean = {k: update[k] for k in ("stage", "iteration", "cost", "message") if k in update}
+        if self.report(clean):
+            raise JobStopped()
+
+
+def run_claim(store: JobStore, load_capture: Callable[[str], Capture], claim: Claim) -> None:
+    """Run one claimed job to its outcome and record it (unless the claim was lost meanwhile)."""
+    job, token = claim.job, claim.token
+    progress = ThrottledProgress(lambda p: store.report_progress(job.id, token, p))
+    started = time.perf_counter()
+    try:
+        capture = load_capture(job.capture_id)
+        result = solve(capture, job.method, job.options, progress)
+    except JobStopped:
+        current = store.get(job.id)
+        if current is not None and current.cancel_requested:
+            store.finish(job.id, token, JobState.cancelled, error="cancelled while running")
+        return
+    except CalibrationError as exc:
+        store.finish(job.id, token, JobState.failed, error=str(exc))
+        return
+    except Exception as exc:  # a solver bug: keep the worker alive and say what happened
+        log.error("job %s failed:\n%s", job.id, traceback.format_exc())
+        store.finish(
+            job.id, token, JobState.failed,
+            error=f"internal error {type(exc).__name__}: {exc}; this is a bug, please report it with the capture",
+        )
+        return
+    store.finish(job.id, token, JobState.done, result=result, solve_seconds=time.perf_counter() - started)
+
+
+def _die_with_parent() -> None:
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        pass  # not Linux: the parent-pid check in the loop still ends the worker
+
+
+def worker_main(db_path: str, data_dir: str, wake, stop) -> None:
+    """Entry point of a spawned worker process: claim and run jobs until told to stop."""
+    _die_with_parent()
+    parent = os.getppid()
+    from service.storage import CaptureStore
+
+    store = JobStore(Path(db_path))
+    captures = CaptureStore(Path(data_dir), Path(db_path), None)
+    try:
+        import calib.pipeline  # noqa: F401  (load the solver before the first job, not during it)
+    except ImportError:
+        pass
+    while not stop.is_set() and os.getppid() == parent:
+        claim = store.claim(os.getpid())
+        if claim is None:
+            if wake.wait(POLL_INTERVAL_S):
+                wake.clear()
+            continue
+        run_claim(store, captures.load, claim)
+
+
+class WorkerPool:
+    """N solver processes plus a monitor thread that replaces dead ones and enforces cancellation."""
+
+    def __init__(self, store: JobStore, data_dir: Path, size: int):
+        self.store = store
+        self.data_dir = data_dir
+        self.size = size
+        self.ctx = multiprocessing.get_context("spawn")
+        self.wake = self.ctx.Event()
+        self.stop_event = self.ctx.Event()
+        self.procs: list = []
+        self._monitor: threading.Thread | None = None
+        self._halt = threading.Event()
+        self._cancel_seen: dict[str, float] = {}
+
+    def _spawn(self):
+        proc = self.ctx.Process(
+            target=worker_main,
+            args=(str(self.store.db_path), str(self.data_dir), self.wake, self.stop_event),
+            name="wandcal-worker",
+            daemon=True,
+        )
+        proc.start()
+        return proc
+
+    def start(self) -> None:
+        self.procs = [self._spawn() for _ in range(self.size)]
+        self._monitor = threading.Thread(target=self._watch, name="wandcal-pool-monitor", daemon=True)
+        self._monitor.start()
+
+    def notify(self) -> None:
+        self.wake.set()
+
+    def _watch(self) -> None:
+        while not self._halt.wait(MONITOR_INTERVAL_S):
+            self._enforce_cancellations()
+            for i, proc in enumerate(self.procs):
+                if proc.is_alive() or self._halt.is_set():
+                    continue
+                self.store.recover(f"its worker process exited unexpectedly (exit code {proc.exitcode})", [proc.pid])
+                self.procs[i] = self._spawn()
+
+    def _enforce_cancellations(self) -> None:
+        now = time.monotonic()
+        pending = self.store.cancelling()
+        self._cancel_seen = {j: self._cancel_seen.get(j, now) for j in pending}
+        for job_id, pid in pending.items():
+            if now - self._cancel_seen[job_id] > CANCEL_GRACE_S:
+                for proc in self.procs:
+                    if proc.pid == pid and proc.is_alive():
+                        proc.kill()  # the monitor then records the job as cancelled and respawns
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        self._halt.set()
+        self.stop_event.set()
+        self.wake.set()
+        if self._monitor is not None:
+            self._monitor.join(timeout_s)
+        for proc in self.procs:
+            proc.join(timeout_s)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+        pids = [p.pid for p in self.procs]
+        if pids:
+            self.store.recover("the server stopped while the job was running", pids)
