@@ -1,0 +1,274 @@
+"""Run a capture: camera reader threads, the trigger, frame-set assembly and the recorder.
+
+Memory bound (docs/capture-format.md, "Image-level capture"): frames wait in three places,
+each bounded in time at the trigger rate: the inbox from the reader threads
+(:data:`INBOX_SECONDS`), the assembler, which a camera may lead by at most :data:`LEAD_SECONDS`
+before its reader waits, and the writer queue (:data:`WRITE_SECONDS`). At 8 cameras and
+100 fps that is at most 2 s of frames (1600 frames, ~2.1 GB at 1280x1024 8-bit); see
+:func:`buffer_frames`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from calib.rig import Rig
+from capture.record import Recorder
+from capture.sync import Assembler, FrameSet
+from capture.writer import ImageWriter
+from drivers.camera import CameraDriver, TriggerMode
+from drivers.errors import DriverError, FrameError, FrameTimeout
+from drivers.trigger import SerialTrigger, TriggerLost
+
+INBOX_SECONDS = 0.25
+LEAD_SECONDS = 0.5
+WRITE_SECONDS = 1.25
+MIN_BUFFER_FRAMES = 8  # per camera, so slow rates still absorb a hiccup of the disk
+READ_TIMEOUT_S = 0.2  # how soon a reader thread notices the stop flag while its camera waits for a pulse
+_END = object()
+
+
+def buffer_frames(rate_hz: float, cameras: int, seconds: float) -> int:
+    """Frames that ``seconds`` of capture hold at ``rate_hz`` with ``cameras`` cameras."""
+    return max(MIN_BUFFER_FRAMES * cameras, int(round(seconds * rate_hz * cameras)))
+
+
+@dataclass
+class CaptureResult:
+    """What a capture recorded. ``error`` is the fault that ended it early (None when complete)."""
+
+    folder: Path
+    static_sets: int
+    frame_sets: int
+    complete_sets: int
+    per_camera: dict[str, dict] = field(default_factory=dict)
+    messages: list[str] = field(default_factory=list)
+    error: str | None = None
+    writer_high_water: int = 0
+    writer_bound: int = 0
+
+
+@dataclass
+class Progress:
+    """A snapshot for a progress display."""
+
+    phase: str
+    sets: int
+    total: int
+    fps: float
+    missed: dict[str, int]
+
+
+class _Readers:
+    """One thread per camera feeding ``(camera, frame | FrameError | _END)`` into the inbox."""
+
+    def __init__(self, cameras: list[CameraDriver], inbox: queue.Queue, assembler: Assembler, max_lead: int):
+        self.stop = threading.Event()
+        self.threads = [threading.Thread(target=self._run, args=(i, cam, inbox, assembler, max_lead),
+                                         name=f"read-{cam.camera_id}", daemon=True) for i, cam in enumerate(cameras)]
+        for t in self.threads:
+            t.start()
+
+    def _run(self, i: int, cam: CameraDriver, inbox: queue.Queue, assembler: Assembler, max_lead: int) -> None:
+        while not self.stop.is_set():
+            if assembler.lead(i) > max_lead:
+                time.sleep(0.002)  # the others are behind: wait instead of piling frames up
+                continue
+            try:
+                item = cam.read(timeout=READ_TIMEOUT_S)
+            except FrameTimeout:
+                continue
+            except DriverError as exc:
+                item = exc
+            self._put(inbox, (i, _END if item is None else item))
+            if item is None or (isinstance(item, DriverError) and not isinstance(item, FrameError)):
+                return
+
+    def _put(self, inbox: queue.Queue, item) -> None:
+        while not self.stop.is_set():
+            try:
+                inbox.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+
+    def join(self) -> None:
+        self.stop.set()
+        for t in self.threads:
+            t.join(timeout=2.0)
+
+
+def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path, rig: Rig, frames: int,
+           static_frames: int = 0, rate_hz: float = 100.0, progress: Callable[[Progress], None] | None = None,
+           between: Callable[[], None] | None = None, events: Callable[[str], None] | None = None,
+           clock: Callable[[], float] = time.monotonic) -> CaptureResult:
+    """Record ``static_frames`` sets of the static object, then ``frames`` wand sets, into ``out``.
+
+    Args:
+        cameras: drivers in the order of ``rig.cameras`` (ids must match).
+        trigger: the strobe box, or None for free-running cameras matched by sequence number.
+        rate_hz: trigger rate; also the free-run rate asked of the cameras.
+        progress: called a few times a second with a :class:`Progress`.
+        between: called after the static recording, before the wand run (e.g. "remove the
+            L-frame, then press Enter").
+        events: receives drift / realignment / fault messages as they happen.
+
+    Returns:
+        :class:`CaptureResult`; a vanished trigger port or a failed camera ends the capture
+        early with ``error`` set and everything recorded until then kept on disk.
+    """
+    ids = [c.camera_id for c in cameras]
+    if ids != rig.ids:
+        raise DriverError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give one "
+                          "--camera per rig camera, in the same order, with matching ids (?id=...)")
+    n = len(cameras)
+    writer = ImageWriter(buffer_frames(rate_hz, n, WRITE_SECONDS))
+    recorder = Recorder(out, rig, writer, triggered=trigger is not None)
+    messages: list[str] = []
+
+    def say(message: str) -> None:
+        messages.append(message)
+        if events:
+            events(message)
+
+    assembler = Assembler(ids, triggered=trigger is not None, clock=clock, events=say)
+    inbox: queue.Queue = queue.Queue(maxsize=buffer_frames(rate_hz, n, INBOX_SECONDS))
+    error: str | None = None
+    total = static_frames + frames
+    with contextlib.ExitStack() as stack:
+        try:
+            for cam in cameras:
+                stack.enter_context(cam)
+                cam.configure(trigger_mode=TriggerMode.EXTERNAL if trigger else TriggerMode.FREE_RUN, fps=rate_hz)
+            if trigger is not None:
+                stack.enter_context(trigger)
+                trigger.set_rate(rate_hz)
+        except BaseException:
+            recorder.close({"error": "the cameras or the trigger could not be set up"})
+            raise
+        readers = _Readers(cameras, inbox, assembler, buffer_frames(rate_hz, 1, LEAD_SECONDS))
+        loop = _Loop(assembler, recorder, trigger, cameras, inbox, static_frames, total, say, clock)
+        try:
+            if trigger is not None:
+                trigger.start(static_frames or frames)
+            error = loop.run(progress, between, frames)
+        except KeyboardInterrupt:
+            error = "interrupted by the user"
+            loop.flush()
+        finally:
+            readers.join()
+            per_camera = {cid: _camera_stats(assembler, i) for i, cid in enumerate(ids)}
+            result = CaptureResult(out, recorder.static_sets, recorder.frame_sets, loop.complete, per_camera,
+                                   messages, error, writer.high_water, writer.max_queued)
+            recorder.close({"static_sets": result.static_sets, "frame_sets": result.frame_sets,
+                            "complete_sets": result.complete_sets, "cameras": per_camera,
+                            "messages": messages, "error": error, "rate_hz": rate_hz,
+                            "writer_queue": {"bound": writer.max_queued, "high_water": writer.high_water}})
+    return result
+
+
+def _camera_stats(assembler: Assembler, i: int) -> dict:
+    cam = assembler.cameras[i]
+    drift = cam.drift_ppm()
+    return {"delivered": cam.delivered, "missed": cam.missed, "unreadable": cam.lost, "realigned": cam.realigned,
+            "misaligned": cam.misaligned, "clock_drift_ppm": None if drift is None else round(drift, 2)}
+
+
+class _Loop:
+    """The capture's main loop: pulses and frames in, finished sets to the recorder."""
+
+    def __init__(self, assembler: Assembler, recorder: Recorder, trigger: SerialTrigger | None,
+                 cameras: list[CameraDriver], inbox: queue.Queue, static_frames: int, total: int, say, clock):
+        self.asm, self.rec, self.trigger, self.inbox = assembler, recorder, trigger, inbox
+        self.static_frames, self.total, self.say, self.clock = static_frames, total, say, clock
+        self.done = 0
+        self.complete = 0
+        # Simulated cameras have a software trigger input; the pulses reach it here, as the
+        # cable from the strobe box reaches a real camera's trigger input.
+        self.wired = [c for c in cameras if hasattr(c, "trigger_input")] if trigger is not None else []
+        self.failed: list[str] = []
+
+    def run(self, progress, between, frames: int) -> str | None:
+        started = self.clock()
+        error = None
+        while self.done < self.total:
+            if self.trigger is not None and not self.asm.pulses_ended:
+                error = self._take_pulses() or error
+            self._take_frames()
+            before = self.done
+            self._emit(self.asm.ready())
+            if before < self.static_frames <= self.done and self.trigger is not None and error is None:
+                if between:
+                    between()
+                self.trigger.start(frames)
+            if all(c.ended for c in self.asm.cameras):
+                self.flush()
+                if self.done < self.total and error is None:
+                    error = f"the cameras ran out of frames after {self.done} of {self.total} sets"
+                break
+            if self.asm.finished():
+                break
+            if progress:
+                elapsed = max(self.clock() - started, 1e-9)
+                phase = "static" if self.done < self.static_frames else "wand"
+                progress(Progress(phase, self.done, self.total, self.done / elapsed,
+                                  {cid: c.missed + c.lost for cid, c in zip(self.asm.camera_ids, self.asm.cameras)}))
+        if self.failed:
+            error = error or "; ".join(self.failed)
+        return error
+
+    def _take_pulses(self) -> str | None:
+        try:
+            while (pulse := self.trigger.next_pulse(timeout=0)) is not None:
+                self.asm.add_pulse(pulse.counter, pulse.t_us)
+                for cam in self.wired:
+                    cam.trigger_input(pulse.counter, pulse.t_us)
+        except TriggerLost as exc:
+            self.asm.end_pulses()
+            self.say(str(exc))
+            return str(exc)
+        return None
+
+    def _take_frames(self) -> None:
+        try:
+            item = self.inbox.get(timeout=0.01)
+        except queue.Empty:
+            return
+        while True:
+            i, payload = item
+            if payload is _END:
+                self.asm.end_camera(i)
+            elif isinstance(payload, FrameError):
+                self.asm.add_lost(i, payload.sequence)
+                self.say(str(payload))
+            elif isinstance(payload, DriverError):
+                self.asm.end_camera(i)
+                self.failed.append(str(payload))
+                self.say(str(payload))
+            else:
+                self.asm.add_frame(i, payload)
+            try:
+                item = self.inbox.get_nowait()
+            except queue.Empty:
+                return
+
+    def flush(self) -> None:
+        self._take_frames()
+        self._emit(self.asm.ready(flush=True))
+
+    def _emit(self, sets: list[FrameSet]) -> None:
+        for fs in sets:
+            if self.done >= self.total:
+                return
+            if self.done < self.static_frames:
+                self.rec.add_static(fs)
+            else:
+                self.rec.add_frames(fs)
+            self.complete += fs.complete
+            self.done += 1

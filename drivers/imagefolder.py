@@ -1,0 +1,80 @@
+"""File layout of the image level of a ``wandcal-capture/1`` folder (docs/capture-format.md).
+
+The replay driver reads it and ``capture/`` writes it, so the names live here, below both.
+
+    rig.json
+    sync.csv                      frame,trigger_count,trigger_us,<camera_id>_ts...
+    frames/<camera_id>/<frame:06d>.png
+    static/<camera_id>/<n:06d>.png
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+FRAMES_DIR = "frames"
+STATIC_DIR = "static"
+SYNC_FILE = "sync.csv"
+SYNC_FIXED = ("frame", "trigger_count", "trigger_us")
+TS_SUFFIX = "_ts"
+IMAGE_SUFFIX = ".png"
+
+
+def image_path(folder: Path, phase: str, camera_id: str, index: int) -> Path:
+    """Path of one image; ``phase`` is :data:`FRAMES_DIR` or :data:`STATIC_DIR`."""
+    return Path(folder) / phase / camera_id / f"{index:06d}{IMAGE_SUFFIX}"
+
+
+def sync_header(camera_ids: list[str]) -> list[str]:
+    return [*SYNC_FIXED, *(f"{c}{TS_SUFFIX}" for c in camera_ids)]
+
+
+@dataclass(frozen=True)
+class SyncRow:
+    """One frame set: pulse counter and time (None without a trigger) and each camera's
+    timestamp in microseconds (None where that camera missed the pulse)."""
+
+    frame: int
+    trigger_count: int | None
+    trigger_us: int | None
+    camera_us: dict[str, int | None]
+
+
+def read_sync(folder: Path) -> list[SyncRow] | None:
+    """The rows of ``sync.csv``, or None when the folder has none. Errors name the line."""
+    path = Path(folder) / SYNC_FILE
+    if not path.is_file():
+        return None
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None or tuple(header[:3]) != SYNC_FIXED:
+            raise ValueError(f"{path}: the header must start with {','.join(SYNC_FIXED)}")
+        cams = [h[: -len(TS_SUFFIX)] for h in header[3:]]
+        rows = []
+        for line, cells in enumerate(reader, start=2):
+            if not cells:
+                continue
+            try:
+                values = [int(c) if c.strip() else None for c in cells]
+            except ValueError:
+                raise ValueError(f"{path} line {line}: {cells} holds a cell that is not a whole number") from None
+            values += [None] * (len(header) - len(values))
+            rows.append(SyncRow(values[0], values[1], values[2], dict(zip(cams, values[3:]))))
+    return rows
+
+
+def listed_cameras(folder: Path, phase: str = FRAMES_DIR) -> list[str]:
+    """Camera folders present under ``phase``, sorted."""
+    root = Path(folder) / phase
+    return sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
+
+
+def listed_indices(folder: Path, phase: str, camera_id: str) -> list[int]:
+    """Sorted image numbers present for one camera."""
+    root = Path(folder) / phase / camera_id
+    if not root.is_dir():
+        return []
+    return sorted(int(p.stem) for p in root.glob(f"*{IMAGE_SUFFIX}") if p.stem.isdigit())

@@ -1,0 +1,238 @@
+"""Simulated IR cameras: ``sim://?cameras=4&seed=1&frames=300&static=25&drop=cam2:17``.
+
+The twin of a triggered rig. The scene comes from :mod:`calib.simulate` (cameras on a ring, a
+smooth wand path, the L-frame :data:`~calib.simulate.L_FRAME_M` on the floor) and each frame is
+drawn with :func:`calib.detect.render_blobs`. Sequence numbers count frames from 0: the first
+``static`` frames show the L-frame alone (the static recording), the next ``frames`` the wand
+(and, with ``lframe=keep``, the L-frame still lying on the floor).
+
+Query options: ``cameras`` (4), ``seed`` (0), ``frames`` (300), ``static`` (0), ``drop`` (lost
+frames, ``cam2:17,cam3:40-45`` by sequence number), ``noise`` (read noise, grey levels; 2),
+``lframe`` (``remove`` or ``keep``), ``bits`` (8 or 16).
+"""
+
+from __future__ import annotations
+
+import queue
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.detect import RENDER_HALF_WIDTH_SIGMAS, render_blobs
+from calib.geometry import depth, distort_points, project_normalized
+from calib.rig import Rig
+from calib.simulate import L_FRAME_M, Truth, simulate_capture
+from drivers.camera import CameraDriver, CameraSettings, Frame, TriggerMode
+from drivers.errors import DriverError, FrameTimeout
+
+# A 14 mm retro-reflective marker, the common mocap size: its image radius f * r / z is ~2.5 px
+# at 3 m for f ~ 1100 px. The spot is drawn as a Gaussian of that sigma, clipped to the 1.5-2.5 px
+# of real IR footage (optics blur keeps far markers from getting smaller than that).
+MARKER_RADIUS_M = 0.007
+SIGMA_RANGE_PX = (1.5, 2.5)
+PEAK_8BIT = 200.0  # bright but not saturated, as an IR camera's exposure is set for markers
+BACKGROUND_8BIT = 8.0  # a dark IR-filtered background
+DEFAULT_PERIOD_US = 10_000  # the camera clock's frame period without a configured rate: 100 fps
+CLOCK_PPM = 30.0  # crystal tolerance of a camera clock: timestamps drift by up to this much
+NOISE_FRAMES = 4  # precomputed background-noise frames per camera, cycled (noise is 5% of the cost)
+
+
+@dataclass(eq=False)
+class SimScene:
+    """Everything the simulated cameras share: rig, truth and the frame script."""
+
+    rig: Rig
+    truth: Truth
+    static_frames: int
+    wand_frames: int
+    keep_lframe: bool = False
+    noise: float = 2.0
+    bits: int = 8
+    drops: dict[str, set[int]] = field(default_factory=dict)
+    seed: int = 0
+
+    @property
+    def total_frames(self) -> int:
+        return self.static_frames + self.wand_frames
+
+    def points(self, sequence: int) -> np.ndarray:
+        """(P, 3) marker positions in the world at frame ``sequence``, metres."""
+        if sequence < self.static_frames:
+            return L_FRAME_M
+        wand = self.truth.wand[sequence - self.static_frames]
+        return np.vstack([wand, L_FRAME_M]) if self.keep_lframe else wand
+
+    def spots(self, index: int, sequence: int) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel centres (K, 2) and Gaussian sigmas (K,) of the markers camera ``index`` sees."""
+        cam = self.rig.cameras[index]
+        R, t = self.truth.R[index], self.truth.t[index]
+        pts = self.points(sequence)
+        z = depth(R, t, pts)
+        front = z > 0.1
+        uv = distort_points(cam, project_normalized(R, t, pts[front]))
+        sigma = np.clip(cam.K[0, 0] * MARKER_RADIUS_M / z[front], *SIGMA_RANGE_PX)
+        return uv, sigma
+
+
+class SimCamera(CameraDriver):
+    """One simulated camera of a :class:`SimScene`.
+
+    In external-trigger mode the camera exposes once per pulse on its simulated trigger input,
+    :meth:`trigger_input`, which ``capture/`` wires to the strobe trigger's pulses as the cable
+    would; its timestamps are then the pulse times on its own (offset, slightly fast or slow)
+    clock. In free-run mode frames are paced at ``settings.fps``, or come as fast as they can be
+    drawn when it is None. ``clock``/``sleep`` are injected for tests.
+    """
+
+    def __init__(self, camera_id: str, url: str, scene: SimScene, index: int,
+                 clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
+        super().__init__(camera_id, url)
+        self.scene = scene
+        self.index = index
+        self.intrinsics = scene.rig.cameras[index]
+        self._clock, self._sleep = clock, sleep
+        rng = np.random.default_rng([scene.seed, index])
+        self._rng = rng
+        self._clock_offset_us = int(rng.integers(0, 10**9))
+        self._clock_scale = 1.0 + rng.uniform(-CLOCK_PPM, CLOCK_PPM) * 1e-6
+        self._next = 0
+        self._start: float | None = None
+        self._backgrounds: list[np.ndarray] = []
+        self._line: queue.Queue[tuple[int, int]] = queue.Queue()
+        self._first_counter: int | None = None
+
+    def trigger_input(self, counter: int, t_us: int) -> None:
+        """A pulse on the trigger input: pulse ``counter`` of the strobe box at ``t_us`` (its clock)."""
+        self._line.put((counter, t_us))
+
+    def _open(self) -> None:
+        self._next = 0
+        self._start = None
+        self._first_counter = None
+        self._line = queue.Queue()
+        cam = self.intrinsics
+        scale = (1 << (self.scene.bits - 8))
+        empty = np.zeros((0, 2))
+        self._backgrounds = [
+            render_blobs((cam.height, cam.width), empty, 2.0, PEAK_8BIT * scale, BACKGROUND_8BIT * scale,
+                         self.scene.noise * scale, self.scene.bits, self._rng)
+            for _ in range(NOISE_FRAMES)
+        ]
+
+    def _close(self) -> None:
+        self._backgrounds = []
+
+    def _apply(self, settings: CameraSettings) -> None:
+        cam = self.intrinsics
+        for name, want, have in (("width", settings.width, cam.width), ("height", settings.height, cam.height)):
+            if want is not None and want != have:
+                raise DriverError(f"camera {self.camera_id}: the simulated sensor is {cam.width}x{cam.height}; "
+                                  f"{name}={want} is not available")
+
+    def _read(self, timeout: float | None) -> Frame | None:
+        drops = self.scene.drops.get(self.camera_id, ())
+        while True:
+            if self._next >= self.scene.total_frames:
+                return None
+            if self.settings.trigger_mode is TriggerMode.EXTERNAL:
+                seq, stamp = self._wait_pulse(timeout)
+            else:
+                seq, stamp = self._next, None
+                self._next += 1
+            if seq not in drops:
+                break  # a dropped frame was exposed but lost in transfer: a gap in the sequence
+        if seq >= self.scene.total_frames:
+            return None
+        if stamp is None:
+            self._pace(seq)
+            stamp = seq * self._period_us()
+        return Frame(image=self.render(seq), sequence=seq, timestamp_us=self._clock_us(stamp),
+                     camera_id=self.camera_id)
+
+    def _wait_pulse(self, timeout: float | None) -> tuple[int, int]:
+        try:
+            counter, t_us = self._line.get(timeout=timeout)
+        except queue.Empty:
+            raise FrameTimeout(f"camera {self.camera_id}: no trigger pulse within {timeout:.2f} s") from None
+        if self._first_counter is None:
+            self._first_counter = counter
+        seq = counter - self._first_counter  # a pulse whose line the host lost still exposed a frame
+        self._next = seq + 1
+        return seq, t_us
+
+    def render(self, sequence: int) -> np.ndarray:
+        """(H, W) image of frame ``sequence``: spots drawn in small patches on a noisy background."""
+        uv, sigma = self.scene.spots(self.index, sequence)
+        out = self._backgrounds[sequence % NOISE_FRAMES].copy()
+        height, width = out.shape
+        peak = PEAK_8BIT * (1 << (self.scene.bits - 8))
+        full_scale = (1 << self.scene.bits) - 1
+        for (u, v), s in zip(uv, sigma):
+            # The patch reaches as far as render_blobs itself draws a spot (its 6-sigma window).
+            half = int(np.ceil(RENDER_HALF_WIDTH_SIGMAS * s)) + 2
+            x0, y0 = max(int(u) - half, 0), max(int(v) - half, 0)
+            x1, y1 = min(int(u) + half + 1, width), min(int(v) + half + 1, height)
+            if x0 >= x1 or y0 >= y1:
+                continue
+            spot = render_blobs((y1 - y0, x1 - x0), [(u - x0, v - y0)], s, peak, 0.0, 0.0, self.scene.bits)
+            patch = out[y0:y1, x0:x1].astype(np.int32) + spot
+            out[y0:y1, x0:x1] = np.minimum(patch, full_scale)
+        return out
+
+    def _period_us(self) -> float:
+        return 1e6 / self.settings.fps if self.settings.fps else DEFAULT_PERIOD_US
+
+    def _clock_us(self, true_us: float) -> int:
+        """The camera clock's reading at true time ``true_us``: its own origin and rate."""
+        return self._clock_offset_us + int(round(true_us * self._clock_scale))
+
+    def _pace(self, seq: int) -> None:
+        if not self.settings.fps:
+            return
+        if self._start is None:
+            self._start = self._clock() - seq / self.settings.fps
+        delay = self._start + seq / self.settings.fps - self._clock()
+        if delay > 0:
+            self._sleep(delay)
+
+
+def parse_drops(text: str, camera_ids: list[str], url: str) -> dict[str, set[int]]:
+    """``cam2:17,cam3:40-45`` -> {"cam2": {17}, "cam3": {40, ..., 45}}."""
+    drops: dict[str, set[int]] = {}
+    for item in filter(None, text.split(",")):
+        cid, _, span = item.partition(":")
+        if cid not in camera_ids:
+            raise DriverError(f"{url}: drop names camera {cid!r}; the simulated cameras are {', '.join(camera_ids)}")
+        try:
+            lo, _, hi = span.partition("-")
+            drops.setdefault(cid, set()).update(range(int(lo), int(hi or lo) + 1))
+        except ValueError:
+            raise DriverError(f"{url}: drop item {item!r} must look like cam2:17 or cam2:40-45") from None
+    return drops
+
+
+def open_sim(url: str, query: dict[str, str]) -> list[SimCamera]:
+    def number(key: str, default, kind=int, low=0):
+        try:
+            value = kind(query.get(key, default))
+        except ValueError:
+            raise DriverError(f"{url}: {key}={query[key]!r} is not a number") from None
+        if value < low:
+            raise DriverError(f"{url}: {key} must be at least {low}")
+        return value
+
+    n = number("cameras", 4, low=2)
+    seed = number("seed", 0)
+    frames = number("frames", 300, low=1)
+    lframe = query.get("lframe", "remove")
+    bits = number("bits", 8)
+    if lframe not in ("remove", "keep") or bits not in (8, 16):
+        raise DriverError(f"{url}: lframe must be 'remove' or 'keep' and bits 8 or 16")
+    sim = simulate_capture(cameras=n, frames=frames, noise_px=0.0, static=True, seed=seed, occlusion=0.0)
+    ids = sim.rig.ids
+    scene = SimScene(rig=sim.rig, truth=sim.truth, static_frames=number("static", 0), wand_frames=frames,
+                     keep_lframe=lframe == "keep", noise=number("noise", 2.0, float), bits=bits,
+                     drops=parse_drops(query.get("drop", ""), ids, url), seed=seed)
+    return [SimCamera(cid, url, scene, i) for i, cid in enumerate(ids)]
