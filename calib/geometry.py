@@ -157,8 +157,12 @@ def undistort_points(camera: Camera, uv: np.ndarray) -> np.ndarray:
     if camera.model == FISHEYE:
         out = cv2.fisheye.undistortPoints(pts, camera.K, camera.dist)
     else:
+        # the default 5 iterations leave ~0.01 px errors at the image corners; iterate to 1e-12
         criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
-        out = cv2.undistortPointsIter(pts, camera.K, camera.dist, None, None, criteria)
+        if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4
+            out = cv2.undistortPointsIter(pts, camera.K, camera.dist, None, None, criteria)
+        else:  # OpenCV 5 folded the criteria into undistortPoints
+            out = cv2.undistortPoints(pts, camera.K, camera.dist, criteria=criteria)
     return out.reshape(-1, 2)
 
 

@@ -17,7 +17,7 @@ from calib.rig import Camera, Rig, StaticObservations, WandObservations
 # the long arm (x) and one on the short arm (y), all on the floor.
 L_FRAME_M = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.35, 0.0]])
 IMAGE_SIZE = (1280, 1024)
-STATIC_FRAMES_AVERAGED = 25  # static blobs are averaged over this many frames
+STATIC_FRAMES_AVERAGED = 100  # static blobs are averaged over a 1 s recording at 100 fps
 BORDER_PX = 4  # blobs closer than this to the image edge are cut off by the detector
 
 

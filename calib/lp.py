@@ -1,0 +1,108 @@
+"""A thin, bounded wrapper around HiGHS (highspy) for the LP steps.
+
+Statuses map to a small set of words the pipeline reports; a solve that hits its time limit
+returns HiGHS's best point, marked ``time_limit``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import highspy
+import numpy as np
+import scipy.sparse as sp
+
+INF = highspy.kHighsInf
+
+
+@dataclass(frozen=True, eq=False)
+class LpResult:
+    """x: (n,) primal values (None when there is none); status: "optimal", "time_limit",
+    "infeasible", "unbounded" or "error"; duals: (m,) row duals when available."""
+
+    x: np.ndarray | None
+    status: str
+    objective: float
+    seconds: float
+    iterations: int
+    message: str
+    row_duals: np.ndarray | None = None
+
+    def __bool__(self) -> bool:
+        return self.x is not None and self.status in ("optimal", "time_limit")
+
+
+def solve_lp(
+    c: np.ndarray,
+    A: sp.spmatrix,
+    row_lo: np.ndarray,
+    row_hi: np.ndarray,
+    col_lo: np.ndarray,
+    col_hi: np.ndarray,
+    time_limit: float | None = None,
+    solver: str = "choose",
+    options: dict | None = None,
+) -> LpResult:
+    """Minimise ``c @ x`` subject to ``row_lo <= A @ x <= row_hi`` and ``col_lo <= x <= col_hi``.
+
+    Args:
+        c: (n,) costs. A: (m, n) sparse constraint matrix. Bounds may be +-np.inf.
+        time_limit: seconds, or None for no limit.
+        solver: HiGHS's "choose", "simplex" or "ipm".
+        options: extra HiGHS options.
+    """
+    start = time.perf_counter()
+    A = sp.csc_matrix(A)
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("solver", solver)
+    if time_limit is not None:
+        h.setOptionValue("time_limit", float(time_limit))
+    for key, value in (options or {}).items():
+        h.setOptionValue(key, value)
+    lp = highspy.HighsLp()
+    lp.num_col_ = A.shape[1]
+    lp.num_row_ = A.shape[0]
+    lp.col_cost_ = np.asarray(c, float)
+    lp.col_lower_ = _inf(col_lo)
+    lp.col_upper_ = _inf(col_hi)
+    lp.row_lower_ = _inf(row_lo)
+    lp.row_upper_ = _inf(row_hi)
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+    lp.a_matrix_.start_ = A.indptr.astype(np.int32)
+    lp.a_matrix_.index_ = A.indices.astype(np.int32)
+    lp.a_matrix_.value_ = A.data.astype(float)
+    lp.a_matrix_.num_col_ = A.shape[1]
+    lp.a_matrix_.num_row_ = A.shape[0]
+    h.passModel(lp)
+    h.run()
+    status = h.getModelStatus()
+    text = h.modelStatusToString(status)
+    info = h.getInfo()
+    iterations = int(max(info.simplex_iteration_count, 0) + max(info.ipm_iteration_count, 0))
+    seconds = time.perf_counter() - start
+    word = {
+        highspy.HighsModelStatus.kOptimal: "optimal",
+        highspy.HighsModelStatus.kTimeLimit: "time_limit",
+        highspy.HighsModelStatus.kIterationLimit: "time_limit",
+        highspy.HighsModelStatus.kInfeasible: "infeasible",
+        highspy.HighsModelStatus.kUnbounded: "unbounded",
+        highspy.HighsModelStatus.kUnboundedOrInfeasible: "infeasible",
+    }.get(status, "error")
+    x = duals = None
+    if word in ("optimal", "time_limit"):
+        sol = h.getSolution()
+        if sol.value_valid:
+            x = np.array(sol.col_value)
+            if sol.dual_valid:
+                duals = np.array(sol.row_dual)
+        else:
+            word = "error" if word == "optimal" else word
+    objective = float(info.objective_function_value) if x is not None else float("nan")
+    return LpResult(x=x, status=word, objective=objective, seconds=seconds, iterations=iterations, message=text, row_duals=duals)
+
+
+def _inf(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, float)
+    return np.where(np.isposinf(v), INF, np.where(np.isneginf(v), -INF, v))

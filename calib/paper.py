@@ -1,0 +1,210 @@
+"""The seed paper's separated refinement (``--method paper``).
+
+"Towards the Application of Linear Programming Methods For Multi-Camera Pose Estimation": the
+reprojection error is written in its algebraic form (E)
+
+    U = (u r3 - r1) . x + u t_z - t_x,    V = (v r3 - r2) . x + v t_z - t_y,
+
+with (u, v) the normalised observation, r_k the rows of R and x a marker point. It is linear in
+(x, t) for fixed R, so the scheme alternates:
+
+1. per camera, its 3 Euler angles (R = Rz Ry Rx) by Levenberg-Marquardt on E_phi_n, the sum of
+   U^2 + V^2 over that camera's observations, with points and translations fixed;
+2. all translations and points at once by the LP of eq. (Li): minimise sum |U| + |V| with
+   auxiliary variables, bounds of +-10 m, and the height constraints of eq. (extra) (the first
+   200 points lie below every camera).
+
+As written, that LP is not well posed (docs/decisions/0001-paper-lp-gauge.md): global
+translation is free, and collapsing every camera and point to one place gives zero cost, which
+(extra) allows. ``formulation="anchored"`` (the default) adds the least that fixes it: the gauge
+camera keeps its pose, and one linearised wand-length equality anchors the scale,
+``sum_f d_f . (x_f1 - x_f0) = F L`` with d_f the wand direction of the previous iterate.
+``formulation="literal"`` solves the paper's LP unchanged, to show the collapse.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import least_squares
+
+from calib.geometry import camera_centers, euler_to_matrix
+from calib.lp import INF, solve_lp
+from calib.wandmodel import WandProblem
+
+BOUND_M = 10.0  # the paper's box on every translation and point coordinate
+HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
+MAX_ROUNDS = 30
+ROUND_TOL = 1e-6  # stop when a round moves no camera centre by more than this (metres)
+
+
+def algebraic_residuals(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProblem) -> np.ndarray:
+    """(M, 2) the paper's (U, V) for every observation (normalised units times depth)."""
+    p = problem
+    Rc, tc = R[p.camera], t[p.camera]
+    Xp = X[p.point]
+    xc = np.einsum("mij,mj->mi", Rc, Xp) + tc
+    return p.xy * xc[:, 2:3] - xc[:, :2]
+
+
+def rotation_step(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProblem, fixed: np.ndarray) -> np.ndarray:
+    """Update every free camera's rotation by LM on E_phi_n (its algebraic squared error)."""
+    R = R.copy()
+    for n in np.flatnonzero(~fixed):
+        sel = problem.camera == n
+        xy = problem.xy[sel]
+        Xp = X[problem.point[sel]]
+        R0, tn = R[n], t[n]
+
+        def fun(delta, xy=xy, Xp=Xp, R0=R0, tn=tn):
+            xc = Xp @ (euler_to_matrix(delta) @ R0).T + tn
+            return (xy * xc[:, 2:3] - xc[:, :2]).ravel()
+
+        res = least_squares(fun, np.zeros(3), method="lm", xtol=1e-12, ftol=1e-12)
+        R[n] = euler_to_matrix(res.x) @ R0
+    return R
+
+
+def lp_step(
+    R: np.ndarray,
+    t: np.ndarray,
+    X: np.ndarray,
+    problem: WandProblem,
+    fixed: np.ndarray,
+    up: np.ndarray,
+    formulation: str = "anchored",
+    time_limit: float | None = None,
+    solver: str = "choose",
+):
+    """Solve eq. (Li) for all translations and points with the rotations fixed.
+
+    Args:
+        R: (N, 3, 3) rotations; t: (N, 3), X: (P, 3) current values (for the gauge, the
+            linearised wand length and the height rows).
+        problem: labelled observations; points are ``2 * frame + end``.
+        fixed: (N,) cameras whose translation is held (the gauge; ignored when literal).
+        up: (3,) the world's up direction for eq. (extra).
+        formulation: "anchored" or "literal".
+
+    Returns:
+        (t (N, 3), X (P, 3), LpResult).
+    """
+    p = problem
+    N, P, M = len(R), len(X), len(p.camera)
+    nt, nx = 3 * N, 3 * P
+    n_slack = 4 * M  # s+ and s- for U and V
+    cols = nt + nx + n_slack
+    # rows 2i (U_i) and 2i+1 (V_i): coeffs on x_p, on t_n, and the slack pair
+    Rc = R[p.camera]
+    u, v = p.xy[:, 0], p.xy[:, 1]
+    cx_u = u[:, None] * Rc[:, 2] - Rc[:, 0]
+    cx_v = v[:, None] * Rc[:, 2] - Rc[:, 1]
+    obs = np.arange(M)
+    rows, colidx, vals = [], [], []
+    for k, (cx, coord, meas) in enumerate(((cx_u, 0, u), (cx_v, 1, v))):
+        r = 2 * obs + k
+        for j in range(3):
+            rows.append(r), colidx.append(nt + 3 * p.point + j), vals.append(cx[:, j])
+        rows.append(r), colidx.append(3 * p.camera + 2), vals.append(meas)
+        rows.append(r), colidx.append(3 * p.camera + coord), vals.append(-np.ones(M))
+        rows.append(r), colidx.append(nt + nx + 2 * r), vals.append(-np.ones(M))
+        rows.append(r), colidx.append(nt + nx + 2 * r + 1), vals.append(np.ones(M))
+    n_rows = 2 * M
+    row_lo = [np.zeros(2 * M)]
+    row_hi = [np.zeros(2 * M)]
+    # eq. (extra): up . x_j <= up . C_n, with C_n = -R_n^T t_n linear in t_n
+    n_height = min(HEIGHT_CONSTRAINED_POINTS, P)
+    C = camera_centers(R, t)
+    heights = X[:n_height] @ up
+    ok = heights[:, None] <= (C @ up)[None, :]  # keep only rows the start satisfies
+    jj, nn = np.nonzero(ok)
+    hr = n_rows + np.arange(len(jj))
+    Ru = np.einsum("nij,i->nj", R, up)  # up . (R^T t) = (R up) . t
+    for j in range(3):
+        rows.append(hr), colidx.append(nt + 3 * jj + j), vals.append(np.full(len(jj), up[j]))
+        rows.append(hr), colidx.append(3 * nn + j), vals.append(Ru[nn, j])
+    n_rows += len(jj)
+    row_lo.append(np.full(len(jj), -INF))
+    row_hi.append(np.zeros(len(jj)))
+    col_lo = np.r_[np.full(nt + nx, -BOUND_M), np.zeros(n_slack)]
+    col_hi = np.r_[np.full(nt + nx, BOUND_M), np.full(n_slack, INF)]
+    if formulation == "anchored":
+        for n in np.flatnonzero(fixed):
+            col_lo[3 * n : 3 * n + 3] = col_hi[3 * n : 3 * n + 3] = t[n]
+        ends = X.reshape(-1, 2, 3)
+        d = ends[:, 1] - ends[:, 0]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        F = len(d)
+        fr = np.arange(F)
+        for j in range(3):
+            rows.append(np.full(F, n_rows)), colidx.append(nt + 3 * (2 * fr + 1) + j), vals.append(d[:, j])
+            rows.append(np.full(F, n_rows)), colidx.append(nt + 3 * (2 * fr) + j), vals.append(-d[:, j])
+        row_lo.append(np.array([F * p.length]))
+        row_hi.append(np.array([F * p.length]))
+        n_rows += 1
+    elif formulation != "literal":
+        raise ValueError(f"formulation must be 'anchored' or 'literal', not {formulation!r}")
+    A = sp.csc_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(colidx))), shape=(n_rows, cols)
+    )
+    cost = np.r_[np.zeros(nt + nx), np.ones(n_slack)]
+    res = solve_lp(cost, A, np.concatenate(row_lo), np.concatenate(row_hi), col_lo, col_hi, time_limit, solver)
+    if not res:
+        return t, X, res
+    return res.x[:nt].reshape(N, 3), res.x[nt : nt + nx].reshape(P, 3), res
+
+
+def refine_paper(
+    R: np.ndarray,
+    t: np.ndarray,
+    wand: np.ndarray,
+    problem: WandProblem,
+    fixed: np.ndarray,
+    up: np.ndarray,
+    formulation: str = "anchored",
+    max_rounds: int = MAX_ROUNDS,
+    time_limit: float | None = None,
+    progress=None,
+):
+    """Alternate the rotation and LP steps until the cameras stop moving.
+
+    Args:
+        R, t: (N, 3, 3), (N, 3) start poses; wand: (F, 2, 3) start wand ends.
+        problem: labelled observations. fixed: (N,) gauge cameras. up: (3,) world up.
+        time_limit: seconds for each LP solve.
+
+    Returns:
+        (R, t, wand (F, 2, 3), info dict).
+    """
+    start = time.perf_counter()
+    X = wand.reshape(-1, 3).copy()
+    lp_seconds = 0.0
+    status = "iteration_limit"
+    rounds = 0
+    for rounds in range(1, max_rounds + 1):
+        R = rotation_step(R, t, X, problem, fixed)
+        C_old = camera_centers(R, t)
+        t, X, res = lp_step(R, t, X, problem, fixed, up, formulation, time_limit)
+        lp_seconds += res.seconds
+        if not res:
+            status = f"lp_{res.status}"
+            break
+        cost = float(np.abs(algebraic_residuals(R, t, X, problem)).sum())
+        move = float(np.max(np.linalg.norm(camera_centers(R, t) - C_old, axis=1)))
+        if progress is not None:
+            progress({"stage": "refine", "iteration": rounds, "cost": cost, "message": f"paper round {rounds}: LP {res.status}, cameras moved {move * 1e3:.3f} mm"})
+        if res.status == "time_limit":
+            status = "time_limit"
+            break
+        if move < ROUND_TOL:
+            status = "converged"
+            break
+    return R, t, X.reshape(-1, 2, 3), {
+        "iterations": rounds,
+        "seconds": time.perf_counter() - start,
+        "lp_seconds": lp_seconds,
+        "status": status,
+        "formulation": formulation,
+    }
