@@ -25,6 +25,8 @@ pixels that happen to cross the threshold.
 
 from __future__ import annotations
 
+import functools
+import math
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -189,10 +191,12 @@ def auto_threshold(image: np.ndarray, peak: float, config: DetectConfig = DEFAUL
 
 def _runs(index: np.ndarray) -> list[tuple[int, int]]:
     """Split sorted integer indices into runs of consecutive values: [(first, last), ...]."""
-    breaks = np.flatnonzero(np.diff(index) > 1)
-    starts = np.concatenate(([index[0]], index[breaks + 1]))
-    ends = np.concatenate((index[breaks], [index[-1]]))
-    return list(zip(starts.tolist(), ends.tolist()))
+    # Plain slicing and lists: this runs a few times per frame, where np.diff/np.concatenate's
+    # call overhead would cost more than the work.
+    gaps = np.flatnonzero(index[1:] - index[:-1] > 1)
+    starts = [int(index[0])] + index[gaps + 1].tolist()
+    ends = index[gaps].tolist() + [int(index[-1])]
+    return list(zip(starts, ends))
 
 
 def _roundness(m00: np.ndarray, mu20: np.ndarray, mu02: np.ndarray, mu11: np.ndarray) -> np.ndarray:
@@ -215,25 +219,30 @@ def _measure_roi(weight: np.ndarray, x0: int, y0: int, config: DetectConfig) -> 
     Returns:
         rows ``(u, v, area, roundness, flux, x_first, y_first, x_last, y_last)`` in image pixels.
     """
-    mask = (weight > 0).view(np.uint8)
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=config.connectivity)
+    # connectedComponents takes any non-zero 8-bit pixel for foreground, so 8-bit weights need
+    # no mask of their own.
+    mask = weight if weight.dtype == np.uint8 else (weight > 0).view(np.uint8)
+    count, labels = cv2.connectedComponents(mask, connectivity=config.connectivity)
     out = []
     if count == 2:
         # The common case, a region holding one blob: OpenCV's moments of the weights are exact
-        # and cost a few microseconds.
-        area = int(stats[1, cv2.CC_STAT_AREA])
+        # and cost a few microseconds, and no per-label statistics are needed.
+        area = cv2.countNonZero(weight)
         if not config.min_area_px <= area <= config.max_area_px:
             return out
         m = cv2.moments(weight)
         if m["m00"] <= 0:
             return out
-        r = _roundness(m["m00"], m["mu20"], m["mu02"], m["mu11"])
-        u, v = x0 + m["m10"] / m["m00"], y0 + m["m01"] / m["m00"]
+        m00 = m["m00"]
+        a, c, b = m["mu20"] / m00 + PIXEL_VARIANCE_PX2, m["mu02"] / m00 + PIXEL_VARIANCE_PX2, m["mu11"] / m00
+        half_gap, mean = math.hypot((a - c) / 2.0, b), (a + c) / 2.0  # the eigenvalues, as _roundness
+        r = math.sqrt(max(mean - half_gap, 0.0) / (mean + half_gap))
         h, w = weight.shape
-        out.append((u, v, area, float(r), m["m00"], x0, y0, x0 + w - 1, y0 + h - 1))
+        out.append((x0 + m["m10"] / m00, y0 + m["m01"] / m00, area, r, m00, x0, y0, x0 + w - 1, y0 + h - 1))
         return out
     if count < 2:
         return out
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=config.connectivity)
     # Several blobs in one region (clutter, or blobs whose bands overlap): accumulate the weighted
     # moments of all of them at once from their labels.
     ys, xs = np.nonzero(mask)
@@ -324,13 +333,22 @@ def detect_blobs(image: np.ndarray, config: DetectConfig | None = None) -> Blobs
     return Blobs(uv[idx], area[idx].astype(np.int64), table[idx, 3], flux[idx], threshold)
 
 
+@functools.lru_cache(maxsize=None)
+def _thread_pool(workers: int) -> ThreadPoolExecutor:
+    """One long-lived pool per worker count: starting threads for every frame set would cost
+    a third of a frame's detection time (~0.12 ms per call measured)."""
+    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="calib-detect")
+
+
 def detect_many(
     images: Sequence[np.ndarray], config: DetectConfig | None = None, workers: int | None = None
 ) -> list[Blobs]:
     """:func:`detect_blobs` over many images (e.g. one frame set of several cameras), in order.
 
-    OpenCV and NumPy's reductions release the GIL, so a thread pool spreads the work over the
-    cores without copying frames between processes (measured in ``bench/bench_detect.py``).
+    The images are split into ``workers`` contiguous chunks, each detected by one thread of a
+    long-lived pool. OpenCV and NumPy release the GIL inside their calls; how much that buys over
+    one thread depends on how much of the time is Python between those calls (measured in
+    ``bench/bench_detect.py``, discussed in docs/decisions/0003-blob-detector.md).
 
     Args:
         images: sequence of (H, W) uint8/uint16 arrays; sizes may differ.
@@ -349,8 +367,10 @@ def detect_many(
     workers = min(workers, len(images))
     if workers <= 1:
         return [detect_blobs(image, config) for image in images]
-    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="detect") as pool:
-        return list(pool.map(lambda image: detect_blobs(image, config), images))
+    bounds = np.linspace(0, len(images), workers + 1).astype(int)
+    chunks = [images[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:])]
+    results = _thread_pool(workers).map(lambda chunk: [detect_blobs(image, config) for image in chunk], chunks)
+    return [blobs for chunk in results for blobs in chunk]
 
 
 # Half-width of the window rendered around each spot, in sigmas: beyond 6 sigma a Gaussian holds

@@ -1,0 +1,234 @@
+"""Blob detection speed and centroid accuracy on rendered 1280x1024 frames.
+
+Compares ``calib.detect.detect_blobs`` (one core, and ``detect_many`` on two threads) with
+``cv2.SimpleBlobDetector`` and with the plain whole-frame OpenCV building blocks it was chosen
+against (docs/decisions/0003-blob-detector.md). Prints a table and writes it to the
+"Blob detection" section of docs/benchmarks.md.
+
+Run: python bench/bench_detect.py [--frames 120] [--no-write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from calib.detect import DetectConfig, detect_blobs, detect_many, render_blobs  # noqa: E402
+
+SHAPE = (1024, 1280)  # (H, W), the issue's sensor size
+MARKERS = 6  # 2 wand markers + 4 L-frame markers: "a handful of blobs"
+SIGMA_RANGE_PX = (1.0, 2.0)
+PEAK_RANGE = {8: (120.0, 240.0), 16: (20000.0, 60000.0)}
+BACKGROUND = {8: 12.0, 16: 2000.0}
+NOISE = {8: 2.0, 16: 300.0}
+FIXED_THRESHOLD = {8: 40, 16: 7000}  # background + a quarter of the dimmest peak
+MATCH_PX = 2.0  # a detection this close to a rendered spot is that spot
+SECTION = "## Blob detection"
+
+
+def render_frames(n: int, bit_depth: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    frames, truths = [], []
+    for _ in range(n):
+        uv = []
+        while len(uv) < MARKERS:
+            p = rng.uniform([20, 20], [SHAPE[1] - 20, SHAPE[0] - 20])
+            if all(np.hypot(*(p - q)) > 20 for q in uv):
+                uv.append(p)
+        uv = np.array(uv)
+        sigma = rng.uniform(*SIGMA_RANGE_PX, MARKERS)
+        peak = rng.uniform(*PEAK_RANGE[bit_depth], MARKERS)
+        frames.append(render_blobs(SHAPE, uv, sigma, peak, BACKGROUND[bit_depth], NOISE[bit_depth], bit_depth, rng))
+        truths.append(uv)
+    return frames, truths
+
+
+def score(found: list[np.ndarray], truths: list[np.ndarray]) -> tuple[float, float, int]:
+    """Centroid RMS error (px) over matched spots, recall, and false detections."""
+    errors, hits, false = [], 0, 0
+    for uv, truth in zip(found, truths):
+        uv = np.asarray(uv, float).reshape(-1, 2)
+        if len(uv) == 0:
+            continue
+        d = np.linalg.norm(truth[:, None] - uv[None], axis=2)
+        near = d.min(axis=1)
+        errors.append(near[near < MATCH_PX])
+        hits += int(np.sum(near < MATCH_PX))
+        false += int(np.sum(d.min(axis=0) >= MATCH_PX))
+    e = np.concatenate(errors) if errors else np.array([np.nan])
+    return float(np.sqrt(np.mean(e**2))), hits / sum(len(t) for t in truths), false
+
+
+def fps(run, frames: list[np.ndarray], repeat: int = 3) -> tuple[float, list]:
+    """Best-of-``repeat`` frames per second of ``run(frames) -> list of per-frame uv``."""
+    out = run(frames[:5])  # warm up
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = run(frames)
+        best = min(best, time.perf_counter() - t0)
+    return len(frames) / best, out
+
+
+def simple_blob_detector(bit_depth: int):
+    params = cv2.SimpleBlobDetector_Params()
+    params.filterByColor = True
+    params.blobColor = 255  # bright blobs
+    params.minThreshold = 30  # above the 8-bit background (12, or 2000 >> 8 = 8)
+    params.maxThreshold = 220
+    params.thresholdStep = 20
+    params.filterByArea = True
+    params.minArea = 4
+    params.maxArea = 1500
+    params.filterByCircularity = False
+    params.filterByConvexity = False
+    params.filterByInertia = True
+    params.minInertiaRatio = 0.25
+    detector = cv2.SimpleBlobDetector_create(params)
+
+    def run(frames):
+        out = []
+        for f in frames:
+            img = f if f.dtype == np.uint8 else (f >> 8).astype(np.uint8)  # it takes 8-bit only
+            out.append(np.array([k.pt for k in detector.detect(img)]))
+        return out
+
+    return run
+
+
+def whole_frame_cc(threshold: int):
+    """Threshold + connectedComponentsWithStats over the whole frame; unweighted centroids."""
+
+    def run(frames):
+        out = []
+        for f in frames:
+            _, mask = cv2.threshold(f, threshold, 255, cv2.THRESH_BINARY)
+            n, _, stats, cents = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+            keep = stats[1:, cv2.CC_STAT_AREA] >= 4
+            out.append(cents[1:][keep])
+        return out
+
+    return run
+
+
+def whole_frame_nonzero(threshold: int):
+    """Threshold + findNonZero: only locates the bright pixels (no labelling, no centroids)."""
+
+    def run(frames):
+        for f in frames:
+            _, mask = cv2.threshold(f, threshold, 255, cv2.THRESH_BINARY)
+            cv2.findNonZero(mask.astype(np.uint8))
+        return [np.zeros((0, 2)) for _ in frames]
+
+    return run
+
+
+def copy_only(frames):
+    for f in frames:
+        f.copy()
+    return [np.zeros((0, 2)) for _ in frames]
+
+
+def ours(config: DetectConfig):
+    return lambda frames: [detect_blobs(f, config).uv for f in frames]
+
+
+def ours_many(config: DetectConfig, workers: int):
+    return lambda frames: [b.uv for b in detect_many(frames, config, workers=workers)]
+
+
+def write_section(text: str) -> None:
+    path = REPO / "docs" / "benchmarks.md"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    old = path.read_text() if path.exists() else "# Benchmarks\n"
+    start = old.find(SECTION + "\n")
+    if start < 0:
+        new = old.rstrip("\n") + "\n\n" + text
+    else:
+        end = old.find("\n## ", start + len(SECTION))
+        new = old[:start] + text + (old[end + 1 :] if end >= 0 else "")
+    path.write_text(new.rstrip("\n") + "\n")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=120)  # distinct frames: 160 MB at 8 bits, never cache-hot
+    parser.add_argument("--no-write", action="store_true", help="print only; leave docs/benchmarks.md alone")
+    args = parser.parse_args()
+
+    load = os.getloadavg()[0]
+    rows = []
+    all_cores = os.sched_getaffinity(0)
+    for bit_depth in (8, 16):
+        frames, truths = render_frames(args.frames, bit_depth, seed=bit_depth)
+        fixed = DetectConfig(threshold=FIXED_THRESHOLD[bit_depth])
+        single = [
+            ("detect_blobs, fixed threshold", ours(fixed)),
+            ("detect_blobs, automatic threshold", ours(DetectConfig())),
+            ("cv2.SimpleBlobDetector (8-bit input)", simple_blob_detector(bit_depth)),
+            ("threshold + connectedComponentsWithStats", whole_frame_cc(FIXED_THRESHOLD[bit_depth])),
+        ]
+        if bit_depth == 8:
+            single.append(("threshold + findNonZero (no centroids)", whole_frame_nonzero(FIXED_THRESHOLD[bit_depth])))
+        single.append(("memory copy of the frame (floor)", copy_only))
+        # One core: pin this thread and stop OpenCV from spreading work to its own pool.
+        cv2.setNumThreads(1)
+        os.sched_setaffinity(0, {min(all_cores)})
+        for name, run in single:
+            rate, out = fps(run, frames)
+            rms, recall, false = score(out, truths) if "no centroids" not in name and "copy" not in name else (np.nan,) * 3
+            rows.append((bit_depth, name, 1, rate, rms, recall, false))
+        os.sched_setaffinity(0, all_cores)
+        cv2.setNumThreads(-1)
+        workers = min(2, len(all_cores))
+        rate, out = fps(ours_many(fixed, workers), frames)
+        rows.append((bit_depth, f"detect_many, fixed threshold, {workers} threads", workers, rate, *score(out, truths)))
+
+    # Time per frame in units of one memory copy of the frame: other jobs sharing the machine
+    # slow every row alike, so this column compares across runs where frames/s cannot.
+    copy_rate = {bits: rate for bits, name, _, rate, *_ in rows if name.startswith("memory copy")}
+    header = "| bits | method | cores | frames/s | time / frame copy | centroid RMS (px) | recall | false blobs |"
+    lines = [header, "|---|---|---|---|---|---|---|---|"]
+    for bits, name, cores, rate, rms, recall, false in rows:
+        acc = "-" if np.isnan(rms) else f"{rms:.4f}"
+        rec = "-" if np.isnan(recall) else f"{recall:.3f}"
+        fal = "-" if np.isnan(false) else f"{int(false)}"
+        lines.append(
+            f"| {bits} | {name} | {cores} | {rate:,.0f} | {copy_rate[bits] / rate:.1f} | {acc} | {rec} | {fal} |"
+        )
+    table = "\n".join(lines)
+    print(table)
+    text = (
+        f"{SECTION}\n\n"
+        f"Command: `python bench/bench_detect.py --frames {args.frames}`  \n"
+        f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}, OpenCV {cv2.__version__}, NumPy {np.__version__}; "
+        f"load average {load:.1f} when it started (other jobs share the machine: compare the "
+        "'time / frame copy' column across runs).\n\n"
+        f"{args.frames} rendered {SHAPE[1]}x{SHAPE[0]} frames per bit depth, {MARKERS} Gaussian spots each "
+        f"(sigma {SIGMA_RANGE_PX[0]}-{SIGMA_RANGE_PX[1]} px, peaks {PEAK_RANGE[8][0]:.0f}-{PEAK_RANGE[8][1]:.0f} "
+        f"of 255 / {PEAK_RANGE[16][0]:.0f}-{PEAK_RANGE[16][1]:.0f} of 65535, read noise {NOISE[8]:.0f} / "
+        f"{NOISE[16]:.0f} grey levels), rendered with `calib.detect.render_blobs` (pixel-integrated, so the "
+        f"true centre is exact). Centroid RMS is over spots found within {MATCH_PX:.0f} px; recall is the "
+        "fraction of spots found. One-core rows pin the process to one CPU with `cv2.setNumThreads(1)`. "
+        "The whole-frame OpenCV rows are the alternatives of docs/decisions/0003-blob-detector.md "
+        "(connected-component centroids are unweighted).\n\n"
+        f"{table}\n"
+    )
+    if not args.no_write:
+        write_section(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
