@@ -23,6 +23,7 @@ from drivers.camera import Frame
 
 STALL_S = 2.0  # a camera silent this long no longer holds back sets: its missing slots are emitted empty
 REALIGN_TOLERANCE = 0.25  # a jump within a quarter period of a whole number of periods is a clean shift
+MAX_REPORTS = 5  # alignment messages per camera before they are only counted
 PERIOD_WINDOW = 15  # pulse intervals in the running median of the trigger period
 CLOCK_SMOOTHING = 0.05  # weight of a new sample in the running camera-to-trigger clock offset
 
@@ -216,12 +217,12 @@ class Assembler:
             return True
         jump = offset - cam.offset_us
         periods = round(jump / self.period_us)
-        if periods == 0:
+        if abs(jump) <= REALIGN_TOLERANCE * self.period_us:
             cam.offset_us += CLOCK_SMOOTHING * jump
             cam.last_trigger_us = trigger_us
             return True
         name = self.camera_ids[camera]
-        if abs(jump - periods * self.period_us) <= REALIGN_TOLERANCE * self.period_us:
+        if periods != 0 and abs(jump - periods * self.period_us) <= REALIGN_TOLERANCE * self.period_us:
             # The frame belongs ``periods`` pulses later: the camera lost frames without a gap in
             # its sequence numbers. Move it and every pending frame of this camera along.
             self._shift_camera(camera, periods)
@@ -229,12 +230,12 @@ class Assembler:
                 self._slot(key + periods).frames[camera] = frame
                 cam.last_key = max(cam.last_key, key + periods)
             cam.realigned += 1
-            self._say(f"camera {name}: frame {frame.sequence} is {jump / 1000:.1f} ms off pulse "
+            self._say(camera, f"camera {name}: frame {frame.sequence} is {jump / 1000:.1f} ms off pulse "
                       f"{key + (self.base or 0)}; it lost {periods} frame(s) without a gap in its sequence "
                       "numbers; realigned by its timestamps")
             return False
         cam.misaligned += 1
-        self._say(f"camera {name}: frame {frame.sequence} is {jump / 1000:.1f} ms off pulse "
+        self._say(camera, f"camera {name}: frame {frame.sequence} is {jump / 1000:.1f} ms off pulse "
                   f"{key + (self.base or 0)}, not a whole number of frame periods ({self.period_us / 1000:.2f} ms); "
                   "its frames cannot be matched to the trigger and this one is left out. Check that the camera "
                   "is in external-trigger mode and wired to the strobe box")
@@ -255,6 +256,11 @@ class Assembler:
             slot = self._slots[key] = _Slot()
         return slot
 
-    def _say(self, message: str) -> None:
+    def _say(self, camera: int, message: str) -> None:
+        cam = self.cameras[camera]
+        if cam.realigned + cam.misaligned > MAX_REPORTS:
+            return  # a camera that keeps slipping would flood the log; the counts tell the rest
+        if cam.realigned + cam.misaligned == MAX_REPORTS:
+            message += " (further problems with this camera are only counted, in capture.json)"
         self.messages.append(message)
         self.report(message)

@@ -152,3 +152,40 @@ def serve_pty(vanish_after: int | None = None, start_us: int = 0, announce=print
 def _write(fd: int, lines: list[str]) -> None:
     if lines:
         os.write(fd, "".join(line + "\n" for line in lines).encode("ascii"))
+
+
+class EmulatorProcess:
+    """``wandcal trigger-emulator`` in a child process (for tests and demos).
+
+    Use as a context manager; ``path`` is the pseudo-terminal it serves. ``extra`` are more
+    command-line options (``--vanish-after 60``).
+    """
+
+    def __init__(self, *extra: str):
+        import subprocess
+        from pathlib import Path
+
+        root = Path(__file__).resolve().parents[1]
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
+        self.process = subprocess.Popen([sys.executable, "-m", "service.cli", "trigger-emulator", *extra],
+                                        stdout=subprocess.PIPE, text=True, env=env)
+        self.path = self.process.stdout.readline().strip()
+        if not self.path.startswith("/dev/"):
+            self.close()
+            raise RuntimeError(f"the trigger emulator did not print its terminal path (got {self.path!r})")
+
+    @property
+    def url(self) -> str:
+        return f"serial://{self.path}"
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+        self.process.wait()
+        self.process.stdout.close()
+
+    def __enter__(self) -> "EmulatorProcess":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,90 @@
+"""The whole path on a real pseudo-terminal: trigger emulator + simulated cameras -> capture
+folder -> detection -> calibration, and the trigger port vanishing mid-capture."""
+
+import csv
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from calib.pipeline import calibrate
+from capture.folder import read_capture
+from drivers.registry import open_cameras
+from drivers.trigger_emulator import EmulatorProcess
+from service.cli import main
+
+# The issue's acceptance figure: camera centres within 2 mm of the truth. The simulation injects
+# read noise of 2 grey levels on spots of sigma 1.5-2.5 px, about 0.02-0.05 px of centroid noise,
+# which over ~240 frames sets a centre error well below that.
+CENTRE_TOLERANCE_M = 0.002
+STATIC, FRAMES = 20, 240
+SIM = f"sim://?cameras=4&seed=3&frames={FRAMES}&static={STATIC}&drop=cam2:{STATIC + 30}"
+
+
+def sync_rows(folder):
+    with open(folder / "sync.csv", newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_pty_capture_detect_and_calibrate_recover_the_rig(tmp_path, capsys):
+    out = tmp_path / "cap"
+    with EmulatorProcess() as emu:
+        code = main(["capture", "--camera", SIM, "--trigger", emu.url, "--frames", str(FRAMES),
+                     "--static-frames", str(STATIC), "--rate", "1000", "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    rows = sync_rows(out)
+    assert len(rows) == FRAMES
+    counters = [int(r["trigger_count"]) for r in rows]
+    assert counters == list(range(counters[0], counters[0] + FRAMES))  # after the static run's pulses
+    # the dropped frame: an empty cell and no file, everything else present
+    assert rows[30]["cam2_ts"] == "" and not (out / "frames/cam2/000030.png").exists()
+    assert all(r["cam1_ts"] for r in rows) and (out / "frames/cam1/000030.png").is_file()
+    assert len(list((out / "static/cam4").glob("*.png"))) == STATIC
+    log = json.loads((out / "capture.json").read_text())
+    assert log["cameras"]["cam2"]["missed"] == 1 and log["error"] is None
+    assert all(abs(c["clock_drift_ppm"]) < 40 for c in log["cameras"].values())  # sim clocks: +-30 ppm
+
+    assert main(["detect", str(out)]) == 0
+    report = capsys.readouterr().out
+    assert "cam2: " in report and "static object: 4 markers" in report
+
+    cap = read_capture(out)
+    result = calibrate(cap.rig, cap.wand, cap.static, method="ba")
+    truth = open_cameras(SIM)[0].scene.truth
+    err = np.linalg.norm(result.centers - truth.centers, axis=1)
+    assert err.max() < CENTRE_TOLERANCE_M, err
+
+
+def test_trigger_port_vanishing_stops_cleanly_and_keeps_the_data(tmp_path, capsys):
+    out = tmp_path / "cap"
+    with EmulatorProcess("--vanish-after", "60") as emu:
+        code = main(["capture", "--camera", "sim://?cameras=3&seed=2&frames=200", "--trigger", emu.url,
+                     "--frames", "200", "--rate", "1000", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 3
+    assert "vanished" in err and "kept everything recorded until then" in err
+    rows = sync_rows(out)
+    assert 40 <= len(rows) <= 60  # the last lines may die in the kernel's buffer with the terminal
+    for r in rows:  # every recorded set is complete on disk and readable
+        for cam in ("cam1", "cam2", "cam3"):
+            assert r[f"{cam}_ts"]
+            image = cv2.imread(str(out / f"frames/{cam}/{int(r['frame']):06d}.png"), cv2.IMREAD_UNCHANGED)
+            assert image is not None and image.shape == (1024, 1280)
+    log = json.loads((out / "capture.json").read_text())
+    assert "vanished" in log["error"] and log["frame_sets"] == len(rows)
+
+
+def test_unknown_camera_url_is_refused_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "cap"
+    code = main(["capture", "--camera", "gopro://cam1", "--frames", "10", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 3
+    assert "gopro://cam1" in err and "v4l2:, opencv:, replay:, sim:" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("bad", ["sim://?cameras=1", "sim://?drop=cam9:3", "sim://?frames=x"])
+def test_bad_sim_url_says_what_is_wrong(bad):
+    with pytest.raises(OSError, match="sim://"):
+        open_cameras(bad)
