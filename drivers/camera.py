@@ -18,6 +18,11 @@ from calib.rig import Camera
 from drivers.errors import DriverError
 
 
+# Frame rate assumed for sources that carry no timing (image sequences, folders without
+# sync.csv): the usual motion-capture rate, so made-up timestamps still look plausible.
+NOMINAL_FPS = 100.0
+
+
 class TriggerMode(str, enum.Enum):
     """How a camera starts an exposure."""
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drivers.camera import CameraDriver, CameraSettings, Frame, TriggerMode
+from drivers.camera import NOMINAL_FPS, CameraDriver, CameraSettings, Frame, TriggerMode
 from drivers.errors import DriverError, FrameTimeout
 
 V4L2_CTL = "v4l2-ctl"  # from v4l-utils; sets named device controls OpenCV cannot reach
@@ -125,7 +125,8 @@ class OpenCVCamera(CameraDriver):
         msec = self._cap.get(cv2.CAP_PROP_POS_MSEC)
         if msec and msec > 0:
             return int(round(msec * US_PER_MS))
-        fps = self._cap.get(cv2.CAP_PROP_FPS) or self.settings.fps or 1.0
+        fps = self._cap.get(cv2.CAP_PROP_FPS)
+        fps = fps if fps > 0 else (self.settings.fps or NOMINAL_FPS)
         return int(round(seq * 1e6 / fps))
 
 

@@ -15,11 +15,9 @@ from pathlib import Path
 import cv2
 
 from calib.rig import Camera
-from drivers.camera import CameraDriver, CameraSettings, Frame, TriggerMode
+from drivers.camera import NOMINAL_FPS, CameraDriver, CameraSettings, Frame, TriggerMode
 from drivers.errors import DriverError, FrameError
 from drivers.imagefolder import FRAMES_DIR, STATIC_DIR, image_path, listed_cameras, listed_indices, read_sync
-
-NOMINAL_FPS = 100.0  # timestamps for folders without sync.csv: the usual mocap rate
 
 
 class ReplayCamera(CameraDriver):

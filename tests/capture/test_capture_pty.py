@@ -44,6 +44,7 @@ def test_pty_capture_detect_and_calibrate_recover_the_rig(tmp_path, capsys):
     log = json.loads((out / "capture.json").read_text())
     assert log["cameras"]["cam2"]["missed"] == 1 and log["error"] is None
     assert all(abs(c["clock_drift_ppm"]) < 40 for c in log["cameras"].values())  # sim clocks: +-30 ppm
+    assert log["writer_queue"]["high_water"] <= log["writer_queue"]["bound"]
 
     assert main(["detect", str(out)]) == 0
     report = capsys.readouterr().out
