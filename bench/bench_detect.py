@@ -34,6 +34,7 @@ NOISE = {8: 2.0, 16: 300.0}
 FIXED_THRESHOLD = {8: 40, 16: 7000}  # background + a quarter of the dimmest peak
 MATCH_PX = 2.0  # a detection this close to a rendered spot is that spot
 SECTION = "## Blob detection"
+REPEATS = 5  # best of 5 round-robin runs per method
 
 
 def render_frames(n: int, bit_depth: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -69,15 +70,21 @@ def score(found: list[np.ndarray], truths: list[np.ndarray]) -> tuple[float, flo
     return float(np.sqrt(np.mean(e**2))), hits / sum(len(t) for t in truths), false
 
 
-def fps(run, frames: list[np.ndarray], repeat: int = 3) -> tuple[float, list]:
-    """Best-of-``repeat`` frames per second of ``run(frames) -> list of per-frame uv``."""
-    out = run(frames[:5])  # warm up
-    best = np.inf
-    for _ in range(repeat):
+def time_once(run, frames: list[np.ndarray], cores: int, all_cores: set[int]) -> tuple[float, list]:
+    """Seconds for ``run(frames)`` and its output, on ``cores`` CPUs.
+
+    One core: pin this thread to one CPU and stop OpenCV from spreading work to its own pool.
+    """
+    if cores == 1:
+        cv2.setNumThreads(1)
+        os.sched_setaffinity(0, {min(all_cores)})
+    try:
         t0 = time.perf_counter()
         out = run(frames)
-        best = min(best, time.perf_counter() - t0)
-    return len(frames) / best, out
+        return time.perf_counter() - t0, out
+    finally:
+        os.sched_setaffinity(0, all_cores)
+        cv2.setNumThreads(-1)
 
 
 def simple_blob_detector(bit_depth: int):
@@ -181,18 +188,23 @@ def main() -> int:
         if bit_depth == 8:
             single.append(("threshold + findNonZero (no centroids)", whole_frame_nonzero(FIXED_THRESHOLD[bit_depth])))
         single.append(("memory copy of the frame (floor)", copy_only))
-        # One core: pin this thread and stop OpenCV from spreading work to its own pool.
-        cv2.setNumThreads(1)
-        os.sched_setaffinity(0, {min(all_cores)})
-        for name, run in single:
-            rate, out = fps(run, frames)
-            rms, recall, false = score(out, truths) if "no centroids" not in name and "copy" not in name else (np.nan,) * 3
-            rows.append((bit_depth, name, 1, rate, rms, recall, false))
-        os.sched_setaffinity(0, all_cores)
-        cv2.setNumThreads(-1)
         workers = min(2, len(all_cores))
-        rate, out = fps(ours_many(fixed, workers), frames)
-        rows.append((bit_depth, f"detect_many, fixed threshold, {workers} threads", workers, rate, *score(out, truths)))
+        methods = [(name, run, 1) for name, run in single]
+        methods.append((f"detect_many, fixed threshold, {workers} threads", ours_many(fixed, workers), workers))
+        # Round-robin repeats, best of each: other jobs sharing the machine come and go, and this
+        # way a busy spell slows one repeat of every method rather than all repeats of one.
+        best = {name: np.inf for name, _, _ in methods}
+        outputs = {}
+        for name, run, cores in methods:
+            run(frames[:5])  # warm up
+        for _ in range(REPEATS):
+            for name, run, cores in methods:
+                seconds, outputs[name] = time_once(run, frames, cores, all_cores)
+                best[name] = min(best[name], seconds)
+        for name, _, cores in methods:
+            measured = "no centroids" not in name and "copy" not in name
+            quality = score(outputs[name], truths) if measured else (np.nan,) * 3
+            rows.append((bit_depth, name, cores, len(frames) / best[name], *quality))
 
     # Time per frame in units of one memory copy of the frame: other jobs sharing the machine
     # slow every row alike, so this column compares across runs where frames/s cannot.
@@ -220,7 +232,8 @@ def main() -> int:
         f"of 255 / {PEAK_RANGE[16][0]:.0f}-{PEAK_RANGE[16][1]:.0f} of 65535, read noise {NOISE[8]:.0f} / "
         f"{NOISE[16]:.0f} grey levels), rendered with `calib.detect.render_blobs` (pixel-integrated, so the "
         f"true centre is exact). Centroid RMS is over spots found within {MATCH_PX:.0f} px; recall is the "
-        "fraction of spots found. One-core rows pin the process to one CPU with `cv2.setNumThreads(1)`. "
+        f"fraction of spots found. Each rate is the best of {REPEATS} round-robin runs; one-core rows pin the "
+        "process to one CPU with `cv2.setNumThreads(1)`. "
         "The whole-frame OpenCV rows are the alternatives of docs/decisions/0003-blob-detector.md "
         "(connected-component centroids are unweighted).\n\n"
         f"{table}\n"
