@@ -87,6 +87,10 @@ def run_capture(args) -> int:
     result = record(cameras, trigger, args.out, rig, frames=args.frames, static_frames=args.static_frames,
                     rate_hz=args.rate, progress=show, between=between,
                     events=lambda m: print(f"\n{m}", file=sys.stderr))
+    scene = _sim_scene(cameras)
+    if scene is not None and rig is scene.rig:
+        # a simulated rig: keep its truth beside the capture, as 'wandcal simulate' does
+        (args.out / "truth.json").write_text(json.dumps(scene.truth.to_json(rig)) + "\n")
     status.done(f"recorded {result.frame_sets} wand sets ({result.complete_sets} complete with static) "
                 f"and {result.static_sets} static sets into {result.folder}")
     for cid, s in result.per_camera.items():
@@ -103,9 +107,9 @@ def _rig(args, cameras: list[CameraDriver]) -> Rig:
     """rig.json from --rig, else the simulated scene's rig or the drivers' own intrinsics."""
     if args.rig:
         return _read_rig_file(args.rig)
-    scenes = {id(c.scene): c.scene for c in cameras if hasattr(c, "scene")}
-    if len(scenes) == 1 and len(cameras) == len(next(iter(scenes.values())).rig.cameras):
-        return next(iter(scenes.values())).rig
+    scene = _sim_scene(cameras)
+    if scene is not None:
+        return scene.rig
     missing = [c.camera_id for c in cameras if c.intrinsics is None]
     if missing:
         raise DriverError(f"no intrinsics for camera(s) {', '.join(missing)}; give --rig rig.json "
@@ -114,6 +118,14 @@ def _rig(args, cameras: list[CameraDriver]) -> Rig:
     if len(folders) == 1 and args.wand_length is None:
         return read_rig(next(iter(folders)))
     return Rig(cameras=tuple(c.intrinsics for c in cameras), wand_length=args.wand_length or DEFAULT_WAND_LENGTH_M)
+
+
+def _sim_scene(cameras: list[CameraDriver]):
+    """The simulated scene when every camera comes from the same one (one sim:// URL), else None."""
+    scenes = {id(c.scene): c.scene for c in cameras if hasattr(c, "scene")}
+    if len(scenes) == 1 and len(cameras) == len(next(iter(scenes.values())).rig.cameras):
+        return next(iter(scenes.values()))
+    return None
 
 
 def _read_rig_file(path: Path) -> Rig:
