@@ -108,7 +108,9 @@ def rotation_angle(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
     """Angle of ``R_a @ R_b.T`` in radians; shapes (..., 3, 3) -> (...)."""
     rel = np.asarray(R_a) @ np.swapaxes(np.asarray(R_b), -1, -2)
     cos = (np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.arccos(np.clip(cos, -1.0, 1.0))
+    # atan2 of sine and cosine stays accurate for tiny angles, where arccos loses half the digits
+    axis = np.stack([rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]], -1)
+    return np.arctan2(np.linalg.norm(axis, axis=-1) / 2.0, cos)
 
 
 def camera_centers(R: np.ndarray, t: np.ndarray) -> np.ndarray:

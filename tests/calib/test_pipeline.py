@@ -1,0 +1,127 @@
+"""The whole pipeline on seeded rigs; tolerances derive from the injected noise."""
+
+import numpy as np
+import pytest
+
+from calib.errors import CalibrationError
+from calib.geometry import kabsch, rotation_angle
+from calib.pipeline import calibrate
+from calib.rig import WandObservations
+from calib.simulate import STATIC_FRAMES_AVERAGED, simulate_capture
+
+NOISE = 0.3
+
+
+def _errors(result, sim, similarity=False):
+    C, Ct = result.centers, sim.truth.centers
+    Ra, ta, s = kabsch(C, Ct, scale=similarity)
+    return np.linalg.norm(C - Ct, axis=1), np.linalg.norm(s * C @ Ra.T + ta - Ct, axis=1)
+
+
+def test_world_frame_from_the_l_frame():
+    sim = simulate_capture(6, 400, NOISE, seed=21)
+    result = calibrate(sim.rig, sim.wand, sim.static, "ba")
+    raw, aligned = _errors(result, sim)
+    assert result.world["frame"] == "static_object"
+    # world frame error is set by the averaged L-frame blobs (NOISE / sqrt(100) = 0.03 px): from
+    # ~4 m with f ~ 1100 px that is ~0.1 mm per marker, which tilts a 0.35-0.5 m L-frame by
+    # ~0.3 mrad, i.e. ~1 mm at the cameras; 3 mm is a >3-sigma margin
+    assert STATIC_FRAMES_AVERAGED == 100
+    assert raw.max() < 0.003
+    assert aligned.max() < 0.0015
+    assert np.degrees(rotation_angle(result.R, sim.truth.R)).max() < 0.05
+    doc = result.to_json()
+    assert doc["format"] == "wandcal-result/1"
+    assert {c["id"] for c in doc["cameras"]} == set(sim.rig.ids)
+    for cam in doc["cameras"]:
+        # residual RMS of a 2D Gaussian with sigma per axis is sigma * sqrt(2), less the fitted DOF
+        assert 0.8 * NOISE * np.sqrt(2) * 0.9 < cam["reprojection_rms_px"] < 1.2 * NOISE * np.sqrt(2)
+    assert abs(doc["wand"]["length_mean_m"] - sim.rig.wand_length) < 0.001
+    assert doc["warnings"] == []
+
+
+def test_wand_only_world_is_the_first_camera():
+    sim = simulate_capture(5, 400, NOISE, static=False, seed=22)
+    result = calibrate(sim.rig, sim.wand, None, "ba")
+    assert result.world["frame"] == "camera" and result.world["camera"] == "cam1"
+    assert np.allclose(result.R[0], np.eye(3)) and np.allclose(result.t[0], 0)
+    _, aligned = _errors(result, sim, similarity=True)
+    assert aligned.max() < 0.0015
+
+
+def test_outliers_are_dropped_and_counted():
+    sim = simulate_capture(6, 400, NOISE, outliers=0.08, seed=23)
+    clean = simulate_capture(6, 400, NOISE, outliers=0.0, seed=23)
+    result = calibrate(sim.rig, sim.wand, sim.static, "ba")
+    reference = calibrate(clean.rig, clean.wand, clean.static, "ba")
+    n_pairs = sum(1 for _ in np.unique(sim.wand.frame * 10 + sim.wand.camera))
+    # 8% of camera-frames with both ends seen carry an outlier; the count is what was injected
+    assert 0.05 * n_pairs < result.dropped["outliers"] < 0.12 * n_pairs
+    assert any("outliers" in w for w in result.warnings)
+    _, aligned = _errors(result, sim)
+    _, ref_aligned = _errors(reference, clean)
+    assert np.sqrt(np.mean(aligned**2)) < 2 * np.sqrt(np.mean(ref_aligned**2))
+
+
+def test_garbage_rows_do_not_crash_and_are_counted():
+    sim = simulate_capture(4, 200, NOISE, seed=24)
+    w = sim.wand
+    junk = WandObservations(np.r_[w.frame, [5, 6, 7]], np.r_[w.camera, [0, 1, 2]], np.vstack([w.uv, [[1, 1], [2, 2], [3, 3]]]))
+    result = calibrate(sim.rig, junk, sim.static, "ba")
+    assert result.dropped["extra_blobs"] >= 1
+    _, aligned = _errors(result, sim)
+    assert aligned.max() < 0.003
+
+
+def test_camera_without_common_frames_is_named():
+    sim = simulate_capture(3, 200, NOISE, seed=25)
+    w = sim.wand
+    # camera 3 only sees frames no one else sees
+    keep = ~((w.camera == 2) & (w.frame < 150)) & ~((w.camera != 2) & (w.frame >= 150))
+    sub = WandObservations(w.frame[keep], w.camera[keep], w.uv[keep])
+    with pytest.raises(CalibrationError, match="cam3"):
+        calibrate(sim.rig, sub, None, "ba")
+
+
+def test_camera_that_never_sees_the_wand_is_named():
+    sim = simulate_capture(3, 100, NOISE, seed=26)
+    w = sim.wand
+    keep = w.camera != 1
+    with pytest.raises(CalibrationError, match="camera 'cam2' never saw both wand ends"):
+        calibrate(sim.rig, WandObservations(w.frame[keep], w.camera[keep], w.uv[keep]), None, "ba")
+
+
+def test_unknown_method_is_refused():
+    sim = simulate_capture(2, 30, NOISE, seed=27)
+    with pytest.raises(CalibrationError, match="unknown method 'fast'"):
+        calibrate(sim.rig, sim.wand, None, "fast")
+
+
+def test_progress_reports_stages_and_can_abort():
+    sim = simulate_capture(3, 100, NOISE, seed=28)
+    events = []
+    calibrate(sim.rig, sim.wand, sim.static, "ba", progress=events.append)
+    stages = [e["stage"] for e in events]
+    for s in ("observations", "static", "initial", "labels", "refine", "world", "done"):
+        assert s in stages
+    assert any("iteration" in e and "cost" in e for e in events)
+
+    class Stop(Exception):
+        pass
+
+    def abort(event):
+        if event["stage"] == "refine":
+            raise Stop
+
+    with pytest.raises(Stop):
+        calibrate(sim.rig, sim.wand, sim.static, "ba", progress=abort)
+
+
+def test_paper_method_end_to_end_small_rig():
+    sim = simulate_capture(4, 120, NOISE, seed=29)
+    result = calibrate(sim.rig, sim.wand, sim.static, "paper", options={"max_rounds": 6})
+    ba = calibrate(sim.rig, sim.wand, sim.static, "ba")
+    assert result.solver["method"] == "paper" and result.solver["iterations"] >= 1
+    _, aligned = _errors(result, sim)
+    _, ba_aligned = _errors(ba, sim)
+    assert aligned.max() < 4 * ba_aligned.max() + 0.001
