@@ -1,0 +1,129 @@
+"""Fixtures for the service tests: simulated capture folders and real servers on loopback ports."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import pytest
+
+from calib.simulate import simulate_capture
+from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, write_capture
+
+REPO = Path(__file__).resolve().parents[2]
+STARTUP_TIMEOUT_S = 60.0  # spawning workers imports numpy/scipy/OpenCV; slow on a busy 2-core CI box
+JOB_TIMEOUT_S = 120.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def capture_files(folder: Path) -> dict:
+    """multipart ``files=`` for httpx from a capture folder."""
+    names = [n for n in (RIG_FILE, WAND_FILE, STATIC_FILE) if (folder / n).is_file()]
+    return {n: (n, (folder / n).read_bytes(), "application/octet-stream") for n in names}
+
+
+@dataclass
+class Server:
+    """A ``wandcal serve`` subprocess on a loopback port."""
+
+    port: int
+    env: dict
+    log: Path
+    proc: subprocess.Popen | None = None
+    token: str | None = None
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def client(self, **kwargs) -> httpx.Client:
+        headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
+        return httpx.Client(base_url=self.url + "/api/v1", headers=headers, timeout=30.0, **kwargs)
+
+    def start(self) -> "Server":
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "service.cli", "serve", "--port", str(self.port), "--log-level", "warning"],
+            cwd=REPO, env=self.env, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT,
+        )
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"server exited with {self.proc.returncode}:\n{self.log.read_text()}")
+            try:
+                if httpx.get(self.url + "/api/v1/health", timeout=1.0).status_code == 200:
+                    return self
+            except httpx.TransportError:
+                pass
+            time.sleep(0.1)
+        raise RuntimeError(f"server did not answer within {STARTUP_TIMEOUT_S} s:\n{self.log.read_text()}")
+
+    def kill(self) -> None:
+        """SIGKILL: no shutdown code runs, as when the machine loses power."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+            self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.kill()
+
+
+def server_env(tmp_path: Path, **settings) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("WANDCAL_")}
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    env["WANDCAL_DATA_DIR"] = str(tmp_path / "data")
+    env["WANDCAL_REPLAY_ROOT"] = str(tmp_path / "replay")
+    for key, value in settings.items():
+        env[f"WANDCAL_{key.upper()}"] = str(value)
+    return env
+
+
+@pytest.fixture
+def make_server(tmp_path):
+    servers = []
+
+    def make(**settings) -> Server:
+        (tmp_path / "replay").mkdir(exist_ok=True)
+        token = settings.get("token")
+        server = Server(port=free_port(), env=server_env(tmp_path, **settings), log=tmp_path / "server.log", token=token)
+        servers.append(server)
+        return server
+
+    yield make
+    for s in servers:
+        s.stop()
+
+
+@pytest.fixture(scope="session")
+def small_capture(tmp_path_factory):
+    """4 cameras, 300 frames, 0.3 px noise, with the L-frame: a capture folder and its truth."""
+    sim = simulate_capture(cameras=4, frames=300, noise_px=0.3, seed=11)
+    folder = tmp_path_factory.mktemp("capture") / "small"
+    write_capture(folder, sim.rig, sim.wand, sim.static)
+    return folder, sim
+
+
+def wait_job(client: httpx.Client, job_id: str, timeout_s: float = JOB_TIMEOUT_S, until=("done", "failed", "cancelled")):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(f"/jobs/{job_id}").json()
+        if job["state"] in until:
+            return job
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} still {job['state']} after {timeout_s} s")
