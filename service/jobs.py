@@ -155,20 +155,21 @@ class JobStore:
 
     def finish(
         self, job_id: str, token: str, state: JobState, *, result: dict | None = None, error: str | None = None,
-        solve_seconds: float | None = None,
+        solve_seconds: float | None = None, progress: dict | None = None,
     ) -> bool:
         """Record the outcome of the claim ``token``; False if that claim no longer owns the job."""
         assert state.finished
         with connect(self.db_path) as conn:
             cur = conn.execute(
-                "UPDATE jobs SET state = ?, finished = ?, result = ?, error = ?, solve_seconds = ?, run_token = NULL"
-                " WHERE id = ? AND run_token = ? AND state = ?",
+                "UPDATE jobs SET state = ?, finished = ?, result = ?, error = ?, solve_seconds = ?, run_token = NULL,"
+                " progress = COALESCE(?, progress) WHERE id = ? AND run_token = ? AND state = ?",
                 (
                     state.value,
                     time.time(),
                     json.dumps(result) if result is not None else None,
                     error,
                     solve_seconds,
+                    json.dumps(progress) if progress is not None else None,
                     job_id,
                     token,
                     JobState.running.value,

@@ -85,7 +85,11 @@ def run_claim(store: JobStore, load_capture: Callable[[str], Capture], claim: Cl
             error=f"internal error {type(exc).__name__}: {exc}; this is a bug, please report it with the capture",
         )
         return
-    store.finish(job.id, token, JobState.done, result=result, solve_seconds=time.perf_counter() - started)
+    seconds = time.perf_counter() - started
+    store.finish(
+        job.id, token, JobState.done, result=result, solve_seconds=seconds,
+        progress={"stage": "done", "message": f"solved in {seconds:.1f} s"},
+    )
 
 
 def _die_with_parent() -> None:

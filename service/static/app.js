@@ -46,7 +46,7 @@ function renderCaptures(captures) {
   body.replaceChildren(...captures.map((c) => {
     const run = el("button", { onclick: () => startJob(c.id) }, "calibrate");
     return el("tr", { "data-capture-id": c.id },
-      el("td", { class: "id", title: c.id }, short(c.id)), el("td", {}, c.source + (c.name ? ` (${c.name})` : "")),
+      el("td", { class: "id", title: c.id }, short(c.id)), el("td", {}, c.source + (c.name && c.name !== c.source ? ` (${c.name})` : "")),
       el("td", {}, c.frames), el("td", {}, ...coverage(c)), el("td", {}, run));
   }));
   $("#no-captures").hidden = captures.length > 0;
