@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from calib.geometry import kabsch
 from calib.simulate import simulate_capture
@@ -56,11 +57,17 @@ def test_upload_solve_and_compare_with_truth(make_server, small_capture):
     assert np.linalg.norm(centers @ R.T + t - truth, axis=1).max() < SHAPE_TOL_M
 
 
-def test_sigkill_mid_job_requeues_once_and_finishes(make_server, tmp_path):
-    # a capture big enough that the solve takes seconds, so the kill lands while it runs
+@pytest.fixture(scope="module")
+def big_capture(tmp_path_factory):
+    """A capture big enough that the solve takes seconds, so a kill or cancel lands while it runs."""
     sim = simulate_capture(cameras=8, frames=1500, noise_px=NOISE_PX, seed=5)
-    folder = tmp_path / "big"
+    folder = tmp_path_factory.mktemp("big") / "capture"
     write_capture(folder, sim.rig, sim.wand, sim.static)
+    return folder, sim
+
+
+def test_sigkill_mid_job_requeues_once_and_finishes(make_server, big_capture):
+    folder, sim = big_capture
     server = make_server(workers=1).start()
     with server.client() as c:
         capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
@@ -86,6 +93,21 @@ def test_sigkill_mid_job_requeues_once_and_finishes(make_server, tmp_path):
     with third.client() as c:
         assert c.get(f"/jobs/{job_id}").json()["result"] == again["result"]
     third.kill()
+
+
+def test_cancel_a_running_job(make_server, big_capture):
+    folder, _ = big_capture
+    server = make_server(workers=1).start()
+    with server.client() as c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        job_id = c.post("/jobs", json={"capture_id": capture_id}).json()["id"]
+        assert wait_job(c, job_id, until=("running", "done"))["state"] == "running"
+        assert c.delete(f"/jobs/{job_id}").json()["cancel_requested"]
+        job = wait_job(c, job_id)
+        assert job["state"] == "cancelled" and job["result"] is None
+        # the worker (or its replacement) takes the next job
+        next_id = c.post("/jobs", json={"capture_id": capture_id}).json()["id"]
+        assert wait_job(c, next_id)["state"] == "done"
 
 
 def test_token_required_and_checked(make_server):
