@@ -34,6 +34,7 @@ class Recorder:
     def __init__(self, folder: Path, rig: Rig, writer: ImageWriter, triggered: bool = True):
         self.folder = Path(folder)
         if (self.folder / SYNC_FILE).exists() or (self.folder / FRAMES_DIR).exists():
+            writer.close()
             raise FileExistsError(f"{self.folder} already holds a capture; choose a new --out folder")
         self.folder.mkdir(parents=True, exist_ok=True)
         self.ids = rig.ids

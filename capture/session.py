@@ -3,9 +3,9 @@
 Memory bound (docs/capture-format.md, "Image-level capture"): frames wait in three places,
 each bounded in time at the trigger rate: the inbox from the reader threads
 (:data:`INBOX_SECONDS`), the assembler, which a camera may lead by at most :data:`LEAD_SECONDS`
-before its reader waits, and the writer queue (:data:`WRITE_SECONDS`). At 8 cameras and
-100 fps that is at most 2 s of frames (1600 frames, ~2.1 GB at 1280x1024 8-bit); see
-:func:`buffer_frames`.
+before its reader waits, and the writer queue (:data:`WRITE_SECONDS`): 2 s of frames in all,
+and never more than :data:`MEMORY_BUDGET_BYTES` (shared in the same proportions) at high rates
+or with large frames. See :func:`buffer_frames`.
 """
 
 from __future__ import annotations
@@ -29,14 +29,24 @@ from drivers.trigger import SerialTrigger, TriggerLost
 INBOX_SECONDS = 0.25
 LEAD_SECONDS = 0.5
 WRITE_SECONDS = 1.25
-MIN_BUFFER_FRAMES = 8  # per camera, so slow rates still absorb a hiccup of the disk
+TOTAL_SECONDS = INBOX_SECONDS + LEAD_SECONDS + WRITE_SECONDS
+# 1 GiB: what a capture PC with 8 GB can spare next to the OS and the cameras' own buffers;
+# at 8 cameras, 100 fps, 1280x1024 8-bit the 2 s above would be 2.1 GB, so this cap applies.
+MEMORY_BUDGET_BYTES = 1 << 30
+MIN_BUFFER_FRAMES = 2  # per camera: a slow rate still buffers a frame while the last one is written
+BYTES_PER_PIXEL = 2  # sized for 16-bit frames, so 8-bit ones stay well inside the budget
 READ_TIMEOUT_S = 0.2  # how soon a reader thread notices the stop flag while its camera waits for a pulse
 _END = object()
 
 
-def buffer_frames(rate_hz: float, cameras: int, seconds: float) -> int:
-    """Frames that ``seconds`` of capture hold at ``rate_hz`` with ``cameras`` cameras."""
-    return max(MIN_BUFFER_FRAMES * cameras, int(round(seconds * rate_hz * cameras)))
+def buffer_frames(rate_hz: float, cameras: int, seconds: float, frame_bytes: int = 0) -> int:
+    """Size of a buffer holding ``seconds`` of frames at ``rate_hz`` from ``cameras`` cameras,
+    capped at its share ``seconds / TOTAL_SECONDS`` of :data:`MEMORY_BUDGET_BYTES` for frames of
+    ``frame_bytes`` bytes (0: no cap), and at least :data:`MIN_BUFFER_FRAMES` per camera."""
+    frames = seconds * rate_hz * cameras
+    if frame_bytes > 0:
+        frames = min(frames, MEMORY_BUDGET_BYTES * seconds / TOTAL_SECONDS / frame_bytes)
+    return max(MIN_BUFFER_FRAMES * cameras, int(frames))
 
 
 @dataclass
@@ -128,8 +138,7 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         raise DriverError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give one "
                           "--camera per rig camera, in the same order, with matching ids (?id=...)")
     n = len(cameras)
-    writer = ImageWriter(buffer_frames(rate_hz, n, WRITE_SECONDS))
-    recorder = Recorder(out, rig, writer, triggered=trigger is not None)
+    frame_bytes = max(c.width * c.height for c in rig.cameras) * BYTES_PER_PIXEL
     messages: list[str] = []
 
     def say(message: str) -> None:
@@ -138,22 +147,21 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
             events(message)
 
     assembler = Assembler(ids, triggered=trigger is not None, clock=clock, events=say)
-    inbox: queue.Queue = queue.Queue(maxsize=buffer_frames(rate_hz, n, INBOX_SECONDS))
+    inbox: queue.Queue = queue.Queue(maxsize=buffer_frames(rate_hz, n, INBOX_SECONDS, frame_bytes))
     error: str | None = None
-    total = static_frames + frames
     with contextlib.ExitStack() as stack:
-        try:
-            for cam in cameras:
-                stack.enter_context(cam)
-                cam.configure(trigger_mode=TriggerMode.EXTERNAL if trigger else TriggerMode.FREE_RUN, fps=rate_hz)
-            if trigger is not None:
-                stack.enter_context(trigger)
-                trigger.set_rate(rate_hz)
-        except BaseException:
-            recorder.close({"error": "the cameras or the trigger could not be set up"})
-            raise
-        readers = _Readers(cameras, inbox, assembler, buffer_frames(rate_hz, 1, LEAD_SECONDS))
-        loop = _Loop(assembler, recorder, trigger, cameras, inbox, static_frames, total, say, clock)
+        # devices first: a camera or trigger that cannot be set up leaves no half-made folder
+        for cam in cameras:
+            stack.enter_context(cam)
+            cam.configure(trigger_mode=TriggerMode.EXTERNAL if trigger else TriggerMode.FREE_RUN, fps=rate_hz)
+        if trigger is not None:
+            stack.enter_context(trigger)
+            trigger.set_rate(rate_hz)
+        recorder = Recorder(out, rig, ImageWriter(buffer_frames(rate_hz, n, WRITE_SECONDS, frame_bytes)),
+                            triggered=trigger is not None)
+        writer = recorder.writer
+        readers = _Readers(cameras, inbox, assembler, buffer_frames(rate_hz, n, LEAD_SECONDS, frame_bytes) // n)
+        loop = _Loop(assembler, recorder, trigger, cameras, inbox, static_frames, static_frames + frames, say, clock)
         try:
             if trigger is not None:
                 trigger.start(static_frames or frames)
@@ -161,6 +169,8 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         except KeyboardInterrupt:
             error = "interrupted by the user"
             loop.flush()
+        except DriverError as exc:  # e.g. the trigger refusing START: keep what exists, say why
+            error = str(exc)
         finally:
             readers.join()
             per_camera = {cid: _camera_stats(assembler, i) for i, cid in enumerate(ids)}

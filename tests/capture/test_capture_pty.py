@@ -89,3 +89,33 @@ def test_unknown_camera_url_is_refused_before_anything_is_written(tmp_path, caps
 def test_bad_sim_url_says_what_is_wrong(bad):
     with pytest.raises(OSError, match="sim://"):
         open_cameras(bad)
+
+
+def test_killing_the_emulator_mid_capture_keeps_the_data(tmp_path):
+    import threading
+    import time
+
+    from capture.session import record
+
+    cams = open_cameras("sim://?cameras=2&seed=6&frames=3000")
+    out = tmp_path / "cap"
+    with EmulatorProcess() as emu:
+        from drivers.trigger import SerialTrigger
+
+        results = []
+        worker = threading.Thread(target=lambda: results.append(
+            record(cams, SerialTrigger(emu.url), out, cams[0].scene.rig, frames=3000, rate_hz=200)))
+        worker.start()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and len(sync_rows(out) if (out / "sync.csv").exists() else []) < 30:
+            time.sleep(0.05)
+        emu.process.kill()  # the board's USB cable pulled: the terminal disappears with the process
+        worker.join(30)
+    assert not worker.is_alive()
+    (result,) = results
+    assert result.error and "vanished" in result.error
+    rows = sync_rows(out)
+    assert 30 <= len(rows) == result.frame_sets < 3000
+    last = int(rows[-1]["frame"])
+    assert (out / f"frames/cam1/{last:06d}.png").is_file() and (out / f"frames/cam2/{last:06d}.png").is_file()
+    assert json.loads((out / "capture.json").read_text())["frame_sets"] == len(rows)

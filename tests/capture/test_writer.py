@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import capture.writer as writer_module
-from capture.session import INBOX_SECONDS, LEAD_SECONDS, WRITE_SECONDS, buffer_frames
+from capture.session import INBOX_SECONDS, LEAD_SECONDS, MEMORY_BUDGET_BYTES, WRITE_SECONDS, buffer_frames
 from capture.writer import ImageWriter
 from drivers.errors import DriverError
 
@@ -51,7 +51,11 @@ def test_write_errors_surface_with_the_path(tmp_path):
         w.close()
 
 
-def test_documented_bound_for_ten_minutes_of_8_cameras_at_100_fps():
-    # the bound does not grow with the capture's length: only rate x cameras x seconds
-    total = sum(buffer_frames(100, 8, s) for s in (INBOX_SECONDS, LEAD_SECONDS, WRITE_SECONDS))
-    assert total == 8 * 100 * 2  # two seconds of frames, whatever the duration
+def test_buffers_hold_two_seconds_and_at_most_the_memory_budget():
+    seconds = (INBOX_SECONDS, LEAD_SECONDS, WRITE_SECONDS)
+    # small frames: the time bound, two seconds of 8 cameras at 100 fps, whatever the duration
+    assert sum(buffer_frames(100, 8, s, 320 * 240) for s in seconds) == pytest.approx(8 * 100 * 2, abs=3)
+    # 16-bit 1280x1024 frames (the sizing the session uses): the byte budget binds
+    frame = 1280 * 1024 * 2
+    frames = sum(buffer_frames(100, 8, s, frame) for s in seconds)
+    assert frames * frame <= MEMORY_BUDGET_BYTES and frames >= 8 * 100 * 0.5
