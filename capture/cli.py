@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -22,8 +23,8 @@ def register(subparsers) -> None:
                    help="camera URL (repeat): v4l2:///dev/video0, opencv:0, replay:///path, sim://?cameras=4")
     p.add_argument("--trigger", default="none", metavar="URL",
                    help="strobe trigger: serial:///dev/ttyACM0, a device path, or 'none' (default)")
-    p.add_argument("--frames", type=int, required=True, help="wand frame sets to record")
-    p.add_argument("--static-frames", type=int, default=0, metavar="K",
+    p.add_argument("--frames", type=_count(1), required=True, help="wand frame sets to record")
+    p.add_argument("--static-frames", type=_count(0), default=0, metavar="K",
                    help="first record K frame sets of the static object (L-frame) alone")
     p.add_argument("--rate", type=float, default=100.0, help="trigger / frame rate in Hz (default 100)")
     p.add_argument("--rig", type=Path, help="rig.json with the cameras' intrinsics (simulated and replayed "
@@ -44,6 +45,19 @@ def register(subparsers) -> None:
                    help="close the terminal after N pulses, as if the board were unplugged")
     p.add_argument("--start-us", type=int, default=0, help="device clock at start (near 4294967295 tests the wrap)")
     p.set_defaults(run=run_emulator)
+
+
+def _count(low: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be at least {low}, got {value}")
+        return value
+
+    return parse
 
 
 def run_emulator(args) -> int:

@@ -35,6 +35,8 @@ TOTAL_SECONDS = INBOX_SECONDS + LEAD_SECONDS + WRITE_SECONDS
 MEMORY_BUDGET_BYTES = 1 << 30
 MIN_BUFFER_FRAMES = 2  # per camera: a slow rate still buffers a frame while the last one is written
 BYTES_PER_PIXEL = 2  # sized for 16-bit frames, so 8-bit ones stay well inside the budget
+# Camera and trigger crystals are within +-50 ppm of nominal, so two of them differ by <= 100 ppm.
+DRIFT_WARN_PPM = 100.0
 READ_TIMEOUT_S = 0.2  # how soon a reader thread notices the stop flag while its camera waits for a pulse
 _END = object()
 
@@ -174,6 +176,11 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         finally:
             readers.join()
             per_camera = {cid: _camera_stats(assembler, i) for i, cid in enumerate(ids)}
+            for cid, stats in per_camera.items():
+                drift = stats["clock_drift_ppm"]
+                if drift is not None and abs(drift) > DRIFT_WARN_PPM:
+                    say(f"camera {cid}: its clock ran {drift:+.0f} ppm against the trigger's, more than clock "
+                        "crystals drift; its timestamps may not be exposure times (check its timestamp source)")
             result = CaptureResult(out, recorder.static_sets, recorder.frame_sets, loop.complete, per_camera,
                                    messages, error, writer.high_water, writer.max_queued)
             recorder.close({"static_sets": result.static_sets, "frame_sets": result.frame_sets,
