@@ -105,8 +105,9 @@ def run_capture(args) -> int:
     if scene is not None and rig is scene.rig:
         # a simulated rig: keep its truth beside the capture, as 'wandcal simulate' does
         (args.out / "truth.json").write_text(json.dumps(scene.truth.to_json(rig)) + "\n")
-    status.done(f"recorded {result.frame_sets} wand sets ({result.complete_sets} complete with static) "
-                f"and {result.static_sets} static sets into {result.folder}")
+    total = result.frame_sets + result.static_sets
+    status.done(f"recorded {result.frame_sets} wand sets and {result.static_sets} static sets into {result.folder}; "
+                f"{result.complete_sets} of {total} have every camera's frame")
     for cid, s in result.per_camera.items():
         print(f"{cid}: {s['delivered']} frames, {s['missed']} missed, {s['unreadable']} unreadable"
               + (f", clock drift {s['clock_drift_ppm']:+.1f} ppm" if s["clock_drift_ppm"] is not None else ""))
