@@ -77,11 +77,14 @@ def solve_lp(
     lp.a_matrix_.num_row_ = A.shape[0]
     h.passModel(lp)
     h.run()
+    return _result(h, time.perf_counter() - start)
+
+
+def _result(h, seconds: float) -> LpResult:
     status = h.getModelStatus()
     text = h.modelStatusToString(status)
     info = h.getInfo()
     iterations = int(max(info.simplex_iteration_count, 0) + max(info.ipm_iteration_count, 0))
-    seconds = time.perf_counter() - start
     word = {
         highspy.HighsModelStatus.kOptimal: "optimal",
         highspy.HighsModelStatus.kTimeLimit: "time_limit",
@@ -106,3 +109,43 @@ def solve_lp(
 def _inf(v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, float)
     return np.where(np.isposinf(v), INF, np.where(np.isneginf(v), -INF, v))
+
+
+class IncrementalLp:
+    """An equality-form LP ``min c.x, A x = rhs, lo <= x <= hi`` that grows by columns and
+    changes its right-hand side between solves, each solve warm-started from the last basis.
+
+    Args:
+        rhs: (m,) right-hand side; the rows start empty.
+        time_limit: seconds per solve, or None.
+    """
+
+    def __init__(self, rhs: np.ndarray, time_limit: float | None = None):
+        self.h = highspy.Highs()
+        self.h.setOptionValue("output_flag", False)
+        self.h.setOptionValue("solver", "simplex")
+        if time_limit is not None:
+            self.h.setOptionValue("time_limit", float(time_limit))
+        rhs = np.asarray(rhs, float)
+        self.m = len(rhs)
+        self.h.addRows(self.m, rhs, rhs, 0, np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0))
+        self.n = 0
+
+    def add_columns(self, cost: np.ndarray, lo: np.ndarray, hi: np.ndarray, A: sp.spmatrix) -> None:
+        """Append columns: costs (k,), bounds (k,), and their (m, k) coefficients."""
+        A = sp.csc_matrix(A)
+        self.h.addCols(
+            A.shape[1], np.asarray(cost, float), _inf(lo), _inf(hi), A.nnz,
+            A.indptr[:-1].astype(np.int32), A.indices.astype(np.int32), A.data.astype(float),
+        )
+        self.n += A.shape[1]
+
+    def set_rhs(self, rhs: np.ndarray) -> None:
+        rhs = np.asarray(rhs, float)
+        idx = np.arange(self.m, dtype=np.int32)
+        self.h.changeRowsBounds(self.m, idx, rhs, rhs)
+
+    def solve(self) -> LpResult:
+        start = time.perf_counter()
+        self.h.run()
+        return _result(self.h, time.perf_counter() - start)

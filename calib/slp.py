@@ -30,8 +30,8 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from calib.lp import solve_lp
-from calib.wandmodel import CAM_PARAMS, FRAME_PARAMS, WandModel
+from calib.lp import IncrementalLp
+from calib.wandmodel import CAM_PARAMS, FRAME_PARAMS, WandModel, WandProblem
 
 # The loss: breakpoints (robust sigmas) and psi on each interval, from 0 outwards; found by
 # maximising Gaussian efficiency over 3-breakpoint convex piecewise-linear losses (decision 0004)
@@ -43,78 +43,193 @@ ROT_RADIUS = 0.02  # initial trust region: radians per rotation increment
 T_RADIUS = 0.05  # and metres per translation component
 MAX_ITER = 40
 STEP_TOL = 2e-7  # stop when no camera parameter moves by more than this (rad or m)
-NEAR_BREAK = 0.1  # a row within this many sigmas of a breakpoint starts in the LP
+CONVERGED_DECREASE = 1e-6  # stop when the LP promises less than this fraction of the cost
+NEAR_BREAK = 0.02  # a row within this many sigmas of a breakpoint, at the predicted step, starts in the LP
+SUBSET_FRAMES = 300  # frames of the first phase: enough to pin 16 cameras to ~1 mm
+PREDICTOR = True
+REFIT_STEPS = 3  # Gauss-Newton steps that fit every frame to the first phase's cameras
 MAX_ACTIVE_ROUNDS = 12  # re-solves with widened rows before a step is taken as it is
 
-# signed breakpoints and the slope of each interval between them, left to right
-_P = np.r_[-BREAKS[::-1], 0.0, BREAKS]
-_S = np.r_[-SLOPES[::-1], SLOPES]
+CONVERGED_SE = 0.05  # stop when a step moves every parameter by less than this many standard errors
+MODEL_EXACT = 0.02  # |actual / predicted gain - 1| below which the linearised model was exact
+SHORT_STEP_SE = 5.0  # steps shorter than this many standard errors keep the linearisation exact
 
 
-def pl_loss(z: np.ndarray) -> np.ndarray:
-    """The convex piecewise-linear loss of (signed) residuals in robust sigmas."""
-    a = np.abs(z)
-    out = SLOPES[0] * a
-    for q, beta in enumerate(BREAKS):
-        out += (SLOPES[q + 1] - SLOPES[q]) * np.maximum(a - beta, 0.0)
+def _signed(breaks: np.ndarray, slopes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed breakpoints and the slope of each interval between them, left to right."""
+    return np.r_[-breaks[::-1], 0.0, breaks], np.r_[-slopes[::-1], slopes]
+
+
+EFFICIENT = _signed(BREAKS, SLOPES)
+L1 = _signed(np.zeros(0), np.ones(1))  # least absolute error: the first phase only needs a robust direction
+
+
+def _loss(z: np.ndarray, loss) -> np.ndarray:
+    """A convex piecewise-linear loss, given as (signed breakpoints with 0 in the middle,
+    slopes of the intervals between them), of residuals z in robust sigmas; 0 at z = 0."""
+    P, S = loss
+    mid = len(P) // 2
+    out = S[mid + 1] * np.maximum(z, 0.0) + S[mid] * np.minimum(z, 0.0)
+    for q in range(len(P)):
+        if q > mid:
+            out += (S[q + 1] - S[q]) * np.maximum(z - P[q], 0.0)
+        elif q < mid:
+            out += (S[q + 1] - S[q]) * np.maximum(P[q] - z, 0.0)
     return out
 
 
-_CAP = float(pl_loss(np.array([REJECT_SIGMAS]))[0])
-
-
-def refine_lp(model: WandModel, x0: np.ndarray | None = None, progress=None, max_iter: int = MAX_ITER, time_limit: float | None = None):
+def refine_lp(
+    model: WandModel,
+    x0: np.ndarray | None = None,
+    progress=None,
+    max_iter: int = MAX_ITER,
+    time_limit: float | None = None,
+    subset_frames: int = SUBSET_FRAMES,
+):
     """Refine all free cameras and wand frames by sequential LP.
+
+    The first steps, far from the optimum, move many residuals across many breakpoints; they
+    run on ``subset_frames`` frames spread evenly over the capture (the wand path sweeps the
+    volume, so an even spread covers it). The cameras found there start the steps on all frames.
 
     Args:
         model: the wand problem about its start state.
         x0: (n_params,) start, ``model.x0()`` when None.
         progress: optional callable(dict).
         time_limit: seconds for each LP solve.
+        subset_frames: frames of the first phase (0: none).
 
     Returns:
         (x, info) with info: iterations, seconds, lp_seconds, lp_rows_mean, status, scale.
     """
     start = time.perf_counter()
     x = model.x0() if x0 is None else x0.copy()
+    info_sub = None
+    F = model.p.n_frames
+    if subset_frames and F > 2 * subset_frames:
+        keep = np.unique(np.linspace(0, F - 1, subset_frames).round().astype(int))
+        sub, sub_x = _frame_subset(model, x, keep)
+        sub_x, info_sub = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1)
+        x[: model.frame_col0] = sub_x[: model.frame_col0]
+        x = _refit_frames(model, x)
+    x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, predictor=PREDICTOR)
+    if info_sub is not None:
+        info["iterations"] += info_sub["iterations"]
+        info["lp_seconds"] += info_sub["lp_seconds"]
+        info["subset"] = {"frames": int(len(keep)), "iterations": info_sub["iterations"]}
+    info["seconds"] = time.perf_counter() - start
+    return x, info
+
+
+def _frame_subset(model: WandModel, x: np.ndarray, keep: np.ndarray):
+    """A WandModel on frames ``keep`` (sorted) with the same cameras, and its state from x."""
+    p = model.p
+    new_index = np.full(p.n_frames, -1)
+    new_index[keep] = np.arange(len(keep))
+    sel = new_index[p.frame] >= 0
+    sub_p = WandProblem(p.camera[sel], new_index[p.frame[sel]], p.end[sel], p.xy[sel], p.focal, p.length, len(keep))
+    sub = WandModel(sub_p, model.R0, model.t0, model.wand(x)[keep], model.fixed)
+    sub_x = sub.x0()
+    sub_x[: sub.frame_col0] = x[: model.frame_col0]
+    return sub, sub_x
+
+
+def _refit_frames(model: WandModel, x: np.ndarray, steps: int = REFIT_STEPS) -> np.ndarray:
+    """Gauss-Newton steps on every frame's 5 parameters with the cameras held."""
+    x = x.copy()
+    for _ in range(steps):
+        r = model.residuals(x).reshape(-1, 2)
+        F = model.jacobian_blocks(x)[0][:, :, CAM_PARAMS:]
+        H = _sum_by(model, "frame", np.einsum("mki,mkj->mij", F, F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
+        g = _sum_by(model, "frame", np.einsum("mki,mk->mi", F, r))
+        x[model.frame_col0 :] -= np.linalg.solve(H + 1e-9 * np.eye(FRAME_PARAMS), g[:, :, None])[:, :, 0].ravel()
+    return x
+
+
+def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, phase: str, loss, predictor: bool = False):
     n_free = model.frame_col0 // CAM_PARAMS
     radius = np.array([ROT_RADIUS, T_RADIUS])
     lp_seconds, lp_rows, status = 0.0, [], "iteration_limit"
     sys = _ReducedSystem(model, x)
+    if predictor:
+        # a Gauss-Newton step first, kept only if it lowers the LP's own objective: it brings
+        # most residuals near where the LP will put them, so the LP crosses few breakpoints
+        trial = _ReducedSystem(model, sys.apply(sys.gauss_newton_step()))
+        if trial.cost(sys.scale, loss) < sys.cost(sys.scale, loss):
+            sys = trial
     it = 0
     for it in range(1, max_iter + 1):
         rho = np.tile(np.repeat(radius, 3), n_free)
-        d, lp_info = _solve_step(sys, rho, time_limit)
+        d, lp_info = _solve_step(sys, rho, time_limit, loss)
         lp_seconds += lp_info["seconds"]
         lp_rows.append(lp_info["rows"])
         if d is None:
             status = f"lp_{lp_info['status']}"
             break
-        cost = sys.cost(sys.scale)
+        cost = sys.cost(sys.scale, loss)
+        predicted = sys.model_cost(d, loss)
+        if cost - predicted <= CONVERGED_DECREASE * cost or np.max(np.abs(d)) < STEP_TOL:
+            # the LP's optimum is (to first order) where we are: land on it and stop
+            trial = _ReducedSystem(model, sys.apply(d))
+            if trial.cost(sys.scale, loss) <= cost:
+                sys = trial
+            status = "converged"
+            break
         trial = _ReducedSystem(model, sys.apply(d))
-        new_cost = trial.cost(sys.scale)
-        predicted = sys.model_cost(d)
-        ratio = (cost - new_cost) / max(cost - predicted, 1e-300)
+        new_cost = trial.cost(sys.scale, loss)
+        ratio = (cost - new_cost) / (cost - predicted)
         step = np.abs(d).reshape(-1, 2, 3).max(axis=(0, 2))
         if new_cost < cost:
+            se = sys.standard_errors()
+            small = np.all(np.abs(d) < CONVERGED_SE * se)
+            # the linear model predicted this step's gain exactly and the step was short: the LP
+            # has landed on the optimum of an accurate model, so another step would only confirm
+            exact = abs(ratio - 1.0) < MODEL_EXACT and np.all(np.abs(d) < SHORT_STEP_SE * se)
             sys = trial
+            if small or exact:
+                status = "converged"
+                break
             if ratio > 0.75 and np.any(step > 0.5 * radius):
                 radius = radius * 2.0
         else:
             radius = np.maximum(0.25 * step, 1e-9)
         if progress is not None:
-            progress({"stage": "refine", "iteration": it, "cost": min(cost, new_cost), "message": f"LP step {it}: {lp_info['rows']} LP rows, {lp_info['rounds']} solves"})
-        if np.max(np.abs(d)) < STEP_TOL:
-            status = "converged"
-            break
+            progress({
+                "stage": "refine", "iteration": it, "cost": min(cost, new_cost),
+                "message": f"LP step {it} ({phase}): {lp_info['rows']} LP rows, {lp_info['rounds']} solves",
+            })
     return sys.x, {
         "iterations": it,
-        "seconds": time.perf_counter() - start,
         "lp_seconds": lp_seconds,
         "lp_rows_mean": float(np.mean(lp_rows)) if lp_rows else 0.0,
         "status": status,
         "robust_scale_px": sys.scale,
     }
+
+
+def _incidence(model: WandModel) -> dict:
+    """Sparse sums over observations by frame, camera and (frame, camera), cached on the model
+    (np.add.at is several times slower at these sizes)."""
+    cache = getattr(model, "_slp_incidence", None)
+    if cache is None:
+        p = model.p
+        M = len(p.camera)
+        ones = np.ones(M)
+        obs = np.arange(M)
+        cache = {
+            "frame": sp.csr_matrix((ones, (p.frame, obs)), shape=(p.n_frames, M)),
+            "camera": sp.csr_matrix((ones, (p.camera, obs)), shape=(p.n_cams, M)),
+            "frame_camera": sp.csr_matrix((ones, (p.frame * p.n_cams + p.camera, obs)), shape=(p.n_frames * p.n_cams, M)),
+        }
+        model._slp_incidence = cache
+    return cache
+
+
+def _sum_by(model: WandModel, key: str, values: np.ndarray) -> np.ndarray:
+    """Sum (M, ...) per-observation values by frame, camera or (frame, camera)."""
+    M = values.shape[0]
+    out = _incidence(model)[key] @ values.reshape(M, -1)
+    return np.asarray(out)
 
 
 class _ReducedSystem:
@@ -134,31 +249,64 @@ class _ReducedSystem:
         self.kept = np.abs(self.r) <= REJECT_SIGMAS * self.scale  # (M, 2)
         self._eliminate()
 
-    def cost(self, scale: float) -> float:
+    def cost(self, scale: float, loss) -> float:
         """The redescending objective: the loss, capped at the rejection point."""
-        return float(np.minimum(pl_loss(self.r / scale), _CAP).sum())
+        cap = _loss(np.array([REJECT_SIGMAS]), loss)[0]
+        return float(np.minimum(_loss(self.r.ravel() / scale, loss), cap).sum())
 
-    def model_cost(self, d: np.ndarray) -> float:
+    def model_cost(self, d: np.ndarray, loss) -> float:
         """The LP's model at step d: kept rows linearised, rejected rows at their cap."""
-        z = (self.b + self.change(d)) / self.scale
-        return float(np.where(self.kept, pl_loss(z), _CAP).sum())
+        cap = _loss(np.array([REJECT_SIGMAS]), loss)[0]
+        z = (self.b + self.change(d)).ravel() / self.scale
+        return float(np.where(self.kept.ravel(), _loss(z, loss), cap).sum())
+
+    def standard_errors(self) -> np.ndarray:
+        """(n_cam_params,) standard errors of the camera parameters from the reduced normal
+        equations and the robust scale (valid near the optimum)."""
+        S = self._schur()[0]
+        return self.scale * np.sqrt(np.maximum(np.diag(np.linalg.inv(S)), 0.0))
 
     def _eliminate(self) -> None:
         """Per-frame elimination: K (M,2,5), G (F,N,5,6), g (F,5), Hinv (F,5,5), b (M,2)."""
         p = self.model.p
         z = np.abs(self.r) / self.scale
         Wt = np.where(self.kept, np.minimum(1.0, ELIMINATION_K / np.maximum(z, 1e-12)), 0.0)
+        self.Wt = Wt
         FW = self.F * Wt[:, :, None]
-        H = np.zeros((p.n_frames, FRAME_PARAMS, FRAME_PARAMS))
-        np.add.at(H, p.frame, np.einsum("mki,mkj->mij", FW, self.F))
-        g = np.zeros((p.n_frames, FRAME_PARAMS))
-        np.add.at(g, p.frame, np.einsum("mki,mk->mi", FW, self.r))
+        m = self.model
+        H = _sum_by(m, "frame", np.einsum("mki,mkj->mij", FW, self.F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
+        g = _sum_by(m, "frame", np.einsum("mki,mk->mi", FW, self.r))
         Hinv = np.linalg.inv(H + 1e-9 * np.eye(FRAME_PARAMS))
-        G = np.zeros((p.n_frames, p.n_cams, FRAME_PARAMS, CAM_PARAMS))
-        np.add.at(G, (p.frame, p.camera), np.einsum("mki,mkj->mij", FW, self.C))
+        G = _sum_by(m, "frame_camera", np.einsum("mki,mkj->mij", FW, self.C)).reshape(p.n_frames, p.n_cams, FRAME_PARAMS, CAM_PARAMS)
         self.K = np.einsum("mki,mij->mkj", self.F, Hinv[p.frame])
         self.Hinv, self.G, self.g = Hinv, G, g
         self.b = self.r - np.einsum("mkj,mj->mk", self.K, g[p.frame])
+
+    def gauss_newton_step(self) -> np.ndarray:
+        """The weighted least-squares step of the reduced system, (n_cam_params,)."""
+        S, rhs = self._schur()
+        return -np.linalg.solve(S + 1e-9 * np.trace(S) / len(S) * np.eye(len(S)), rhs)
+
+    def _schur(self) -> tuple[np.ndarray, np.ndarray]:
+        """Reduced normal matrix and gradient of the free cameras: the Schur complement of the
+        frames, with the elimination's weights. Cached."""
+        if getattr(self, "_schur_cache", None) is not None:
+            return self._schur_cache
+        p, m = self.model.p, self.model
+        Wc = self.C * self.Wt[:, :, None]
+        CC = _sum_by(m, "camera", np.einsum("mki,mkj->mij", Wc, self.C)).reshape(p.n_cams, CAM_PARAMS, CAM_PARAMS)
+        Cr = _sum_by(m, "camera", np.einsum("mki,mk->mi", Wc, self.r))
+        n = p.n_cams * CAM_PARAMS
+        S = np.zeros((n, n))
+        idx = np.arange(p.n_cams)
+        S.reshape(p.n_cams, CAM_PARAMS, p.n_cams, CAM_PARAMS)[idx, :, idx, :] = CC
+        Gf = self.G.transpose(0, 2, 1, 3).reshape(p.n_frames, FRAME_PARAMS, n)  # (F, 5, N*6)
+        HG = np.einsum("fij,fjc->fic", self.Hinv, Gf)
+        S -= np.einsum("fic,fid->cd", Gf, HG)
+        rhs = Cr.ravel() - np.einsum("fic,fi->c", Gf, np.einsum("fij,fj->fi", self.Hinv, self.g))
+        free = (m.free[:, None] * CAM_PARAMS + np.arange(CAM_PARAMS)).ravel()
+        self._schur_cache = (S[np.ix_(free, free)], rhs[free])
+        return self._schur_cache
 
     def rows(self, obs: np.ndarray, comp: np.ndarray) -> np.ndarray:
         """Dense reduced rows a_i, (k, n_cam_params), for observation ``obs`` component ``comp``."""
@@ -184,10 +332,8 @@ class _ReducedSystem:
         """sum_i coef_i a_i over all rows, (n_cam_params,), for coef (M, 2)."""
         p, m = self.model.p, self.model
         cam = np.einsum("mk,mkj->mj", coef, self.C) * self.own[:, None]
-        out = np.zeros((p.n_cams, CAM_PARAMS))
-        np.add.at(out, p.camera, cam)
-        u = np.zeros((p.n_frames, FRAME_PARAMS))
-        np.add.at(u, p.frame, np.einsum("mk,mkj->mj", coef, self.K))
+        out = _sum_by(m, "camera", cam)
+        u = _sum_by(m, "frame", np.einsum("mk,mkj->mj", coef, self.K))
         out -= np.einsum("fj,fnjc->nc", u, self.G)
         return out[m.free].ravel()
 
@@ -203,39 +349,60 @@ class _ReducedSystem:
         return x
 
 
-def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit):
-    """The trust-region LP step on an exact working set of (row, breakpoint) pairs."""
-    P = _P * sys.scale  # breakpoints in pixels
+def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss):
+    """The trust-region LP step on an exact working set of (row, breakpoint) pairs.
+
+    The working set starts from a prediction: the Gauss-Newton step of the reduced system,
+    clipped to the trust region. Each row is given the breakpoints between its residual now and
+    its predicted residual, and any breakpoint within ``NEAR_BREAK`` of either. The LP is solved
+    in its dual form, where pairs are columns: a widened working set adds columns and changes
+    the right-hand side, and HiGHS carries on from its last basis.
+
+    Dual: min -beta . y + rho . (u+ + u-)  s.t.  A^T y - u+ + u- = -c_fold,  0 <= y <= jump,
+    for the primal  min c_fold . d + sum_q jump_q max(A_q d + beta_q, 0) over |d| <= rho. The
+    step d is the row duals: where 0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0.
+    """
+    P, S = loss[0] * sys.scale, loss[1]  # breakpoints in pixels, interval slopes
     b = sys.b.ravel()
     kept = sys.kept.ravel()
-    interval = np.searchsorted(P, b)  # row lives in interval j: P[j-1] < b <= P[j]
-    lo = interval.copy()  # modelled breakpoints lo..hi (inclusive); none when hi < lo
-    hi = interval - 1
+    z_pred = b + sys.change(np.clip(sys.gauss_newton_step(), -rho, rho)).ravel()
     near = NEAR_BREAK * sys.scale
-    below = np.clip(interval - 1, 0, len(P) - 1)
-    above = np.clip(interval, 0, len(P) - 1)
-    lo = np.where((interval > 0) & (b - P[below] < near), interval - 1, lo)
-    hi = np.where((interval < len(P)) & (P[above] - b < near), interval, hi)
-    seconds, d, rounds = 0.0, None, 0
+    lo = np.where(kept, np.searchsorted(P, np.minimum(b, z_pred) - near), 0)
+    hi = np.where(kept, np.searchsorted(P, np.maximum(b, z_pred) + near) - 1, -1)
+    n = len(rho)
+    lp = None
+    old_lo, old_hi = lo, lo - 1  # nothing modelled yet
+    seconds, d, rounds, total = 0.0, None, 0, 0
     for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
-        rows_i, bps = _pairs(np.where(kept, lo, 0), np.where(kept, hi, -1))
-        coef = np.where(kept, _S[lo], 0.0).reshape(-1, 2)
-        c_fold = sys.folded_cost(coef)
+        c_fold = sys.folded_cost(np.where(kept, S[lo], 0.0).reshape(-1, 2))
+        # the pairs not modelled before: below the old range and above it
+        rows_a, bps_a = _pairs(lo, np.minimum(hi, old_lo - 1))
+        rows_b, bps_b = _pairs(np.maximum(lo, old_hi + 1), hi)
+        rows_i, bps = np.r_[rows_a, rows_b], np.r_[bps_a, bps_b]
+        total += len(rows_i)
         A = sys.rows(rows_i // 2, rows_i % 2)
-        res = _lp(A, b[rows_i] - P[bps], _S[bps + 1] - _S[bps], c_fold, rho, time_limit)
+        if lp is None:
+            lp = IncrementalLp(-c_fold, time_limit)
+            eye = sp.identity(n, format="csc")
+            lp.add_columns(np.r_[rho, rho], np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
+        else:
+            lp.set_rhs(-c_fold)
+        lp.add_columns(-(b[rows_i] - P[bps]), np.zeros(len(rows_i)), S[bps + 1] - S[bps], A.T)
+        res = lp.solve()
         seconds += res.seconds
-        if not res:
-            return None, {"seconds": seconds, "rows": len(rows_i), "status": res.status, "rounds": rounds}
-        d = res.x[: len(rho)]
+        if not res or res.row_duals is None:
+            return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds}
+        d = res.row_duals.copy()
         z = b + sys.change(d).ravel()
         where = np.searchsorted(P, z)
         out_lo = kept & (where < lo)
         out_hi = kept & (where > hi + 1)
         if not (out_lo.any() or out_hi.any()):
             break
+        old_lo, old_hi = lo, hi
         lo = np.where(out_lo, where, lo)
         hi = np.where(out_hi, where - 1, hi)
-    return d, {"seconds": seconds, "rows": len(rows_i), "status": "optimal", "rounds": rounds}
+    return d, {"seconds": seconds, "rows": total, "status": "optimal", "rounds": rounds}
 
 
 def _pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -244,22 +411,3 @@ def _pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rows_i = np.repeat(np.arange(len(lo)), count)
     offset = np.arange(len(rows_i)) - np.repeat(np.cumsum(count) - count, count)
     return rows_i, lo[rows_i] + offset
-
-
-def _lp(A: np.ndarray, beta: np.ndarray, jump: np.ndarray, c_fold: np.ndarray, rho: np.ndarray, time_limit):
-    """min c_fold . d + sum_q jump_q max(A_q d + beta_q, 0) over |d| <= rho, in the dual form
-    (its rows are the n camera parameters, so HiGHS's basis stays tiny).
-
-    Dual: min -beta . y + rho . (u+ + u-)  s.t.  A^T y - u+ + u- = -c_fold,  0 <= y <= jump.
-    The step d is the row duals: where 0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0,
-    the row sitting on its breakpoint.
-    """
-    k, n = A.shape
-    M = sp.hstack([sp.csc_matrix(A.T), -sp.identity(n, format="csc"), sp.identity(n, format="csc")]).tocsc()
-    cost = np.r_[-beta, rho, rho]
-    lo = np.zeros(k + 2 * n)
-    hi = np.r_[jump, np.full(2 * n, np.inf)]
-    res = solve_lp(cost, M, -c_fold, -c_fold, lo, hi, time_limit=time_limit, solver="simplex")
-    if res and res.row_duals is not None:
-        return type(res)(x=res.row_duals.copy(), status=res.status, objective=res.objective, seconds=res.seconds, iterations=res.iterations, message=res.message)
-    return res
