@@ -38,15 +38,17 @@ from calib.wandmodel import CAM_PARAMS, FRAME_PARAMS, WandModel, WandProblem
 BREAKS = np.array([0.501, 1.05, 1.748])
 SLOPES = np.array([0.188, 0.58, 1.031, 1.651])
 REJECT_SIGMAS = 6.0  # a residual this many robust sigmas out is a gross outlier, not noise
-ELIMINATION_K = 1.75  # Huber weights for each frame's own least-squares fit (the last breakpoint)
 ROT_RADIUS = 0.02  # initial trust region: radians per rotation increment
 T_RADIUS = 0.05  # and metres per translation component
 MAX_ITER = 40
 STEP_TOL = 2e-7  # stop when no camera parameter moves by more than this (rad or m)
-CONVERGED_DECREASE = 1e-6  # stop when the LP promises less than this fraction of the cost
+# stop when the LP promises less gain than this per camera parameter: the loss is ~z^2/2 in
+# robust sigmas near its minimum, so a step of 0.1 standard error gains ~0.005 per parameter
+CONVERGED_GAIN = 0.005
 NEAR_BREAK = 0.02  # a row within this many sigmas of a breakpoint, at the predicted step, starts in the LP
 SUBSET_FRAMES = 300  # frames of the first phase: enough to pin 16 cameras to ~1 mm
 PREDICTOR = True
+DEBUG = False
 REFIT_STEPS = 3  # Gauss-Newton steps that fit every frame to the first phase's cameras
 MAX_ACTIVE_ROUNDS = 12  # re-solves with widened rows before a step is taken as it is
 
@@ -154,9 +156,9 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
     if predictor:
         # a Gauss-Newton step first, kept only if it lowers the LP's own objective: it brings
         # most residuals near where the LP will put them, so the LP crosses few breakpoints
-        trial = _ReducedSystem(model, sys.apply(sys.gauss_newton_step()))
+        trial = _ReducedSystem(model, sys.apply(sys.gauss_newton_step()), sys.scale)
         if trial.cost(sys.scale, loss) < sys.cost(sys.scale, loss):
-            sys = trial
+            sys = _ReducedSystem(model, trial.x)
     it = 0
     for it in range(1, max_iter + 1):
         rho = np.tile(np.repeat(radius, 3), n_free)
@@ -168,16 +170,19 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
             break
         cost = sys.cost(sys.scale, loss)
         predicted = sys.model_cost(d, loss)
-        if cost - predicted <= CONVERGED_DECREASE * cost or np.max(np.abs(d)) < STEP_TOL:
-            # the LP's optimum is (to first order) where we are: land on it and stop
-            trial = _ReducedSystem(model, sys.apply(d))
-            if trial.cost(sys.scale, loss) <= cost:
-                sys = trial
+        if cost - predicted <= CONVERGED_GAIN * len(d) or np.max(np.abs(d)) < STEP_TOL:
+            # the LP's optimum is within a sliver of a standard error of where we are: land on
+            # it (the estimate is the LP's) unless that costs more than the sliver, and stop
+            trial = _ReducedSystem(model, sys.apply(d), sys.scale)
+            if trial.cost(sys.scale, loss) <= cost + CONVERGED_GAIN * len(d):
+                sys = _ReducedSystem(model, trial.x)
             status = "converged"
             break
-        trial = _ReducedSystem(model, sys.apply(d))
+        trial = _ReducedSystem(model, sys.apply(d), sys.scale)
         new_cost = trial.cost(sys.scale, loss)
         ratio = (cost - new_cost) / (cost - predicted)
+        if DEBUG:
+            print(f"    cost {cost:.4f} predicted {predicted:.4f} new {new_cost:.4f} |d| {np.abs(d).max():.2e} radius {radius}")
         step = np.abs(d).reshape(-1, 2, 3).max(axis=(0, 2))
         if new_cost < cost:
             se = sys.standard_errors()
@@ -185,7 +190,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
             # the linear model predicted this step's gain exactly and the step was short: the LP
             # has landed on the optimum of an accurate model, so another step would only confirm
             exact = abs(ratio - 1.0) < MODEL_EXACT and np.all(np.abs(d) < SHORT_STEP_SE * se)
-            sys = trial
+            sys = _ReducedSystem(model, trial.x)  # the robust scale is re-estimated at accepted states
             if small or exact:
                 status = "converged"
                 break
@@ -235,7 +240,7 @@ def _sum_by(model: WandModel, key: str, values: np.ndarray) -> np.ndarray:
 class _ReducedSystem:
     """Residuals with each frame's parameters eliminated, at one state of a WandModel."""
 
-    def __init__(self, model: WandModel, x: np.ndarray):
+    def __init__(self, model: WandModel, x: np.ndarray, scale: float | None = None):
         self.model, self.x = model, x
         self.r = model.residuals(x).reshape(-1, 2)
         blocks, cols = model.jacobian_blocks(x)
@@ -243,16 +248,19 @@ class _ReducedSystem:
         self.cam_cols = cols[:, :CAM_PARAMS]
         self.C = blocks[:, :, :CAM_PARAMS]  # (M, 2, 6)
         self.F = blocks[:, :, CAM_PARAMS:]  # (M, 2, 5)
-        mag = np.linalg.norm(self.r, axis=1)
-        # per-axis robust scale from the residual magnitudes (median of a 2D Gaussian's radius)
-        self.scale = max(float(np.median(mag)) / np.sqrt(2 * np.log(2)), 1e-9)
+        if scale is None:
+            # per-axis robust scale from the residual magnitudes (median of a 2D Gaussian's radius)
+            scale = max(float(np.median(np.linalg.norm(self.r, axis=1))) / np.sqrt(2 * np.log(2)), 1e-9)
+        self.scale = scale
         self.kept = np.abs(self.r) <= REJECT_SIGMAS * self.scale  # (M, 2)
         self._eliminate()
 
     def cost(self, scale: float, loss) -> float:
-        """The redescending objective: the loss, capped at the rejection point."""
+        """The merit of these cameras: the loss (capped at the rejection point) of the residuals
+        with every frame re-fitted to them. The frames are projected out (variable projection),
+        so this is what the LP's model predicts at d = 0."""
         cap = _loss(np.array([REJECT_SIGMAS]), loss)[0]
-        return float(np.minimum(_loss(self.r.ravel() / scale, loss), cap).sum())
+        return float(np.minimum(_loss(self.b.ravel() / scale, loss), cap).sum())
 
     def model_cost(self, d: np.ndarray, loss) -> float:
         """The LP's model at step d: kept rows linearised, rejected rows at their cap."""
@@ -269,8 +277,9 @@ class _ReducedSystem:
     def _eliminate(self) -> None:
         """Per-frame elimination: K (M,2,5), G (F,N,5,6), g (F,5), Hinv (F,5,5), b (M,2)."""
         p = self.model.p
-        z = np.abs(self.r) / self.scale
-        Wt = np.where(self.kept, np.minimum(1.0, ELIMINATION_K / np.maximum(z, 1e-12)), 0.0)
+        # plain least squares on the kept rows: weights that moved with the residuals would make
+        # the frames' fit an iteration of its own, and the projected merit would drift under it
+        Wt = self.kept.astype(float)
         self.Wt = Wt
         FW = self.F * Wt[:, :, None]
         m = self.model
