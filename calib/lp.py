@@ -149,3 +149,7 @@ class IncrementalLp:
         start = time.perf_counter()
         self.h.run()
         return _result(self.h, time.perf_counter() - start)
+
+    def set_costs(self, columns: np.ndarray, cost: np.ndarray) -> None:
+        idx = np.asarray(columns, dtype=np.int32)
+        self.h.changeColsCost(len(idx), idx, np.asarray(cost, float))

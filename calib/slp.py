@@ -45,7 +45,9 @@ STEP_TOL = 2e-7  # stop when no camera parameter moves by more than this (rad or
 # stop when the LP promises less gain than this per camera parameter: the loss is ~z^2/2 in
 # robust sigmas near its minimum, so a step of 0.1 standard error gains ~0.005 per parameter
 CONVERGED_GAIN = 0.005
-NEAR_BREAK = 0.02  # a row within this many sigmas of a breakpoint, at the predicted step, starts in the LP
+NEAR_BREAK = 0.01  # a row within this many sigmas of a breakpoint, at the predicted step, starts in the LP
+GUARD_SE = 1.0  # the first solves stay within this many standard errors of the predicted step
+GUARD_GROWTH = 4.0  # and the guard widens this much where the solution touches it
 SUBSET_FRAMES = 300  # frames of the first phase: enough to pin 16 cameras to ~1 mm
 PREDICTOR = True
 DEBUG = False
@@ -111,7 +113,7 @@ def refine_lp(
     if subset_frames and F > 2 * subset_frames:
         keep = np.unique(np.linspace(0, F - 1, subset_frames).round().astype(int))
         sub, sub_x = _frame_subset(model, x, keep)
-        sub_x, info_sub = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1)
+        sub_x, info_sub = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, predictor=PREDICTOR)
         x[: model.frame_col0] = sub_x[: model.frame_col0]
         x = _refit_frames(model, x)
     x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, predictor=PREDICTOR)
@@ -162,7 +164,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
     it = 0
     for it in range(1, max_iter + 1):
         rho = np.tile(np.repeat(radius, 3), n_free)
-        d, lp_info = _solve_step(sys, rho, time_limit, loss)
+        d, lp_info = _solve_step(sys, rho, time_limit, loss, GUARD_SE if predictor else None)
         lp_seconds += lp_info["seconds"]
         lp_rows.append(lp_info["rows"])
         if d is None:
@@ -358,23 +360,29 @@ class _ReducedSystem:
         return x
 
 
-def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss):
+def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se: float | None):
     """The trust-region LP step on an exact working set of (row, breakpoint) pairs.
 
-    The working set starts from a prediction: the Gauss-Newton step of the reduced system,
-    clipped to the trust region. Each row is given the breakpoints between its residual now and
-    its predicted residual, and any breakpoint within ``NEAR_BREAK`` of either. The LP is solved
-    in its dual form, where pairs are columns: a widened working set adds columns and changes
-    the right-hand side, and HiGHS carries on from its last basis.
+    The working set starts from a prediction ``d_pred``: the Gauss-Newton step of the reduced
+    system, clipped to the trust region. Each row is given the breakpoints between its residual
+    now and its predicted residual, and any breakpoint within ``NEAR_BREAK`` of either. So that
+    this small set cannot send the step far off, the first solves are confined to a guard box of
+    ``GUARD_SE`` standard errors around the prediction; the box grows while the solution
+    touches it. The answer is exact once it lies inside the box and every row stays among its
+    modelled pieces.
 
-    Dual: min -beta . y + rho . (u+ + u-)  s.t.  A^T y - u+ + u- = -c_fold,  0 <= y <= jump,
-    for the primal  min c_fold . d + sum_q jump_q max(A_q d + beta_q, 0) over |d| <= rho. The
-    step d is the row duals: where 0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0.
+    The LP is solved in its dual form, where pairs are columns: a widened working set adds
+    columns, and HiGHS carries on from its last basis:
+        min -beta . y - lo . u+ + hi . u-  s.t.  A^T y - u+ + u- = -c_fold,  0 <= y <= jump,
+    for the primal  min c_fold . d + sum_q jump_q max(A_q d + beta_q, 0) over lo <= d <= hi.
+    The step d is the row duals: where 0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0.
     """
     P, S = loss[0] * sys.scale, loss[1]  # breakpoints in pixels, interval slopes
     b = sys.b.ravel()
     kept = sys.kept.ravel()
-    z_pred = b + sys.change(np.clip(sys.gauss_newton_step(), -rho, rho)).ravel()
+    d_pred = np.clip(sys.gauss_newton_step(), -rho, rho)
+    guard = rho * 2 if guard_se is None else guard_se * sys.standard_errors()
+    z_pred = b + sys.change(d_pred).ravel()
     near = NEAR_BREAK * sys.scale
     lo = np.where(kept, np.searchsorted(P, np.minimum(b, z_pred) - near), 0)
     hi = np.where(kept, np.searchsorted(P, np.maximum(b, z_pred) + near) - 1, -1)
@@ -383,20 +391,23 @@ def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss):
     old_lo, old_hi = lo, lo - 1  # nothing modelled yet
     seconds, d, rounds, total = 0.0, None, 0, 0
     for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
+        box_lo = np.maximum(-rho, d_pred - guard)
+        box_hi = np.minimum(rho, d_pred + guard)
         c_fold = sys.folded_cost(np.where(kept, S[lo], 0.0).reshape(-1, 2))
         # the pairs not modelled before: below the old range and above it
         rows_a, bps_a = _pairs(lo, np.minimum(hi, old_lo - 1))
         rows_b, bps_b = _pairs(np.maximum(lo, old_hi + 1), hi)
         rows_i, bps = np.r_[rows_a, rows_b], np.r_[bps_a, bps_b]
         total += len(rows_i)
-        A = sys.rows(rows_i // 2, rows_i % 2)
         if lp is None:
             lp = IncrementalLp(-c_fold, time_limit)
             eye = sp.identity(n, format="csc")
-            lp.add_columns(np.r_[rho, rho], np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
+            lp.add_columns(np.r_[-box_lo, box_hi], np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
         else:
             lp.set_rhs(-c_fold)
-        lp.add_columns(-(b[rows_i] - P[bps]), np.zeros(len(rows_i)), S[bps + 1] - S[bps], A.T)
+            lp.set_costs(np.arange(2 * n), np.r_[-box_lo, box_hi])
+        if len(rows_i):
+            lp.add_columns(-(b[rows_i] - P[bps]), np.zeros(len(rows_i)), S[bps + 1] - S[bps], sys.rows(rows_i // 2, rows_i % 2).T)
         res = lp.solve()
         seconds += res.seconds
         if not res or res.row_duals is None:
@@ -406,8 +417,14 @@ def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss):
         where = np.searchsorted(P, z)
         out_lo = kept & (where < lo)
         out_hi = kept & (where > hi + 1)
-        if not (out_lo.any() or out_hi.any()):
+        # touching the guard (where it is inside the trust region) means the optimum may lie beyond
+        tol = 1e-9 * (np.abs(box_hi - box_lo) + 1e-300)
+        pinned = ((d <= box_lo + tol) & (box_lo > -rho)) | ((d >= box_hi - tol) & (box_hi < rho))
+        if DEBUG:
+            print(f"      round {rounds}: +{len(rows_i)} pairs (total {total}), {res.iterations} iters {res.seconds:.3f} s, out {int(out_lo.sum() + out_hi.sum())}, pinned {int(pinned.sum())}, |d-pred| max {np.max(np.abs(d - d_pred)):.2e}")
+        if not (out_lo.any() or out_hi.any() or pinned.any()):
             break
+        guard = np.where(pinned, GUARD_GROWTH * guard, guard)
         old_lo, old_hi = lo, hi
         lo = np.where(out_lo, where, lo)
         hi = np.where(out_hi, where - 1, hi)
