@@ -19,12 +19,13 @@ from calib.labels import label_ends
 from calib.observations import wand_pairs
 from calib.paper import refine_paper
 from calib.refine import Setup, build_problem
+from calib.slp import refine_lp
 from calib.rig import Rig, StaticObservations, WandObservations
 from calib.static import StaticPose, solve_static
 from calib.triangulate import triangulate_points
 
 RESULT_FORMAT = "wandcal-result/1"
-METHODS = ("ba", "paper")
+METHODS = ("ba", "lp", "paper")
 DEFAULT_METHOD = "ba"  # docs/decisions/0002-default-method.md
 GAUGE_CAMERA = 0
 MAX_OUTLIER_PASSES = 3  # reject-and-refine passes; the kept set settles after two on simulated rigs
@@ -94,11 +95,11 @@ def calibrate(
         rig: cameras with intrinsics, wand length, optional static object.
         wand: raw, unlabeled wand blobs.
         static: static-object blobs, or None.
-        method: "ba" or "paper" (see ``METHODS``).
+        method: "lp", "ba" or "paper" (see ``METHODS``).
         progress: optional callable(dict) with keys stage, message and, while refining,
             iteration and cost. An exception raised by it aborts the calibration.
-        options: method options: ``max_rounds`` and ``time_limit`` (per LP) for "paper";
-            ``reject_outliers`` (default True) for all.
+        options: ``time_limit`` (seconds per LP solve) for "lp" and "paper"; ``max_rounds``
+            for "paper"; ``reject_outliers`` (default True) for all.
 
     Raises:
         CalibrationError: the input cannot give a calibration; the message says why and what to do.
@@ -178,8 +179,11 @@ def calibrate(
 def _refine(setup: Setup, method: str, options: dict, tell, up: np.ndarray):
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
-    if method == "ba":
-        x, info = bundle_adjust(model, progress=tell)
+    if method in ("ba", "lp"):
+        if method == "ba":
+            x, info = bundle_adjust(model, progress=tell)
+        else:
+            x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
         R, t = model.poses(x)
         return R, t, model.wand(x), info
     R, t, wand_pts, info = refine_paper(

@@ -112,31 +112,10 @@ def wand_path(frames: int, length: float, rng: np.random.Generator) -> np.ndarra
     return np.stack([mid - direction * length / 2, mid + direction * length / 2], axis=1)
 
 
-def simulate_capture(
-    cameras: int = 8,
-    frames: int = 1500,
-    noise_px: float = 0.3,
-    outliers: float = 0.0,
-    static: bool = True,
-    seed: int = 0,
-    wand_length: float = 0.5,
-    occlusion: float = 0.03,
-) -> SimulatedCapture:
-    """Simulate a wand capture.
-
-    Args:
-        cameras: number of cameras on the ring.
-        frames: number of synchronised frame sets.
-        noise_px: Gaussian blob-centre noise, pixels (std per axis).
-        outliers: fraction of camera-frames whose one blob is moved 20-60 px (a gross outlier).
-        static: include an L-frame (``Rig.static_markers`` and static blobs).
-        seed: random seed.
-        wand_length: metres.
-        occlusion: probability that a marker is hidden from a camera in a frame.
-    """
-    rng = np.random.default_rng(seed)
-    cams, R, t = ring_cameras(cameras, rng)
-    wand = wand_path(frames, wand_length, rng)
+def observe_wand(cams, R, t, wand, noise_px, outliers, occlusion, rng) -> WandObservations:
+    """Blobs of wand ends (F, 2, 3) in every camera: noise, gross outliers (one blob of a
+    camera-frame moved 20-60 px), occlusion, the image border, and a random blob order."""
+    frames = len(wand)
     rows_f, rows_c, rows_uv = [], [], []
     pts = wand.reshape(-1, 3)
     for c, cam in enumerate(cams):
@@ -163,16 +142,106 @@ def simulate_capture(
                 rows_f.append(f)
                 rows_c.append(c)
                 rows_uv.append(uv[f, e])
-    static_obs = None
-    if static:
-        sc, suv = [], []
-        sigma = noise_px / np.sqrt(STATIC_FRAMES_AVERAGED)
-        for c, cam in enumerate(cams):
-            uv = distort_points(cam, project_normalized(R[c], t[c], L_FRAME_M)) + rng.normal(0, sigma, (4, 2))
-            uv = uv[rng.permutation(len(uv))]
-            sc += [c] * len(uv)
-            suv.append(uv)
-        static_obs = StaticObservations(camera=np.array(sc), uv=np.concatenate(suv))
+    return WandObservations(frame=np.array(rows_f, dtype=np.int64), camera=np.array(rows_c, dtype=np.int64), uv=np.array(rows_uv).reshape(-1, 2))
+
+
+def observe_static(cams, R, t, markers, sigma_px, rng) -> StaticObservations:
+    """Unlabeled blobs of the static markers (M, 3) in every camera, in random order."""
+    sc, suv = [], []
+    for c, cam in enumerate(cams):
+        uv = distort_points(cam, project_normalized(R[c], t[c], markers)) + rng.normal(0, sigma_px, (len(markers), 2))
+        suv.append(uv[rng.permutation(len(uv))])
+        sc += [c] * len(uv)
+    return StaticObservations(camera=np.array(sc), uv=np.concatenate(suv))
+
+
+def simulate_capture(
+    cameras: int = 8,
+    frames: int = 1500,
+    noise_px: float = 0.3,
+    outliers: float = 0.0,
+    static: bool = True,
+    seed: int = 0,
+    wand_length: float = 0.5,
+    occlusion: float = 0.03,
+) -> SimulatedCapture:
+    """Simulate a wand capture.
+
+    Args:
+        cameras: number of cameras on the ring.
+        frames: number of synchronised frame sets.
+        noise_px: Gaussian blob-centre noise, pixels (std per axis).
+        outliers: fraction of camera-frames whose one blob is moved 20-60 px (a gross outlier).
+        static: include an L-frame (``Rig.static_markers`` and static blobs).
+        seed: random seed.
+        wand_length: metres.
+        occlusion: probability that a marker is hidden from a camera in a frame.
+    """
+    rng = np.random.default_rng(seed)
+    cams, R, t = ring_cameras(cameras, rng)
+    wand = wand_path(frames, wand_length, rng)
+    obs = observe_wand(cams, R, t, wand, noise_px, outliers, occlusion, rng)
+    static_obs = observe_static(cams, R, t, L_FRAME_M, noise_px / np.sqrt(STATIC_FRAMES_AVERAGED), rng) if static else None
     rig = Rig(cameras=tuple(cams), wand_length=wand_length, static_markers=L_FRAME_M.copy() if static else None)
-    obs = WandObservations(frame=np.array(rows_f), camera=np.array(rows_c), uv=np.array(rows_uv))
     return SimulatedCapture(rig=rig, wand=obs, static=static_obs, truth=Truth(R=R, t=t, wand=wand))
+
+
+# The seed paper's simulation (Masoudas/CameraCalibration, Newton/Main_Program.m and StreoSim.m):
+# 4 cameras of 1200 x 900 px with f = 984 px, a 300 mm wand at random positions and orientations
+# seen by at least two cameras, and the static object below (mm in the original), whose blobs
+# carry the same noise as the wand's (no averaging).
+PAPER_IMAGE = (1200, 900)
+PAPER_FOCAL_PX = 984.0
+PAPER_WAND_M = 0.3
+PAPER_STATIC_M = np.array([[0.0, 0.55, 0.0], [0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.75, 0.0, 0.0]])
+
+
+def simulate_paper_protocol(noise_px: float, seed: int, frames: int = 300, test_frames: int = 100):
+    """A capture in the seed paper's simulation protocol, and held-out test frames.
+
+    The authors' camera poses come from .mat files of random poses, one set per quadrant; here
+    one camera stands in each quadrant at 3.5-4.5 m, 2-3 m high, aimed at the volume's centre.
+
+    Returns:
+        (SimulatedCapture of ``frames`` frames, WandObservations of ``test_frames`` more frames,
+        their true wand ends (T, 2, 3)).
+    """
+    rng = np.random.default_rng(seed)
+    w, h = PAPER_IMAGE
+    K = np.array([[PAPER_FOCAL_PX, 0, w / 2], [0, PAPER_FOCAL_PX, h / 2], [0, 0, 1.0]])
+    cams, Rs, ts = [], [], []
+    for k in range(4):
+        az = np.pi / 4 + k * np.pi / 2 + rng.uniform(-0.25, 0.25)
+        dist = rng.uniform(3.5, 4.5)
+        center = np.array([dist * np.cos(az), dist * np.sin(az), rng.uniform(2.0, 3.0)])
+        R, t = look_at(center, np.array([0.0, 0.0, 1.2]) + rng.uniform(-0.2, 0.2, 3), roll=rng.uniform(-0.1, 0.1))
+        cams.append(Camera(id=f"cam{k + 1}", width=w, height=h, K=K, dist=np.zeros(5)))
+        Rs.append(R)
+        ts.append(t)
+    R, t = np.array(Rs), np.array(ts)
+    wand = _random_wand_frames(frames + test_frames, cams, R, t, rng)
+    train = observe_wand(cams, R, t, wand[:frames], noise_px, 0.0, 0.0, rng)
+    test = observe_wand(cams, R, t, wand[frames:], noise_px, 0.0, 0.0, rng)
+    static = observe_static(cams, R, t, PAPER_STATIC_M, noise_px, rng)
+    rig = Rig(cameras=tuple(cams), wand_length=PAPER_WAND_M, static_markers=PAPER_STATIC_M.copy())
+    sim = SimulatedCapture(rig=rig, wand=train, static=static, truth=Truth(R=R, t=t, wand=wand[:frames]))
+    return sim, test, wand[frames:]
+
+
+def _random_wand_frames(n: int, cams, R, t, rng) -> np.ndarray:
+    """Wands at random positions (x, y ~ N(0, 1 m), z ~ U(0.1, 2.5 m)) and uniformly random
+    directions, kept when at least two cameras see both ends (StreoSim.m's rule)."""
+    out = []
+    while len(out) < n:
+        mid = np.array([rng.normal(0, 1.0), rng.normal(0, 1.0), rng.uniform(0.1, 2.5)])
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        ends = np.stack([mid - d * PAPER_WAND_M / 2, mid + d * PAPER_WAND_M / 2])
+        seen = 0
+        for c, cam in enumerate(cams):
+            if np.all(depth(R[c], t[c], ends) > 0.1):
+                uv = distort_points(cam, project_normalized(R[c], t[c], ends))
+                seen += bool(np.all((uv >= 0) & (uv < [cam.width, cam.height])))
+        if seen >= 2:
+            out.append(ends)
+    return np.array(out)

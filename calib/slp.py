@@ -51,7 +51,7 @@ GUARD_GROWTH = 4.0  # and the guard widens this much where the solution touches 
 SUBSET_FRAMES = 300  # frames of the first phase: enough to pin 16 cameras to ~1 mm
 PREDICTOR = True
 DEBUG = False
-REFIT_STEPS = 3  # Gauss-Newton steps that fit every frame to the first phase's cameras
+REFIT_STEPS = 2  # Gauss-Newton steps that fit every frame to the first phase's cameras
 MAX_ACTIVE_ROUNDS = 12  # re-solves with widened rows before a step is taken as it is
 
 CONVERGED_SE = 0.05  # stop when a step moves every parameter by less than this many standard errors
@@ -104,7 +104,9 @@ def refine_lp(
         subset_frames: frames of the first phase (0: none).
 
     Returns:
-        (x, info) with info: iterations, seconds, lp_seconds, lp_rows_mean, status, scale.
+        (x, info) with info: iterations, seconds, lp_seconds, lp_rows_mean, scale, and status:
+        "converged", "iteration_limit", "time_limit" (an LP hit ``time_limit``: x is the best
+        state reached before it) or "lp_<status>" (HiGHS failed; x likewise).
     """
     start = time.perf_counter()
     x = model.x0() if x0 is None else x0.copy()
@@ -116,7 +118,10 @@ def refine_lp(
         sub_x, info_sub = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, predictor=PREDICTOR)
         x[: model.frame_col0] = sub_x[: model.frame_col0]
         x = _refit_frames(model, x)
-    x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, predictor=PREDICTOR)
+    if info_sub is not None and info_sub["status"] != "converged":
+        info = dict(info_sub, iterations=0, lp_seconds=0.0)  # the first phase's best state stands
+    else:
+        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, predictor=PREDICTOR)
     if info_sub is not None:
         info["iterations"] += info_sub["iterations"]
         info["lp_seconds"] += info_sub["lp_seconds"]
@@ -144,8 +149,8 @@ def _refit_frames(model: WandModel, x: np.ndarray, steps: int = REFIT_STEPS) -> 
     for _ in range(steps):
         r = model.residuals(x).reshape(-1, 2)
         F = model.jacobian_blocks(x)[0][:, :, CAM_PARAMS:]
-        H = _sum_by(model, "frame", np.einsum("mki,mkj->mij", F, F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
-        g = _sum_by(model, "frame", np.einsum("mki,mk->mi", F, r))
+        H = _sum_by(model, "frame", _outer(F, F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
+        g = _sum_by(model, "frame", _apply_t(F, r))
         x[model.frame_col0 :] -= np.linalg.solve(H + 1e-9 * np.eye(FRAME_PARAMS), g[:, :, None])[:, :, 0].ravel()
     return x
 
@@ -160,7 +165,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         # most residuals near where the LP will put them, so the LP crosses few breakpoints
         trial = _ReducedSystem(model, sys.apply(sys.gauss_newton_step()), sys.scale)
         if trial.cost(sys.scale, loss) < sys.cost(sys.scale, loss):
-            sys = _ReducedSystem(model, trial.x)
+            sys = _ReducedSystem(model, trial.x)  # the phase's robust scale is taken here
     it = 0
     for it in range(1, max_iter + 1):
         rho = np.tile(np.repeat(radius, 3), n_free)
@@ -168,7 +173,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         lp_seconds += lp_info["seconds"]
         lp_rows.append(lp_info["rows"])
         if d is None:
-            status = f"lp_{lp_info['status']}"
+            status = "time_limit" if lp_info["status"] == "time_limit" else f"lp_{lp_info['status']}"
             break
         cost = sys.cost(sys.scale, loss)
         predicted = sys.model_cost(d, loss)
@@ -177,7 +182,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
             # it (the estimate is the LP's) unless that costs more than the sliver, and stop
             trial = _ReducedSystem(model, sys.apply(d), sys.scale)
             if trial.cost(sys.scale, loss) <= cost + CONVERGED_GAIN * len(d):
-                sys = _ReducedSystem(model, trial.x)
+                sys = trial
             status = "converged"
             break
         trial = _ReducedSystem(model, sys.apply(d), sys.scale)
@@ -192,7 +197,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
             # the linear model predicted this step's gain exactly and the step was short: the LP
             # has landed on the optimum of an accurate model, so another step would only confirm
             exact = abs(ratio - 1.0) < MODEL_EXACT and np.all(np.abs(d) < SHORT_STEP_SE * se)
-            sys = _ReducedSystem(model, trial.x)  # the robust scale is re-estimated at accepted states
+            sys = trial  # the robust scale stays fixed within a phase: one M-estimator, one merit
             if small or exact:
                 status = "converged"
                 break
@@ -212,6 +217,21 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         "status": status,
         "robust_scale_px": sys.scale,
     }
+
+
+def _outer(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """(M, k, i), (M, k, j) -> (M, i, j): sum_k A[:, k, i] B[:, k, j] (matmul is ~8x einsum here)."""
+    return np.matmul(A.swapaxes(1, 2), B)
+
+
+def _apply(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(M, k, j), (M, j) -> (M, k)."""
+    return np.matmul(A, v[:, :, None])[:, :, 0]
+
+
+def _apply_t(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(M, k, i), (M, k) -> (M, i): A^T v per observation."""
+    return np.matmul(A.swapaxes(1, 2), v[:, :, None])[:, :, 0]
 
 
 def _incidence(model: WandModel) -> dict:
@@ -285,13 +305,13 @@ class _ReducedSystem:
         self.Wt = Wt
         FW = self.F * Wt[:, :, None]
         m = self.model
-        H = _sum_by(m, "frame", np.einsum("mki,mkj->mij", FW, self.F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
-        g = _sum_by(m, "frame", np.einsum("mki,mk->mi", FW, self.r))
+        H = _sum_by(m, "frame", _outer(FW, self.F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
+        g = _sum_by(m, "frame", _apply_t(FW, self.r))
         Hinv = np.linalg.inv(H + 1e-9 * np.eye(FRAME_PARAMS))
-        G = _sum_by(m, "frame_camera", np.einsum("mki,mkj->mij", FW, self.C)).reshape(p.n_frames, p.n_cams, FRAME_PARAMS, CAM_PARAMS)
-        self.K = np.einsum("mki,mij->mkj", self.F, Hinv[p.frame])
+        G = _sum_by(m, "frame_camera", _outer(FW, self.C)).reshape(p.n_frames, p.n_cams, FRAME_PARAMS, CAM_PARAMS)
+        self.K = np.matmul(self.F, Hinv[p.frame])
         self.Hinv, self.G, self.g = Hinv, G, g
-        self.b = self.r - np.einsum("mkj,mj->mk", self.K, g[p.frame])
+        self.b = self.r - _apply(self.K, g[p.frame])
 
     def gauss_newton_step(self) -> np.ndarray:
         """The weighted least-squares step of the reduced system, (n_cam_params,)."""
@@ -305,8 +325,8 @@ class _ReducedSystem:
             return self._schur_cache
         p, m = self.model.p, self.model
         Wc = self.C * self.Wt[:, :, None]
-        CC = _sum_by(m, "camera", np.einsum("mki,mkj->mij", Wc, self.C)).reshape(p.n_cams, CAM_PARAMS, CAM_PARAMS)
-        Cr = _sum_by(m, "camera", np.einsum("mki,mk->mi", Wc, self.r))
+        CC = _sum_by(m, "camera", _outer(Wc, self.C)).reshape(p.n_cams, CAM_PARAMS, CAM_PARAMS)
+        Cr = _sum_by(m, "camera", _apply_t(Wc, self.r))
         n = p.n_cams * CAM_PARAMS
         S = np.zeros((n, n))
         idx = np.arange(p.n_cams)
@@ -335,9 +355,9 @@ class _ReducedSystem:
         p, m = self.model.p, self.model
         dc = np.zeros((p.n_cams, CAM_PARAMS))
         dc[m.free] = d.reshape(-1, CAM_PARAMS)
-        own = np.einsum("mkj,mj->mk", self.C, dc[p.camera]) * self.own[:, None]
+        own = _apply(self.C, dc[p.camera]) * self.own[:, None]
         Gd = np.einsum("fnjc,nc->fj", self.G, dc)
-        return own - np.einsum("mkj,mj->mk", self.K, Gd[p.frame])
+        return own - _apply(self.K, Gd[p.frame])
 
     def folded_cost(self, coef: np.ndarray) -> np.ndarray:
         """sum_i coef_i a_i over all rows, (n_cam_params,), for coef (M, 2)."""
@@ -410,7 +430,8 @@ def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
             lp.add_columns(-(b[rows_i] - P[bps]), np.zeros(len(rows_i)), S[bps + 1] - S[bps], sys.rows(rows_i // 2, rows_i % 2).T)
         res = lp.solve()
         seconds += res.seconds
-        if not res or res.row_duals is None:
+        if res.status != "optimal" or res.row_duals is None:
+            # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
             return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds}
         d = res.row_duals.copy()
         z = b + sys.change(d).ravel()

@@ -1,0 +1,44 @@
+"""Shared helpers for the benchmark scripts: timing and writing a section of docs/benchmarks.md."""
+
+from __future__ import annotations
+
+import platform
+import re
+import sys
+import time
+from pathlib import Path
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+
+
+def timed(fn, *args, **kwargs):
+    """(result, seconds) of one call."""
+    start = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - start
+
+
+def machine() -> str:
+    import highspy
+    import numpy
+    import scipy
+
+    import os
+
+    return (
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+        f"NumPy {numpy.__version__}, SciPy {scipy.__version__}, HiGHS (highspy) {highspy.Highs().version() if hasattr(highspy.Highs(), 'version') else '?'}"
+    )
+
+
+def write_section(title: str, body: str) -> None:
+    """Replace (or append) the section '## title' of docs/benchmarks.md, keeping the others."""
+    command = "python " + " ".join(sys.argv)
+    text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\nEach section was written by the command it names, on the machine it names.\n"
+    section = f"## {title}\n\nCommand: `{command}`  \nMachine: {machine()}  \nDate: {time.strftime('%Y-%m-%d')}\n\n{body.strip()}\n"
+    pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.S | re.M)
+    if pattern.search(text):
+        text = pattern.sub(lambda _: section + "\n", text)
+    else:
+        text = text.rstrip() + "\n\n" + section
+    DOC.write_text(text)
