@@ -59,8 +59,6 @@ def initial_poses(rig: Rig, pairs: WandPairs, static_poses: list | None = None) 
                 source[c] = "static PnP"
             elif isinstance(pose, StaticPose):
                 notes.append(f"{rig.cameras[c].id}: static-object pose is ambiguous (planar flip); placed from the wand")
-            elif static_poses is not None and pose is not None:
-                notes.append(f"{rig.cameras[c].id}: {pose}")
     if known.sum() < 2:
         R, t, known, source = _essential_start(rig, pairs)
     while not known.all():

@@ -125,11 +125,15 @@ def calibrate(
     if static is not None and rig.static_markers is not None:
         tell({"stage": "static", "message": "identifying static-object markers and solving PnP"})
         static_poses = solve_static(rig, static)
+        if not any(static_poses):
+            seen = [str(p) for c, p in enumerate(static_poses) if len(static.for_camera(c))]
+            raise CalibrationError(
+                "the static object's markers could not be identified in any camera: "
+                + ("; ".join(seen) if seen else "static.csv has no blobs")
+            )
         for c, pose in enumerate(static_poses):
-            if not pose and len(static.for_camera(c)) > 0:
-                raise CalibrationError(str(pose))
             if not pose:
-                warnings.append(f"{rig.cameras[c].id} did not see the static object; placed from the wand only")
+                warnings.append(f"{pose}; {rig.cameras[c].id} is placed from the wand only")
 
     tell({"stage": "initial", "message": "initial poses"})
     init = initial_poses(rig, pairs, static_poses)

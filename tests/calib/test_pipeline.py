@@ -6,7 +6,7 @@ import pytest
 from calib.errors import CalibrationError
 from calib.geometry import kabsch, rotation_angle
 from calib.pipeline import calibrate
-from calib.rig import WandObservations
+from calib.rig import StaticObservations, WandObservations
 from calib.simulate import STATIC_FRAMES_AVERAGED, simulate_capture
 
 NOISE = 0.3
@@ -125,3 +125,21 @@ def test_paper_method_end_to_end_small_rig():
     _, aligned = _errors(result, sim)
     _, ba_aligned = _errors(ba, sim)
     assert aligned.max() < 4 * ba_aligned.max() + 0.001
+
+
+def test_unidentifiable_static_object_is_an_error_naming_cameras():
+    sim = simulate_capture(3, 100, NOISE, seed=30)
+    wrong = StaticObservations(sim.static.camera, sim.static.uv + np.random.default_rng(0).normal(0, 40, sim.static.uv.shape))
+    with pytest.raises(CalibrationError, match="could not be identified in any camera.*cam1"):
+        calibrate(sim.rig, sim.wand, wrong, "ba")
+
+
+def test_one_camera_missing_the_static_object_is_placed_from_the_wand():
+    sim = simulate_capture(4, 300, NOISE, seed=31)
+    keep = sim.static.camera != 2
+    partial = StaticObservations(sim.static.camera[keep], sim.static.uv[keep])
+    result = calibrate(sim.rig, sim.wand, partial, "ba")
+    assert any("cam3" in w and "placed from the wand" in w for w in result.warnings)
+    assert result.cameras[2]["initial_pose"] == "wand resection"
+    _, aligned = _errors(result, sim)
+    assert aligned.max() < 0.002
