@@ -12,7 +12,6 @@ import argparse
 import json
 import os
 import platform
-import re
 import resource
 import subprocess
 import sys
@@ -26,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from bench.common import replace_section  # noqa: E402
 from capture.session import (  # noqa: E402
     BYTES_PER_PIXEL, INBOX_SECONDS, LEAD_SECONDS, WRITE_SECONDS, buffer_frames, record)
 from capture.writer import ImageWriter  # noqa: E402
@@ -115,14 +115,7 @@ def main() -> None:
     text = header + "\n" + "\n".join(table) + "\n"
     print(text)
     if args.write_docs:
-        path = ROOT / "docs/benchmarks.md"
-        doc = path.read_text() if path.exists() else "# Benchmarks\n"
-        section = "## Capture\n\n" + text
-        if "## Capture\n" in doc:
-            doc = re.sub(r"## Capture\n.*?(?=\n## |\Z)", section.rstrip("\n") + "\n", doc, flags=re.S)
-        else:
-            doc = doc.rstrip("\n") + "\n\n" + section
-        path.write_text(doc)
+        replace_section("Capture", text)
 
 
 if __name__ == "__main__":

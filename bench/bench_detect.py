@@ -23,6 +23,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from bench.common import replace_section  # noqa: E402
 from calib.detect import DetectConfig, detect_blobs, detect_many, render_blobs  # noqa: E402
 
 SHAPE = (1024, 1280)  # (H, W), the sensor size
@@ -154,19 +155,6 @@ def ours_many(config: DetectConfig, workers: int):
     return lambda frames: [b.uv for b in detect_many(frames, config, workers=workers)]
 
 
-def write_section(text: str) -> None:
-    path = REPO / "docs" / "benchmarks.md"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    old = path.read_text() if path.exists() else "# Benchmarks\n"
-    start = old.find(SECTION + "\n")
-    if start < 0:
-        new = old.rstrip("\n") + "\n\n" + text
-    else:
-        end = old.find("\n## ", start + len(SECTION))
-        new = old[:start] + text + (old[end + 1 :] if end >= 0 else "")
-    path.write_text(new.rstrip("\n") + "\n")
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=120)  # distinct frames: 160 MB at 8 bits, never cache-hot
@@ -239,7 +227,7 @@ def main() -> int:
         f"{table}\n"
     )
     if not args.no_write:
-        write_section(text)
+        replace_section(SECTION.removeprefix("## "), text.removeprefix(SECTION))
     return 0
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import re
 import statistics
 import sys
 import tempfile
@@ -18,12 +17,12 @@ import time
 from pathlib import Path
 
 import cv2
-import httpx
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from bench.common import replace_section  # noqa: E402
 from calib.detect import render_blobs  # noqa: E402
 from calib.simulate import simulate_capture  # noqa: E402
 from capture.folder import rig_to_json, write_capture  # noqa: E402
@@ -90,15 +89,6 @@ def server_solve_seconds(server: Server, job_id: str) -> float:
         return conn.execute("SELECT solve_seconds FROM jobs WHERE id = ?", (job_id,)).fetchone()[0]
 
 
-def write_section(table: str, command: str) -> None:
-    path = REPO / "docs" / "benchmarks.md"
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    section = f"{SECTION}\n\nCommand: `{command}`\n\n{table}\n"
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    text = pattern.sub(section, text) if pattern.search(text) else text.rstrip("\n") + "\n\n" + section
-    path.write_text(text)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--framesets", type=int, default=40)
@@ -133,7 +123,8 @@ def main() -> None:
     ])
     print(table)
     if not args.no_write:
-        write_section(table, "python bench/bench_service.py " + f"--framesets {args.framesets} --jobs {args.jobs}")
+        command = f"python bench/bench_service.py --framesets {args.framesets} --jobs {args.jobs}"
+        replace_section(SECTION.removeprefix("## "), f"Command: `{command}`\n\n{table}")
 
 
 if __name__ == "__main__":

@@ -31,14 +31,20 @@ def machine() -> str:
     )
 
 
-def write_section(title: str, body: str) -> None:
-    """Replace (or append) the section '## title' of docs/benchmarks.md, keeping the others."""
-    command = "python " + " ".join(sys.argv)
+def replace_section(title: str, content: str) -> None:
+    """Replace (or append) the section '## title' of docs/benchmarks.md with ``content``,
+    keeping every other section as it is."""
     text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\nEach section was written by the command it names, on the machine it names.\n"
-    section = f"## {title}\n\nCommand: `{command}`  \nMachine: {machine()}  \nDate: {time.strftime('%Y-%m-%d')}\n\n{body.strip()}\n"
+    section = f"## {title}\n\n{content.strip()}\n"
     pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.S | re.M)
     if pattern.search(text):
         text = pattern.sub(lambda _: section + "\n", text)
     else:
         text = text.rstrip() + "\n\n" + section
-    DOC.write_text(text)
+    DOC.write_text(text.rstrip() + "\n")
+
+
+def write_section(title: str, body: str) -> None:
+    """:func:`replace_section` with the command line, the machine and the date on top."""
+    command = "python " + " ".join(sys.argv)
+    replace_section(title, f"Command: `{command}`  \nMachine: {machine()}  \nDate: {time.strftime('%Y-%m-%d')}\n\n{body.strip()}")

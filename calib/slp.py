@@ -51,7 +51,9 @@ GUARD_GROWTH = 4.0  # and the guard widens this much where the solution touches 
 SUBSET_FRAMES = 300  # frames of the first phase: enough to pin 16 cameras to ~1 mm
 PREDICTOR = True
 DEBUG = False
-REFIT_STEPS = 2  # Gauss-Newton steps that fit every frame to the first phase's cameras
+REFIT_STEPS = 1  # Gauss-Newton steps that fit every frame to the first phase's cameras (the
+# predictor's step moves the frames too)
+SCALE_REBUILD = 0.05  # a robust scale that moved less than this keeps the system built with the old one
 MAX_ACTIVE_ROUNDS = 12  # re-solves with widened rows before a step is taken as it is
 
 CONVERGED_SE = 0.05  # stop when a step moves every parameter by less than this many standard errors
@@ -165,7 +167,9 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         # most residuals near where the LP will put them, so the LP crosses few breakpoints
         trial = _ReducedSystem(model, sys.apply(sys.gauss_newton_step()), sys.scale)
         if trial.cost(sys.scale, loss) < sys.cost(sys.scale, loss):
-            sys = _ReducedSystem(model, trial.x)  # the phase's robust scale is taken here
+            # the phase's robust scale is taken here; rebuild only if it moved
+            scale = _robust_scale(trial.r)
+            sys = trial if abs(scale / sys.scale - 1) < SCALE_REBUILD else _ReducedSystem(model, trial.x, scale)
     it = 0
     for it in range(1, max_iter + 1):
         rho = np.tile(np.repeat(radius, 3), n_free)
@@ -219,6 +223,11 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
     }
 
 
+def _robust_scale(r: np.ndarray) -> float:
+    """Per-axis noise from (M, 2) residuals: the median radius of a 2D Gaussian is sigma sqrt(2 ln 2)."""
+    return max(float(np.median(np.linalg.norm(r, axis=1))) / np.sqrt(2 * np.log(2)), 1e-9)
+
+
 def _outer(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """(M, k, i), (M, k, j) -> (M, i, j): sum_k A[:, k, i] B[:, k, j] (matmul is ~8x einsum here)."""
     return np.matmul(A.swapaxes(1, 2), B)
@@ -270,10 +279,7 @@ class _ReducedSystem:
         self.cam_cols = cols[:, :CAM_PARAMS]
         self.C = blocks[:, :, :CAM_PARAMS]  # (M, 2, 6)
         self.F = blocks[:, :, CAM_PARAMS:]  # (M, 2, 5)
-        if scale is None:
-            # per-axis robust scale from the residual magnitudes (median of a 2D Gaussian's radius)
-            scale = max(float(np.median(np.linalg.norm(self.r, axis=1))) / np.sqrt(2 * np.log(2)), 1e-9)
-        self.scale = scale
+        self.scale = _robust_scale(self.r) if scale is None else scale
         self.kept = np.abs(self.r) <= REJECT_SIGMAS * self.scale  # (M, 2)
         self._eliminate()
 
@@ -361,7 +367,7 @@ class _ReducedSystem:
 
     def folded_cost(self, coef: np.ndarray) -> np.ndarray:
         """sum_i coef_i a_i over all rows, (n_cam_params,), for coef (M, 2)."""
-        p, m = self.model.p, self.model
+        m = self.model
         cam = np.einsum("mk,mkj->mj", coef, self.C) * self.own[:, None]
         out = _sum_by(m, "camera", cam)
         u = _sum_by(m, "frame", np.einsum("mk,mkj->mj", coef, self.K))

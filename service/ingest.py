@@ -82,11 +82,3 @@ def detect_static(images: dict[str, list[bytes]], cameras: dict[str, Camera]) ->
         frames = list(_executor().map(lambda d, c=cameras[cid]: detect_one(d, c), datas))
         out[cid] = static_markers_from_frames(frames)
     return out
-
-
-def detector_available() -> bool:
-    try:
-        from calib.detect import detect_blobs  # noqa: F401
-    except ImportError:
-        return False
-    return True

@@ -7,7 +7,7 @@ import re
 import numpy as np
 from fastapi import APIRouter, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
-from starlette.datastructures import UploadFile
+from starlette.datastructures import FormData, UploadFile
 
 from calib.rig import StaticObservations
 from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
@@ -75,7 +75,7 @@ async def _text(value, name: str, limit: int) -> str | None:
         raise HTTPException(422, f"{name} is not UTF-8 text; upload the file as written by wandcal") from None
 
 
-async def _form(request: Request, state) -> "FormData":  # noqa: F821
+async def _form(request: Request, state) -> FormData:
     return await request.form(max_files=256, max_fields=256, max_part_size=state.settings.max_upload_bytes)
 
 
@@ -188,7 +188,6 @@ async def add_frameset(capture: CaptureDep, request: Request, state: State) -> F
         images[key] = await value.read()
     if not images:
         raise HTTPException(422, "the frame set holds no images; send one image per camera, field name = camera id")
-    _need_detector()
     rig = await run_in_threadpool(state.captures.rig, capture.id)
     cameras = {c.id: c for c in rig.cameras}
     from service.ingest import detect_frameset
@@ -263,7 +262,6 @@ async def _static_from_images(request: Request, state, capture: CaptureRow, rig)
             raise HTTPException(422, f"camera {key!r}: more than {MAX_STATIC_IMAGES_PER_CAMERA} static images")
     if not images:
         raise HTTPException(422, "no images; send images of the static object, field name = camera id")
-    _need_detector()
     from service.ingest import detect_static
 
     markers = await run_in_threadpool(detect_static, images, {c.id: c for c in rig.cameras})
@@ -291,11 +289,3 @@ def _whole(value, name: str, required: bool) -> int | None:
     if not isinstance(value, str) or not WHOLE.match(value.strip()):
         raise HTTPException(422, f"form field {name!r} must be a whole number >= 0, got {str(value)[:40]!r}")
     return int(value)
-
-
-def _need_detector() -> None:
-    from service.ingest import detector_available
-
-    if not detector_available():
-        raise HTTPException(503, "this build has no blob detector (calib.detect); upload wand.csv instead")
-
