@@ -145,8 +145,13 @@ class IncrementalLp:
         idx = np.arange(self.m, dtype=np.int32)
         self.h.changeRowsBounds(self.m, idx, rhs, rhs)
 
-    def solve(self) -> LpResult:
+    def solve(self, strategy: int | None = None) -> LpResult:
+        """Solve, from the last basis when there is one. ``strategy``: HiGHS's simplex_strategy
+        (1 dual, 4 primal); primal suits a re-solve after adding columns, whose basis stays
+        primal feasible."""
         start = time.perf_counter()
+        if strategy is not None:
+            self.h.setOptionValue("simplex_strategy", int(strategy))
         self.h.run()
         return _result(self.h, time.perf_counter() - start)
 

@@ -47,6 +47,8 @@ STEP_TOL = 2e-7  # stop when no camera parameter moves by more than this (rad or
 CONVERGED_GAIN = 0.005
 NEAR_BREAK = 0.01  # a row within this many sigmas of a breakpoint, at the predicted step, starts in the LP
 GUARD_SE = 1.0  # the first solves stay within this many standard errors of the predicted step
+FIRST_STRATEGY = 1  # HiGHS dual simplex for a working set's first solve
+RESOLVE_STRATEGY = 1  # dual again: primal simplex from the last basis took 4x the iterations (measured at 16 x 3000)
 GUARD_GROWTH = 4.0  # and the guard widens this much where the solution touches it
 SUBSET_FRAMES = 300  # frames of the first phase: enough to pin 16 cameras to ~1 mm
 PREDICTOR = True
@@ -389,19 +391,24 @@ class _ReducedSystem:
 def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se: float | None):
     """The trust-region LP step on an exact working set of (row, breakpoint) pairs.
 
-    The working set starts from a prediction ``d_pred``: the Gauss-Newton step of the reduced
-    system, clipped to the trust region. Each row is given the breakpoints between its residual
-    now and its predicted residual, and any breakpoint within ``NEAR_BREAK`` of either. So that
-    this small set cannot send the step far off, the first solves are confined to a guard box of
-    ``GUARD_SE`` standard errors around the prediction; the box grows while the solution
-    touches it. The answer is exact once it lies inside the box and every row stays among its
-    modelled pieces.
+    Each row keeps the slope of the interval its residual starts in (a linear term, folded into
+    one cost vector) and gets a hinge for each modelled breakpoint: ``(z - P)+`` to the right of
+    its start, ``(P - z)+`` to the left, weighted by the slope change there, which adds up to the
+    loss exactly on the modelled pieces. The working set starts from a prediction ``d_pred``, the
+    Gauss-Newton step of the reduced system clipped to the trust region: each row gets the
+    breakpoints between its residual now and its predicted residual, and any within
+    ``NEAR_BREAK`` of either. So that this small set cannot send the step far off, the solves
+    are confined to a guard box of ``guard_se`` standard errors around the prediction, widened
+    where the solution touches it. The answer is exact once it lies inside the box and every row
+    stays among its modelled pieces; until then rows that left get the breakpoints they crossed.
 
-    The LP is solved in its dual form, where pairs are columns: a widened working set adds
-    columns, and HiGHS carries on from its last basis:
-        min -beta . y - lo . u+ + hi . u-  s.t.  A^T y - u+ + u- = -c_fold,  0 <= y <= jump,
-    for the primal  min c_fold . d + sum_q jump_q max(A_q d + beta_q, 0) over lo <= d <= hi.
-    The step d is the row duals: where 0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0.
+    The LP is solved in its dual form, where pairs are columns, so every widening only adds
+    columns and HiGHS carries on from its last basis:
+        min sum_q -s_q beta_q y_q - lo . u+ + hi . u-
+        s.t. sum_q s_q A_q y_q - u+ + u- = -c_fold,  0 <= y_q <= jump_q,
+    for the primal  min c_fold . d + sum_q jump_q max(s_q (A_q d + beta_q), 0) over lo <= d <= hi,
+    with s_q = +1 for right hinges and -1 for left ones. The step d is the row duals: where
+    0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0, the row on its breakpoint.
     """
     P, S = loss[0] * sys.scale, loss[1]  # breakpoints in pixels, interval slopes
     b = sys.b.ravel()
@@ -410,31 +417,30 @@ def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     guard = rho * 2 if guard_se is None else guard_se * sys.standard_errors()
     z_pred = b + sys.change(d_pred).ravel()
     near = NEAR_BREAK * sys.scale
+    base = np.searchsorted(P, b)  # the interval each row starts in: P[base - 1] < b <= P[base]
+    c_fold = sys.folded_cost(np.where(kept, S[base], 0.0).reshape(-1, 2))
     lo = np.where(kept, np.searchsorted(P, np.minimum(b, z_pred) - near), 0)
     hi = np.where(kept, np.searchsorted(P, np.maximum(b, z_pred) + near) - 1, -1)
     n = len(rho)
-    lp = None
-    old_lo, old_hi = lo, lo - 1  # nothing modelled yet
+    lp = IncrementalLp(-c_fold, time_limit)
+    eye = sp.identity(n, format="csc")
+    lp.add_columns(np.zeros(2 * n), np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
+    old_lo, old_hi = base, base - 1  # nothing modelled yet
     seconds, d, rounds, total = 0.0, None, 0, 0
     for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
         box_lo = np.maximum(-rho, d_pred - guard)
         box_hi = np.minimum(rho, d_pred + guard)
-        c_fold = sys.folded_cost(np.where(kept, S[lo], 0.0).reshape(-1, 2))
+        lp.set_costs(np.arange(2 * n), np.r_[-box_lo, box_hi])
         # the pairs not modelled before: below the old range and above it
         rows_a, bps_a = _pairs(lo, np.minimum(hi, old_lo - 1))
         rows_b, bps_b = _pairs(np.maximum(lo, old_hi + 1), hi)
         rows_i, bps = np.r_[rows_a, rows_b], np.r_[bps_a, bps_b]
-        total += len(rows_i)
-        if lp is None:
-            lp = IncrementalLp(-c_fold, time_limit)
-            eye = sp.identity(n, format="csc")
-            lp.add_columns(np.r_[-box_lo, box_hi], np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
-        else:
-            lp.set_rhs(-c_fold)
-            lp.set_costs(np.arange(2 * n), np.r_[-box_lo, box_hi])
         if len(rows_i):
-            lp.add_columns(-(b[rows_i] - P[bps]), np.zeros(len(rows_i)), S[bps + 1] - S[bps], sys.rows(rows_i // 2, rows_i % 2).T)
-        res = lp.solve()
+            side = np.where(bps >= base[rows_i], 1.0, -1.0)  # right hinge, or left hinge
+            A = sys.rows(rows_i // 2, rows_i % 2) * side[:, None]
+            lp.add_columns(-side * (b[rows_i] - P[bps]), np.zeros(len(rows_i)), S[bps + 1] - S[bps], A.T)
+            total += len(rows_i)
+        res = lp.solve(FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
         seconds += res.seconds
         if res.status != "optimal" or res.row_duals is None:
             # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
@@ -448,7 +454,7 @@ def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         tol = 1e-9 * (np.abs(box_hi - box_lo) + 1e-300)
         pinned = ((d <= box_lo + tol) & (box_lo > -rho)) | ((d >= box_hi - tol) & (box_hi < rho))
         if DEBUG:
-            print(f"      round {rounds}: +{len(rows_i)} pairs (total {total}), {res.iterations} iters {res.seconds:.3f} s, out {int(out_lo.sum() + out_hi.sum())}, pinned {int(pinned.sum())}, |d-pred| max {np.max(np.abs(d - d_pred)):.2e}")
+            print(f"      round {rounds}: +{len(rows_i)} pairs (total {total}), {res.iterations} iters {res.seconds:.3f} s, out {int(out_lo.sum() + out_hi.sum())}, pinned {int(pinned.sum())}")
         if not (out_lo.any() or out_hi.any() or pinned.any()):
             break
         guard = np.where(pinned, GUARD_GROWTH * guard, guard)
