@@ -36,7 +36,7 @@ PAPER_ROUNDS = 15
 def held_out_lengths(result, rig, test) -> np.ndarray:
     """Wand lengths (metres) of the held-out frames, triangulated with the calibrated cameras."""
     pairs = wand_pairs(rig, test)
-    labelled, _ = label_ends(result.R, result.t, pairs, np.ones(len(rig.cameras), bool))
+    labelled, _ = label_ends(result.R, result.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)
     point, camera, xy = flatten(labelled)
     X = triangulate_points(result.R, result.t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
     lengths = np.linalg.norm(X[:, 1] - X[:, 0], axis=1)

@@ -24,13 +24,18 @@ def flatten(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return point, camera, xy
 
 
-def label_ends(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known: np.ndarray) -> tuple[WandPairs, np.ndarray]:
+def label_ends(
+    R: np.ndarray, t: np.ndarray, pairs: WandPairs, known: np.ndarray, length: float | None = None
+) -> tuple[WandPairs, np.ndarray]:
     """Order each pair's ends consistently across the cameras whose pose is known.
 
     Args:
         R: (N, 3, 3), t: (N, 3) approximate poses.
         pairs: camera-frame pairs, any order.
         known: (N,) bool, cameras whose pose may be used; pairs of other cameras are left as they are.
+        length: the wand length, metres. In a frame seen by only two cameras both matchings can
+            fit the epipolar geometry (a wand near an epipolar plane); the one whose triangulated
+            wand is nearer this length is kept.
 
     Returns:
         (labelled pairs of known cameras, (P_known,) margin in normalised units: how much worse
@@ -39,8 +44,8 @@ def label_ends(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known: np.ndarray
     sub = pairs.subset(known[pairs.camera])
     if len(sub) == 0:
         return sub, np.zeros(0)
-    swap = _epipolar_order(R, t, sub)
-    sub = sub.swapped(swap)
+    sub = sub.swapped(_epipolar_order(R, t, sub))
+    sub = sub.swapped(_pairwise_consensus(R, t, sub))
     margin = np.zeros(len(sub))
     for _ in range(RELABEL_ROUNDS):
         point, camera, xy = flatten(sub)
@@ -55,7 +60,35 @@ def label_ends(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known: np.ndarray
         if not flip.any():
             break
         sub = sub.swapped(flip)
+    if length is not None:
+        sub = _two_view_by_length(R, t, sub, length)
     return sub, margin
+
+
+def _two_view_by_length(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: float) -> WandPairs:
+    """In frames seen by exactly two cameras, swap the second camera's ends when that brings the
+    triangulated wand nearer ``length``."""
+    views = np.bincount(pairs.frame, minlength=len(pairs.frames))
+    two = views[pairs.frame] == 2
+    if not two.any():
+        return pairs
+    # the second pair of each two-view frame (pairs are grouped by frame in camera order)
+    order = np.lexsort((pairs.camera, pairs.frame))
+    second = np.zeros(len(pairs), bool)
+    sorted_frames = pairs.frame[order]
+    second[order[1:]] = sorted_frames[1:] == sorted_frames[:-1]
+    candidate = second & two
+    n_points = 2 * len(pairs.frames)
+
+    def lengths(p: WandPairs) -> np.ndarray:
+        point, camera, xy = flatten(p)
+        X = triangulate_points(R, t, point, camera, xy, n_points).reshape(-1, 2, 3)
+        return np.linalg.norm(X[:, 1] - X[:, 0], axis=1)
+
+    now = lengths(pairs)
+    alt = lengths(pairs.swapped(candidate))
+    better = np.abs(alt - length) < np.abs(now - length)
+    return pairs.swapped(candidate & better[pairs.frame])
 
 
 def _project(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -81,6 +114,54 @@ def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> np.ndarra
     same = _sampson(E, xa[:, 0], xb[:, 0]) + _sampson(E, xa[:, 1], xb[:, 1])
     swap = _sampson(E, xa[:, 0], xb[:, 1]) + _sampson(E, xa[:, 1], xb[:, 0])
     return (swap < same) & (a != b)
+
+
+def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_passes: int = 8) -> np.ndarray:
+    """(P,) bool flips that lower each frame's epipolar cost summed over all its camera pairs.
+
+    The reference-based order trusts one camera per frame; when the wand lies near an epipolar
+    plane of that camera, other cameras can split into two camps. Here every pair of cameras in
+    a frame votes, and single-camera flips are taken greedily (the best one per frame and pass)
+    while they lower the frame's total.
+    """
+    P = len(pairs)
+    order = np.argsort(pairs.frame, kind="stable")
+    fr = pairs.frame[order]
+    start = np.searchsorted(fr, fr, side="left")
+    count = np.bincount(fr, minlength=len(pairs.frames))[fr]
+    # all ordered pairs (i, j), i != j, within a frame
+    reps = count
+    i_idx = np.repeat(order, reps)
+    offs = np.arange(len(i_idx)) - np.repeat(np.cumsum(reps) - reps, reps)
+    j_idx = order[np.repeat(start, reps) + offs]
+    keep = i_idx != j_idx
+    i_idx, j_idx = i_idx[keep], j_idx[keep]
+    if len(i_idx) == 0:
+        return np.zeros(P, bool)
+    ci, cj = pairs.camera[i_idx], pairs.camera[j_idx]
+    R_ij = R[cj] @ np.swapaxes(R[ci], 1, 2)
+    E = _skew(t[cj] - np.einsum("mij,mj->mi", R_ij, t[ci])) @ R_ij
+    xi, xj = pairs.xy[i_idx], pairs.xy[j_idx]
+    same = _sampson(E, xi[:, 0], xj[:, 0]) + _sampson(E, xi[:, 1], xj[:, 1])
+    cross = _sampson(E, xi[:, 0], xj[:, 1]) + _sampson(E, xi[:, 1], xj[:, 0])
+    flip = np.zeros(P, bool)
+    for _ in range(max_passes):
+        agree = flip[i_idx] == flip[j_idx]
+        now = np.where(agree, same, cross)
+        after = np.where(agree, cross, same)  # flipping i changes its agreement with every j
+        gain = np.bincount(i_idx, now - after, minlength=P)
+        best = np.full(len(pairs.frames), 0.0)
+        np.maximum.at(best, pairs.frame, gain)
+        take = (gain > 0) & (gain >= best[pairs.frame])
+        # one flip per frame and pass: the frame's best single flip
+        first = np.zeros(P, bool)
+        idx = np.flatnonzero(take)
+        _, first_of_frame = np.unique(pairs.frame[idx], return_index=True)
+        first[idx[first_of_frame]] = True
+        if not first.any():
+            break
+        flip ^= first
+    return flip
 
 
 def _skew(v: np.ndarray) -> np.ndarray:

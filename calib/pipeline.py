@@ -140,7 +140,7 @@ def calibrate(
     warnings += init.notes
 
     tell({"stage": "labels", "message": "telling the wand ends apart"})
-    labelled, _ = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool))
+    labelled, _ = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)
     setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
 
     R, t, wand_pts, info = _refine(setup, method, options, tell, _up_direction(rig, init.R, init.t, setup))

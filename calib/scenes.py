@@ -28,6 +28,6 @@ def prepared_scene(cameras=5, frames=300, noise_px=0.5, seed=0, outliers=0.0, st
     sim = simulate_capture(cameras, frames, noise_px, outliers, static, seed)
     pairs = wand_pairs(sim.rig, sim.wand)
     init = initial_poses(sim.rig, pairs, solve_static(sim.rig, sim.static) if static else None)
-    labelled, _ = label_ends(init.R, init.t, pairs, np.ones(cameras, bool))
+    labelled, _ = label_ends(init.R, init.t, pairs, np.ones(cameras, bool), sim.rig.wand_length)
     setup = build_problem(sim.rig, labelled, init.R, init.t)
     return PreparedScene(sim, pairs, init, labelled, setup)
