@@ -7,6 +7,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from calib.pipeline import DEFAULT_METHOD, METHODS
 from service.jobs import JobState
 
 
@@ -67,10 +68,7 @@ class FrameSetPublic(BaseModel):
     wand_cameras: list[str] = Field(description="cameras that saw exactly two blobs and added wand rows")
 
 
-class Method(str, enum.Enum):
-    ba = "ba"
-    paper = "paper"
-    lp = "lp"
+Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: calib.pipeline.METHODS
 
 
 class JobOptions(BaseModel):
@@ -83,7 +81,7 @@ class JobCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     capture_id: str = Field(max_length=64)
-    method: Method = Method.ba
+    method: Method = Method(DEFAULT_METHOD)
     options: JobOptions = Field(default_factory=JobOptions)
 
 

@@ -76,7 +76,7 @@ function renderJobs(jobs) {
 async function startJob(captureId) {
   try {
     await api("/jobs", { method: "POST", headers: { "Content-Type": "application/json" },
-      body: JSON.stringify({ capture_id: captureId, method: "ba" }) });
+      body: JSON.stringify({ capture_id: captureId }) });  // the server's default method
     poll();
   } catch (err) { alert(err.message); }
 }
