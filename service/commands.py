@@ -77,8 +77,8 @@ def run_simulate(args) -> int:
 
 def _points_level(folder: Path, progress) -> Path:
     """Detect first when the capture is image level (capture.images provides it)."""
-    if (folder / "wand.csv").is_file():
-        return folder
+    if not folder.is_dir() or (folder / "wand.csv").is_file():
+        return folder  # read_capture names what is missing
     try:
         from capture.images import ensure_points_level
     except ImportError:
