@@ -17,7 +17,7 @@ from fastapi.staticfiles import StaticFiles
 from calib.errors import CalibrationError
 from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
 from service.api.deps import AppState, require_token
-from service.api.routes import captures, health, jobs
+from service.api.routes import captures, health, jobs, live_capture
 from service.db import init_db
 from service.jobs import JobStore
 from service.limits import BodySizeLimit, RateLimiter
@@ -89,6 +89,8 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(health.router, prefix=API_PREFIX)
     app.include_router(captures.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(jobs.router, prefix=API_PREFIX, dependencies=secured)
+    app.state.live_capture = live_capture.LiveCapture(capture_store)
+    app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:

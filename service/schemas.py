@@ -142,3 +142,54 @@ class Health(BaseModel):
     jobs_running: int
     detector: bool = Field(description="frame-set detection is available")
     solver: bool = Field(description="the calibration pipeline is available")
+
+
+class LiveCaptureState(str, enum.Enum):
+    idle = "idle"
+    running = "running"
+    stopping = "stopping"
+    done = "done"
+    failed = "failed"
+
+
+class LiveCaptureCreate(BaseModel):
+    """Arming settings of a live capture (``wandcal capture`` over HTTP). The folder is chosen by the server."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    cameras: list[str] = Field(
+        min_length=1, max_length=64, description="camera driver URLs, in rig order (one URL may stand for several)",
+        examples=[["sim://?cameras=3&seed=2&frames=60&static=10"]],
+    )
+    trigger: str | None = Field(
+        None, max_length=500, description="strobe trigger: serial:///dev/ttyACM0 or a device path; null: free-run",
+    )
+    frames: int = Field(ge=1, le=10_000_000, description="wand frame sets to record")
+    static_frames: int = Field(0, ge=0, le=100_000, description="first record this many sets of the static object")
+    rate_hz: float = Field(100.0, gt=0, le=10_000, description="trigger / frame rate, Hz")
+    wand_length_m: float | None = Field(None, gt=0, le=100, description="wand marker distance, metres")
+    rig: dict[str, Any] | None = Field(
+        None, description="rig.json document with the cameras' intrinsics (simulated and replayed cameras bring "
+        "their own)",
+    )
+
+
+class LiveCapturePublic(BaseModel):
+    """The live capture: the one running, or the last one since the server started."""
+
+    id: str | None = Field(None, description="live-capture id; null when none ran since the server started")
+    capture_id: str | None = Field(None, description="the stored capture it becomes (GET /captures/{id} once done)")
+    state: LiveCaptureState
+    phase: str | None = Field(
+        None, description="'open', 'static', 'wand', 'detect <images done>/<images>' or 'register'"
+    )
+    cameras: list[str] = Field(default_factory=list, description="camera ids")
+    frames_total: int = Field(0, description="frame sets asked for: static_frames + frames")
+    frames_recorded: int = Field(0, description="frame sets recorded so far (static and wand)")
+    fps: float = Field(0.0, description="frame sets recorded per second")
+    dropped: dict[str, int] = Field(default_factory=dict, description="per camera: frames missed or unreadable")
+    stopped: bool = Field(False, description="ended early by POST /capture/stop (what was recorded is kept)")
+    error: str | None = Field(None, description="why it failed")
+    messages: list[str] = Field(default_factory=list, description="the latest drift / realignment / fault events")
+    started: float | None = Field(None, description="Unix time, seconds")
+    finished: float | None = None

@@ -1,0 +1,224 @@
+"""Live capture: ``wandcal capture`` driven over HTTP, one at a time, into the data directory.
+
+A capture records into a staging folder ``captures/.<capture id>.partial`` (removed at the next
+start if the server dies mid-capture), then detection writes its points level and the folder
+becomes the stored capture ``<capture id>``, ready for ``POST /jobs``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import shutil
+import threading
+import time
+import uuid
+from collections import deque
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi.concurrency import run_in_threadpool
+
+from capture.folder import CaptureFormatError, read_capture, rig_from_json
+from capture.images import ensure_points_level
+from capture.session import Progress, record
+from drivers.errors import DriverError
+from service.db import connect
+from service.schemas import ErrorPublic, LiveCaptureCreate, LiveCapturePublic, LiveCaptureState
+from service.storage import CaptureStore, wand_counts
+
+router = APIRouter(prefix="/capture", tags=["live capture"])
+
+SOURCE = "live"
+KEPT_MESSAGES = 20  # the latest events are what an operator acts on; the full list is in capture.json
+ERRORS = {
+    401: {"model": ErrorPublic, "description": "missing or wrong bearer token"},
+    409: {"model": ErrorPublic, "description": "a live capture is already running, or none is"},
+}
+
+
+class _StopRequested(KeyboardInterrupt):
+    """Raised from the progress callback: :func:`capture.session.record` ends on an interrupt
+    exactly as on Ctrl-C in ``wandcal capture``, keeping every set recorded so far."""
+
+
+class LiveCapture:
+    """The one live capture of a server: its background thread and a snapshot of its status."""
+
+    def __init__(self, store: CaptureStore):
+        self.store = store
+        self._lock = threading.Lock()
+        self._status = LiveCapturePublic(state=LiveCaptureState.idle)
+        self._stop = threading.Event()
+        self._messages: deque[str] = deque(maxlen=KEPT_MESSAGES)
+
+    def status(self) -> LiveCapturePublic:
+        with self._lock:
+            return self._status.model_copy(update={"messages": list(self._messages)})
+
+    def _update(self, **fields) -> None:
+        with self._lock:
+            self._status = self._status.model_copy(update=fields)
+
+    def _busy(self) -> bool:
+        return self._status.state in (LiveCaptureState.running, LiveCaptureState.stopping)
+
+    def start(self, body: LiveCaptureCreate) -> LiveCapturePublic:
+        """Open the devices (a driver that cannot open raises here, before anything is recorded),
+        then record in a background thread."""
+        with self._lock:
+            if self._busy():
+                s = self._status
+                raise HTTPException(409, f"live capture {s.id} is {s.state.value} (capture {s.capture_id}, "
+                                         f"{s.frames_recorded}/{s.frames_total} sets); stop it with "
+                                         "POST /api/v1/capture/stop or wait until it is done")
+            # claimed before the devices open, so two starts at once cannot both go ahead
+            previous = self._status
+            self._status = LiveCapturePublic(state=LiveCaptureState.running, phase="open", id=uuid.uuid4().hex,
+                                             capture_id=uuid.uuid4().hex, started=time.time(),
+                                             frames_total=body.frames + body.static_frames)
+            self._messages.clear()
+            self._stop.clear()
+        stack = contextlib.ExitStack()
+        try:
+            cameras, trigger, rig = _open_devices(body, stack)
+        except BaseException as exc:
+            stack.close()
+            with self._lock:
+                self._status = previous  # a refused start changes nothing
+            if isinstance(exc, (OSError, ValueError)):  # DriverError, a bad URL or rig.json
+                raise HTTPException(422, str(exc)) from None
+            raise
+        self._update(cameras=[c.camera_id for c in cameras], phase="static" if body.static_frames else "wand")
+        run = self.status()
+        threading.Thread(target=self._run, args=(body, stack, cameras, trigger, rig, run),
+                         name=f"live-capture-{run.id[:8]}", daemon=True).start()
+        return run
+
+    def stop(self) -> LiveCapturePublic:
+        with self._lock:
+            if not self._busy():
+                raise HTTPException(409, f"no live capture is running (the last one is {self._status.state.value}); "
+                                         "start one with POST /api/v1/capture/start")
+            self._stop.set()
+            if self._status.state == LiveCaptureState.running:
+                self._status = self._status.model_copy(update={"state": LiveCaptureState.stopping})
+        return self.status()
+
+    # -- the background thread -----------------------------------------------------------------
+    def _progress(self, p: Progress) -> None:
+        if self._stop.is_set():
+            self._update(stopped=True)
+            raise _StopRequested()
+        self._update(phase=p.phase, frames_recorded=p.sets, fps=round(p.fps, 2), dropped=dict(p.missed))
+
+    def _event(self, message: str) -> None:
+        with self._lock:
+            self._messages.append(message)
+
+    def _run(self, body: LiveCaptureCreate, stack: contextlib.ExitStack, cameras, trigger, rig,
+             run: LiveCapturePublic) -> None:
+        staging = self.store.root / f".{run.capture_id}.partial"
+        registered = False
+        try:
+            with stack:
+                result = record(cameras, trigger, staging, rig, frames=body.frames, static_frames=body.static_frames,
+                                rate_hz=body.rate_hz, progress=self._progress, events=self._event)
+            stopped = self.status().stopped
+            self._update(frames_recorded=result.static_sets + result.frame_sets,
+                         dropped={cid: s["missed"] + s["unreadable"] for cid, s in result.per_camera.items()})
+            if result.frame_sets == 0:
+                raise CaptureFormatError("no wand frame sets were recorded" + (" before the stop" if stopped else "")
+                                         + "; nothing was stored")
+            self._update(phase="detect")
+            ensure_points_level(staging, progress=lambda p: self._update(
+                phase=f"detect {p['done']}/{p['total']}"))
+            self._update(phase="register")
+            _register(self.store, run.capture_id, staging, "live: " + " ".join(body.cameras))
+            registered = True
+            error = None if stopped else result.error
+            self._update(state=LiveCaptureState.failed if error else LiveCaptureState.done, error=error,
+                         phase=None, finished=time.time())
+        except Exception as exc:  # the thread's end: the status is where the failure is reported
+            self._update(state=LiveCaptureState.failed, error=str(exc) or type(exc).__name__, phase=None,
+                         finished=time.time(), capture_id=run.capture_id if registered else None)
+        finally:
+            if not registered:
+                shutil.rmtree(staging, ignore_errors=True)
+
+
+def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack):
+    """Cameras, trigger and rig of ``body``, opened in ``stack`` (record re-enters them)."""
+    from capture.cli import _rig
+    from drivers.registry import open_cameras
+    from drivers.trigger import open_trigger
+
+    cameras = [cam for url in body.cameras for cam in open_cameras(url)]
+    if body.rig is not None:
+        rig = rig_from_json(body.rig, "rig")
+    else:
+        rig = _rig(SimpleNamespace(rig=None, wand_length=body.wand_length_m), cameras)
+    for cam in cameras:
+        stack.enter_context(cam)
+    trigger = open_trigger(_local_port(body.trigger))
+    if trigger is not None:
+        stack.enter_context(trigger)
+    return cameras, trigger, rig
+
+
+def _local_port(url: str | None) -> str | None:
+    """The trigger URL if it names a local serial device. pyserial also opens network URLs
+    (socket://, rfc2217://), which would let a request make the server connect anywhere."""
+    if url is None or url.strip().lower() in ("", "none"):
+        return None
+    path = url[len("serial://"):] if url.startswith("serial://") else url
+    if not path.startswith("/"):
+        raise DriverError(f"trigger {url!r}: give a local serial device, e.g. serial:///dev/ttyACM0 or /dev/ttyACM0")
+    return url
+
+
+def _register(store: CaptureStore, capture_id: str, staging: Path, name: str) -> None:
+    """Make the detected staging folder the stored capture ``capture_id`` (images kept beside
+    the points level). As ``CaptureStore._store``, but with the id announced at the start."""
+    capture = read_capture(staging)
+    staging.rename(store.folder(capture_id))
+    counts, frames = wand_counts(capture.rig, capture.wand)
+    with connect(store.db_path) as conn:
+        conn.execute(
+            "INSERT INTO captures (id, created, source, name, cameras, counts, frames, has_static)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (capture_id, time.time(), SOURCE, name[:200], json.dumps(capture.rig.ids), json.dumps(counts), frames,
+             int(capture.static is not None)),
+        )
+
+
+def get_live(request: Request) -> LiveCapture:
+    return request.app.state.live_capture
+
+
+Live = Annotated[LiveCapture, Depends(get_live)]
+
+
+@router.post(
+    "/start", status_code=202, response_model=LiveCapturePublic,
+    responses=ERRORS | {422: {"model": ErrorPublic, "description": "invalid settings, or a camera or the trigger "
+                                                                   "cannot be opened (the driver's message)"}},
+    summary="Start recording from cameras (and a trigger) into a new capture",
+)
+async def start_capture(body: LiveCaptureCreate, live: Live) -> LiveCapturePublic:
+    """Answers once the devices are open; ``capture_id`` is the capture it becomes when done."""
+    return await run_in_threadpool(live.start, body)
+
+
+@router.get("", response_model=LiveCapturePublic, responses={401: ERRORS[401]},
+            summary="The live capture's state, frame sets recorded, rate and dropped frames")
+def capture_status(live: Live) -> LiveCapturePublic:
+    return live.status()
+
+
+@router.post("/stop", status_code=202, response_model=LiveCapturePublic, responses=ERRORS,
+             summary="Stop the live capture, keeping what was recorded; it is then detected and stored")
+def stop_capture(live: Live) -> LiveCapturePublic:
+    return live.stop()
