@@ -158,8 +158,8 @@ class LiveCaptureCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     cameras: list[str] = Field(
-        min_length=1, max_length=64, description="camera driver URLs, in rig order (one URL may stand for several)",
-        examples=[["sim://?cameras=3&seed=2&frames=60&static=10"]],
+        min_length=1, max_length=64,
+        description="camera driver URLs, in rig order (one URL may stand for several), e.g. sim://?cameras=3",
     )
     trigger: str | None = Field(
         None, max_length=500, description="strobe trigger: serial:///dev/ttyACM0 or a device path; null: free-run",
