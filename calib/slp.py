@@ -21,6 +21,10 @@ one piece (a linear term, folded into one cost vector); only rows near a breakpo
 with one auxiliary variable per breakpoint. If the LP's optimum keeps every row among its
 modelled pieces, it is the optimum of the full LP (it attains a lower bound); otherwise the rows
 that left are given the breakpoints they crossed and the LP is solved again.
+
+Far from the optimum a first phase runs plain least absolute error on a subset of frames; a
+Gauss-Newton predictor and a guard box keep each LP's working set small. The design and the
+measurements behind each choice: docs/decisions/0004-lp-method.md.
 """
 
 from __future__ import annotations
@@ -51,8 +55,6 @@ FIRST_STRATEGY = 1  # HiGHS dual simplex for a working set's first solve
 RESOLVE_STRATEGY = 1  # dual again: primal simplex from the last basis took 4x the iterations (measured at 16 x 3000)
 GUARD_GROWTH = 4.0  # and the guard widens this much where the solution touches it
 SUBSET_FRAMES = 300  # frames of the first phase: enough to pin 16 cameras to ~1 mm
-PREDICTOR = True
-DEBUG = False
 REFIT_STEPS = 1  # Gauss-Newton steps that fit every frame to the first phase's cameras (the
 # predictor's step moves the frames too)
 SCALE_REBUILD = 0.05  # a robust scale that moved less than this keeps the system built with the old one
@@ -119,13 +121,13 @@ def refine_lp(
     if subset_frames and F > 2 * subset_frames:
         keep = np.unique(np.linspace(0, F - 1, subset_frames).round().astype(int))
         sub, sub_x = _frame_subset(model, x, keep)
-        sub_x, info_sub = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, predictor=PREDICTOR)
+        sub_x, info_sub = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1)
         x[: model.frame_col0] = sub_x[: model.frame_col0]
         x = _refit_frames(model, x)
     if info_sub is not None and info_sub["status"] != "converged":
         info = dict(info_sub, iterations=0, lp_seconds=0.0)  # the first phase's best state stands
     else:
-        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, predictor=PREDICTOR)
+        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT)
     if info_sub is not None:
         info["iterations"] += info_sub["iterations"]
         info["lp_seconds"] += info_sub["lp_seconds"]
@@ -159,51 +161,48 @@ def _refit_frames(model: WandModel, x: np.ndarray, steps: int = REFIT_STEPS) -> 
     return x
 
 
-def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, phase: str, loss, predictor: bool = False):
+def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, phase: str, loss):
     n_free = model.frame_col0 // CAM_PARAMS
     radius = np.array([ROT_RADIUS, T_RADIUS])
     lp_seconds, lp_rows, status = 0.0, [], "iteration_limit"
-    sys = _ReducedSystem(model, x)
-    if predictor:
-        # a Gauss-Newton step first, kept only if it lowers the LP's own objective: it brings
-        # most residuals near where the LP will put them, so the LP crosses few breakpoints
-        trial = _ReducedSystem(model, sys.apply(sys.gauss_newton_step()), sys.scale)
-        if trial.cost(sys.scale, loss) < sys.cost(sys.scale, loss):
-            # the phase's robust scale is taken here; rebuild only if it moved
-            scale = _robust_scale(trial.r)
-            sys = trial if abs(scale / sys.scale - 1) < SCALE_REBUILD else _ReducedSystem(model, trial.x, scale)
+    state = _ReducedSystem(model, x)
+    # a Gauss-Newton step first, kept only if it lowers the LP's own objective: it brings most
+    # residuals near where the LP will put them, so the LP crosses few breakpoints
+    trial = _ReducedSystem(model, state.apply(state.gauss_newton_step()), state.scale)
+    if trial.cost(state.scale, loss) < state.cost(state.scale, loss):
+        # the phase's robust scale is taken here; rebuild only if it moved
+        scale = _robust_scale(trial.r)
+        state = trial if abs(scale / state.scale - 1) < SCALE_REBUILD else _ReducedSystem(model, trial.x, scale)
     it = 0
     for it in range(1, max_iter + 1):
         rho = np.tile(np.repeat(radius, 3), n_free)
-        d, lp_info = _solve_step(sys, rho, time_limit, loss, GUARD_SE if predictor else None)
+        d, lp_info = _solve_step(state, rho, time_limit, loss, GUARD_SE)
         lp_seconds += lp_info["seconds"]
         lp_rows.append(lp_info["rows"])
         if d is None:
             status = "time_limit" if lp_info["status"] == "time_limit" else f"lp_{lp_info['status']}"
             break
-        cost = sys.cost(sys.scale, loss)
-        predicted = sys.model_cost(d, loss)
+        cost = state.cost(state.scale, loss)
+        predicted = state.model_cost(d, loss)
         if cost - predicted <= CONVERGED_GAIN * len(d) or np.max(np.abs(d)) < STEP_TOL:
             # the LP's optimum is within a sliver of a standard error of where we are: land on
             # it (the estimate is the LP's) unless that costs more than the sliver, and stop
-            trial = _ReducedSystem(model, sys.apply(d), sys.scale)
-            if trial.cost(sys.scale, loss) <= cost + CONVERGED_GAIN * len(d):
-                sys = trial
+            trial = _ReducedSystem(model, state.apply(d), state.scale)
+            if trial.cost(state.scale, loss) <= cost + CONVERGED_GAIN * len(d):
+                state = trial
             status = "converged"
             break
-        trial = _ReducedSystem(model, sys.apply(d), sys.scale)
-        new_cost = trial.cost(sys.scale, loss)
+        trial = _ReducedSystem(model, state.apply(d), state.scale)
+        new_cost = trial.cost(state.scale, loss)
         ratio = (cost - new_cost) / (cost - predicted)
-        if DEBUG:
-            print(f"    cost {cost:.4f} predicted {predicted:.4f} new {new_cost:.4f} |d| {np.abs(d).max():.2e} radius {radius}")
         step = np.abs(d).reshape(-1, 2, 3).max(axis=(0, 2))
         if new_cost < cost:
-            se = sys.standard_errors()
+            se = state.standard_errors()
             small = np.all(np.abs(d) < CONVERGED_SE * se)
             # the linear model predicted this step's gain exactly and the step was short: the LP
             # has landed on the optimum of an accurate model, so another step would only confirm
             exact = abs(ratio - 1.0) < MODEL_EXACT and np.all(np.abs(d) < SHORT_STEP_SE * se)
-            sys = trial  # the robust scale stays fixed within a phase: one M-estimator, one merit
+            state = trial  # the robust scale stays fixed within a phase: one M-estimator, one merit
             if small or exact:
                 status = "converged"
                 break
@@ -216,12 +215,12 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
                 "stage": "refine", "iteration": it, "cost": min(cost, new_cost),
                 "message": f"LP step {it} ({phase}): {lp_info['rows']} LP rows, {lp_info['rounds']} solves",
             })
-    return sys.x, {
+    return state.x, {
         "iterations": it,
         "lp_seconds": lp_seconds,
         "lp_rows_mean": float(np.mean(lp_rows)) if lp_rows else 0.0,
         "status": status,
-        "robust_scale_px": sys.scale,
+        "robust_scale_px": state.scale,
     }
 
 
@@ -388,7 +387,7 @@ class _ReducedSystem:
         return x
 
 
-def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se: float | None):
+def _solve_step(state: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se: float | None):
     """The trust-region LP step on an exact working set of (row, breakpoint) pairs.
 
     Each row keeps the slope of the interval its residual starts in (a linear term, folded into
@@ -410,15 +409,15 @@ def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     with s_q = +1 for right hinges and -1 for left ones. The step d is the row duals: where
     0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0, the row on its breakpoint.
     """
-    P, S = loss[0] * sys.scale, loss[1]  # breakpoints in pixels, interval slopes
-    b = sys.b.ravel()
-    kept = sys.kept.ravel()
-    d_pred = np.clip(sys.gauss_newton_step(), -rho, rho)
-    guard = rho * 2 if guard_se is None else guard_se * sys.standard_errors()
-    z_pred = b + sys.change(d_pred).ravel()
-    near = NEAR_BREAK * sys.scale
+    P, S = loss[0] * state.scale, loss[1]  # breakpoints in pixels, interval slopes
+    b = state.b.ravel()
+    kept = state.kept.ravel()
+    d_pred = np.clip(state.gauss_newton_step(), -rho, rho)
+    guard = rho * 2 if guard_se is None else guard_se * state.standard_errors()
+    z_pred = b + state.change(d_pred).ravel()
+    near = NEAR_BREAK * state.scale
     base = np.searchsorted(P, b)  # the interval each row starts in: P[base - 1] < b <= P[base]
-    c_fold = sys.folded_cost(np.where(kept, S[base], 0.0).reshape(-1, 2))
+    c_fold = state.folded_cost(np.where(kept, S[base], 0.0).reshape(-1, 2))
     lo = np.where(kept, np.searchsorted(P, np.minimum(b, z_pred) - near), 0)
     hi = np.where(kept, np.searchsorted(P, np.maximum(b, z_pred) + near) - 1, -1)
     n = len(rho)
@@ -437,7 +436,7 @@ def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         rows_i, bps = np.r_[rows_a, rows_b], np.r_[bps_a, bps_b]
         if len(rows_i):
             side = np.where(bps >= base[rows_i], 1.0, -1.0)  # right hinge, or left hinge
-            A = sys.rows(rows_i // 2, rows_i % 2) * side[:, None]
+            A = state.rows(rows_i // 2, rows_i % 2) * side[:, None]
             lp.add_columns(-side * (b[rows_i] - P[bps]), np.zeros(len(rows_i)), S[bps + 1] - S[bps], A.T)
             total += len(rows_i)
         res = lp.solve(FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
@@ -446,15 +445,13 @@ def _solve_step(sys: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
             # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
             return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds}
         d = res.row_duals.copy()
-        z = b + sys.change(d).ravel()
+        z = b + state.change(d).ravel()
         where = np.searchsorted(P, z)
         out_lo = kept & (where < lo)
         out_hi = kept & (where > hi + 1)
         # touching the guard (where it is inside the trust region) means the optimum may lie beyond
         tol = 1e-9 * (np.abs(box_hi - box_lo) + 1e-300)
         pinned = ((d <= box_lo + tol) & (box_lo > -rho)) | ((d >= box_hi - tol) & (box_hi < rho))
-        if DEBUG:
-            print(f"      round {rounds}: +{len(rows_i)} pairs (total {total}), {res.iterations} iters {res.seconds:.3f} s, out {int(out_lo.sum() + out_hi.sum())}, pinned {int(pinned.sum())}")
         if not (out_lo.any() or out_hi.any() or pinned.any()):
             break
         guard = np.where(pinned, GUARD_GROWTH * guard, guard)

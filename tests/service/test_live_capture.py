@@ -129,3 +129,10 @@ def test_refused_starts_name_the_problem_and_change_nothing(client, body, named)
     assert r.status_code == 422, r.text
     assert named in r.json()["detail"]
     assert client.get("/capture").json()["state"] == "idle"
+
+
+@pytest.mark.parametrize("url", ["replay:///etc", "opencv:/etc/passwd", "opencv:rtsp://10.0.0.1/stream", "v4l2:///etc/passwd"])
+def test_camera_urls_that_would_read_outside_the_server_are_refused(client, url):
+    r = client.post("/capture/start", json={"cameras": [url], "frames": 5})
+    assert r.status_code == 422
+    assert url in r.json()["detail"]

@@ -83,7 +83,7 @@ class LiveCapture:
             self._stop.clear()
         stack = contextlib.ExitStack()
         try:
-            cameras, trigger, rig = _open_devices(body, stack)
+            cameras, trigger, rig = _open_devices(body, stack, self.store)
         except BaseException as exc:
             stack.close()
             with self._lock:
@@ -149,13 +149,13 @@ class LiveCapture:
                 shutil.rmtree(staging, ignore_errors=True)
 
 
-def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack):
+def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack, store: CaptureStore):
     """Cameras, trigger and rig of ``body``, opened in ``stack`` (record re-enters them)."""
     from capture.cli import _rig
     from drivers.registry import open_cameras
     from drivers.trigger import open_trigger
 
-    cameras = [cam for url in body.cameras for cam in open_cameras(url)]
+    cameras = [cam for url in body.cameras for cam in open_cameras(_allowed_camera_url(url, store))]
     if body.rig is not None:
         rig = rig_from_json(body.rig, "rig")
     else:
@@ -166,6 +166,32 @@ def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack):
     if trigger is not None:
         stack.enter_context(trigger)
     return cameras, trigger, rig
+
+
+def _allowed_camera_url(url: str, store: CaptureStore) -> str:
+    """The camera URL if it names a device, a simulated rig, or a replay folder under the replay
+    root. File paths and network addresses elsewhere would let a request make the server read
+    outside its directories (opencv: opens files and rtsp:// or http:// streams)."""
+    scheme, _, rest = url.partition(":")
+    if scheme == "sim":
+        return url
+    if scheme == "v4l2" and rest.removeprefix("//").startswith("/dev/"):
+        return url
+    if scheme == "opencv" and rest.strip().isdigit():
+        return url
+    if scheme == "replay":
+        path = Path(rest.removeprefix("//"))
+        root = store.replay_root
+        if root is not None and path.resolve().is_relative_to(root):
+            return url
+        raise DriverError(
+            f"camera {url!r}: a replay folder must lie under the server's replay root "
+            f"({root if root else 'none is set: WANDCAL_REPLAY_ROOT'})"
+        )
+    raise DriverError(
+        f"camera {url!r}: the service records only from devices (v4l2:///dev/videoN, opencv:N), "
+        "simulated rigs (sim://?...) or replay folders under its replay root"
+    )
 
 
 def _local_port(url: str | None) -> str | None:
