@@ -144,10 +144,13 @@ class CaptureStore:
 
     def _store(self, capture: Capture, source: str, name: str) -> CaptureRow:
         capture_id = uuid.uuid4().hex
-        final = self.folder(capture_id)
         staging = self.root / f".{capture_id}.partial"  # a crash mid-write leaves no half capture behind
         write_capture(staging, capture.rig, capture.wand, capture.static)
-        staging.rename(final)
+        return self.adopt(staging, capture_id, capture, source, name)
+
+    def adopt(self, staging: Path, capture_id: str, capture: Capture, source: str, name: str) -> CaptureRow:
+        """Make the complete folder ``staging`` (under the store) the capture ``capture_id``."""
+        staging.rename(self.folder(capture_id))
         counts, frames = wand_counts(capture.rig, capture.wand)
         with connect(self.db_path) as conn:
             conn.execute(

@@ -8,7 +8,6 @@ becomes the stored capture ``<capture id>``, ready for ``POST /jobs``.
 from __future__ import annotations
 
 import contextlib
-import json
 import shutil
 import threading
 import time
@@ -25,9 +24,8 @@ from capture.folder import CaptureFormatError, read_capture, rig_from_json
 from capture.images import ensure_points_level
 from capture.session import Progress, record
 from drivers.errors import DriverError
-from service.db import connect
 from service.schemas import ErrorPublic, LiveCaptureCreate, LiveCapturePublic, LiveCaptureState
-from service.storage import CaptureStore, wand_counts
+from service.storage import CaptureStore
 
 router = APIRouter(prefix="/capture", tags=["live capture"])
 
@@ -207,17 +205,8 @@ def _local_port(url: str | None) -> str | None:
 
 def _register(store: CaptureStore, capture_id: str, staging: Path, name: str) -> None:
     """Make the detected staging folder the stored capture ``capture_id`` (images kept beside
-    the points level). As ``CaptureStore._store``, but with the id announced at the start."""
-    capture = read_capture(staging)
-    staging.rename(store.folder(capture_id))
-    counts, frames = wand_counts(capture.rig, capture.wand)
-    with connect(store.db_path) as conn:
-        conn.execute(
-            "INSERT INTO captures (id, created, source, name, cameras, counts, frames, has_static)"
-            " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-            (capture_id, time.time(), SOURCE, name[:200], json.dumps(capture.rig.ids), json.dumps(counts), frames,
-             int(capture.static is not None)),
-        )
+    the points level), under the id announced when the capture started."""
+    store.adopt(staging, capture_id, read_capture(staging), SOURCE, name)
 
 
 def get_live(request: Request) -> LiveCapture:
