@@ -40,6 +40,7 @@ MAX_ROUNDS = 30
 # interior point solves the (Li) LP 1.7x faster than dual simplex at 2300 observations (0.65 s
 # against 1.1 s, HiGHS 1.15) and the gap grows with size
 ROUND_TOL = 1e-6  # stop when a round moves no camera centre by more than this (metres)
+DEGENERATE_M = 1e-6  # a wand shorter than this after an LP means the LP collapsed it
 
 
 def algebraic_residuals(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProblem) -> np.ndarray:
@@ -137,7 +138,7 @@ def lp_step(
             col_lo[3 * n : 3 * n + 3] = col_hi[3 * n : 3 * n + 3] = t[n]
         ends = X.reshape(-1, 2, 3)
         d = ends[:, 1] - ends[:, 0]
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
         F = len(d)
         fr = np.arange(F)
         # one row for the mean length ("anchored"), or one row per frame ("per_frame")
@@ -182,7 +183,9 @@ def refine_paper(
         time_limit: seconds for each LP solve.
 
     Returns:
-        (R, t, wand (F, 2, 3), info dict).
+        (R, t, wand (F, 2, 3), info dict). info["status"] is "converged", "iteration_limit",
+        "time_limit", "lp_<status>" or "degenerate" (an LP shrank a wand to a point; the state
+        before that round is returned).
     """
     start = time.perf_counter()
     X = wand.reshape(-1, 3).copy()
@@ -190,13 +193,19 @@ def refine_paper(
     status = "iteration_limit"
     rounds = 0
     for rounds in range(1, max_rounds + 1):
-        R = rotation_step(R, t, X, problem, fixed)
-        C_old = camera_centers(R, t)
-        t, X, res = lp_step(R, t, X, problem, fixed, up, formulation, time_limit)
+        R_new = rotation_step(R, t, X, problem, fixed)
+        C_old = camera_centers(R_new, t)
+        t_new, X_new, res = lp_step(R_new, t, X, problem, fixed, up, formulation, time_limit)
         lp_seconds += res.seconds
         if not res:
             status = f"lp_{res.status}"
             break
+        lengths = np.linalg.norm(X_new.reshape(-1, 2, 3)[:, 1] - X_new.reshape(-1, 2, 3)[:, 0], axis=1)
+        if formulation != "literal" and not (np.all(np.isfinite(X_new)) and lengths.min() > DEGENERATE_M):
+            # a wand shrank to a point: the LP found a degenerate optimum; keep the last state
+            status = "degenerate"
+            break
+        R, t, X = R_new, t_new, X_new
         cost = float(np.abs(algebraic_residuals(R, t, X, problem)).sum())
         move = float(np.max(np.linalg.norm(camera_centers(R, t) - C_old, axis=1)))
         if progress is not None:

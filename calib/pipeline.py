@@ -144,6 +144,11 @@ def calibrate(
     setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
 
     R, t, wand_pts, info = _refine(setup, method, options, tell, _up_direction(rig, init.R, init.t, setup))
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+        raise CalibrationError(
+            f"method {method!r} diverged ({info.get('status')}): its camera poses are not finite; "
+            "try --method ba, and check the intrinsics and the static object"
+        )
     dropped = dict(pairs.dropped)
     dropped["outliers"] = 0
     if options.get("reject_outliers", True):
