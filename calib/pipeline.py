@@ -215,6 +215,8 @@ def _reject_outliers(rig, labelled, setup, R, t, wand_pts, info, method, options
     keep = np.ones(len(labelled), bool)
     for _ in range(MAX_OUTLIER_PASSES):
         new_keep = quality.reject_worst_per_frame(R, t, labelled, setup.problem.focal, limit)
+        bent = quality.length_outlier_frames(R, t, labelled, new_keep, rig.wand_length)
+        new_keep &= ~bent[labelled.frame]
         if np.array_equal(new_keep, keep):
             break
         keep = new_keep

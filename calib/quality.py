@@ -11,6 +11,7 @@ WORST_FRAMES = 5  # how many of a camera's worst frames the report lists
 FEW_FRAMES = 50  # a camera seeing both ends in fewer frames than this is poorly constrained
 HIGH_RMS_PX = 1.0  # well above blob noise: intrinsics or labels may be off
 OUTLIER_SIGMAS = 5.0  # a camera-frame this many robust sigmas off is a gross outlier, not noise
+MIN_FRAMES_FOR_LENGTH_TEST = 10  # fewer frames give no stable robust spread of wand lengths
 MIN_OUTLIER_PX = 1.0  # never call a residual under a pixel an outlier, however clean the rest
 
 
@@ -49,6 +50,23 @@ def reject_worst_per_frame(
             break
         keep[idx[drop]] = False
     return keep
+
+
+def length_outlier_frames(R: np.ndarray, t: np.ndarray, pairs, keep: np.ndarray, length: float) -> np.ndarray:
+    """(F,) bool over ``pairs.frames``: frames whose wand, each end triangulated on its own from
+    the kept pairs, is more than ``OUTLIER_SIGMAS`` robust sigmas off ``length``. A frame seen by
+    two cameras has little redundancy, so a bad blob hardly shows in its reprojection error, but
+    it bends the wand's length."""
+    from calib.labels import flatten  # local: labels imports triangulate, as this module does
+
+    point, camera, xy = flatten(pairs.subset(keep))
+    X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
+    dev = np.abs(np.linalg.norm(X[:, 1] - X[:, 0], axis=1) - length)
+    ok = np.isfinite(dev)
+    if ok.sum() < MIN_FRAMES_FOR_LENGTH_TEST:
+        return np.zeros(len(dev), bool)
+    sigma = 1.4826 * np.median(dev[ok])  # the MAD of zero-mean Gaussian deviations
+    return ok & (dev > OUTLIER_SIGMAS * max(sigma, 1e-9))
 
 
 def robust_sigma(errors_px: np.ndarray) -> float:
