@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.labels import flatten
 from calib.triangulate import reprojection_errors, triangulate_points
 from calib.wandmodel import WandProblem
 
@@ -30,8 +31,6 @@ def reject_worst_per_frame(
     Args:
         R, t: (N, 3, 3), (N, 3) poses; pairs: labelled WandPairs; focal: (N, 2) fx, fy.
     """
-    from calib.labels import flatten  # local: labels imports triangulate, as this module does
-
     keep = np.ones(len(pairs), bool)
     for _ in range(max_rounds):
         sub = pairs.subset(keep)
@@ -57,8 +56,6 @@ def length_outlier_frames(R: np.ndarray, t: np.ndarray, pairs, keep: np.ndarray,
     the kept pairs, is more than ``OUTLIER_SIGMAS`` robust sigmas off ``length``. A frame seen by
     two cameras has little redundancy, so a bad blob hardly shows in its reprojection error, but
     it bends the wand's length."""
-    from calib.labels import flatten  # local: labels imports triangulate, as this module does
-
     point, camera, xy = flatten(pairs.subset(keep))
     X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
     dev = np.abs(np.linalg.norm(X[:, 1] - X[:, 0], axis=1) - length)
