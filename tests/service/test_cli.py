@@ -41,3 +41,18 @@ def test_bad_input_exits_2_with_a_message(tmp_path):
     r = wandcal("calibrate", str(out), "--quiet")
     assert r.returncode == 2
     assert "wand.length_m" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_calibrate_an_image_level_capture_detects_first(tmp_path):
+    out = tmp_path / "cap"
+    r = wandcal("capture", "--camera", "sim://?cameras=3&seed=4&frames=120&static=10", "--frames", "120",
+                "--static-frames", "10", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert not (out / "wand.csv").exists()  # image level only
+    r = wandcal("calibrate", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert (out / "wand.csv").is_file() and (out / "static.csv").is_file()
+    doc = json.loads((out / "result.json").read_text())
+    truth = json.loads((out / "truth.json").read_text())
+    err = np.linalg.norm(np.array([c["center"] for c in doc["cameras"]]) - np.array([c["center"] for c in truth["cameras"]]), axis=1)
+    assert err.max() < 0.002  # the capture issue's acceptance figure for simulated rigs
