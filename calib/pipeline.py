@@ -177,7 +177,7 @@ def calibrate(
         "length_std_m": float(lengths.std()),
         "frames_used": int(setup.problem.n_frames),
     }
-    solver = {"method": method} | info | {"seconds": info["seconds"], "total_seconds": time.perf_counter() - started}
+    solver = {"method": method} | info | {"total_seconds": time.perf_counter() - started}
     tell({"stage": "done", "message": "calibration finished"})
     return CalibrationResult(
         rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
@@ -188,11 +188,11 @@ def calibrate(
 def _refine(setup: Setup, method: str, options: dict, tell, up: np.ndarray):
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
+    if method == "ba":
+        x, info = bundle_adjust(model, progress=tell)
+    elif method == "lp":
+        x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
     if method in ("ba", "lp"):
-        if method == "ba":
-            x, info = bundle_adjust(model, progress=tell)
-        else:
-            x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
         R, t = model.poses(x)
         return R, t, model.wand(x), info
     R, t, wand_pts, info = refine_paper(
