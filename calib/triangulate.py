@@ -62,7 +62,12 @@ def refine_points(
         np.add.at(JtJ, pt, np.einsum("mki,mkj->mij", J, J))
         np.add.at(Jtr, pt, np.einsum("mki,mk->mi", J, r))
         JtJ[~ok] = np.eye(3)
-        X -= np.linalg.solve(JtJ, Jtr[:, :, None])[:, :, 0]
+        # a point whose rays are (nearly) parallel has a singular JtJ: damp it, and keep the last
+        # estimate wherever the step is not finite rather than fail the whole set
+        damp = 1e-12 * np.trace(JtJ, axis1=1, axis2=2)[:, None, None] * np.eye(3) + 1e-300 * np.eye(3)
+        step = np.linalg.solve(JtJ + damp, Jtr[:, :, None])[:, :, 0]
+        good = np.all(np.isfinite(step), axis=1)
+        X[good] -= step[good]
     return X
 
 

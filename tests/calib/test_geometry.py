@@ -43,3 +43,21 @@ def test_kabsch_recovers_rigid_and_similarity():
         Rk, tk, s = kabsch(src, dst, scale=scale != 1.0)
         assert rotation_angle(Rk, R) < 1e-9 and abs(s - scale) < 1e-9
         assert np.allclose(s * src @ Rk.T + tk, dst)
+
+
+def test_triangulation_survives_degenerate_points():
+    """Parallel rays (a point seen twice by the same camera pose) give a singular system: the
+    point comes back non-finite or unchanged, and the others are still triangulated."""
+    from calib.triangulate import triangulate_points
+
+    R = np.stack([np.eye(3), np.eye(3)])
+    t = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 3.0]])  # two identical cameras: no baseline
+    R2 = np.stack([np.eye(3), euler_to_matrix([0.0, 0.3, 0.0])])
+    t2 = np.array([[0.0, 0.0, 3.0], [-1.0, 0.0, 3.0]])
+    X_true = np.array([0.1, -0.2, 0.5])
+    obs = lambda Rs, ts: np.stack([(Rs[c] @ X_true + ts[c])[:2] / (Rs[c] @ X_true + ts[c])[2] for c in range(2)])  # noqa: E731
+    X = triangulate_points(
+        np.concatenate([R, R2]), np.concatenate([t, t2]), np.array([0, 0, 1, 1]), np.array([0, 1, 2, 3]),
+        np.concatenate([obs(R, t), obs(R2, t2)]), 2,
+    )
+    assert np.allclose(X[1], X_true, atol=1e-9)
