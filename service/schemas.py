@@ -140,8 +140,6 @@ class Health(BaseModel):
     workers: int
     jobs_queued: int
     jobs_running: int
-    detector: bool = Field(description="frame-set detection is available")
-    solver: bool = Field(description="the calibration pipeline is available")
 
 
 class LiveCaptureState(str, enum.Enum):

@@ -10,6 +10,7 @@ from fastapi.concurrency import run_in_threadpool
 from starlette.datastructures import FormData, UploadFile
 
 from calib.rig import StaticObservations
+from calib.static import solve_static
 from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
 from service.api.deps import CaptureDep, State, require_content_type
 from service.schemas import (
@@ -146,7 +147,6 @@ def get_capture(capture: CaptureDep, state: State) -> CapturePublic:
     responses=ERRORS | {
         409: {"model": ErrorPublic, "description": "frame already received, or capture not streamable"},
         429: {"model": ErrorPublic, "description": "frame sets arriving faster than the configured rate"},
-        503: {"model": ErrorPublic, "description": "blob detection is not available"},
     },
     dependencies=[require_content_type("multipart/form-data")],
     summary="Add one synchronised frame set: one image per camera; detection runs on arrival",
@@ -206,7 +206,7 @@ async def add_frameset(capture: CaptureDep, request: Request, state: State) -> F
 @router.post(
     "/{capture_id}/static",
     response_model=StaticSolutionPublic,
-    responses=ERRORS | {503: {"model": ErrorPublic, "description": "blob detection or PnP is not available"}},
+    responses=ERRORS,
     summary="Detect the static object (optional images) and solve each camera's pose by PnP",
     openapi_extra=_form_body(
         {
@@ -239,10 +239,6 @@ async def solve_static_object(capture: CaptureDep, request: Request, state: Stat
         raise HTTPException(
             422, "the capture has no static.csv; upload one with the capture, or send images of the static object"
         )
-    try:
-        from calib.static import solve_static
-    except ImportError:
-        raise HTTPException(503, "this build has no static-object solver (calib.static)") from None
     poses = await run_in_threadpool(solve_static, rig, static)
     solution = StaticSolutionPublic(cameras=[_static_camera(cam.id, pose) for cam, pose in zip(rig.cameras, poses)])
     await run_in_threadpool(state.captures.set_static_solution, capture.id, solution.model_dump())

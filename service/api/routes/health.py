@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 from importlib.metadata import PackageNotFoundError, version
 
 from fastapi import APIRouter
@@ -30,6 +29,4 @@ def health(state: State) -> Health:
         workers=state.settings.workers,
         jobs_queued=store.count(JobState.queued),
         jobs_running=store.count(JobState.running),
-        detector=importlib.util.find_spec("calib.detect") is not None,
-        solver=importlib.util.find_spec("calib.pipeline") is not None,
     )
