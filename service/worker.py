@@ -107,10 +107,7 @@ def worker_main(db_path: str, data_dir: str, wake, stop) -> None:
 
     store = JobStore(Path(db_path))
     captures = CaptureStore(Path(data_dir), Path(db_path), None)
-    try:
-        import calib.pipeline  # noqa: F401  (load the solver before the first job, not during it)
-    except ImportError:
-        pass
+    import calib.pipeline  # noqa: F401  (load the solver before the first job, not during it)
     while not stop.is_set() and os.getppid() == parent:
         claim = store.claim(os.getpid())
         if claim is None:
