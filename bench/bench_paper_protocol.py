@@ -23,11 +23,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import timed, write_section  # noqa: E402
 from calib.errors import CalibrationError  # noqa: E402
-from calib.labels import flatten, label_ends  # noqa: E402
+from calib.labels import label_ends, wand_lengths  # noqa: E402
 from calib.observations import wand_pairs  # noqa: E402
 from calib.pipeline import calibrate  # noqa: E402
 from calib.simulate import simulate_paper_protocol  # noqa: E402
-from calib.triangulate import triangulate_points  # noqa: E402
 
 NOISE_LEVELS = (0.5, 1.0, 2.0, 3.0, 4.0, 5.0)
 PAPER_ROUNDS = 15
@@ -37,9 +36,7 @@ def held_out_lengths(result, rig, test) -> np.ndarray:
     """Wand lengths (metres) of the held-out frames, triangulated with the calibrated cameras."""
     pairs = wand_pairs(rig, test)
     labelled, _ = label_ends(result.R, result.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)
-    point, camera, xy = flatten(labelled)
-    X = triangulate_points(result.R, result.t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
-    lengths = np.linalg.norm(X[:, 1] - X[:, 0], axis=1)
+    lengths = wand_lengths(result.R, result.t, labelled)
     return lengths[np.isfinite(lengths)]
 
 

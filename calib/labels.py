@@ -24,6 +24,14 @@ def flatten(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return point, camera, xy
 
 
+def wand_lengths(R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> np.ndarray:
+    """(F,) length of each frame's wand, each end triangulated on its own from labelled pairs
+    (metres; NaN where fewer than two cameras see the frame)."""
+    point, camera, xy = flatten(pairs)
+    X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
+    return np.linalg.norm(X[:, 1] - X[:, 0], axis=1)
+
+
 def label_ends(
     R: np.ndarray, t: np.ndarray, pairs: WandPairs, known: np.ndarray, length: float | None = None
 ) -> tuple[WandPairs, np.ndarray]:
@@ -78,15 +86,8 @@ def _two_view_by_length(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: 
     sorted_frames = pairs.frame[order]
     second[order[1:]] = sorted_frames[1:] == sorted_frames[:-1]
     candidate = second & two
-    n_points = 2 * len(pairs.frames)
-
-    def lengths(p: WandPairs) -> np.ndarray:
-        point, camera, xy = flatten(p)
-        X = triangulate_points(R, t, point, camera, xy, n_points).reshape(-1, 2, 3)
-        return np.linalg.norm(X[:, 1] - X[:, 0], axis=1)
-
-    now = lengths(pairs)
-    alt = lengths(pairs.swapped(candidate))
+    now = wand_lengths(R, t, pairs)
+    alt = wand_lengths(R, t, pairs.swapped(candidate))
     better = np.abs(alt - length) < np.abs(now - length)
     return pairs.swapped(candidate & better[pairs.frame])
 

@@ -85,8 +85,3 @@ def wand_pairs(rig: Rig, wand: WandObservations) -> WandPairs:
         xy[sel] = undistort_points(camera, uv[sel].reshape(-1, 2)).reshape(-1, 2, 2)
     frames, frame_idx = np.unique(frame_no, return_inverse=True)
     return WandPairs(frame=frame_idx, camera=cam, xy=xy, uv=uv, frames=frames, dropped=dropped)
-
-
-def cameras_per_frame(pairs: WandPairs, n_frames: int | None = None) -> np.ndarray:
-    """(F,) how many cameras see both ends in each frame."""
-    return np.bincount(pairs.frame, minlength=n_frames or len(pairs.frames))

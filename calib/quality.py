@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.labels import flatten
+from calib.labels import flatten, wand_lengths
 from calib.triangulate import reprojection_errors, triangulate_points
 from calib.wandmodel import WandProblem
 
@@ -56,9 +56,7 @@ def length_outlier_frames(R: np.ndarray, t: np.ndarray, pairs, keep: np.ndarray,
     the kept pairs, is more than ``OUTLIER_SIGMAS`` robust sigmas off ``length``. A frame seen by
     two cameras has little redundancy, so a bad blob hardly shows in its reprojection error, but
     it bends the wand's length."""
-    point, camera, xy = flatten(pairs.subset(keep))
-    X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
-    dev = np.abs(np.linalg.norm(X[:, 1] - X[:, 0], axis=1) - length)
+    dev = np.abs(wand_lengths(R, t, pairs.subset(keep)) - length)
     ok = np.isfinite(dev)
     if ok.sum() < MIN_FRAMES_FOR_LENGTH_TEST:
         return np.zeros(len(dev), bool)

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from calib.errors import Failure
-from calib.geometry import depth, matrix_to_rotvec, project_normalized, rotvec_to_matrix, undistort_points
+from calib.geometry import depth, project_normalized, rotvec_to_matrix, undistort_points
 from calib.rig import Rig, StaticObservations
 
 MAX_ASSIGNMENTS = 50_000  # 8 markers seen by 5 blobs is 6720; beyond this the search is pointless
@@ -205,5 +205,3 @@ def resect(X: np.ndarray, xy: np.ndarray, focal_px: float, threshold_px: float =
     err = np.linalg.norm(project_normalized(R, t, X) - xy, axis=1) * focal_px
     return R, t, err < threshold_px
 
-
-__all__ = ["StaticPose", "solve_static", "identify_and_solve", "resect", "matrix_to_rotvec"]

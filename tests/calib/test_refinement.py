@@ -1,12 +1,10 @@
 """Refinement against seeded rigs; tolerances come from the Cramér-Rao bound of the injected noise."""
 
 import numpy as np
-import pytest
 
 from calib.ba import bundle_adjust
 from calib.crb import gauge_errors, pose_crb
 from calib.paper import algebraic_residuals, refine_paper
-from calib.triangulate import triangulate_points
 from calib.wandmodel import WandModel
 
 from calib.scenes import prepared_scene as prepared
