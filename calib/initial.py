@@ -120,7 +120,7 @@ def _common(pairs: WandPairs, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
     ia = np.flatnonzero(pairs.camera == a)
     ib = np.flatnonzero(pairs.camera == b)
     fa, fb = pairs.frame[ia], pairs.frame[ib]
-    common, ja, jb = np.intersect1d(fa, fb, return_indices=True)
+    _, ja, jb = np.intersect1d(fa, fb, return_indices=True)
     return pairs.xy[ia[ja]], pairs.xy[ib[jb]]
 
 
