@@ -6,9 +6,12 @@ puts it behind a real pseudo-terminal so the host's pyserial code runs unchanged
 
 from __future__ import annotations
 
+import array
+import fcntl
 import os
 import select
 import sys
+import termios
 import time
 import tty
 from collections.abc import Callable
@@ -20,6 +23,7 @@ VERSION = "1.0"
 LINES = 8  # camera trigger outputs of the reference board
 DEFAULT_RATE_HZ = 100.0
 DEFAULT_STROBE_US = 500
+DRAIN_SECONDS = 5.0  # how long a vanishing emulator waits for the host to read what it sent
 
 
 class EmulatedTrigger:
@@ -117,7 +121,9 @@ def serve_pty(vanish_after: int | None = None, start_us: int = 0, announce=print
 
     Prints the terminal's path (connect with ``serial:///dev/pts/N`` or the bare path).
     ``vanish_after``: after that many pulses close the terminal and return, as if the
-    board were unplugged mid-capture.
+    board were unplugged mid-capture. It first waits (up to ``DRAIN_SECONDS``) for the host to
+    read the pulses already sent, so a test knows exactly which pulses the host received: a real
+    unplug would also lose whatever still sat unread in the kernel's buffer.
     """
     master, slave = os.openpty()
     # Raw mode: no echo of commands back to the host and no CR/LF translation. The emulator keeps
@@ -142,11 +148,27 @@ def serve_pty(vanish_after: int | None = None, start_us: int = 0, announce=print
             out = device.due_lines()
             if vanish_after is not None and device.counter >= vanish_after:
                 _write(master, [x for x in out if (p := tp.parse_pulse(x)) and p.counter < vanish_after])
+                _wait_until_read(slave, DRAIN_SECONDS)
                 return 0
             _write(master, out)
     finally:
         os.close(master)
         os.close(slave)
+
+
+def _wait_until_read(slave: int, timeout: float) -> None:
+    """Wait until the host has read everything written to the terminal, or ``timeout`` passes.
+
+    The kernel moves written bytes to the reading side a little later (a work queue), so the
+    queue must be seen empty on several checks in a row, not once.
+    """
+    deadline = time.monotonic() + timeout
+    pending = array.array("i", [0])
+    empty_checks = 0
+    while empty_checks < 5 and time.monotonic() < deadline:
+        time.sleep(0.01)
+        fcntl.ioctl(slave, termios.FIONREAD, pending, True)
+        empty_checks = empty_checks + 1 if pending[0] == 0 else 0
 
 
 def _write(fd: int, lines: list[str]) -> None:

@@ -32,7 +32,10 @@ def test_a_slow_disk_blocks_the_producer_instead_of_growing_the_queue(tmp_path, 
 
     t = threading.Thread(target=produce)
     t.start()
-    time.sleep(0.3)
+    deadline = time.monotonic() + 10
+    while len(produced) < 5 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.2)  # time to overrun the bound, were it not held
     # one image in the writer's hands and four waiting: the producer is held at the sixth
     assert len(produced) == 5 and w.high_water <= 4
     gate.set()

@@ -69,9 +69,8 @@ def test_port_vanishing_keeps_received_pulses_and_says_so():
                     p = trig.next_pulse(timeout=3.0)
                     assert p is not None, "the emulator should have vanished"
                     got.append(p)
-    # the last line or two may be lost in the kernel's buffer when the terminal closes
-    assert 25 <= len(got) <= 30
-    assert [p.counter for p in got] == list(range(len(got)))
+    # the emulator vanishes once the host has read what it sent: all 30 pulses arrived, in order
+    assert [p.counter for p in got] == list(range(30))
 
 
 def test_unopenable_port_names_it():
