@@ -4,7 +4,7 @@ markers and an L-frame, calibrated through the whole pipeline by each method.
 Reports every camera centre's error against the truth in the world frame (the L-frame's) and after
 the best rigid alignment ("aligned"), and the ratio of each method's aligned RMS to `ba`'s.
 
-Usage: python bench/bench_acceptance.py [--methods ba,lp,paper] [--max-rounds 25] [--seed 11] [--no-write]
+Usage: python bench/bench_acceptance.py [--methods ba,lp,paper] [--max-rounds N] [--seed 11] [--no-write]
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from calib.simulate import simulate_capture  # noqa: E402
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--methods", default="ba,lp,paper")
-    ap.add_argument("--max-rounds", type=int, default=25, help="paper: rotation/LP rounds")
+    ap.add_argument("--max-rounds", type=int, default=None, help="paper: most rotation/LP rounds (default: the method's)")
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()

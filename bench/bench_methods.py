@@ -40,7 +40,7 @@ def run_method(method, model, setup):
         x, info = refine_lp(model)
         R, t = model.poses(x)
     else:
-        R, t, _, info = refine_paper(model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, UP, max_rounds=30)
+        R, t, _, info = refine_paper(model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, UP)
     return R, t, info
 
 

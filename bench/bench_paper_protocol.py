@@ -25,11 +25,11 @@ from bench.common import timed, write_section  # noqa: E402
 from calib.errors import CalibrationError  # noqa: E402
 from calib.labels import label_ends, wand_lengths  # noqa: E402
 from calib.observations import wand_pairs  # noqa: E402
+from calib.paper import MAX_ROUNDS  # noqa: E402
 from calib.pipeline import calibrate  # noqa: E402
 from calib.simulate import simulate_paper_protocol  # noqa: E402
 
 NOISE_LEVELS = (0.5, 1.0, 2.0, 3.0, 4.0, 5.0)
-PAPER_ROUNDS = 15
 
 
 def held_out_lengths(result, rig, test) -> np.ndarray:
@@ -57,7 +57,7 @@ def main() -> int:
                 try:
                     result, seconds = timed(
                         calibrate, sim.rig, sim.wand, sim.static, method,
-                        options={"reject_outliers": False, "max_rounds": PAPER_ROUNDS},
+                        options={"reject_outliers": False},
                     )
                 except CalibrationError:
                     stats[method]["failed"] += 1
@@ -78,8 +78,8 @@ def main() -> int:
     body = f"""
 Held-out wand length (true 300 mm) over 100 test frames per trial, triangulated with the calibrated
 cameras: the mean over trials of each trial's mean and std, +- their spread over trials. `paper` runs
-at most {PAPER_ROUNDS} rotation/LP rounds and fewer trials (it takes tens of seconds per trial); `lp`
-and `ba` run {args.trials} trials per level.
+its rotation/LP rounds to convergence (at most {MAX_ROUNDS}) on the first {args.paper_trials} trials
+of each level; `lp` and `ba` run {args.trials} trials per level.
 
 | noise (px) | method | trials | wand length mean (mm) | wand length std (mm) | seconds (median) | failed |
 |---|---|---|---|---|---|---|

@@ -36,10 +36,15 @@ from calib.wandmodel import WandProblem
 
 BOUND_M = 10.0  # the paper's box on every translation and point coordinate
 HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
-MAX_ROUNDS = 30
+MAX_ROUNDS = 300  # warm-started rounds take ~0.25 s at 8 x 1500; the scheme needs ~250 there
 # interior point solves the (Li) LP 1.7x faster than dual simplex at 2300 observations (0.65 s
 # against 1.1 s, HiGHS 1.15) and the gap grows with size
-ROUND_TOL = 1e-6  # stop when a round moves no camera centre by more than this (metres)
+# Convergence. The rounds approach their fixed point linearly and slowly (each moves the cameras
+# ~2% of the way at 8 x 1500), so one round's move says little about the distance left, and the
+# LP's jumps between vertices make single moves noisy. The distance left is estimated from the
+# moves over two successive windows of rounds, as the tail of a geometric series.
+ROUND_TOL = 5e-6  # stop when the cameras are estimated this close (metres) to the fixed point
+WINDOW = 10  # rounds per window
 DEGENERATE_M = 1e-6  # a wand shorter than this after an LP means the LP collapsed it
 
 
@@ -70,6 +75,14 @@ def rotation_step(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProb
     return R
 
 
+def height_pairs(R: np.ndarray, t: np.ndarray, X: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(points, cameras) of the eq. (extra) rows: each of the first 200 points lies no higher
+    than each camera, kept only where ``(R, t, X)`` satisfies it (else the LP may be infeasible)."""
+    n_height = min(HEIGHT_CONSTRAINED_POINTS, len(X))
+    ok = (X[:n_height] @ up)[:, None] <= (camera_centers(R, t) @ up)[None, :]
+    return np.nonzero(ok)
+
+
 def lp_step(
     R: np.ndarray,
     t: np.ndarray,
@@ -80,6 +93,8 @@ def lp_step(
     formulation: str = "anchored",
     time_limit: float | None = None,
     solver: str = "ipm",
+    heights: tuple[np.ndarray, np.ndarray] | None = None,
+    basis=None,
 ):
     """Solve eq. (Li) for all translations and points with the rotations fixed.
 
@@ -90,6 +105,9 @@ def lp_step(
         fixed: (N,) cameras whose translation is held (the gauge; ignored when literal).
         up: (3,) the world's up direction for eq. (extra).
         formulation: "anchored" or "literal".
+        heights: (points, cameras) index pairs of the eq. (extra) rows to impose; by default
+            those of :func:`height_pairs` at the given state.
+        basis: the basis of the previous round's LP (same shape), to warm-start from.
 
     Returns:
         (t (N, 3), X (P, 3), LpResult).
@@ -118,11 +136,7 @@ def lp_step(
     row_lo = [np.zeros(2 * M)]
     row_hi = [np.zeros(2 * M)]
     # eq. (extra): up . x_j <= up . C_n, with C_n = -R_n^T t_n linear in t_n
-    n_height = min(HEIGHT_CONSTRAINED_POINTS, P)
-    C = camera_centers(R, t)
-    heights = X[:n_height] @ up
-    ok = heights[:, None] <= (C @ up)[None, :]  # keep only rows the start satisfies
-    jj, nn = np.nonzero(ok)
+    jj, nn = height_pairs(R, t, X, up) if heights is None else heights
     hr = n_rows + np.arange(len(jj))
     Ru = np.einsum("nij,j->ni", R, up)  # up . (R^T t) = (R up) . t
     for j in range(3):
@@ -157,10 +171,28 @@ def lp_step(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(colidx))), shape=(n_rows, cols)
     )
     cost = np.r_[np.zeros(nt + nx), np.ones(n_slack)]
-    res = solve_lp(cost, A, np.concatenate(row_lo), np.concatenate(row_hi), col_lo, col_hi, time_limit, solver)
+    res = solve_lp(cost, A, np.concatenate(row_lo), np.concatenate(row_hi), col_lo, col_hi, time_limit, solver,
+                   basis=basis)
     if not res:
         return t, X, res
     return res.x[:nt].reshape(N, 3), res.x[nt : nt + nx].reshape(P, 3), res
+
+
+def _distance_left(centers: list[np.ndarray]) -> float:
+    """Estimated distance (metres, largest over cameras) from the last centres to the fixed point:
+    with the last window's move ``a`` and the one before ``b``, the rate per window is a / b
+    and the rest of the way a r / (1 - r). Infinite until two windows have run, and while the
+    moves do not shrink."""
+    if len(centers) <= 2 * WINDOW:
+        return np.inf
+    a = np.linalg.norm(centers[-1] - centers[-1 - WINDOW], axis=1).max()
+    b = np.linalg.norm(centers[-1 - WINDOW] - centers[-1 - 2 * WINDOW], axis=1).max()
+    if a < ROUND_TOL:  # settled: what is left is the LP's jitter between neighbouring vertices
+        return a
+    if a >= b:
+        return np.inf
+    r = a / b
+    return a * r / (1 - r)
 
 
 def refine_paper(
@@ -192,11 +224,18 @@ def refine_paper(
     lp_seconds = 0.0
     status = "iteration_limit"
     rounds = 0
+    # The LP keeps its shape from round to round (the eq. (extra) rows are chosen once, at the
+    # start), so each round starts the simplex method from the last round's optimal basis.
+    heights = height_pairs(R, t, X, up)
+    basis = None
+    centers = [camera_centers(R, t)]
     for rounds in range(1, max_rounds + 1):
         R_new = rotation_step(R, t, X, problem, fixed)
         C_old = camera_centers(R_new, t)
-        t_new, X_new, res = lp_step(R_new, t, X, problem, fixed, up, formulation, time_limit)
+        t_new, X_new, res = lp_step(R_new, t, X, problem, fixed, up, formulation, time_limit, heights=heights,
+                                    basis=basis)
         lp_seconds += res.seconds
+        basis = res.basis
         if not res:
             status = f"lp_{res.status}"
             break
@@ -213,7 +252,8 @@ def refine_paper(
         if res.status == "time_limit":
             status = "time_limit"
             break
-        if move < ROUND_TOL:
+        centers.append(camera_centers(R, t))
+        if move == 0.0 or _distance_left(centers) < ROUND_TOL:
             status = "converged"
             break
     return R, t, X.reshape(-1, 2, 3), {

@@ -17,7 +17,7 @@ from calib.geometry import camera_centers, kabsch, undistort_points
 from calib.initial import initial_poses
 from calib.labels import label_ends
 from calib.observations import wand_pairs
-from calib.paper import refine_paper
+from calib.paper import MAX_ROUNDS, refine_paper
 from calib.refine import Setup, build_problem
 from calib.slp import refine_lp
 from calib.rig import Rig, StaticObservations, WandObservations
@@ -170,6 +170,12 @@ def calibrate(
         warnings.append(f"{dropped['extra_blobs']} camera-frames showed more than two blobs and were dropped")
     if dropped["outliers"]:
         warnings.append(f"{dropped['outliers']} camera-frames were gross outliers and were dropped")
+    if info.get("status") != "converged":
+        warnings.append(f"the {method} refinement stopped before converging ({info.get('status')}); the poses are its "
+                        "best state so far (raise time_limit or max_rounds, or try --method ba)")
+    if info.get("uncertified_steps"):
+        warnings.append(f"{info['uncertified_steps']} LP steps were taken without an optimality certificate (their "
+                        "working set had not settled); each still lowered the cost")
     lengths = quality.free_wand_lengths(R, t, setup.problem)
     wand_report = {
         "length_m": rig.wand_length,
@@ -197,7 +203,7 @@ def _refine(setup: Setup, method: str, options: dict, tell, up: np.ndarray):
         return R, t, model.wand(x), info
     R, t, wand_pts, info = refine_paper(
         model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, up,
-        max_rounds=int(options.get("max_rounds", 30)), time_limit=options.get("time_limit"), progress=tell,
+        max_rounds=int(options.get("max_rounds") or MAX_ROUNDS), time_limit=options.get("time_limit"), progress=tell,
     )
     return R, t, wand_pts, info
 

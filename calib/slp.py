@@ -131,6 +131,7 @@ def refine_lp(
     if info_sub is not None:
         info["iterations"] += info_sub["iterations"]
         info["lp_seconds"] += info_sub["lp_seconds"]
+        info["uncertified_steps"] += info_sub["uncertified_steps"]
         info["subset"] = {"frames": int(len(keep)), "iterations": info_sub["iterations"]}
     info["seconds"] = time.perf_counter() - start
     return x, info
@@ -164,7 +165,7 @@ def _refit_frames(model: WandModel, x: np.ndarray, steps: int = REFIT_STEPS) -> 
 def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, phase: str, loss):
     n_free = model.frame_col0 // CAM_PARAMS
     radius = np.array([ROT_RADIUS, T_RADIUS])
-    lp_seconds, lp_rows, status = 0.0, [], "iteration_limit"
+    lp_seconds, lp_rows, status, uncertified = 0.0, [], "iteration_limit", 0
     state = _ReducedSystem(model, x)
     # a Gauss-Newton step first, kept only if it lowers the LP's own objective: it brings most
     # residuals near where the LP will put them, so the LP crosses few breakpoints
@@ -179,6 +180,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         d, lp_info = _solve_step(state, rho, time_limit, loss, GUARD_SE)
         lp_seconds += lp_info["seconds"]
         lp_rows.append(lp_info["rows"])
+        uncertified += lp_info["status"] == "uncertified"
         if d is None:
             status = "time_limit" if lp_info["status"] == "time_limit" else f"lp_{lp_info['status']}"
             break
@@ -221,6 +223,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         "lp_rows_mean": float(np.mean(lp_rows)) if lp_rows else 0.0,
         "status": status,
         "robust_scale_px": state.scale,
+        "uncertified_steps": uncertified,
     }
 
 
@@ -425,7 +428,7 @@ def _solve_step(state: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_
     eye = sp.identity(n, format="csc")
     lp.add_columns(np.zeros(2 * n), np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
     old_lo, old_hi = base, base - 1  # nothing modelled yet
-    seconds, d, rounds, total = 0.0, None, 0, 0
+    seconds, d, rounds, total, certified = 0.0, None, 0, 0, False
     for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
         box_lo = np.maximum(-rho, d_pred - guard)
         box_hi = np.minimum(rho, d_pred + guard)
@@ -453,12 +456,15 @@ def _solve_step(state: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_
         tol = 1e-9 * (np.abs(box_hi - box_lo) + 1e-300)
         pinned = ((d <= box_lo + tol) & (box_lo > -rho)) | ((d >= box_hi - tol) & (box_hi < rho))
         if not (out_lo.any() or out_hi.any() or pinned.any()):
+            certified = True
             break
         guard = np.where(pinned, GUARD_GROWTH * guard, guard)
         old_lo, old_hi = lo, hi
         lo = np.where(out_lo, where, lo)
         hi = np.where(out_hi, where - 1, hi)
-    return d, {"seconds": seconds, "rows": total, "status": "optimal", "rounds": rounds}
+    # uncertified: the step is the optimum of a working set that some rows still leave; the
+    # caller takes it only if it lowers the true merit, like any trust-region step
+    return d, {"seconds": seconds, "rows": total, "status": "optimal" if certified else "uncertified", "rounds": rounds}
 
 
 def _pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

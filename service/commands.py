@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.geometry import kabsch, rotation_angle
+from calib.paper import MAX_ROUNDS
 from calib.pipeline import DEFAULT_METHOD, METHODS, calibrate
 from calib.simulate import simulate_capture
 from capture.folder import read_capture, write_capture
@@ -29,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("capture", type=Path, help="capture folder (points level, or image level: detected first)")
     p.add_argument("--out", type=Path, help="result file (default: CAPTURE/result.json)")
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"refinement method (default {DEFAULT_METHOD})")
-    p.add_argument("--max-rounds", type=int, default=30, help="paper: most rotation/LP rounds")
+    p.add_argument("--max-rounds", type=int, default=None, help=f"paper: most rotation/LP rounds (default {MAX_ROUNDS})")
     p.add_argument("--lp-time-limit", type=float, default=None, help="seconds allowed for each LP solve")
     p.add_argument("--keep-outliers", action="store_true", help="do not drop gross-outlier camera-frames")
     p.add_argument("--quiet", action="store_true", help="no progress display")
