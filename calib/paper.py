@@ -20,6 +20,10 @@ translation is free, and collapsing every camera and point to one place gives ze
 camera keeps its pose, and one linearised wand-length equality anchors the scale,
 ``sum_f d_f . (x_f1 - x_f0) = F L`` with d_f the wand direction of the previous iterate.
 ``formulation="literal"`` solves the paper's LP unchanged, to show the collapse.
+
+Each round's LP has the previous round's shape, so it is warm-started from that round's optimal
+simplex basis: tens of times faster than a cold solve, which lets the rounds run to convergence
+(docs/decisions/0005-paper-warm-start.md).
 """
 
 from __future__ import annotations
