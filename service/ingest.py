@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import struct
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from calib.errors import CalibrationError
-from calib.rig import Camera
+from calib.rig import Camera, Rig, StaticObservations
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # OpenCV's decoders release the GIL, so a frame set's images decode side by side; two threads
@@ -73,12 +74,23 @@ def detect_frameset(images: dict[str, bytes], cameras: dict[str, Camera]) -> dic
     return {cid: f.result() for cid, f in futures.items()}
 
 
-def detect_static(images: dict[str, list[bytes]], cameras: dict[str, Camera]) -> dict[str, np.ndarray]:
-    """Static-object marker positions per camera, averaged over each camera's images."""
+def detect_static(images: dict[str, list[bytes | Path]], cameras: dict[str, Camera]) -> dict[str, np.ndarray]:
+    """Static-object marker positions per camera, averaged over each camera's images (encoded
+    bytes, or files read one at a time as their turn comes)."""
     from calib.detect import static_markers_from_frames
+
+    def detect(data: bytes | Path, camera: Camera) -> np.ndarray:
+        return detect_one(data if isinstance(data, bytes) else data.read_bytes(), camera)
 
     out = {}
     for cid, datas in images.items():
-        frames = list(_executor().map(lambda d, c=cameras[cid]: detect_one(d, c), datas))
+        frames = list(_executor().map(lambda d, c=cameras[cid]: detect(d, c), datas))
         out[cid] = static_markers_from_frames(frames)
     return out
+
+
+def static_observations(markers: dict[str, np.ndarray], rig: Rig) -> StaticObservations:
+    """:class:`StaticObservations` from the ``(K, 2)`` marker positions per camera id of :func:`detect_static`."""
+    index = {c.id: i for i, c in enumerate(rig.cameras)}
+    cams = np.concatenate([np.full(len(uv), index[c], dtype=np.int64) for c, uv in markers.items()])
+    return StaticObservations(camera=cams, uv=np.concatenate(list(markers.values())))

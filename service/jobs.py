@@ -22,6 +22,12 @@ from service.db import connect, transaction
 MAX_ATTEMPTS = 2
 
 
+def not_retried(reason: str, attempt: int, log: str = "the server log") -> str:
+    """The error of a job whose worker died on its last attempt: what happened, and what to do."""
+    return (f"{reason} during attempt {attempt} of {MAX_ATTEMPTS}; the job is not retried again. "
+            f"Check {log} and the capture, then submit a new job")
+
+
 class JobState(str, enum.Enum):
     queued = "queued"
     running = "running"
@@ -217,11 +223,7 @@ class JobStore:
                 if row["cancel_requested"]:
                     new, error = JobState.cancelled, "cancelled; its worker stopped"
                 elif row["attempts"] >= MAX_ATTEMPTS:
-                    new = JobState.failed
-                    error = (
-                        f"{reason} during attempt {row['attempts']} of {MAX_ATTEMPTS}; the job is not retried again. "
-                        "Check the server log and the capture, then submit a new job"
-                    )
+                    new, error = JobState.failed, not_retried(reason, row["attempts"])
                 else:
                     new, error = JobState.queued, None
                 conn.execute(

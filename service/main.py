@@ -89,7 +89,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(health.router, prefix=API_PREFIX)
     app.include_router(captures.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(jobs.router, prefix=API_PREFIX, dependencies=secured)
-    app.state.live_capture = live_capture.LiveCapture(capture_store)
+    app.state.live_capture = live_capture.LiveCapture(capture_store, settings.capture_continue_timeout_s)
     app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)
 
     @app.exception_handler(RequestValidationError)

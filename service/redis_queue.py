@@ -5,6 +5,13 @@ text, a few MB at most), so a worker needs no access to the server's data direct
 machine with wandcal installed runs ``rq worker --url redis://HOST:6379/0 wandcal``. Job
 records stay in the server's SQLite database; :meth:`RedisQueue.refresh` mirrors the rq job's
 state, progress and result into them, so a finished result outlives Redis' result TTL.
+
+A job whose worker dies is re-queued once, then failed with the reason, as on the SQLite queue.
+rq does the re-queueing (``Retry(max=1)``): a worker whose work horse dies (the kernel's OOM
+killer, a crash in native code) retries the job at once, and rq's abandoned-job handling
+(:class:`rq.registry.StartedJobRegistry` cleanup) retries the job of a worker that died with its
+machine once that worker's heartbeat has lapsed. An error the task raises is its outcome, not a
+crash: the failure callback :func:`on_failure` takes its retry away.
 """
 
 from __future__ import annotations
@@ -15,12 +22,14 @@ from typing import Callable
 
 from calib.errors import CalibrationError
 from capture.folder import Capture, parse_static_csv, parse_wand_csv, rig_from_json
-from service.jobs import JobRecord, JobState, JobStore
+from service.jobs import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
 from service.worker import JobStopped, ThrottledProgress, solve
 
 JOB_TIMEOUT_S = 3600  # a large rig with the LP method stays well under an hour on a small PC
 RESULT_TTL_S = 7 * 24 * 3600  # results are copied into SQLite on the first poll; a week is ample
 CANCEL_KEY = "wandcal:cancel:{}"
+RETRIES = MAX_ATTEMPTS - 1  # rq's Retry(max=...): re-queues after a crash, the first run not counted
+DIED = "its rq worker died while running it"
 
 
 def _connect(url: str):
@@ -39,30 +48,50 @@ def run_payload(payload: dict) -> dict:
 
     job = get_current_job()
     files = payload["files"]
-    try:
-        rig = rig_from_json(json.loads(files["rig.json"]))
-        wand = parse_wand_csv(files["wand.csv"], rig)
-        static = parse_static_csv(files["static.csv"], rig) if files.get("static.csv") else None
-        capture = Capture(rig=rig, wand=wand, static=static)
+    rig = rig_from_json(json.loads(files["rig.json"]))
+    wand = parse_wand_csv(files["wand.csv"], rig)
+    static = parse_static_csv(files["static.csv"], rig) if files.get("static.csv") else None
+    capture = Capture(rig=rig, wand=wand, static=static)
 
-        def report(progress: dict) -> bool:
-            if job is None:
-                return False
-            job.meta["progress"] = progress
-            job.save_meta()
-            return bool(job.connection.exists(CANCEL_KEY.format(job.id)))
+    def report(progress: dict) -> bool:
+        if job is None:
+            return False
+        job.meta["progress"] = progress
+        job.save_meta()
+        return bool(job.connection.exists(CANCEL_KEY.format(job.id)))
 
-        started = time.perf_counter()
-        result = solve(capture, payload["method"], payload["options"], ThrottledProgress(report))
-        if job is not None:
-            job.meta["solve_seconds"] = time.perf_counter() - started
-            job.save_meta()
-        return result
-    except (CalibrationError, JobStopped) as exc:
-        if job is not None:
-            job.meta["error"] = str(exc) if isinstance(exc, CalibrationError) else "cancelled while running"
-            job.save_meta()
-        raise
+    started = time.perf_counter()
+    result = solve(capture, payload["method"], payload["options"], ThrottledProgress(report))
+    if job is not None:
+        job.meta["solve_seconds"] = time.perf_counter() - started
+        job.save_meta()
+    return result
+
+
+def on_failure(job, connection, exc_type, exc_value, traceback) -> None:
+    """rq's failure callback, run where the job failed. An error the task raised (a capture that
+    cannot be solved, a cancellation, a bug, rq's timeout) is the job's outcome: it is recorded and
+    the job is not retried. rq calls this with :class:`rq.exceptions.AbandonedJobError` for a job
+    whose worker died, which keeps its retry."""
+    from rq.exceptions import AbandonedJobError
+
+    if issubclass(exc_type, AbandonedJobError):
+        return
+    job.meta["attempt"] = _attempts(job, running=True)  # before the retry is taken away
+    if issubclass(exc_type, CalibrationError):
+        job.meta["error"] = str(exc_value)
+    elif issubclass(exc_type, JobStopped):
+        job.meta["error"] = "cancelled while running"
+    else:
+        job.meta["error"] = f"{exc_type.__name__}: {exc_value}"
+    job.retries_left = 0  # saved with the failure that follows
+    job.save_meta()
+
+
+def _attempts(job, running: bool) -> int:
+    """Runs of the rq ``job`` started so far (``running``: counting one that started)."""
+    requeued = RETRIES - job.retries_left if job.retries_left is not None else 0
+    return requeued + int(running)
 
 
 class RedisQueue:
@@ -83,10 +112,12 @@ class RedisQueue:
         self.redis.close()
 
     def submit(self, job: JobRecord) -> None:
+        from rq import Callback, Retry
+
         payload = capture_payload(self.read_files(job.capture_id), job.method, job.options)
         self.queue.enqueue_call(
             run_payload, args=(payload,), job_id=job.id, timeout=JOB_TIMEOUT_S, result_ttl=RESULT_TTL_S,
-            failure_ttl=RESULT_TTL_S,
+            failure_ttl=RESULT_TTL_S, retry=Retry(max=RETRIES), on_failure=Callback(on_failure),
         )
 
     def cancel(self, job_id: str) -> JobRecord | None:
@@ -119,21 +150,47 @@ class RedisQueue:
         status, meta = job.get_status(), job.get_meta()
         started = job.started_at.timestamp() if job.started_at else None
         ended = job.ended_at.timestamp() if job.ended_at else time.time()
+        attempts = _attempts(job, running=status != JobStatus.QUEUED)
         if status == JobStatus.FINISHED:
             self.store.set_outcome(
-                job_id, JobState.done, result=job.return_value(), started=started, finished=ended, attempts=1,
+                job_id, JobState.done, result=job.return_value(), started=started, finished=ended, attempts=attempts,
                 solve_seconds=meta.get("solve_seconds"), progress=meta.get("progress"),
             )
         elif status in (JobStatus.FAILED, JobStatus.STOPPED, JobStatus.CANCELED):
             cancelled = record.cancel_requested or status == JobStatus.CANCELED
-            error = meta.get("error") or _last_line(job.exc_info) or f"the rq job ended as {status.value}"
+            rq_reason = (_last_line(job.exc_info) or "").rstrip("; ")
+            error = meta.get("error")
+            if error is None and status == JobStatus.FAILED:  # the task raised nothing: its process died
+                error = not_retried(f"{DIED} (rq: {rq_reason or 'no reason recorded'})", attempts,
+                                    "the rq worker's log (and the kernel's, for the OOM killer)")
             self.store.set_outcome(
-                job_id, JobState.cancelled if cancelled else JobState.failed, error=error, started=started,
-                finished=ended, attempts=1,
+                job_id, JobState.cancelled if cancelled else JobState.failed,
+                error=error or rq_reason or f"the rq job ended as {status.value}", started=started, finished=ended,
+                attempts=meta.get("attempt", attempts),
             )
         elif status == JobStatus.STARTED:
-            self.store.set_outcome(job_id, JobState.running, started=started, attempts=1, progress=meta.get("progress"))
+            self.store.set_outcome(job_id, JobState.running, started=started, attempts=attempts,
+                                   progress=meta.get("progress"))
+            self._retry_abandoned()
+        elif status == JobStatus.QUEUED and attempts > 0:  # re-queued by rq after its worker died
+            self.store.set_outcome(job_id, JobState.queued, attempts=attempts,
+                                   progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
         return self.store.get(job_id)
+
+    def _retry_abandoned(self) -> None:
+        """rq's abandoned-job handling for this queue, run now: a job whose worker died with its
+        machine is re-queued (or failed) as soon as its heartbeat has lapsed, not at some worker's
+        next maintenance (every 10 minutes by default). The lock is the one workers clean under."""
+        from rq.registry import StartedJobRegistry
+        from rq.timeouts import TimerDeathPenalty
+
+        if not self.queue.acquire_maintenance_lock():
+            return  # a worker is cleaning right now
+        try:
+            # the request thread is not the main thread: time the callback with a timer, not SIGALRM
+            StartedJobRegistry(queue=self.queue, death_penalty_class=TimerDeathPenalty).cleanup()
+        finally:
+            self.queue.release_maintenance_lock()
 
     def drain(self) -> list[JobRecord]:
         from rq import SimpleWorker

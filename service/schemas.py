@@ -145,6 +145,7 @@ class Health(BaseModel):
 class LiveCaptureState(str, enum.Enum):
     idle = "idle"
     running = "running"
+    waiting_for_wand = "waiting_for_wand"  # the static object is recorded; POST /capture/continue starts the wand run
     stopping = "stopping"
     done = "done"
     failed = "failed"
@@ -164,6 +165,10 @@ class LiveCaptureCreate(BaseModel):
     )
     frames: int = Field(ge=1, le=10_000_000, description="wand frame sets to record")
     static_frames: int = Field(0, ge=0, le=100_000, description="first record this many sets of the static object")
+    pause_after_static: bool = Field(
+        True, description="after the static recording, wait in state waiting_for_wand (remove the L-frame, take the "
+        "wand) until POST /capture/continue; needs a trigger. false: record the wand run at once (scripted use)",
+    )
     rate_hz: float = Field(100.0, gt=0, le=10_000, description="trigger / frame rate, Hz")
     wand_length_m: float | None = Field(None, gt=0, le=100, description="wand marker distance, metres")
     rig: dict[str, Any] | None = Field(
@@ -179,7 +184,7 @@ class LiveCapturePublic(BaseModel):
     capture_id: str | None = Field(None, description="the stored capture it becomes (GET /captures/{id} once done)")
     state: LiveCaptureState
     phase: str | None = Field(
-        None, description="'open', 'static', 'wand', 'detect <images done>/<images>' or 'register'"
+        None, description="'open', 'static', 'waiting', 'wand', 'detect <images done>/<images>' or 'register'"
     )
     cameras: list[str] = Field(default_factory=list, description="camera ids")
     frames_total: int = Field(0, description="frame sets asked for: static_frames + frames")
@@ -188,6 +193,11 @@ class LiveCapturePublic(BaseModel):
     dropped: dict[str, int] = Field(default_factory=dict, description="per camera: frames missed or unreadable")
     stopped: bool = Field(False, description="ended early by POST /capture/stop (what was recorded is kept)")
     error: str | None = Field(None, description="why it failed")
+    prompt: str | None = Field(None, description="what the operator is asked to do now (while waiting_for_wand)")
+    wait_deadline: float | None = Field(
+        None, description="Unix time, seconds, at which waiting_for_wand gives up (settings: "
+        "capture_continue_timeout_s); the static recording is then kept",
+    )
     messages: list[str] = Field(default_factory=list, description="the latest drift / realignment / fault events")
     started: float | None = Field(None, description="Unix time, seconds")
     finished: float | None = None

@@ -22,6 +22,9 @@ DEFAULT_MAX_UPLOAD_BYTES = 64 * 1024 * 1024
 # Lab cameras for wand calibration run at 30-120 Hz; streaming is usually decimated, and 60
 # frame sets per second per capture is above what detection keeps up with on a small PC.
 DEFAULT_FRAMESETS_PER_SECOND = 60.0
+# Removing the L-frame and picking up the wand takes a minute or two; ten minutes also covers
+# walking to a rig in the next room, and still frees the cameras if the operator forgets.
+DEFAULT_CONTINUE_TIMEOUT_S = 600.0
 
 
 class Settings(BaseSettings):
@@ -36,6 +39,9 @@ class Settings(BaseSettings):
     port: int = Field(DEFAULT_PORT, ge=1, le=65535)
     max_upload_bytes: int = Field(DEFAULT_MAX_UPLOAD_BYTES, gt=0, description="largest request body, bytes")
     framesets_per_second: float = Field(DEFAULT_FRAMESETS_PER_SECOND, gt=0, description="per-capture ingest limit")
+    capture_continue_timeout_s: float = Field(
+        DEFAULT_CONTINUE_TIMEOUT_S, gt=0, description="live capture: longest wait for POST /capture/continue, seconds"
+    )
     workers: int = Field(1, ge=0, description="solver processes; 0 leaves jobs queued (tests call drain())")
     queue: Literal["sqlite", "redis"] = "sqlite"
     redis_url: str = "redis://127.0.0.1:6379/0"

@@ -110,13 +110,24 @@ def make_server(tmp_path):
         s.stop()
 
 
+def simulated_capture(folder: Path, **simulation):
+    """A points-level capture folder from :func:`calib.simulate.simulate_capture`, and the simulation."""
+    sim = simulate_capture(**simulation)
+    write_capture(folder, sim.rig, sim.wand, sim.static)
+    return folder, sim
+
+
 @pytest.fixture(scope="session")
 def small_capture(tmp_path_factory):
     """4 cameras, 300 frames, 0.3 px noise, with the L-frame: a capture folder and its truth."""
-    sim = simulate_capture(cameras=4, frames=300, noise_px=0.3, seed=11)
-    folder = tmp_path_factory.mktemp("capture") / "small"
-    write_capture(folder, sim.rig, sim.wand, sim.static)
-    return folder, sim
+    return simulated_capture(tmp_path_factory.mktemp("capture") / "small", cameras=4, frames=300, noise_px=0.3,
+                             seed=11)
+
+
+@pytest.fixture(scope="session")
+def big_capture(tmp_path_factory):
+    """A capture big enough that the solve takes seconds, so a kill or cancel lands while it runs."""
+    return simulated_capture(tmp_path_factory.mktemp("big") / "capture", cameras=8, frames=1500, noise_px=0.3, seed=5)
 
 
 def wait_job(client: httpx.Client, job_id: str, timeout_s: float = JOB_TIMEOUT_S, until=("done", "failed", "cancelled")):

@@ -6,11 +6,8 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
 from calib.geometry import kabsch
-from calib.simulate import simulate_capture
-from capture.folder import write_capture
 from tests.service.conftest import REPO, capture_files, server_env, wait_job
 
 NOISE_PX = 0.3
@@ -55,15 +52,6 @@ def test_upload_solve_and_compare_with_truth(make_server, small_capture):
     assert np.linalg.norm(centers - truth, axis=1).max() < ABSOLUTE_TOL_M
     R, t, _ = kabsch(centers, truth)
     assert np.linalg.norm(centers @ R.T + t - truth, axis=1).max() < SHAPE_TOL_M
-
-
-@pytest.fixture(scope="module")
-def big_capture(tmp_path_factory):
-    """A capture big enough that the solve takes seconds, so a kill or cancel lands while it runs."""
-    sim = simulate_capture(cameras=8, frames=1500, noise_px=NOISE_PX, seed=5)
-    folder = tmp_path_factory.mktemp("big") / "capture"
-    write_capture(folder, sim.rig, sim.wand, sim.static)
-    return folder, sim
 
 
 def test_sigkill_mid_job_requeues_once_and_finishes(make_server, big_capture):

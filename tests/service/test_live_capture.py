@@ -9,6 +9,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from drivers.registry import open_cameras
+from drivers.trigger_emulator import EmulatorProcess
 from service.main import create_app
 from service.settings import Settings
 from tests.service.conftest import wait_job
@@ -25,6 +26,7 @@ CAPTURE_TIMEOUT_S = 60.0
 DETECT_PX, RANGE_M, FOCAL_PX, ARM_M = 0.05, 4.5, 1000.0, 0.5
 ABSOLUTE_TOL_M = 2 * RANGE_M**2 * DETECT_PX / (FOCAL_PX * ARM_M)
 ENDED = ("done", "failed")
+PAUSED_RATE_HZ = 200.0
 
 
 def wait_capture(client, until=ENDED, timeout_s: float = CAPTURE_TIMEOUT_S, check=lambda s: True) -> dict:
@@ -42,7 +44,7 @@ def client(tmp_path):
     app = create_app(Settings(data_dir=tmp_path / "data", workers=0))
     with TestClient(app, base_url="http://127.0.0.1/api/v1", raise_server_exceptions=False) as c:
         yield c
-        if c.get("/capture").json()["state"] in ("running", "stopping"):
+        if c.get("/capture").json()["state"] in ("running", "waiting_for_wand", "stopping"):
             c.post("/capture/stop")
             wait_capture(c)
 
@@ -51,8 +53,9 @@ def test_live_capture_over_http_then_calibrate(make_server, tmp_path):
     server = make_server(workers=1).start()
     with server.client() as c:
         assert c.get("/capture").json()["state"] == "idle"
+        # free-running cameras cannot pause after the static object: a scripted run asks for no pause
         r = c.post("/capture/start", json={"cameras": [SIM_URL], "trigger": None, "frames": WAND_SETS,
-                                           "static_frames": STATIC_SETS, "rate_hz": 200})
+                                           "static_frames": STATIC_SETS, "rate_hz": 200, "pause_after_static": False})
         assert r.status_code == 202, r.text
         started = r.json()
         assert started["state"] == "running" and started["capture_id"] and started["id"]
@@ -80,6 +83,82 @@ def test_live_capture_over_http_then_calibrate(make_server, tmp_path):
     truth = open_cameras(SIM_URL)[0].scene.truth.centers
     centers = np.array([cam["center"] for cam in job["result"]["cameras"]])
     assert np.linalg.norm(centers - truth, axis=1).max() < ABSOLUTE_TOL_M
+
+
+def start_triggered(c, emu: EmulatorProcess) -> dict:
+    """Start a triggered capture with static frames (it pauses after them by default)."""
+    r = c.post("/capture/start", json={"cameras": [SIM_URL], "trigger": emu.url, "frames": WAND_SETS,
+                                       "static_frames": STATIC_SETS, "rate_hz": PAUSED_RATE_HZ})
+    assert r.status_code == 202, r.text
+    return r.json()
+
+
+def start_paused(c, emu: EmulatorProcess) -> tuple[dict, dict]:
+    """A triggered capture with static frames: its start answer and its status once it waits for the wand."""
+    started = start_triggered(c, emu)
+    waiting = wait_capture(c, until=("waiting_for_wand", *ENDED))
+    assert waiting["state"] == "waiting_for_wand", waiting["error"]
+    return started, waiting
+
+
+def test_capture_pauses_after_the_static_object_until_continue(make_server):
+    server = make_server(workers=0).start()
+    with EmulatorProcess() as emu, server.client() as c:
+        r = c.post("/capture/continue")  # nothing is waiting yet
+        assert r.status_code == 409 and "waiting for the wand" in r.json()["detail"]
+        started, waiting = start_paused(c, emu)
+        assert waiting["phase"] == "waiting" and waiting["frames_recorded"] == STATIC_SETS
+        assert "remove the L-frame" in waiting["prompt"] and "/capture/continue" in waiting["prompt"]
+        assert waiting["wait_deadline"] > waiting["started"]
+        # nothing more is recorded while the operator swaps the L-frame for the wand
+        assert c.get("/capture").json()["frames_recorded"] == STATIC_SETS
+
+        r = c.post("/capture/continue")
+        assert r.status_code == 202, r.text
+        assert r.json()["state"] == "running" and r.json()["prompt"] is None
+        status = wait_capture(c)
+        assert status["state"] == "done", status["error"]
+        assert status["frames_recorded"] == STATIC_SETS + WAND_SETS and not status["stopped"]
+        r = c.post("/capture/continue")  # ended: nothing to continue
+        assert r.status_code == 409 and "done" in r.json()["detail"]
+
+        capture = c.get(f"/captures/{started['capture_id']}").json()
+        assert capture["has_static"] and 0 < capture["frames"] <= WAND_SETS
+
+
+def test_stop_while_waiting_keeps_the_static_recording(make_server):
+    server = make_server(workers=0).start()
+    with EmulatorProcess() as emu, server.client() as c:
+        started, _ = start_paused(c, emu)
+        r = c.post("/capture/stop")
+        assert r.status_code == 202, r.text
+        assert r.json()["state"] in ("stopping", "done")
+        status = wait_capture(c)
+        assert status["state"] == "done", status["error"]
+        assert status["stopped"] and status["frames_recorded"] == STATIC_SETS
+        assert status["capture_id"] == started["capture_id"]
+        assert any("only the static object was recorded" in m for m in status["messages"])
+
+        capture = c.get(f"/captures/{started['capture_id']}").json()
+        assert capture["has_static"] and capture["frames"] == 0
+        # the kept static recording is good for what it is for: each camera's pose from the L-frame
+        solution = c.post(f"/captures/{started['capture_id']}/static").json()
+        assert [cam["ok"] for cam in solution["cameras"]] == [True] * len(capture["cameras"]), solution
+        r = c.post("/jobs", json={"capture_id": started["capture_id"]})
+        assert r.status_code == 422  # no wand sets to calibrate
+
+
+def test_no_continue_in_time_fails_and_keeps_the_static_recording(make_server):
+    server = make_server(workers=0, capture_continue_timeout_s=0.5).start()
+    with EmulatorProcess() as emu, server.client() as c:
+        started = start_triggered(c, emu)
+        status = wait_capture(c)  # the wait may be over before a poll sees it
+        assert status["state"] == "failed"
+        assert "capture_continue_timeout_s" in status["error"] and started["capture_id"] in status["error"]
+        assert status["capture_id"] == started["capture_id"] and not status["stopped"]
+        assert c.get(f"/captures/{started['capture_id']}").json()["has_static"]
+        r = c.post("/capture/continue")
+        assert r.status_code == 409 and "failed" in r.json()["detail"]
 
 
 def test_second_start_conflicts_and_stop_keeps_what_was_recorded(client):
@@ -122,6 +201,7 @@ def test_stop_with_nothing_running(client):
         ({"cameras": [SIM_URL], "trigger": "socket://10.0.0.7:7000", "frames": 10}, "socket://10.0.0.7:7000"),
         ({"cameras": [SIM_URL], "frames": 10, "out": "/tmp/elsewhere"}, "out"),
         ({"cameras": [SIM_URL], "frames": 0}, "frames"),
+        ({"cameras": [SIM_URL], "frames": 10, "static_frames": 5}, "pause_after_static"),
     ],
 )
 def test_refused_starts_name_the_problem_and_change_nothing(client, body, named):

@@ -2,18 +2,26 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tests.service.conftest import REPO, capture_files, free_port, wait_job
+from tests.service.conftest import JOB_TIMEOUT_S, REPO, capture_files, free_port, simulated_capture, wait_job
 
 pytest.importorskip("rq", reason="pip install 'wandcal[redis]' to test the Redis queue")
 REDIS_SERVER = shutil.which("redis-server")
+QUEUE = "wandcal"
+# rq notices a worker that died with its machine when the job's heartbeat lapses: rq renews it
+# every job-monitoring interval (30 s) with 60 s to spare. The test asks rq's cleanup for a moment
+# past that instead of waiting for it.
+HEARTBEAT_LAPSE_S = 30 + 60 + 30
 pytestmark = pytest.mark.skipif(REDIS_SERVER is None, reason="redis-server is not installed (apt-get install redis-server)")
 
 
@@ -53,6 +61,10 @@ def test_jobs_run_on_an_rq_worker(make_server, small_capture, redis_url, tmp_pat
         assert queued["state"] == "queued"
         cancelled_id = c.post("/jobs", json={"capture_id": capture_id}).json()["id"]
         assert c.delete(f"/jobs/{cancelled_id}").json()["state"] == "cancelled"
+        # a capture the solver refuses: its error is the outcome, not a crash, so it is not retried
+        tiny, _ = simulated_capture(tmp_path / "tiny", cameras=3, frames=4, noise_px=0.3, seed=2)
+        tiny_id = c.post("/captures", files=capture_files(tiny)).json()["id"]
+        refused_id = c.post("/jobs", json={"capture_id": tiny_id, "options": {"use_static": False}}).json()["id"]
         # the worker is another process that knows nothing of the server's data directory
         worker = subprocess.run(  # `rq worker --burst`: run what is queued, then exit
             [sys.executable, "-m", "rq.cli", "worker", "--burst", "--url", redis_url, "wandcal"],
@@ -62,7 +74,101 @@ def test_jobs_run_on_an_rq_worker(make_server, small_capture, redis_url, tmp_pat
         job = wait_job(c, job_id, timeout_s=30)
         assert job["state"] == "done", job["error"]
         assert c.get(f"/jobs/{cancelled_id}").json()["state"] == "cancelled"
+        refused = c.get(f"/jobs/{refused_id}").json()
+        assert refused["state"] == "failed" and refused["attempts"] == 1
+        assert "no two cameras share" in refused["error"]
     centers = np.array([cam["center"] for cam in job["result"]["cameras"]])
     # same capture and solver as the SQLite path: the same 10 mm absolute bound (test_http.py)
     assert np.linalg.norm(centers - sim.truth.centers, axis=1).max() < 0.010
 
+
+class RqWorker:
+    """An ``rq worker`` process on the test's Redis; the job it runs is in a child, its work horse."""
+
+    def __init__(self, redis_url: str, env: dict, log: Path):
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "rq.cli", "worker", "--url", redis_url, QUEUE],
+            cwd=log.parent, env=dict(env, PYTHONPATH=str(REPO)), stdout=open(log, "ab"), stderr=subprocess.STDOUT,
+        )
+
+    def horse(self) -> int:
+        """The pid of the work horse running the current job."""
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rpartition(")")[2].split()
+            except OSError:
+                continue  # ended meanwhile
+            if int(fields[1]) == self.proc.pid:  # field 4 of proc(5), the parent pid
+                return int(stat.parent.name)
+        raise AssertionError(f"rq worker {self.proc.pid} runs no work horse")
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+
+
+def wait_run(client, job_id: str, attempt: int, timeout_s: float = JOB_TIMEOUT_S) -> dict:
+    """The job once its run number ``attempt`` has started (or once it has ended)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(f"/jobs/{job_id}").json()
+        if (job["state"] == "running" and job["attempts"] == attempt) or job["state"] in ("done", "failed"):
+            return job
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} still {job['state']} (attempt {job['attempts']}) after {timeout_s} s")
+
+
+def kill_horse_mid_job(worker: RqWorker, job: dict) -> None:
+    """SIGKILL the process running ``job`` (the kernel's OOM killer's way); its worker lives on."""
+    assert job["state"] == "running", "the solve finished before the kill; use a bigger capture"
+    os.kill(worker.horse(), signal.SIGKILL)
+
+
+def test_a_job_whose_worker_dies_is_requeued_once_then_failed(make_server, big_capture, redis_url, tmp_path):
+    from redis import Redis
+    from rq.registry import StartedJobRegistry
+
+    folder, _ = big_capture
+    server = make_server(queue="redis", redis_url=redis_url, redis_queue_name=QUEUE, workers=0).start()
+    workers = []
+    try:
+        with server.client() as c:
+            capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+            job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+
+            # the whole worker dies mid-job, work horse and all, as with its machine
+            first = RqWorker(redis_url, server.env, tmp_path / "worker1.log")
+            workers.append(first)
+            running = wait_run(c, job_id, attempt=1)
+            assert running["state"] == "running", "the solve finished before the kill; use a bigger capture"
+            horse = first.horse()
+            first.kill()  # first, so that it cannot see its horse die and handle that itself
+            os.kill(horse, signal.SIGKILL)
+            assert c.get(f"/jobs/{job_id}").json()["state"] == "running"  # its heartbeat has not lapsed yet
+            # rq's abandoned-job handling, as a worker's maintenance or the server's next poll runs it
+            # once the heartbeat has lapsed
+            StartedJobRegistry(QUEUE, connection=Redis.from_url(redis_url)).cleanup(
+                timestamp=time.time() + HEARTBEAT_LAPSE_S)
+            requeued = c.get(f"/jobs/{job_id}").json()
+            assert requeued["state"] == "queued" and requeued["attempts"] == 1, requeued
+            assert "re-queued" in requeued["progress"]["message"]
+
+            # another worker takes it and finishes it
+            second = RqWorker(redis_url, server.env, tmp_path / "worker2.log")
+            workers.append(second)
+            job = wait_job(c, job_id)
+            assert job["state"] == "done", job["error"]
+            assert job["attempts"] == 2 and job["result"]["cameras"]
+
+            # a job whose work horse is killed twice (the OOM killer's way) fails with the reason
+            job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+            kill_horse_mid_job(second, wait_run(c, job_id, attempt=1))
+            kill_horse_mid_job(second, wait_run(c, job_id, attempt=2))  # its worker re-queued it at once
+            job = wait_job(c, job_id)
+        assert job["state"] == "failed" and job["attempts"] == 2
+        assert "rq worker died" in job["error"] and "signal 9" in job["error"], job["error"]
+        assert "attempt 2 of 2" in job["error"] and "not retried again" in job["error"]
+    finally:
+        for worker in workers:
+            worker.kill()

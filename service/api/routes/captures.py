@@ -258,12 +258,10 @@ async def _static_from_images(request: Request, state, capture: CaptureRow, rig)
             raise HTTPException(422, f"camera {key!r}: more than {MAX_STATIC_IMAGES_PER_CAMERA} static images")
     if not images:
         raise HTTPException(422, "no images; send images of the static object, field name = camera id")
-    from service.ingest import detect_static
+    from service.ingest import detect_static, static_observations
 
     markers = await run_in_threadpool(detect_static, images, {c.id: c for c in rig.cameras})
-    index = {c.id: i for i, c in enumerate(rig.cameras)}
-    cams = np.concatenate([np.full(len(uv), index[c]) for c, uv in markers.items()])
-    static = StaticObservations(camera=cams, uv=np.concatenate(list(markers.values())))
+    static = static_observations(markers, rig)
     await run_in_threadpool(state.captures.set_static, capture.id, static, rig)
     return static
 

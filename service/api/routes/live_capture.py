@@ -3,11 +3,17 @@
 A capture records into a staging folder ``captures/.<capture id>.partial`` (removed at the next
 start if the server dies mid-capture), then detection writes its points level and the folder
 becomes the stored capture ``<capture id>``, ready for ``POST /jobs``.
+
+With static frames and a trigger, the capture pauses after the static recording in state
+``waiting_for_wand`` (the lab's "remove the L-frame, take the wand" step) until
+``POST /capture/continue``; ``POST /capture/stop`` or the settings' timeout end it there, keeping
+the static recording as a capture of its own.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import shutil
 import threading
 import time
@@ -17,14 +23,18 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Annotated
 
+import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 
-from capture.folder import CaptureFormatError, read_capture, rig_from_json
+from calib.rig import WandObservations
+from capture.folder import CaptureFormatError, read_capture, read_rig, rig_from_json, write_capture
 from capture.images import ensure_points_level
 from capture.session import Progress, record
 from drivers.errors import DriverError
+from drivers.imagefolder import STATIC_DIR, image_path, listed_indices
 from service.schemas import ErrorPublic, LiveCaptureCreate, LiveCapturePublic, LiveCaptureState
+from service.settings import DEFAULT_CONTINUE_TIMEOUT_S
 from service.storage import CaptureStore
 
 router = APIRouter(prefix="/capture", tags=["live capture"])
@@ -35,6 +45,7 @@ ERRORS = {
     401: {"model": ErrorPublic, "description": "missing or wrong bearer token"},
     409: {"model": ErrorPublic, "description": "a live capture is already running, or none is"},
 }
+BUSY = (LiveCaptureState.running, LiveCaptureState.waiting_for_wand, LiveCaptureState.stopping)
 
 
 class _StopRequested(KeyboardInterrupt):
@@ -42,14 +53,22 @@ class _StopRequested(KeyboardInterrupt):
     exactly as on Ctrl-C in ``wandcal capture``, keeping every set recorded so far."""
 
 
+class _NoContinue(DriverError):
+    """Raised from ``between`` when nobody continued in time. :func:`capture.session.record` ends
+    on a :class:`DriverError` as on a device that stops: everything recorded is kept, and the
+    message becomes the capture's error in ``capture.json``."""
+
+
 class LiveCapture:
     """The one live capture of a server: its background thread and a snapshot of its status."""
 
-    def __init__(self, store: CaptureStore):
+    def __init__(self, store: CaptureStore, continue_timeout_s: float = DEFAULT_CONTINUE_TIMEOUT_S):
         self.store = store
+        self.continue_timeout_s = continue_timeout_s
         self._lock = threading.Lock()
         self._status = LiveCapturePublic(state=LiveCaptureState.idle)
         self._stop = threading.Event()
+        self._resume = threading.Event()  # set by continue (and by stop, to end the wait)
         self._messages: deque[str] = deque(maxlen=KEPT_MESSAGES)
 
     def status(self) -> LiveCapturePublic:
@@ -61,7 +80,7 @@ class LiveCapture:
             self._status = self._status.model_copy(update=fields)
 
     def _busy(self) -> bool:
-        return self._status.state in (LiveCaptureState.running, LiveCaptureState.stopping)
+        return self._status.state in BUSY
 
     def start(self, body: LiveCaptureCreate) -> LiveCapturePublic:
         """Open the devices (a driver that cannot open raises here, before anything is recorded),
@@ -79,6 +98,7 @@ class LiveCapture:
                                              frames_total=body.frames + body.static_frames)
             self._messages.clear()
             self._stop.clear()
+            self._resume.clear()
         stack = contextlib.ExitStack()
         try:
             cameras, trigger, rig = _open_devices(body, stack, self.store)
@@ -91,7 +111,9 @@ class LiveCapture:
             raise
         self._update(cameras=[c.camera_id for c in cameras], phase="static" if body.static_frames else "wand")
         run = self.status()
-        threading.Thread(target=self._run, args=(body, stack, cameras, trigger, rig, run),
+        pause = body.static_frames and body.pause_after_static
+        between = functools.partial(self._wait_for_wand, body.static_frames) if pause else None
+        threading.Thread(target=self._run, args=(body, stack, cameras, trigger, rig, run, between),
                          name=f"live-capture-{run.id[:8]}", daemon=True).start()
         return run
 
@@ -101,8 +123,22 @@ class LiveCapture:
                 raise HTTPException(409, f"no live capture is running (the last one is {self._status.state.value}); "
                                          "start one with POST /api/v1/capture/start")
             self._stop.set()
-            if self._status.state == LiveCaptureState.running:
-                self._status = self._status.model_copy(update={"state": LiveCaptureState.stopping})
+            self._resume.set()  # a capture waiting for the wand ends now, keeping its static recording
+            if self._status.state in (LiveCaptureState.running, LiveCaptureState.waiting_for_wand):
+                self._status = self._status.model_copy(
+                    update={"state": LiveCaptureState.stopping, "prompt": None, "wait_deadline": None})
+        return self.status()
+
+    def resume(self) -> LiveCapturePublic:
+        """Start the wand run of a capture waiting after its static recording."""
+        with self._lock:
+            if self._status.state != LiveCaptureState.waiting_for_wand:
+                raise HTTPException(409, f"no live capture is waiting for the wand (the live capture is "
+                                         f"{self._status.state.value}); continue applies after the static "
+                                         "recording of a capture started with static_frames and a trigger")
+            self._status = self._status.model_copy(update={"state": LiveCaptureState.running, "phase": "wand",
+                                                           "prompt": None, "wait_deadline": None})
+            self._resume.set()
         return self.status()
 
     # -- the background thread -----------------------------------------------------------------
@@ -112,31 +148,67 @@ class LiveCapture:
             raise _StopRequested()
         self._update(phase=p.phase, frames_recorded=p.sets, fps=round(p.fps, 2), dropped=dict(p.missed))
 
+    def _wait_for_wand(self, static_sets: int) -> None:
+        """``record``'s ``between``: wait for continue, stop or the timeout, with the trigger idle."""
+        timeout = self.continue_timeout_s
+        with self._lock:
+            if self._stop.is_set():  # stopped during the static recording
+                self._status = self._status.model_copy(update={"stopped": True})
+                raise _StopRequested()
+            self._status = self._status.model_copy(update={
+                "state": LiveCaptureState.waiting_for_wand, "phase": "waiting",
+                "frames_recorded": static_sets, "wait_deadline": time.time() + timeout,
+                "prompt": "static object recorded: remove the L-frame from the volume and take the wand, then "
+                          "POST /api/v1/capture/continue to record the wand (POST /api/v1/capture/stop keeps only "
+                          f"the static recording); giving up after {timeout:g} s",
+            })
+        self._resume.wait(timeout)
+        with self._lock:  # continue and stop set their state with the event, under this lock
+            if self._stop.is_set():
+                self._status = self._status.model_copy(update={"stopped": True})
+                raise _StopRequested()
+            if not self._resume.is_set():
+                self._status = self._status.model_copy(update={"state": LiveCaptureState.stopping, "prompt": None,
+                                                               "wait_deadline": None})
+                raise _NoContinue(f"nobody sent POST /api/v1/capture/continue within {timeout:g} s of the static "
+                                  "recording (settings: capture_continue_timeout_s)")
+
     def _event(self, message: str) -> None:
         with self._lock:
             self._messages.append(message)
 
     def _run(self, body: LiveCaptureCreate, stack: contextlib.ExitStack, cameras, trigger, rig,
-             run: LiveCapturePublic) -> None:
+             run: LiveCapturePublic, between) -> None:
         staging = self.store.root / f".{run.capture_id}.partial"
         registered = False
         try:
             with stack:
                 result = record(cameras, trigger, staging, rig, frames=body.frames, static_frames=body.static_frames,
-                                rate_hz=body.rate_hz, progress=self._progress, events=self._event)
+                                rate_hz=body.rate_hz, progress=self._progress, between=between, events=self._event)
             stopped = self.status().stopped
             self._update(frames_recorded=result.static_sets + result.frame_sets,
                          dropped={cid: s["missed"] + s["unreadable"] for cid, s in result.per_camera.items()})
-            if result.frame_sets == 0:
-                raise CaptureFormatError("no wand frame sets were recorded" + (" before the stop" if stopped else "")
+            if result.frame_sets + result.static_sets == 0:
+                raise CaptureFormatError("no frame sets were recorded" + (" before the stop" if stopped else "")
                                          + "; nothing was stored")
             self._update(phase="detect")
-            ensure_points_level(staging, progress=lambda p: self._update(
-                phase=f"detect {p['done']}/{p['total']}"))
+            if result.frame_sets:
+                ensure_points_level(staging, progress=lambda p: self._update(
+                    phase=f"detect {p['done']}/{p['total']}"))
+            else:
+                _static_points_level(staging)
             self._update(phase="register")
             _register(self.store, run.capture_id, staging, "live: " + " ".join(body.cameras))
             registered = True
             error = None if stopped else result.error
+            if not result.frame_sets:
+                kept = (f"only the static object was recorded: it is stored as capture {run.capture_id} (check the "
+                        f"L-frame with POST /api/v1/captures/{run.capture_id}/static); it has no wand sets to "
+                        "calibrate, so start a new capture for the wand")
+                if error:
+                    error += "; " + kept
+                else:
+                    self._event(kept)
             self._update(state=LiveCaptureState.failed if error else LiveCaptureState.done, error=error,
                          phase=None, finished=time.time())
         except Exception as exc:  # the thread's end: the status is where the failure is reported
@@ -153,6 +225,11 @@ def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack, store: C
     from drivers.registry import open_cameras
     from drivers.trigger import open_trigger
 
+    port = _local_port(body.trigger)
+    if port is None and body.static_frames and body.pause_after_static:
+        raise ValueError("pause_after_static: free-running cameras (no trigger) keep streaming, so the capture "
+                         "cannot pause between the static object and the wand; give a trigger, or send "
+                         "pause_after_static: false to record both back to back")
     cameras = [cam for url in body.cameras for cam in open_cameras(_allowed_camera_url(url, store))]
     if body.rig is not None:
         rig = rig_from_json(body.rig, "rig")
@@ -160,10 +237,24 @@ def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack, store: C
         rig = _rig(SimpleNamespace(rig=None, wand_length=body.wand_length_m), cameras)
     for cam in cameras:
         stack.enter_context(cam)
-    trigger = open_trigger(_local_port(body.trigger))
+    trigger = open_trigger(port)
     if trigger is not None:
         stack.enter_context(trigger)
     return cameras, trigger, rig
+
+
+def _static_points_level(folder: Path) -> None:
+    """The points level of a capture that recorded only the static object: its static.csv
+    (markers averaged over each camera's images) and an empty wand.csv."""
+    from service.ingest import detect_static, static_observations
+
+    rig = read_rig(folder)
+    static = None
+    if rig.static_markers is not None:  # without its marker coordinates, the images stay unsolved
+        images = {cid: [image_path(folder, STATIC_DIR, cid, i) for i in listed_indices(folder, STATIC_DIR, cid)]
+                  for cid in rig.ids}
+        static = static_observations(detect_static(images, {c.id: c for c in rig.cameras}), rig)
+    write_capture(folder, rig, WandObservations([], [], np.zeros((0, 2))), static)
 
 
 def _allowed_camera_url(url: str, store: CaptureStore) -> str:
@@ -233,7 +324,17 @@ def capture_status(live: Live) -> LiveCapturePublic:
     return live.status()
 
 
+@router.post("/continue", status_code=202, response_model=LiveCapturePublic,
+             responses={401: ERRORS[401], 409: {"model": ErrorPublic, "description": "no live capture is waiting "
+                                                "for the wand (state waiting_for_wand)"}},
+             summary="Record the wand: the L-frame is out of the volume and the wand is in hand")
+def continue_capture(live: Live) -> LiveCapturePublic:
+    """After the static recording a capture waits in ``waiting_for_wand``; this starts its wand run."""
+    return live.resume()
+
+
 @router.post("/stop", status_code=202, response_model=LiveCapturePublic, responses=ERRORS,
              summary="Stop the live capture, keeping what was recorded; it is then detected and stored")
 def stop_capture(live: Live) -> LiveCapturePublic:
+    """While ``waiting_for_wand`` this ends the capture with its static recording alone."""
     return live.stop()
