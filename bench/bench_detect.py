@@ -2,18 +2,24 @@
 
 Compares ``calib.detect.detect_blobs`` (one core, and ``detect_many`` on two threads) with
 ``cv2.SimpleBlobDetector`` and with the plain whole-frame OpenCV building blocks it was chosen
-against (docs/decisions/0003-blob-detector.md). Prints a table and writes it to the
+against (docs/decisions/0003-blob-detector.md). Then times ``wandcal detect`` on a written
+image-level folder (PNG decode + detection) on 1 and 2 worker threads
+(docs/decisions/0006-parallel-detection.md). Prints the tables and writes them to the
 "Blob detection" section of docs/benchmarks.md.
 
-Run: python bench/bench_detect.py [--frames 120] [--no-write]
+Run: python bench/bench_detect.py [--frames 120] [--folder-frames 300] [--no-write]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
+import resource
+import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -25,6 +31,10 @@ sys.path.insert(0, str(REPO))
 
 from bench.common import replace_section  # noqa: E402
 from calib.detect import DetectConfig, detect_blobs, detect_many, render_blobs  # noqa: E402
+from calib.simulate import simulate_capture  # noqa: E402
+from capture.folder import rig_to_json  # noqa: E402
+from capture.images import detect_capture  # noqa: E402
+from capture.writer import PNG_PARAMS  # noqa: E402
 
 SHAPE = (1024, 1280)  # (H, W), the issue's sensor size
 MARKERS = 6  # 2 wand markers + 4 L-frame markers: "a handful of blobs"
@@ -36,6 +46,8 @@ FIXED_THRESHOLD = {8: 40, 16: 7000}  # background + a quarter of the dimmest pea
 MATCH_PX = 2.0  # a detection this close to a rendered spot is that spot
 SECTION = "## Blob detection"
 REPEATS = 5  # best of 5 round-robin runs per method
+FOLDER_CAMERAS = 3  # "several cameras": the folder's frames are split between them
+FOLDER_REPEATS = 7  # runs of a few seconds each: more of them catch a spell when both cores are free
 
 
 def render_frames(n: int, bit_depth: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -155,9 +167,78 @@ def ours_many(config: DetectConfig, workers: int):
     return lambda frames: [b.uv for b in detect_many(frames, config, workers=workers)]
 
 
+def write_folder(folder: Path, frames: int) -> int:
+    """An image-level capture of ``frames`` rendered 8-bit PNGs over FOLDER_CAMERAS cameras,
+    written with the capture writer's PNG settings; returns its size in bytes."""
+    rig = simulate_capture(FOLDER_CAMERAS, 10, 0.3, seed=1).rig
+    (folder / "rig.json").write_text(json.dumps(rig_to_json(rig)))
+    images, _ = render_frames(frames, 8, seed=99)
+    size = 0
+    for i, image in enumerate(images):
+        path = folder / "frames" / rig.ids[i % FOLDER_CAMERAS] / f"{i // FOLDER_CAMERAS:06d}.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(path), image, PNG_PARAMS)
+        size += path.stat().st_size
+    return size
+
+
+def cpu_seconds() -> float:
+    """CPU time of this process so far, all threads, user + system."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def decode_then_detect_many(folder: Path, workers: int) -> None:
+    """What ``wandcal detect`` did before docs/decisions/0006: decode 64 images in the calling
+    thread, then detect them with ``detect_many`` on ``workers`` threads."""
+    paths = sorted(folder.glob("frames/*/*.png"))
+    for start in range(0, len(paths), 64):
+        images = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in paths[start:start + 64]]
+        detect_many(images, None, workers)
+
+
+def folder_rows(frames: int) -> tuple[list[str], str]:
+    """Table lines timing detection over a written folder, and a sentence on how it was made."""
+    workers = min(2, len(os.sched_getaffinity(0)))
+    with tempfile.TemporaryDirectory(prefix="bench-detect-") as tmp:
+        folder = Path(tmp)
+        size = write_folder(folder, frames)
+        methods = [
+            ("wandcal detect (decode + detect per file)", 1, lambda: detect_capture(folder, workers=1)),
+            ("wandcal detect (decode + detect per file)", workers, lambda: detect_capture(folder, workers=workers)),
+            ("decode in one thread, then detect_many (before 0006)", workers,
+             lambda: decode_then_detect_many(folder, workers)),
+        ]
+        seconds = [[] for _ in methods]
+        busy = [[] for _ in methods]
+        for _ in range(FOLDER_REPEATS):  # round robin, as above: a busy spell slows one repeat of each
+            for k, (_, _, run) in enumerate(methods):
+                c0, t0 = cpu_seconds(), time.perf_counter()
+                run()
+                seconds[k].append(time.perf_counter() - t0)
+                busy[k].append((cpu_seconds() - c0) / seconds[k][-1])
+    best = [min(s) for s in seconds]
+    median = [statistics.median(s) for s in seconds]
+    lines = ["| method | workers | best frames/s | median frames/s | best speed-up over 1 worker "
+             "| median speed-up | cores busy (median CPU s / s) |", "|---|---|---|---|---|---|---|"]
+    for (name, n, _), b, m, u in zip(methods, best, median, busy):
+        lines.append(f"| {name} | {n} | {frames / b:,.0f} | {frames / m:,.0f} | {best[0] / b:.2f}x "
+                     f"| {median[0] / m:.2f}x | {statistics.median(u):.2f} |")
+    about = (f"{frames} rendered {SHAPE[1]}x{SHAPE[0]} 8-bit frames as above, split over {FOLDER_CAMERAS} "
+             f"cameras and written as PNGs with the capture writer's settings ({size / frames / 1e6:.2f} MB "
+             "per file, in the page cache), timed from the folder to wand.csv with "
+             f"`capture.images.detect_capture`. Best and median of {FOLDER_REPEATS} round-robin runs; the "
+             "speed-ups compare each row with the 1-worker row of the same statistic. 'Cores busy' is this "
+             "process's CPU time over the wall time: near 2 means both cores decoded at once, near 1 that "
+             "the GIL or other jobs on the machine left it one core.")
+    return lines, about
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=120)  # distinct frames: 160 MB at 8 bits, never cache-hot
+    parser.add_argument("--folder-frames", type=int, default=300,
+                        help="PNGs in the folder-detection rows (0 skips them)")
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/benchmarks.md alone")
     args = parser.parse_args()
 
@@ -208,9 +289,15 @@ def main() -> int:
         )
     table = "\n".join(lines)
     print(table)
+    folder_text = ""
+    if args.folder_frames > 0:
+        folder_lines, about = folder_rows(args.folder_frames)
+        print("\n".join(folder_lines))
+        folder_text = ("\n### Folder detection (`wandcal detect`)\n\n" + about + "\n\n"
+                       + "\n".join(folder_lines) + "\n")
     text = (
         f"{SECTION}\n\n"
-        f"Command: `python bench/bench_detect.py --frames {args.frames}`  \n"
+        f"Command: `python bench/bench_detect.py --frames {args.frames} --folder-frames {args.folder_frames}`  \n"
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()}, OpenCV {cv2.__version__}, NumPy {np.__version__}; "
         f"load average {load:.1f} when it started (other jobs share the machine: compare the "
@@ -225,6 +312,7 @@ def main() -> int:
         "The whole-frame OpenCV rows are the alternatives of docs/decisions/0003-blob-detector.md "
         "(connected-component centroids are unweighted).\n\n"
         f"{table}\n"
+        f"{folder_text}"
     )
     if not args.no_write:
         replace_section(SECTION.removeprefix("## "), text.removeprefix(SECTION))

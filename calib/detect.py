@@ -349,7 +349,10 @@ def detect_many(
     The images are split into ``workers`` contiguous chunks, each detected by one thread of a
     long-lived pool. OpenCV and NumPy release the GIL inside their calls; how much that buys over
     one thread depends on how much of the time is Python between those calls (measured in
-    ``bench/bench_detect.py``, discussed in docs/decisions/0003-blob-detector.md).
+    ``bench/bench_detect.py``, discussed in docs/decisions/0003-blob-detector.md). Decoding
+    usually costs far more than detecting (a 1280x1024 PNG: ~6 ms against ~0.3 ms), so a caller
+    that reads image files should decode in its worker threads too, not before calling this
+    (docs/decisions/0006-parallel-detection.md).
 
     Args:
         images: sequence of (H, W) uint8/uint16 arrays; sizes may differ.

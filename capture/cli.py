@@ -36,7 +36,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("detect", help="detect blobs in an image-level capture and write wand.csv",
                               description="Run blob detection over frames/ and static/ of a capture folder.")
     p.add_argument("capture", type=Path, help="image-level capture folder")
-    p.add_argument("--workers", type=int, default=None, help="detection threads (default: every core)")
+    p.add_argument("--workers", type=_count(1), default=None,
+                   help="threads that decode and detect images (default: every core)")
     p.set_defaults(run=run_detect)
 
     p = subparsers.add_parser("trigger-emulator", help="emulate the strobe trigger on a pseudo-terminal",

@@ -3,23 +3,41 @@
 ``wandcal detect CAPTURE`` and :func:`ensure_points_level` (used by ``wandcal calibrate``) run
 :mod:`calib.detect` over ``frames/`` and ``static/`` and write ``wand.csv`` and ``static.csv``
 next to the images (docs/capture-format.md).
+
+Decoding a 1280x1024 PNG costs ~6 ms and detecting its blobs ~0.3 ms, so a worker thread takes
+whole files: it decodes *and* detects, and hands back only the small blob arrays. ``cv2.imread``
+and the detector's OpenCV/NumPy calls release the GIL, so two threads decode two files at once
+(docs/decisions/0006-parallel-detection.md).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import closing
 from dataclasses import dataclass, field
+from itertools import islice
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from calib.detect import Blobs, DetectConfig, detect_many, static_markers_from_frames, wand_frames
+from calib.detect import Blobs, DetectConfig, detect_blobs, static_markers_from_frames, wand_frames
+from calib.errors import CalibrationError
 from calib.rig import StaticObservations, WandObservations
 from capture.folder import WAND_FILE, CaptureFormatError, read_rig, write_capture
 from drivers.imagefolder import FRAMES_DIR, STATIC_DIR, image_path, listed_indices
 
-CHUNK = 64  # images read and detected at a time: bounds memory (~80 MB at 1.3 Mpx) and feeds both cores
+# Files queued per worker thread. A queued file is only a path and a finished one a few blob
+# arrays; each worker holds one decoded image at a time, so memory stays at ``workers`` frames
+# (1.3 MB each at 8 bits) whatever the capture's length, and the queue never runs dry.
+QUEUED_PER_WORKER = 4
+
+# Images between progress reports: ~0.1 s of detection on two cores, so a bar moves smoothly
+# without writing a service job's progress row hundreds of times a second.
+PROGRESS_EVERY = 32
 
 
 @dataclass
@@ -50,21 +68,45 @@ class CameraDetection:
         return text
 
 
-def _detect_files(paths: list[Path], config: DetectConfig | None, workers: int | None,
-                  report: CameraDetection, tick: Callable[[int], None]) -> list[Blobs | None]:
-    """Blobs per file, None for a file that cannot be read (named in ``report.unreadable``)."""
-    out: list[Blobs | None] = []
-    for start in range(0, len(paths), CHUNK):
-        chunk = paths[start:start + CHUNK]
-        images = [cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in chunk]
-        for p, im in zip(chunk, images):
-            if im is None:
-                report.unreadable.append(str(p))
-        good = [im if im.ndim == 2 else cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) for im in images if im is not None]
-        found = iter(detect_many(good, config, workers) if good else [])
-        out.extend(next(found) if im is not None else None for im in images)
-        tick(len(chunk))
-    return out
+def _detect_file(path: Path, config: DetectConfig | None) -> Blobs | None:
+    """Decode one image and detect its blobs; None when the file cannot be decoded."""
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        return None
+    try:
+        if image.ndim == 3 and image.shape[2] in (3, 4):
+            image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+        return detect_blobs(image, config)
+    except (CalibrationError, cv2.error) as exc:
+        raise CaptureFormatError(f"{path}: cannot detect blobs in this image ({exc}); store the camera's "
+                                 "raw frames as 8- or 16-bit grey PNGs") from None
+
+
+def _detect_files(paths: list[Path], config: DetectConfig | None, workers: int) -> Iterator[Blobs | None]:
+    """Blobs per file, in the order given (None for a file that cannot be decoded).
+
+    With ``workers`` > 1 each file is decoded and detected by one thread of a pool, at most
+    ``QUEUED_PER_WORKER * workers`` files ahead of the consumer. Close the iterator to stop early.
+    """
+    if workers <= 1:
+        yield from (_detect_file(p, config) for p in paths)
+        return
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="wandcal-detect")
+    pending: deque[Future] = deque()
+    try:
+        for p in paths:
+            pending.append(pool.submit(_detect_file, p, config))
+            if len(pending) >= QUEUED_PER_WORKER * workers:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def detect_capture(folder: str | Path, config: DetectConfig | None = None, workers: int | None = None,
@@ -73,7 +115,7 @@ def detect_capture(folder: str | Path, config: DetectConfig | None = None, worke
 
     Args:
         folder: the capture folder (rig.json, frames/<camera_id>/*.png, optional static/).
-        workers: detection threads (None: every core).
+        workers: threads that each decode and detect whole images (None: every core; 1: this thread).
         progress: called with ``{"stage": "detect", "done", "total", "message"}`` as images are done.
 
     Returns:
@@ -86,37 +128,50 @@ def detect_capture(folder: str | Path, config: DetectConfig | None = None, worke
     if not any(frames.values()):
         raise CaptureFormatError(f"{folder / FRAMES_DIR}: no images; record with 'wandcal capture' first, or give "
                                  "a points-level folder with wand.csv")
-    total = sum(map(len, frames.values())) + sum(map(len, statics.values()))
-    done = 0
+    workers = _cores() if workers is None else workers
+    if workers < 1:
+        raise ValueError(f"workers must be at least 1 (or None for every core), got {workers}")
+    # One stream of files over every camera, frames then static images: the workers never wait at
+    # the end of one camera for the next to start.
+    paths = [image_path(folder, phase, cid, i) for cid in rig.ids
+             for phase, listed in ((FRAMES_DIR, frames), (STATIC_DIR, statics)) for i in listed[cid]]
+    total, done = len(paths), 0
     reports = []
     rows_f, rows_c, rows_uv, st_c, st_uv = [], [], [], [], []
-    for c, cid in enumerate(rig.ids):
-        report = CameraDetection(cid, images=len(frames[cid]), static_images=len(statics[cid]))
+    with closing(_detect_files(paths, config, workers)) as found:
+        files = zip(paths, found)
 
-        def tick(n: int, cid=cid) -> None:
+        def take(count: int, report: CameraDetection) -> list[Blobs | None]:
+            """The next ``count`` files' blobs; names the unreadable ones in ``report``."""
             nonlocal done
-            done += n
-            if progress:
-                progress({"stage": "detect", "done": done, "total": total, "message": f"detecting blobs ({cid})"})
+            out = []
+            for path, blobs in islice(files, count):
+                if blobs is None:
+                    report.unreadable.append(str(path))
+                out.append(blobs)
+                done += 1
+                if progress and (done % PROGRESS_EVERY == 0 or done == total):
+                    progress({"stage": "detect", "done": done, "total": total,
+                              "message": f"detecting blobs ({report.camera_id})"})
+            return out
 
-        paths = [image_path(folder, FRAMES_DIR, cid, i) for i in frames[cid]]
-        blobs = _detect_files(paths, config, workers, report, tick)
-        readable = [(i, b) for i, b in zip(frames[cid], blobs) if b is not None]
-        kept = wand_frames([b for _, b in readable])
-        report.wand_frames, report.too_few, report.too_many = len(kept), kept.too_few, kept.too_many
-        report.still_markers = len(kept.still_uv)
-        for k, uv in zip(kept.frame, kept.uv):
-            rows_f += [readable[k][0]] * 2
-            rows_c += [c, c]
-            rows_uv += [uv[0], uv[1]]
-        if statics[cid]:
-            paths = [image_path(folder, STATIC_DIR, cid, i) for i in statics[cid]]
-            sblobs = [b for b in _detect_files(paths, config, workers, report, tick) if b is not None]
-            markers = static_markers_from_frames(sblobs)
-            report.static_markers = len(markers)
-            st_c += [c] * len(markers)
-            st_uv += list(markers)
-        reports.append(report)
+        for c, cid in enumerate(rig.ids):
+            report = CameraDetection(cid, images=len(frames[cid]), static_images=len(statics[cid]))
+            blobs = take(len(frames[cid]), report)
+            readable = [(i, b) for i, b in zip(frames[cid], blobs) if b is not None]
+            kept = wand_frames([b for _, b in readable])
+            report.wand_frames, report.too_few, report.too_many = len(kept), kept.too_few, kept.too_many
+            report.still_markers = len(kept.still_uv)
+            for k, uv in zip(kept.frame, kept.uv):
+                rows_f += [readable[k][0]] * 2
+                rows_c += [c, c]
+                rows_uv += [uv[0], uv[1]]
+            if statics[cid]:
+                markers = static_markers_from_frames([b for b in take(len(statics[cid]), report) if b is not None])
+                report.static_markers = len(markers)
+                st_c += [c] * len(markers)
+                st_uv += list(markers)
+            reports.append(report)
     wand = WandObservations(frame=np.array(rows_f, dtype=np.int64), camera=np.array(rows_c, dtype=np.int64),
                             uv=np.array(rows_uv).reshape(-1, 2))
     static = None
