@@ -40,8 +40,8 @@ from calib.wandmodel import WandProblem
 
 BOUND_M = 10.0  # the paper's box on every translation and point coordinate
 HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
-MAX_ROUNDS = 300  # warm-started rounds take ~0.25 s at 8 x 1500; the scheme needs ~250 there
-# interior point solves the (Li) LP 1.7x faster than dual simplex at 2300 observations (0.65 s
+MAX_ROUNDS = 300  # warm-started rounds take ~0.25 s at 8 x 1500, where the scheme converges in ~170
+# interior point solves the first, cold (Li) LP 1.7x faster than dual simplex at 2300 observations (0.65 s
 # against 1.1 s, HiGHS 1.15) and the gap grows with size
 # Convergence. The rounds approach their fixed point linearly and slowly (each moves the cameras
 # ~2% of the way at 8 x 1500), so one round's move says little about the distance left, and the
