@@ -68,7 +68,8 @@ class CaptureResult:
 
 @dataclass
 class Progress:
-    """A snapshot for a progress display."""
+    """A snapshot for a progress display. ``fps``: frame sets per second in the current phase
+    (static or wand), so the pause between them does not count."""
 
     phase: str
     sets: int
@@ -212,7 +213,7 @@ class _Loop:
         self.failed: list[str] = []
 
     def run(self, progress, between, frames: int) -> str | None:
-        started = self.clock()
+        started, base = self.clock(), 0  # the rate counts from the start of the current phase
         error = None
         while self.done < self.total:
             if self.trigger is not None and not self.asm.pulses_ended:
@@ -224,6 +225,7 @@ class _Loop:
                 if between:
                     between()
                 self.trigger.start(frames)
+                started, base = self.clock(), self.done
             if all(c.ended for c in self.asm.cameras):
                 self.flush()
                 if self.done < self.total and error is None:
@@ -234,7 +236,7 @@ class _Loop:
             if progress:
                 elapsed = max(self.clock() - started, 1e-9)
                 phase = "static" if self.done < self.static_frames else "wand"
-                progress(Progress(phase, self.done, self.total, self.done / elapsed,
+                progress(Progress(phase, self.done, self.total, (self.done - base) / elapsed,
                                   {cid: c.missed + c.lost for cid, c in zip(self.asm.camera_ids, self.asm.cameras)}))
         if self.failed:
             error = error or "; ".join(self.failed)
