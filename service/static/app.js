@@ -3,9 +3,11 @@
 
 const API = "/api/v1";
 const POLL_MS = 1000;  // progress is written every 0.2 s; once a second is enough for people
+const CLOCK_SLACK_S = 2;  // the Date header has whole seconds: a smaller difference is its rounding, not skew
 const VIEW = { azimuth: -0.6, elevation: 0.45 };  // radians: a three-quarter view from above
 let token = new URLSearchParams(location.hash.slice(1)).get("token") || localStorage.getItem("wandcal-token") || "";
 let shownJob = null;
+let serverSkewS = 0;  // server clock minus this browser's, from the Date header: wait_deadline is server time
 
 const $ = (sel) => document.querySelector(sel);
 const el = (tag, attrs = {}, ...children) => {
@@ -22,6 +24,8 @@ async function api(path, options = {}) {
   const headers = Object.assign({}, options.headers || {});
   if (token) headers.Authorization = "Bearer " + token;
   const response = await fetch(API + path, Object.assign({}, options, { headers }));
+  const skew = (Date.parse(response.headers.get("Date")) - Date.now()) / 1000;
+  serverSkewS = Math.abs(skew) > CLOCK_SLACK_S ? skew : 0;
   if (response.status === 401) {
     $("#token-box").hidden = false;
     throw new Error("this server needs its bearer token");
@@ -85,6 +89,50 @@ async function cancelJob(jobId) {
   try { await api(`/jobs/${jobId}`, { method: "DELETE" }); poll(); } catch (err) { alert(err.message); }
 }
 
+function minutes(seconds) {
+  const s = Math.max(0, Math.round(seconds));
+  return `${Math.floor(s / 60)}:${String(s % 60).padStart(2, "0")}`;
+}
+
+// The live capture (GET /capture). Its buttons are in the HTML and only shown or hidden, so a
+// click is never lost to a poll replacing the node under the pointer.
+function renderLive(s) {
+  $("#live").dataset.state = s.state;
+  $("#live-state").textContent = s.state.replaceAll("_", " ");
+  $("#live-state").className = "state-" + s.state;
+  $("#live-idle").hidden = s.state !== "idle";
+  $("#live-run").hidden = s.state === "idle";
+  if (s.state === "idle") return;
+  $("#live-phase").textContent = s.phase || s.state;
+  $("#live-frames").textContent = `${s.frames_recorded} / ${s.frames_total} frame sets`;
+  $("#live-bar").style.width = Math.round((100 * s.frames_recorded) / Math.max(1, s.frames_total)) + "%";
+  $("#live-fps").textContent = `${Number(s.fps).toFixed(1)} fps`;
+  $("#live-capture").textContent = s.capture_id ? `capture ${short(s.capture_id)}` : "";
+  const waiting = s.state === "waiting_for_wand";
+  $("#live-wait").hidden = !waiting;
+  if (waiting) {
+    $("#live-prompt").textContent = s.prompt || "";
+    const left = s.wait_deadline - (Date.now() / 1000 + serverSkewS);
+    $("#live-left").textContent = minutes(left);
+    $("#live-left").dataset.seconds = Math.max(0, Math.round(left));
+  }
+  $("#live-continue").hidden = !waiting;
+  $("#live-stop").hidden = !["running", "waiting_for_wand"].includes(s.state);
+  $("#live-error").hidden = !s.error;
+  $("#live-error").textContent = s.error || "";
+  $("#live-dropped tbody").replaceChildren(...s.cameras.map((id) => el("tr", { "data-camera": id },
+    el("td", {}, id), el("td", { class: s.dropped[id] ? "error" : "" }, s.dropped[id] || 0))));
+  $("#live-messages").replaceChildren(...s.messages.map((m) => el("li", {}, m)));
+}
+
+async function liveAction(button, path, question) {
+  if (question && !confirm(question)) return;
+  button.disabled = true;
+  try { await api(path, { method: "POST" }); } catch (err) { alert(err.message); }
+  button.disabled = false;
+  poll();
+}
+
 // Orthographic view of world points (metres, z up) onto the canvas.
 function projector(points, canvas) {
   const [ca, sa, ce, se] = [Math.cos(VIEW.azimuth), Math.sin(VIEW.azimuth), Math.cos(VIEW.elevation), Math.sin(VIEW.elevation)];
@@ -139,7 +187,8 @@ async function poll() {
   try {
     const health = await api("/health");
     $("#health").textContent = `${health.queue} queue · ${health.workers} worker(s) · ${health.jobs_running} running · ${health.jobs_queued} queued`;
-    const [captures, jobs] = await Promise.all([api("/captures"), api("/jobs")]);
+    const [live, captures, jobs] = await Promise.all([api("/capture"), api("/captures"), api("/jobs")]);
+    renderLive(live);
     renderCaptures(captures.captures);
     renderJobs(jobs.jobs);
   } catch (err) {
@@ -147,6 +196,9 @@ async function poll() {
   }
 }
 
+$("#live-continue").addEventListener("click", (e) => liveAction(e.currentTarget, "/capture/continue"));
+$("#live-stop").addEventListener("click", (e) => liveAction(e.currentTarget, "/capture/stop",
+  "Stop the live capture? What was recorded so far is kept and stored."));
 $("#token").addEventListener("change", (e) => { token = e.target.value; localStorage.setItem("wandcal-token", token); poll(); });
 poll();
 setInterval(poll, POLL_MS);

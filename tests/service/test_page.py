@@ -2,17 +2,24 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 
 import pytest
 
+from drivers.trigger_emulator import EmulatorProcess
+from service.settings import DEFAULT_CONTINUE_TIMEOUT_S
 from tests.service.conftest import capture_files, wait_job
+from tests.service.test_live_capture import STATIC_SETS, WAND_SETS, start_paused, wait_capture
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install -y chromium)")
 # time the page's scripts may run in virtual time: a few 1-second polls
 VIRTUAL_TIME_BUDGET_MS = 5000
+# the page trusts its own clock within 2 s of the server's (CLOCK_SLACK_S in app.js; virtual time lags
+# while fetches wait), and the Date header it compares with has whole seconds
+PAGE_CLOCK_SLACK_S = 2 + 1
 
 
 def chromium(url: str, profile, *args: str) -> subprocess.CompletedProcess:
@@ -46,3 +53,40 @@ def test_page_shows_captures_jobs_and_the_solved_rig(make_server, small_capture,
     shot = tmp_path / "page.png"
     run = chromium(server.url + "/", tmp_path / "profile2", f"--screenshot={shot}", "--window-size=1280,1100")
     assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr
+
+
+def live_panel(html: str) -> str:
+    """The live-capture section of a dumped DOM."""
+    start = html.index('<section id="live"')
+    return html[start:html.index("</section>", start)]
+
+
+def test_page_shows_a_live_capture_waiting_for_the_wand_until_continue(make_server, tmp_path):
+    server = make_server(workers=0).start()
+    with EmulatorProcess() as emu, server.client() as c:
+        started, waiting = start_paused(c, emu)
+
+        panel = live_panel(chromium(server.url + "/", tmp_path / "profile", "--dump-dom").stdout)
+        assert 'data-state="waiting_for_wand"' in panel
+        assert '<div id="live-wait" class="prompt">' in panel  # shown, not hidden
+        assert "remove the L-frame" in panel
+        assert f"{STATIC_SETS} / {STATIC_SETS + WAND_SETS} frame sets" in panel
+        left = int(re.search(r'id="live-left" data-seconds="(\d+)"', panel).group(1))
+        assert 0 < left <= DEFAULT_CONTINUE_TIMEOUT_S + PAGE_CLOCK_SLACK_S
+        assert '<button id="live-continue" class="primary">' in panel
+        assert '<button id="live-stop">' in panel
+        for cam in waiting["cameras"]:
+            assert f'<tr data-camera="{cam}"><td>{cam}</td><td class="">0</td></tr>' in panel
+
+        assert c.post("/capture/continue").status_code == 202
+        status = wait_capture(c)
+        assert status["state"] == "done", status["error"]
+
+        html = chromium(server.url + "/", tmp_path / "profile2", "--dump-dom").stdout
+    panel = live_panel(html)
+    assert 'data-state="done"' in panel
+    assert f"{STATIC_SETS + WAND_SETS} / {STATIC_SETS + WAND_SETS} frame sets" in panel
+    assert '<div id="live-wait" class="prompt" hidden="">' in panel
+    assert '<button id="live-continue" class="primary" hidden="">' in panel
+    assert '<button id="live-stop" hidden="">' in panel
+    assert f'data-capture-id="{started["capture_id"]}"' in html  # the stored capture, ready to calibrate
