@@ -110,13 +110,16 @@ def _cores() -> int:
 
 
 def detect_capture(folder: str | Path, config: DetectConfig | None = None, workers: int | None = None,
-                   progress: Callable[[dict], None] | None = None) -> list[CameraDetection]:
+                   progress: Callable[[dict], None] | None = None,
+                   static_only_ok: bool = False) -> list[CameraDetection]:
     """Detect blobs in every image of an image-level capture and write wand.csv / static.csv.
 
     Args:
         folder: the capture folder (rig.json, frames/<camera_id>/*.png, optional static/).
         workers: threads that each decode and detect whole images (None: every core; 1: this thread).
         progress: called with ``{"stage": "detect", "done", "total", "message"}`` as images are done.
+        static_only_ok: accept a folder with static images but no wand frames (a live capture
+            stopped before its wand run): it gets an empty wand.csv.
 
     Returns:
         one :class:`CameraDetection` per rig camera. An unreadable image is skipped and counted.
@@ -125,7 +128,7 @@ def detect_capture(folder: str | Path, config: DetectConfig | None = None, worke
     rig = read_rig(folder)
     frames = {cid: listed_indices(folder, FRAMES_DIR, cid) for cid in rig.ids}
     statics = {cid: listed_indices(folder, STATIC_DIR, cid) for cid in rig.ids}
-    if not any(frames.values()):
+    if not any(frames.values()) and not (static_only_ok and any(statics.values())):
         raise CaptureFormatError(f"{folder / FRAMES_DIR}: no images; record with 'wandcal capture' first, or give "
                                  "a points-level folder with wand.csv")
     workers = _cores() if workers is None else workers

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import struct
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -74,17 +73,13 @@ def detect_frameset(images: dict[str, bytes], cameras: dict[str, Camera]) -> dic
     return {cid: f.result() for cid, f in futures.items()}
 
 
-def detect_static(images: dict[str, list[bytes | Path]], cameras: dict[str, Camera]) -> dict[str, np.ndarray]:
-    """Static-object marker positions per camera, averaged over each camera's images (encoded
-    bytes, or files read one at a time as their turn comes)."""
+def detect_static(images: dict[str, list[bytes]], cameras: dict[str, Camera]) -> dict[str, np.ndarray]:
+    """Static-object marker positions per camera, averaged over each camera's images."""
     from calib.detect import static_markers_from_frames
-
-    def detect(data: bytes | Path, camera: Camera) -> np.ndarray:
-        return detect_one(data if isinstance(data, bytes) else data.read_bytes(), camera)
 
     out = {}
     for cid, datas in images.items():
-        frames = list(_executor().map(lambda d, c=cameras[cid]: detect(d, c), datas))
+        frames = list(_executor().map(lambda d, c=cameras[cid]: detect_one(d, c), datas))
         out[cid] = static_markers_from_frames(frames)
     return out
 

@@ -23,16 +23,13 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Annotated
 
-import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 
-from calib.rig import WandObservations
-from capture.folder import CaptureFormatError, read_capture, read_rig, rig_from_json, write_capture
-from capture.images import ensure_points_level
+from capture.folder import CaptureFormatError, read_capture, rig_from_json
+from capture.images import detect_capture
 from capture.session import Progress, record
 from drivers.errors import DriverError
-from drivers.imagefolder import STATIC_DIR, image_path, listed_indices
 from service.schemas import ErrorPublic, LiveCaptureCreate, LiveCapturePublic, LiveCaptureState
 from service.settings import DEFAULT_CONTINUE_TIMEOUT_S
 from service.storage import CaptureStore
@@ -192,11 +189,8 @@ class LiveCapture:
                 raise CaptureFormatError("no frame sets were recorded" + (" before the stop" if stopped else "")
                                          + "; nothing was stored")
             self._update(phase="detect")
-            if result.frame_sets:
-                ensure_points_level(staging, progress=lambda p: self._update(
-                    phase=f"detect {p['done']}/{p['total']}"))
-            else:
-                _static_points_level(staging)
+            detect_capture(staging, progress=lambda p: self._update(phase=f"detect {p['done']}/{p['total']}"),
+                           static_only_ok=True)
             self._update(phase="register")
             _register(self.store, run.capture_id, staging, "live: " + " ".join(body.cameras))
             registered = True
@@ -241,20 +235,6 @@ def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack, store: C
     if trigger is not None:
         stack.enter_context(trigger)
     return cameras, trigger, rig
-
-
-def _static_points_level(folder: Path) -> None:
-    """The points level of a capture that recorded only the static object: its static.csv
-    (markers averaged over each camera's images) and an empty wand.csv."""
-    from service.ingest import detect_static, static_observations
-
-    rig = read_rig(folder)
-    static = None
-    if rig.static_markers is not None:  # without its marker coordinates, the images stay unsolved
-        images = {cid: [image_path(folder, STATIC_DIR, cid, i) for i in listed_indices(folder, STATIC_DIR, cid)]
-                  for cid in rig.ids}
-        static = static_observations(detect_static(images, {c.id: c for c in rig.cameras}), rig)
-    write_capture(folder, rig, WandObservations([], [], np.zeros((0, 2))), static)
 
 
 def _allowed_camera_url(url: str, store: CaptureStore) -> str:
