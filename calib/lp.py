@@ -6,6 +6,7 @@ returns HiGHS's best point, marked ``time_limit``.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -19,8 +20,8 @@ INF = highspy.kHighsInf
 @dataclass(frozen=True, eq=False)
 class LpResult:
     """x: (n,) primal values (None when there is none); status: "optimal", "time_limit",
-    "infeasible", "unbounded" or "error"; duals: (m,) row duals when available; basis: the
-    optimal simplex basis (HiGHS's), to warm-start a later solve of a like-shaped LP."""
+    "infeasible", "unbounded" or "error"; duals: (m,) row duals when available; basis (from
+    :func:`solve_lp`): the optimal simplex basis, to warm-start a later solve of a like-shaped LP."""
 
     x: np.ndarray | None
     status: str
@@ -87,7 +88,10 @@ def solve_lp(
         h.setOptionValue("solver", "simplex")
         h.setBasis(basis)
     h.run()
-    return _result(h, time.perf_counter() - start)
+    res = _result(h, time.perf_counter() - start)
+    if res.status == "optimal" and h.getInfo().basis_validity:
+        res = dataclasses.replace(res, basis=h.getBasis())
+    return res
 
 
 def _result(h, seconds: float) -> LpResult:
@@ -113,9 +117,8 @@ def _result(h, seconds: float) -> LpResult:
         else:
             word = "error" if word == "optimal" else word
     objective = float(info.objective_function_value) if x is not None else float("nan")
-    basis = h.getBasis() if word == "optimal" and info.basis_validity else None
     return LpResult(x=x, status=word, objective=objective, seconds=seconds, iterations=iterations, message=text,
-                    row_duals=duals, basis=basis)
+                    row_duals=duals)
 
 
 def _inf(v: np.ndarray) -> np.ndarray:
