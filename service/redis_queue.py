@@ -30,6 +30,9 @@ RESULT_TTL_S = 7 * 24 * 3600  # results are copied into SQLite on the first poll
 CANCEL_KEY = "wandcal:cancel:{}"
 RETRIES = MAX_ATTEMPTS - 1  # rq's Retry(max=...): re-queues after a crash, the first run not counted
 DIED = "its rq worker died while running it"
+# How often polls of running jobs run rq's abandoned-job cleanup: a dead worker is noticed only
+# once its heartbeat (60 s or more) has lapsed, so every poll need not ask.
+CLEANUP_EVERY_S = 10.0
 
 
 def _connect(url: str):
@@ -104,6 +107,7 @@ class RedisQueue:
         self.read_files = read_files
         self.redis = _connect(url)
         self.queue = Queue(name, connection=self.redis)
+        self._next_cleanup = 0.0  # time.monotonic() of the next abandoned-job cleanup
 
     def start(self) -> None:
         self.redis.ping()  # fail at startup, not at the first job, when Redis is unreachable
@@ -179,11 +183,15 @@ class RedisQueue:
 
     def _retry_abandoned(self) -> None:
         """rq's abandoned-job handling for this queue, run now: a job whose worker died with its
-        machine is re-queued (or failed) as soon as its heartbeat has lapsed, not at some worker's
-        next maintenance (every 10 minutes by default). The lock is the one workers clean under."""
+        machine is re-queued (or failed) within ``CLEANUP_EVERY_S`` of its heartbeat lapsing, not at
+        some worker's next maintenance (every 10 minutes by default). The lock is the one workers clean under."""
         from rq.registry import StartedJobRegistry
         from rq.timeouts import TimerDeathPenalty
 
+        now = time.monotonic()
+        if now < self._next_cleanup:
+            return
+        self._next_cleanup = now + CLEANUP_EVERY_S
         if not self.queue.acquire_maintenance_lock():
             return  # a worker is cleaning right now
         try:
