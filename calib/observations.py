@@ -12,7 +12,7 @@ import numpy as np
 
 from calib.errors import CalibrationError
 from calib.geometry import undistort_points
-from calib.rig import Rig, WandObservations
+from calib.rig import PointObservations, Rig, WandObservations
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,3 +85,72 @@ def wand_pairs(rig: Rig, wand: WandObservations) -> WandPairs:
         xy[sel] = undistort_points(camera, uv[sel].reshape(-1, 2)).reshape(-1, 2, 2)
     frames, frame_idx = np.unique(frame_no, return_inverse=True)
     return WandPairs(frame=frame_idx, camera=cam, xy=xy, uv=uv, frames=frames, dropped=dropped)
+
+
+@dataclass(frozen=True, eq=False)
+class PointTracks:
+    """Single-point observations grouped into 3D points, in normalised coordinates.
+
+    track: (Q,) index of the 3D point in [0, T); camera: (Q,) camera index; xy: (Q, 2)
+    normalised coordinates; uv: (Q, 2) the raw pixels; frames: (T,) the capture frame of each
+    point. Sorted by track, then camera; every track is seen by at least two cameras.
+    """
+
+    track: np.ndarray
+    camera: np.ndarray
+    xy: np.ndarray
+    uv: np.ndarray
+    frames: np.ndarray
+    dropped: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.track)
+
+    @property
+    def n_tracks(self) -> int:
+        return len(self.frames)
+
+    def subset(self, keep: np.ndarray) -> PointTracks:
+        """The observations where ``keep`` (Q,) is true, tracks renumbered; tracks left with fewer
+        than two cameras are dropped."""
+        track, camera = self.track[keep], self.camera[keep]
+        count = np.bincount(track, minlength=self.n_tracks)
+        ok = count[track] >= 2
+        used, new = np.unique(track[ok], return_inverse=True)
+        return PointTracks(new, camera[ok], self.xy[keep][ok], self.uv[keep][ok], self.frames[used], self.dropped)
+
+
+def point_tracks(rig: Rig, points: PointObservations) -> PointTracks:
+    """Undistort single-point observations and keep the frames at least two cameras saw.
+
+    A camera-frame with more than one point is ambiguous and dropped (``dropped["extra_points"]``);
+    a point seen by one camera only constrains nothing (``dropped["single_view"]``).
+    """
+    n_cams = len(rig.cameras)
+    bad = (points.camera < 0) | (points.camera >= n_cams)
+    if bad.any():
+        raise CalibrationError(f"points.csv refers to camera index {points.camera[bad][0]}, outside the rig")
+    if not np.all(np.isfinite(points.uv)):
+        k = int(np.flatnonzero(~np.isfinite(points.uv).all(1))[0])
+        raise CalibrationError(
+            f"point of camera {rig.cameras[points.camera[k]].id!r} in frame {points.frame[k]} of points.csv is not "
+            "finite; leave out rows of undetected points instead of writing NaN"
+        )
+    key = points.frame * n_cams + points.camera
+    order = np.argsort(key, kind="stable")
+    uniq, start, count = np.unique(key[order], return_index=True, return_counts=True)
+    one = count == 1
+    idx = order[start[one]]
+    frame_no, camera = uniq[one] // n_cams, uniq[one] % n_cams
+    frames, track, views = np.unique(frame_no, return_inverse=True, return_counts=True)
+    multi = views[track] >= 2
+    dropped = {"extra_points": int((~one).sum()), "single_view": int((~multi).sum())}
+    idx, camera, frame_no = idx[multi], camera[multi], frame_no[multi]
+    frames, track = np.unique(frame_no, return_inverse=True)
+    uv = points.uv[idx]
+    xy = np.empty_like(uv)
+    for c, cam in enumerate(rig.cameras):
+        sel = camera == c
+        if sel.any():
+            xy[sel] = undistort_points(cam, uv[sel])
+    return PointTracks(track=track, camera=camera, xy=xy, uv=uv, frames=frames, dropped=dropped)

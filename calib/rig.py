@@ -72,13 +72,14 @@ class Rig:
 
     Args:
         cameras: the cameras, in the order that observation ``camera`` indices refer to.
-        wand_length: distance between the wand's two marker centres, metres.
+        wand_length: distance between the wand's two marker centres, metres; None for a capture
+            without a wand (single-point tracks only), which calibrates up to scale.
         static_markers: (M, 3) marker coordinates of the static object in its own frame
             (metres, z up), or None.
     """
 
     cameras: tuple[Camera, ...]
-    wand_length: float
+    wand_length: float | None
     static_markers: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -90,11 +91,12 @@ class Rig:
             raise CalibrationError(
                 f"the rig has {len(self.cameras)} camera(s); wand calibration needs at least two cameras"
             )
-        length = float(self.wand_length)
-        if not np.isfinite(length) or length <= 0:
-            raise CalibrationError(f"wand.length_m must be a positive length in metres, got {self.wand_length!r}")
+        if self.wand_length is not None:
+            length = float(self.wand_length)
+            if not np.isfinite(length) or length <= 0:
+                raise CalibrationError(f"wand.length_m must be a positive length in metres, got {self.wand_length!r}")
+            object.__setattr__(self, "wand_length", length)
         object.__setattr__(self, "cameras", tuple(self.cameras))
-        object.__setattr__(self, "wand_length", length)
         if self.static_markers is not None:
             markers = np.asarray(self.static_markers, dtype=float)
             if markers.ndim != 2 or markers.shape[1] != 3 or len(markers) < 4 or not np.all(np.isfinite(markers)):
@@ -162,3 +164,38 @@ class StaticObservations:
     def for_camera(self, index: int) -> np.ndarray:
         """(k, 2) the blobs seen by camera ``index``."""
         return self.uv[self.camera == index]
+
+
+class PointObservations(WandObservations):
+    """Single-point tracks (``points.csv``): one unlabelled marker per camera and frame, the same
+    3D point for every camera that saw it in that frame (an LED, a laser spot, easyWand's
+    background points). Same fields as :class:`WandObservations`; a frame is a 3D point."""
+
+
+AXIS_ROLES = ("origin", "+x", "+y", "+z")
+
+
+@dataclass(frozen=True, eq=False)
+class AxisObservations:
+    """Axis points (``axis.csv``) that set the world frame without an L-frame: an origin and one
+    or more points on the positive world axes, each seen by some cameras.
+
+    Args:
+        role: (A,) str, one of :data:`AXIS_ROLES`.
+        camera: (A,) int, index into ``Rig.cameras``.
+        uv: (A, 2) raw pixel coordinates.
+    """
+
+    role: np.ndarray
+    camera: np.ndarray
+    uv: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "role", np.asarray(self.role, dtype=str).ravel())
+        object.__setattr__(self, "camera", np.asarray(self.camera, dtype=np.int64).ravel())
+        object.__setattr__(self, "uv", np.asarray(self.uv, dtype=float).reshape(-1, 2))
+        if not (len(self.role) == len(self.camera) == len(self.uv)):
+            raise CalibrationError("axis observations: role, camera and uv must have the same length")
+        bad = sorted(set(self.role) - set(AXIS_ROLES))
+        if bad:
+            raise CalibrationError(f"axis point role {bad[0]!r} is not one of {', '.join(AXIS_ROLES)}")

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.errors import CalibrationError
-from calib.rig import Camera, Rig, StaticObservations, WandObservations
+from calib.rig import AxisObservations, Camera, PointObservations, Rig, StaticObservations, WandObservations
 
 CAPTURE_FORMAT = "wandcal-capture/1"
 RIG_FILE = "rig.json"
@@ -30,11 +30,14 @@ class CaptureFormatError(CalibrationError):
 
 @dataclass(frozen=True, eq=False)
 class Capture:
-    """A points-level capture: the rig, its wand blobs and its optional static-object blobs."""
+    """A points-level capture: the rig, its wand blobs, its optional static-object blobs, and the
+    optional single-point tracks (points.csv) and axis points (axis.csv)."""
 
     rig: Rig
     wand: WandObservations
     static: StaticObservations | None
+    points: PointObservations | None = None
+    axis: AxisObservations | None = None
 
 
 def rig_from_json(doc: object, source: str = RIG_FILE) -> Rig:
