@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib import quality
-from calib.ba import bundle_adjust
+from calib.ba import DEFAULT_LOSS, bundle_adjust
 from calib.errors import CalibrationError
 from calib.geometry import camera_centers, kabsch, undistort_points
 from calib.initial import initial_poses
@@ -99,7 +99,8 @@ def calibrate(
         progress: optional callable(dict) with keys stage, message and, while refining,
             iteration and cost. An exception raised by it aborts the calibration.
         options: ``time_limit`` (seconds per LP solve) for "lp" and "paper"; ``max_rounds``
-            for "paper"; ``reject_outliers`` (default True) for all.
+            for "paper"; ``loss`` ("cauchy", the default, or "linear") for "ba";
+            ``reject_outliers`` (default True) for all.
 
     Raises:
         CalibrationError: the input cannot give a calibration; the message says why and what to do.
@@ -195,7 +196,7 @@ def _refine(setup: Setup, method: str, options: dict, tell, up: np.ndarray):
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
     if method == "ba":
-        x, info = bundle_adjust(model, progress=tell)
+        x, info = bundle_adjust(model, progress=tell, loss=options.get("loss") or DEFAULT_LOSS)
     elif method == "lp":
         x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
     if method in ("ba", "lp"):
@@ -214,12 +215,18 @@ def _reject_outliers(rig, labelled, setup, R, t, wand_pts, info, method, options
     At each pass every camera-frame is judged against the current cameras, worst first within
     each frame (least squares spreads an outlier over its frame, so only the worst is sure to
     be one); camera-frames dropped earlier are re-admitted when they fit the cleaner solution.
+    After a robust ``ba`` the outliers have had no pull on the cameras, so one pass finds them
+    all, and plain least squares on the rest (a few iterations from the robust solution) gives
+    the fully efficient estimate.
 
     Returns (R, t, wand, info, setup, number of camera-frames dropped)."""
     sigma = quality.robust_sigma(quality.pixel_errors(R, t, wand_pts, setup.problem))
     limit = max(quality.OUTLIER_SIGMAS * sigma, quality.MIN_OUTLIER_PX)
     keep = np.ones(len(labelled), bool)
-    for _ in range(MAX_OUTLIER_PASSES):
+    robust_ba = method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
+    if robust_ba:
+        options = options | {"loss": "linear"}
+    for _ in range(1 if robust_ba else MAX_OUTLIER_PASSES):
         new_keep = quality.reject_worst_per_frame(R, t, labelled, setup.problem.focal, limit)
         bent = quality.length_outlier_frames(R, t, labelled, new_keep, rig.wand_length)
         new_keep &= ~bent[labelled.frame]
@@ -229,7 +236,8 @@ def _reject_outliers(rig, labelled, setup, R, t, wand_pts, info, method, options
         tell({"stage": "outliers", "message": f"refining without {int((~keep).sum())} outlying camera-frames"})
         setup = build_problem(rig, labelled.subset(keep), R, t, GAUGE_CAMERA)
         R, t, wand_pts, more = _refine(setup, method, options, tell, _up_direction(rig, R, t, setup))
-        info = more | {"iterations": info["iterations"] + more["iterations"], "seconds": info["seconds"] + more["seconds"]}
+        info = more | {"iterations": info["iterations"] + more["iterations"], "seconds": info["seconds"] + more["seconds"],
+                       "loss": info.get("loss", more.get("loss"))}
     return R, t, wand_pts, info, setup, int((~keep).sum())
 
 

@@ -1,0 +1,188 @@
+"""Damped normal equations of a bundle adjustment, solved by the Schur complement.
+
+The unknowns are camera blocks (``c`` parameters each) and, in one or more *terms*, point-like
+blocks (a wand frame: 5 parameters; a free 3D point: 3). Every observation (2 residual rows)
+touches one camera and one block of one term, so the normal matrix is
+
+    [ U   W ]      U: block diagonal over cameras (c x c),
+    [ W^T V ]      V: block diagonal over points (p x p), W: one c x p block per camera-point pair.
+
+Eliminating the points leaves the dense reduced camera system ``S = U - W V^-1 W^T`` (Triggs et
+al., *Bundle Adjustment: A Modern Synthesis*, sec. 6.1; Ceres's ``DENSE_SCHUR``), of size 6N,
+solved by Cholesky; the points follow by back-substitution. Everything is batched over blocks:
+per-observation products are summed into blocks by sparse incidence matrices built once per
+problem, and ``W V^-1 W^T`` is one dense matrix product per chunk of points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+CHUNK_ENTRIES = 2_000_000  # doubles per dense chunk of the reduction (16 MB): bounds memory at any rig size
+MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagonal: a parameter no
+# residual touches would otherwise make the damped system singular
+
+
+def _incidence(rows: np.ndarray, n_rows: int) -> sp.csr_matrix:
+    """(n_rows, len(rows)) 0/1 matrix summing observations into their row; rows < 0 are left out."""
+    keep = np.flatnonzero(rows >= 0)
+    return sp.csr_matrix((np.ones(len(keep)), (rows[keep], keep)), shape=(n_rows, len(rows)))
+
+
+class TermStructure:
+    """Who sees what in one term, fixed for a problem.
+
+    Observations of the same camera and block that sit next to each other form a *group* (the
+    two ends of a wand seen by one camera in one frame): their products are summed in one
+    batched product before the blocks are summed.
+
+    Args:
+        cam: (M,) free-camera index of each observation, or -1 for a camera held fixed.
+        cam_all: (M,) camera index, fixed cameras included.
+        pt: (M,) block index in [0, n_pts).
+        n_cams: number of free cameras; n_pts: number of blocks; size: parameters per block.
+    """
+
+    def __init__(self, cam: np.ndarray, cam_all: np.ndarray, pt: np.ndarray, n_cams: int, n_pts: int, size: int):
+        self.cam, self.pt, self.n_cams, self.n_pts, self.size = cam, pt, n_cams, n_pts, size
+        M = len(cam)
+        run_start = np.flatnonzero(np.r_[True, (cam_all[1:] != cam_all[:-1]) | (pt[1:] != pt[:-1])]) if M else np.zeros(0, int)
+        lengths = np.diff(np.r_[run_start, M])
+        self.group = int(lengths[0]) if M and np.all(lengths == lengths[0]) else 1
+        first = np.arange(0, M, self.group)
+        g_cam, g_pt = cam[first], pt[first]
+        free = g_cam >= 0
+        key = np.where(free, g_pt.astype(np.int64) * max(n_cams, 1) + g_cam, -1)
+        pairs, pair_of = np.unique(key[free], return_inverse=True)
+        self.pair_cam = pairs % max(n_cams, 1)
+        self.pair_pt = pairs // max(n_cams, 1)
+        g_pair = np.full(len(first), -1)
+        g_pair[free] = pair_of
+        self.to_cam = _incidence(g_cam, n_cams)
+        self.to_pt = _incidence(g_pt, n_pts)
+        self.to_pair = _incidence(g_pair, len(pairs))
+        self.pair_to_cam = _incidence(self.pair_cam, n_cams)
+        self.pair_to_pt = _incidence(self.pair_pt, n_pts)
+
+
+@dataclass(eq=False)
+class TermBlocks:
+    """One term's normal-equation blocks: V (P, p, p), gp (P, p), W (pairs, c, p)."""
+
+    structure: TermStructure
+    V: np.ndarray
+    gp: np.ndarray
+    W: np.ndarray
+
+
+@dataclass(eq=False)
+class Normal:
+    """The undamped normal equations: U (N, c, c), gc (N, c), and the terms' blocks."""
+
+    U: np.ndarray
+    gc: np.ndarray
+    terms: list[TermBlocks]
+
+
+def normal_equations(cam_size: int, n_cams: int, parts) -> Normal:
+    """Sum the per-observation products into blocks.
+
+    Args:
+        cam_size: c; n_cams: free cameras.
+        parts: list of (structure, r (M, 2), J (M, 2, c + p)): residuals and Jacobians (camera
+            columns first), already multiplied by the square roots of their weights.
+    """
+    c = cam_size
+    U = np.zeros((n_cams, c, c))
+    gc = np.zeros((n_cams, c))
+    terms = []
+    for s, r, J in parts:
+        k = J.shape[2]
+        Jg = J.reshape(-1, 2 * s.group, k)
+        H = np.einsum("gri,grj->gij", Jg, Jg, optimize=True)  # (groups, k, k)
+        q = np.einsum("gri,gr->gi", Jg, r.reshape(len(Jg), -1))
+        U += (s.to_cam @ H[:, :c, :c].reshape(len(H), -1)).reshape(n_cams, c, c)
+        gc += s.to_cam @ q[:, :c]
+        V = (s.to_pt @ H[:, c:, c:].reshape(len(H), -1)).reshape(s.n_pts, k - c, k - c)
+        gp = s.to_pt @ q[:, c:]
+        W = (s.to_pair @ H[:, :c, c:].reshape(len(H), -1)).reshape(-1, c, k - c)
+        terms.append(TermBlocks(s, V, gp, W))
+    return Normal(U, gc, terms)
+
+
+def _damped(blocks: np.ndarray, lam: float) -> np.ndarray:
+    """blocks + lam * diag(blocks), Marquardt's scaling, with the diagonal floored."""
+    diag = np.maximum(np.einsum("...ii->...i", blocks), MIN_DIAGONAL)
+    out = blocks.copy()
+    idx = np.arange(blocks.shape[-1])
+    out[..., idx, idx] += lam * diag
+    return out
+
+
+@dataclass(eq=False)
+class Step:
+    """A solved step: dc (N, c) for the cameras, dp per term (P, p), and, for standard errors,
+    the diagonal of the reduced camera system's inverse (N, c) and of each V^-1 (P, p)."""
+
+    dc: np.ndarray
+    dp: list[np.ndarray]
+    cam_var: np.ndarray
+    pt_var: list[np.ndarray]
+
+
+def solve(normal: Normal, lam: float) -> Step | None:
+    """Solve the damped system (U + lam D) for the step; None when it is not positive definite."""
+    n, c = normal.gc.shape
+    S = _damped(normal.U, lam)
+    S = scipy.linalg.block_diag(*S) if n else np.zeros((0, 0))
+    b = normal.gc.copy()
+    solved = []
+    for t in normal.terms:
+        s = t.structure
+        Vinv = np.linalg.inv(_damped(t.V, lam))
+        Y = t.W @ Vinv[s.pair_pt]  # (pairs, c, p)
+        b -= s.pair_to_cam @ np.einsum("kij,kj->ki", Y, t.gp[s.pair_pt])
+        _subtract_reduction(S, Y, t.W, s)
+        solved.append(Vinv)
+    try:
+        factor = scipy.linalg.cho_factor(S, check_finite=False) if n else None
+    except np.linalg.LinAlgError:
+        return None
+    dc = -scipy.linalg.cho_solve(factor, b.ravel(), check_finite=False).reshape(n, c) if n else np.zeros((0, c))
+    cam_var = np.diag(scipy.linalg.cho_solve(factor, np.eye(n * c), check_finite=False)).reshape(n, c) if n else dc
+    dp, pt_var = [], []
+    for t, Vinv in zip(normal.terms, solved):
+        s = t.structure
+        rhs = -t.gp - s.pair_to_pt @ np.einsum("kji,kj->ki", t.W, dc[s.pair_cam])
+        dp.append(np.einsum("pij,pj->pi", Vinv, rhs))
+        pt_var.append(np.einsum("pii->pi", Vinv))
+    return Step(dc, dp, cam_var, pt_var)
+
+
+def _subtract_reduction(S: np.ndarray, Y: np.ndarray, W: np.ndarray, s: TermStructure) -> None:
+    """S -= sum over points of Y_a W_b^T for every two cameras a, b that saw the point.
+
+    The pairs are laid out as dense (cameras * c) x (points * p) matrices, a chunk of points at a
+    time, so the sum is one matrix product per chunk."""
+    n, c, p = s.n_cams, Y.shape[1], Y.shape[2]
+    if n == 0 or len(Y) == 0:
+        return
+    chunk = max(1, CHUNK_ENTRIES // (n * c * p))
+    order = np.argsort(s.pair_pt, kind="stable")
+    pts = s.pair_pt[order]
+    bounds = np.searchsorted(pts, np.arange(0, s.n_pts + chunk, chunk))
+    for k in range(len(bounds) - 1):
+        sel = order[bounds[k] : bounds[k + 1]]
+        if not len(sel):
+            continue
+        first = k * chunk
+        width = min(chunk, s.n_pts - first)
+        Yd = np.zeros((n, c, width, p))
+        Wd = np.zeros((n, c, width, p))
+        Yd[s.pair_cam[sel], :, s.pair_pt[sel] - first] = Y[sel]
+        Wd[s.pair_cam[sel], :, s.pair_pt[sel] - first] = W[sel]
+        S -= Yd.reshape(n * c, width * p) @ Wd.reshape(n * c, width * p).T
