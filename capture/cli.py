@@ -1,4 +1,4 @@
-"""``wandcal capture``, ``wandcal detect`` and ``wandcal trigger-emulator``."""
+"""``wandcal capture``, ``wandcal detect``, ``wandcal import`` and ``wandcal trigger-emulator``."""
 
 from __future__ import annotations
 
@@ -40,12 +40,119 @@ def register(subparsers) -> None:
                    help="threads that decode and detect images (default: every core)")
     p.set_defaults(run=run_detect)
 
+    _register_import(subparsers)
+
     p = subparsers.add_parser("trigger-emulator", help="emulate the strobe trigger on a pseudo-terminal",
                               description="Speak wandcal-trigger/1 on a new pseudo-terminal; prints its path.")
     p.add_argument("--vanish-after", type=int, default=None, metavar="N",
                    help="close the terminal after N pulses, as if the board were unplugged")
     p.add_argument("--start-us", type=int, default=0, help="device clock at start (near 4294967295 tests the wrap)")
     p.set_defaults(run=run_emulator)
+
+
+def _register_import(subparsers) -> None:
+    p = subparsers.add_parser("import", help="convert an easyWand, Argus or MultiCamSelfCal session to a capture folder",
+                              description="Write a points-level wandcal-capture/1 folder from another tool's session "
+                                          "and print what it found (docs/import.md).")
+    formats = p.add_subparsers(dest="format", required=True, metavar="FORMAT")
+
+    e = formats.add_parser("easywand", help="an easyWand session (*_easyWandData.mat) or its input files",
+                           description="wandcal import easywand SESSION.mat --out CAPTURE, or wandcal import easywand "
+                                       "--wand CSV --profile TXT --wand-length M [--background CSV] [--axis CSV] "
+                                       "--out CAPTURE")
+    e.add_argument("source", nargs="?", type=Path, metavar="SESSION.mat", help="easyWand's saved session")
+    e.add_argument("--intrinsics", choices=("optimised", "profile"), default="optimised",
+                   help="with a .mat: the intrinsics easyWand's result used (default) or the profile's estimates")
+    e.add_argument("--wand", type=Path, metavar="CSV", help="wand points (2 tracks, y-up pixels) instead of a .mat")
+    e.add_argument("--profile", type=Path, metavar="TXT", help="camera profile, with --wand")
+    e.add_argument("--wand-length", type=_positive, metavar="M", help="wand marker distance in metres, with --wand")
+    e.add_argument("--background", type=Path, metavar="CSV", help="background (unpaired) points, with --wand")
+    e.add_argument("--axis", type=Path, metavar="CSV", help="axis points (1-4 rows), with --wand")
+    _common(e)
+    e.set_defaults(run=run_import_easywand)
+
+    a = formats.add_parser("argus", help="Argus Wand's -xypts.csv files and camera profile",
+                           description="wandcal import argus PAIRED-xypts.csv --profile TXT --wand-length M "
+                                       "[--unpaired CSV] [--reference CSV] --out CAPTURE")
+    a.add_argument("source", type=Path, metavar="PAIRED-xypts.csv", help="the wand's two tracks")
+    a.add_argument("--profile", type=Path, required=True, metavar="TXT", help="Argus camera profile, a row per camera")
+    a.add_argument("--wand-length", type=_positive, required=True, metavar="M", help="wand marker distance, metres")
+    a.add_argument("--unpaired", type=Path, metavar="CSV", help="unpaired points -xypts.csv (written to points.csv)")
+    a.add_argument("--reference", type=Path, metavar="CSV", help="reference points -xypts.csv (1-4 axis points)")
+    _common(a)
+    a.set_defaults(run=run_import_argus)
+
+    s = formats.add_parser("svoboda", help="a MultiCamSelfCal folder (points.dat, IdMat.dat, Res.dat)",
+                           description="wandcal import svoboda FOLDER --out CAPTURE [--focal-px F]")
+    s.add_argument("source", type=Path, metavar="FOLDER", help="the MultiCamSelfCal data folder")
+    s.add_argument("--focal-px", type=_positive, metavar="F",
+                   help="focal length for cameras without a .rad file (centred principal point, no distortion)")
+    s.add_argument("--out", type=Path, required=True, help="new capture folder")
+    s.set_defaults(run=run_import_svoboda)
+
+
+def _common(p) -> None:
+    p.add_argument("--height", type=_count(1), metavar="H",
+                   help="image height in pixels of every camera, when the session's is wrong")
+    p.add_argument("--out", type=Path, required=True, help="new capture folder")
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def run_import_easywand(args) -> int:
+    from capture.folder import CaptureFormatError
+    from capture.importers.easywand import read_easywand_files, read_easywand_mat
+
+    files = {"--wand": args.wand, "--profile": args.profile, "--wand-length": args.wand_length,
+             "--background": args.background, "--axis": args.axis}
+    if args.source is not None:
+        given = [k for k, v in files.items() if v is not None]
+        if given:
+            raise CaptureFormatError(f"{args.source}: a .mat session brings its own points and cameras; drop "
+                                     f"{', '.join(given)} (or drop the .mat to import files)")
+        imported = read_easywand_mat(args.source, args.intrinsics, args.height)
+    else:
+        missing = [k for k in ("--wand", "--profile", "--wand-length") if files[k] is None]
+        if missing:
+            raise CaptureFormatError(f"give an easyWand session (SESSION.mat), or its files: {', '.join(missing)} "
+                                     "missing")
+        imported = read_easywand_files(args.wand, args.profile, args.wand_length, args.background, args.axis,
+                                       args.height)
+    return _write_import(imported, args.out)
+
+
+def run_import_argus(args) -> int:
+    from capture.importers.argus import read_argus
+
+    return _write_import(read_argus(args.source, args.profile, args.wand_length, args.unpaired, args.reference,
+                                    args.height), args.out)
+
+
+def run_import_svoboda(args) -> int:
+    from capture.importers.svoboda import read_svoboda
+
+    return _write_import(read_svoboda(args.source, args.focal_px), args.out)
+
+
+def _write_import(imported, out: Path) -> int:
+    from capture.folder import CAPTURE_FORMAT, CaptureFormatError, save_capture
+    from capture.importers import summary_lines
+
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise CaptureFormatError(f"{out}: already exists and is not an empty folder; choose a new --out folder")
+    save_capture(out, imported.capture)
+    for line in summary_lines(imported):
+        print(line)
+    print(f"wrote {out} ({CAPTURE_FORMAT})")
+    return 0
 
 
 def _count(low: int):

@@ -14,14 +14,18 @@ from pathlib import Path
 import numpy as np
 
 from calib.errors import CalibrationError
-from calib.rig import AxisObservations, Camera, PointObservations, Rig, StaticObservations, WandObservations
+from calib.rig import AXIS_ROLES, AxisObservations, Camera, PointObservations, Rig, StaticObservations, WandObservations
 
 CAPTURE_FORMAT = "wandcal-capture/1"
 RIG_FILE = "rig.json"
 WAND_FILE = "wand.csv"
 STATIC_FILE = "static.csv"
+POINTS_FILE = "points.csv"
+AXIS_FILE = "axis.csv"
 WAND_COLUMNS = ("frame", "camera", "u", "v")
 STATIC_COLUMNS = ("camera", "u", "v")
+POINTS_COLUMNS = ("frame", "camera", "u", "v")
+AXIS_COLUMNS = ("role", "camera", "u", "v")
 
 
 class CaptureFormatError(CalibrationError):
@@ -40,8 +44,12 @@ class Capture:
     axis: AxisObservations | None = None
 
 
-def rig_from_json(doc: object, source: str = RIG_FILE) -> Rig:
-    """Build a :class:`Rig` from a parsed rig.json document; errors name the field."""
+def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = False) -> Rig:
+    """Build a :class:`Rig` from a parsed rig.json document; errors name the field.
+
+    ``allow_no_wand``: accept a rig.json without ``wand`` (or with ``wand.length_m: null``), giving
+    ``Rig.wand_length = None``; only a capture with points.csv may have no wand (read_capture).
+    """
     if not isinstance(doc, dict):
         raise CaptureFormatError(f"{source}: the top level must be a JSON object")
     if doc.get("format") != CAPTURE_FORMAT:
@@ -73,10 +81,16 @@ def rig_from_json(doc: object, source: str = RIG_FILE) -> Rig:
         except CalibrationError as exc:
             raise CaptureFormatError(f"{source}: {exc}") from None
     wand = doc.get("wand")
-    if not isinstance(wand, dict) or "length_m" not in wand:
-        raise CaptureFormatError(f"{source}: 'wand.length_m' is missing; give the wand's marker distance in metres")
-    length = wand["length_m"]
-    if isinstance(length, bool) or not isinstance(length, (int, float)) or not math.isfinite(length) or length <= 0:
+    length = wand.get("length_m") if isinstance(wand, dict) else None
+    if wand is not None and not isinstance(wand, dict):
+        raise CaptureFormatError(f"{source}: 'wand' must be an object like {{\"length_m\": 0.5}}, got {wand!r}")
+    if length is None:
+        if not allow_no_wand:
+            raise CaptureFormatError(
+                f"{source}: 'wand.length_m' is missing; give the wand's marker distance in metres "
+                f"(only a capture with {POINTS_FILE} may have no wand)"
+            )
+    elif isinstance(length, bool) or not isinstance(length, (int, float)) or not math.isfinite(length) or length <= 0:
         raise CaptureFormatError(f"{source}: 'wand.length_m' must be a positive number of metres, got {length!r}")
     markers = None
     if doc.get("static_object") is not None:
@@ -85,7 +99,7 @@ def rig_from_json(doc: object, source: str = RIG_FILE) -> Rig:
             raise CaptureFormatError(f"{source}: 'static_object' needs 'markers_m', a list of [x, y, z] in metres")
         markers = _matrix(so["markers_m"], None, f"{source}: static_object.markers_m")
     try:
-        return Rig(cameras=tuple(cameras), wand_length=float(length), static_markers=markers)
+        return Rig(cameras=tuple(cameras), wand_length=None if length is None else float(length), static_markers=markers)
     except CalibrationError as exc:
         raise CaptureFormatError(f"{source}: {exc}") from None
 
@@ -98,14 +112,15 @@ def rig_to_json(rig: Rig) -> dict:
             | ({"model": c.model} if c.model != "pinhole" else {})
             for c in rig.cameras
         ],
-        "wand": {"length_m": rig.wand_length},
     }
+    if rig.wand_length is not None:  # a capture without a wand (points.csv only) has no "wand"
+        doc["wand"] = {"length_m": rig.wand_length}
     if rig.static_markers is not None:
         doc["static_object"] = {"markers_m": rig.static_markers.tolist()}
     return doc
 
 
-def read_rig(folder: Path) -> Rig:
+def read_rig(folder: Path, allow_no_wand: bool = False) -> Rig:
     path = Path(folder) / RIG_FILE
     if not path.is_file():
         raise CaptureFormatError(f"{path}: not found; a capture folder needs rig.json (see docs/capture-format.md)")
@@ -113,7 +128,7 @@ def read_rig(folder: Path) -> Rig:
         doc = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise CaptureFormatError(f"{path}: not valid JSON ({exc})") from None
-    return rig_from_json(doc, str(path))
+    return rig_from_json(doc, str(path), allow_no_wand)
 
 
 def parse_wand_csv(text: str, rig: Rig, source: str = WAND_FILE) -> WandObservations:
@@ -145,32 +160,106 @@ def parse_static_csv(text: str, rig: Rig, source: str = STATIC_FILE) -> StaticOb
     return StaticObservations(camera=camera, uv=uv)
 
 
+def parse_points_csv(text: str, rig: Rig, source: str = POINTS_FILE) -> PointObservations:
+    """Parse points.csv text (``frame,camera,u,v``: one unlabelled marker per camera-frame, the
+    same 3D point in every camera that saw it in that frame); errors name the line and column."""
+    rows = _rows(text, POINTS_COLUMNS, source)
+    frame = np.empty(len(rows), dtype=np.int64)
+    camera = np.empty(len(rows), dtype=np.int64)
+    uv = np.empty((len(rows), 2))
+    lookup = {cid: i for i, cid in enumerate(rig.ids)}
+    for k, (line, row) in enumerate(rows):
+        frame[k] = _int_cell(row["frame"], f"{source} line {line}, column 'frame'")
+        camera[k] = _camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
+        where = f"{source} line {line} (frame {frame[k]})"
+        uv[k] = _float_cell(row["u"], f"{where}, column 'u'"), _float_cell(row["v"], f"{where}, column 'v'")
+    # a camera-frame with two points is ambiguous; like a wand camera-frame with three blobs it is
+    # dropped and counted by the pipeline (calib.observations.point_tracks), not refused here
+    return PointObservations(frame=frame, camera=camera, uv=uv)
+
+
+def parse_axis_csv(text: str, rig: Rig, source: str = AXIS_FILE) -> AxisObservations:
+    """Parse axis.csv text (``role,camera,u,v``, role one of ``AXIS_ROLES``)."""
+    rows = _rows(text, AXIS_COLUMNS, source)
+    role, camera, uv = [], np.empty(len(rows), dtype=np.int64), np.empty((len(rows), 2))
+    lookup = {cid: i for i, cid in enumerate(rig.ids)}
+    seen: dict[tuple[str, int], int] = {}
+    for k, (line, row) in enumerate(rows):
+        name = (row["role"] or "").strip().lower()
+        if name not in AXIS_ROLES:
+            raise CaptureFormatError(
+                f"{source} line {line}, column 'role': {row['role']!r} is not one of {', '.join(AXIS_ROLES)}"
+            )
+        role.append(name)
+        camera[k] = _camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
+        uv[k] = _float_cell(row["u"], f"{source} line {line}, column 'u'"), _float_cell(
+            row["v"], f"{source} line {line}, column 'v'"
+        )
+        first = seen.setdefault((name, int(camera[k])), line)
+        if first != line:
+            raise CaptureFormatError(
+                f"{source} line {line}: camera {rig.ids[camera[k]]!r} already has the {name!r} point (line {first}); "
+                "give each axis point once per camera"
+            )
+    if rows and "origin" not in role:
+        raise CaptureFormatError(f"{source}: no 'origin' row; the axis points need an origin seen by some camera")
+    return AxisObservations(role=np.array(role, dtype=str), camera=camera, uv=uv)
+
+
 def read_capture(folder: str | Path) -> Capture:
-    """Read a points-level capture folder (rig.json, wand.csv, optional static.csv)."""
+    """Read a points-level capture folder: rig.json, wand.csv, and the optional static.csv,
+    points.csv and axis.csv. A capture with points.csv may have no wand (no ``wand.length_m``,
+    wand.csv absent or empty)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise CaptureFormatError(f"{folder}: not a folder; give the path of a wandcal-capture/1 folder")
-    rig = read_rig(folder)
+    points_path = folder / POINTS_FILE
+    has_points = points_path.is_file()
+    rig = read_rig(folder, allow_no_wand=has_points)
     wand_path = folder / WAND_FILE
-    if not wand_path.is_file():
+    if wand_path.is_file():
+        wand = parse_wand_csv(_read_text(wand_path), rig, str(wand_path))
+    elif has_points:
+        wand = WandObservations(np.zeros(0), np.zeros(0), np.zeros((0, 2)))
+    else:
         raise CaptureFormatError(
             f"{wand_path}: not found; run 'wandcal detect {folder}' on an image-level capture first"
         )
-    wand = parse_wand_csv(wand_path.read_text(), rig, str(wand_path))
+    if rig.wand_length is None and len(wand):
+        raise CaptureFormatError(
+            f"{wand_path}: {len(wand)} wand rows but {folder / RIG_FILE} gives no 'wand.length_m'; "
+            "give the wand's marker distance in metres, or remove the wand rows"
+        )
     static = None
     static_path = folder / STATIC_FILE
     if static_path.is_file():
-        static = parse_static_csv(static_path.read_text(), rig, str(static_path))
+        static = parse_static_csv(_read_text(static_path), rig, str(static_path))
         if rig.static_markers is None:
             raise CaptureFormatError(
                 f"{static_path}: static blobs are given but rig.json has no 'static_object.markers_m'; "
                 "add the static object's marker coordinates or remove static.csv"
             )
-    return Capture(rig=rig, wand=wand, static=static)
+    points = parse_points_csv(_read_text(points_path), rig, str(points_path)) if has_points else None
+    if rig.wand_length is None and not len(points):
+        raise CaptureFormatError(
+            f"{points_path}: no rows; a capture without a wand needs single-point tracks in points.csv "
+            f"(or give 'wand.length_m' in rig.json and the wand in wand.csv)"
+        )
+    axis_path = folder / AXIS_FILE
+    axis = parse_axis_csv(_read_text(axis_path), rig, str(axis_path)) if axis_path.is_file() else None
+    return Capture(rig=rig, wand=wand, static=static, points=points, axis=axis)
 
 
-def write_capture(folder: str | Path, rig: Rig, wand: WandObservations, static: StaticObservations | None) -> None:
-    """Write the points level of a capture folder, creating it if needed."""
+def write_capture(
+    folder: str | Path,
+    rig: Rig,
+    wand: WandObservations,
+    static: StaticObservations | None,
+    points: PointObservations | None = None,
+    axis: AxisObservations | None = None,
+) -> None:
+    """Write the points level of a capture folder, creating it if needed. wand.csv is always
+    written (header only for a capture without a wand); points.csv and axis.csv when given."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / RIG_FILE).write_text(json.dumps(rig_to_json(rig), indent=2) + "\n")
@@ -186,9 +275,36 @@ def write_capture(folder: str | Path, rig: Rig, wand: WandObservations, static: 
             w.writerow(STATIC_COLUMNS)
             for c, (u, v) in zip(static.camera, static.uv):
                 w.writerow([ids[c], f"{u:.4f}", f"{v:.4f}"])
+    if points is not None:
+        with open(folder / POINTS_FILE, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(POINTS_COLUMNS)
+            for f, c, (u, v) in zip(points.frame, points.camera, points.uv):
+                w.writerow([int(f), ids[c], f"{u:.4f}", f"{v:.4f}"])
+    if axis is not None:
+        with open(folder / AXIS_FILE, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(AXIS_COLUMNS)
+            for r, c, (u, v) in zip(axis.role, axis.camera, axis.uv):
+                w.writerow([str(r), ids[c], f"{u:.4f}", f"{v:.4f}"])
+
+
+def save_capture(folder: str | Path, capture: Capture) -> None:
+    """Write every part of ``capture`` (see :func:`write_capture`)."""
+    write_capture(folder, capture.rig, capture.wand, capture.static, capture.points, capture.axis)
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text()
+    except UnicodeDecodeError:
+        raise CaptureFormatError(f"{path}: not a text file (it does not decode as UTF-8); give a CSV file") from None
 
 
 def _rows(text: str, columns: tuple[str, ...], source: str) -> list[tuple[int, dict]]:
+    if "\0" in text:
+        raise CaptureFormatError(f"{source}: holds binary data (NUL bytes), not CSV text; the header must be "
+                                 f"{','.join(columns)}")
     reader = csv.DictReader(text.splitlines())
     header = [h.strip() for h in (reader.fieldnames or [])]
     missing = [c for c in columns if c not in header]
