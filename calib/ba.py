@@ -29,8 +29,19 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from calib import schur
-from calib.geometry import matrix_to_euler
-from calib.wandmodel import CAM_PARAMS, FRAME_PARAMS, WandModel
+from calib.geometry import camera_centers, matrix_to_euler
+from calib.observations import PointTracks
+from calib.reprojection import (
+    CAM_PARAMS,
+    FRAME_PARAMS,
+    INTRINSICS,
+    BundleState,
+    PointTerm,
+    WandTerm,
+    exp_so3,
+    moved_intrinsics,
+)
+from calib.wandmodel import WandModel
 
 LOSSES = ("cauchy", "linear")
 DEFAULT_LOSS = "cauchy"
@@ -45,16 +56,6 @@ MAX_ITER = 100
 LAMBDA0 = 1e-4  # Marquardt's damping, relative to the normal matrix's diagonal
 LAMBDA_MAX = 1e16  # beyond this no step lowers the cost: the state is a minimum to working precision
 MIN_RELATIVE_GAIN = 1e-15  # an accepted step gaining less than this share of the cost is rounding
-
-
-@dataclass(eq=False)
-class _State:
-    """R (N, 3, 3), t (N, 3) world->camera; m (F, 3) wand midpoints; d (F, 3) unit directions."""
-
-    R: np.ndarray
-    t: np.ndarray
-    m: np.ndarray
-    d: np.ndarray
 
 
 def bundle_adjust(
@@ -73,76 +74,125 @@ def bundle_adjust(
         (x, info): x in the model's parameters; info = {"iterations", "cost", "seconds", "status",
         "message", "loss", "loss_scale_px", "evaluations"}.
     """
+    out = bundle_adjust_points(model, None, None, x0=x0, progress=progress, loss=loss, max_iter=max_iter)
+    return out.x, out.info
+
+
+@dataclass(frozen=True, eq=False)
+class IntrinsicsFit:
+    """Intrinsics to refine: start values intr (N, 9) = fx, fy, cx, cy, k1, k2, p1, p2, k3; the
+    names refined (a subset of ``calib.reprojection.INTRINSICS``, in its order); the raw pixels
+    of the wand observations (M, 2) and of the point tracks (Q, 2) in the model's order."""
+
+    intr: np.ndarray
+    refine: tuple[str, ...]
+    wand_uv: np.ndarray
+    point_uv: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class BundleResult:
+    """x: the model's parameters; X: (T, 3) points or None; intr: (N, 9) refined intrinsics or
+    None; camera_std: (N, c) standard errors of each camera's parameters (w, t, refined
+    intrinsics; 0 where held); info: the solver's record."""
+
+    x: np.ndarray
+    X: np.ndarray | None
+    intr: np.ndarray | None
+    camera_std: np.ndarray
+    info: dict
+
+
+def bundle_adjust_points(
+    model: WandModel,
+    tracks: PointTracks | None,
+    X0: np.ndarray | None,
+    x0: np.ndarray | None = None,
+    progress=None,
+    loss: str = DEFAULT_LOSS,
+    max_iter: int = MAX_ITER,
+    intrinsics: IntrinsicsFit | None = None,
+    stop_se: float = STOP_SE,
+) -> BundleResult:
+    """:func:`bundle_adjust` with single-point tracks as free 3D points beside the wand, and
+    optionally the cameras' intrinsics among the unknowns (fitting raw pixels through the lens
+    distortion).
+
+    Args:
+        tracks: the points' observations (``calib.observations.PointTracks``), or None.
+        X0: (T, 3) their start positions, metres.
+        intrinsics: what to refine, or None to hold the intrinsics.
+        stop_se: stop when every parameter is estimated to be within this many standard errors
+            of the optimum (a robust first stage that a least squares polish follows needs less).
+
+    Without wand observations the scale is free: it is held by fixing the one translation
+    component of one camera that most changes with it (the poses are then up to scale).
+    """
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     start = time.perf_counter()
     x0 = model.x0() if x0 is None else x0
-    problem = _WandTerm(model)
+    p = model.p
+    n = p.n_cams
+    refine = intrinsics.refine if intrinsics is not None else ()
+    # a camera held for the gauge keeps its pose, but its intrinsics may still move
+    free = np.arange(n) if refine else model.free
+    terms = []
+    if len(p.camera):
+        raw = (intrinsics.wand_uv, refine) if refine else None
+        terms.append(WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, free, n, raw))
+    if tracks is not None and len(tracks):
+        raw = (intrinsics.point_uv, refine) if refine else None
+        terms.append(PointTerm(tracks.camera, tracks.track, tracks.xy, p.focal[tracks.camera], tracks.n_tracks, free, n, raw))
     R, t = model.poses(x0)
-    wand = model.wand(x0)
+    wand = model.wand(x0) if p.n_frames else np.zeros((0, 2, 3))
     d = wand[:, 1] - wand[:, 0]
-    state = _State(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True))
-    solver = _LevenbergMarquardt(problem, loss)
+    X = np.zeros((0, 3)) if X0 is None else np.asarray(X0, float)
+    intr = intrinsics.intr.copy() if refine else None
+    state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), X, intr)
+    frozen = [(int(np.flatnonzero(free == g)[0]), j) for g in np.flatnonzero(model.fixed) for j in range(CAM_PARAMS)] if refine else []
+    if not len(p.camera):
+        frozen.append(_scale_gauge(R, t, free, model.fixed, frozen))
+    solver = _LevenbergMarquardt(terms, free, loss, frozen, refine, stop_se)
     # the dense products here are small: a second BLAS thread costs more in hand-offs than it
     # gains (0.26 s against 0.42 s at 8 x 1500 on 2 cores, and no gain at 32 x 2000)
     with threadpool_limits(limits=1, user_api="blas"):
-        state, info = solver.run(state, progress, max_iter)
+        state, info, std = solver.run(state, progress, max_iter)
     info |= {"seconds": time.perf_counter() - start}
-    return _pack(model, state), info
+    camera_std = np.zeros((n, std.shape[1]))
+    camera_std[free] = std
+    return BundleResult(_pack(model, state), state.X if X0 is not None else None, state.intr, camera_std, info)
 
 
-class _WandTerm:
-    """Residuals and Jacobian blocks of the wand observations at a state."""
-
-    def __init__(self, model: WandModel):
-        p = model.p
-        self.free = model.free
-        self.n_free = len(model.free)
-        self.fixed = model.fixed
-        cam_free = np.full(p.n_cams, -1)
-        cam_free[model.free] = np.arange(self.n_free)
-        self.camera, self.frame, self.xy = p.camera, p.frame, p.xy
-        self.focal = p.focal[p.camera]
-        self.half = np.where(p.end == 1, 0.5, -0.5) * p.length
-        self.structure = schur.TermStructure(cam_free[p.camera], p.camera, p.frame, self.n_free, p.n_frames, FRAME_PARAMS)
-        self.n_obs = len(p.camera)
-        self.n_params = CAM_PARAMS * self.n_free + FRAME_PARAMS * p.n_frames
-
-    def residuals(self, s: _State) -> np.ndarray:
-        """(M, 2) pixel residuals."""
-        X = s.m[self.frame] + self.half[:, None] * s.d[self.frame]
-        xc = np.einsum("mij,mj->mi", s.R[self.camera], X) + s.t[self.camera]
-        return (xc[:, :2] / xc[:, 2:3] - self.xy) * self.focal
-
-    def linearise(self, s: _State):
-        """(r (M, 2), J (M, 2, 11)) at ``s``: the camera's (w, t), then the frame's (m, a, b)."""
-        u1, u2 = _tangent_basis(s.d)
-        X = s.m[self.frame] + self.half[:, None] * s.d[self.frame]
-        Rc = s.R[self.camera]
-        Y = np.einsum("mij,mj->mi", Rc, X)
-        J = np.empty((len(X), 2, CAM_PARAMS + FRAME_PARAMS))
-        r = _project_into(J, Y, s.t[self.camera], Rc, self.xy, self.focal)
-        basis = np.stack([u1[self.frame], u2[self.frame]], axis=2) * self.half[:, None, None]
-        J[:, :, 9:] = J[:, :, 6:9] @ basis
-        return r, J
-
-    def moved(self, s: _State, step: schur.Step) -> _State:
-        R, t = s.R.copy(), s.t.copy()
-        R[self.free] = _exp_so3(step.dc[:, :3]) @ s.R[self.free]
-        t[self.free] += step.dc[:, 3:]
-        dp = step.dp[0]
-        u1, u2 = _tangent_basis(s.d)
-        d = s.d + dp[:, 3:4] * u1 + dp[:, 4:5] * u2
-        return _State(R, t, s.m + dp[:, :3], d / np.linalg.norm(d, axis=1, keepdims=True))
+def _scale_gauge(R: np.ndarray, t: np.ndarray, free: np.ndarray, fixed: np.ndarray, frozen) -> tuple[int, int]:
+    """(free-camera index, translation component) to hold so that, with the fixed cameras, the
+    scale is fixed: scaling the world about a fixed camera's centre C0 moves camera k's t by
+    R_k (C0 - C_k), so hold the component where that is largest."""
+    C = camera_centers(R, t)
+    C0 = C[np.flatnonzero(fixed)[0]]
+    v = np.einsum("kij,kj->ki", R[free], C0 - C[free])
+    for k, j in frozen:
+        if j >= 3:
+            v[k, j - 3] = 0.0
+    k, j = np.unravel_index(np.argmax(np.abs(v)), v.shape)
+    return int(k), 3 + int(j)
 
 
 class _LevenbergMarquardt:
     """Levenberg–Marquardt with Nielsen's damping update and iteratively reweighted loss."""
 
-    def __init__(self, problem: _WandTerm, loss: str):
-        self.p = problem
+    def __init__(self, terms: list, free: np.ndarray, loss: str, frozen: list[tuple[int, int]], refine: tuple[str, ...],
+                 stop_se: float = STOP_SE):
+        self.terms = terms
+        self.stop_se = stop_se
+        self.free = free
+        self.n_free = len(free)
         self.loss = loss
+        self.frozen = frozen
+        self.refine = refine
+        self.cam_size = CAM_PARAMS + sum(INTRINSICS[name] for name in refine)
         self.scale = np.inf
+        self.split = np.cumsum([len(t.structure.cam) for t in terms])[:-1]
 
     def _cost(self, z: np.ndarray) -> float:
         if self.loss == "linear":
@@ -155,34 +205,65 @@ class _LevenbergMarquardt:
 
     def _rescale(self, z: np.ndarray) -> None:
         if self.loss == "cauchy":
-            # the median radius of a 2D Gaussian is sigma sqrt(2 ln 2)
-            sigma = float(np.median(np.sqrt(z))) / np.sqrt(2 * np.log(2))
-            self.scale = min(self.scale, max(CAUCHY_SIGMAS * sigma, 1e-6))
+            self.scale = min(self.scale, max(CAUCHY_SIGMAS * _robust_sigma(z), 1e-6))
 
-    def run(self, state: _State, progress, max_iter: int):
-        p = self.p
-        r, J = p.linearise(state)
-        z = np.einsum("mk,mk->m", r, r)
+    def _linearise(self, state: BundleState):
+        parts = [term.linearise(state) for term in self.terms]
+        z = np.concatenate([np.einsum("mk,mk->m", r, r) for r, _ in parts])
+        return parts, z
+
+    def _squared_errors(self, state: BundleState) -> np.ndarray:
+        return np.concatenate([np.einsum("mk,mk->m", r, r) for r in (term.residuals(state) for term in self.terms)])
+
+    def _moved(self, state: BundleState, step: schur.Step) -> BundleState:
+        R, t = state.R.copy(), state.t.copy()
+        R[self.free] = exp_so3(step.dc[:, :3]) @ state.R[self.free]
+        t[self.free] += step.dc[:, 3:6]
+        intr = state.intr
+        if self.refine:
+            intr = intr.copy()
+            intr[self.free] = moved_intrinsics(state.intr[self.free], step.dc[:, 6:], self.refine)
+        state = BundleState(R, t, state.m, state.d, state.X, intr)
+        for term, dp in zip(self.terms, step.dp):
+            state = term.moved(state, dp)
+        return state
+
+    def _freeze(self, normal: schur.Normal) -> None:
+        """Hold the frozen camera parameters: their rows of the system become the identity's."""
+        for k, j in self.frozen:
+            normal.U[k, j, :] = 0.0
+            normal.U[k, :, j] = 0.0
+            normal.U[k, j, j] = 1.0
+            normal.gc[k, j] = 0.0
+            for t in normal.terms:
+                t.W[t.structure.pair_cam == k, j, :] = 0.0
+
+    def _normal(self, parts, z):
+        sw = np.split(np.sqrt(self._weights(z)), self.split)
+        weighted = [(term.structure, r * w[:, None], J * w[:, None, None]) for term, (r, J), w in zip(self.terms, parts, sw)]
+        normal = schur.normal_equations(self.cam_size, self.n_free, weighted)
+        self._freeze(normal)
+        return normal, weighted
+
+    def run(self, state: BundleState, progress, max_iter: int):
+        parts, z = self._linearise(state)
         self._rescale(z)
         cost = self._cost(z)
         lam, nu = LAMBDA0, 2.0
         status, message, iterations, evaluations = "iteration_limit", "most iterations reached", 0, 1
         last_ratio = np.inf
         for it in range(max_iter):
-            sw = np.sqrt(self._weights(z))
-            Jw = J * sw[:, None, None]
-            normal = schur.normal_equations(CAM_PARAMS, p.n_free, [(p.structure, r * sw[:, None], Jw)])
+            normal, weighted = self._normal(parts, z)
             accepted = None
             while lam < LAMBDA_MAX:
                 step = schur.solve(normal, lam)
                 if step is None:
                     lam, nu = lam * nu, 2 * nu
                     continue
-                new = p.moved(state, step)
-                z_new = np.einsum("mk,mk->m", *(2 * [p.residuals(new)]))
+                new = self._moved(state, step)
+                new_cost = self._cost(self._squared_errors(new))
                 evaluations += 1
-                new_cost = self._cost(z_new)
-                pred = _predicted_gain(normal, step, p.structure, Jw)
+                pred = _predicted_gain(normal, step, weighted)
                 gain = (cost - new_cost) / pred if pred > 0 else -1.0
                 if np.isfinite(new_cost) and gain > 0:
                     lam *= max(1 / 3, 1 - (2 * gain - 1) ** 3)
@@ -196,21 +277,20 @@ class _LevenbergMarquardt:
             state, step, new_cost = accepted
             iterations = it + 1
             relative_gain = (cost - new_cost) / max(cost, 1e-300)
-            r, J = p.linearise(state)
-            z = np.einsum("mk,mk->m", r, r)
+            parts, z = self._linearise(state)
             self._rescale(z)
             cost = self._cost(z)
             if progress is not None:
                 progress({"stage": "refine", "iteration": iterations, "cost": cost, "message": "bundle adjustment"})
-            ratio = _step_in_standard_errors(step, z, p)
+            ratio = _step_in_standard_errors(step, z)
             # steps shrink at least geometrically near the optimum (quadratically for least
             # squares, linearly for the reweighted loss): the distance left is about
             # step * q / (1 - q), with q the last ratio of successive steps
             q = min(ratio / last_ratio, MAX_RATE) if np.isfinite(last_ratio) else MAX_RATE
             remaining = ratio * q / (1 - q)
             last_ratio = ratio
-            if remaining < STOP_SE or relative_gain < MIN_RELATIVE_GAIN:
-                status, message = "converged", f"the estimated distance to the optimum is under {STOP_SE} standard errors"
+            if remaining < self.stop_se or relative_gain < MIN_RELATIVE_GAIN:
+                status, message = "converged", f"the estimated distance to the optimum is under {self.stop_se} standard errors"
                 break
         info = {
             "iterations": iterations,
@@ -221,25 +301,44 @@ class _LevenbergMarquardt:
             "loss": self.loss,
             "loss_scale_px": None if self.loss == "linear" else float(self.scale),
         }
-        return state, info
+        return state, info, self._standard_errors(parts, z)
+
+    def _standard_errors(self, parts, z) -> np.ndarray:
+        """(n_free, c) standard errors of the cameras' parameters at the solution: sigma times the
+        root diagonal of the undamped reduced system's inverse (0 for held parameters)."""
+        step = schur.solve(self._normal(parts, z)[0], 0.0) if self.n_free else None
+        if step is None:
+            return np.full((self.n_free, self.cam_size), np.inf)
+        std = _robust_sigma(z) * np.sqrt(np.maximum(step.cam_var, 0.0))
+        for k, j in self.frozen:
+            std[k, j] = 0.0
+        return std
 
 
-def _predicted_gain(normal: schur.Normal, step: schur.Step, s: schur.TermStructure, Jw: np.ndarray) -> float:
+def _robust_sigma(z: np.ndarray) -> float:
+    """Per-axis noise from squared 2D errors: the median radius of a 2D Gaussian is sigma sqrt(2 ln 2)."""
+    return float(np.median(np.sqrt(z))) / np.sqrt(2 * np.log(2)) if len(z) else 0.0
+
+
+def _predicted_gain(normal: schur.Normal, step: schur.Step, weighted) -> float:
     """Decrease of the weighted least squares model: -(g . dx) - |J dx|^2 / 2."""
-    g_dx = float(np.sum(normal.gc * step.dc)) + sum(float(np.sum(t.gp * dp)) for t, dp in zip(normal.terms, step.dp))
+    gain = -float(np.sum(normal.gc * step.dc))
     c = step.dc.shape[1]
-    dx = np.zeros((len(s.cam), Jw.shape[2]))
-    free = s.cam >= 0
-    dx[free, :c] = step.dc[s.cam[free]]
-    dx[:, c:] = step.dp[0][s.pt]
-    Jdx = np.einsum("mki,mi->mk", Jw, dx)
-    return -g_dx - 0.5 * float(np.sum(Jdx * Jdx))
+    for t, dp, (s, _, Jw) in zip(normal.terms, step.dp, weighted):
+        gain -= float(np.sum(t.gp * dp))
+        dx = np.zeros((len(s.cam), Jw.shape[2]))
+        free = s.cam >= 0
+        dx[free, :c] = step.dc[s.cam[free]]
+        dx[:, c:] = dp[s.pt]
+        Jdx = np.einsum("mki,mi->mk", Jw, dx)
+        gain -= 0.5 * float(np.sum(Jdx * Jdx))
+    return gain
 
 
-def _step_in_standard_errors(step: schur.Step, z: np.ndarray, p: _WandTerm) -> float:
+def _step_in_standard_errors(step: schur.Step, z: np.ndarray) -> float:
     """Largest |step| / standard error over all parameters. The noise is estimated robustly from
-    the residuals; the frames' errors use their conditional variance (smaller, so stricter)."""
-    sigma = float(np.median(np.sqrt(z))) / np.sqrt(2 * np.log(2))
+    the residuals; the blocks' errors use their conditional variance (smaller, so stricter)."""
+    sigma = max(_robust_sigma(z), 1e-12)
     worst = 0.0
     for d, var in [(step.dc, step.cam_var)] + list(zip(step.dp, step.pt_var)):
         if d.size:
@@ -247,54 +346,7 @@ def _step_in_standard_errors(step: schur.Step, z: np.ndarray, p: _WandTerm) -> f
     return worst
 
 
-def _project_into(J: np.ndarray, Y: np.ndarray, t: np.ndarray, R: np.ndarray, xy: np.ndarray, focal: np.ndarray):
-    """Pixel residuals (M, 2) of points ``R X + t`` with ``Y = R X`` (M, 3), against normalised
-    ``xy`` (M, 2) scaled by ``focal`` (M, 2); writes into ``J[:, :, :9]`` the derivatives w.r.t.
-    the camera's rotation increment w (``R <- exp([w]) R``), its translation, and the point X.
-
-    With p = (x/z, y/z) of x_cam = Y + t, dp/dx_cam = [[1, 0, -px], [0, 1, -py]] / z; dx_cam/dw
-    = -[Y]x, so row k of dp/dw is Y x (row k of dp/dx_cam); dx_cam/dX = R."""
-    xc = Y + t
-    iz = 1.0 / xc[:, 2]
-    proj = xc[:, :2] * iz[:, None]
-    r = (proj - xy) * focal
-    fz = focal * iz[:, None]  # (M, 2)
-    px, py = proj[:, 0], proj[:, 1]
-    Yx, Yy, Yz = Y[:, 0], Y[:, 1], Y[:, 2]
-    J[:, 0, 0] = -px * Yy
-    J[:, 0, 1] = Yz + px * Yx
-    J[:, 0, 2] = -Yy
-    J[:, 1, 0] = -py * Yy - Yz
-    J[:, 1, 1] = py * Yx
-    J[:, 1, 2] = Yx
-    J[:, 0, 3], J[:, 0, 4], J[:, 0, 5] = 1.0, 0.0, -px
-    J[:, 1, 3], J[:, 1, 4], J[:, 1, 5] = 0.0, 1.0, -py
-    J[:, :, 6:9] = R[:, :2, :] - proj[:, :, None] * R[:, 2:3, :]
-    J[:, :, :9] *= fz[:, :, None]
-    return r
-
-
-def _tangent_basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors (F, 3) orthogonal to each unit direction (F, 3) and to each other."""
-    helper = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    u1 = np.cross(d, helper)
-    u1 /= np.linalg.norm(u1, axis=1, keepdims=True)
-    return u1, np.cross(d, u1)
-
-
-def _exp_so3(w: np.ndarray) -> np.ndarray:
-    """(K, 3) rotation vectors -> (K, 3, 3) matrices (Rodrigues' formula, batched)."""
-    theta = np.linalg.norm(w, axis=1)
-    small = theta < 1e-12
-    k = w / np.where(small, 1.0, theta)[:, None]
-    K = np.zeros((len(w), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
-    s, c = np.sin(theta)[:, None, None], (1 - np.cos(theta))[:, None, None]
-    return np.eye(3) + s * K + c * (K @ K)
-
-
-def _pack(model: WandModel, s: _State) -> np.ndarray:
+def _pack(model: WandModel, s: BundleState) -> np.ndarray:
     """The state in the model's parameters: Euler increments about R0, t, and per frame the
     midpoint and the direction's coordinates (a, b) with d parallel to d0 + a e1 + b e2."""
     x = np.zeros(model.n_params)

@@ -11,24 +11,35 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib import quality
-from calib.ba import DEFAULT_LOSS, bundle_adjust
 from calib.errors import CalibrationError
-from calib.geometry import camera_centers, kabsch, undistort_points
+from calib.geometry import camera_centers
 from calib.initial import initial_poses
 from calib.labels import label_ends
-from calib.observations import wand_pairs
-from calib.paper import MAX_ROUNDS, refine_paper
-from calib.refine import Setup, build_problem
-from calib.slp import refine_lp
-from calib.rig import Rig, StaticObservations, WandObservations
-from calib.static import StaticPose, solve_static
-from calib.triangulate import triangulate_points
+from calib.observations import WandPairs, point_tracks, wand_pairs
+from calib.ba import DEFAULT_LOSS, STOP_SE
+from calib.refine import (
+    GAUGE_CAMERA,
+    ROBUST_STAGE_SE,
+    build_problem,
+    check_intrinsics_request,
+    refine,
+    reject_outliers,
+    triangulated,
+    up_direction,
+)
+from calib.reprojection import INTRINSICS
+from calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
+from calib.static import solve_static
+from calib.triangulate import reprojection_errors
+from calib.world import apply, world_frame
 
 RESULT_FORMAT = "wandcal-result/1"
 METHODS = ("ba", "lp", "paper")
 DEFAULT_METHOD = "ba"  # docs/decisions/0002-default-method.md
-GAUGE_CAMERA = 0
-MAX_OUTLIER_PASSES = 3  # reject-and-refine passes; the kept set settles after two on simulated rigs
+# an intrinsic whose standard error passes these is poorly determined by the data: warn
+FOCAL_REL_STD_WARN = 0.005  # 0.5% of the focal length
+PRINCIPAL_STD_WARN_PX = 5.0
+K1_STD_WARN = 0.01
 
 
 @dataclass(eq=False)
@@ -49,6 +60,7 @@ class CalibrationResult:
     world: dict
     dropped: dict
     warnings: list[str] = field(default_factory=list)
+    points: np.ndarray | None = None  # (T, 3) the single-point tracks' refined points, world frame
 
     @property
     def centers(self) -> np.ndarray:
@@ -83,24 +95,31 @@ class CalibrationResult:
 
 def calibrate(
     rig: Rig,
-    wand: WandObservations,
+    wand: WandObservations | None,
     static: StaticObservations | None = None,
     method: str = DEFAULT_METHOD,
     progress=None,
     options: dict | None = None,
+    points: PointObservations | None = None,
+    axis: AxisObservations | None = None,
 ) -> CalibrationResult:
-    """Calibrate the rig's extrinsics from wand (and optional static-object) blobs.
+    """Calibrate the rig's extrinsics from wand blobs, single-point tracks and an optional static
+    object or axis points.
 
     Args:
-        rig: cameras with intrinsics, wand length, optional static object.
-        wand: raw, unlabeled wand blobs.
+        rig: cameras with intrinsics, wand length (None without a wand), optional static object.
+        wand: raw, unlabeled wand blobs (None or empty without a wand).
         static: static-object blobs, or None.
         method: "lp", "ba" or "paper" (see ``METHODS``).
         progress: optional callable(dict) with keys stage, message and, while refining,
             iteration and cost. An exception raised by it aborts the calibration.
         options: ``time_limit`` (seconds per LP solve) for "lp" and "paper"; ``max_rounds``
             for "paper"; ``loss`` ("cauchy", the default, or "linear") for "ba";
-            ``reject_outliers`` (default True) for all.
+            ``reject_outliers`` (default True) for all; ``refine_intrinsics``, a subset of
+            ("focal", "principal", "k1") to refine per camera inside ``ba`` (default none).
+        points: single-point tracks (points.csv), or None. ``ba`` refines them as free 3D
+            points; the other methods use them for the start only.
+        axis: axis points (axis.csv) that set the world frame when there is no static object.
 
     Raises:
         CalibrationError: the input cannot give a calibration; the message says why and what to do.
@@ -108,18 +127,31 @@ def calibrate(
     options = dict(options or {})
     if method not in METHODS:
         raise CalibrationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    check_intrinsics_request(rig, method, tuple(options.get("refine_intrinsics") or ()))
     tell = progress or (lambda event: None)
     started = time.perf_counter()
     warnings: list[str] = []
 
-    tell({"stage": "observations", "message": "undistorting and grouping wand blobs"})
-    pairs = wand_pairs(rig, wand)
-    per_cam = np.bincount(pairs.camera, minlength=len(rig.cameras))
+    tell({"stage": "observations", "message": "undistorting and grouping wand blobs and point tracks"})
+    has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
+    pairs = wand_pairs(rig, wand) if has_wand else _no_pairs()
+    tracks = point_tracks(rig, points) if points is not None and len(points) else None
+    if not has_wand and (tracks is None or not len(tracks)):
+        raise CalibrationError(
+            "the capture has no wand blobs (or no wand length) and no point seen by two cameras; record the wand, "
+            "or give points.csv with markers seen by several cameras at once"
+        )
+    if not has_wand and method != "ba":
+        raise CalibrationError(f"a capture without a wand calibrates with --method ba only, not {method!r}")
+    seen = np.bincount(pairs.camera, minlength=len(rig.cameras))
+    if tracks is not None:
+        seen = seen + np.bincount(tracks.camera, minlength=len(rig.cameras))
     for c, cam in enumerate(rig.cameras):
-        if per_cam[c] == 0:
+        if seen[c] == 0:
             raise CalibrationError(
-                f"camera {cam.id!r} never saw both wand ends in one frame; check that it is connected and "
-                "aimed at the volume, or remove it from rig.json"
+                f"camera {cam.id!r} never saw both wand ends in one frame"
+                + (" nor a point that another camera saw" if tracks is not None else "")
+                + "; check that it is connected and aimed at the volume, or remove it from rig.json"
             )
 
     static_poses = None
@@ -127,178 +159,143 @@ def calibrate(
         tell({"stage": "static", "message": "identifying static-object markers and solving PnP"})
         static_poses = solve_static(rig, static)
         if not any(static_poses):
-            seen = [str(p) for c, p in enumerate(static_poses) if len(static.for_camera(c))]
+            seen_static = [str(p) for c, p in enumerate(static_poses) if len(static.for_camera(c))]
             raise CalibrationError(
                 "the static object's markers could not be identified in any camera: "
-                + ("; ".join(seen) if seen else "static.csv has no blobs")
+                + ("; ".join(seen_static) if seen_static else "static.csv has no blobs")
             )
         for c, pose in enumerate(static_poses):
             if not pose:
                 warnings.append(f"{pose}; {rig.cameras[c].id} is placed from the wand only")
 
     tell({"stage": "initial", "message": "initial poses"})
-    init = initial_poses(rig, pairs, static_poses)
+    init = initial_poses(rig, pairs, static_poses, points=tracks)
     warnings += init.notes
 
     tell({"stage": "labels", "message": "telling the wand ends apart"})
-    labelled, _ = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)
+    labelled = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0] if has_wand else pairs
     setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
+    if tracks is not None:
+        tracks, X = triangulated(init.R, init.t, tracks)
+        if method != "ba":
+            warnings.append(f"the {len(tracks)} point-track observations placed the cameras at the start; only "
+                            "--method ba refines with them")
+            tracks = None
+    else:
+        X = None
 
-    R, t, wand_pts, info = _refine(setup, method, options, tell, _up_direction(rig, init.R, init.t, setup))
-    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+    polish = options.get("reject_outliers", True) and method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
+    r = refine(rig, labelled, setup, tracks, X, method, options, tell, up_direction(rig, init.R, init.t, setup),
+               ROBUST_STAGE_SE if polish else STOP_SE)
+    if not (np.all(np.isfinite(r.R)) and np.all(np.isfinite(r.t))):
         raise CalibrationError(
-            f"method {method!r} diverged ({info.get('status')}): its camera poses are not finite; "
-            "try --method ba, and check the intrinsics and the static object"
+            f"method {method!r} diverged ({r.info.get('status')}): its camera poses are not finite; "
+            "check the intrinsics and the static object" + ("" if method == "ba" else ", or try --method ba")
         )
-    dropped = dict(pairs.dropped)
-    dropped["outliers"] = 0
     if options.get("reject_outliers", True):
-        R, t, wand_pts, info, setup, dropped["outliers"] = _reject_outliers(rig, labelled, setup, R, t, wand_pts, info, method, options, tell)
+        r = reject_outliers(r, method, options, tell)
+    dropped = dict(pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
+    dropped |= {"outliers": r.outliers} | ({"point_outliers": r.point_outliers} if tracks is not None else {})
+    rig, setup, tracks, info = r.rig, r.setup, r.tracks, r.info
 
     tell({"stage": "world", "message": "expressing the rig in the world frame"})
-    R, t, wand_pts, world = _world_frame(rig, static, static_poses, R, t, wand_pts)
+    Rw, tw, world = world_frame(rig, r.R, r.t, GAUGE_CAMERA, static, static_poses, axis)
+    R, t, wand_pts = apply(Rw, tw, r.R, r.t, r.wand)
+    X = r.X @ Rw.T + tw if r.X is not None else None
+    world["scale"] = "wand" if has_wand else "arbitrary"
+    if not has_wand and not any("scale" in note for note in init.notes):
+        warnings.append("no wand: the rig is calibrated up to scale (world.scale is 'arbitrary')")
 
-    errors = quality.pixel_errors(R, t, wand_pts, setup.problem)
-    cameras = [quality.camera_report(errors, setup.problem, setup.frames, c) | {"initial_pose": init.source[c]} for c in range(len(rig.cameras))]
-    for c, cam in enumerate(rig.cameras):
-        n = cameras[c]["frames_with_both_ends"]
-        if n < quality.FEW_FRAMES:
-            warnings.append(f"{cam.id} saw both wand ends in only {n} frames; wave the wand nearer {cam.id}")
-        rms = cameras[c]["reprojection_rms_px"]
-        if rms is not None and rms > quality.HIGH_RMS_PX:
-            warnings.append(f"{cam.id} has a reprojection RMS of {rms:.2f} px; check its intrinsics and focus")
-    if dropped["extra_blobs"]:
-        warnings.append(f"{dropped['extra_blobs']} camera-frames showed more than two blobs and were dropped")
-    if dropped["outliers"]:
-        warnings.append(f"{dropped['outliers']} camera-frames were gross outliers and were dropped")
-    if info.get("status") != "converged":
-        warnings.append(f"the {method} refinement stopped before converging ({info.get('status')}); the poses are its "
-                        "best state so far (raise time_limit or max_rounds, or try --method ba)")
-    if info.get("uncertified_steps"):
-        warnings.append(f"{info['uncertified_steps']} LP steps were taken without an optimality certificate (their "
-                        "working set had not settled); each still lowered the cost")
-    lengths = quality.free_wand_lengths(R, t, setup.problem)
-    wand_report = {
-        "length_m": rig.wand_length,
-        "length_mean_m": float(lengths.mean()),
-        "length_std_m": float(lengths.std()),
-        "frames_used": int(setup.problem.n_frames),
-    }
+    cameras = _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings)
+    if info.get("refined_intrinsics"):
+        _intrinsics_reports(cameras, rig, r.camera_std, info["refined_intrinsics"], warnings)
+    _summary_warnings(warnings, dropped, info, method)
+    wand_report = None
+    if has_wand:
+        lengths = quality.free_wand_lengths(R, t, setup.problem)
+        wand_report = {
+            "length_m": rig.wand_length,
+            "length_mean_m": float(lengths.mean()),
+            "length_std_m": float(lengths.std()),
+            "frames_used": int(setup.problem.n_frames),
+        }
     solver = {"method": method} | info | {"total_seconds": time.perf_counter() - started}
     tell({"stage": "done", "message": "calibration finished"})
     return CalibrationResult(
         rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
-        solver=solver, world=world, dropped=dropped, warnings=warnings,
+        solver=solver, world=world, dropped=dropped, warnings=warnings, points=X,
     )
 
 
-def _refine(setup: Setup, method: str, options: dict, tell, up: np.ndarray):
-    model = setup.model
-    tell({"stage": "refine", "message": f"refining with method {method!r}"})
-    if method == "ba":
-        x, info = bundle_adjust(model, progress=tell, loss=options.get("loss") or DEFAULT_LOSS)
-    elif method == "lp":
-        x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
-    if method in ("ba", "lp"):
-        R, t = model.poses(x)
-        return R, t, model.wand(x), info
-    R, t, wand_pts, info = refine_paper(
-        model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, up,
-        max_rounds=int(options.get("max_rounds") or MAX_ROUNDS), time_limit=options.get("time_limit"), progress=tell,
-    )
-    return R, t, wand_pts, info
+def _no_pairs() -> WandPairs:
+    return WandPairs(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2, 2)), np.zeros((0, 2, 2)),
+                     np.zeros(0, np.int64), {"one_blob": 0, "extra_blobs": 0})
 
 
-def _reject_outliers(rig, labelled, setup, R, t, wand_pts, info, method, options, tell):
-    """Drop the camera-frames that are gross outliers and refine again, until the kept set settles.
-
-    At each pass every camera-frame is judged against the current cameras, worst first within
-    each frame (least squares spreads an outlier over its frame, so only the worst is sure to
-    be one); camera-frames dropped earlier are re-admitted when they fit the cleaner solution.
-    After a robust ``ba`` the outliers have had no pull on the cameras, so one pass finds them
-    all, and plain least squares on the rest (a few iterations from the robust solution) gives
-    the fully efficient estimate.
-
-    Returns (R, t, wand, info, setup, number of camera-frames dropped)."""
-    sigma = quality.robust_sigma(quality.pixel_errors(R, t, wand_pts, setup.problem))
-    limit = max(quality.OUTLIER_SIGMAS * sigma, quality.MIN_OUTLIER_PX)
-    keep = np.ones(len(labelled), bool)
-    robust_ba = method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
-    if robust_ba:
-        options = options | {"loss": "linear"}
-    for _ in range(1 if robust_ba else MAX_OUTLIER_PASSES):
-        new_keep = quality.reject_worst_per_frame(R, t, labelled, setup.problem.focal, limit)
-        bent = quality.length_outlier_frames(R, t, labelled, new_keep, rig.wand_length)
-        new_keep &= ~bent[labelled.frame]
-        if np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
-        tell({"stage": "outliers", "message": f"refining without {int((~keep).sum())} outlying camera-frames"})
-        setup = build_problem(rig, labelled.subset(keep), R, t, GAUGE_CAMERA)
-        R, t, wand_pts, more = _refine(setup, method, options, tell, _up_direction(rig, R, t, setup))
-        info = more | {"iterations": info["iterations"] + more["iterations"], "seconds": info["seconds"] + more["seconds"],
-                       "loss": info.get("loss", more.get("loss"))}
-    return R, t, wand_pts, info, setup, int((~keep).sum())
+def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings) -> list[dict]:
+    errors = quality.pixel_errors(R, t, wand_pts, setup.problem)
+    point_err = None
+    if tracks is not None and len(tracks):
+        r = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, X)
+        point_err = np.linalg.norm(r * setup.problem.focal[tracks.camera], axis=1)
+    cameras = []
+    for c, cam in enumerate(rig.cameras):
+        report = quality.camera_report(errors, setup.problem, setup.frames, c) | {"initial_pose": init.source[c]}
+        if point_err is not None:
+            e = point_err[tracks.camera == c]
+            report |= {"point_observations": int(len(e)),
+                       "point_rms_px": float(np.sqrt(np.mean(e**2))) if len(e) else None}
+        cameras.append(report)
+        n = report["frames_with_both_ends"]
+        if has_wand and n < quality.FEW_FRAMES:
+            warnings.append(f"{cam.id} saw both wand ends in only {n} frames; wave the wand nearer {cam.id}")
+        for key in ("reprojection_rms_px", "point_rms_px"):
+            rms = report.get(key)
+            if rms is not None and rms > quality.HIGH_RMS_PX:
+                what = "wand" if key == "reprojection_rms_px" else "point-track"
+                warnings.append(f"{cam.id} has a {what} reprojection RMS of {rms:.2f} px; check its intrinsics and focus")
+    return cameras
 
 
-def _up_direction(rig: Rig, R: np.ndarray, t: np.ndarray, setup: Setup) -> np.ndarray:
-    """World up for the paper's height constraints: +z of the static object's frame; without one,
-    from the wand's centroid towards the cameras' centroid (cameras on a ring above the volume)."""
-    if rig.static_markers is not None:
-        return np.array([0.0, 0.0, 1.0])
-    v = camera_centers(R, t).mean(0) - setup.model.m0.mean(0)
-    return v / np.linalg.norm(v)
+def _intrinsics_reports(cameras: list[dict], rig: Rig, std: np.ndarray, names: list[str], warnings: list[str]) -> None:
+    """Each camera's refined intrinsics and their standard errors; a warning where the data leave
+    one poorly determined."""
+    for c, cam in enumerate(rig.cameras):
+        col, entry = 6, {"refined": names}
+        for name in names:
+            if name == "focal":
+                f, sd = float(cam.K[0, 0]), float(cam.K[0, 0] * std[c, col])
+                entry |= {"focal_px": f, "focal_std_px": sd}
+                if sd > FOCAL_REL_STD_WARN * f:
+                    warnings.append(f"{cam.id}: the refined focal length is poorly determined (+-{sd:.1f} px); wave the "
+                                    "wand at more depths and across the whole image, or hold the focal length")
+            elif name == "principal":
+                sd = std[c, col : col + 2]
+                entry |= {"principal_px": [float(cam.K[0, 2]), float(cam.K[1, 2])], "principal_std_px": sd.tolist()}
+                if sd.max() > PRINCIPAL_STD_WARN_PX:
+                    warnings.append(f"{cam.id}: the refined principal point is poorly determined (+-{sd.max():.1f} px); "
+                                    "cover the image's corners, or hold it")
+            else:
+                sd = float(std[c, col])
+                entry |= {"k1": float(cam.dist[0]), "k1_std": sd}
+                if sd > K1_STD_WARN:
+                    warnings.append(f"{cam.id}: the refined k1 is poorly determined (+-{sd:.3f}); wave the wand near "
+                                    "the image's edges, or hold k1")
+            col += INTRINSICS[name]
+        cameras[c]["intrinsics"] = entry
 
 
-def _world_frame(rig: Rig, static: StaticObservations | None, static_poses, R, t, wand_pts):
-    """Express poses and wand in the world frame (docs/conventions.md)."""
-    if static_poses is not None and any(isinstance(p, StaticPose) for p in static_poses):
-        fit = _static_fit(rig, static, static_poses, R, t)
-        if fit is not None:
-            Rw, tw, rms, used = fit
-            # x_world = Rw x_internal + tw  =>  x_cam = R Rw^T (x_world - tw) + t
-            R_new = R @ Rw.T
-            t_new = t - np.einsum("nij,j->ni", R_new, tw)
-            wand_new = wand_pts @ Rw.T + tw
-            world = {
-                "frame": "static_object",
-                "description": "the static object's own frame: its markers_m as given, z up, metres",
-                "fit_rms_m": rms,
-                "cameras_used": used,
-            }
-            return R_new, t_new, wand_new, world
-    R0, t0 = R[GAUGE_CAMERA], t[GAUGE_CAMERA]
-    R_new = R @ R0.T
-    t_new = t - np.einsum("nij,j->ni", R_new, t0)
-    wand_new = wand_pts @ R0.T + t0
-    world = {
-        "frame": "camera",
-        "camera": rig.cameras[GAUGE_CAMERA].id,
-        "description": f"camera {rig.cameras[GAUGE_CAMERA].id!r}'s frame: origin at its centre, x right, y down, z along its optical axis, metres",
-    }
-    return R_new, t_new, wand_new, world
-
-
-def _static_fit(rig: Rig, static: StaticObservations, static_poses, R, t):
-    """Triangulate the identified static markers with the refined poses and fit the rigid map to
-    their known coordinates. Returns (Rw, tw, rms_m, camera ids) or None."""
-    markers = rig.static_markers
-    usable = [c for c, p in enumerate(static_poses) if isinstance(p, StaticPose)]
-    unique = [c for c in usable if static_poses[c].unique]
-    for cams in ([unique] if len(unique) >= 2 else []) + [usable]:
-        if len(cams) < 2:
-            continue
-        point, camera, xy = [], [], []
-        for c in cams:
-            point.append(static_poses[c].labels)
-            camera.append(np.full(len(static_poses[c].labels), c))
-            xy.append(undistort_points(rig.cameras[c], static.for_camera(c)))
-        point, camera, xy = np.concatenate(point), np.concatenate(camera), np.concatenate(xy)
-        X = triangulate_points(R, t, point, camera, xy, len(markers))
-        ok = np.all(np.isfinite(X), axis=1)
-        if ok.sum() < 3:
-            continue
-        Rw, tw, _ = kabsch(X[ok], markers[ok])
-        rms = float(np.sqrt(np.mean(np.sum((X[ok] @ Rw.T + tw - markers[ok]) ** 2, 1))))
-        return Rw, tw, rms, [rig.cameras[c].id for c in cams]
-    return None
+def _summary_warnings(warnings: list[str], dropped: dict, info: dict, method: str) -> None:
+    if dropped.get("extra_blobs"):
+        warnings.append(f"{dropped['extra_blobs']} camera-frames showed more than two blobs and were dropped")
+    if dropped.get("outliers"):
+        warnings.append(f"{dropped['outliers']} camera-frames were gross outliers and were dropped")
+    if dropped.get("point_outliers"):
+        warnings.append(f"{dropped['point_outliers']} point-track observations were gross outliers and were dropped")
+    if info.get("status") != "converged":
+        hint = "raise max_rounds or time_limit, or try --method ba" if method != "ba" else "check the intrinsics and the start"
+        warnings.append(f"the {method} refinement stopped before converging ({info.get('status')}); the poses are its "
+                        f"best state so far ({hint})")
+    if info.get("uncertified_steps"):
+        warnings.append(f"{info['uncertified_steps']} LP steps were taken without an optimality certificate (their "
+                        "working set had not settled); each still lowered the cost")

@@ -199,3 +199,6 @@ class AxisObservations:
         bad = sorted(set(self.role) - set(AXIS_ROLES))
         if bad:
             raise CalibrationError(f"axis point role {bad[0]!r} is not one of {', '.join(AXIS_ROLES)}")
+
+    def __len__(self) -> int:
+        return len(self.role)

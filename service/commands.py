@@ -10,9 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.ba import DEFAULT_LOSS, LOSSES
 from calib.geometry import kabsch, rotation_angle
 from calib.paper import MAX_ROUNDS
 from calib.pipeline import DEFAULT_METHOD, METHODS, calibrate
+from calib.reprojection import INTRINSICS
 from calib.simulate import simulate_capture
 from capture.folder import read_capture, write_capture
 from service.progress import ProgressLine
@@ -33,6 +35,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-rounds", type=int, default=None, help=f"paper: most rotation/LP rounds (default {MAX_ROUNDS})")
     p.add_argument("--lp-time-limit", type=float, default=None, help="seconds allowed for each LP solve")
     p.add_argument("--keep-outliers", action="store_true", help="do not drop gross-outlier camera-frames")
+    p.add_argument("--loss", choices=LOSSES, default=DEFAULT_LOSS,
+                   help=f"ba: robust loss (default {DEFAULT_LOSS}; 'linear' is plain least squares)")
+    p.add_argument("--refine-intrinsics", type=_intrinsics_list, default=(), metavar="LIST",
+                   help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(run=run_calibrate)
 
@@ -50,6 +56,14 @@ def _sim_args(p: argparse.ArgumentParser, cameras: int, frames: int) -> None:
     p.add_argument("--outliers", type=float, default=0.0, help="fraction of camera-frames with a gross outlier")
     p.add_argument("--no-static", action="store_true", help="no L-frame")
     p.add_argument("--seed", type=int, default=1)
+
+
+def _intrinsics_list(text: str) -> tuple[str, ...]:
+    names = tuple(name.strip() for name in text.split(",") if name.strip())
+    unknown = [name for name in names if name not in INTRINSICS]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown {unknown[0]!r}; choose from {','.join(INTRINSICS)}")
+    return names
 
 
 def _at_least(n: int):
@@ -91,8 +105,10 @@ def run_calibrate(args) -> int:
     progress = ProgressLine(quiet=args.quiet)
     folder = _points_level(args.capture, progress)
     cap = read_capture(folder)
-    options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers}
-    result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options)
+    options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
+               "loss": args.loss, "refine_intrinsics": args.refine_intrinsics}
+    result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
+                       points=cap.points, axis=cap.axis)
     progress.close()
     doc = result.to_json()
     out = args.out or args.capture / "result.json"
@@ -103,16 +119,33 @@ def run_calibrate(args) -> int:
 
 
 def format_summary(doc: dict) -> str:
-    lines = [f"{'camera':<10} {'centre x, y, z (m)':>30} {'rms px':>8} {'obs':>7}"]
+    points = any("point_observations" in cam for cam in doc["cameras"])
+    intrinsics = any("intrinsics" in cam for cam in doc["cameras"])
+    unit = "m" if doc["world"].get("scale", "wand") != "arbitrary" else "arbitrary units"
+    head = f"{'camera':<16} {'centre x, y, z (' + unit + ')':>30} {'rms px':>8} {'obs':>7}"
+    head += f" {'pts rms':>8} {'pts':>6}" if points else ""
+    head += f" {'focal px':>10}" if intrinsics else ""
+    lines = [head]
+    nan = float("nan")
     for cam in doc["cameras"]:
         c = cam["center"]
         rms = cam["reprojection_rms_px"]
-        lines.append(f"{cam['id']:<10} {c[0]:10.4f}{c[1]:10.4f}{c[2]:10.4f} {rms if rms is not None else float('nan'):8.3f} {cam['observations']:7d}")
+        row = f"{cam['id']:<16} {c[0]:10.4f}{c[1]:10.4f}{c[2]:10.4f} {rms if rms is not None else nan:8.3f} {cam['observations']:7d}"
+        if points:
+            prms = cam.get("point_rms_px")
+            row += f" {prms if prms is not None else nan:8.3f} {cam.get('point_observations', 0):6d}"
+        if intrinsics and "focal_px" in cam.get("intrinsics", {}):
+            row += f" {cam['intrinsics']['focal_px']:7.1f}+-{cam['intrinsics']['focal_std_px']:.1f}"
+        lines.append(row)
     w, s = doc["wand"], doc["solver"]
-    lines.append(
-        f"wand {w['length_mean_m'] * 1000:.2f} +- {w['length_std_m'] * 1000:.2f} mm over {w['frames_used']} frames; "
-        f"{s['method']}: {s['iterations']} iterations, {s['seconds']:.2f} s ({s['status']})"
-    )
+    solved = f"{s['method']}: {s['iterations']} iterations, {s['seconds']:.2f} s ({s['status']})"
+    if w is None:
+        lines.append(f"no wand: calibrated up to scale; {solved}")
+    else:
+        lines.append(
+            f"wand {w['length_mean_m'] * 1000:.2f} +- {w['length_std_m'] * 1000:.2f} mm "
+            f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {w['frames_used']} frames; {solved}"
+        )
     lines += [f"warning: {text}" for text in doc["warnings"]]
     return "\n".join(lines)
 

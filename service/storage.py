@@ -29,7 +29,7 @@ from capture.folder import (
     read_capture,
     read_rig,
     rig_from_json,
-    write_capture,
+    save_capture,
 )
 from service.db import connect, transaction
 
@@ -145,7 +145,7 @@ class CaptureStore:
     def _store(self, capture: Capture, source: str, name: str) -> CaptureRow:
         capture_id = uuid.uuid4().hex
         staging = self.root / f".{capture_id}.partial"  # a crash mid-write leaves no half capture behind
-        write_capture(staging, capture.rig, capture.wand, capture.static)
+        save_capture(staging, capture)
         return self.adopt(staging, capture_id, capture, source, name)
 
     def adopt(self, staging: Path, capture_id: str, capture: Capture, source: str, name: str) -> CaptureRow:

@@ -40,7 +40,8 @@ def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict
     from calib.pipeline import calibrate  # the solver; imported here so the API process never loads it
 
     static = capture.static if options.get("use_static", True) else None
-    result = calibrate(capture.rig, capture.wand, static=static, method=method, progress=progress)
+    result = calibrate(capture.rig, capture.wand, static=static, method=method, progress=progress,
+                       points=capture.points, axis=capture.axis)
     return result.to_json()
 
 

@@ -100,7 +100,7 @@ def test_survives_gross_outliers_without_filtering():
     e_clean, _ = gauge_errors(*clean.setup.model.poses(x_clean), T.R, T.t, 0)
     x_lp, _ = slp.refine_lp(dirty.setup.model)
     e_lp, _ = gauge_errors(*dirty.setup.model.poses(x_lp), T.R, T.t, 0)
-    x_ba, _ = bundle_adjust(dirty.setup.model)
+    x_ba, _ = bundle_adjust(dirty.setup.model, loss="linear")  # plain least squares: the robust loss would not be dragged
     e_ba, _ = gauge_errors(*dirty.setup.model.poses(x_ba), T.R, T.t, 0)
     rms = lambda e: np.sqrt(np.mean(e[1:] ** 2))  # noqa: E731
     assert rms(e_lp) < 2 * rms(e_clean)  # the robustness goal

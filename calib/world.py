@@ -1,0 +1,136 @@
+"""The world frame of a result: the static object's, the axis points', or a camera's.
+
+Refinement works in the gauge of one fixed camera. The user's world frame is chosen here, in
+this order (docs/conventions.md):
+- a static object (L-frame) triangulated with the refined cameras: its own frame, z up;
+- axis points (``axis.csv``): the origin point, z along ``+z`` (or x along ``+x``, y along
+  ``+y``; with two axes given the first of z, x, y is exact and the other is made orthogonal);
+  with one axis only, the next axis (x after z, y after x, z after y) is the first camera's
+  image-right direction made orthogonal to it;
+- otherwise the gauge camera's own frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calib.geometry import kabsch, undistort_points
+from calib.rig import AxisObservations, Rig, StaticObservations
+from calib.static import StaticPose
+from calib.triangulate import triangulate_points
+
+AXIS_ORDER = ("+z", "+x", "+y")  # which given axis is kept exactly when several are
+
+
+def world_frame(rig: Rig, R: np.ndarray, t: np.ndarray, gauge: int, static=None, static_poses=None, axis=None):
+    """The map into the user's world frame.
+
+    Args:
+        R, t: (N, 3, 3), (N, 3) refined poses in the gauge frame.
+        static, static_poses: the static object's blobs and PnP poses, or None.
+        axis: :class:`AxisObservations`, or None.
+
+    Returns:
+        (Rw (3, 3), tw (3,), world): ``x_world = Rw x + tw``, a rigid map (the scale is the
+        wand's, or left arbitrary, never invented); ``world`` describes the frame for the result.
+    """
+    if static_poses is not None and any(isinstance(p, StaticPose) for p in static_poses):
+        fit = _static_fit(rig, static, static_poses, R, t)
+        if fit is not None:
+            Rw, tw, rms, used = fit
+            return Rw, tw, {
+                "frame": "static_object",
+                "description": "the static object's own frame: its markers_m as given, z up, metres",
+                "fit_rms_m": rms,
+                "cameras_used": used,
+            }
+    if axis is not None and len(axis):
+        fit = _axis_fit(rig, axis, R, t)
+        if fit is not None:
+            return fit
+    Rw, tw = R[gauge], t[gauge]
+    return Rw, tw, {
+        "frame": "camera",
+        "camera": rig.cameras[gauge].id,
+        "description": f"camera {rig.cameras[gauge].id!r}'s frame: origin at its centre, x right, y down, z along its optical axis",
+    }
+
+
+def apply(Rw: np.ndarray, tw: np.ndarray, R: np.ndarray, t: np.ndarray, points: np.ndarray):
+    """Poses and points under ``x_world = Rw x + tw``: (R, t, points) in the world frame."""
+    # x_world = Rw x + tw  =>  x_cam = R Rw^T (x_world - tw) + t
+    R_new = R @ Rw.T
+    t_new = t - np.einsum("nij,j->ni", R_new, tw)
+    return R_new, t_new, points @ Rw.T + tw
+
+
+def _static_fit(rig: Rig, static: StaticObservations, static_poses, R, t):
+    """Triangulate the identified static markers with the refined poses and fit the rigid map to
+    their known coordinates. Returns (Rw, tw, rms_m, camera ids) or None."""
+    markers = rig.static_markers
+    usable = [c for c, p in enumerate(static_poses) if isinstance(p, StaticPose)]
+    unique = [c for c in usable if static_poses[c].unique]
+    for cams in ([unique] if len(unique) >= 2 else []) + [usable]:
+        if len(cams) < 2:
+            continue
+        point, camera, xy = [], [], []
+        for c in cams:
+            point.append(static_poses[c].labels)
+            camera.append(np.full(len(static_poses[c].labels), c))
+            xy.append(undistort_points(rig.cameras[c], static.for_camera(c)))
+        point, camera, xy = np.concatenate(point), np.concatenate(camera), np.concatenate(xy)
+        X = triangulate_points(R, t, point, camera, xy, len(markers))
+        ok = np.all(np.isfinite(X), axis=1)
+        if ok.sum() < 3:
+            continue
+        Rw, tw, _ = kabsch(X[ok], markers[ok])
+        rms = float(np.sqrt(np.mean(np.sum((X[ok] @ Rw.T + tw - markers[ok]) ** 2, 1))))
+        return Rw, tw, rms, [rig.cameras[c].id for c in cams]
+    return None
+
+
+def axis_points(rig: Rig, axis: AxisObservations, R: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+    """Triangulate each axis role seen by two or more cameras: {role: (3,) point}."""
+    roles = sorted(set(axis.role))
+    point = np.array([roles.index(r) for r in axis.role])
+    xy = np.empty_like(axis.uv)
+    for c, cam in enumerate(rig.cameras):
+        sel = axis.camera == c
+        if sel.any():
+            xy[sel] = undistort_points(cam, axis.uv[sel])
+    X = triangulate_points(R, t, point, axis.camera, xy, len(roles))
+    return {r: X[k] for k, r in enumerate(roles) if np.all(np.isfinite(X[k]))}
+
+
+def _axis_fit(rig: Rig, axis: AxisObservations, R: np.ndarray, t: np.ndarray):
+    pts = axis_points(rig, axis, R, t)
+    given = [a for a in AXIS_ORDER if a in pts]
+    if "origin" not in pts or not given:
+        return None
+    origin = pts["origin"]
+    unit = {a: (pts[a] - origin) / np.linalg.norm(pts[a] - origin) for a in given}
+    first = given[0]
+    nxt = {"+z": "+x", "+x": "+y", "+y": "+z"}[first]
+    if nxt in unit:
+        second = unit[nxt]
+    elif len(given) > 1:
+        # the third axis given: the second follows from it by the right-hand rule
+        third = unit[given[1]]
+        second = np.cross(third, unit[first])
+    else:
+        second = R[0][0]  # the first camera's image-right direction, in the gauge frame
+    second = second - unit[first] * (second @ unit[first])
+    second /= np.linalg.norm(second)
+    third = np.cross(unit[first], second)
+    # rows of Rw are the world axes expressed in the gauge frame
+    axes = {first: unit[first], nxt: second, {"+z": "+y", "+x": "+z", "+y": "+x"}[first]: third}
+    Rw = np.stack([axes["+x"], axes["+y"], axes["+z"]])
+    tw = -Rw @ origin
+    residual = {a: float(np.linalg.norm(np.cross(unit[a], axes[a]))) for a in given}
+    return Rw, tw, {
+        "frame": "axis",
+        "description": "origin at the axis origin point; " + ", ".join(f"{a} towards its axis point" for a in given)
+        + " (the first exactly, the rest made orthogonal); metres",
+        "axes_given": given,
+        "axis_misalignment_rad": residual,
+    }
