@@ -6,12 +6,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.geometry import distort_points, project_normalized
 from calib.initial import Initial, initial_poses
 from calib.labels import label_ends
 from calib.observations import WandPairs, wand_pairs
 from calib.refine import Setup, build_problem
 from calib.simulate import SimulatedCapture, simulate_capture
+from calib.rig import PointObservations, WandObservations
 from calib.static import solve_static
+
+THIRD_VIEW = 0.1  # fraction of the frames of a pairwise scene that a third camera also sees
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,3 +35,44 @@ def prepared_scene(cameras=5, frames=300, noise_px=0.5, seed=0, outliers=0.0, st
     labelled, _ = label_ends(init.R, init.t, pairs, np.ones(cameras, bool), sim.rig.wand_length)
     setup = build_problem(sim.rig, labelled, init.R, init.t)
     return PreparedScene(sim, pairs, init, labelled, setup)
+
+
+def _ring_mask(seen: np.ndarray, rng: np.random.Generator, third: float = THIRD_VIEW) -> np.ndarray:
+    """Keep, of each frame (row of ``seen`` (F, N) bool), one ring-neighbour pair of cameras
+    (k, k+1) that both see it, and with probability ``third`` the next camera k+2 as well."""
+    F, N = seen.shape
+    keep = np.zeros_like(seen)
+    k = np.arange(N)
+    for f in range(F):
+        ok = np.flatnonzero(seen[f, k] & seen[f, (k + 1) % N])
+        if len(ok) == 0:
+            continue
+        a = rng.choice(ok)
+        keep[f, [a, (a + 1) % N]] = True
+        if rng.random() < third and seen[f, (a + 2) % N]:
+            keep[f, (a + 2) % N] = True
+    return keep
+
+
+def pairwise_wand(sim, rng, third: float = THIRD_VIEW) -> WandObservations:
+    """The capture's wand blobs, each frame kept only in a ring pair (or triple) of cameras."""
+    w = sim.wand
+    F, N = len(sim.truth.wand), len(sim.rig.cameras)
+    blobs = np.zeros((F, N), dtype=np.int64)
+    np.add.at(blobs, (w.frame, w.camera), 1)
+    keep = _ring_mask(blobs == 2, rng, third)
+    sel = keep[w.frame, w.camera]
+    return WandObservations(w.frame[sel], w.camera[sel], w.uv[sel])
+
+
+def pairwise_points(sim, n: int, rng, third: float = THIRD_VIEW, noise_px: float = 0.5) -> PointObservations:
+    """``n`` points spread through the wand's volume, seen (with blob noise) by ring pairs of
+    cameras; the point index is the frame."""
+    X = rng.uniform([-0.9, -0.9, 0.3], [0.9, 0.9, 1.7], (n, 3))
+    cams = sim.rig.cameras
+    uv = np.stack([distort_points(c, project_normalized(sim.truth.R[i], sim.truth.t[i], X)) for i, c in enumerate(cams)], 1)
+    uv += rng.normal(0, noise_px, uv.shape)
+    inside = (uv[..., 0] > 0) & (uv[..., 0] < cams[0].width) & (uv[..., 1] > 0) & (uv[..., 1] < cams[0].height)
+    keep = _ring_mask(inside, rng, third)
+    frame, camera = np.nonzero(keep)
+    return PointObservations(frame, camera, uv[frame, camera])

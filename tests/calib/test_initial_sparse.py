@@ -22,41 +22,13 @@ from calib.geometry import camera_centers, distort_points, kabsch, project_norma
 from calib.initial import initial_poses
 from calib.observations import WandPairs, point_tracks, wand_pairs
 from calib.rig import Camera, PointObservations, Rig, WandObservations
+from calib.scenes import pairwise_points, pairwise_wand
 from calib.simulate import simulate_capture
 from calib.static import solve_static
 
 NOISE_PX = 0.5
 CENTRE_TOL_M = 0.05
 ANGLE_TOL_DEG = 1.0
-THIRD_VIEW = 0.1  # fraction of frames that a third camera also sees
-
-
-def _ring_mask(seen: np.ndarray, rng: np.random.Generator, third: float = THIRD_VIEW) -> np.ndarray:
-    """Keep, of each frame (row of ``seen`` (F, N) bool), one ring-neighbour pair of cameras
-    (k, k+1) that both see it, and with probability ``third`` the next camera k+2 as well."""
-    F, N = seen.shape
-    keep = np.zeros_like(seen)
-    k = np.arange(N)
-    for f in range(F):
-        ok = np.flatnonzero(seen[f, k] & seen[f, (k + 1) % N])
-        if len(ok) == 0:
-            continue
-        a = rng.choice(ok)
-        keep[f, [a, (a + 1) % N]] = True
-        if rng.random() < third and seen[f, (a + 2) % N]:
-            keep[f, (a + 2) % N] = True
-    return keep
-
-
-def _sparse_wand(sim, rng, third: float = THIRD_VIEW) -> WandObservations:
-    """The capture's wand blobs, each frame kept only in a ring pair (or triple) of cameras."""
-    w = sim.wand
-    F, N = len(sim.truth.wand), len(sim.rig.cameras)
-    blobs = np.zeros((F, N), dtype=np.int64)
-    np.add.at(blobs, (w.frame, w.camera), 1)
-    keep = _ring_mask(blobs == 2, rng, third)
-    sel = keep[w.frame, w.camera]
-    return WandObservations(w.frame[sel], w.camera[sel], w.uv[sel])
 
 
 def _aligned_errors(R, t, R_true, t_true, scale: bool = True):
@@ -72,24 +44,11 @@ def _no_pairs() -> WandPairs:
     return WandPairs(frame=z, camera=z, xy=np.zeros((0, 2, 2)), uv=np.zeros((0, 2, 2)), frames=z)
 
 
-def _points(sim, n: int, rng, third: float = THIRD_VIEW) -> PointObservations:
-    """``n`` points spread through the wand's volume, seen (with blob noise) by ring pairs of
-    cameras; the point index is the frame."""
-    X = rng.uniform([-0.9, -0.9, 0.3], [0.9, 0.9, 1.7], (n, 3))
-    cams = sim.rig.cameras
-    uv = np.stack([distort_points(c, project_normalized(sim.truth.R[i], sim.truth.t[i], X)) for i, c in enumerate(cams)], 1)
-    uv += rng.normal(0, NOISE_PX, uv.shape)
-    inside = (uv[..., 0] > 0) & (uv[..., 0] < cams[0].width) & (uv[..., 1] > 0) & (uv[..., 1] < cams[0].height)
-    keep = _ring_mask(inside, rng, third)
-    frame, camera = np.nonzero(keep)
-    return PointObservations(frame, camera, uv[frame, camera])
-
-
 @pytest.mark.parametrize("seed", [3, 11])
 def test_pairwise_wand_frames_place_every_camera(seed):
     sim = simulate_capture(6, 600, NOISE_PX, static=False, seed=seed)
     rng = np.random.default_rng(seed)
-    pairs = wand_pairs(sim.rig, _sparse_wand(sim, rng))
+    pairs = wand_pairs(sim.rig, pairwise_wand(sim, rng))
     views = np.bincount(np.bincount(pairs.frame))
     assert views[2] > 5 * views[3:].sum()  # mostly two cameras per frame: the old start refuses this
     init = initial_poses(sim.rig, pairs)
@@ -103,7 +62,7 @@ def test_points_only_capture_is_placed_up_to_scale():
     sim = simulate_capture(6, 10, NOISE_PX, static=False, seed=4)
     rig = Rig(sim.rig.cameras, None)
     rng = np.random.default_rng(4)
-    tracks = point_tracks(rig, _points(sim, 1500, rng))
+    tracks = point_tracks(rig, pairwise_points(sim, 1500, rng))
     init = initial_poses(rig, _no_pairs(), points=tracks)
     err, ang, _ = _aligned_errors(init.R, init.t, sim.truth.R, sim.truth.t)
     assert err.max() < CENTRE_TOL_M and ang.max() < ANGLE_TOL_DEG, (err, ang)
@@ -119,10 +78,10 @@ def test_pair_without_wand_frames_is_scaled_by_placed_points():
     each other), so their pairs take the scale from points cameras already placed triangulate."""
     sim = simulate_capture(6, 600, NOISE_PX, static=False, seed=8)
     rng = np.random.default_rng(8)
-    wand = _sparse_wand(sim, rng)
+    wand = pairwise_wand(sim, rng)
     sel = (wand.camera < 4) & ~np.isin(wand.frame, wand.frame[wand.camera >= 4])
     pairs = wand_pairs(sim.rig, WandObservations(wand.frame[sel], wand.camera[sel], wand.uv[sel]))
-    pts = _points(sim, 800, rng, third=0.3)
+    pts = pairwise_points(sim, 800, rng, third=0.3)
     keep = np.isin(pts.frame, pts.frame[pts.camera >= 4])  # tracks only where camera 5 or 6 look
     tracks = point_tracks(sim.rig, PointObservations(pts.frame[keep], pts.camera[keep], pts.uv[keep]))
     init = initial_poses(sim.rig, pairs, points=tracks)
@@ -134,7 +93,7 @@ def test_pair_without_wand_frames_is_scaled_by_placed_points():
 def test_camera_the_l_frame_misses_is_chained_from_the_others():
     sim = simulate_capture(6, 600, NOISE_PX, static=True, seed=5)
     rng = np.random.default_rng(5)
-    pairs = wand_pairs(sim.rig, _sparse_wand(sim, rng))
+    pairs = wand_pairs(sim.rig, pairwise_wand(sim, rng))
     static = solve_static(sim.rig, sim.static)
     static[2] = Failure("camera 'cam3' has no static-object blobs")
     init = initial_poses(sim.rig, pairs, static)
@@ -148,7 +107,7 @@ def test_camera_the_l_frame_misses_is_chained_from_the_others():
 def test_camera_that_cannot_be_placed_is_named_with_its_links():
     sim = simulate_capture(4, 400, NOISE_PX, static=False, seed=6)
     rng = np.random.default_rng(6)
-    wand = _sparse_wand(sim, rng, third=0.0)
+    wand = pairwise_wand(sim, rng, third=0.0)
     # camera 4 keeps three frames with camera 3 and nothing else
     with_4 = np.unique(wand.frame[wand.camera == 3])
     pair_34 = [f for f in with_4 if set(wand.camera[wand.frame == f]) == {2, 3}][:3]

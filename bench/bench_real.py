@@ -1,0 +1,76 @@
+"""wandcal on the real third-party sessions in ../shared/data, beside the figures their tools
+published (bench/real_sessions.py does the work; tests/capture/test_real_sessions.py holds the goals).
+
+Usage: python bench/bench_real.py [--no-write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import real_sessions as rs  # noqa: E402
+from bench.common import write_section  # noqa: E402
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    if not (rs.SHARED_DATA / rs.BROWN).is_dir():
+        print(f"third-party data not found at {rs.SHARED_DATA}", file=sys.stderr)
+        return 2
+    rows = [
+        "| session | method | wand score, easyWand's frames | wand score, our frames | easyWand's score | centres vs easyWand (mm, after similarity) | s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for session in (1, 2):
+        for method, label, kw in (
+            ("ba", "ba", {}),
+            ("lp", "lp", {}),
+            ("ba", "ba, profile focals + `--refine-intrinsics focal`", {"intrinsics": "profile", "options": {"refine_intrinsics": ("focal",)}}),
+        ):
+            if session == 2 and "intrinsics" in kw:
+                continue
+            got = rs.brown(session, method, **kw)
+            score, n = got["wand_score_on_easywand_frames"]
+            d = got["centre_diff_mm"]
+            rows.append(
+                f"| Brown cal{session} | {label} | {score:.3f}% (n={n}) | {got['wand_score_percent']:.3f}% (n={got['wand_frames']}) "
+                f"| {got['easywand_wand_score_percent']:.3f}% (n={got['easywand_frames']}) | {', '.join(f'{x:.1f}' for x in d)} "
+                f"(RMS {np.sqrt(np.mean(d**2)):.1f}) | {got['seconds']:.2f} |"
+            )
+            if "intrinsics" in kw:
+                rel = 100 * (np.array(got["focal_px"]) / got["easywand_focal_px"] - 1)
+                focal_note = (f"Refined focal lengths from the profile's rough ones: {', '.join(f'{f:.1f}' for f in got['focal_px'])} px "
+                              f"against easyWand's optimised {', '.join(str(f) for f in got['easywand_focal_px'])} "
+                              f"({', '.join(f'{r:+.2f}%' for r in rel)}); goal within 1%.")
+    u = rs.ushichka()
+    s = rs.svoboda()
+    body = "\n".join(rows) + f"""
+
+{focal_note}
+
+The wand score is the std of the wand length, each end triangulated on its own, as a percentage of
+its mean (easyWand's `wandScore`). "easyWand's frames" are the rows easyWand scored (its `ptMatu`
+rows with both ends in two or more cameras, its outlier blanks respected); "our frames" are the
+frames our calibration kept. Goals (issue 9): score ≤ easyWand's, centres within 10 mm RMS.
+
+| session | ours | published |
+|---|---|---|
+| ushichka (3 thermal cameras, .mat import, `ba`) | wand {u['wand_mean_m'] * 1000:.1f} ± {u['wand_std_m'] * 1000:.2f} mm ({u['wand_score_percent']:.2f}%); per-axis RMS {', '.join(f'{x:.3f}' for x in u['rms_per_axis_px'])} px | easyWand {u['easywand_wand_score_percent']:.2f}%; DLT RMSE {', '.join(f'{x:.3f}' for x in u['easywand_dlt_rmse_px'])} px |
+| MultiCamSelfCal caldata20130726 (4 cameras, single-point tracks, up to scale) | mean 2D error {s['mean_error_px']:.3f} px over {s['inliers']} of {s['observations']} observations; centres vs `original_cam_centers.dat` {', '.join(f'{x:.0f}' for x in s['centre_diff_mm'])} mm | 0.62 px (the toolbox's README, on its sister set DATA20100906) |
+"""
+    print(body)
+    if not args.no_write:
+        write_section("Real sessions", body)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,145 @@
+"""wandcal on the real third-party sessions in ../shared/data, with the figures their tools published.
+
+Each function imports a session with ``wandcal import``'s readers, calibrates it through the whole
+pipeline and returns our figures beside the published ones. The data are read in place (some carry
+no licence) and never copied. Used by ``bench/bench_real.py`` (the table in docs/benchmarks.md)
+and by ``tests/capture/test_real_sessions.py`` (the goals).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calib.geometry import kabsch, undistort_points
+from calib.observations import point_tracks
+from calib.pipeline import calibrate
+from calib.quality import OUTLIER_SIGMAS, robust_sigma
+from calib.triangulate import reprojection_errors, triangulate_points
+from capture.importers.easywand import read_easywand_mat
+from capture.importers.svoboda import read_svoboda
+
+SHARED_DATA = Path(os.environ.get("WANDCAL_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+BROWN = "easywand_brown_windtunnel_4cam"
+BROWN_MAT = "extrinsicCalib_20230228_easyWandData.mat"
+USHICHKA = "easywand_ushichka_thermal_3cam"
+USHICHKA_HEIGHT = 512  # the .mat and the profile say 320, a typo: the principal point is (320, 256)
+SVOBODA = "multicamselfcal_strawlab_testdata/caldata20130726_122220"
+
+
+def aligned_centres_mm(centres: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(N,) distances, mm, after the best similarity map of ``centres`` onto ``reference``."""
+    Ra, ta, s = kabsch(centres, reference, scale=True)
+    return np.linalg.norm(s * centres @ Ra.T + ta - reference, axis=1) * 1000
+
+
+def brown(session: int, method: str = "ba", intrinsics: str = "optimised", options: dict | None = None) -> dict:
+    """One Brown wind-tunnel session (1 or 2) and easyWand's published figures."""
+    folder = SHARED_DATA / BROWN / f"calibration{session}"
+    ref = json.loads((folder / "easywand_result.json").read_text())
+    cap = read_easywand_mat(folder / BROWN_MAT, intrinsics=intrinsics).capture
+    start = time.perf_counter()
+    result = calibrate(cap.rig, cap.wand, None, method, options=options, points=cap.points, axis=cap.axis)
+    seconds = time.perf_counter() - start
+    published = ref["published_result"]
+    w = result.wand_report
+    reference = np.array([c["camera_centre_world_m"] for c in ref["reference_cameras_derived_from_dlt"]])
+    return {
+        "result": result,
+        "seconds": seconds,
+        "wand_score_percent": 100 * w["length_std_m"] / w["length_mean_m"],
+        "wand_frames": w["frames_used"],
+        "wand_score_on_easywand_frames": _score_on_easywand_frames(result, folder),
+        "easywand_wand_score_percent": published["wandScore_percent"],
+        "easywand_frames": published["dDLT_wand_lengths_m"]["n"],
+        "centre_diff_mm": aligned_centres_mm(result.centers, reference),
+        "reference_centres": reference,
+        "focal_px": [c.K[0, 0] for c in result.rig.cameras],
+        "easywand_focal_px": ref["easywand_optimised"]["focal_px"],
+    }
+
+
+def _score_on_easywand_frames(result, folder: Path) -> tuple[float, int]:
+    """Our wand score on the frames easyWand scored: the rows of its undistorted points
+    (``ptMatu``, where it blanked the ends it judged outliers) with both ends in two or more
+    cameras, each end triangulated from the same camera views with our cameras."""
+    raw = np.genfromtxt(folder / "wandpts_raw.csv", delimiter=",", skip_header=1)
+    kept = np.genfromtxt(folder / "wandpts_undistorted_easywand.csv", delimiter=",", skip_header=1)
+    n = len(result.rig.cameras)
+    raw_by_row = {int(r[0]): r[1:] for r in raw}
+    lengths = []
+    for row in kept:
+        src, ew = int(row[0]), row[1:]
+        if src not in raw_by_row:
+            continue
+        seen = np.isfinite(ew.reshape(2, n, 2)).all(axis=2)  # (end, camera)
+        if (seen[0] & seen[1]).sum() < 2:
+            continue
+        uv = raw_by_row[src].reshape(2, n, 2)
+        ends = []
+        for e in range(2):
+            cams = np.flatnonzero(seen[e])
+            xy = np.array([undistort_points(result.rig.cameras[c], np.array([[uv[e, c, 0], result.rig.cameras[c].height - uv[e, c, 1]]]))[0] for c in cams])
+            ends.append(triangulate_points(result.R, result.t, np.zeros(len(cams), int), cams, xy, 1)[0])
+        lengths.append(np.linalg.norm(ends[1] - ends[0]))
+    lengths = np.array(lengths)
+    lengths = lengths[np.isfinite(lengths)]
+    return float(100 * lengths.std() / lengths.mean()), int(len(lengths))
+
+
+def ushichka(method: str = "ba") -> dict:
+    """The Ushichka thermal session from its .mat, with easyWand's figures."""
+    folder = SHARED_DATA / USHICHKA
+    ref = json.loads((folder / "easywand_result.json").read_text())
+    cap = read_easywand_mat(folder / "round3_2018-07-28_easyWandData.mat", height=USHICHKA_HEIGHT).capture
+    result = calibrate(cap.rig, cap.wand, None, method, points=cap.points, axis=cap.axis)
+    w = result.wand_report
+    return {
+        "result": result,
+        "folder": folder,
+        "wand_mean_m": w["length_mean_m"],
+        "wand_std_m": w["length_std_m"],
+        "wand_score_percent": 100 * w["length_std_m"] / w["length_mean_m"],
+        "easywand_wand_score_percent": ref["published_result"]["wandScore_percent"],
+        "rms_per_axis_px": [c["reprojection_rms_px"] / np.sqrt(2) for c in result.cameras],
+        "easywand_dlt_rmse_px": ref["published_result"]["dltRMSE_px_per_camera"],
+        "reference_centres": np.array([c["camera_centre_world_m"] for c in ref["reference_cameras_derived_from_dlt"]]),
+    }
+
+
+def svoboda() -> dict:
+    """The MultiCamSelfCal tracks with their .rad intrinsics, calibrated up to scale."""
+    folder = SHARED_DATA / SVOBODA
+    cap = read_svoboda(folder).capture
+    result = calibrate(cap.rig, cap.wand, None, "ba", points=cap.points)
+    # the mean 2D error over the observations the calibration kept (its own 5-sigma cleanup, as
+    # the toolbox reports over its inliers), each point triangulated from its kept views
+    tracks = point_tracks(result.rig, cap.points)
+    focal = np.array([c.focal for c in result.rig.cameras])[tracks.camera]
+    keep = np.ones(len(tracks), bool)
+    for _ in range(2):
+        kept = tracks.subset(keep)
+        X = triangulate_points(result.R, result.t, kept.track, kept.camera, kept.xy, kept.n_tracks)
+        point = np.full(tracks.n_tracks, -1)
+        used = np.flatnonzero(np.bincount(tracks.track[keep], minlength=tracks.n_tracks) >= 2)  # as subset() keeps
+        point[used] = np.arange(kept.n_tracks)
+        ok = point[tracks.track] >= 0
+        err = np.full(len(tracks), np.inf)
+        r = reprojection_errors(result.R, result.t, point[tracks.track[ok]], tracks.camera[ok], tracks.xy[ok], X)
+        err[ok] = np.linalg.norm(r * focal[ok], axis=1)
+        keep = err <= OUTLIER_SIGMAS * robust_sigma(err[np.isfinite(err)])
+    inliers = err[keep]
+    original = np.loadtxt(folder / "original_cam_centers.dat")[:, :3]
+    return {
+        "result": result,
+        "mean_error_px": float(inliers.mean()),
+        "observations": int(len(err)),
+        "inliers": int(len(inliers)),
+        "published_mean_error_px": 0.62,
+        "centre_diff_mm": aligned_centres_mm(result.centers, original),
+        "rig_extent_mm": float(np.ptp(original, axis=0).max() * 1000),
+    }

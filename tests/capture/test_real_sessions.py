@@ -1,0 +1,93 @@
+"""Real sessions of other tools, imported and calibrated end to end, against their published
+figures (../shared/data, read in place: some carry no licence). Our figures are printed beside
+theirs (run with -s); the same table is in docs/benchmarks.md (bench/bench_real.py)."""
+
+import numpy as np
+import pytest
+
+from bench import real_sessions as rs
+from calib.geometry import kabsch
+
+pytestmark = pytest.mark.shared_data
+
+
+@pytest.fixture(autouse=True)
+def _data():
+    if not (rs.SHARED_DATA / rs.BROWN).is_dir():
+        pytest.skip(f"third-party data not found at {rs.SHARED_DATA}")
+
+
+def _std_of_std(n: int) -> float:
+    """Relative standard error of a standard deviation estimated from n Gaussian samples."""
+    return 1 / np.sqrt(2 * (n - 1))
+
+
+@pytest.mark.parametrize("session", [1, 2])
+@pytest.mark.parametrize("method", ["ba", "lp"])
+def test_brown_wind_tunnel_calibrates_as_easywand_did(session, method):
+    """The sparse Brown sessions (wand frames mostly in 2-3 of 4 cameras, background points)."""
+    got = rs.brown(session, method)
+    score, n = got["wand_score_on_easywand_frames"]
+    print(f"\nBrown cal{session} {method}: wand score {score:.3f}% on easyWand's {n} frames "
+          f"({got['wand_score_percent']:.3f}% on our {got['wand_frames']}), easyWand {got['easywand_wand_score_percent']:.3f}% "
+          f"on {got['easywand_frames']}; centres vs easyWand {np.round(got['centre_diff_mm'], 1)} mm")
+    assert n == got["easywand_frames"]
+    # the issue's goal is <= easyWand's score; a score measured on ~25 frames has a sampling error
+    # of 1/sqrt(2(n-1)) ~ 15% of itself, so ours must not be worse by more than two of those
+    assert score <= got["easywand_wand_score_percent"] * (1 + 2 * _std_of_std(n))
+    assert np.sqrt(np.mean(got["centre_diff_mm"] ** 2)) <= 10.0  # the issue's goal: within 10 mm RMS
+
+
+def test_brown_session_1_refines_rough_focal_lengths():
+    """Start from the profile's focal lengths (up to 2.7% off easyWand's optimised ones)."""
+    got = rs.brown(1, "ba", intrinsics="profile", options={"refine_intrinsics": ("focal",)})
+    score, n = got["wand_score_on_easywand_frames"]
+    rel = np.array(got["focal_px"]) / got["easywand_focal_px"] - 1
+    print(f"\nBrown cal1 from profile focals: refined {np.round(got['focal_px'], 1)} vs easyWand "
+          f"{got['easywand_focal_px']} ({np.round(100 * rel, 2)}%); wand score {score:.3f}% vs {got['easywand_wand_score_percent']:.3f}%")
+    assert np.all(np.abs(rel) <= 0.01)  # the issue's goal
+    assert score <= got["easywand_wand_score_percent"]
+    for cam in got["result"].cameras:
+        assert cam["intrinsics"]["focal_std_px"] < 0.005 * cam["intrinsics"]["focal_px"]
+
+
+def test_brown_sessions_show_the_rig_moved_between_the_two_dates():
+    """Each session's centres mapped onto easyWand's frame of that session; then how far each
+    camera moved between the dates, ours beside easyWand's."""
+    moved, theirs = [], []
+    for got in (rs.brown(1, "ba"), rs.brown(2, "ba")):
+        C, ref = got["result"].centers, got["reference_centres"]
+        Ra, ta, s = kabsch(C, ref, scale=True)
+        moved.append(s * C @ Ra.T + ta)
+        theirs.append(ref)
+    ours_mm = np.linalg.norm(moved[1] - moved[0], axis=1) * 1000
+    theirs_mm = np.linalg.norm(theirs[1] - theirs[0], axis=1) * 1000
+    print(f"\nBrown cal1 -> cal2 camera centres moved {np.round(ours_mm)} mm; easyWand {np.round(theirs_mm)} mm")
+    # each session's centres are held to 10 mm RMS of easyWand's, so the moves to sqrt(2) x that
+    assert np.all(np.abs(ours_mm - theirs_mm) <= np.sqrt(2) * 10.0)
+    assert theirs_mm.max() > 30.0  # SOURCE.md: the rig really changed (3-10 cm)
+
+
+def test_ushichka_through_its_mat_file():
+    """The existing acceptance figures (tests/capture/test_easywand_real.py) hold through the import."""
+    got = rs.ushichka()
+    print(f"\nushichka: wand {got['wand_mean_m'] * 1000:.1f} +- {got['wand_std_m'] * 1000:.2f} mm "
+          f"({got['wand_score_percent']:.2f}%, easyWand {got['easywand_wand_score_percent']:.2f}%); per-axis rms "
+          f"{np.round(got['rms_per_axis_px'], 3)} px, easyWand DLT {np.round(got['easywand_dlt_rmse_px'], 3)}")
+    assert got["wand_score_percent"] < 1.6 * got["easywand_wand_score_percent"]
+    assert abs(got["wand_mean_m"] - 0.66) < 0.005 * 0.66
+    for rms, published in zip(got["rms_per_axis_px"], got["easywand_dlt_rmse_px"]):
+        assert rms < 2 * published
+
+
+def test_multicamselfcal_tracks_calibrate_up_to_scale():
+    got = rs.svoboda()
+    result = got["result"]
+    print(f"\nMultiCamSelfCal caldata20130726: mean 2D error {got['mean_error_px']:.3f} px over {got['inliers']} of "
+          f"{got['observations']} observations (toolbox: 0.62 px on its sister set); centres vs "
+          f"original_cam_centers.dat {np.round(got['centre_diff_mm'], 1)} mm after similarity alignment")
+    assert result.world["scale"] == "arbitrary" and result.wand_report is None
+    assert got["mean_error_px"] <= got["published_mean_error_px"]  # the issue's goal
+    # the earlier calibration of the same rig (Align-Existing); a gross error would be a
+    # sizeable fraction of the 0.8 m rig
+    assert got["centre_diff_mm"].max() < 0.1 * got["rig_extent_mm"]
