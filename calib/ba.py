@@ -239,8 +239,13 @@ class _LevenbergMarquardt:
                 t.W[t.structure.pair_cam == k, j, :] = 0.0
 
     def _normal(self, parts, z):
+        """The weighted normal equations; ``parts`` (r, J) are weighted in place (they are large)."""
         sw = np.split(np.sqrt(self._weights(z)), self.split)
-        weighted = [(term.structure, r * w[:, None], J * w[:, None, None]) for term, (r, J), w in zip(self.terms, parts, sw)]
+        weighted = []
+        for term, (r, J), w in zip(self.terms, parts, sw):
+            r *= w[:, None]
+            J *= w[:, None, None]
+            weighted.append((term.structure, r, J))
         normal = schur.normal_equations(self.cam_size, self.n_free, weighted)
         self._freeze(normal)
         return normal, weighted
@@ -301,11 +306,12 @@ class _LevenbergMarquardt:
             "loss": self.loss,
             "loss_scale_px": None if self.loss == "linear" else float(self.scale),
         }
-        return state, info, self._standard_errors(parts, z)
+        return state, info, self._standard_errors(state)
 
-    def _standard_errors(self, parts, z) -> np.ndarray:
+    def _standard_errors(self, state: BundleState) -> np.ndarray:
         """(n_free, c) standard errors of the cameras' parameters at the solution: sigma times the
         root diagonal of the undamped reduced system's inverse (0 for held parameters)."""
+        parts, z = self._linearise(state)
         step = schur.solve(self._normal(parts, z)[0], 0.0) if self.n_free else None
         if step is None:
             return np.full((self.n_free, self.cam_size), np.inf)

@@ -23,6 +23,7 @@ import scipy.linalg
 import scipy.sparse as sp
 
 CHUNK_ENTRIES = 2_000_000  # doubles per dense chunk of the reduction (16 MB): bounds memory at any rig size
+CHUNK_GROUPS = 32_768  # observation groups whose products are formed at once: 32 MB at 11 parameters
 MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagonal: a parameter no
 # residual touches would otherwise make the damped system singular
 
@@ -62,9 +63,13 @@ class TermStructure:
         self.pair_pt = pairs // max(n_cams, 1)
         g_pair = np.full(len(first), -1)
         g_pair[free] = pair_of
-        self.to_cam = _incidence(g_cam, n_cams)
-        self.to_pt = _incidence(g_pt, n_pts)
-        self.to_pair = _incidence(g_pair, len(pairs))
+        # per chunk of groups: (start, stop, sums into cameras, into blocks, into camera-block pairs)
+        self.chunks = [
+            (a, a + CHUNK_GROUPS, _incidence(g_cam[a : a + CHUNK_GROUPS], n_cams), _incidence(g_pt[a : a + CHUNK_GROUPS], n_pts),
+             _incidence(g_pair[a : a + CHUNK_GROUPS], len(pairs)))
+            for a in range(0, len(first), CHUNK_GROUPS)
+        ]
+        self.n_pairs = len(pairs)
         self.pair_to_cam = _incidence(self.pair_cam, n_cams)
         self.pair_to_pt = _incidence(self.pair_pt, n_pts)
 
@@ -102,15 +107,21 @@ def normal_equations(cam_size: int, n_cams: int, parts) -> Normal:
     terms = []
     for s, r, J in parts:
         k = J.shape[2]
+        p = k - c
         Jg = J.reshape(-1, 2 * s.group, k)
-        H = np.einsum("gri,grj->gij", Jg, Jg, optimize=True)  # (groups, k, k)
-        q = np.einsum("gri,gr->gi", Jg, r.reshape(len(Jg), -1))
-        U += (s.to_cam @ H[:, :c, :c].reshape(len(H), -1)).reshape(n_cams, c, c)
-        gc += s.to_cam @ q[:, :c]
-        V = (s.to_pt @ H[:, c:, c:].reshape(len(H), -1)).reshape(s.n_pts, k - c, k - c)
-        gp = s.to_pt @ q[:, c:]
-        W = (s.to_pair @ H[:, :c, c:].reshape(len(H), -1)).reshape(-1, c, k - c)
-        terms.append(TermBlocks(s, V, gp, W))
+        rg = r.reshape(len(Jg), -1)
+        V = np.zeros((s.n_pts, p * p))
+        gp = np.zeros((s.n_pts, p))
+        W = np.zeros((s.n_pairs, c * p))
+        for a, b, to_cam, to_pt, to_pair in s.chunks:
+            H = np.einsum("gri,grj->gij", Jg[a:b], Jg[a:b], optimize=True)  # (groups, k, k)
+            q = np.einsum("gri,gr->gi", Jg[a:b], rg[a:b])
+            U += (to_cam @ H[:, :c, :c].reshape(len(H), -1)).reshape(n_cams, c, c)
+            gc += to_cam @ q[:, :c]
+            V += to_pt @ H[:, c:, c:].reshape(len(H), -1)
+            gp += to_pt @ q[:, c:]
+            W += to_pair @ H[:, :c, c:].reshape(len(H), -1)
+        terms.append(TermBlocks(s, V.reshape(-1, p, p), gp, W.reshape(-1, c, p)))
     return Normal(U, gc, terms)
 
 

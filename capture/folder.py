@@ -6,8 +6,10 @@ Every error names the file, the field or row, and says what to fix.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +28,9 @@ WAND_COLUMNS = ("frame", "camera", "u", "v")
 STATIC_COLUMNS = ("camera", "u", "v")
 POINTS_COLUMNS = ("frame", "camera", "u", "v")
 AXIS_COLUMNS = ("role", "camera", "u", "v")
+
+
+MAX_FRAME = 2**53  # frame numbers beyond this lose precision wherever they become floats (JSON, plots)
 
 
 class CaptureFormatError(CalibrationError):
@@ -133,18 +138,7 @@ def read_rig(folder: Path, allow_no_wand: bool = False) -> Rig:
 
 def parse_wand_csv(text: str, rig: Rig, source: str = WAND_FILE) -> WandObservations:
     """Parse wand.csv text; errors name the line and the column."""
-    rows = _rows(text, WAND_COLUMNS, source)
-    frame = np.empty(len(rows), dtype=np.int64)
-    camera = np.empty(len(rows), dtype=np.int64)
-    uv = np.empty((len(rows), 2))
-    lookup = {cid: i for i, cid in enumerate(rig.ids)}
-    for k, (line, row) in enumerate(rows):
-        frame[k] = _int_cell(row["frame"], f"{source} line {line}, column 'frame'")
-        camera[k] = _camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
-        uv[k] = _float_cell(row["u"], f"{source} line {line} (frame {frame[k]}), column 'u'"), _float_cell(
-            row["v"], f"{source} line {line} (frame {frame[k]}), column 'v'"
-        )
-    return WandObservations(frame=frame, camera=camera, uv=uv)
+    return WandObservations(*_frame_table(text, rig, WAND_COLUMNS, source))
 
 
 def parse_static_csv(text: str, rig: Rig, source: str = STATIC_FILE) -> StaticObservations:
@@ -163,7 +157,19 @@ def parse_static_csv(text: str, rig: Rig, source: str = STATIC_FILE) -> StaticOb
 def parse_points_csv(text: str, rig: Rig, source: str = POINTS_FILE) -> PointObservations:
     """Parse points.csv text (``frame,camera,u,v``: one unlabelled marker per camera-frame, the
     same 3D point in every camera that saw it in that frame); errors name the line and column."""
-    rows = _rows(text, POINTS_COLUMNS, source)
+    # a camera-frame with two points is ambiguous; like a wand camera-frame with three blobs it is
+    # dropped and counted by the pipeline (calib.observations.point_tracks), not refused here
+    return PointObservations(*_frame_table(text, rig, POINTS_COLUMNS, source))
+
+
+def _frame_table(text: str, rig: Rig, columns: tuple[str, ...], source: str):
+    """(frame (B,), camera (B,), uv (B, 2)) of a ``frame,camera,u,v`` table. Well-formed files
+    (every capture wandcal writes) are converted column by column; anything else goes through
+    the row-by-row reader, whose errors name the line and the column."""
+    fast = _frame_table_fast(text, rig, columns)
+    if fast is not None:
+        return fast
+    rows = _rows(text, columns, source)
     frame = np.empty(len(rows), dtype=np.int64)
     camera = np.empty(len(rows), dtype=np.int64)
     uv = np.empty((len(rows), 2))
@@ -173,9 +179,33 @@ def parse_points_csv(text: str, rig: Rig, source: str = POINTS_FILE) -> PointObs
         camera[k] = _camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
         where = f"{source} line {line} (frame {frame[k]})"
         uv[k] = _float_cell(row["u"], f"{where}, column 'u'"), _float_cell(row["v"], f"{where}, column 'v'")
-    # a camera-frame with two points is ambiguous; like a wand camera-frame with three blobs it is
-    # dropped and counted by the pipeline (calib.observations.point_tracks), not refused here
-    return PointObservations(frame=frame, camera=camera, uv=uv)
+    return frame, camera, uv
+
+
+def _frame_table_fast(text: str, rig: Rig, columns: tuple[str, ...]):
+    """The table parsed by numpy's C reader, or None when any cell would need a message."""
+    if "\0" in text or '"' in text:
+        return None
+    first, _, _ = text.partition("\n")
+    header = [h.strip() for h in first.split(",")]
+    if any(c not in header for c in columns) or len(set(header)) != len(header):
+        return None
+    frame_c, cam_c, u_c, v_c = (header.index(c) for c in columns)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # an empty table warns: let the row reader say so
+            numbers = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(frame_c, u_c, v_c), ndmin=2)
+            cams = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(cam_c,), dtype=str, ndmin=1)
+    except (ValueError, UserWarning):
+        return None
+    frame, uv = numbers[:, 0], numbers[:, 1:]
+    if not (np.all(np.isfinite(numbers)) and np.all(frame == np.round(frame)) and frame.min() >= 0 and frame.max() <= MAX_FRAME):
+        return None
+    ids, index = np.unique(np.char.strip(cams), return_inverse=True)
+    lookup = {cid: i for i, cid in enumerate(rig.ids)}
+    if any(cid not in lookup for cid in ids):
+        return None
+    return frame.astype(np.int64), np.array([lookup[cid] for cid in ids], dtype=np.int64)[index], uv
 
 
 def parse_axis_csv(text: str, rig: Rig, source: str = AXIS_FILE) -> AxisObservations:
@@ -340,9 +370,13 @@ def _float_cell(value: str | None, where: str) -> float:
 
 def _int_cell(value: str | None, where: str) -> int:
     try:
-        return int((value or "").strip())
+        number = int((value or "").strip())
     except ValueError:
         raise CaptureFormatError(f"{where}: {value!r} is not a whole frame number") from None
+    if not 0 <= number <= MAX_FRAME:
+        raise CaptureFormatError(f"{where}: frame {value!r} is out of range; frame numbers are whole numbers from 0 "
+                                 f"to {MAX_FRAME}")
+    return number
 
 
 def _positive_int(value: object, where: str) -> int:

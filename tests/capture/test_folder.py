@@ -96,3 +96,27 @@ def test_missing_folder_and_wand(tmp_path):
     (tmp_path / "wand.csv").unlink()
     with pytest.raises(CaptureFormatError, match="wandcal detect"):
         read_capture(tmp_path)
+
+
+def test_fast_and_row_readers_agree(folder):
+    """Well-formed files go through numpy's C reader; the row reader (used for anything that
+    needs a message) must read them identically."""
+    from capture.folder import _frame_table, _frame_table_fast, _rows, WAND_COLUMNS  # noqa: F401
+
+    rig = read_capture(folder).rig
+    text = (folder / "wand.csv").read_text()
+    fast = _frame_table_fast(text, rig, WAND_COLUMNS)
+    assert fast is not None
+    quoted = text.replace("cam2", '"cam2"')  # quotes send it to the row reader
+    assert _frame_table_fast(quoted, rig, WAND_COLUMNS) is None
+    slow = _frame_table(quoted, rig, WAND_COLUMNS, "wand.csv")
+    for a, b in zip(fast, slow):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("frame", ["99999999999999999999", "-3", "1.5"])
+def test_frame_numbers_out_of_range_name_the_line(folder, frame):
+    with open(folder / "wand.csv", "a") as fh:
+        fh.write(f"{frame},cam1,1.0,2.0\n")
+    with pytest.raises(CaptureFormatError, match=r"line \d+, column 'frame'"):
+        read_capture(folder)
