@@ -74,9 +74,10 @@ class WandTerm:
         Y = np.einsum("mij,mj->mi", Rc, self.points(s))
         r, J = _linearised_projection(Y, s, self.camera, Rc, self.xy, self.focal, self.raw, FRAME_PARAMS)
         u1, u2 = tangent_basis(s.d)
-        basis = np.stack([u1[self.frame], u2[self.frame]], axis=2) * self.half[:, None, None]
         c = J.shape[2] - FRAME_PARAMS
-        J[:, :, c + 3 :] = J[:, :, c : c + 3] @ basis
+        dX = J[:, :, c : c + 3]  # d/dX of the end; the end moves by half * (a u1 + b u2)
+        J[:, :, c + 3] = np.einsum("mki,mi->mk", dX, u1[self.frame]) * self.half[:, None]
+        J[:, :, c + 4] = np.einsum("mki,mi->mk", dX, u2[self.frame]) * self.half[:, None]
         return r, J
 
     def moved(self, s: BundleState, dp: np.ndarray) -> BundleState:

@@ -114,13 +114,12 @@ def normal_equations(cam_size: int, n_cams: int, parts) -> Normal:
         gp = np.zeros((s.n_pts, p))
         W = np.zeros((s.n_pairs, c * p))
         for a, b, to_cam, to_pt, to_pair in s.chunks:
-            H = np.einsum("gri,grj->gij", Jg[a:b], Jg[a:b], optimize=True)  # (groups, k, k)
-            q = np.einsum("gri,gr->gi", Jg[a:b], rg[a:b])
-            U += (to_cam @ H[:, :c, :c].reshape(len(H), -1)).reshape(n_cams, c, c)
-            gc += to_cam @ q[:, :c]
-            V += to_pt @ H[:, c:, c:].reshape(len(H), -1)
-            gp += to_pt @ q[:, c:]
-            W += to_pair @ H[:, :c, c:].reshape(len(H), -1)
+            Jc, Jp, rc = Jg[a:b, :, :c], Jg[a:b, :, c:], rg[a:b]
+            U += (to_cam @ np.einsum("gri,grj->gij", Jc, Jc, optimize=True).reshape(len(rc), -1)).reshape(n_cams, c, c)
+            gc += to_cam @ np.einsum("gri,gr->gi", Jc, rc)
+            V += to_pt @ np.einsum("gri,grj->gij", Jp, Jp, optimize=True).reshape(len(rc), -1)
+            gp += to_pt @ np.einsum("gri,gr->gi", Jp, rc)
+            W += to_pair @ np.einsum("gri,grj->gij", Jc, Jp, optimize=True).reshape(len(rc), -1)
         terms.append(TermBlocks(s, V.reshape(-1, p, p), gp, W.reshape(-1, c, p)))
     return Normal(U, gc, terms)
 
@@ -146,7 +145,10 @@ class Step:
 
 
 def solve(normal: Normal, lam: float) -> Step | None:
-    """Solve the damped system (U + lam D) for the step; None when it is not positive definite."""
+    """Solve the damped system (U + lam D) for the step; None when it is not positive definite.
+
+    With V = L L^T per block and Z = W L^-T per camera-block pair, the reduction W V^-1 W^T is
+    the Gram matrix Z Z^T: one dense symmetric product per chunk of blocks."""
     n, c = normal.gc.shape
     S = _damped(normal.U, lam)
     S = scipy.linalg.block_diag(*S) if n else np.zeros((0, 0))
@@ -154,11 +156,16 @@ def solve(normal: Normal, lam: float) -> Step | None:
     solved = []
     for t in normal.terms:
         s = t.structure
-        Vinv = np.linalg.inv(_damped(t.V, lam))
-        Y = t.W @ Vinv[s.pair_pt]  # (pairs, c, p)
-        b -= s.pair_to_cam @ np.einsum("kij,kj->ki", Y, t.gp[s.pair_pt])
-        _subtract_reduction(S, Y, t.W, s)
-        solved.append(Vinv)
+        try:
+            L = np.linalg.cholesky(_damped(t.V, lam))
+        except np.linalg.LinAlgError:
+            return None
+        Linv = np.linalg.inv(L)  # lower triangular, (P, p, p)
+        Z = t.W @ np.swapaxes(Linv, 1, 2)[s.pair_pt]  # (pairs, c, p)
+        h = np.einsum("pij,pj->pi", Linv, t.gp)
+        b -= s.pair_to_cam @ np.einsum("kij,kj->ki", Z, h[s.pair_pt])
+        _subtract_gram(S, Z, s)
+        solved.append(np.swapaxes(Linv, 1, 2) @ Linv)  # V^-1
     try:
         factor = scipy.linalg.cho_factor(S, check_finite=False) if n else None
     except np.linalg.LinAlgError:
@@ -174,26 +181,22 @@ def solve(normal: Normal, lam: float) -> Step | None:
     return Step(dc, dp, cam_var, pt_var)
 
 
-def _subtract_reduction(S: np.ndarray, Y: np.ndarray, W: np.ndarray, s: TermStructure) -> None:
-    """S -= sum over points of Y_a W_b^T for every two cameras a, b that saw the point.
+def _subtract_gram(S: np.ndarray, Z: np.ndarray, s: TermStructure) -> None:
+    """S -= sum over blocks of Z_a Z_b^T for every two cameras a, b that saw the block.
 
-    The pairs are laid out as dense (cameras * c) x (points * p) matrices, a chunk of points at a
-    time, so the sum is one matrix product per chunk."""
-    n, c, p = s.n_cams, Y.shape[1], Y.shape[2]
-    if n == 0 or len(Y) == 0:
+    The pairs (sorted by block) are laid out as a dense (cameras * c) x (blocks * p) matrix, a
+    chunk of blocks at a time, so the sum is one symmetric matrix product per chunk."""
+    n, c, p = s.n_cams, Z.shape[1], Z.shape[2]
+    if n == 0 or len(Z) == 0:
         return
     chunk = max(1, CHUNK_ENTRIES // (n * c * p))
-    order = np.argsort(s.pair_pt, kind="stable")
-    pts = s.pair_pt[order]
-    bounds = np.searchsorted(pts, np.arange(0, s.n_pts + chunk, chunk))
+    bounds = np.searchsorted(s.pair_pt, np.arange(0, s.n_pts + chunk, chunk))
     for k in range(len(bounds) - 1):
-        sel = order[bounds[k] : bounds[k + 1]]
-        if not len(sel):
+        a, b = bounds[k], bounds[k + 1]
+        if a == b:
             continue
         first = k * chunk
-        width = min(chunk, s.n_pts - first)
-        Yd = np.zeros((n, c, width, p))
-        Wd = np.zeros((n, c, width, p))
-        Yd[s.pair_cam[sel], :, s.pair_pt[sel] - first] = Y[sel]
-        Wd[s.pair_cam[sel], :, s.pair_pt[sel] - first] = W[sel]
-        S -= Yd.reshape(n * c, width * p) @ Wd.reshape(n * c, width * p).T
+        Zd = np.zeros((n, c, min(chunk, s.n_pts - first), p))
+        Zd[s.pair_cam[a:b], :, s.pair_pt[a:b] - first] = Z[a:b]
+        Zm = Zd.reshape(n * c, -1)
+        S -= Zm @ Zm.T
