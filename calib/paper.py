@@ -31,12 +31,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.optimize import least_squares
 
 from calib.geometry import camera_centers, euler_to_matrix
-from calib.lp import INF, solve_lp
 from calib.wandmodel import WandProblem
+
+# scipy.optimize, scipy.sparse and HiGHS are imported where they are used: the command line
+# imports this module for its defaults, and they cost 0.3 s of start-up
 
 BOUND_M = 10.0  # the paper's box on every translation and point coordinate
 HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
@@ -63,6 +63,8 @@ def algebraic_residuals(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: Wa
 
 def rotation_step(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProblem, fixed: np.ndarray) -> np.ndarray:
     """Update every free camera's rotation by LM on E_phi_n (its algebraic squared error)."""
+    from scipy.optimize import least_squares
+
     R = R.copy()
     for n in np.flatnonzero(~fixed):
         sel = problem.camera == n
@@ -116,6 +118,10 @@ def lp_step(
     Returns:
         (t (N, 3), X (P, 3), LpResult).
     """
+    import scipy.sparse as sp
+
+    from calib.lp import INF, solve_lp
+
     p = problem
     N, P, M = len(R), len(X), len(p.camera)
     nt, nx = 3 * N, 3 * P

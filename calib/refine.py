@@ -13,10 +13,8 @@ from calib.errors import CalibrationError
 from calib.geometry import camera_centers, undistort_points
 from calib.labels import flatten
 from calib.observations import PointTracks, WandPairs
-from calib.paper import MAX_ROUNDS, refine_paper
 from calib.reprojection import INTRINSICS
 from calib.rig import PINHOLE, Camera, Rig
-from calib.slp import refine_lp
 from calib.triangulate import reprojection_errors, triangulate_points
 from calib.wandmodel import WandModel, WandProblem
 
@@ -113,13 +111,18 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, stop_se: 
     ``stop_se`` as :func:`calib.ba.bundle_adjust_points`'s."""
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
+    # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
     if method == "paper":
+        from calib.paper import MAX_ROUNDS, refine_paper
+
         R, t, wand, info = refine_paper(
             model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, up,
             max_rounds=int(options.get("max_rounds") or MAX_ROUNDS), time_limit=options.get("time_limit"), progress=tell,
         )
         return Refined(rig, setup, labelled, tracks, R, t, wand, X, info)
     if method == "lp":
+        from calib.slp import refine_lp
+
         x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
         return Refined(rig, setup, labelled, tracks, *model.poses(x), model.wand(x), X, info)
     names = tuple(name for name in INTRINSICS if name in (options.get("refine_intrinsics") or ()))

@@ -9,9 +9,10 @@ touches one camera and one block of one term, so the normal matrix is
 
 Eliminating the points leaves the dense reduced camera system ``S = U - W V^-1 W^T`` (Triggs et
 al., *Bundle Adjustment: A Modern Synthesis*, sec. 6.1; Ceres's ``DENSE_SCHUR``), of size 6N,
-solved by Cholesky; the points follow by back-substitution. Everything is batched over blocks:
-per-observation products are summed into blocks by sparse incidence matrices built once per
-problem, and ``W V^-1 W^T`` is one dense matrix product per chunk of points.
+solved directly; the points follow by back-substitution. Everything is batched over blocks:
+per-observation products are summed into blocks by segment sums planned once per problem (no
+sparse matrices: scipy.sparse alone costs 0.15 s of start-up), and ``W V^-1 W^T`` is one dense
+matrix product per chunk of points.
 """
 
 from __future__ import annotations
@@ -19,8 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
-import scipy.sparse as sp
 
 CHUNK_ENTRIES = 2_000_000  # doubles per dense chunk of the reduction (16 MB): bounds memory at any rig size
 CHUNK_GROUPS = 32_768  # observation groups whose products are formed at once: 32 MB at 11 parameters
@@ -28,10 +27,52 @@ MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagon
 # residual touches would otherwise make the damped system singular
 
 
-def _incidence(rows: np.ndarray, n_rows: int) -> sp.csr_matrix:
-    """(n_rows, len(rows)) 0/1 matrix summing observations into their row; rows < 0 are left out."""
-    keep = np.flatnonzero(rows >= 0)
-    return sp.csr_matrix((np.ones(len(keep)), (rows[keep], keep)), shape=(n_rows, len(rows)))
+DENSE_SUM_ROWS = 64  # sums into at most this many rows (cameras) go through a one-hot matrix product
+
+
+class _Sum:
+    """Sums the rows of (G, ...) arrays into ``n_out`` rows by ``index`` (G,) (-1: left out).
+
+    Calling it returns (targets (T,) or a slice, sums (T, ...)): the rows that receive something,
+    each once.
+    A sorted index sums contiguous runs (``np.add.reduceat``); a few output rows (cameras) take
+    a one-hot matrix product; anything else is sorted first."""
+
+    def __init__(self, index: np.ndarray, n_out: int):
+        keep = index >= 0
+        self.keep = None if keep.all() else np.flatnonzero(keep)
+        idx = index[keep]
+        self.onehot = self.order = None
+        if len(idx) and n_out <= DENSE_SUM_ROWS and np.any(np.diff(idx) < 0):
+            self.targets = np.arange(n_out)
+            self.onehot = (idx[None, :] == self.targets[:, None]).astype(float)
+            return
+        if np.any(np.diff(idx) < 0):
+            self.order = np.argsort(idx, kind="stable")
+            idx = idx[self.order]
+        self.starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]]) if len(idx) else np.zeros(0, int)
+        self.targets = idx[self.starts]
+        self.single = len(self.starts) == len(idx)  # every run one row long: nothing to add up
+        if self.single and np.array_equal(self.targets, np.arange(n_out)):
+            self.targets = slice(None)  # and every output row once, in order
+
+    def __call__(self, X: np.ndarray) -> tuple[np.ndarray | slice, np.ndarray]:
+        if self.keep is not None:
+            X = X[self.keep]
+        if self.onehot is not None:
+            return self.targets, (self.onehot @ X.reshape(len(X), -1)).reshape((-1,) + X.shape[1:])
+        if self.order is not None:
+            X = X[self.order]
+        if self.single:
+            return self.targets, X
+        return self.targets, np.add.reduceat(X, self.starts, axis=0)
+
+
+def _summed(sum_: _Sum, X: np.ndarray, n_out: int) -> np.ndarray:
+    targets, sums = sum_(X)
+    out = np.zeros((n_out,) + X.shape[1:])
+    out[targets] = sums
+    return out
 
 
 class TermStructure:
@@ -65,13 +106,13 @@ class TermStructure:
         g_pair[free] = pair_of
         # per chunk of groups: (start, stop, sums into cameras, into blocks, into camera-block pairs)
         self.chunks = [
-            (a, a + CHUNK_GROUPS, _incidence(g_cam[a : a + CHUNK_GROUPS], n_cams), _incidence(g_pt[a : a + CHUNK_GROUPS], n_pts),
-             _incidence(g_pair[a : a + CHUNK_GROUPS], len(pairs)))
+            (a, a + CHUNK_GROUPS, _Sum(g_cam[a : a + CHUNK_GROUPS], n_cams), _Sum(g_pt[a : a + CHUNK_GROUPS], n_pts),
+             _Sum(g_pair[a : a + CHUNK_GROUPS], len(pairs)))
             for a in range(0, len(first), CHUNK_GROUPS)
         ]
         self.n_pairs = len(pairs)
-        self.pair_to_cam = _incidence(self.pair_cam, n_cams)
-        self.pair_to_pt = _incidence(self.pair_pt, n_pts)
+        self.pair_to_cam = _Sum(self.pair_cam, n_cams)
+        self.pair_to_pt = _Sum(self.pair_pt, n_pts)
 
 
 @dataclass(eq=False)
@@ -110,17 +151,21 @@ def normal_equations(cam_size: int, n_cams: int, parts) -> Normal:
         p = k - c
         Jg = J.reshape(-1, 2 * s.group, k)
         rg = r.reshape(len(Jg), -1)
-        V = np.zeros((s.n_pts, p * p))
+        V = np.zeros((s.n_pts, p, p))
         gp = np.zeros((s.n_pts, p))
-        W = np.zeros((s.n_pairs, c * p))
+        W = np.zeros((s.n_pairs, c, p))
         for a, b, to_cam, to_pt, to_pair in s.chunks:
             Jc, Jp, rc = Jg[a:b, :, :c], Jg[a:b, :, c:], rg[a:b]
-            U += (to_cam @ np.einsum("gri,grj->gij", Jc, Jc, optimize=True).reshape(len(rc), -1)).reshape(n_cams, c, c)
-            gc += to_cam @ np.einsum("gri,gr->gi", Jc, rc)
-            V += to_pt @ np.einsum("gri,grj->gij", Jp, Jp, optimize=True).reshape(len(rc), -1)
-            gp += to_pt @ np.einsum("gri,gr->gi", Jp, rc)
-            W += to_pair @ np.einsum("gri,grj->gij", Jc, Jp, optimize=True).reshape(len(rc), -1)
-        terms.append(TermBlocks(s, V.reshape(-1, p, p), gp, W.reshape(-1, c, p)))
+            for out, products, sum_ in (
+                (U, np.einsum("gri,grj->gij", Jc, Jc, optimize=True), to_cam),
+                (gc, np.einsum("gri,gr->gi", Jc, rc), to_cam),
+                (V, np.einsum("gri,grj->gij", Jp, Jp, optimize=True), to_pt),
+                (gp, np.einsum("gri,gr->gi", Jp, rc), to_pt),
+                (W, np.einsum("gri,grj->gij", Jc, Jp, optimize=True), to_pair),
+            ):
+                targets, sums = sum_(products)
+                out[targets] += sums
+        terms.append(TermBlocks(s, V, gp, W))
     return Normal(U, gc, terms)
 
 
@@ -150,8 +195,9 @@ def solve(normal: Normal, lam: float) -> Step | None:
     With V = L L^T per block and Z = W L^-T per camera-block pair, the reduction W V^-1 W^T is
     the Gram matrix Z Z^T: one dense symmetric product per chunk of blocks."""
     n, c = normal.gc.shape
-    S = _damped(normal.U, lam)
-    S = scipy.linalg.block_diag(*S) if n else np.zeros((0, 0))
+    S = np.zeros((n * c, n * c))
+    for k, block in enumerate(_damped(normal.U, lam)):
+        S[k * c : (k + 1) * c, k * c : (k + 1) * c] = block
     b = normal.gc.copy()
     solved = []
     for t in normal.terms:
@@ -163,19 +209,22 @@ def solve(normal: Normal, lam: float) -> Step | None:
         Linv = np.linalg.inv(L)  # lower triangular, (P, p, p)
         Z = t.W @ np.swapaxes(Linv, 1, 2)[s.pair_pt]  # (pairs, c, p)
         h = np.einsum("pij,pj->pi", Linv, t.gp)
-        b -= s.pair_to_cam @ np.einsum("kij,kj->ki", Z, h[s.pair_pt])
+        b -= _summed(s.pair_to_cam, np.einsum("kij,kj->ki", Z, h[s.pair_pt]), n)
         _subtract_gram(S, Z, s)
         solved.append(np.swapaxes(Linv, 1, 2) @ Linv)  # V^-1
+    # S is at most a few hundred wide: its inverse (whose diagonal gives the standard errors) is
+    # as cheap as a triangular solve, and numpy's own routines spare scipy.linalg's start-up
     try:
-        factor = scipy.linalg.cho_factor(S, check_finite=False) if n else None
+        np.linalg.cholesky(S)  # positive definite, or no step at this damping
     except np.linalg.LinAlgError:
         return None
-    dc = -scipy.linalg.cho_solve(factor, b.ravel(), check_finite=False).reshape(n, c) if n else np.zeros((0, c))
-    cam_var = np.diag(scipy.linalg.cho_solve(factor, np.eye(n * c), check_finite=False)).reshape(n, c) if n else dc
+    S_inv = np.linalg.inv(S)
+    dc = -(S_inv @ b.ravel()).reshape(n, c)
+    cam_var = np.diag(S_inv).reshape(n, c).copy()
     dp, pt_var = [], []
     for t, Vinv in zip(normal.terms, solved):
         s = t.structure
-        rhs = -t.gp - s.pair_to_pt @ np.einsum("kji,kj->ki", t.W, dc[s.pair_cam])
+        rhs = -t.gp - _summed(s.pair_to_pt, np.einsum("kji,kj->ki", t.W, dc[s.pair_cam]), s.n_pts)
         dp.append(np.einsum("pij,pj->pi", Vinv, rhs))
         pt_var.append(np.einsum("pii->pi", Vinv))
     return Step(dc, dp, cam_var, pt_var)

@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from calib.geometry import euler_jacobian, euler_to_matrix
 
@@ -130,8 +129,9 @@ class WandModel:
         r = (xc[:, :2] / xc[:, 2:3] - self.p.xy) * self.p.focal[self.p.camera]
         return r.ravel()
 
-    def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
-        """(2M, n_params) sparse Jacobian of :meth:`residuals`."""
+    def jacobian(self, x: np.ndarray):
+        """(2M, n_params) sparse Jacobian of :meth:`residuals` (a scipy.sparse csr_matrix)."""
+        import scipy.sparse as sp  # for lp and the bound only: ba need not pay its start-up
         blocks, cols = self.jacobian_blocks(x)
         M = len(self.p.camera)
         rows = np.repeat(np.arange(2 * M).reshape(M, 2, 1), blocks.shape[2], axis=2)
