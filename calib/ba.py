@@ -113,6 +113,7 @@ def bundle_adjust_points(
     max_iter: int = MAX_ITER,
     intrinsics: IntrinsicsFit | None = None,
     stop_se: float = STOP_SE,
+    standard_errors: bool = True,
 ) -> BundleResult:
     """:func:`bundle_adjust` with single-point tracks as free 3D points beside the wand, and
     optionally the cameras' intrinsics among the unknowns (fitting raw pixels through the lens
@@ -124,6 +125,8 @@ def bundle_adjust_points(
         intrinsics: what to refine, or None to hold the intrinsics.
         stop_se: stop when every parameter is estimated to be within this many standard errors
             of the optimum (a robust first stage that a least squares polish follows needs less).
+        standard_errors: compute ``camera_std`` (one more evaluation and solve; a first stage
+            whose result is polished further does not need them).
 
     Without wand observations the scale is free: it is held by fixing the one translation
     component of one camera that most changes with it (the poses are then up to scale).
@@ -157,7 +160,8 @@ def bundle_adjust_points(
     # the dense products here are small: a second BLAS thread costs more in hand-offs than it
     # gains (0.26 s against 0.42 s at 8 x 1500 on 2 cores, and no gain at 32 x 2000)
     with threadpool_limits(limits=1, user_api="blas"):
-        state, info, std = solver.run(state, progress, max_iter)
+        state, info = solver.run(state, progress, max_iter)
+        std = solver.standard_errors(state) if standard_errors else np.full((len(free), solver.cam_size), np.nan)
     info |= {"seconds": time.perf_counter() - start}
     camera_std = np.zeros((n, std.shape[1]))
     camera_std[free] = std
@@ -306,9 +310,9 @@ class _LevenbergMarquardt:
             "loss": self.loss,
             "loss_scale_px": None if self.loss == "linear" else float(self.scale),
         }
-        return state, info, self._standard_errors(state)
+        return state, info
 
-    def _standard_errors(self, state: BundleState) -> np.ndarray:
+    def standard_errors(self, state: BundleState) -> np.ndarray:
         """(n_free, c) standard errors of the cameras' parameters at the solution: sigma times the
         root diagonal of the undamped reduced system's inverse (0 for held parameters)."""
         parts, z = self._linearise(state)

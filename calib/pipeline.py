@@ -16,10 +16,9 @@ from calib.geometry import camera_centers
 from calib.initial import initial_poses
 from calib.labels import label_ends
 from calib.observations import WandPairs, point_tracks, wand_pairs
-from calib.ba import DEFAULT_LOSS, STOP_SE
+from calib.ba import DEFAULT_LOSS
 from calib.refine import (
     GAUGE_CAMERA,
-    ROBUST_STAGE_SE,
     build_problem,
     check_intrinsics_request,
     refine,
@@ -186,7 +185,7 @@ def calibrate(
 
     polish = options.get("reject_outliers", True) and method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
     r = refine(rig, labelled, setup, tracks, X, method, options, tell, up_direction(rig, init.R, init.t, setup),
-               ROBUST_STAGE_SE if polish else STOP_SE)
+               final=not polish)
     if not (np.all(np.isfinite(r.R)) and np.all(np.isfinite(r.t))):
         raise CalibrationError(
             f"method {method!r} diverged ({r.info.get('status')}): its camera poses are not finite; "

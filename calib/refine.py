@@ -106,9 +106,9 @@ def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> 
         raise CalibrationError(f"--refine-intrinsics supports the pinhole model only; {fisheye[0]} is {rig.cameras[0].model}")
 
 
-def refine(rig, labelled, setup, tracks, X, method, options, tell, up, stop_se: float = STOP_SE) -> Refined:
-    """Run ``method`` on the problem; ``options`` as :func:`calib.pipeline.calibrate`'s;
-    ``stop_se`` as :func:`calib.ba.bundle_adjust_points`'s."""
+def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bool = True) -> Refined:
+    """Run ``method`` on the problem; ``options`` as :func:`calib.pipeline.calibrate`'s. A robust
+    ``ba`` that is not ``final`` (a least squares polish follows) stops at ``ROBUST_STAGE_SE``."""
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
     # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
@@ -130,7 +130,7 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, stop_se: 
     if names:
         fit = IntrinsicsFit(_intrinsics(rig), names, setup.uv, tracks.uv if tracks is not None else None)
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS, intrinsics=fit,
-                               stop_se=stop_se)
+                               stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
     refined = Refined(rig, setup, labelled, tracks, *model.poses(out.x), model.wand(out.x), out.X, info, out.camera_std)
     if names:
