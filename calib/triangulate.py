@@ -29,8 +29,7 @@ def triangulate_points(
     )  # (2M, 4)
     rows /= np.linalg.norm(rows, axis=1, keepdims=True)
     owner = np.concatenate([point, point])
-    AtA = np.zeros((n_points, 4, 4))
-    np.add.at(AtA, owner, rows[:, :, None] * rows[:, None, :])
+    AtA = _summed_outer(owner, rows, n_points)
     views = np.bincount(point, minlength=n_points)
     ok = views >= 2
     X = np.full((n_points, 3), np.nan)
@@ -57,10 +56,8 @@ def refine_points(
         r = xc[:, :2] / z[:, None] - obs
         # d(x/z, y/z)/dX = (row_xy - proj * row_z) / z
         J = (Rm[:, :2, :] - (xc[:, :2] / z[:, None])[:, :, None] * Rm[:, 2:3, :]) / z[:, None, None]
-        JtJ = np.zeros((len(X), 3, 3))
-        Jtr = np.zeros((len(X), 3))
-        np.add.at(JtJ, pt, np.einsum("mki,mkj->mij", J, J))
-        np.add.at(Jtr, pt, np.einsum("mki,mk->mi", J, r))
+        JtJ = _summed_outer(np.repeat(pt, 2), J.reshape(-1, 3), len(X))
+        Jtr = np.stack([np.bincount(pt, (J[:, :, i] * r).sum(1), minlength=len(X)) for i in range(3)], axis=1)
         JtJ[~ok] = np.eye(3)
         # a point whose rays are (nearly) parallel has a singular JtJ: damp it, and keep the last
         # estimate wherever the step is not finite rather than fail the whole set
@@ -69,6 +66,17 @@ def refine_points(
         good = np.all(np.isfinite(step), axis=1)
         X[good] -= step[good]
     return X
+
+
+def _summed_outer(owner: np.ndarray, rows: np.ndarray, n: int) -> np.ndarray:
+    """(n, k, k): for each owner, the sum of the outer products of its rows (R, k); symmetric, so
+    each of the k(k+1)/2 distinct entries is one ``np.bincount`` (np.add.at is ~10x slower)."""
+    k = rows.shape[1]
+    out = np.empty((n, k, k))
+    for i in range(k):
+        for j in range(i, k):
+            out[:, i, j] = out[:, j, i] = np.bincount(owner, rows[:, i] * rows[:, j], minlength=n)
+    return out
 
 
 def reprojection_errors(
