@@ -27,9 +27,10 @@ MIN_RMS_PX = 0.05  # floor under the best fit's RMS when judging rivals (noise-f
 SAME_POSE = 0.05  # camera centres closer than this fraction of the viewing distance are one pose
 MIN_MARKERS = 4  # PnP with fewer points has several exact solutions
 PLANAR_TOLERANCE = 1e-6  # relative thickness below which a marker set counts as planar
-# Only PnP starts that fit within this factor of the best start (or this many pixels) are refined:
-# refining moves a start's error down, never up, and a rival must end within AMBIGUITY_RATIO of
-# the best, while a wrong labelling starts hundreds of pixels off (8 cameras: 0.25 s -> 0.15 s)
+# Only labellings whose SQPnP pose fits within this factor of the best (or this many pixels) are
+# refined: refining moves a start's error down, never up, and a rival must end within
+# AMBIGUITY_RATIO of the best, while a wrong labelling starts hundreds of pixels off (16 cameras:
+# 0.41 s -> 0.25 s)
 SCREEN_RATIO = 30.0
 SCREEN_PX = 30.0
 
@@ -105,17 +106,21 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
     if n_assign > MAX_ASSIGNMENTS:
         return Failure(f"{where}: {n_assign} possible labellings of {k} blobs to {m} markers are too many to try")
     normal = _plane_normal(markers)
-    starts = []
+    # SQPnP on every labelling screens them; the survivors also get every P3P start (a planar
+    # object's mirror pose, which SQPnP does not return)
+    screened = []
     for perm in itertools.permutations(range(m), k):
         labels = np.array(perm)
-        for R, t in _pnp_starts(markers[labels], xy):
-            if np.any(depth(R, t, markers[labels]) <= 0):
-                continue
-            err = project_normalized(R, t, markers[labels]) - xy
-            starts.append((float(np.sqrt(np.mean(np.sum(err**2, 1)))) * focal_px, R, t, labels))
-    screen = max(SCREEN_RATIO * min((f[0] for f in starts), default=0.0), SCREEN_PX)
+        starts = _pnp_starts(markers[labels], xy, p3p=False)
+        rms = [_rms_px(markers[labels], xy, R, t, focal_px) for R, t in starts]
+        screened.append((min(rms, default=np.inf), labels))
+    screen = max(SCREEN_RATIO * min((f[0] for f in screened), default=0.0), SCREEN_PX)
+    starts = []
+    for rms, labels in screened:
+        if rms <= screen:
+            starts += [(R, t, labels) for R, t in _pnp_starts(markers[labels], xy)]
     fits = []
-    for _, R, t, labels in (f for f in starts if f[0] <= screen):
+    for R, t, labels in starts:
         R, t = _refined(markers[labels], xy, R, t)
         if np.any(depth(R, t, markers[labels]) <= 0):
             continue
@@ -141,7 +146,14 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
     return StaticPose(R=R, t=t, labels=labels, rms_px=rms, runner_up_px=float(runner), alternatives=close)
 
 
-def _pnp_starts(obj: np.ndarray, xy: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+def _rms_px(obj: np.ndarray, xy: np.ndarray, R: np.ndarray, t: np.ndarray, focal_px: float) -> float:
+    if np.any(depth(R, t, obj) <= 0):
+        return np.inf
+    err = project_normalized(R, t, obj) - xy
+    return float(np.sqrt(np.mean(np.sum(err**2, 1)))) * focal_px
+
+
+def _pnp_starts(obj: np.ndarray, xy: np.ndarray, p3p: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
     """Poses that may explain ``xy`` (k, 2) from ``obj`` (k, 3): SQPnP's, and every P3P solution on
     the least collinear triple (a planar object has two nearly equal poses, and SQPnP returns one)."""
     obj = np.ascontiguousarray(obj, dtype=np.float64)
@@ -153,12 +165,13 @@ def _pnp_starts(obj: np.ndarray, xy: np.ndarray) -> list[tuple[np.ndarray, np.nd
         starts += list(zip(rvecs, tvecs))[:n]
     except cv2.error:
         pass
-    tri = _least_collinear_triple(obj)
-    try:
-        n, rvecs, tvecs = cv2.solveP3P(obj[tri], img[tri], K, None, flags=cv2.SOLVEPNP_P3P)
-        starts += list(zip(rvecs, tvecs))[:n]
-    except cv2.error:
-        pass
+    if p3p:
+        tri = _least_collinear_triple(obj)
+        try:
+            n, rvecs, tvecs = cv2.solveP3P(obj[tri], img[tri], K, None, flags=cv2.SOLVEPNP_P3P)
+            starts += list(zip(rvecs, tvecs))[:n]
+        except cv2.error:
+            pass
     return [(rotvec_to_matrix(np.asarray(r, float)), np.asarray(t, dtype=float).ravel()) for r, t in starts]
 
 
