@@ -135,16 +135,16 @@ def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_pass
     i_idx = np.repeat(order, reps)
     offs = np.arange(len(i_idx)) - np.repeat(np.cumsum(reps) - reps, reps)
     j_idx = order[np.repeat(start, reps) + offs]
-    keep = i_idx != j_idx
-    i_idx, j_idx = i_idx[keep], j_idx[keep]
-    if len(i_idx) == 0:
+    keep = i_idx < j_idx  # each unordered pair once: the Sampson distance is symmetric
+    a_idx, b_idx = i_idx[keep], j_idx[keep]
+    if len(a_idx) == 0:
         return np.zeros(P, bool)
-    ci, cj = pairs.camera[i_idx], pairs.camera[j_idx]
-    R_ij = R[cj] @ np.swapaxes(R[ci], 1, 2)
-    E = _skew(t[cj] - np.einsum("mij,mj->mi", R_ij, t[ci])) @ R_ij
-    xi, xj = pairs.xy[i_idx], pairs.xy[j_idx]
-    same = _sampson(E, xi[:, 0], xj[:, 0]) + _sampson(E, xi[:, 1], xj[:, 1])
-    cross = _sampson(E, xi[:, 0], xj[:, 1]) + _sampson(E, xi[:, 1], xj[:, 0])
+    E = _essential_matrices(R, t)[pairs.camera[a_idx], pairs.camera[b_idx]]
+    xa, xb = pairs.xy[a_idx], pairs.xy[b_idx]
+    same = _sampson(E, xa[:, 0], xb[:, 0]) + _sampson(E, xa[:, 1], xb[:, 1])
+    cross = _sampson(E, xa[:, 0], xb[:, 1]) + _sampson(E, xa[:, 1], xb[:, 0])
+    i_idx, j_idx = np.concatenate([a_idx, b_idx]), np.concatenate([b_idx, a_idx])
+    same, cross = np.concatenate([same, same]), np.concatenate([cross, cross])
     flip = np.zeros(P, bool)
     for _ in range(max_passes):
         agree = flip[i_idx] == flip[j_idx]
@@ -163,6 +163,13 @@ def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_pass
             break
         flip ^= first
     return flip
+
+
+def _essential_matrices(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, N, 3, 3): E[a, b] with x_b^T E x_a = 0 for cameras a, b (normalised coordinates)."""
+    R_ab = R[None, :] @ np.swapaxes(R, 1, 2)[:, None]  # [a, b] = R_b R_a^T
+    t_ab = t[None, :] - np.einsum("abij,aj->abi", R_ab, t)
+    return _skew(t_ab.reshape(-1, 3)).reshape(R_ab.shape) @ R_ab
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
