@@ -43,7 +43,43 @@ def camera_index(free: np.ndarray, camera: np.ndarray, n_cams: int) -> np.ndarra
     return index[camera]
 
 
-class WandTerm:
+ROWS_PER_CHUNK = 65_536  # observations linearised at once: bounds the temporaries (~30 MB)
+
+
+class _Term:
+    """What the terms share: residuals and Jacobians formed a chunk of observations at a time,
+    so the temporaries stay small beside the (M, 2, k) Jacobian itself."""
+
+    camera: np.ndarray
+
+    def residuals(self, s: BundleState) -> np.ndarray:
+        """(M, 2) pixel residuals."""
+        return self._chunked(lambda sl: (self._residuals(s, sl),))[0]
+
+    def linearise(self, s: BundleState):
+        """(r (M, 2), J (M, 2, c + p)) at ``s``: the camera's c parameters (w, t, refined
+        intrinsics) first, then the block's p."""
+        return self._chunked(lambda sl: self._linearise(s, sl))
+
+    def _chunked(self, part):
+        n = len(self.camera)
+        out = None
+        for a in range(0, n, ROWS_PER_CHUNK):
+            pieces = part(slice(a, a + ROWS_PER_CHUNK))
+            if out is None:
+                out = [np.empty((n,) + x.shape[1:]) for x in pieces]
+            for o, x in zip(out, pieces):
+                o[a : a + len(x)] = x
+        return out
+
+    def _project(self, s: BundleState, X: np.ndarray, sl: slice) -> np.ndarray:
+        xc = np.einsum("mij,mj->mi", s.R[self.camera[sl]], X) + s.t[self.camera[sl]]
+        if self.raw is not None:
+            return distorted_pixels(xc, s.intr[self.camera[sl]])[0] - self.raw[0][sl]
+        return (xc[:, :2] / xc[:, 2:3] - self.xy[sl]) * self.focal[sl]
+
+
+class WandTerm(_Term):
     """Observations of wand ends: camera (M,), frame (M,), end (M,) 0/1, xy (M, 2) normalised,
     focal (M, 2) pixels per normalised unit, length metres."""
 
@@ -57,27 +93,23 @@ class WandTerm:
         self.half = np.where(end == 1, 0.5, -0.5) * length
         self.structure = schur.TermStructure(camera_index(free, camera, n_cams), camera, frame, len(free), n_frames, FRAME_PARAMS)
 
-    def points(self, s: BundleState) -> np.ndarray:
-        return s.m[self.frame] + self.half[:, None] * s.d[self.frame]
+    def _ends(self, s: BundleState, sl: slice) -> np.ndarray:
+        return s.m[self.frame[sl]] + self.half[sl, None] * s.d[self.frame[sl]]
 
-    def residuals(self, s: BundleState) -> np.ndarray:
-        """(M, 2) pixel residuals."""
-        xc = np.einsum("mij,mj->mi", s.R[self.camera], self.points(s)) + s.t[self.camera]
-        if self.raw is not None:
-            return distorted_pixels(xc, s.intr[self.camera])[0] - self.raw[0]
-        return (xc[:, :2] / xc[:, 2:3] - self.xy) * self.focal
+    def _residuals(self, s: BundleState, sl: slice) -> np.ndarray:
+        return self._project(s, self._ends(s, sl), sl)
 
-    def linearise(self, s: BundleState):
-        """(r (M, 2), J (M, 2, c + 5)) at ``s``: the camera's c parameters (w, t, refined
-        intrinsics), then the frame's (m, a, b)."""
-        Rc = s.R[self.camera]
-        Y = np.einsum("mij,mj->mi", Rc, self.points(s))
-        r, J = _linearised_projection(Y, s, self.camera, Rc, self.xy, self.focal, self.raw, FRAME_PARAMS)
-        u1, u2 = tangent_basis(s.d)
+    def _linearise(self, s: BundleState, sl: slice):
+        camera, frame = self.camera[sl], self.frame[sl]
+        Rc = s.R[camera]
+        Y = np.einsum("mij,mj->mi", Rc, self._ends(s, sl))
+        raw = None if self.raw is None else (self.raw[0][sl], self.raw[1])
+        r, J = _linearised_projection(Y, s, camera, Rc, self.xy[sl], self.focal[sl], raw, FRAME_PARAMS)
+        u1, u2 = tangent_basis(s.d[frame])
         c = J.shape[2] - FRAME_PARAMS
         dX = J[:, :, c : c + 3]  # d/dX of the end; the end moves by half * (a u1 + b u2)
-        J[:, :, c + 3] = np.einsum("mki,mi->mk", dX, u1[self.frame]) * self.half[:, None]
-        J[:, :, c + 4] = np.einsum("mki,mi->mk", dX, u2[self.frame]) * self.half[:, None]
+        J[:, :, c + 3] = np.einsum("mki,mi->mk", dX, u1) * self.half[sl, None]
+        J[:, :, c + 4] = np.einsum("mki,mi->mk", dX, u2) * self.half[sl, None]
         return r, J
 
     def moved(self, s: BundleState, dp: np.ndarray) -> BundleState:
@@ -86,7 +118,7 @@ class WandTerm:
         return replace(s, m=s.m + dp[:, :3], d=d / np.linalg.norm(d, axis=1, keepdims=True))
 
 
-class PointTerm:
+class PointTerm(_Term):
     """Observations of free points: camera (Q,), track (Q,), xy (Q, 2) normalised, focal (Q, 2)."""
 
     size = POINT_PARAMS
@@ -98,17 +130,15 @@ class PointTerm:
         self.raw = None if raw is None else (raw[0][order], raw[1])
         self.structure = schur.TermStructure(camera_index(free, self.camera, n_cams), self.camera, self.track, len(free), n_tracks, POINT_PARAMS)
 
-    def residuals(self, s: BundleState) -> np.ndarray:
-        xc = np.einsum("mij,mj->mi", s.R[self.camera], s.X[self.track]) + s.t[self.camera]
-        if self.raw is not None:
-            return distorted_pixels(xc, s.intr[self.camera])[0] - self.raw[0]
-        return (xc[:, :2] / xc[:, 2:3] - self.xy) * self.focal
+    def _residuals(self, s: BundleState, sl: slice) -> np.ndarray:
+        return self._project(s, s.X[self.track[sl]], sl)
 
-    def linearise(self, s: BundleState):
-        """(r (Q, 2), J (Q, 2, c + 3)): the camera's c parameters, then the point's X."""
-        Rc = s.R[self.camera]
-        Y = np.einsum("mij,mj->mi", Rc, s.X[self.track])
-        return _linearised_projection(Y, s, self.camera, Rc, self.xy, self.focal, self.raw, POINT_PARAMS)
+    def _linearise(self, s: BundleState, sl: slice):
+        camera = self.camera[sl]
+        Rc = s.R[camera]
+        Y = np.einsum("mij,mj->mi", Rc, s.X[self.track[sl]])
+        raw = None if self.raw is None else (self.raw[0][sl], self.raw[1])
+        return _linearised_projection(Y, s, camera, Rc, self.xy[sl], self.focal[sl], raw, POINT_PARAMS)
 
     def moved(self, s: BundleState, dp: np.ndarray) -> BundleState:
         return replace(s, X=s.X + dp)

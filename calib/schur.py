@@ -193,7 +193,7 @@ def solve(normal: Normal, lam: float) -> Step | None:
     """Solve the damped system (U + lam D) for the step; None when it is not positive definite.
 
     With V = L L^T per block and Z = W L^-T per camera-block pair, the reduction W V^-1 W^T is
-    the Gram matrix Z Z^T: one dense symmetric product per chunk of blocks."""
+    the Gram matrix Z Z^T: one dense symmetric product per chunk of blocks, Z formed per chunk."""
     n, c = normal.gc.shape
     S = np.zeros((n * c, n * c))
     for k, block in enumerate(_damped(normal.U, lam)):
@@ -206,12 +206,12 @@ def solve(normal: Normal, lam: float) -> Step | None:
             L = np.linalg.cholesky(_damped(t.V, lam))
         except np.linalg.LinAlgError:
             return None
-        Linv = np.linalg.inv(L)  # lower triangular, (P, p, p)
-        Z = t.W @ np.swapaxes(Linv, 1, 2)[s.pair_pt]  # (pairs, c, p)
-        h = np.einsum("pij,pj->pi", Linv, t.gp)
-        b -= _summed(s.pair_to_cam, np.einsum("kij,kj->ki", Z, h[s.pair_pt]), n)
-        _subtract_gram(S, Z, s)
-        solved.append(np.swapaxes(Linv, 1, 2) @ Linv)  # V^-1
+        LinvT = np.swapaxes(np.linalg.inv(L), 1, 2)  # L^-T, upper triangular, (P, p, p)
+        Vinv = LinvT @ np.swapaxes(LinvT, 1, 2)
+        y = np.einsum("pij,pj->pi", Vinv, t.gp)
+        b -= _summed(s.pair_to_cam, np.einsum("kij,kj->ki", t.W, y[s.pair_pt]), n)
+        _subtract_gram(S, t.W, LinvT, s)
+        solved.append(Vinv)
     # S is at most a few hundred wide: its inverse (whose diagonal gives the standard errors) is
     # as cheap as a triangular solve, and numpy's own routines spare scipy.linalg's start-up
     try:
@@ -230,13 +230,14 @@ def solve(normal: Normal, lam: float) -> Step | None:
     return Step(dc, dp, cam_var, pt_var)
 
 
-def _subtract_gram(S: np.ndarray, Z: np.ndarray, s: TermStructure) -> None:
-    """S -= sum over blocks of Z_a Z_b^T for every two cameras a, b that saw the block.
+def _subtract_gram(S: np.ndarray, W: np.ndarray, LinvT: np.ndarray, s: TermStructure) -> None:
+    """S -= sum over blocks of Z_a Z_b^T, Z = W L^-T, for every two cameras a, b that saw the block.
 
     The pairs (sorted by block) are laid out as a dense (cameras * c) x (blocks * p) matrix, a
-    chunk of blocks at a time, so the sum is one symmetric matrix product per chunk."""
-    n, c, p = s.n_cams, Z.shape[1], Z.shape[2]
-    if n == 0 or len(Z) == 0:
+    chunk of blocks at a time, so the sum is one symmetric matrix product per chunk; Z is formed
+    a chunk at a time too."""
+    n, c, p = s.n_cams, W.shape[1], W.shape[2]
+    if n == 0 or len(W) == 0:
         return
     chunk = max(1, CHUNK_ENTRIES // (n * c * p))
     bounds = np.searchsorted(s.pair_pt, np.arange(0, s.n_pts + chunk, chunk))
@@ -246,6 +247,6 @@ def _subtract_gram(S: np.ndarray, Z: np.ndarray, s: TermStructure) -> None:
             continue
         first = k * chunk
         Zd = np.zeros((n, c, min(chunk, s.n_pts - first), p))
-        Zd[s.pair_cam[a:b], :, s.pair_pt[a:b] - first] = Z[a:b]
+        Zd[s.pair_cam[a:b], :, s.pair_pt[a:b] - first] = W[a:b] @ LinvT[s.pair_pt[a:b]]
         Zm = Zd.reshape(n * c, -1)
         S -= Zm @ Zm.T
