@@ -73,6 +73,22 @@ def build_problem(rig: Rig, pairs: WandPairs, R: np.ndarray, t: np.ndarray, gaug
     return Setup(problem=problem, model=model, frames=pairs.frames[ok], pair_index=pair_index, uv=uv)
 
 
+def restarted(setup: Setup, keep: np.ndarray, R: np.ndarray, t: np.ndarray, wand: np.ndarray) -> Setup:
+    """The setup restricted to the labelled pairs where ``keep`` (P,) is true and started at the
+    given poses and wand (F, 2, 3), with no new triangulation: as :func:`build_problem` on
+    ``pairs.subset(keep)``, frames left with fewer than two cameras dropped."""
+    p = setup.problem
+    obs = keep[setup.pair_index]
+    views = np.bincount(p.frame[obs], minlength=p.n_frames) // 2
+    frame_ok = views >= 2
+    obs &= frame_ok[p.frame]
+    new_frame = np.cumsum(frame_ok) - 1
+    problem = WandProblem(p.camera[obs], new_frame[p.frame[obs]], p.end[obs], p.xy[obs], p.focal, p.length, int(frame_ok.sum()))
+    model = WandModel(problem, R, t, wand[frame_ok], setup.model.fixed)
+    pair_index = (np.cumsum(keep) - 1)[setup.pair_index[obs]]
+    return Setup(problem=problem, model=model, frames=setup.frames[frame_ok], pair_index=pair_index, uv=setup.uv[obs])
+
+
 @dataclass(frozen=True, eq=False)
 class Refined:
     """A refinement's outcome. R (N, 3, 3), t (N, 3) gauge-frame poses; wand (F, 2, 3) ends; X
@@ -212,7 +228,10 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         keep = new_keep
         tell({"stage": "outliers", "message": f"refining without {int((~keep).sum())} outlying camera-frames"
               + (f" and {point_drops} point observations" if point_drops else "")})
-        setup = build_problem(r.rig, r.labelled.subset(keep), r.R, r.t, GAUGE_CAMERA)
+        if robust_ba:  # one pass from the full setup: restart it where the robust solve ended
+            setup = restarted(r.setup, keep, r.R, r.t, r.wand)
+        else:
+            setup = build_problem(r.rig, r.labelled.subset(keep), r.R, r.t, GAUGE_CAMERA)
         before = r.info
         r = refine(r.rig, r.labelled, setup, tracks, X, method, options, tell, up_direction(r.rig, r.R, r.t, setup))
         r = replace(r, info=r.info | {"iterations": before["iterations"] + r.info["iterations"],
