@@ -312,12 +312,15 @@ class _LevenbergMarquardt:
             "loss": self.loss,
             "loss_scale_px": None if self.loss == "linear" else float(self.scale),
         }
+        self.last = (state, parts, z)  # the final state's linearisation, for standard_errors
         return state, info
 
     def standard_errors(self, state: BundleState) -> np.ndarray:
         """(n_free, c) standard errors of the cameras' parameters at the solution: sigma times the
         root diagonal of the undamped reduced system's inverse (0 for held parameters)."""
-        parts, z = self._linearise(state)
+        last_state, parts, z = getattr(self, "last", (None, None, None))
+        if last_state is not state or parts is None:
+            parts, z = self._linearise(state)
         step = schur.solve(self._normal(parts, z)[0], 0.0) if self.n_free else None
         if step is None:
             return np.full((self.n_free, self.cam_size), np.inf)

@@ -204,18 +204,24 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
     At each pass every camera-frame is judged against the current cameras, worst first within
     each frame (least squares spreads an outlier over its frame, so only the worst is sure to
     be one); camera-frames dropped earlier are re-admitted when they fit the cleaner solution.
-    After a robust ``ba`` the outliers have had no pull on the cameras, so one pass finds them
-    all, and plain least squares on the rest (a few iterations from the robust solution, which
-    :data:`ROBUST_STAGE_SE` let stop early) gives the fully efficient estimate."""
+    After a robust ``ba`` the outliers have had no pull on the cameras, so one pass over its own
+    residuals finds them all, and plain least squares on the rest (a few iterations from the
+    robust solution, which :data:`ROBUST_STAGE_SE` let stop early) gives the fully efficient
+    estimate."""
     robust_ba = method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
     if robust_ba:
         options = options | {"loss": "linear"}
     keep = np.ones(len(r.labelled), bool)
     point_drops = 0
     for _ in range(1 if robust_ba else MAX_OUTLIER_PASSES):
-        limit, point_err = _outlier_limit(r)
+        limit, errors, point_err = _outlier_limit(r)
         new_keep = keep
-        if len(r.labelled):
+        if robust_ba:
+            # the robust fit's own residuals: no outlier pulled it, so none hides in its frame,
+            # and a bent wand shows, its length being built in
+            new_keep = np.ones(len(r.labelled), bool)
+            new_keep[r.setup.pair_index[errors > limit]] = False
+        elif len(r.labelled):
             new_keep = quality.reject_worst_per_frame(r.R, r.t, r.labelled, r.setup.problem.focal, limit)
             if r.rig.wand_length is not None:
                 new_keep &= ~quality.length_outlier_frames(r.R, r.t, r.labelled, new_keep, r.rig.wand_length)[r.labelled.frame]
@@ -241,16 +247,16 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
     return replace(r, outliers=int((~keep).sum()), point_outliers=point_drops)
 
 
-def _outlier_limit(r: Refined) -> tuple[float, np.ndarray]:
+def _outlier_limit(r: Refined) -> tuple[float, np.ndarray, np.ndarray]:
     """The outlier limit in pixels (``OUTLIER_SIGMAS`` robust sigmas of all residuals, at least
-    ``MIN_OUTLIER_PX``) and the point observations' errors (Q,)."""
+    ``MIN_OUTLIER_PX``), the wand observations' errors (M,) and the point observations' (Q,)."""
     errors = quality.pixel_errors(r.R, r.t, r.wand, r.setup.problem)
     point_err = np.zeros(0)
     if r.tracks is not None and len(r.tracks):
         res = reprojection_errors(r.R, r.t, r.tracks.track, r.tracks.camera, r.tracks.xy, r.X)
         point_err = np.linalg.norm(res * r.setup.problem.focal[r.tracks.camera], axis=1)
     sigma = quality.robust_sigma(np.concatenate([errors, point_err]))
-    return max(quality.OUTLIER_SIGMAS * sigma, quality.MIN_OUTLIER_PX), point_err
+    return max(quality.OUTLIER_SIGMAS * sigma, quality.MIN_OUTLIER_PX), errors, point_err
 
 
 def up_direction(rig: Rig, R: np.ndarray, t: np.ndarray, setup: Setup) -> np.ndarray:
