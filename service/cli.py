@@ -10,19 +10,23 @@ import argparse
 import importlib
 import sys
 
-COMMAND_MODULES = (
-    "service.commands",  # simulate, calibrate, demo
-    "capture.cli",  # capture, detect, trigger-emulator
-    "service.serve",  # serve
-)
+COMMAND_MODULES = {
+    "service.commands": ("simulate", "calibrate", "demo"),
+    "capture.cli": ("capture", "detect", "trigger-emulator", "import"),
+    "service.serve": ("serve",),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser; when ``argv`` names a command, only that command's module is imported (so
+    ``wandcal calibrate`` loads neither the web framework nor the camera drivers)."""
     parser = argparse.ArgumentParser(
         prog="wandcal", description="Capture and calibrate multi-camera motion-capture rigs with a wand."
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMAND_MODULES:
+    command = next((a for a in (argv or []) if not a.startswith("-")), None)
+    modules = [m for m, names in COMMAND_MODULES.items() if command in names] or list(COMMAND_MODULES)
+    for name in modules:
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -36,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from calib.errors import CalibrationError
 
-    args = build_parser().parse_args(argv)
+    args = build_parser(sys.argv[1:] if argv is None else argv).parse_args(argv)
     try:
         return int(args.run(args) or 0)
     except CalibrationError as exc:
