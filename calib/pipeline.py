@@ -39,6 +39,7 @@ DEFAULT_METHOD = "ba"  # docs/decisions/0002-default-method.md
 FOCAL_REL_STD_WARN = 0.005  # 0.5% of the focal length
 PRINCIPAL_STD_WARN_PX = 5.0
 K1_STD_WARN = 0.01
+OUTLIER_WARN_SHARE = 0.001  # warn about dropped outliers from this share of the camera-frames on
 
 
 @dataclass(eq=False)
@@ -208,7 +209,7 @@ def calibrate(
     cameras = _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings)
     if info.get("refined_intrinsics"):
         _intrinsics_reports(cameras, rig, r.camera_std, info["refined_intrinsics"], warnings)
-    _summary_warnings(warnings, dropped, info, method)
+    _summary_warnings(warnings, dropped, info, method, len(labelled))
     wand_report = None
     if has_wand:
         lengths = quality.free_wand_lengths(R, t, setup.problem)
@@ -284,11 +285,16 @@ def _intrinsics_reports(cameras: list[dict], rig: Rig, std: np.ndarray, names: l
         cameras[c]["intrinsics"] = entry
 
 
-def _summary_warnings(warnings: list[str], dropped: dict, info: dict, method: str) -> None:
+def _summary_warnings(warnings: list[str], dropped: dict, info: dict, method: str, camera_frames: int) -> None:
     if dropped.get("extra_blobs"):
         warnings.append(f"{dropped['extra_blobs']} camera-frames showed more than two blobs and were dropped")
     if dropped.get("outliers"):
-        warnings.append(f"{dropped['outliers']} camera-frames were gross outliers and were dropped")
+        share = dropped["outliers"] / max(camera_frames, 1)
+        # a 5-sigma limit over ~10^4 camera-frames leaves a few borderline ones on clean data:
+        # they are in `dropped`; a warning is for a share that says something about the capture
+        if share >= OUTLIER_WARN_SHARE:
+            warnings.append(f"{dropped['outliers']} camera-frames ({share:.1%}) were gross outliers and were dropped; "
+                            "look for reflections or a second bright marker in those cameras")
     if dropped.get("point_outliers"):
         warnings.append(f"{dropped['point_outliers']} point-track observations were gross outliers and were dropped")
     if info.get("status") != "converged":
