@@ -76,7 +76,7 @@ def test_jobs_run_on_an_rq_worker(make_server, small_capture, redis_url, tmp_pat
         assert c.get(f"/jobs/{cancelled_id}").json()["state"] == "cancelled"
         refused = c.get(f"/jobs/{refused_id}").json()
         assert refused["state"] == "failed" and refused["attempts"] == 1
-        assert "no two cameras share" in refused["error"]
+        assert "no two cameras can be placed" in refused["error"]
     centers = np.array([cam["center"] for cam in job["result"]["cameras"]])
     # same capture and solver as the SQLite path: the same 10 mm absolute bound (test_http.py)
     assert np.linalg.norm(centers - sim.truth.centers, axis=1).max() < 0.010
