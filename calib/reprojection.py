@@ -43,7 +43,7 @@ def camera_index(free: np.ndarray, camera: np.ndarray, n_cams: int) -> np.ndarra
     return index[camera]
 
 
-ROWS_PER_CHUNK = 65_536  # observations linearised at once: bounds the temporaries (~30 MB)
+ROWS_PER_CHUNK = 32_768  # observations linearised at once: bounds the temporaries (~15 MB)
 
 
 class _Term:
