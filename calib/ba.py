@@ -211,11 +211,6 @@ class _LevenbergMarquardt:
         if self.loss == "cauchy":
             self.scale = min(self.scale, max(CAUCHY_SIGMAS * _robust_sigma(z), 1e-6))
 
-    def _linearise(self, state: BundleState):
-        parts = [term.linearise(state) for term in self.terms]
-        z = np.concatenate([np.einsum("mk,mk->m", r, r) for r, _ in parts])
-        return parts, z
-
     def _squared_errors(self, state: BundleState) -> np.ndarray:
         return np.concatenate([np.einsum("mk,mk->m", r, r) for r in (term.residuals(state) for term in self.terms)])
 
@@ -242,28 +237,31 @@ class _LevenbergMarquardt:
             for t in normal.terms:
                 t.W[t.structure.pair_cam == k, j, :] = 0.0
 
-    def _normal(self, parts, z):
-        """The weighted normal equations; ``parts`` (r, J) are weighted in place (they are large)."""
+    def _normal(self, state: BundleState, z: np.ndarray) -> schur.Normal:
+        """The weighted normal equations at ``state`` (``z``: its squared errors, for the
+        weights), linearised a chunk at a time inside the sums."""
         sw = np.split(np.sqrt(self._weights(z)), self.split)
-        weighted = []
-        for term, (r, J), w in zip(self.terms, parts, sw):
-            r *= w[:, None]
-            J *= w[:, None, None]
-            weighted.append((term.structure, r, J))
-        normal = schur.normal_equations(self.cam_size, self.n_free, weighted)
+        parts = []
+        for term, w in zip(self.terms, sw):
+            def rows(lo, hi, term=term, w=w):
+                r, J = term.linearise_rows(state, slice(lo, hi))
+                r *= w[lo:hi, None]
+                J *= w[lo:hi, None, None]
+                return r, J
+            parts.append((term.structure, rows))
+        normal = schur.normal_equations(self.cam_size, self.n_free, parts)
         self._freeze(normal)
-        return normal, weighted
+        return normal
 
     def run(self, state: BundleState, progress, max_iter: int):
-        parts, z = self._linearise(state)
+        z = self._squared_errors(state)
         self._rescale(z)
         cost = self._cost(z)
         lam, nu = LAMBDA0, 2.0
         status, message, iterations, evaluations = "iteration_limit", "most iterations reached", 0, 1
         last_ratio = np.inf
         for it in range(max_iter):
-            normal, _ = self._normal(parts, z)
-            parts = None  # the blocks hold all the step needs: free the Jacobian (84 MB at 8 x 32,000)
+            normal = self._normal(state, z)
             accepted = None
             while lam < LAMBDA_MAX:
                 step = schur.solve(normal, lam)
@@ -271,24 +269,24 @@ class _LevenbergMarquardt:
                     lam, nu = lam * nu, 2 * nu
                     continue
                 new = self._moved(state, step)
-                new_cost = self._cost(self._squared_errors(new))
+                z_new = self._squared_errors(new)
+                new_cost = self._cost(z_new)
                 evaluations += 1
                 pred = _predicted_gain(normal, step)
                 gain = (cost - new_cost) / pred if pred > 0 else -1.0
                 if np.isfinite(new_cost) and gain > 0:
                     lam *= max(1 / 3, 1 - (2 * gain - 1) ** 3)
                     nu = 2.0
-                    accepted = (new, step, new_cost)
+                    accepted = (new, step, new_cost, z_new)
                     break
                 lam, nu = lam * nu, 2 * nu
             if accepted is None:
                 status, message = "converged", "no step lowers the cost further"
                 break
-            state, step, new_cost = accepted
+            state, step, new_cost, z = accepted
             iterations = it + 1
             relative_gain = (cost - new_cost) / max(cost, 1e-300)
             normal = None
-            parts, z = self._linearise(state)
             self._rescale(z)
             cost = self._cost(z)
             if progress is not None:
@@ -312,16 +310,16 @@ class _LevenbergMarquardt:
             "loss": self.loss,
             "loss_scale_px": None if self.loss == "linear" else float(self.scale),
         }
-        self.last = (state, parts, z)  # the final state's linearisation, for standard_errors
+        self.last = (state, z)  # the final state's squared errors, for standard_errors
         return state, info
 
     def standard_errors(self, state: BundleState) -> np.ndarray:
         """(n_free, c) standard errors of the cameras' parameters at the solution: sigma times the
         root diagonal of the undamped reduced system's inverse (0 for held parameters)."""
-        last_state, parts, z = getattr(self, "last", (None, None, None))
-        if last_state is not state or parts is None:
-            parts, z = self._linearise(state)
-        step = schur.solve(self._normal(parts, z)[0], 0.0) if self.n_free else None
+        last_state, z = getattr(self, "last", (None, None))
+        if last_state is not state:
+            z = self._squared_errors(state)
+        step = schur.solve(self._normal(state, z), 0.0) if self.n_free else None
         if step is None:
             return np.full((self.n_free, self.cam_size), np.inf)
         std = _robust_sigma(z) * np.sqrt(np.maximum(step.cam_var, 0.0))

@@ -47,30 +47,25 @@ ROWS_PER_CHUNK = 32_768  # observations linearised at once: bounds the temporari
 
 
 class _Term:
-    """What the terms share: residuals and Jacobians formed a chunk of observations at a time,
-    so the temporaries stay small beside the (M, 2, k) Jacobian itself."""
+    """What the terms share: residuals formed a chunk of observations at a time (so temporaries
+    stay small), and the rows of the Jacobian for any range (``linearise_rows``), which the
+    normal equations take a chunk at a time."""
 
     camera: np.ndarray
 
     def residuals(self, s: BundleState) -> np.ndarray:
         """(M, 2) pixel residuals."""
-        return self._chunked(lambda sl: (self._residuals(s, sl),))[0]
-
-    def linearise(self, s: BundleState):
-        """(r (M, 2), J (M, 2, c + p)) at ``s``: the camera's c parameters (w, t, refined
-        intrinsics) first, then the block's p."""
-        return self._chunked(lambda sl: self._linearise(s, sl))
-
-    def _chunked(self, part):
         n = len(self.camera)
-        out = None
+        out = np.empty((n, 2))
         for a in range(0, n, ROWS_PER_CHUNK):
-            pieces = part(slice(a, a + ROWS_PER_CHUNK))
-            if out is None:
-                out = [np.empty((n,) + x.shape[1:]) for x in pieces]
-            for o, x in zip(out, pieces):
-                o[a : a + len(x)] = x
+            sl = slice(a, a + ROWS_PER_CHUNK)
+            out[sl] = self._residuals(s, sl)
         return out
+
+    def linearise_rows(self, s: BundleState, sl: slice):
+        """(r (K, 2), J (K, 2, c + p)) of the observations ``sl`` at ``s``: the camera's c
+        parameters (w, t, refined intrinsics) first, then the block's p."""
+        return self._linearise(s, sl)
 
     def _project(self, s: BundleState, X: np.ndarray, sl: slice) -> np.ndarray:
         xc = np.einsum("mij,mj->mi", s.R[self.camera[sl]], X) + s.t[self.camera[sl]]

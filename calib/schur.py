@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 CHUNK_ENTRIES = 2_000_000  # doubles per dense chunk of the reduction (16 MB): bounds memory at any rig size
-CHUNK_GROUPS = 32_768  # observation groups whose products are formed at once: 32 MB at 11 parameters
+CHUNK_GROUPS = 16_384  # observation groups linearised and summed at once: ~30 MB of temporaries
 MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagonal: a parameter no
 # residual touches would otherwise make the damped system singular
 
@@ -111,6 +111,7 @@ class TermStructure:
             for a in range(0, len(first), CHUNK_GROUPS)
         ]
         self.n_pairs = len(pairs)
+        self.n_groups = len(first)
         self.pair_to_cam = _Sum(self.pair_cam, n_cams)
         self.pair_to_pt = _Sum(self.pair_pt, n_pts)
 
@@ -135,27 +136,29 @@ class Normal:
 
 
 def normal_equations(cam_size: int, n_cams: int, parts) -> Normal:
-    """Sum the per-observation products into blocks.
+    """Sum the per-observation products into blocks, a chunk of groups at a time.
 
     Args:
         cam_size: c; n_cams: free cameras.
-        parts: list of (structure, r (M, 2), J (M, 2, c + p)): residuals and Jacobians (camera
-            columns first), already multiplied by the square roots of their weights.
+        parts: list of (structure, rows) where ``rows(lo, hi)`` returns the residuals (hi-lo, 2)
+            and Jacobian (hi-lo, 2, c + p) of observations lo..hi (camera columns first), already
+            multiplied by the square roots of their weights. The whole Jacobian never exists at
+            once: at 8 x 32,000 it would be 84 MB.
     """
     c = cam_size
     U = np.zeros((n_cams, c, c))
     gc = np.zeros((n_cams, c))
     terms = []
-    for s, r, J in parts:
-        k = J.shape[2]
-        p = k - c
-        Jg = J.reshape(-1, 2 * s.group, k)
-        rg = r.reshape(len(Jg), -1)
+    for s, rows in parts:
+        p = s.size
         V = np.zeros((s.n_pts, p, p))
         gp = np.zeros((s.n_pts, p))
         W = np.zeros((s.n_pairs, c, p))
         for a, b, to_cam, to_pt, to_pair in s.chunks:
-            Jc, Jp, rc = Jg[a:b, :, :c], Jg[a:b, :, c:], rg[a:b]
+            r, J = rows(a * s.group, min(b, s.n_groups) * s.group)
+            Jg = J.reshape(-1, 2 * s.group, c + p)
+            rc = r.reshape(len(Jg), -1)
+            Jc, Jp = Jg[:, :, :c], Jg[:, :, c:]
             for out, products, sum_ in (
                 (U, np.einsum("gri,grj->gij", Jc, Jc, optimize=True), to_cam),
                 (gc, np.einsum("gri,gr->gi", Jc, rc), to_cam),
