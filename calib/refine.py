@@ -145,8 +145,9 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     fit = None
     if names:
         fit = IntrinsicsFit(_intrinsics(rig), names, setup.uv, tracks.uv if tracks is not None else None)
+    # standard errors cost one more linearisation and solve; only the intrinsics report reads them
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS, intrinsics=fit,
-                               stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final)
+                               stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final and bool(names))
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
     refined = Refined(rig, setup, labelled, tracks, *model.poses(out.x), model.wand(out.x), out.X, info, out.camera_std)
     if names:
