@@ -100,10 +100,13 @@ def _die_with_parent() -> None:
         pass  # not Linux: the parent-pid check in the loop still ends the worker
 
 
-def worker_main(db_path: str, data_dir: str, wake, stop) -> None:
-    """Entry point of a spawned worker process: claim and run jobs until told to stop."""
+def worker_main(db_path: str, data_dir: str, wake, stop, parent: int | None = None) -> None:
+    """Entry point of a spawned worker process: claim and run jobs until told to stop.
+
+    ``parent`` is the server's pid, passed in: a server that dies before this process sets
+    PR_SET_PDEATHSIG would otherwise leave it polling forever under init (seen in the tests)."""
     _die_with_parent()
-    parent = os.getppid()
+    parent = os.getppid() if parent is None else parent
     from service.storage import CaptureStore
 
     store = JobStore(Path(db_path))
@@ -136,7 +139,7 @@ class WorkerPool:
     def _spawn(self):
         proc = self.ctx.Process(
             target=worker_main,
-            args=(str(self.store.db_path), str(self.data_dir), self.wake, self.stop_event),
+            args=(str(self.store.db_path), str(self.data_dir), self.wake, self.stop_event, os.getpid()),
             name="wandcal-worker",
             daemon=True,
         )
