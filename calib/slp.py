@@ -2,17 +2,18 @@
 
 Each iteration linearises the pixel reprojection residuals of :class:`calib.wandmodel.WandModel`
 about the current state, eliminates every wand frame's 5 parameters per frame (points are
-independent once the cameras are known), and solves one LP with HiGHS for the step ``d`` of all
-free cameras (3 rotation increments and 3 translations each) inside a trust region:
+independent once the cameras are known; calib/reduced.py), and solves one LP with HiGHS for the
+step ``d`` of all free cameras (3 rotation increments and 3 translations each) inside a trust
+region (calib/lpstep.py):
 
     minimise  sum_i rho(a_i . d + b_i)   subject to  |d_j| <= radius_j,
 
 where ``rho`` is a convex piecewise-linear loss, so this is an LP. Plain least absolute error
 (``rho = |z|``) is robust but only 64% efficient on Gaussian noise (1.25x the error of least
 squares); ``rho`` here is the 3-breakpoint piecewise-linear M-estimator loss of greatest
-Gaussian efficiency (96.5%, docs/decisions/0004-lp-method.md) in units of a robust scale ``s`` of
-the residuals. Rows further out than ``REJECT_SIGMAS * s`` are left out of the step (a
-redescending M-estimator that ignores gross outliers).
+Gaussian efficiency (96.5%, calib/robustloss.py) in units of a robust scale ``s`` of the
+residuals. Rows further out than ``REJECT_SIGMAS * s`` are left out of the step (a redescending
+M-estimator that ignores gross outliers).
 
 The LP stays small and exact. ``rho`` is the maximum of its linear pieces, so replacing it, row
 by row, by the maximum of only the pieces near the row's current residual gives a lower bound of
@@ -22,9 +23,14 @@ with one auxiliary variable per breakpoint. If the LP's optimum keeps every row 
 modelled pieces, it is the optimum of the full LP (it attains a lower bound); otherwise the rows
 that left are given the breakpoints they crossed and the LP is solved again.
 
-Far from the optimum a first phase runs plain least absolute error on a subset of frames; a
-Gauss-Newton predictor and a guard box keep each LP's working set small. The design and the
-measurements behind each choice: docs/decisions/0004-lp-method.md.
+The LP's size grows with the rows it must model, and each reduced row touches every camera of
+its frame, so LP steps far from the optimum cost ~cameras^2.3. Steps there are IRLS steps
+instead (iteratively reweighted least squares on the same convex loss, one reduced normal
+matrix each), and the LP runs only where IRLS has nearly converged, written about the IRLS
+point, where it certifies (and lands on) the exact optimum of the piecewise-linear loss with a
+small working set. Far from the optimum a first phase runs plain least absolute error on a
+subset of frames. The design and the measurements behind each choice:
+docs/decisions/0004-lp-method.md.
 """
 
 from __future__ import annotations
@@ -32,16 +38,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.sparse as sp
 
-from calib.lp import IncrementalLp
+from calib.lpstep import GUARD_SE, solve_step
+from calib.reduced import ReducedSystem, apply_t, outer, robust_scale, sum_by
+from calib.robustloss import EFFICIENT, L1, irls_weights
 from calib.wandmodel import CAM_PARAMS, FRAME_PARAMS, WandModel, WandProblem
 
-# The loss: breakpoints (robust sigmas) and psi on each interval, from 0 outwards; found by
-# maximising Gaussian efficiency over 3-breakpoint convex piecewise-linear losses (decision 0004)
-BREAKS = np.array([0.501, 1.05, 1.748])
-SLOPES = np.array([0.188, 0.58, 1.031, 1.651])
-REJECT_SIGMAS = 6.0  # a residual this many robust sigmas out is a gross outlier, not noise
 ROT_RADIUS = 0.02  # initial trust region: radians per rotation increment
 T_RADIUS = 0.05  # and metres per translation component
 MAX_ITER = 40
@@ -49,11 +51,6 @@ STEP_TOL = 2e-7  # stop when no camera parameter moves by more than this (rad or
 # stop when the LP promises less gain than this per camera parameter: the loss is ~z^2/2 in
 # robust sigmas near its minimum, so a step of 0.1 standard error gains ~0.005 per parameter
 CONVERGED_GAIN = 0.005
-NEAR_BREAK = 0.01  # a row within this many sigmas of a breakpoint, at the predicted step, starts in the LP
-GUARD_SE = 1.0  # the first solves stay within this many standard errors of the predicted step
-FIRST_STRATEGY = 1  # HiGHS dual simplex for a working set's first solve
-RESOLVE_STRATEGY = 1  # dual again: primal simplex from the last basis took 4x the iterations (measured at 16 x 3000)
-GUARD_GROWTH = 4.0  # and the guard widens this much where the solution touches it
 # Frames of the first phase: few enough that its LPs stay small, enough that the phase on all
 # frames then needs one step. 150 ran 13-17% faster than 300 at 8 x 2000 and 16 x 3000, clean
 # and with 8% outliers, with the same errors (decision 0004).
@@ -62,34 +59,26 @@ SUBSET_ONLY_ABOVE = 4  # the first phase pays off only on captures this many tim
 REFIT_STEPS = 1  # Gauss-Newton steps that fit every frame to the first phase's cameras (the
 # predictor's step moves the frames too)
 SCALE_REBUILD = 0.05  # a robust scale that moved less than this keeps the system built with the old one
-MAX_ACTIVE_ROUNDS = 12  # re-solves with widened rows before a step is taken as it is
 
 CONVERGED_SE = 0.05  # stop when a step moves every parameter by less than this many standard errors
 MODEL_EXACT = 0.02  # |actual / predicted gain - 1| below which the linearised model was exact
 SHORT_STEP_SE = 5.0  # steps shorter than this many standard errors keep the linearisation exact
-
-
-def _signed(breaks: np.ndarray, slopes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Signed breakpoints and the slope of each interval between them, left to right."""
-    return np.r_[-breaks[::-1], 0.0, breaks], np.r_[-slopes[::-1], slopes]
-
-
-EFFICIENT = _signed(BREAKS, SLOPES)
-L1 = _signed(np.zeros(0), np.ones(1))  # least absolute error: the first phase only needs a robust direction
-
-
-def _loss(z: np.ndarray, loss) -> np.ndarray:
-    """A convex piecewise-linear loss, given as (signed breakpoints with 0 in the middle,
-    slopes of the intervals between them), of residuals z in robust sigmas; 0 at z = 0."""
-    P, S = loss
-    mid = len(P) // 2
-    out = S[mid + 1] * np.maximum(z, 0.0) + S[mid] * np.minimum(z, 0.0)
-    for q in range(len(P)):
-        if q > mid:
-            out += (S[q + 1] - S[q]) * np.maximum(z - P[q], 0.0)
-        elif q < mid:
-            out += (S[q + 1] - S[q]) * np.maximum(P[q] - z, 0.0)
-    return out
+# IRLS (decision 0004, third session; measured at 16 and 32 x 2000, 1 deg / 3 cm start, 8% outliers)
+MAX_IRLS = 8  # inner IRLS steps on one linearisation
+IRLS_DONE_SE = 0.1  # inner steps stop when one moves every parameter by less than this many standard errors
+MAX_RELINEARISE = 6  # IRLS moves (each relinearised) before the LP takes over
+# a move shorter than this many standard errors ends IRLS: the linearisation then changes the
+# IRLS point by far less than the LP's guard (a 7 SE move left 2.6k LP pairs, as many as a 0.2 SE
+# one, and saved a normal matrix and a relinearisation: 3.8 -> 2.8 s at 32 x 2000)
+RELINEARISE_SE = 20.0
+IRLS_GUARD_SE = 0.25  # the guard of an LP written about an IRLS point (IRLS stalls ~0.06 SE from the optimum)
+# a row this many sigmas from a breakpoint at the IRLS point starts in the LP: 0.01 gave 8.4k
+# pairs (1.4 s) at 32 x 2000 with outliers, 0.003 2.6k (0.6-0.9 s), 0.001 2.8-3.9k after more rounds
+IRLS_NEAR_BREAK = 0.003
+# the first phase's L1 optimum only starts the second phase: IRLS near it is enough, and its
+# certifying LPs took 1.0-1.4 s of the 32 x 2000 time (the second phase's robust scale moved 1e-4)
+CERTIFY_FIRST_PHASE = False
+SCHEMES = ("irls", "lp")  # IRLS steps then certifying LPs (default); LP steps only (the scheme before, decision 0004)
 
 
 def refine_lp(
@@ -99,6 +88,7 @@ def refine_lp(
     max_iter: int = MAX_ITER,
     time_limit: float | None = None,
     subset_frames: int = SUBSET_FRAMES,
+    scheme: str = "irls",
 ):
     """Refine all free cameras and wand frames by sequential LP.
 
@@ -112,12 +102,16 @@ def refine_lp(
         progress: optional callable(dict).
         time_limit: seconds for each LP solve.
         subset_frames: frames of the first phase (0: none).
+        scheme: "irls" (IRLS steps, then LP steps that certify the optimum) or "lp" (LP steps
+            only, the scheme before; the same estimator, kept to check the other against).
 
     Returns:
         (x, info) with info: iterations, seconds, lp_seconds, lp_rows_mean, scale, and status:
         "converged", "iteration_limit", "time_limit" (an LP hit ``time_limit``: x is the best
-        state reached before it) or "lp_<status>" (HiGHS failed; x likewise).
+        state reached before it) or "lp_<status>" (HiGHS failed; x likewise); irls_steps.
     """
+    if scheme not in SCHEMES:
+        raise ValueError(f"scheme must be one of {SCHEMES}, not {scheme!r}")
     start = time.perf_counter()
     x = model.x0() if x0 is None else x0.copy()
     info_sub = None
@@ -125,17 +119,20 @@ def refine_lp(
     if subset_frames and F > SUBSET_ONLY_ABOVE * subset_frames:
         keep = np.unique(np.linspace(0, F - 1, subset_frames).round().astype(int))
         sub, sub_x = _frame_subset(model, x, keep)
-        sub_x, info_sub = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1)
+        sub_x, info_sub = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, scheme,
+                               certify=CERTIFY_FIRST_PHASE)
         x[: model.frame_col0] = sub_x[: model.frame_col0]
         x = _refit_frames(model, x)
     if info_sub is not None and info_sub["status"] != "converged":
         info = dict(info_sub, iterations=0, lp_seconds=0.0)  # the first phase's best state stands
     else:
-        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT)
+        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, scheme)
     if info_sub is not None:
         info["iterations"] += info_sub["iterations"]
         info["lp_seconds"] += info_sub["lp_seconds"]
         info["uncertified_steps"] += info_sub["uncertified_steps"]
+        info["irls_steps"] += info_sub["irls_steps"]
+        info["lp_steps"] = info_sub["lp_steps"] + info["lp_steps"]
         info["subset"] = {"frames": int(len(keep)), "iterations": info_sub["iterations"]}
     info["seconds"] = time.perf_counter() - start
     return x, info
@@ -160,30 +157,46 @@ def _refit_frames(model: WandModel, x: np.ndarray, steps: int = REFIT_STEPS) -> 
     for _ in range(steps):
         r = model.residuals(x).reshape(-1, 2)
         F = model.jacobian_blocks(x)[0][:, :, CAM_PARAMS:]
-        H = _sum_by(model, "frame", _outer(F, F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
-        g = _sum_by(model, "frame", _apply_t(F, r))
+        H = sum_by(model, "frame", outer(F, F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
+        g = sum_by(model, "frame", apply_t(F, r))
         x[model.frame_col0 :] -= np.linalg.solve(H + 1e-9 * np.eye(FRAME_PARAMS), g[:, :, None])[:, :, 0].ravel()
     return x
 
 
-def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, phase: str, loss):
+def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, phase: str, loss,
+         scheme: str = "irls", certify: bool = True):
+    """One phase (one loss, one robust scale): LP steps, after IRLS steps with ``scheme="irls"``
+    (then LP steps only with ``certify``)."""
     n_free = model.frame_col0 // CAM_PARAMS
     radius = np.array([ROT_RADIUS, T_RADIUS])
-    lp_seconds, lp_rows, status, uncertified = 0.0, [], "iteration_limit", 0
-    state = _ReducedSystem(model, x)
+    lp_seconds, lp_rows, lp_log, status, uncertified = 0.0, [], [], "iteration_limit", 0
+    state = start = ReducedSystem(model, x)
     # a Gauss-Newton step first, kept only if it lowers the LP's own objective: it brings most
     # residuals near where the LP will put them, so the LP crosses few breakpoints
-    trial = _ReducedSystem(model, state.apply(state.gauss_newton_step()), state.scale)
+    trial = ReducedSystem(model, state.apply(state.gauss_newton_step()), state.scale)
     if trial.cost(state.scale, loss) < state.cost(state.scale, loss):
         # the phase's robust scale is taken here; rebuild only if it moved
-        scale = _robust_scale(trial.r)
-        state = trial if abs(scale / state.scale - 1) < SCALE_REBUILD else _ReducedSystem(model, trial.x, scale)
+        scale = robust_scale(trial.r)
+        state = trial if abs(scale / state.scale - 1) < SCALE_REBUILD else trial.rescaled(scale)
+    irls_steps, se_phase = 0, None
+    if scheme == "irls":
+        # for IRLS's stop and the LP's guard: the start's, rescaled, is near enough for both
+        se_phase = start.standard_errors() * state.scale / start.scale
+        state, irls_steps = _irls(model, state, loss, np.tile(np.repeat(radius, 3), n_free), se_phase, progress, phase)
     it = 0
+    if scheme == "irls" and not certify:
+        max_iter, status = 0, "converged"
     for it in range(1, max_iter + 1):
         rho = np.tile(np.repeat(radius, 3), n_free)
-        d, lp_info = _solve_step(state, rho, time_limit, loss, GUARD_SE)
+        if scheme == "irls":
+            # written about the IRLS point (the state): only rows near a breakpoint there enter
+            d, lp_info = solve_step(state, rho, time_limit, loss, IRLS_GUARD_SE, d_pred=np.zeros(len(rho)),
+                                    near=IRLS_NEAR_BREAK, se=se_phase)
+        else:
+            d, lp_info = solve_step(state, rho, time_limit, loss, GUARD_SE)
         lp_seconds += lp_info["seconds"]
         lp_rows.append(lp_info["rows"])
+        lp_log.append((lp_info["rows"], lp_info["rounds"], round(lp_info["seconds"], 3)))
         uncertified += lp_info["status"] == "uncertified"
         if d is None:
             status = "time_limit" if lp_info["status"] == "time_limit" else f"lp_{lp_info['status']}"
@@ -193,17 +206,17 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         if cost - predicted <= CONVERGED_GAIN * len(d) or np.max(np.abs(d)) < STEP_TOL:
             # the LP's optimum is within a sliver of a standard error of where we are: land on
             # it (the estimate is the LP's) unless that costs more than the sliver, and stop
-            trial = _ReducedSystem(model, state.apply(d), state.scale)
+            trial = ReducedSystem(model, state.apply(d), state.scale)
             if trial.cost(state.scale, loss) <= cost + CONVERGED_GAIN * len(d):
                 state = trial
             status = "converged"
             break
-        trial = _ReducedSystem(model, state.apply(d), state.scale)
+        trial = ReducedSystem(model, state.apply(d), state.scale)
         new_cost = trial.cost(state.scale, loss)
         ratio = (cost - new_cost) / (cost - predicted)
         step = np.abs(d).reshape(-1, 2, 3).max(axis=(0, 2))
         if new_cost < cost:
-            se = state.standard_errors()
+            se = state.standard_errors() if se_phase is None else se_phase
             small = np.all(np.abs(d) < CONVERGED_SE * se)
             # the linear model predicted this step's gain exactly and the step was short: the LP
             # has landed on the optimum of an accurate model, so another step would only confirm
@@ -228,252 +241,51 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         "status": status,
         "robust_scale_px": state.scale,
         "uncertified_steps": uncertified,
+        "irls_steps": irls_steps,
+        "lp_steps": lp_log,
     }
 
 
-def _robust_scale(r: np.ndarray) -> float:
-    """Per-axis noise from (M, 2) residuals: the median radius of a 2D Gaussian is sigma sqrt(2 ln 2)."""
-    return max(float(np.median(np.linalg.norm(r, axis=1))) / np.sqrt(2 * np.log(2)), 1e-9)
+def _irls(model: WandModel, state: ReducedSystem, loss, rho: np.ndarray, se: np.ndarray, progress, phase: str):
+    """IRLS on the phase's loss and scale, near to the optimum of the piecewise-linear loss.
 
+    Each inner step solves the reduced rows' weighted normal equations with weights
+    |psi(z)| / |z| (calib/robustloss.py) on one linearisation, the frames still eliminated as in
+    the LP, so its fixed point is a stationary point of the same loss: near its optimum, not on it
+    (that needs rows exactly on breakpoints), which the LP then certifies. Inner steps stop when
+    one moves every camera parameter by less than ``IRLS_DONE_SE`` standard errors; the state then
+    moves to the IRLS point and is linearised again, until the whole move is shorter than
+    ``RELINEARISE_SE`` standard errors (or raises the merit). Steps stay in the trust region ``rho``.
 
-def _outer(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """(M, k, i), (M, k, j) -> (M, i, j): sum_k A[:, k, i] B[:, k, j] (matmul is ~8x einsum here)."""
-    return np.matmul(A.swapaxes(1, 2), B)
-
-
-def _apply(A: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(M, k, j), (M, j) -> (M, k)."""
-    return np.matmul(A, v[:, :, None])[:, :, 0]
-
-
-def _apply_t(A: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(M, k, i), (M, k) -> (M, i): A^T v per observation."""
-    return np.matmul(A.swapaxes(1, 2), v[:, :, None])[:, :, 0]
-
-
-def _incidence(model: WandModel) -> dict:
-    """Sparse sums over observations by frame, camera and (frame, camera), cached on the model
-    (np.add.at is several times slower at these sizes)."""
-    cache = getattr(model, "_slp_incidence", None)
-    if cache is None:
-        p = model.p
-        M = len(p.camera)
-        ones = np.ones(M)
-        obs = np.arange(M)
-        cache = {
-            "frame": sp.csr_matrix((ones, (p.frame, obs)), shape=(p.n_frames, M)),
-            "camera": sp.csr_matrix((ones, (p.camera, obs)), shape=(p.n_cams, M)),
-            "frame_camera": sp.csr_matrix((ones, (p.frame * p.n_cams + p.camera, obs)), shape=(p.n_frames * p.n_cams, M)),
-        }
-        model._slp_incidence = cache
-    return cache
-
-
-def _sum_by(model: WandModel, key: str, values: np.ndarray) -> np.ndarray:
-    """Sum (M, ...) per-observation values by frame, camera or (frame, camera)."""
-    M = values.shape[0]
-    out = _incidence(model)[key] @ values.reshape(M, -1)
-    return np.asarray(out)
-
-
-class _ReducedSystem:
-    """Residuals with each frame's parameters eliminated, at one state of a WandModel."""
-
-    def __init__(self, model: WandModel, x: np.ndarray, scale: float | None = None):
-        self.model, self.x = model, x
-        self.r = model.residuals(x).reshape(-1, 2)
-        blocks, cols = model.jacobian_blocks(x)
-        self.own = cols[:, 0] >= 0  # the observation's camera is free
-        self.cam_cols = cols[:, :CAM_PARAMS]
-        self.C = blocks[:, :, :CAM_PARAMS]  # (M, 2, 6)
-        self.F = blocks[:, :, CAM_PARAMS:]  # (M, 2, 5)
-        self.scale = _robust_scale(self.r) if scale is None else scale
-        self.kept = np.abs(self.r) <= REJECT_SIGMAS * self.scale  # (M, 2)
-        self._eliminate()
-
-    def cost(self, scale: float, loss) -> float:
-        """The merit of these cameras: the loss (capped at the rejection point) of the residuals
-        with every frame re-fitted to them. The frames are projected out (variable projection),
-        so this is what the LP's model predicts at d = 0."""
-        cap = _loss(np.array([REJECT_SIGMAS]), loss)[0]
-        return float(np.minimum(_loss(self.b.ravel() / scale, loss), cap).sum())
-
-    def model_cost(self, d: np.ndarray, loss) -> float:
-        """The LP's model at step d: kept rows linearised, rejected rows at their cap."""
-        cap = _loss(np.array([REJECT_SIGMAS]), loss)[0]
-        z = (self.b + self.change(d)).ravel() / self.scale
-        return float(np.where(self.kept.ravel(), _loss(z, loss), cap).sum())
-
-    def standard_errors(self) -> np.ndarray:
-        """(n_cam_params,) standard errors of the camera parameters from the reduced normal
-        equations and the robust scale (valid near the optimum)."""
-        S = self._schur()[0]
-        return self.scale * np.sqrt(np.maximum(np.diag(np.linalg.inv(S)), 0.0))
-
-    def _eliminate(self) -> None:
-        """Per-frame elimination: K (M,2,5), G (F,N,5,6), g (F,5), Hinv (F,5,5), b (M,2)."""
-        p = self.model.p
-        # plain least squares on the kept rows: weights that moved with the residuals would make
-        # the frames' fit an iteration of its own, and the projected merit would drift under it
-        Wt = self.kept.astype(float)
-        self.Wt = Wt
-        FW = self.F * Wt[:, :, None]
-        m = self.model
-        H = _sum_by(m, "frame", _outer(FW, self.F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
-        g = _sum_by(m, "frame", _apply_t(FW, self.r))
-        Hinv = np.linalg.inv(H + 1e-9 * np.eye(FRAME_PARAMS))
-        G = _sum_by(m, "frame_camera", _outer(FW, self.C)).reshape(p.n_frames, p.n_cams, FRAME_PARAMS, CAM_PARAMS)
-        self.K = np.matmul(self.F, Hinv[p.frame])
-        self.Hinv, self.G, self.g = Hinv, G, g
-        self.b = self.r - _apply(self.K, g[p.frame])
-
-    def gauss_newton_step(self) -> np.ndarray:
-        """The weighted least-squares step of the reduced system, (n_cam_params,)."""
-        S, rhs = self._schur()
-        return -np.linalg.solve(S + 1e-9 * np.trace(S) / len(S) * np.eye(len(S)), rhs)
-
-    def _schur(self) -> tuple[np.ndarray, np.ndarray]:
-        """Reduced normal matrix and gradient of the free cameras: the Schur complement of the
-        frames, with the elimination's weights. Cached."""
-        if getattr(self, "_schur_cache", None) is not None:
-            return self._schur_cache
-        p, m = self.model.p, self.model
-        Wc = self.C * self.Wt[:, :, None]
-        CC = _sum_by(m, "camera", _outer(Wc, self.C)).reshape(p.n_cams, CAM_PARAMS, CAM_PARAMS)
-        Cr = _sum_by(m, "camera", _apply_t(Wc, self.r))
-        n = p.n_cams * CAM_PARAMS
-        S = np.zeros((n, n))
-        idx = np.arange(p.n_cams)
-        S.reshape(p.n_cams, CAM_PARAMS, p.n_cams, CAM_PARAMS)[idx, :, idx, :] = CC
-        Gf = self.G.transpose(0, 2, 1, 3).reshape(p.n_frames, FRAME_PARAMS, n)  # (F, 5, N*6)
-        HG = np.einsum("fij,fjc->fic", self.Hinv, Gf)
-        S -= np.einsum("fic,fid->cd", Gf, HG)
-        rhs = Cr.ravel() - np.einsum("fic,fi->c", Gf, np.einsum("fij,fj->fi", self.Hinv, self.g))
-        free = (m.free[:, None] * CAM_PARAMS + np.arange(CAM_PARAMS)).ravel()
-        self._schur_cache = (S[np.ix_(free, free)], rhs[free])
-        return self._schur_cache
-
-    def rows(self, obs: np.ndarray, comp: np.ndarray) -> np.ndarray:
-        """Dense reduced rows a_i, (k, n_cam_params), for observation ``obs`` component ``comp``."""
-        p, m = self.model.p, self.model
-        K = self.K[obs, comp]  # (k, 5)
-        KG = np.einsum("kj,knjc->knc", K, self.G[p.frame[obs]])  # (k, N, 6)
-        out = -KG[:, m.free].reshape(len(obs), -1)
-        own = np.flatnonzero(self.own[obs])
-        cols = self.cam_cols[obs[own]]
-        np.add.at(out, (own[:, None], cols), self.C[obs[own], comp[own]])
-        return out
-
-    def change(self, d: np.ndarray) -> np.ndarray:
-        """(M, 2) a_i . d for every row, without forming the rows."""
-        p, m = self.model.p, self.model
-        dc = np.zeros((p.n_cams, CAM_PARAMS))
-        dc[m.free] = d.reshape(-1, CAM_PARAMS)
-        own = _apply(self.C, dc[p.camera]) * self.own[:, None]
-        Gd = np.einsum("fnjc,nc->fj", self.G, dc)
-        return own - _apply(self.K, Gd[p.frame])
-
-    def folded_cost(self, coef: np.ndarray) -> np.ndarray:
-        """sum_i coef_i a_i over all rows, (n_cam_params,), for coef (M, 2)."""
-        m = self.model
-        cam = np.einsum("mk,mkj->mj", coef, self.C) * self.own[:, None]
-        out = _sum_by(m, "camera", cam)
-        u = _sum_by(m, "frame", np.einsum("mk,mkj->mj", coef, self.K))
-        out -= np.einsum("fj,fnjc->nc", u, self.G)
-        return out[m.free].ravel()
-
-    def apply(self, d: np.ndarray) -> np.ndarray:
-        """New state: cameras += d and each frame += its eliminated step."""
-        m, p = self.model, self.model.p
-        x = self.x.copy()
-        x[: m.frame_col0] += d
-        dc = np.zeros((p.n_cams, CAM_PARAMS))
-        dc[m.free] = d.reshape(-1, CAM_PARAMS)
-        df = -np.einsum("fij,fj->fi", self.Hinv, self.g + np.einsum("fnjc,nc->fj", self.G, dc))
-        x[m.frame_col0 :] += df.ravel()
-        return x
-
-
-def _solve_step(state: _ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se: float | None):
-    """The trust-region LP step on an exact working set of (row, breakpoint) pairs.
-
-    Each row keeps the slope of the interval its residual starts in (a linear term, folded into
-    one cost vector) and gets a hinge for each modelled breakpoint: ``(z - P)+`` to the right of
-    its start, ``(P - z)+`` to the left, weighted by the slope change there, which adds up to the
-    loss exactly on the modelled pieces. The working set starts from a prediction ``d_pred``, the
-    Gauss-Newton step of the reduced system clipped to the trust region: each row gets the
-    breakpoints between its residual now and its predicted residual, and any within
-    ``NEAR_BREAK`` of either. So that this small set cannot send the step far off, the solves
-    are confined to a guard box of ``guard_se`` standard errors around the prediction, widened
-    where the solution touches it. The answer is exact once it lies inside the box and every row
-    stays among its modelled pieces; until then rows that left get the breakpoints they crossed.
-
-    The LP is solved in its dual form, where pairs are columns, so every widening only adds
-    columns and HiGHS carries on from its last basis:
-        min sum_q -s_q beta_q y_q - lo . u+ + hi . u-
-        s.t. sum_q s_q A_q y_q - u+ + u- = -c_fold,  0 <= y_q <= jump_q,
-    for the primal  min c_fold . d + sum_q jump_q max(s_q (A_q d + beta_q), 0) over lo <= d <= hi,
-    with s_q = +1 for right hinges and -1 for left ones. The step d is the row duals: where
-    0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0, the row on its breakpoint.
+    Returns:
+        (state at the last accepted move, inner steps taken).
     """
-    P, S = loss[0] * state.scale, loss[1]  # breakpoints in pixels, interval slopes
-    b = state.b.ravel()
-    kept = state.kept.ravel()
-    d_pred = np.clip(state.gauss_newton_step(), -rho, rho)
-    guard = rho * 2 if guard_se is None else guard_se * state.standard_errors()
-    z_pred = b + state.change(d_pred).ravel()
-    near = NEAR_BREAK * state.scale
-    base = np.searchsorted(P, b)  # the interval each row starts in: P[base - 1] < b <= P[base]
-    c_fold = state.folded_cost(np.where(kept, S[base], 0.0).reshape(-1, 2))
-    lo = np.where(kept, np.searchsorted(P, np.minimum(b, z_pred) - near), 0)
-    hi = np.where(kept, np.searchsorted(P, np.maximum(b, z_pred) + near) - 1, -1)
-    n = len(rho)
-    lp = IncrementalLp(-c_fold, time_limit)
-    eye = sp.identity(n, format="csc")
-    lp.add_columns(np.zeros(2 * n), np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
-    old_lo, old_hi = base, base - 1  # nothing modelled yet
-    seconds, d, rounds, total, certified = 0.0, None, 0, 0, False
-    for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
-        box_lo = np.maximum(-rho, d_pred - guard)
-        box_hi = np.minimum(rho, d_pred + guard)
-        lp.set_costs(np.arange(2 * n), np.r_[-box_lo, box_hi])
-        # the pairs not modelled before: below the old range and above it
-        rows_a, bps_a = _pairs(lo, np.minimum(hi, old_lo - 1))
-        rows_b, bps_b = _pairs(np.maximum(lo, old_hi + 1), hi)
-        rows_i, bps = np.r_[rows_a, rows_b], np.r_[bps_a, bps_b]
-        if len(rows_i):
-            side = np.where(bps >= base[rows_i], 1.0, -1.0)  # right hinge, or left hinge
-            A = state.rows(rows_i // 2, rows_i % 2) * side[:, None]
-            lp.add_columns(-side * (b[rows_i] - P[bps]), np.zeros(len(rows_i)), S[bps + 1] - S[bps], A.T)
-            total += len(rows_i)
-        res = lp.solve(FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
-        seconds += res.seconds
-        if res.status != "optimal" or res.row_duals is None:
-            # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
-            return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds}
-        d = res.row_duals.copy()
-        z = b + state.change(d).ravel()
-        where = np.searchsorted(P, z)
-        out_lo = kept & (where < lo)
-        out_hi = kept & (where > hi + 1)
-        # touching the guard (where it is inside the trust region) means the optimum may lie beyond
-        tol = 1e-9 * (np.abs(box_hi - box_lo) + 1e-300)
-        pinned = ((d <= box_lo + tol) & (box_lo > -rho)) | ((d >= box_hi - tol) & (box_hi < rho))
-        if not (out_lo.any() or out_hi.any() or pinned.any()):
-            certified = True
+    steps = 0
+    for _ in range(MAX_RELINEARISE):
+        d = np.zeros_like(rho)
+        current = state.model_cost(d, loss)
+        for _ in range(MAX_IRLS):
+            z = (state.b + state.change(d)) / state.scale
+            H, g = state.normal_equations(irls_weights(z, state.kept, loss))
+            # g is A^T W b at d = 0: the weighted least-squares point of these weights
+            new = np.clip(-np.linalg.solve(H + 1e-9 * np.trace(H) / len(H) * np.eye(len(H)), g), -rho, rho)
+            steps += 1
+            for _ in range(3):  # IRLS need not descend on a piecewise-linear loss: halve back if not
+                cost = state.model_cost(new, loss)
+                if cost < current:
+                    break
+                new = 0.5 * (d + new)
+            if cost >= current:
+                break
+            step, d, current = new - d, new, cost
+            if np.all(np.abs(step) < IRLS_DONE_SE * se):
+                break
+        trial = ReducedSystem(model, state.apply(d), state.scale)
+        if trial.cost(state.scale, loss) >= state.cost(state.scale, loss):
             break
-        guard = np.where(pinned, GUARD_GROWTH * guard, guard)
-        old_lo, old_hi = lo, hi
-        lo = np.where(out_lo, where, lo)
-        hi = np.where(out_hi, where - 1, hi)
-    # uncertified: the step is the optimum of a working set that some rows still leave; the
-    # caller takes it only if it lowers the true merit, like any trust-region step
-    return d, {"seconds": seconds, "rows": total, "status": "optimal" if certified else "uncertified", "rounds": rounds}
-
-
-def _pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Flatten the modelled breakpoint ranges into (row, breakpoint) pairs."""
-    count = np.maximum(hi - lo + 1, 0)
-    rows_i = np.repeat(np.arange(len(lo)), count)
-    offset = np.arange(len(rows_i)) - np.repeat(np.cumsum(count) - count, count)
-    return rows_i, lo[rows_i] + offset
+        state = trial
+        if progress is not None:
+            progress({"stage": "refine", "iteration": steps, "cost": current, "message": f"IRLS step {steps} ({phase})"})
+        if np.all(np.abs(d) < RELINEARISE_SE * se):
+            break
+    return state, steps
