@@ -18,8 +18,9 @@ includes the scene the bench holds); the `wandcal calibrate` process's own peak 
 table. Ratios are
 to `colmap` (or `colmap-cauchy` on outlier rigs) from the same repeat; medians of the repeats.
 
-Usage: python bench/bench_peers.py [--repeats 3] [--rigs 8x1500,16x2500] [--no-write]
-Needs pycolmap (`pip install '.[bench]'`).
+Usage: python bench/bench_peers.py [--repeats 3] [--rigs 8x1500,16x2500] [--skip-large] [--process-only] [--no-write]
+Needs pycolmap (`pip install '.[bench]'`). A full run writes the sections "Peers" (the solvers) and
+"Peers: the whole command" of docs/benchmarks.md; --process-only writes the second alone.
 """
 
 from __future__ import annotations
@@ -33,9 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
 
-from bench.common import write_section  # noqa: E402
+from bench.common import peak_rss_mb, reset_peak_rss, write_section  # noqa: E402
 from calib.ba import bundle_adjust  # noqa: E402
 from calib.geometry import camera_centers, kabsch, rotvec_to_matrix  # noqa: E402
 from calib.labels import label_ends  # noqa: E402
@@ -44,6 +46,16 @@ from calib.refine import build_problem, refine, reject_outliers, up_direction  #
 from calib.simulate import simulate_capture  # noqa: E402
 
 RIGS = ("8x1500", "8x2000", "16x2500", "32x2000", "8x32000")
+LARGE = "8x32000"
+NOTES = ("Each rig simulated at 0.3 px without an L-frame and labelled at the true poses; every solver starts from the "
+         "true poses moved by 1 degree and 3 cm (seeded), the wand triangulated there. COLMAP gets one PINHOLE camera "
+         "and one image per wandcal camera, the undistorted observations (normalised xy times f plus the principal "
+         "point) and a free 3D point per wand end and frame (it has no wand length); intrinsics held, gauge "
+         "TWO_CAMS_FROM_WORLD, the Cauchy scale the one `ba` ends with; its time is the adjuster's set-up and solve. "
+         "Centre error: RMS after a similarity alignment to the truth (calib.geometry.kabsch, scale=True). Ratios are "
+         "to `colmap` (`colmap-cauchy` on the outlier rows) of the same repeat. Peak RSS is the bench process's VmHWM "
+         "reset before each solve, so it includes the scene the bench holds; the whole command's own peak is in the "
+         "next section.")
 OUTLIERS = 0.08
 NOISE_PX = 0.3
 
@@ -68,20 +80,6 @@ def centre_error_mm(R, t, sim) -> float:
     C, Ct = camera_centers(R, t), sim.truth.centers
     Ra, ta, s = kabsch(C, Ct, scale=True)
     return float(np.sqrt(np.mean(np.sum((s * C @ Ra.T + ta - Ct) ** 2, axis=1))) * 1000)
-
-
-def peak_rss_mb() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
-
-
-def reset_peak() -> None:
-    try:
-        Path("/proc/self/clear_refs").write_text("5")
-    except OSError:
-        pass
 
 
 def run_ba(sim, labelled, setup):
@@ -155,7 +153,7 @@ def run_colmap(sim, labelled, setup, cauchy_px: float | None = None):
 
 
 def measure(label, fn, *args):
-    reset_peak()
+    reset_peak_rss()
     start = time.perf_counter()
     out = fn(*args)
     seconds = time.perf_counter() - start
@@ -167,19 +165,22 @@ def measure(label, fn, *args):
 def calibrate_process(cameras: int, frames: int, outliers: float, repeats: int) -> tuple[float, float]:
     """Median wall time (s) and peak RSS (MB) of the whole `wandcal calibrate` process on a
     simulated capture folder (the default one, with its L-frame, as a new user would make it)."""
-    probe = ("import resource, sys; from service.cli import main; code = main(sys.argv[1:]); "
-             "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(code)")
+    # VmHWM, not ru_maxrss: Linux carries ru_maxrss over from the (v)forking bench through exec,
+    # so a child's ru_maxrss is never below the bench's own peak
+    probe = ("import sys; from service.cli import main; code = main(sys.argv[1:]); "
+             "print(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:')), file=sys.stderr); "
+             "sys.exit(code)")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "capture"
         subprocess.run([sys.executable, "-m", "service.cli", "simulate", str(folder), "--cameras", str(cameras),
-                        "--frames", str(frames), "--outliers", str(outliers)], check=True, capture_output=True)
+                        "--frames", str(frames), "--outliers", str(outliers)], check=True, capture_output=True, cwd=REPO)
         times, peaks = [], []
         for _ in range(repeats):
             start = time.perf_counter()
             done = subprocess.run([sys.executable, "-c", probe, "calibrate", str(folder), "--quiet",
-                                   "--out", str(Path(tmp) / "result.json")], check=True, capture_output=True, text=True)
+                                   "--out", str(Path(tmp) / "result.json")], check=True, capture_output=True, text=True, cwd=REPO)
             times.append(time.perf_counter() - start)
-            peaks.append(int(done.stderr.strip().splitlines()[-1]) / 1024)
+            peaks.append(float(done.stderr.strip().splitlines()[-1]) / 1024)
     return float(np.median(times)), float(max(peaks))
 
 
@@ -187,6 +188,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--rigs", default=",".join(RIGS))
+    ap.add_argument("--skip-large", action="store_true", help=f"leave out the {LARGE} rig (minutes) for a quick run")
     ap.add_argument("--no-lp", action="store_true", help="leave out --method lp (slow at 32 cameras)")
     ap.add_argument("--process-only", action="store_true",
                     help="only the whole-command timings (and COLMAP's solve for their ratio), in their own section")
@@ -201,7 +203,7 @@ def main() -> int:
             "|---|---|---|---|---|---|---|---|"]
     process_rows = ["| rig | outliers | `wandcal calibrate` process (s) | COLMAP solve (s) | ratio | process peak RSS (MB) |",
                     "|---|---|---|---|---|---|"]
-    for rig in args.rigs.split(","):
+    for rig in [r for r in args.rigs.split(",") if not (args.skip_large and r == LARGE)]:
         cameras, frames = (int(v) for v in rig.split("x"))
         for outliers in (0.0, OUTLIERS):
             process_rig = (rig in ("8x1500", "16x2500", "8x32000") and outliers == 0.0) or (rig == "8x1500" and outliers)
@@ -235,14 +237,18 @@ def main() -> int:
                 colmap_s = float(np.median([r["seconds"] for r in results[reference]]))
                 process_rows.append(f"| {rig} | {outliers:.0%} | {proc:.2f} | {colmap_s:.3f} ({reference}) | {proc / colmap_s:.1f} | {peak:.0f} |")
                 print(process_rows[-1], flush=True)
-    intro = "The whole command, Python start-up included, beside COLMAP's solve of the same rig:\n\n"
-    body = ("" if args.process_only else "\n".join(rows) + "\n\n") + intro + "\n".join(process_rows)
-    body += ("\n\nGoals (issue 8): the process ≤ 6× COLMAP at 8 × 1500, ≤ 3× at 16 × 2500, ≤ 2× COLMAP-with-Cauchy at "
+    goals = ("Goals (issue 8): the process ≤ 6× COLMAP at 8 × 1500, ≤ 3× at 16 × 2500, ≤ 2× COLMAP-with-Cauchy at "
              "8 × 1500 with 8% outliers; the refinement (`ba+cleanup`) ≤ 1.5× COLMAP on each; memory at 8 × 32,000 "
-             "under 600 MB. Both solvers ran on one core (Ceres multi-threads only above 50,000 residuals; wandcal's BLAS is held to one thread).")
-    print(body)
+             "under 600 MB. Both solvers ran on one core (Ceres multi-threads only above 50,000 residuals; wandcal's "
+             "BLAS is held to one thread).")
+    process = ("The whole command, Python start-up included, beside COLMAP's solve of the same rig (median of "
+               f"{args.repeats} runs each; peak RSS is the process's own VmHWM):\n\n" + "\n".join(process_rows) + "\n\n" + goals)
+    solvers = NOTES + "\n\n" + "\n".join(rows) + "\n\n" + goals
+    print(process if args.process_only else solvers + "\n\n" + process)
     if not args.no_write:
-        write_section("Peers: the whole command" if args.process_only else "Peers", body)
+        if not args.process_only:
+            write_section("Peers", solvers)
+        write_section("Peers: the whole command", process)
     return 0
 
 

@@ -18,6 +18,22 @@ def timed(fn, *args, **kwargs):
     return out, time.perf_counter() - start
 
 
+def peak_rss_mb() -> float:
+    """This process's peak resident set since it started or since :func:`reset_peak_rss`, MB (Linux)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def reset_peak_rss() -> None:
+    """Start :func:`peak_rss_mb` again from the present resident set (Linux's clear_refs 5)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+
+
 def machine() -> str:
     import highspy
     import numpy
