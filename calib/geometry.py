@@ -168,6 +168,25 @@ def undistort_points(camera: Camera, uv: np.ndarray) -> np.ndarray:
     return out.reshape(-1, 2)
 
 
+def undistort_by_camera(cameras, camera: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """:func:`undistort_points` for observations of several cameras.
+
+    Args:
+        cameras: the rig's cameras; camera: (M,) index of each observation's camera.
+        uv: (M, 2) or (M, 2, 2) raw pixels (a wand pair's two blobs per row).
+
+    Returns:
+        normalised coordinates, the shape of ``uv``.
+    """
+    uv = np.asarray(uv, dtype=float)
+    xy = np.empty_like(uv)
+    for c, cam in enumerate(cameras):
+        sel = camera == c
+        if sel.any():
+            xy[sel] = undistort_points(cam, uv[sel].reshape(-1, 2)).reshape(uv[sel].shape)
+    return xy
+
+
 def distort_points(camera: Camera, xy: np.ndarray) -> np.ndarray:
     """Normalised coordinates -> raw pixels (applies the lens model).
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.errors import CalibrationError
-from calib.geometry import undistort_points
+from calib.geometry import undistort_by_camera
 from calib.rig import PointObservations, Rig, WandObservations
 
 
@@ -59,19 +59,9 @@ def wand_pairs(rig: Rig, wand: WandObservations) -> WandPairs:
     n_cams = len(rig.cameras)
     if len(wand) == 0:
         raise CalibrationError("wand.csv has no rows; record the wand being waved through the volume")
-    bad = (wand.camera < 0) | (wand.camera >= n_cams)
-    if bad.any():
-        raise CalibrationError(f"wand observations refer to camera index {wand.camera[bad][0]}, outside the rig")
-    if not np.all(np.isfinite(wand.uv)):
-        k = int(np.flatnonzero(~np.isfinite(wand.uv).all(1))[0])
-        raise CalibrationError(
-            f"wand blob of camera {rig.cameras[wand.camera[k]].id!r} in frame {wand.frame[k]} is not finite; "
-            "drop rows of undetected blobs instead of writing NaN"
-        )
-    key = wand.frame * n_cams + wand.camera
-    order = np.argsort(key, kind="stable")
-    key_sorted = key[order]
-    uniq, start, count = np.unique(key_sorted, return_index=True, return_counts=True)
+    _check(rig, wand, "wand observations refer to", "wand blob of camera {id} in frame {frame} is not finite; "
+           "drop rows of undetected blobs instead of writing NaN")
+    order, uniq, start, count = _camera_frames(wand, n_cams)
     two = count == 2
     dropped = {"one_blob": int((count == 1).sum()), "extra_blobs": int((count > 2).sum())}
     first = order[start[two]]
@@ -79,10 +69,7 @@ def wand_pairs(rig: Rig, wand: WandObservations) -> WandPairs:
     cam = uniq[two] % n_cams
     frame_no = uniq[two] // n_cams
     uv = np.stack([wand.uv[first], wand.uv[second]], axis=1)
-    xy = np.empty_like(uv)
-    for c, camera in enumerate(rig.cameras):
-        sel = cam == c
-        xy[sel] = undistort_points(camera, uv[sel].reshape(-1, 2)).reshape(-1, 2, 2)
+    xy = undistort_by_camera(rig.cameras, cam, uv)
     frames, frame_idx = np.unique(frame_no, return_inverse=True)
     return WandPairs(frame=frame_idx, camera=cam, xy=xy, uv=uv, frames=frames, dropped=dropped)
 
@@ -127,18 +114,9 @@ def point_tracks(rig: Rig, points: PointObservations) -> PointTracks:
     a point seen by one camera only constrains nothing (``dropped["single_view"]``).
     """
     n_cams = len(rig.cameras)
-    bad = (points.camera < 0) | (points.camera >= n_cams)
-    if bad.any():
-        raise CalibrationError(f"points.csv refers to camera index {points.camera[bad][0]}, outside the rig")
-    if not np.all(np.isfinite(points.uv)):
-        k = int(np.flatnonzero(~np.isfinite(points.uv).all(1))[0])
-        raise CalibrationError(
-            f"point of camera {rig.cameras[points.camera[k]].id!r} in frame {points.frame[k]} of points.csv is not "
-            "finite; leave out rows of undetected points instead of writing NaN"
-        )
-    key = points.frame * n_cams + points.camera
-    order = np.argsort(key, kind="stable")
-    uniq, start, count = np.unique(key[order], return_index=True, return_counts=True)
+    _check(rig, points, "points.csv refers to", "point of camera {id} in frame {frame} of points.csv is not finite; "
+           "leave out rows of undetected points instead of writing NaN")
+    order, uniq, start, count = _camera_frames(points, n_cams)
     one = count == 1
     idx = order[start[one]]
     frame_no, camera = uniq[one] // n_cams, uniq[one] % n_cams
@@ -148,9 +126,25 @@ def point_tracks(rig: Rig, points: PointObservations) -> PointTracks:
     idx, camera, frame_no = idx[multi], camera[multi], frame_no[multi]
     frames, track = np.unique(frame_no, return_inverse=True)
     uv = points.uv[idx]
-    xy = np.empty_like(uv)
-    for c, cam in enumerate(rig.cameras):
-        sel = camera == c
-        if sel.any():
-            xy[sel] = undistort_points(cam, uv[sel])
+    xy = undistort_by_camera(rig.cameras, camera, uv)
     return PointTracks(track=track, camera=camera, xy=xy, uv=uv, frames=frames, dropped=dropped)
+
+
+def _check(rig: Rig, blobs: WandObservations, where: str, not_finite: str) -> None:
+    """Raise a CalibrationError for a camera index outside the rig or a non-finite blob; the
+    messages start with ``where`` and follow ``not_finite`` (``{id}``, ``{frame}``)."""
+    bad = (blobs.camera < 0) | (blobs.camera >= len(rig.cameras))
+    if bad.any():
+        raise CalibrationError(f"{where} camera index {blobs.camera[bad][0]}, outside the rig")
+    if not np.all(np.isfinite(blobs.uv)):
+        k = int(np.flatnonzero(~np.isfinite(blobs.uv).all(1))[0])
+        raise CalibrationError(not_finite.format(id=repr(rig.cameras[blobs.camera[k]].id), frame=blobs.frame[k]))
+
+
+def _camera_frames(blobs: WandObservations, n_cams: int):
+    """Blobs grouped by camera-frame: (order (B,) that sorts them, the groups' keys
+    ``frame * n_cams + camera``, each group's start in the sorted order, its size)."""
+    key = blobs.frame * n_cams + blobs.camera
+    order = np.argsort(key, kind="stable")
+    uniq, start, count = np.unique(key[order], return_index=True, return_counts=True)
+    return order, uniq, start, count

@@ -10,7 +10,7 @@ import numpy as np
 from calib import quality
 from calib.ba import DEFAULT_LOSS, STOP_SE, IntrinsicsFit, bundle_adjust_points
 from calib.errors import CalibrationError
-from calib.geometry import camera_centers, undistort_points
+from calib.geometry import camera_centers, undistort_by_camera
 from calib.labels import flatten
 from calib.observations import PointTracks, WandPairs
 from calib.reprojection import INTRINSICS
@@ -168,23 +168,13 @@ def _with_intrinsics(refined: Refined, intr: np.ndarray) -> Refined:
         K = np.array([[fx, cam.K[0, 1], cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
         cams.append(Camera(cam.id, cam.width, cam.height, K, np.array(dist), cam.model))
     rig = replace(refined.rig, cameras=tuple(cams))
-    xy = np.empty_like(refined.labelled.xy)
-    for c, cam in enumerate(rig.cameras):
-        sel = refined.labelled.camera == c
-        xy[sel] = undistort_points(cam, refined.labelled.uv[sel].reshape(-1, 2)).reshape(-1, 2, 2)
-    labelled = replace(refined.labelled, xy=xy)
+    labelled = refined.labelled
+    labelled = replace(labelled, xy=undistort_by_camera(rig.cameras, labelled.camera, labelled.uv))
     tracks = refined.tracks
     if tracks is not None:
-        txy = np.empty_like(tracks.xy)
-        for c, cam in enumerate(rig.cameras):
-            sel = tracks.camera == c
-            txy[sel] = undistort_points(cam, tracks.uv[sel])
-        tracks = replace(tracks, xy=txy)
+        tracks = replace(tracks, xy=undistort_by_camera(rig.cameras, tracks.camera, tracks.uv))
     s = refined.setup
-    pxy = np.empty_like(s.problem.xy)
-    for c, cam in enumerate(rig.cameras):
-        sel = s.problem.camera == c
-        pxy[sel] = undistort_points(cam, s.uv[sel])
+    pxy = undistort_by_camera(rig.cameras, s.problem.camera, s.uv)
     problem = replace(s.problem, xy=pxy, focal=np.array([c.focal for c in rig.cameras]))
     return replace(refined, rig=rig, labelled=labelled, tracks=tracks, setup=replace(s, problem=problem))
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.geometry import kabsch, undistort_points
+from calib.geometry import kabsch, undistort_by_camera, undistort_points
 from calib.rig import AxisObservations, Rig, StaticObservations
 from calib.static import StaticPose
 from calib.triangulate import triangulate_points
@@ -93,11 +93,7 @@ def axis_points(rig: Rig, axis: AxisObservations, R: np.ndarray, t: np.ndarray) 
     """Triangulate each axis role seen by two or more cameras: {role: (3,) point}."""
     roles = sorted(set(axis.role))
     point = np.array([roles.index(r) for r in axis.role])
-    xy = np.empty_like(axis.uv)
-    for c, cam in enumerate(rig.cameras):
-        sel = axis.camera == c
-        if sel.any():
-            xy[sel] = undistort_points(cam, axis.uv[sel])
+    xy = undistort_by_camera(rig.cameras, axis.camera, axis.uv)
     X = triangulate_points(R, t, point, axis.camera, xy, len(roles))
     return {r: X[k] for k, r in enumerate(roles) if np.all(np.isfinite(X[k]))}
 
