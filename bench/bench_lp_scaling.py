@@ -28,30 +28,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import timed, write_section  # noqa: E402
 from calib.crb import gauge_errors  # noqa: E402
-from calib.geometry import rotvec_to_matrix  # noqa: E402
-from calib.scenes import prepared_scene  # noqa: E402
-from calib.triangulate import triangulate_points  # noqa: E402
-from calib.wandmodel import WandModel  # noqa: E402
+from calib.scenes import perturbed_model, prepared_scene  # noqa: E402
 
 NOISE = 0.3
 START_DEGREES = 1.0  # the common start of the issue: every free camera this far off in rotation
 START_METRES = 0.03  # and this far in position
-
-
-def perturbed_model(scene, degrees: float, metres: float, seed: int) -> WandModel:
-    """The scene's problem started from the true poses moved by ``degrees`` about a random axis
-    and ``metres`` in a random direction (every camera but the gauge), frames triangulated there."""
-    rng = np.random.default_rng(seed)
-    T, p = scene.sim.truth, scene.setup.problem
-    R, t = T.R.copy(), T.t.copy()
-    for n in range(1, len(R)):
-        axis = rng.normal(size=3)
-        R[n] = rotvec_to_matrix(axis / np.linalg.norm(axis) * np.radians(degrees)) @ R[n]
-        shift = rng.normal(size=3)
-        C = -R[n].T @ t[n] + shift / np.linalg.norm(shift) * metres
-        t[n] = -R[n] @ C
-    X = triangulate_points(R, t, p.point, p.camera, p.xy, 2 * p.n_frames).reshape(-1, 2, 3)
-    return WandModel(p, R, t, X, scene.setup.model.fixed)
 
 
 def _refiners(methods, module):

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.geometry import distort_points, project_normalized
+from calib.geometry import distort_points, project_normalized, rotvec_to_matrix
 from calib.initial import Initial, initial_poses
 from calib.labels import label_ends
 from calib.observations import WandPairs, wand_pairs
@@ -14,6 +14,8 @@ from calib.refine import Setup, build_problem
 from calib.simulate import SimulatedCapture, simulate_capture
 from calib.rig import PointObservations, WandObservations
 from calib.static import solve_static
+from calib.triangulate import triangulate_points
+from calib.wandmodel import WandModel
 
 THIRD_VIEW = 0.1  # fraction of the frames of a pairwise scene that a third camera also sees
 
@@ -35,6 +37,22 @@ def prepared_scene(cameras=5, frames=300, noise_px=0.5, seed=0, outliers=0.0, st
     labelled, _ = label_ends(init.R, init.t, pairs, np.ones(cameras, bool), sim.rig.wand_length)
     setup = build_problem(sim.rig, labelled, init.R, init.t)
     return PreparedScene(sim, pairs, init, labelled, setup)
+
+
+def perturbed_model(scene, degrees: float, metres: float, seed: int) -> WandModel:
+    """The scene's problem started from the true poses moved by ``degrees`` about a random axis
+    and ``metres`` in a random direction (every camera but the gauge), frames triangulated there."""
+    rng = np.random.default_rng(seed)
+    T, p = scene.sim.truth, scene.setup.problem
+    R, t = T.R.copy(), T.t.copy()
+    for n in range(1, len(R)):
+        axis = rng.normal(size=3)
+        R[n] = rotvec_to_matrix(axis / np.linalg.norm(axis) * np.radians(degrees)) @ R[n]
+        shift = rng.normal(size=3)
+        C = -R[n].T @ t[n] + shift / np.linalg.norm(shift) * metres
+        t[n] = -R[n] @ C
+    X = triangulate_points(R, t, p.point, p.camera, p.xy, 2 * p.n_frames).reshape(-1, 2, 3)
+    return WandModel(p, R, t, X, scene.setup.model.fixed)
 
 
 def _ring_mask(seen: np.ndarray, rng: np.random.Generator, third: float = THIRD_VIEW) -> np.ndarray:

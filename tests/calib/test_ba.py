@@ -7,31 +7,16 @@ from scipy.optimize import least_squares
 
 from calib import ba
 from calib.crb import gauge_errors, pose_crb
-from calib.geometry import rotvec_to_matrix
-from calib.scenes import prepared_scene
-from calib.wandmodel import WandModel
+from calib.scenes import perturbed_model, prepared_scene
 
 NOISE = 0.5
-
-
-def _perturbed(scene, degrees: float, metres: float, seed: int) -> WandModel:
-    """The scene's problem started from the true poses moved by ``degrees`` and ``metres``."""
-    rng = np.random.default_rng(seed)
-    T = scene.sim.truth
-    R, t = T.R.copy(), T.t.copy()
-    for c in range(1, len(R)):
-        axis = rng.normal(size=3)
-        R[c] = rotvec_to_matrix(axis / np.linalg.norm(axis) * np.radians(degrees)) @ R[c]
-        t[c] += rng.normal(size=3) * metres / np.sqrt(3)
-    m = scene.setup.model
-    return WandModel(m.p, R, t, m.wand(m.x0()), m.fixed)
 
 
 def test_reaches_the_optimum_of_a_reference_least_squares_solver():
     """Plain least squares: the same minimum as scipy's trust-region solver run to tight tolerances
     (the previous ``ba``), to a small fraction of the poses' standard errors."""
     scene = prepared_scene(cameras=5, frames=300, noise_px=NOISE, seed=3)
-    model = _perturbed(scene, degrees=1.0, metres=0.03, seed=3)
+    model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=3)
     ref = least_squares(model.residuals, model.x0(), jac=model.jacobian, method="trf", x_scale="jac",
                         ftol=1e-15, xtol=1e-15, gtol=1e-15, max_nfev=200, tr_solver="lsmr")
     x, info = ba.bundle_adjust(model, loss="linear")
@@ -53,7 +38,7 @@ def test_reaches_the_cramer_rao_bound(loss):
     ratios = []
     for seed in range(3):
         scene = prepared_scene(cameras=5, frames=300, noise_px=NOISE, seed=seed)
-        model = _perturbed(scene, degrees=1.0, metres=0.03, seed=seed)
+        model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=seed)
         x, info = ba.bundle_adjust(model, loss=loss)
         assert info["status"] == "converged" and info["loss"] == loss
         T = scene.sim.truth
@@ -71,7 +56,7 @@ def test_cauchy_loss_ignores_gross_outliers_without_a_re_solve():
     ratios, ls_ratios = [], []
     for seed in range(2):
         scene = prepared_scene(cameras=6, frames=400, noise_px=NOISE, seed=seed, outliers=0.08)
-        model = _perturbed(scene, degrees=1.0, metres=0.03, seed=seed)
+        model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=seed)
         T = scene.sim.truth
         bound, _ = pose_crb(scene.setup.problem, T.R, T.t, T.wand[scene.setup.frames], 0, NOISE)
         x, info = ba.bundle_adjust(model)
@@ -87,7 +72,7 @@ def test_cauchy_loss_ignores_gross_outliers_without_a_re_solve():
 def test_returns_the_model_parameters_of_its_state():
     """x maps back through the model's own parametrisation (Euler increments, wand directions)."""
     scene = prepared_scene(cameras=4, frames=80, noise_px=NOISE, seed=2)
-    model = _perturbed(scene, degrees=0.5, metres=0.01, seed=2)
+    model = perturbed_model(scene, degrees=0.5, metres=0.01, seed=2)
     x, _ = ba.bundle_adjust(model, max_iter=2)
     wand = model.wand(x)
     assert np.allclose(np.linalg.norm(wand[:, 1] - wand[:, 0], axis=1), model.p.length)

@@ -7,13 +7,10 @@ import scipy.sparse as sp
 from calib import lpstep, slp
 from calib.ba import bundle_adjust
 from calib.crb import gauge_errors, pose_crb
-from calib.geometry import rotvec_to_matrix
 from calib.lp import solve_lp
 from calib.reduced import ReducedSystem
 from calib.robustloss import EFFICIENT
-from calib.scenes import prepared_scene
-from calib.triangulate import triangulate_points
-from calib.wandmodel import WandModel
+from calib.scenes import perturbed_model, prepared_scene
 
 NOISE = 0.5
 
@@ -24,22 +21,6 @@ def _crb_ratio(scene, model, x):
     err, _ = gauge_errors(R, t, T.R, T.t, 0)
     bound, _ = pose_crb(model.p, T.R, T.t, T.wand[scene.setup.frames], 0, NOISE)
     return err[1:] / bound[1:]
-
-
-def _perturbed_model(scene, degrees, metres, seed):
-    """The scene's problem started from the true poses moved by ``degrees`` about a random axis
-    and ``metres`` in a random direction (every camera but the gauge), frames triangulated there."""
-    rng = np.random.default_rng(seed)
-    T, p = scene.sim.truth, scene.setup.problem
-    R, t = T.R.copy(), T.t.copy()
-    for n in range(1, len(R)):
-        axis = rng.normal(size=3)
-        R[n] = rotvec_to_matrix(axis / np.linalg.norm(axis) * np.radians(degrees)) @ R[n]
-        shift = rng.normal(size=3)
-        C = -R[n].T @ t[n] + shift / np.linalg.norm(shift) * metres
-        t[n] = -R[n] @ C
-    X = triangulate_points(R, t, p.point, p.camera, p.xy, 2 * p.n_frames).reshape(-1, 2, 3)
-    return WandModel(p, R, t, X, scene.setup.model.fixed)
 
 
 def test_working_set_lp_is_the_full_lp():
@@ -76,7 +57,7 @@ def test_converges_from_a_perturbed_start_to_the_bound():
     ratios = []
     for seed in range(3):
         scene = prepared_scene(cameras=6, frames=400, noise_px=NOISE, seed=seed)
-        model = _perturbed_model(scene, degrees=2.0, metres=0.05, seed=seed)
+        model = perturbed_model(scene, degrees=2.0, metres=0.05, seed=seed)
         x, info = slp.refine_lp(model)
         assert info["status"] == "converged"
         ratios += list(_crb_ratio(scene, model, x))
@@ -90,7 +71,7 @@ def test_first_phase_on_a_frame_subset_converges_from_a_perturbed_start():
     for seed in range(2):
         scene = prepared_scene(cameras=5, frames=slp.SUBSET_ONLY_ABOVE * slp.SUBSET_FRAMES + 100, noise_px=NOISE,
                                seed=seed)
-        model = _perturbed_model(scene, degrees=2.0, metres=0.05, seed=seed)
+        model = perturbed_model(scene, degrees=2.0, metres=0.05, seed=seed)
         x, info = slp.refine_lp(model)
         assert info["status"] == "converged" and info["subset"]["frames"] == slp.SUBSET_FRAMES
         ratios += list(_crb_ratio(scene, model, x))
@@ -143,7 +124,7 @@ def test_irls_scheme_reaches_the_lp_schemes_optimum(seed):
     small fraction of their standard errors. A clean rig with under ``SUBSET_ONLY_ABOVE *
     SUBSET_FRAMES`` frames, so both run one phase from one start and take the same robust scale."""
     scene = prepared_scene(cameras=6, frames=400, noise_px=NOISE, seed=seed)
-    model = _perturbed_model(scene, degrees=1.0, metres=0.03, seed=seed)
+    model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=seed)
     x_lp, info_lp = slp.refine_lp(model, scheme="lp")
     x_irls, info_irls = slp.refine_lp(model, scheme="irls")
     assert info_lp["status"] == info_irls["status"] == "converged"
