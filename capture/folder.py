@@ -294,29 +294,22 @@ def write_capture(
     folder.mkdir(parents=True, exist_ok=True)
     (folder / RIG_FILE).write_text(json.dumps(rig_to_json(rig), indent=2) + "\n")
     ids = rig.ids
-    with open(folder / WAND_FILE, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(WAND_COLUMNS)
-        for f, c, (u, v) in zip(wand.frame, wand.camera, wand.uv):
-            w.writerow([int(f), ids[c], f"{u:.4f}", f"{v:.4f}"])
+    px = lambda uv: (f"{uv[0]:.4f}", f"{uv[1]:.4f}")  # noqa: E731
+    _write_csv(folder / WAND_FILE, WAND_COLUMNS, ([int(f), ids[c], *px(uv)] for f, c, uv in zip(wand.frame, wand.camera, wand.uv)))
     if static is not None:
-        with open(folder / STATIC_FILE, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(STATIC_COLUMNS)
-            for c, (u, v) in zip(static.camera, static.uv):
-                w.writerow([ids[c], f"{u:.4f}", f"{v:.4f}"])
+        _write_csv(folder / STATIC_FILE, STATIC_COLUMNS, ([ids[c], *px(uv)] for c, uv in zip(static.camera, static.uv)))
     if points is not None:
-        with open(folder / POINTS_FILE, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(POINTS_COLUMNS)
-            for f, c, (u, v) in zip(points.frame, points.camera, points.uv):
-                w.writerow([int(f), ids[c], f"{u:.4f}", f"{v:.4f}"])
+        _write_csv(folder / POINTS_FILE, POINTS_COLUMNS,
+                   ([int(f), ids[c], *px(uv)] for f, c, uv in zip(points.frame, points.camera, points.uv)))
     if axis is not None:
-        with open(folder / AXIS_FILE, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(AXIS_COLUMNS)
-            for r, c, (u, v) in zip(axis.role, axis.camera, axis.uv):
-                w.writerow([str(r), ids[c], f"{u:.4f}", f"{v:.4f}"])
+        _write_csv(folder / AXIS_FILE, AXIS_COLUMNS, ([str(r), ids[c], *px(uv)] for r, c, uv in zip(axis.role, axis.camera, axis.uv)))
+
+
+def _write_csv(path: Path, columns: tuple[str, ...], rows) -> None:
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(columns)
+        w.writerows(rows)
 
 
 def save_capture(folder: str | Path, capture: Capture) -> None:
