@@ -115,7 +115,7 @@ def initial_poses(
     """
     n = len(rig.cameras)
     if pairs is None:
-        pairs = _no_pairs()
+        pairs = WandPairs.empty()
     st = _State(
         rig=rig, pairs=pairs, points=points, views=camera_views(pairs, points, n),
         R=np.tile(np.eye(3), (n, 1, 1)), t=np.zeros((n, 3)), rank=np.full(n, UNPLACED), source=["" for _ in range(n)],
@@ -141,11 +141,6 @@ def shared_frames(pairs: WandPairs, n_cams: int) -> np.ndarray:
     seen = np.zeros((len(pairs.frames), n_cams), dtype=np.int64)
     seen[pairs.frame, pairs.camera] = 1
     return seen.T @ seen
-
-
-def _no_pairs() -> WandPairs:
-    z = np.zeros(0, dtype=np.int64)
-    return WandPairs(frame=z, camera=z, xy=np.zeros((0, 2, 2)), uv=np.zeros((0, 2, 2)), frames=z)
 
 
 def _start_pair(st: _State) -> None:

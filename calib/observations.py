@@ -34,6 +34,12 @@ class WandPairs:
     def __len__(self) -> int:
         return len(self.frame)
 
+    @classmethod
+    def empty(cls) -> WandPairs:
+        """No pairs: a capture without a wand."""
+        z = np.zeros(0, dtype=np.int64)
+        return cls(z, z, np.zeros((0, 2, 2)), np.zeros((0, 2, 2)), z, {"one_blob": 0, "extra_blobs": 0})
+
     def subset(self, keep: np.ndarray) -> WandPairs:
         return WandPairs(self.frame[keep], self.camera[keep], self.xy[keep], self.uv[keep], self.frames, self.dropped)
 

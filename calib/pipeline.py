@@ -134,7 +134,7 @@ def calibrate(
 
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs and point tracks"})
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
-    pairs = wand_pairs(rig, wand) if has_wand else _no_pairs()
+    pairs = wand_pairs(rig, wand) if has_wand else WandPairs.empty()
     tracks = point_tracks(rig, points) if points is not None and len(points) else None
     if not has_wand and (tracks is None or not len(tracks)):
         raise CalibrationError(
@@ -225,11 +225,6 @@ def calibrate(
         rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
         solver=solver, world=world, dropped=dropped, warnings=warnings, points=X,
     )
-
-
-def _no_pairs() -> WandPairs:
-    return WandPairs(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2, 2)), np.zeros((0, 2, 2)),
-                     np.zeros(0, np.int64), {"one_blob": 0, "extra_blobs": 0})
 
 
 def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings) -> list[dict]:

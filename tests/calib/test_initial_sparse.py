@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from calib.errors import CalibrationError, Failure
-from calib.geometry import camera_centers, distort_points, kabsch, project_normalized, rotation_angle
+from calib.geometry import camera_centers, kabsch, rotation_angle
 from calib.initial import initial_poses
 from calib.observations import WandPairs, point_tracks, wand_pairs
 from calib.rig import Camera, PointObservations, Rig, WandObservations
@@ -37,11 +37,6 @@ def _aligned_errors(R, t, R_true, t_true, scale: bool = True):
     C, Ct = camera_centers(R, t), camera_centers(R_true, t_true)
     Ra, ta, s = kabsch(C, Ct, scale=scale)
     return np.linalg.norm(s * C @ Ra.T + ta - Ct, axis=1), np.degrees(rotation_angle(R @ Ra.T, R_true)), s
-
-
-def _no_pairs() -> WandPairs:
-    z = np.zeros(0, dtype=np.int64)
-    return WandPairs(frame=z, camera=z, xy=np.zeros((0, 2, 2)), uv=np.zeros((0, 2, 2)), frames=z)
 
 
 @pytest.mark.parametrize("seed", [3, 11])
@@ -63,7 +58,7 @@ def test_points_only_capture_is_placed_up_to_scale():
     rig = Rig(sim.rig.cameras, None)
     rng = np.random.default_rng(4)
     tracks = point_tracks(rig, pairwise_points(sim, 1500, rng))
-    init = initial_poses(rig, _no_pairs(), points=tracks)
+    init = initial_poses(rig, WandPairs.empty(), points=tracks)
     err, ang, _ = _aligned_errors(init.R, init.t, sim.truth.R, sim.truth.t)
     assert err.max() < CENTRE_TOL_M and ang.max() < ANGLE_TOL_DEG, (err, ang)
     note = [n for n in init.notes if "baseline of 1 between" in n]
