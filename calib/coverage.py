@@ -1,0 +1,80 @@
+"""Where in each camera's image the wand was seen: a grid of counts, the share covered, and words.
+
+A camera calibrated from wand samples in one corner of its image has a poorly determined pose
+(and intrinsics, if refined); the report, the guidance and the verdict all look at this grid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+GRID = (8, 8)  # rows, columns: cells of 160 x 128 px on a 1280 x 1024 image, near Motive's painting
+MIN_SAMPLES_PER_CELL = 1  # a cell with at least one wand end seen in it counts as covered
+# the image split into thirds for the advice: (rows, columns) of the 3 x 3 regions, named as an operator sees them
+_THIRDS = ("top", "middle", "bottom"), ("left", "centre", "right")
+
+
+def coverage_grid(xy: np.ndarray, width: int, height: int, grid: tuple[int, int] = GRID) -> np.ndarray:
+    """Counts of image points per grid cell.
+
+    Args:
+        xy: (M, 2) pixel positions (origin top-left, y down) of one camera's wand samples.
+        width, height: the image size, pixels.
+        grid: (rows, columns) of the grid.
+
+    Returns:
+        (rows, columns) int counts; row 0 is the top of the image. Points outside the image are
+        left out.
+    """
+    rows, cols = grid
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    inside = (xy[:, 0] >= 0) & (xy[:, 0] < width) & (xy[:, 1] >= 0) & (xy[:, 1] < height)
+    col = (xy[inside, 0] * cols / width).astype(int)
+    row = (xy[inside, 1] * rows / height).astype(int)
+    return np.bincount(row * cols + col, minlength=rows * cols).reshape(rows, cols)
+
+
+def covered_fraction(counts: np.ndarray) -> float:
+    """Share of the grid's cells that hold at least :data:`MIN_SAMPLES_PER_CELL` samples."""
+    return float(np.mean(counts >= MIN_SAMPLES_PER_CELL))
+
+
+def empty_regions(counts: np.ndarray) -> list[str]:
+    """The parts of the image without a sample, in words an operator can act on: whole thirds
+    ("the left third") first, then single regions of the 3 x 3 split ("the top-left")."""
+    covered = counts >= MIN_SAMPLES_PER_CELL
+    rows, cols = covered.shape
+    r_edges = np.linspace(0, rows, 4).round().astype(int)
+    c_edges = np.linspace(0, cols, 4).round().astype(int)
+    region = np.array([[covered[r_edges[i]:r_edges[i + 1], c_edges[j]:c_edges[j + 1]].any() for j in range(3)]
+                       for i in range(3)])
+    words, named = [], np.zeros((3, 3), bool)
+    for j, side in ((0, "left"), (2, "right")):
+        if not region[:, j].any():
+            words.append(f"the {side} third")
+            named[:, j] = True
+    for i, side in ((0, "top"), (2, "bottom")):
+        if not region[i, :].any():
+            words.append(f"the {side} third")
+            named[i, :] = True
+    for i in range(3):
+        for j in range(3):
+            if not region[i, j] and not named[i, j]:
+                words.append("the centre" if (i, j) == (1, 1) else
+                             "the " + "-".join(w for w in (_THIRDS[0][i], _THIRDS[1][j]) if w not in ("middle", "centre")))
+    return words
+
+
+def coverage_advice(counts: np.ndarray, camera_id: str, min_fraction: float) -> str | None:
+    """Words for the operator when a camera's coverage is short of ``min_fraction``, else None,
+    e.g. "cam2: no wand samples in the left third of its image; wave the wand there"."""
+    fraction = covered_fraction(counts)
+    if fraction >= min_fraction:
+        return None
+    empty = empty_regions(counts)
+    if not empty:
+        return (f"{camera_id}: wand samples cover only {fraction:.0%} of its image (goal {min_fraction:.0%}); "
+                "wave the wand through the gaps of its view")
+    where = ", ".join(empty[:-1]) + (" and " if len(empty) > 1 else "") + empty[-1]
+    return (f"{camera_id}: no wand samples in {where} of its image ({fraction:.0%} covered, goal "
+            f"{min_fraction:.0%}); wave the wand there")
