@@ -30,7 +30,8 @@ from calib.reprojection import INTRINSICS
 from calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
 from calib.static import solve_static
 from calib.triangulate import reprojection_errors
-from calib.world import apply, world_frame
+from calib.uncertainty import frame_noise, world_uncertainty
+from calib.world import apply, axis_points, world_frame
 
 RESULT_FORMAT = "wandcal-result/1"
 METHODS = ("ba", "lp", "paper")
@@ -199,7 +200,7 @@ def calibrate(
     rig, setup, tracks, info = r.rig, r.setup, r.tracks, r.info
 
     tell({"stage": "world", "message": "expressing the rig in the world frame"})
-    Rw, tw, world = world_frame(rig, r.R, r.t, GAUGE_CAMERA, static, static_poses, axis)
+    Rw, tw, world = world_frame(rig, r.R, r.t, GAUGE_CAMERA, static, static_poses, axis, wand=r.wand)
     R, t, wand_pts = apply(Rw, tw, r.R, r.t, r.wand)
     X = r.X @ Rw.T + tw if r.X is not None else None
     world["scale"] = "wand" if has_wand else "arbitrary"
@@ -207,6 +208,9 @@ def calibrate(
         warnings.append("no wand: the rig is calibrated up to scale (world.scale is 'arbitrary')")
 
     cameras = _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings)
+    if r.covariance is not None:
+        tell({"stage": "uncertainty", "message": "propagating the pose uncertainty into the world frame"})
+        _uncertainty_reports(cameras, rig, r, world, (static, static_poses, axis), Rw, tw, has_wand)
     if info.get("refined_intrinsics"):
         _intrinsics_reports(cameras, rig, r.camera_std, info["refined_intrinsics"], warnings)
     _summary_warnings(warnings, dropped, info, method, len(labelled))
@@ -250,6 +254,27 @@ def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warni
                 what = "wand" if key == "reprojection_rms_px" else "point-track"
                 warnings.append(f"{cam.id} has a {what} reprojection RMS of {rms:.2f} px; check its intrinsics and focus")
     return cameras
+
+
+def _uncertainty_reports(cameras: list[dict], rig: Rig, r, world: dict, frame_data, Rw, tw, has_wand: bool) -> None:
+    """Each camera's ``center_std_mm`` and ``rotation_std_deg`` in the world frame of the result
+    (calib/uncertainty.py); the centre's is None when the scale is arbitrary (no wand)."""
+    static, static_poses, axis = frame_data
+
+    def frame(Rp, tp, shift):
+        Rw_, tw_, _ = world_frame(rig, Rp, tp, GAUGE_CAMERA, static, static_poses, axis, wand=r.wand + shift)
+        return Rw_, tw_
+
+    points = None
+    if world["frame"] == "static_object":
+        points = rig.static_markers
+    elif world["frame"] == "axis":
+        points = np.array(list(axis_points(rig, axis, r.R, r.t).values())) @ Rw.T + tw
+    frame_cov, origin = frame_noise(world, rig, points, r.covariance)
+    center, rotation = world_uncertainty(r.R, r.t, r.covariance, frame, frame_cov, origin)
+    for c, report in enumerate(cameras):
+        report["center_std_mm"] = float(1000 * center[c]) if has_wand else None
+        report["rotation_std_deg"] = float(np.degrees(rotation[c]))
 
 
 def _intrinsics_reports(cameras: list[dict], rig: Rig, std: np.ndarray, names: list[str], warnings: list[str]) -> None:

@@ -16,6 +16,7 @@ from calib.observations import PointTracks, WandPairs
 from calib.reprojection import INTRINSICS
 from calib.rig import PINHOLE, Camera, Rig
 from calib.triangulate import reprojection_errors, triangulate_points
+from calib.uncertainty import PoseCovariance
 from calib.wandmodel import WandModel, WandProblem
 
 GAUGE_CAMERA = 0
@@ -94,7 +95,9 @@ class Refined:
     """A refinement's outcome. R (N, 3, 3), t (N, 3) gauge-frame poses; wand (F, 2, 3) ends; X
     (T, 3) points or None; rig: with refined intrinsics where asked; labelled, tracks and setup:
     the observations as used (undistorted with the rig's intrinsics, outliers left out);
-    camera_std: (N, c) standard errors of (w, t, refined intrinsics) from ``ba``, else None."""
+    camera_std: (N, c) standard errors of (w, t, refined intrinsics) from ``ba``, else None;
+    covariance: the free poses' covariance in the gauge frame, from the information matrix at the
+    final poses (every method's, when ``final``)."""
 
     rig: Rig
     setup: Setup
@@ -106,6 +109,7 @@ class Refined:
     X: np.ndarray | None
     info: dict
     camera_std: np.ndarray | None = None
+    covariance: PoseCovariance | None = None
     outliers: int = 0
     point_outliers: int = 0
 
@@ -135,24 +139,36 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
             model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, up,
             max_rounds=int(options.get("max_rounds") or MAX_ROUNDS), time_limit=options.get("time_limit"), progress=tell,
         )
-        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info)
+        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=_information(setup, R, t, wand, final))
     if method == "lp":
         from calib.slp import refine_lp
 
         x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
-        return Refined(rig, setup, labelled, tracks, *model.poses(x), model.wand(x), X, info)
+        R, t = model.poses(x)
+        return Refined(rig, setup, labelled, tracks, R, t, model.wand(x), X, info,
+                       covariance=_information(setup, R, t, model.wand(x), final))
     names = tuple(name for name in INTRINSICS if name in (options.get("refine_intrinsics") or ()))
     fit = None
     if names:
         fit = IntrinsicsFit(_intrinsics(rig), names, setup.uv, tracks.uv if tracks is not None else None)
-    # standard errors cost one more linearisation and solve; only the intrinsics report reads them
+    # standard errors and the pose covariance cost one more linearisation and solve: final stage only
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS, intrinsics=fit,
-                               stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final and bool(names))
+                               stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
-    refined = Refined(rig, setup, labelled, tracks, *model.poses(out.x), model.wand(out.x), out.X, info, out.camera_std)
+    refined = Refined(rig, setup, labelled, tracks, *model.poses(out.x), model.wand(out.x), out.X, info, out.camera_std,
+                      out.covariance)
     if names:
         refined = _with_intrinsics(refined, out.intr)
     return refined
+
+
+def _information(setup: Setup, R: np.ndarray, t: np.ndarray, wand: np.ndarray, final: bool) -> PoseCovariance | None:
+    """The pose covariance of another method's solution: the wand model's information matrix
+    at its poses and wand (one linearisation, no step taken)."""
+    if not final or not setup.problem.n_frames:
+        return None
+    model = WandModel(setup.problem, R, t, wand, setup.model.fixed)
+    return bundle_adjust_points(model, None, None, loss="linear", max_iter=0).covariance
 
 
 def _intrinsics(rig: Rig) -> np.ndarray:

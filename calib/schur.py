@@ -184,12 +184,15 @@ def _damped(blocks: np.ndarray, lam: float) -> np.ndarray:
 @dataclass(eq=False)
 class Step:
     """A solved step: dc (N, c) for the cameras, dp per term (P, p), and, for standard errors,
-    the diagonal of the reduced camera system's inverse (N, c) and of each V^-1 (P, p)."""
+    the diagonal of the reduced camera system's inverse (N, c) and of each V^-1 (P, p); the
+    whole inverse (N c, N c) and the V^-1 blocks are kept for the pose covariance."""
 
     dc: np.ndarray
     dp: list[np.ndarray]
     cam_var: np.ndarray
     pt_var: list[np.ndarray]
+    cam_cov: np.ndarray
+    pt_inv: list[np.ndarray]
 
 
 def solve(normal: Normal, lam: float) -> Step | None:
@@ -230,7 +233,7 @@ def solve(normal: Normal, lam: float) -> Step | None:
         rhs = -t.gp - _summed(s.pair_to_pt, np.einsum("kji,kj->ki", t.W, dc[s.pair_cam]), s.n_pts)
         dp.append(np.einsum("pij,pj->pi", Vinv, rhs))
         pt_var.append(np.einsum("pii->pi", Vinv))
-    return Step(dc, dp, cam_var, pt_var)
+    return Step(dc, dp, cam_var, pt_var, S_inv, solved)
 
 
 def _subtract_gram(S: np.ndarray, W: np.ndarray, LinvT: np.ndarray, s: TermStructure) -> None:

@@ -22,13 +22,17 @@ from calib.triangulate import triangulate_points
 AXIS_ORDER = ("+z", "+x", "+y")  # which given axis is kept exactly when several are
 
 
-def world_frame(rig: Rig, R: np.ndarray, t: np.ndarray, gauge: int, static=None, static_poses=None, axis=None):
+def world_frame(rig: Rig, R: np.ndarray, t: np.ndarray, gauge: int, static=None, static_poses=None, axis=None,
+                wand: np.ndarray | None = None):
     """The map into the user's world frame.
 
     Args:
         R, t: (N, 3, 3), (N, 3) refined poses in the gauge frame.
         static, static_poses: the static object's blobs and PnP poses, or None.
         axis: :class:`AxisObservations`, or None.
+        wand: (F, 2, 3) the refined wand ends in the gauge frame, or None. The frame must depend
+            on nothing but these arguments: the pose uncertainty is propagated into it by
+            differentiating this function (calib/uncertainty.py).
 
     Returns:
         (Rw (3, 3), tw (3,), world): ``x_world = Rw x + tw``, a rigid map (the scale is the

@@ -122,7 +122,7 @@ def format_summary(doc: dict) -> str:
     points = any("point_observations" in cam for cam in doc["cameras"])
     intrinsics = any("intrinsics" in cam for cam in doc["cameras"])
     unit = "m" if doc["world"].get("scale", "wand") != "arbitrary" else "arbitrary units"
-    head = f"{'camera':<16} {'centre x, y, z (' + unit + ')':>30} {'rms px':>8} {'obs':>7}"
+    head = f"{'camera':<16} {'centre x, y, z (' + unit + ')':>30} {'+- mm':>6} {'rms px':>8} {'obs':>7}"
     head += f" {'pts rms':>8} {'pts':>6}" if points else ""
     head += f" {'focal px':>10}" if intrinsics else ""
     lines = [head]
@@ -130,7 +130,9 @@ def format_summary(doc: dict) -> str:
     for cam in doc["cameras"]:
         c = cam["center"]
         rms = cam["reprojection_rms_px"]
-        row = f"{cam['id']:<16} {c[0]:10.4f}{c[1]:10.4f}{c[2]:10.4f} {rms if rms is not None else nan:8.3f} {cam['observations']:7d}"
+        std = cam.get("center_std_mm")
+        row = (f"{cam['id']:<16} {c[0]:10.4f}{c[1]:10.4f}{c[2]:10.4f} {std if std is not None else nan:6.2f} "
+               f"{rms if rms is not None else nan:8.3f} {cam['observations']:7d}")
         if points:
             prms = cam.get("point_rms_px")
             row += f" {prms if prms is not None else nan:8.3f} {cam.get('point_observations', 0):6d}"
