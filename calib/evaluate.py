@@ -114,37 +114,48 @@ def leave_one_out_errors(R: np.ndarray, t: np.ndarray, pairs: WandPairs, focal: 
     return e[np.isfinite(e)]
 
 
-def check_cameras(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations) -> list[CameraCheck]:
+def check_cameras(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations,
+                  expected_rms_px: np.ndarray | None = None) -> list[CameraCheck]:
     """Find the cameras that moved since ``R, t`` were calibrated.
 
     Each camera is judged by its errors against wand ends that the *other* cameras triangulate, so
     a knocked camera cannot hide by pulling the points towards itself. A knocked camera still
-    spoils the others' triangulations a little, so the worst camera is taken out first and the
-    rest are judged again without it, until every remaining one agrees.
+    spoils the others' triangulations (at 6 cameras a 1 degree knock lifts the others' errors
+    six-fold), so only the worst camera is taken out at a time, and the rest are judged again
+    without it, until every remaining one agrees.
 
-    A camera has moved when its median leave-one-out error exceeds :data:`MOVED_FACTOR` times the
-    median over the agreeing cameras' errors, and :data:`MOVED_MIN_PX`.
+    Args:
+        expected_rms_px: (N,) each camera's reprojection RMS when it was calibrated (the result's
+            ``reprojection_rms_px``); None to judge against the median camera instead.
+
+    A camera has moved when its median leave-one-out error exceeds :data:`MOVED_FACTOR` times its
+    expected RMS (or the agreeing cameras' median error) and :data:`MOVED_MIN_PX`.
     """
     pairs = labelled_pairs(rig, R, t, wand)
     focal = np.array([c.focal for c in rig.cameras])
     n = len(rig.cameras)
     trusted = np.ones(n, bool)
-    moved = np.zeros(n, bool)
+
+    def limits(errors: dict, agreeing: list[int]) -> np.ndarray:
+        if expected_rms_px is not None:
+            ref = np.asarray(expected_rms_px, float)
+        else:
+            ref = np.full(n, float(np.median(np.concatenate([errors[c] for c in agreeing]))))
+        return np.maximum(MOVED_FACTOR * ref, MOVED_MIN_PX)
+
     while True:
         errors = {c: leave_one_out_errors(R, t, pairs, focal, c, trusted & (np.arange(n) != c)) for c in range(n)}
-        judged = [c for c in range(n) if len(errors[c]) >= 2 * MIN_JUDGED_FRAMES]
-        agreeing = [c for c in judged if trusted[c]]
+        agreeing = [c for c in range(n) if trusted[c] and len(errors[c]) >= 2 * MIN_JUDGED_FRAMES]
         if len(agreeing) < 3:
             break
-        medians = {c: float(np.median(errors[c])) for c in judged}
-        worst = max(agreeing, key=lambda c: medians[c])
-        rest = np.median(np.concatenate([errors[c] for c in agreeing if c != worst]))
-        if medians[worst] <= max(MOVED_FACTOR * rest, MOVED_MIN_PX):
+        limit = limits(errors, agreeing)
+        excess = {c: np.median(errors[c]) / limit[c] for c in agreeing}
+        worst = max(agreeing, key=lambda c: excess[c])
+        if excess[worst] <= 1.0:
             break
         trusted[worst] = False
-        moved[worst] = True
-    agree = np.concatenate([errors[c] for c in range(n) if trusted[c] and len(errors[c])] or [np.zeros(0)])
-    limit = max(MOVED_FACTOR * float(np.median(agree)), MOVED_MIN_PX) if len(agree) else MOVED_MIN_PX
+    agreeing = [c for c in range(n) if trusted[c] and len(errors[c])]
+    limit = limits(errors, agreeing) if agreeing else np.full(n, MOVED_MIN_PX)
     out = []
     for c, cam in enumerate(rig.cameras):
         e = errors[c]
@@ -155,11 +166,9 @@ def check_cameras(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations
                                    f"wave the wand where {cam.id} and two others see it"))
             continue
         rms, med = float(np.sqrt(np.mean(e**2))), float(np.median(e))
-        # a camera taken out is judged against the agreeing cameras; one that agrees is re-tested
-        # against the final limit, so a borderline camera is reported by the same rule
-        is_moved = bool(moved[c] or med > limit)
-        reason = (f"{cam.id} disagrees with the others by {med:.2f} px (median; limit {limit:.2f} px): it has moved "
+        is_moved = bool(not trusted[c] or med > limit[c])
+        reason = (f"{cam.id} disagrees with the others by {med:.2f} px (median; limit {limit[c]:.2f} px): it has moved "
                   "or its lens was touched; recalibrate it with --solve-only" if is_moved else
-                  f"{cam.id} agrees with the others ({med:.2f} px median, limit {limit:.2f} px)")
+                  f"{cam.id} agrees with the others ({med:.2f} px median, limit {limit[c]:.2f} px)")
         out.append(CameraCheck(cam.id, is_moved, rms, med, frames, reason))
     return out

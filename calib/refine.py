@@ -43,10 +43,11 @@ class Setup:
     uv: np.ndarray
 
 
-def build_problem(rig: Rig, pairs: WandPairs, R: np.ndarray, t: np.ndarray, gauge: int = 0) -> Setup:
+def build_problem(rig: Rig, pairs: WandPairs, R: np.ndarray, t: np.ndarray, gauge: int | np.ndarray = 0) -> Setup:
     """Triangulate the labelled pairs at the given poses and set up the wand model.
 
-    Frames seen by fewer than two cameras are left out. The camera ``gauge`` is held fixed.
+    Frames seen by fewer than two cameras are left out. The camera ``gauge`` is held fixed (or,
+    given an (N,) bool array, every camera it marks).
     """
     point, camera, xy = flatten(pairs)
     X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
@@ -67,8 +68,11 @@ def build_problem(rig: Rig, pairs: WandPairs, R: np.ndarray, t: np.ndarray, gaug
         length=rig.wand_length if rig.wand_length is not None else 0.0,
         n_frames=int(ok.sum()),
     )
-    fixed = np.zeros(len(rig.cameras), bool)
-    fixed[gauge] = True
+    if isinstance(gauge, np.ndarray):
+        fixed = gauge.astype(bool)
+    else:
+        fixed = np.zeros(len(rig.cameras), bool)
+        fixed[gauge] = True
     model = WandModel(problem, R, t, X[ok], fixed)
     uv = np.concatenate([pairs.uv[:, 0], pairs.uv[:, 1]])[sel][order]
     return Setup(problem=problem, model=model, frames=pairs.frames[ok], pair_index=pair_index, uv=uv)

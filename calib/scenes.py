@@ -94,3 +94,21 @@ def pairwise_points(sim, n: int, rng, third: float = THIRD_VIEW, noise_px: float
     keep = _ring_mask(inside, rng, third)
     frame, camera = np.nonzero(keep)
     return PointObservations(frame, camera, uv[frame, camera])
+
+
+def knocked_capture(sim: SimulatedCapture, camera: int, degrees: float, metres: float, frames: int, seed: int):
+    """A fresh wand capture of ``sim``'s rig after camera ``camera`` was knocked by ``degrees``
+    about a random axis and moved ``metres`` in a random direction: (wand observations, R, t)
+    with the rig's true poses after the knock."""
+    from calib.simulate import observe_wand, wand_path
+
+    rng = np.random.default_rng(seed)
+    R, t = sim.truth.R.copy(), sim.truth.t.copy()
+    axis = rng.normal(size=3)
+    move = rng.normal(size=3)
+    C = -R[camera].T @ t[camera] + metres * move / np.linalg.norm(move)
+    R[camera] = rotvec_to_matrix(np.radians(degrees) * axis / np.linalg.norm(axis)) @ R[camera]
+    t[camera] = -R[camera] @ C
+    wand = wand_path(frames, sim.rig.wand_length, rng)
+    noise = 0.3
+    return observe_wand(sim.rig.cameras, R, t, wand, noise, 0.0, 0.03, rng), R, t

@@ -11,9 +11,10 @@ import importlib
 import sys
 
 COMMAND_MODULES = {
-    "service.commands": ("simulate", "calibrate", "demo"),
+    "service.commands": ("simulate", "calibrate", "demo", "check"),
     "capture.cli": ("capture", "detect", "trigger-emulator", "import"),
     "service.serve": ("serve",),
+    "service.export_command": ("export",),
 }
 
 

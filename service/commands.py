@@ -6,11 +6,13 @@ import argparse
 import json
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from calib.ba import DEFAULT_LOSS, LOSSES
+from calib.errors import CalibrationError
 from calib.geometry import kabsch, rotation_angle
 from calib.paper import MAX_ROUNDS
 from calib.pipeline import DEFAULT_METHOD, METHODS, calibrate
@@ -40,7 +42,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--refine-intrinsics", type=_intrinsics_list, default=(), metavar="LIST",
                    help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
+                   help="start from this result: with --solve-only, every other camera keeps its pose exactly")
+    p.add_argument("--solve-only", type=_id_list, metavar="CAM[,CAM]",
+                   help="with --from: re-solve only these cameras (e.g. the ones 'wandcal check' names)")
     p.set_defaults(run=run_calibrate)
+
+    p = sub.add_parser("check", help="judge a result's cameras against a fresh wand capture: did any move?")
+    p.add_argument("result", type=Path, help="wandcal-result/1 file")
+    p.add_argument("capture", type=Path, help="a fresh wand capture of the same rig")
+    p.add_argument("--json", action="store_true", help='print {"cameras": [{"id", "moved", "rms_px", ...}]}')
+    p.set_defaults(run=run_check)
 
     p = sub.add_parser("demo", help="simulate a rig, calibrate it and compare with the truth")
     _sim_args(p, cameras=6, frames=800)
@@ -64,6 +76,13 @@ def _intrinsics_list(text: str) -> tuple[str, ...]:
     if unknown:
         raise argparse.ArgumentTypeError(f"unknown {unknown[0]!r}; choose from {','.join(INTRINSICS)}")
     return names
+
+
+def _id_list(text: str) -> tuple[str, ...]:
+    ids = tuple(name.strip() for name in text.split(",") if name.strip())
+    if not ids:
+        raise argparse.ArgumentTypeError("give at least one camera id")
+    return ids
 
 
 def _at_least(n: int):
@@ -101,16 +120,76 @@ def _points_level(folder: Path, progress) -> Path:
     return ensure_points_level(folder, progress=progress)
 
 
+def _result_for(result_path: Path, cap):
+    """The result's cameras (calibrated intrinsics and poses) in the capture's camera order."""
+    from capture.results import read_result
+
+    prev = read_result(result_path)
+    missing = [cid for cid in cap.rig.ids if cid not in prev.rig.ids]
+    if missing:
+        raise CalibrationError(f"{result_path}: has no camera {missing[0]!r} of the capture's rig.json "
+                               f"(it has {', '.join(prev.rig.ids)}); check that the capture and the result are of one rig")
+    order = [prev.rig.index(cid) for cid in cap.rig.ids]
+    rig = replace(cap.rig, cameras=tuple(prev.rig.cameras[k] for k in order))
+    entries = [prev.doc["cameras"][k] for k in order]
+    return prev, rig, prev.R[order], prev.t[order], entries
+
+
+def run_check(args) -> int:
+    from calib.evaluate import check_cameras
+
+    folder = _points_level(args.capture, ProgressLine(quiet=True))
+    cap = read_capture(folder)
+    if cap.wand is None or not len(cap.wand) or cap.rig.wand_length is None:
+        raise CalibrationError(f"{args.capture}: has no wand blobs; 'wandcal check' needs a fresh wand capture")
+    _, rig, R, t, entries = _result_for(args.result, cap)
+    expected = np.array([e.get("reprojection_rms_px") or np.nan for e in entries], float)
+    checks = check_cameras(rig, R, t, cap.wand, None if np.isnan(expected).any() else expected)
+    moved = [c.id for c in checks if c.moved]
+    if args.json:
+        print(json.dumps({"cameras": [vars(c) for c in checks], "moved": moved}, indent=2))
+    else:
+        for c in checks:
+            mark = "MOVED" if c.moved else ("?" if c.moved is None else "ok")
+            print(f"{c.id:<16} {mark:<6} {c.reason}")
+        print(f"moved: {', '.join(moved)}; recalibrate with: wandcal calibrate {args.capture} --from {args.result} "
+              f"--solve-only {','.join(moved)}" if moved else "every camera agrees with the others")
+    return 1 if moved else 0
+
+
 def run_calibrate(args) -> int:
     progress = ProgressLine(quiet=args.quiet)
     folder = _points_level(args.capture, progress)
     cap = read_capture(folder)
+    if args.from_result is not None or args.solve_only:
+        return _run_solve_only(args, cap, progress)
     options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
                "loss": args.loss, "refine_intrinsics": args.refine_intrinsics}
     result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
                        points=cap.points, axis=cap.axis)
     progress.close()
-    doc = result.to_json()
+    return _write_result(args, result.to_json())
+
+
+def _run_solve_only(args, cap, progress) -> int:
+    from calib.resolve import solve_only
+
+    if args.from_result is None or not args.solve_only:
+        raise CalibrationError("--from RESULT and --solve-only CAM[,CAM] go together: name the result to start from "
+                               "and the cameras to re-solve")
+    if args.method != "ba" or args.refine_intrinsics:
+        raise CalibrationError("--solve-only re-solves poses with --method ba only, intrinsics held")
+    prev, rig, R, t, entries = _result_for(args.from_result, cap)
+    if cap.wand is None or not len(cap.wand):
+        raise CalibrationError(f"{args.capture}: has no wand blobs; --solve-only needs a fresh wand capture")
+    options = {"reject_outliers": not args.keep_outliers, "loss": args.loss}
+    result = solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.doc.get("world", {}), entries,
+                        progress=progress, options=options)
+    progress.close()
+    return _write_result(args, result.to_json())
+
+
+def _write_result(args, doc: dict) -> int:
     out = args.out or args.capture / "result.json"
     out.write_text(json.dumps(doc, indent=2) + "\n")
     print(format_summary(doc))

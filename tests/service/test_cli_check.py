@@ -1,0 +1,68 @@
+"""``wandcal check`` and ``wandcal calibrate --from --solve-only`` as a user runs them."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from calib.scenes import knocked_capture
+from calib.simulate import simulate_capture
+from capture.folder import write_capture
+
+
+def wandcal(*args):
+    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=600)
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bump")
+    sim = simulate_capture(5, 600, 0.3, 0.0, True, 4)
+    write_capture(root / "base", sim.rig, sim.wand, sim.static)
+    wand, _, _ = knocked_capture(sim, 1, 1.0, 0.03, 600, 8)
+    write_capture(root / "fresh", sim.rig, wand, None)
+    r = wandcal("calibrate", root / "base", "--quiet")
+    assert r.returncode == 0, r.stderr
+    return root
+
+
+def test_check_exits_1_naming_the_moved_camera_then_solve_only_fixes_it(folders):
+    base, fresh = folders / "base" / "result.json", folders / "fresh"
+    r = wandcal("check", base, fresh, "--json")
+    assert r.returncode == 1, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["moved"] == ["cam2"]
+    assert {c["id"]: c["moved"] for c in doc["cameras"]} == {f"cam{k}": k == 2 for k in range(1, 6)}
+    assert all({"id", "moved", "rms_px"} <= set(c) for c in doc["cameras"])
+
+    r = wandcal("calibrate", fresh, "--from", base, "--solve-only", "cam2", "--out", folders / "new.json", "--quiet")
+    assert r.returncode == 0, r.stderr
+    old, new = json.loads(base.read_text()), json.loads((folders / "new.json").read_text())
+    for a, b in zip(old["cameras"], new["cameras"]):
+        if a["id"] != "cam2":
+            assert a["R"] == b["R"] and a["t"] == b["t"]  # bit for bit, through JSON
+    assert new["world"] == old["world"]
+    r = wandcal("check", folders / "new.json", fresh)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "every camera agrees" in r.stdout
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--solve-only", "cam2"], "--from RESULT and --solve-only"),
+    (["--from", "{base}", "--solve-only", "cam9"], "unknown camera id 'cam9'"),
+    (["--from", "{missing}", "--solve-only", "cam2"], "not found"),
+])
+def test_solve_only_bad_input_exits_2_with_a_message(folders, args, words):
+    subs = {"base": folders / "base" / "result.json", "missing": folders / "nope.json"}
+    r = wandcal("calibrate", folders / "fresh", *[a.format(**subs) for a in args], "--quiet")
+    assert r.returncode == 2 and words in r.stderr and "Traceback" not in r.stderr
+
+
+def test_check_on_a_garbage_result_exits_2(folders, tmp_path):
+    bad = tmp_path / "r.json"
+    bad.write_bytes(b"\x00\xff garbage")
+    r = wandcal("check", bad, folders / "fresh")
+    assert r.returncode == 2 and str(bad) in r.stderr and "Traceback" not in r.stderr
