@@ -68,6 +68,8 @@ def rotation_step(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProb
     R = R.copy()
     for n in np.flatnonzero(~fixed):
         sel = problem.camera == n
+        if 2 * sel.sum() < 3:
+            continue  # too few observations to turn it: held; the result's checks refuse such a camera
         xy = problem.xy[sel]
         Xp = X[problem.point[sel]]
         R0, tn = R[n], t[n]

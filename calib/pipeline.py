@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib import quality
+from calib.degenerate import check_capture
 from calib.errors import CalibrationError
 from calib.geometry import camera_centers
 from calib.initial import initial_poses
@@ -31,6 +32,7 @@ from calib.rig import AxisObservations, PointObservations, Rig, StaticObservatio
 from calib.static import solve_static
 from calib.triangulate import reprojection_errors
 from calib.uncertainty import frame_noise, world_uncertainty
+from calib.verdict import judge
 from calib.world import apply, axis_points, world_frame
 
 RESULT_FORMAT = "wandcal-result/1"
@@ -62,6 +64,7 @@ class CalibrationResult:
     dropped: dict
     warnings: list[str] = field(default_factory=list)
     points: np.ndarray | None = None  # (T, 3) the single-point tracks' refined points, world frame
+    verdict: dict | None = None  # the rig's {"level", "reasons"} (calib/verdict.py)
 
     @property
     def centers(self) -> np.ndarray:
@@ -90,6 +93,7 @@ class CalibrationResult:
             "solver": self.solver,
             "world": self.world,
             "dropped": self.dropped,
+            "verdict": self.verdict,
             "warnings": list(self.warnings),
         }
 
@@ -169,6 +173,7 @@ def calibrate(
             if not pose:
                 warnings.append(f"{pose}; {rig.cameras[c].id} is placed from the wand only")
 
+    warnings += check_capture(rig, pairs, tracks, static_poses)  # degenerate captures: calib/degenerate.py
     tell({"stage": "initial", "message": "initial poses"})
     init = initial_poses(rig, pairs, static_poses, points=tracks)
     warnings += init.notes
@@ -200,7 +205,7 @@ def calibrate(
     rig, setup, tracks, info = r.rig, r.setup, r.tracks, r.info
 
     tell({"stage": "world", "message": "expressing the rig in the world frame"})
-    Rw, tw, world = world_frame(rig, r.R, r.t, GAUGE_CAMERA, static, static_poses, axis, wand=r.wand)
+    Rw, tw, world = world_frame(rig, r.R, r.t, GAUGE_CAMERA, static, static_poses, axis, wand=r.wand, points=r.X)
     R, t, wand_pts = apply(Rw, tw, r.R, r.t, r.wand)
     X = r.X @ Rw.T + tw if r.X is not None else None
     world["scale"] = "wand" if has_wand else "arbitrary"
@@ -223,11 +228,16 @@ def calibrate(
             "length_std_m": float(lengths.std()),
             "frames_used": int(setup.problem.n_frames),
         }
+    seen_cam, seen_uv = setup.problem.camera, setup.uv
+    if tracks is not None and len(tracks):
+        seen_cam, seen_uv = np.concatenate([seen_cam, tracks.camera]), np.concatenate([seen_uv, tracks.uv])
+    verdict, checks = judge(method, rig, cameras, wand_report, world, camera_centers(R, t), seen_cam, seen_uv)
+    warnings += checks
     solver = {"method": method} | info | {"total_seconds": time.perf_counter() - started}
     tell({"stage": "done", "message": "calibration finished"})
     return CalibrationResult(
         rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
-        solver=solver, world=world, dropped=dropped, warnings=warnings, points=X,
+        solver=solver, world=world, dropped=dropped, warnings=warnings, points=X, verdict=verdict,
     )
 
 
@@ -262,7 +272,7 @@ def _uncertainty_reports(cameras: list[dict], rig: Rig, r, world: dict, frame_da
     static, static_poses, axis = frame_data
 
     def frame(Rp, tp, shift):
-        Rw_, tw_, _ = world_frame(rig, Rp, tp, GAUGE_CAMERA, static, static_poses, axis, wand=r.wand + shift)
+        Rw_, tw_, _ = world_frame(rig, Rp, tp, GAUGE_CAMERA, static, static_poses, axis, wand=r.wand + shift, points=r.X)
         return Rw_, tw_
 
     points = None

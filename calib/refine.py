@@ -236,6 +236,12 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
             new_keep = quality.reject_worst_per_frame(r.R, r.t, r.labelled, r.setup.problem.focal, limit)
             if r.rig.wand_length is not None:
                 new_keep &= ~quality.length_outlier_frames(r.R, r.t, r.labelled, new_keep, r.rig.wand_length)[r.labelled.frame]
+        starved = _starved(r.labelled, new_keep, len(r.rig.cameras))
+        if starved.any():
+            # dropping these would leave a camera without a frame to refine it from
+            if not robust_ba:
+                break  # keep the last set
+            new_keep = new_keep | starved[r.labelled.camera]  # the polish still runs, on them too
         tracks, X, bad_points = r.tracks, r.X, point_err > limit
         if bad_points.any():
             point_drops += int(bad_points.sum())
@@ -256,6 +262,18 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
                                       "loss": before.get("loss", r.info.get("loss"))})
     # the labelled pairs stay whole; the setup holds the kept ones
     return replace(r, outliers=int((~keep).sum()), point_outliers=point_drops)
+
+
+def _starved(labelled: WandPairs, keep: np.ndarray, n_cams: int) -> np.ndarray:
+    """(N,) bool: the cameras that had wand frames shared with another camera and would have none
+    if only ``keep`` (P,) of the labelled pairs were kept (on a sparse rig of ~30 frames the
+    worst-per-frame passes can strip a whole camera)."""
+    def shared(mask):
+        views = np.bincount(labelled.frame[mask], minlength=len(labelled.frames))
+        ok = mask & (views[labelled.frame] >= 2)
+        return np.bincount(labelled.camera[ok], minlength=n_cams)
+    before, after = shared(np.ones(len(labelled), bool)), shared(keep)
+    return (before > 0) & (after == 0)
 
 
 def _outlier_limit(r: Refined) -> tuple[float, np.ndarray, np.ndarray]:

@@ -23,6 +23,8 @@ from calib.resection import resect_camera
 from calib.rig import Rig, WandObservations
 from calib.triangulate import triangulate_points
 from calib.uncertainty import world_uncertainty
+from calib.verdict import judge
+from calib.geometry import camera_centers
 
 MIN_HELD = 2  # the held cameras must triangulate the wand: two at least
 
@@ -96,7 +98,11 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
     lengths = quality.free_wand_lengths(R_new, t_new, r.setup.problem)
     wand_report = {"length_m": rig.wand_length, "length_mean_m": float(lengths.mean()),
                    "length_std_m": float(lengths.std()), "frames_used": int(r.setup.problem.n_frames)}
+    verdict, checks = judge("ba", rig, cameras, wand_report, world, camera_centers(R_new, t_new), r.setup.problem.camera,
+                            r.setup.uv)
+    warnings += checks
     solver = {"method": "ba"} | r.info | {"solved_only": list(solve), "total_seconds": time.perf_counter() - started}
     tell({"stage": "done", "message": "calibration finished"})
     return CalibrationResult(rig=rig, R=R_new, t=t_new, wand=r.wand, frames=r.setup.frames, cameras=cameras,
-                             wand_report=wand_report, solver=solver, world=dict(world), dropped=dropped, warnings=warnings)
+                             wand_report=wand_report, solver=solver, world=dict(world), dropped=dropped, warnings=warnings,
+                             verdict=verdict)

@@ -201,7 +201,7 @@ def format_summary(doc: dict) -> str:
     points = any("point_observations" in cam for cam in doc["cameras"])
     intrinsics = any("intrinsics" in cam for cam in doc["cameras"])
     unit = "m" if doc["world"].get("scale", "wand") != "arbitrary" else "arbitrary units"
-    head = f"{'camera':<16} {'centre x, y, z (' + unit + ')':>30} {'+- mm':>6} {'rms px':>8} {'obs':>7}"
+    head = f"{'camera':<16} {'centre x, y, z (' + unit + ')':>30} {'+- mm':>6} {'rms px':>8} {'obs':>7} {'verdict':>9}"
     head += f" {'pts rms':>8} {'pts':>6}" if points else ""
     head += f" {'focal px':>10}" if intrinsics else ""
     lines = [head]
@@ -211,7 +211,7 @@ def format_summary(doc: dict) -> str:
         rms = cam["reprojection_rms_px"]
         std = cam.get("center_std_mm")
         row = (f"{cam['id']:<16} {c[0]:10.4f}{c[1]:10.4f}{c[2]:10.4f} {std if std is not None else nan:6.2f} "
-               f"{rms if rms is not None else nan:8.3f} {cam['observations']:7d}")
+               f"{rms if rms is not None else nan:8.3f} {cam['observations']:7d} {cam.get('verdict', {}).get('level', '-'):>9}")
         if points:
             prms = cam.get("point_rms_px")
             row += f" {prms if prms is not None else nan:8.3f} {cam.get('point_observations', 0):6d}"
@@ -227,6 +227,11 @@ def format_summary(doc: dict) -> str:
             f"wand {w['length_mean_m'] * 1000:.2f} +- {w['length_std_m'] * 1000:.2f} mm "
             f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {w['frames_used']} frames; {solved}"
         )
+    verdict = doc.get("verdict")
+    if verdict:
+        lines.append(f"verdict: {verdict['level']}" + (f" ({'; '.join(verdict['reasons'])})" if verdict["reasons"] else ""))
+        lines += [f"  {reason}" for cam in doc["cameras"] for reason in cam.get("verdict", {}).get("reasons", [])
+                  if cam["verdict"]["level"] == "poor"]
     lines += [f"warning: {text}" for text in doc["warnings"]]
     return "\n".join(lines)
 
@@ -265,7 +270,8 @@ def truth_table(result, sim) -> str:
     for i, cam in enumerate(sim.rig.cameras):
         rows.append(f"{cam.id:<10} {raw[i] if raw is not None else float('nan'):16.3f} {aligned[i]:13.3f} {rot[i]:18.1f}")
     if raw is None:
-        rows.append("(no static object: the world is camera 1's frame, so only aligned errors are meaningful)")
+        rows.append("(no static object: the world is the wand volume's frame, not the simulator's, so only aligned "
+                    "errors are meaningful)")
     return "\n".join(rows)
 
 
