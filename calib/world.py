@@ -1,4 +1,4 @@
-"""The world frame of a result: the static object's, the axis points', or a camera's.
+"""The world frame of a result: the static object's, the axis points', or the wand volume's.
 
 Refinement works in the gauge of one fixed camera. The user's world frame is chosen here, in
 this order (docs/conventions.md):
@@ -7,29 +7,41 @@ this order (docs/conventions.md):
   ``+y``; with two axes given the first of z, x, y is exact and the other is made orthogonal);
   with one axis only, the next axis (x after z, y after x, z after y) is the first camera's
   image-right direction made orthogonal to it;
-- otherwise the gauge camera's own frame.
+- otherwise the wand volume's frame (:func:`volume_frame`): origin at the centroid of the wand
+  midpoints (without a wand, of the single-point tracks' points), z up against the cameras'
+  mean image-down direction, x along the gauge camera's image-right made level. Its origin
+  lies inside the volume the cameras watch, not in a camera's focal plane as a camera's own
+  centre would (a DLT export needs that, docs/formats.md); docs/decisions/0009.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from calib.geometry import kabsch, undistort_by_camera, undistort_points
+from calib.geometry import camera_centers, kabsch, undistort_by_camera, undistort_points
 from calib.rig import AxisObservations, Rig, StaticObservations
 from calib.static import StaticPose
 from calib.triangulate import triangulate_points
 
 AXIS_ORDER = ("+z", "+x", "+y")  # which given axis is kept exactly when several are
+# the cameras agree on "down" when their mean image-down direction is at least this long (a ring of
+# upright cameras tilted 60 degrees down still gives 0.5); below it, up is the gauge camera's own
+MIN_UP_AGREEMENT = 0.25
+# the gauge camera's image-right is used for x while it is at least this far from vertical (sin of
+# ~6 degrees); a camera rolled onto its side gives x from its optical axis instead
+MIN_LEVEL_RIGHT = 0.1
 
 
 def world_frame(rig: Rig, R: np.ndarray, t: np.ndarray, gauge: int, static=None, static_poses=None, axis=None,
-                wand: np.ndarray | None = None):
+                wand: np.ndarray | None = None, points: np.ndarray | None = None):
     """The map into the user's world frame.
 
     Args:
         R, t: (N, 3, 3), (N, 3) refined poses in the gauge frame.
         static, static_poses: the static object's blobs and PnP poses, or None.
         axis: :class:`AxisObservations`, or None.
+        points: (T, 3) the single-point tracks' refined points in the gauge frame, or None: the
+            wand-only frame's origin when there is no wand.
         wand: (F, 2, 3) the refined wand ends in the gauge frame, or None. The frame must depend
             on nothing but these arguments: the pose uncertainty is propagated into it by
             differentiating this function (calib/uncertainty.py).
@@ -52,12 +64,57 @@ def world_frame(rig: Rig, R: np.ndarray, t: np.ndarray, gauge: int, static=None,
         fit = _axis_fit(rig, axis, R, t)
         if fit is not None:
             return fit
-    Rw, tw = R[gauge], t[gauge]
+    Rw, tw, origin = volume_frame(R, t, gauge, wand, points)
+    cam = rig.cameras[gauge].id
     return Rw, tw, {
-        "frame": "camera",
-        "camera": rig.cameras[gauge].id,
-        "description": f"camera {rig.cameras[gauge].id!r}'s frame: origin at its centre, x right, y down, z along its optical axis",
+        "frame": "wand_volume",
+        "description": f"the wand volume's frame: origin at the centroid of the {origin}, z up (against the "
+        f"cameras' mean image-down direction), x along camera {cam!r}'s image-right made level, y = z x x; metres",
+        "origin": origin,
+        "x_camera": cam,
     }
+
+
+def volume_frame(R: np.ndarray, t: np.ndarray, gauge: int, wand: np.ndarray | None = None,
+                 points: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, str]:
+    """The wand volume's frame: a function of the poses and the wand (or points) alone, smooth
+    away from the two fallbacks' thresholds.
+
+    - origin: the centroid of the wand midpoints; without a wand, of ``points``; without either,
+      the cameras' centroid moved along their mean optical axis by their RMS spread (a point the
+      cameras look towards);
+    - z: up, against the mean of the cameras' image-down directions (cameras stand upright); if
+      they disagree (mean shorter than ``MIN_UP_AGREEMENT``), against the gauge camera's;
+    - x: the gauge camera's image-right made orthogonal to z (its optical axis if it is rolled
+      onto its side); y = z x x.
+
+    Args:
+        R, t: (N, 3, 3), (N, 3) poses in the gauge frame, world->camera.
+        wand: (F, 2, 3) wand ends in the gauge frame, or None / empty.
+        points: (T, 3) single-point tracks' points in the gauge frame, or None / empty.
+
+    Returns:
+        (Rw (3, 3), tw (3,), origin): ``x_world = Rw x + tw``; ``origin`` names what the origin
+        is the centroid of.
+    """
+    if wand is not None and len(wand):
+        centre, origin = np.asarray(wand, dtype=float).mean(axis=(0, 1)), "wand midpoints"
+    elif points is not None and len(points):
+        centre, origin = np.asarray(points, dtype=float).mean(axis=0), "single-point tracks' points"
+    else:
+        C = camera_centers(R, t)
+        spread = float(np.sqrt(np.mean(np.sum((C - C.mean(0)) ** 2, axis=1))))
+        centre, origin = C.mean(0) + R[:, 2, :].mean(0) * spread, "cameras, moved along their mean optical axis"
+    up = -R[:, 1, :].mean(0)  # rows of R are the camera axes in the gauge frame; row 1 is image-down
+    if np.linalg.norm(up) < MIN_UP_AGREEMENT:
+        up = -R[gauge, 1]
+    z = up / np.linalg.norm(up)
+    x = R[gauge, 0] - z * (R[gauge, 0] @ z)
+    if np.linalg.norm(x) < MIN_LEVEL_RIGHT:
+        x = R[gauge, 2] - z * (R[gauge, 2] @ z)
+    x /= np.linalg.norm(x)
+    Rw = np.stack([x, np.cross(z, x), z])  # rows: the world axes in the gauge frame
+    return Rw, -Rw @ centre, origin
 
 
 def apply(Rw: np.ndarray, tw: np.ndarray, R: np.ndarray, t: np.ndarray, points: np.ndarray):

@@ -4,10 +4,12 @@ import numpy as np
 import pytest
 
 from calib.errors import CalibrationError
-from calib.geometry import kabsch, rotation_angle
+from calib.export import export
+from calib.geometry import camera_centers, kabsch, rotation_angle
 from calib.pipeline import calibrate
 from calib.rig import StaticObservations, WandObservations
 from calib.simulate import STATIC_FRAMES_AVERAGED, simulate_capture
+from calib.world import apply, world_frame
 
 NOISE = 0.3
 
@@ -40,13 +42,33 @@ def test_world_frame_from_the_l_frame():
     assert doc["warnings"] == []
 
 
-def test_wand_only_world_is_the_first_camera():
+def test_wand_only_world_is_the_wand_volume():
     sim = simulate_capture(5, 400, NOISE, static=False, seed=22)
     result = calibrate(sim.rig, sim.wand, None, "ba")
-    assert result.world["frame"] == "camera" and result.world["camera"] == "cam1"
-    assert np.allclose(result.R[0], np.eye(3)) and np.allclose(result.t[0], 0)
+    assert result.world["frame"] == "wand_volume" and result.world["x_camera"] == "cam1"
+    # the frame's definition, exactly (float rounding only): origin at the wand midpoints'
+    # centroid, z against the cameras' mean image-down, x along cam1's image-right made level
+    assert np.abs(result.wand.mean(axis=(0, 1))).max() < 1e-9
+    down = result.R[:, 1, :].mean(0)
+    np.testing.assert_allclose(down / np.linalg.norm(down), [0, 0, -1], atol=1e-9)
+    assert abs(result.R[0, 0, 1]) < 1e-9 and result.R[0, 0, 0] > 0
+    # up is up: the simulated cameras stand upright on a ring 1.3-2.1 m above the volume's centre
+    assert np.all(result.centers[:, 2] > 0)
+    # the same rule applied to the true poses and wand gives the frame the result should be in;
+    # it is, up to the result's own error: each camera's rotation error is < 0.05 deg (the L-frame
+    # test's bound), and the frame's axes average them, which moves the cameras ~3.5 m from the
+    # volume's centre by 0.05 deg * 3.5 m = 3 mm, plus the shape error
+    Rw, tw, _ = world_frame(sim.rig, sim.truth.R, sim.truth.t, 0, wand=sim.truth.wand)
+    Rt, tt, _ = apply(Rw, tw, sim.truth.R, sim.truth.t, np.zeros((0, 3)))
+    raw = np.linalg.norm(result.centers - camera_centers(Rt, tt), axis=1)
     _, aligned = _errors(result, sim, similarity=True)
     assert aligned.max() < 0.0015
+    assert raw.max() < 0.003 + 0.0015
+    assert np.degrees(rotation_angle(result.R, Rt)).max() < 0.05
+    # the origin is in front of every camera (the volume is 3-4 m from them), so DLT coefficients
+    # can be written (issue 13)
+    assert np.all(result.t[:, 2] > 1.0)
+    assert len(export(result.to_json(), "dlt-csv").splitlines()) == 11
 
 
 def test_outliers_are_dropped_and_counted():
