@@ -1,0 +1,225 @@
+"""The report's ``index.html``: plain, self-contained HTML (no scripts, no network) around the figures."""
+
+from __future__ import annotations
+
+import html
+import math
+
+from service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
+
+DASH = "\u2014"  # what a field an older result lacks shows
+STYLE = """
+body { font: 15px/1.45 system-ui, sans-serif; color: #1d2630; margin: 1.5em auto; max-width: 1540px; padding: 0 1em; }
+h1 { margin-bottom: 0.2em; } h2 { border-bottom: 1px solid #d5dae0; padding-bottom: 0.2em; margin-top: 1.6em; }
+.meta { color: #4a5561; margin: 0.2em 0; }
+img { max-width: 100%; height: auto; border: 1px solid #e3e6ea; }
+table { border-collapse: collapse; margin: 0.6em 0; }
+th, td { border: 1px solid #d5dae0; padding: 0.25em 0.6em; text-align: left; vertical-align: top; }
+td ul { margin: 0.2em 0; padding-left: 1.2em; }
+th { background: #f2f4f6; font-weight: 600; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; }
+.advice li { margin: 0.25em 0; } .warnings li { color: #8a4b00; }
+.verdict-excellent { color: #1e7d32; font-weight: 600; } .verdict-good { color: #2c6fbb; font-weight: 600; }
+.verdict-poor { color: #b3261e; font-weight: 600; }
+.note { background: #fff8e1; border-left: 4px solid #f0b400; padding: 0.4em 0.8em; }
+section.camera { margin-top: 2em; }
+"""
+
+
+def render_page(data: ReportData, figures: dict[str, str]) -> str:
+    """The report page.
+
+    Args:
+        data: what :func:`service.report.analysis.analyse` found.
+        figures: file names of the PNGs beside the page: ``"rig"``, ``"wand"`` and each camera's id.
+    """
+    doc = data.result.doc
+    parts = [
+        "<!doctype html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>wandcal report: {len(data.cameras)} cameras</title><style>{STYLE}</style></head><body>",
+        "<h1>Calibration report</h1>",
+        *_summary(data),
+        *_advice(data),
+        *_list("warnings", "Warnings of the calibration", doc.get("warnings") or [],
+               "The calibration raised no warnings."),
+    ]
+    parts += [f'<p class="note">{_e(n)}</p>' for n in data.notes]
+    parts += ['<section id="rig"><h2>The rig</h2>', _img(figures.get("rig"), _rig_alt(data)),
+              ("<p>Each camera is a frustum pointing where it looks, its thick edge the top of its image. "
+               "Grey dots are the wand's midpoint in each frame; the red, green and blue lines are the world's "
+               "x, y and z axes at its origin.</p></section>")]
+    parts += ['<section id="cameras"><h2>Cameras</h2>', _overview(data), "</section>"]
+    if "wand" in figures:
+        parts += ['<section id="wand"><h2>The wand</h2>', _img(figures["wand"], _wand_alt(data)),
+                  ("<p>Each wand end triangulated on its own, without the known length: its spread is an "
+                   "independent check of the calibration (easyWand's wand score is std / mean). Red crosses are "
+                   "frames with an outlier observation or a length far off the others.</p></section>")]
+    for cam in data.cameras:
+        parts += _camera_section(data, cam, figures.get(cam.id))
+    parts.append("</body></html>")
+    return "\n".join(parts) + "\n"
+
+
+def _summary(data: ReportData) -> list[str]:
+    doc = data.result.doc
+    solver, world, wand = doc.get("solver") or {}, doc.get("world") or {}, doc.get("wand")
+    lines = [f"result: {data.result.path.name}"]
+    if solver:
+        lines.append(f"method {solver.get('method', '?')}: {solver.get('iterations', '?')} iterations, "
+                     f"{solver.get('status', '?')}")
+    if world:
+        scale = " (scale arbitrary: no wand)" if world.get("scale") == "arbitrary" else ""
+        lines.append(f"world frame: {world.get('frame', '?')}{scale}" +
+                     (f" \u2014 {world['description']}" if world.get("description") else ""))
+    if isinstance(wand, dict) and wand.get("length_mean_m"):
+        mean, std = wand["length_mean_m"], wand.get("length_std_m") or 0.0
+        lines.append(f"wand {1000 * mean:.2f} \u00b1 {1000 * std:.2f} mm ({100 * std / mean:.3f}%) over "
+                     f"{wand.get('frames_used', '?')} frames (nominal {1000 * wand.get('length_m', 0):.1f} mm)")
+    word, reasons = verdict(doc.get("verdict"))
+    out = [f'<p class="meta">{_e(line)}</p>' for line in lines]
+    out.append(f'<p id="rig-verdict">Rig verdict: {_verdict_html(word)}'
+               + (f" \u2014 {_e('; '.join(reasons))}" if reasons else "") + "</p>")
+    return out
+
+
+def _advice(data: ReportData) -> list[str]:
+    if not data.has_capture:
+        return []
+    items = data.advice
+    empty = (f"Nothing to do: every camera saw the wand over at least {COVERAGE_GOAL:.0%} of its image, and no "
+             "residual pattern stands out.")
+    return _list("advice", "What to do", items, empty)
+
+
+def _list(section_id: str, title: str, items: list[str], empty: str) -> list[str]:
+    body = ("<ul>" + "".join(f"<li>{_e(i)}</li>" for i in items) + "</ul>") if items else f"<p>{_e(empty)}</p>"
+    return [f'<section id="{section_id}" class="{section_id}"><h2>{_e(title)}</h2>{body}</section>']
+
+
+def _overview(data: ReportData) -> str:
+    unit = data.unit
+    head = ["camera", f"centre x, y, z ({unit})", "reprojection RMS (px)", "observations", "centre \u00b1 (mm)",
+            "rotation \u00b1 (deg)", "verdict", "coverage"]
+    rows = []
+    for cam in data.cameras:
+        d = cam.doc
+        word, _ = verdict(d.get("verdict"))
+        rows.append(
+            f'<tr data-camera="{_e(cam.id)}"><td><a href="#camera-{_e(cam.id)}">{_e(cam.id)}</a></td>'
+            f'<td class="num">{_e(", ".join(f"{v:.3f}" for v in d["center"]))}</td>'
+            f'<td class="num">{_num(d.get("reprojection_rms_px"), ".3f")}</td>'
+            f'<td class="num">{_num(d.get("observations"), "d")}</td>'
+            f'<td class="num">{_num(d.get("center_std_mm"), ".2f")}</td>'
+            f'<td class="num">{_num(d.get("rotation_std_deg"), ".4f")}</td>'
+            f"<td>{_verdict_html(word)}</td>"
+            f'<td class="num">{_num(coverage(cam), ".0%")}</td></tr>')
+    return _table(head, rows)
+
+
+def _camera_section(data: ReportData, cam: CameraSummary, figure: str | None) -> list[str]:
+    d = cam.doc
+    word, reasons = verdict(d.get("verdict"))
+    worst = d.get("worst_frames") or []
+    fields = [
+        ("centre x, y, z", f"{', '.join(f'{v:.4f}' for v in d['center'])} {data.unit}"),
+        ("reprojection RMS", _num(d.get("reprojection_rms_px"), ".3f", " px")),
+        ("observations (wand ends)", _num(d.get("observations"), "d")),
+        ("frames with both ends", _num(d.get("frames_with_both_ends"), "d")),
+        ("point-track RMS", _num(d.get("point_rms_px"), ".3f", " px")),
+        ("point observations", _num(d.get("point_observations"), "d")),
+        ("centre standard deviation (center_std_mm)", _num(d.get("center_std_mm"), ".2f", " mm")),
+        ("rotation standard deviation (rotation_std_deg)", _num(d.get("rotation_std_deg"), ".4f", " deg")),
+        ("verdict", _verdict_html(word) + ("<ul>" + "".join(f"<li>{_e(r)}</li>" for r in reasons) + "</ul>"
+                                           if reasons else "")),
+        ("coverage of the image", _num(coverage(cam), ".0%")
+         + (f" (no samples in {_e(', '.join(d['uncovered']))})" if d.get("uncovered") else "")),
+        ("first pose from", _e(d.get("initial_pose") or DASH)),
+        ("worst frames", _e(", ".join(f"{w['frame']} ({w['error_px']:.2f} px)" for w in worst)) or DASH),
+    ]
+    if not any("point_observations" in c for c in data.result.doc["cameras"]):  # a capture without points.csv
+        fields = [(k, v) for k, v in fields if not k.startswith("point")]
+    rows = [f"<tr><th>{_e(k)}</th><td>{v}</td></tr>" for k, v in fields]
+    said = cam.advice + [w for w in data.result.doc.get("warnings") or [] if _names(w, cam.id)]
+    out = [f'<section class="camera" id="camera-{_e(cam.id)}" data-camera="{_e(cam.id)}"><h2>{_e(cam.id)}</h2>',
+           "<table>" + "".join(rows) + "</table>"]
+    if said:
+        out.append('<ul class="advice">' + "".join(f"<li>{_e(s)}</li>" for s in said) + "</ul>")
+    if figure:
+        out.append(_img(figure, _camera_alt(cam)))
+        out.append("<p>Left: how many samples (wand ends, and single points if any) it saw in each cell of its "
+                   "image (pale red: none). Middle: the "
+                   "RMS residual per cell, with arrows of the mean residual (a pattern of arrows means a "
+                   "systematic error, not noise). Right: the residuals' histogram against what Gaussian noise "
+                   "would give.</p>")
+    out.append("</section>")
+    return out
+
+
+def coverage(cam: CameraSummary) -> float | None:
+    """The share of the camera's image its observations cover: the result's own (what its verdict
+    judged: wand ends and single points the calibration used), else the capture's wand ends."""
+    value = cam.doc.get("coverage")
+    return value if isinstance(value, (int, float)) else cam.covered
+
+
+def verdict(value) -> tuple[str | None, list[str]]:
+    """(word, reasons) of a result's ``verdict``, whichever shape it has: a word, or an object
+    with the word under ``verdict``/``grade``/``level`` and a ``reasons`` list; (None, []) when absent."""
+    if isinstance(value, str):
+        return value, []
+    if isinstance(value, dict):
+        word = next((value[k] for k in ("verdict", "grade", "level", "rating") if isinstance(value.get(k), str)), None)
+        reasons = value.get("reasons") or []
+        return word, [str(r) for r in reasons] if isinstance(reasons, list) else [str(reasons)]
+    return None, []
+
+
+def _names(text: str, camera_id: str) -> bool:
+    """Whether a warning is about this camera (warnings start with, or quote, the camera's id)."""
+    return text.startswith(camera_id + " ") or f"{camera_id}:" in text or f"'{camera_id}'" in text
+
+
+def _verdict_html(word: str | None) -> str:
+    if not word:
+        return DASH
+    return f'<span class="verdict-{_e(word.lower())}">{_e(word)}</span>'
+
+
+def _num(value, fmt: str, suffix: str = "") -> str:
+    if value is None or isinstance(value, bool) or (isinstance(value, float) and not math.isfinite(value)):
+        return DASH
+    try:
+        return _e(format(value, fmt) + suffix)
+    except (TypeError, ValueError):
+        return DASH
+
+
+def _table(head: list[str], rows: list[str]) -> str:
+    return "<table><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>" + "".join(rows) + "</table>"
+
+
+def _img(name: str | None, alt: str) -> str:
+    return f'<p><img src="{_e(name)}" alt="{_e(alt)}"></p>' if name else ""
+
+
+def _rig_alt(data: ReportData) -> str:
+    ids = ", ".join(c.id for c in data.cameras)
+    extra = f", the wand's path over {len(data.trajectory)} frames" if len(data.trajectory) else ""
+    return f"The rig in 3D and from above: cameras {ids} as frusta with their ids{extra}, and the world axes."
+
+
+def _wand_alt(data: ReportData) -> str:
+    return (f"The wand's length over {len(data.wand_frames)} frames, {int(data.outlier_frame.sum())} of them "
+            "marked as outliers, with a histogram of the lengths.")
+
+
+def _camera_alt(cam: CameraSummary) -> str:
+    rms = cam.doc.get("reprojection_rms_px")
+    return (f"{cam.id}: where in its image the wand was seen ({_num(cam.covered, '.0%')} of the cells), its "
+            f"residuals over the image and their histogram (RMS {_num(rms, '.2f')} px).")
+
+
+def _e(text) -> str:
+    return html.escape(str(text), quote=True)
