@@ -1,0 +1,101 @@
+"""What a start does after a crash (SIGKILL, power loss) so that nothing recorded is lost.
+
+| left behind | what the start does |
+|---|---|
+| ``captures/.<id>.partial`` of an upload (points level only) | deleted: the upload was never answered 201, the client sends it again |
+| ``captures/.<id>.partial`` of a live recording (``sync.csv``, ``frames/``, ``capture.json``) | its rows cut mid-line by the kill are dropped; registered as capture ``<id>`` when its points level reads, else moved to ``recovered/<id>`` (an image-level capture folder for ``wandcal detect``) |
+| a capture folder without a database row (killed between the two) | registered |
+| spooled upload bodies in ``tmp/`` | deleted |
+| a corrupt database | moved aside by :func:`service.db.init_db`; every capture folder is registered again |
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+from pathlib import Path
+
+from capture.folder import STATIC_FILE, WAND_FILE, read_capture
+from service.db import connect
+from service.storage import CAPTURE_ID, CaptureStore
+
+log = logging.getLogger("wandcal.service")
+
+RECOVERED_DIR = "recovered"
+SPOOL_DIR = "tmp"  # where ``wandcal serve`` spools large uploads (service/serve.py)
+RECORDING_MARKS = ("sync.csv", "capture.json", "frames", "static", "blobs.csv")  # written by a recording only
+RECOVERED_SOURCE = "live (recovered after a crash)"
+
+
+def recover(store: CaptureStore, data_dir: Path) -> list[str]:
+    """Clean up after a crash (module docstring); returns one line per thing done, also logged."""
+    store.root.mkdir(parents=True, exist_ok=True)
+    done = []
+    for staging in sorted(store.root.glob(".*.partial")):
+        capture_id = staging.name[1 : -len(".partial")]
+        if not any((staging / mark).exists() for mark in RECORDING_MARKS) or not CAPTURE_ID.match(capture_id):
+            shutil.rmtree(staging, ignore_errors=True)
+            continue
+        done.append(_recover_recording(store, data_dir, staging, capture_id))
+    done += register_orphans(store)
+    spool = Path(data_dir) / SPOOL_DIR
+    if spool.is_dir():
+        for leftover in spool.iterdir():
+            if leftover.is_file():
+                leftover.unlink(missing_ok=True)
+    for line in done:
+        log.warning("%s", line)
+    return done
+
+
+def _recover_recording(store: CaptureStore, data_dir: Path, staging: Path, capture_id: str) -> str:
+    for name in (WAND_FILE, STATIC_FILE):
+        drop_cut_last_line(staging / name)
+    try:
+        capture = read_capture(staging)
+        store.adopt(staging, capture_id, capture, RECOVERED_SOURCE, f"recovered recording {capture_id[:8]}",
+                    created=staging.stat().st_mtime)
+        return (f"a live recording cut short by a crash is capture {capture_id} ({len(capture.wand)} wand rows); "
+                "its images are beside it")
+    except (ValueError, OSError) as exc:  # CaptureFormatError: no readable points level yet
+        target = Path(data_dir) / RECOVERED_DIR / capture_id
+        target.parent.mkdir(parents=True, exist_ok=True)
+        staging.rename(target)
+        return (f"a live recording cut short by a crash is kept in {target} ({exc}); run 'wandcal detect {target}' "
+                "and upload its rig.json, wand.csv and static.csv, or copy it under the replay root")
+
+
+def register_orphans(store: CaptureStore) -> list[str]:
+    """Register capture folders that have no database row (a crash between the folder's rename
+    and its row, or a database rebuilt after corruption)."""
+    with connect(store.db_path) as conn:
+        known = {r[0] for r in conn.execute("SELECT id FROM captures").fetchall()}
+    done = []
+    for capture_id in store.captured_ids():
+        if capture_id in known:
+            continue
+        folder = store.folder(capture_id)
+        staging = store.root / f".{capture_id}.partial"
+        try:
+            capture = read_capture(folder)
+        except (ValueError, OSError) as exc:
+            done.append(f"capture folder {folder} has no database row and cannot be read ({exc}); left as it is")
+            continue
+        folder.rename(staging)
+        store.adopt(staging, capture_id, capture, "recovered", f"recovered {capture_id[:8]}",
+                    created=staging.stat().st_mtime)
+        done.append(f"capture folder {folder} had no database row; registered it again")
+    return done
+
+
+def drop_cut_last_line(path: Path) -> None:
+    """Drop the last line of ``path`` if a crash cut it (no newline at its end)."""
+    if not path.is_file() or path.stat().st_size == 0:
+        return
+    with open(path, "rb+") as fh:
+        fh.seek(-1, os.SEEK_END)
+        if fh.read(1) == b"\n":
+            return
+        data = path.read_bytes()
+        fh.truncate(data.rfind(b"\n") + 1)
