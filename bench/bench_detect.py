@@ -7,7 +7,11 @@ image-level folder (PNG decode + detection) on 1 and 2 worker threads
 (docs/decisions/0006-parallel-detection.md). Prints the tables and writes them to the
 "Blob detection" section of docs/benchmarks.md.
 
-Run: python bench/bench_detect.py [--frames 120] [--folder-frames 300] [--no-write]
+Also writes the section "Detection on real images" (bench/detect_real.py): OpenPTV's cavity images
+against OpenPTV's own detections (when ../shared/data is present), and every background model's
+speed and accuracy on rendered frames.
+
+Run: python bench/bench_detect.py [--frames 120] [--folder-frames 300] [--real-only] [--no-write]
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from bench.common import replace_section  # noqa: E402
+from bench.detect_real import background_rows, openptv_rows, regression_rows  # noqa: E402
 from calib.detect import DetectConfig, detect_blobs, detect_many, render_blobs  # noqa: E402
 from calib.simulate import simulate_capture  # noqa: E402
 from capture.folder import rig_to_json  # noqa: E402
@@ -45,6 +50,9 @@ NOISE = {8: 2.0, 16: 300.0}
 FIXED_THRESHOLD = {8: 40, 16: 7000}  # background + a quarter of the dimmest peak
 MATCH_PX = 2.0  # a detection this close to a rendered spot is that spot
 SECTION = "## Blob detection"
+REAL_SECTION = "## Detection on real images"
+BEFORE_REV = "f6d8965"  # the last commit before background models and masks came in (docs/decisions/0012)
+SHARED_DATA = Path(os.environ.get("WANDCAL_SHARED_DATA", REPO.parent / "shared" / "data"))
 REPEATS = 5  # best of 5 round-robin runs per method
 FOLDER_CAMERAS = 3  # "several cameras": the folder's frames are split between them
 FOLDER_REPEATS = 7  # runs of a few seconds each: more of them catch a spell when both cores are free
@@ -240,7 +248,15 @@ def main() -> int:
     parser.add_argument("--folder-frames", type=int, default=300,
                         help="PNGs in the folder-detection rows (0 skips them)")
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/benchmarks.md alone")
+    parser.add_argument("--real-only", action="store_true", help="only the section 'Detection on real images'")
+    parser.add_argument("--background-frames", type=int, default=40,
+                        help="rendered frames per bit depth for the background models' rows")
+    parser.add_argument("--before", default=BEFORE_REV, metavar="REV",
+                        help=f"git revision of calib/detect.py to time side by side (default {BEFORE_REV})")
     args = parser.parse_args()
+    real_section(args)
+    if args.real_only:
+        return 0
 
     load = os.getloadavg()[0]
     rows = []
@@ -317,6 +333,32 @@ def main() -> int:
     if not args.no_write:
         replace_section(SECTION.removeprefix("## "), text.removeprefix(SECTION))
     return 0
+
+
+def real_section(args) -> None:
+    """Print and write the section 'Detection on real images'."""
+    load = os.getloadavg()[0]
+    parts = []
+    if (SHARED_DATA / "openptv_test_cavity").is_dir():
+        lines, about = openptv_rows(SHARED_DATA)
+        print("\n".join(lines))
+        parts.append("### OpenPTV test_cavity against OpenPTV's detections\n\n" + about + "\n\n" + "\n".join(lines))
+    else:
+        print(f"{SHARED_DATA / 'openptv_test_cavity'} not found: the real-image rows are left out")
+    lines, about = background_rows(args.background_frames)
+    print("\n".join(lines))
+    parts.append("### Background models on rendered frames\n\n" + about + "\n\n" + "\n".join(lines))
+    lines, about = regression_rows(args.before, args.frames, REPEATS * 2 + 1)
+    print("\n".join(lines))
+    parts.append("### Speed against the detector before\n\n" + about + "\n\n" + "\n".join(lines))
+    command = f"python bench/bench_detect.py --real-only --frames {args.frames}" + (
+        f" --background-frames {args.background_frames}" if args.background_frames != 40 else "")
+    text = (f"Command: `{command}`  \nMachine: {platform.processor() or platform.machine()}, {os.cpu_count()} "
+            f"cores, Python {platform.python_version()}, OpenCV {cv2.__version__}, NumPy {np.__version__}; load "
+            f"average {load:.1f} when it started. Why these settings and models: "
+            "docs/decisions/0012-detection-background.md.\n\n" + "\n\n".join(parts) + "\n")
+    if not args.no_write:
+        replace_section(REAL_SECTION.removeprefix("## "), text)
 
 
 if __name__ == "__main__":

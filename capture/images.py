@@ -2,12 +2,15 @@
 
 ``wandcal detect CAPTURE`` and :func:`ensure_points_level` (used by ``wandcal calibrate``) run
 :mod:`calib.detect` over ``frames/`` and ``static/`` and write ``wand.csv`` and ``static.csv``
-next to the images (docs/capture-format.md).
+next to the images (docs/capture-format.md). Each camera has its own
+:class:`calib.detect.CameraDetector`, with the mask and empty-volume background that
+:mod:`capture.detect_setup` finds for it.
 
 Decoding a 1280x1024 PNG costs ~6 ms and detecting its blobs ~0.3 ms, so a worker thread takes
 whole files: it decodes *and* detects, and hands back only the small blob arrays. ``cv2.imread``
 and the detector's OpenCV/NumPy calls release the GIL, so two threads decode two files at once
-(docs/decisions/0006-parallel-detection.md).
+(docs/decisions/0006-parallel-detection.md). A running background needs a camera's frames in
+order, so with it the threads only decode and the detection runs in order as the images come back.
 """
 
 from __future__ import annotations
@@ -24,9 +27,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.detect import Blobs, DetectConfig, detect_blobs, static_markers_from_frames, wand_frames
+from calib.detect import (
+    Blobs,
+    CameraDetector,
+    DetectConfig,
+    static_markers_from_frames,
+    wand_frames,
+)
 from calib.errors import CalibrationError
 from calib.rig import StaticObservations, WandObservations
+from capture.detect_setup import MASK_FOLDER, CameraSetup, camera_detectors
 from capture.folder import WAND_FILE, CaptureFormatError, read_rig, write_capture
 from drivers.imagefolder import FRAMES_DIR, STATIC_DIR, image_path, listed_indices
 
@@ -53,10 +63,14 @@ class CameraDetection:
     static_images: int = 0
     static_markers: int = 0
     unreadable: list[str] = field(default_factory=list)
+    highpass_images: int = 0  # images whose background was not flat ("auto" used the high-pass)
+    setup: CameraSetup | None = None  # its mask and empty-volume background
 
     def line(self, expected_static: int | None) -> str:
         text = (f"{self.camera_id}: {self.wand_frames} wand frames of {self.images} images; dropped "
                 f"{self.too_few} with 0-1 blobs, {self.too_many} with more than 2")
+        if self.highpass_images:
+            text += f"; glare or an uneven background in {self.highpass_images} image(s): high-pass applied"
         if self.still_markers:
             text += f", ignored {self.still_markers} still marker(s)"
         if self.unreadable:
@@ -68,38 +82,55 @@ class CameraDetection:
         return text
 
 
-def _detect_file(path: Path, config: DetectConfig | None) -> Blobs | None:
-    """Decode one image and detect its blobs; None when the file cannot be decoded."""
+def _decode(path: Path) -> np.ndarray | None:
+    """One image as (H, W) grey, or None when the file cannot be decoded."""
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        return None
+    if image is not None and image.ndim == 3 and image.shape[2] in (3, 4):
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    return image
+
+
+def _detect_image(path: Path, image: np.ndarray, detector: CameraDetector) -> Blobs:
     try:
-        if image.ndim == 3 and image.shape[2] in (3, 4):
-            image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-        return detect_blobs(image, config)
+        return detector.detect(image)
     except (CalibrationError, cv2.error) as exc:
         raise CaptureFormatError(f"{path}: cannot detect blobs in this image ({exc}); store the camera's "
                                  "raw frames as 8- or 16-bit grey PNGs") from None
 
 
-def _detect_files(paths: list[Path], config: DetectConfig | None, workers: int) -> Iterator[Blobs | None]:
+def _detect_file(path: Path, detector: CameraDetector) -> Blobs | np.ndarray | None:
+    """Decode one image and detect its blobs (None: undecodable). A detector with a running
+    background gets the decoded image back instead, to detect in order."""
+    image = _decode(path)
+    if image is None or detector.running is not None:
+        return image
+    return _detect_image(path, image, detector)
+
+
+def _detect_files(paths: list[Path], detectors: list[CameraDetector], workers: int) -> Iterator[Blobs | None]:
     """Blobs per file, in the order given (None for a file that cannot be decoded).
 
-    With ``workers`` > 1 each file is decoded and detected by one thread of a pool, at most
-    ``QUEUED_PER_WORKER * workers`` files ahead of the consumer. Close the iterator to stop early.
+    With ``workers`` > 1 each file is decoded (and, without a running background, detected) by
+    one thread of a pool, at most ``QUEUED_PER_WORKER * workers`` files ahead of the consumer.
+    Close the iterator to stop early.
     """
+    def finish(path: Path, detector: CameraDetector, out) -> Blobs | None:
+        return _detect_image(path, out, detector) if isinstance(out, np.ndarray) else out
+
     if workers <= 1:
-        yield from (_detect_file(p, config) for p in paths)
+        yield from (finish(p, d, _detect_file(p, d)) for p, d in zip(paths, detectors))
         return
     pool = ThreadPoolExecutor(workers, thread_name_prefix="wandcal-detect")
-    pending: deque[Future] = deque()
+    pending: deque[tuple[Path, CameraDetector, Future]] = deque()
     try:
-        for p in paths:
-            pending.append(pool.submit(_detect_file, p, config))
+        for p, d in zip(paths, detectors):
+            pending.append((p, d, pool.submit(_detect_file, p, d)))
             if len(pending) >= QUEUED_PER_WORKER * workers:
-                yield pending.popleft().result()
+                path, detector, future = pending.popleft()
+                yield finish(path, detector, future.result())
         while pending:
-            yield pending.popleft().result()
+            path, detector, future = pending.popleft()
+            yield finish(path, detector, future.result())
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
@@ -111,15 +142,21 @@ def _cores() -> int:
 
 def detect_capture(folder: str | Path, config: DetectConfig | None = None, workers: int | None = None,
                    progress: Callable[[dict], None] | None = None,
-                   static_only_ok: bool = False) -> list[CameraDetection]:
+                   static_only_ok: bool = False, mask: str | Path = MASK_FOLDER,
+                   empty: Path | None = None) -> list[CameraDetection]:
     """Detect blobs in every image of an image-level capture and write wand.csv / static.csv.
 
     Args:
         folder: the capture folder (rig.json, frames/<camera_id>/*.png, optional static/).
+        config: the detection settings (None: the defaults).
         workers: threads that each decode and detect whole images (None: every core; 1: this thread).
         progress: called with ``{"stage": "detect", "done", "total", "message"}`` as images are done.
         static_only_ok: accept a folder with static images but no wand frames (a live capture
             stopped before its wand run): it gets an empty wand.csv.
+        mask: the cameras' masks: ``"folder"`` (the capture's ``masks/``, where present),
+            ``"none"``, ``"auto"`` or a folder (:func:`capture.detect_setup.camera_detectors`).
+        empty: where the empty-volume recording is, for ``background="empty"`` and ``mask="auto"``
+            (None: the capture's own ``background/``).
 
     Returns:
         one :class:`CameraDetection` per rig camera. An unreadable image is skipped and counted.
@@ -134,14 +171,17 @@ def detect_capture(folder: str | Path, config: DetectConfig | None = None, worke
     workers = _cores() if workers is None else workers
     if workers < 1:
         raise ValueError(f"workers must be at least 1 (or None for every core), got {workers}")
+    detectors, setups = camera_detectors(folder, rig, config or DetectConfig(), mask, empty)
     # One stream of files over every camera, frames then static images: the workers never wait at
     # the end of one camera for the next to start.
     paths = [image_path(folder, phase, cid, i) for cid in rig.ids
              for phase, listed in ((FRAMES_DIR, frames), (STATIC_DIR, statics)) for i in listed[cid]]
+    owners = [detectors[cid] for cid in rig.ids
+              for phase, listed in ((FRAMES_DIR, frames), (STATIC_DIR, statics)) for _ in listed[cid]]
     total, done = len(paths), 0
     reports = []
     rows_f, rows_c, rows_uv, st_c, st_uv = [], [], [], [], []
-    with closing(_detect_files(paths, config, workers)) as found:
+    with closing(_detect_files(paths, owners, workers)) as found:
         files = zip(paths, found)
 
         def take(count: int, report: CameraDetection) -> list[Blobs | None]:
@@ -151,6 +191,8 @@ def detect_capture(folder: str | Path, config: DetectConfig | None = None, worke
             for path, blobs in islice(files, count):
                 if blobs is None:
                     report.unreadable.append(str(path))
+                elif blobs.background == "highpass" and detectors[report.camera_id].config.background == "auto":
+                    report.highpass_images += 1
                 out.append(blobs)
                 done += 1
                 if progress and (done % PROGRESS_EVERY == 0 or done == total):
@@ -159,7 +201,7 @@ def detect_capture(folder: str | Path, config: DetectConfig | None = None, worke
             return out
 
         for c, cid in enumerate(rig.ids):
-            report = CameraDetection(cid, images=len(frames[cid]), static_images=len(statics[cid]))
+            report = CameraDetection(cid, images=len(frames[cid]), static_images=len(statics[cid]), setup=setups[c])
             blobs = take(len(frames[cid]), report)
             readable = [(i, b) for i, b in zip(frames[cid], blobs) if b is not None]
             kept = wand_frames([b for _, b in readable])

@@ -1,5 +1,7 @@
-"""Blob detection: accuracy on rendered spots, rejection filters, wand/static frame logic, and
-agreement with OpenPTV's own detections on real images."""
+"""Blob detection: accuracy on rendered spots, rejection filters and wand/static frame logic.
+
+Background models, masks and the seed and weight options: test_detect_background.py; real images
+against OpenPTV's detections: tests/capture/test_openptv_real.py."""
 
 from __future__ import annotations
 
@@ -195,11 +197,33 @@ def test_bad_images_raise_a_calibration_error_naming_the_problem(image, message)
         ({"min_area_px": 10, "max_area_px": 5}, "max_area_px"),
         ({"min_roundness": 1.5}, "min_roundness"),
         ({"connectivity": 6}, "connectivity"),
+        ({"connectivity": True}, "connectivity"),
+        ({"seed_ratio": 0.5}, "seed_ratio"),
+        ({"weights": "grey"}, "weights"),
+        ({"background": "median"}, "background"),
+        ({"highpass_px": 0}, "highpass_px"),
+        ({"highpass_px": 2.5}, "highpass_px"),
+        ({"running_frames": 1}, "running_frames"),
+        ({"threshold": float("nan")}, "threshold"),
+        ({"reject_border": "yes"}, "reject_border"),
     ],
 )
 def test_bad_config_is_refused(kwargs, field):
     with pytest.raises(CalibrationError, match=field):
         DetectConfig(**kwargs)
+    with pytest.raises(CalibrationError, match=field):
+        DetectConfig().replace(**kwargs)
+
+
+def test_config_is_one_validated_value_with_its_defaults_in_one_place():
+    config = DetectConfig(threshold=9.0)
+    assert config.threshold == 9 and isinstance(config.threshold, int)
+    assert config.replace(min_area_px=2) == DetectConfig(threshold=9, min_area_px=2)
+    assert DetectConfig().describe() == "default detection settings"
+    assert "threshold=9" in config.describe() and "min_area_px" not in config.describe()
+    assert DetectConfig(**DetectConfig().to_dict()) == DetectConfig()
+    with pytest.raises(CalibrationError, match="no field"):
+        DetectConfig().replace(treshold=3)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -303,72 +327,3 @@ def test_wand_frames_from_rendered_images_end_to_end():
     assert result.frame.tolist() == list(range(24))
     err = [_match(uv, t) for uv, t in zip(result.uv, truth)]
     assert np.sqrt(np.mean(np.square(err))) <= CENTROID_RMS_PX
-
-
-# ---------------------------------------------------------------------------------------------
-# Real images: OpenPTV test_cavity, against OpenPTV's own detections
-
-
-def _read_targets(path):
-    """OpenPTV ``_targets`` file -> (N, 8) rows ``pnr x y n nx ny sumg tnr``."""
-    return np.loadtxt(path, skiprows=1, ndmin=2)
-
-
-def _openptv_highpass(image: np.ndarray, half: int = 12) -> np.ndarray:
-    """OpenPTV's preprocessing before ``targ_rec``, re-implemented from its description: subtract
-    a (2*half+1)^2 box mean, truncated to an integer as its C code's integer division does, and
-    clip at zero. ``half=12`` reproduces OpenPTV's pixel counts for ~98 % of matched targets."""
-    import cv2
-
-    n = 2 * half + 1
-    box_sum = cv2.boxFilter(image, cv2.CV_64F, (n, n), normalize=False, borderType=cv2.BORDER_REPLICATE)
-    low = np.floor(box_sum / (n * n))
-    return np.clip(image - low, 0, 255).astype(np.uint8)
-
-
-# SOURCE.md: OpenPTV's centroids have their origin at the top-left pixel's corner (its targ_rec
-# adds 0.5 to the weighted pixel index); ours put the pixel centre at integers.
-OPENPTV_OFFSET_PX = 0.5
-MATCH_RADIUS_PX = 0.5  # SOURCE.md: "match centroids within about 0.5 px"
-ISOLATED_PX = 10.0  # reference targets with no other target this close: no split/merge ambiguity
-
-
-@pytest.mark.shared_data
-def test_detections_match_openptv_reference_targets(shared_data):
-    import cv2
-
-    root = shared_data / "openptv_test_cavity"
-    lines = (root / "parameters" / "targ_rec.par").read_text().split()
-    thresholds = [int(v) for v in lines[:4]]
-    n_min, n_max, sumg_min = int(lines[5]), int(lines[6]), float(lines[11])
-    matched = total = iso_matched = iso_total = 0
-    offsets = []
-    for cam in range(1, 5):
-        image = cv2.imread(str(root / "img" / f"cam{cam}.10000"), cv2.IMREAD_UNCHANGED)
-        ref = _read_targets(root / "img" / f"cam{cam}.10000_targets")
-        ref_uv = ref[:, 1:3] - OPENPTV_OFFSET_PX
-        threshold = thresholds[cam - 1]
-        # OpenPTV-like settings: its threshold and pixel-count limits, no roundness test (it has
-        # none), and its minimum summed grey value (sum of I, i.e. our flux + area * threshold).
-        config = DetectConfig(threshold=threshold, min_area_px=n_min, max_area_px=n_max, min_roundness=0.0)
-        blobs = detect_blobs(_openptv_highpass(image), config)
-        uv = blobs.uv[blobs.flux + blobs.area * threshold > sumg_min]
-        assert len(uv) > 0.8 * len(ref_uv)
-        d = _match(uv, ref_uv)
-        neighbour = np.sort(np.linalg.norm(ref_uv[:, None] - ref_uv[None], axis=2), axis=1)[:, 1]
-        isolated = neighbour >= ISOLATED_PX
-        matched += int(np.sum(d < MATCH_RADIUS_PX))
-        total += len(d)
-        iso_matched += int(np.sum(d[isolated] < MATCH_RADIUS_PX))
-        iso_total += int(isolated.sum())
-        offsets.append(d[d < MATCH_RADIUS_PX])
-    offsets = np.concatenate(offsets)
-    # Measured (docs/benchmarks.md): 81 % of all and ~90 % of isolated targets within 0.5 px,
-    # median offset ~0.08 px. The rest differ for reasons outside the detector: OpenPTV splits
-    # touching particles at local maxima (its "discontinuity"), and our re-implementation of its
-    # high-pass filter is not bit-identical (~0.1 grey level per pixel on average).
-    assert matched / total > 0.75
-    assert iso_matched / iso_total > 0.85
-    # Matches are far tighter than the match radius; a detector with a convention or weighting
-    # error would sit near 0.5 px (the corner/centre offset) or spread across the radius.
-    assert np.median(offsets) < MATCH_RADIUS_PX / 4

@@ -1,0 +1,135 @@
+"""The blob detector's command-line options, shared by ``wandcal detect`` and ``wandcal capture``.
+
+Every option maps onto one field of :class:`calib.detect_config.DetectConfig`, whose defaults
+the help texts quote (this module imports NumPy only, so registering the options costs nothing); ``--background`` and ``--mask`` also name where a camera's empty-volume
+recording and masks come from (docs/capture-format.md, "Detection inputs").
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+from calib.detect_config import DEFAULT_CONFIG, DetectConfig
+from calib.errors import CalibrationError
+
+# The background models a live capture can use today: it detects with one DetectConfig for every
+# camera, so the per-camera models (an empty-volume recording, a running average) are for
+# 'wandcal detect' on the recorded frames.
+LIVE_BACKGROUNDS = ("auto", "none", "highpass")
+
+
+@dataclass(frozen=True)
+class BackgroundChoice:
+    """A parsed ``--background``: the model, its parameter, and an empty-volume folder."""
+
+    model: str
+    value: float | None = None
+    folder: Path | None = None
+
+
+def parse_background(text: str) -> BackgroundChoice:
+    """``auto``, ``none``, ``highpass[:PX]``, ``running[:FRAMES]`` or ``empty[:FOLDER]``."""
+    model, _, rest = text.partition(":")
+    if model in ("auto", "none") and not rest:
+        return BackgroundChoice(model)
+    if model == "empty":
+        return BackgroundChoice(model, folder=Path(rest) if rest else None)
+    if model in ("highpass", "running"):
+        if not rest:
+            return BackgroundChoice(model)
+        try:
+            value = float(rest)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: {rest!r} is not a number") from None
+        if model == "highpass" and not (value.is_integer() and value >= 1):
+            raise argparse.ArgumentTypeError(f"{text!r}: the high-pass half-width is a whole number of pixels >= 1")
+        if model == "running" and not 1 < value < float("inf"):
+            raise argparse.ArgumentTypeError(f"{text!r}: the running average's time constant is a number of "
+                                             "frames > 1")
+        return BackgroundChoice(model, value)
+    raise argparse.ArgumentTypeError(f"{text!r}: choose auto, none, highpass[:PX], running[:FRAMES] or "
+                                     "empty[:FOLDER]")
+
+
+def _threshold(text: str) -> int | None:
+    if text == "auto":
+        return None
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a whole grey level >= 0, or 'auto'") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a whole grey level >= 0, or 'auto'")
+    return value
+
+
+def _number(low: float, high: float = float("inf"), whole: bool = False):
+    def parse(text: str):
+        try:
+            value = int(text) if whole else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a {'whole ' if whole else ''}number") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must lie between {low:g} and {high:g}, got {text}")
+        return value
+
+    return parse
+
+
+def add_detect_options(p: argparse.ArgumentParser, live: bool = False) -> None:
+    """The detector's options; ``live`` leaves out the per-camera ones (masks, empty volume)."""
+    d = DEFAULT_CONFIG
+    g = p.add_argument_group("blob detection", "settings of the marker detector (docs/capture-format.md, "
+                                               "'Detection'); defaults work on dark IR frames and on frames with glare")
+    g.add_argument("--threshold", type=_threshold, default=d.threshold, metavar="GREY",
+                   help="grey level a blob pixel must exceed, after the background is subtracted, or 'auto' "
+                        "(default: auto, 6 noise sigmas above the background)")
+    g.add_argument("--seed-ratio", type=_number(1.0), default=d.seed_ratio, metavar="R",
+                   help="each 4-connected piece of a blob must reach R x threshold (hysteresis; OpenPTV uses 2; "
+                        f"default {d.seed_ratio:g}: off)")
+    g.add_argument("--min-area", type=_number(1, whole=True), default=d.min_area_px, metavar="PX",
+                   help=f"smallest blob in pixels (default {d.min_area_px})")
+    g.add_argument("--max-area", type=_number(1, whole=True), default=d.max_area_px, metavar="PX",
+                   help=f"largest blob in pixels (default {d.max_area_px})")
+    g.add_argument("--min-roundness", type=_number(0.0, 1.0), default=d.min_roundness, metavar="R",
+                   help=f"smallest minor/major axis ratio, 0-1 (default {d.min_roundness:g}; 0 keeps streaks)")
+    g.add_argument("--connectivity", type=int, choices=(4, 8), default=d.connectivity,
+                   help=f"pixels touching at a corner join a blob with 8 (default {d.connectivity})")
+    g.add_argument("--weights", choices=("excess", "signal"), default=d.weights,
+                   help="centroid weights: grey level above the threshold (excess, default) or the grey level "
+                        "itself (signal, as OpenPTV)")
+    choices = "auto, none or highpass[:PX]" if live else "auto, none, highpass[:PX], running[:FRAMES] or empty[:FOLDER]"
+    g.add_argument("--background", type=parse_background, default=BackgroundChoice(d.background), metavar="MODEL",
+                   help=f"what to subtract before thresholding: {choices} (default {d.background}: a high-pass "
+                        f"where the background is uneven; PX: half-width, default {d.highpass_px})")
+    if not live:
+        g.add_argument("--mask", default="folder", metavar="auto|none|DIR",
+                       help="pixels to ignore per camera: DIR/<camera>.png (black = ignored), 'auto' (block what "
+                            "is bright in the empty-volume recording, saved to masks/) or 'none' (default: the "
+                            "capture's masks/ where present)")
+
+
+def config_from_args(args, live: bool = False) -> DetectConfig:
+    """The :class:`DetectConfig` the options ask for (a bad combination raises CalibrationError)."""
+    choice: BackgroundChoice = args.background
+    if live and choice.model not in LIVE_BACKGROUNDS:
+        raise CalibrationError(f"--background {choice.model}: a live capture detects with {', '.join(LIVE_BACKGROUNDS)}; "
+                               f"record with one of those, then run 'wandcal detect CAPTURE --background "
+                               f"{choice.model}' on the recorded frames")
+    extra = {}
+    if choice.model == "highpass" and choice.value is not None:
+        extra["highpass_px"] = int(choice.value)
+    if choice.model == "running" and choice.value is not None:
+        extra["running_frames"] = choice.value
+    return DetectConfig(threshold=args.threshold, seed_ratio=args.seed_ratio, min_area_px=args.min_area,
+                        max_area_px=args.max_area, min_roundness=args.min_roundness,
+                        connectivity=args.connectivity, weights=args.weights, background=choice.model, **extra)
+
+
+def mask_from_args(args) -> str | Path:
+    """``--mask`` as :func:`capture.detect_setup.camera_detectors` takes it."""
+    from capture.detect_setup import MASK_AUTO, MASK_FOLDER, MASK_NONE
+
+    return args.mask if args.mask in (MASK_FOLDER, MASK_NONE, MASK_AUTO) else Path(args.mask)
