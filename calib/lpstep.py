@@ -60,7 +60,7 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         se: (n,) standard errors for the guard, or None for the state's own.
 
     Returns:
-        (d (n,) or None, info dict: seconds, rows (pairs), status, rounds).
+        (d (n,) or None, info dict: seconds, rows (pairs), status, rounds, iterations (HiGHS's)).
     """
     P, S = loss[0] * state.scale, loss[1]  # breakpoints in pixels, interval slopes
     b = state.b.ravel()
@@ -88,7 +88,7 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     lp.add_columns(np.zeros(2 * n), np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
     old_lo, old_hi = base, base - 1  # nothing modelled yet
     trust_lo, trust_hi = -rho - d_ref, rho - d_ref  # the trust region, in the LP's variable
-    seconds, d, rounds, total, certified = 0.0, None, 0, 0, False
+    seconds, d, rounds, total, certified, iterations = 0.0, None, 0, 0, False, 0
     for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
         box_lo = np.maximum(trust_lo, d_pred - guard)
         box_hi = np.minimum(trust_hi, d_pred + guard)
@@ -104,9 +104,11 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
             total += len(rows_i)
         res = lp.solve(FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
         seconds += res.seconds
+        iterations += res.iterations
         if res.status != "optimal" or res.row_duals is None:
             # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
-            return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds}
+            return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds,
+                          "iterations": iterations}
         d = res.row_duals.copy()
         z = b + state.change(d).ravel()
         where = np.searchsorted(P, z)
@@ -125,7 +127,7 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     # uncertified: the step is the optimum of a working set that some rows still leave; the
     # caller takes it only if it lowers the true merit, like any trust-region step
     return d + d_ref, {"seconds": seconds, "rows": total, "status": "optimal" if certified else "uncertified",
-                       "rounds": rounds}
+                       "rounds": rounds, "iterations": iterations}
 
 
 def _pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

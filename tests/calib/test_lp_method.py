@@ -136,3 +136,34 @@ def test_irls_scheme_reaches_the_lp_schemes_optimum(seed):
     assert at_irls.cost(scale, EFFICIENT) == pytest.approx(at_lp.cost(scale, EFFICIENT), rel=1e-6)
     n = model.frame_col0
     assert np.max(np.abs(x_irls[:n] - x_lp[:n]) / at_lp.standard_errors()) < 0.05
+
+
+def test_gauss_newton_step_is_that_of_the_reduced_rows():
+    """The Gauss-Newton step (its Schur complement formed per frame with the elimination's own
+    weights) is the least-squares step of the dense reduced rows with the kept rows."""
+    scene = prepared_scene(cameras=4, frames=60, noise_px=NOISE, seed=3)
+    model = perturbed_model(scene, degrees=0.5, metres=0.01, seed=3)
+    system = ReducedSystem(model, model.x0())
+    obs = np.repeat(np.arange(len(system.r)), 2)
+    comp = np.tile([0, 1], len(system.r))
+    A = system.rows(obs, comp)
+    w = system.kept.ravel().astype(float)
+    expected = -np.linalg.solve(A.T @ (w[:, None] * A), A.T @ (w * system.b.ravel()))
+    np.testing.assert_allclose(system.gauss_newton_step(), expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_answer_is_a_fixed_point_of_the_lp_step(seed):
+    """The LP's point is accepted without linearising there when the linear model predicted its
+    merit; one more exact LP step, linearised at the answer, then moves no parameter by as much
+    as the stop's own ``CONVERGED_SE`` standard errors. A clean rig: no row sits at the rejection
+    point, whose crossing would change the estimator's rows."""
+    scene = prepared_scene(cameras=6, frames=400, noise_px=NOISE, seed=seed)
+    model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=seed)
+    x, info = slp.refine_lp(model)
+    assert info["status"] == "converged"
+    system = ReducedSystem(model, x, info["robust_scale_px"])
+    rho = np.tile(np.repeat([slp.ROT_RADIUS, slp.T_RADIUS], 3), model.frame_col0 // 6)
+    d, step = lpstep.solve_step(system, rho, None, EFFICIENT, lpstep.GUARD_SE)
+    assert step["status"] == "optimal"
+    assert np.max(np.abs(d) / system.standard_errors()) < slp.CONVERGED_SE
