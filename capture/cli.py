@@ -8,7 +8,9 @@ import sys
 from pathlib import Path
 
 from calib.rig import Rig
+from capture.detect_cli import add_detect_options
 from capture.folder import read_rig
+from capture.guidance_cli import add_guidance_options
 from capture.progress import StatusLine, bar
 from drivers.camera import CameraDriver
 from drivers.errors import DriverError
@@ -18,7 +20,9 @@ DEFAULT_WAND_LENGTH_M = 0.5
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("capture", help="record synchronised frames from cameras and a strobe trigger",
-                              description="Record an image-level wandcal-capture/1 folder.")
+                              description="Record a wandcal-capture/1 folder: every frame's blob centroids "
+                                          "(the points level, written as it goes) and the images --images asks "
+                                          "for, with the wanding guidance on the status line.")
     p.add_argument("--camera", action="append", required=True, metavar="URL",
                    help="camera URL (repeat): v4l2:///dev/video0, opencv:0, replay:///path, sim://?cameras=4")
     p.add_argument("--trigger", default="none", metavar="URL",
@@ -31,6 +35,15 @@ def register(subparsers) -> None:
                    "cameras bring their own)")
     p.add_argument("--wand-length", type=float, default=None, help="wand marker distance in metres")
     p.add_argument("--out", type=Path, required=True, help="new capture folder")
+    p.add_argument("--images", type=_image_policy, default="all", metavar="WHICH",
+                   help="images written beside the centroids: all (default), none, static (the static recording "
+                        "only) or N (every N-th wand set); 'none' keeps up with 8 cameras at 100 fps")
+    p.add_argument("--no-guidance", dest="guidance", action="store_false",
+                   help="do not solve the wanding guidance while recording")
+    p.add_argument("--stop-when-enough", action="store_true",
+                   help="end the wand run, keeping it, as soon as the guidance says enough")
+    add_guidance_options(p)
+    add_detect_options(p, live=True)
     p.set_defaults(run=run_capture)
 
     p = subparsers.add_parser("detect", help="detect blobs in an image-level capture and write wand.csv",
@@ -38,6 +51,7 @@ def register(subparsers) -> None:
     p.add_argument("capture", type=Path, help="image-level capture folder")
     p.add_argument("--workers", type=_count(1), default=None,
                    help="threads that decode and detect images (default: every core)")
+    add_detect_options(p)
     p.set_defaults(run=run_detect)
 
     _register_import(subparsers)
@@ -175,40 +189,68 @@ def run_emulator(args) -> int:
 
 
 def run_detect(args) -> int:
+    from capture.detect_cli import config_from_args, mask_from_args
     from capture.images import detect_capture
 
+    config = config_from_args(args)
     status = StatusLine()
-    reports = detect_capture(args.capture, workers=args.workers,
-                             progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"))
-    status.done(f"detect: done, wrote {args.capture / 'wand.csv'}")
+    reports = detect_capture(args.capture, config, workers=args.workers,
+                             progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
+                             mask=mask_from_args(args), empty=args.background.folder)
+    status.done(f"detect: done, wrote {args.capture / 'wand.csv'} ({config.describe()})")
     rig = read_rig(args.capture)
     expected = None if rig.static_markers is None else len(rig.static_markers)
     for r in reports:
+        if r.setup is not None and (r.setup.mask_source or r.setup.empty_frames):
+            print(r.setup.line())
         print(r.line(expected))
     return 0
 
 
 def run_capture(args) -> int:
+    import contextlib
+
+    from calib.errors import CalibrationError
+    from capture.guidance import LiveGuidance
+    from capture.guidance_cli import guidance_lines, settings_from, summary
     from capture.session import record
     from drivers.registry import open_cameras
     from drivers.trigger import open_trigger
 
+    if args.stop_when_enough and not args.guidance:
+        raise CalibrationError("--stop-when-enough needs the guidance; drop --no-guidance")
+    from capture.detect_cli import config_from_args
+
+    detect = config_from_args(args, live=True)
     cameras: list[CameraDriver] = [cam for url in args.camera for cam in open_cameras(url)]
     rig = _rig(args, cameras)
     trigger = open_trigger(args.trigger)
     status = StatusLine()
+    guidance = LiveGuidance(rig, settings_from(args)) if args.guidance and rig.wand_length is not None else None
+    told = [None]  # the advice last printed: a new first item gets its own line
 
     def show(p) -> None:
         missed = " ".join(f"{cid}:{n}" for cid, n in p.missed.items())
-        status.update(f"{p.phase} {bar(p.sets, p.total)} {p.fps:6.1f} sets/s  dropped {missed}")
+        text = f"{p.phase} {bar(p.sets, p.total)} {p.fps:6.1f} sets/s  dropped {missed}"
+        if p.guidance is not None and p.phase == "wand":
+            text += "  |  " + summary(p.guidance)
+            advice = p.guidance["advice"][0] if p.guidance["advice"] else "enough: you can stop"
+            if advice != told[0] and p.guidance["frames"]:
+                told[0] = advice
+                print(f"\nguidance: {advice}", file=sys.stderr)
+        status.update(text)
 
     def between() -> None:
         if sys.stdin.isatty():
             input("\nstatic object recorded; remove it, then press Enter to record the wand... ")
 
-    result = record(cameras, trigger, args.out, rig, frames=args.frames, static_frames=args.static_frames,
-                    rate_hz=args.rate, progress=show, between=between,
-                    events=lambda m: print(f"\n{m}", file=sys.stderr))
+    until = (lambda: guidance.enough) if guidance is not None and args.stop_when_enough else None
+    with guidance or contextlib.nullcontext():
+        result = record(cameras, trigger, args.out, rig, frames=args.frames, static_frames=args.static_frames,
+                        rate_hz=args.rate, progress=show, between=between,
+                        events=lambda m: print(f"\n{m}", file=sys.stderr), images=args.images, guidance=guidance,
+                        until=until, detect=detect)
+        final = guidance.update() if guidance is not None else None
     scene = _sim_scene(cameras)
     if scene is not None and rig is scene.rig:
         # a simulated rig: keep its truth beside the capture, as 'wandcal simulate' does
@@ -219,11 +261,24 @@ def run_capture(args) -> int:
     for cid, s in result.per_camera.items():
         print(f"{cid}: {s['delivered']} frames, {s['missed']} missed, {s['unreadable']} unreadable"
               + (f", clock drift {s['clock_drift_ppm']:+.1f} ppm" if s["clock_drift_ppm"] is not None else ""))
+    if final is not None:
+        print("guidance on the recorded wand sets:")
+        for line in guidance_lines(final):
+            print(line)
     if result.error:
         print(f"wandcal capture: stopped early: {result.error}\nkept everything recorded until then in "
               f"{result.folder}", file=sys.stderr)
         return 3
     return 0
+
+
+def _image_policy(text: str):
+    from capture.record import ImagePolicy
+
+    try:
+        return ImagePolicy.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _rig(args, cameras: list[CameraDriver]) -> Rig:
@@ -252,9 +307,10 @@ def _sim_scene(cameras: list[CameraDriver]):
 
 
 def _read_rig_file(path: Path) -> Rig:
-    from capture.folder import rig_from_json
+    from capture.folder import load_json, rig_from_json
 
     try:
-        return rig_from_json(json.loads(path.read_text()), str(path))
-    except (OSError, ValueError) as exc:
+        data = path.read_bytes()
+    except OSError as exc:
         raise DriverError(f"{path}: cannot read the rig ({exc})") from None
+    return rig_from_json(load_json(data, str(path)), str(path))

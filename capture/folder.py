@@ -31,6 +31,7 @@ AXIS_COLUMNS = ("role", "camera", "u", "v")
 
 
 MAX_FRAME = 2**53  # frame numbers beyond this lose precision wherever they become floats (JSON, plots)
+MAX_IMAGE_SIDE_PX = 1 << 20  # no sensor is a million pixels wide: a larger width or height is a typo
 
 
 class CaptureFormatError(CalibrationError):
@@ -70,6 +71,8 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
         for key in ("id", "width", "height", "K", "dist"):
             if key not in c:
                 raise CaptureFormatError(f"{where} has no {key!r}; every camera needs id, width, height, K and dist")
+        if not isinstance(c.get("model", "pinhole"), str):
+            raise CaptureFormatError(f"{where}.model must be \"pinhole\" or \"fisheye\", got {c['model']!r}")
         try:
             cameras.append(
                 Camera(
@@ -95,7 +98,7 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
                 f"{source}: 'wand.length_m' is missing; give the wand's marker distance in metres "
                 f"(only a capture with {POINTS_FILE} may have no wand)"
             )
-    elif isinstance(length, bool) or not isinstance(length, (int, float)) or not math.isfinite(length) or length <= 0:
+    elif not positive_number(length):
         raise CaptureFormatError(f"{source}: 'wand.length_m' must be a positive number of metres, got {length!r}")
     markers = None
     if doc.get("static_object") is not None:
@@ -129,11 +132,22 @@ def read_rig(folder: Path, allow_no_wand: bool = False) -> Rig:
     path = Path(folder) / RIG_FILE
     if not path.is_file():
         raise CaptureFormatError(f"{path}: not found; a capture folder needs rig.json (see docs/capture-format.md)")
+    return rig_from_json(load_json(path.read_bytes(), str(path)), str(path), allow_no_wand)
+
+
+def load_json(data: bytes | str, source: str, what: str = "the rig description (docs/capture-format.md)"):
+    """The parsed JSON document ``data``; anything that is not JSON (other bytes, another
+    encoding, integers of thousands of digits, nesting deeper than the parser's stack) raises
+    CaptureFormatError naming ``source``."""
     try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CaptureFormatError(f"{path}: not valid JSON ({exc})") from None
-    return rig_from_json(doc, str(path), allow_no_wand)
+        text = data.decode("utf-8-sig") if isinstance(data, bytes) else data
+        return json.loads(text)
+    except UnicodeDecodeError:
+        raise CaptureFormatError(f"{source}: not a text file (it does not decode as UTF-8); give {what}") from None
+    except RecursionError:
+        raise CaptureFormatError(f"{source}: not valid JSON (nested too deeply); give {what}") from None
+    except ValueError as exc:  # JSONDecodeError, and integers past Python's digit limit
+        raise CaptureFormatError(f"{source}: not valid JSON ({exc}); give {what}") from None
 
 
 def parse_wand_csv(text: str, rig: Rig, source: str = WAND_FILE) -> WandObservations:
@@ -329,6 +343,14 @@ def _rows(text: str, columns: tuple[str, ...], source: str) -> list[tuple[int, d
         raise CaptureFormatError(f"{source}: holds binary data (NUL bytes), not CSV text; the header must be "
                                  f"{','.join(columns)}")
     reader = csv.DictReader(text.splitlines())
+    try:
+        return _dict_rows(reader, columns, source)
+    except csv.Error as exc:  # a field past the csv module's size limit, a quote left open
+        raise CaptureFormatError(f"{source} line {reader.line_num}: not CSV ({exc}); the header must be "
+                                 f"{','.join(columns)}") from None
+
+
+def _dict_rows(reader: csv.DictReader, columns: tuple[str, ...], source: str) -> list[tuple[int, dict]]:
     header = [h.strip() for h in (reader.fieldnames or [])]
     missing = [c for c in columns if c not in header]
     if missing:
@@ -373,16 +395,27 @@ def _int_cell(value: str | None, where: str) -> int:
 
 
 def _positive_int(value: object, where: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise CaptureFormatError(f"{where} must be a positive whole number of pixels, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= MAX_IMAGE_SIDE_PX:
+        raise CaptureFormatError(f"{where} must be a positive whole number of pixels up to {MAX_IMAGE_SIDE_PX}, "
+                                 f"got {value!r}")
     return value
+
+
+def positive_number(value: object) -> bool:
+    """True for a JSON number that is a positive float (an integer past float range is not)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(value)) and value > 0
+    except OverflowError:
+        return False
 
 
 def _matrix(value: object, shape: tuple[int, int] | None, where: str) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise CaptureFormatError(f"{where} must be numbers, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise CaptureFormatError(f"{where} must be numbers, got {str(value)[:80]}") from None
     if shape is not None and arr.shape != shape:
         raise CaptureFormatError(f"{where} must be {shape[0]}x{shape[1]}, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):

@@ -1,24 +1,67 @@
-"""Write the image level of a ``wandcal-capture/1`` folder (docs/capture-format.md).
+"""Write a ``wandcal-capture/1`` folder as frame sets arrive (docs/capture-format.md).
 
-Rows of ``sync.csv`` are flushed as their sets are handed to the writer, and ``rig.json`` is
-written first, so a capture cut short (trigger unplugged, process killed) keeps a readable
-folder with every set recorded until then.
+Centroids always (capture/centroids.py: ``blobs.csv``, ``wand.csv``, ``static.csv``); images as an
+:class:`ImagePolicy` says. Rows of ``sync.csv`` are flushed as their sets are handed to the
+writer, and ``rig.json`` is written first, so a capture cut short (trigger unplugged, process
+killed) keeps a readable folder with every set recorded until then.
 """
 
 from __future__ import annotations
 
 import csv
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 from calib.rig import Rig
-from capture.folder import RIG_FILE, rig_to_json
+from capture.centroids import CentroidRecorder
+from capture.folder import RIG_FILE, WAND_FILE, rig_to_json
 from capture.sync import FrameSet
 from capture.writer import ImageWriter
 from drivers.imagefolder import FRAMES_DIR, STATIC_DIR, SYNC_FILE, image_path, sync_header
 
 LOG_FILE = "capture.json"
 LOG_FORMAT = "wandcal-capture-log/1"
+
+
+@dataclass(frozen=True)
+class ImagePolicy:
+    """Which images a capture writes beside its centroids.
+
+    Args:
+        every: write the images of every ``every``-th wand set (1: all, 0: none).
+        static: write the static recording's images.
+    """
+
+    every: int = 1
+    static: bool = True
+
+    @classmethod
+    def parse(cls, text: str) -> ImagePolicy:
+        """``all``, ``none``, ``static`` (the static recording only) or a whole number N (every
+        N-th wand set, and the static recording)."""
+        word = str(text).strip().lower()
+        named = {"all": cls(1, True), "none": cls(0, False), "static": cls(0, True)}
+        if word in named:
+            return named[word]
+        if word.isdigit() and int(word) >= 1:
+            return cls(int(word), True)
+        raise ValueError(f"images {text!r}: give all, none, static, or a whole number N >= 1 (every N-th wand set)")
+
+    def __str__(self) -> str:
+        if self.every == 1 and self.static:
+            return "all"
+        if self.every == 0:
+            return "static" if self.static else "none"
+        return f"every {self.every}" + ("" if self.static else ", no static")
+
+    def keeps(self, sequence: int, static_frames: int) -> bool:
+        """Whether a reader thread keeps the image of frame ``sequence`` for the recorder (which
+        then writes it or not by its set index); the others are dropped at once."""
+        return self.static if sequence < static_frames else self.every > 0
+
+    def writes(self, wand_set: int) -> bool:
+        return self.every > 0 and wand_set % self.every == 0
 
 
 class Recorder:
@@ -29,18 +72,27 @@ class Recorder:
         rig: cameras (ids in slot order) with intrinsics, wand length and static object.
         writer: the bounded image writer.
         triggered: False without a trigger; sync.csv then leaves trigger_count empty.
+        images: which images to write (centroids are always written); None: all.
+        listener: told of every live wand pair and of the static markers (the live guidance;
+            see :class:`capture.centroids.CentroidRecorder`).
+
+    Frames must carry their blobs (``uv`` (K, 2)) and, where an image is to be written, ``image``
+    (:class:`capture.sync.DetectedFrame`).
     """
 
-    def __init__(self, folder: Path, rig: Rig, writer: ImageWriter, triggered: bool = True):
+    def __init__(self, folder: Path, rig: Rig, writer: ImageWriter, triggered: bool = True,
+                 images: ImagePolicy | None = None, listener=None):
         self.folder = Path(folder)
-        if (self.folder / SYNC_FILE).exists() or (self.folder / FRAMES_DIR).exists():
+        if any((self.folder / name).exists() for name in (SYNC_FILE, FRAMES_DIR, WAND_FILE)):
             writer.close()
             raise FileExistsError(f"{self.folder} already holds a capture; choose a new --out folder")
         self.folder.mkdir(parents=True, exist_ok=True)
         self.ids = rig.ids
         self.writer = writer
         self.triggered = triggered
+        self.images = images or ImagePolicy()
         (self.folder / RIG_FILE).write_text(json.dumps(rig_to_json(rig), indent=2) + "\n")
+        self.points = CentroidRecorder(self.folder, rig, listener)
         self._sync = open(self.folder / SYNC_FILE, "w", newline="")
         self._csv = csv.writer(self._sync)
         self._csv.writerow(sync_header(self.ids))
@@ -49,18 +101,25 @@ class Recorder:
         self.frame_sets = 0
 
     def add_static(self, fs: FrameSet) -> None:
-        """One set of the static-object recording: images only (its timing is of no use)."""
-        for cid, frame in zip(self.ids, fs.frames):
+        """One set of the static-object recording: blobs and images (its timing is of no use)."""
+        for c, (cid, frame) in enumerate(zip(self.ids, fs.frames)):
             if frame is not None:
-                self.writer.put(image_path(self.folder, STATIC_DIR, cid, self.static_sets), frame.image)
+                self.points.add_static(c, frame.uv)
+                if self.images.static and frame.image is not None:
+                    self.writer.put(image_path(self.folder, STATIC_DIR, cid, self.static_sets), frame.image)
         self.static_sets += 1
 
     def add_frames(self, fs: FrameSet) -> None:
-        """One wand frame set: its images and its sync.csv row (empty cells for missing frames)."""
+        """One wand frame set: its blobs, its images and its sync.csv row (empty cells for
+        missing frames)."""
         n = self.frame_sets
-        for cid, frame in zip(self.ids, fs.frames):
+        write = self.images.writes(n)
+        for c, (cid, frame) in enumerate(zip(self.ids, fs.frames)):
             if frame is not None:
-                self.writer.put(image_path(self.folder, FRAMES_DIR, cid, n), frame.image)
+                self.points.add_wand(n, c, frame.uv)
+                if write and frame.image is not None:
+                    self.writer.put(image_path(self.folder, FRAMES_DIR, cid, n), frame.image)
+        self.points.flush()
         cells = [n, fs.counter if self.triggered else "", "" if fs.trigger_us is None else fs.trigger_us]
         cells += ["" if f is None else f.timestamp_us for f in fs.frames]
         self._csv.writerow(cells)
@@ -68,9 +127,13 @@ class Recorder:
         self.frame_sets += 1
 
     def close(self, log: dict) -> None:
-        """Finish writing images, close sync.csv and write the capture log."""
+        """Finish writing images, close sync.csv, finish the points level and write the capture
+        log (with the detection counts per camera under ``detection``)."""
         try:
             self.writer.close()
         finally:
             self._sync.close()
-            (self.folder / LOG_FILE).write_text(json.dumps({"format": LOG_FORMAT, **log}, indent=2) + "\n")
+            try:
+                log = log | {"images": str(self.images), "detection": self.points.close()}
+            finally:
+                (self.folder / LOG_FILE).write_text(json.dumps({"format": LOG_FORMAT, **log}, indent=2) + "\n")

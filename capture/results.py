@@ -7,7 +7,6 @@ truncated result stops with a message that names the file, the camera and the fi
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import numpy as np
 
 from calib.errors import CalibrationError
 from calib.rig import Camera, Rig
-from capture.folder import CaptureFormatError
+from capture.folder import MAX_IMAGE_SIDE_PX, CaptureFormatError, positive_number
 
 RESULT_FORMAT = "wandcal-result/1"
 ROTATION_TOLERANCE = 1e-6  # |R^T R - I|: a result written by wandcal is orthonormal to ~1e-15
@@ -42,9 +41,9 @@ def read_result(path: str | Path) -> ResultFile:
     if not path.is_file():
         raise CaptureFormatError(f"{path}: not found; give a result file written by 'wandcal calibrate'")
     try:
-        doc = json.loads(path.read_text(), parse_constant=_no_constant)
-    except (json.JSONDecodeError, UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise CaptureFormatError(f"{path}: not a JSON result file ({exc})") from None
+        doc = json.loads(path.read_bytes().decode("utf-8-sig"), parse_constant=_no_constant)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError, UnicodeDecodeError, NaN, digit limit
+        raise CaptureFormatError(f"{path}: not a JSON result file ({type(exc).__name__}: {str(exc)[:200]})") from None
     return result_from_json(doc, str(path), path)
 
 
@@ -64,6 +63,8 @@ def result_from_json(doc: object, source: str = "result", path: Path | None = No
         if not isinstance(entry, dict):
             raise CaptureFormatError(f"{where} must be a JSON object")
         where = f"{source}: camera {entry.get('id', k)!r}"
+        if not isinstance(entry.get("model", "pinhole"), str):
+            raise CaptureFormatError(f"{where}: 'model' must be \"pinhole\" or \"fisheye\"")
         try:
             cameras.append(Camera(entry.get("id"), _int(entry, "width", where), _int(entry, "height", where),
                                   _array(entry, "K", (3, 3), where), _array(entry, "dist", None, where),
@@ -80,7 +81,7 @@ def result_from_json(doc: object, source: str = "result", path: Path | None = No
         raise CaptureFormatError(f"{source}: camera ids must be unique; {ids}")
     wand = doc.get("wand")
     length = wand.get("length_m") if isinstance(wand, dict) else None
-    if length is not None and not (isinstance(length, (int, float)) and math.isfinite(length) and length > 0):
+    if length is not None and not positive_number(length):
         raise CaptureFormatError(f"{source}: 'wand.length_m' must be a positive number of metres")
     try:
         rig = Rig(cameras, float(length) if length is not None else None)
@@ -95,7 +96,7 @@ def _no_constant(name: str):
 
 def _int(entry: dict, key: str, where: str) -> int:
     value = entry.get(key)
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0 or value > 1 << 20:
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0 or value > MAX_IMAGE_SIDE_PX:
         raise CaptureFormatError(f"{where}: {key!r} must be a positive whole number of pixels, got {value!r}")
     return value
 

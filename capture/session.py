@@ -1,5 +1,10 @@
 """Run a capture: camera reader threads, the trigger, frame-set assembly and the recorder.
 
+Each reader thread detects the blobs of its camera's frames as they arrive (0.3 ms a frame, in
+parallel across cameras), so the recorder writes centroids at the cameras' rate and images only
+as its :class:`~capture.record.ImagePolicy` asks; a frame whose image will not be written
+drops it at once.
+
 Memory bound (docs/capture-format.md, "Image-level capture"): frames wait in three places,
 each bounded in time at the trigger rate: the inbox from the reader threads
 (:data:`INBOX_SECONDS`), the assembler, which a camera may lead by at most :data:`LEAD_SECONDS`
@@ -18,11 +23,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from calib.detect import CameraDetector, DetectConfig
+from calib.errors import CalibrationError
 from calib.rig import Rig
-from capture.record import Recorder
-from capture.sync import Assembler, FrameSet
+from capture.record import ImagePolicy, Recorder
+from capture.sync import Assembler, DetectedFrame, FrameSet
 from capture.writer import ImageWriter
-from drivers.camera import CameraDriver, TriggerMode
+from drivers.camera import CameraDriver, Frame, TriggerMode
 from drivers.errors import DriverError, FrameError, FrameTimeout
 from drivers.trigger import SerialTrigger, TriggerLost
 
@@ -76,25 +83,47 @@ class Progress:
     total: int
     fps: float
     missed: dict[str, int]
+    guidance: dict | None = None  # the latest live guidance document, when the capture has one
+
+
+class _Detector:
+    """Turns one camera's frames into :class:`DetectedFrame` s, in the reader thread that read
+    them (in time order, as a running background needs)."""
+
+    def __init__(self, detector: CameraDetector, images: ImagePolicy, static_frames: int):
+        self.detector, self.images, self.static_frames = detector, images, static_frames
+
+    def __call__(self, frame: Frame) -> DetectedFrame:
+        try:
+            uv = self.detector.detect(frame.image).uv
+        except CalibrationError as exc:  # the camera delivers frames the detector cannot read
+            raise DriverError(f"camera {frame.camera_id}: cannot detect blobs in frame {frame.sequence} ({exc}); "
+                              "set the camera to 8- or 16-bit grey output") from None
+        keep = self.images.keeps(frame.sequence, self.static_frames)
+        return DetectedFrame(frame.sequence, frame.timestamp_us, frame.camera_id, uv, frame.image if keep else None)
 
 
 class _Readers:
-    """One thread per camera feeding ``(camera, frame | FrameError | _END)`` into the inbox."""
+    """One thread per camera feeding ``(camera, DetectedFrame | FrameError | _END)`` into the inbox."""
 
-    def __init__(self, cameras: list[CameraDriver], inbox: queue.Queue, assembler: Assembler, max_lead: int):
+    def __init__(self, cameras: list[CameraDriver], inbox: queue.Queue, assembler: Assembler, max_lead: int,
+                 detectors: list[_Detector]):
         self.stop = threading.Event()
-        self.threads = [threading.Thread(target=self._run, args=(i, cam, inbox, assembler, max_lead),
+        self.threads = [threading.Thread(target=self._run, args=(i, cam, inbox, assembler, max_lead, detectors[i]),
                                          name=f"read-{cam.camera_id}", daemon=True) for i, cam in enumerate(cameras)]
         for t in self.threads:
             t.start()
 
-    def _run(self, i: int, cam: CameraDriver, inbox: queue.Queue, assembler: Assembler, max_lead: int) -> None:
+    def _run(self, i: int, cam: CameraDriver, inbox: queue.Queue, assembler: Assembler, max_lead: int,
+             detect: _Detector) -> None:
         while not self.stop.is_set():
             if assembler.lead(i) > max_lead:
                 time.sleep(0.002)  # the others are behind: wait instead of piling frames up
                 continue
             try:
                 item = cam.read(timeout=READ_TIMEOUT_S)
+                if item is not None:
+                    item = detect(item)
             except FrameTimeout:
                 continue
             except DriverError as exc:
@@ -120,8 +149,10 @@ class _Readers:
 def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path, rig: Rig, frames: int,
            static_frames: int = 0, rate_hz: float = 100.0, progress: Callable[[Progress], None] | None = None,
            between: Callable[[], None] | None = None, events: Callable[[str], None] | None = None,
-           clock: Callable[[], float] = time.monotonic) -> CaptureResult:
-    """Record ``static_frames`` sets of the static object, then ``frames`` wand sets, into ``out``.
+           clock: Callable[[], float] = time.monotonic, images: ImagePolicy | None = None,
+           detect: DetectConfig | list[CameraDetector] | None = None, guidance=None, until: Callable[[], bool] | None = None) -> CaptureResult:
+    """Record ``static_frames`` sets of the static object, then ``frames`` wand sets, into ``out``:
+    centroids always, images as ``images`` says.
 
     Args:
         cameras: drivers in the order of ``rig.cameras`` (ids must match).
@@ -131,6 +162,13 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         between: called after the static recording, before the wand run (e.g. "remove the
             L-frame, then press Enter").
         events: receives drift / realignment / fault messages as they happen.
+        images: which images to write beside the centroids (None: all).
+        detect: the blob detector's settings (None: its defaults), or one
+            :class:`calib.detect.CameraDetector` per camera (with its mask or background).
+        guidance: a :class:`capture.guidance.LiveGuidance` told of every wand pair (the caller
+            starts and closes it); its latest document rides on each :class:`Progress`.
+        until: asked after each batch of wand sets; True ends the capture there, complete (e.g.
+            when the guidance says enough).
 
     Returns:
         :class:`CaptureResult`; a vanished trigger port or a failed camera ends the capture
@@ -141,6 +179,8 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         raise DriverError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give one "
                           "--camera per rig camera, in the same order, with matching ids (?id=...)")
     n = len(cameras)
+    # made first: settings that cannot work (an empty-volume model without its recording) stop here
+    detectors = detect if isinstance(detect, list) else [CameraDetector(detect, camera=i) for i in ids]
     frame_bytes = max(c.width * c.height for c in rig.cameras) * BYTES_PER_PIXEL
     messages: list[str] = []
 
@@ -161,10 +201,12 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
             stack.enter_context(trigger)
             trigger.set_rate(rate_hz)
         recorder = Recorder(out, rig, ImageWriter(buffer_frames(rate_hz, n, WRITE_SECONDS, frame_bytes)),
-                            triggered=trigger is not None)
+                            triggered=trigger is not None, images=images, listener=guidance)
         writer = recorder.writer
-        readers = _Readers(cameras, inbox, assembler, buffer_frames(rate_hz, n, LEAD_SECONDS, frame_bytes) // n)
+        readers = _Readers(cameras, inbox, assembler, buffer_frames(rate_hz, n, LEAD_SECONDS, frame_bytes) // n,
+                           [_Detector(d, images or ImagePolicy(), static_frames) for d in detectors])
         loop = _Loop(assembler, recorder, trigger, cameras, inbox, static_frames, static_frames + frames, say, clock)
+        loop.guidance, loop.until = guidance, until
         try:
             if trigger is not None:
                 trigger.start(static_frames or frames)
@@ -211,6 +253,8 @@ class _Loop:
         # cable from the strobe box reaches a real camera's trigger input.
         self.wired = [c for c in cameras if hasattr(c, "trigger_input")] if trigger is not None else []
         self.failed: list[str] = []
+        self.guidance = None
+        self.until: Callable[[], bool] | None = None
 
     def run(self, progress, between, frames: int) -> str | None:
         started, base = self.clock(), 0  # the rate counts from the start of the current phase
@@ -233,11 +277,16 @@ class _Loop:
                 break
             if self.asm.finished():
                 break
+            if self.until is not None and self.done > before and self.done > self.static_frames and self.until():
+                # pending sets are left out rather than flushed: their late frames would count as missed
+                self.say(f"stopped after {self.done - self.static_frames} wand sets: the guidance says enough")
+                break
             if progress:
                 elapsed = max(self.clock() - started, 1e-9)
                 phase = "static" if self.done < self.static_frames else "wand"
                 progress(Progress(phase, self.done, self.total, (self.done - base) / elapsed,
-                                  {cid: c.missed + c.lost for cid, c in zip(self.asm.camera_ids, self.asm.cameras)}))
+                                  {cid: c.missed + c.lost for cid, c in zip(self.asm.camera_ids, self.asm.cameras)},
+                                  self.guidance.latest() if self.guidance is not None else None))
         if self.failed:
             error = error or "; ".join(self.failed)
         return error

@@ -28,18 +28,35 @@ PERIOD_WINDOW = 15  # pulse intervals in the running median of the trigger perio
 CLOCK_SMOOTHING = 0.05  # weight of a new sample in the running camera-to-trigger clock offset
 
 
+@dataclass(frozen=True, eq=False)
+class DetectedFrame:
+    """A camera frame after detection in the capture loop.
+
+    sequence, timestamp_us, camera_id: as the driver's :class:`~drivers.camera.Frame`; uv: (K, 2)
+    blob centres, pixels (origin top-left, y down); image: the frame, or None once it is known
+    not to be written (centroid-only recording).
+    """
+
+    sequence: int
+    timestamp_us: int
+    camera_id: str
+    uv: np.ndarray
+    image: np.ndarray | None = None
+
+
 @dataclass(eq=False)
 class FrameSet:
     """The frames of one trigger pulse.
 
     counter: the trigger's pulse counter (the camera sequence number without a trigger);
     trigger_us: the pulse time on the trigger clock, None without a trigger or for a pulse whose
-    line was lost; frames: one per camera, None where that camera missed the pulse.
+    line was lost; frames: one per camera (a :class:`DetectedFrame` in a capture), None where that
+    camera missed the pulse.
     """
 
     counter: int
     trigger_us: int | None
-    frames: list[Frame | None]
+    frames: list[Frame | DetectedFrame | None]
 
     @property
     def complete(self) -> bool:

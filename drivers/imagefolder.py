@@ -11,6 +11,7 @@ The replay driver reads it and ``capture/`` writes it, so the names live here, b
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,22 +48,30 @@ def read_sync(folder: Path) -> list[SyncRow] | None:
     path = Path(folder) / SYNC_FILE
     if not path.is_file():
         return None
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None or tuple(header[:3]) != SYNC_FIXED:
-            raise ValueError(f"{path}: the header must start with {','.join(SYNC_FIXED)}")
-        cams = [h[: -len(TS_SUFFIX)] for h in header[3:]]
-        rows = []
-        for line, cells in enumerate(reader, start=2):
-            if not cells:
-                continue
-            try:
-                values = [int(c) if c.strip() else None for c in cells]
-            except ValueError:
-                raise ValueError(f"{path} line {line}: {cells} holds a cell that is not a whole number") from None
-            values += [None] * (len(header) - len(values))
-            rows.append(SyncRow(values[0], values[1], values[2], dict(zip(cams, values[3:]))))
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text file (not UTF-8); sync.csv is written by 'wandcal capture'") from None
+    if "\0" in text:
+        raise ValueError(f"{path}: holds binary data (NUL bytes); sync.csv is written by 'wandcal capture'")
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header = next(reader, None)
+    if header is None or tuple(header[:3]) != SYNC_FIXED:
+        raise ValueError(f"{path}: the header must start with {','.join(SYNC_FIXED)}")
+    cams = [h[: -len(TS_SUFFIX)] for h in header[3:]]
+    rows = []
+    for line, cells in enumerate(reader, start=2):
+        if not cells:
+            continue
+        try:
+            values = [int(c) if c.strip() else None for c in cells]
+        except ValueError:
+            raise ValueError(f"{path} line {line}: {cells} holds a cell that is not a whole number") from None
+        if len(values) > len(header) or values[0] is None or values[0] < 0:
+            raise ValueError(f"{path} line {line}: {len(cells)} cells under {len(header)} columns, or no frame "
+                             "number >= 0 in the first")
+        values += [None] * (len(header) - len(values))
+        rows.append(SyncRow(values[0], values[1], values[2], dict(zip(cams, values[3:]))))
     return rows
 
 

@@ -17,7 +17,9 @@ import cv2
 from calib.rig import Camera
 from drivers.camera import NOMINAL_FPS, CameraDriver, CameraSettings, Frame, TriggerMode
 from drivers.errors import DriverError, FrameError
-from drivers.imagefolder import FRAMES_DIR, STATIC_DIR, image_path, listed_cameras, listed_indices, read_sync
+from drivers.imagefolder import (
+    FRAMES_DIR, STATIC_DIR, SYNC_FILE, image_path, listed_cameras, listed_indices, read_sync,
+)
 
 
 class ReplayCamera(CameraDriver):
@@ -85,6 +87,9 @@ def open_replay(url: str, path: str, query: dict[str, str]) -> list[ReplayCamera
     folder = Path(path)
     if not folder.is_dir():
         raise DriverError(f"{url}: {folder} is not a folder; give the path of an image-level capture folder")
+    for name in (SYNC_FILE, "rig.json"):  # text whose cells an error message may quote
+        if (folder / name).exists() and not (folder / name).resolve().is_relative_to(folder.resolve()):
+            raise DriverError(f"{url}: {name} is a link leading outside {folder}; copy the file into the folder")
     phase = query.get("phase", FRAMES_DIR)
     if phase not in (FRAMES_DIR, STATIC_DIR):
         raise DriverError(f"{url}: phase must be '{FRAMES_DIR}' or '{STATIC_DIR}', not {phase!r}")

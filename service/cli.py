@@ -13,8 +13,10 @@ import sys
 COMMAND_MODULES = {
     "service.commands": ("simulate", "calibrate", "demo", "check"),
     "capture.cli": ("capture", "detect", "trigger-emulator", "import"),
+    "capture.guidance_cli": ("guidance",),
     "service.serve": ("serve",),
     "service.export_command": ("export",),
+    "service.report.command": ("report",),
 }
 
 

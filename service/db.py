@@ -6,10 +6,15 @@ job claim atomic across processes.
 
 from __future__ import annotations
 
+import errno
+import logging
 import sqlite3
+import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
+
+log = logging.getLogger("wandcal.service")
 
 BUSY_TIMEOUT_S = 30.0  # a writer holds the lock for milliseconds; 30 s only trips on a wedged disk
 
@@ -56,12 +61,53 @@ CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, created);
 """
 
 
-def init_db(path: Path) -> None:
-    """Create the database file and its tables if missing (idempotent)."""
+def init_db(path: Path) -> Path | None:
+    """Create the database file and its tables if missing (idempotent).
+
+    A database that SQLite finds corrupt (not a database, or failing ``PRAGMA quick_check``) is
+    moved aside, never deleted, and a new one is made: returns the moved file's path (the caller
+    re-registers the captures from their folders), else None.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
+    moved = None
+    try:
+        _check(path)
+    except sqlite3.DatabaseError as exc:
+        if isinstance(exc, sqlite3.OperationalError) and not _corrupt_error(exc):
+            raise  # locked, or the disk: not the file's fault, so it stays where it is
+        moved = path.with_name(f"{path.name}.corrupt-{time.strftime('%Y%m%d-%H%M%S')}")
+        for suffix in ("", "-wal", "-shm"):
+            side = path.with_name(path.name + suffix)
+            if side.exists():
+                side.rename(moved.with_name(moved.name + suffix))
+        log.warning("%s is corrupt (%s); moved it to %s and started a new database: the captures are "
+                    "re-registered from their folders, the job records stay in the moved file "
+                    "(sqlite3 %s .recover)", path, exc, moved, moved)
     with connect(path) as conn:
         conn.execute("PRAGMA journal_mode=WAL")
         conn.executescript(SCHEMA)
+    return moved
+
+
+def _check(path: Path) -> None:
+    """Raise sqlite3.DatabaseError if the database at ``path`` is damaged."""
+    if not path.exists():
+        return
+    with connect(path) as conn:
+        rows = [r[0] for r in conn.execute("PRAGMA quick_check").fetchall()]
+    if rows != ["ok"]:
+        raise sqlite3.DatabaseError(f"quick_check: {'; '.join(map(str, rows[:3]))}")
+
+
+def _corrupt_error(exc: sqlite3.OperationalError) -> bool:
+    return getattr(exc, "sqlite_errorcode", None) in (sqlite3.SQLITE_CORRUPT, sqlite3.SQLITE_NOTADB)
+
+
+def disk_full(exc: BaseException) -> bool:
+    """True for the errors of a full disk (or quota): OSError ENOSPC/EDQUOT, SQLite's SQLITE_FULL."""
+    if isinstance(exc, sqlite3.OperationalError):
+        return getattr(exc, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL or "disk is full" in str(exc)
+    return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
 
 
 @contextmanager

@@ -1,7 +1,8 @@
 """Frame-set images -> blob centres: decode each camera's image and run the blob detector.
 
-Images are checked against the rig's image size before they are decoded (PNG) and after
-(other formats), so a small file that claims a huge image cannot make the server allocate it.
+Images are PNG, checked against the rig's image size before they are decoded, so a small file
+that claims a huge image cannot make the server allocate it (other formats are refused: their
+size cannot be read before decoding).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 import cv2
 import numpy as np
 
+from calib.detect_config import DetectConfig
 from calib.errors import CalibrationError
 from calib.rig import Camera, Rig, StaticObservations
 
@@ -40,7 +42,11 @@ def decode_image(data: bytes, camera: Camera) -> np.ndarray:
     """(H, W) uint8/uint16 grey image of ``camera`` from encoded bytes (PNG, TIFF, JPEG, ...)."""
     where = f"image for camera {camera.id!r}"
     size = png_size(data)
-    if size is not None and size != (camera.width, camera.height):
+    if size is None:  # only a PNG's size can be read before decoding: a 200-byte JPEG claiming
+        # 30000x30000 pixels made OpenCV allocate 1.7 GB (tests/reliability/test_security.py)
+        raise CalibrationError(f"{where} is not a PNG; send PNG images (8 or 16 bit grey), the only format whose "
+                               "size the server checks before decoding")
+    if size != (camera.width, camera.height):
         raise CalibrationError(
             f"{where} is {size[0]}x{size[1]} but rig.json says {camera.width}x{camera.height}; "
             "send full-resolution frames of that camera"
@@ -60,26 +66,29 @@ def decode_image(data: bytes, camera: Camera) -> np.ndarray:
     return image
 
 
-def detect_one(data: bytes, camera: Camera) -> np.ndarray:
+def detect_one(data: bytes, camera: Camera, config: DetectConfig | None = None) -> np.ndarray:
     """(K, 2) blob centres in pixels (origin top-left, y down) in one encoded image."""
     from calib.detect import detect_blobs
 
-    return detect_blobs(decode_image(data, camera)).uv
+    return detect_blobs(decode_image(data, camera), config).uv
 
 
-def detect_frameset(images: dict[str, bytes], cameras: dict[str, Camera]) -> dict[str, np.ndarray]:
-    """Blob centres per camera id of one synchronised frame set, detected in parallel."""
-    futures = {cid: _executor().submit(detect_one, data, cameras[cid]) for cid, data in images.items()}
+def detect_frameset(images: dict[str, bytes], cameras: dict[str, Camera],
+                    config: DetectConfig | None = None) -> dict[str, np.ndarray]:
+    """Blob centres per camera id of one synchronised frame set, detected in parallel with the
+    settings' ``[detect]`` group (``config``; None: the detector's defaults)."""
+    futures = {cid: _executor().submit(detect_one, data, cameras[cid], config) for cid, data in images.items()}
     return {cid: f.result() for cid, f in futures.items()}
 
 
-def detect_static(images: dict[str, list[bytes]], cameras: dict[str, Camera]) -> dict[str, np.ndarray]:
+def detect_static(images: dict[str, list[bytes]], cameras: dict[str, Camera],
+                  config: DetectConfig | None = None) -> dict[str, np.ndarray]:
     """Static-object marker positions per camera, averaged over each camera's images."""
     from calib.detect import static_markers_from_frames
 
     out = {}
     for cid, datas in images.items():
-        frames = list(_executor().map(lambda d, c=cameras[cid]: detect_one(d, c), datas))
+        frames = list(_executor().map(lambda d, c=cameras[cid]: detect_one(d, c, config), datas))
         out[cid] = static_markers_from_frames(frames)
     return out
 

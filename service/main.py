@@ -6,6 +6,8 @@ Run it with ``wandcal serve`` or ``uvicorn --factory service.main:app_from_env``
 from __future__ import annotations
 
 import logging
+import shutil
+import sqlite3
 from contextlib import asynccontextmanager
 from pathlib import Path
 
@@ -17,17 +19,19 @@ from fastapi.staticfiles import StaticFiles
 from calib.errors import CalibrationError
 from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
 from service.api.deps import AppState, require_token
-from service.api.routes import captures, health, jobs, live_capture
-from service.db import init_db
+from service.api.routes import captures, guidance, health, jobs, live_capture
+from service.db import disk_full, init_db
 from service.jobs import JobStore
 from service.limits import BodySizeLimit, RateLimiter
 from service.queue import JobQueue, SQLiteQueue
+from service.recovery import recover
 from service.settings import Settings
 from service.storage import CaptureNotFound, CaptureStore, ReplayPathError
 
 API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).parent / "static"
 log = logging.getLogger("wandcal.service")
+RETRY_AFTER_S = 5  # a busy database frees in milliseconds, a full disk when someone acts: ask again soon
 
 
 def _queue(settings: Settings, store: JobStore, capture_store: CaptureStore) -> JobQueue:
@@ -62,18 +66,24 @@ def create_app(settings: Settings) -> FastAPI:
     """Build the app: database, capture store, job queue (started with the app), routes and page."""
     data_dir = settings.data_dir.resolve()
     settings = settings.model_copy(update={"data_dir": data_dir})
-    init_db(settings.db_path)
+    init_db(settings.db_path)  # a corrupt database is moved aside; recover() registers the captures again
     capture_store = CaptureStore(data_dir, settings.db_path, settings.replay_root)
-    capture_store.remove_partials()
+    recover(capture_store, data_dir)
     queue = _queue(settings, JobStore(settings.db_path), capture_store)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        # one connection held open for the app's life keeps the WAL's -shm file in place: without
+        # it the last connection's close removes it and the next open must create it, which fails
+        # on a full disk and would turn every read into an I/O error (tests/reliability, full disk)
+        keeper = sqlite3.connect(settings.db_path)
+        keeper.execute("SELECT COUNT(*) FROM captures").fetchall()  # maps the -shm file now
         queue.start()
         try:
             yield
         finally:
             queue.stop()
+            keeper.close()
 
     app = FastAPI(
         title="wandcal",
@@ -91,6 +101,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(jobs.router, prefix=API_PREFIX, dependencies=secured)
     app.state.live_capture = live_capture.LiveCapture(capture_store, settings.capture_continue_timeout_s)
     app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)
+    app.include_router(guidance.router, prefix=API_PREFIX, dependencies=secured)
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -109,6 +120,20 @@ def create_app(settings: Settings) -> FastAPI:
     async def outside_root(request: Request, exc: ReplayPathError) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=403)
 
+    @app.exception_handler(OSError)
+    async def disk_error(request: Request, exc: OSError) -> JSONResponse:
+        if disk_full(exc):
+            return _disk_full(request, exc, data_dir)
+        return await internal(request, exc)
+
+    @app.exception_handler(sqlite3.OperationalError)
+    async def database_error(request: Request, exc: sqlite3.OperationalError) -> JSONResponse:
+        if disk_full(exc):
+            return _disk_full(request, exc, data_dir)
+        log.error("database error on %s %s: %s", request.method, request.url.path, exc)
+        return JSONResponse({"detail": f"the database is busy or unavailable ({exc}); retry in a few seconds"},
+                            status_code=503, headers={"Retry-After": str(RETRY_AFTER_S)})
+
     @app.exception_handler(Exception)
     async def internal(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unhandled error on %s %s", request.method, request.url.path)
@@ -123,6 +148,16 @@ def create_app(settings: Settings) -> FastAPI:
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     return app
+
+
+def _disk_full(request: Request, exc: BaseException, data_dir: Path) -> JSONResponse:
+    free = shutil.disk_usage(data_dir).free
+    log.error("disk full on %s %s: %s", request.method, request.url.path, exc)
+    return JSONResponse(
+        {"detail": f"the data directory's disk is full ({free} bytes free); nothing of this request was stored. "
+                   "Free some space (or move WANDCAL_DATA_DIR to a larger disk) and send it again"},
+        status_code=507, headers={"Retry-After": str(RETRY_AFTER_S)},
+    )
 
 
 def app_from_env() -> FastAPI:

@@ -131,6 +131,8 @@ class ResultFormat(str, enum.Enum):
     anipose_toml = "anipose-toml"
     opencv_yaml = "opencv-yaml"
     dlt_csv = "dlt-csv"
+    qca = "qca"
+    xcp = "xcp"
 
 
 class Health(BaseModel):
@@ -175,6 +177,24 @@ class LiveCaptureCreate(BaseModel):
         None, description="rig.json document with the cameras' intrinsics (simulated and replayed cameras bring "
         "their own)",
     )
+    images: str = Field(
+        "all", max_length=20, pattern=r"^(all|none|static|[1-9][0-9]{0,8})$",
+        description="images written beside the centroids: 'all', 'none', 'static' (the static recording only) "
+        "or N (every N-th wand set and the static recording). Centroids are always recorded; 'none' keeps up "
+        "with 8 cameras at 100 fps",
+    )
+    guidance: bool = Field(True, description="keep the wanding guidance up to date while recording "
+                           "(GET /captures/{capture_id}/guidance)")
+    stop_when_enough: bool = Field(False, description="end the wand run, keeping it, as soon as the guidance "
+                                   "says enough (needs guidance)")
+
+
+class LiveCaptureUpdate(BaseModel):
+    """What may change while a live capture records."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    stop_when_enough: bool = Field(description="end the wand run, keeping it, once the guidance says enough")
 
 
 class LiveCapturePublic(BaseModel):
@@ -184,7 +204,7 @@ class LiveCapturePublic(BaseModel):
     capture_id: str | None = Field(None, description="the stored capture it becomes (GET /captures/{id} once done)")
     state: LiveCaptureState
     phase: str | None = Field(
-        None, description="'open', 'static', 'waiting', 'wand', 'detect <images done>/<images>' or 'register'"
+        None, description="'open', 'static', 'waiting', 'wand' or 'register'"
     )
     cameras: list[str] = Field(default_factory=list, description="camera ids")
     frames_total: int = Field(0, description="frame sets asked for: static_frames + frames")
@@ -199,5 +219,56 @@ class LiveCapturePublic(BaseModel):
         "capture_continue_timeout_s); the static recording is then kept",
     )
     messages: list[str] = Field(default_factory=list, description="the latest drift / realignment / fault events")
+    images: str | None = Field(None, description="the images it writes beside the centroids (see LiveCaptureCreate)")
+    enough: bool | None = Field(None, description="the latest guidance says the wanding is enough; null without "
+                                "guidance")
+    stop_when_enough: bool = False
     started: float | None = Field(None, description="Unix time, seconds")
     finished: float | None = None
+
+
+class CameraGuidancePublic(BaseModel):
+    id: str
+    frames: int = Field(description="wand frames in which it saw both ends")
+    shared_frames: int = Field(description="of those, frames in which another camera saw both ends too")
+    coverage: float = Field(description="share of the grid's cells over its image that hold wand samples, 0-1")
+    grid: list[list[int]] = Field(description="wand samples per cell, rows top to bottom (8 x 8 by default)")
+    linked: dict[str, int] = Field(description="frames it shares with each other camera (both saw both ends)")
+    center_std_mm: float | None = Field(
+        None, description="predicted 1-sigma of its centre relative to the rest of the rig, millimetres, from the "
+        "information matrix of a fast solve on the frames so far; null while it is not in the solve")
+    rotation_std_deg: float | None = Field(None, description="the same for its orientation, degrees")
+    advice: str | None = Field(None, description="what the operator should do for this camera; null when it "
+                               "needs nothing")
+
+
+class GuidanceTarget(BaseModel):
+    center_std_mm: float
+    coverage: float
+
+
+class GuidanceSolve(BaseModel):
+    ok: bool = Field(description="the fast solve succeeded")
+    message: str | None = Field(None, description="why it did not")
+    left_out: dict[str, str] = Field(default_factory=dict, description="cameras left out of the solve (it could not "
+                                     "place them), with why; the others were solved without them")
+    frames_used: int = Field(description="frames in the (subsampled) solve")
+    cameras: int = Field(description="cameras in the solve")
+    warm_start: bool = Field(description="started from the previous update's solution")
+    iterations: int | None = None
+    seconds: float = Field(description="time this update took")
+
+
+class GuidancePublic(BaseModel):
+    """``wandcal-guidance/1``: where each camera still needs the wand, and whether to stop."""
+
+    format: str = "wandcal-guidance/1"
+    frames: int = Field(description="wand frames so far (at least one camera saw both ends)")
+    enough: bool = Field(description="every camera's center_std_mm is below the target and its coverage reaches "
+                         "the goal: the operator can stop")
+    advice: list[str] = Field(description="what to do, worst camera first; only cameras that need something")
+    target: GuidanceTarget
+    cameras: list[CameraGuidancePublic]
+    solve: GuidanceSolve
+    updated: float | None = Field(None, description="Unix time of this update, seconds")
+    live: bool = Field(False, description="from a live capture still recording (updates every second or so)")

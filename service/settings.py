@@ -11,8 +11,14 @@ import os
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
+
+from calib.detect_config import DEFAULT_CONFIG as DETECT
+from calib.detect_config import DetectConfig
+from calib.errors import CalibrationError
+from calib.guidance import DEFAULT_FRAMES_PER_CAMERA, DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM, MIN_SOLVE_FRAMES
+from capture.guidance import UPDATE_INTERVAL_S
 
 DEFAULT_PORT = 8750
 DEFAULT_HOST = "127.0.0.1"  # loopback: a rig PC should not expose the API unless someone asks for it
@@ -27,6 +33,54 @@ DEFAULT_FRAMESETS_PER_SECOND = 60.0
 DEFAULT_CONTINUE_TIMEOUT_S = 600.0
 
 
+class GuidanceConfig(BaseModel):
+    """The ``[guidance]`` group: when wanding is enough (``GET /captures/{id}/guidance``, docs/api.md)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    target_std_mm: float = Field(DEFAULT_TARGET_STD_MM, gt=0, description="every camera's predicted centre "
+                                 "1-sigma (relative to the rig) must be below this, millimetres")
+    min_coverage: float = Field(DEFAULT_MIN_COVERAGE, ge=0, le=1, description="every camera's share of its "
+                                "8 x 8 image grid holding wand samples must reach this")
+    frames_per_camera: int = Field(DEFAULT_FRAMES_PER_CAMERA, ge=MIN_SOLVE_FRAMES,
+                                   description="frames each camera keeps in the fast solve")
+    update_interval_s: float = Field(UPDATE_INTERVAL_S, gt=0, description="least time between two updates of "
+                                     "a live or streamed capture's guidance, seconds")
+
+
+class DetectGroup(BaseModel):
+    """The ``[detect]`` group: the blob detector of streamed frame sets, static images and live
+    capture. Defaults and rules are :class:`calib.detect_config.DetectConfig`'s."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    threshold: int | None = Field(DETECT.threshold, ge=0, description="grey level a blob pixel must exceed after "
+                                  "the background is subtracted; null: automatic")
+    seed_ratio: float = Field(DETECT.seed_ratio, ge=1, description="each 4-connected piece of a blob must reach "
+                              "this times the threshold (1: off; OpenPTV: 2)")
+    min_area_px: int = Field(DETECT.min_area_px, ge=1, description="smallest blob, pixels")
+    max_area_px: int = Field(DETECT.max_area_px, ge=1, description="largest blob, pixels")
+    min_roundness: float = Field(DETECT.min_roundness, ge=0, le=1, description="smallest minor/major axis ratio")
+    connectivity: Literal[4, 8] = DETECT.connectivity
+    weights: Literal["excess", "signal"] = Field(DETECT.weights, description="centroid weights: grey level above "
+                                                 "the threshold, or the grey level (OpenPTV's)")
+    # The per-camera models ("empty", "running") need each camera's own recording or history.
+    background: Literal["auto", "none", "highpass"] = Field(DETECT.background, description="subtracted before "
+                                                           "thresholding; auto: a high-pass where uneven")
+    highpass_px: int = Field(DETECT.highpass_px, ge=1, description="high-pass half-width, pixels")
+
+    @model_validator(mode="after")
+    def _valid_together(self) -> DetectGroup:
+        try:
+            self.config()  # the rules across fields (max_area_px >= min_area_px) live in DetectConfig
+        except CalibrationError as exc:
+            raise ValueError(str(exc)) from None
+        return self
+
+    def config(self) -> DetectConfig:
+        return DetectConfig(**self.model_dump())
+
+
 class Settings(BaseSettings):
     """Everything the service needs to know; nothing is created until :func:`service.main.create_app`."""
 
@@ -34,7 +88,8 @@ class Settings(BaseSettings):
 
     data_dir: Path = Field(Path("wandcal-data"), description="SQLite database, stored captures and results")
     replay_root: Path | None = Field(None, description="folder under which POST /captures may name capture folders")
-    token: str | None = Field(None, description="bearer token; required for a non-loopback bind")
+    token: str | None = Field(None, description="bearer token; required for a non-loopback bind",
+                              repr=False)  # never in a log line or a traceback's locals
     host: str = DEFAULT_HOST
     port: int = Field(DEFAULT_PORT, ge=1, le=65535)
     max_upload_bytes: int = Field(DEFAULT_MAX_UPLOAD_BYTES, gt=0, description="largest request body, bytes")
@@ -43,6 +98,10 @@ class Settings(BaseSettings):
         DEFAULT_CONTINUE_TIMEOUT_S, gt=0, description="live capture: longest wait for POST /capture/continue, seconds"
     )
     workers: int = Field(1, ge=0, description="solver processes; 0 leaves jobs queued (tests call drain())")
+    guidance: GuidanceConfig = Field(default_factory=GuidanceConfig, description="wanding guidance: target and "
+                                     "coverage goal (TOML [guidance], or WANDCAL_GUIDANCE as JSON)")
+    detect: DetectGroup = Field(default_factory=DetectGroup, description="blob detection of streamed frame sets "
+                                "and live capture (TOML [detect], or WANDCAL_DETECT as JSON)")
     queue: Literal["sqlite", "redis"] = "sqlite"
     redis_url: str = "redis://127.0.0.1:6379/0"
     redis_queue_name: str = "wandcal"

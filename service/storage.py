@@ -8,6 +8,7 @@ request can point the store outside the data directory.
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import threading
@@ -20,10 +21,14 @@ import numpy as np
 
 from calib.rig import Rig, StaticObservations, WandObservations
 from capture.folder import (
+    AXIS_FILE,
+    POINTS_FILE,
+    RIG_FILE,
     STATIC_FILE,
     WAND_FILE,
     Capture,
     CaptureFormatError,
+    load_json,
     parse_static_csv,
     parse_wand_csv,
     read_capture,
@@ -34,6 +39,7 @@ from capture.folder import (
 from service.db import connect, transaction
 
 CAPTURE_ID = re.compile(r"^[0-9a-f]{32}$")
+CAPTURE_FILES = (RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE)  # what read_capture opens
 WAND_PAIR = 2  # a camera image showing exactly the wand's two markers contributes a wand observation
 
 
@@ -110,11 +116,7 @@ class CaptureStore:
         self, rig_text: str, wand_text: str | None, static_text: str | None, name: str = "upload"
     ) -> CaptureRow:
         """Validate uploaded rig.json / wand.csv / static.csv texts and store them."""
-        try:
-            doc = json.loads(rig_text)
-        except json.JSONDecodeError as exc:
-            raise CaptureFormatError(f"rig.json: not valid JSON ({exc}); upload the rig description file") from None
-        rig = rig_from_json(doc)
+        rig = rig_from_json(load_json(rig_text, "rig.json"))
         wand = parse_wand_csv(wand_text, rig) if wand_text is not None else WandObservations([], [], np.zeros((0, 2)))
         static = None
         if static_text is not None:
@@ -139,28 +141,46 @@ class CaptureStore:
             )
         if not folder.is_dir():
             raise CaptureFormatError(f"replay path {path!r}: no such folder under the replay root")
+        for name in CAPTURE_FILES:  # a file may be a symlink planted to lead out of the root
+            if (folder / name).exists() and not (folder / name).resolve().is_relative_to(self.replay_root):
+                raise ReplayPathError(f"replay path {path!r}: {name} is a link leading outside the replay root; "
+                                      "copy the file into the capture folder")
         capture = read_capture(folder)
         return self._store(capture, "replay", str(folder.relative_to(self.replay_root)))
 
     def _store(self, capture: Capture, source: str, name: str) -> CaptureRow:
         capture_id = uuid.uuid4().hex
         staging = self.root / f".{capture_id}.partial"  # a crash mid-write leaves no half capture behind
-        save_capture(staging, capture)
+        try:
+            save_capture(staging, capture)
+        except BaseException:  # a full disk: nothing of this upload stays
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
         return self.adopt(staging, capture_id, capture, source, name)
 
-    def adopt(self, staging: Path, capture_id: str, capture: Capture, source: str, name: str) -> CaptureRow:
-        """Make the complete folder ``staging`` (under the store) the capture ``capture_id``."""
-        staging.rename(self.folder(capture_id))
+    def adopt(self, staging: Path, capture_id: str, capture: Capture, source: str, name: str,
+              created: float | None = None) -> CaptureRow:
+        """Make the complete folder ``staging`` (under the store) the capture ``capture_id``.
+
+        The folder is renamed before its row is written: a crash in between leaves a folder
+        without a row, which the next start registers (service/recovery.py); a row that cannot
+        be written (a full disk) puts the folder back to ``staging`` and raises."""
+        folder = self.folder(capture_id)
+        staging.rename(folder)
         counts, frames = wand_counts(capture.rig, capture.wand)
-        with connect(self.db_path) as conn:
-            conn.execute(
-                "INSERT INTO captures (id, created, source, name, cameras, counts, frames, has_static)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                (
-                    capture_id, time.time(), source, name[:200], json.dumps(capture.rig.ids), json.dumps(counts),
-                    frames, int(capture.static is not None),
-                ),
-            )
+        try:
+            with connect(self.db_path) as conn:
+                conn.execute(
+                    "INSERT INTO captures (id, created, source, name, cameras, counts, frames, has_static)"
+                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                    (
+                        capture_id, created or time.time(), source, name[:200], json.dumps(capture.rig.ids),
+                        json.dumps(counts), frames, int(capture.static is not None),
+                    ),
+                )
+        except BaseException:
+            folder.rename(staging)
+            raise
         return self.get(capture_id)
 
     # -- reading ------------------------------------------------------------------------------
@@ -218,34 +238,48 @@ class CaptureStore:
                 f"capture {capture_id} was created from files ({row.source}); stream frame sets into a capture "
                 "created by uploading rig.json alone"
             )
-        folder = self.folder(capture_id)
-        with self._lock(capture_id), transaction(self.db_path) as conn:
+        path = self.folder(capture_id) / WAND_FILE
+        with self._lock(capture_id):
+            size = path.stat().st_size
+            try:
+                self._append(capture_id, frame, trigger_count, blobs, path)
+            except BaseException:
+                # the rows are appended before COMMIT: a failed commit (a full disk) or a failed
+                # append rolls the row back, and the file is cut back so no row or half row stays
+                if path.stat().st_size != size:
+                    os.truncate(path, size)
+                raise
+        return self.get(capture_id)
+
+    def _append(self, capture_id: str, frame: int, trigger_count: int | None, blobs: dict[str, np.ndarray],
+                path: Path) -> None:
+        """One frame set's row and its wand.csv rows, in one transaction. The counts are read
+        inside it: read before, two frame sets at once each added to the same old counts and one
+        of them was lost (bench/bench_load.py found it)."""
+        with transaction(self.db_path) as conn:
             exists = conn.execute(
                 "SELECT 1 FROM framesets WHERE capture_id = ? AND frame = ?", (capture_id, frame)
             ).fetchone()
             if exists:
                 raise DuplicateFrameSet(f"frame {frame} of capture {capture_id} was already received")
-            counts = row.counts
+            counts = json.loads(conn.execute("SELECT counts FROM captures WHERE id = ?", (capture_id,)).fetchone()[0])
             lines = []
             for cam, uv in blobs.items():
                 if len(uv) == WAND_PAIR:
                     lines += [f"{frame},{cam},{u:.4f},{v:.4f}\n" for u, v in uv]
                     counts[cam]["blobs"] += WAND_PAIR
                     counts[cam]["pairs"] += 1
-            new_frame = bool(lines)  # frame sets are unique per frame, checked above
             conn.execute(
                 "INSERT INTO framesets (capture_id, frame, trigger_count, received, blobs) VALUES (?, ?, ?, ?, ?)",
                 (capture_id, frame, trigger_count, time.time(), json.dumps({c: len(uv) for c, uv in blobs.items()})),
             )
             conn.execute(
                 "UPDATE captures SET counts = ?, frames = frames + ?, framesets = framesets + 1 WHERE id = ?",
-                (json.dumps(counts), int(new_frame), capture_id),
+                (json.dumps(counts), int(bool(lines)), capture_id),  # frame sets are unique per frame
             )
             if lines:
-                # appended before COMMIT: a failed append rolls the row back with it
-                with open(folder / WAND_FILE, "a") as fh:
+                with open(path, "a") as fh:
                     fh.writelines(lines)
-        return self.get(capture_id)
 
     def set_static(self, capture_id: str, static: StaticObservations, rig: Rig) -> None:
         """Replace the capture's static.csv with freshly detected static blobs."""
@@ -253,8 +287,12 @@ class CaptureStore:
         ids = rig.ids
         text = "camera,u,v\n" + "".join(f"{ids[c]},{u:.4f},{v:.4f}\n" for c, (u, v) in zip(static.camera, static.uv))
         tmp = folder / (STATIC_FILE + ".partial")
-        tmp.write_text(text)
-        tmp.replace(folder / STATIC_FILE)
+        try:
+            tmp.write_text(text)
+            tmp.replace(folder / STATIC_FILE)
+        except BaseException:  # a full disk: the old static.csv stays whole
+            tmp.unlink(missing_ok=True)
+            raise
         with connect(self.db_path) as conn:
             conn.execute("UPDATE captures SET has_static = 1 WHERE id = ?", (capture_id,))
 
@@ -264,9 +302,8 @@ class CaptureStore:
                 "UPDATE captures SET static_solution = ? WHERE id = ?", (json.dumps(solution), capture_id)
             )
 
-    def remove_partials(self) -> None:
-        """Delete staging folders left by a crash mid-upload."""
-        if self.root.is_dir():
-            for p in self.root.glob(".*.partial"):
-                shutil.rmtree(p, ignore_errors=True)
-        self.root.mkdir(parents=True, exist_ok=True)
+    def captured_ids(self) -> list[str]:
+        """Ids of the capture folders on disk (registered or not)."""
+        if not self.root.is_dir():
+            return []
+        return sorted(p.name for p in self.root.iterdir() if p.is_dir() and CAPTURE_ID.match(p.name))

@@ -12,6 +12,7 @@ import logging
 import multiprocessing
 import os
 import signal
+import sqlite3
 import threading
 import time
 import traceback
@@ -20,6 +21,7 @@ from typing import Callable
 
 from calib.errors import CalibrationError
 from capture.folder import Capture
+from service.db import disk_full
 from service.jobs import Claim, JobState, JobStore
 
 log = logging.getLogger("wandcal.worker")
@@ -29,6 +31,7 @@ POLL_INTERVAL_S = 0.25  # an idle worker looks for work this often (and at once 
 MONITOR_INTERVAL_S = 0.5  # the pool checks for dead workers and overdue cancellations this often
 CANCEL_GRACE_S = 2.0  # a running job asked to cancel is killed if it has not stopped by then
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
+DISK_FULL_RETRY_S = 1.0  # a full disk frees when someone acts: checking once a second costs nothing
 
 
 class JobStopped(Exception):
@@ -59,7 +62,13 @@ class ThrottledProgress:
             return
         self.last = now
         clean = {k: update[k] for k in ("stage", "iteration", "cost", "message") if k in update}
-        if self.report(clean):
+        try:
+            stop = self.report(clean)
+        except sqlite3.OperationalError as exc:
+            if not disk_full(exc):
+                raise
+            return  # progress is not worth failing a solve for; the outcome waits for room (finish_durably)
+        if stop:
             raise JobStopped()
 
 
@@ -74,23 +83,41 @@ def run_claim(store: JobStore, load_capture: Callable[[str], Capture], claim: Cl
     except JobStopped:
         current = store.get(job.id)
         if current is not None and current.cancel_requested:
-            store.finish(job.id, token, JobState.cancelled, error="cancelled while running")
+            finish_durably(store, job.id, token, JobState.cancelled, error="cancelled while running")
         return
     except CalibrationError as exc:
-        store.finish(job.id, token, JobState.failed, error=str(exc))
+        finish_durably(store, job.id, token, JobState.failed, error=str(exc))
         return
     except Exception as exc:  # a solver bug: keep the worker alive and say what happened
         log.error("job %s failed:\n%s", job.id, traceback.format_exc())
-        store.finish(
-            job.id, token, JobState.failed,
+        finish_durably(
+            store, job.id, token, JobState.failed,
             error=f"internal error {type(exc).__name__}: {exc}; this is a bug, please report it with the capture",
         )
         return
     seconds = time.perf_counter() - started
-    store.finish(
-        job.id, token, JobState.done, result=result, solve_seconds=seconds,
+    finish_durably(
+        store, job.id, token, JobState.done, result=result, solve_seconds=seconds,
         progress={"stage": "done", "message": f"solved in {seconds:.1f} s"},
     )
+
+
+def finish_durably(store: JobStore, job_id: str, token: str, state: JobState, retry_s: float = DISK_FULL_RETRY_S,
+                   **outcome) -> bool:
+    """:meth:`JobStore.finish`, waiting while the disk is full: a solve's outcome is kept in memory
+    until it can be written, instead of being lost with the worker (a killed worker's job is
+    re-queued at the next start, so waiting here loses nothing either)."""
+    warned = False
+    while True:
+        try:
+            return store.finish(job_id, token, state, **outcome)
+        except sqlite3.OperationalError as exc:
+            if not disk_full(exc):
+                raise
+            if not warned:
+                log.error("job %s: cannot record its outcome, the disk is full; retrying every %g s", job_id, retry_s)
+                warned = True
+            time.sleep(retry_s)
 
 
 def _die_with_parent() -> None:
@@ -113,7 +140,12 @@ def worker_main(db_path: str, data_dir: str, wake, stop, parent: int | None = No
     captures = CaptureStore(Path(data_dir), Path(db_path), None)
     import calib.pipeline  # noqa: F401  (load the solver before the first job, not during it)
     while not stop.is_set() and os.getppid() == parent:
-        claim = store.claim(os.getpid())
+        try:
+            claim = store.claim(os.getpid())
+        except sqlite3.OperationalError as exc:  # a full disk: claim nothing until there is room
+            if not disk_full(exc):
+                raise
+            claim = None
         if claim is None:
             if wake.wait(POLL_INTERVAL_S):
                 wake.clear()

@@ -56,7 +56,7 @@ def read_easywand_mat(path: str | Path, intrinsics: str = "optimised", height: i
         raise CaptureFormatError(f"--intrinsics must be one of {', '.join(INTRINSICS)}, not {intrinsics!r}")
     path = Path(path)
     ew = _load_struct(path)
-    n = int(_ints(ew, "nCams", path)[0])
+    n = int(_ints(ew, "nCams", path, 1)[0])
     f_field, pp_field, dist_field = INTRINSICS[intrinsics]
     focal = _floats(ew, f_field, path, n)
     pp = _floats(ew, pp_field, path, 2 * n).reshape(n, 2)
@@ -157,6 +157,9 @@ def _load_struct(path: Path):
 
     try:
         mat = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
+    except scipy.io.matlab.MatReadError as exc:  # truncated, or a header that lies about its contents
+        raise CaptureFormatError(f"{path}: not a complete MATLAB .mat file ({exc}); give the *_easyWandData.mat "
+                                 "that easyWand's Save wrote") from None
     except NotImplementedError:
         raise CaptureFormatError(f"{path}: a MATLAB v7.3 (HDF5) file; re-save it in MATLAB with "
                                  f"save(file, '{STRUCT}', '-v7') and import that") from None
@@ -212,8 +215,8 @@ def _table(ew, name: str, path: Path, n: int, columns: int | None = None) -> XyT
         raise CaptureFormatError(f"{path}: {STRUCT}.{name} is not a numeric matrix") from None
     if arr.size == 0:
         return None
-    if arr.ndim == 1:  # squeeze_me turns a single row into a vector
-        arr = arr[None, :]
+    if arr.ndim <= 1:  # squeeze_me turns a single row into a vector, a single value into a scalar
+        arr = arr.reshape(1, -1)
     width = arr.shape[1]
     if arr.ndim != 2 or (columns and width != columns) or width % (2 * n):
         raise CaptureFormatError(f"{path}: {STRUCT}.{name} is {arr.shape}, expected "

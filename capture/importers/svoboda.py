@@ -32,6 +32,7 @@ from capture.importers.summary import Imported
 
 CONFIG_FILE = "multicamselfcal.cfg"
 DEFAULT_BASENAME = "basename"
+MAX_BASENAME = 200  # with "N.rad" it stays under the 255 bytes a file name may have
 RAD_KEY = re.compile(r"^\s*(K[1-3][1-3]|kc[1-5])\s*=\s*(\S+)\s*$")
 
 
@@ -136,7 +137,11 @@ def _basename(folder: Path) -> str:
         for line in read_text(cfg, "MultiCamSelfCal settings").splitlines():
             key, _, value = line.partition(":")
             if key.strip().lower() == "basename" and value.strip():
-                return value.strip()
+                name = value.strip()
+                if len(name) > MAX_BASENAME or any(c in name for c in "/\\\0"):
+                    raise CaptureFormatError(f"{cfg}: Basename {name[:40]!r} is not a plain file name (no folders, at "
+                                             f"most {MAX_BASENAME} characters); give the start of the .rad files' names")
+                return name
     return DEFAULT_BASENAME
 
 

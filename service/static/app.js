@@ -8,6 +8,9 @@ const VIEW = { azimuth: -0.6, elevation: 0.45 };  // radians: a three-quarter vi
 let token = new URLSearchParams(location.hash.slice(1)).get("token") || localStorage.getItem("wandcal-token") || "";
 let shownJob = null;
 let serverSkewS = 0;  // server clock minus this browser's, from the Date header: wait_deadline is server time
+const SIGMA_HISTORY = 120;  // guidance updates kept per camera for its sparkline: two minutes at one a second
+const sigmaHistory = new Map();  // "capture/camera" -> the predicted centre sigmas seen so far (mm)
+const SVG = "http://www.w3.org/2000/svg";
 
 const $ = (sel) => document.querySelector(sel);
 const el = (tag, attrs = {}, ...children) => {
@@ -68,10 +71,13 @@ function renderJobs(jobs) {
   $("#jobs tbody").replaceChildren(...jobs.map((j) => {
     const action = j.state === "done" ? el("button", { onclick: () => showResult(j.id) }, "show")
       : ["queued", "running"].includes(j.state) ? el("button", { onclick: () => cancelJob(j.id) }, "cancel") : "";
+    // the illustrated report (drawn by the server on the first visit), in a tab of its own
+    const report = j.state === "done" ? [" ", el("a", { href: `${API}/jobs/${j.id}/report`, target: "_blank",
+      rel: "noopener", class: "report" }, "report")] : [];
     return el("tr", { "data-job-id": j.id, "data-state": j.state },
       el("td", { class: "id", title: j.id }, short(j.id)), el("td", { class: "id" }, short(j.capture_id)),
       el("td", {}, j.method), el("td", { class: "state-" + j.state }, j.state), el("td", {}, progressText(j)),
-      el("td", {}, j.attempts), el("td", {}, action));
+      el("td", {}, j.attempts), el("td", {}, action, ...report));
   }));
   const latest = jobs.find((j) => j.state === "done");
   if (latest && shownJob === null) showResult(latest.id);
@@ -123,6 +129,71 @@ function renderLive(s) {
   $("#live-dropped tbody").replaceChildren(...s.cameras.map((id) => el("tr", { "data-camera": id },
     el("td", {}, id), el("td", { class: s.dropped[id] ? "error" : "" }, s.dropped[id] || 0))));
   $("#live-messages").replaceChildren(...s.messages.map((m) => el("li", {}, m)));
+  const autostop = $("#live-autostop");
+  autostop.checked = !!s.stop_when_enough;
+  autostop.disabled = !["running", "waiting_for_wand"].includes(s.state) || s.enough == null;
+}
+
+// The coverage grid of one camera: a cell per grid cell, filled where the wand has been.
+function coverageGrid(grid) {
+  const node = el("span", { class: "covgrid" });
+  node.style.gridTemplateColumns = `repeat(${grid[0].length}, 9px)`;
+  for (const row of grid) for (const n of row) node.append(el("span", n ? { class: "hit", title: `${n} samples` } : {}));
+  return node;
+}
+
+// A small line of the camera's predicted sigma over the updates, the target dashed.
+function sparkline(values, target) {
+  const w = 80, h = 18, top = Math.max(target * 1.5, ...values);
+  const svg = document.createElementNS(SVG, "svg");
+  svg.setAttribute("width", w); svg.setAttribute("height", h); svg.setAttribute("class", "spark");
+  const y = (v) => (h - 1 - (h - 2) * Math.min(v, top) / top).toFixed(1);
+  const line = (points, color, dash) => {
+    const p = document.createElementNS(SVG, "polyline");
+    p.setAttribute("points", points); p.setAttribute("fill", "none"); p.setAttribute("stroke", color);
+    if (dash) p.setAttribute("stroke-dasharray", "3 2");
+    svg.append(p);
+  };
+  line(`0,${y(target)} ${w},${y(target)}`, "#7a8591", true);
+  if (values.length > 1) line(values.map((v, i) => `${(w * i / (values.length - 1)).toFixed(1)},${y(v)}`).join(" "), "#1f6fb2");
+  return svg;
+}
+
+// GET /captures/{id}/guidance of the live capture: the grids filling in, the sigmas falling, the advice.
+function renderGuidance(captureId, g) {
+  $("#live-guidance").hidden = false;
+  $("#live-guidance").dataset.enough = g.enough;
+  $("#live-guidance-frames").textContent = `${g.frames} wand frames` + (g.live ? " · updating" : "");
+  $("#live-enough").hidden = !g.enough;
+  $("#live-goal").textContent = `Enough when every camera's centre σ is below ${g.target.center_std_mm} mm and the wand has `
+    + `covered ${Math.round(100 * g.target.coverage)}% of its image` + (g.solve.ok ? "." : ` (solve: ${g.solve.message})`);
+  $("#live-advice").replaceChildren(...g.advice.map((a) => el("li", {}, a)));
+  $("#live-cameras tbody").replaceChildren(...g.cameras.map((c) => {
+    const key = `${captureId}/${c.id}`, history = sigmaHistory.get(key) || [];
+    if (c.center_std_mm != null && history[history.length - 1] !== c.center_std_mm) history.push(c.center_std_mm);
+    sigmaHistory.set(key, history.slice(-SIGMA_HISTORY));
+    const sigma = c.center_std_mm == null ? el("td", {}, "–") : el("td", {},
+      el("span", { class: c.center_std_mm < g.target.center_std_mm ? "sigma-ok" : "sigma-high" }, c.center_std_mm.toFixed(2)),
+      sparkline(sigmaHistory.get(key), g.target.center_std_mm));
+    return el("tr", { "data-guidance-camera": c.id, "data-coverage": c.coverage },
+      el("td", {}, c.id), el("td", {}, coverageGrid(c.grid), ` ${Math.round(100 * c.coverage)}%`),
+      el("td", {}, c.frames), sigma, el("td", {}, c.advice || "✓"));
+  }));
+}
+
+async function pollGuidance(live) {
+  const show = live.capture_id && live.enough != null && !["idle", "failed"].includes(live.state);
+  if (!show) { $("#live-guidance").hidden = true; return; }
+  try { renderGuidance(live.capture_id, await api(`/captures/${live.capture_id}/guidance`)); }
+  catch (err) { $("#live-goal").textContent = err.message; }
+}
+
+async function setAutostop(box) {
+  try {
+    await api("/capture", { method: "PATCH", headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ stop_when_enough: box.checked }) });
+  } catch (err) { alert(err.message); box.checked = !box.checked; }
+  poll();
 }
 
 async function liveAction(button, path, question) {
@@ -136,7 +207,8 @@ async function liveAction(button, path, question) {
 // Orthographic view of world points (metres, z up) onto the canvas.
 function projector(points, canvas) {
   const [ca, sa, ce, se] = [Math.cos(VIEW.azimuth), Math.sin(VIEW.azimuth), Math.cos(VIEW.elevation), Math.sin(VIEW.elevation)];
-  const view = ([x, y, z]) => { const xr = ca * x - sa * y, yr = sa * x + ca * y; return [xr, ce * z - se * yr]; };
+  // a right-handed view from above: x to the right, y away from the viewer (so farther is higher), z up
+  const view = ([x, y, z]) => { const xr = ca * x - sa * y, yr = sa * x + ca * y; return [xr, ce * z + se * yr]; };
   const flat = points.map(view);
   const xs = flat.map((p) => p[0]), ys = flat.map((p) => p[1]);
   const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
@@ -177,8 +249,14 @@ async function showResult(jobId) {
     drawRig(job.result);
     $("#residuals tbody").replaceChildren(...job.result.cameras.map((c) => el("tr", { "data-camera": c.id },
       el("td", {}, c.id), el("td", {}, c.center.map((v) => v.toFixed(3)).join(", ")),
+      el("td", {}, c.center_std_mm != null ? c.center_std_mm.toFixed(2) : "–"),
       el("td", {}, c.reprojection_rms_px != null ? c.reprojection_rms_px.toFixed(3) : "–"),
-      el("td", {}, c.observations != null ? c.observations : "–"))));
+      el("td", {}, c.observations != null ? c.observations : "–"),
+      el("td", { class: c.verdict ? `verdict-${c.verdict.level}` : "", title: c.verdict ? c.verdict.reasons.join("\n") : "" },
+        c.verdict ? c.verdict.level : "–"))));
+    const v = job.result.verdict;
+    $("#verdict").replaceChildren(...(v ? [el("strong", { class: `verdict-${v.level}` }, `verdict: ${v.level}`),
+      ...(v.reasons.length ? [` (${v.reasons.join("; ")})`] : [])] : []));
     $("#warnings").replaceChildren(...(job.result.warnings || []).map((w) => el("li", {}, w)));
   } catch (err) { $("#health").textContent = err.message; }
 }
@@ -189,6 +267,7 @@ async function poll() {
     $("#health").textContent = `${health.queue} queue · ${health.workers} worker(s) · ${health.jobs_running} running · ${health.jobs_queued} queued`;
     const [live, captures, jobs] = await Promise.all([api("/capture"), api("/captures"), api("/jobs")]);
     renderLive(live);
+    await pollGuidance(live);
     renderCaptures(captures.captures);
     renderJobs(jobs.jobs);
   } catch (err) {
@@ -199,6 +278,7 @@ async function poll() {
 $("#live-continue").addEventListener("click", (e) => liveAction(e.currentTarget, "/capture/continue"));
 $("#live-stop").addEventListener("click", (e) => liveAction(e.currentTarget, "/capture/stop",
   "Stop the live capture? What was recorded so far is kept and stored."));
+$("#live-autostop").addEventListener("change", (e) => setAutostop(e.currentTarget));
 $("#token").addEventListener("change", (e) => { token = e.target.value; localStorage.setItem("wandcal-token", token); poll(); });
 poll();
 setInterval(poll, POLL_MS);

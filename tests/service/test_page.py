@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
@@ -11,7 +12,15 @@ import pytest
 from drivers.trigger_emulator import EmulatorProcess
 from service.settings import DEFAULT_CONTINUE_TIMEOUT_S
 from tests.service.conftest import capture_files, wait_job
-from tests.service.test_live_capture import STATIC_SETS, WAND_SETS, start_paused, wait_capture
+from tests.service.test_live_capture import (
+    LOOSE_GUIDANCE,
+    STATIC_SETS,
+    WAND_SETS,
+    start_guided,
+    start_paused,
+    wait_capture,
+    watch_guidance,
+)
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install -y chromium)")
@@ -48,6 +57,9 @@ def test_page_shows_captures_jobs_and_the_solved_rig(make_server, small_capture,
     for cam in job["result"]["cameras"]:
         assert f'data-camera="{cam["id"]}"' in html  # coverage and residual rows
         assert f'{cam["reprojection_rms_px"]:.3f}' in html
+        assert f'{cam["center_std_mm"]:.2f}' in html  # the predicted uncertainty
+        assert f'class="verdict-{cam["verdict"]["level"]}"' in html
+    assert f'verdict: {job["result"]["verdict"]["level"]}' in html
     assert 'id="result-section" hidden' not in html
 
     shot = tmp_path / "page.png"
@@ -90,3 +102,28 @@ def test_page_shows_a_live_capture_waiting_for_the_wand_until_continue(make_serv
     assert '<button id="live-continue" class="primary" hidden="">' in panel
     assert '<button id="live-stop" hidden="">' in panel
     assert f'data-capture-id="{started["capture_id"]}"' in html  # the stored capture, ready to calibrate
+
+
+def test_page_shows_the_guidance_filling_in_and_when_it_is_enough(make_server, tmp_path):
+    server = make_server(workers=0, guidance=json.dumps(LOOSE_GUIDANCE)).start()
+    with EmulatorProcess() as emu, server.client() as c:
+        started = start_guided(c, emu)
+        watch_guidance(c, started["capture_id"], updates=1)
+        panel = live_panel(chromium(server.url + "/", tmp_path / "profile", "--dump-dom").stdout)
+        assert '<div id="live-guidance" data-enough=' in panel  # shown, not hidden
+        for cam in started["cameras"]:
+            assert f'data-guidance-camera="{cam}"' in panel
+        assert panel.count('class="covgrid"') == len(started["cameras"]) and 'class="hit"' in panel
+        assert "Enough when every camera's centre σ is below 1 mm" in panel
+
+        assert c.patch("/capture", json={"stop_when_enough": True}).status_code == 200
+        status = wait_capture(c)
+        assert status["state"] == "done" and status["enough"], status["error"]
+        html = chromium(server.url + "/", tmp_path / "profile2", "--dump-dom").stdout
+        shot = tmp_path / "guidance.png"
+        run = chromium(server.url + "/", tmp_path / "profile3", f"--screenshot={shot}", "--window-size=1280,1400")
+    panel = live_panel(html)
+    assert '<div id="live-guidance" data-enough="true">' in panel
+    assert '<p id="live-enough" class="enough">Enough: you can stop waving.</p>' in panel
+    assert panel.count("✓") == len(started["cameras"])  # no camera needs anything
+    assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr

@@ -192,7 +192,7 @@ async def add_frameset(capture: CaptureDep, request: Request, state: State) -> F
     cameras = {c.id: c for c in rig.cameras}
     from service.ingest import detect_frameset
 
-    blobs = await run_in_threadpool(detect_frameset, images, cameras)
+    blobs = await run_in_threadpool(detect_frameset, images, cameras, state.settings.detect.config())
     try:
         await run_in_threadpool(state.captures.append_frameset, capture.id, frame, trigger, blobs)
     except DuplicateFrameSet as exc:
@@ -260,7 +260,8 @@ async def _static_from_images(request: Request, state, capture: CaptureRow, rig)
         raise HTTPException(422, "no images; send images of the static object, field name = camera id")
     from service.ingest import detect_static, static_observations
 
-    markers = await run_in_threadpool(detect_static, images, {c.id: c for c in rig.cameras})
+    markers = await run_in_threadpool(detect_static, images, {c.id: c for c in rig.cameras},
+                                      state.settings.detect.config())
     static = static_observations(markers, rig)
     await run_in_threadpool(state.captures.set_static, capture.id, static, rig)
     return static

@@ -6,6 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, Response
 from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse, RedirectResponse
 
 from service.api.deps import State, require_content_type
 from service.jobs import JobRecord, JobState
@@ -20,6 +21,8 @@ MEDIA_TYPES = {
     ResultFormat.anipose_toml: ("application/toml", "toml"),
     ResultFormat.opencv_yaml: ("application/x-yaml", "yaml"),
     ResultFormat.dlt_csv: ("text/csv", "csv"),
+    ResultFormat.qca: ("application/xml", "qca.txt"),
+    ResultFormat.xcp: ("application/xml", "xcp"),
 }
 UNKNOWN_JOB = {"model": ErrorPublic, "description": "unknown job"}
 UNAUTHORISED = {"model": ErrorPublic, "description": "missing or wrong bearer token"}
@@ -115,13 +118,17 @@ def cancel_job(job_id: str, state: State) -> JobPublic:
         409: {"model": ErrorPublic, "description": "the job is not done"},
         422: {"model": ErrorPublic, "description": "the result cannot be written in that format"},
     },
-    summary="The finished calibration as JSON, anipose TOML, OpenCV YAML or DLT CSV",
+    summary="The finished calibration as JSON, anipose TOML, OpenCV YAML, DLT CSV, Qualisys qca or Vicon xcp",
 )
 async def get_result(
     job_id: str,
     state: State,
     format: ResultFormat = ResultFormat.json,
-    unit: Annotated[str, Query(pattern="^(m|mm)$", description="length unit of translations")] = "m",
+    unit: Annotated[str | None, Query(pattern="^(m|mm)$", description="length unit of positions (default: the "
+                                      "format's own: m, and mm for qca and xcp, which hold mm only)")] = None,
+    origin: Annotated[str | None, Query(pattern="^(top-left|bottom-left)$", description="dlt-csv: the pixel origin "
+                                        "the coefficients expect (default bottom-left, y up: DLTdv, easyWand, Argus); "
+                                        "the other formats are top-left only")] = None,
 ) -> Response:
     record = await run_in_threadpool(_job, state, job_id)
     if record.state is not JobState.done or record.result is None:
@@ -131,18 +138,86 @@ async def get_result(
     if format is ResultFormat.json:
         import json
 
+        if unit not in (None, "m") or origin not in (None, "top-left"):
+            raise HTTPException(422, "the json result is wandcal-result/1 as written: metres, pixels from the "
+                                     "top-left; unit and origin choose another format's (docs/formats.md)")
         text = json.dumps(record.result, indent=2)
     else:
         from calib import export
 
         rig = await run_in_threadpool(state.captures.rig, record.capture_id)
-        writer = {
-            ResultFormat.anipose_toml: export.to_anipose_toml,
-            ResultFormat.opencv_yaml: export.to_opencv_yaml,
-            ResultFormat.dlt_csv: export.to_dlt_csv,
-        }[format]
-        text = writer(record.result, rig, unit=unit)
+        text = export.export(record.result, format.value, rig, unit=unit, origin=origin)
     return Response(
         text, media_type=media,
         headers={"Content-Disposition": f'attachment; filename="wandcal-{job_id[:8]}.{ext}"'},
     )
+
+
+# -- the illustrated report (service/report) --------------------------------------------------
+# no scripts, nothing from elsewhere: the page is HTML, inline CSS and the report's own PNGs
+REPORT_CSP = "default-src 'none'; img-src 'self'; style-src 'unsafe-inline'"
+NOT_DONE = {"model": ErrorPublic, "description": "the job is not done"}
+NO_MATPLOTLIB = {"model": ErrorPublic, "description": "the server lacks matplotlib (the 'report' extra)"}
+
+
+def _report(state, job_id: str):
+    """The folder of a done job's report, drawn on the first request (with the job's capture)."""
+    from service.report import ReportUnavailable
+    from service.report.store import rendered_report
+
+    record = _job(state, job_id)
+    if record.state is not JobState.done or record.result is None:
+        hint = f": {record.error}" if record.error else "; poll GET /api/v1/jobs/{id} until its state is done"
+        raise HTTPException(409, f"job {job_id} is {record.state.value}, it has no report{hint}")
+
+    def capture():
+        try:
+            return state.captures.load(record.capture_id)
+        except CaptureNotFound:
+            return None  # the page says what needs the capture
+
+    try:
+        return rendered_report(state.settings.data_dir, record.id, record.result, capture)
+    except ReportUnavailable as exc:
+        raise HTTPException(503, f"{exc} on the server") from None
+
+
+@router.get(
+    "/{job_id}/report", status_code=307, response_class=RedirectResponse,
+    responses={307: {"description": "to the report's page, report/"}, 401: UNAUTHORISED, 404: UNKNOWN_JOB,
+               409: NOT_DONE, 503: NO_MATPLOTLIB},
+    summary="The job's illustrated report (drawn on the first request): redirects to its page",
+)
+async def get_report(job_id: str, state: State) -> RedirectResponse:
+    await run_in_threadpool(_report, state, job_id)
+    return RedirectResponse("report/", status_code=307)  # relative: the page's image links are relative too
+
+
+@router.get(
+    "/{job_id}/report/",
+    responses={200: {"description": "the report's index.html", "content": {"text/html": {"schema": {"type": "string"}}}},
+               401: UNAUTHORISED, 404: UNKNOWN_JOB, 409: NOT_DONE, 503: NO_MATPLOTLIB},
+    response_class=FileResponse, summary="The job's report page (index.html)",
+)
+async def get_report_page(job_id: str, state: State) -> FileResponse:
+    return await get_report_file(job_id, "index.html", state)
+
+
+@router.get(
+    "/{job_id}/report/{name}",
+    responses={200: {"description": "a figure (PNG) or the page of the report",
+                     "content": {"image/png": {"schema": {"type": "string", "format": "binary"}},
+                                 "text/html": {"schema": {"type": "string"}}}},
+               401: UNAUTHORISED, 404: {"model": ErrorPublic, "description": "unknown job or file"}, 409: NOT_DONE,
+               503: NO_MATPLOTLIB},
+    response_class=FileResponse, summary="A file of the job's report: index.html or one of its PNGs",
+)
+async def get_report_file(job_id: str, name: str, state: State) -> FileResponse:
+    from service.report.store import media_type, report_file
+
+    folder = await run_in_threadpool(_report, state, job_id)
+    path = report_file(folder, name)
+    if path is None:
+        raise HTTPException(404, f"job {job_id}'s report has no file {name!r}; its page is report/index.html")
+    headers = {"Content-Security-Policy": REPORT_CSP, "X-Content-Type-Options": "nosniff"}
+    return FileResponse(path, media_type=media_type(path), headers=headers)

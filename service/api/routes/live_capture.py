@@ -1,8 +1,10 @@
 """Live capture: ``wandcal capture`` driven over HTTP, one at a time, into the data directory.
 
 A capture records into a staging folder ``captures/.<capture id>.partial`` (removed at the next
-start if the server dies mid-capture), then detection writes its points level and the folder
-becomes the stored capture ``<capture id>``, ready for ``POST /jobs``.
+start if the server dies mid-capture), detecting every frame as it arrives and writing the points
+level as it goes (images as the start request asks); then the folder becomes the stored capture
+``<capture id>``, ready for ``POST /jobs``. While it records, its wanding guidance is kept up to
+date (``GET /captures/<capture id>/guidance``), and it may stop itself once that says enough.
 
 With static frames and a trigger, the capture pauses after the static recording in state
 ``waiting_for_wand`` (the lab's "remove the L-frame, take the wand" step) until
@@ -27,11 +29,14 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 
 from capture.folder import CaptureFormatError, read_capture, rig_from_json
-from capture.images import detect_capture
+from capture.guidance import LiveGuidance
+from capture.record import ImagePolicy
 from capture.session import Progress, record
 from drivers.errors import DriverError
-from service.schemas import ErrorPublic, LiveCaptureCreate, LiveCapturePublic, LiveCaptureState
-from service.settings import DEFAULT_CONTINUE_TIMEOUT_S
+from service.api.deps import State
+from service.guidance import guidance_settings
+from service.schemas import ErrorPublic, LiveCaptureCreate, LiveCapturePublic, LiveCaptureState, LiveCaptureUpdate
+from service.settings import DEFAULT_CONTINUE_TIMEOUT_S, GuidanceConfig
 from service.storage import CaptureStore
 
 router = APIRouter(prefix="/capture", tags=["live capture"])
@@ -67,10 +72,22 @@ class LiveCapture:
         self._stop = threading.Event()
         self._resume = threading.Event()  # set by continue (and by stop, to end the wait)
         self._messages: deque[str] = deque(maxlen=KEPT_MESSAGES)
+        self._guidance: LiveGuidance | None = None
 
     def status(self) -> LiveCapturePublic:
         with self._lock:
-            return self._status.model_copy(update={"messages": list(self._messages)})
+            guidance = self._guidance
+            status = self._status.model_copy(update={"messages": list(self._messages)})
+        if guidance is not None:
+            status.enough = guidance.enough
+        return status
+
+    def guidance_for(self, capture_id: str) -> dict | None:
+        """The live guidance of ``capture_id`` while it is the capture being recorded, else None."""
+        with self._lock:
+            live = self._status.capture_id == capture_id and self._busy() and self._guidance is not None
+            guidance = self._guidance
+        return guidance.latest() | {"live": True} if live else None
 
     def _update(self, **fields) -> None:
         with self._lock:
@@ -79,9 +96,13 @@ class LiveCapture:
     def _busy(self) -> bool:
         return self._status.state in BUSY
 
-    def start(self, body: LiveCaptureCreate) -> LiveCapturePublic:
+    def start(self, body: LiveCaptureCreate, config: GuidanceConfig | None = None) -> LiveCapturePublic:
         """Open the devices (a driver that cannot open raises here, before anything is recorded),
-        then record in a background thread."""
+        then record in a background thread, with guidance as ``config`` says."""
+        config = config or GuidanceConfig()
+        if body.stop_when_enough and not body.guidance:
+            raise HTTPException(422, "stop_when_enough needs the guidance; send guidance: true (the default)")
+        images = ImagePolicy.parse(body.images)
         with self._lock:
             if self._busy():
                 s = self._status
@@ -92,25 +113,32 @@ class LiveCapture:
             previous = self._status
             self._status = LiveCapturePublic(state=LiveCaptureState.running, phase="open", id=uuid.uuid4().hex,
                                              capture_id=uuid.uuid4().hex, started=time.time(),
-                                             frames_total=body.frames + body.static_frames)
+                                             frames_total=body.frames + body.static_frames, images=str(images),
+                                             stop_when_enough=body.stop_when_enough)
             self._messages.clear()
+            previous_guidance, self._guidance = self._guidance, None
             self._stop.clear()
             self._resume.clear()
         stack = contextlib.ExitStack()
         try:
             cameras, trigger, rig = _open_devices(body, stack, self.store)
+            guidance = None
+            if body.guidance and rig.wand_length is not None:
+                guidance = LiveGuidance(rig, guidance_settings(config), config.update_interval_s)
         except BaseException as exc:
             stack.close()
             with self._lock:
-                self._status = previous  # a refused start changes nothing
+                self._status, self._guidance = previous, previous_guidance  # a refused start changes nothing
             if isinstance(exc, (OSError, ValueError)):  # DriverError, a bad URL or rig.json
                 raise HTTPException(422, str(exc)) from None
             raise
+        with self._lock:
+            self._guidance = guidance
         self._update(cameras=[c.camera_id for c in cameras], phase="static" if body.static_frames else "wand")
         run = self.status()
         pause = body.static_frames and body.pause_after_static
         between = functools.partial(self._wait_for_wand, body.static_frames) if pause else None
-        threading.Thread(target=self._run, args=(body, stack, cameras, trigger, rig, run, between),
+        threading.Thread(target=self._run, args=(body, stack, cameras, trigger, rig, run, between, images, guidance),
                          name=f"live-capture-{run.id[:8]}", daemon=True).start()
         return run
 
@@ -124,6 +152,17 @@ class LiveCapture:
             if self._status.state in (LiveCaptureState.running, LiveCaptureState.waiting_for_wand):
                 self._status = self._status.model_copy(
                     update={"state": LiveCaptureState.stopping, "prompt": None, "wait_deadline": None})
+        return self.status()
+
+    def set_stop_when_enough(self, enabled: bool) -> LiveCapturePublic:
+        """Switch the automatic stop on or off while the capture records."""
+        with self._lock:
+            if not self._busy():
+                raise HTTPException(409, f"no live capture is running (the last one is {self._status.state.value}); "
+                                         "stop_when_enough applies to a capture that records")
+            if enabled and self._guidance is None:
+                raise HTTPException(409, "this capture records without guidance, so it cannot stop when enough")
+            self._status = self._status.model_copy(update={"stop_when_enough": enabled})
         return self.status()
 
     def resume(self) -> LiveCapturePublic:
@@ -175,22 +214,24 @@ class LiveCapture:
             self._messages.append(message)
 
     def _run(self, body: LiveCaptureCreate, stack: contextlib.ExitStack, cameras, trigger, rig,
-             run: LiveCapturePublic, between) -> None:
+             run: LiveCapturePublic, between, images: ImagePolicy, guidance: LiveGuidance | None) -> None:
         staging = self.store.root / f".{run.capture_id}.partial"
         registered = False
+        # read at every batch of sets, so PATCH /capture can switch it on or off while recording
+        until = (lambda: self._status.stop_when_enough and guidance.enough) if guidance is not None else None
         try:
-            with stack:
+            with stack, (guidance or contextlib.nullcontext()):
                 result = record(cameras, trigger, staging, rig, frames=body.frames, static_frames=body.static_frames,
-                                rate_hz=body.rate_hz, progress=self._progress, between=between, events=self._event)
+                                rate_hz=body.rate_hz, progress=self._progress, between=between, events=self._event,
+                                images=images, guidance=guidance, until=until)
+                if guidance is not None:
+                    guidance.update()  # the last sets too
             stopped = self.status().stopped
             self._update(frames_recorded=result.static_sets + result.frame_sets,
                          dropped={cid: s["missed"] + s["unreadable"] for cid, s in result.per_camera.items()})
             if result.frame_sets + result.static_sets == 0:
                 raise CaptureFormatError("no frame sets were recorded" + (" before the stop" if stopped else "")
                                          + "; nothing was stored")
-            self._update(phase="detect")
-            detect_capture(staging, progress=lambda p: self._update(phase=f"detect {p['done']}/{p['total']}"),
-                           static_only_ok=True)
             self._update(phase="register")
             _register(self.store, run.capture_id, staging, "live: " + " ".join(body.cameras))
             registered = True
@@ -293,15 +334,25 @@ Live = Annotated[LiveCapture, Depends(get_live)]
                                                                    "cannot be opened (the driver's message)"}},
     summary="Start recording from cameras (and a trigger) into a new capture",
 )
-async def start_capture(body: LiveCaptureCreate, live: Live) -> LiveCapturePublic:
+async def start_capture(body: LiveCaptureCreate, live: Live, state: State) -> LiveCapturePublic:
     """Answers once the devices are open; ``capture_id`` is the capture it becomes when done."""
-    return await run_in_threadpool(live.start, body)
+    return await run_in_threadpool(live.start, body, state.settings.guidance)
 
 
 @router.get("", response_model=LiveCapturePublic, responses={401: ERRORS[401]},
             summary="The live capture's state, frame sets recorded, rate and dropped frames")
 def capture_status(live: Live) -> LiveCapturePublic:
     return live.status()
+
+
+@router.patch("", response_model=LiveCapturePublic,
+              responses={401: ERRORS[401], 409: {"model": ErrorPublic, "description": "no live capture is running, "
+                                                 "or it has no guidance"}},
+              summary="Change a running live capture: stop it by itself once the guidance says enough")
+def change_capture(body: LiveCaptureUpdate, live: Live) -> LiveCapturePublic:
+    """The page's "stop when enough" switch: the capture then ends complete (state ``done``) at the
+    first batch of wand sets after the guidance says enough."""
+    return live.set_stop_when_enough(body.stop_when_enough)
 
 
 @router.post("/continue", status_code=202, response_model=LiveCapturePublic,

@@ -1,0 +1,418 @@
+"""Wanding guidance: where each camera still needs the wand, and whether the operator can stop.
+
+:func:`wanding_guidance` turns the wand blobs recorded so far into a document
+(``wandcal-guidance/1``, docs/api.md) that says, per camera, how many frames saw both wand ends,
+how much of its image the wand has covered (:mod:`calib.coverage`), how many frames it shares
+with each other camera, and the predicted 1-sigma of its centre from a fast ``ba`` solve; then
+whether that is ``enough``, and what to do next, worst camera first.
+
+The predicted sigma is each camera's centre *relative to the rest of the rig*: the solve's pose
+covariance (``sigma^2 (J^T J)^-1``, calib/uncertainty.py) carried into the frame that best fits
+every camera's centre and a point one metre along its optical axis, each camera weighted by how
+well it is known. That is the part of the error that waving reduces. The result's
+``center_std_mm`` is in the user's world frame and adds the L-frame's own noise, which no amount
+of waving removes (docs/decisions/0009-guidance-uncertainty.md has the measurements).
+
+Fast and honest: each camera keeps about ``frames_per_camera`` of its frames (drawn the same way
+at every update, so the estimate does not jitter) and its sigma is scaled by
+sqrt(kept / all) -- information adds up over frames, so the full capture's sigma is the
+subsample's shrunk by that ratio (measured within 3% at 8 x 1500 and 16 x 2500, in the decision).
+The last solution starts the next solve (:class:`Solution`), which skips the initial poses.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
+from calib.errors import CalibrationError
+from calib.geometry import camera_centers
+from calib.initial import shared_frames
+from calib.observations import WandPairs, wand_pairs
+from calib.rig import Rig, StaticObservations, WandObservations
+
+GUIDANCE_FORMAT = "wandcal-guidance/1"
+# Motive's "exceptional" wanding result is a mean 3D error under ~0.5 mm on a room-sized volume;
+# wandcal's simulated 8-camera ring reaches it after ~400 well-spread frames (docs/benchmarks.md).
+DEFAULT_TARGET_STD_MM = 0.5
+# Half of the 8 x 8 cells: the wand has then reached every third of a typical view, which is what
+# keeps the lens distortion and the pose from trading off against each other.
+DEFAULT_MIN_COVERAGE = 0.5
+# Frames per camera in the fast solve: at 400 the scaled sigma is within 3% of the full solve's
+# and an update of 16 cameras takes ~0.15 s (docs/decisions/0009-guidance-uncertainty.md).
+DEFAULT_FRAMES_PER_CAMERA = 400
+# A camera enters the solve with this many frames shared with others: with fewer its pose is the
+# initial guess of a handful of correspondences, not a measurement (calib.chain needs 10
+# correspondences, i.e. 5 frames, to place a pair at all).
+MIN_SOLVE_FRAMES = 10
+# Advice names a camera's links when it shares fewer frames than this with the rest: two
+# frames per 8 x 8 cell, so the shared frames can at least spread over its image.
+FEW_SHARED_FRAMES = 2 * GRID[0] * GRID[1]
+# Cameras left out, weakest first, when the fast solve cannot place them all; the rest are solved.
+MAX_LEFT_OUT = 2
+AXIS_POINT_M = 1.0
+# Reweighting passes of the reference frame: each shrinks a loose camera's pull on the others by the
+# square of the ratio of its sigma to the median's, so a camera a thousand times looser than the
+# rest (a wand held still in its view) is settled in four; the loop stops once no sigma moves by 1%.
+MAX_REWEIGHTS = 8
+REWEIGHT_RTOL = 0.01  # the point along each optical axis that ties the reference frame to the cameras' rotations
+# Knuth's multiplicative hash: a fixed pseudo-random number in [0, 1) per frame number, so one
+# update's subsample is nested in the last one's (no jitter from redrawing).
+_HASH = 2654435761
+_HASH_RANGE = 2**32
+
+
+@dataclass(frozen=True)
+class GuidanceSettings:
+    """What counts as enough, and how the fast solve is sized.
+
+    Args:
+        target_std_mm: every camera's predicted centre 1-sigma must be below this, millimetres.
+        min_coverage: every camera's covered share of its image grid must reach this, in [0, 1].
+        frames_per_camera: frames each camera keeps in the fast solve (the rest are subsampled away).
+        grid: (rows, columns) of the coverage grid over each image.
+    """
+
+    target_std_mm: float = DEFAULT_TARGET_STD_MM
+    min_coverage: float = DEFAULT_MIN_COVERAGE
+    frames_per_camera: int = DEFAULT_FRAMES_PER_CAMERA
+    grid: tuple[int, int] = GRID
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.target_std_mm) and self.target_std_mm > 0):
+            raise CalibrationError(f"guidance target_std_mm must be a positive number of millimetres, got {self.target_std_mm!r}")
+        if not 0.0 <= self.min_coverage <= 1.0:
+            raise CalibrationError(f"guidance min_coverage must lie in [0, 1], got {self.min_coverage!r}")
+        if self.frames_per_camera < MIN_SOLVE_FRAMES:
+            raise CalibrationError(f"guidance frames_per_camera must be at least {MIN_SOLVE_FRAMES}, "
+                                   f"got {self.frames_per_camera!r}")
+        if len(self.grid) != 2 or min(self.grid) < 1:
+            raise CalibrationError(f"guidance grid must be (rows, columns) of at least 1, got {self.grid!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """The last fast solve, to start the next one: camera ids and their gauge-frame poses
+    R (K, 3, 3), t (K, 3), metres."""
+
+    ids: tuple[str, ...]
+    R: np.ndarray
+    t: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Guidance:
+    """The guidance document (``wandcal-guidance/1``) and the solution that starts the next update."""
+
+    document: dict
+    solution: Solution | None
+
+    @property
+    def enough(self) -> bool:
+        return bool(self.document["enough"])
+
+
+@dataclass(frozen=True, eq=False)
+class _Seen:
+    """What the blobs say before any solve: the two-blob camera-frames and their links."""
+
+    pairs: WandPairs
+    frames: np.ndarray  # (N,) frames in which each camera saw both ends
+    linked: np.ndarray  # (N, N) frames both cameras saw both ends in
+    shared: np.ndarray  # (N,) frames in which the camera and at least one other saw both ends
+
+
+def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservations | None = None,
+                     settings: GuidanceSettings | None = None, start: Solution | None = None) -> Guidance:
+    """The guidance for the wand blobs recorded so far.
+
+    Args:
+        rig: cameras with intrinsics and the wand length (required), optional static object.
+        wand: raw wand blobs so far (frame, camera, uv), as in wand.csv.
+        static: the static object's blobs, or None; it only gives the solve its first poses.
+        settings: target, coverage goal and solve size (None: the defaults).
+        start: the previous update's :class:`Solution`; the solve starts from it when it covers
+            the same cameras.
+
+    Returns:
+        :class:`Guidance`. A solve that fails is not an error: the document says why, its cameras
+        have no ``center_std_mm`` and it is not ``enough``.
+
+    Raises:
+        CalibrationError: the rig has no wand length, or the blobs name unknown cameras.
+    """
+    if rig.wand_length is None:
+        raise CalibrationError("guidance needs the wand: rig.json gives no 'wand.length_m'; give the wand's marker "
+                               "distance in metres")
+    started = time.perf_counter()
+    settings = settings or GuidanceSettings()
+    seen = _seen(rig, wand)
+    solve_set = _solve_set(seen)
+    n = len(rig.cameras)
+    center = np.full(n, np.nan)
+    rotation = np.full(n, np.nan)
+    solution, failure, info = None, None, {"frames_used": 0, "cameras": 0, "warm_start": False}
+    left_out: dict[str, str] = {}
+    if solve_set.sum() < 2:
+        failure = "no two cameras share enough frames to solve yet; wave the wand where several cameras see it"
+    for attempt in range(MAX_LEFT_OUT + 1):
+        if solve_set.sum() < 2:
+            break
+        try:
+            solution, center, rotation, info = _solve(rig, seen, solve_set, static, settings, start)
+            failure = None
+            break
+        except CalibrationError as exc:
+            failure = str(exc)
+        except np.linalg.LinAlgError as exc:  # a degenerate early capture: a singular system
+            failure = f"the fast solve met a singular system ({exc}); keep waving where several cameras see the wand"
+        if attempt == MAX_LEFT_OUT or solve_set.sum() <= 2:
+            break
+        # one weak camera must not leave every other one without a sigma: solve without the weakest
+        weakest = np.flatnonzero(solve_set)[np.argmin(seen.shared[solve_set])]
+        left_out[rig.cameras[weakest].id] = failure
+        solve_set = solve_set.copy()
+        solve_set[weakest] = False
+    info |= {"ok": failure is None, "message": failure, "left_out": left_out,
+             "seconds": round(time.perf_counter() - started, 4)}
+    document = _document(rig, seen, center, rotation, solve_set, settings, info)
+    return Guidance(document, solution)
+
+
+def _seen(rig: Rig, wand: WandObservations) -> _Seen:
+    n = len(rig.cameras)
+    pairs = wand_pairs(rig, wand) if len(wand) else WandPairs.empty()
+    linked = shared_frames(pairs, n)
+    frames = np.diag(linked).copy()
+    np.fill_diagonal(linked, 0)
+    per_frame = np.bincount(pairs.frame, minlength=len(pairs.frames))
+    shared = np.bincount(pairs.camera[per_frame[pairs.frame] >= 2], minlength=n)
+    return _Seen(pairs, frames, linked, shared)
+
+
+def _solve_set(seen: _Seen) -> np.ndarray:
+    """(N,) bool: the largest group of cameras linked by at least ``MIN_SOLVE_FRAMES`` shared
+    frames, each with that many frames shared with the others."""
+    n = len(seen.frames)
+    ok = seen.shared >= MIN_SOLVE_FRAMES
+    edges = (seen.linked >= MIN_SOLVE_FRAMES) & ok[:, None] & ok[None, :]
+    best = np.zeros(n, bool)
+    unvisited = ok.copy()
+    while unvisited.any():
+        group = np.zeros(n, bool)
+        group[np.argmax(unvisited)] = True
+        while True:
+            grown = group | edges[group].any(0)
+            if (grown == group).all():
+                break
+            group = grown
+        unvisited &= ~group
+        if group.sum() > best.sum():
+            best = group
+    return best
+
+
+def subsample(pairs: WandPairs, frames_per_camera: int) -> np.ndarray:
+    """(F,) bool over ``pairs.frames``: the frames the fast solve keeps.
+
+    Each frame is kept with the largest ``frames_per_camera / frames`` of the cameras that see it
+    (1 when one of them has fewer), so every camera keeps about ``frames_per_camera`` frames or
+    all of its own. The draw is a fixed number per capture frame number, so as the capture grows
+    and the rates fall, the frames kept are a subset of those kept before, plus new ones.
+    """
+    n = int(pairs.camera.max()) + 1 if len(pairs) else 0
+    counts = np.bincount(pairs.camera, minlength=n)
+    rate = np.minimum(1.0, frames_per_camera / np.maximum(counts, 1))
+    keep_rate = np.zeros(len(pairs.frames))
+    np.maximum.at(keep_rate, pairs.frame, rate[pairs.camera])
+    draw = (pairs.frames.astype(np.uint64) * np.uint64(_HASH) % np.uint64(_HASH_RANGE)) / _HASH_RANGE
+    return draw < keep_rate
+
+
+def _sub_rig(rig: Rig, cams: np.ndarray) -> Rig:
+    return Rig(cameras=tuple(rig.cameras[c] for c in cams), wand_length=rig.wand_length,
+               static_markers=rig.static_markers)
+
+
+def _solve(rig: Rig, seen: _Seen, solve_set: np.ndarray, static, settings: GuidanceSettings, start: Solution | None):
+    """The fast solve over the cameras of ``solve_set`` and their predicted sigmas (N,), metres
+    and radians (NaN for the others)."""
+    # the solver loads when a solve runs: the command line reads this module's defaults at start-up
+    from calib.initial import initial_poses
+    from calib.labels import label_ends
+    from calib.refine import GAUGE_CAMERA, build_problem, refine, up_direction
+    from calib.static import solve_static
+    cams = np.flatnonzero(solve_set)
+    index = np.full(len(rig.cameras), -1)
+    index[cams] = np.arange(len(cams))
+    pairs = seen.pairs
+    rows = solve_set[pairs.camera]
+    views = np.bincount(pairs.frame[rows], minlength=len(pairs.frames))
+    rows &= views[pairs.frame] >= 2
+    mine = WandPairs(pairs.frame[rows], index[pairs.camera[rows]], pairs.xy[rows], pairs.uv[rows], pairs.frames,
+                     pairs.dropped)
+    all_rows = np.bincount(mine.camera, minlength=len(cams))
+    kept = mine.subset(subsample(mine, settings.frames_per_camera)[mine.frame])
+    sub = _sub_rig(rig, cams)
+    ids = tuple(sub.ids)
+    warm = start is not None and start.ids == ids
+    if warm:
+        R, t = start.R, start.t
+    else:
+        static_poses = None
+        if static is not None and rig.static_markers is not None:
+            mask = solve_set[static.camera]
+            static_poses = solve_static(sub, StaticObservations(index[static.camera[mask]], static.uv[mask]))
+        init = initial_poses(sub, kept, static_poses)
+        R, t = init.R, init.t
+    labelled = label_ends(R, t, kept, np.ones(len(cams), bool), sub.wand_length)[0]
+    setup = build_problem(sub, labelled, R, t, GAUGE_CAMERA)
+    r = refine(sub, labelled, setup, None, None, "ba", {}, lambda event: None, up_direction(sub, R, t, setup))
+    if not (np.all(np.isfinite(r.R)) and np.all(np.isfinite(r.t))):
+        raise CalibrationError(f"the fast solve diverged ({r.info.get('status')}); keep waving where several "
+                               "cameras see the wand")
+    if r.covariance is None:
+        raise CalibrationError("the frames so far leave a camera's pose undetermined (a singular information "
+                               "matrix); keep waving through the whole volume")
+    center_k, rotation_k = relative_uncertainty(r.R, r.t, r.covariance)
+    used = np.bincount(setup.problem.camera, minlength=len(cams)) / 2  # two ends per camera-frame
+    scale = np.sqrt(np.minimum(used / np.maximum(all_rows, 1), 1.0))
+    center = np.full(len(rig.cameras), np.nan)
+    rotation = np.full(len(rig.cameras), np.nan)
+    center[cams] = center_k * scale
+    rotation[cams] = rotation_k * scale
+    info = {"frames_used": int(setup.problem.n_frames), "cameras": len(cams), "warm_start": bool(warm),
+            "iterations": int(r.info.get("iterations", 0))}
+    return Solution(ids, r.R, r.t), center, rotation, info
+
+
+def _anchors(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(2N, 3): every camera's centre, then a point ``AXIS_POINT_M`` along its optical axis."""
+    C = camera_centers(R, t)
+    return np.concatenate([C, C + AXIS_POINT_M * R[:, 2, :]])
+
+
+def _weighted_fit(source: np.ndarray, target: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rigid map ``target ~ Rw source + tw`` of least weighted squares (Umeyama with weights)."""
+    w = weight / weight.sum()
+    mu_s, mu_t = w @ source, w @ target
+    U, _, Vt = np.linalg.svd((target - mu_t).T @ ((source - mu_s) * w[:, None]))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    Rw = U @ D @ Vt
+    return Rw, mu_t - Rw @ mu_s
+
+
+def relative_uncertainty(R: np.ndarray, t: np.ndarray, covariance) -> tuple[np.ndarray, np.ndarray]:
+    """Each camera's centre and rotation 1-sigma relative to the rest of the rig.
+
+    The reference frame is the weighted least-squares fit of every camera's centre and of a point
+    one metre along its optical axis (:func:`_anchors`), each camera weighted by 1 / sigma^2 of the
+    previous pass (the first with equal weights; no weight above the median camera's) until the
+    sigmas settle, so a poorly placed camera does not drag the frame, and with it every other
+    camera's sigma, after it. Gauge-free: the fixed camera of the solve gets its share.
+
+    Args:
+        R, t: (K, 3, 3), (K, 3) gauge-frame poses of the solve.
+        covariance: their :class:`calib.uncertainty.PoseCovariance`.
+
+    Returns:
+        (center (K,) metres, rotation (K,) radians): sqrt of the trace of each camera's centre and
+        small-angle covariance in that frame.
+    """
+    from calib.uncertainty import world_uncertainty
+
+    base = _anchors(R, t)
+    weight = np.ones(len(base))
+    center = np.full(len(R), np.inf)
+    for _ in range(MAX_REWEIGHTS):
+        def frame(Rp, tp, shift, weight=weight):
+            return _weighted_fit(_anchors(Rp, tp), base, weight)
+
+        last = center
+        center, rotation = world_uncertainty(R, t, covariance, frame)
+        if np.allclose(center, last, rtol=REWEIGHT_RTOL, atol=0.0):
+            break
+        # no weight above the median camera's: else the best camera pulls the frame onto itself,
+        # its sigma shrinks with every pass and the frame ends up its gauge
+        weight = np.tile(1.0 / np.maximum(center, np.median(center)) ** 2, 2)
+    return center, rotation
+
+
+def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, solve_set: np.ndarray,
+              settings: GuidanceSettings, info: dict) -> dict:
+    ids = rig.ids
+    target, goal = settings.target_std_mm, settings.min_coverage
+    cameras, worst = [], []
+    for c, cam in enumerate(rig.cameras):
+        uv = seen.pairs.uv[seen.pairs.camera == c].reshape(-1, 2)
+        grid = coverage_grid(uv, cam.width, cam.height, settings.grid)
+        fraction = covered_fraction(grid)
+        sigma_mm = None if np.isnan(center[c]) else float(1000 * center[c])
+        entry = {
+            "id": cam.id,
+            "frames": int(seen.frames[c]),
+            "shared_frames": int(seen.shared[c]),
+            "coverage": round(fraction, 4),
+            "grid": grid.tolist(),
+            "linked": {ids[d]: int(seen.linked[c, d]) for d in range(len(ids)) if d != c},
+            "center_std_mm": sigma_mm,
+            "rotation_std_deg": None if np.isnan(rotation[c]) else float(np.degrees(rotation[c])),
+        }
+        advice, severity = _camera_advice(entry, grid, bool(solve_set[c]), settings)
+        entry["advice"] = advice
+        cameras.append(entry)
+        if advice is not None:
+            worst.append((severity, c, advice))
+    enough = info["ok"] and not worst
+    worst.sort(key=lambda w: (-w[0], w[1]))
+    # a failed solve is the rig's problem, not one camera's: it leads the list
+    advice = ([info["message"]] if not info["ok"] and info["message"] else []) + [w[2] for w in worst]
+    return {
+        "format": GUIDANCE_FORMAT,
+        "frames": int(len(np.unique(seen.pairs.frames[seen.pairs.frame])) if len(seen.pairs) else 0),
+        "enough": bool(enough),
+        "advice": advice,
+        "target": {"center_std_mm": target, "coverage": goal},
+        "cameras": cameras,
+        "solve": info,
+    }
+
+
+def _camera_advice(entry: dict, grid: np.ndarray, solved: bool, settings: GuidanceSettings) -> tuple[str | None, float]:
+    """Words for one camera, or None when it needs nothing, and how badly it needs them (for the
+    worst-first order): a camera without frames or outside the solve first, then by the larger
+    of its sigma over the target and the coverage goal over its coverage."""
+    cid, frames, shared = entry["id"], entry["frames"], entry["shared_frames"]
+    sigma, fraction = entry["center_std_mm"], entry["coverage"]
+    target, goal = settings.target_std_mm, settings.min_coverage
+    if frames == 0:
+        return (f"{cid} has not seen both wand ends yet; check that it is on and aimed at the volume, then wave "
+                f"the wand in its view"), float("inf")
+    neighbours = sorted(entry["linked"], key=lambda d: -entry["linked"][d])[:2]
+    near = f" and {' or '.join(neighbours)}" if neighbours else ""
+    linking = (f"{cid} shares only {shared} frames with the others; wave the wand where {cid}{near} see it "
+               "together")
+    if not solved:
+        if shared >= FEW_SHARED_FRAMES:  # enough frames, but they did not place it (left out of the solve)
+            return (f"{cid} could not be placed from the {shared} frames it shares with the others; wave the wand "
+                    f"where {cid}{near} see it together, near and far"), 1e6 - shared
+        return linking, 1e6 - shared
+    parts, severity = [], 0.0
+    coverage_words = coverage_advice(grid, cid, goal)
+    if coverage_words is not None:
+        parts.append(coverage_words.removeprefix(f"{cid}: "))
+        severity = max(severity, goal / max(fraction, 1e-3))
+    if sigma is not None and sigma >= target:
+        if shared < FEW_SHARED_FRAMES:
+            parts.append(linking.removeprefix(f"{cid} "))
+        else:
+            parts.append(f"its centre is known to +-{sigma:.2f} mm (goal {target:g} mm); keep waving in its view "
+                         "where other cameras see the wand too")
+        severity = max(severity, sigma / target)
+    if not parts:
+        return None, 0.0
+    return f"{cid}: " + "; ".join(parts), severity
+

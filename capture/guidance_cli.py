@@ -1,0 +1,108 @@
+"""``wandcal guidance CAPTURE``, and the guidance lines ``wandcal capture`` prints as it records."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from calib.guidance import DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM, GuidanceSettings
+
+COVERED, EMPTY = "#", "."  # a coverage grid cell with / without wand samples, in the printed grids
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("guidance", help="judge a capture's wanding: per camera coverage, links and "
+                              "predicted centre 1-sigma; enough?",
+                              description="Print the wanding guidance of a points-level capture (docs/api.md, "
+                                          "'Guidance'): where each camera still needs the wand, and whether the "
+                                          "capture is enough.")
+    p.add_argument("capture", type=Path, help="points-level capture folder (rig.json, wand.csv)")
+    add_guidance_options(p)
+    p.add_argument("--grid", action="store_true", help="also draw each camera's coverage grid")
+    p.add_argument("--json", action="store_true", help="print the wandcal-guidance/1 document instead")
+    p.set_defaults(run=run_guidance)
+
+
+def add_guidance_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--target-mm", type=_positive, default=DEFAULT_TARGET_STD_MM, metavar="MM",
+                   help=f"enough when every camera's predicted centre 1-sigma is below this (default "
+                        f"{DEFAULT_TARGET_STD_MM:g} mm)")
+    p.add_argument("--min-coverage", type=_share, default=DEFAULT_MIN_COVERAGE, metavar="SHARE",
+                   help=f"... and its image grid is covered at least this much, 0-1 (default {DEFAULT_MIN_COVERAGE:g})")
+
+
+def settings_from(args) -> GuidanceSettings:
+    return GuidanceSettings(target_std_mm=args.target_mm, min_coverage=args.min_coverage)
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _share(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must lie between 0 and 1 (a share of the image grid), got {text}")
+    return value
+
+
+def run_guidance(args) -> int:
+    from calib.guidance import wanding_guidance
+    from capture.folder import read_capture
+
+    capture = read_capture(args.capture)
+    document = wanding_guidance(capture.rig, capture.wand, capture.static, settings_from(args)).document
+    if args.json:
+        print(json.dumps(document, indent=2))
+        return 0
+    for line in guidance_lines(document, grids=args.grid):
+        print(line)
+    return 0
+
+
+def _sigma(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
+def summary(document: dict) -> str:
+    """One line for a status display: the worst sigma and coverage, and the verdict."""
+    cams = document["cameras"]
+    solved = [(c["center_std_mm"], c["id"]) for c in cams if c["center_std_mm"] is not None]
+    worst = max(solved) if solved else None
+    sigma = f"worst σ {worst[0]:.2f} mm ({worst[1]})" if worst else "σ: not solved yet"
+    cov, cid = min((c["coverage"], c["id"]) for c in cams)
+    verdict = "ENOUGH: you can stop" if document["enough"] else f"{len(document['advice'])} camera(s) need more"
+    return f"{sigma} · least covered {cov:.0%} ({cid}) · {verdict}"
+
+
+def guidance_lines(document: dict, grids: bool = False) -> list[str]:
+    """The per-camera table, the verdict and the advice, worst first."""
+    target = document["target"]
+    lines = [f"{'camera':<10} {'frames':>7} {'shared':>7} {'coverage':>9} {'centre σ mm':>12}  linked most with"]
+    for c in document["cameras"]:
+        best = sorted(c["linked"].items(), key=lambda kv: -kv[1])[:2]
+        links = ", ".join(f"{d} {n}" for d, n in best)
+        lines.append(f"{c['id']:<10} {c['frames']:>7} {c['shared_frames']:>7} {c['coverage']:>9.0%} "
+                     f"{_sigma(c['center_std_mm']):>12}  {links}")
+        if grids:
+            lines += [f"{'':<10} {''.join(COVERED if n else EMPTY for n in row)}" for row in c["grid"]]
+    solve = document["solve"]
+    if not solve["ok"]:
+        lines.append(f"fast solve: {solve['message']}")
+    goal = f"every camera's centre σ below {target['center_std_mm']:g} mm and coverage at least {target['coverage']:.0%}"
+    if document["enough"]:
+        lines.append(f"enough: yes, you can stop waving ({goal})")
+    else:
+        lines.append(f"enough: not yet ({goal}); what to do, worst first:")
+        lines += [f"  {k}. {a}" for k, a in enumerate(document["advice"], 1)]
+    return lines
