@@ -5,6 +5,7 @@ from __future__ import annotations
 import secrets
 from dataclasses import dataclass
 from typing import Annotated
+from urllib.parse import unquote
 
 from fastapi import Depends, HTTPException, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -30,18 +31,28 @@ def get_state(request: Request) -> AppState:
 State = Annotated[AppState, Depends(get_state)]
 
 _bearer = HTTPBearer(auto_error=False, description="required when the server was given a token (WANDCAL_TOKEN)")
+# The page sets this cookie (SameSite=Strict) beside its Authorization header, so that a link it
+# opens in a tab of its own (a job's report and its images) is let in. It is honoured for reads
+# only (GET, HEAD): a request that changes anything needs the header, so a cookie cannot be
+# ridden into one, and SameSite keeps other sites from sending it at all.
+TOKEN_COOKIE = "wandcal_token"
+SAFE_METHODS = ("GET", "HEAD")
 
 
 def require_token(
-    state: State, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]
+    state: State, request: Request, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]
 ) -> None:
     expected = state.settings.token
     if expected is None:
         return
     challenge = {"WWW-Authenticate": "Bearer"}
-    if credentials is None:
+    if credentials is not None:
+        given = credentials.credentials
+    elif request.method in SAFE_METHODS and TOKEN_COOKIE in request.cookies:
+        given = unquote(request.cookies[TOKEN_COOKIE])  # the page percent-encodes it
+    else:
         raise HTTPException(401, "missing bearer token; send 'Authorization: Bearer <token>'", headers=challenge)
-    if not secrets.compare_digest(credentials.credentials.encode(), expected.encode()):
+    if not secrets.compare_digest(given.encode(), expected.encode()):
         raise HTTPException(401, "wrong bearer token; use the token the server was started with", headers=challenge)
 
 

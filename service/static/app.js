@@ -6,6 +6,13 @@ const POLL_MS = 1000;  // progress is written every 0.2 s; once a second is enou
 const CLOCK_SLACK_S = 2;  // the Date header has whole seconds: a smaller difference is its rounding, not skew
 const VIEW = { azimuth: -0.6, elevation: 0.45 };  // radians: a three-quarter view from above
 let token = new URLSearchParams(location.hash.slice(1)).get("token") || localStorage.getItem("wandcal-token") || "";
+// links opened in a tab of their own (a job's report) cannot send the Authorization header: the
+// server also takes the token from this cookie, for reads only (service/api/deps.py)
+const setTokenCookie = () => {
+  document.cookie = `wandcal_token=${encodeURIComponent(token)}; path=${API}; SameSite=Strict`
+    + (token ? "" : "; max-age=0");
+};
+setTokenCookie();
 let shownJob = null;
 let serverSkewS = 0;  // server clock minus this browser's, from the Date header: wait_deadline is server time
 const SIGMA_HISTORY = 120;  // guidance updates kept per camera for its sparkline: two minutes at one a second
@@ -279,6 +286,8 @@ $("#live-continue").addEventListener("click", (e) => liveAction(e.currentTarget,
 $("#live-stop").addEventListener("click", (e) => liveAction(e.currentTarget, "/capture/stop",
   "Stop the live capture? What was recorded so far is kept and stored."));
 $("#live-autostop").addEventListener("change", (e) => setAutostop(e.currentTarget));
-$("#token").addEventListener("change", (e) => { token = e.target.value; localStorage.setItem("wandcal-token", token); poll(); });
+$("#token").addEventListener("change", (e) => {
+  token = e.target.value; localStorage.setItem("wandcal-token", token); setTokenCookie(); poll();
+});
 poll();
 setInterval(poll, POLL_MS);

@@ -265,7 +265,7 @@ def test_report_of_the_real_easywand_session(tmp_path):
 
 def test_report_over_http(make_server, small_capture, tmp_path):
     folder, sim = small_capture
-    server = make_server(workers=1).start()
+    server = make_server(workers=1, token="lab-token").start()
     with server.client() as c:
         capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
         job = wait_job(c, c.post("/jobs", json={"capture_id": capture_id}).json()["id"])
@@ -299,10 +299,22 @@ def test_report_over_http(make_server, small_capture, tmp_path):
             assert bad.status_code == 404, (name, bad.status_code)
             assert "SQLite" not in bad.text
 
+    # a link the page opens in a tab of its own sends no Authorization header: the token comes from
+    # the page's cookie, honoured for reads only
+    import httpx
+
+    report = f"{server.url}/api/v1/jobs/{job_id}/report/"
+    assert httpx.get(report).status_code == 401
+    assert httpx.get(report, cookies={"wandcal_token": "not-it"}).status_code == 401
+    for name in ("", RIG_PNG):
+        assert httpx.get(report + name, cookies={"wandcal_token": "lab-token"}).status_code == 200
+    riding = httpx.post(f"{server.url}/api/v1/jobs", json={"capture_id": capture_id}, cookies={"wandcal_token": "lab-token"})
+    assert riding.status_code == 401  # a cookie cannot be ridden into a change
+
     if CHROMIUM:  # the page links the report of a finished job
         dom = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
                               "--disable-background-networking", f"--user-data-dir={tmp_path / 'profile'}",
-                              "--virtual-time-budget=5000", "--dump-dom", server.url + "/"],
+                              "--virtual-time-budget=5000", "--dump-dom", server.url + "/#token=lab-token"],
                              capture_output=True, text=True, timeout=120)
         assert f'href="/api/v1/jobs/{job_id}/report"' in dom.stdout
 
