@@ -66,6 +66,26 @@ def _recover_recording(store: CaptureStore, data_dir: Path, staging: Path, captu
                 "and upload its rig.json, wand.csv and static.csv, or copy it under the replay root")
 
 
+def keep_failed_recording(store: CaptureStore, staging: Path, capture_id: str) -> Path | None:
+    """A live recording that failed before it became a capture (its points level does not read,
+    the disk filled, a device failed mid-set): its recorded sets are moved to ``recovered/<id>``,
+    as a crash's are, and that folder is returned; a staging folder with no recorded set is
+    deleted (None)."""
+    sync = staging / "sync.csv"
+    try:
+        recorded = sync.is_file() and sync.stat().st_size > 0 and len(sync.read_bytes().splitlines()) > 1
+    except OSError:
+        recorded = False
+    if not recorded:
+        shutil.rmtree(staging, ignore_errors=True)
+        return None
+    target = store.root.parent / RECOVERED_DIR / capture_id
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staging.rename(target)
+    log.warning("a failed live recording is kept in %s", target)
+    return target
+
+
 def register_orphans(store: CaptureStore) -> list[str]:
     """Register capture folders that have no database row (a crash between the folder's rename
     and its row, or a database rebuilt after corruption)."""

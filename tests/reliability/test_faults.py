@@ -256,6 +256,37 @@ def test_the_trigger_vanishing_during_a_live_capture_keeps_what_was_recorded(tmp
         assert [int(r.split(",")[1]) for r in rows] == list(range(40))  # every pulse the board sent is a set
 
 
+def test_a_live_recording_that_cannot_be_registered_keeps_its_sets(tmp_path, monkeypatch):
+    """The recording ends but cannot become a capture (here its registration fails as on a disk
+    that just filled): its sets and images are moved to recovered/<id>, as a crash's are, and the
+    status says where and what to run."""
+    import errno
+
+    from drivers.trigger_emulator import EmulatorProcess
+
+    app = create_app(Settings(data_dir=tmp_path / "data", workers=0))
+    store = app.state.wandcal.captures
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(store, "adopt", full)
+    with EmulatorProcess() as emu, \
+            TestClient(app, base_url="http://127.0.0.1/api/v1", raise_server_exceptions=False) as c:
+        r = c.post("/capture/start", json={"cameras": ["sim://?cameras=2&seed=3&frames=30"], "trigger": emu.url,
+                                           "frames": 30, "rate_hz": 100, "images": "all", "guidance": False})
+        assert r.status_code == 202, r.text
+        status = poll(lambda: (s := c.get("/capture").json())["state"] in ("done", "failed") and s, "the capture's end")
+    kept = tmp_path / "data" / "recovered" / r.json()["capture_id"]
+    assert status["state"] == "failed" and "No space left" in status["error"]
+    assert str(kept) in status["error"] and "wandcal detect" in status["error"]
+    assert status["capture_id"] is None  # nothing registered
+    assert len((kept / "sync.csv").read_text().splitlines()) == 1 + 30
+    assert len(list(kept.glob("frames/*/*.png"))) == 2 * 30  # every image the cameras sent
+    assert read_capture(kept).wand.frame.size > 0  # and the centroids recorded as they came
+    assert not list((tmp_path / "data" / "captures").glob(".*.partial"))
+
+
 def test_a_stalled_camera_does_not_hold_the_capture(tmp_path):
     """cam2 stops delivering after frame 50 (a stalled USB camera): the capture goes on at the
     trigger's pace, keeps every set with cam2's slot empty, and says so."""

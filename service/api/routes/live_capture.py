@@ -1,7 +1,8 @@
 """Live capture: ``wandcal capture`` driven over HTTP, one at a time, into the data directory.
 
-A capture records into a staging folder ``captures/.<capture id>.partial`` (removed at the next
-start if the server dies mid-capture), detecting every frame as it arrives and writing the points
+A capture records into a staging folder ``captures/.<capture id>.partial`` (kept by the next start
+if the server dies mid-capture, and moved to ``recovered/<capture id>`` if the recording fails
+before it becomes a capture: service/recovery.py), detecting every frame as it arrives and writing the points
 level as it goes (images as the start request asks); then the folder becomes the stored capture
 ``<capture id>``, ready for ``POST /jobs``. While it records, its wanding guidance is kept up to
 date (``GET /captures/<capture id>/guidance``), and it may stop itself once that says enough.
@@ -16,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import shutil
 import threading
 import time
 import uuid
@@ -35,6 +35,7 @@ from capture.session import Progress, record
 from drivers.errors import DriverError
 from service.api.deps import State
 from service.guidance import guidance_settings
+from service.recovery import keep_failed_recording
 from service.schemas import ErrorPublic, LiveCaptureCreate, LiveCapturePublic, LiveCaptureState, LiveCaptureUpdate
 from service.settings import DEFAULT_CONTINUE_TIMEOUT_S, GuidanceConfig
 from service.storage import CaptureStore
@@ -247,11 +248,23 @@ class LiveCapture:
             self._update(state=LiveCaptureState.failed if error else LiveCaptureState.done, error=error,
                          phase=None, finished=time.time())
         except Exception as exc:  # the thread's end: the status is where the failure is reported
-            self._update(state=LiveCaptureState.failed, error=str(exc) or type(exc).__name__, phase=None,
-                         finished=time.time(), capture_id=run.capture_id if registered else None)
-        finally:
+            error = str(exc) or type(exc).__name__
             if not registered:
-                shutil.rmtree(staging, ignore_errors=True)
+                kept = _keep(self.store, staging, run.capture_id)
+                if kept is not None:
+                    error += (f"; the recorded sets are kept in {kept}: run 'wandcal detect {kept}' (with other "
+                              "detection settings if no wand was found) and upload its points level")
+            self._update(state=LiveCaptureState.failed, error=error, phase=None,
+                         finished=time.time(), capture_id=run.capture_id if registered else None)
+
+
+def _keep(store: CaptureStore, staging: Path, capture_id: str) -> Path | None:
+    """The failed recording's sets moved to ``recovered/<id>``; when even that fails (a full disk
+    can refuse the new folder), the staging folder stays for the next start's recovery."""
+    try:
+        return keep_failed_recording(store, staging, capture_id)
+    except OSError:
+        return None
 
 
 def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack, store: CaptureStore):
