@@ -5,12 +5,14 @@
 | ``captures/.<id>.partial`` of an upload (points level only) | deleted: the upload was never answered 201, the client sends it again |
 | ``captures/.<id>.partial`` of a live recording (``sync.csv``, ``frames/``, ``capture.json``) | its rows cut mid-line by the kill are dropped; registered as capture ``<id>`` when its points level reads, else moved to ``recovered/<id>`` (an image-level capture folder for ``wandcal detect``) |
 | a capture folder without a database row (killed between the two) | registered |
+| wand.csv rows of a streamed frame set killed before its commit | cut: the unanswered client sends the set again |
 | spooled upload bodies in ``tmp/`` | deleted |
 | a corrupt database | moved aside by :func:`service.db.init_db`; every capture folder is registered again |
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import shutil
@@ -18,7 +20,7 @@ from pathlib import Path
 
 from capture.folder import STATIC_FILE, WAND_FILE, read_capture
 from service.db import connect
-from service.storage import CAPTURE_ID, CaptureStore
+from service.storage import CAPTURE_ID, WAND_PAIR, CaptureStore
 
 log = logging.getLogger("wandcal.service")
 
@@ -39,6 +41,7 @@ def recover(store: CaptureStore, data_dir: Path) -> list[str]:
             continue
         done.append(_recover_recording(store, data_dir, staging, capture_id))
     done += register_orphans(store)
+    done += trim_uncommitted_rows(store)
     spool = Path(data_dir) / SPOOL_DIR
     if spool.is_dir():
         for leftover in spool.iterdir():
@@ -84,6 +87,28 @@ def keep_failed_recording(store: CaptureStore, staging: Path, capture_id: str) -
     staging.rename(target)
     log.warning("a failed live recording is kept in %s", target)
     return target
+
+
+def trim_uncommitted_rows(store: CaptureStore) -> list[str]:
+    """A kill between a streamed frame set's wand.csv append and its COMMIT leaves rows that no
+    frame-set row owns, at the file's end (a capture's appends are serialised); its client, never
+    answered, sends the set again. They are cut, so the retry does not double them: a stream
+    capture's file holds its header and two rows per committed camera pair."""
+    with connect(store.db_path) as conn:
+        rows = conn.execute("SELECT id, counts FROM captures WHERE source = 'stream'").fetchall()
+    done = []
+    for capture_id, counts in rows:
+        path = store.folder(capture_id) / WAND_FILE
+        committed = 1 + WAND_PAIR * sum(c["pairs"] for c in json.loads(counts).values())
+        try:
+            lines = path.read_bytes().splitlines(keepends=True)
+        except OSError:
+            continue  # a missing file is register_orphans's and read_capture's to report
+        if len(lines) > committed:
+            os.truncate(path, sum(map(len, lines[:committed])))
+            done.append(f"capture {capture_id}: cut {len(lines) - committed} wand.csv rows of a frame set whose "
+                        "commit a crash interrupted (its client was not answered and sends it again)")
+    return done
 
 
 def register_orphans(store: CaptureStore) -> list[str]:

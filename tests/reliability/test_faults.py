@@ -22,6 +22,7 @@ from calib.detect import render_blobs
 from calib.rig import Camera, Rig
 from capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json
 from service.main import create_app
+from service.db import connect
 from service.recovery import RECOVERED_SOURCE
 from service.settings import Settings
 from tests.reliability.servers import poll
@@ -193,6 +194,31 @@ def _fill(path: Path) -> None:
                 fh.flush()
         except OSError:
             pass
+
+
+def test_a_frame_set_killed_before_its_commit_is_not_doubled_by_its_retry(tmp_path):
+    """A SIGKILL between a streamed frame set's wand.csv append and its COMMIT leaves its rows in
+    the file and no frame-set row; the client, never answered, sends it again after the restart."""
+    settings = Settings(data_dir=tmp_path / "data", workers=0, framesets_per_second=1e6)
+    with TestClient(create_app(settings), base_url="http://127.0.0.1/api/v1") as c:
+        stream = c.post("/captures", files={RIG_FILE: (RIG_FILE, json.dumps(rig_to_json(_small_rig())).encode())}).json()
+        assert c.post(f"/captures/{stream['id']}/framesets", data={"frame": "0"}, files=_frameset(0)).status_code == 201
+        wand = tmp_path / "data" / "captures" / stream["id"] / WAND_FILE
+        before = wand.read_bytes()
+        assert c.post(f"/captures/{stream['id']}/framesets", data={"frame": "1"}, files=_frameset(1)).status_code == 201
+        frame_1 = wand.read_bytes()[len(before):]
+    # the state the kill leaves: frame 1's rows appended, its transaction never committed
+    with connect(settings.db_path) as conn:
+        conn.execute("DELETE FROM framesets WHERE capture_id = ? AND frame = 1", (stream["id"],))
+        conn.execute("UPDATE captures SET counts = ?, frames = 1, framesets = 1 WHERE id = ?",
+                     (json.dumps({"a": {"blobs": 2, "pairs": 1}, "b": {"blobs": 2, "pairs": 1}}), stream["id"]))
+    assert wand.read_bytes() == before + frame_1
+    with TestClient(create_app(settings), base_url="http://127.0.0.1/api/v1") as c:  # the restart
+        assert wand.read_bytes() == before
+        assert c.post(f"/captures/{stream['id']}/framesets", data={"frame": "1"}, files=_frameset(1)).status_code == 201
+        assert c.get(f"/captures/{stream['id']}").json()["frames"] == 2
+    assert wand.read_bytes() == before + frame_1  # once, not twice
+    assert np.bincount(read_capture(wand.parent).wand.frame).tolist() == [4, 4]
 
 
 def test_a_full_disk_answers_507_and_loses_nothing(small_disk, capture_folder, caplog):
