@@ -61,8 +61,13 @@ NOISE_PX = 0.3
 
 
 def scene(cameras: int, frames: int, outliers: float, seed: int = 1):
-    """(sim, setup from the perturbed start)."""
-    sim = simulate_capture(cameras, frames, NOISE_PX, outliers, False, seed)
+    """(sim, labelled wand, setup from the perturbed start)."""
+    return perturbed_start(simulate_capture(cameras, frames, NOISE_PX, outliers, False, seed), seed)
+
+
+def perturbed_start(sim, seed: int):
+    """(sim, labelled wand, setup): labelled at the true poses, started 1 deg and 3 cm off them."""
+    cameras = len(sim.rig.cameras)
     rng = np.random.default_rng(seed + 100)
     pairs = wand_pairs(sim.rig, sim.wand)
     R, t = sim.truth.R.copy(), sim.truth.t.copy()
