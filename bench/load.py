@@ -33,6 +33,7 @@ class Run:
     seconds: float = 0.0
     lost: int = 0
     statuses: dict[int, int] = field(default_factory=dict)
+    sets: int = 0  # frame sets carried, where a request carries many (blob sets)
 
     @property
     def count(self) -> int:
@@ -153,6 +154,51 @@ def stream_framesets(client: httpx.Client, capture_id: str, pool: list, count: i
             pairs[cam] = pairs.get(cam, 0) + 1
     run.lost = (count - len(acknowledged)) + abs(stored["framesets"] - len(acknowledged)) + sum(
         abs(cov["pairs"] - pairs.get(cov["id"], 0)) for cov in stored["coverage"])
+    return run
+
+
+def blob_set_batches(sim, count: int, batch: int) -> list[list[dict]]:
+    """``count`` frame sets of ``sim`` as the blob-set requests' JSON, ``batch`` sets a request
+    (frame numbers 0..count-1, the simulated frames cycled). Built before any timing."""
+    ids, w = sim.rig.ids, sim.wand
+    frames = int(w.frame.max()) + 1
+    per_frame: list[dict] = [{} for _ in range(frames)]
+    for f, cam, uv in zip(w.frame.tolist(), w.camera.tolist(), w.uv.tolist()):
+        per_frame[f].setdefault(ids[cam], []).append(uv)
+    sets = [{"frame": f, "blobs": per_frame[f % frames]} for f in range(count)]
+    return [sets[k:k + batch] for k in range(0, count, batch)]
+
+
+def stream_blobsets(client: httpx.Client, capture_id: str, batches: list[list[dict]], concurrency: int,
+                    rate_hz: float | None = None) -> Run:
+    """Post the batches (``concurrency`` in flight, paced so that ``rate_hz`` frame sets a second
+    go out, if given); then every acknowledged set must be stored, as in :func:`stream_framesets`.
+    The Run counts frame sets, not requests: its latencies are per request."""
+    size = len(batches[0])
+    run = Run(f"blob sets, {size} a request, {concurrency} in flight" + (f", paced at {rate_hz:g}/s" if rate_hz else ""))
+    lock, acknowledged = threading.Lock(), []
+    start = time.perf_counter()
+
+    def one(k: int) -> None:
+        if rate_hz:
+            delay = start + k * size / rate_hz - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+        r = _timed(run, lock, lambda: client.post(f"/captures/{capture_id}/blobsets", json={"sets": batches[k]}))
+        if r.status_code == 201:
+            with lock:
+                acknowledged.append(r.json())
+
+    with ThreadPoolExecutor(concurrency) as pool_:
+        list(pool_.map(one, range(len(batches))))
+    run.seconds = time.perf_counter() - start
+    sent = sum(map(len, batches))
+    stored = client.get(f"/captures/{capture_id}").json()
+    stored_sets = sum(a["stored"] for a in acknowledged)
+    wand_rows = sum(a["wand_rows"] for a in acknowledged)
+    run.lost = (sent - stored_sets) + abs(stored["framesets"] - stored_sets) + abs(
+        2 * sum(cov["pairs"] for cov in stored["coverage"]) - wand_rows)
+    run.sets = sent
     return run
 
 

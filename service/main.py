@@ -19,7 +19,7 @@ from fastapi.staticfiles import StaticFiles
 from calib.errors import CalibrationError
 from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
 from service.api.deps import AppState, require_token
-from service.api.routes import captures, guidance, health, jobs, live_capture
+from service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
 from service.db import disk_full, init_db
 from service.jobs import JobStore
 from service.limits import BodySizeLimit, RateLimiter
@@ -98,6 +98,7 @@ def create_app(settings: Settings) -> FastAPI:
     secured = [Depends(require_token)]
     app.include_router(health.router, prefix=API_PREFIX)
     app.include_router(captures.router, prefix=API_PREFIX, dependencies=secured)
+    app.include_router(blobsets.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(jobs.router, prefix=API_PREFIX, dependencies=secured)
     app.state.live_capture = live_capture.LiveCapture(capture_store, settings.capture_continue_timeout_s)
     app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)

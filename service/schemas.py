@@ -68,6 +68,37 @@ class FrameSetPublic(BaseModel):
     wand_cameras: list[str] = Field(description="cameras that saw exactly two blobs and added wand rows")
 
 
+MAX_BLOB_SETS = 5000  # per request: 50 s of a 100 fps rig, about 1 MB of JSON for 8 cameras
+MAX_BLOBS_PER_CAMERA = 64  # more bright spots than any wand frame shows; a camera seeing more is flooded
+FRAME_LIMIT = 10**12  # as the image frame sets' 12 digits
+
+
+class BlobSet(BaseModel):
+    """One synchronised frame set as centroids, as a camera that detects on board sends it."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    frame: int = Field(ge=0, lt=FRAME_LIMIT, description="frame-set index")
+    trigger_count: int | None = Field(None, ge=0, lt=FRAME_LIMIT)
+    blobs: dict[str, list[tuple[float, float]]] = Field(
+        description="camera id -> blob centres [u, v] in pixels of the raw image (origin at the top-left "
+        "pixel's centre, docs/conventions.md); a camera that saw nothing may be left out or given []",
+    )
+
+
+class BlobSetsCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    sets: list[BlobSet] = Field(min_length=1, max_length=MAX_BLOB_SETS)
+
+
+class BlobSetsPublic(BaseModel):
+    capture_id: str
+    stored: int = Field(description="frame sets stored by this request (all it sent)")
+    wand_rows: int = Field(description="wand.csv rows they added: two per camera that saw exactly two blobs")
+    framesets: int = Field(description="frame sets the capture now holds")
+
+
 Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: calib.pipeline.METHODS
 
 

@@ -232,6 +232,13 @@ class CaptureStore:
 
         Cameras that saw exactly the wand's two markers append two wand.csv rows.
         """
+        return self.append_framesets(capture_id, [(frame, trigger_count, blobs)])
+
+    def append_framesets(
+        self, capture_id: str, sets: list[tuple[int, int | None, dict[str, np.ndarray]]]
+    ) -> CaptureRow:
+        """Record frame sets ``(frame, trigger_count, blobs)`` all together or, if any frame is
+        already held (DuplicateFrameSet), none of them."""
         row = self.get(capture_id)
         if row.source != "stream":
             raise DuplicateFrameSet(
@@ -242,40 +249,47 @@ class CaptureStore:
         with self._lock(capture_id):
             size = path.stat().st_size
             try:
-                self._append(capture_id, frame, trigger_count, blobs, path)
+                self._append(capture_id, sets, path)
             except BaseException:
                 # the rows are appended before COMMIT: a failed commit (a full disk) or a failed
-                # append rolls the row back, and the file is cut back so no row or half row stays
+                # append rolls the rows back, and the file is cut back so no row or half row stays
                 if path.stat().st_size != size:
                     os.truncate(path, size)
                 raise
         return self.get(capture_id)
 
-    def _append(self, capture_id: str, frame: int, trigger_count: int | None, blobs: dict[str, np.ndarray],
-                path: Path) -> None:
-        """One frame set's row and its wand.csv rows, in one transaction. The counts are read
+    def _append(self, capture_id: str, sets: list[tuple[int, int | None, dict[str, np.ndarray]]], path: Path) -> None:
+        """The frame sets' rows and their wand.csv rows, in one transaction. The counts are read
         inside it: read before, two frame sets at once each added to the same old counts and one
         of them was lost (bench/bench_load.py found it)."""
+        frames = [f for f, _, _ in sets]
+        if len(set(frames)) != len(frames):
+            raise DuplicateFrameSet(f"a frame is given twice among the {len(frames)} frame sets sent together")
         with transaction(self.db_path) as conn:
-            exists = conn.execute(
-                "SELECT 1 FROM framesets WHERE capture_id = ? AND frame = ?", (capture_id, frame)
-            ).fetchone()
-            if exists:
-                raise DuplicateFrameSet(f"frame {frame} of capture {capture_id} was already received")
+            held = {r[0] for r in conn.execute(
+                "SELECT frame FROM framesets WHERE capture_id = ? AND frame BETWEEN ? AND ?",
+                (capture_id, min(frames), max(frames)),
+            )}
+            again = sorted(held.intersection(frames))
+            if again:
+                listed = ", ".join(map(str, again[:5])) + (f" and {len(again) - 5} more" if len(again) > 5 else "")
+                raise DuplicateFrameSet(f"frame {listed} of capture {capture_id} was already received")
             counts = json.loads(conn.execute("SELECT counts FROM captures WHERE id = ?", (capture_id,)).fetchone()[0])
-            lines = []
-            for cam, uv in blobs.items():
-                if len(uv) == WAND_PAIR:
+            lines, rows, wand_frames, now = [], [], 0, time.time()
+            for frame, trigger_count, blobs in sets:
+                pairs = [(cam, uv) for cam, uv in blobs.items() if len(uv) == WAND_PAIR]
+                for cam, uv in pairs:
                     lines += [f"{frame},{cam},{u:.4f},{v:.4f}\n" for u, v in uv]
                     counts[cam]["blobs"] += WAND_PAIR
                     counts[cam]["pairs"] += 1
-            conn.execute(
-                "INSERT INTO framesets (capture_id, frame, trigger_count, received, blobs) VALUES (?, ?, ?, ?, ?)",
-                (capture_id, frame, trigger_count, time.time(), json.dumps({c: len(uv) for c, uv in blobs.items()})),
+                wand_frames += bool(pairs)
+                rows.append((capture_id, frame, trigger_count, now, json.dumps({c: len(uv) for c, uv in blobs.items()})))
+            conn.executemany(
+                "INSERT INTO framesets (capture_id, frame, trigger_count, received, blobs) VALUES (?, ?, ?, ?, ?)", rows
             )
             conn.execute(
-                "UPDATE captures SET counts = ?, frames = frames + ?, framesets = framesets + 1 WHERE id = ?",
-                (json.dumps(counts), int(bool(lines)), capture_id),  # frame sets are unique per frame
+                "UPDATE captures SET counts = ?, frames = frames + ?, framesets = framesets + ? WHERE id = ?",
+                (json.dumps(counts), wand_frames, len(sets), capture_id),  # frame sets are unique per frame
             )
             if lines:
                 with open(path, "a") as fh:

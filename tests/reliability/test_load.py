@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from bench import load
 from calib.simulate import simulate_capture
 from capture.folder import RIG_FILE, rig_to_json
@@ -15,6 +17,7 @@ from tests.service.conftest import capture_files, simulated_capture
 UPLOADS, UPLOAD_CONCURRENCY = 16, 8
 JOBS, JOB_CONCURRENCY = 6, 3
 FRAMESETS, FRAMESET_CONCURRENCY, POOL = 12, 4, 4
+BLOB_SETS, BLOB_BATCH, BLOB_CONCURRENCY = 2000, 10, 4
 JOB_TIMEOUT_S = 120.0
 
 
@@ -46,6 +49,24 @@ def test_streamed_frame_sets_lose_nothing(server):
     expected = {cid: sum(len(pool[f % POOL][1][cid]) == 2 for f in range(FRAMESETS)) for cid in sim.rig.ids}
     assert {cov["id"]: cov["pairs"] for cov in stored["coverage"]} == expected
     print(f"\n{run.row('frame sets')}\nserver peak RSS {load.peak_rss_mb(srv.proc.pid):.0f} MB")
+
+
+def test_streamed_blob_sets_lose_nothing(server):
+    """2,000 frame sets of 8 cameras as centroids, 10 a request, 4 requests in flight."""
+    sim = simulate_capture(cameras=8, frames=200, noise_px=0.3, seed=1)
+    batches = load.blob_set_batches(sim, BLOB_SETS, BLOB_BATCH)
+    srv = server(workers=0)
+    with srv.client() as c:
+        c.timeout = load.REQUEST_TIMEOUT_S
+        capture = c.post("/captures", files={RIG_FILE: (RIG_FILE, json.dumps(rig_to_json(sim.rig)).encode())}).json()
+        run = load.stream_blobsets(c, capture["id"], batches, BLOB_CONCURRENCY)
+        assert run.statuses == {201: len(batches)} and run.lost == 0
+        stored = c.get(f"/captures/{capture['id']}").json()
+    # each camera's pairs: the simulated frames it saw both ends in, cycled
+    _, per = np.unique(sim.wand.frame * 8 + sim.wand.camera, return_counts=True)
+    assert stored["framesets"] == BLOB_SETS
+    assert sum(cov["pairs"] for cov in stored["coverage"]) == BLOB_SETS // 200 * int((per == 2).sum())
+    print(f"\n{run.row('requests')} ({run.sets / run.seconds:.0f} frame sets/s)")
 
 
 def test_concurrent_frame_sets_keep_every_count(tmp_path):
