@@ -12,6 +12,9 @@ GRID = (8, 8)  # rows, columns: cells of 160 x 128 px on a 1280 x 1024 image, ne
 MIN_SAMPLES_PER_CELL = 1  # a cell with at least one wand end seen in it counts as covered
 # the image split into thirds for the advice: (rows, columns) of the 3 x 3 regions, named as an operator sees them
 _THIRDS = ("top", "middle", "bottom"), ("left", "centre", "right")
+# with samples in this many of the 9 regions or fewer, the advice says where they are, not the
+# (longer) list of where they are not
+MAX_REGIONS_NAMED_AS_SEEN = 2
 
 
 def coverage_grid(xy: np.ndarray, width: int, height: int, grid: tuple[int, int] = GRID) -> np.ndarray:
@@ -39,15 +42,25 @@ def covered_fraction(counts: np.ndarray) -> float:
     return float(np.mean(counts >= MIN_SAMPLES_PER_CELL))
 
 
-def empty_regions(counts: np.ndarray) -> list[str]:
-    """The parts of the image without a sample, in words an operator can act on: whole thirds
-    ("the left third") first, then single regions of the 3 x 3 split ("the top-left")."""
+def _regions(counts: np.ndarray) -> np.ndarray:
+    """(3, 3) bools: which regions of the image's 3 x 3 split (of whole grid cells) hold a sample."""
     covered = counts >= MIN_SAMPLES_PER_CELL
     rows, cols = covered.shape
     r_edges = np.linspace(0, rows, 4).round().astype(int)
     c_edges = np.linspace(0, cols, 4).round().astype(int)
-    region = np.array([[covered[r_edges[i]:r_edges[i + 1], c_edges[j]:c_edges[j + 1]].any() for j in range(3)]
-                       for i in range(3)])
+    return np.array([[covered[r_edges[i]:r_edges[i + 1], c_edges[j]:c_edges[j + 1]].any() for j in range(3)]
+                     for i in range(3)])
+
+
+def _region_name(i: int, j: int) -> str:
+    """"the top-left", "the top-centre", "the middle-left", "the centre", ..."""
+    return "the centre" if (i, j) == (1, 1) else f"the {_THIRDS[0][i]}-{_THIRDS[1][j]}"
+
+
+def empty_regions(counts: np.ndarray) -> list[str]:
+    """The parts of the image without a sample, in words an operator can act on: whole thirds
+    ("the left third") first, then single regions of the 3 x 3 split ("the top-left")."""
+    region = _regions(counts)
     words, named = [], np.zeros((3, 3), bool)
     for j, side in ((0, "left"), (2, "right")):
         if not region[:, j].any():
@@ -57,24 +70,42 @@ def empty_regions(counts: np.ndarray) -> list[str]:
         if not region[i, :].any():
             words.append(f"the {side} third")
             named[i, :] = True
-    for i in range(3):
-        for j in range(3):
-            if not region[i, j] and not named[i, j]:
-                words.append("the centre" if (i, j) == (1, 1) else
-                             "the " + "-".join(w for w in (_THIRDS[0][i], _THIRDS[1][j]) if w not in ("middle", "centre")))
+    words += [_region_name(i, j) for i in range(3) for j in range(3) if not region[i, j] and not named[i, j]]
     return words
+
+
+def _seen(region: np.ndarray) -> str | None:
+    """Where the samples are, when that is shorter to say than where they are not: one third
+    ("the top third") or up to MAX_REGIONS_NAMED_AS_SEEN regions; else None."""
+    rows, cols = np.flatnonzero(region.any(1)), np.flatnonzero(region.any(0))
+    if region.sum() > MAX_REGIONS_NAMED_AS_SEEN:
+        if len(rows) == 1 and rows[0] != 1:
+            return f"the {_THIRDS[0][rows[0]]} third"
+        if len(cols) == 1 and cols[0] != 1:
+            return f"the {_THIRDS[1][cols[0]]} third"
+        return None
+    return _listed([_region_name(i, j) for i in range(3) for j in range(3) if region[i, j]]) if region.any() else None
+
+
+def _listed(words: list[str]) -> str:
+    return ", ".join(words[:-1]) + (" and " if len(words) > 1 else "") + words[-1]
 
 
 def coverage_advice(counts: np.ndarray, camera_id: str, min_fraction: float) -> str | None:
     """Words for the operator when a camera's coverage is short of ``min_fraction``, else None,
-    e.g. "cam2: no wand samples in the left third of its image; wave the wand there"."""
+    e.g. "cam2: no wand samples in the left third of its image; wave the wand there", or, when the
+    samples sit in a few regions only, where they are: "cam5: wand samples only in the top-left of
+    its image; wave the wand across the rest of its view"."""
     fraction = covered_fraction(counts)
     if fraction >= min_fraction:
         return None
+    tally = f"({fraction:.0%} covered, goal {min_fraction:.0%})"
+    seen = _seen(_regions(counts))
+    if seen:
+        return (f"{camera_id}: wand samples only in {seen} of its image {tally}; "
+                "wave the wand across the rest of its view")
     empty = empty_regions(counts)
     if not empty:
         return (f"{camera_id}: wand samples cover only {fraction:.0%} of its image (goal {min_fraction:.0%}); "
                 "wave the wand through the gaps of its view")
-    where = ", ".join(empty[:-1]) + (" and " if len(empty) > 1 else "") + empty[-1]
-    return (f"{camera_id}: no wand samples in {where} of its image ({fraction:.0%} covered, goal "
-            f"{min_fraction:.0%}); wave the wand there")
+    return f"{camera_id}: no wand samples in {_listed(empty)} of its image {tally}; wave the wand there"

@@ -32,3 +32,13 @@ def test_a_single_empty_corner_is_named():
     # the 3 x 3 regions follow the grid's cells: on an 8 x 8 grid the top-left one is 3 x 3 cells
     xy = xy[~((xy[:, 0] < 3 * W / 8) & (xy[:, 1] < 3 * H / 8))]
     assert empty_regions(coverage_grid(xy, W, H)) == ["the top-left"]
+
+
+def test_samples_confined_to_a_corner_or_a_third_are_named_where_they_are():
+    rng = np.random.default_rng(3)
+    corner = coverage_grid(rng.uniform([0, 0], [W / 3, H / 3], (500, 2)), W, H)
+    assert coverage_advice(corner, "cam5", 0.5).startswith("cam5: wand samples only in the top-left of its image")
+    strip = coverage_grid(rng.uniform([0, 0], [W, 0.3 * H], (500, 2)), W, H)
+    assert "only in the top third" in coverage_advice(strip, "cam5", 0.5)
+    two = coverage_grid(np.array([[10.0, 10.0], [W - 10.0, H - 10.0]]), W, H)
+    assert "only in the top-left and the bottom-right of its image" in coverage_advice(two, "cam5", 0.5)
