@@ -10,7 +10,7 @@ from pathlib import Path
 from calib.rig import Rig
 from capture.detect_cli import add_detect_options
 from capture.folder import read_rig
-from capture.guidance_cli import add_guidance_options
+from capture.guidance_cli import add_guidance_options, positive_number
 from capture.progress import StatusLine, bar
 from drivers.camera import CameraDriver
 from drivers.errors import DriverError
@@ -79,7 +79,7 @@ def _register_import(subparsers) -> None:
                    help="with a .mat: the intrinsics easyWand's result used (default) or the profile's estimates")
     e.add_argument("--wand", type=Path, metavar="CSV", help="wand points (2 tracks, y-up pixels) instead of a .mat")
     e.add_argument("--profile", type=Path, metavar="TXT", help="camera profile, with --wand")
-    e.add_argument("--wand-length", type=_positive, metavar="M", help="wand marker distance in metres, with --wand")
+    e.add_argument("--wand-length", type=positive_number, metavar="M", help="wand marker distance in metres, with --wand")
     e.add_argument("--background", type=Path, metavar="CSV", help="background (unpaired) points, with --wand")
     e.add_argument("--axis", type=Path, metavar="CSV", help="axis points (1-4 rows), with --wand")
     _common(e)
@@ -90,7 +90,7 @@ def _register_import(subparsers) -> None:
                                        "[--unpaired CSV] [--reference CSV] --out CAPTURE")
     a.add_argument("source", type=Path, metavar="PAIRED-xypts.csv", help="the wand's two tracks")
     a.add_argument("--profile", type=Path, required=True, metavar="TXT", help="Argus camera profile, a row per camera")
-    a.add_argument("--wand-length", type=_positive, required=True, metavar="M", help="wand marker distance, metres")
+    a.add_argument("--wand-length", type=positive_number, required=True, metavar="M", help="wand marker distance, metres")
     a.add_argument("--unpaired", type=Path, metavar="CSV", help="unpaired points -xypts.csv (written to points.csv)")
     a.add_argument("--reference", type=Path, metavar="CSV", help="reference points -xypts.csv (1-4 axis points)")
     _common(a)
@@ -99,7 +99,7 @@ def _register_import(subparsers) -> None:
     s = formats.add_parser("svoboda", help="a MultiCamSelfCal folder (points.dat, IdMat.dat, Res.dat)",
                            description="wandcal import svoboda FOLDER --out CAPTURE [--focal-px F]")
     s.add_argument("source", type=Path, metavar="FOLDER", help="the MultiCamSelfCal data folder")
-    s.add_argument("--focal-px", type=_positive, metavar="F",
+    s.add_argument("--focal-px", type=positive_number, metavar="F",
                    help="focal length for cameras without a .rad file (centred principal point, no distortion)")
     s.add_argument("--out", type=Path, required=True, help="new capture folder")
     s.set_defaults(run=run_import_svoboda)
@@ -109,16 +109,6 @@ def _common(p) -> None:
     p.add_argument("--height", type=_count(1), metavar="H",
                    help="image height in pixels of every camera, when the session's is wrong")
     p.add_argument("--out", type=Path, required=True, help="new capture folder")
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value
 
 
 def run_import_easywand(args) -> int:

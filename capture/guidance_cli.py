@@ -25,7 +25,7 @@ def register(subparsers) -> None:
 
 
 def add_guidance_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--target-mm", type=_positive, default=DEFAULT_TARGET_STD_MM, metavar="MM",
+    p.add_argument("--target-mm", type=positive_number, default=DEFAULT_TARGET_STD_MM, metavar="MM",
                    help=f"enough when every camera's predicted centre 1-sigma is below this (default "
                         f"{DEFAULT_TARGET_STD_MM:g} mm)")
     p.add_argument("--min-coverage", type=_share, default=DEFAULT_MIN_COVERAGE, metavar="SHARE",
@@ -36,7 +36,8 @@ def settings_from(args) -> GuidanceSettings:
     return GuidanceSettings(target_std_mm=args.target_mm, min_coverage=args.min_coverage)
 
 
-def _positive(text: str) -> float:
+def positive_number(text: str) -> float:
+    """argparse type: a finite number > 0."""
     try:
         value = float(text)
     except ValueError:
