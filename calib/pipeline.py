@@ -33,7 +33,7 @@ from calib.static import solve_static
 from calib.triangulate import reprojection_errors
 from calib.uncertainty import frame_noise, world_uncertainty
 from calib.verdict import judge
-from calib.world import apply, axis_points, world_frame
+from calib.world import apply, axis_points, static_fit_expectation, world_frame
 
 RESULT_FORMAT = "wandcal-result/1"
 METHODS = ("ba", "lp", "paper")
@@ -278,6 +278,7 @@ def _uncertainty_reports(cameras: list[dict], rig: Rig, r, world: dict, frame_da
     points = None
     if world["frame"] == "static_object":
         points = rig.static_markers
+        world.update(static_fit_expectation(rig, static, static_poses, r.R, r.t, world["cameras_used"]) or {})
     elif world["frame"] == "axis":
         points = np.array(list(axis_points(rig, axis, r.R, r.t).values())) @ Rw.T + tw
     frame_cov, origin = frame_noise(world, rig, points, r.covariance)

@@ -18,12 +18,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from calib.geometry import camera_centers, rotvec_to_matrix
 
 POSE_PARAMS = 6  # rotation increment (3), translation (3)
 STEP_RAD = 1e-7  # finite-difference steps: far above rounding (1e-16 / 1e-7 ~ 1e-9 relative),
 STEP_M = 1e-7  # far below the curvature of a rig's geometry over metres
+# the static fit's RMS agrees with the static blobs' noise up to this quantile of its chi-square
+FIT_AGREES = 0.99
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,9 +177,12 @@ def _frame_blocks(centers: np.ndarray, frame_cov: np.ndarray, origin: np.ndarray
 def frame_noise(world: dict, rig, points_world: np.ndarray | None, pc: PoseCovariance):
     """The world frame's own noise: (frame_cov (6, 6), origin (3,)), or (None, None).
 
-    - static object: a rigid fit to its markers, each coordinate off by the fit's own residual
-      spread (``fit_rms_m``, a 3D RMS, times sqrt(M / (3M - 6)) for the six fitted degrees of
-      freedom): it holds the static blobs' noise and the markers' placement errors alike;
+    - static object: a rigid fit to its markers, each coordinate off by the fit's residual spread
+      (a 3D RMS, times sqrt(M / (3M - 6)) for the six fitted degrees of freedom). That spread is
+      ``expected_fit_rms_m`` (calib.world.static_fit_expectation: the static blobs' own noise,
+      known from ~50 degrees of freedom) when the fit's own ``fit_rms_m`` agrees with it (at most
+      its 99th percentile); otherwise the markers sit off their given coordinates too, and the
+      fit's own RMS, which holds the blobs' noise and the placement errors alike, is used;
     - axis points: a fit to the triangulated points, each as uncertain as a single triangulated
       point (``pc.point_sigma_m``);
     - a frame built from the cameras and the wand alone has no noise of its own beyond theirs.
@@ -185,9 +191,13 @@ def frame_noise(world: dict, rig, points_world: np.ndarray | None, pc: PoseCovar
     """
     if world.get("frame") == "static_object" and points_world is not None:
         M = len(points_world)
+        dof = max(3 * M - 6, 1)
         # fit_rms is a 3D RMS over M markers: E[fit_rms^2] = sigma^2 (3M - 6) / M per coordinate
-        sigma_m = float(world.get("fit_rms_m", 0.0)) * np.sqrt(M / max(3 * M - 6, 1))
-        return registration_covariance(points_world, sigma_m)
+        rms = float(world.get("fit_rms_m", 0.0))
+        expected = world.get("expected_fit_rms_m")
+        if expected and rms**2 <= expected**2 * chi2.ppf(FIT_AGREES, dof) / dof:
+            rms = float(expected)  # the same noise, known from ~50 degrees of freedom instead of 6
+        return registration_covariance(points_world, rms * np.sqrt(M / dof))
     if world.get("frame") == "axis" and points_world is not None and pc.point_sigma_m > 0:
         return registration_covariance(points_world, pc.point_sigma_m)
     return None, None

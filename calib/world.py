@@ -134,12 +134,7 @@ def _static_fit(rig: Rig, static: StaticObservations, static_poses, R, t):
     for cams in ([unique] if len(unique) >= 2 else []) + [usable]:
         if len(cams) < 2:
             continue
-        point, camera, xy = [], [], []
-        for c in cams:
-            point.append(static_poses[c].labels)
-            camera.append(np.full(len(static_poses[c].labels), c))
-            xy.append(undistort_points(rig.cameras[c], static.for_camera(c)))
-        point, camera, xy = np.concatenate(point), np.concatenate(camera), np.concatenate(xy)
+        point, camera, xy = _static_views(rig, static, static_poses, cams)
         X = triangulate_points(R, t, point, camera, xy, len(markers))
         ok = np.all(np.isfinite(X), axis=1)
         if ok.sum() < 3:
@@ -148,6 +143,56 @@ def _static_fit(rig: Rig, static: StaticObservations, static_poses, R, t):
         rms = float(np.sqrt(np.mean(np.sum((X[ok] @ Rw.T + tw - markers[ok]) ** 2, 1))))
         return Rw, tw, rms, [rig.cameras[c].id for c in cams]
     return None
+
+
+def _static_views(rig: Rig, static: StaticObservations, static_poses, cams: list[int]):
+    """(marker index (K,), camera index (K,), normalised xy (K, 2)) of the identified static blobs."""
+    point, camera, xy = [], [], []
+    for c in cams:
+        point.append(static_poses[c].labels)
+        camera.append(np.full(len(static_poses[c].labels), c))
+        xy.append(undistort_points(rig.cameras[c], static.for_camera(c)))
+    return np.concatenate(point), np.concatenate(camera), np.concatenate(xy)
+
+
+def static_fit_expectation(rig: Rig, static: StaticObservations, static_poses, R: np.ndarray, t: np.ndarray,
+                           cameras_used: list[str]) -> dict | None:
+    """What the static fit's RMS would be if the static blobs' noise alone moved the triangulated
+    markers, from the blobs' own reprojection residuals (2K - 3M degrees of freedom, ~50 on an
+    8-camera rig, against the fit's 3M - 6 = 6 for an L-frame of 4 markers).
+
+    Returns {"static_blob_rms_px": the blobs' reprojection RMS against their triangulated markers
+    (corrected for the fitted points), "expected_fit_rms_m": that noise's fit RMS}, or None when
+    the blobs leave no degree of freedom. calib/uncertainty.py takes the frame's noise from this
+    when the fit agrees with it, and from the fit's own RMS when the markers sit off their given
+    coordinates (a mis-measured or bent L-frame)."""
+    ids = [c.id for c in rig.cameras]
+    cams = [ids.index(c) for c in cameras_used]
+    point, camera, xy = _static_views(rig, static, static_poses, cams)
+    M = len(rig.static_markers)
+    X = triangulate_points(R, t, point, camera, xy, M)
+    keep = np.all(np.isfinite(X[point]), axis=1)
+    point, camera, xy = point[keep], camera[keep], xy[keep]
+    used = np.unique(point)
+    dof = 2 * len(point) - 3 * len(used)
+    if dof < 1 or len(used) < 3:
+        return None
+    Xc = np.einsum("kij,kj->ki", R[camera], X[point]) + t[camera]
+    proj = Xc[:, :2] / Xc[:, 2:]
+    f = np.array([[c.K[0, 0], c.K[1, 1]] for c in rig.cameras])[camera]
+    rms_px = float(np.sqrt(np.sum(((xy - proj) * f) ** 2) / dof))
+    # each marker's information: sum over its views of J^T J, J the projection's 2x3 derivative in
+    # pixels, over the blobs' variance
+    x, y, z = proj[:, 0], proj[:, 1], Xc[:, 2]
+    d = np.zeros((len(point), 2, 3))
+    d[:, 0, 0] = d[:, 1, 1] = 1 / z
+    d[:, 0, 2], d[:, 1, 2] = -x / z, -y / z
+    J = f[:, :, None] * np.einsum("kab,kbc->kac", d, R[camera])
+    info = np.zeros((M, 3, 3))
+    np.add.at(info, point, np.einsum("kai,kaj->kij", J, J) / rms_px**2)
+    spread = sum(float(np.trace(np.linalg.inv(info[m]))) for m in used)  # sum of the markers' variances
+    n = len(used)
+    return {"static_blob_rms_px": rms_px, "expected_fit_rms_m": float(np.sqrt(spread / n * (3 * n - 6) / (3 * n)))}
 
 
 def axis_points(rig: Rig, axis: AxisObservations, R: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
