@@ -7,6 +7,7 @@
 | a capture folder without a database row (killed between the two) | registered |
 | wand.csv rows of a streamed frame set killed before its commit | cut: the unanswered client sends the set again |
 | spooled upload bodies in ``tmp/`` | deleted |
+| ``reports/.<job id>.<random>.partial`` of a report being drawn | deleted: the next request draws it again |
 | a corrupt database | moved aside by :func:`service.db.init_db`; every capture folder is registered again |
 """
 
@@ -20,6 +21,7 @@ from pathlib import Path
 
 from capture.folder import STATIC_FILE, WAND_FILE, read_capture
 from service.db import connect
+from service.report.store import REPORTS_DIR
 from service.storage import CAPTURE_ID, WAND_PAIR, CaptureStore
 
 log = logging.getLogger("wandcal.service")
@@ -47,6 +49,9 @@ def recover(store: CaptureStore, data_dir: Path) -> list[str]:
         for leftover in spool.iterdir():
             if leftover.is_file():
                 leftover.unlink(missing_ok=True)
+    # a report whose drawing a crash cut short: the next request draws it again (service/report/store.py)
+    for half in (Path(data_dir) / REPORTS_DIR).glob(".*.partial"):
+        shutil.rmtree(half, ignore_errors=True)
     for line in done:
         log.warning("%s", line)
     return done

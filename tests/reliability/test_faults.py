@@ -133,6 +133,20 @@ def test_sigkill_during_a_live_recording_keeps_every_recorded_set(server):
     assert len(missing) <= bound and all(f >= frames[-1] - bound for f in missing)
 
 
+def test_a_half_drawn_report_is_cleared_at_start(tmp_path):
+    """A kill while a report is drawn leaves its staging folder; the start removes it (the next
+    request draws the report again) and leaves finished reports alone."""
+    reports = tmp_path / "data" / "reports"
+    half = reports / f".{'a' * 32}.{'b' * 32}.partial"
+    done = reports / ("c" * 32)
+    for folder in (half, done):
+        folder.mkdir(parents=True)
+        (folder / "rig.png").write_bytes(b"png")
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data", workers=0)), base_url="http://127.0.0.1/api/v1"):
+        pass
+    assert not half.exists() and (done / "rig.png").is_file()
+
+
 def test_corrupt_database_at_start(server, capture_folder):
     """A database SQLite cannot read is moved aside (kept), a new one is made, and every capture
     is registered again from its folder: the captures survive, the job records stay in the moved file."""
