@@ -34,7 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from bench.common import replace_section  # noqa: E402
-from bench.detect_real import background_rows, openptv_rows, regression_rows  # noqa: E402
+from bench.detect_real import background_rows, openptv_rows, regression_rows, touching_rows  # noqa: E402
 from calib.detect import DetectConfig, detect_blobs, detect_many, render_blobs  # noqa: E402
 from calib.simulate import simulate_capture  # noqa: E402
 from capture.folder import rig_to_json  # noqa: E402
@@ -251,6 +251,8 @@ def main() -> int:
     parser.add_argument("--real-only", action="store_true", help="only the section 'Detection on real images'")
     parser.add_argument("--background-frames", type=int, default=40,
                         help="rendered frames per bit depth for the background models' rows")
+    parser.add_argument("--touching-pairs", type=int, default=200,
+                        help="rendered pairs of touching spots per row of the touching-spots table")
     parser.add_argument("--before", default=BEFORE_REV, metavar="REV",
                         help=f"git revision of calib/detect.py to time side by side (default {BEFORE_REV})")
     args = parser.parse_args()
@@ -348,6 +350,9 @@ def real_section(args) -> None:
     lines, about = background_rows(args.background_frames)
     print("\n".join(lines))
     parts.append("### Background models on rendered frames\n\n" + about + "\n\n" + "\n".join(lines))
+    lines, about = touching_rows(args.touching_pairs)
+    print("\n".join(lines))
+    parts.append("### Touching spots on rendered frames\n\n" + about + "\n\n" + "\n".join(lines))
     lines, about = regression_rows(args.before, args.frames, REPEATS * 2 + 1)
     print("\n".join(lines))
     parts.append("### Speed against the detector before\n\n" + about + "\n\n" + "\n".join(lines))

@@ -79,23 +79,33 @@ def _check_image(image: np.ndarray, where: str = "image") -> np.ndarray:
 
 
 def auto_threshold(image: np.ndarray, peak: float, config: DetectConfig = DEFAULT_CONFIG,
-                   stats: tuple[float, float] | None = None) -> float:
+                   stats: tuple[float, float] | None = None, noise: float | None = None) -> float:
     """The automatic threshold of :class:`DetectConfig` for ``image``, a grey level.
 
     Args:
         image: (H, W) uint8 or uint16 (the residual after the background model).
         peak: the image's maximum grey level (the caller has it already).
         stats: ``calib.background.sample_stats(image)`` when the caller has it already.
+        noise: for a high-passed residual, the pixel noise sigma of the frame it came from
+            (:func:`calib.background.pixel_noise`), grey levels. The threshold is then the
+            median plus ``auto_noise_sigmas`` of it, with no peak term: on a cluttered frame the
+            sample's spread counts faint and out-of-focus particles as noise, and its peak is
+            glare or a saturated particle (OpenPTV's cavity: 18-24 grey that way, 9-10 this way,
+            against OpenPTV's hand-set 9-11; docs/decisions/0012).
     """
     background, upper = bg.sample_stats(image) if stats is None else stats
-    sigma = upper - background
-    margin = max(config.auto_noise_sigmas * sigma, config.auto_peak_fraction * (peak - background))
+    if noise is not None:
+        margin = config.auto_noise_sigmas * max(noise, bg.MIN_NOISE_GREY)
+    else:
+        sigma = upper - background
+        margin = max(config.auto_noise_sigmas * sigma, config.auto_peak_fraction * (peak - background))
     # At least one grey level above the background, or a flat frame would be all "blob".
     return float(np.ceil(background + max(margin, 1.0)))
 
 
 def _residual(image: np.ndarray, config: DetectConfig, background: np.ndarray | None):
-    """(residual image, background model used, sample stats of the residual or None)."""
+    """(residual image, background model used, sample stats of the residual or None, pixel noise
+    of the frame for the automatic threshold of a high-passed residual or None)."""
     model = config.background
     if model in STATEFUL:
         if background is None:
@@ -103,24 +113,26 @@ def _residual(image: np.ndarray, config: DetectConfig, background: np.ndarray | 
                 f"background {model!r} needs the camera's own background image; pass background= "
                 "(calib.background.median_background of an empty-volume recording), or detect with "
                 "calib.detect.CameraDetector")
-        return bg.subtract(image, background, f"{model} background"), model, None
+        return bg.subtract(image, background, f"{model} background"), model, None, None
     if background is not None:
         raise CalibrationError(f"background= is an image to subtract, used with background 'empty' or "
                                f"'running'; this DetectConfig says {model!r}")
     if model == "none":
-        return image, "none", None
+        return image, "none", None, None
     if model == "auto":
         # With an automatic threshold its sample serves the flatness test too; with a fixed one a
         # coarser sample is enough.
         auto = config.threshold is None
         stats = bg.sample_stats(image, bg.SAMPLE_STEP if auto else bg.FLAT_SAMPLE_STEP)
         if bg.is_flat(image, stats):
-            return image, "none", stats if auto else None
-    return bg.highpass(image, config.highpass_px), "highpass", None
+            return image, "none", stats if auto else None, None
+    # The noise of the frame, not of the residual: the high-pass clips half its pixels to zero.
+    noise = bg.pixel_noise(image, bg.NOISE_SAMPLE_STEP) if config.threshold is None else None
+    return bg.highpass(image, config.highpass_px), "highpass", None, noise
 
 
 def _detect_residual(residual: np.ndarray, model: str, config: DetectConfig, mask: MaskIndex | None,
-                     stats=None) -> tuple[Blobs, np.ndarray]:
+                     stats=None, noise: float | None = None) -> tuple[Blobs, np.ndarray]:
     """The blobs of a background-subtracted image, and their (K, 4) bounding boxes."""
     if config.threshold is None and stats is None:
         stats = bg.sample_stats(residual)  # before masking: blocked zeros would pull the median down
@@ -129,7 +141,8 @@ def _detect_residual(residual: np.ndarray, model: str, config: DetectConfig, mas
     height, width = residual.shape
     row_max = residual.max(axis=1)
     peak = float(row_max.max())
-    threshold = auto_threshold(residual, peak, config, stats) if config.threshold is None else float(config.threshold)
+    threshold = auto_threshold(residual, peak, config, stats, noise) if config.threshold is None \
+        else float(config.threshold)
     no_boxes = np.zeros((0, 4), np.int64)
     if peak <= threshold:
         return Blobs.empty(threshold, model), no_boxes
@@ -137,7 +150,7 @@ def _detect_residual(residual: np.ndarray, model: str, config: DetectConfig, mas
     if not len(table):
         return Blobs.empty(threshold, model), no_boxes
     boxes = table[:, 5:9].astype(np.int64)
-    keep = table[:, 3] >= config.min_roundness
+    keep = table[:, 3] >= config.roundness_limit(model)
     if config.reject_border:
         keep &= (boxes[:, 0] > 0) & (boxes[:, 1] > 0) & (boxes[:, 2] < width - 1) & (boxes[:, 3] < height - 1)
         if mask is not None:
@@ -170,8 +183,8 @@ def detect_blobs(image: np.ndarray, config: DetectConfig | None = None, *,
     config = DEFAULT_CONFIG if config is None else config
     image = _check_image(image)
     index = None if mask is None else MaskIndex(mask, image.shape)
-    residual, model, stats = _residual(image, config, background)
-    return _detect_residual(residual, model, config, index, stats)[0]
+    residual, model, stats, noise = _residual(image, config, background)
+    return _detect_residual(residual, model, config, index, stats, noise)[0]
 
 
 class CameraDetector:
@@ -222,8 +235,8 @@ class CameraDetector:
             blobs, boxes = _detect_residual(residual, "running", self.config, self.mask)
             self.running.update(image, boxes)
             return blobs
-        residual, model, stats = _residual(image, self.config, self.background)
-        return _detect_residual(residual, model, self.config, self.mask, stats)[0]
+        residual, model, stats, noise = _residual(image, self.config, self.background)
+        return _detect_residual(residual, model, self.config, self.mask, stats, noise)[0]
 
     def bright(self, image: np.ndarray) -> np.ndarray:
         """(H, W) bool: the pixels of ``image`` above the detection threshold, before any mask.
@@ -233,10 +246,10 @@ class CameraDetector:
         """
         image = self._fit(image)
         config = self.config if self.running is None else self.config.replace(background="highpass")
-        residual, _, stats = _residual(image, config, self.background)
+        residual, _, stats, noise = _residual(image, config, self.background)
         if config.threshold is not None:
             return residual > config.threshold
-        return residual > auto_threshold(residual, float(residual.max()), config, stats)
+        return residual > auto_threshold(residual, float(residual.max()), config, stats, noise)
 
 
 def visible_mask(frames: Sequence[np.ndarray], detector: CameraDetector | None = None, **options) -> np.ndarray:

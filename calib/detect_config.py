@@ -43,6 +43,17 @@ DEFAULT_HIGHPASS_PX = 12
 # daylight drifting through a window or a lamp warming up.
 DEFAULT_RUNNING_FRAMES = 100.0
 
+# The automatic roundness limit (min_roundness=None) depends on the background model a frame got.
+# - A flat or subtracted background ("none", "empty", "running"): a marker seen by an IR camera.
+#   0.5 admits the 2:1 smear of a marker moving fast during the exposure and rejects streaks,
+#   edges and cables, and touching markers far enough apart to look 2:1 (docs/decisions/0003).
+MARKER_MIN_ROUNDNESS = 0.5
+# - The high-pass (a cluttered real scene: glare, a glowing wall, particles). Half of OpenPTV's
+#   isolated particles are rounder than 0.55 only, a tenth below 0.25: they are motion streaks,
+#   and a limit of 0.5 loses ~45 % of them (docs/decisions/0012). 0.1 (10:1) still drops long thin
+#   light, glass rims and cables; it lost 0.3 % of the isolated particles.
+CLUTTER_MIN_ROUNDNESS = 0.1
+
 
 @dataclass(frozen=True)
 class DetectConfig:
@@ -50,9 +61,13 @@ class DetectConfig:
 
     Args:
         threshold: grey level (a whole number) of the background-subtracted image; pixels strictly
-            brighter are blob pixels. ``None`` picks one per image: the background median plus the
-            larger of ``auto_noise_sigmas`` noise standard deviations and ``auto_peak_fraction``
-            of the (peak - background) range.
+            brighter are blob pixels. ``None`` picks one per image: the background median plus
+            ``auto_noise_sigmas`` noise standard deviations, or ``auto_peak_fraction`` of the
+            (peak - background) range if that is more. The noise is the spread of a pixel sample
+            of the frame, except after the high-pass: there it is the frame's pixel noise from
+            neighbouring-pixel differences (:func:`calib.background.pixel_noise`), and the peak
+            term is left out, because the spread and the peak of a cluttered frame measure its
+            particles and glare, not its noise (docs/decisions/0012).
         seed_ratio: hysteresis. Each 4-connected piece of a blob must hold a pixel brighter than
             ``seed_ratio * threshold``, or it is dropped; with ``connectivity=8`` the seeded pieces
             that touch at a corner are then one blob. 1 (the default) turns it off. OpenPTV grows
@@ -63,8 +78,10 @@ class DetectConfig:
         max_area_px: largest blob, in pixels. 1500 px is a disc of ~44 px diameter, far larger
             than a marker at working distance; bigger blobs are reflections, lamps or flares.
         min_roundness: smallest ratio of minor to major axis (sqrt of the eigenvalue ratio of the
-            weighted pixel covariance, plus the pixel footprint). 0.5 admits the 2:1 smear of a
-            marker moving fast during the exposure and rejects streaks, edges and cables.
+            weighted pixel covariance, plus the pixel footprint), in [0, 1]. ``None`` (the default)
+            picks it per frame from the background model used: :data:`MARKER_MIN_ROUNDNESS` (0.5)
+            on a flat or subtracted background, :data:`CLUTTER_MIN_ROUNDNESS` (0.1) after the
+            high-pass, whose frames are cluttered scenes with streaky particles.
         reject_border: drop blobs that touch the image edge or a masked pixel; part of such a blob
             is cut off, so its centroid is biased toward the inside.
         connectivity: 8 joins pixels that touch at a corner into one blob (a blurred marker is
@@ -77,14 +94,15 @@ class DetectConfig:
         auto_noise_sigmas: automatic threshold, noise term. At 6 sigma a Gaussian read noise
             lifts about one pixel in 10^9 above it, i.e. ~0.001 false pixels per 1.3 Mpx frame.
         auto_peak_fraction: automatic threshold, contrast term: keeps the faint halo of a bright
-            frame (and quantisation steps of a noise-free one) out of the blobs.
+            frame (and quantisation steps of a noise-free one) out of the blobs. Not used after the
+            high-pass, where the peak is often glare or a saturated particle.
     """
 
     threshold: int | None = None
     seed_ratio: float = 1.0
     min_area_px: int = 4
     max_area_px: int = 1500
-    min_roundness: float = 0.5
+    min_roundness: float | None = None
     reject_border: bool = True
     connectivity: int = 8
     weights: Weights = "excess"
@@ -109,8 +127,8 @@ class DetectConfig:
             raise bad("min_area_px", "a whole number >= 1")
         if not (_whole(self.max_area_px) and self.max_area_px >= self.min_area_px):
             raise bad("max_area_px", f"a whole number >= min_area_px ({self.min_area_px})")
-        if not (_real(self.min_roundness) and 0.0 <= self.min_roundness <= 1.0):
-            raise bad("min_roundness", "a number in [0, 1]")
+        if self.min_roundness is not None and not (_real(self.min_roundness) and 0.0 <= self.min_roundness <= 1.0):
+            raise bad("min_roundness", "a number in [0, 1] or None (automatic)")
         if not isinstance(self.reject_border, (bool, np.bool_)):
             raise bad("reject_border", "true or false")
         if self.connectivity not in (4, 8) or isinstance(self.connectivity, bool):
@@ -127,6 +145,12 @@ class DetectConfig:
             raise bad("auto_noise_sigmas", "a number >= 0")
         if not (_real(self.auto_peak_fraction) and 0.0 <= self.auto_peak_fraction < 1.0):
             raise bad("auto_peak_fraction", "a number in [0, 1)")
+
+    def roundness_limit(self, model: str) -> float:
+        """The smallest roundness kept on a frame that got background model ``model``."""
+        if self.min_roundness is not None:
+            return float(self.min_roundness)
+        return CLUTTER_MIN_ROUNDNESS if model == "highpass" else MARKER_MIN_ROUNDNESS
 
     def replace(self, **changes) -> DetectConfig:
         """A copy with ``changes`` applied (and validated)."""

@@ -11,7 +11,7 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-from calib.detect_config import DEFAULT_CONFIG, DetectConfig
+from calib.detect_config import CLUTTER_MIN_ROUNDNESS, DEFAULT_CONFIG, MARKER_MIN_ROUNDNESS, DetectConfig
 from calib.errors import CalibrationError
 
 # The background models a live capture can use today: it detects with one DetectConfig for every
@@ -65,6 +65,12 @@ def _threshold(text: str) -> int | None:
     return value
 
 
+def _roundness(text: str) -> float | None:
+    if text == "auto":
+        return None
+    return _number(0.0, 1.0)(text)
+
+
 def _number(low: float, high: float = float("inf"), whole: bool = False):
     def parse(text: str):
         try:
@@ -93,8 +99,10 @@ def add_detect_options(p: argparse.ArgumentParser, live: bool = False) -> None:
                    help=f"smallest blob in pixels (default {d.min_area_px})")
     g.add_argument("--max-area", type=_number(1, whole=True), default=d.max_area_px, metavar="PX",
                    help=f"largest blob in pixels (default {d.max_area_px})")
-    g.add_argument("--min-roundness", type=_number(0.0, 1.0), default=d.min_roundness, metavar="R",
-                   help=f"smallest minor/major axis ratio, 0-1 (default {d.min_roundness:g}; 0 keeps streaks)")
+    g.add_argument("--min-roundness", type=_roundness, default=d.min_roundness, metavar="R",
+                   help=f"smallest minor/major axis ratio, 0-1, or 'auto' (default: auto, {MARKER_MIN_ROUNDNESS:g} "
+                        f"on a flat background, {CLUTTER_MIN_ROUNDNESS:g} where the high-pass is used; 0 keeps "
+                        "streaks)")
     g.add_argument("--connectivity", type=int, choices=(4, 8), default=d.connectivity,
                    help=f"pixels touching at a corner join a blob with 8 (default {d.connectivity})")
     g.add_argument("--weights", choices=("excess", "signal"), default=d.weights,

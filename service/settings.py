@@ -60,7 +60,8 @@ class DetectGroup(BaseModel):
                               "this times the threshold (1: off; OpenPTV: 2)")
     min_area_px: int = Field(DETECT.min_area_px, ge=1, description="smallest blob, pixels")
     max_area_px: int = Field(DETECT.max_area_px, ge=1, description="largest blob, pixels")
-    min_roundness: float = Field(DETECT.min_roundness, ge=0, le=1, description="smallest minor/major axis ratio")
+    min_roundness: float | None = Field(DETECT.min_roundness, ge=0, le=1, description="smallest minor/major axis "
+                                        "ratio; null: automatic (0.5 on a flat background, 0.1 after the high-pass)")
     connectivity: Literal[4, 8] = DETECT.connectivity
     weights: Literal["excess", "signal"] = Field(DETECT.weights, description="centroid weights: grey level above "
                                                  "the threshold, or the grey level (OpenPTV's)")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.background import highpass, median_background, pixel_noise, sample_stats
+from calib.background import NOISE_SAMPLE_STEP, highpass, median_background, pixel_noise, sample_stats
 from calib.detect import (
     CameraDetector,
     DetectConfig,
@@ -14,6 +14,7 @@ from calib.detect import (
     render_blobs,
     visible_mask,
 )
+from calib.detect_config import CLUTTER_MIN_ROUNDNESS, MARKER_MIN_ROUNDNESS
 from calib.errors import CalibrationError
 from calib.masks import block_visible
 from tests.calib.test_detect import _random_spots
@@ -191,3 +192,72 @@ def test_signal_weights_are_the_grey_levels_themselves():
     w = image[ys, xs].astype(float)
     np.testing.assert_allclose(blobs.uv, [[(w * xs).sum() / w.sum(), (w * ys).sum() / w.sum()]], atol=1e-12)
     assert blobs.flux.tolist() == [w.sum()]
+
+
+def _relative_se_of_pair_median(pairs: int) -> float:
+    """Relative standard error of a noise sigma from the median of ``pairs`` absolute differences
+    of Gaussian pixel pairs: 1 / (2 f(m) sqrt(n)) at the median m of |N(0, 2 sigma^2)|."""
+    return 1.166 / np.sqrt(pairs)
+
+
+@pytest.mark.parametrize("sigma", [1.3, 2.0, 3.0])
+def test_pixel_noise_reads_between_whole_grey_levels(sigma):
+    # Neighbour differences of an 8-bit frame are whole grey levels; their plain median is 1 or 2
+    # (1.05 or 2.10 after scaling) for any noise between about 0.8 and 2.2. The grouped median
+    # places it inside its bin: the estimate follows the noise of the rounded pixels.
+    rng = np.random.default_rng(int(10 * sigma))
+    image = render_blobs((1024, 1280), np.zeros((0, 2)), background=40.0, noise=sigma, bit_depth=8, rng=rng)
+    rounded = np.sqrt(sigma**2 + 1.0 / 12.0)  # rounding adds a uniform error of variance 1/12
+    pairs = len(range(0, 1024, NOISE_SAMPLE_STEP)) * len(range(0, 1279, NOISE_SAMPLE_STEP))
+    assert abs(pixel_noise(image, NOISE_SAMPLE_STEP) / rounded - 1.0) <= 3 * _relative_se_of_pair_median(pairs)
+
+
+def test_highpass_threshold_follows_the_pixel_noise_not_the_clutter():
+    # A cluttered real scene: glare, and a haze of wide, faint out-of-focus particles whose light
+    # fills the pixel sample's upper percentiles. The sample's spread is then not the noise; the
+    # neighbour differences nearly are, as the haze changes little from one pixel to the next
+    # (docs/decisions/0012: OpenPTV's cavity gave 18-24 grey the old way, 8-10 this way).
+    rng = np.random.default_rng(8)
+    shape, sigma = (1024, 1280), 1.3
+    markers = _random_spots(rng, 12, shape, margin=40.0, spacing=60.0)
+    haze = rng.uniform([0, 0], [shape[1], shape[0]], (2000, 2))
+    light = render_blobs(shape, haze, rng.uniform(7.0, 10.0, len(haze)), rng.uniform(5.0, 14.0, len(haze)), 0.0)
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    light = light + 60.0 * np.exp(-((xx - 400.0) ** 2 + (yy - 300.0) ** 2) / (2 * 250.0**2))
+    image = render_blobs(shape, markers, 1.5, 150.0, 20.0, sigma, 8, rng).astype(float) + light
+    image = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    blobs = detect_blobs(image)
+    assert blobs.background == "highpass"
+    median, upper = sample_stats(highpass(image, DetectConfig().highpass_px))
+    assert upper - median >= 2 * sigma  # the haze fills the sample: the old rule's 6 "sigmas" are >= 12 sigma
+    # The noise the neighbour differences see: the pixels' own (with rounding) and, at most, half the
+    # mean square step of the noise-free light between neighbours; within 3 standard errors.
+    pairs = len(range(0, shape[0], NOISE_SAMPLE_STEP)) * len(range(0, shape[1] - 1, NOISE_SAMPLE_STEP))
+    tolerance = 3 * _relative_se_of_pair_median(pairs)
+    low = np.sqrt(sigma**2 + 1.0 / 12.0)
+    high = np.sqrt(low**2 + np.mean(np.diff(light, axis=1) ** 2) / 2.0)
+    assert np.floor(median + 6 * low * (1 - tolerance)) <= blobs.threshold <= np.ceil(median + 6 * high * (1 + tolerance))
+    assert blobs.threshold < median + 6 * (upper - median)
+    found = _errors(blobs.uv, markers)
+    assert np.all(found < 1.0) and np.sqrt(np.mean(found**2)) <= CENTROID_RMS_PX
+
+
+def test_roundness_limit_is_automatic_by_background_model():
+    # A particle smeared 4:1 by its motion (roundness ~0.3): on a dark frame of markers a streak
+    # is clutter (0.5 drops it); after the high-pass, on a cluttered scene, it is a particle and
+    # stays. A 40 px line (roundness ~0.1 or less: a cable, a glass rim) is dropped on both.
+    rng = np.random.default_rng(9)
+    smear = render_blobs(SHAPE, np.c_[np.linspace(100, 106, 13), np.full(13, 80.0)], 1.0, 60.0, 0.0)
+    line = render_blobs(SHAPE, np.c_[np.linspace(60, 100, 41), np.full(41, 180.0)], 0.8, 60.0, 0.0)
+    marker = np.array([[240.0, 120.0]])
+    flat = _frame(rng, marker, smear + line)
+    glowing = _frame(rng, marker, smear + line + _glow(rng))
+    on_flat, on_glow = detect_blobs(flat), detect_blobs(glowing)
+    assert on_flat.background == "none" and on_glow.background == "highpass"
+    assert len(on_flat) == 1 and np.all(_errors(on_flat.uv, marker) < 0.1)
+    assert len(on_glow) == 2 and np.all(_errors(on_glow.uv, np.vstack((marker, [[103.0, 80.0]]))) < 0.3)
+    # Any given limit applies to every frame, as before.
+    assert len(detect_blobs(glowing, DetectConfig(min_roundness=0.5))) == 1
+    assert len(detect_blobs(flat, DetectConfig(min_roundness=0.0))) == 3
+    assert DetectConfig().roundness_limit("none") == MARKER_MIN_ROUNDNESS
+    assert DetectConfig().roundness_limit("highpass") == CLUTTER_MIN_ROUNDNESS

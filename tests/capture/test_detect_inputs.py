@@ -109,6 +109,19 @@ def test_detection_options_reach_the_detector(capture):
     assert _kept(capture) == {i for i in range(FRAMES) if not _flickers(i)}
 
 
+def test_min_roundness_auto_leaves_the_choice_to_the_detector():
+    import argparse
+
+    from calib.detect_config import DetectConfig
+    from capture.detect_cli import add_detect_options, config_from_args
+
+    parser = argparse.ArgumentParser()
+    add_detect_options(parser)
+    assert config_from_args(parser.parse_args([])) == DetectConfig()
+    assert config_from_args(parser.parse_args(["--min-roundness", "auto"])).min_roundness is None
+    assert config_from_args(parser.parse_args(["--min-roundness", "0.5"])).min_roundness == 0.5
+
+
 @pytest.mark.parametrize(
     "args, message",
     [

@@ -24,6 +24,10 @@ ISOLATED_PX = 10.0  # reference targets with no other target this close: no spli
 # The issue's goals: isolated-target recall and median centroid difference after the convention.
 GOAL_ISOLATED_RECALL = 0.95
 GOAL_MEDIAN_PX = 0.1
+# What the default settings reach (docs/decisions/0012, addendum 2026-11-23): 3,116 of the 3,506
+# isolated targets. The goal's 95 % needs OpenPTV's own threshold to the grey level and its weights.
+DEFAULT_ISOLATED_RECALL = 3116 / 3506
+DETECTION_SIGMAS = 3  # a change must not lose more than 3 binomial standard errors of that recall
 OPENPTV_HIGHPASS_PX = 12  # OpenPTV's high-pass half-width ("dim_lp"; not in its .par files)
 OPENPTV_SEED_RATIO = 2.0  # OpenPTV grows targets only from peaks above twice the threshold
 TARGETS_DECIMALS = 4  # the _targets files print x, y with 4 decimals: +-5e-5 px
@@ -116,3 +120,27 @@ def test_defaults_see_past_the_glare(shared_data):
         found = np.sum(_nearest(blobs.uv, ref_uv)[0] < MATCH_RADIUS_PX)
         found_flat = np.sum(_nearest(flat.uv, ref_uv)[0] < MATCH_RADIUS_PX)
         assert found > 3 * found_flat
+
+
+def test_defaults_find_openptvs_isolated_targets(shared_data):
+    # The defaults alone: "auto" takes the high-pass, the threshold is 6 sigmas of the frames' pixel
+    # noise, the roundness limit that of a cluttered scene, and the weights stay ours ("excess").
+    root = shared_data / "openptv_test_cavity"
+    thresholds = _targ_rec(root)[0]
+    iso_hits = iso_total = 0
+    matched = []
+    for cam in CAMERAS:
+        image, ref = _read(root, cam)
+        ref_uv = ref[:, 1:3] - OPENPTV_OFFSET_PX
+        blobs = CameraDetector(camera=f"cam{cam}").detect(image)
+        assert blobs.background == "highpass"
+        # The automatic threshold lands within a grey level of OpenPTV's hand-set one (9/9/9/11).
+        assert abs(blobs.threshold - thresholds[cam - 1]) <= 1
+        d = _nearest(blobs.uv, ref_uv)[0]
+        ok, iso = d < MATCH_RADIUS_PX, _isolated(ref_uv)
+        iso_hits, iso_total = iso_hits + int(ok[iso].sum()), iso_total + int(iso.sum())
+        matched.append(d[ok])
+    recall = iso_hits / iso_total
+    se = np.sqrt(DEFAULT_ISOLATED_RECALL * (1 - DEFAULT_ISOLATED_RECALL) / iso_total)
+    assert recall >= DEFAULT_ISOLATED_RECALL - DETECTION_SIGMAS * se
+    assert np.median(np.concatenate(matched)) <= GOAL_MEDIAN_PX
