@@ -105,6 +105,21 @@ def _register_import(subparsers) -> None:
     s.set_defaults(run=run_import_svoboda)
 
 
+def _live_detectors(args, rig: Rig, config):
+    """The capture loop's detectors: one config for every camera, or, with masks or a per-camera
+    background model (an empty-volume recording, a running average), one detector per camera."""
+    from capture.detect_cli import mask_from_args
+    from capture.detect_setup import MASK_NONE, camera_detectors
+
+    mask = mask_from_args(args)
+    if mask == MASK_NONE and config.background not in ("empty", "running"):
+        return config
+    detectors, setups = camera_detectors(args.out, rig, config, mask=mask, empty=args.background.folder)
+    for setup in setups:
+        print(setup.line(), file=sys.stderr)
+    return [detectors[cid] for cid in rig.ids]
+
+
 def _common(p) -> None:
     p.add_argument("--height", type=_count(1), metavar="H",
                    help="image height in pixels of every camera, when the session's is wrong")
@@ -211,9 +226,10 @@ def run_capture(args) -> int:
         raise CalibrationError("--stop-when-enough needs the guidance; drop --no-guidance")
     from capture.detect_cli import config_from_args
 
-    detect = config_from_args(args, live=True)
+    config = config_from_args(args, live=True)
     cameras: list[CameraDriver] = [cam for url in args.camera for cam in open_cameras(url)]
     rig = _rig(args, cameras)
+    detect = _live_detectors(args, rig, config)
     trigger = open_trigger(args.trigger)
     status = StatusLine()
     guidance = LiveGuidance(rig, settings_from(args)) if args.guidance and rig.wand_length is not None else None

@@ -14,10 +14,6 @@ from pathlib import Path
 from calib.detect_config import CLUTTER_MIN_ROUNDNESS, DEFAULT_CONFIG, MARKER_MIN_ROUNDNESS, DetectConfig
 from calib.errors import CalibrationError
 
-# The background models a live capture can use today: it detects with one DetectConfig for every
-# camera, so the per-camera models (an empty-volume recording, a running average) are for
-# 'wandcal detect' on the recorded frames.
-LIVE_BACKGROUNDS = ("auto", "none", "highpass")
 
 
 @dataclass(frozen=True)
@@ -108,11 +104,17 @@ def add_detect_options(p: argparse.ArgumentParser, live: bool = False) -> None:
     g.add_argument("--weights", choices=("excess", "signal"), default=d.weights,
                    help="centroid weights: grey level above the threshold (excess, default) or the grey level "
                         "itself (signal, as OpenPTV)")
-    choices = "auto, none or highpass[:PX]" if live else "auto, none, highpass[:PX], running[:FRAMES] or empty[:FOLDER]"
+    empty = "empty:FOLDER (a recording of the empty volume)" if live else "empty[:FOLDER]"
     g.add_argument("--background", type=parse_background, default=BackgroundChoice(d.background), metavar="MODEL",
-                   help=f"what to subtract before thresholding: {choices} (default {d.background}: a high-pass "
-                        f"where the background is uneven; PX: half-width, default {d.highpass_px})")
-    if not live:
+                   help=f"what to subtract before thresholding: auto, none, highpass[:PX], running[:FRAMES] or "
+                        f"{empty} (default {d.background}: a high-pass where the background is uneven; PX: "
+                        f"half-width, default {d.highpass_px})")
+    if live:
+        g.add_argument("--mask", default="none", metavar="none|DIR",
+                       help="pixels to ignore per camera: DIR/<camera>.png (black = ignored; make them from a "
+                            "recording of the empty volume with 'wandcal detect EMPTY --mask auto', then give "
+                            "EMPTY/masks) or 'none' (default)")
+    else:
         g.add_argument("--mask", default="folder", metavar="auto|none|DIR",
                        help="pixels to ignore per camera: DIR/<camera>.png (black = ignored), 'auto' (block what "
                             "is bright in the empty-volume recording, saved to masks/) or 'none' (default: the "
@@ -122,10 +124,12 @@ def add_detect_options(p: argparse.ArgumentParser, live: bool = False) -> None:
 def config_from_args(args, live: bool = False) -> DetectConfig:
     """The :class:`DetectConfig` the options ask for (a bad combination raises CalibrationError)."""
     choice: BackgroundChoice = args.background
-    if live and choice.model not in LIVE_BACKGROUNDS:
-        raise CalibrationError(f"--background {choice.model}: a live capture detects with {', '.join(LIVE_BACKGROUNDS)}; "
-                               f"record with one of those, then run 'wandcal detect CAPTURE --background "
-                               f"{choice.model}' on the recorded frames")
+    if live and choice.model == "empty" and choice.folder is None:
+        raise CalibrationError("--background empty: a live capture has no empty-volume recording of its own yet; "
+                               "record one first (no markers in view) and give its folder: --background empty:FOLDER")
+    if live and args.mask == "auto":
+        raise CalibrationError("--mask auto: a live capture has no empty-volume recording of its own; record one, run "
+                               "'wandcal detect EMPTY --mask auto' on it, then capture with --mask EMPTY/masks")
     extra = {}
     if choice.model == "highpass" and choice.value is not None:
         extra["highpass_px"] = int(choice.value)

@@ -120,3 +120,42 @@ def test_killing_the_emulator_mid_capture_keeps_the_data(tmp_path):
     last = int(rows[-1]["frame"])
     assert (out / f"frames/cam1/{last:06d}.png").is_file() and (out / f"frames/cam2/{last:06d}.png").is_file()
     assert json.loads((out / "capture.json").read_text())["frame_sets"] == len(rows)
+
+
+def test_live_capture_with_masks_and_a_running_background(tmp_path, capsys):
+    """Masks made for the rig ignore what they block in the capture loop: cam1's left half is
+    blocked, so none of cam1's recorded centroids lie there, while cam2 keeps both halves."""
+    frames = 60
+    sim = f"sim://?cameras=2&seed=5&frames={frames}"
+    cam = open_cameras(sim)[0].scene.rig.cameras[0]
+    width, height = cam.width, cam.height
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    half = np.full((height, width), 255, np.uint8)
+    half[:, : width // 2] = 0
+    cv2.imwrite(str(masks / "cam1.png"), half)
+    cv2.imwrite(str(masks / "cam2.png"), np.full((height, width), 255, np.uint8))
+    out = tmp_path / "cap"
+    with EmulatorProcess() as emu:
+        code = main(["capture", "--camera", sim, "--trigger", emu.url, "--frames", str(frames), "--rate", "500",
+                     "--images", "none", "--no-guidance", "--mask", str(masks), "--background", "running",
+                     "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f"cam1: mask {masks / 'cam1.png'} blocks 50.00 % of the pixels" in err
+    with open(out / "blobs.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    u = {cam: np.array([float(r["u"]) for r in rows if r["camera"] == cam]) for cam in ("cam1", "cam2")}
+    assert len(u["cam1"]) and u["cam1"].min() >= width // 2
+    assert (u["cam2"] < width // 2).any() and (u["cam2"] >= width // 2).any()
+
+
+@pytest.mark.parametrize("options, words", [
+    (["--background", "empty"], "--background empty:FOLDER"),
+    (["--mask", "auto"], "wandcal detect EMPTY --mask auto"),
+])
+def test_live_per_camera_detection_needs_its_inputs(tmp_path, capsys, options, words):
+    code = main(["capture", "--camera", "sim://?cameras=2&frames=5", "--frames", "5", "--out", str(tmp_path / "c"),
+                 *options])
+    assert code == 2 and words in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()

@@ -168,11 +168,3 @@ def test_live_capture_detects_with_the_options(tmp_path):
     # No 8-bit pixel is brighter than 255: with that threshold the live detector finds nothing.
     assert main([*base, str(tmp_path / "dark"), "--threshold", "255"]) == 0
     assert len(read_capture(tmp_path / "dark").wand.frame) == 0
-
-
-def test_live_capture_refuses_per_camera_backgrounds(tmp_path, capsys):
-    code = main(["capture", "--camera", "sim://?cameras=2&seed=1", "--frames", "5", "--out", str(tmp_path / "c"),
-                 "--background", "running"])
-    assert code == 2
-    assert "wandcal detect CAPTURE --background running" in capsys.readouterr().err
-    assert not (tmp_path / "c").exists()
