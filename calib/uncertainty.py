@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from calib.geometry import camera_centers, rotvec_to_matrix
 
@@ -190,6 +189,8 @@ def frame_noise(world: dict, rig, points_world: np.ndarray | None, pc: PoseCovar
     points_world: (M, 3) the static markers or axis points in the world frame, or None.
     """
     if world.get("frame") == "static_object" and points_world is not None:
+        from scipy.stats import chi2  # here: 'wandcal calibrate --help' loads no scipy
+
         M = len(points_world)
         dof = max(3 * M - 6, 1)
         # fit_rms is a 3D RMS over M markers: E[fit_rms^2] = sigma^2 (3M - 6) / M per coordinate
