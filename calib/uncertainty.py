@@ -24,8 +24,9 @@ from calib.geometry import camera_centers, rotvec_to_matrix
 POSE_PARAMS = 6  # rotation increment (3), translation (3)
 STEP_RAD = 1e-7  # finite-difference steps: far above rounding (1e-16 / 1e-7 ~ 1e-9 relative),
 STEP_M = 1e-7  # far below the curvature of a rig's geometry over metres
-# the static fit's RMS agrees with the static blobs' noise up to this quantile of its chi-square
-FIT_AGREES = 0.99
+# the static fit's RMS agrees with the static blobs' noise up to the 99th percentile of its
+# chi-square: the standard normal's 99th percentile, for the Wilson-Hilferty approximation
+FIT_AGREES_Z = 2.3263
 
 
 @dataclass(frozen=True, eq=False)
@@ -173,6 +174,14 @@ def _frame_blocks(centers: np.ndarray, frame_cov: np.ndarray, origin: np.ndarray
     return out
 
 
+def _chi2_quantile(dof: int, z: float = FIT_AGREES_Z) -> float:
+    """The chi-square quantile of ``dof`` degrees of freedom at the normal quantile ``z``, by
+    Wilson and Hilferty's cube-root approximation (16.84 for the 99th percentile at 6 degrees of
+    freedom, exactly 16.81): a calibration loads no scipy."""
+    a = 2.0 / (9.0 * dof)
+    return dof * (1.0 - a + z * np.sqrt(a)) ** 3
+
+
 def frame_noise(world: dict, rig, points_world: np.ndarray | None, pc: PoseCovariance):
     """The world frame's own noise: (frame_cov (6, 6), origin (3,)), or (None, None).
 
@@ -189,14 +198,12 @@ def frame_noise(world: dict, rig, points_world: np.ndarray | None, pc: PoseCovar
     points_world: (M, 3) the static markers or axis points in the world frame, or None.
     """
     if world.get("frame") == "static_object" and points_world is not None:
-        from scipy.stats import chi2  # here: 'wandcal calibrate --help' loads no scipy
-
         M = len(points_world)
         dof = max(3 * M - 6, 1)
         # fit_rms is a 3D RMS over M markers: E[fit_rms^2] = sigma^2 (3M - 6) / M per coordinate
         rms = float(world.get("fit_rms_m", 0.0))
         expected = world.get("expected_fit_rms_m")
-        if expected and rms**2 <= expected**2 * chi2.ppf(FIT_AGREES, dof) / dof:
+        if expected and rms**2 <= expected**2 * _chi2_quantile(dof) / dof:
             rms = float(expected)  # the same noise, known from ~50 degrees of freedom instead of 6
         return registration_covariance(points_world, rms * np.sqrt(M / dof))
     if world.get("frame") == "axis" and points_world is not None and pc.point_sigma_m > 0:
