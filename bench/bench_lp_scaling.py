@@ -141,10 +141,10 @@ def main() -> int:
 {100 * START_METRES:g} cm off its true pose; BLAS on one thread; load average (1 min) {load_before[0]:.1f} before the run,
 {load_after[0]:.1f} after. Seconds (wall) and CPU seconds: median over runs and seeds; "/ ba": median over seeds of the
 ratio measured side by side; centre error: RMS over cameras and seeds in the gauge of the bundle
-adjustment; iterations: LP steps (lp), Levenberg-Marquardt iterations (ba); "HiGHS": the share of
-the wall time inside HiGHS.
+adjustment; iterations: LP steps (lp), Levenberg-Marquardt iterations (ba); "LP": the share of
+the wall time in the LP solves (interior point and HiGHS).
 
-| rig | outliers | method | seconds | / ba | CPU s | CPU / ba | centre error RMS (mm) | iterations | HiGHS | status |
+| rig | outliers | method | seconds | / ba | CPU s | CPU / ba | centre error RMS (mm) | iterations | LP | status |
 |---|---|---|---|---|---|---|---|---|---|---|
 {chr(10).join(rows)}
 """

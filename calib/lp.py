@@ -178,6 +178,18 @@ class IncrementalLp:
         self.h.run()
         return _result(self.h, time.perf_counter() - start)
 
+    def set_basis(self, basic: np.ndarray, at_upper: np.ndarray) -> None:
+        """Start the next solve from a basis: ``basic`` (n_columns,) mask of the basic columns
+        (as many as rows), the others at their upper bound where ``at_upper``, else at their
+        lower; the rows' slacks are nonbasic (the rows are equalities)."""
+        status = np.where(basic, highspy.HighsBasisStatus.kBasic,
+                          np.where(at_upper, highspy.HighsBasisStatus.kUpper, highspy.HighsBasisStatus.kLower))
+        basis = self.h.getBasis()
+        basis.col_status = list(status)
+        basis.row_status = [highspy.HighsBasisStatus.kLower] * self.m
+        basis.valid = True
+        self.h.setBasis(basis)
+
     def set_costs(self, columns: np.ndarray, cost: np.ndarray) -> None:
         idx = np.asarray(columns, dtype=np.int32)
         self.h.changeColsCost(len(idx), idx, np.asarray(cost, float))

@@ -2,9 +2,10 @@
 
 Each iteration linearises the pixel reprojection residuals of :class:`calib.wandmodel.WandModel`
 about the current state, eliminates every wand frame's 5 parameters per frame (points are
-independent once the cameras are known; calib/reduced.py), and solves one LP with HiGHS for the
-step ``d`` of all free cameras (3 rotation increments and 3 translations each) inside a trust
-region (calib/lpstep.py):
+independent once the cameras are known; calib/reduced.py), and solves one LP (an interior-point
+method whose basis HiGHS's simplex confirms; calib/ipm.py, calib/lp.py) for the step ``d`` of all
+free cameras (3 rotation increments and 3 translations each) inside a trust region
+(calib/lpstep.py):
 
     minimise  sum_i rho(a_i . d + b_i)   subject to  |d_j| <= radius_j,
 
