@@ -33,6 +33,15 @@ PLANAR_TOLERANCE = 1e-6  # relative thickness below which a marker set counts as
 # 0.41 s -> 0.25 s)
 SCREEN_RATIO = 30.0
 SCREEN_PX = 30.0
+# Markers on one line stay on one line in the image, in the same order (perspective keeps
+# betweenness for points in front of the camera): a labelling that puts a collinear triple's
+# blobs off a line, or its middle marker's blob outside the other two, is impossible and not
+# tried. An L-frame's 24 labellings become 2 (16 cameras: 0.32 s -> 0.09 s; the same poses and labels on 640 simulated camera views). The 3D test is
+# tight (a marker within 1 % of the triple's span from the line through the other two); the image
+# test is loose, so that distortion left in the blobs or a grazing view never rejects the right
+# labelling: it only spares the search labellings no pose can explain.
+COLLINEAR_3D = 0.01
+COLLINEAR_IMAGE = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,14 +115,23 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
     if n_assign > MAX_ASSIGNMENTS:
         return Failure(f"{where}: {n_assign} possible labellings of {k} blobs to {m} markers are too many to try")
     normal = _plane_normal(markers)
-    # SQPnP on every labelling screens them; the survivors also get every P3P start (a planar
-    # object's mirror pose, which SQPnP does not return)
+    lines = _collinear_triples(markers)
+    # SQPnP on every possible labelling screens them; the survivors also get every P3P start (a
+    # planar object's mirror pose, which SQPnP does not return)
     screened = []
     for perm in itertools.permutations(range(m), k):
         labels = np.array(perm)
+        if lines and not _keeps_lines(labels, xy, lines):
+            continue
         starts = _pnp_starts(markers[labels], xy, p3p=False)
         rms = [_rms_px(markers[labels], xy, R, t, focal_px) for R, t in starts]
         screened.append((min(rms, default=np.inf), labels))
+    if not screened:
+        return Failure(
+            f"{where}: the static-object markers cannot be identified: no labelling of its blobs puts the "
+            "object's collinear markers on one line in the image; check static_object.markers_m in rig.json and "
+            "that only its markers are visible"
+        )
     screen = max(SCREEN_RATIO * min((f[0] for f in screened), default=0.0), SCREEN_PX)
     starts = []
     for rms, labels in screened:
@@ -144,6 +162,39 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
     runner = distinct[0][0] if distinct else np.inf
     close = tuple((f[1], f[2]) for f in distinct if f[0] < AMBIGUITY_RATIO * max(rms, MIN_RMS_PX))
     return StaticPose(R=R, t=t, labels=labels, rms_px=rms, runner_up_px=float(runner), alternatives=close)
+
+
+def _collinear_triples(markers: np.ndarray) -> list[tuple[int, int, int]]:
+    """(end, middle, end) marker indices of every triple on one line (:data:`COLLINEAR_3D`)."""
+    out = []
+    for tri in itertools.combinations(range(len(markers)), 3):
+        p = markers[list(tri)]
+        for mid in range(3):
+            a, b = p[[i for i in range(3) if i != mid]]
+            span = np.linalg.norm(b - a)
+            s = (p[mid] - a) @ (b - a) / span**2 if span > 0 else -1.0
+            if 0 < s < 1 and np.linalg.norm(a + s * (b - a) - p[mid]) <= COLLINEAR_3D * span:
+                ends = [tri[i] for i in range(3) if i != mid]
+                out.append((ends[0], tri[mid], ends[1]))
+    return out
+
+
+def _keeps_lines(labels: np.ndarray, xy: np.ndarray, lines: list[tuple[int, int, int]]) -> bool:
+    """Whether the labelling ``labels`` (blob -> marker) puts every collinear triple it covers on
+    an image line, its middle marker between the other two (:data:`COLLINEAR_IMAGE`)."""
+    blob = {int(mk): b for b, mk in enumerate(labels)}
+    for a, mid, c in lines:
+        if a in blob and mid in blob and c in blob:
+            pa, pm, pc = xy[blob[a]], xy[blob[mid]], xy[blob[c]]
+            d = pc - pa
+            span2 = float(d @ d)
+            if span2 == 0:
+                continue
+            s = float((pm - pa) @ d) / span2
+            off = abs(float(d[0] * (pm - pa)[1] - d[1] * (pm - pa)[0])) / span2  # distance / span
+            if not (-COLLINEAR_IMAGE < s < 1 + COLLINEAR_IMAGE) or off > COLLINEAR_IMAGE:
+                return False
+    return True
 
 
 def _rms_px(obj: np.ndarray, xy: np.ndarray, R: np.ndarray, t: np.ndarray, focal_px: float) -> float:
