@@ -265,7 +265,8 @@ class _LevenbergMarquardt:
         status, message, iterations, evaluations = "iteration_limit", "most iterations reached", 0, 1
         last_ratio = np.inf
         for it in range(max_iter):
-            normal = self._normal(state, z)
+            self.recent = None  # one normal matrix alive at a time
+            normal = self.recent = self._normal(state, z)
             accepted = None
             while lam < LAMBDA_MAX:
                 step = schur.solve(normal, lam)
@@ -321,9 +322,13 @@ class _LevenbergMarquardt:
         """(n_free, c) standard errors of the cameras' parameters at the solution: sigma times the
         root diagonal of the undamped reduced system's inverse (0 for held parameters)."""
         last_state, z = getattr(self, "last", (None, None))
+        recent = getattr(self, "recent", None)
         if last_state is not state:
-            z = self._squared_errors(state)
-        normal = self._normal(state, z) if self.n_free else None
+            z, recent = self._squared_errors(state), None
+        # the last iteration's normal matrix, built at this state or one step before it: the run
+        # stopped when steps fell under stop_se standard errors, far below what moves a covariance
+        normal = (recent if recent is not None else self._normal(state, z)) if self.n_free else None
+        self.recent = None
         step = schur.solve(normal, 0.0) if self.n_free else None
         if step is None:
             return np.full((self.n_free, self.cam_size), np.inf)
