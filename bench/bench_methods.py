@@ -63,7 +63,7 @@ def measure(n_cams, n_frames, outliers, seed, repeats, methods):
             "centre": ec[1:], "rotation": er[1:],
             "crb_c": bound_c[1:], "crb_r": bound_r[1:],
             "iterations": info["iterations"],
-            "highs_share": info.get("lp_seconds", 0.0) / max(float(np.median(times)), 1e-12) if method != "ba" else 0.0,
+            "lp_share": info.get("lp_seconds", 0.0) / max(float(np.median(times)), 1e-12) if method != "ba" else 0.0,
             "wand_std": float(lengths.std()),
             "status": info["status"],
         }
@@ -102,7 +102,7 @@ def main() -> int:
                 crb_r = rms([r["rotation"] / r["crb_r"] for r in rs])
                 goal_rows.append(
                     f"| {label} | {method} | {t_ratio:.2f} | {c_ratio:.2f} | {r_ratio:.2f} | {crb_c:.2f} / {crb_r:.2f} | "
-                    f"{np.mean([r['iterations'] for r in rs]):.1f} | {100 * np.mean([r['highs_share'] for r in rs]):.0f}% |"
+                    f"{np.mean([r['iterations'] for r in rs]):.1f} | {100 * np.mean([r['lp_share'] for r in rs]):.0f}% |"
                 )
                 abs_rows.append(
                     f"| {label} | {method} | {np.median([r['seconds'] for r in rs]):.2f} | {1000 * rms([r['centre'] for r in rs]):.3f} | "
@@ -121,7 +121,7 @@ ratio is the median over seeds of (method time / `ba` time) measured in the same
 
 ### Goal table (LP performance issue)
 
-| rig | method | time / ba | centre error / clean ba | rotation error / clean ba | error / sqrt(CRB) (centre / rotation) | iterations | HiGHS share |
+| rig | method | time / ba | centre error / clean ba | rotation error / clean ba | error / sqrt(CRB) (centre / rotation) | iterations | LP share |
 |---|---|---|---|---|---|---|---|
 {chr(10).join(goal_rows)}
 
