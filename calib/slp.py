@@ -41,6 +41,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from calib.lpstep import GUARD_SE, solve_step
 from calib.reduced import ReducedSystem, residual_cost, robust_scale
@@ -110,6 +111,14 @@ def refine_lp(
         "converged", "iteration_limit", "time_limit" (an LP hit ``time_limit``: x is the best
         state reached before it) or "lp_<status>" (HiGHS failed; x likewise); irls_steps.
     """
+    # the dense products are small (a 186 x 186 Cholesky at 32 cameras): a second BLAS thread costs
+    # more in hand-offs than it gains, as in calib/ba.py (32 x 2000, bench_peers's scene: the LP solves
+    # took 1.6-2.0 s with two BLAS threads, 0.5 s with one)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme)
+
+
+def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme):
     if scheme not in SCHEMES:
         raise ValueError(f"scheme must be one of {SCHEMES}, not {scheme!r}")
     start = time.perf_counter()
