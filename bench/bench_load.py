@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import statistics
+from dataclasses import replace
 import sys
 import tempfile
 from pathlib import Path
@@ -96,12 +97,9 @@ def table(runs: dict, args, server_mb: float, worker_mb: float) -> str:
     for key, unit in units.items():
         for k, run in enumerate(runs[key]):
             label = run.what + (f" (run {k + 1} of {len(runs[key])})" if len(runs[key]) > 1 else "")
-            row = load.Run(label, run.latencies, run.seconds, run.lost).row(unit)
-            if run.sets:  # many sets a request: the throughput in sets, the latency per request
-                row = row.replace(f"| {run.rate:.1f} {unit}/s |", f"| {run.sets / run.seconds:.0f} {unit}/s |")
-            lines.append(row)
+            lines.append(replace(run, what=label).row(unit))
     stream_rates = [r.rate for r in runs["stream"]]
-    blob_rates = [r.sets / r.seconds for r in runs["blobs"]]
+    blob_rates = [r.rate for r in runs["blobs"]]
     blobs_paced = runs["blobs-paced"][0]
     lost = sum(r.lost for rs in runs.values() for r in rs)
     paced = runs["paced"][0]
@@ -117,7 +115,7 @@ def table(runs: dict, args, server_mb: float, worker_mb: float) -> str:
         f"Frame sets as centroids (`POST /captures/{{id}}/blobsets`, {BLOB_BATCH} sets a request, 8 cameras): median "
         f"**{statistics.median(blob_rates):,.0f} sets/s** over {len(blob_rates)} runs of {args.blobsets}, "
         f"{statistics.median(blob_rates) / RIG_RATE_HZ:.0f} times the rig's rate; paced at the rig's {RIG_RATE_HZ:g}/s "
-        f"it kept up ({blobs_paced.sets / blobs_paced.seconds:.1f} sets/s, p99 latency "
+        f"it kept up ({blobs_paced.rate:.1f} sets/s, p99 latency "
         f"{1000 * blobs_paced.percentile(99):.0f} ms a request). Nothing is decoded: this is the path for cameras "
         "that detect on board, as commercial ones do.",
         f"Peak memory: server {server_mb:.0f} MB, solver worker {worker_mb:.0f} MB (VmHWM). Lost: {lost} of "

@@ -44,7 +44,8 @@ class Run:
 
     @property
     def rate(self) -> float:
-        return self.count / self.seconds if self.seconds else float("nan")
+        """Requests a second, or frame sets a second where a request carries many."""
+        return (self.sets or self.count) / self.seconds if self.seconds else float("nan")
 
     def row(self, unit: str) -> str:
         return (f"| {self.what} | {self.count} | {self.rate:.1f} {unit}/s | {1000 * self.percentile(50):.0f} ms | "

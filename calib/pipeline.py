@@ -268,7 +268,8 @@ def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warni
 
 def _uncertainty_reports(cameras: list[dict], rig: Rig, r, world: dict, frame_data, Rw, tw, has_wand: bool) -> None:
     """Each camera's ``center_std_mm`` and ``rotation_std_deg`` in the world frame of the result
-    (calib/uncertainty.py); the centre's is None when the scale is arbitrary (no wand)."""
+    (calib/uncertainty.py); the centre's is None when the scale is arbitrary (no wand). A static
+    object's ``world`` gains the static blobs' noise it was judged by (calib.world.static_fit_expectation)."""
     static, static_poses, axis = frame_data
 
     def frame(Rp, tp, shift):

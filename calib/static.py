@@ -37,9 +37,10 @@ SCREEN_PX = 30.0
 # betweenness for points in front of the camera): a labelling that puts a collinear triple's
 # blobs off a line, or its middle marker's blob outside the other two, is impossible and not
 # tried. An L-frame's 24 labellings become 2 (16 cameras: 0.32 s -> 0.09 s; the same poses and
-# labels on 640 simulated camera views). The 3D test is tight (a marker within 1 % of the triple's span from the line through the other two); the image
-# test is loose, so that distortion left in the blobs or a grazing view never rejects the right
-# labelling: it only spares the search labellings no pose can explain.
+# labels on 640 simulated camera views). The 3D test is tight (a marker within 1 % of the triple's
+# span from the line through the other two); the image test is loose, so that distortion left in
+# the blobs or a grazing view never rejects the right labelling: it only spares the search
+# labellings no pose can explain.
 COLLINEAR_3D = 0.01
 COLLINEAR_IMAGE = 0.05
 

@@ -108,11 +108,12 @@ def _register_import(subparsers) -> None:
 def _live_detectors(args, rig: Rig, config):
     """The capture loop's detectors: one config for every camera, or, with masks or a per-camera
     background model (an empty-volume recording, a running average), one detector per camera."""
+    from calib.detect import STATEFUL
     from capture.detect_cli import mask_from_args
     from capture.detect_setup import MASK_NONE, camera_detectors
 
     mask = mask_from_args(args)
-    if mask == MASK_NONE and config.background not in ("empty", "running"):
+    if mask == MASK_NONE and config.background not in STATEFUL:
         return config
     detectors, setups = camera_detectors(args.out, rig, config, mask=mask, empty=args.background.folder)
     for setup in setups:

@@ -41,7 +41,7 @@ def recover(store: CaptureStore, data_dir: Path) -> list[str]:
         if not any((staging / mark).exists() for mark in RECORDING_MARKS) or not CAPTURE_ID.match(capture_id):
             shutil.rmtree(staging, ignore_errors=True)
             continue
-        done.append(_recover_recording(store, data_dir, staging, capture_id))
+        done.append(_recover_recording(store, staging, capture_id))
     done += register_orphans(store)
     done += trim_uncommitted_rows(store)
     spool = Path(data_dir) / SPOOL_DIR
@@ -57,7 +57,7 @@ def recover(store: CaptureStore, data_dir: Path) -> list[str]:
     return done
 
 
-def _recover_recording(store: CaptureStore, data_dir: Path, staging: Path, capture_id: str) -> str:
+def _recover_recording(store: CaptureStore, staging: Path, capture_id: str) -> str:
     for name in (WAND_FILE, STATIC_FILE):
         drop_cut_last_line(staging / name)
     try:
@@ -67,9 +67,7 @@ def _recover_recording(store: CaptureStore, data_dir: Path, staging: Path, captu
         return (f"a live recording cut short by a crash is capture {capture_id} ({len(capture.wand)} wand rows); "
                 "its images are beside it")
     except (ValueError, OSError) as exc:  # CaptureFormatError: no readable points level yet
-        target = Path(data_dir) / RECOVERED_DIR / capture_id
-        target.parent.mkdir(parents=True, exist_ok=True)
-        staging.rename(target)
+        target = _move_to_recovered(store, staging, capture_id)
         return (f"a live recording cut short by a crash is kept in {target} ({exc}); run 'wandcal detect {target}' "
                 "and upload its rig.json, wand.csv and static.csv, or copy it under the replay root")
 
@@ -81,16 +79,22 @@ def keep_failed_recording(store: CaptureStore, staging: Path, capture_id: str) -
     deleted (None)."""
     sync = staging / "sync.csv"
     try:
-        recorded = sync.is_file() and sync.stat().st_size > 0 and len(sync.read_bytes().splitlines()) > 1
+        recorded = sync.is_file() and len(sync.read_bytes().splitlines()) > 1  # a row below the header
     except OSError:
         recorded = False
     if not recorded:
         shutil.rmtree(staging, ignore_errors=True)
         return None
+    target = _move_to_recovered(store, staging, capture_id)
+    log.warning("a failed live recording is kept in %s", target)
+    return target
+
+
+def _move_to_recovered(store: CaptureStore, staging: Path, capture_id: str) -> Path:
+    """Move a recording's staging folder to ``recovered/<id>`` beside the captures; its new path."""
     target = store.root.parent / RECOVERED_DIR / capture_id
     target.parent.mkdir(parents=True, exist_ok=True)
     staging.rename(target)
-    log.warning("a failed live recording is kept in %s", target)
     return target
 
 
