@@ -15,7 +15,6 @@ from calib.detect_config import CLUTTER_MIN_ROUNDNESS, DEFAULT_CONFIG, MARKER_MI
 from calib.errors import CalibrationError
 
 
-
 @dataclass(frozen=True)
 class BackgroundChoice:
     """A parsed ``--background``: the model, its parameter, and an empty-volume folder."""
