@@ -17,10 +17,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import timed, write_section  # noqa: E402
-from calib.geometry import kabsch  # noqa: E402
-from calib.pipeline import calibrate  # noqa: E402
-from calib.simulate import simulate_capture  # noqa: E402
+from bench.common import timed, write_section
+from wandcal.calib.geometry import kabsch
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.sim.simulate import simulate_capture
 
 
 def main() -> int:

@@ -1,6 +1,6 @@
 """Blob detection speed and centroid accuracy on rendered 1280x1024 frames.
 
-Compares ``calib.detect.detect_blobs`` (one core, and ``detect_many`` on two threads) with
+Compares ``wandcal.calib.detect.detect_blobs`` (one core, and ``detect_many`` on two threads) with
 ``cv2.SimpleBlobDetector`` and with the plain whole-frame OpenCV building blocks it was chosen
 against (docs/decisions/0003-blob-detector.md). Then times ``wandcal detect`` on a written
 image-level folder (PNG decode + detection) on 1 and 2 worker threads
@@ -35,11 +35,12 @@ sys.path.insert(0, str(REPO))
 
 from bench.common import replace_section  # noqa: E402
 from bench.detect_real import background_rows, openptv_rows, regression_rows, touching_rows  # noqa: E402
-from calib.detect import DetectConfig, detect_blobs, detect_many, render_blobs  # noqa: E402
-from calib.simulate import simulate_capture  # noqa: E402
-from capture.folder import rig_to_json  # noqa: E402
-from capture.images import detect_capture  # noqa: E402
-from capture.writer import PNG_PARAMS  # noqa: E402
+from wandcal.calib.detect import DetectConfig, detect_blobs, detect_many  # noqa: E402
+from wandcal.calib.sim.render import render_blobs  # noqa: E402
+from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
+from wandcal.capture.folder import rig_to_json  # noqa: E402
+from wandcal.capture.images import detect_capture  # noqa: E402
+from wandcal.capture.writer import PNG_PARAMS  # noqa: E402
 
 SHAPE = (1024, 1280)  # (H, W), the issue's sensor size
 MARKERS = 6  # 2 wand markers + 4 L-frame markers: "a handful of blobs"
@@ -235,7 +236,7 @@ def folder_rows(frames: int) -> tuple[list[str], str]:
     about = (f"{frames} rendered {SHAPE[1]}x{SHAPE[0]} 8-bit frames as above, split over {FOLDER_CAMERAS} "
              f"cameras and written as PNGs with the capture writer's settings ({size / frames / 1e6:.2f} MB "
              "per file, in the page cache), timed from the folder to wand.csv with "
-             f"`capture.images.detect_capture`. Best and median of {FOLDER_REPEATS} round-robin runs; the "
+             f"`wandcal.capture.images.detect_capture`. Best and median of {FOLDER_REPEATS} round-robin runs; the "
              "speed-ups compare each row with the 1-worker row of the same statistic. 'Cores busy' is this "
              "process's CPU time over the wall time: near 2 means both cores decoded at once, near 1 that "
              "the GIL or other jobs on the machine left it one core.")
@@ -282,7 +283,7 @@ def main() -> int:
         # way a busy spell slows one repeat of every method rather than all repeats of one.
         best = {name: np.inf for name, _, _ in methods}
         outputs = {}
-        for name, run, cores in methods:
+        for _name, run, _cores in methods:
             run(frames[:5])  # warm up
         for _ in range(REPEATS):
             for name, run, cores in methods:
@@ -323,7 +324,7 @@ def main() -> int:
         f"{args.frames} rendered {SHAPE[1]}x{SHAPE[0]} frames per bit depth, {MARKERS} Gaussian spots each "
         f"(sigma {SIGMA_RANGE_PX[0]}-{SIGMA_RANGE_PX[1]} px, peaks {PEAK_RANGE[8][0]:.0f}-{PEAK_RANGE[8][1]:.0f} "
         f"of 255 / {PEAK_RANGE[16][0]:.0f}-{PEAK_RANGE[16][1]:.0f} of 65535, read noise {NOISE[8]:.0f} / "
-        f"{NOISE[16]:.0f} grey levels), rendered with `calib.detect.render_blobs` (pixel-integrated, so the "
+        f"{NOISE[16]:.0f} grey levels), rendered with `wandcal.calib.sim.render.render_blobs` (pixel-integrated, so the "
         f"true centre is exact). Centroid RMS is over spots found within {MATCH_PX:.0f} px; recall is the "
         f"fraction of spots found. Each rate is the best of {REPEATS} round-robin runs; one-core rows pin the "
         "process to one CPU with `cv2.setNumThreads(1)`. "

@@ -2,7 +2,7 @@
 
     python bench/bench_guidance.py [--seconds 10] [--repeats 3] [--write-docs]
 
-Part 1 times :func:`calib.guidance.wanding_guidance` on simulated captures (8 x 1500 and
+Part 1 times :func:`wandcal.calib.guidance.wanding_guidance` on simulated captures (8 x 1500 and
 16 x 2500 frames): a cold update, the live case (the capture grew by 10% since the last update,
 which starts this one), and the same without subsampling, with how far the subsampled sigma is
 from the full solve's. Part 2 compares the guidance's rig-relative sigma with the calibration
@@ -34,10 +34,10 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from bench.common import replace_section  # noqa: E402
-from calib.guidance import GuidanceSettings, wanding_guidance  # noqa: E402
-from calib.pipeline import calibrate  # noqa: E402
-from calib.rig import WandObservations  # noqa: E402
-from calib.simulate import simulate_capture  # noqa: E402
+from wandcal.calib.guidance import GuidanceSettings, wanding_guidance  # noqa: E402
+from wandcal.calib.pipeline import calibrate  # noqa: E402
+from wandcal.calib.rig import WandObservations  # noqa: E402
+from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
 
 RIGS = ((8, 1500), (16, 2500))
 GROWTH = 0.9  # the live case: the last update saw 90% of the frames
@@ -85,7 +85,7 @@ def _sigmas(doc_cameras) -> np.ndarray:
 def bench_frames() -> tuple[list[tuple], list[tuple]]:
     """The median camera's sigma as frames arrive, and the cameras' sigmas with one starved, in
     the three frames: the result's static-object frame, its wand-volume frame, the guidance's."""
-    from tests.calib.test_guidance import STARVED_FRAMES, covering_capture, starve
+    from tests.calib.judge.test_guidance import STARVED_FRAMES, covering_capture, starve
 
     growth = []
     for frames in (150, 300, 600, 1200, 2400):
@@ -112,12 +112,12 @@ def bench_frames() -> tuple[list[tuple], list[tuple]]:
 
 def run_capture(images: str, guidance: bool, seconds: float) -> dict:
     """One capture in this process (the child): rate, missed frames, CPU time, guidance updates."""
-    from capture.guidance import LiveGuidance
-    from capture.record import ImagePolicy
-    from capture.session import record
-    from drivers.registry import open_cameras
-    from drivers.trigger import open_trigger
-    from drivers.trigger_emulator import EmulatorProcess
+    from wandcal.capture.guidance import LiveGuidance
+    from wandcal.capture.record import ImagePolicy
+    from wandcal.capture.session import record
+    from wandcal.drivers.registry import open_cameras
+    from wandcal.drivers.trigger import open_trigger
+    from wandcal.drivers.trigger_emulator import EmulatorProcess
 
     frames = int(RATE_HZ * seconds)
     cams = open_cameras(f"sim://?cameras={CAMERAS}&frames={frames}&seed=1")
@@ -156,8 +156,8 @@ PROBE_FRAMES = 100
 def _machine_speed() -> float:
     """Frames per second one thread renders and detects just now: the virtual machine's speed
     varies with its host (the same code measured 600-2800 frames/s of rendering within an hour)."""
-    from calib.detect import detect_blobs
-    from drivers.registry import open_cameras
+    from wandcal.calib.detect import detect_blobs
+    from wandcal.drivers.registry import open_cameras
 
     (cam, *_) = open_cameras(f"sim://?cameras=2&frames={PROBE_FRAMES}")
     with cam:
@@ -255,7 +255,7 @@ def main() -> None:
               "so the capture rates below are what was left to wandcal; beside each run, the cores the other jobs "
               "used during it (the machine's busy time less the capture's, its trigger emulator's and its "
               "solver's).\n\n"
-              "One guidance update (`calib.guidance.wanding_guidance`, simulated ring rigs, 0.3 px noise, median of "
+              "One guidance update (`wandcal.calib.guidance.wanding_guidance`, simulated ring rigs, 0.3 px noise, median of "
               f"{args.repeats}). The live update starts from the last solution (no initial poses) and keeps about 400 "
               "frames per camera; its sigma, scaled by sqrt(kept / all), is within the last column of the full "
               "solve's:\n")
@@ -270,7 +270,7 @@ def main() -> None:
                     "process, is in neither). The machine is a virtual one whose speed varies with its host: each "
                     "run first measures how many frames one thread renders and detects per second (8 x 100 fps "
                     f"needs 800 across the cameras' threads). {args.repeats} runs each, interleaved.\n")
-    from tests.calib.test_guidance import STARVED_FRAMES
+    from tests.calib.judge.test_guidance import STARVED_FRAMES
 
     frames_text = ("Which sigma tells the operator to keep waving: the median camera's predicted centre 1-sigma "
                    "as wand frames arrive (simulated 8-camera ring, seed 1, every frame used), and the cameras' "

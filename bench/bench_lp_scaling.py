@@ -4,19 +4,20 @@ For 8, 16 and 32 cameras x 2000 frames at 0.3 px, clean and with 8% of camera-fr
 one gross outlier, every camera but the gauge starts 1 degree and 3 cm off its true pose (about a
 random axis and in a random direction; frames triangulated there), and both methods refine the
 same labelled problem. Errors are camera-centre errors in the gauge of the bundle adjustment
-(calib/crb.py). Times are medians of ``--repeats`` runs of each method, run alternately, as wall
+(calib/judge/crb.py). Times are medians of ``--repeats`` runs of each method, run alternately, as wall
 and as CPU time (the process's, BLAS on one thread: other users of a shared machine disturb it
 far less than the wall clock); the scaling exponent is the least-squares slope of log(time) on
 log(cameras).
 
 Usage: python bench/bench_lp_scaling.py [--cameras 8,16,32] [--frames 2000] [--seeds 2] [--repeats 3]
        [--methods lp,ba] [--json out.json] [--no-write]
-``--module PATH`` times the ``refine_lp`` of another copy of calib/slp.py (for before/after tables).
+``--module PATH`` times the ``refine_lp`` of another copy of calib/solve/lp.py (for before/after tables).
 """
 
 from __future__ import annotations
 
 import os
+
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one core per solver: the machine is shared and timings noisy
 import argparse
 import importlib.util
@@ -29,9 +30,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import timed, write_section  # noqa: E402
-from calib.crb import gauge_errors  # noqa: E402
-from calib.scenes import perturbed_model, prepared_scene  # noqa: E402
+from bench.common import timed, write_section
+from wandcal.calib.judge.crb import gauge_errors
+from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 
 NOISE = 0.3
 START_DEGREES = 1.0  # the common start of the issue: every free camera this far off in rotation
@@ -42,7 +43,7 @@ def _refiners(methods, module):
     out = {}
     for method in methods:
         if method == "ba":
-            from calib.ba import bundle_adjust
+            from wandcal.calib.solve.ba import bundle_adjust
             out["ba"] = bundle_adjust
         elif method == "lp":
             if module:
@@ -52,7 +53,7 @@ def _refiners(methods, module):
                 spec.loader.exec_module(mod)
                 out["lp"] = mod.refine_lp
             else:
-                from calib.slp import refine_lp
+                from wandcal.calib.solve.lp import refine_lp
                 out["lp"] = refine_lp
     return out
 

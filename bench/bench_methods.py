@@ -4,7 +4,7 @@ For each simulated rig (4 x 500, 8 x 2000, 16 x 3000 frames at 0.3 px), clean an
 camera-frames carrying one gross outlier (20-60 px), over several seeds, every method refines
 the same labelled problem from the same start (the pipeline's static PnP / resection start).
 Errors are measured in the gauge of the bundle adjustment (gauge camera held at its truth; see
-calib/crb.py), where the Cramér-Rao bound is computed from the BA Jacobian at the truth.
+calib/judge/crb.py), where the Cramér-Rao bound is computed from the BA Jacobian at the truth.
 
 Usage: python bench/bench_methods.py [--seeds 3] [--repeats 3] [--paper-rigs 4x500] [--no-write]
 """
@@ -19,13 +19,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import timed, write_section  # noqa: E402
-from calib.ba import bundle_adjust  # noqa: E402
-from calib.crb import gauge_errors, pose_crb  # noqa: E402
-from calib.paper import refine_paper  # noqa: E402
-from calib.quality import free_wand_lengths  # noqa: E402
-from calib.scenes import prepared_scene  # noqa: E402
-from calib.slp import refine_lp  # noqa: E402
+from bench.common import timed, write_section
+from wandcal.calib.judge.crb import gauge_errors, pose_crb
+from wandcal.calib.judge.quality import free_wand_lengths
+from wandcal.calib.sim.scenes import prepared_scene
+from wandcal.calib.solve.ba import bundle_adjust
+from wandcal.calib.solve.lp import refine_lp
+from wandcal.calib.solve.paper import refine_paper
 
 NOISE = 0.3
 RIGS = [(4, 500), (8, 2000), (16, 3000)]

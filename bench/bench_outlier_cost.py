@@ -24,11 +24,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.bench_peers import NOISE_PX, centre_error_mm, perturbed_start, run_ba_cleanup, run_colmap, scene  # noqa: E402
-from bench.common import write_section  # noqa: E402
-from calib.ba import CAUCHY_SIGMAS  # noqa: E402
-from calib.geometry import distort_points, project_normalized  # noqa: E402
-from calib.rig import WandObservations  # noqa: E402
+from bench.bench_peers import NOISE_PX, centre_error_mm, perturbed_start, run_ba_cleanup, run_colmap, scene
+from bench.common import write_section
+from wandcal.calib.geometry import distort_points, project_normalized
+from wandcal.calib.rig import WandObservations
+from wandcal.calib.solve.ba import CAUCHY_SIGMAS
 
 OUTLIERS = 0.08
 GROSS_PX = 10.0  # the simulator's outliers move a blob 20-60 px; its noise is 0.3 px

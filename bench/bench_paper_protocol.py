@@ -6,7 +6,7 @@ of 1200 x 900 px with f = 984 px, 300 wand frames of a 300 mm wand, blob noise s
 held-out frames are triangulated with the estimated cameras; the metric is the mean and the std of
 their wand lengths. Each method runs through the whole pipeline (static PnP start, labelling,
 refinement; no outlier rejection, the data are clean). The camera layout differs from theirs (their
-poses come from .mat files): see calib.simulate.simulate_paper_protocol.
+poses come from .mat files): see wandcal.calib.sim.simulate.simulate_paper_protocol.
 
 Usage: python bench/bench_paper_protocol.py [--trials 200] [--paper-trials 10] [--no-write]
 """
@@ -21,13 +21,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import timed, write_section  # noqa: E402
-from calib.errors import CalibrationError  # noqa: E402
-from calib.labels import label_ends, wand_lengths  # noqa: E402
-from calib.observations import wand_pairs  # noqa: E402
-from calib.paper import MAX_ROUNDS  # noqa: E402
-from calib.pipeline import calibrate  # noqa: E402
-from calib.simulate import simulate_paper_protocol  # noqa: E402
+from bench.common import timed, write_section
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.observations import wand_pairs
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.sim.simulate import simulate_paper_protocol
+from wandcal.calib.solve.paper import MAX_ROUNDS
+from wandcal.calib.start.labels import label_ends, wand_lengths
 
 NOISE_LEVELS = (0.5, 1.0, 2.0, 3.0, 4.0, 5.0)
 

@@ -4,9 +4,9 @@ labelled observations from the same start, side by side in one run; and the whol
 
 Each rig is simulated (0.3 px noise, no L-frame), labelled at the truth, and started from the true
 poses moved by 1 degree and 3 cm (seeded), the wand triangulated there. Solvers:
-- `ba`: calib.ba.bundle_adjust (Cauchy loss) run to its statistical stop;
+- `ba`: wandcal.calib.solve.ba.bundle_adjust (Cauchy loss) run to its statistical stop;
 - `ba+cleanup`: the pipeline's refinement (robust stage, one outlier pass, least squares polish);
-- `lp`: calib.slp.refine_lp;
+- `lp`: wandcal.calib.solve.lp.refine_lp;
 - `colmap`, `colmap-cauchy`: COLMAP's default bundle adjuster (Ceres, DENSE_SCHUR) with every
   wand end a free 3D point (COLMAP has no wand length), intrinsics held, the gauge fixed by two
   cameras' poses (TWO_CAMS_FROM_WORLD); the Cauchy scale is the one `ba` ends with. Its
@@ -38,12 +38,12 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from bench.common import peak_rss_mb, reset_peak_rss, write_section  # noqa: E402
-from calib.ba import bundle_adjust  # noqa: E402
-from calib.geometry import camera_centers, kabsch, rotvec_to_matrix  # noqa: E402
-from calib.labels import label_ends  # noqa: E402
-from calib.observations import wand_pairs  # noqa: E402
-from calib.refine import build_problem, refine, reject_outliers, up_direction  # noqa: E402
-from calib.simulate import simulate_capture  # noqa: E402
+from wandcal.calib.geometry import camera_centers, kabsch, rotvec_to_matrix  # noqa: E402
+from wandcal.calib.observations import wand_pairs  # noqa: E402
+from wandcal.calib.refine import build_problem, refine, reject_outliers, up_direction  # noqa: E402
+from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
+from wandcal.calib.solve.ba import bundle_adjust  # noqa: E402
+from wandcal.calib.start.labels import label_ends  # noqa: E402
 
 RIGS = ("8x1500", "8x2000", "16x2500", "32x2000", "8x32000")
 LARGE = "8x32000"
@@ -52,7 +52,7 @@ NOTES = ("Each rig simulated at 0.3 px without an L-frame and labelled at the tr
          "and one image per wandcal camera, the undistorted observations (normalised xy times f plus the principal "
          "point) and a free 3D point per wand end and frame (it has no wand length); intrinsics held, gauge "
          "TWO_CAMS_FROM_WORLD, the Cauchy scale the one `ba` ends with; its time is the adjuster's set-up and solve. "
-         "Centre error: RMS after a similarity alignment to the truth (calib.geometry.kabsch, scale=True). Ratios are "
+         "Centre error: RMS after a similarity alignment to the truth (wandcal.calib.geometry.kabsch, scale=True). Ratios are "
          "to `colmap` (`colmap-cauchy` on the outlier rows) of the same repeat. Peak RSS is the bench process's VmHWM "
          "reset before each solve, so it includes the scene the bench holds; the whole command's own peak is in the "
          "next section.")
@@ -100,7 +100,7 @@ def run_ba_cleanup(sim, labelled, setup):
 
 
 def run_lp(sim, labelled, setup):
-    from calib.slp import refine_lp
+    from wandcal.calib.solve.lp import refine_lp
 
     x, info = refine_lp(setup.model)
     return (*setup.model.poses(x), info["iterations"], None)
@@ -172,12 +172,12 @@ def calibrate_process(cameras: int, frames: int, outliers: float, repeats: int) 
     simulated capture folder (the default one, with its L-frame, as a new user would make it)."""
     # VmHWM, not ru_maxrss: Linux carries ru_maxrss over from the (v)forking bench through exec,
     # so a child's ru_maxrss is never below the bench's own peak
-    probe = ("import sys; from service.cli import main; code = main(sys.argv[1:]); "
+    probe = ("import sys; from wandcal.service.cli import main; code = main(sys.argv[1:]); "
              "print(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:')), file=sys.stderr); "
              "sys.exit(code)")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "capture"
-        subprocess.run([sys.executable, "-m", "service.cli", "simulate", str(folder), "--cameras", str(cameras),
+        subprocess.run([sys.executable, "-m", "wandcal.service.cli", "simulate", str(folder), "--cameras", str(cameras),
                         "--frames", str(frames), "--outliers", str(outliers)], check=True, capture_output=True, cwd=REPO)
         times, peaks = [], []
         for _ in range(repeats):

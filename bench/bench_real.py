@@ -14,8 +14,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import real_sessions as rs  # noqa: E402
-from bench.common import write_section  # noqa: E402
+from bench import real_sessions as rs
+from bench.common import write_section
 
 
 def main() -> int:

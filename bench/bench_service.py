@@ -23,10 +23,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from bench.common import replace_section  # noqa: E402
-from calib.detect import render_blobs  # noqa: E402
-from calib.simulate import simulate_capture  # noqa: E402
-from capture.folder import rig_to_json, write_capture  # noqa: E402
 from tests.service.conftest import Server, capture_files, free_port, server_env, wait_job  # noqa: E402
+from wandcal.calib.sim.render import render_blobs  # noqa: E402
+from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
+from wandcal.capture.folder import rig_to_json, write_capture  # noqa: E402
 
 CAMERAS = 8  # the figure: 8 x 1280x1024 PNG per frame set
 SECTION = "## Service"

@@ -35,11 +35,11 @@ def reset_peak_rss() -> None:
 
 
 def machine() -> str:
+    import os
+
     import highspy
     import numpy
     import scipy
-
-    import os
 
     return (
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "

@@ -24,8 +24,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.background import median_background
-from calib.detect import CameraDetector, DetectConfig, detect_blobs, render_blobs
+from wandcal.calib.detect import CameraDetector, DetectConfig, detect_blobs
+from wandcal.calib.detect.background import median_background
+from wandcal.calib.sim.render import render_blobs
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -189,13 +190,13 @@ def one_core():
 
 
 def before_module(rev: str):
-    """calib/detect.py as it was at git revision ``rev`` (self-contained: it imports calib.errors
+    """calib/detect.py as it was at git revision ``rev`` (self-contained: it imports wandcal.calib.errors
     only), loaded as a module beside the present one for a side-by-side timing."""
     source = subprocess.run(["git", "show", f"{rev}:calib/detect.py"], cwd=REPO, capture_output=True, text=True,
                             check=True).stdout
     module = types.ModuleType(f"detect_at_{rev}")
     sys.modules[module.__name__] = module  # dataclasses look their module up there
-    exec(compile(source, f"{rev}:calib/detect.py", "exec"), module.__dict__)  # noqa: S102 - our own file
+    exec(compile(source, f"{rev}:calib/detect.py", "exec"), module.__dict__)
     return module
 
 

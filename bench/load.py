@@ -19,7 +19,7 @@ import cv2
 import httpx
 import numpy as np
 
-from calib.detect import render_blobs
+from wandcal.calib.sim.render import render_blobs
 
 REQUEST_TIMEOUT_S = 120.0  # a request queued behind a full server still gets its answer
 

@@ -15,13 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.geometry import kabsch, undistort_points
-from calib.observations import point_tracks
-from calib.pipeline import calibrate
-from calib.quality import OUTLIER_SIGMAS, robust_sigma
-from calib.triangulate import reprojection_errors, triangulate_points
-from capture.importers.easywand import read_easywand_mat
-from capture.importers.svoboda import read_svoboda
+from wandcal.calib.geometry import kabsch, undistort_points
+from wandcal.calib.judge.quality import OUTLIER_SIGMAS, robust_sigma
+from wandcal.calib.observations import point_tracks
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.triangulate import reprojection_errors, triangulate_points
+from wandcal.capture.formats.easywand import read_easywand_mat
+from wandcal.capture.formats.svoboda import read_svoboda
 
 SHARED_DATA = Path(os.environ.get("WANDCAL_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 BROWN = "easywand_brown_windtunnel_4cam"

@@ -1,9 +1,20 @@
-"""Pure computation for wand calibration: geometry, initialisation, refinement, reports.
+"""Pure computation for wand calibration: geometry, detection, the start, refinement, judgement.
 
-Nothing in this package touches hardware, files or the network; see ``docs/conventions.md``.
+Nothing in this package touches hardware, files or the network; see ``docs/conventions.md`` and,
+for the stages and which package may import which, ``docs/architecture.md``.
+
+| module or package | holds |
+|---|---|
+| :mod:`~wandcal.calib.errors`, :mod:`~wandcal.calib.rig`, :mod:`~wandcal.calib.geometry`, :mod:`~wandcal.calib.observations`, :mod:`~wandcal.calib.triangulate` | the core every stage shares |
+| :mod:`~wandcal.calib.detect` | marker blobs in images |
+| :mod:`~wandcal.calib.start` | first poses, wand labels, the world frame |
+| :mod:`~wandcal.calib.solve` | the refinement methods (``ba``, ``lp``, ``paper``) and their back-ends |
+| :mod:`~wandcal.calib.judge` | quality, verdicts, checks against fresh captures |
+| :mod:`~wandcal.calib.pipeline`, :mod:`~wandcal.calib.refine`, :mod:`~wandcal.calib.resolve`, :mod:`~wandcal.calib.guidance` | the stages run in order |
+| :mod:`~wandcal.calib.sim` | simulated rigs and scenes |
 """
 
-from calib.errors import CalibrationError
-from calib.rig import Camera, Rig, StaticObservations, WandObservations
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.rig import Camera, Rig, StaticObservations, WandObservations
 
 __all__ = ["CalibrationError", "Camera", "Rig", "StaticObservations", "WandObservations"]

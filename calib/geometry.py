@@ -9,7 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from calib.rig import FISHEYE, Camera
+from wandcal.calib.rig import FISHEYE, Camera
 
 
 def euler_to_matrix(angles: np.ndarray) -> np.ndarray:

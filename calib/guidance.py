@@ -2,12 +2,12 @@
 
 :func:`wanding_guidance` turns the wand blobs recorded so far into a document
 (``wandcal-guidance/1``, docs/api.md) that says, per camera, how many frames saw both wand ends,
-how much of its image the wand has covered (:mod:`calib.coverage`), how many frames it shares
+how much of its image the wand has covered (:mod:`wandcal.calib.judge.coverage`), how many frames it shares
 with each other camera, and the predicted 1-sigma of its centre from a fast ``ba`` solve; then
 whether that is ``enough``, and what to do next, worst camera first.
 
 The predicted sigma is each camera's centre *relative to the rest of the rig*: the solve's pose
-covariance (``sigma^2 (J^T J)^-1``, calib/uncertainty.py) carried into the frame that best fits
+covariance (``sigma^2 (J^T J)^-1``, calib/solve/uncertainty.py) carried into the frame that best fits
 every camera's centre and a point one metre along its optical axis, each camera weighted by how
 well it is known. That is the part of the error that waving reduces. The result's
 ``center_std_mm`` is in the user's world frame and adds the L-frame's own noise, which no amount
@@ -27,12 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
-from calib.errors import CalibrationError
-from calib.geometry import camera_centers
-from calib.initial import shared_frames
-from calib.observations import WandPairs, wand_pairs
-from calib.rig import Rig, StaticObservations, WandObservations
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import camera_centers
+from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
+from wandcal.calib.observations import WandPairs, wand_pairs
+from wandcal.calib.rig import Rig, StaticObservations, WandObservations
+from wandcal.calib.start.initial import shared_frames
 
 GUIDANCE_FORMAT = "wandcal-guidance/1"
 # Motive's "exceptional" wanding result is a mean 3D error under ~0.5 mm on a room-sized volume;
@@ -45,7 +45,7 @@ DEFAULT_MIN_COVERAGE = 0.5
 # and an update of 16 cameras takes ~0.15 s (docs/decisions/0009-guidance-uncertainty.md).
 DEFAULT_FRAMES_PER_CAMERA = 400
 # A camera enters the solve with this many frames shared with others: with fewer its pose is the
-# initial guess of a handful of correspondences, not a measurement (calib.chain needs 10
+# initial guess of a handful of correspondences, not a measurement (wandcal.calib.start.chain needs 10
 # correspondences, i.e. 5 frames, to place a pair at all).
 MIN_SOLVE_FRAMES = 10
 # Advice names a camera's links when it shares fewer frames than this with the rest: two
@@ -241,10 +241,10 @@ def _solve(rig: Rig, seen: _Seen, solve_set: np.ndarray, static, settings: Guida
     """The fast solve over the cameras of ``solve_set`` and their predicted sigmas (N,), metres
     and radians (NaN for the others)."""
     # the solver loads when a solve runs: the command line reads this module's defaults at start-up
-    from calib.initial import initial_poses
-    from calib.labels import label_ends
-    from calib.refine import GAUGE_CAMERA, build_problem, refine, up_direction
-    from calib.static import solve_static
+    from wandcal.calib.refine import GAUGE_CAMERA, build_problem, refine, up_direction
+    from wandcal.calib.start.initial import initial_poses
+    from wandcal.calib.start.labels import label_ends
+    from wandcal.calib.start.static import solve_static
     cams = np.flatnonzero(solve_set)
     index = np.full(len(rig.cameras), -1)
     index[cams] = np.arange(len(cams))
@@ -316,13 +316,13 @@ def relative_uncertainty(R: np.ndarray, t: np.ndarray, covariance) -> tuple[np.n
 
     Args:
         R, t: (K, 3, 3), (K, 3) gauge-frame poses of the solve.
-        covariance: their :class:`calib.uncertainty.PoseCovariance`.
+        covariance: their :class:`wandcal.calib.solve.uncertainty.PoseCovariance`.
 
     Returns:
         (center (K,) metres, rotation (K,) radians): sqrt of the trace of each camera's centre and
         small-angle covariance in that frame.
     """
-    from calib.uncertainty import world_uncertainty
+    from wandcal.calib.solve.uncertainty import world_uncertainty
 
     base = _anchors(R, t)
     weight = np.ones(len(base))

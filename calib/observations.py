@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.errors import CalibrationError
-from calib.geometry import undistort_by_camera
-from calib.rig import PointObservations, Rig, WandObservations
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import undistort_by_camera
+from wandcal.calib.rig import PointObservations, Rig, WandObservations
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,15 +10,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib import quality
-from calib.degenerate import check_capture
-from calib.errors import CalibrationError
-from calib.geometry import camera_centers
-from calib.initial import initial_poses
-from calib.labels import label_ends
-from calib.observations import WandPairs, point_tracks, wand_pairs
-from calib.ba import DEFAULT_LOSS
-from calib.refine import (
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import camera_centers
+from wandcal.calib.judge import quality
+from wandcal.calib.judge.verdict import judge
+from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
+from wandcal.calib.refine import (
     GAUGE_CAMERA,
     build_problem,
     check_intrinsics_request,
@@ -27,13 +24,16 @@ from calib.refine import (
     triangulated,
     up_direction,
 )
-from calib.reprojection import INTRINSICS
-from calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
-from calib.static import solve_static
-from calib.triangulate import reprojection_errors
-from calib.uncertainty import frame_noise, world_uncertainty
-from calib.verdict import judge
-from calib.world import apply, axis_points, static_fit_expectation, world_frame
+from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
+from wandcal.calib.solve.ba import DEFAULT_LOSS
+from wandcal.calib.solve.reprojection import INTRINSICS
+from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty
+from wandcal.calib.start.degenerate import check_capture
+from wandcal.calib.start.initial import initial_poses
+from wandcal.calib.start.labels import label_ends
+from wandcal.calib.start.static import solve_static
+from wandcal.calib.start.world import apply, axis_points, static_fit_expectation, world_frame
+from wandcal.calib.triangulate import reprojection_errors
 
 RESULT_FORMAT = "wandcal-result/1"
 METHODS = ("ba", "lp", "paper")
@@ -64,7 +64,7 @@ class CalibrationResult:
     dropped: dict
     warnings: list[str] = field(default_factory=list)
     points: np.ndarray | None = None  # (T, 3) the single-point tracks' refined points, world frame
-    verdict: dict | None = None  # the rig's {"level", "reasons"} (calib/verdict.py)
+    verdict: dict | None = None  # the rig's {"level", "reasons"} (calib/judge/verdict.py)
 
     @property
     def centers(self) -> np.ndarray:
@@ -173,7 +173,7 @@ def calibrate(
             if not pose:
                 warnings.append(f"{pose}; {rig.cameras[c].id} is placed from the wand only")
 
-    warnings += check_capture(rig, pairs, tracks, static_poses)  # degenerate captures: calib/degenerate.py
+    warnings += check_capture(rig, pairs, tracks, static_poses)  # degenerate captures: calib/start/degenerate.py
     tell({"stage": "initial", "message": "initial poses"})
     init = initial_poses(rig, pairs, static_poses, points=tracks)
     warnings += init.notes
@@ -268,8 +268,8 @@ def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warni
 
 def _uncertainty_reports(cameras: list[dict], rig: Rig, r, world: dict, frame_data, Rw, tw, has_wand: bool) -> None:
     """Each camera's ``center_std_mm`` and ``rotation_std_deg`` in the world frame of the result
-    (calib/uncertainty.py); the centre's is None when the scale is arbitrary (no wand). A static
-    object's ``world`` gains the static blobs' noise it was judged by (calib.world.static_fit_expectation)."""
+    (calib/solve/uncertainty.py); the centre's is None when the scale is arbitrary (no wand). A static
+    object's ``world`` gains the static blobs' noise it was judged by (wandcal.calib.start.world.static_fit_expectation)."""
     static, static_poses, axis = frame_data
 
     def frame(Rp, tp, shift):

@@ -7,17 +7,17 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from calib import quality
-from calib.ba import DEFAULT_LOSS, STOP_SE, IntrinsicsFit, bundle_adjust_points
-from calib.errors import CalibrationError
-from calib.geometry import camera_centers, undistort_by_camera
-from calib.labels import flatten
-from calib.observations import PointTracks, WandPairs
-from calib.reprojection import INTRINSICS
-from calib.rig import PINHOLE, Camera, Rig
-from calib.triangulate import reprojection_errors, triangulate_points
-from calib.uncertainty import PoseCovariance
-from calib.wandmodel import WandModel, WandProblem
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import camera_centers, undistort_by_camera
+from wandcal.calib.judge import quality
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.rig import PINHOLE, Camera, Rig
+from wandcal.calib.solve.ba import DEFAULT_LOSS, STOP_SE, IntrinsicsFit, bundle_adjust_points
+from wandcal.calib.solve.reprojection import INTRINSICS
+from wandcal.calib.solve.uncertainty import PoseCovariance
+from wandcal.calib.solve.wandmodel import WandModel, WandProblem
+from wandcal.calib.start.labels import flatten
+from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 
 GAUGE_CAMERA = 0
 MAX_OUTLIER_PASSES = 3  # reject-and-refine passes; the kept set settles after two on simulated rigs
@@ -131,13 +131,13 @@ def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> 
 
 
 def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bool = True) -> Refined:
-    """Run ``method`` on the problem; ``options`` as :func:`calib.pipeline.calibrate`'s. A robust
+    """Run ``method`` on the problem; ``options`` as :func:`wandcal.calib.pipeline.calibrate`'s. A robust
     ``ba`` that is not ``final`` (a least squares polish follows) stops at ``ROBUST_STAGE_SE``."""
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
     # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
     if method == "paper":
-        from calib.paper import MAX_ROUNDS, refine_paper
+        from wandcal.calib.solve.paper import MAX_ROUNDS, refine_paper
 
         R, t, wand, info = refine_paper(
             model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, up,
@@ -145,7 +145,7 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
         )
         return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=_information(setup, R, t, wand, final))
     if method == "lp":
-        from calib.slp import refine_lp
+        from wandcal.calib.solve.lp import refine_lp
 
         x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
         R, t = model.poses(x)

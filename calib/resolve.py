@@ -12,19 +12,19 @@ import time
 
 import numpy as np
 
-from calib.errors import CalibrationError, Failure
-from calib.initial import Initial
-from calib.labels import flatten, label_ends
-from calib.observations import wand_pairs
-from calib.pipeline import CalibrationResult, _camera_reports, _summary_warnings
-from calib import quality
-from calib.refine import build_problem, refine, reject_outliers, up_direction
-from calib.resection import resect_camera
-from calib.rig import Rig, WandObservations
-from calib.triangulate import triangulate_points
-from calib.uncertainty import world_uncertainty
-from calib.verdict import judge
-from calib.geometry import camera_centers
+from wandcal.calib.errors import CalibrationError, Failure
+from wandcal.calib.geometry import camera_centers
+from wandcal.calib.judge import quality
+from wandcal.calib.judge.verdict import judge
+from wandcal.calib.observations import wand_pairs
+from wandcal.calib.pipeline import CalibrationResult, _camera_reports, _summary_warnings
+from wandcal.calib.refine import build_problem, refine, reject_outliers, up_direction
+from wandcal.calib.rig import Rig, WandObservations
+from wandcal.calib.solve.uncertainty import world_uncertainty
+from wandcal.calib.start.initial import Initial
+from wandcal.calib.start.labels import flatten, label_ends
+from wandcal.calib.start.resection import resect_camera
+from wandcal.calib.triangulate import triangulate_points
 
 MIN_HELD = 2  # the held cameras must triangulate the wand: two at least
 
@@ -40,7 +40,7 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
         solve: ids of the cameras to re-solve.
         world: the previous result's ``world`` (kept: the held cameras carry its frame).
         previous: the previous result's camera entries, for the held cameras' uncertainty.
-        options: ``loss``, ``reject_outliers`` as :func:`calib.pipeline.calibrate`'s.
+        options: ``loss``, ``reject_outliers`` as :func:`wandcal.calib.pipeline.calibrate`'s.
 
     Raises:
         CalibrationError: an unknown id, too few held cameras, or a camera that cannot be placed.

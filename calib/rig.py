@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.errors import CalibrationError
+from wandcal.calib.errors import CalibrationError
 
 PINHOLE = "pinhole"
 FISHEYE = "fisheye"

@@ -9,7 +9,7 @@ commercial mocap cameras send, centroids, whether or not it keeps images:
   taken out: the static recording's markers, and blobs that stayed put through half of the last
   :data:`STILL_WINDOW_SETS` sets (an L-frame left on the floor, a lamp). When the capture ends it
   is rewritten from ``blobs.csv`` by the rule of ``wandcal detect`` over the whole recording
-  (:func:`calib.detect.wand_frames`), so both give the same points level.
+  (:func:`wandcal.calib.detect.wand_frames`), so both give the same points level.
 
 A capture killed midway keeps a valid ``wand.csv`` up to its last flushed set.
 """
@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.detect import WAND_MARKERS, WAND_STILL_PRESENCE, static_markers_from_frames, wand_frames
-from calib.rig import Rig, StaticObservations
-from capture.folder import STATIC_COLUMNS, STATIC_FILE, WAND_COLUMNS, WAND_FILE, parse_wand_csv
+from wandcal.calib.detect import WAND_MARKERS, WAND_STILL_PRESENCE, static_markers_from_frames, wand_frames
+from wandcal.calib.rig import Rig, StaticObservations
+from wandcal.capture.folder import STATIC_COLUMNS, STATIC_FILE, WAND_COLUMNS, WAND_FILE, parse_wand_csv
 
 BLOBS_FILE = "blobs.csv"
 # Sets in the window that finds still markers during the wand run: 2 s at 100 fps, long enough

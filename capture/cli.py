@@ -7,13 +7,13 @@ import json
 import sys
 from pathlib import Path
 
-from calib.rig import Rig
-from capture.detect_cli import add_detect_options
-from capture.folder import read_rig
-from capture.guidance_cli import add_guidance_options, positive_number
-from capture.progress import StatusLine, bar
-from drivers.camera import CameraDriver
-from drivers.errors import DriverError
+from wandcal.calib.rig import Rig
+from wandcal.capture.detect_cli import add_detect_options
+from wandcal.capture.folder import read_rig
+from wandcal.capture.guidance_cli import add_guidance_options, positive_number
+from wandcal.capture.progress import StatusLine, bar
+from wandcal.drivers.camera import CameraDriver
+from wandcal.drivers.errors import DriverError
 
 DEFAULT_WAND_LENGTH_M = 0.5
 
@@ -108,9 +108,9 @@ def _register_import(subparsers) -> None:
 def _live_detectors(args, rig: Rig, config):
     """The capture loop's detectors: one config for every camera, or, with masks or a per-camera
     background model (an empty-volume recording, a running average), one detector per camera."""
-    from calib.detect import STATEFUL
-    from capture.detect_cli import mask_from_args
-    from capture.detect_setup import MASK_NONE, camera_detectors
+    from wandcal.calib.detect import STATEFUL
+    from wandcal.capture.detect_cli import mask_from_args
+    from wandcal.capture.detect_setup import MASK_NONE, camera_detectors
 
     mask = mask_from_args(args)
     if mask == MASK_NONE and config.background not in STATEFUL:
@@ -128,8 +128,8 @@ def _common(p) -> None:
 
 
 def run_import_easywand(args) -> int:
-    from capture.folder import CaptureFormatError
-    from capture.importers.easywand import read_easywand_files, read_easywand_mat
+    from wandcal.capture.folder import CaptureFormatError
+    from wandcal.capture.formats.easywand import read_easywand_files, read_easywand_mat
 
     files = {"--wand": args.wand, "--profile": args.profile, "--wand-length": args.wand_length,
              "--background": args.background, "--axis": args.axis}
@@ -150,21 +150,21 @@ def run_import_easywand(args) -> int:
 
 
 def run_import_argus(args) -> int:
-    from capture.importers.argus import read_argus
+    from wandcal.capture.formats.argus import read_argus
 
     return _write_import(read_argus(args.source, args.profile, args.wand_length, args.unpaired, args.reference,
                                     args.height), args.out)
 
 
 def run_import_svoboda(args) -> int:
-    from capture.importers.svoboda import read_svoboda
+    from wandcal.capture.formats.svoboda import read_svoboda
 
     return _write_import(read_svoboda(args.source, args.focal_px), args.out)
 
 
 def _write_import(imported, out: Path) -> int:
-    from capture.folder import CAPTURE_FORMAT, CaptureFormatError, save_capture
-    from capture.importers import summary_lines
+    from wandcal.capture.folder import CAPTURE_FORMAT, CaptureFormatError, save_capture
+    from wandcal.capture.formats import summary_lines
 
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise CaptureFormatError(f"{out}: already exists and is not an empty folder; choose a new --out folder")
@@ -189,14 +189,14 @@ def _count(low: int):
 
 
 def run_emulator(args) -> int:
-    from drivers.trigger_emulator import serve_pty
+    from wandcal.drivers.trigger_emulator import serve_pty
 
     return serve_pty(vanish_after=args.vanish_after, start_us=args.start_us)
 
 
 def run_detect(args) -> int:
-    from capture.detect_cli import config_from_args, mask_from_args
-    from capture.images import detect_capture
+    from wandcal.capture.detect_cli import config_from_args, mask_from_args
+    from wandcal.capture.images import detect_capture
 
     config = config_from_args(args)
     status = StatusLine()
@@ -216,16 +216,16 @@ def run_detect(args) -> int:
 def run_capture(args) -> int:
     import contextlib
 
-    from calib.errors import CalibrationError
-    from capture.guidance import LiveGuidance
-    from capture.guidance_cli import guidance_lines, settings_from, summary
-    from capture.session import record
-    from drivers.registry import open_cameras
-    from drivers.trigger import open_trigger
+    from wandcal.calib.errors import CalibrationError
+    from wandcal.capture.guidance import LiveGuidance
+    from wandcal.capture.guidance_cli import guidance_lines, settings_from, summary
+    from wandcal.capture.session import record
+    from wandcal.drivers.registry import open_cameras
+    from wandcal.drivers.trigger import open_trigger
 
     if args.stop_when_enough and not args.guidance:
         raise CalibrationError("--stop-when-enough needs the guidance; drop --no-guidance")
-    from capture.detect_cli import config_from_args
+    from wandcal.capture.detect_cli import config_from_args
 
     config = config_from_args(args, live=True)
     cameras: list[CameraDriver] = [cam for url in args.camera for cam in open_cameras(url)]
@@ -280,7 +280,7 @@ def run_capture(args) -> int:
 
 
 def _image_policy(text: str):
-    from capture.record import ImagePolicy
+    from wandcal.capture.record import ImagePolicy
 
     try:
         return ImagePolicy.parse(text)
@@ -314,7 +314,7 @@ def _sim_scene(cameras: list[CameraDriver]):
 
 
 def _read_rig_file(path: Path) -> Rig:
-    from capture.folder import load_json, rig_from_json
+    from wandcal.capture.folder import load_json, rig_from_json
 
     try:
         data = path.read_bytes()

@@ -1,6 +1,6 @@
 """The blob detector's command-line options, shared by ``wandcal detect`` and ``wandcal capture``.
 
-Every option maps onto one field of :class:`calib.detect_config.DetectConfig`, whose defaults
+Every option maps onto one field of :class:`wandcal.calib.detect.config.DetectConfig`, whose defaults
 the help texts quote (this module imports NumPy only, so registering the options costs nothing); ``--background`` and ``--mask`` also name where a camera's empty-volume
 recording and masks come from (docs/capture-format.md, "Detection inputs").
 """
@@ -11,8 +11,8 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-from calib.detect_config import CLUTTER_MIN_ROUNDNESS, DEFAULT_CONFIG, MARKER_MIN_ROUNDNESS, DetectConfig
-from calib.errors import CalibrationError
+from wandcal.calib.detect.config import CLUTTER_MIN_ROUNDNESS, DEFAULT_CONFIG, MARKER_MIN_ROUNDNESS, DetectConfig
+from wandcal.calib.errors import CalibrationError
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ def config_from_args(args, live: bool = False) -> DetectConfig:
 
 
 def mask_from_args(args) -> str | Path:
-    """``--mask`` as :func:`capture.detect_setup.camera_detectors` takes it."""
-    from capture.detect_setup import MASK_AUTO, MASK_FOLDER, MASK_NONE
+    """``--mask`` as :func:`wandcal.capture.detect_setup.camera_detectors` takes it."""
+    from wandcal.capture.detect_setup import MASK_AUTO, MASK_FOLDER, MASK_NONE
 
     return args.mask if args.mask in (MASK_FOLDER, MASK_NONE, MASK_AUTO) else Path(args.mask)

@@ -6,7 +6,7 @@ A capture folder may hold, beside its frames (docs/capture-format.md, "Detection
     background/<camera_id>/<n:06d>.png  frames of the empty volume (no markers in view)
 
 :func:`camera_detectors` turns them and a :class:`DetectConfig` into one
-:class:`calib.detect.CameraDetector` per camera: the empty-volume background (per-pixel median)
+:class:`wandcal.calib.detect.CameraDetector` per camera: the empty-volume background (per-pixel median)
 for ``background="empty"``, and the mask, read from ``masks/``, from another folder, or made
 automatically from the empty-volume recording ("block visible") and then saved to ``masks/``.
 """
@@ -19,13 +19,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.background import median_background
-from calib.detect import CameraDetector, visible_mask
-from calib.detect_config import DetectConfig
-from calib.errors import CalibrationError
-from calib.rig import Rig
-from capture.folder import CaptureFormatError
-from drivers.imagefolder import FRAMES_DIR, IMAGE_SUFFIX
+from wandcal.calib.detect import CameraDetector, visible_mask
+from wandcal.calib.detect.background import median_background
+from wandcal.calib.detect.config import DetectConfig
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.rig import Rig
+from wandcal.capture.folder import CaptureFormatError
+from wandcal.drivers.imagefolder import FRAMES_DIR, IMAGE_SUFFIX
 
 MASKS_DIR = "masks"
 BACKGROUND_DIR = "background"

@@ -15,8 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import CalibrationError
-from calib.rig import AXIS_ROLES, AxisObservations, Camera, PointObservations, Rig, StaticObservations, WandObservations
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.rig import (
+    AXIS_ROLES,
+    AxisObservations,
+    Camera,
+    PointObservations,
+    Rig,
+    StaticObservations,
+    WandObservations,
+)
 
 CAPTURE_FORMAT = "wandcal-capture/1"
 RIG_FILE = "rig.json"
@@ -172,7 +180,7 @@ def parse_points_csv(text: str, rig: Rig, source: str = POINTS_FILE) -> PointObs
     """Parse points.csv text (``frame,camera,u,v``: one unlabelled marker per camera-frame, the
     same 3D point in every camera that saw it in that frame); errors name the line and column."""
     # a camera-frame with two points is ambiguous; like a wand camera-frame with three blobs it is
-    # dropped and counted by the pipeline (calib.observations.point_tracks), not refused here
+    # dropped and counted by the pipeline (wandcal.calib.observations.point_tracks), not refused here
     return PointObservations(*_frame_table(text, rig, POINTS_COLUMNS, source))
 
 

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from calib.guidance import DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM, GuidanceSettings
+from wandcal.calib.guidance import DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM, GuidanceSettings
 
 COVERED, EMPTY = "#", "."  # a coverage grid cell with / without wand samples, in the printed grids
 
@@ -58,8 +58,8 @@ def _share(text: str) -> float:
 
 
 def run_guidance(args) -> int:
-    from calib.guidance import wanding_guidance
-    from capture.folder import read_capture
+    from wandcal.calib.guidance import wanding_guidance
+    from wandcal.capture.folder import read_capture
 
     capture = read_capture(args.capture)
     document = wanding_guidance(capture.rig, capture.wand, capture.static, settings_from(args)).document

@@ -1,10 +1,10 @@
 """Detection over the image level of a capture folder: writes its points level.
 
 ``wandcal detect CAPTURE`` and :func:`ensure_points_level` (used by ``wandcal calibrate``) run
-:mod:`calib.detect` over ``frames/`` and ``static/`` and write ``wand.csv`` and ``static.csv``
+:mod:`wandcal.calib.detect` over ``frames/`` and ``static/`` and write ``wand.csv`` and ``static.csv``
 next to the images (docs/capture-format.md). Each camera has its own
-:class:`calib.detect.CameraDetector`, with the mask and empty-volume background that
-:mod:`capture.detect_setup` finds for it.
+:class:`wandcal.calib.detect.CameraDetector`, with the mask and empty-volume background that
+:mod:`wandcal.capture.detect_setup` finds for it.
 
 Decoding a 1280x1024 PNG costs ~6 ms and detecting its blobs ~0.3 ms, so a worker thread takes
 whole files: it decodes *and* detects, and hands back only the small blob arrays. ``cv2.imread``
@@ -27,18 +27,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.detect import (
+from wandcal.calib.detect import (
     Blobs,
     CameraDetector,
     DetectConfig,
     static_markers_from_frames,
     wand_frames,
 )
-from calib.errors import CalibrationError
-from calib.rig import StaticObservations, WandObservations
-from capture.detect_setup import MASK_FOLDER, CameraSetup, camera_detectors
-from capture.folder import WAND_FILE, CaptureFormatError, read_rig, write_capture
-from drivers.imagefolder import FRAMES_DIR, STATIC_DIR, image_path, listed_indices
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.rig import StaticObservations, WandObservations
+from wandcal.capture.detect_setup import MASK_FOLDER, CameraSetup, camera_detectors
+from wandcal.capture.folder import WAND_FILE, CaptureFormatError, read_rig, write_capture
+from wandcal.drivers.imagefolder import FRAMES_DIR, STATIC_DIR, image_path, listed_indices
 
 # Files queued per worker thread. A queued file is only a path and a finished one a few blob
 # arrays; each worker holds one decoded image at a time, so memory stays at ``workers`` frames
@@ -154,7 +154,7 @@ def detect_capture(folder: str | Path, config: DetectConfig | None = None, worke
         static_only_ok: accept a folder with static images but no wand frames (a live capture
             stopped before its wand run): it gets an empty wand.csv.
         mask: the cameras' masks: ``"folder"`` (the capture's ``masks/``, where present),
-            ``"none"``, ``"auto"`` or a folder (:func:`capture.detect_setup.camera_detectors`).
+            ``"none"``, ``"auto"`` or a folder (:func:`wandcal.capture.detect_setup.camera_detectors`).
         empty: where the empty-volume recording is, for ``background="empty"`` and ``mask="auto"``
             (None: the capture's own ``background/``).
 

@@ -13,12 +13,12 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from calib.rig import Rig
-from capture.centroids import CentroidRecorder
-from capture.folder import RIG_FILE, WAND_FILE, rig_to_json
-from capture.sync import FrameSet
-from capture.writer import ImageWriter
-from drivers.imagefolder import FRAMES_DIR, STATIC_DIR, SYNC_FILE, image_path, sync_header
+from wandcal.calib.rig import Rig
+from wandcal.capture.centroids import CentroidRecorder
+from wandcal.capture.folder import RIG_FILE, WAND_FILE, rig_to_json
+from wandcal.capture.sync import FrameSet
+from wandcal.capture.writer import ImageWriter
+from wandcal.drivers.imagefolder import FRAMES_DIR, STATIC_DIR, SYNC_FILE, image_path, sync_header
 
 LOG_FILE = "capture.json"
 LOG_FORMAT = "wandcal-capture-log/1"
@@ -74,10 +74,10 @@ class Recorder:
         triggered: False without a trigger; sync.csv then leaves trigger_count empty.
         images: which images to write (centroids are always written); None: all.
         listener: told of every live wand pair and of the static markers (the live guidance;
-            see :class:`capture.centroids.CentroidRecorder`).
+            see :class:`wandcal.capture.centroids.CentroidRecorder`).
 
     Frames must carry their blobs (``uv`` (K, 2)) and, where an image is to be written, ``image``
-    (:class:`capture.sync.DetectedFrame`).
+    (:class:`wandcal.capture.sync.DetectedFrame`).
     """
 
     def __init__(self, folder: Path, rig: Rig, writer: ImageWriter, triggered: bool = True,

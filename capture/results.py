@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import CalibrationError
-from calib.rig import Camera, Rig
-from capture.folder import MAX_IMAGE_SIDE_PX, CaptureFormatError, positive_number
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.rig import Camera, Rig
+from wandcal.capture.folder import MAX_IMAGE_SIDE_PX, CaptureFormatError, positive_number
 
 RESULT_FORMAT = "wandcal-result/1"
 ROTATION_TOLERANCE = 1e-6  # |R^T R - I|: a result written by wandcal is orthonormal to ~1e-15

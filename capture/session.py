@@ -2,7 +2,7 @@
 
 Each reader thread detects the blobs of its camera's frames as they arrive (0.3 ms a frame, in
 parallel across cameras), so the recorder writes centroids at the cameras' rate and images only
-as its :class:`~capture.record.ImagePolicy` asks; a frame whose image will not be written
+as its :class:`~wandcal.capture.record.ImagePolicy` asks; a frame whose image will not be written
 drops it at once.
 
 Memory bound (docs/capture-format.md, "Image-level capture"): frames wait in three places,
@@ -23,15 +23,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calib.detect import CameraDetector, DetectConfig
-from calib.errors import CalibrationError
-from calib.rig import Rig
-from capture.record import ImagePolicy, Recorder
-from capture.sync import Assembler, DetectedFrame, FrameSet
-from capture.writer import ImageWriter
-from drivers.camera import CameraDriver, Frame, TriggerMode
-from drivers.errors import DriverError, FrameError, FrameTimeout
-from drivers.trigger import SerialTrigger, TriggerLost
+from wandcal.calib.detect import CameraDetector, DetectConfig
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.rig import Rig
+from wandcal.capture.record import ImagePolicy, Recorder
+from wandcal.capture.sync import Assembler, DetectedFrame, FrameSet
+from wandcal.capture.writer import ImageWriter
+from wandcal.drivers.camera import CameraDriver, Frame, TriggerMode
+from wandcal.drivers.errors import DriverError, FrameError, FrameTimeout
+from wandcal.drivers.trigger import SerialTrigger, TriggerLost
 
 INBOX_SECONDS = 0.25
 LEAD_SECONDS = 0.5
@@ -164,8 +164,8 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         events: receives drift / realignment / fault messages as they happen.
         images: which images to write beside the centroids (None: all).
         detect: the blob detector's settings (None: its defaults), or one
-            :class:`calib.detect.CameraDetector` per camera (with its mask or background).
-        guidance: a :class:`capture.guidance.LiveGuidance` told of every wand pair (the caller
+            :class:`wandcal.calib.detect.CameraDetector` per camera (with its mask or background).
+        guidance: a :class:`wandcal.capture.guidance.LiveGuidance` told of every wand pair (the caller
             starts and closes it); its latest document rides on each :class:`Progress`.
         until: asked after each batch of wand sets; True ends the capture there, complete (e.g.
             when the guidance says enough).

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.camera import Frame
+from wandcal.drivers.camera import Frame
 
 STALL_S = 2.0  # a camera silent this long no longer holds back sets: its missing slots are emitted empty
 REALIGN_TOLERANCE = 0.25  # a jump within a quarter period of a whole number of periods is a clean shift
@@ -32,7 +32,7 @@ CLOCK_SMOOTHING = 0.05  # weight of a new sample in the running camera-to-trigge
 class DetectedFrame:
     """A camera frame after detection in the capture loop.
 
-    sequence, timestamp_us, camera_id: as the driver's :class:`~drivers.camera.Frame`; uv: (K, 2)
+    sequence, timestamp_us, camera_id: as the driver's :class:`~wandcal.drivers.camera.Frame`; uv: (K, 2)
     blob centres, pixels (origin top-left, y down); image: the frame, or None once it is known
     not to be written (centroid-only recording).
     """

@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drivers.errors import DriverError
+from wandcal.drivers.errors import DriverError
 
 # Sensor noise makes the dark background incompressible by prediction, so PNG row filters only
 # cost time: zlib level 1, Huffman coding only and no filter gave the smallest and fastest files

@@ -14,9 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from calib.rig import Camera
-from drivers.errors import DriverError
-
+from wandcal.calib.rig import Camera
+from wandcal.drivers.errors import DriverError
 
 # Frame rate assumed for sources that carry no timing (image sequences, folders without
 # sync.csv): the usual motion-capture rate, so made-up timestamps still look plausible.
@@ -76,13 +75,13 @@ class CameraDriver:
 
     Subclasses implement ``_open``, ``_close``, ``_apply(settings)`` and ``_read(timeout)``.
     ``read`` returns a :class:`Frame`, or None when a finite source (file, replay, simulation)
-    has no more frames; it raises :class:`~drivers.errors.FrameTimeout` when a live camera gave
-    nothing within ``timeout`` seconds and :class:`~drivers.errors.FrameError` for one lost frame.
+    has no more frames; it raises :class:`~wandcal.drivers.errors.FrameTimeout` when a live camera gave
+    nothing within ``timeout`` seconds and :class:`~wandcal.drivers.errors.FrameError` for one lost frame.
 
     Attributes:
         camera_id: unique name, used as the folder name of its frames.
         url: the URL it was opened from, for messages.
-        intrinsics: the camera's known :class:`calib.rig.Camera`, when the source knows it.
+        intrinsics: the camera's known :class:`wandcal.calib.rig.Camera`, when the source knows it.
         hardware_sequence: True when ``Frame.sequence`` counts exposures on the device (a gap is a
             lost frame); False when the driver counts the frames it received, so a lost frame
             shifts the count and only timestamps can match frames to pulses.
@@ -102,7 +101,7 @@ class CameraDriver:
     def state(self) -> RunState:
         return RunState.OPEN if self._depth else RunState.CLOSED
 
-    def open(self) -> "CameraDriver":
+    def open(self) -> CameraDriver:
         with self._lock:
             if self._depth == 0:
                 self._open()
@@ -118,7 +117,7 @@ class CameraDriver:
             if self._depth == 0:
                 self._close()
 
-    def __enter__(self) -> "CameraDriver":
+    def __enter__(self) -> CameraDriver:
         return self.open()
 
     def __exit__(self, *exc) -> None:

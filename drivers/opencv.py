@@ -17,8 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drivers.camera import NOMINAL_FPS, CameraDriver, CameraSettings, Frame, TriggerMode
-from drivers.errors import DriverError, FrameTimeout
+from wandcal.drivers.camera import NOMINAL_FPS, CameraDriver, CameraSettings, Frame, TriggerMode
+from wandcal.drivers.errors import DriverError, FrameTimeout
 
 V4L2_CTL = "v4l2-ctl"  # from v4l-utils; sets named device controls OpenCV cannot reach
 US_PER_MS = 1000.0

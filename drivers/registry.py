@@ -14,8 +14,8 @@ from __future__ import annotations
 from pathlib import Path
 from urllib.parse import parse_qsl, urlsplit
 
-from drivers.camera import CameraDriver
-from drivers.errors import DriverError
+from wandcal.drivers.camera import CameraDriver
+from wandcal.drivers.errors import DriverError
 
 SCHEMES = ("v4l2", "opencv", "replay", "sim")
 
@@ -27,11 +27,11 @@ def open_cameras(url: str) -> list[CameraDriver]:
     query = dict(parse_qsl(parts.query, keep_blank_values=True))
     path = parts.path  # not unquoted: an image-sequence pattern holds printf "%06d"
     if scheme == "sim":
-        from drivers.sim import open_sim
+        from wandcal.drivers.sim import open_sim
 
         return list(open_sim(url, query))
     if scheme == "replay":
-        from drivers.replay import open_replay
+        from wandcal.drivers.replay import open_replay
 
         return list(open_replay(url, path, query))
     if scheme in ("v4l2", "opencv"):
@@ -45,7 +45,7 @@ def open_cameras(url: str) -> list[CameraDriver]:
 def _open_cv(url: str, scheme: str, path: str, query: dict[str, str]) -> CameraDriver:
     import cv2
 
-    from drivers.opencv import OpenCVCamera
+    from wandcal.drivers.opencv import OpenCVCamera
 
     if not path:
         raise DriverError(f"{url}: no device or file; write e.g. v4l2:///dev/video0 or opencv:0")

@@ -14,11 +14,17 @@ from pathlib import Path
 
 import cv2
 
-from calib.rig import Camera
-from drivers.camera import NOMINAL_FPS, CameraDriver, CameraSettings, Frame, TriggerMode
-from drivers.errors import DriverError, FrameError
-from drivers.imagefolder import (
-    FRAMES_DIR, STATIC_DIR, SYNC_FILE, image_path, listed_cameras, listed_indices, read_sync,
+from wandcal.calib.rig import Camera
+from wandcal.drivers.camera import NOMINAL_FPS, CameraDriver, CameraSettings, Frame, TriggerMode
+from wandcal.drivers.errors import DriverError, FrameError
+from wandcal.drivers.imagefolder import (
+    FRAMES_DIR,
+    STATIC_DIR,
+    SYNC_FILE,
+    image_path,
+    listed_cameras,
+    listed_indices,
+    read_sync,
 )
 
 

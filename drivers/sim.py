@@ -1,8 +1,8 @@
 """Simulated IR cameras: ``sim://?cameras=4&seed=1&frames=300&static=25&drop=cam2:17``.
 
-The twin of a triggered rig. The scene comes from :mod:`calib.simulate` (cameras on a ring, a
-smooth wand path, the L-frame :data:`~calib.simulate.L_FRAME_M` on the floor) and each frame is
-drawn with :func:`calib.detect.render_blobs`. Sequence numbers count frames from 0: the first
+The twin of a triggered rig. The scene comes from :mod:`wandcal.calib.sim.simulate` (cameras on a ring, a
+smooth wand path, the L-frame :data:`~wandcal.calib.sim.simulate.L_FRAME_M` on the floor) and each frame is
+drawn with :func:`wandcal.calib.sim.render.render_blobs`. Sequence numbers count frames from 0: the first
 ``static`` frames show the L-frame alone (the static recording), the next ``frames`` the wand
 (and, with ``lframe=keep``, the L-frame still lying on the floor).
 
@@ -20,12 +20,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.detect import RENDER_HALF_WIDTH_SIGMAS, render_blobs
-from calib.geometry import depth, distort_points, project_normalized
-from calib.rig import Rig
-from calib.simulate import L_FRAME_M, Truth, simulate_capture
-from drivers.camera import CameraDriver, CameraSettings, Frame, TriggerMode
-from drivers.errors import DriverError, FrameTimeout
+from wandcal.calib.geometry import depth, distort_points, project_normalized
+from wandcal.calib.rig import Rig
+from wandcal.calib.sim.render import RENDER_HALF_WIDTH_SIGMAS, render_blobs
+from wandcal.calib.sim.simulate import L_FRAME_M, Truth, simulate_capture
+from wandcal.drivers.camera import CameraDriver, CameraSettings, Frame, TriggerMode
+from wandcal.drivers.errors import DriverError, FrameTimeout
 
 # A 14 mm retro-reflective marker, the common mocap size: its image radius f * r / z is ~2.5 px
 # at 3 m for f ~ 1100 px. The spot is drawn as a Gaussian of that sigma, clipped to the 1.5-2.5 px

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import serial
 
-from drivers import trigger_protocol as tp
-from drivers.errors import DriverError
+from wandcal.drivers import trigger_protocol as tp
+from wandcal.drivers.errors import DriverError
 
 REPLY_TIMEOUT_S = 2.0  # a board answers within milliseconds; USB re-enumeration can take a second
 READ_POLL_S = 0.05  # the reader thread's read timeout: how soon it notices close()
@@ -59,7 +59,7 @@ class SerialTrigger:
         self._unwrap = tp.Unwrapper()
 
     # -- lifetime
-    def open(self) -> "SerialTrigger":
+    def open(self) -> SerialTrigger:
         if self._depth == 0:
             self._connect()
         self._depth += 1
@@ -81,7 +81,7 @@ class SerialTrigger:
             if not self._given_port:
                 self._port.close()
 
-    def __enter__(self) -> "SerialTrigger":
+    def __enter__(self) -> SerialTrigger:
         return self.open()
 
     def __exit__(self, *exc) -> None:

@@ -16,7 +16,7 @@ import time
 import tty
 from collections.abc import Callable
 
-from drivers import trigger_protocol as tp
+from wandcal.drivers import trigger_protocol as tp
 
 FIRMWARE = "emulator"
 VERSION = "1.0"
@@ -189,7 +189,7 @@ class EmulatorProcess:
 
         root = Path(__file__).resolve().parents[1]
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
-        self.process = subprocess.Popen([sys.executable, "-m", "service.cli", "trigger-emulator", *extra],
+        self.process = subprocess.Popen([sys.executable, "-m", "wandcal.service.cli", "trigger-emulator", *extra],
                                         stdout=subprocess.PIPE, text=True, env=env)
         self.path = self.process.stdout.readline().strip()
         if not self.path.startswith("/dev/"):
@@ -206,7 +206,7 @@ class EmulatorProcess:
         self.process.wait()
         self.process.stdout.close()
 
-    def __enter__(self) -> "EmulatorProcess":
+    def __enter__(self) -> EmulatorProcess:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -1,5 +1,5 @@
 """The ``wandcal-trigger/1`` serial line protocol (docs/trigger-protocol.md), shared by the host
-client (:mod:`drivers.trigger`), the emulator and, in C, the reference firmware.
+client (:mod:`wandcal.drivers.trigger`), the emulator and, in C, the reference firmware.
 
 Lines are ASCII, terminated by LF (a CR before it is ignored). The host sends commands; the
 device answers each with exactly one reply line, and while running it also sends one pulse

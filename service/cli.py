@@ -11,12 +11,12 @@ import importlib
 import sys
 
 COMMAND_MODULES = {
-    "service.commands": ("simulate", "calibrate", "demo", "check"),
-    "capture.cli": ("capture", "detect", "trigger-emulator", "import"),
-    "capture.guidance_cli": ("guidance",),
-    "service.serve": ("serve",),
-    "service.export_command": ("export",),
-    "service.report.command": ("report",),
+    "wandcal.service.commands": ("simulate", "calibrate", "demo", "check"),
+    "wandcal.capture.cli": ("capture", "detect", "trigger-emulator", "import"),
+    "wandcal.capture.guidance_cli": ("guidance",),
+    "wandcal.service.serve": ("serve",),
+    "wandcal.service.export_command": ("export",),
+    "wandcal.service.report.command": ("report",),
 }
 
 
@@ -41,7 +41,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from calib.errors import CalibrationError
+    from wandcal.calib.errors import CalibrationError
 
     args = build_parser(sys.argv[1:] if argv is None else argv).parse_args(argv)
     try:

@@ -11,15 +11,15 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.ba import DEFAULT_LOSS, LOSSES
-from calib.errors import CalibrationError
-from calib.geometry import kabsch, rotation_angle
-from calib.paper import MAX_ROUNDS
-from calib.pipeline import DEFAULT_METHOD, METHODS, calibrate
-from calib.reprojection import INTRINSICS
-from calib.simulate import simulate_capture
-from capture.folder import read_capture, write_capture
-from service.progress import ProgressLine
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import kabsch, rotation_angle
+from wandcal.calib.pipeline import DEFAULT_METHOD, METHODS, calibrate
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
+from wandcal.calib.solve.paper import MAX_ROUNDS
+from wandcal.calib.solve.reprojection import INTRINSICS
+from wandcal.capture.folder import read_capture, write_capture
+from wandcal.service.progress import ProgressLine
 
 TRUTH_FILE = "truth.json"
 
@@ -110,11 +110,11 @@ def run_simulate(args) -> int:
 
 
 def _points_level(folder: Path, progress) -> Path:
-    """Detect first when the capture is image level (capture.images provides it)."""
+    """Detect first when the capture is image level (wandcal.capture.images provides it)."""
     if not folder.is_dir() or (folder / "wand.csv").is_file():
         return folder  # read_capture names what is missing
     try:
-        from capture.images import ensure_points_level
+        from wandcal.capture.images import ensure_points_level
     except ImportError:
         return folder
     return ensure_points_level(folder, progress=progress)
@@ -122,7 +122,7 @@ def _points_level(folder: Path, progress) -> Path:
 
 def _result_for(result_path: Path, cap):
     """The result's cameras (calibrated intrinsics and poses) in the capture's camera order."""
-    from capture.results import read_result
+    from wandcal.capture.results import read_result
 
     prev = read_result(result_path)
     missing = [cid for cid in cap.rig.ids if cid not in prev.rig.ids]
@@ -136,7 +136,7 @@ def _result_for(result_path: Path, cap):
 
 
 def run_check(args) -> int:
-    from calib.evaluate import check_cameras
+    from wandcal.calib.judge.evaluate import check_cameras
 
     folder = _points_level(args.capture, ProgressLine(quiet=True))
     cap = read_capture(folder)
@@ -172,7 +172,7 @@ def run_calibrate(args) -> int:
 
 
 def _run_solve_only(args, cap, progress) -> int:
-    from calib.resolve import solve_only
+    from wandcal.calib.resolve import solve_only
 
     if args.from_result is None or not args.solve_only:
         raise CalibrationError("--from RESULT and --solve-only CAM[,CAM] go together: name the result to start from "

@@ -6,9 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from calib.export import BOTTOM_LEFT, FORMAT_NAMES, TOP_LEFT, UNITS, export
-from capture.folder import CaptureFormatError
-from capture.results import read_result
+from wandcal.capture.folder import CaptureFormatError
+from wandcal.capture.formats.export import BOTTOM_LEFT, FORMAT_NAMES, TOP_LEFT, UNITS, export
+from wandcal.capture.results import read_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -14,9 +14,9 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass
 
-from calib.guidance import GuidanceSettings, Solution, wanding_guidance
-from service.settings import GuidanceConfig
-from service.storage import CaptureStore
+from wandcal.calib.guidance import GuidanceSettings, Solution, wanding_guidance
+from wandcal.service.settings import GuidanceConfig
+from wandcal.service.storage import CaptureStore
 
 KEPT_CAPTURES = 64  # the captures whose guidance is cached; a lab looks at a handful at a time
 

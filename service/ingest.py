@@ -13,9 +13,9 @@ from concurrent.futures import ThreadPoolExecutor
 import cv2
 import numpy as np
 
-from calib.detect_config import DetectConfig
-from calib.errors import CalibrationError
-from calib.rig import Camera, Rig, StaticObservations
+from wandcal.calib.detect.config import DetectConfig
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.rig import Camera, Rig, StaticObservations
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # OpenCV's decoders release the GIL, so a frame set's images decode side by side; two threads
@@ -68,7 +68,7 @@ def decode_image(data: bytes, camera: Camera) -> np.ndarray:
 
 def detect_one(data: bytes, camera: Camera, config: DetectConfig | None = None) -> np.ndarray:
     """(K, 2) blob centres in pixels (origin top-left, y down) in one encoded image."""
-    from calib.detect import detect_blobs
+    from wandcal.calib.detect import detect_blobs
 
     return detect_blobs(decode_image(data, camera), config).uv
 
@@ -84,7 +84,7 @@ def detect_frameset(images: dict[str, bytes], cameras: dict[str, Camera],
 def detect_static(images: dict[str, list[bytes]], cameras: dict[str, Camera],
                   config: DetectConfig | None = None) -> dict[str, np.ndarray]:
     """Static-object marker positions per camera, averaged over each camera's images."""
-    from calib.detect import static_markers_from_frames
+    from wandcal.calib.detect import static_markers_from_frames
 
     out = {}
     for cid, datas in images.items():

@@ -15,7 +15,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from service.db import connect, transaction
+from wandcal.service.db import connect, transaction
 
 # The first run plus one re-queue after a crash: a job that takes its worker down twice is
 # probably what takes it down, so it fails instead of looping.
@@ -60,7 +60,7 @@ class JobRecord:
     solve_seconds: float | None
 
     @classmethod
-    def from_row(cls, row) -> "JobRecord":
+    def from_row(cls, row) -> JobRecord:
         return cls(
             id=row["id"],
             capture_id=row["capture_id"],

@@ -1,6 +1,6 @@
 """``create_app(settings)``: the FastAPI application. Nothing is created at import time.
 
-Run it with ``wandcal serve`` or ``uvicorn --factory service.main:app_from_env``.
+Run it with ``wandcal serve`` or ``uvicorn --factory wandcal.service.main:app_from_env``.
 """
 
 from __future__ import annotations
@@ -16,17 +16,17 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
-from calib.errors import CalibrationError
-from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
-from service.api.deps import AppState, require_token
-from service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
-from service.db import disk_full, init_db
-from service.jobs import JobStore
-from service.limits import BodySizeLimit, RateLimiter
-from service.queue import JobQueue, SQLiteQueue
-from service.recovery import recover
-from service.settings import Settings
-from service.storage import CaptureNotFound, CaptureStore, ReplayPathError
+from wandcal.calib.errors import CalibrationError
+from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.service.api.deps import AppState, require_token
+from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
+from wandcal.service.db import disk_full, init_db
+from wandcal.service.jobs import JobStore
+from wandcal.service.limits import BodySizeLimit, RateLimiter
+from wandcal.service.queue import JobQueue, SQLiteQueue
+from wandcal.service.recovery import recover
+from wandcal.service.settings import Settings
+from wandcal.service.storage import CaptureNotFound, CaptureStore, ReplayPathError
 
 API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).parent / "static"
@@ -36,7 +36,7 @@ RETRY_AFTER_S = 5  # a busy database frees in milliseconds, a full disk when som
 
 def _queue(settings: Settings, store: JobStore, capture_store: CaptureStore) -> JobQueue:
     if settings.queue == "redis":
-        from service.redis_queue import RedisQueue
+        from wandcal.service.redis_queue import RedisQueue
 
         def read_files(capture_id: str) -> dict[str, str | None]:
             folder = capture_store.folder(capture_id)

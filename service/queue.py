@@ -1,19 +1,20 @@
 """The job interface the API talks to, and its default backend: SQLite plus local worker processes.
 
 ``JobQueue`` is what routes use; ``SQLiteQueue`` (here) and ``RedisQueue``
-(:mod:`service.redis_queue`) implement it. Job records always live in the service's SQLite
+(:mod:`wandcal.service.redis_queue`) implement it. Job records always live in the service's SQLite
 database, so finished results survive whatever happens to the queue.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Protocol
 
-from capture.folder import Capture
-from service.jobs import JobRecord, JobStore
-from service.worker import WorkerPool, run_claim
+from wandcal.capture.folder import Capture
+from wandcal.service.jobs import JobRecord, JobStore
+from wandcal.service.worker import WorkerPool, run_claim
 
 RESTART_REASON = "the server stopped while the job was running"
 

@@ -8,7 +8,7 @@
 | wand.csv rows of a streamed frame set killed before its commit | cut: the unanswered client sends the set again |
 | spooled upload bodies in ``tmp/`` | deleted |
 | ``reports/.<job id>.<random>.partial`` of a report being drawn | deleted: the next request draws it again |
-| a corrupt database | moved aside by :func:`service.db.init_db`; every capture folder is registered again |
+| a corrupt database | moved aside by :func:`wandcal.service.db.init_db`; every capture folder is registered again |
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ import os
 import shutil
 from pathlib import Path
 
-from capture.folder import STATIC_FILE, WAND_FILE, read_capture
-from service.db import connect
-from service.report.store import REPORTS_DIR
-from service.storage import CAPTURE_ID, WAND_PAIR, CaptureStore
+from wandcal.capture.folder import STATIC_FILE, WAND_FILE, read_capture
+from wandcal.service.db import connect
+from wandcal.service.report.store import REPORTS_DIR
+from wandcal.service.storage import CAPTURE_ID, WAND_PAIR, CaptureStore
 
 log = logging.getLogger("wandcal.service")
 

@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import json
 import time
-from typing import Callable
+from collections.abc import Callable
 
-from calib.errors import CalibrationError
-from capture.folder import Capture, parse_static_csv, parse_wand_csv, rig_from_json
-from service.jobs import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
-from service.worker import JobStopped, ThrottledProgress, solve
+from wandcal.calib.errors import CalibrationError
+from wandcal.capture.folder import Capture, parse_static_csv, parse_wand_csv, rig_from_json
+from wandcal.service.jobs import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
+from wandcal.service.worker import JobStopped, ThrottledProgress, solve
 
 JOB_TIMEOUT_S = 3600  # a large rig with the LP method stays well under an hour on a small PC
 RESULT_TTL_S = 7 * 24 * 3600  # results are copied into SQLite on the first poll; a week is ample
@@ -98,7 +98,7 @@ def _attempts(job, running: bool) -> int:
 
 
 class RedisQueue:
-    """:class:`service.queue.JobQueue` on rq; the Redis server and its workers are run by the site."""
+    """:class:`wandcal.service.queue.JobQueue` on rq; the Redis server and its workers are run by the site."""
 
     def __init__(self, store: JobStore, read_files: Callable[[str], dict[str, str | None]], url: str, name: str):
         from rq import Queue

@@ -7,8 +7,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from calib.pipeline import DEFAULT_METHOD, METHODS
-from service.jobs import JobState
+from wandcal.calib.pipeline import DEFAULT_METHOD, METHODS
+from wandcal.service.jobs import JobState
 
 
 class ErrorPublic(BaseModel):
@@ -99,7 +99,7 @@ class BlobSetsPublic(BaseModel):
     framesets: int = Field(description="frame sets the capture now holds")
 
 
-Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: calib.pipeline.METHODS
+Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: wandcal.calib.pipeline.METHODS
 
 
 class JobOptions(BaseModel):

@@ -6,7 +6,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from service.settings import Settings
+from wandcal.service.settings import Settings
 
 NO_TOKEN = (
     "refusing to listen on {host}: a non-loopback address needs a bearer token. Set WANDCAL_TOKEN "
@@ -33,7 +33,7 @@ def check_bind(settings: Settings) -> None:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from service.main import create_app
+    from wandcal.service.main import create_app
 
     overrides = {
         k: v for k, v in {"host": args.host, "port": args.port, "data_dir": args.data_dir, "workers": args.workers}.items()

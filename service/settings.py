@@ -14,11 +14,16 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
-from calib.detect_config import DEFAULT_CONFIG as DETECT
-from calib.detect_config import DetectConfig
-from calib.errors import CalibrationError
-from calib.guidance import DEFAULT_FRAMES_PER_CAMERA, DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM, MIN_SOLVE_FRAMES
-from capture.guidance import UPDATE_INTERVAL_S
+from wandcal.calib.detect.config import DEFAULT_CONFIG as DETECT
+from wandcal.calib.detect.config import DetectConfig
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.guidance import (
+    DEFAULT_FRAMES_PER_CAMERA,
+    DEFAULT_MIN_COVERAGE,
+    DEFAULT_TARGET_STD_MM,
+    MIN_SOLVE_FRAMES,
+)
+from wandcal.capture.guidance import UPDATE_INTERVAL_S
 
 DEFAULT_PORT = 8750
 DEFAULT_HOST = "127.0.0.1"  # loopback: a rig PC should not expose the API unless someone asks for it
@@ -50,7 +55,7 @@ class GuidanceConfig(BaseModel):
 
 class DetectGroup(BaseModel):
     """The ``[detect]`` group: the blob detector of streamed frame sets, static images and live
-    capture. Defaults and rules are :class:`calib.detect_config.DetectConfig`'s."""
+    capture. Defaults and rules are :class:`wandcal.calib.detect.config.DetectConfig`'s."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -83,7 +88,7 @@ class DetectGroup(BaseModel):
 
 
 class Settings(BaseSettings):
-    """Everything the service needs to know; nothing is created until :func:`service.main.create_app`."""
+    """Everything the service needs to know; nothing is created until :func:`wandcal.service.main.create_app`."""
 
     model_config = SettingsConfigDict(env_prefix="WANDCAL_", extra="forbid", validate_default=True)
 
@@ -108,7 +113,7 @@ class Settings(BaseSettings):
     redis_queue_name: str = "wandcal"
 
     @classmethod
-    def load(cls, config_file: str | Path | None = None, **overrides) -> "Settings":
+    def load(cls, config_file: str | Path | None = None, **overrides) -> Settings:
         """Settings from ``overrides``, the environment and ``config_file`` (default ``$WANDCAL_CONFIG``)."""
         path = config_file or os.environ.get("WANDCAL_CONFIG")
         if path is not None and not Path(path).is_file():

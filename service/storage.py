@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.rig import Rig, StaticObservations, WandObservations
-from capture.folder import (
+from wandcal.calib.rig import Rig, StaticObservations, WandObservations
+from wandcal.capture.folder import (
     AXIS_FILE,
     POINTS_FILE,
     RIG_FILE,
@@ -36,7 +36,7 @@ from capture.folder import (
     rig_from_json,
     save_capture,
 )
-from service.db import connect, transaction
+from wandcal.service.db import connect, transaction
 
 CAPTURE_ID = re.compile(r"^[0-9a-f]{32}$")
 CAPTURE_FILES = (RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE)  # what read_capture opens
@@ -69,7 +69,7 @@ class CaptureRow:
     static_solution: dict | None
 
     @classmethod
-    def from_row(cls, row) -> "CaptureRow":
+    def from_row(cls, row) -> CaptureRow:
         return cls(
             id=row["id"],
             created=row["created"],

@@ -16,13 +16,13 @@ import sqlite3
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
-from calib.errors import CalibrationError
-from capture.folder import Capture
-from service.db import disk_full
-from service.jobs import Claim, JobState, JobStore
+from wandcal.calib.errors import CalibrationError
+from wandcal.capture.folder import Capture
+from wandcal.service.db import disk_full
+from wandcal.service.jobs import Claim, JobState, JobStore
 
 log = logging.getLogger("wandcal.worker")
 
@@ -40,7 +40,7 @@ class JobStopped(Exception):
 
 def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict], None]) -> dict:
     """Calibrate a capture; returns the ``wandcal-result/1`` document."""
-    from calib.pipeline import calibrate  # the solver; imported here so the API process never loads it
+    from wandcal.calib.pipeline import calibrate  # the solver; imported here so the API process never loads it
 
     static = capture.static if options.get("use_static", True) else None
     result = calibrate(capture.rig, capture.wand, static=static, method=method, progress=progress,
@@ -134,11 +134,11 @@ def worker_main(db_path: str, data_dir: str, wake, stop, parent: int | None = No
     PR_SET_PDEATHSIG would otherwise leave it polling forever under init (seen in the tests)."""
     _die_with_parent()
     parent = os.getppid() if parent is None else parent
-    from service.storage import CaptureStore
+    from wandcal.service.storage import CaptureStore
 
     store = JobStore(Path(db_path))
     captures = CaptureStore(Path(data_dir), Path(db_path), None)
-    import calib.pipeline  # noqa: F401  (load the solver before the first job, not during it)
+    import wandcal.calib.pipeline  # noqa: F401  (load the solver before the first job, not during it)
     while not stop.is_set() and os.getppid() == parent:
         try:
             claim = store.claim(os.getpid())

@@ -10,10 +10,10 @@ from urllib.parse import unquote
 from fastapi import Depends, HTTPException, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from service.limits import RateLimiter
-from service.queue import JobQueue
-from service.settings import Settings
-from service.storage import CaptureNotFound, CaptureRow, CaptureStore
+from wandcal.service.limits import RateLimiter
+from wandcal.service.queue import JobQueue
+from wandcal.service.settings import Settings
+from wandcal.service.storage import CaptureNotFound, CaptureRow, CaptureStore
 
 
 @dataclass

@@ -9,8 +9,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from capture.folder import Capture
-from capture.results import ResultFile
+from wandcal.capture.folder import Capture
+from wandcal.capture.results import ResultFile
 
 INDEX = "index.html"
 RIG_PNG = "rig.png"
@@ -44,7 +44,7 @@ def write_report(result: ResultFile, capture: Capture | None, out_dir: str | Pat
     """Draw the figures and write the page into ``out_dir`` (created if needed).
 
     Args:
-        result: a read ``wandcal-result/1`` file (:func:`capture.results.read_result`).
+        result: a read ``wandcal-result/1`` file (:func:`wandcal.capture.results.read_result`).
         capture: the capture the result was calibrated from, or None: then only the rig and the
             tables are drawn, and the page says what needs the capture.
         out_dir: the report's folder.
@@ -57,9 +57,9 @@ def write_report(result: ResultFile, capture: Capture | None, out_dir: str | Pat
         CaptureFormatError: the capture is not the one the result came from.
     """
     require_matplotlib()
-    from service.report import figures
-    from service.report.analysis import analyse
-    from service.report.page import render_page
+    from wandcal.service.report import figures
+    from wandcal.service.report.analysis import analyse
+    from wandcal.service.report.page import render_page
 
     data = analyse(result, capture)
     out = Path(out_dir)

@@ -10,18 +10,18 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib.coverage import coverage_advice, coverage_grid, covered_fraction
-from calib.errors import CalibrationError
-from calib.evaluate import WandEvaluation, evaluate_wand, labelled_pairs
-from calib.guidance import DEFAULT_MIN_COVERAGE
-from calib.labels import flatten
-from calib.observations import point_tracks
-from calib.quality import OUTLIER_SIGMAS, outlier_mask
-from calib.rig import AxisObservations, PointObservations, Rig, WandObservations
-from calib.triangulate import reprojection_errors, triangulate_points
-from calib.world import axis_points
-from capture.folder import Capture, CaptureFormatError
-from capture.results import ResultFile
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.guidance import DEFAULT_MIN_COVERAGE
+from wandcal.calib.judge.coverage import coverage_advice, coverage_grid, covered_fraction
+from wandcal.calib.judge.evaluate import WandEvaluation, evaluate_wand, labelled_pairs
+from wandcal.calib.judge.quality import OUTLIER_SIGMAS, outlier_mask
+from wandcal.calib.observations import point_tracks
+from wandcal.calib.rig import AxisObservations, PointObservations, Rig, WandObservations
+from wandcal.calib.start.labels import flatten
+from wandcal.calib.start.world import axis_points
+from wandcal.calib.triangulate import reprojection_errors, triangulate_points
+from wandcal.capture.folder import Capture, CaptureFormatError
+from wandcal.capture.results import ResultFile
 
 COVERAGE_GOAL = DEFAULT_MIN_COVERAGE  # the wanding guidance's goal, and the verdict's "excellent"
 # Residuals are noise, the same over the whole image, when the lens model fits. A camera's samples

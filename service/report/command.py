@@ -16,9 +16,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_report(args) -> int:
-    from capture.folder import read_capture
-    from capture.results import read_result
-    from service.report import ReportUnavailable, require_matplotlib, write_report
+    from wandcal.capture.folder import read_capture
+    from wandcal.capture.results import read_result
+    from wandcal.service.report import ReportUnavailable, require_matplotlib, write_report
 
     try:
         require_matplotlib()

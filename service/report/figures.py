@@ -16,9 +16,9 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the "3d" projection)
 
-from calib.coverage import GRID
-from calib.quality import HIGH_RMS_PX, OUTLIER_SIGMAS, robust_sigma
-from service.report.analysis import CameraSummary, ReportData
+from wandcal.calib.judge.coverage import GRID
+from wandcal.calib.judge.quality import HIGH_RMS_PX, OUTLIER_SIGMAS, robust_sigma
+from wandcal.service.report.analysis import CameraSummary, ReportData
 
 DPI = 100
 # (width, height) in pixels: wide enough for a laptop screen, readable when the page scales them down

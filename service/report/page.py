@@ -5,7 +5,7 @@ from __future__ import annotations
 import html
 import math
 
-from service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
+from wandcal.service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
 
 DASH = "\u2014"  # what a field an older result lacks shows
 STYLE = """
@@ -30,7 +30,7 @@ def render_page(data: ReportData, figures: dict[str, str]) -> str:
     """The report page.
 
     Args:
-        data: what :func:`service.report.analysis.analyse` found.
+        data: what :func:`wandcal.service.report.analysis.analyse` found.
         figures: file names of the PNGs beside the page: ``"rig"``, ``"wand"`` and each camera's id.
     """
     doc = data.result.doc

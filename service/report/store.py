@@ -13,9 +13,9 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-from capture.folder import Capture
-from capture.results import result_from_json
-from service.report import FILE_NAME, INDEX, write_report
+from wandcal.capture.folder import Capture
+from wandcal.capture.results import result_from_json
+from wandcal.service.report import FILE_NAME, INDEX, write_report
 
 REPORTS_DIR = "reports"
 MEDIA_TYPES = {".png": "image/png", ".html": "text/html; charset=utf-8"}
@@ -62,7 +62,7 @@ def rendered_report(data_dir: Path, job_id: str, result: dict, load_capture: Cal
 
 def report_file(folder: Path, name: str) -> Path | None:
     """The file ``name`` of a report folder, or None: only names a report is made of
-    (:data:`service.report.FILE_NAME`), and only files directly in the folder."""
+    (:data:`wandcal.service.report.FILE_NAME`), and only files directly in the folder."""
     if not FILE_NAME.match(name):
         return None
     path = folder / name

@@ -1,6 +1,6 @@
 import pytest
 
-from calib.scenes import prepared_scene
+from wandcal.calib.sim.scenes import prepared_scene
 
 
 @pytest.fixture(scope="module")

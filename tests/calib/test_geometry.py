@@ -1,10 +1,16 @@
 import numpy as np
 import pytest
 
-from calib.geometry import (
-    distort_points, euler_jacobian, euler_to_matrix, kabsch, matrix_to_euler, rotation_angle, undistort_points,
+from wandcal.calib.geometry import (
+    distort_points,
+    euler_jacobian,
+    euler_to_matrix,
+    kabsch,
+    matrix_to_euler,
+    rotation_angle,
+    undistort_points,
 )
-from calib.rig import Camera
+from wandcal.calib.rig import Camera
 
 
 def test_euler_round_trip_and_convention():
@@ -48,7 +54,7 @@ def test_kabsch_recovers_rigid_and_similarity():
 def test_triangulation_survives_degenerate_points():
     """Parallel rays (a point seen twice by the same camera pose) give a singular system: the
     point comes back non-finite or unchanged, and the others are still triangulated."""
-    from calib.triangulate import triangulate_points
+    from wandcal.calib.triangulate import triangulate_points
 
     R = np.stack([np.eye(3), np.eye(3)])
     t = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, 3.0]])  # two identical cameras: no baseline

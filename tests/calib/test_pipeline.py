@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from calib.errors import CalibrationError
-from calib.export import export
-from calib.geometry import camera_centers, kabsch, rotation_angle
-from calib.pipeline import calibrate
-from calib.rig import StaticObservations, WandObservations
-from calib.simulate import STATIC_FRAMES_AVERAGED, simulate_capture
-from calib.world import apply, world_frame
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import camera_centers, kabsch, rotation_angle
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.rig import StaticObservations, WandObservations
+from wandcal.calib.sim.simulate import STATIC_FRAMES_AVERAGED, simulate_capture
+from wandcal.calib.start.world import apply, world_frame
+from wandcal.capture.formats.export import export
 
 NOISE = 0.3
 

@@ -4,13 +4,13 @@ seeded rigs with one camera knocked by 1 degree and 3 cm."""
 import numpy as np
 import pytest
 
-from calib.errors import CalibrationError
-from calib.evaluate import check_cameras
-from calib.geometry import camera_centers, rotation_angle
-from calib.pipeline import calibrate
-from calib.resolve import solve_only
-from calib.scenes import knocked_capture
-from calib.simulate import simulate_capture
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import camera_centers, rotation_angle
+from wandcal.calib.judge.evaluate import check_cameras
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.resolve import solve_only
+from wandcal.calib.sim.scenes import knocked_capture
+from wandcal.calib.sim.simulate import simulate_capture
 
 NOISE = 0.3
 KNOCK_DEG, KNOCK_M = 1.0, 0.03

@@ -8,11 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.pipeline import calibrate
-from capture.folder import read_capture
-from drivers.registry import open_cameras
-from drivers.trigger_emulator import EmulatorProcess
-from service.cli import main
+from wandcal.calib.pipeline import calibrate
+from wandcal.capture.folder import read_capture
+from wandcal.drivers.registry import open_cameras
+from wandcal.drivers.trigger_emulator import EmulatorProcess
+from wandcal.service.cli import main
 
 # The acceptance figure: camera centres within 2 mm of the truth. The simulation injects
 # read noise of 2 grey levels on spots of sigma 1.5-2.5 px, about 0.02-0.05 px of centroid noise,
@@ -96,12 +96,12 @@ def test_killing_the_emulator_mid_capture_keeps_the_data(tmp_path):
     import threading
     import time
 
-    from capture.session import record
+    from wandcal.capture.session import record
 
     cams = open_cameras("sim://?cameras=2&seed=6&frames=3000")
     out = tmp_path / "cap"
     with EmulatorProcess() as emu:
-        from drivers.trigger import SerialTrigger
+        from wandcal.drivers.trigger import SerialTrigger
 
         results = []
         worker = threading.Thread(target=lambda: results.append(

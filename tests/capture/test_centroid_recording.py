@@ -6,14 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from calib.guidance import GuidanceSettings
-from capture.centroids import BLOBS_FILE, STILL_WINDOW_SETS
-from capture.folder import read_capture
-from capture.guidance import LiveGuidance
-from capture.images import detect_capture
-from capture.record import ImagePolicy
-from capture.session import record
-from drivers.registry import open_cameras
+from wandcal.calib.guidance import GuidanceSettings
+from wandcal.capture.centroids import BLOBS_FILE, STILL_WINDOW_SETS
+from wandcal.capture.folder import read_capture
+from wandcal.capture.guidance import LiveGuidance
+from wandcal.capture.images import detect_capture
+from wandcal.capture.record import ImagePolicy
+from wandcal.capture.session import record
+from wandcal.drivers.registry import open_cameras
 
 FRAMES, STATIC = 240, 20
 SIM = f"sim://?cameras=4&seed=3&frames={FRAMES}&static={STATIC}"

@@ -9,11 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.detect import render_blobs
-from calib.simulate import simulate_capture
-from capture.folder import read_capture, rig_to_json
-from capture.images import detect_capture
-from service.cli import main
+from wandcal.calib.sim.render import render_blobs
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import read_capture, rig_to_json
+from wandcal.capture.images import detect_capture
+from wandcal.service.cli import main
 
 SHAPE = (240, 320)  # simulate_capture's rig says 1280x1024; rig.json is rewritten at this size
 FRAMES = 24
@@ -112,8 +112,8 @@ def test_detection_options_reach_the_detector(capture):
 def test_min_roundness_auto_leaves_the_choice_to_the_detector():
     import argparse
 
-    from calib.detect_config import DetectConfig
-    from capture.detect_cli import add_detect_options, config_from_args
+    from wandcal.calib.detect.config import DetectConfig
+    from wandcal.capture.detect_cli import add_detect_options, config_from_args
 
     parser = argparse.ArgumentParser()
     add_detect_options(parser)

@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.detect import render_blobs
-from calib.simulate import simulate_capture
-from capture.folder import CaptureFormatError, read_capture, rig_to_json
-from capture.images import PROGRESS_EVERY, detect_capture
-from service.cli import main
+from wandcal.calib.sim.render import render_blobs
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import CaptureFormatError, read_capture, rig_to_json
+from wandcal.capture.images import PROGRESS_EVERY, detect_capture
+from wandcal.service.cli import main
 
 SHAPE = (240, 320)  # small frames keep the test fast; detection does not care about the size
 FRAMES = 30

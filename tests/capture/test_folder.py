@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from calib.simulate import simulate_capture
-from capture.folder import CaptureFormatError, read_capture, write_capture
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import CaptureFormatError, read_capture, write_capture
 
 
 @pytest.fixture
@@ -101,7 +101,7 @@ def test_missing_folder_and_wand(tmp_path):
 def test_fast_and_row_readers_agree(folder):
     """Well-formed files go through numpy's C reader; the row reader (used for anything that
     needs a message) must read them identically."""
-    from capture.folder import _frame_table, _frame_table_fast, _rows, WAND_COLUMNS  # noqa: F401
+    from wandcal.capture.folder import WAND_COLUMNS, _frame_table, _frame_table_fast, _rows  # noqa: F401
 
     rig = read_capture(folder).rig
     text = (folder / "wand.csv").read_text()

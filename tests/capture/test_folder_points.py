@@ -6,10 +6,18 @@ import numpy as np
 import pytest
 import scipy.io
 
-from calib.rig import AxisObservations, PointObservations, Rig
-from calib.simulate import simulate_capture
-from capture.folder import AXIS_FILE, POINTS_FILE, RIG_FILE, WAND_FILE, CaptureFormatError, read_capture, write_capture
-from service.cli import main
+from wandcal.calib.rig import AxisObservations, PointObservations, Rig
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import (
+    AXIS_FILE,
+    POINTS_FILE,
+    RIG_FILE,
+    WAND_FILE,
+    CaptureFormatError,
+    read_capture,
+    write_capture,
+)
+from wandcal.service.cli import main
 
 
 @pytest.fixture

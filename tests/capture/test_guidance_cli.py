@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from drivers.trigger_emulator import EmulatorProcess
-from service.cli import main
+from wandcal.drivers.trigger_emulator import EmulatorProcess
+from wandcal.service.cli import main
 
 WAND_SETS, STATIC = 3000, 20
 SIM = f"sim://?cameras=4&seed=3&frames={WAND_SETS}&static={STATIC}"

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.detect import CameraDetector, DetectConfig
+from wandcal.calib.detect import CameraDetector, DetectConfig
 
 pytestmark = pytest.mark.shared_data
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench import real_sessions as rs
-from calib.geometry import kabsch
+from wandcal.calib.geometry import kabsch
 
 pytestmark = pytest.mark.shared_data
 

@@ -6,11 +6,11 @@ import csv
 import numpy as np
 import pytest
 
-from capture.folder import read_capture
-from capture.images import ensure_points_level
-from capture.session import record
-from drivers.registry import open_cameras
-from service.cli import main
+from wandcal.capture.folder import read_capture
+from wandcal.capture.images import ensure_points_level
+from wandcal.capture.session import record
+from wandcal.drivers.registry import open_cameras
+from wandcal.service.cli import main
 
 FRAMES = 40
 

@@ -3,10 +3,10 @@ import json
 import numpy as np
 import pytest
 
-from calib.pipeline import calibrate
-from calib.simulate import simulate_capture
-from capture.folder import CaptureFormatError
-from capture.results import read_result
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import CaptureFormatError
+from wandcal.capture.results import read_result
 
 
 @pytest.fixture(scope="module")

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from capture.sync import STALL_S, Assembler
-from drivers.camera import Frame
+from wandcal.capture.sync import STALL_S, Assembler
+from wandcal.drivers.camera import Frame
 
 PERIOD = 10_000  # us, 100 Hz
 IMG = np.zeros((2, 2), np.uint8)

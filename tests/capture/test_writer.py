@@ -6,10 +6,10 @@ import time
 import numpy as np
 import pytest
 
-import capture.writer as writer_module
-from capture.session import INBOX_SECONDS, LEAD_SECONDS, MEMORY_BUDGET_BYTES, WRITE_SECONDS, buffer_frames
-from capture.writer import ImageWriter
-from drivers.errors import DriverError
+import wandcal.capture.writer as writer_module
+from wandcal.capture.session import INBOX_SECONDS, LEAD_SECONDS, MEMORY_BUDGET_BYTES, WRITE_SECONDS, buffer_frames
+from wandcal.capture.writer import ImageWriter
+from wandcal.drivers.errors import DriverError
 
 
 def test_a_slow_disk_blocks_the_producer_instead_of_growing_the_queue(tmp_path, monkeypatch):

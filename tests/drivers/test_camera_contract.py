@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from drivers.camera import CameraSettings, RunState, TriggerMode
-from drivers.errors import DriverError
-from drivers.registry import open_cameras
+from wandcal.drivers.camera import CameraSettings, RunState, TriggerMode
+from wandcal.drivers.errors import DriverError
+from wandcal.drivers.registry import open_cameras
 
 
 @pytest.fixture(params=["sim", "replay", "opencv"])

@@ -5,10 +5,11 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.detect import detect_blobs, render_blobs
-from drivers.camera import TriggerMode
-from drivers.errors import DriverError
-from drivers.registry import open_cameras
+from wandcal.calib.detect import detect_blobs
+from wandcal.calib.sim.render import render_blobs
+from wandcal.drivers.camera import TriggerMode
+from wandcal.drivers.errors import DriverError
+from wandcal.drivers.registry import open_cameras
 
 SHAPE = (120, 160)
 N = 12

@@ -4,9 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
-from capture.session import record
-from drivers.errors import DriverError, FrameError
-from drivers.registry import open_cameras
+from wandcal.capture.session import record
+from wandcal.drivers.errors import DriverError, FrameError
+from wandcal.drivers.registry import open_cameras
 
 
 @pytest.fixture

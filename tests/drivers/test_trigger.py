@@ -4,10 +4,10 @@ import time
 
 import pytest
 
-from drivers import trigger_protocol as tp
-from drivers.errors import DriverError
-from drivers.trigger import SerialTrigger, TriggerLost, open_trigger
-from drivers.trigger_emulator import EmulatedTrigger, EmulatorProcess
+from wandcal.drivers import trigger_protocol as tp
+from wandcal.drivers.errors import DriverError
+from wandcal.drivers.trigger import SerialTrigger, TriggerLost, open_trigger
+from wandcal.drivers.trigger_emulator import EmulatedTrigger, EmulatorProcess
 
 
 def collect(trigger, n, timeout=5.0):

@@ -16,7 +16,7 @@ import random
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 
-from calib.errors import CalibrationError
+from wandcal.calib.errors import CalibrationError
 
 TRIED: collections.Counter = collections.Counter()  # kind of bad input -> inputs tried this run
 

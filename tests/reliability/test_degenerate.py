@@ -1,4 +1,4 @@
-"""Degenerate rigs, each answered with a specific message (calib/degenerate.py), and no false
+"""Degenerate rigs, each answered with a specific message (calib/start/degenerate.py), and no false
 alarm on sound captures."""
 
 from __future__ import annotations
@@ -6,13 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.degenerate import STILL_PX, check_capture
-from calib.errors import CalibrationError
-from calib.geometry import camera_centers, kabsch
-from calib.observations import wand_pairs
-from calib.pipeline import calibrate
-from calib.rig import Camera, Rig, StaticObservations, WandObservations
-from calib.simulate import (
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import camera_centers, kabsch
+from wandcal.calib.observations import wand_pairs
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.rig import Camera, Rig, StaticObservations, WandObservations
+from wandcal.calib.sim.simulate import (
     IMAGE_SIZE,
     L_FRAME_M,
     look_at,
@@ -21,6 +20,7 @@ from calib.simulate import (
     simulate_capture,
     wand_path,
 )
+from wandcal.calib.start.degenerate import STILL_PX, check_capture
 
 NOISE_PX, FOCAL_PX, RANGE_M = 0.3, 1100.0, 4.5
 # One frame pins a camera's ray to NOISE_PX / FOCAL_PX * RANGE_M (1.2 mm); the fit averages

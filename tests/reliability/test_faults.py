@@ -18,15 +18,15 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from calib.detect import render_blobs
-from calib.rig import Camera, Rig
-from capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json
-from service.main import create_app
-from service.db import connect
-from service.recovery import RECOVERED_SOURCE
-from service.settings import Settings
 from tests.reliability.servers import poll
 from tests.service.conftest import capture_files, simulated_capture
+from wandcal.calib.rig import Camera, Rig
+from wandcal.calib.sim.render import render_blobs
+from wandcal.capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json
+from wandcal.service.db import connect
+from wandcal.service.main import create_app
+from wandcal.service.recovery import RECOVERED_SOURCE
+from wandcal.service.settings import Settings
 
 DISK_BYTES = 4 << 20  # a small tmpfs: the database, a few captures, then full
 SMALL = (320, 240)  # streamed frame sets of small cameras keep the disk test's images small
@@ -100,7 +100,7 @@ def test_sigkill_during_a_live_recording_keeps_every_recorded_set(server):
     """Killed while recording: at the restart the recording is a capture holding every set whose
     row reached sync.csv, with its blobs (recorded live); only the images still queued for the
     PNG writer at the kill (its bound: capture/session.py) are missing, and they are the newest."""
-    from capture.session import BYTES_PER_PIXEL, WRITE_SECONDS, buffer_frames
+    from wandcal.capture.session import BYTES_PER_PIXEL, WRITE_SECONDS, buffer_frames
 
     rate_hz, cameras = 50.0, 2
     srv = server(workers=0)
@@ -261,7 +261,7 @@ def test_a_full_disk_answers_507_and_loses_nothing(small_disk, capture_folder, c
         assert c.get(f"/captures/{stream['id']}").json()["framesets"] == 1
         assert not list((small_disk / "data" / "captures").glob(".*"))
         # the solve's outcome waits in memory until there is room
-        from service.worker import run_claim
+        from wandcal.service.worker import run_claim
 
         solver = threading.Thread(target=run_claim, args=(store, app.state.wandcal.captures.load, claim))
         solver.start()
@@ -280,7 +280,7 @@ def test_a_full_disk_answers_507_and_loses_nothing(small_disk, capture_folder, c
 
 # -- devices ----------------------------------------------------------------------------------
 def test_the_trigger_vanishing_during_a_live_capture_keeps_what_was_recorded(tmp_path):
-    from drivers.trigger_emulator import EmulatorProcess
+    from wandcal.drivers.trigger_emulator import EmulatorProcess
 
     app = create_app(Settings(data_dir=tmp_path / "data", workers=0))
     with EmulatorProcess("--vanish-after", "40") as emu, \
@@ -302,7 +302,7 @@ def test_a_live_recording_that_cannot_be_registered_keeps_its_sets(tmp_path, mon
     status says where and what to run."""
     import errno
 
-    from drivers.trigger_emulator import EmulatorProcess
+    from wandcal.drivers.trigger_emulator import EmulatorProcess
 
     app = create_app(Settings(data_dir=tmp_path / "data", workers=0))
     store = app.state.wandcal.captures
@@ -330,10 +330,10 @@ def test_a_live_recording_that_cannot_be_registered_keeps_its_sets(tmp_path, mon
 def test_a_stalled_camera_does_not_hold_the_capture(tmp_path):
     """cam2 stops delivering after frame 50 (a stalled USB camera): the capture goes on at the
     trigger's pace, keeps every set with cam2's slot empty, and says so."""
-    from capture.session import record
-    from drivers.registry import open_cameras
-    from drivers.trigger import SerialTrigger
-    from drivers.trigger_emulator import EmulatorProcess
+    from wandcal.capture.session import record
+    from wandcal.drivers.registry import open_cameras
+    from wandcal.drivers.trigger import SerialTrigger
+    from wandcal.drivers.trigger_emulator import EmulatorProcess
 
     cams = open_cameras("sim://?cameras=2&seed=6&frames=150&drop=cam2:50-149")
     with EmulatorProcess() as emu:

@@ -11,11 +11,11 @@ from fastapi.testclient import TestClient
 from hypothesis import given
 from hypothesis import strategies as st
 
-from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, write_capture
-from service.main import create_app
-from service.settings import Settings
 from tests.reliability.fuzzing import FUZZ, TRIED, garbage_bytes
 from tests.reliability.test_fuzz_readers import GOOD_PNG, IMAGES, SIM, _bad_file, _kind
+from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, write_capture
+from wandcal.service.main import create_app
+from wandcal.service.settings import Settings
 
 UPLOAD_LIMIT = 1_000_000  # small, so the fuzzer's long files also meet the 413 path
 

@@ -19,22 +19,6 @@ import scipy.io
 from hypothesis import given
 from hypothesis import strategies as st
 
-from calib.rig import AxisObservations, Camera, PointObservations
-from calib.simulate import simulate_capture
-from capture.folder import (
-    AXIS_FILE,
-    POINTS_FILE,
-    RIG_FILE,
-    STATIC_FILE,
-    WAND_FILE,
-    read_capture,
-    write_capture,
-)
-from capture.importers.argus import read_argus
-from capture.importers.easywand import read_easywand_files, read_easywand_mat
-from capture.importers.svoboda import read_svoboda
-from capture.results import read_result
-from drivers.errors import DriverError
 from tests.reliability.fuzzing import (
     FUZZ,
     FUZZ_SLOW,
@@ -46,6 +30,22 @@ from tests.reliability.fuzzing import (
     truncated,
     wrong_encoding,
 )
+from wandcal.calib.rig import AxisObservations, Camera, PointObservations
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import (
+    AXIS_FILE,
+    POINTS_FILE,
+    RIG_FILE,
+    STATIC_FILE,
+    WAND_FILE,
+    read_capture,
+    write_capture,
+)
+from wandcal.capture.formats.argus import read_argus
+from wandcal.capture.formats.easywand import read_easywand_files, read_easywand_mat
+from wandcal.capture.formats.svoboda import read_svoboda
+from wandcal.capture.results import read_result
+from wandcal.drivers.errors import DriverError
 
 SIM = simulate_capture(3, 40, 0.3, seed=1)
 
@@ -102,7 +102,7 @@ def test_capture_folder_files(valid, tmp_path_factory, name):
 
 def test_calibrate_command_never_shows_a_traceback(valid, tmp_path_factory, capsys):
     """``wandcal calibrate`` end to end on a damaged wand.csv: exit 0, or exit 2 with a message."""
-    from service.cli import main
+    from wandcal.service.cli import main
 
     folder = tmp_path_factory.mktemp("cli")
 
@@ -123,7 +123,7 @@ def test_calibrate_command_never_shows_a_traceback(valid, tmp_path_factory, caps
 
 @pytest.fixture(scope="module")
 def result_text() -> bytes:
-    from calib.pipeline import calibrate
+    from wandcal.calib.pipeline import calibrate
 
     return json.dumps(calibrate(SIM.rig, SIM.wand, SIM.static).to_json()).encode()
 
@@ -241,7 +241,7 @@ IMAGES = st.one_of(
 
 
 def test_uploaded_images():
-    from service.ingest import decode_image
+    from wandcal.service.ingest import decode_image
 
     @FUZZ
     @given(data=IMAGES)
@@ -254,7 +254,7 @@ def test_uploaded_images():
 
 def test_replayed_image_folders(tmp_path_factory):
     """sync.csv and the PNGs of an image-level capture, replayed as cameras."""
-    from drivers.registry import open_cameras
+    from wandcal.drivers.registry import open_cameras
 
     folder = tmp_path_factory.mktemp("replay")
     (folder / "frames" / "cam1").mkdir(parents=True)
@@ -301,7 +301,7 @@ def test_documents_that_once_crashed(valid, result_text, tmp_path, name):
     for n, content in valid.items():
         (tmp_path / n).write_bytes(content)
     doc = json.loads(valid[RIG_FILE] if name == RIG_FILE else result_text)
-    for k, data in enumerate(_nasty_documents(doc)):
+    for data in _nasty_documents(doc):
         (tmp_path / name).write_bytes(data)
         read = (lambda: read_capture(tmp_path)) if name == RIG_FILE else (lambda: read_result(tmp_path / name))
         refused_cleanly(read, f"{name}: known nasty", name)

@@ -10,9 +10,9 @@ import json
 import numpy as np
 
 from bench import load
-from calib.simulate import simulate_capture
-from capture.folder import RIG_FILE, rig_to_json
 from tests.service.conftest import capture_files, simulated_capture
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import RIG_FILE, rig_to_json
 
 UPLOADS, UPLOAD_CONCURRENCY = 16, 8
 JOBS, JOB_CONCURRENCY = 6, 3
@@ -77,9 +77,9 @@ def test_concurrent_frame_sets_keep_every_count(tmp_path):
 
     import numpy as np
 
-    from capture.folder import read_capture
-    from service.db import init_db
-    from service.storage import CaptureStore
+    from wandcal.capture.folder import read_capture
+    from wandcal.service.db import init_db
+    from wandcal.service.storage import CaptureStore
 
     sim = simulate_capture(cameras=3, frames=2, seed=1)
     init_db(tmp_path / "db.sqlite3")

@@ -9,24 +9,24 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from calib import ba
-from calib.crb import gauge_errors, pose_crb
-from calib.errors import CalibrationError
-from calib.geometry import (
+from tests.reliability.fuzzing import FUZZ, FUZZ_PIPELINE, FUZZ_SLOW, TRIED
+from tests.reliability.test_degenerate import ABSOLUTE_TOL_M
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import (
     camera_centers,
     distort_points,
     project_normalized,
     rotvec_to_matrix,
     undistort_points,
 )
-from calib.pipeline import calibrate
-from calib.rig import Camera, Rig, StaticObservations, WandObservations
-from calib.scenes import perturbed_model, prepared_scene
-from calib.simulate import look_at, simulate_capture
-from calib.triangulate import triangulate_points
-from calib.wandmodel import WandModel
-from tests.reliability.fuzzing import FUZZ, FUZZ_PIPELINE, FUZZ_SLOW, TRIED
-from tests.reliability.test_degenerate import ABSOLUTE_TOL_M
+from wandcal.calib.judge.crb import gauge_errors, pose_crb
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.rig import Camera, Rig, StaticObservations, WandObservations
+from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
+from wandcal.calib.sim.simulate import look_at, simulate_capture
+from wandcal.calib.solve import ba
+from wandcal.calib.solve.wandmodel import WandModel
+from wandcal.calib.triangulate import triangulate_points
 
 NOISE_PX = 0.3
 # Two runs that end at the same optimum differ by the stopping rule's slack: each parameter

@@ -20,12 +20,12 @@ from fastapi.testclient import TestClient
 from hypothesis import given
 from hypothesis import strategies as st
 
-from capture.folder import RIG_FILE, WAND_FILE, write_capture
-from service.main import create_app
-from service.settings import Settings
 from tests.reliability.fuzzing import FUZZ, TRIED
 from tests.reliability.test_fuzz_readers import SIM
 from tests.service.conftest import REPO, free_port, server_env
+from wandcal.capture.folder import RIG_FILE, WAND_FILE, write_capture
+from wandcal.service.main import create_app
+from wandcal.service.settings import Settings
 
 TOKEN = "wandcal-Secret-7f3a9c"  # distinctive, so a leak anywhere is found by a plain search
 SECRET = "root:x:0:0:the-secret-outside-the-roots"
@@ -63,7 +63,7 @@ def client(roots):
 
 
 def test_the_token_is_compared_in_constant_time(client, monkeypatch):
-    from service.api import deps
+    from wandcal.service.api import deps
 
     calls = []
     real = deps.secrets.compare_digest
@@ -135,7 +135,7 @@ def _png_header(width: int, height: int, idat: bytes) -> bytes:
 def test_image_bombs_are_refused_before_decoding(client, monkeypatch):
     """A 40 kB PNG that inflates to 10 GB, and a 200-byte JPEG claiming 30000 x 30000 (which made
     OpenCV allocate 1.7 GB), are refused without being decoded."""
-    from service import ingest
+    from wandcal.service import ingest
 
     decoded = []
     monkeypatch.setattr(ingest.cv2, "imdecode", lambda *a: decoded.append(a) or cv2.imdecode(*a))
@@ -176,7 +176,7 @@ def test_the_token_never_reaches_a_log_or_an_answer(tmp_path):
     env = server_env(tmp_path, token=TOKEN, workers=0)
     port, log = free_port(), tmp_path / "server.log"
     with open(log, "wb") as out:
-        proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--log-level",
+        proc = subprocess.Popen([sys.executable, "-m", "wandcal.service.cli", "serve", "--port", str(port), "--log-level",
                                  "debug"], cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}/api/v1"
     try:

@@ -14,8 +14,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from calib.simulate import simulate_capture
-from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, write_capture
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, write_capture
 
 REPO = Path(__file__).resolve().parents[2]
 STARTUP_TIMEOUT_S = 60.0  # spawning workers imports numpy/scipy/OpenCV; slow on a busy 2-core CI box
@@ -52,9 +52,9 @@ class Server:
         headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
         return httpx.Client(base_url=self.url + "/api/v1", headers=headers, timeout=30.0, **kwargs)
 
-    def start(self) -> "Server":
+    def start(self) -> Server:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "service.cli", "serve", "--port", str(self.port), "--log-level", "warning"],
+            [sys.executable, "-m", "wandcal.service.cli", "serve", "--port", str(self.port), "--log-level", "warning"],
             cwd=REPO, env=self.env, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT,
         )
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
@@ -111,7 +111,7 @@ def make_server(tmp_path):
 
 
 def simulated_capture(folder: Path, **simulation):
-    """A points-level capture folder from :func:`calib.simulate.simulate_capture`, and the simulation."""
+    """A points-level capture folder from :func:`wandcal.calib.sim.simulate.simulate_capture`, and the simulation."""
     sim = simulate_capture(**simulation)
     write_capture(folder, sim.rig, sim.wand, sim.static)
     return folder, sim

@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from calib.detect import render_blobs
-from calib.simulate import simulate_capture
-from capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json, write_capture
-from service.jobs import MAX_ATTEMPTS, JobState, JobStore
-from service.main import create_app
-from service.settings import Settings
 from tests.service.conftest import capture_files
+from wandcal.calib.sim.render import render_blobs
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json, write_capture
+from wandcal.service.jobs import MAX_ATTEMPTS, JobState, JobStore
+from wandcal.service.main import create_app
+from wandcal.service.settings import Settings
 
 # Detection of a rendered spot without read noise is exact to a few hundredths of a pixel
-# (calib.detect's own tests); 0.05 px is that bound.
+# (wandcal.calib.detect's own tests); 0.05 px is that bound.
 DETECT_TOL_PX = 0.05
 
 

@@ -6,13 +6,13 @@ import json
 
 import numpy as np
 
-from calib.geometry import kabsch
-from calib.simulate import simulate_capture
-from capture.folder import RIG_FILE, read_capture, rig_to_json
-from service.schemas import MAX_BLOB_SETS, MAX_BLOBS_PER_CAMERA
 from tests.service.conftest import capture_files, wait_job
 from tests.service.test_api import app_client  # noqa: F401 (a fixture)
 from tests.service.test_http import SHAPE_TOL_M
+from wandcal.calib.geometry import kabsch
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import RIG_FILE, read_capture, rig_to_json
+from wandcal.service.schemas import MAX_BLOB_SETS, MAX_BLOBS_PER_CAMERA
 
 
 def blob_sets(sim, frames) -> list[dict]:
@@ -100,7 +100,7 @@ def test_bad_blob_sets_are_refused_whole_with_the_set_and_camera_named(app_clien
 
 
 def capture_files_of(sim, app):
-    from capture.folder import write_capture
+    from wandcal.capture.folder import write_capture
 
     folder = app.state.wandcal.settings.data_dir.parent / "upload"
     write_capture(folder, sim.rig, sim.wand, None)

@@ -4,16 +4,15 @@ import json
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 
-from calib.scenes import knocked_capture
-from calib.simulate import simulate_capture
-from capture.folder import write_capture
+from wandcal.calib.sim.scenes import knocked_capture
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import write_capture
 
 
 def wandcal(*args):
-    return subprocess.run([sys.executable, "-m", "service.cli", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *map(str, args)], capture_output=True, text=True,
                           timeout=600)
 
 

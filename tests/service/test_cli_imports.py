@@ -5,15 +5,16 @@ import json
 import subprocess
 import sys
 
-from calib.simulate import simulate_capture
-from capture.folder import write_capture
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import write_capture
 
 # the service's stack, and the solvers only `--method lp`/`paper` load when they run
 NOT_FOR_CALIBRATE = ("fastapi", "uvicorn", "starlette", "pydantic", "pydantic_settings", "multipart", "httpx", "scipy", "highspy")
 PROBE = (
-    "import json, sys; from service.cli import main\n"
+    "import json, sys; from wandcal.service.cli import main\n"
     "try:\n    code = main(sys.argv[1:])\nexcept SystemExit as exc:\n    code = exc.code\n"
-    "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules})), file=sys.stderr)\n"
+    "print(json.dumps(sorted({'.'.join(m.split('.')[:2]) if m.startswith('wandcal.') else m.split('.')[0]\n"
+    "                         for m in sys.modules})), file=sys.stderr)\n"
     "sys.exit(code)"
 )
 
@@ -35,22 +36,23 @@ def test_a_real_calibrate_imports_no_web_framework(tmp_path):
     write_capture(folder, sim.rig, sim.wand, sim.static)
     loaded = loaded_packages("calibrate", str(folder), "--quiet", "--out", str(tmp_path / "result.json"))
     assert (tmp_path / "result.json").is_file()
-    assert "calib" in loaded  # the probe saw the calibration run
+    assert "wandcal.calib" in loaded  # the probe saw the calibration run
     assert not loaded & set(NOT_FOR_CALIBRATE), sorted(loaded & set(NOT_FOR_CALIBRATE))
 
 
 def test_importtime_of_calibrate_help_shows_no_web_framework():
     """The same through `python -X importtime`, the tool to look with when this test fails."""
-    done = subprocess.run([sys.executable, "-X", "importtime", "-m", "service.cli", "calibrate", "--help"],
+    done = subprocess.run([sys.executable, "-X", "importtime", "-m", "wandcal.service.cli", "calibrate", "--help"],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    modules = {line.rsplit("|", 1)[-1].strip().split(".")[0] for line in done.stderr.splitlines() if line.startswith("import time:")}
-    assert "calib" in modules
+    names = [line.rsplit("|", 1)[-1].strip() for line in done.stderr.splitlines() if line.startswith("import time:")]
+    modules = {name.split(".")[0] for name in names}
+    assert "wandcal.calib" in names
     assert not modules & {"fastapi", "uvicorn", "starlette", "pydantic"}, sorted(modules & {"fastapi", "uvicorn", "starlette", "pydantic"})
 
 
 def test_serve_still_registers_and_help_lists_every_command():
-    done = subprocess.run([sys.executable, "-m", "service.cli", "--help"], capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, "-m", "wandcal.service.cli", "--help"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     for command in ("simulate", "calibrate", "demo", "capture", "detect", "import", "serve"):
         assert command in done.stdout

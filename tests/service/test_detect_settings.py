@@ -11,11 +11,12 @@ import pytest
 from fastapi.testclient import TestClient
 from pydantic import ValidationError
 
-from calib.detect import DetectConfig, render_blobs
-from calib.simulate import simulate_capture
-from capture.folder import RIG_FILE, rig_to_json
-from service.main import create_app
-from service.settings import Settings
+from wandcal.calib.detect import DetectConfig
+from wandcal.calib.sim.render import render_blobs
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import RIG_FILE, rig_to_json
+from wandcal.service.main import create_app
+from wandcal.service.settings import Settings
 
 SPOTS = np.array([[300.0, 400.0], [900.5, 610.2]])  # two wand markers in a 1280x1024 frame
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.export import FORMAT_NAMES, export
-from calib.export_dlt import read_dlt_csv
-from calib.export_xml import read_qca, read_xcp
 from tests.service.conftest import capture_files, wait_job
+from wandcal.capture.formats.dlt import read_dlt_csv
+from wandcal.capture.formats.export import FORMAT_NAMES, export
+from wandcal.capture.formats.qualisys_vicon import read_qca, read_xcp
 
 MEDIA = {"anipose-toml": "application/toml", "opencv-yaml": "application/x-yaml", "dlt-csv": "text/csv",
          "qca": "application/xml", "xcp": "application/xml"}

@@ -9,10 +9,10 @@ import sys
 import numpy as np
 import pytest
 
-from calib.export import FORMAT_NAMES, read_anipose_toml, read_opencv_yaml
-from calib.export_dlt import read_dlt_csv
-from calib.export_xml import read_qca, read_xcp
 from tests.service.test_cli_imports import NOT_FOR_CALIBRATE, loaded_packages
+from wandcal.capture.formats.dlt import read_dlt_csv
+from wandcal.capture.formats.export import FORMAT_NAMES, read_anipose_toml, read_opencv_yaml
+from wandcal.capture.formats.qualisys_vicon import read_qca, read_xcp
 
 READERS = {
     "anipose-toml": lambda text, doc: read_anipose_toml(text),
@@ -24,7 +24,7 @@ READERS = {
 
 
 def wandcal(*args):
-    return subprocess.run([sys.executable, "-m", "service.cli", *args], capture_output=True, text=True, timeout=600, check=False)
+    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *args], capture_output=True, text=True, timeout=600, check=False)
 
 
 @pytest.fixture(scope="module")

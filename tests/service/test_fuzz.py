@@ -12,8 +12,8 @@ schemathesis = pytest.importorskip("schemathesis", reason="pip install schemathe
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from schemathesis.checks import not_a_server_error  # noqa: E402
 
-from service.main import create_app  # noqa: E402
-from service.settings import Settings  # noqa: E402
+from wandcal.service.main import create_app  # noqa: E402
+from wandcal.service.settings import Settings  # noqa: E402
 
 # ~16 operations x 25 examples stays under ~20 s on 2 cores; the suite keeps the run bounded.
 MAX_EXAMPLES = 25

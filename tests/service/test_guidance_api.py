@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import json
 
-from calib.simulate import simulate_capture
-from capture.folder import RIG_FILE, rig_to_json
 from tests.service.test_api import _frameset_files, app_client, upload  # noqa: F401 (app_client: a fixture)
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import RIG_FILE, rig_to_json
 
 STREAMED_SETS = 40
 

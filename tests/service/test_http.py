@@ -7,8 +7,8 @@ import sys
 
 import numpy as np
 
-from calib.geometry import kabsch
 from tests.service.conftest import REPO, capture_files, server_env, wait_job
+from wandcal.calib.geometry import kabsch
 
 NOISE_PX = 0.3
 FOCAL_PX = 1000.0  # the simulator's focal lengths lie in 1000-1150 px
@@ -114,7 +114,7 @@ def test_token_required_and_checked(make_server):
 def test_non_loopback_bind_without_token_is_refused(tmp_path):
     env = server_env(tmp_path)
     proc = subprocess.run(
-        [sys.executable, "-m", "service.cli", "serve", "--host", "0.0.0.0", "--port", "1"],
+        [sys.executable, "-m", "wandcal.service.cli", "serve", "--host", "0.0.0.0", "--port", "1"],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=60,
     )
     assert proc.returncode != 0

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from drivers.registry import open_cameras
-from drivers.trigger_emulator import EmulatorProcess
-from service.main import create_app
-from service.settings import Settings
 from tests.service.conftest import wait_job
+from wandcal.drivers.registry import open_cameras
+from wandcal.drivers.trigger_emulator import EmulatorProcess
+from wandcal.service.main import create_app
+from wandcal.service.settings import Settings
 
 SIM_URL = "sim://?cameras=3&seed=2&frames=60&static=10"
 WAND_SETS, STATIC_SETS = 60, 10
@@ -21,7 +21,7 @@ WAND_SETS, STATIC_SETS = 60, 10
 LONG_URL = "sim://?cameras=3&seed=2&frames=2000"
 LONG_RATE_HZ = 50.0
 CAPTURE_TIMEOUT_S = 60.0
-# The rendered blobs are found to a few hundredths of a pixel (calib.detect's tests: 0.05 px).
+# The rendered blobs are found to a few hundredths of a pixel (wandcal.calib.detect's tests: 0.05 px).
 # The world frame comes from PnP on the L-frame (0.5 m arm) seen from ~4.5 m at f ~1000 px: its
 # depth error z^2 * sigma / (f * arm) is ~2 mm, and its tilt moves the centres about as much again.
 DETECT_PX, RANGE_M, FOCAL_PX, ARM_M = 0.05, 4.5, 1000.0, 0.5

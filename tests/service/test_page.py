@@ -9,8 +9,6 @@ import subprocess
 
 import pytest
 
-from drivers.trigger_emulator import EmulatorProcess
-from service.settings import DEFAULT_CONTINUE_TIMEOUT_S
 from tests.service.conftest import capture_files, wait_job
 from tests.service.test_live_capture import (
     LOOSE_GUIDANCE,
@@ -21,6 +19,8 @@ from tests.service.test_live_capture import (
     wait_capture,
     watch_guidance,
 )
+from wandcal.drivers.trigger_emulator import EmulatorProcess
+from wandcal.service.settings import DEFAULT_CONTINUE_TIMEOUT_S
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install -y chromium)")

@@ -15,20 +15,20 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.coverage import GRID
-from calib.pipeline import calibrate
-from calib.rig import Camera, Rig, WandObservations
-from calib.simulate import simulate_capture
-from capture.folder import Capture, read_capture, write_capture
-from capture.results import read_result, result_from_json
-from service.report import INSTALL_HINT, RIG_PNG, WAND_PNG, ReportUnavailable, camera_png
-from service.report.analysis import analyse, rim_ratio
-from service.report.figures import CAMERA_SIZE_PX, RIG_SIZE_PX, WAND_SIZE_PX, frustum
-from service.report.store import rendered_report, report_folder
 from tests.conftest import SHARED_DATA
 from tests.service.conftest import REPO, capture_files, wait_job
 from tests.service.test_cli_imports import loaded_packages
 from tests.service.test_http import ABSOLUTE_TOL_M
+from wandcal.calib.judge.coverage import GRID
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.rig import Camera, Rig, WandObservations
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.capture.folder import Capture, read_capture, write_capture
+from wandcal.capture.results import read_result, result_from_json
+from wandcal.service.report import INSTALL_HINT, RIG_PNG, WAND_PNG, ReportUnavailable, camera_png
+from wandcal.service.report.analysis import analyse, rim_ratio
+from wandcal.service.report.figures import CAMERA_SIZE_PX, RIG_SIZE_PX, WAND_SIZE_PX, frustum
+from wandcal.service.report.store import rendered_report, report_folder
 
 pytest.importorskip("matplotlib", reason="pip install 'wandcal[report]' (in the 'test' extra)")
 
@@ -42,7 +42,7 @@ CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
 def wandcal(*args):
-    return subprocess.run([sys.executable, "-m", "service.cli", *args], capture_output=True, text=True, cwd=REPO,
+    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *args], capture_output=True, text=True, cwd=REPO,
                           timeout=600)
 
 
@@ -65,7 +65,7 @@ class Page(HTMLParser):
 
 
 def left_third_px(width: int) -> float:
-    """The right edge of the coverage grid's left third, pixels (calib.coverage splits columns
+    """The right edge of the coverage grid's left third, pixels (wandcal.calib.judge.coverage splits columns
     into thirds of whole cells)."""
     return round(GRID[1] / 3) * width / GRID[1]
 
@@ -207,7 +207,7 @@ def test_bad_input_exits_2_with_a_message(sim_report, tmp_path):
 
 
 def test_without_matplotlib_the_command_says_what_to_install(sim_report, monkeypatch, capsys, tmp_path):
-    from service.cli import main
+    from wandcal.service.cli import main
 
     tmp, _, _ = sim_report
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib now fails, as when it is absent

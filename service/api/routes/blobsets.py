@@ -13,9 +13,9 @@ import numpy as np
 from fastapi import APIRouter, HTTPException
 from fastapi.concurrency import run_in_threadpool
 
-from service.api.deps import CaptureDep, State
-from service.schemas import MAX_BLOBS_PER_CAMERA, BlobSetsCreate, BlobSetsPublic, ErrorPublic
-from service.storage import DuplicateFrameSet
+from wandcal.service.api.deps import CaptureDep, State
+from wandcal.service.schemas import MAX_BLOBS_PER_CAMERA, BlobSetsCreate, BlobSetsPublic, ErrorPublic
+from wandcal.service.storage import DuplicateFrameSet
 
 router = APIRouter(prefix="/captures", tags=["captures"])
 

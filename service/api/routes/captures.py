@@ -9,11 +9,11 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 from starlette.datastructures import FormData, UploadFile
 
-from calib.rig import StaticObservations
-from calib.static import solve_static
-from capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
-from service.api.deps import CaptureDep, State, require_content_type
-from service.schemas import (
+from wandcal.calib.rig import StaticObservations
+from wandcal.calib.start.static import solve_static
+from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.service.api.deps import CaptureDep, State, require_content_type
+from wandcal.service.schemas import (
     CameraCoverage,
     CaptureList,
     CapturePublic,
@@ -22,7 +22,7 @@ from service.schemas import (
     StaticCameraPublic,
     StaticSolutionPublic,
 )
-from service.storage import CaptureRow, DuplicateFrameSet, ReplayPathError
+from wandcal.service.storage import CaptureRow, DuplicateFrameSet, ReplayPathError
 
 router = APIRouter(prefix="/captures", tags=["captures"])
 
@@ -190,7 +190,7 @@ async def add_frameset(capture: CaptureDep, request: Request, state: State) -> F
         raise HTTPException(422, "the frame set holds no images; send one image per camera, field name = camera id")
     rig = await run_in_threadpool(state.captures.rig, capture.id)
     cameras = {c.id: c for c in rig.cameras}
-    from service.ingest import detect_frameset
+    from wandcal.service.ingest import detect_frameset
 
     blobs = await run_in_threadpool(detect_frameset, images, cameras, state.settings.detect.config())
     try:
@@ -258,7 +258,7 @@ async def _static_from_images(request: Request, state, capture: CaptureRow, rig)
             raise HTTPException(422, f"camera {key!r}: more than {MAX_STATIC_IMAGES_PER_CAMERA} static images")
     if not images:
         raise HTTPException(422, "no images; send images of the static object, field name = camera id")
-    from service.ingest import detect_static, static_observations
+    from wandcal.service.ingest import detect_static, static_observations
 
     markers = await run_in_threadpool(detect_static, images, {c.id: c for c in rig.cameras},
                                       state.settings.detect.config())

@@ -6,10 +6,10 @@ import threading
 
 from fastapi import APIRouter, HTTPException, Request
 
-from service.api.deps import State
-from service.guidance import GuidanceBoard
-from service.schemas import ErrorPublic, GuidancePublic
-from service.storage import CaptureNotFound
+from wandcal.service.api.deps import State
+from wandcal.service.guidance import GuidanceBoard
+from wandcal.service.schemas import ErrorPublic, GuidancePublic
+from wandcal.service.storage import CaptureNotFound
 
 router = APIRouter(prefix="/captures", tags=["guidance"])
 _board_lock = threading.Lock()

@@ -6,9 +6,9 @@ from importlib.metadata import PackageNotFoundError, version
 
 from fastapi import APIRouter
 
-from service.api.deps import State
-from service.jobs import JobState
-from service.schemas import Health
+from wandcal.service.api.deps import State
+from wandcal.service.jobs import JobState
+from wandcal.service.schemas import Health
 
 router = APIRouter(tags=["health"])
 

@@ -8,10 +8,18 @@ from fastapi import APIRouter, HTTPException, Query, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, RedirectResponse
 
-from service.api.deps import State, require_content_type
-from service.jobs import JobRecord, JobState
-from service.schemas import ErrorPublic, JobCreate, JobList, JobPublic, JobSummary, ResultFormat, ValidationErrorPublic
-from service.storage import CaptureNotFound
+from wandcal.service.api.deps import State, require_content_type
+from wandcal.service.jobs import JobRecord, JobState
+from wandcal.service.schemas import (
+    ErrorPublic,
+    JobCreate,
+    JobList,
+    JobPublic,
+    JobSummary,
+    ResultFormat,
+    ValidationErrorPublic,
+)
+from wandcal.service.storage import CaptureNotFound
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -143,7 +151,7 @@ async def get_result(
                                      "top-left; unit and origin choose another format's (docs/formats.md)")
         text = json.dumps(record.result, indent=2)
     else:
-        from calib import export
+        from wandcal.capture.formats import export
 
         rig = await run_in_threadpool(state.captures.rig, record.capture_id)
         text = export.export(record.result, format.value, rig, unit=unit, origin=origin)
@@ -162,8 +170,8 @@ NO_MATPLOTLIB = {"model": ErrorPublic, "description": "the server lacks matplotl
 
 def _report(state, job_id: str):
     """The folder of a done job's report, drawn on the first request (with the job's capture)."""
-    from service.report import ReportUnavailable
-    from service.report.store import rendered_report
+    from wandcal.service.report import ReportUnavailable
+    from wandcal.service.report.store import rendered_report
 
     record = _job(state, job_id)
     if record.state is not JobState.done or record.result is None:
@@ -213,7 +221,7 @@ async def get_report_page(job_id: str, state: State) -> FileResponse:
     response_class=FileResponse, summary="A file of the job's report: index.html or one of its PNGs",
 )
 async def get_report_file(job_id: str, name: str, state: State) -> FileResponse:
-    from service.report.store import media_type, report_file
+    from wandcal.service.report.store import media_type, report_file
 
     folder = await run_in_threadpool(_report, state, job_id)
     path = report_file(folder, name)

@@ -28,17 +28,23 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 
-from capture.folder import CaptureFormatError, read_capture, rig_from_json
-from capture.guidance import LiveGuidance
-from capture.record import ImagePolicy
-from capture.session import Progress, record
-from drivers.errors import DriverError
-from service.api.deps import State
-from service.guidance import guidance_settings
-from service.recovery import keep_failed_recording
-from service.schemas import ErrorPublic, LiveCaptureCreate, LiveCapturePublic, LiveCaptureState, LiveCaptureUpdate
-from service.settings import DEFAULT_CONTINUE_TIMEOUT_S, GuidanceConfig
-from service.storage import CaptureStore
+from wandcal.capture.folder import CaptureFormatError, read_capture, rig_from_json
+from wandcal.capture.guidance import LiveGuidance
+from wandcal.capture.record import ImagePolicy
+from wandcal.capture.session import Progress, record
+from wandcal.drivers.errors import DriverError
+from wandcal.service.api.deps import State
+from wandcal.service.guidance import guidance_settings
+from wandcal.service.recovery import keep_failed_recording
+from wandcal.service.schemas import (
+    ErrorPublic,
+    LiveCaptureCreate,
+    LiveCapturePublic,
+    LiveCaptureState,
+    LiveCaptureUpdate,
+)
+from wandcal.service.settings import DEFAULT_CONTINUE_TIMEOUT_S, GuidanceConfig
+from wandcal.service.storage import CaptureStore
 
 router = APIRouter(prefix="/capture", tags=["live capture"])
 
@@ -52,12 +58,12 @@ BUSY = (LiveCaptureState.running, LiveCaptureState.waiting_for_wand, LiveCapture
 
 
 class _StopRequested(KeyboardInterrupt):
-    """Raised from the progress callback: :func:`capture.session.record` ends on an interrupt
+    """Raised from the progress callback: :func:`wandcal.capture.session.record` ends on an interrupt
     exactly as on Ctrl-C in ``wandcal capture``, keeping every set recorded so far."""
 
 
 class _NoContinue(DriverError):
-    """Raised from ``between`` when nobody continued in time. :func:`capture.session.record` ends
+    """Raised from ``between`` when nobody continued in time. :func:`wandcal.capture.session.record` ends
     on a :class:`DriverError` as on a device that stops: everything recorded is kept, and the
     message becomes the capture's error in ``capture.json``."""
 
@@ -269,9 +275,9 @@ def _keep(store: CaptureStore, staging: Path, capture_id: str) -> Path | None:
 
 def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack, store: CaptureStore):
     """Cameras, trigger and rig of ``body``, opened in ``stack`` (record re-enters them)."""
-    from capture.cli import _rig
-    from drivers.registry import open_cameras
-    from drivers.trigger import open_trigger
+    from wandcal.capture.cli import _rig
+    from wandcal.drivers.registry import open_cameras
+    from wandcal.drivers.trigger import open_trigger
 
     port = _local_port(body.trigger)
     if port is None and body.static_frames and body.pause_after_static:

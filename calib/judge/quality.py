@@ -1,0 +1,98 @@
+"""Quality figures of a calibration: residuals per camera, worst frames, wand-length spread."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wandcal.calib.solve.wandmodel import WandProblem
+from wandcal.calib.start.labels import flatten, wand_lengths
+from wandcal.calib.triangulate import reprojection_errors, triangulate_points
+
+WORST_FRAMES = 5  # how many of a camera's worst frames the report lists
+FEW_FRAMES = 50  # a camera seeing both ends in fewer frames than this is poorly constrained
+HIGH_RMS_PX = 1.0  # well above blob noise: intrinsics or labels may be off
+OUTLIER_SIGMAS = 5.0  # a camera-frame this many robust sigmas off is a gross outlier, not noise
+MIN_FRAMES_FOR_LENGTH_TEST = 10  # fewer frames give no stable robust spread of wand lengths
+MIN_OUTLIER_PX = 1.0  # never call a residual under a pixel an outlier, however clean the rest
+
+
+def pixel_errors(R: np.ndarray, t: np.ndarray, wand: np.ndarray, problem: WandProblem) -> np.ndarray:
+    """(M,) reprojection error magnitude of every observation, pixels."""
+    r = reprojection_errors(R, t, problem.point, problem.camera, problem.xy, wand.reshape(-1, 3))
+    return np.linalg.norm(r * problem.focal[problem.camera], axis=1)
+
+
+def reject_worst_per_frame(
+    R: np.ndarray, t: np.ndarray, pairs, focal: np.ndarray, limit_px: float, max_rounds: int = 4
+) -> np.ndarray:
+    """(P,) bool, the labelled pairs to keep: in rounds, triangulate every frame from its kept
+    pairs and drop the frame's single worst pair when its error exceeds ``limit_px``.
+
+    Args:
+        R, t: (N, 3, 3), (N, 3) poses; pairs: labelled WandPairs; focal: (N, 2) fx, fy.
+    """
+    keep = np.ones(len(pairs), bool)
+    for _ in range(max_rounds):
+        sub = pairs.subset(keep)
+        point, camera, xy = flatten(sub)
+        X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames))
+        err = reprojection_errors(R, t, point, camera, xy, X)
+        e = np.linalg.norm(err * focal[camera], axis=1)
+        e = np.where(np.isfinite(e), e, np.inf)
+        P = len(sub)
+        pair_err = np.maximum(e[:P], e[P:])
+        idx = np.flatnonzero(keep)
+        worst = np.full(len(pairs.frames), -1.0)
+        np.maximum.at(worst, sub.frame, np.where(np.isfinite(pair_err), pair_err, 0.0))
+        drop = (pair_err > limit_px) & np.isfinite(pair_err) & (pair_err >= worst[sub.frame])
+        if not drop.any():
+            break
+        keep[idx[drop]] = False
+    return keep
+
+
+def length_outlier_frames(R: np.ndarray, t: np.ndarray, pairs, keep: np.ndarray, length: float) -> np.ndarray:
+    """(F,) bool over ``pairs.frames``: frames whose wand, each end triangulated on its own from
+    the kept pairs, is more than ``OUTLIER_SIGMAS`` robust sigmas off ``length``. A frame seen by
+    two cameras has little redundancy, so a bad blob hardly shows in its reprojection error, but
+    it bends the wand's length."""
+    dev = np.abs(wand_lengths(R, t, pairs.subset(keep)) - length)
+    ok = np.isfinite(dev)
+    if ok.sum() < MIN_FRAMES_FOR_LENGTH_TEST:
+        return np.zeros(len(dev), bool)
+    sigma = 1.4826 * np.median(dev[ok])  # the MAD of zero-mean Gaussian deviations
+    return ok & (dev > OUTLIER_SIGMAS * max(sigma, 1e-9))
+
+
+def robust_sigma(errors_px: np.ndarray) -> float:
+    """Per-axis noise estimated from error magnitudes: the median of a 2D Gaussian's radius is
+    sigma * sqrt(2 ln 2), so this is unaffected by a minority of gross outliers."""
+    return float(np.median(errors_px) / np.sqrt(2 * np.log(2))) if len(errors_px) else 0.0
+
+
+def outlier_mask(errors_px: np.ndarray) -> np.ndarray:
+    """(M,) bool: observations that are gross outliers by :data:`OUTLIER_SIGMAS`."""
+    limit = max(OUTLIER_SIGMAS * robust_sigma(errors_px), MIN_OUTLIER_PX)
+    return errors_px > limit
+
+
+def free_wand_lengths(R: np.ndarray, t: np.ndarray, problem: WandProblem) -> np.ndarray:
+    """(F,) wand lengths with each end triangulated on its own (no length constraint), metres.
+    Their spread is the usual independent check of a wand calibration (easyWand's wand score)."""
+    X = triangulate_points(R, t, problem.point, problem.camera, problem.xy, 2 * problem.n_frames).reshape(-1, 2, 3)
+    lengths = np.linalg.norm(X[:, 1] - X[:, 0], axis=1)
+    return lengths[np.isfinite(lengths)]
+
+
+def camera_report(errors_px: np.ndarray, problem: WandProblem, frames: np.ndarray, camera: int) -> dict:
+    """Residual RMS, observation count and worst frames of one camera."""
+    sel = problem.camera == camera
+    e = errors_px[sel]
+    fr = frames[problem.frame[sel]]
+    worst = np.argsort(-e)[:WORST_FRAMES]
+    return {
+        "reprojection_rms_px": float(np.sqrt(np.mean(e**2))) if len(e) else None,
+        "observations": int(sel.sum()),
+        "frames_with_both_ends": int(sel.sum() // 2),
+        "worst_frames": [{"frame": int(fr[k]), "error_px": round(float(e[k]), 4)} for k in worst],
+    }

@@ -1,0 +1,8 @@
+"""Simulation: seeded synthetic rigs with known truth, rendered frames, and prepared test scenes.
+
+| module | holds |
+|---|---|
+| :mod:`~wandcal.calib.sim.simulate` | rigs, wand paths and static objects with their truth (``wandcal simulate``, the demo) |
+| :mod:`~wandcal.calib.sim.render` | marker spots rendered as a camera records them |
+| :mod:`~wandcal.calib.sim.scenes` | scenes taken part-way through the pipeline, for tests and benchmarks |
+"""

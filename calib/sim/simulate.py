@@ -1,0 +1,247 @@
+"""Seeded synthetic rigs with known truth: the workhorse of tests, benchmarks and the demo.
+
+The rig follows the seed paper's assumptions: cameras on a ring above the volume, an L-frame on
+the floor at the world origin (z up), and a smooth wand path that starts low.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.geometry import camera_centers, depth, distort_points, project_normalized
+from wandcal.calib.rig import Camera, Rig, StaticObservations, WandObservations
+
+# An L-frame like the common commercial ones: three collinear markers with unequal spacing on
+# the long arm (x) and one on the short arm (y), all on the floor.
+L_FRAME_M = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.35, 0.0]])
+IMAGE_SIZE = (1280, 1024)
+STATIC_FRAMES_AVERAGED = 100  # static blobs are averaged over a 1 s recording at 100 fps
+BORDER_PX = 4  # blobs closer than this to the image edge are cut off by the detector
+
+
+@dataclass(frozen=True, eq=False)
+class Truth:
+    """Ground truth of a simulated capture.
+
+    R: (N, 3, 3), t: (N, 3) world->camera poses; wand: (F, 2, 3) marker positions, metres.
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    wand: np.ndarray
+
+    @property
+    def centers(self) -> np.ndarray:
+        return camera_centers(self.R, self.t)
+
+    def to_json(self, rig: Rig) -> dict:
+        return {
+            "format": "wandcal-truth/1",
+            "cameras": [
+                {"id": cam.id, "R": self.R[i].tolist(), "t": self.t[i].tolist(), "center": self.centers[i].tolist()}
+                for i, cam in enumerate(rig.cameras)
+            ],
+            "wand_points_m": self.wand.tolist(),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class SimulatedCapture:
+    rig: Rig
+    wand: WandObservations
+    static: StaticObservations | None
+    truth: Truth
+
+
+def look_at(center: np.ndarray, target: np.ndarray, roll: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """World->camera pose of a camera at ``center`` (3,) looking at ``target`` (3,), world z up.
+
+    Returns R (3, 3) with image y pointing down in the world, and t (3,).
+    """
+    z = target - center
+    z = z / np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    c, s = np.cos(roll), np.sin(roll)
+    R = np.array([c * x + s * y, -s * x + c * y, z])
+    return R, -R @ center
+
+
+def ring_cameras(n: int, rng: np.random.Generator, radius: float = 3.2) -> tuple[list[Camera], np.ndarray, np.ndarray]:
+    """n cameras on a ring above the volume, each aimed near its centre."""
+    cams, Rs, ts = [], [], []
+    w, h = IMAGE_SIZE
+    for i in range(n):
+        az = 2 * np.pi * i / n + rng.uniform(-0.15, 0.15)
+        center = np.array([radius * np.cos(az), radius * np.sin(az), rng.uniform(2.3, 2.9)])
+        target = np.array([0.0, 0.0, 0.8]) + rng.uniform(-0.25, 0.25, 3)
+        R, t = look_at(center, target, roll=rng.uniform(-0.1, 0.1))
+        f = rng.uniform(1000, 1150)
+        K = np.array([[f, 0, w / 2 + rng.uniform(-10, 10)], [0, f, h / 2 + rng.uniform(-10, 10)], [0, 0, 1]])
+        dist = np.array([rng.uniform(-0.15, -0.05), rng.uniform(0.0, 0.08), 0.0, 0.0, 0.0])
+        cams.append(Camera(id=f"cam{i + 1}", width=w, height=h, K=K, dist=dist))
+        Rs.append(R)
+        ts.append(t)
+    return cams, np.array(Rs), np.array(ts)
+
+
+def wand_path(frames: int, length: float, rng: np.random.Generator) -> np.ndarray:
+    """A smooth wand path through a 2 x 2 x 1.6 m volume that starts low.
+
+    Returns (F, 2, 3) marker positions, metres.
+    """
+    s = np.linspace(0.0, 1.0, frames)[:, None]
+    k = np.arange(1, 4)[None, :]
+
+    def smooth(scale: float) -> np.ndarray:
+        amp = rng.normal(0, 1, (3, 3)) / k.T
+        phase = rng.uniform(0, 2 * np.pi, (3, 3))
+        cycles = max(2.0, frames / 150.0)  # about one sweep every 150 frames
+        out = np.stack([(amp[d] * np.sin(2 * np.pi * cycles * k * s / 2 + phase[d])).sum(1) for d in range(3)], 1)
+        return scale * out / np.abs(out).max(0)
+
+    mid = smooth(1.0) * [0.9, 0.9, 0.55] + [0.0, 0.0, 1.0]
+    # start low: the first part of the path sweeps up from about 0.4 m, as in the seed paper
+    ramp = np.clip(np.linspace(0, 4, frames), 0, 1)[:, None]
+    mid[:, 2:] = ramp * mid[:, 2:] + (1 - ramp) * 0.45
+    direction = smooth(1.0) + rng.normal(0, 0.3, 3)
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    return np.stack([mid - direction * length / 2, mid + direction * length / 2], axis=1)
+
+
+def observe_wand(cams, R, t, wand, noise_px, outliers, occlusion, rng) -> WandObservations:
+    """Blobs of wand ends (F, 2, 3) in every camera: noise, gross outliers (one blob of a
+    camera-frame moved 20-60 px), occlusion, the image border, and a random blob order."""
+    frames = len(wand)
+    rows_f, rows_c, rows_uv = [], [], []
+    pts = wand.reshape(-1, 3)
+    for c, cam in enumerate(cams):
+        z = depth(R[c], t[c], pts)
+        uv = distort_points(cam, project_normalized(R[c], t[c], pts)) + rng.normal(0, noise_px, (len(pts), 2))
+        inside = (
+            (z > 0.1)
+            & (uv[:, 0] > BORDER_PX) & (uv[:, 0] < cam.width - BORDER_PX)
+            & (uv[:, 1] > BORDER_PX) & (uv[:, 1] < cam.height - BORDER_PX)
+            & (rng.random(len(pts)) > occlusion)
+        )
+        uv = uv.reshape(frames, 2, 2)
+        inside = inside.reshape(frames, 2)
+        gross = (rng.random(frames) < outliers) & inside.all(1)
+        if gross.any():
+            which = rng.integers(0, 2, gross.sum())
+            ang = rng.uniform(0, 2 * np.pi, gross.sum())
+            mag = rng.uniform(20, 60, gross.sum())
+            uv[np.flatnonzero(gross), which] += np.stack([np.cos(ang), np.sin(ang)], 1) * mag[:, None]
+        for f in range(frames):
+            ends = np.flatnonzero(inside[f])
+            rng.shuffle(ends)
+            for e in ends:
+                rows_f.append(f)
+                rows_c.append(c)
+                rows_uv.append(uv[f, e])
+    return WandObservations(frame=np.array(rows_f, dtype=np.int64), camera=np.array(rows_c, dtype=np.int64), uv=np.array(rows_uv).reshape(-1, 2))
+
+
+def observe_static(cams, R, t, markers, sigma_px, rng) -> StaticObservations:
+    """Unlabeled blobs of the static markers (M, 3) in every camera, in random order."""
+    sc, suv = [], []
+    for c, cam in enumerate(cams):
+        uv = distort_points(cam, project_normalized(R[c], t[c], markers)) + rng.normal(0, sigma_px, (len(markers), 2))
+        suv.append(uv[rng.permutation(len(uv))])
+        sc += [c] * len(uv)
+    return StaticObservations(camera=np.array(sc), uv=np.concatenate(suv))
+
+
+def simulate_capture(
+    cameras: int = 8,
+    frames: int = 1500,
+    noise_px: float = 0.3,
+    outliers: float = 0.0,
+    static: bool = True,
+    seed: int = 0,
+    wand_length: float = 0.5,
+    occlusion: float = 0.03,
+) -> SimulatedCapture:
+    """Simulate a wand capture.
+
+    Args:
+        cameras: number of cameras on the ring.
+        frames: number of synchronised frame sets.
+        noise_px: Gaussian blob-centre noise, pixels (std per axis).
+        outliers: fraction of camera-frames whose one blob is moved 20-60 px (a gross outlier).
+        static: include an L-frame (``Rig.static_markers`` and static blobs).
+        seed: random seed.
+        wand_length: metres.
+        occlusion: probability that a marker is hidden from a camera in a frame.
+    """
+    rng = np.random.default_rng(seed)
+    cams, R, t = ring_cameras(cameras, rng)
+    wand = wand_path(frames, wand_length, rng)
+    obs = observe_wand(cams, R, t, wand, noise_px, outliers, occlusion, rng)
+    static_obs = observe_static(cams, R, t, L_FRAME_M, noise_px / np.sqrt(STATIC_FRAMES_AVERAGED), rng) if static else None
+    rig = Rig(cameras=tuple(cams), wand_length=wand_length, static_markers=L_FRAME_M.copy() if static else None)
+    return SimulatedCapture(rig=rig, wand=obs, static=static_obs, truth=Truth(R=R, t=t, wand=wand))
+
+
+# The seed paper's simulation (Masoudas/CameraCalibration, Newton/Main_Program.m and StreoSim.m):
+# 4 cameras of 1200 x 900 px with f = 984 px, a 300 mm wand at random positions and orientations
+# seen by at least two cameras, and the static object below (mm in the original), whose blobs
+# carry the same noise as the wand's (no averaging).
+PAPER_IMAGE = (1200, 900)
+PAPER_FOCAL_PX = 984.0
+PAPER_WAND_M = 0.3
+PAPER_STATIC_M = np.array([[0.0, 0.55, 0.0], [0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.75, 0.0, 0.0]])
+
+
+def simulate_paper_protocol(noise_px: float, seed: int, frames: int = 300, test_frames: int = 100):
+    """A capture in the seed paper's simulation protocol, and held-out test frames.
+
+    The authors' camera poses come from .mat files of random poses, one set per quadrant; here
+    one camera stands in each quadrant at 3.5-4.5 m, 2-3 m high, aimed at the volume's centre.
+
+    Returns:
+        (SimulatedCapture of ``frames`` frames, WandObservations of ``test_frames`` more frames,
+        their true wand ends (T, 2, 3)).
+    """
+    rng = np.random.default_rng(seed)
+    w, h = PAPER_IMAGE
+    K = np.array([[PAPER_FOCAL_PX, 0, w / 2], [0, PAPER_FOCAL_PX, h / 2], [0, 0, 1.0]])
+    cams, Rs, ts = [], [], []
+    for k in range(4):
+        az = np.pi / 4 + k * np.pi / 2 + rng.uniform(-0.25, 0.25)
+        dist = rng.uniform(3.5, 4.5)
+        center = np.array([dist * np.cos(az), dist * np.sin(az), rng.uniform(2.0, 3.0)])
+        R, t = look_at(center, np.array([0.0, 0.0, 1.2]) + rng.uniform(-0.2, 0.2, 3), roll=rng.uniform(-0.1, 0.1))
+        cams.append(Camera(id=f"cam{k + 1}", width=w, height=h, K=K, dist=np.zeros(5)))
+        Rs.append(R)
+        ts.append(t)
+    R, t = np.array(Rs), np.array(ts)
+    wand = _random_wand_frames(frames + test_frames, cams, R, t, rng)
+    train = observe_wand(cams, R, t, wand[:frames], noise_px, 0.0, 0.0, rng)
+    test = observe_wand(cams, R, t, wand[frames:], noise_px, 0.0, 0.0, rng)
+    static = observe_static(cams, R, t, PAPER_STATIC_M, noise_px, rng)
+    rig = Rig(cameras=tuple(cams), wand_length=PAPER_WAND_M, static_markers=PAPER_STATIC_M.copy())
+    sim = SimulatedCapture(rig=rig, wand=train, static=static, truth=Truth(R=R, t=t, wand=wand[:frames]))
+    return sim, test, wand[frames:]
+
+
+def _random_wand_frames(n: int, cams, R, t, rng) -> np.ndarray:
+    """Wands at random positions (x, y ~ N(0, 1 m), z ~ U(0.1, 2.5 m)) and uniformly random
+    directions, kept when at least two cameras see both ends (StreoSim.m's rule)."""
+    out = []
+    while len(out) < n:
+        mid = np.array([rng.normal(0, 1.0), rng.normal(0, 1.0), rng.uniform(0.1, 2.5)])
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        ends = np.stack([mid - d * PAPER_WAND_M / 2, mid + d * PAPER_WAND_M / 2])
+        seen = 0
+        for c, cam in enumerate(cams):
+            if np.all(depth(R[c], t[c], ends) > 0.1):
+                uv = distort_points(cam, project_normalized(R[c], t[c], ends))
+                seen += bool(np.all((uv >= 0) & (uv < [cam.width, cam.height])))
+        if seen >= 2:
+            out.append(ends)
+    return np.array(out)

@@ -1,0 +1,15 @@
+"""The refinement methods, side by side, over their shared model and solver back-ends.
+
+| module | holds |
+|---|---|
+| :mod:`~wandcal.calib.solve.ba` | ``--method ba``: Schur-complement Levenberg-Marquardt with the wand length built in |
+| :mod:`~wandcal.calib.solve.lp` | ``--method lp``: sequential LP with a robust piecewise-linear loss |
+| :mod:`~wandcal.calib.solve.paper` | ``--method paper``: the seed paper's Euler-angle LM plus least-absolute-error LP |
+| :mod:`~wandcal.calib.solve.wandmodel` | the wand reprojection model every method shares |
+| :mod:`~wandcal.calib.solve.reprojection` | pixel residuals and their analytic Jacobians |
+| :mod:`~wandcal.calib.solve.reduced` | residuals with every wand frame projected out (the LP method's rows) |
+| :mod:`~wandcal.calib.solve.lpstep` | one trust-region LP step of the LP method |
+| :mod:`~wandcal.calib.solve.robustloss` | the LP method's piecewise-linear M-estimator loss |
+| :mod:`~wandcal.calib.solve.uncertainty` | pose covariances from the solver's information matrix |
+| :mod:`~wandcal.calib.solve.backend` | the numerical back-ends: Schur solve, interior point, HiGHS |
+"""

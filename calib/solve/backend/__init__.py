@@ -1,0 +1,8 @@
+"""Numerical back-ends of the refinement methods, free of any wand or camera model.
+
+| module | holds |
+|---|---|
+| :mod:`~wandcal.calib.solve.backend.schur` | damped normal equations solved by the Schur complement |
+| :mod:`~wandcal.calib.solve.backend.ipm` | a primal-dual interior point for the LP step's dual form |
+| :mod:`~wandcal.calib.solve.backend.highs` | a bounded wrapper around HiGHS (highspy) |
+"""

@@ -1,0 +1,159 @@
+"""One trust-region LP step of the LP method on an exact working set of (row, breakpoint) pairs.
+
+The step minimises the robust loss of the reduced rows (calib/solve/reduced.py) linearised about a
+state; the loss is convex piecewise-linear, so this is an LP, solved in its small dual form by an
+interior-point method (calib/solve/backend/ipm.py) whose basis HiGHS's simplex then confirms as optimal
+(calib/solve/backend/highs.py). Design and measurements: docs/decisions/0004-lp-method.md.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from wandcal.calib.solve.backend.highs import IncrementalLp
+from wandcal.calib.solve.backend.ipm import solve_dual_form
+from wandcal.calib.solve.reduced import ReducedSystem
+
+NEAR_BREAK = 0.01  # a row within this many sigmas of a breakpoint, at the predicted step, starts in the LP
+GUARD_SE = 1.0  # the first solves stay within this many standard errors of the predicted step
+FIRST_STRATEGY = 1  # HiGHS dual simplex for a working set's first solve
+RESOLVE_STRATEGY = 1  # dual again: primal simplex from the last basis took 4x the iterations (measured at 16 x 3000)
+GUARD_GROWTH = 4.0  # and the guard widens this much where the solution touches it
+MAX_ACTIVE_ROUNDS = 12  # re-solves with widened rows before a step is taken as it is
+
+
+def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se: float | None,
+               d_pred: np.ndarray | None = None, near: float = NEAR_BREAK, se: np.ndarray | None = None):
+    """The trust-region LP step on an exact working set of (row, breakpoint) pairs.
+
+    Each row keeps the slope of the interval its residual starts in (a linear term, folded into
+    one cost vector) and gets a hinge for each modelled breakpoint: ``(z - P)+`` to the right of
+    its start, ``(P - z)+`` to the left, weighted by the slope change there, which adds up to the
+    loss exactly on the modelled pieces. The working set starts from a prediction ``d_pred``, the
+    Gauss-Newton step of the reduced system clipped to the trust region: each row gets the
+    breakpoints between its residual now and its predicted residual, and any within
+    ``near`` sigmas of either. So that this small set cannot send the step far off, the solves
+    are confined to a guard box of ``guard_se`` standard errors around the prediction, widened
+    where the solution touches it. The answer is exact once it lies inside the box and every row
+    stays among its modelled pieces; until then rows that left get the breakpoints they crossed.
+
+    Given ``d_pred`` (an IRLS solution of the same rows, calib/solve/lp.py), the LP is instead written
+    about it, in the step's change ``d - d_pred``: the rows start in the intervals of their
+    predicted residuals, so only rows within ``near`` of a breakpoint there (and those the
+    solves push across) enter the LP. The answer is the same LP's optimum, certified the same way.
+
+    The LP is solved in its dual form, where pairs are columns:
+        min sum_q -s_q beta_q y_q - lo . u+ + hi . u-
+        s.t. sum_q s_q A_q y_q - u+ + u- = -c_fold,  0 <= y_q <= jump_q,
+    for the primal  min c_fold . d + sum_q jump_q max(s_q (A_q d + beta_q), 0) over lo <= d <= hi,
+    with s_q = +1 for right hinges and -1 for left ones. The step d is the row duals: where
+    0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0, the row on its breakpoint. Each
+    solve (the first and each after a widening) runs the interior-point method on every pair so
+    far, and HiGHS's dual simplex starts from the basis its point names: that basis was optimal,
+    with no simplex iteration, on every LP step measured at 8-32 x 2000, and the answer is HiGHS's
+    vertex, as exact as a cold simplex (decision 0004, fifth session). Cold, the dual simplex took
+    ~3.5 iterations per camera parameter, each pricing every dense column: ~cameras^3.
+
+    Args:
+        state: the reduced rows at the current state.
+        rho: (n,) trust region, per camera parameter.
+        time_limit: seconds per solve (the interior-point method's, then HiGHS's), or None.
+        loss: (signed breakpoints, slopes) in robust sigmas (calib/solve/robustloss.py).
+        guard_se: guard half-width in standard errors, or None for twice the trust region.
+        d_pred: (n,) a step to write the LP about, or None for the clipped Gauss-Newton step.
+        near: breakpoint margin of the first working set, robust sigmas.
+        se: (n,) standard errors for the guard, or None for the state's own.
+
+    Returns:
+        (d (n,) or None, info dict: seconds, rows (pairs), status, rounds, iterations (HiGHS's)).
+    """
+    P, S = loss[0] * state.scale, loss[1]  # breakpoints in pixels, interval slopes
+    b = state.b.ravel()
+    kept = state.kept.ravel()
+    if se is None and guard_se is not None:
+        se = state.standard_errors()
+    guard = rho * 2 if guard_se is None else guard_se * se
+    if d_pred is None:
+        d_ref = np.zeros_like(rho)
+        d_pred = np.clip(state.gauss_newton_step(), -rho, rho)
+        z_pred = b + state.change(d_pred).ravel()
+    else:
+        d_ref = np.clip(d_pred, -rho, rho)
+        b = b + state.change(d_ref).ravel()
+        d_pred = np.zeros_like(rho)
+        z_pred = b
+    near = near * state.scale
+    base = np.searchsorted(P, b)  # the interval each row starts in: P[base - 1] < b <= P[base]
+    c_fold = state.folded_cost(np.where(kept, S[base], 0.0).reshape(-1, 2))
+    lo = np.where(kept, np.searchsorted(P, np.minimum(b, z_pred) - near), 0)
+    hi = np.where(kept, np.searchsorted(P, np.maximum(b, z_pred) + near) - 1, -1)
+    n = len(rho)
+    lp = IncrementalLp(-c_fold, time_limit)
+    eye = sp.identity(n, format="csc")
+    lp.add_columns(np.zeros(2 * n), np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
+    old_lo, old_hi = base, base - 1  # nothing modelled yet
+    trust_lo, trust_hi = -rho - d_ref, rho - d_ref  # the trust region, in the LP's variable
+    seconds, d, rounds, total, certified, iterations = 0.0, None, 0, 0, False, 0
+    cols_A, cols_c, cols_u = [np.zeros((0, n))], [np.zeros(0)], [np.zeros(0)]  # the pairs so far, for the IPM
+    for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
+        box_lo = np.maximum(trust_lo, d_pred - guard)
+        box_hi = np.minimum(trust_hi, d_pred + guard)
+        lp.set_costs(np.arange(2 * n), np.r_[-box_lo, box_hi])
+        # the pairs not modelled before: below the old range and above it
+        rows_a, bps_a = _pairs(lo, np.minimum(hi, old_lo - 1))
+        rows_b, bps_b = _pairs(np.maximum(lo, old_hi + 1), hi)
+        rows_i, bps = np.r_[rows_a, rows_b], np.r_[bps_a, bps_b]
+        if len(rows_i):
+            side = np.where(bps >= base[rows_i], 1.0, -1.0)  # right hinge, or left hinge
+            A = state.rows(rows_i // 2, rows_i % 2) * side[:, None]
+            cost, jump = -side * (b[rows_i] - P[bps]), S[bps + 1] - S[bps]
+            lp.add_columns(cost, np.zeros(len(rows_i)), jump, A.T)
+            cols_A.append(A), cols_c.append(cost), cols_u.append(jump)
+            total += len(rows_i)
+        # the interior point names the basis (a point short of optimal, or a basis HiGHS finds
+        # singular, only costs simplex iterations from there)
+        deadline = None if time_limit is None else time.perf_counter() + time_limit
+        ipm = solve_dual_form(np.concatenate(cols_A), np.concatenate(cols_c), np.concatenate(cols_u),
+                              -box_lo, box_hi, -c_fold, deadline)
+        seconds += ipm.seconds
+        if ipm.status == "time_limit":
+            return None, {"seconds": seconds, "rows": total, "status": "time_limit", "rounds": rounds,
+                          "iterations": iterations}
+        lp.set_basis(ipm.basic, ipm.at_upper)
+        res = lp.solve(FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
+        seconds += res.seconds
+        iterations += res.iterations
+        if res.status != "optimal" or res.row_duals is None:
+            # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
+            return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds,
+                          "iterations": iterations}
+        d = res.row_duals.copy()
+        z = b + state.change(d).ravel()
+        where = np.searchsorted(P, z)
+        out_lo = kept & (where < lo)
+        out_hi = kept & (where > hi + 1)
+        # touching the guard (where it is inside the trust region) means the optimum may lie beyond
+        tol = 1e-9 * (np.abs(box_hi - box_lo) + 1e-300)
+        pinned = ((d <= box_lo + tol) & (box_lo > trust_lo)) | ((d >= box_hi - tol) & (box_hi < trust_hi))
+        if not (out_lo.any() or out_hi.any() or pinned.any()):
+            certified = True
+            break
+        guard = np.where(pinned, GUARD_GROWTH * guard, guard)
+        old_lo, old_hi = lo, hi
+        lo = np.where(out_lo, where, lo)
+        hi = np.where(out_hi, where - 1, hi)
+    # uncertified: the step is the optimum of a working set that some rows still leave; the
+    # caller takes it only if it lowers the true merit, like any trust-region step
+    return d + d_ref, {"seconds": seconds, "rows": total, "status": "optimal" if certified else "uncertified",
+                       "rounds": rounds, "iterations": iterations}
+
+
+def _pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Flatten the modelled breakpoint ranges into (row, breakpoint) pairs."""
+    count = np.maximum(hi - lo + 1, 0)
+    rows_i = np.repeat(np.arange(len(lo)), count)
+    offset = np.arange(len(rows_i)) - np.repeat(np.cumsum(count) - count, count)
+    return rows_i, lo[rows_i] + offset

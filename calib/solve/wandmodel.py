@@ -1,0 +1,169 @@
+"""The wand reprojection model shared by bundle adjustment, the LP method and the CRB.
+
+Parameters:
+- per camera: 3 local Euler increments ``delta`` with ``R = E(delta) @ R0`` (E as in the seed
+  paper, ``Rz Ry Rx``; increments about the start never meet gimbal lock), and ``t`` (3,);
+- per wand frame: the midpoint ``m`` (3,) and 2 direction increments ``(a, b)`` with
+  ``d = normalize(d0 + a e1 + b e2)``; the ends are ``m -/+ L/2 d``, so the wand length L is
+  built into the parametrisation rather than fitted afterwards.
+
+Residuals are reprojection errors in pixels (normalised error times fx, fy). The gauge is fixed
+by holding the cameras in ``fixed`` at their start (one camera: 6 DOF); scale comes from L.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.geometry import euler_jacobian, euler_to_matrix
+
+CAM_PARAMS = 6
+FRAME_PARAMS = 5
+
+
+@dataclass(frozen=True, eq=False)
+class WandProblem:
+    """Labelled observations of wand ends.
+
+    camera: (M,) camera index; frame: (M,) wand-frame index in [0, F); end: (M,) 0 or 1;
+    xy: (M, 2) normalised coordinates; focal: (N, 2) fx, fy per camera; length: metres.
+    """
+
+    camera: np.ndarray
+    frame: np.ndarray
+    end: np.ndarray
+    xy: np.ndarray
+    focal: np.ndarray
+    length: float
+    n_frames: int
+
+    @property
+    def n_cams(self) -> int:
+        return len(self.focal)
+
+    @property
+    def point(self) -> np.ndarray:
+        return 2 * self.frame + self.end
+
+    def subset(self, keep: np.ndarray) -> WandProblem:
+        return WandProblem(self.camera[keep], self.frame[keep], self.end[keep], self.xy[keep], self.focal, self.length, self.n_frames)
+
+
+class WandModel:
+    """Residuals and sparse Jacobian of a :class:`WandProblem` about a start state.
+
+    Args:
+        problem: the observations.
+        R0: (N, 3, 3), t0: (N, 3) start poses.
+        wand0: (F, 2, 3) start wand ends (only their midpoint and direction are used).
+        fixed: (N,) bool, cameras held at their start pose (the gauge).
+    """
+
+    def __init__(self, problem: WandProblem, R0: np.ndarray, t0: np.ndarray, wand0: np.ndarray, fixed: np.ndarray):
+        self.p = problem
+        self.R0 = np.asarray(R0, float)
+        self.t0 = np.asarray(t0, float)
+        self.fixed = np.asarray(fixed, bool)
+        self.free = np.flatnonzero(~self.fixed)
+        self.m0 = wand0.mean(axis=1)
+        d0 = wand0[:, 1] - wand0[:, 0]
+        self.d0 = d0 / np.linalg.norm(d0, axis=1, keepdims=True)
+        helper = np.where(np.abs(self.d0[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+        e1 = np.cross(self.d0, helper)
+        self.e1 = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
+        self.e2 = np.cross(self.d0, self.e1)
+        self.cam_col = np.full(problem.n_cams, -1)
+        self.cam_col[self.free] = np.arange(len(self.free)) * CAM_PARAMS
+        self.frame_col0 = len(self.free) * CAM_PARAMS
+        self.n_params = self.frame_col0 + FRAME_PARAMS * problem.n_frames
+
+    def x0(self) -> np.ndarray:
+        x = np.zeros(self.n_params)
+        x[: self.frame_col0] = np.concatenate([np.r_[0.0, 0.0, 0.0, self.t0[c]] for c in self.free]) if len(self.free) else []
+        fr = x[self.frame_col0 :].reshape(-1, FRAME_PARAMS)
+        fr[:, :3] = self.m0
+        return x
+
+    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """x -> (delta (N,3), t (N,3), m (F,3), ab (F,2))."""
+        delta = np.zeros((self.p.n_cams, 3))
+        t = self.t0.copy()
+        cams = x[: self.frame_col0].reshape(-1, CAM_PARAMS)
+        delta[self.free] = cams[:, :3]
+        t[self.free] = cams[:, 3:]
+        fr = x[self.frame_col0 :].reshape(-1, FRAME_PARAMS)
+        return delta, t, fr[:, :3], fr[:, 3:]
+
+    def poses(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        delta, t, _, _ = self.unpack(x)
+        return euler_to_matrix(delta) @ self.R0, t
+
+    def directions(self, ab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        v = self.d0 + ab[:, :1] * self.e1 + ab[:, 1:] * self.e2
+        norm = np.linalg.norm(v, axis=1, keepdims=True)
+        return v / norm, norm[:, 0]
+
+    def wand(self, x: np.ndarray) -> np.ndarray:
+        """(F, 2, 3) wand ends at x."""
+        _, _, m, ab = self.unpack(x)
+        d, _ = self.directions(ab)
+        half = 0.5 * self.p.length * d
+        return np.stack([m - half, m + half], axis=1)
+
+    def _camera_points(self, x: np.ndarray):
+        p = self.p
+        delta, t, m, ab = self.unpack(x)
+        E = euler_to_matrix(delta)
+        R = E @ self.R0
+        d, vnorm = self.directions(ab)
+        sign = np.where(p.end == 1, 0.5, -0.5) * p.length
+        X = m[p.frame] + sign[:, None] * d[p.frame]
+        xc = np.einsum("mij,mj->mi", R[p.camera], X) + t[p.camera]
+        return delta, R, d, vnorm, sign, X, xc
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """(2M,) pixel residuals, interleaved (u0, v0, u1, v1, ...)."""
+        xc = self._camera_points(x)[-1]
+        r = (xc[:, :2] / xc[:, 2:3] - self.p.xy) * self.p.focal[self.p.camera]
+        return r.ravel()
+
+    def jacobian(self, x: np.ndarray):
+        """(2M, n_params) sparse Jacobian of :meth:`residuals` (a scipy.sparse csr_matrix)."""
+        import scipy.sparse as sp  # for lp and the bound only: ba need not pay its start-up
+        blocks, cols = self.jacobian_blocks(x)
+        M = len(self.p.camera)
+        rows = np.repeat(np.arange(2 * M).reshape(M, 2, 1), blocks.shape[2], axis=2)
+        cols2 = np.repeat(cols[:, None, :], 2, axis=1)
+        keep = cols2 >= 0
+        return sp.csr_matrix((blocks[keep], (rows[keep], cols2[keep])), shape=(2 * M, self.n_params))
+
+    def jacobian_blocks(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Dense per-observation blocks: (M, 2, 11) values and (M, 11) columns (-1 = fixed camera)."""
+        p = self.p
+        delta, R, d, vnorm, sign, X, xc = self._camera_points(x)
+        z = xc[:, 2]
+        proj = xc[:, :2] / z[:, None]
+        f = p.focal[p.camera]
+        # d(pixel residual)/d(x_cam): f * [[1/z, 0, -x/z^2], [0, 1/z, -y/z^2]]
+        Dp = np.zeros((len(z), 2, 3))
+        Dp[:, 0, 0] = 1 / z
+        Dp[:, 1, 1] = 1 / z
+        Dp[:, :, 2] = -proj / z[:, None]
+        Dp *= f[:, :, None]
+        dE = euler_jacobian(delta)  # (N, 3, 3, 3)
+        Y = np.einsum("mij,mj->mi", self.R0[p.camera], X)
+        dxc_ddelta = np.einsum("mkij,mj->mik", dE[p.camera], Y)  # (M, 3, 3)
+        J_rot = Dp @ dxc_ddelta
+        J_t = Dp
+        DpR = Dp @ R[p.camera]
+        fr = p.frame
+        P = (np.eye(3)[None] - d[fr][:, :, None] * d[fr][:, None, :]) / vnorm[fr][:, None, None]
+        basis = np.stack([self.e1[fr], self.e2[fr]], axis=2)  # (M, 3, 2)
+        J_ab = sign[:, None, None] * (DpR @ P @ basis)
+        blocks = np.concatenate([J_rot, J_t, DpR, J_ab], axis=2)  # (M, 2, 11)
+        cam_base = self.cam_col[p.camera]
+        cam_cols = np.where(cam_base[:, None] >= 0, cam_base[:, None] + np.arange(CAM_PARAMS), -1)
+        frame_cols = self.frame_col0 + FRAME_PARAMS * fr[:, None] + np.arange(FRAME_PARAMS)
+        return blocks, np.concatenate([cam_cols, frame_cols], axis=1)

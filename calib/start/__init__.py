@@ -1,0 +1,12 @@
+"""The start: each camera's first pose, the wand's ends labelled, and the world frame.
+
+| module | holds |
+|---|---|
+| :mod:`~wandcal.calib.start.static` | the static object (L-frame) identified in each camera, its pose by PnP |
+| :mod:`~wandcal.calib.start.chain` | the camera graph: which cameras share wand frames and point tracks |
+| :mod:`~wandcal.calib.start.resection` | one camera placed against the points the placed cameras triangulate |
+| :mod:`~wandcal.calib.start.initial` | every camera's first pose, from the static object or the wand alone |
+| :mod:`~wandcal.calib.start.labels` | the wand's two ends told apart across cameras |
+| :mod:`~wandcal.calib.start.world` | the result's world frame: static object, axis points or wand volume |
+| :mod:`~wandcal.calib.start.degenerate` | captures that cannot calibrate, told apart before the solve |
+"""

@@ -1,0 +1,318 @@
+"""First poses of every camera, before refinement.
+
+With a static object, cameras whose PnP pose is unique start from it. The others (all of them
+without a static object) are placed one at a time, best-linked first, as a spanning tree grows
+over the camera graph (:mod:`wandcal.calib.start.chain`): a camera's links are the wand frames and single-point
+tracks it shares with the cameras already placed. With no camera placed yet, the best-linked
+pair whose wand frames can scale it starts: its essential matrix, scaled by the wand length
+(easyWand and Argus start the same way). Each further camera is placed by whichever is better
+constrained, counting two equations per resected point and one per epipolar correspondence:
+
+- resection (PnP inside RANSAC, :mod:`wandcal.calib.start.resection`) against the wand ends and point tracks
+  that the placed cameras triangulate, which ties it to all of them at once ("wand resection",
+  or "point resection" when it sees no wand end); or
+- chaining from one placed camera by their pair's essential matrix ("essential matrix"),
+  composing the relative pose, with the pair's baseline from the wand length when the pair
+  shares wand frames, or else from points the placed cameras have triangulated.
+
+A camera that neither can place waits until others are placed; when none can be, the error
+names it, the placed cameras it is linked to and how many more shared wand frames it needs.
+The work is capped (subsamples of at most a few hundred frames per pair or camera) so the start
+costs about the same at any capture length.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wandcal.calib.errors import CalibrationError, Failure
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.rig import Rig
+from wandcal.calib.start.chain import (
+    MIN_PAIR_MATCHES,
+    MIN_SCALE_FRAMES,
+    PairPose,
+    Views,
+    camera_views,
+    pair_pose,
+    points_scale,
+    wand_scale,
+)
+from wandcal.calib.start.resection import (
+    MAX_RESECT_FRAMES,
+    MAX_RESECT_TRACKS,
+    MIN_RESECT_POINTS,
+    UNPLACED,
+    placed_points,
+    resect_camera,
+)
+from wandcal.calib.start.static import StaticPose
+
+WEAK_LINK = 40  # correspondences below which a chained camera's start is worth a note
+
+
+@dataclass(frozen=True, eq=False)
+class Initial:
+    """Starting poses R (N, 3, 3), t (N, 3) and how each camera was placed."""
+
+    R: np.ndarray
+    t: np.ndarray
+    source: list[str]
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass(eq=False)
+class _State:
+    """The poses placed so far, R (N, 3, 3), t (N, 3); rank (N,) the order in which the cameras
+    were placed (``UNPLACED`` for the others); whether the poses carry a scale yet; and the pair
+    poses estimated so far."""
+
+    rig: Rig
+    pairs: WandPairs
+    points: PointTracks | None
+    views: Views
+    R: np.ndarray
+    t: np.ndarray
+    rank: np.ndarray
+    source: list[str]
+    notes: list[str] = field(default_factory=list)
+    scaled: bool = False
+    edges: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.links = self.views.links()
+        self.used = self.views.links(capped=True)
+
+    @property
+    def placed(self) -> np.ndarray:
+        return self.rank != UNPLACED
+
+    def mark(self, c: int) -> None:
+        self.rank[c] = self.placed.sum()
+
+    def focal(self, c: int) -> float:
+        return float(self.rig.cameras[c].focal.mean())
+
+    def edge(self, a: int, b: int) -> PairPose | Failure:
+        """The pair's relative pose, estimated once."""
+        if (a, b) not in self.edges:
+            self.edges[(a, b)] = pair_pose(self.pairs, self.points, self.views, a, b, 0.5 * (self.focal(a) + self.focal(b)))
+        return self.edges[(a, b)]
+
+    def seen_points(self, c: int):
+        """What the placed cameras triangulate of what camera c sees (:func:`wandcal.calib.start.resection.placed_points`)."""
+        return placed_points(self.pairs, self.points, self.views, self.R, self.t, self.rank, c, self.rig.wand_length)
+
+
+def initial_poses(
+    rig: Rig, pairs: WandPairs | None, static_poses: list | None = None, points: PointTracks | None = None
+) -> Initial:
+    """Place every camera (see module docstring).
+
+    Without a wand (``rig.wand_length`` None, or no wand frames) the scale is arbitrary: the
+    first pair placed from its essential matrix gets a baseline of 1, and a note says so.
+
+    Args:
+        rig: the rig.
+        pairs: unlabeled two-blob camera-frames (may be empty, or None, for a capture with point
+            tracks only).
+        static_poses: output of :func:`wandcal.calib.start.static.solve_static`, or None.
+        points: single-point tracks (:func:`wandcal.calib.observations.point_tracks`), or None.
+
+    Raises:
+        CalibrationError: a camera shares too few observations with the others to be placed; the
+            message names it, the cameras it is linked to and how many more frames it needs.
+    """
+    n = len(rig.cameras)
+    if pairs is None:
+        pairs = WandPairs.empty()
+    st = _State(
+        rig=rig, pairs=pairs, points=points, views=camera_views(pairs, points, n),
+        R=np.tile(np.eye(3), (n, 1, 1)), t=np.zeros((n, 3)), rank=np.full(n, UNPLACED), source=["" for _ in range(n)],
+    )
+    if static_poses is not None:
+        for c, pose in enumerate(static_poses):
+            if isinstance(pose, StaticPose) and pose.unique:
+                st.R[c], st.t[c] = pose.R, pose.t
+                st.mark(c)
+                st.source[c] = "static PnP"
+            elif isinstance(pose, StaticPose):
+                st.notes.append(f"{rig.cameras[c].id}: static-object pose is ambiguous (planar flip); placed from the wand")
+    st.scaled = st.placed.sum() >= 2
+    if not st.placed.any():
+        _start_pair(st)
+    while not st.placed.all():
+        _place_next(st)
+    return Initial(R=st.R, t=st.t, source=st.source, notes=st.notes)
+
+
+def shared_frames(pairs: WandPairs, n_cams: int) -> np.ndarray:
+    """(N, N) number of frames in which both cameras see both wand ends."""
+    seen = np.zeros((len(pairs.frames), n_cams), dtype=np.int64)
+    seen[pairs.frame, pairs.camera] = 1
+    return seen.T @ seen
+
+
+def _start_pair(st: _State) -> None:
+    """Place the best-linked pair that can be placed: the first camera at the origin, the second
+    from their essential matrix, scaled by the wand (baseline 1 without one)."""
+    rig, n = st.rig, st.views.n_cams
+    links = st.links.copy()
+    np.fill_diagonal(links, 0)
+    wand = (st.views.wand >= 0).astype(np.int64)
+    # with a wand, the pairs whose own wand frames give the scale come first
+    scalable = (wand.T @ wand >= MIN_SCALE_FRAMES) & (rig.wand_length is not None)
+    priority = links + (links.max() + 1) * scalable
+    ia, ib = np.triu_indices(n, 1)
+    reasons = []
+    for k in np.argsort(-priority[ia, ib], kind="stable"):
+        a, b = int(ia[k]), int(ib[k])
+        if links[a, b] < MIN_PAIR_MATCHES:
+            continue
+        pose = st.edge(a, b)
+        scale = _scale_of_start(st, pose) if pose else pose
+        if not scale:
+            reasons.append(f"{rig.cameras[a].id} and {rig.cameras[b].id}: {scale}")
+            continue
+        st.mark(a)
+        st.mark(b)
+        st.R[b], st.t[b] = pose.R, scale * pose.u
+        st.source[a] = st.source[b] = "essential matrix"
+        return
+    a, b = np.unravel_index(np.argmax(links), links.shape)
+    raise CalibrationError(
+        f"no two cameras can be placed from what they see together (best linked: {rig.cameras[a].id} and "
+        f"{rig.cameras[b].id}, {_describe(st.views, int(a), int(b))}"
+        + (f"; {'; '.join(reasons[:3])}" if reasons else f", {MIN_PAIR_MATCHES} correspondences needed")
+        + "); wave the wand where several cameras see it at the same time"
+    )
+
+
+def _scale_of_start(st: _State, pose: PairPose) -> float | Failure:
+    if st.rig.wand_length is not None and len(st.pairs):
+        scale = wand_scale(st.pairs, st.views, pose, st.rig.wand_length)
+        if scale:
+            st.scaled = True
+        return scale
+    st.notes.append(
+        f"no wand: the scale is arbitrary, fixed by a baseline of 1 between {st.rig.cameras[pose.a].id} and "
+        f"{st.rig.cameras[pose.b].id}"
+    )
+    st.scaled = True
+    return 1.0
+
+
+def _place_next(st: _State) -> None:
+    """Place the unplaced camera with the most constraints from the placed ones (a resected point
+    gives two equations, an epipolar correspondence one); when it cannot be placed yet, the
+    next one; raise when none can."""
+    seen_w, seen_t = st.views.wand >= 0, st.views.track >= 0
+    tri_w = seen_w[:, st.placed].sum(1) >= 2
+    tri_t = seen_t[:, st.placed].sum(1) >= 2
+    points = np.minimum(2 * (seen_w & tri_w[:, None]).sum(0), 2 * MAX_RESECT_FRAMES)
+    points += np.minimum((seen_t & tri_t[:, None]).sum(0), MAX_RESECT_TRACKS)
+    link = np.where(st.placed[:, None], st.used, 0).max(0)
+    score = np.where(st.placed, -1, np.maximum(2 * points, link))
+    failures = []
+    for c in np.argsort(-score, kind="stable"):
+        if st.placed[c]:
+            break
+        c = int(c)
+        resect_first = points[c] >= MIN_RESECT_POINTS and 2 * points[c] >= link[c]
+        steps = (_by_resection, _by_chain) if resect_first else (_by_chain, _by_resection)
+        reasons = []
+        for step in steps:
+            done = step(st, c)
+            if done:
+                st.mark(c)
+                return
+            reasons.append(str(done))
+        failures.append((c, reasons))
+    raise CalibrationError(_cannot_place(st, failures[0][0], failures[0][1]))
+
+
+def _by_chain(st: _State, c: int) -> bool | Failure:
+    """Chain camera c from its best-linked placed camera whose pair can be placed and scaled."""
+    links = st.links[:, c]
+    tried = []
+    for a in np.argsort(-links, kind="stable"):
+        a = int(a)
+        if not st.placed[a] or links[a] < MIN_PAIR_MATCHES:
+            continue
+        pose = st.edge(a, c)
+        scale = _chain_scale(st, pose) if pose else pose
+        if not scale:
+            tried.append(f"with {st.rig.cameras[a].id}: {scale}")
+            continue
+        st.R[c] = pose.R @ st.R[a]
+        st.t[c] = pose.R @ st.t[a] + scale * pose.u
+        st.source[c] = "essential matrix"
+        if pose.inliers < WEAK_LINK:
+            st.notes.append(
+                f"{st.rig.cameras[c].id}: placed from only {pose.inliers} correspondences shared with "
+                f"{st.rig.cameras[a].id}; check its residuals after refinement"
+            )
+        return True
+    return Failure("; ".join(tried) if tried else f"no placed camera shares {MIN_PAIR_MATCHES} correspondences with it")
+
+
+def _chain_scale(st: _State, pose: PairPose) -> float | Failure:
+    """The baseline of a pair whose first camera is placed: from their own wand frames, else
+    from points the placed cameras triangulated, else (nothing scaled yet) 1."""
+    rig = st.rig
+    by_wand = wand_scale(st.pairs, st.views, pose, rig.wand_length) if rig.wand_length is not None else Failure("no wand")
+    if by_wand:
+        st.scaled = True
+        return by_wand
+    seen = st.seen_points(pose.b)
+    by_points = points_scale(st.R[pose.a], st.t[pose.a], pose, *seen, st.focal(pose.b))
+    if by_points:
+        return by_points
+    if not st.scaled and (rig.wand_length is None or not len(st.pairs)):
+        return _scale_of_start(st, pose)
+    return Failure(f"its scale: {by_wand}; {by_points}")
+
+
+def _by_resection(st: _State, c: int) -> bool | Failure:
+    """Resect camera c from the wand ends and point tracks the placed cameras triangulate."""
+    ends, ends_xy, X, xy = st.seen_points(c)
+    found = resect_camera(ends, ends_xy, X, xy, st.focal(c))
+    if not found:
+        return found
+    st.R[c], st.t[c] = found
+    st.source[c] = "wand resection" if len(ends) else "point resection"
+    return True
+
+
+def _describe(views: Views, a: int, b: int) -> str:
+    frames, tracks = views.shared(a, b)
+    return f"{len(frames)} wand frames and {len(tracks)} point tracks"
+
+
+def _cannot_place(st: _State, c: int, reasons: list[str]) -> str:
+    """The message for a camera that cannot be placed: what links it has and what it needs."""
+    rig, views = st.rig, st.views
+    cam = rig.cameras[c].id
+    linked = [int(a) for a in np.flatnonzero(st.placed) if sum(map(len, views.shared(int(a), c)))]
+    links = st.links[:, c]
+    if linked:
+        best = max(linked, key=lambda a: links[a])
+        short = max(MIN_PAIR_MATCHES - int(links[best]), 0)
+        need = (
+            f"it needs {(short + 1) // 2} more wand frames shared with {rig.cameras[best].id}"
+            if short else
+            f"the frames it shares with {rig.cameras[best].id} do not fix its pose ({'; '.join(reasons)}); "
+            f"it needs more wand frames seen by {cam} and {rig.cameras[best].id} together, "
+            "a few of them also by a third camera"
+        )
+        with_whom = ", ".join(f"{rig.cameras[a].id} ({_describe(views, a, c)})" for a in linked)
+    else:
+        need = f"it needs at least {(MIN_PAIR_MATCHES + 1) // 2} wand frames shared with one of them"
+        with_whom = "none of them"
+    placed = ", ".join(rig.cameras[a].id for a in np.flatnonzero(st.placed))
+    return (
+        f"camera {cam!r} cannot be placed: of the placed cameras ({placed}) it is linked to {with_whom}; {need}. "
+        f"Wave the wand where {cam} and the others see it at the same time"
+    )

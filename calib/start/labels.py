@@ -1,0 +1,204 @@
+"""Tell the wand's two ends apart across cameras.
+
+Blobs carry no labels, so each camera-frame's pair is in arbitrary order. With approximate
+poses, one camera per frame is the reference; every other camera's order is chosen by epipolar
+consistency with it, then re-checked against the triangulated ends (reprojection), which also
+settles the cases where both ends lie near one epipolar line.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wandcal.calib.observations import WandPairs
+from wandcal.calib.triangulate import triangulate_points
+
+RELABEL_ROUNDS = 2  # a second reprojection pass changes nothing on simulated rigs
+COST_CHUNK = 32768  # camera-pair costs per pass: 2x faster than all at once (its temporaries stay in cache)
+
+
+def flatten(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Observation arrays of labelled pairs: point (2P,) = 2*frame + end, camera (2P,), xy (2P, 2)."""
+    point = np.concatenate([2 * pairs.frame, 2 * pairs.frame + 1])
+    camera = np.concatenate([pairs.camera, pairs.camera])
+    xy = np.concatenate([pairs.xy[:, 0], pairs.xy[:, 1]])
+    return point, camera, xy
+
+
+def wand_lengths(R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> np.ndarray:
+    """(F,) length of each frame's wand, each end triangulated on its own from labelled pairs
+    (metres; NaN where fewer than two cameras see the frame)."""
+    point, camera, xy = flatten(pairs)
+    X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
+    return np.linalg.norm(X[:, 1] - X[:, 0], axis=1)
+
+
+def label_ends(
+    R: np.ndarray, t: np.ndarray, pairs: WandPairs, known: np.ndarray, length: float | None = None
+) -> tuple[WandPairs, np.ndarray]:
+    """Order each pair's ends consistently across the cameras whose pose is known.
+
+    Args:
+        R: (N, 3, 3), t: (N, 3) approximate poses.
+        pairs: camera-frame pairs, any order.
+        known: (N,) bool, cameras whose pose may be used; pairs of other cameras are left as they are.
+        length: the wand length, metres. In a frame seen by only two cameras both matchings can
+            fit the epipolar geometry (a wand near an epipolar plane); the one whose triangulated
+            wand is nearer this length is kept.
+
+    Returns:
+        (labelled pairs of known cameras, (P_known,) margin in normalised units: how much worse
+        the other order fits; small margins are doubtful).
+    """
+    sub = pairs.subset(known[pairs.camera])
+    if len(sub) == 0:
+        return sub, np.zeros(0)
+    sub = sub.swapped(_epipolar_order(R, t, sub))
+    sub = sub.swapped(_pairwise_consensus(R, t, sub))
+    margin = np.zeros(len(sub))
+    for _ in range(RELABEL_ROUNDS):
+        point, camera, xy = flatten(sub)
+        X = triangulate_points(R, t, point, camera, xy, 2 * len(sub.frames)).reshape(-1, 2, 3)
+        ends = X[sub.frame]  # (P, 2, 3)
+        Rc, tc = R[sub.camera], t[sub.camera]
+        proj = np.stack([_project(Rc, tc, ends[:, e]) for e in range(2)], axis=1)
+        same = np.linalg.norm(proj - sub.xy, axis=2).sum(1)
+        other = np.linalg.norm(proj[:, ::-1] - sub.xy, axis=2).sum(1)
+        flip = np.isfinite(other) & (other < same)
+        margin = np.where(np.isfinite(same), np.abs(other - same), 0.0)
+        if not flip.any():
+            break
+        sub = sub.swapped(flip)
+    if length is not None:
+        sub = _two_view_by_length(R, t, sub, length)
+    return sub, margin
+
+
+def _two_view_by_length(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: float) -> WandPairs:
+    """In frames seen by exactly two cameras, swap the second camera's ends when that brings the
+    triangulated wand nearer ``length``."""
+    views = np.bincount(pairs.frame, minlength=len(pairs.frames))
+    two = views[pairs.frame] == 2
+    if not two.any():
+        return pairs
+    # the second pair of each two-view frame (pairs are grouped by frame in camera order)
+    order = np.lexsort((pairs.camera, pairs.frame))
+    second = np.zeros(len(pairs), bool)
+    sorted_frames = pairs.frame[order]
+    second[order[1:]] = sorted_frames[1:] == sorted_frames[:-1]
+    candidate = second & two
+    now = wand_lengths(R, t, pairs)
+    alt = wand_lengths(R, t, pairs.swapped(candidate))
+    better = np.abs(alt - length) < np.abs(now - length)
+    return pairs.swapped(candidate & better[pairs.frame])
+
+
+def _project(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    xc = np.einsum("mij,mj->mi", R, X) + t
+    return xc[:, :2] / xc[:, 2:3]
+
+
+def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> np.ndarray:
+    """(P,) bool: swap each pair so it agrees with its frame's reference pair (the one whose
+    blobs are furthest apart, which is the least ambiguous)."""
+    order = np.lexsort((-np.linalg.norm(pairs.xy[:, 0] - pairs.xy[:, 1], axis=1), pairs.frame))
+    frame_sorted = pairs.frame[order]
+    first = np.r_[True, frame_sorted[1:] != frame_sorted[:-1]]
+    ref_of_sorted = order[np.maximum.accumulate(np.where(first, np.arange(len(order)), 0))]
+    ref = np.empty(len(pairs), dtype=np.int64)
+    ref[order] = ref_of_sorted
+    a, b = ref, np.arange(len(pairs))
+    same, swap = _epipolar_costs(R, t, pairs, a, b)
+    return (swap < same) & (a != b)
+
+
+def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_passes: int = 8) -> np.ndarray:
+    """(P,) bool flips that lower each frame's epipolar cost summed over all its camera pairs.
+
+    The reference-based order trusts one camera per frame; when the wand lies near an epipolar
+    plane of that camera, other cameras can split into two camps. Here every pair of cameras in
+    a frame votes, and single-camera flips are taken greedily (the best one per frame and pass)
+    while they lower the frame's total.
+    """
+    P = len(pairs)
+    order = np.argsort(pairs.frame, kind="stable")
+    fr = pairs.frame[order]
+    start = np.searchsorted(fr, fr, side="left")
+    count = np.bincount(fr, minlength=len(pairs.frames))[fr]
+    # all ordered pairs (i, j), i != j, within a frame
+    reps = count
+    i_idx = np.repeat(order, reps)
+    offs = np.arange(len(i_idx)) - np.repeat(np.cumsum(reps) - reps, reps)
+    j_idx = order[np.repeat(start, reps) + offs]
+    keep = i_idx < j_idx  # each unordered pair once: the Sampson distance is symmetric
+    a_idx, b_idx = i_idx[keep], j_idx[keep]
+    if len(a_idx) == 0:
+        return np.zeros(P, bool)
+    same, cross = _epipolar_costs(R, t, pairs, a_idx, b_idx)
+    worse = same - cross  # what a pair of pairs gains when one of them flips while they agree
+    del same, cross
+    i_idx, j_idx = np.concatenate([a_idx, b_idx]), np.concatenate([b_idx, a_idx])
+    worse = np.concatenate([worse, worse])
+    flip = np.zeros(P, bool)
+    for _ in range(max_passes):
+        agree = flip[i_idx] == flip[j_idx]
+        # flipping i changes its agreement with every j: it gains `worse` where they agree now
+        gain = np.bincount(i_idx, np.where(agree, worse, -worse), minlength=P)
+        best = np.full(len(pairs.frames), 0.0)
+        np.maximum.at(best, pairs.frame, gain)
+        take = (gain > 0) & (gain >= best[pairs.frame])
+        # one flip per frame and pass: the frame's best single flip
+        first = np.zeros(P, bool)
+        idx = np.flatnonzero(take)
+        _, first_of_frame = np.unique(pairs.frame[idx], return_index=True)
+        first[idx[first_of_frame]] = True
+        if not first.any():
+            break
+        flip ^= first
+    return flip
+
+
+def _essential_matrices(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, N, 3, 3): E[a, b] with x_b^T E x_a = 0 for cameras a, b (normalised coordinates)."""
+    R_ab = R[None, :] @ np.swapaxes(R, 1, 2)[:, None]  # [a, b] = R_b R_a^T
+    t_ab = t[None, :] - np.einsum("abij,aj->abi", R_ab, t)
+    return _skew(t_ab.reshape(-1, 3)).reshape(R_ab.shape) @ R_ab
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    z = np.zeros(len(v))
+    return np.stack(
+        [np.stack([z, -v[:, 2], v[:, 1]], 1), np.stack([v[:, 2], z, -v[:, 0]], 1), np.stack([-v[:, 1], v[:, 0], z], 1)],
+        axis=1,
+    )
+
+
+def _epipolar_costs(R: np.ndarray, t: np.ndarray, pairs: WandPairs, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Epipolar costs of the pairs ``a`` (K,) against the pairs ``b`` (K,) of other cameras in the
+    same frames: (same, cross), each (K,), the Sampson distances summed over both ends matched in
+    their present order and crossed.
+
+    Worked on flat rows (E's nine entries, each blob's x and y), :data:`COST_CHUNK` at a time so
+    the temporaries stay in cache; each end's epipolar line is formed once for both matchings.
+    """
+    n = len(R)
+    E_table = np.ascontiguousarray(_essential_matrices(R, t).reshape(n * n, 9).T)  # (9, N*N)
+    xy_table = np.ascontiguousarray(pairs.xy.reshape(-1, 4).T)  # (4, P): x0, y0, x1, y1
+    same, cross = np.empty(len(a)), np.empty(len(a))
+    for s in range(0, len(a), COST_CHUNK):
+        ca, cb = a[s : s + COST_CHUNK], b[s : s + COST_CHUNK]
+        E = np.take(E_table, pairs.camera[ca] * n + pairs.camera[cb], axis=1)
+        xa, xb = np.take(xy_table, ca, axis=1), np.take(xy_table, cb, axis=1)
+        # E x_a (the line in b) of each end of a, and E^T x_b's first two entries of each end of b
+        line = [[E[3 * r] * xa[2 * e] + E[3 * r + 1] * xa[2 * e + 1] + E[3 * r + 2] for r in range(3)] for e in range(2)]
+        back = [[E[c] * xb[2 * e] + E[3 + c] * xb[2 * e + 1] + E[6 + c] for c in range(2)] for e in range(2)]
+
+        def sampson(ea: int, eb: int, line=line, back=back, xb=xb) -> np.ndarray:
+            la, lb = line[ea], back[eb]
+            num = (xb[2 * eb] * la[0] + xb[2 * eb + 1] * la[1] + la[2]) ** 2
+            den = la[0] ** 2 + la[1] ** 2 + lb[0] ** 2 + lb[1] ** 2
+            return num / np.maximum(den, 1e-300)
+
+        same[s : s + COST_CHUNK] = sampson(0, 0) + sampson(1, 1)
+        cross[s : s + COST_CHUNK] = sampson(0, 1) + sampson(1, 0)
+    return same, cross

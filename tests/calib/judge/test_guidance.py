@@ -1,0 +1,205 @@
+"""Wanding guidance on seeded simulated captures: enough when well covered, the starved camera
+named alone, the predicted sigma falling as frames arrive and matching the real error spread."""
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import camera_centers
+from wandcal.calib.guidance import (
+    DEFAULT_MIN_COVERAGE,
+    DEFAULT_TARGET_STD_MM,
+    GuidanceSettings,
+    _anchors,
+    _weighted_fit,
+    subsample,
+    wanding_guidance,
+)
+from wandcal.calib.observations import wand_pairs
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.rig import Rig, WandObservations
+from wandcal.calib.sim.simulate import L_FRAME_M, observe_static, observe_wand, ring_cameras
+
+NOISE_PX = 0.3
+WAND_M = 0.5
+# The ring's cameras stand 3.2 m out and aim near (0, 0, 0.8 m): a volume of 3.6 x 3.6 x 1.8 m
+# reaches the edges of their views, as a lab waves through the whole captured volume.
+VOLUME_LOW, VOLUME_HIGH = (-1.8, -1.8, 0.2), (1.8, 1.8, 2.0)
+STARVED, STARVED_FRAMES = "cam5", 40
+SEEDS = 10
+FALSE_ALARM = 1e-3  # two-sided chance that a right prediction fails the spread test
+
+
+def covering_capture(cameras: int = 8, frames: int = 1500, seed: int = 0, noise_px: float = NOISE_PX):
+    """A rig on a ring and a wand waved at random through the whole volume (it covers each view)."""
+    rng = np.random.default_rng(seed)
+    cams, R, t = ring_cameras(cameras, rng)
+    middle = rng.uniform(VOLUME_LOW, VOLUME_HIGH, (frames, 3))
+    direction = rng.normal(size=(frames, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    wand = np.stack([middle - WAND_M / 2 * direction, middle + WAND_M / 2 * direction], axis=1)
+    observed = observe_wand(cams, R, t, wand, noise_px, 0.0, 0.0, rng)
+    static = observe_static(cams, R, t, L_FRAME_M, noise_px / 10, rng)
+    return Rig(tuple(cams), WAND_M, L_FRAME_M.copy()), observed, static, (R, t)
+
+
+def starve(rig: Rig, wand: WandObservations, camera_id: str, frames: int) -> WandObservations:
+    """Keep only ``frames`` of the camera's frames, all with both ends in the top-left ninth of its image."""
+    c = rig.index(camera_id)
+    cam = rig.cameras[c]
+    mine = wand.camera == c
+    corner = mine & (wand.uv[:, 0] < cam.width / 3) & (wand.uv[:, 1] < cam.height / 3)
+    f, n = np.unique(wand.frame[corner], return_counts=True)
+    keep = ~mine | np.isin(wand.frame, f[n == 2][:frames])
+    return WandObservations(wand.frame[keep], wand.camera[keep], wand.uv[keep])
+
+
+def first_frames(wand: WandObservations, frames: int) -> WandObservations:
+    keep = wand.frame < frames
+    return WandObservations(wand.frame[keep], wand.camera[keep], wand.uv[keep])
+
+
+@pytest.fixture(scope="module")
+def covered():
+    return covering_capture()
+
+
+def test_a_well_covered_rig_is_enough(covered):
+    rig, wand, static, _ = covered
+    doc = wanding_guidance(rig, wand, static).document
+    assert doc["enough"] and doc["advice"] == []
+    assert doc["target"] == {"center_std_mm": DEFAULT_TARGET_STD_MM, "coverage": DEFAULT_MIN_COVERAGE}
+    assert doc["solve"]["ok"] and doc["solve"]["cameras"] == 8
+    for cam in doc["cameras"]:
+        assert cam["advice"] is None
+        assert cam["center_std_mm"] < DEFAULT_TARGET_STD_MM and cam["coverage"] >= DEFAULT_MIN_COVERAGE
+        assert np.array(cam["grid"]).shape == (8, 8)
+        # every frame with both ends in two cameras is a link of both
+        assert sum(cam["linked"].values()) >= cam["shared_frames"] > 0
+    counted = np.bincount(wand_pairs(rig, wand).camera, minlength=8)
+    assert [cam["frames"] for cam in doc["cameras"]] == counted.tolist()
+
+
+def test_a_starved_camera_is_named_and_no_other(covered):
+    rig, wand, static, _ = covered
+    doc = wanding_guidance(rig, starve(rig, wand, STARVED, STARVED_FRAMES), static).document
+    assert not doc["enough"]
+    assert len(doc["advice"]) == 1 and doc["advice"][0].startswith(STARVED)
+    others = [cam for cam in doc["cameras"] if cam["id"] != STARVED]
+    assert all(cam["advice"] is None for cam in others), [cam["advice"] for cam in others]
+    (cam,) = [cam for cam in doc["cameras"] if cam["id"] == STARVED]
+    assert cam["frames"] == STARVED_FRAMES
+    assert cam["coverage"] < DEFAULT_MIN_COVERAGE and cam["center_std_mm"] > DEFAULT_TARGET_STD_MM
+    # its samples are all in the top-left: the advice says so and sends the wand everywhere else
+    assert "samples only in the top-left of its image" in cam["advice"] and "the rest of its view" in cam["advice"]
+
+
+def test_a_camera_that_saw_nothing_is_named_first():
+    rig, wand, static, _ = covering_capture(cameras=5, frames=500, seed=4)
+    keep = wand.camera != 2
+    doc = wanding_guidance(rig, WandObservations(wand.frame[keep], wand.camera[keep], wand.uv[keep]), static).document
+    assert not doc["enough"] and doc["advice"][0].startswith("cam3 has not seen both wand ends")
+    assert doc["cameras"][2]["center_std_mm"] is None and doc["cameras"][2]["frames"] == 0
+    assert doc["solve"]["ok"] and doc["solve"]["cameras"] == 4
+
+
+def test_nothing_yet_is_not_enough_and_says_why():
+    rig, _, static, _ = covering_capture(cameras=3, frames=10, seed=1)
+    doc = wanding_guidance(rig, WandObservations([], [], np.zeros((0, 2))), static).document
+    assert not doc["enough"] and not doc["solve"]["ok"] and doc["frames"] == 0
+    assert doc["advice"][0] == doc["solve"]["message"] and "no two cameras" in doc["advice"][0]
+    assert len(doc["advice"]) == 4 and all("has not seen" in a for a in doc["advice"][1:])
+
+
+def test_a_camera_that_saw_a_still_wand_is_named_and_spoils_no_other():
+    """cam3 sees only a wand held still (1 mm of jitter) in 12 frames, with cam1: it is placed,
+    but hardly determined. The reference frame's reweighting keeps its metres of sigma out of
+    the others'."""
+    rig, wand, static, (R, t) = covering_capture(cameras=5, frames=400, seed=7)
+    rng = np.random.default_rng(1)
+    still = np.array([[0.0, 0.0, 1.0], [WAND_M, 0.0, 1.0]]) + rng.normal(0, 0.001, (12, 2, 3))
+    seen = observe_wand(rig.cameras, R, t, still, NOISE_PX, 0.0, 0.0, rng)
+    extra = np.isin(seen.camera, [0, 2])
+    others = wand.camera != 2
+    thin = WandObservations(np.concatenate([wand.frame[others], seen.frame[extra] + wand.frame.max() + 1]),
+                            np.concatenate([wand.camera[others], seen.camera[extra]]),
+                            np.concatenate([wand.uv[others], seen.uv[extra]]))
+    doc = wanding_guidance(rig, thin, static).document
+    assert len(doc["advice"]) == 1 and doc["advice"][0].startswith("cam3")
+    sigma = np.array([cam["center_std_mm"] for cam in doc["cameras"]])
+    assert sigma[2] > 100 * np.delete(sigma, 2).max()
+    assert np.delete(sigma, 2).max() < DEFAULT_TARGET_STD_MM
+
+
+def _relative_errors(R, t, R_true, t_true, sigma):
+    """Centre errors (N,) after the reference frame of the prediction: the weighted fit of the
+    estimate's anchors onto the truth's."""
+    Rw, tw = _weighted_fit(_anchors(R, t), _anchors(R_true, t_true), np.tile(1 / sigma**2, 2))
+    return np.linalg.norm(camera_centers(R, t) @ Rw.T + tw - camera_centers(R_true, t_true), axis=1)
+
+
+def test_the_predicted_sigma_falls_as_frames_arrive_and_matches_the_real_error_spread():
+    """The bounds: each camera's squared error over its predicted variance has mean 1; the cameras
+    of one rig share the frame's error, so in the worst case they count as one sample per seed
+    (a chi^2 with SEEDS degrees of freedom, as tests/calib/test_uncertainty.py). The subsample
+    adds its own error: sigma^2 scaled from n of N frames per camera has a relative spread of
+    sqrt((1 - n/N) / n) (sampling without replacement, per-frame information of unit spread),
+    half of that on sigma, allowed to 3 of its sigmas."""
+    cameras, frames, kept = 6, 1200, 200
+    settings = GuidanceSettings(frames_per_camera=kept)
+    ratios, drops = [], []
+    for seed in range(SEEDS):
+        rig, wand, static, (R_true, t_true) = covering_capture(cameras, frames, 100 + seed)
+        sigmas = []
+        start = None
+        for prefix in (150, 300, 600, frames):
+            g = wanding_guidance(rig, first_frames(wand, prefix), static, settings, start)
+            start = g.solution
+            sigmas.append([cam["center_std_mm"] for cam in g.document["cameras"]])
+        sigmas = np.array(sigmas)
+        assert np.all(np.diff(sigmas, axis=0) < 0), sigmas  # every camera, every time frames arrive
+        drops.append(sigmas[0] / sigmas[-1])
+        res = calibrate(rig, wand, static)
+        errors = _relative_errors(res.R, res.t, R_true, t_true, sigmas[-1] / 1000)
+        ratios.append(errors / (sigmas[-1] / 1000))
+    subsample_tol = 3 * 0.5 * np.sqrt((1 - kept / (frames * 0.8)) / kept)  # ~80% of frames reach each camera
+    lo = np.sqrt(chi2.ppf(FALSE_ALARM / 2, SEEDS) / SEEDS) / (1 + subsample_tol)
+    hi = np.sqrt(chi2.ppf(1 - FALSE_ALARM / 2, SEEDS) / SEEDS) * (1 + subsample_tol)
+    rms = float(np.sqrt(np.mean(np.square(np.concatenate(ratios)))))
+    print(f"RMS(error/predicted) {rms:.2f} in [{lo:.2f}, {hi:.2f}]; sigma drop over 8x the frames {np.median(drops):.2f}")
+    assert lo < rms < hi, f"RMS of error / predicted {rms:.2f} outside [{lo:.2f}, {hi:.2f}]"
+    # information grows with the frames: 8x the frames, about sqrt(8) = 2.8x less sigma
+    assert 2.0 < float(np.median(drops)) < 4.0, np.median(drops)
+
+
+def test_the_subsample_is_nested_as_the_capture_grows(covered):
+    rig, wand, _, _ = covered
+    early, late = wand_pairs(rig, first_frames(wand, 700)), wand_pairs(rig, wand)
+    kept_early = set(early.frames[subsample(early, 100)])
+    kept_late = set(late.frames[subsample(late, 100)])
+    assert kept_late & set(early.frames) <= kept_early  # a lower rate keeps a subset of the same draw
+    per_camera = np.bincount(late.camera[subsample(late, 100)[late.frame]], minlength=8)
+    assert np.all(per_camera >= 100 * 0.7), per_camera  # about the cap for each camera
+
+
+def test_a_warm_start_gives_the_cold_answer(covered):
+    rig, wand, static, _ = covered
+    cold = wanding_guidance(rig, first_frames(wand, 800), static)
+    warm = wanding_guidance(rig, wand, static, start=cold.solution)
+    again = wanding_guidance(rig, wand, static)
+    assert warm.document["solve"]["warm_start"] and not again.document["solve"]["warm_start"]
+    for a, b in zip(warm.document["cameras"], again.document["cameras"]):
+        # both solves stop within wandcal.calib.solve.ba.STOP_SE (0.05) standard errors of the optimum, where the
+        # noise scale, a median of the residuals, differs by a fraction of a percent
+        assert a["center_std_mm"] == pytest.approx(b["center_std_mm"], rel=1e-2)
+
+
+def test_bad_settings_and_a_rig_without_wand_are_refused(covered):
+    rig, wand, _, _ = covered
+    with pytest.raises(CalibrationError, match="target_std_mm"):
+        GuidanceSettings(target_std_mm=0)
+    with pytest.raises(CalibrationError, match="min_coverage"):
+        GuidanceSettings(min_coverage=1.5)
+    with pytest.raises(CalibrationError, match="wand.length_m"):
+        wanding_guidance(Rig(rig.cameras, None), wand)

@@ -1,0 +1,91 @@
+"""Verdicts (excellent / good / poor, with reasons) and the checks every method's result passes."""
+
+import numpy as np
+import pytest
+
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import distort_points, project_normalized
+from wandcal.calib.judge.verdict import RMS_PX, camera_verdict, rig_verdict, sanity_check
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.rig import AxisObservations, Rig
+from wandcal.calib.sim.simulate import simulate_capture
+
+
+def test_a_clean_rig_is_not_poor_and_every_camera_has_coverage_and_a_verdict():
+    sim = simulate_capture(6, 1500, 0.3, 0.0, True, 3)
+    doc = calibrate(sim.rig, sim.wand, sim.static).to_json()
+    assert doc["verdict"]["level"] in ("excellent", "good")
+    for cam in doc["cameras"]:
+        assert 0 < cam["coverage"] <= 1 and cam["verdict"]["level"] != "poor"
+        # 0.3 px blob noise: the RMS is under the excellent limit, so no reason names it
+        assert not any("reprojection" in reason for reason in cam["verdict"]["reasons"])
+
+
+def test_a_noisy_rig_is_poor_and_says_why():
+    # 1 px blob noise per axis gives an RMS reprojection radius of ~1.4 px, over the 1 px limit
+    sim = simulate_capture(4, 400, 1.0, 0.0, True, 3)
+    doc = calibrate(sim.rig, sim.wand, sim.static).to_json()
+    assert doc["verdict"]["level"] == "poor"
+    cam = doc["cameras"][0]
+    assert cam["reprojection_rms_px"] > RMS_PX[1]
+    assert any("reprojection RMS" in r and "is poor" in r for r in cam["verdict"]["reasons"])
+    assert "poor cameras: cam1" in doc["verdict"]["reasons"][-1]
+
+
+def test_camera_verdict_grades_each_criterion_and_names_the_empty_regions():
+    v = camera_verdict({"reprojection_rms_px": 0.2, "observations": 2000, "coverage": 0.3,
+                        "uncovered": ["the left third"], "center_std_mm": 0.1}, "cam2")
+    assert v["level"] == "good" and len(v["reasons"]) == 1
+    assert "cam2: samples cover 30% of its image, good" in v["reasons"][0] and "the left third" in v["reasons"][0]
+    v = camera_verdict({"reprojection_rms_px": 0.2, "observations": 120, "center_std_mm": 3.0}, "cam5")
+    assert v["level"] == "poor" and any("120 observations is poor" in r for r in v["reasons"])
+    assert rig_verdict([{"id": "cam5", "verdict": v}], None)["reasons"] == ["poor cameras: cam5"]
+
+
+def test_wand_spread_over_one_percent_makes_the_rig_poor():
+    ok = {"verdict": {"level": "excellent", "reasons": []}, "id": "cam1"}
+    wand = {"length_m": 0.5, "length_mean_m": 0.5, "length_std_m": 0.006}
+    v = rig_verdict([ok], wand)
+    assert v["level"] == "poor" and "1.20%" in v["reasons"][0]
+
+
+RIG = Rig(tuple(simulate_capture(2, 20, 0.3, 0.0, False, 1).rig.cameras), 0.5)
+CAMS = [{"id": "cam1", "observations": 100}, {"id": "cam2", "observations": 100}]
+WAND = {"length_m": 0.5, "length_mean_m": 0.5, "length_std_m": 0.001}
+
+
+@pytest.mark.parametrize("method", ["ba", "paper"])
+def test_a_camera_left_without_observations_is_an_error_naming_it(method):
+    cams = [CAMS[0], {"id": "cam2", "observations": 0}]
+    with pytest.raises(CalibrationError, match="cam2 holding no observations") as err:
+        sanity_check(method, RIG, cams, WAND, {"frame": "camera"}, np.zeros((2, 3)))
+    # a ba run is not told to try ba
+    assert ("try --method ba" in str(err.value)) == (method != "ba")
+
+
+def test_a_wand_of_the_wrong_length_is_an_error():
+    wand = {"length_m": 0.5, "length_mean_m": 0.4, "length_std_m": 0.05}
+    with pytest.raises(CalibrationError, match=r"wand of 400.0 \+- 50.0 mm against the given 500.0 mm \(-20%\)"):
+        sanity_check("paper", RIG, CAMS, wand, {"frame": "camera"}, np.zeros((2, 3)))
+
+
+def test_cameras_under_the_floor_warn_of_a_flipped_world():
+    centers = np.array([[0, 0, 2.5], [1, 0, -2.5]])
+    warnings = sanity_check("ba", RIG, CAMS, WAND, {"frame": "static_object"}, centers)
+    assert len(warnings) == 1 and warnings[0].startswith("cam2 is below the floor")
+    assert sanity_check("ba", RIG, CAMS, WAND, {"frame": "camera"}, centers) == []
+
+
+def test_axis_points_with_z_clicked_downwards_put_the_cameras_under_the_floor_and_say_so():
+    """The operator marked the +z point below the origin: the reprojection error is as low as
+    ever, but the cameras end under the floor, and the result says so."""
+    sim = simulate_capture(5, 400, 0.3, static=False, seed=8)
+    axis_xyz = {"origin": [0.0, 0.0, 0.0], "+z": [0.0, 0.0, -0.5], "+x": [0.5, 0.0, 0.0]}
+    role, camera, uv = [], [], []
+    for c, cam in enumerate(sim.rig.cameras):
+        for name, X in axis_xyz.items():
+            role.append(name), camera.append(c)
+            uv.append(distort_points(cam, project_normalized(sim.truth.R[c], sim.truth.t[c], np.array([X])))[0])
+    res = calibrate(sim.rig, sim.wand, None, axis=AxisObservations(role, camera, uv))
+    assert res.world["frame"] == "axis" and np.all(res.centers[:, 2] < 0)
+    assert any("below the floor" in w and "z must point up" in w for w in res.warnings)

@@ -1,0 +1,89 @@
+"""The Schur-complement Levenberg–Marquardt of ``--method ba`` against a reference solver and the
+Cramér–Rao bound of the injected noise."""
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from wandcal.calib.judge.crb import gauge_errors, pose_crb
+from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
+from wandcal.calib.solve import ba
+
+NOISE = 0.5
+
+
+def test_reaches_the_optimum_of_a_reference_least_squares_solver():
+    """Plain least squares: the same minimum as scipy's trust-region solver run to tight tolerances
+    (the previous ``ba``), to a small fraction of the poses' standard errors."""
+    scene = prepared_scene(cameras=5, frames=300, noise_px=NOISE, seed=3)
+    model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=3)
+    ref = least_squares(model.residuals, model.x0(), jac=model.jacobian, method="trf", x_scale="jac",
+                        ftol=1e-15, xtol=1e-15, gtol=1e-15, max_nfev=200, tr_solver="lsmr")
+    x, info = ba.bundle_adjust(model, loss="linear")
+    assert info["status"] == "converged" and info["iterations"] <= 8
+    cost = 0.5 * float(model.residuals(x) @ model.residuals(x))
+    # the stop leaves each parameter within STOP_SE standard errors of the optimum: the cost is
+    # then above the minimum by about STOP_SE^2 / 2 per parameter, in units of sigma^2
+    assert cost - ref.cost <= ba.STOP_SE**2 / 2 * model.n_params * NOISE**2 + 1e-9
+    T = scene.sim.truth
+    bound, _ = pose_crb(scene.setup.problem, T.R, T.t, T.wand[scene.setup.frames], 0, NOISE)
+    R, t = model.poses(x)
+    R_ref, t_ref = model.poses(ref.x)
+    diff, _ = gauge_errors(R, t, R_ref, t_ref, 0)
+    assert np.all(diff[1:] < 4 * ba.STOP_SE * bound[1:])
+
+
+@pytest.mark.parametrize("loss", ba.LOSSES)
+def test_reaches_the_cramer_rao_bound(loss):
+    ratios = []
+    for seed in range(3):
+        scene = prepared_scene(cameras=5, frames=300, noise_px=NOISE, seed=seed)
+        model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=seed)
+        x, info = ba.bundle_adjust(model, loss=loss)
+        assert info["status"] == "converged" and info["loss"] == loss
+        T = scene.sim.truth
+        bound, _ = pose_crb(scene.setup.problem, T.R, T.t, T.wand[scene.setup.frames], 0, NOISE)
+        err, _ = gauge_errors(*model.poses(x), T.R, T.t, 0)
+        ratios += list(err[1:] / bound[1:])
+    # an efficient estimator has RMS(error / sqrt(CRB)) ~ 1; 12 cameras make 1.6 a >99% bound
+    # (the Cauchy loss at 4 sigma is ~99% efficient on Gaussian noise)
+    assert np.sqrt(np.mean(np.square(ratios))) < 1.6
+
+
+def test_cauchy_loss_ignores_gross_outliers_without_a_re_solve():
+    """8% of camera-frames carry a 20-60 px outlier: least squares is dragged off, the robust loss
+    stays within the bound's reach of the clean data."""
+    ratios, ls_ratios = [], []
+    for seed in range(2):
+        scene = prepared_scene(cameras=6, frames=400, noise_px=NOISE, seed=seed, outliers=0.08)
+        model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=seed)
+        T = scene.sim.truth
+        bound, _ = pose_crb(scene.setup.problem, T.R, T.t, T.wand[scene.setup.frames], 0, NOISE)
+        x, info = ba.bundle_adjust(model)
+        assert info["status"] == "converged" and info["loss_scale_px"] < 4 * ba.CAUCHY_SIGMAS * NOISE
+        ratios += list(gauge_errors(*model.poses(x), T.R, T.t, 0)[0][1:] / bound[1:])
+        x_ls, _ = ba.bundle_adjust(model, loss="linear")
+        ls_ratios += list(gauge_errors(*model.poses(x_ls), T.R, T.t, 0)[0][1:] / bound[1:])
+    rms = lambda r: float(np.sqrt(np.mean(np.square(r))))  # noqa: E731
+    assert rms(ratios) < 1.6  # as above: the outliers' remaining weight (~1e-3) costs almost nothing
+    assert rms(ls_ratios) > 3 * rms(ratios)  # and they do matter to least squares
+
+
+def test_returns_the_model_parameters_of_its_state():
+    """x maps back through the model's own parametrisation (Euler increments, wand directions)."""
+    scene = prepared_scene(cameras=4, frames=80, noise_px=NOISE, seed=2)
+    model = perturbed_model(scene, degrees=0.5, metres=0.01, seed=2)
+    x, _ = ba.bundle_adjust(model, max_iter=2)
+    wand = model.wand(x)
+    assert np.allclose(np.linalg.norm(wand[:, 1] - wand[:, 0], axis=1), model.p.length)
+    r = model.residuals(x)
+    x_again, info = ba.bundle_adjust(model, x0=x, loss="linear")
+    assert 0.5 * float(model.residuals(x_again) @ model.residuals(x_again)) <= 0.5 * float(r @ r) + 1e-9
+    R, _ = model.poses(x)
+    assert np.allclose(R[0], model.R0[0]) and np.allclose(np.einsum("nij,nkj->nik", R, R), np.eye(3))
+
+
+def test_rejects_an_unknown_loss():
+    scene = prepared_scene(cameras=3, frames=40, noise_px=NOISE, seed=1)
+    with pytest.raises(ValueError, match="loss"):
+        ba.bundle_adjust(scene.setup.model, loss="huber")

@@ -1,0 +1,57 @@
+"""The interior-point method of the LP step's dual form, against HiGHS's simplex on the same LP."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from wandcal.calib.solve.backend.highs import IncrementalLp
+from wandcal.calib.solve.backend.ipm import solve_dual_form
+
+
+def _dual_form(seed, n=12, k=200):
+    """A random LP of the step's shape: k dense pair columns of n rows, bounded by jumps, and a box."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(k, n))
+    c = rng.normal(scale=0.1, size=k)
+    jump = rng.uniform(0.2, 1.0, k)
+    c_lo, c_hi = rng.uniform(0.5, 2.0, n), rng.uniform(0.5, 2.0, n)
+    r = rng.normal(scale=5.0, size=n)
+    return A, c, jump, c_lo, c_hi, r
+
+
+def _lp(A, c, jump, c_lo, c_hi, r):
+    k, n = A.shape
+    lp = IncrementalLp(r)
+    eye = sp.identity(n, format="csc")
+    lp.add_columns(np.r_[c_lo, c_hi], np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
+    lp.add_columns(c, np.zeros(k), jump, A.T)
+    return lp
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_interior_point_names_the_simplex_optimum(seed):
+    """Its duals are the simplex's step, and its basis is optimal: HiGHS confirms it without a pivot."""
+    problem = _dual_form(seed)
+    cold = _lp(*problem).solve(1)
+    ipm = solve_dual_form(*problem)
+    assert cold.status == "optimal" and ipm.status == "optimal"
+    np.testing.assert_allclose(ipm.duals, cold.row_duals, rtol=1e-6, atol=1e-6 * np.abs(cold.row_duals).max())
+    assert ipm.basic.sum() == len(problem[-1])
+    warm = _lp(*problem)
+    warm.set_basis(ipm.basic, ipm.at_upper)
+    res = warm.solve(1)
+    assert res.status == "optimal" and res.iterations == 0
+    np.testing.assert_allclose(res.row_duals, cold.row_duals, rtol=1e-9, atol=1e-9 * np.abs(cold.row_duals).max())
+
+
+def test_no_pairs_leaves_the_box():
+    """With no pair columns the step sits on the box: d_j = c_hi_j where r_j > 0, -c_lo_j where r_j < 0."""
+    c_lo, c_hi, r = np.array([1.0, 1.0, 1.0]), np.array([2.0, 2.0, 2.0]), np.array([1.0, -2.0, 0.5])
+    ipm = solve_dual_form(np.zeros((0, 3)), np.zeros(0), np.zeros(0), c_lo, c_hi, r)
+    assert ipm.status == "optimal"
+    np.testing.assert_allclose(ipm.duals, [2.0, -1.0, 2.0], atol=1e-7)
+
+
+def test_a_deadline_in_the_past_stops_it():
+    ipm = solve_dual_form(*_dual_form(0), deadline=0.0)
+    assert ipm.status == "time_limit"

@@ -1,0 +1,115 @@
+"""Refinement against seeded rigs; tolerances come from the Cramér-Rao bound of the injected noise."""
+
+import numpy as np
+
+from wandcal.calib.geometry import camera_centers
+from wandcal.calib.judge.crb import gauge_errors, pose_crb
+from wandcal.calib.sim.scenes import prepared_scene as prepared
+from wandcal.calib.solve.ba import bundle_adjust
+from wandcal.calib.solve.paper import (
+    MAX_ROUNDS,
+    ROUND_TOL,
+    WINDOW,
+    algebraic_residuals,
+    height_pairs,
+    lp_step,
+    refine_paper,
+    rotation_step,
+)
+from wandcal.calib.solve.wandmodel import WandModel
+
+NOISE = 0.5
+
+
+def test_jacobian_matches_finite_differences(small_rig):
+    setup = small_rig.setup
+    m = setup.model
+    sub = WandModel(setup.problem.subset(setup.problem.frame < 3), m.R0, m.t0, m.wand(m.x0())[:3], m.fixed)
+    sub.p = sub.p.__class__(sub.p.camera, sub.p.frame, sub.p.end, sub.p.xy, sub.p.focal, sub.p.length, 3)
+    sub = WandModel(sub.p, m.R0, m.t0, m.wand(m.x0())[:3], m.fixed)
+    x = sub.x0() + np.random.default_rng(0).normal(0, 1e-3, sub.n_params)
+    J = sub.jacobian(x).toarray()
+    num = np.zeros_like(J)
+    for k in range(len(x)):
+        d = np.zeros(len(x))
+        d[k] = 1e-6
+        num[:, k] = (sub.residuals(x + d) - sub.residuals(x - d)) / 2e-6
+    assert np.abs(J - num).max() < 1e-5 * np.abs(J).max()
+
+
+def test_ba_reaches_the_cramer_rao_bound():
+    ratios = []
+    for seed in range(3):
+        sc = prepared(cameras=5, frames=300, noise_px=NOISE, seed=seed)
+        sim, setup = sc.sim, sc.setup
+        x, info = bundle_adjust(setup.model)
+        assert info["status"] == "converged"
+        R, t = setup.model.poses(x)
+        T = sim.truth
+        bound, _ = pose_crb(setup.problem, T.R, T.t, T.wand[setup.frames], 0, NOISE)
+        err, _ = gauge_errors(R, t, T.R, T.t, 0)
+        ratios += list(err[1:] / bound[1:])
+    # an efficient estimator has RMS(error / sqrt(CRB)) ~ 1; 12 cameras make 1.6 a >99% bound
+    assert np.sqrt(np.mean(np.square(ratios))) < 1.6
+
+
+def test_literal_paper_lp_collapses_and_anchored_does_not():
+    sc = prepared(cameras=4, frames=120, noise_px=NOISE, seed=1)
+    sim, setup = sc.sim, sc.setup
+    m = setup.model
+    up = np.array([0.0, 0.0, 1.0])
+    start = m.wand(m.x0())
+    R, t, W, info = refine_paper(m.R0, m.t0, start, setup.problem, m.fixed, up, "literal", max_rounds=2)
+    lengths = np.linalg.norm(W[:, 1] - W[:, 0], axis=1)
+    # zero cost by collapse: every wand shrinks to a point and all cameras meet
+    assert np.abs(algebraic_residuals(R, t, W.reshape(-1, 3), setup.problem)).sum() < 1e-6
+    assert lengths.max() < 1e-6
+    R, t, W, info = refine_paper(m.R0, m.t0, start, setup.problem, m.fixed, up, "anchored", max_rounds=8)
+    lengths = np.linalg.norm(W[:, 1] - W[:, 0], axis=1)
+    assert abs(lengths.mean() - sim.rig.wand_length) < 1e-6  # the anchoring equality holds
+    T = sim.truth
+    err, _ = gauge_errors(R, t, T.R, T.t, 0)
+    start_err, _ = gauge_errors(m.R0, m.t0, T.R, T.t, 0)
+    bound, _ = pose_crb(setup.problem, T.R, T.t, T.wand[setup.frames], 0, NOISE)
+    assert err.max() < start_err.max()  # it refines rather than collapsing
+    # an L1 estimator costs sqrt(pi/2) = 1.25x the bound on Gaussian noise; the depth weighting
+    # of the algebraic error and the slow alternation cost more (docs/decisions/0002): allow 4x
+    assert np.all(err[1:] < 4 * bound[1:])
+
+
+def test_paper_lp_warm_start_reaches_the_cold_optimum():
+    sc = prepared(cameras=4, frames=120, noise_px=NOISE, seed=2)
+    setup, m = sc.setup, sc.setup.model
+    up = np.array([0.0, 0.0, 1.0])
+    X = m.wand(m.x0()).reshape(-1, 3)
+    heights = height_pairs(m.R0, m.t0, X, up)
+    R1 = rotation_step(m.R0, m.t0, X, setup.problem, m.fixed)
+    t1, X1, first = lp_step(R1, m.t0, X, setup.problem, m.fixed, up, heights=heights)
+    assert first.status == "optimal" and first.basis is not None
+    # the next round: new rotations change the LP's coefficients, not its shape
+    R2 = rotation_step(R1, t1, X1, setup.problem, m.fixed)
+    _, _, cold = lp_step(R2, t1, X1, setup.problem, m.fixed, up, heights=heights, solver="simplex")
+    t_w, X_w, warm = lp_step(R2, t1, X1, setup.problem, m.fixed, up, heights=heights, basis=first.basis)
+    assert warm.status == cold.status == "optimal"
+    assert abs(warm.objective - cold.objective) <= 1e-9 * cold.objective
+    assert warm.iterations < cold.iterations / 5
+    # the warm solve's point attains that optimum
+    assert np.isclose(np.abs(algebraic_residuals(R2, t_w, X_w, setup.problem)).sum(), cold.objective, rtol=1e-6)
+
+
+def test_paper_method_runs_to_a_fixed_point():
+    sc = prepared(cameras=4, frames=300, noise_px=NOISE, seed=1)
+    setup, m = sc.setup, sc.setup.model
+    up = np.array([0.0, 0.0, 1.0])
+    R, t, W, info = refine_paper(m.R0, m.t0, m.wand(m.x0()), setup.problem, m.fixed, up)
+    assert info["status"] == "converged" and info["iterations"] < MAX_ROUNDS, info
+    lengths = np.linalg.norm(W[:, 1] - W[:, 0], axis=1)
+    assert abs(lengths.mean() - sc.sim.rig.wand_length) < 1e-6
+    # more rounds (rotations, then the LP) leave every camera about where it was
+    R2, t2, _, _ = refine_paper(R, t, W, setup.problem, m.fixed, up, max_rounds=WINDOW)
+    assert np.linalg.norm(camera_centers(R2, t2) - camera_centers(R, t), axis=1).max() < 2 * ROUND_TOL
+    # No bound on the error is asserted here: the scheme's fixed point is not an efficient
+    # estimate. The rotation step minimises squared and the LP absolute algebraic error, so the
+    # rounds settle where the two balance, not at a minimum of either: 2-6x the bound on rigs
+    # this small, further from the truth than the start on some (decision 0005).
+    # bench/bench_acceptance.py measures it at 8 x 1500.
