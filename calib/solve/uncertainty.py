@@ -85,7 +85,7 @@ def pose_covariance(normal, step, sigma: float, free: np.ndarray, frozen: list[t
 
 
 def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, frame_cov: np.ndarray | None = None,
-                      frame_origin: np.ndarray | None = None):
+                      frame_origin: np.ndarray | None = None, full: bool = False):
     """Per-camera centre and rotation uncertainty in the world frame.
 
     Args:
@@ -100,7 +100,9 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
         frame_origin: (3,) the world point that rotation is about (the markers' centroid).
 
     Returns:
-        (center_std (N,) metres, rotation_std (N,) radians).
+        (center_std (N,) metres, rotation_std (N,) radians); with ``full``, also the whole
+        (N, 6, N, 6) covariance of every camera's world centre (metres) and small rotation
+        (radians, camera side), the frame's own noise included, for the geometry/placement split.
     """
     n = len(R)
     Rw, tw = frame(R, t, np.zeros(3))
@@ -133,13 +135,15 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
     if np.any(pc.centroid_cov):
         Gm = np.stack([world(R, t, h * e) / h for e, h in zip(np.eye(3), [STEP_M] * 3)], axis=1)
         cov += Gm @ pc.centroid_cov @ Gm.T
+    if frame_cov is not None:
+        # the frame's own error moves every camera together: fully correlated between them
+        A = _frame_response(base_C, frame_origin).reshape(n * 6, 6)
+        cov += A @ frame_cov @ A.T
     cov = cov.reshape(n, 6, n, 6)
     blocks = cov[np.arange(n), :, np.arange(n), :]  # (N, 6, 6)
-    if frame_cov is not None:
-        blocks = blocks + _frame_blocks(base_C, frame_cov, frame_origin)
     center = np.sqrt(np.maximum(np.einsum("nii->n", blocks[:, :3, :3]), 0.0))
     rotation = np.sqrt(np.maximum(np.einsum("nii->n", blocks[:, 3:, 3:]), 0.0))
-    return center, rotation
+    return (center, rotation, cov) if full else (center, rotation)
 
 
 def registration_covariance(points: np.ndarray, sigma_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -158,7 +162,7 @@ def registration_covariance(points: np.ndarray, sigma_m: float) -> tuple[np.ndar
     return cov, centroid
 
 
-def _frame_blocks(centers: np.ndarray, frame_cov: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
+def _frame_response(centers: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
     """(N, 6, 6) what a small error of the world frame itself (rotation phi about ``origin``,
     translation tau) does to each camera's world centre and rotation: dC = -[C - origin]x phi + tau
     (the frame turns, the camera appears turned the other way), drot = -phi."""
@@ -166,11 +170,9 @@ def _frame_blocks(centers: np.ndarray, frame_cov: np.ndarray, origin: np.ndarray
     out = np.zeros((len(centers), 6, 6))
     for i, C in enumerate(centers):
         d = C - origin
-        A = np.zeros((6, 6))
-        A[:3, :3] = np.array([[0, d[2], -d[1]], [-d[2], 0, d[0]], [d[1], -d[0], 0]])  # -[d]x
-        A[:3, 3:] = np.eye(3)
-        A[3:, :3] = -np.eye(3)
-        out[i] = A @ frame_cov @ A.T
+        out[i, :3, :3] = np.array([[0, d[2], -d[1]], [-d[2], 0, d[0]], [d[1], -d[0], 0]])  # -[d]x
+        out[i, :3, 3:] = np.eye(3)
+        out[i, 3:, :3] = -np.eye(3)
     return out
 
 
