@@ -28,7 +28,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.geometry import camera_centers
 from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
 from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
@@ -53,12 +52,6 @@ MIN_SOLVE_FRAMES = 10
 FEW_SHARED_FRAMES = 2 * GRID[0] * GRID[1]
 # Cameras left out, weakest first, when the fast solve cannot place them all; the rest are solved.
 MAX_LEFT_OUT = 2
-AXIS_POINT_M = 1.0
-# Reweighting passes of the reference frame: each shrinks a loose camera's pull on the others by the
-# square of the ratio of its sigma to the median's, so a camera a thousand times looser than the
-# rest (a wand held still in its view) is settled in four; the loop stops once no sigma moves by 1%.
-MAX_REWEIGHTS = 8
-REWEIGHT_RTOL = 0.01  # the point along each optical axis that ties the reference frame to the cameras' rotations
 # Knuth's multiplicative hash: a fixed pseudo-random number in [0, 1) per frame number, so one
 # update's subsample is nested in the last one's (no jitter from redrawing).
 _HASH = 2654435761
@@ -289,56 +282,22 @@ def _solve(rig: Rig, seen: _Seen, solve_set: np.ndarray, static, settings: Guida
     return Solution(ids, r.R, r.t), center, rotation, info
 
 
-def _anchors(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(2N, 3): every camera's centre, then a point ``AXIS_POINT_M`` along its optical axis."""
-    C = camera_centers(R, t)
-    return np.concatenate([C, C + AXIS_POINT_M * R[:, 2, :]])
-
-
-def _weighted_fit(source: np.ndarray, target: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The rigid map ``target ~ Rw source + tw`` of least weighted squares (Umeyama with weights)."""
-    w = weight / weight.sum()
-    mu_s, mu_t = w @ source, w @ target
-    U, _, Vt = np.linalg.svd((target - mu_t).T @ ((source - mu_s) * w[:, None]))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    Rw = U @ D @ Vt
-    return Rw, mu_t - Rw @ mu_s
-
-
 def relative_uncertainty(R: np.ndarray, t: np.ndarray, covariance) -> tuple[np.ndarray, np.ndarray]:
-    """Each camera's centre and rotation 1-sigma relative to the rest of the rig.
-
-    The reference frame is the weighted least-squares fit of every camera's centre and of a point
-    one metre along its optical axis (:func:`_anchors`), each camera weighted by 1 / sigma^2 of the
-    previous pass (the first with equal weights; no weight above the median camera's) until the
-    sigmas settle, so a poorly placed camera does not drag the frame, and with it every other
-    camera's sigma, after it. Gauge-free: the fixed camera of the solve gets its share.
+    """Each camera's centre and rotation 1-sigma relative to the rest of the rig: the geometry
+    uncertainty of :func:`wandcal.calib.solve.gauge_free.split_uncertainty`, the same definition as
+    a calibration's ``geometry_std_mm``, so guidance and ``wandcal calibrate`` agree.
 
     Args:
         R, t: (K, 3, 3), (K, 3) gauge-frame poses of the solve.
         covariance: their :class:`wandcal.calib.solve.uncertainty.PoseCovariance`.
 
     Returns:
-        (center (K,) metres, rotation (K,) radians): sqrt of the trace of each camera's centre and
-        small-angle covariance in that frame.
+        (center (K,) metres, rotation (K,) radians).
     """
-    from wandcal.calib.solve.uncertainty import world_uncertainty
+    from wandcal.calib.solve.gauge_free import gauge_covariance, split_uncertainty
 
-    base = _anchors(R, t)
-    weight = np.ones(len(base))
-    center = np.full(len(R), np.inf)
-    for _ in range(MAX_REWEIGHTS):
-        def frame(Rp, tp, shift, weight=weight):
-            return _weighted_fit(_anchors(Rp, tp), base, weight)
-
-        last = center
-        center, rotation = world_uncertainty(R, t, covariance, frame)
-        if np.allclose(center, last, rtol=REWEIGHT_RTOL, atol=0.0):
-            break
-        # no weight above the median camera's: else the best camera pulls the frame onto itself,
-        # its sigma shrinks with every pass and the frame ends up its gauge
-        weight = np.tile(1.0 / np.maximum(center, np.median(center)) ** 2, 2)
-    return center, rotation
+    split = split_uncertainty(R, t, gauge_covariance(R, t, covariance.free, covariance.cov))
+    return split.center_std, split.rotation_std
 
 
 def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, solve_set: np.ndarray,

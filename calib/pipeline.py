@@ -6,14 +6,14 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.geometry import camera_centers
+from wandcal.calib.geometry import camera_centers, undistort_by_camera
 from wandcal.calib.judge import quality
-from wandcal.calib.judge.verdict import judge
+from wandcal.calib.judgement import judge
 from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
 from wandcal.calib.refine import (
     GAUGE_CAMERA,
@@ -26,6 +26,7 @@ from wandcal.calib.refine import (
 )
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.solve.ba import DEFAULT_LOSS
+from wandcal.calib.solve.gauge_free import split_uncertainty
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty
 from wandcal.calib.start.degenerate import check_capture
@@ -181,6 +182,7 @@ def calibrate(
     tell({"stage": "labels", "message": "telling the wand ends apart"})
     labelled = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0] if has_wand else pairs
     setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
+    all_tracks = tracks  # every method is judged on the same observations, point tracks included
     if tracks is not None:
         tracks, X = triangulated(init.R, init.t, tracks)
         if method != "ba":
@@ -231,9 +233,14 @@ def calibrate(
     seen_cam, seen_uv = setup.problem.camera, setup.uv
     if tracks is not None and len(tracks):
         seen_cam, seen_uv = np.concatenate([seen_cam, tracks.camera]), np.concatenate([seen_uv, tracks.uv])
-    verdict, checks = judge(method, rig, cameras, wand_report, world, camera_centers(R, t), seen_cam, seen_uv)
+    solver = {"method": method} | info
+    tell({"stage": "judge", "message": "judging the rig and looking for a camera or input at fault"})
+    if all_tracks is not None and info.get("refined_intrinsics"):
+        all_tracks = replace(all_tracks, xy=undistort_by_camera(rig.cameras, all_tracks.camera, all_tracks.uv))
+    verdict, checks = judge(method, rig, cameras, wand_report, world, R, t, r.labelled, all_tracks, solver,
+                            (seen_cam, seen_uv))
     warnings += checks
-    solver = {"method": method} | info | {"total_seconds": time.perf_counter() - started}
+    solver |= {"total_seconds": time.perf_counter() - started}
     tell({"stage": "done", "message": "calibration finished"})
     return CalibrationResult(
         rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
@@ -283,10 +290,17 @@ def _uncertainty_reports(cameras: list[dict], rig: Rig, r, world: dict, frame_da
     elif world["frame"] == "axis":
         points = np.array(list(axis_points(rig, axis, r.R, r.t).values())) @ Rw.T + tw
     frame_cov, origin = frame_noise(world, rig, points, r.covariance)
-    center, rotation = world_uncertainty(r.R, r.t, r.covariance, frame, frame_cov, origin)
+    center, rotation, cov = world_uncertainty(r.R, r.t, r.covariance, frame, frame_cov, origin, full=True)
+    Rworld, tworld, _ = apply(Rw, tw, r.R, r.t, np.zeros((0, 3)))
+    split = split_uncertainty(Rworld, tworld, cov, scale_free=not has_wand)
     for c, report in enumerate(cameras):
         report["center_std_mm"] = float(1000 * center[c]) if has_wand else None
         report["rotation_std_deg"] = float(np.degrees(rotation[c]))
+        report["geometry_std"] = float(split.center_std[c])
+        report["geometry_std_mm"] = float(1000 * split.center_std[c]) if has_wand else None
+        report["geometry_rotation_std_deg"] = float(np.degrees(split.rotation_std[c]))
+    world["placement"] = {"origin_std_mm": float(1000 * split.origin_std) if has_wand else None,
+                          "axes_std_deg": float(np.degrees(split.axes_std))}
 
 
 def _intrinsics_reports(cameras: list[dict], rig: Rig, std: np.ndarray, names: list[str], warnings: list[str]) -> None:

@@ -13,9 +13,8 @@ import time
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError, Failure
-from wandcal.calib.geometry import camera_centers
 from wandcal.calib.judge import quality
-from wandcal.calib.judge.verdict import judge
+from wandcal.calib.judgement import judge
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.pipeline import CalibrationResult, _camera_reports, _summary_warnings
 from wandcal.calib.refine import build_problem, refine, reject_outliers, up_direction
@@ -98,10 +97,10 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
     lengths = quality.free_wand_lengths(R_new, t_new, r.setup.problem)
     wand_report = {"length_m": rig.wand_length, "length_mean_m": float(lengths.mean()),
                    "length_std_m": float(lengths.std()), "frames_used": int(r.setup.problem.n_frames)}
-    verdict, checks = judge("ba", rig, cameras, wand_report, world, camera_centers(R_new, t_new), r.setup.problem.camera,
-                            r.setup.uv)
-    warnings += checks
     solver = {"method": "ba"} | r.info | {"solved_only": list(solve), "total_seconds": time.perf_counter() - started}
+    verdict, checks = judge("ba", rig, cameras, wand_report, dict(world), R_new, t_new, labelled, None, solver,
+                            (r.setup.problem.camera, r.setup.uv))
+    warnings += checks
     tell({"stage": "done", "message": "calibration finished"})
     return CalibrationResult(rig=rig, R=R_new, t=t_new, wand=r.wand, frames=r.setup.frames, cameras=cameras,
                              wand_report=wand_report, solver=solver, world=dict(world), dropped=dropped, warnings=warnings,

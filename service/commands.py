@@ -48,7 +48,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --from: re-solve only these cameras (e.g. the ones 'wandcal check' names)")
     p.set_defaults(run=run_calibrate)
 
-    p = sub.add_parser("check", help="judge a result's cameras against a fresh wand capture: did any move?")
+    p = sub.add_parser("check", help="judge a result's cameras against a fresh wand capture: did any move?",
+                       epilog="exit status: 0 every camera agrees; 1 a camera moved (named, with the command to re-solve "
+                       "it); 2 bad input, or a capture of another rig; 3 no answer: some camera could not be judged, "
+                       "or most cameras disagree (the rig was rebuilt: calibrate afresh)")
     p.add_argument("result", type=Path, help="wandcal-result/1 file")
     p.add_argument("capture", type=Path, help="a fresh wand capture of the same rig")
     p.add_argument("--json", action="store_true", help='print {"cameras": [{"id", "moved", "rms_px", ...}]}')
@@ -122,17 +125,22 @@ def _points_level(folder: Path, progress) -> Path:
 
 def _result_for(result_path: Path, cap):
     """The result's cameras (calibrated intrinsics and poses) in the capture's camera order."""
+    from wandcal.calib.judge.evaluate import rig_mismatches
     from wandcal.capture.results import read_result
 
     prev = read_result(result_path)
-    missing = [cid for cid in cap.rig.ids if cid not in prev.rig.ids]
-    if missing:
-        raise CalibrationError(f"{result_path}: has no camera {missing[0]!r} of the capture's rig.json "
-                               f"(it has {', '.join(prev.rig.ids)}); check that the capture and the result are of one rig")
+    mismatch = rig_mismatches(prev.rig, cap.rig)
+    if mismatch:
+        raise CalibrationError(f"{result_path}: the capture is not of this result's rig: {'; '.join(mismatch[:3])}; check "
+                               "that the capture and the result are of one rig, or calibrate the capture afresh")
     order = [prev.rig.index(cid) for cid in cap.rig.ids]
     rig = replace(cap.rig, cameras=tuple(prev.rig.cameras[k] for k in order))
     entries = [prev.doc["cameras"][k] for k in order]
     return prev, rig, prev.R[order], prev.t[order], entries
+
+
+EXIT_MOVED = 1  # wandcal check: a camera moved (named)
+EXIT_UNJUDGED = 3  # wandcal check: some camera could not be judged, and none was seen to move
 
 
 def run_check(args) -> int:
@@ -146,15 +154,27 @@ def run_check(args) -> int:
     expected = np.array([e.get("reprojection_rms_px") or np.nan for e in entries], float)
     checks = check_cameras(rig, R, t, cap.wand, None if np.isnan(expected).any() else expected)
     moved = [c.id for c in checks if c.moved]
+    unjudged = [c.id for c in checks if c.moved is None]
+    rebuilt = len(moved) > len(checks) / 2  # a bump moves a camera or two; most of them is another rig
     if args.json:
-        print(json.dumps({"cameras": [vars(c) for c in checks], "moved": moved}, indent=2))
+        print(json.dumps({"cameras": [vars(c) for c in checks], "moved": moved, "unjudged": unjudged,
+                          "rebuilt": rebuilt}, indent=2))
     else:
         for c in checks:
             mark = "MOVED" if c.moved else ("?" if c.moved is None else "ok")
             print(f"{c.id:<16} {mark:<6} {c.reason}")
-        print(f"moved: {', '.join(moved)}; recalibrate with: wandcal calibrate {args.capture} --from {args.result} "
-              f"--solve-only {','.join(moved)}" if moved else "every camera agrees with the others")
-    return 1 if moved else 0
+        if rebuilt:
+            print(f"most cameras disagree with the result ({', '.join(moved)}): this is not a bumped camera but a "
+                  f"rebuilt rig or a capture of another one; calibrate afresh: wandcal calibrate {args.capture}")
+        elif moved:
+            print(f"moved: {', '.join(moved)}; recalibrate with: wandcal calibrate {args.capture} --from {args.result} "
+                  f"--solve-only {','.join(moved)}")
+        if unjudged:
+            print(f"could not judge {', '.join(unjudged)}: too few frames shared with two other cameras; record a longer "
+                  "wand capture where every camera sees the wand with two others")
+        elif not moved:
+            print("every camera agrees with the others")
+    return EXIT_UNJUDGED if rebuilt else EXIT_MOVED if moved else EXIT_UNJUDGED if unjudged else 0
 
 
 def run_calibrate(args) -> int:
@@ -197,43 +217,78 @@ def _write_result(args, doc: dict) -> int:
     return 0
 
 
+def _number(value, fmt: str, width: int) -> str:
+    """A right-aligned figure, or '-' when the result has none (older results, no scale)."""
+    return f"{'-' if value is None else format(value, fmt):>{width}}"
+
+
 def format_summary(doc: dict) -> str:
+    """The result as a person reads it: a row a camera, the wand, the rig's verdict with the camera
+    or input at fault, the world's placement, what to do, and the warnings."""
     points = any("point_observations" in cam for cam in doc["cameras"])
     intrinsics = any("intrinsics" in cam for cam in doc["cameras"])
-    unit = "m" if doc["world"].get("scale", "wand") != "arbitrary" else "arbitrary units"
-    head = f"{'camera':<16} {'centre x, y, z (' + unit + ')':>30} {'+- mm':>6} {'rms px':>8} {'obs':>7} {'verdict':>9}"
-    head += f" {'pts rms':>8} {'pts':>6}" if points else ""
-    head += f" {'focal px':>10}" if intrinsics else ""
+    scaled = doc["world"].get("scale", "wand") != "arbitrary"
+    unit = "m" if scaled else "rig units"
+    width = max(16, *(len(cam["id"]) + 1 for cam in doc["cameras"]))
+    head = (f"{'camera':<{width}} {'centre x, y, z (' + unit + ')':>32}  {'geom +-mm':>9} {'world +-mm':>10} "
+            f"{'rms px':>7} {'resid mm':>8} {'outl %':>6} {'obs':>6} {'verdict':>9}")
+    head += f" {'pts rms':>7} {'pts':>6}" if points else ""
+    head += f" {'focal px':>14}" if intrinsics else ""
     lines = [head]
-    nan = float("nan")
     for cam in doc["cameras"]:
         c = cam["center"]
-        rms = cam["reprojection_rms_px"]
-        std = cam.get("center_std_mm")
-        row = (f"{cam['id']:<16} {c[0]:10.4f}{c[1]:10.4f}{c[2]:10.4f} {std if std is not None else nan:6.2f} "
-               f"{rms if rms is not None else nan:8.3f} {cam['observations']:7d} {cam.get('verdict', {}).get('level', '-'):>9}")
+        share = cam.get("outlier_share")
+        row = (f"{cam['id']:<{width}} {c[0]:10.4f} {c[1]:10.4f} {c[2]:10.4f}  "
+               f"{_number(cam.get('geometry_std_mm'), '.2f', 9)} {_number(cam.get('center_std_mm'), '.2f', 10)} "
+               f"{_number(cam.get('reprojection_rms_px'), '.3f', 7)} {_number(cam.get('residual_mm'), '.2f', 8)} "
+               f"{_number(None if share is None else 100 * share, '.1f', 6)} {cam['observations']:6d} "
+               f"{cam.get('verdict', {}).get('level', '-'):>9}")
         if points:
-            prms = cam.get("point_rms_px")
-            row += f" {prms if prms is not None else nan:8.3f} {cam.get('point_observations', 0):6d}"
+            row += f" {_number(cam.get('point_rms_px'), '.3f', 7)} {cam.get('point_observations', 0):6d}"
         if intrinsics and "focal_px" in cam.get("intrinsics", {}):
-            row += f" {cam['intrinsics']['focal_px']:7.1f}+-{cam['intrinsics']['focal_std_px']:.1f}"
+            row += f" {cam['intrinsics']['focal_px']:8.1f}+-{cam['intrinsics']['focal_std_px']:<4.1f}"
         lines.append(row)
     w, s = doc["wand"], doc["solver"]
-    solved = f"{s['method']}: {s['iterations']} iterations, {s['seconds']:.2f} s ({s['status']})"
+    iterations = s["iterations"]
+    solved = f"{s['method']}: {iterations} iteration{'' if iterations == 1 else 's'}, {s['seconds']:.2f} s ({s['status']})"
     if w is None:
-        lines.append(f"no wand: calibrated up to scale; {solved}")
+        lines.append(f"no wand: calibrated up to scale (lengths in rig units); {solved}")
     else:
+        frames = w["frames_used"]
         lines.append(
             f"wand {w['length_mean_m'] * 1000:.2f} +- {w['length_std_m'] * 1000:.2f} mm "
-            f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {w['frames_used']} frames; {solved}"
+            f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {frames} frame{'' if frames == 1 else 's'}; {solved}"
         )
-    verdict = doc.get("verdict")
-    if verdict:
-        lines.append(f"verdict: {verdict['level']}" + (f" ({'; '.join(verdict['reasons'])})" if verdict["reasons"] else ""))
-        lines += [f"  {reason}" for cam in doc["cameras"] for reason in cam.get("verdict", {}).get("reasons", [])
-                  if cam["verdict"]["level"] == "poor"]
+    lines += _verdict_lines(doc)
     lines += [f"warning: {text}" for text in doc["warnings"]]
     return "\n".join(lines)
+
+
+def _verdict_lines(doc: dict) -> list[str]:
+    """The judgement: the rig's geometry, the faults it names, the world's placement, the advice."""
+    verdict = doc.get("verdict")
+    if not verdict:
+        return []
+    lines = [f"rig geometry: {verdict['level']}"]
+    faults = verdict.get("faults") or []
+    for fault in faults:
+        lines.append(f"  fault ({fault['kind']}{', ' + fault['camera'] if fault.get('camera') else ''}): {fault['message']}")
+    shown = {fault["message"] for fault in faults}
+    lines += [f"  {reason}" for reason in verdict["reasons"] if reason not in shown]
+    lines += [f"  {reason}" for cam in doc["cameras"] for reason in cam.get("verdict", {}).get("reasons", [])
+              if cam["verdict"]["level"] == "poor" and reason not in shown]
+    placement = verdict.get("placement")
+    if placement:
+        where = doc["world"].get("placement") or {}
+        figures = ""
+        if where.get("axes_std_deg") is not None:
+            origin = where.get("origin_std_mm")
+            figures = (f" (origin +-{origin:.2f} mm, " if origin is not None else " (") + f"axes +-{where['axes_std_deg']:.3f} deg)"
+        lines.append(f"world placement ({doc['world'].get('frame')}): {placement['level']}{figures}")
+        lines += [f"  {reason}" for reason in placement["reasons"] if reason not in shown]
+    advice = list(dict.fromkeys([*verdict.get("advice", []), *(placement or {}).get("advice", [])]))
+    lines += [f"to do: {text}" for text in advice]
+    return lines
 
 
 def run_demo(args) -> int:

@@ -36,7 +36,7 @@ CALIB_RANK = {
     "sim": 4,
 }
 CORE = {"errors", "rig", "geometry", "observations", "triangulate"}
-RUN = {"pipeline", "refine", "resolve", "guidance"}
+RUN = {"pipeline", "refine", "resolve", "guidance", "judgement"}
 MAX_MODULES_PER_FOLDER = 12
 
 

@@ -1,9 +1,12 @@
-"""Is this calibration good? A verdict per camera and for the rig, and the checks every method's
-result must pass before it is written.
+"""Is this calibration good? A verdict per camera, for the rig's geometry, and for the world's
+placement, and the checks every method's result must pass before it is written.
 
-Verdicts are ``excellent``, ``good`` or ``poor``: the worst of the criteria below, each with the
-reason in words when it is not excellent. The thresholds and their sources are in
-docs/result-format.md ("Verdicts").
+Verdicts are ``excellent``, ``good`` or ``poor``: the worst of the criteria below. Each criterion
+that is not excellent gives a reason with the number that fell short; each poor one also gives
+advice, an instruction. Criteria are in the volume's own terms (millimetres and shares of the
+volume's size), or relative to what the data show their noise to be (camera against camera), never
+in fixed pixels. A fault found by :mod:`wandcal.calib.diagnose` makes the rig poor and names the
+camera or input. docs/verdict.md gives every threshold's source or derivation.
 """
 
 from __future__ import annotations
@@ -15,27 +18,50 @@ from wandcal.calib.judge.coverage import coverage_grid, covered_fraction, empty_
 from wandcal.calib.rig import Rig
 
 LEVELS = ("excellent", "good", "poor")
-# reprojection RMS, px: blob noise of a good marker system is 0.1-0.3 px; open tools (easyWand,
-# Argus, DLTdv) treat residuals under a pixel as a working calibration; over that the intrinsics,
-# the labels or a moved camera are suspect (wandcal.calib.judge.quality.HIGH_RMS_PX warns there too)
-RMS_PX = (0.5, 1.0)
+# a camera's RMS ray distance over the volume's size: 0.3 px of blob noise, a typical good
+# marker system, gives 4-5e-4 on a ring 3-4 m from a 2-3 m volume; 1e-3 is 2-3 mm there,
+# Qualisys's 1-2 mm camera residual on a full-body volume; over 2.5e-3 no sub-millimetre
+# reconstruction is left
+RESIDUAL_OF_VOLUME = (1e-3, 2.5e-3)
+# a camera's RMS ray angle (residual over focal length, which no resolution changes), mrad:
+# blob centroids of marker systems (0.05-0.3 px at 800-3000 px focal lengths) give 0.02-0.4;
+# hand-digitised points, as easyWand's published sessions, 0.6-1.1 (1.4-1.8 px at 1,700 px);
+# over 1.5 mrad a camera misses by 1.5 mm at every metre of distance: no sub-millimetre volume
+RAY_MRAD = (0.5, 1.5)
+# a camera's blob noise over the median camera's: equal cameras scatter within +-5% (1,500
+# frames); a camera twice as noisy as the rest has a fault of its own
+NOISE_RATIO = (1.5, 2.0)
+# share of a camera's camera-frames that are gross outliers against the rig's limit (5 robust
+# sigmas): Gaussian noise leaves none; real, hand-digitised sessions published as good carry 5-20%
+# (easyWand's Brown wind tunnel, 2-23% per camera), so only a quarter is poor on its own. Outliers
+# concentrated in one camera are a fault of that camera (wandcal.calib.judgement)
+OUTLIER_SHARE = (0.05, 0.25)
+# wand ends and points per camera: Qualisys asks for at least 300 points per camera
+MIN_OBSERVATIONS = (600, 300)
+# share of an 8 x 8 grid over the image holding samples (wandcal.calib.judge.coverage): 50% is
+# the wanding guidance's goal; under 15% the samples sit in one patch and the lens is untested
+COVERAGE = (0.5, 0.15)
+# a camera's geometry 1-sigma (relative to the other cameras) over the volume's size: 2.5e-4 is
+# 0.5 mm in a 2 m volume, sub-millimetre; 1e-3 is 2 mm there
+GEOMETRY_OF_VOLUME = (2.5e-4, 1e-3)
+# the world's placement: its origin's 1-sigma, and half its axes' angle (the displacement they
+# cause at the volume's edge), over the volume's size; the same limits as the geometry
+PLACEMENT_OF_VOLUME = (2.5e-4, 1e-3)
 # wand-length spread, % of the length (easyWand's "wand score"): open tools call <= 1% good
 WAND_STD_PERCENT = (0.5, 1.0)
-# wand-length spread, mm: Qualisys asks for an SD of 1-2 mm or better on a full-body volume
-WAND_STD_MM = (1.0, 2.0)
-# wand ends per camera: Qualisys asks for at least 300 points per camera
-MIN_OBSERVATIONS = (600, 300)
-# share of an 8 x 8 grid over the image holding wand samples (wandcal.calib.judge.coverage). With the intrinsics
-# known, the pose's own uncertainty is already in center_std_mm; coverage adds the risk that the
-# lens model is trusted where no sample tested it. Excellent from the guidance's default goal
-# (50%); poor under 15%, where the samples sit in one patch of the image (a rig like the
-# simulator's, cameras 3-4 m from a 2 m volume, covers 20-30%)
-COVERAGE = (0.5, 0.15)
-# predicted 1-sigma of a camera centre, mm: sub-millimetre is what a wand calibration is for
-CENTER_STD_MM = (0.5, 2.0)
+# wand-length spread over the volume's size: Qualisys asks for an SD of 1-2 mm or better on a
+# full-body volume (3-5 m across): 3e-4 is 1 mm at 3.3 m, 1e-3 is 2 mm at 2 m
+WAND_STD_OF_VOLUME = (3e-4, 1e-3)
 # sanity checks every method's result must pass
 WAND_LENGTH_TOLERANCE = 0.05  # the free wand's mean length within 5% of the given length
 BELOW_FLOOR_M = 0.0  # a camera centre under the floor (z < 0 in a static object's or axis frame)
+PLACEMENT_FAULTS = ("wand_scale", "static_markers")  # faults of the object that places the world
+SCALE_FAULTS = ("wand_scale",)  # ... of which these put the whole rig's scale in doubt too
+PLACEMENT_ADVICE = {
+    "static_object": "record more static frames with the L-frame seen by more cameras, or use a larger L-frame",
+    "axis": "digitise the axis points in more cameras and frames, or space them further apart",
+    "wand_volume": "place an L-frame (static object) in the volume, seen by several cameras, to fix the world frame",
+}
 
 
 def _grade(value: float | None, limits: tuple[float, float], higher_is_better: bool = False) -> int:
@@ -56,51 +82,145 @@ def coverage_reports(rig: Rig, camera: np.ndarray, uv: np.ndarray) -> list[dict]
     return out
 
 
-def camera_verdict(report: dict, cam_id: str) -> dict:
-    """The verdict of one camera from its result entry (``reprojection_rms_px``, ``observations``,
-    ``point_observations``, ``coverage``, ``uncovered``, ``center_std_mm``): {"level", "reasons"},
-    a reason for each criterion that is not excellent."""
-    checks = []  # (grade, reason with {level} to fill)
-    rms = report.get("reprojection_rms_px")
-    if rms is not None:
-        checks.append((_grade(rms, RMS_PX), f"{cam_id}: reprojection RMS {rms:.2f} px is {{level}} (excellent <= "
-                       f"{RMS_PX[0]}, good <= {RMS_PX[1]} px); check its intrinsics, focus and blob detection"))
+def _limits(limits: tuple[float, ...], fmt: str, higher: bool = False) -> str:
+    op = ">=" if higher else "<="
+    return f"excellent {op} {format(limits[0], fmt)}, good {op} {format(limits[1], fmt)}"
+
+
+def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_px: float | None) -> dict:
+    """One camera's verdict from its result entry: {"level", "reasons", "advice"}.
+
+    report: ``observations``, ``point_observations``, ``coverage``, ``uncovered``,
+    ``geometry_std_mm``, and the judged figures ``noise_px``, ``outlier_share``, ``residual_mm``,
+    ``residual_of_volume`` and ``geometry_of_volume``; extent_m: the volume's size in metres
+    (None without a scale);
+    rig_noise_px: the median camera's noise.
+    """
+    checks = []  # (criterion, grade, reason, advice)
+    rel = report.get("residual_of_volume")
+    if rel is not None:
+        mm = report.get("residual_mm")
+        size = f" ({mm:.2f} mm in a {extent_m:.2f} m volume)" if mm is not None and extent_m else ""
+        checks.append(("residual", _grade(rel, RESIDUAL_OF_VOLUME),
+                       f"{cam_id}: its rays pass the points at {1000 * rel:.2f} per mille of the volume's size{size}, "
+                       f"{{level}} ({_limits(tuple(1000 * x for x in RESIDUAL_OF_VOLUME), '.1f')} per mille)",
+                       f"check {cam_id}'s intrinsics and focus; its residuals are large for the volume"))
+    mrad = report.get("ray_mrad")
+    if mrad is not None:
+        checks.append(("ray angle", _grade(mrad, RAY_MRAD),
+                       f"{cam_id}: its rays miss the points by {mrad:.2f} mrad RMS ({mrad:.2f} mm at a metre), "
+                       f"{{level}} ({_limits(RAY_MRAD, '.1f')} mrad)",
+                       f"check {cam_id}'s intrinsics (focal length, distortion) and focus; its residuals are large for "
+                       "its lens"))
+    noise = report.get("noise_px")
+    if noise is not None and rig_noise_px:
+        ratio = noise / rig_noise_px
+        checks.append(("noise", _grade(ratio, NOISE_RATIO),
+                       f"{cam_id}: its blob noise {noise:.2f} px is {ratio:.1f} times the median camera's "
+                       f"{rig_noise_px:.2f} px, {{level}} ({_limits(NOISE_RATIO, '.1f')} times)",
+                       f"check {cam_id}'s focus, exposure and blob detection"))
+    share = report.get("outlier_share")
+    if share is not None:
+        checks.append(("outliers", _grade(share, OUTLIER_SHARE),
+                       f"{cam_id}: {100 * share:.1f}% of its camera-frames are gross outliers, {{level}} "
+                       f"(excellent <= {100 * OUTLIER_SHARE[0]:g}%, good <= {100 * OUTLIER_SHARE[1]:g}%)",
+                       f"look for reflections or a second bright marker in {cam_id}'s view and mask them"))
     obs = report.get("observations", 0) + report.get("point_observations", 0)
-    checks.append((_grade(obs, MIN_OBSERVATIONS, True), f"{cam_id}: {obs} observations is {{level}} (excellent >= "
-                   f"{MIN_OBSERVATIONS[0]}; Qualisys asks for {MIN_OBSERVATIONS[1]} per camera); record longer or "
-                   f"wave nearer {cam_id}"))
+    geo_rel = report.get("geometry_of_volume")
+    grade = _grade(obs, MIN_OBSERVATIONS, True)
+    if grade == 2 and geo_rel is not None and _grade(geo_rel, GEOMETRY_OF_VOLUME) < 2:
+        grade = 1  # few, but they place the camera well: its geometry sigma below says so
+    checks.append(("observations", grade, f"{cam_id}: {obs} observations, {{level}} ({_limits(MIN_OBSERVATIONS, 'd', True)}; Qualisys "
+                   f"asks for {MIN_OBSERVATIONS[1]} per camera)", f"record longer, or wave nearer {cam_id}"))
     cov = report.get("coverage")
     if cov is not None:
         where = ", ".join(report.get("uncovered") or []) or "the gaps of its view"
-        checks.append((_grade(cov, COVERAGE, True), f"{cam_id}: samples cover {cov:.0%} of its image, {{level}} "
-                       f"(excellent >= {COVERAGE[0]:.0%}, good >= {COVERAGE[1]:.0%}); wave the wand in {where}"))
-    std = report.get("center_std_mm")
-    if std is not None:
-        checks.append((_grade(std, CENTER_STD_MM), f"{cam_id}: its centre is known to {std:.2f} mm (1 sigma in the "
-                       f"world frame, whose own markers count too), {{level}} (excellent <= {CENTER_STD_MM[0]}, good <= "
-                       f"{CENTER_STD_MM[1]} mm); more frames across its view, or more static markers, tighten it"))
-    level = max(grade for grade, _ in checks)
+        checks.append(("coverage", _grade(cov, COVERAGE, True),
+                       f"{cam_id}: samples cover {cov:.0%} of its image, {{level}} (excellent >= {COVERAGE[0]:.0%}, "
+                       f"good >= {COVERAGE[1]:.0%})", f"wave the wand in {where} of {cam_id}'s image"))
+    if geo_rel is not None:
+        geo = report.get("geometry_std_mm")
+        if geo is not None and extent_m:
+            text = (f"{cam_id}: its place among the other cameras is known to {geo:.2f} mm (1 sigma), {{level}} "
+                    f"(excellent <= {GEOMETRY_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
+                    f"{GEOMETRY_OF_VOLUME[1] * 1000 * extent_m:.2f} mm in this volume)")
+        else:
+            text = (f"{cam_id}: its place among the other cameras is known to {1000 * geo_rel:.2f} per mille of the "
+                    f"volume (1 sigma), {{level}} ({_limits(tuple(1000 * x for x in GEOMETRY_OF_VOLUME), '.2f')} per mille)")
+        checks.append(("geometry", _grade(geo_rel, GEOMETRY_OF_VOLUME), text,
+                       f"wave the wand longer across {cam_id}'s view, where it and other cameras see it"))
+    level = max(grade for _, grade, _, _ in checks)
     return {"level": LEVELS[level],
-            "reasons": [text.format(level=LEVELS[grade]) for grade, text in checks if grade > 0]}
+            "reasons": [text.format(level=LEVELS[grade]) for _, grade, text, _ in checks if grade > 0],
+            "advice": [advice for _, grade, _, advice in checks if grade == 2],
+            "short_of_excellent": {name: LEVELS[grade] for name, grade, _, _ in checks if grade > 0}}
 
 
-def rig_verdict(cameras: list[dict], wand_report: dict | None) -> dict:
-    """The rig's verdict: its worst camera's, and the wand-length spread's."""
+def placement_verdict(world: dict, extent_m: float | None, faults: list[dict]) -> dict:
+    """The world frame's placement: its origin's and axes' 1-sigma against the volume, and any
+    fault of the object that set it."""
+    placement = world.get("placement") or {}
+    origin, axes = placement.get("origin_std_mm"), placement.get("axes_std_deg")
+    reasons, advice, level = [], [], 0
+    if extent_m and origin is not None and axes is not None:
+        rel = max(origin / (1000 * extent_m), np.radians(axes) / 2)
+        level = _grade(rel, PLACEMENT_OF_VOLUME)
+        if level:
+            reasons.append(f"the world frame ({world.get('frame')}) is placed to {origin:.2f} mm and {axes:.3f} degrees "
+                           f"(1 sigma), {LEVELS[level]} for a {extent_m:.2f} m volume (excellent <= "
+                           f"{PLACEMENT_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
+                           f"{PLACEMENT_OF_VOLUME[1] * 1000 * extent_m:.2f} mm at its edge)")
+        if level == 2:
+            advice.append(PLACEMENT_ADVICE.get(str(world.get("frame")), PLACEMENT_ADVICE["static_object"]))
+    for fault in faults:
+        if fault["kind"] in PLACEMENT_FAULTS:
+            level = 2
+            reasons.append(fault["message"])
+    return {"level": LEVELS[level], "reasons": reasons, "advice": advice}
+
+
+def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict], extent_m: float | None) -> dict:
+    """The rig's geometry verdict: its worst camera's, the wand-length spread's, and any fault's
+    (every fault but the world's placement makes the rig poor)."""
     level = max((LEVELS.index(c["verdict"]["level"]) for c in cameras), default=0)
-    reasons = []
-    if wand_report is not None:
+    reasons, advice = [], []
+    rig_faults = [f for f in faults if f["kind"] not in PLACEMENT_FAULTS or f["kind"] in SCALE_FAULTS]
+    for fault in rig_faults:
+        level = 2
+        reasons.append(fault["message"])
+    if wand_report is not None and wand_report.get("length_mean_m"):
         std_mm = 1000 * wand_report["length_std_m"]
         pct = 100 * wand_report["length_std_m"] / wand_report["length_mean_m"]
-        grade = max(_grade(pct, WAND_STD_PERCENT), _grade(std_mm, WAND_STD_MM))
-        if grade:
-            reasons.append(f"the wand length spreads by {std_mm:.2f} mm ({pct:.2f}%), {LEVELS[grade]} (open tools call <= "
-                           f"{WAND_STD_PERCENT[1]:g}% good; Qualisys asks for {WAND_STD_MM[0]:g}-{WAND_STD_MM[1]:g} mm "
-                           "or better)")
-        level = max(level, grade)
-    poor = [c["id"] for c in cameras if c["verdict"]["level"] == "poor"]
-    if poor:
-        reasons.append("poor cameras: " + ", ".join(poor))
-    return {"level": LEVELS[level], "reasons": reasons}
+        checks = [(pct, WAND_STD_PERCENT, f"{pct:.2f}% of its length (easyWand's wand score; open tools call <= "
+                   f"{WAND_STD_PERCENT[1]:g}% good)")]
+        if extent_m:
+            checks.append((std_mm / (1000 * extent_m), WAND_STD_OF_VOLUME,
+                           f"{std_mm:.2f} mm in a {extent_m:.2f} m volume (excellent <= "
+                           f"{WAND_STD_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
+                           f"{WAND_STD_OF_VOLUME[1] * 1000 * extent_m:.2f} mm, from Qualisys's 1-2 mm on a full-body volume)"))
+        for value, limits, text in checks:
+            grade = _grade(value, limits)
+            if grade:
+                reasons.append(f"the wand's length spreads by {text}: {LEVELS[grade]}")
+                level = max(level, grade)
+                if grade == 2:
+                    advice.append("look for a bent wand or loose markers, and check the cameras' intrinsics")
+    named = {f["camera"] for f in rig_faults}
+    for word in ("poor", "good"):
+        by_criterion: dict[str, list[str]] = {}
+        for c in cameras:
+            if c["id"] in named:
+                continue
+            for name, got in c["verdict"].get("short_of_excellent", {}).items():
+                if got == word:
+                    by_criterion.setdefault(name, []).append(c["id"])
+        if by_criterion:
+            reasons.append(f"{word} {'for' if word == 'poor' else 'but not excellent for'} "
+                           + "; ".join(f"{name} in {', '.join(ids)}" for name, ids in by_criterion.items())
+                           + " (each camera's verdict says why)")
+    for c in cameras:
+        advice += c["verdict"].get("advice", [])
+    return {"level": LEVELS[level], "reasons": reasons, "advice": advice}
 
 
 def sanity_check(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, world: dict,
@@ -131,15 +251,3 @@ def sanity_check(method: str, rig: Rig, cameras: list[dict], wand_report: dict |
                             f"{what} frame: the world may be mirrored or upside down; check the order of the "
                             "markers in rig.json (z must point up, towards the cameras)")
     return warnings
-
-
-def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, world: dict, centers: np.ndarray,
-          camera: np.ndarray, uv: np.ndarray) -> tuple[dict, list[str]]:
-    """Run :func:`sanity_check`, add each camera's coverage and verdict to its entry, and return
-    (the rig's verdict, warnings). camera: (M,), uv: (M, 2) the observations used (wand ends and
-    single-point tracks), raw pixels."""
-    warnings = sanity_check(method, rig, cameras, wand_report, world, centers)
-    for report, cov, cam in zip(cameras, coverage_reports(rig, camera, uv), rig.cameras):
-        report |= cov
-        report["verdict"] = camera_verdict(report, cam.id)
-    return rig_verdict([{"id": c.id} | r for c, r in zip(rig.cameras, cameras)], wand_report), warnings

@@ -137,7 +137,7 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
         cov += Gm @ pc.centroid_cov @ Gm.T
     if frame_cov is not None:
         # the frame's own error moves every camera together: fully correlated between them
-        A = _frame_response(base_C, frame_origin).reshape(n * 6, 6)
+        A = _frame_response(base_C, base_R, frame_origin).reshape(n * 6, 6)
         cov += A @ frame_cov @ A.T
     cov = cov.reshape(n, 6, n, 6)
     blocks = cov[np.arange(n), :, np.arange(n), :]  # (N, 6, 6)
@@ -162,21 +162,22 @@ def registration_covariance(points: np.ndarray, sigma_m: float) -> tuple[np.ndar
     return cov, centroid
 
 
-def _frame_response(centers: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
+def _frame_response(centers: np.ndarray, R: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
     """(N, 6, 6) what a small error of the world frame itself (rotation phi about ``origin``,
-    translation tau) does to each camera's world centre and rotation: dC = -[C - origin]x phi + tau
-    (the frame turns, the camera appears turned the other way), drot = -phi."""
+    translation tau) does to each camera's world centre and its rotation, camera side like every
+    rotation here (``R <- exp([w]) R``): dC = -[C - origin]x phi + tau (the frame turns, the camera
+    appears turned the other way), w = -R phi. R: (N, 3, 3) the cameras' world rotations."""
     origin = np.zeros(3) if origin is None else origin
     out = np.zeros((len(centers), 6, 6))
     for i, C in enumerate(centers):
         d = C - origin
         out[i, :3, :3] = np.array([[0, d[2], -d[1]], [-d[2], 0, d[0]], [d[1], -d[0], 0]])  # -[d]x
         out[i, :3, 3:] = np.eye(3)
-        out[i, 3:, :3] = -np.eye(3)
+        out[i, 3:, :3] = -R[i]
     return out
 
 
-def _chi2_quantile(dof: int, z: float = FIT_AGREES_Z) -> float:
+def chi2_quantile(dof: int, z: float = FIT_AGREES_Z) -> float:
     """The chi-square quantile of ``dof`` degrees of freedom at the normal quantile ``z``, by
     Wilson and Hilferty's cube-root approximation (16.84 for the 99th percentile at 6 degrees of
     freedom, exactly 16.81): a calibration loads no scipy."""
@@ -205,7 +206,7 @@ def frame_noise(world: dict, rig, points_world: np.ndarray | None, pc: PoseCovar
         # fit_rms is a 3D RMS over M markers: E[fit_rms^2] = sigma^2 (3M - 6) / M per coordinate
         rms = float(world.get("fit_rms_m", 0.0))
         expected = world.get("expected_fit_rms_m")
-        if expected and rms**2 <= expected**2 * _chi2_quantile(dof) / dof:
+        if expected and rms**2 <= expected**2 * chi2_quantile(dof) / dof:
             rms = float(expected)  # the same noise, known from ~50 degrees of freedom instead of 6
         return registration_covariance(points_world, rms * np.sqrt(M / dof))
     if world.get("frame") == "axis" and points_world is not None and pc.point_sigma_m > 0:

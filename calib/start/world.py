@@ -53,12 +53,14 @@ def world_frame(rig: Rig, R: np.ndarray, t: np.ndarray, gauge: int, static=None,
     if static_poses is not None and any(isinstance(p, StaticPose) for p in static_poses):
         fit = _static_fit(rig, static, static_poses, R, t)
         if fit is not None:
-            Rw, tw, rms, used = fit
+            Rw, tw, rms, used, scale, rms_scaled = fit
             return Rw, tw, {
                 "frame": "static_object",
                 "description": "the static object's own frame: its markers_m as given, z up, metres",
                 "fit_rms_m": rms,
                 "cameras_used": used,
+                "marker_scale": scale,
+                "scaled_fit_rms_m": rms_scaled,
             }
     if axis is not None and len(axis):
         fit = _axis_fit(rig, axis, R, t)
@@ -80,7 +82,7 @@ def volume_frame(R: np.ndarray, t: np.ndarray, gauge: int, wand: np.ndarray | No
     """The wand volume's frame: a function of the poses and the wand (or points) alone, smooth
     away from the two fallbacks' thresholds.
 
-    - origin: the centroid of the wand midpoints; without a wand, of ``points``; without either,
+    - origin: the centroid of the wand midpoints; without a wand, the median of ``points``; without either,
       the cameras' centroid moved along their mean optical axis by their RMS spread (a point the
       cameras look towards);
     - z: up, against the mean of the cameras' image-down directions (cameras stand upright); if
@@ -100,7 +102,9 @@ def volume_frame(R: np.ndarray, t: np.ndarray, gauge: int, wand: np.ndarray | No
     if wand is not None and len(wand):
         centre, origin = np.asarray(wand, dtype=float).mean(axis=(0, 1)), "wand midpoints"
     elif points is not None and len(points):
-        centre, origin = np.asarray(points, dtype=float).mean(axis=0), "single-point tracks' points"
+        # the median: a few points triangulated from nearly parallel rays lie far off, and would
+        # carry a mean with them (and the whole rig's coordinates) to the horizon
+        centre, origin = np.median(np.asarray(points, dtype=float), axis=0), "single-point tracks' points (median)"
     else:
         C = camera_centers(R, t)
         spread = float(np.sqrt(np.mean(np.sum((C - C.mean(0)) ** 2, axis=1))))
@@ -127,7 +131,8 @@ def apply(Rw: np.ndarray, tw: np.ndarray, R: np.ndarray, t: np.ndarray, points: 
 
 def _static_fit(rig: Rig, static: StaticObservations, static_poses, R, t):
     """Triangulate the identified static markers with the refined poses and fit the rigid map to
-    their known coordinates. Returns (Rw, tw, rms_m, camera ids) or None."""
+    their known coordinates. Returns (Rw, tw, rms_m, camera ids, the scale of a similarity fit
+    (markers over triangulated: the wand's scale against the markers'), that fit's rms_m) or None."""
     markers = rig.static_markers
     usable = [c for c, p in enumerate(static_poses) if isinstance(p, StaticPose)]
     unique = [c for c in usable if static_poses[c].unique]
@@ -141,7 +146,10 @@ def _static_fit(rig: Rig, static: StaticObservations, static_poses, R, t):
             continue
         Rw, tw, _ = kabsch(X[ok], markers[ok])
         rms = float(np.sqrt(np.mean(np.sum((X[ok] @ Rw.T + tw - markers[ok]) ** 2, 1))))
-        return Rw, tw, rms, [rig.cameras[c].id for c in cams]
+        # the same fit with a scale: a wand length that disagrees with the markers' shows as one
+        Rs, ts, scale = kabsch(X[ok], markers[ok], scale=True)
+        rms_scaled = float(np.sqrt(np.mean(np.sum((scale * X[ok] @ Rs.T + ts - markers[ok]) ** 2, 1))))
+        return Rw, tw, rms, [rig.cameras[c].id for c in cams], scale, rms_scaled
     return None
 
 

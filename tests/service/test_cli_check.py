@@ -65,3 +65,28 @@ def test_check_on_a_garbage_result_exits_2(folders, tmp_path):
     bad.write_bytes(b"\x00\xff garbage")
     r = wandcal("check", bad, folders / "fresh")
     assert r.returncode == 2 and str(bad) in r.stderr and "Traceback" not in r.stderr
+
+
+def test_check_with_too_few_frames_says_it_cannot_judge_and_exits_3(folders, tmp_path):
+    """Five frames judge nothing: never 'agrees' (exit 0) nor 'moved' (exit 1)."""
+    sim = simulate_capture(5, 5, 0.3, 0.0, False, 4)
+    short = tmp_path / "short"
+    write_capture(short, simulate_capture(5, 600, 0.3, 0.0, True, 4).rig, sim.wand, None)
+    r = wandcal("check", folders / "base" / "result.json", short, "--json")
+    assert r.returncode == 3, r.stdout + r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["moved"] == [] and len(doc["unjudged"]) == 5
+    r = wandcal("check", folders / "base" / "result.json", short)
+    assert r.returncode == 3 and "could not judge" in r.stdout and "agrees" not in r.stdout
+
+
+def test_check_refuses_a_capture_of_another_rig_naming_the_mismatch(folders, tmp_path):
+    """Other image sizes and intrinsics: a refusal (exit 2), not 'cam1 moved'."""
+    other = simulate_capture(5, 600, 0.3, 0.0, False, 9)
+    cams = tuple(type(c)(c.id, c.width // 2, c.height // 2, c.K * [[0.5], [0.5], [1]], c.dist, c.model)
+                 for c in other.rig.cameras)
+    folder = tmp_path / "other"
+    write_capture(folder, type(other.rig)(cams, other.rig.wand_length), other.wand, None)
+    r = wandcal("check", folders / "base" / "result.json", folder)
+    assert r.returncode == 2 and "not of this result's rig" in r.stderr and "640x512 px in the capture" in r.stderr
+    assert "moved" not in r.stdout and "Traceback" not in r.stderr

@@ -11,8 +11,6 @@ from wandcal.calib.guidance import (
     DEFAULT_MIN_COVERAGE,
     DEFAULT_TARGET_STD_MM,
     GuidanceSettings,
-    _anchors,
-    _weighted_fit,
     subsample,
     wanding_guidance,
 )
@@ -20,6 +18,7 @@ from wandcal.calib.observations import wand_pairs
 from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.sim.simulate import L_FRAME_M, observe_static, observe_wand, ring_cameras
+from wandcal.calib.solve.gauge_free import AXIS_POINT_M
 
 NOISE_PX = 0.3
 WAND_M = 0.5
@@ -130,6 +129,21 @@ def test_a_camera_that_saw_a_still_wand_is_named_and_spoils_no_other():
     sigma = np.array([cam["center_std_mm"] for cam in doc["cameras"]])
     assert sigma[2] > 100 * np.delete(sigma, 2).max()
     assert np.delete(sigma, 2).max() < DEFAULT_TARGET_STD_MM
+
+
+def _anchors(R, t):
+    """(2N, 3): every camera's centre, then a point along its optical axis (gauge_free's anchors)."""
+    C = camera_centers(R, t)
+    return np.concatenate([C, C + AXIS_POINT_M * R[:, 2, :]])
+
+
+def _weighted_fit(source, target, weight):
+    """The rigid map ``target ~ Rw source + tw`` of least weighted squares (Umeyama with weights)."""
+    w = weight / weight.sum()
+    mu_s, mu_t = w @ source, w @ target
+    U, _, Vt = np.linalg.svd((target - mu_t).T @ ((source - mu_s) * w[:, None]))
+    Rw = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    return Rw, mu_t - Rw @ mu_s
 
 
 def _relative_errors(R, t, R_true, t_true, sigma):

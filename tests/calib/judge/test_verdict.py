@@ -5,48 +5,60 @@ import pytest
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import distort_points, project_normalized
-from wandcal.calib.judge.verdict import RMS_PX, camera_verdict, rig_verdict, sanity_check
+from wandcal.calib.judge.verdict import RESIDUAL_OF_VOLUME, camera_verdict, rig_verdict, sanity_check
 from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import AxisObservations, Rig
 from wandcal.calib.sim.simulate import simulate_capture
 
 
-def test_a_clean_rig_is_not_poor_and_every_camera_has_coverage_and_a_verdict():
+def test_a_clean_rig_is_not_poor_and_every_camera_has_its_figures_and_a_verdict():
     sim = simulate_capture(6, 1500, 0.3, 0.0, True, 3)
     doc = calibrate(sim.rig, sim.wand, sim.static).to_json()
-    assert doc["verdict"]["level"] in ("excellent", "good")
+    assert doc["verdict"]["level"] in ("excellent", "good") and doc["verdict"]["faults"] == []
+    assert doc["verdict"]["placement"]["level"] in ("excellent", "good")
     for cam in doc["cameras"]:
-        assert 0 < cam["coverage"] <= 1 and cam["verdict"]["level"] != "poor"
-        # 0.3 px blob noise: the RMS is under the excellent limit, so no reason names it
-        assert not any("reprojection" in reason for reason in cam["verdict"]["reasons"])
+        assert 0 < cam["coverage"] <= 1 and cam["verdict"]["level"] != "poor" and cam["verdict"]["advice"] == []
+        # the L-frame's placement of the world is in the total, not in the rig's geometry
+        assert 0 < cam["geometry_std_mm"] < cam["center_std_mm"]
+        # 0.3 px blob noise: the residual is under the excellent limit, so no reason names it
+        assert cam["residual_of_volume"] <= RESIDUAL_OF_VOLUME[0]
+        assert not any("rays pass" in reason for reason in cam["verdict"]["reasons"])
 
 
-def test_a_noisy_rig_is_poor_and_says_why():
-    # 1 px blob noise per axis gives an RMS reprojection radius of ~1.4 px, over the 1 px limit
-    sim = simulate_capture(4, 400, 1.0, 0.0, True, 3)
+def test_a_rig_noisy_for_its_volume_is_poor_and_says_why():
+    # 3 px blob noise: a ray distance of ~1 cm in a 2.7 m volume, over 2.5 per mille
+    sim = simulate_capture(4, 400, 3.0, 0.0, True, 3)
     doc = calibrate(sim.rig, sim.wand, sim.static).to_json()
     assert doc["verdict"]["level"] == "poor"
     cam = doc["cameras"][0]
-    assert cam["reprojection_rms_px"] > RMS_PX[1]
-    assert any("reprojection RMS" in r and "is poor" in r for r in cam["verdict"]["reasons"])
-    assert "poor cameras: cam1" in doc["verdict"]["reasons"][-1]
+    assert cam["residual_of_volume"] > RESIDUAL_OF_VOLUME[1]
+    assert any("rays pass the points" in r and "poor" in r for r in cam["verdict"]["reasons"])
+    assert any("intrinsics and focus" in a for a in cam["verdict"]["advice"])
 
 
-def test_camera_verdict_grades_each_criterion_and_names_the_empty_regions():
-    v = camera_verdict({"reprojection_rms_px": 0.2, "observations": 2000, "coverage": 0.3,
-                        "uncovered": ["the left third"], "center_std_mm": 0.1}, "cam2")
-    assert v["level"] == "good" and len(v["reasons"]) == 1
-    assert "cam2: samples cover 30% of its image, good" in v["reasons"][0] and "the left third" in v["reasons"][0]
-    v = camera_verdict({"reprojection_rms_px": 0.2, "observations": 120, "center_std_mm": 3.0}, "cam5")
-    assert v["level"] == "poor" and any("120 observations is poor" in r for r in v["reasons"])
-    assert rig_verdict([{"id": "cam5", "verdict": v}], None)["reasons"] == ["poor cameras: cam5"]
+def test_camera_verdict_grades_each_criterion_with_advice_only_where_it_falls_short():
+    good = {"observations": 2000, "coverage": 0.3, "uncovered": ["the left third"], "geometry_std_mm": 0.1,
+            "geometry_of_volume": 0.1 / 2000, "noise_px": 0.3, "outlier_share": 0.0, "residual_of_volume": 5e-4}
+    v = camera_verdict(good, "cam2", 2.0, 0.3)
+    assert v["level"] == "good" and len(v["reasons"]) == 1 and v["advice"] == []
+    assert "cam2: samples cover 30% of its image, good" in v["reasons"][0]
+    noisy = good | {"noise_px": 0.75}
+    v = camera_verdict(noisy, "cam2", 2.0, 0.3)
+    assert v["level"] == "poor" and any("2.5 times the median camera's 0.30 px" in r for r in v["reasons"])
+    assert v["advice"] == ["check cam2's focus, exposure and blob detection"]
+    # few observations that still place the camera well are not poor on their own ...
+    few = good | {"observations": 120}
+    assert camera_verdict(few, "cam5", 2.0, 0.3)["level"] == "good"
+    # ... but are when its place is poorly known too
+    v = camera_verdict(few | {"geometry_of_volume": 3e-3, "geometry_std_mm": 6.0}, "cam5", 2.0, 0.3)
+    assert v["level"] == "poor" and any("120 observations, poor" in r for r in v["reasons"])
 
 
 def test_wand_spread_over_one_percent_makes_the_rig_poor():
-    ok = {"verdict": {"level": "excellent", "reasons": []}, "id": "cam1"}
+    ok = {"verdict": {"level": "excellent", "reasons": [], "advice": []}, "id": "cam1"}
     wand = {"length_m": 0.5, "length_mean_m": 0.5, "length_std_m": 0.006}
-    v = rig_verdict([ok], wand)
-    assert v["level"] == "poor" and "1.20%" in v["reasons"][0]
+    v = rig_verdict([ok], wand, [], 20.0)
+    assert v["level"] == "poor" and "1.20% of its length" in v["reasons"][0] and v["advice"]
 
 
 RIG = Rig(tuple(simulate_capture(2, 20, 0.3, 0.0, False, 1).rig.cameras), 0.5)

@@ -1,0 +1,222 @@
+"""Why one camera disagrees with the others: its timing, its intrinsics, or something else.
+
+A camera is judged against wand ends the *other* cameras triangulate
+(:func:`wandcal.calib.judge.residuals.held_out`), so a camera at fault cannot hide by pulling the
+points towards itself. Two patterns of its residuals ``r = projected - observed`` (normalised
+image coordinates) name a cause:
+
+- **timing**: a camera ``d`` frames late shows at frame k the wand of frame k - d, so
+  ``r ~ d v`` with ``v`` the wand's image velocity per frame. A whole-frame search finds the best
+  shift, and least squares on ``v`` the fraction: ``d = sum(r . v) / sum(v . v)`` with standard error
+  ``sigma / sqrt(sum |v|^2)``;
+- **intrinsics**: with its focal length off by a factor ``1 + a`` the observations are scaled
+  about the principal point, ``r ~ a x``; a radial-distortion error gives ``r ~ dk1 |x|^2 x``; a
+  principal point error a constant. Least squares of ``r`` on these columns beside the camera's
+  own six pose columns (a pose error is not a lens error) says how much of the residual the lens
+  explains.
+
+The share of the camera's residual each pattern explains decides; docs/verdict.md derives the
+limits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.judge.quality import robust_sigma
+
+MAX_SHIFT_FRAMES = 10  # the whole-frame search; a larger offset is a recording of another take
+TRIM_SIGMAS = 5.0  # residuals beyond this after a fit are outliers, left out of the next fit
+# A pattern names the cause when it explains at least this share of the camera's residual
+# variance: pure noise leaves ~ (columns / observations), ~0.1%; a cause that only matches the
+# noise (share ~0.5) doubles the camera's residual, the level at which it stands out of the rig.
+EXPLAINED_SHARE = 0.3
+MIN_T_STAT = 5.0  # and its coefficient is this many standard errors from zero
+MIN_OFFSET_FRAMES = 0.1  # an offset under a tenth of a frame is within what a trigger's jitter gives
+POSE_STEP = 1e-6  # finite-difference step of the pose columns, radians and metres
+
+
+@dataclass(frozen=True)
+class Timing:
+    """offset_frames: the camera shows at frame k the wand of frame k - offset (positive: late);
+    offset_std_frames its standard error; explained: the share of the residual variance it explains."""
+
+    offset_frames: float
+    offset_std_frames: float
+    explained: float
+    observations: int
+
+
+@dataclass(frozen=True)
+class Lens:
+    """focal_error: rig.json's focal length over the one the data suggest, minus one; k1_error,
+    principal_error (2,) (normalised units) likewise; explained: the share of the residual
+    variance (beyond the camera's pose) they explain; f_stat: the F statistic of that."""
+
+    focal_error: float
+    k1_error: float
+    principal_error: tuple[float, float]
+    explained: float
+    f_stat: float
+
+
+def _project(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    Xc = X @ R.T + t
+    return Xc[:, :2] / Xc[:, 2:]
+
+
+def _frame_table(frames: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, int]:
+    """(T, 2, 3) the ends by capture frame number (NaN where not triangulated), and the first number."""
+    first = int(frames.min()) if len(frames) else 0
+    table = np.full((int(frames.max()) - first + 1 if len(frames) else 0, 2, 3), np.nan)
+    table[frames - first] = X.reshape(-1, 2, 3)
+    return table, first
+
+
+def _shifted(table: np.ndarray, at: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """(K, 3) the wand end at table rows ``at`` nearer to ``near`` (K, 3) (NaN outside the
+    recording). Labelling orders a frame's two ends alike in every camera, not alike from one
+    frame to the next, so the same marker in another frame is the nearer end."""
+    ok = (at >= 0) & (at < len(table))
+    out = np.full((len(at), 3), np.nan)
+    both = table[at[ok]]  # (k, 2, 3)
+    d = np.linalg.norm(both - near[ok][:, None, :], axis=2)
+    pick = np.where(np.isnan(d[:, 1]) | (d[:, 0] <= d[:, 1]), 0, 1)
+    out[ok] = both[np.arange(len(pick)), pick]
+    return out
+
+
+def _trimmed(r: np.ndarray) -> np.ndarray:
+    """(K,) bool: residual rows (K, 2) within :data:`TRIM_SIGMAS` robust sigmas."""
+    e = np.linalg.norm(r, axis=1)
+    return np.isfinite(e) & (e <= TRIM_SIGMAS * max(robust_sigma(e[np.isfinite(e)]), 1e-12))
+
+
+def _pose_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(2K, 6) the projection's derivative with respect to the camera's rotation increment and translation."""
+    base = _project(R, t, X)
+    cols = []
+    for j in range(6):
+        if j < 3:
+            w = np.zeros(3)
+            w[j] = POSE_STEP
+            p = _project(rotvec_to_matrix(w) @ R, t, X)
+        else:
+            dt = np.zeros(3)
+            dt[j - 3] = POSE_STEP
+            p = _project(R, t + dt, X)
+        cols.append(((p - base) / POSE_STEP).ravel())
+    return np.stack(cols, axis=1)
+
+
+def resect(R: np.ndarray, t: np.ndarray, X: np.ndarray, xy: np.ndarray, iterations: int = 6):
+    """The camera's pose refitted to points X (K, 3) seen at xy (K, 2) by Gauss-Newton from (R, t),
+    leaving out residuals beyond :data:`TRIM_SIGMAS`. Returns (R, t, residual (K, 2), kept (K,))."""
+    ok = np.all(np.isfinite(X), axis=1)
+    for _ in range(iterations):
+        r = _project(R, t, X) - xy
+        keep = ok & _trimmed(np.where(ok[:, None], r, np.nan))
+        if keep.sum() < 10:
+            break
+        J = _pose_columns(R, t, X[keep])
+        step = np.linalg.lstsq(J, -r[keep].ravel(), rcond=None)[0]
+        R, t = rotvec_to_matrix(step[:3]) @ R, t + step[3:]
+        if np.abs(step).max() < 1e-10:
+            break
+    r = _project(R, t, X) - xy
+    return R, t, r, ok & _trimmed(np.where(ok[:, None], r, np.nan))
+
+
+def _share(y: np.ndarray, base: np.ndarray, extra: np.ndarray) -> tuple[float, np.ndarray, float]:
+    """Least squares of y on [base | extra]: (the share of y's variance beyond ``base`` that
+    ``extra`` explains, extra's coefficients, its F statistic)."""
+    both = np.concatenate([base, extra], axis=1)
+    scale = np.linalg.norm(both, axis=0)
+    scale[scale == 0] = 1.0
+    A0, A1 = base / scale[: base.shape[1]], both / scale
+    rss0 = float(np.sum((y - A0 @ np.linalg.lstsq(A0, y, rcond=None)[0]) ** 2))
+    coef = np.linalg.lstsq(A1, y, rcond=None)[0]
+    rss1 = float(np.sum((y - A1 @ coef) ** 2))
+    dof = max(len(y) - both.shape[1], 1)
+    f_stat = ((rss0 - rss1) / extra.shape[1]) / max(rss1 / dof, 1e-300)
+    return (1 - rss1 / rss0 if rss0 > 0 else 0.0), (coef / scale)[base.shape[1]:], float(f_stat)
+
+
+def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarray, point: np.ndarray,
+                   xy: np.ndarray) -> tuple[Timing | None, Lens | None]:
+    """Camera c's timing and lens patterns against wand ends the others triangulated.
+
+    Args:
+        R, t: (3, 3), (3,) camera c's pose (a start: it is refitted at every shift tried).
+        frames: (F,) capture frame numbers of the wand rows; X: (2F, 3) the others' ends (NaN
+            where they did not see one); point: (K,) 2 * frame + end of c's observations;
+            xy: (K, 2) those observations, normalised.
+    """
+    if len(point) < 20:
+        return None, None
+    table, first = _frame_table(frames, X)
+    row = frames[point // 2] - first
+    own = X[point]
+    fits = {}
+    for d in range(-MAX_SHIFT_FRAMES, MAX_SHIFT_FRAMES + 1):
+        ends = _shifted(table, row - d, own)
+        if np.isfinite(ends).all(axis=1).sum() < len(point) // 2:
+            continue
+        Rd, td, r, keep = resect(R, t, ends, xy)
+        fits[d] = (np.median(np.linalg.norm(r[keep], axis=1)) if keep.any() else np.inf, Rd, td, ends)
+    if not fits:
+        return None, None
+    best = min(fits, key=lambda d: fits[d][0])
+    _, Rb, tb, here = fits[best]
+    v = (_project(Rb, tb, _shifted(table, row - best + 1, here))
+         - _project(Rb, tb, _shifted(table, row - best - 1, here))) / 2  # image velocity per frame
+    r = _project(Rb, tb, here) - xy
+    keep = _trimmed(r) & np.all(np.isfinite(v), axis=1) & np.all(np.isfinite(here), axis=1)
+    if keep.sum() < 20:
+        return None, None
+    pose = _pose_columns(Rb, tb, here[keep])
+    y = r[keep].ravel()
+    share, coef, _ = _share(y, pose, v[keep].reshape(-1, 1))
+    frac = float(coef[0])
+    # the shift's own share: the residual with the pose refitted at no shift, against at the best
+    rss_best = float(np.sum(r[keep] ** 2))
+    r0 = fits[0][0] if 0 in fits else np.inf
+    whole = 1 - (fits[best][0] / r0) ** 2 if best != 0 and np.isfinite(r0) and r0 > 0 else 0.0
+    left = y - np.concatenate([pose, v[keep].reshape(-1, 1)], axis=1) @ np.linalg.lstsq(
+        np.concatenate([pose, v[keep].reshape(-1, 1)], axis=1), y, rcond=None)[0]
+    sigma = np.sqrt(np.sum(left**2) / max(len(y) - 7, 1))
+    vv = np.einsum("ki,ki->", v[keep], v[keep])
+    timing = Timing(offset_frames=best + frac, offset_std_frames=float(sigma / np.sqrt(vv)) if vv > 0 else np.inf,
+                    explained=float(max(share, whole)) if rss_best > 0 else 0.0, observations=int(keep.sum()))
+    xk = xy[keep]
+    radius2 = np.sum(xk**2, axis=1, keepdims=True)
+    K = len(xk)
+    lens_cols = np.stack([xk.ravel(), (xk * radius2).ravel(), np.tile([1.0, 0.0], K), np.tile([0.0, 1.0], K)], axis=1)
+    lshare, lcoef, f_stat = _share(y, pose, lens_cols)
+    lens = Lens(focal_error=float(lcoef[0]), k1_error=float(lcoef[1]), principal_error=(float(lcoef[2]), float(lcoef[3])),
+                explained=float(lshare), f_stat=f_stat)
+    return timing, lens
+
+
+def classify(timing: Timing | None, lens: Lens | None) -> tuple[str, dict]:
+    """("timing" | "intrinsics" | "unexplained", evidence) from a camera's two patterns."""
+    evidence: dict = {}
+    timing_share = lens_share = 0.0
+    if timing is not None:
+        evidence["timing"] = {"offset_frames": round(timing.offset_frames, 3),
+                              "offset_std_frames": round(timing.offset_std_frames, 4),
+                              "explained_share": round(timing.explained, 3)}
+        if (abs(timing.offset_frames) >= MIN_OFFSET_FRAMES
+                and abs(timing.offset_frames) >= MIN_T_STAT * timing.offset_std_frames):
+            timing_share = timing.explained
+    if lens is not None:
+        evidence["intrinsics"] = {"focal_error": round(lens.focal_error, 5), "k1_error": round(lens.k1_error, 5),
+                                  "explained_share": round(lens.explained, 3)}
+        if lens.f_stat >= MIN_T_STAT**2:
+            lens_share = lens.explained
+    if max(timing_share, lens_share) < EXPLAINED_SHARE:
+        return "unexplained", evidence
+    return ("timing" if timing_share >= lens_share else "intrinsics"), evidence

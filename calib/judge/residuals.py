@@ -1,0 +1,166 @@
+"""Every camera's residuals on the same observations, whichever method solved the rig.
+
+The verdict judges the labelled wand pairs the pipeline started from (the same for ``ba``, ``lp``
+and ``paper``: labelling comes before the method) and the point tracks, triangulated with the final
+poses, outliers included: a camera's outliers count against that camera. Figures are given in the
+units a user can check: pixels, the angle of the ray (pixels over focal length, which does not
+depend on the resolution), and millimetres in the volume (the ray's distance from the point,
+Qualisys's "camera residual").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.judge.quality import OUTLIER_SIGMAS, reject_worst_per_frame, robust_sigma
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.start.labels import flatten
+from wandcal.calib.triangulate import reprojection_errors, triangulate_points
+
+MIN_OUTLIER_PX = 1.0  # never call a residual under a pixel an outlier, however clean the rest
+# the volume's extent: the box of the central 80% of the points, over 0.8 (its share of a
+# uniformly filled box): far-off points (nearly parallel rays) leave it alone
+EXTENT_QUANTILES = (10.0, 90.0)
+EXTENT_SHARE = 0.8
+
+
+@dataclass(frozen=True, eq=False)
+class Residuals:
+    """All observations' residuals with the final poses.
+
+    camera: (M,) index; point: (M,) wand end 2 * frame + end, or -1 - track for a point track;
+    xy: (M, 2) observed, normalised; residual: (M, 2) projected minus observed, normalised;
+    focal: (M,) the camera's focal length, pixels; depth: (M,) the point's depth in the camera,
+    metres (or the rig's units without a wand); outlier: (M,) bool, a gross outlier (beyond
+    ``limit_px``, the rig's limit); X: (2F, 3) triangulated wand ends, outliers left out (NaN
+    unseen); frames: (F,) capture frame numbers of the wand rows; extent: the volume's size.
+    """
+
+    camera: np.ndarray
+    point: np.ndarray
+    xy: np.ndarray
+    residual: np.ndarray
+    focal: np.ndarray
+    depth: np.ndarray
+    outlier: np.ndarray
+    X: np.ndarray
+    frames: np.ndarray
+    extent: float
+    limit_px: float
+
+    @property
+    def error_px(self) -> np.ndarray:
+        """(M,) residual magnitudes, pixels (normalised residuals times the mean focal length)."""
+        return np.linalg.norm(self.residual, axis=1) * self.focal
+
+
+def _depths(R: np.ndarray, t: np.ndarray, camera: np.ndarray, X: np.ndarray) -> np.ndarray:
+    return np.einsum("mj,mj->m", R[camera, 2, :], X) + t[camera, 2]
+
+
+def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks: PointTracks | None,
+                          focal: np.ndarray) -> Residuals:
+    """Triangulate every labelled wand frame and point track with all cameras and measure each
+    observation. A camera-frame that is a gross outlier is left out of its frame's triangulation
+    (worst first, as the refinement does), so that its error stays with its own camera instead of
+    spreading over the frame's others. R, t: (N, 3, 3), (N, 3) final poses; focal: (N, 2) fx, fy."""
+    point, camera, xy = flatten(pairs)
+    X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames))
+    first = np.linalg.norm(reprojection_errors(R, t, point, camera, xy, X) * focal[camera], axis=1)
+    first_camera = camera
+    if tracks is not None and len(tracks):
+        P = triangulate_points(R, t, tracks.track, tracks.camera, tracks.xy, int(tracks.track.max()) + 1)
+        track_err = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, P) * focal[tracks.camera]
+        first = np.concatenate([first, np.linalg.norm(track_err, axis=1)])
+        first_camera = np.concatenate([camera, tracks.camera])
+    sigmas = [robust_sigma(first[(first_camera == c) & np.isfinite(first)]) for c in np.unique(first_camera)]
+    limit = max(OUTLIER_SIGMAS * float(np.median(sigmas)) if sigmas else 0.0, MIN_OUTLIER_PX)
+    keep = reject_worst_per_frame(R, t, pairs, focal, limit) if len(pairs) else np.ones(0, bool)
+    kept_point, kept_camera, kept_xy = flatten(pairs.subset(keep))
+    X = triangulate_points(R, t, kept_point, kept_camera, kept_xy, 2 * len(pairs.frames))
+    residual = reprojection_errors(R, t, point, camera, xy, X)
+    depth = _depths(R, t, camera, X[point])
+    outlier = ~np.concatenate([keep, keep])
+    cloud = [X[np.all(np.isfinite(X), axis=1)]]
+    if tracks is not None and len(tracks):
+        camera = np.concatenate([camera, tracks.camera])
+        point = np.concatenate([point, -1 - tracks.track])
+        xy = np.concatenate([xy, tracks.xy])
+        track_res = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, P)
+        residual = np.concatenate([residual, track_res])
+        depth = np.concatenate([depth, _depths(R, t, tracks.camera, P[tracks.track])])
+        outlier = np.concatenate([outlier, np.linalg.norm(track_res * focal[tracks.camera], axis=1) > limit])
+        cloud.append(P[np.all(np.isfinite(P), axis=1)])
+    ok = np.all(np.isfinite(residual), axis=1)
+    pts = np.concatenate(cloud)
+    lo, hi = np.percentile(pts, EXTENT_QUANTILES, axis=0) if len(pts) else (np.zeros(3), np.zeros(3))
+    return Residuals(camera=camera[ok], point=point[ok], xy=xy[ok], residual=residual[ok],
+                     focal=np.linalg.norm(focal[camera[ok]], axis=1) / np.sqrt(2), depth=depth[ok], outlier=outlier[ok],
+                     X=X, frames=pairs.frames, extent=float(np.linalg.norm(hi - lo)) / EXTENT_SHARE, limit_px=limit)
+
+
+def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
+    """Per camera: ``observations`` judged, ``rms_px`` (all of them), ``inlier_rms_px``,
+    ``noise_px`` (robust per-axis sigma of all), ``outlier_share`` (camera-frames that are gross
+    outliers against the rig's limit), ``ray_mrad`` (the inliers' RMS ray angle) and
+    ``ray_distance`` (their RMS ray distance from the points, in the capture's units: metres with a
+    wand) and ``residual_mm`` (the same in millimetres; None when ``scaled`` is False)."""
+    err = res.error_px
+    out: list[dict] = []
+    for c in range(n_cameras):
+        sel = res.camera == c
+        e = err[sel]
+        if not len(e):
+            out.append({"observations": 0, "rms_px": None, "inlier_rms_px": None, "noise_px": None,
+                        "outlier_share": None, "ray_mrad": None, "ray_distance": None, "residual_mm": None})
+            continue
+        inl = ~res.outlier[sel]
+        angle = np.linalg.norm(res.residual[sel], axis=1)[inl]
+        # the ray's distance at the camera's typical depth: a point triangulated from nearly
+        # parallel rays lies far off, and its depth would weigh more than all the others
+        ray = angle * float(np.median(np.abs(res.depth[sel][inl]))) if inl.any() else angle
+        out.append({
+            "observations": int(len(e)),
+            "rms_px": float(np.sqrt(np.mean(e**2))),
+            "inlier_rms_px": float(np.sqrt(np.mean(e[inl] ** 2))) if inl.any() else None,
+            "noise_px": robust_sigma(e),
+            "outlier_share": float(1.0 - inl.mean()),
+            "ray_mrad": float(1000 * np.sqrt(np.mean(angle**2))) if inl.any() else None,
+            "ray_distance": float(np.sqrt(np.mean(ray**2))) if inl.any() else None,
+            "residual_mm": float(1000 * np.sqrt(np.mean(ray**2))) if scaled and inl.any() else None,
+        })
+    return out
+
+
+def held_out(R: np.ndarray, t: np.ndarray, pairs: WandPairs, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera c against wand ends triangulated by the other cameras alone (frames two of them saw),
+    so a camera at fault cannot pull the points towards itself.
+
+    Returns (point (K,) 2 * frame + end of c's observations, xy (K, 2) observed, normalised;
+    X (2F, 3) the others' triangulated ends)."""
+    others = pairs.camera != c
+    sub = pairs.subset(others)
+    point, camera, xy = flatten(sub)
+    X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames))
+    p_own, _, xy_own = flatten(pairs.subset(~others))
+    seen = np.all(np.isfinite(X[p_own]), axis=1)
+    return p_own[seen], xy_own[seen], X
+
+
+def median_ray_angle(R: np.ndarray, res: Residuals) -> float | None:
+    """The median angle, radians, at which two cameras' rays meet at a point: each observation's
+    ray against the first ray to that point. Nearly parallel rays leave the depth undetermined (a
+    rig collapsed onto one spot, points at infinity). None when no point has two views."""
+    ray = np.concatenate([res.xy - res.residual, np.ones((len(res.xy), 1))], axis=1)  # the projected point's ray
+    ray = np.einsum("mji,mj->mi", R[res.camera], ray)  # camera -> world directions
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    if len(res.point) < 2:
+        return None
+    order = np.argsort(res.point, kind="stable")
+    k, r = res.point[order], ray[order]
+    first = np.r_[True, k[1:] != k[:-1]]
+    lead = np.maximum.accumulate(np.where(first, np.arange(len(k)), 0))
+    cos = np.einsum("mi,mi->m", r, r[lead])[~first]
+    return float(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))) if len(cos) else None

@@ -1,0 +1,233 @@
+"""The judgement step: the same observations judged for every method, the faults named, the
+verdicts given. Where a calibration went wrong is found before anything is called poor.
+
+The same observations are judged for every method (the labelled wand pairs and the point tracks,
+outliers included, :mod:`wandcal.calib.judge.residuals`). A camera whose residuals stand out of
+the rig's (its noise :data:`SUSPECT_NOISE_RATIO` times the median camera's, or a share of gross
+outliers well above the others') is a suspect. A camera at fault also bends every other camera's
+pose, so each suspect is judged against the rig solved without it: the others are refined
+without its observations, and its own pose is refitted against the wand ends they triangulate, at
+every whole-frame shift (:func:`wandcal.calib.judge.faults.analyse_camera`). Its residual's
+pattern then names the cause: timing, intrinsics, noise (focus, exposure, detection) or
+reflections. Inputs are judged too: the wand's length against the static object's markers, the
+solver's convergence, and refined intrinsics the data do not determine. docs/verdict.md has the
+limits and why.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.judge.faults import Lens, Timing, analyse_camera, classify
+from wandcal.calib.judge.quality import OUTLIER_SIGMAS
+from wandcal.calib.judge.residuals import camera_figures, held_out, median_ray_angle, observation_residuals
+from wandcal.calib.judge.verdict import (
+    NOISE_RATIO,
+    camera_verdict,
+    coverage_reports,
+    placement_verdict,
+    rig_verdict,
+    sanity_check,
+)
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.rig import Rig
+from wandcal.calib.solve.uncertainty import chi2_quantile
+
+SUSPECT_NOISE_RATIO = 1.5  # a camera this much noisier than the median camera is looked into
+SUSPECT_OUTLIER_SHARE = 0.03  # ... or with this share of its camera-frames gross outliers
+SUSPECT_OUTLIER_FACTOR = 3.0  # ... and that many times the median camera's share
+# rays meeting at under 2 degrees put a point's depth at 1/tan(2 deg) ~ 29 baselines, known to
+# sigma/2 deg of it: a rig whose median point is seen so is degenerate (real rigs meet at 20-90)
+MIN_RAY_ANGLE_DEG = 2.0
+MAX_SUSPECTS = 2  # the worst cameras looked into; more at fault at once is a rig-wide problem
+MIN_CAMERAS_TO_ISOLATE = 3  # two cameras left cannot say which of them is wrong
+# a static fit whose scale is off by more than its markers' noise explains, and whose residual a
+# scale explains (the scaled fit within the noise's 99th percentile), is a wand length that
+# disagrees with the markers
+SCALE_FIT_SHARE = 0.5
+
+
+def _median_share(figures: list[dict]) -> float:
+    shares = [f["outlier_share"] for f in figures if f["outlier_share"] is not None]
+    return float(np.median(shares)) if shares else 0.0
+
+
+def _concentrated(figures: list[dict], c: int) -> bool:
+    """Camera c holds far more of the gross outliers than the median camera."""
+    share = figures[c]["outlier_share"] or 0.0
+    return share > SUSPECT_OUTLIER_SHARE and share > SUSPECT_OUTLIER_FACTOR * _median_share(figures)
+
+
+def suspects(figures: list[dict]) -> list[int]:
+    """Cameras whose residuals stand out of the rig's, worst first."""
+    noise = np.array([f["noise_px"] if f["noise_px"] else np.nan for f in figures], float)
+    share = np.array([f["outlier_share"] if f["outlier_share"] is not None else np.nan for f in figures], float)
+    if np.isfinite(noise).sum() < MIN_CAMERAS_TO_ISOLATE:
+        return []
+    ratio = noise / np.nanmedian(noise)
+    out = [c for c in range(len(figures)) if ratio[c] > SUSPECT_NOISE_RATIO or _concentrated(figures, c)]
+    return sorted(out, key=lambda c: -max(ratio[c] / SUSPECT_NOISE_RATIO, share[c] / SUSPECT_OUTLIER_SHARE))
+
+
+def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int):
+    """Every other camera's pose refined without camera c's observations (c's pose as given)."""
+    from wandcal.calib.refine import build_problem, refine, up_direction
+
+    others = labelled.camera != c
+    keep = np.flatnonzero(np.arange(len(rig.cameras)) != c)
+    index = np.full(len(rig.cameras), -1)
+    index[keep] = np.arange(len(keep))
+    sub = labelled.subset(others)
+    sub = WandPairs(sub.frame, index[sub.camera], sub.xy, sub.uv, sub.frames, sub.dropped)
+    sub_rig = Rig(tuple(rig.cameras[k] for k in keep), rig.wand_length, rig.static_markers)
+    setup = build_problem(sub_rig, sub, R[keep], t[keep], 0)
+    r = refine(sub_rig, sub, setup, None, None, "ba", {}, lambda event: None, up_direction(sub_rig, R[keep], t[keep], setup),
+               final=False)
+    R2, t2 = R.copy(), t.copy()
+    R2[keep], t2[keep] = r.R, r.t
+    return R2, t2
+
+
+def isolate(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int) -> tuple[Timing | None, Lens | None]:
+    """Camera c's timing and lens patterns against the rig solved without it."""
+    if len(rig.cameras) - 1 < 2 or rig.wand_length is None:
+        return None, None
+    try:
+        R2, t2 = _others_solved(rig, labelled, R, t, c)
+    except (CalibrationError, np.linalg.LinAlgError):  # the others alone may not solve: judge them as they are
+        R2, t2 = R, t
+    point, xy, X = held_out(R2, t2, labelled, c)
+    return analyse_camera(R2[c], t2[c], labelled.frames, X, point, xy)
+
+
+def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, figures: list[dict]) -> list[dict]:
+    """The cameras at fault, each ``{"kind", "camera", "message", "evidence"}``."""
+    faults = []
+    noise = np.array([f["noise_px"] or np.nan for f in figures], float)
+    median = float(np.nanmedian(noise)) if np.isfinite(noise).any() else np.nan
+    for c in suspects(figures)[:MAX_SUSPECTS]:
+        cam, fig = rig.cameras[c].id, figures[c]
+        ratio = fig["noise_px"] / median if median > 0 else np.inf
+        timing, lens = isolate(rig, labelled, R, t, c) if len(labelled) else (None, None)
+        kind, evidence = classify(timing, lens)
+        evidence |= {"noise_px": round(fig["noise_px"], 4), "rig_noise_px": round(median, 4),
+                     "outlier_share": round(fig["outlier_share"], 4)}
+        if kind == "timing" and timing is not None:
+            d = timing.offset_frames
+            message = (f"{cam} is out of time: its frames show the wand {abs(d):.2f} +- {timing.offset_std_frames:.3f} "
+                       f"frames {'late' if d > 0 else 'early'} against the other cameras; check its trigger cable and "
+                       f"settings (or calibrate with its offset, --sync auto)")
+        elif kind == "intrinsics" and lens is not None:
+            message = (f"{cam}'s intrinsics do not fit its images: its residuals are {'scaled' if abs(lens.focal_error) > abs(lens.k1_error) / 4 else 'radial'} about the "
+                       f"image centre (focal length {100 * lens.focal_error:+.1f}% in rig.json against the data, k1 "
+                       f"{lens.k1_error:+.3f}); check its focal length and distortion, or run with "
+                       "--refine-intrinsics focal,k1")
+        elif ratio > NOISE_RATIO[1]:
+            kind = "noise"
+            message = (f"{cam}'s blob centres are {ratio:.1f} times as noisy as the other cameras' "
+                       f"({fig['noise_px']:.2f} px against {median:.2f} px) with no timing or lens pattern: check "
+                       "its focus, exposure and the blob detection settings")
+        elif _concentrated(figures, c):
+            kind = "outliers"
+            message = (f"{cam} has {100 * fig['outlier_share']:.1f}% of its camera-frames off by more than "
+                       f"{OUTLIER_SIGMAS:g} times the rig's noise while its other frames fit, against "
+                       f"{100 * _median_share(figures):.1f}% in the median camera: a reflection or a second bright "
+                       f"marker in its view; mask it (wandcal detect --mask) or cover the reflecting surface")
+        else:
+            continue  # no pattern, no concentrated outliers, and within the noise the verdict allows
+        faults.append({"kind": kind, "camera": cam, "message": message, "evidence": evidence})
+    return faults
+
+
+def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> list[dict]:
+    """Faults of the inputs and of the solve: the wand's length against the static object, an
+    unconverged solve, refined intrinsics the data leave undetermined."""
+    faults = []
+    expected, rms = world.get("expected_fit_rms_m"), world.get("fit_rms_m")
+    if world.get("frame") == "static_object" and expected and rms is not None:
+        M = len(rig.static_markers) if rig.static_markers is not None else 4
+        dof = max(3 * M - 6, 1)
+        limit = expected * np.sqrt(chi2_quantile(dof) / dof)
+        scale, scaled = world.get("marker_scale"), world.get("scaled_fit_rms_m")
+        if rms > limit and scale is not None and scaled is not None:
+            if scaled <= max(limit, SCALE_FIT_SHARE * rms):
+                faults.append({"kind": "wand_scale", "camera": None, "evidence": {
+                    "marker_scale": round(scale, 5), "fit_rms_mm": round(1000 * rms, 3),
+                    "scaled_fit_rms_mm": round(1000 * scaled, 3), "expected_fit_rms_mm": round(1000 * expected, 3)},
+                    "message": f"the wand's length and the static object's size disagree by {100 * abs(1 / scale - 1):.1f}%: "
+                               f"measured with the wand as given, the static object is {1 / scale:.4f} times its "
+                               f"markers_m (its markers fit with {1000 * rms:.1f} mm RMS where {1000 * expected:.2f} mm "
+                               f"was expected, and with {1000 * scaled:.2f} mm once scaled); one of wand.length_m and "
+                               "markers_m in rig.json is wrong: measure both again"})
+            else:
+                faults.append({"kind": "static_markers", "camera": None, "evidence": {
+                    "fit_rms_mm": round(1000 * rms, 3), "expected_fit_rms_mm": round(1000 * expected, 3)},
+                    "message": f"the static object's markers sit {1000 * rms:.1f} mm RMS off their given coordinates "
+                               f"({1000 * expected:.2f} mm expected from their blobs): check markers_m in rig.json, "
+                               "and that the L-frame is flat and not bent"})
+    status = solver.get("status")
+    if status and status != "converged":
+        faults.append({"kind": "unconverged", "camera": None, "evidence": {"status": status},
+                       "message": f"the {solver.get('method')} refinement stopped before converging ({status}): the "
+                                  "poses are not a solution; raise --max-rounds or --lp-time-limit, or use --method ba"})
+    for cam, entry in zip(rig.cameras, cameras):
+        intr = entry.get("intrinsics") or {}
+        for name, value, std in (("focal length", intr.get("focal_px"), intr.get("focal_std_px")),
+                                 ("k1", intr.get("k1"), intr.get("k1_std"))):
+            if value is not None and std is not None and not (abs(std) < abs(value) or name == "k1" and std < 0.05):
+                faults.append({"kind": "undetermined", "camera": cam.id,
+                               "evidence": {"parameter": name, "value": value, "std": std},
+                               "message": f"{cam.id}'s refined {name} is {value:.4g} +- {std:.3g}: the data do not "
+                                          "determine it; hold it (leave it out of --refine-intrinsics) or wave the "
+                                          "wand at more depths and across the whole image"})
+    return faults
+
+
+def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, world: dict, R: np.ndarray,
+          t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None, solver: dict, seen: tuple[np.ndarray, np.ndarray]
+          ) -> tuple[dict, list[str]]:
+    """Judge a calibration: run :func:`sanity_check`, add each camera's judged figures, coverage and
+    verdict to its entry, and return (the rig's verdict with its ``faults`` and ``placement``,
+    warnings).
+
+    Args:
+        R, t: (N, 3, 3), (N, 3) final poses, world frame; labelled: every labelled wand pair the
+            refinement started from (outliers included); tracks: the point tracks, or None;
+        seen: (camera (M,), uv (M, 2)) the observations that placed the cameras (coverage).
+    """
+    from wandcal.calib.geometry import camera_centers
+
+    warnings = sanity_check(method, rig, cameras, wand_report, world, camera_centers(R, t))
+    scaled = wand_report is not None
+    focal = np.array([c.focal for c in rig.cameras], float)
+    res = observation_residuals(R, t, labelled, tracks, focal)
+    figures = camera_figures(res, len(rig.cameras), scaled)
+    noise = [f["noise_px"] for f in figures if f["noise_px"]]
+    rig_noise = float(np.median(noise)) if noise else None
+    extent = res.extent if res.extent > 0 else None
+    for report, fig, cov in zip(cameras, figures, coverage_reports(rig, *seen)):
+        geometry = report.get("geometry_std")
+        report |= cov | {"noise_px": fig["noise_px"], "outlier_share": fig["outlier_share"],
+                         "residual_mm": fig["residual_mm"], "ray_mrad": fig["ray_mrad"],
+                         "residual_of_volume": fig["ray_distance"] / extent if extent and fig["ray_distance"] else None,
+                         "geometry_of_volume": geometry / extent if extent and geometry is not None else None}
+    faults = camera_faults(rig, labelled, R, t, figures) + input_faults(rig, world, solver, cameras)
+    angle = median_ray_angle(R, res)
+    if angle is not None and angle < np.radians(MIN_RAY_ANGLE_DEG):
+        faults.append({"kind": "undetermined", "camera": None, "evidence": {"median_ray_angle_deg": round(np.degrees(angle), 4)},
+                       "message": f"the cameras' rays meet at a median {np.degrees(angle):.2f} degrees: the points' depth "
+                                  "is not determined and the rig has collapsed towards one spot; check the focal "
+                                  "lengths (rig.json or --focal-px) and that the cameras see the volume from apart"})
+    for report, cam in zip(cameras, rig.cameras):
+        report["verdict"] = camera_verdict(report, cam.id, extent if scaled else None, rig_noise)
+        for fault in faults:
+            if fault["camera"] == cam.id:  # the camera at fault is poor, whatever its figures say
+                report["verdict"] = {"level": "poor", "reasons": [fault["message"], *report["verdict"]["reasons"]],
+                                     "advice": report["verdict"]["advice"]}
+    named = [{"id": c.id} | r for c, r in zip(rig.cameras, cameras)]
+    verdict = rig_verdict(named, wand_report, faults, extent if scaled else None)
+    verdict["placement"] = placement_verdict(world, extent if scaled else None, faults)
+    verdict["faults"] = faults
+    verdict["volume_m" if scaled else "volume"] = extent
+    return verdict, warnings
