@@ -29,6 +29,7 @@ BROWN_MAT = "extrinsicCalib_20230228_easyWandData.mat"
 USHICHKA = "easywand_ushichka_thermal_3cam"
 USHICHKA_HEIGHT = 512  # the .mat and the profile say 320, a typo: the principal point is (320, 256)
 SVOBODA = "multicamselfcal_strawlab_testdata/caldata20130726_122220"
+SVOBODA_NO_INTRINSICS = "multicamselfcal_strawlab_testdata/DATA20100906_134124"
 
 
 def aligned_centres_mm(centres: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -143,3 +144,12 @@ def svoboda() -> dict:
         "centre_diff_mm": aligned_centres_mm(result.centers, original),
         "rig_extent_mm": float(np.ptp(original, axis=0).max() * 1000),
     }
+
+
+def svoboda_guessed_focal(focal_px: float = 700.0):
+    """MultiCamSelfCal's DATA20100906 (no intrinsics given) as a user without them would run it:
+    an assumed focal length, refined, and no distortion. Returns the CalibrationResult."""
+    from wandcal.capture.formats.svoboda import read_svoboda as read
+
+    cap = read(SHARED_DATA / SVOBODA_NO_INTRINSICS, focal_px=focal_px).capture
+    return calibrate(cap.rig, cap.wand, None, "ba", points=cap.points, options={"refine_intrinsics": ("focal",)})

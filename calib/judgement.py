@@ -19,9 +19,15 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.faults import Lens, Timing, analyse_camera, classify
+from wandcal.calib.judge.faults import Lens, Timing, analyse_camera, classify, lens_screen
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
-from wandcal.calib.judge.residuals import camera_figures, held_out, median_ray_angle, observation_residuals
+from wandcal.calib.judge.residuals import (
+    Residuals,
+    camera_figures,
+    held_out,
+    median_ray_angle,
+    observation_residuals,
+)
 from wandcal.calib.judge.verdict import (
     NOISE_RATIO,
     camera_verdict,
@@ -40,6 +46,12 @@ SUSPECT_OUTLIER_FACTOR = 3.0  # ... and that many times the median camera's shar
 # rays meeting at under 2 degrees put a point's depth at 1/tan(2 deg) ~ 29 baselines, known to
 # sigma/2 deg of it: a rig whose median point is seen so is degenerate (real rigs meet at 20-90)
 MIN_RAY_ANGLE_DEG = 2.0
+# a lens pattern in a camera's residuals (no re-solve) that sends it to be isolated: on clean
+# simulated rigs its share stays under 1% (F under 10); a camera whose focal length or k1 is
+# wrong shows 30-70% (F 400-1700) even when its pose absorbed the error and its residual is
+# hardly above the others'; real sessions (easyWand's) reach 15% on a few hundred points, F < 5
+SCREEN_LENS_SHARE = 0.2
+SCREEN_F_STAT = 100.0
 MAX_SUSPECTS = 2  # the worst cameras looked into; more at fault at once is a rig-wide problem
 MIN_CAMERAS_TO_ISOLATE = 3  # two cameras left cannot say which of them is wrong
 # a static fit whose scale is off by more than its markers' noise explains, and whose residual a
@@ -59,15 +71,20 @@ def _concentrated(figures: list[dict], c: int) -> bool:
     return share > SUSPECT_OUTLIER_SHARE and share > SUSPECT_OUTLIER_FACTOR * _median_share(figures)
 
 
-def suspects(figures: list[dict]) -> list[int]:
-    """Cameras whose residuals stand out of the rig's, worst first."""
+def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list[int]:
+    """Cameras whose residuals stand out of the rig's, or hold a lens pattern (``lens``, from
+    :func:`wandcal.calib.judge.faults.lens_screen`), worst first."""
     noise = np.array([f["noise_px"] if f["noise_px"] else np.nan for f in figures], float)
     share = np.array([f["outlier_share"] if f["outlier_share"] is not None else np.nan for f in figures], float)
     if np.isfinite(noise).sum() < MIN_CAMERAS_TO_ISOLATE:
         return []
     ratio = noise / np.nanmedian(noise)
-    out = [c for c in range(len(figures)) if ratio[c] > SUSPECT_NOISE_RATIO or _concentrated(figures, c)]
-    return sorted(out, key=lambda c: -max(ratio[c] / SUSPECT_NOISE_RATIO, share[c] / SUSPECT_OUTLIER_SHARE))
+    patterned = np.zeros(len(figures))
+    for c, found in enumerate(lens or []):
+        if found is not None and found.f_stat >= SCREEN_F_STAT and found.explained >= SCREEN_LENS_SHARE:
+            patterned[c] = found.explained / SCREEN_LENS_SHARE
+    out = [c for c in range(len(figures)) if ratio[c] > SUSPECT_NOISE_RATIO or _concentrated(figures, c) or patterned[c]]
+    return sorted(out, key=lambda c: -max(ratio[c] / SUSPECT_NOISE_RATIO, share[c] / SUSPECT_OUTLIER_SHARE, patterned[c]))
 
 
 def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int):
@@ -101,12 +118,14 @@ def isolate(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int)
     return analyse_camera(R2[c], t2[c], labelled.frames, X, point, xy)
 
 
-def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, figures: list[dict]) -> list[dict]:
+def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, figures: list[dict],
+                  res: Residuals) -> list[dict]:
     """The cameras at fault, each ``{"kind", "camera", "message", "evidence"}``."""
-    faults = []
+    faults: list[dict] = []
     noise = np.array([f["noise_px"] or np.nan for f in figures], float)
     median = float(np.nanmedian(noise)) if np.isfinite(noise).any() else np.nan
-    for c in suspects(figures)[:MAX_SUSPECTS]:
+    screened = [lens_screen(R, t, res, c) for c in range(len(rig.cameras))] if len(labelled) else None
+    for c in suspects(figures, screened)[:MAX_SUSPECTS]:
         cam, fig = rig.cameras[c].id, figures[c]
         ratio = fig["noise_px"] / median if median > 0 else np.inf
         timing, lens = isolate(rig, labelled, R, t, c) if len(labelled) else (None, None)
@@ -212,7 +231,7 @@ def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, 
                          "residual_mm": fig["residual_mm"], "ray_mrad": fig["ray_mrad"],
                          "residual_of_volume": fig["ray_distance"] / extent if extent and fig["ray_distance"] else None,
                          "geometry_of_volume": geometry / extent if extent and geometry is not None else None}
-    faults = camera_faults(rig, labelled, R, t, figures) + input_faults(rig, world, solver, cameras)
+    faults = camera_faults(rig, labelled, R, t, figures, res) + input_faults(rig, world, solver, cameras)
     angle = median_ray_angle(R, res)
     if angle is not None and angle < np.radians(MIN_RAY_ANGLE_DEG):
         faults.append({"kind": "undetermined", "camera": None, "evidence": {"median_ray_angle_deg": round(np.degrees(angle), 4)},

@@ -71,15 +71,19 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
     first = np.linalg.norm(reprojection_errors(R, t, point, camera, xy, X) * focal[camera], axis=1)
     first_camera = camera
     if tracks is not None and len(tracks):
-        P = triangulate_points(R, t, tracks.track, tracks.camera, tracks.xy, int(tracks.track.max()) + 1)
-        track_err = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, P) * focal[tracks.camera]
+        points = triangulate_points(R, t, tracks.track, tracks.camera, tracks.xy, int(tracks.track.max()) + 1)
+        track_err = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, points) * focal[tracks.camera]
         first = np.concatenate([first, np.linalg.norm(track_err, axis=1)])
         first_camera = np.concatenate([camera, tracks.camera])
     sigmas = [robust_sigma(first[(first_camera == c) & np.isfinite(first)]) for c in np.unique(first_camera)]
     limit = max(OUTLIER_SIGMAS * float(np.median(sigmas)) if sigmas else 0.0, MIN_OUTLIER_PX)
-    keep = reject_worst_per_frame(R, t, pairs, focal, limit) if len(pairs) else np.ones(0, bool)
-    kept_point, kept_camera, kept_xy = flatten(pairs.subset(keep))
-    X = triangulate_points(R, t, kept_point, kept_camera, kept_xy, 2 * len(pairs.frames))
+    P = len(pairs)
+    worst = np.fmax(first[:P], first[P:len(point)]) if P else np.zeros(0)
+    keep = np.ones(P, bool)
+    if np.any(worst > limit):  # a clean rig has none: its one triangulation stands
+        keep = reject_worst_per_frame(R, t, pairs, focal, limit)
+        kept_point, kept_camera, kept_xy = flatten(pairs.subset(keep))
+        X = triangulate_points(R, t, kept_point, kept_camera, kept_xy, 2 * len(pairs.frames))
     residual = reprojection_errors(R, t, point, camera, xy, X)
     depth = _depths(R, t, camera, X[point])
     outlier = ~np.concatenate([keep, keep])
@@ -88,11 +92,11 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
         camera = np.concatenate([camera, tracks.camera])
         point = np.concatenate([point, -1 - tracks.track])
         xy = np.concatenate([xy, tracks.xy])
-        track_res = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, P)
+        track_res = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, points)
         residual = np.concatenate([residual, track_res])
-        depth = np.concatenate([depth, _depths(R, t, tracks.camera, P[tracks.track])])
+        depth = np.concatenate([depth, _depths(R, t, tracks.camera, points[tracks.track])])
         outlier = np.concatenate([outlier, np.linalg.norm(track_res * focal[tracks.camera], axis=1) > limit])
-        cloud.append(P[np.all(np.isfinite(P), axis=1)])
+        cloud.append(points[np.all(np.isfinite(points), axis=1)])
     ok = np.all(np.isfinite(residual), axis=1)
     pts = np.concatenate(cloud)
     lo, hi = np.percentile(pts, EXTENT_QUANTILES, axis=0) if len(pts) else (np.zeros(3), np.zeros(3))

@@ -97,6 +97,7 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
     rig_noise_px: the median camera's noise.
     """
     checks = []  # (criterion, grade, reason, advice)
+    coverage_advice = None
     rel = report.get("residual_of_volume")
     if rel is not None:
         mm = report.get("residual_mm")
@@ -135,9 +136,14 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
     cov = report.get("coverage")
     if cov is not None:
         where = ", ".join(report.get("uncovered") or []) or "the gaps of its view"
-        checks.append(("coverage", _grade(cov, COVERAGE, True),
-                       f"{cam_id}: samples cover {cov:.0%} of its image, {{level}} (excellent >= {COVERAGE[0]:.0%}, "
-                       f"good >= {COVERAGE[1]:.0%})", f"wave the wand in {where} of {cam_id}'s image"))
+        grade = _grade(cov, COVERAGE, True)
+        # with the intrinsics known, a poorly covered image costs precision, which the geometry
+        # sigma already counts, and risks a lens error where no sample tested it: advice, not poor
+        text = (f"{cam_id}: samples cover {cov:.0%} of its image, {'short of good' if grade == 2 else '{level}'} "
+                f"(excellent >= {COVERAGE[0]:.0%}, good >= {COVERAGE[1]:.0%})")
+        checks.append(("coverage", min(grade, 1), text, f"wave the wand in {where} of {cam_id}'s image"))
+        if grade == 2:
+            coverage_advice = f"wave the wand in {where} of {cam_id}'s image"
     if geo_rel is not None:
         geo = report.get("geometry_std_mm")
         if geo is not None and extent_m:
@@ -152,7 +158,7 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
     level = max(grade for _, grade, _, _ in checks)
     return {"level": LEVELS[level],
             "reasons": [text.format(level=LEVELS[grade]) for _, grade, text, _ in checks if grade > 0],
-            "advice": [advice for _, grade, _, advice in checks if grade == 2],
+            "advice": [advice for _, grade, _, advice in checks if grade == 2] + ([coverage_advice] if coverage_advice else []),
             "short_of_excellent": {name: LEVELS[grade] for name, grade, _, _ in checks if grade > 0}}
 
 

@@ -103,3 +103,41 @@ def _replace_camera(wand: WandObservations, c: int, frame: np.ndarray, uv: np.nd
     return WandObservations(np.concatenate([wand.frame[other], frame]),
                             np.concatenate([wand.camera[other], np.full(len(frame), c)]),
                             np.concatenate([wand.uv[other], uv]))
+
+
+# The cases the judgement is measured on: (name, fault kind expected or None for a good rig,
+# whether it names a camera). Magnitudes vary with the seed so no case is tuned to one number.
+CASES = ("good", "good_no_static", "focal", "k1", "late", "early", "reflections", "noisy", "wand_length")
+EXPECTED = {"good": None, "good_no_static": None, "focal": "intrinsics", "k1": "intrinsics", "late": "timing",
+            "early": "timing", "reflections": "outliers", "noisy": "noise", "wand_length": "wand_scale"}
+
+
+def broken_capture(case: str, seed: int, cameras: int = 6, frames: int = 1000, noise_px: float = 0.3):
+    """A simulated capture with the fault ``case`` (one of :data:`CASES`), its magnitude and the
+    camera at fault drawn from ``seed``. Returns (capture, the camera index at fault or None,
+    the fault's size: the offset in frames for timing, the factor for focal and wand length)."""
+    from wandcal.calib.sim.simulate import simulate_capture
+
+    rng = np.random.default_rng(1000 + seed)
+    sim = simulate_capture(cameras, frames, noise_px, 0.0, case != "good_no_static", seed)
+    c = int(rng.integers(0, cameras))
+    sign = rng.choice([-1.0, 1.0])
+    if case in ("good", "good_no_static"):
+        return sim, None, None
+    if case == "focal":
+        factor = 1 + sign * rng.uniform(0.04, 0.12)
+        return wrong_focal(sim, c, factor), c, factor
+    if case == "k1":
+        k1 = sign * rng.uniform(0.15, 0.35)
+        return wrong_k1(sim, c, k1), c, k1
+    if case in ("late", "early"):
+        offset = (1 if case == "late" else -1) * rng.uniform(0.4, 3.5)
+        return late_camera(sim, c, offset, noise_px, seed), c, offset
+    if case == "reflections":
+        return reflections(sim, c, rng.uniform(0.08, 0.25), seed), c, None
+    if case == "noisy":
+        return noisy_camera(sim, c, rng.uniform(2.5, 4.0) * noise_px, seed), c, None
+    if case == "wand_length":
+        factor = 1 + sign * rng.uniform(0.02, 0.06)
+        return wrong_wand_length(sim, factor), None, factor
+    raise ValueError(f"unknown case {case!r}; one of {', '.join(CASES)}")

@@ -135,8 +135,11 @@ def split_uncertainty(R: np.ndarray, t: np.ndarray, cov: np.ndarray, scale_free:
         rotation = np.sqrt(np.maximum(np.einsum("nii->n", blocks[:, 3:, 3:]), 0.0))
         if np.allclose(center, last, rtol=REWEIGHT_RTOL, atol=0.0):
             break
+        typical = float(np.median(center))
+        if not typical > 0:
+            break  # no camera has an error of its own: equal weights are as good as any
         # no weight above the median camera's: else the best camera pulls the fit onto itself
-        weight = 1.0 / np.maximum(center, np.median(center)) ** 2
+        weight = 1.0 / np.maximum(center, typical) ** 2
     theta = H @ S @ H.T  # (g, g): the rig's best-fit motion about the pivot
     o = (np.zeros(3) if origin is None else np.asarray(origin, float)) - pivot
     move_origin = np.concatenate([-_skew(o), np.eye(3)], axis=1)  # the origin's displacement from (phi, tau)
