@@ -53,6 +53,36 @@ def judged(case: str, seed: int, cameras: int) -> dict:
             "offset_error": offset_error, "seconds": seconds}
 
 
+def judging_share(repeats: int, cameras: int = 16, frames: int = 2500) -> tuple[float, float, float]:
+    """(median calibrate seconds, median seconds inside the judgement, median share) over
+    ``repeats`` in-process runs of the whole `calibrate` on a clean simulated rig (the Peers bench's
+    16 x 2500), the judgement timed from inside the same runs."""
+    from wandcal.calib import pipeline
+    from wandcal.calib.sim.simulate import simulate_capture
+
+    inside = []
+    judge = pipeline.judge
+
+    def timed(*args, **kwargs):
+        start = time.perf_counter()
+        out = judge(*args, **kwargs)
+        inside.append(time.perf_counter() - start)
+        return out
+
+    sim = simulate_capture(cameras, frames, 0.3, 0.0, True, 1)
+    totals = []
+    pipeline.judge = timed
+    try:
+        for _ in range(repeats):
+            start = time.perf_counter()
+            pipeline.calibrate(sim.rig, sim.wand, sim.static)
+            totals.append(time.perf_counter() - start)
+    finally:
+        pipeline.judge = judge
+    shares = np.array(inside) / np.array(totals)
+    return float(np.median(totals)), float(np.median(inside)), float(np.median(shares))
+
+
 def real_sessions() -> list[dict]:
     """The real sessions and what is known of them: easyWand's and MultiCamSelfCal's published
     results are good calibrations; DATA20100906 with a guessed focal length and no distortion is
@@ -81,6 +111,7 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--first-seed", type=int, default=FIRST_SEED, help="held-out seeds start here")
     ap.add_argument("--cameras", default="6,8")
+    ap.add_argument("--speed-repeats", type=int, default=5, help="runs of the 16 x 2500 timing")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     rows = defaultdict(list)
@@ -125,7 +156,11 @@ def main() -> int:
     summary = (f"Right in {totals['right']} of {totals['runs']} cases; false alarms {totals['alarm']}, false all-clears "
                f"{totals['clear']}; the fault named correctly (kind and camera, and no other) in {totals['named']} of "
                f"{totals['broken']} broken simulated cases ({100 * totals['named'] / max(totals['broken'], 1):.0f}%).")
-    text = "\n".join(lines) + "\n\n" + summary
+    total, inside, share = judging_share(args.speed_repeats)
+    speed = (f"Judging's cost: `calibrate` of a clean 16 x 2500 rig took {total:.2f} s (median of {args.speed_repeats}), "
+             f"{inside:.3f} s of it in the judgement: {100 * share:.1f}% (goal: at most 10%). A broken rig costs more: "
+             "each suspect camera is solved again without it (the seconds column above).")
+    text = "\n".join(lines) + "\n\n" + summary + "\n\n" + speed
     print(text)
     if not args.no_write:
         write_section("Judgement", __doc__.split("\n\n")[1] + "\n\n" + text)
