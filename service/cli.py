@@ -50,8 +50,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wandcal {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
+        from wandcal.drivers.registry import CameraUrlError  # bad input, not a device fault
+
         print(f"wandcal {args.command}: error: {exc}", file=sys.stderr)
-        return 3
+        return 2 if isinstance(exc, CameraUrlError) else 3
     except KeyboardInterrupt:
         print(f"wandcal {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -22,6 +22,7 @@ from wandcal.capture.folder import read_capture, write_capture
 from wandcal.service.progress import ProgressLine
 
 TRUTH_FILE = "truth.json"
+RESULT_FILE = "result.json"  # the default method's result; the others get their own (result_path)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,7 +33,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("calibrate", help="calibrate a capture folder and write wandcal-result/1 JSON")
     p.add_argument("capture", type=Path, help="capture folder (points level, or image level: detected first)")
-    p.add_argument("--out", type=Path, help="result file (default: CAPTURE/result.json)")
+    p.add_argument("--out", type=Path, help="result file (default: CAPTURE/result.json for ba, "
+                   "CAPTURE/result-lp.json and CAPTURE/result-paper.json for the others, so that no method's "
+                   "result replaces another's)")
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"refinement method (default {DEFAULT_METHOD})")
     p.add_argument("--max-rounds", type=int, default=None, help=f"paper: most rotation/LP rounds (default {MAX_ROUNDS})")
     p.add_argument("--lp-time-limit", type=float, default=None, help="seconds allowed for each LP solve")
@@ -189,12 +192,31 @@ def _run_solve_only(args, cap, progress) -> int:
     return _write_result(args, result.to_json())
 
 
+def result_path(capture: Path, method: str) -> Path:
+    """Where ``wandcal calibrate CAPTURE --method METHOD`` writes without ``--out``: ``result.json``
+    for the default method, ``result-METHOD.json`` for the others (a cross-check never replaces
+    the result that report, export and check read by default)."""
+    return capture / (RESULT_FILE if method == DEFAULT_METHOD else f"result-{method}.json")
+
+
 def _write_result(args, doc: dict) -> int:
-    out = args.out or args.capture / "result.json"
+    out = args.out or result_path(args.capture, args.method)
+    replaced = _replaced(out)
     out.write_text(json.dumps(doc, indent=2) + "\n")
     print(format_summary(doc))
-    print(f"wrote {out}")
+    print(f"wrote {out}" + (f" (replacing the earlier {replaced})" if replaced else ""))
     return 0
+
+
+def _replaced(out: Path) -> str | None:
+    """What an existing ``out`` holds, said when it is replaced: "ba result" or "file"."""
+    if not out.is_file():
+        return None
+    try:
+        method = json.loads(out.read_text()).get("solver", {}).get("method")
+    except (ValueError, OSError, AttributeError):
+        method = None
+    return f"{method} result" if isinstance(method, str) else "file"
 
 
 def format_summary(doc: dict) -> str:
