@@ -287,13 +287,15 @@ def truth_table(result, sim) -> str:
     aligned = np.linalg.norm(s * C @ Ra.T + ta - Ct, axis=1) * 1000
     raw = np.linalg.norm(C - Ct, axis=1) * 1000 if static else None
     rot = np.degrees(rotation_angle(result.R @ Ra.T, sim.truth.R)) * 3600
-    head = f"{'camera':<10} {'centre err (mm)':>16} {'aligned (mm)':>13} {'rotation (arcsec)':>18}"
-    rows = [head]
+    # without a static object the world is the wand volume's own frame: only aligned errors mean anything
+    head = f"{'camera':<10}" + (f" {'centre err (mm)':>16}" if static else "")
+    rows = [head + f" {'aligned (mm)':>13} {'rotation (arcsec)':>18}"]
     for i, cam in enumerate(sim.rig.cameras):
-        rows.append(f"{cam.id:<10} {raw[i] if raw is not None else float('nan'):16.3f} {aligned[i]:13.3f} {rot[i]:18.1f}")
+        raw_col = f" {raw[i]:16.3f}" if raw is not None else ""
+        rows.append(f"{cam.id:<10}{raw_col} {aligned[i]:13.3f} {rot[i]:18.1f}")
     if raw is None:
-        rows.append("(no static object: the world is the wand volume's frame, not the simulator's, so only aligned "
-                    "errors are meaningful)")
+        rows.append("(no static object: the world is the wand volume's frame, not the simulator's, so the errors "
+                    "are after the best similarity alignment)")
     return "\n".join(rows)
 
 
