@@ -8,6 +8,12 @@ from pathlib import Path
 
 from wandcal.service.settings import Settings
 
+# Seconds uvicorn lets open requests finish after Ctrl-C / SIGINT / SIGTERM. The whole stop (this,
+# the live capture's end and the workers', service/main.py and service/worker.py) must fit well in
+# the 5 s a restart may take (issue 21; the systemd unit allows 20 before SIGKILL); requests are
+# short, and a client whose upload is cut sends it again.
+GRACEFUL_SHUTDOWN_S = 1.0
+
 NO_TOKEN = (
     "refusing to listen on {host}: a non-loopback address needs a bearer token. Set WANDCAL_TOKEN "
     "(or 'token' in the settings file), or bind 127.0.0.1"
@@ -46,5 +52,5 @@ def run(args: argparse.Namespace) -> int:
     spool.mkdir(parents=True, exist_ok=True)
     tempfile.tempdir = str(spool)
     app = create_app(settings)
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level, timeout_graceful_shutdown=10)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level, timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S)
     return 0
