@@ -18,10 +18,20 @@ from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.solve.reprojection import INTRINSICS
+from wandcal.capture.arguments import MAX_SEED, number, whole
 from wandcal.capture.folder import read_capture, write_capture
 from wandcal.service.progress import ProgressLine
 
 TRUTH_FILE = "truth.json"
+# Bounds of the numeric options (exit 2 outside them). 10,000 paper rounds are ~40 min at 8 x 1500,
+# where the scheme converges in ~170; a day is a time limit no LP step needs.
+MAX_PAPER_ROUNDS = 10_000
+MAX_LP_SECONDS = 86_400.0
+# The simulator holds every observation in memory (~100 bytes a camera-frame): 64 cameras by
+# 100,000 frames is ~0.6 GB, the most a demo should ask of a workstation.
+MAX_SIM_CAMERAS = 64
+MAX_SIM_FRAMES = 100_000
+MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
 RESULT_FILE = "result.json"  # the default method's result; the others get their own (result_path)
 
 
@@ -37,8 +47,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "CAPTURE/result-lp.json and CAPTURE/result-paper.json for the others, so that no method's "
                    "result replaces another's)")
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"refinement method (default {DEFAULT_METHOD})")
-    p.add_argument("--max-rounds", type=int, default=None, help=f"paper: most rotation/LP rounds (default {MAX_ROUNDS})")
-    p.add_argument("--lp-time-limit", type=float, default=None, help="seconds allowed for each LP solve")
+    p.add_argument("--max-rounds", type=whole(1, MAX_PAPER_ROUNDS), default=None, metavar="N",
+                   help=f"paper: most rotation/LP rounds, 1 to {MAX_PAPER_ROUNDS} (default {MAX_ROUNDS})")
+    p.add_argument("--lp-time-limit", type=number(0, MAX_LP_SECONDS, low_open=True), default=None, metavar="S",
+                   help="lp and paper: seconds allowed for each LP solve (default: no limit)")
     p.add_argument("--keep-outliers", action="store_true", help="do not drop gross-outlier camera-frames")
     p.add_argument("--loss", choices=LOSSES, default=DEFAULT_LOSS,
                    help=f"ba: robust loss (default {DEFAULT_LOSS}; 'linear' is plain least squares)")
@@ -65,12 +77,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _sim_args(p: argparse.ArgumentParser, cameras: int, frames: int) -> None:
-    p.add_argument("--cameras", type=_at_least(2), default=cameras)
-    p.add_argument("--frames", type=_at_least(10), default=frames)
-    p.add_argument("--noise", type=float, default=0.3, help="blob noise, pixels (std)")
-    p.add_argument("--outliers", type=float, default=0.0, help="fraction of camera-frames with a gross outlier")
+    p.add_argument("--cameras", type=whole(2, MAX_SIM_CAMERAS), default=cameras, metavar="N",
+                   help=f"cameras on a ring around the volume, 2 to {MAX_SIM_CAMERAS} (default {cameras})")
+    p.add_argument("--frames", type=whole(10, MAX_SIM_FRAMES), default=frames, metavar="N",
+                   help=f"wand frames, 10 to {MAX_SIM_FRAMES} (default {frames})")
+    p.add_argument("--noise", type=number(0, MAX_NOISE_PX), default=0.3, metavar="PX",
+                   help="blob noise, pixels (std; default 0.3)")
+    p.add_argument("--outliers", type=number(0, 1, high_open=True), default=0.0, metavar="SHARE",
+                   help="share of camera-frames with a gross outlier, 0 to below 1 (default 0)")
     p.add_argument("--no-static", action="store_true", help="no L-frame")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=whole(0, MAX_SEED), default=1,
+                   help="random seed: the same seed gives the same rig (default 1)")
 
 
 def _intrinsics_list(text: str) -> tuple[str, ...]:
@@ -88,19 +105,7 @@ def _id_list(text: str) -> tuple[str, ...]:
     return ids
 
 
-def _at_least(n: int):
-    def parse(text: str) -> int:
-        value = int(text)
-        if value < n:
-            raise argparse.ArgumentTypeError(f"must be at least {n}")
-        return value
-
-    return parse
-
-
 def _simulate(args):
-    if args.noise < 0 or not 0 <= args.outliers < 1:
-        raise SystemExit("wandcal: --noise must be >= 0 and --outliers in [0, 1)")
     return simulate_capture(args.cameras, args.frames, args.noise, args.outliers, not args.no_static, args.seed)
 
 
@@ -164,6 +169,12 @@ def run_calibrate(args) -> int:
     progress = ProgressLine(quiet=args.quiet)
     folder = _points_level(args.capture, progress)
     cap = read_capture(folder)
+    if args.max_rounds is not None and args.method != "paper":
+        raise CalibrationError(f"--max-rounds counts the paper method's rounds; --method {args.method} has none "
+                               "(drop it, or add --method paper)")
+    if args.lp_time_limit is not None and args.method == "ba":
+        raise CalibrationError("--lp-time-limit bounds the LP solves of --method lp and paper; ba solves no LP "
+                               "(drop it, or choose one of those)")
     if args.from_result is not None or args.solve_only:
         return _run_solve_only(args, cap, progress)
     options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
