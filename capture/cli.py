@@ -57,6 +57,7 @@ def register(subparsers) -> None:
                    help="do not solve the wanding guidance while recording")
     p.add_argument("--stop-when-enough", action="store_true",
                    help="end the wand run, keeping it, as soon as the guidance says enough")
+    p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
     add_guidance_options(p)
     add_detect_options(p, live=True)
     p.set_defaults(run=run_capture)
@@ -66,6 +67,7 @@ def register(subparsers) -> None:
     p.add_argument("capture", type=Path, help="image-level capture folder")
     p.add_argument("--workers", type=whole(1, MAX_WORKERS), default=None, metavar="N",
                    help=f"threads that decode and detect images, 1 to {MAX_WORKERS} (default: every core)")
+    p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
     add_detect_options(p)
     p.set_defaults(run=run_detect)
 
@@ -202,7 +204,7 @@ def run_detect(args) -> int:
     from wandcal.capture.images import detect_capture
 
     config = config_from_args(args)
-    status = StatusLine()
+    status = StatusLine(quiet=args.quiet)
     reports = detect_capture(args.capture, config, workers=args.workers,
                              progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
                              mask=mask_from_args(args), empty=args.background.folder)
@@ -235,7 +237,7 @@ def run_capture(args) -> int:
     rig = _rig(args, cameras)
     detect = _live_detectors(args, rig, config)
     trigger = open_trigger(args.trigger)
-    status = StatusLine()
+    status = StatusLine(quiet=args.quiet)
     guidance = LiveGuidance(rig, settings_from(args)) if args.guidance and rig.wand_length is not None else None
     told = [None]  # the advice last printed: a new first item gets its own line
 

@@ -56,7 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"ba: robust loss (default {DEFAULT_LOSS}; 'linear' is plain least squares)")
     p.add_argument("--refine-intrinsics", type=_intrinsics_list, default=(), metavar="LIST",
                    help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
-    p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
                    help="start from this result: with --solve-only, every other camera keeps its pose exactly")
     p.add_argument("--solve-only", type=_id_list, metavar="CAM[,CAM]",
@@ -67,12 +67,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("result", type=Path, help="wandcal-result/1 file")
     p.add_argument("capture", type=Path, help="a fresh wand capture of the same rig")
     p.add_argument("--json", action="store_true", help='print {"cameras": [{"id", "moved", "rms_px", ...}]}')
+    p.add_argument("--quiet", action="store_true", help="no progress line while an image-level capture is detected")
     p.set_defaults(run=run_check)
 
     p = sub.add_parser("demo", help="simulate a rig, calibrate it and compare with the truth")
     _sim_args(p, cameras=6, frames=800)
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD)
     p.add_argument("--keep", type=Path, help="also keep the simulated capture and result in this folder")
+    p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.set_defaults(run=run_demo)
 
 
@@ -146,7 +148,11 @@ def _result_for(result_path: Path, cap):
 def run_check(args) -> int:
     from wandcal.calib.judge.evaluate import check_cameras
 
-    folder = _points_level(args.capture, ProgressLine(quiet=True))
+    progress = ProgressLine(quiet=args.quiet)
+    try:
+        folder = _points_level(args.capture, progress)
+    finally:
+        progress.close()
     cap = read_capture(folder)
     if cap.wand is None or not len(cap.wand) or cap.rig.wand_length is None:
         raise CalibrationError(f"{args.capture}: has no wand blobs; 'wandcal check' needs a fresh wand capture")
@@ -167,6 +173,14 @@ def run_check(args) -> int:
 
 def run_calibrate(args) -> int:
     progress = ProgressLine(quiet=args.quiet)
+    try:
+        result = _calibrated(args, progress)
+    finally:
+        progress.close()  # the line ends before the summary, or an error, is printed
+    return _write_result(args, result.to_json())
+
+
+def _calibrated(args, progress):
     folder = _points_level(args.capture, progress)
     cap = read_capture(folder)
     if args.max_rounds is not None and args.method != "paper":
@@ -176,16 +190,14 @@ def run_calibrate(args) -> int:
         raise CalibrationError("--lp-time-limit bounds the LP solves of --method lp and paper; ba solves no LP "
                                "(drop it, or choose one of those)")
     if args.from_result is not None or args.solve_only:
-        return _run_solve_only(args, cap, progress)
+        return _solve_only(args, cap, progress)
     options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
                "loss": args.loss, "refine_intrinsics": args.refine_intrinsics}
-    result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
-                       points=cap.points, axis=cap.axis)
-    progress.close()
-    return _write_result(args, result.to_json())
+    return calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
+                     points=cap.points, axis=cap.axis)
 
 
-def _run_solve_only(args, cap, progress) -> int:
+def _solve_only(args, cap, progress):
     from wandcal.calib.resolve import solve_only
 
     if args.from_result is None or not args.solve_only:
@@ -197,10 +209,8 @@ def _run_solve_only(args, cap, progress) -> int:
     if cap.wand is None or not len(cap.wand):
         raise CalibrationError(f"{args.capture}: has no wand blobs; --solve-only needs a fresh wand capture")
     options = {"reject_outliers": not args.keep_outliers, "loss": args.loss}
-    result = solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.doc.get("world", {}), entries,
-                        progress=progress, options=options)
-    progress.close()
-    return _write_result(args, result.to_json())
+    return solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.doc.get("world", {}), entries,
+                      progress=progress, options=options)
 
 
 def result_path(capture: Path, method: str) -> Path:
@@ -280,9 +290,11 @@ def run_demo(args) -> int:
         write_capture(folder, sim.rig, sim.wand, sim.static)
         (folder / TRUTH_FILE).write_text(json.dumps(sim.truth.to_json(sim.rig)) + "\n")
         cap = read_capture(folder)
-        progress = ProgressLine()
-        result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress)
-        progress.close()
+        progress = ProgressLine(quiet=args.quiet)
+        try:
+            result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress)
+        finally:
+            progress.close()
         (folder / "result.json").write_text(json.dumps(result.to_json(), indent=2) + "\n")
     print(format_summary(result.to_json()))
     print(truth_table(result, sim))
