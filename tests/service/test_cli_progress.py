@@ -120,3 +120,11 @@ def test_wandless_demo_prints_no_nan():
     r = wandcal("demo", "--cameras", "3", "--frames", "150", "--no-static")
     assert r.returncode == 0, r.stderr
     assert "nan" not in r.stdout and "aligned (mm)" in r.stdout
+
+
+def test_guidance_on_a_session_without_a_wand_does_not_ask_for_its_length(shared_data, tmp_path):
+    session = shared_data / "multicamselfcal_strawlab_testdata" / "DATA20090709_111010"
+    r = wandcal("import", "svoboda", str(session), "--focal-px", "600", "--out", str(tmp_path / "cap"))
+    assert r.returncode == 0, r.stderr
+    r = wandcal("guidance", str(tmp_path / "cap"))
+    assert r.returncode == 2 and "has no wand" in r.stderr and "length" not in r.stderr
