@@ -118,3 +118,20 @@ def test_options_of_other_methods_are_refused(tmp_path):
     for extra in (["--max-rounds", "5"], ["--method", "lp", "--max-rounds", "5"], ["--lp-time-limit", "3"]):
         assert main(["calibrate", str(folder), "--quiet", *extra]) == 2
         assert not (folder / "result.json").exists()
+
+
+@pytest.mark.parametrize(("url", "extra", "words"), [
+    ("sim://?cameras=100000", [], "cameras must be at least 2 and at most 32"),
+    ("sim://?cameras=2&frames=1000000000000", [], "frames must be at least 1 and at most 360000"),
+    ("sim://?cameras=2&drop=cam2:0-999999999999", [], "must name frames from 0 to 459999"),
+    ("sim://?cameras=2&drop=cam2:9-3", [], "the first one first"),
+    ("sim://?cameras=2&noise=inf", [], "noise must be at least 0"),
+    ("sim://?cameras=2&seed=-1", [], "seed must be at least 0"),
+    ("sim://?cameras=2", ["--frames", "400000"], "at most 100000 static and 360000 wand frames"),
+])
+def test_simulated_rig_limits_exit_2_before_anything_is_written(tmp_path, capsys, url, extra, words):
+    out = tmp_path / "cap"
+    code = main(["capture", "--camera", url, "--frames", "5", *extra, "--images", "none", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and "Traceback" not in err, err
+    assert not out.exists()
