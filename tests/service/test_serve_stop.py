@@ -99,3 +99,15 @@ def test_a_running_job_is_queued_again_after_the_stop(make_server, big_capture):
     with again.start().client() as c:
         job = c.get(f"/jobs/{job_id}").json()
     assert job["state"] == "queued", job
+
+
+def test_a_path_without_a_replay_root_says_how_to_set_it(tmp_path):
+    from fastapi.testclient import TestClient
+
+    from wandcal.service.main import create_app
+    from wandcal.service.settings import Settings
+
+    app = create_app(Settings(data_dir=tmp_path / "data", workers=0, replay_root=None))
+    with TestClient(app, base_url="http://127.0.0.1/api/v1") as c:
+        r = c.post("/captures", data={"path": "sim"})
+    assert r.status_code == 403 and "WANDCAL_REPLAY_ROOT=" in r.json()["detail"], r.text
