@@ -344,7 +344,8 @@ def _summary_warnings(warnings: list[str], dropped: dict, info: dict, method: st
     if dropped.get("point_outliers"):
         warnings.append(f"{dropped['point_outliers']} point-track observations were gross outliers and were dropped")
     if info.get("status") != "converged":
-        hint = "raise max_rounds or time_limit, or try --method ba" if method != "ba" else "check the intrinsics and the start"
+        raise_ = {"paper": "raise --max-rounds or --lp-time-limit", "lp": "raise --lp-time-limit"}.get(method)
+        hint = f"{raise_}, or try --method ba" if raise_ else "check the intrinsics and the start"
         warnings.append(f"the {method} refinement stopped before converging ({info.get('status')}); the poses are its "
                         f"best state so far ({hint})")
     if info.get("uncertified_steps"):

@@ -249,8 +249,11 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         if np.array_equal(new_keep, keep) and not bad_points.any() and not robust_ba:
             break
         keep = new_keep
-        tell({"stage": "outliers", "message": f"refining without {int((~keep).sum())} outlying camera-frames"
-              + (f" and {point_drops} point observations" if point_drops else "")})
+        dropped = int((~keep).sum())
+        without = [f"{dropped} outlying camera-frame" + "s" * (dropped != 1)] if dropped else []
+        without += [f"{point_drops} point observation" + "s" * (point_drops != 1)] if point_drops else []
+        tell({"stage": "outliers", "message": f"refining without {' and '.join(without)}" if without
+              else "refining once more on every camera-frame (none is an outlier)"})
         if robust_ba:  # one pass from the full setup: restart it where the robust solve ended
             setup = restarted(r.setup, keep, r.R, r.t, r.wand)
         else:

@@ -8,14 +8,24 @@ import sys
 from pathlib import Path
 
 from wandcal.calib.rig import Rig
+from wandcal.capture.arguments import number, whole
 from wandcal.capture.detect_cli import add_detect_options
 from wandcal.capture.folder import read_rig
 from wandcal.capture.guidance_cli import add_guidance_options, positive_number
 from wandcal.capture.progress import StatusLine, bar
 from wandcal.drivers.camera import CameraDriver
 from wandcal.drivers.errors import DriverError
+from wandcal.drivers.trigger_protocol import MAX_RATE_HZ, MIN_RATE_HZ
 
 DEFAULT_WAND_LENGTH_M = 0.5
+# Bounds of the numeric options (exit 2 outside them): the service's own limits for a live capture
+# (service/schemas.py), a wand no lab builds, a sensor taller than any camera's, the trigger's clock.
+MAX_FRAMES = 10_000_000
+MAX_STATIC_FRAMES = 100_000
+MAX_WAND_LENGTH_M = 10.0
+MAX_IMAGE_HEIGHT = 65_535
+MAX_WORKERS = 256
+MAX_DEVICE_US = 2**32 - 1  # the trigger's microsecond counter is 32 bits and wraps
 
 
 def register(subparsers) -> None:
@@ -27,13 +37,18 @@ def register(subparsers) -> None:
                    help="camera URL (repeat): v4l2:///dev/video0, opencv:0, replay:///path, sim://?cameras=4")
     p.add_argument("--trigger", default="none", metavar="URL",
                    help="strobe trigger: serial:///dev/ttyACM0, a device path, or 'none' (default)")
-    p.add_argument("--frames", type=_count(1), required=True, help="wand frame sets to record")
-    p.add_argument("--static-frames", type=_count(0), default=0, metavar="K",
-                   help="first record K frame sets of the static object (L-frame) alone")
-    p.add_argument("--rate", type=float, default=100.0, help="trigger / frame rate in Hz (default 100)")
+    p.add_argument("--frames", type=whole(1, MAX_FRAMES), required=True, metavar="N",
+                   help=f"wand frame sets to record, 1 to {MAX_FRAMES}")
+    p.add_argument("--static-frames", type=whole(0, MAX_STATIC_FRAMES), default=0, metavar="K",
+                   help=f"first record K frame sets of the static object (L-frame) alone, up to {MAX_STATIC_FRAMES} "
+                        "(default 0)")
+    p.add_argument("--rate", type=number(MIN_RATE_HZ, MAX_RATE_HZ), default=100.0, metavar="HZ",
+                   help=f"trigger / frame rate in Hz, {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} (default 100)")
     p.add_argument("--rig", type=Path, help="rig.json with the cameras' intrinsics (simulated and replayed "
                    "cameras bring their own)")
-    p.add_argument("--wand-length", type=float, default=None, help="wand marker distance in metres")
+    p.add_argument("--wand-length", type=number(0, MAX_WAND_LENGTH_M, low_open=True), default=None, metavar="M",
+                   help="wand marker distance in metres, for cameras that do not bring a rig.json (default "
+                        f"{DEFAULT_WAND_LENGTH_M:g})")
     p.add_argument("--out", type=Path, required=True, help="new capture folder")
     p.add_argument("--images", type=_image_policy, default="all", metavar="WHICH",
                    help="images written beside the centroids: all (default), none, static (the static recording "
@@ -42,6 +57,7 @@ def register(subparsers) -> None:
                    help="do not solve the wanding guidance while recording")
     p.add_argument("--stop-when-enough", action="store_true",
                    help="end the wand run, keeping it, as soon as the guidance says enough")
+    p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
     add_guidance_options(p)
     add_detect_options(p, live=True)
     p.set_defaults(run=run_capture)
@@ -49,8 +65,9 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("detect", help="detect blobs in an image-level capture and write wand.csv",
                               description="Run blob detection over frames/ and static/ of a capture folder.")
     p.add_argument("capture", type=Path, help="image-level capture folder")
-    p.add_argument("--workers", type=_count(1), default=None,
-                   help="threads that decode and detect images (default: every core)")
+    p.add_argument("--workers", type=whole(1, MAX_WORKERS), default=None, metavar="N",
+                   help=f"threads that decode and detect images, 1 to {MAX_WORKERS} (default: every core)")
+    p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
     add_detect_options(p)
     p.set_defaults(run=run_detect)
 
@@ -58,9 +75,10 @@ def register(subparsers) -> None:
 
     p = subparsers.add_parser("trigger-emulator", help="emulate the strobe trigger on a pseudo-terminal",
                               description="Speak wandcal-trigger/1 on a new pseudo-terminal; prints its path.")
-    p.add_argument("--vanish-after", type=int, default=None, metavar="N",
-                   help="close the terminal after N pulses, as if the board were unplugged")
-    p.add_argument("--start-us", type=int, default=0, help="device clock at start (near 4294967295 tests the wrap)")
+    p.add_argument("--vanish-after", type=whole(0), default=None, metavar="N",
+                   help="close the terminal after N pulses, as if the board were unplugged (default: never)")
+    p.add_argument("--start-us", type=whole(0, MAX_DEVICE_US), default=0, metavar="US",
+                   help=f"device clock at start, 0 to {MAX_DEVICE_US} (near the top tests the wrap; default 0)")
     p.set_defaults(run=run_emulator)
 
 
@@ -122,7 +140,7 @@ def _live_detectors(args, rig: Rig, config):
 
 
 def _common(p) -> None:
-    p.add_argument("--height", type=_count(1), metavar="H",
+    p.add_argument("--height", type=whole(1, MAX_IMAGE_HEIGHT), metavar="H",
                    help="image height in pixels of every camera, when the session's is wrong")
     p.add_argument("--out", type=Path, required=True, help="new capture folder")
 
@@ -175,19 +193,6 @@ def _write_import(imported, out: Path) -> int:
     return 0
 
 
-def _count(low: int):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-        if value < low:
-            raise argparse.ArgumentTypeError(f"must be at least {low}, got {value}")
-        return value
-
-    return parse
-
-
 def run_emulator(args) -> int:
     from wandcal.drivers.trigger_emulator import serve_pty
 
@@ -199,7 +204,7 @@ def run_detect(args) -> int:
     from wandcal.capture.images import detect_capture
 
     config = config_from_args(args)
-    status = StatusLine()
+    status = StatusLine(quiet=args.quiet)
     reports = detect_capture(args.capture, config, workers=args.workers,
                              progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
                              mask=mask_from_args(args), empty=args.background.folder)
@@ -232,7 +237,7 @@ def run_capture(args) -> int:
     rig = _rig(args, cameras)
     detect = _live_detectors(args, rig, config)
     trigger = open_trigger(args.trigger)
-    status = StatusLine()
+    status = StatusLine(quiet=args.quiet)
     guidance = LiveGuidance(rig, settings_from(args)) if args.guidance and rig.wand_length is not None else None
     told = [None]  # the advice last printed: a new first item gets its own line
 
@@ -266,7 +271,8 @@ def run_capture(args) -> int:
     status.done(f"recorded {result.frame_sets} wand sets and {result.static_sets} static sets into {result.folder}; "
                 f"{result.complete_sets} of {total} have every camera's frame")
     for cid, s in result.per_camera.items():
-        print(f"{cid}: {s['delivered']} frames, {s['missed']} missed, {s['unreadable']} unreadable"
+        print(f"{cid}: {s['delivered']} frame{'s' * (s['delivered'] != 1)}, {s['missed']} missed, "
+              f"{s['unreadable']} unreadable"
               + (f", clock drift {s['clock_drift_ppm']:+.1f} ppm" if s["clock_drift_ppm"] is not None else ""))
     if final is not None:
         print("guidance on the recorded wand sets:")

@@ -8,11 +8,14 @@ recording and masks come from (docs/capture-format.md, "Detection inputs").
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from wandcal.calib.detect.config import CLUTTER_MIN_ROUNDNESS, DEFAULT_CONFIG, MARKER_MIN_ROUNDNESS, DetectConfig
 from wandcal.calib.errors import CalibrationError
+
+MAX_GREY = 65_535  # the brightest level of a 16-bit frame: a threshold above it finds nothing
 
 
 @dataclass(frozen=True)
@@ -55,8 +58,8 @@ def _threshold(text: str) -> int | None:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: give a whole grey level >= 0, or 'auto'") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: give a whole grey level >= 0, or 'auto'")
+    if not 0 <= value <= MAX_GREY:
+        raise argparse.ArgumentTypeError(f"{text!r}: give a whole grey level from 0 to {MAX_GREY}, or 'auto'")
     return value
 
 
@@ -72,7 +75,7 @@ def _number(low: float, high: float = float("inf"), whole: bool = False):
             value = int(text) if whole else float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not a {'whole ' if whole else ''}number") from None
-        if not low <= value <= high:
+        if not (low <= value <= high and math.isfinite(value)):
             raise argparse.ArgumentTypeError(f"must lie between {low:g} and {high:g}, got {text}")
         return value
 

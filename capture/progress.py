@@ -1,5 +1,5 @@
-"""A one-line status display on stderr: rewritten in place on a terminal, printed every few
-seconds otherwise (logs, CI)."""
+"""A one-line status display on stderr: rewritten in place on a terminal; elsewhere (logs, CI) and
+with ``quiet`` only the final line (:meth:`StatusLine.done`, the command's summary) is printed."""
 
 from __future__ import annotations
 
@@ -8,20 +8,19 @@ import time
 from typing import TextIO
 
 TTY_INTERVAL_S = 0.2  # five updates a second read smoothly without flooding the terminal
-LOG_INTERVAL_S = 5.0  # a log file gets a line every few seconds
 
 
 class StatusLine:
-    def __init__(self, stream: TextIO | None = None, clock=time.monotonic):
+    def __init__(self, stream: TextIO | None = None, clock=time.monotonic, quiet: bool = False):
         self.stream = stream or sys.stderr
         self.clock = clock
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)()) and not quiet
         self._last = -1e9
         self._width = 0
 
     def update(self, text: str, force: bool = False) -> None:
         now = self.clock()
-        if not force and now - self._last < (TTY_INTERVAL_S if self.tty else LOG_INTERVAL_S):
+        if not force and (not self.tty or now - self._last < TTY_INTERVAL_S):
             return
         self._last = now
         if self.tty:

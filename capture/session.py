@@ -178,6 +178,12 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
     if ids != rig.ids:
         raise DriverError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give one "
                           "--camera per rig camera, in the same order, with matching ids (?id=...)")
+    for cam in cameras:
+        # a simulated camera plays the capture's script (the L-frame for the static sets, then the
+        # wand), as the operator does for a real rig; a count it cannot play stops here
+        script = getattr(cam, "script", None)
+        if script is not None:
+            script(static_frames, frames)
     n = len(cameras)
     # made first: settings that cannot work (an empty-volume model without its recording) stop here
     detectors = detect if isinstance(detect, list) else [CameraDetector(detect, camera=i) for i in ids]

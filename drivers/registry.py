@@ -3,7 +3,7 @@
     v4l2:///dev/video0[?id=cam1&trigger=trigger_mode=1]
     opencv:0 | opencv:/path/video.avi | opencv:/path/frame_%06d.png
     replay:///path/to/capture[?rate=recorded&phase=static]
-    sim://?cameras=4&seed=1&frames=300&drop=cam2:17
+    sim://?cameras=4&seed=1[&frames=300&drop=cam2:17]   (options and their limits: drivers/sim.py)
 
 One URL may stand for several cameras (a replayed capture, a simulated rig), so
 :func:`open_cameras` returns a list.
@@ -18,6 +18,11 @@ from wandcal.drivers.camera import CameraDriver
 from wandcal.drivers.errors import DriverError
 
 SCHEMES = ("v4l2", "opencv", "replay", "sim")
+
+
+class CameraUrlError(DriverError):
+    """A camera URL that names no device or asks for what a driver cannot do (bad input, not a
+    device fault: the command line exits 2 on it)."""
 
 
 def open_cameras(url: str) -> list[CameraDriver]:
@@ -36,7 +41,7 @@ def open_cameras(url: str) -> list[CameraDriver]:
         return list(open_replay(url, path, query))
     if scheme in ("v4l2", "opencv"):
         return [_open_cv(url, scheme, path, query)]
-    raise DriverError(
+    raise CameraUrlError(
         f"unknown camera URL {url!r}: the scheme must be one of {', '.join(s + ':' for s in SCHEMES)} "
         "(e.g. v4l2:///dev/video0, opencv:0, replay:///path/to/capture, sim://?cameras=4)"
     )
@@ -48,7 +53,7 @@ def _open_cv(url: str, scheme: str, path: str, query: dict[str, str]) -> CameraD
     from wandcal.drivers.opencv import OpenCVCamera
 
     if not path:
-        raise DriverError(f"{url}: no device or file; write e.g. v4l2:///dev/video0 or opencv:0")
+        raise CameraUrlError(f"{url}: no device or file; write e.g. v4l2:///dev/video0 or opencv:0")
     if scheme == "v4l2":
         source, api = path, cv2.CAP_V4L2
         default_id = Path(path).name

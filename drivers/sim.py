@@ -1,4 +1,4 @@
-"""Simulated IR cameras: ``sim://?cameras=4&seed=1&frames=300&static=25&drop=cam2:17``.
+"""Simulated IR cameras: ``sim://?cameras=4&seed=1[&frames=300&static=25&drop=cam2:17]``.
 
 The twin of a triggered rig. The scene comes from :mod:`wandcal.calib.sim.simulate` (cameras on a ring, a
 smooth wand path, the L-frame :data:`~wandcal.calib.sim.simulate.L_FRAME_M` on the floor) and each frame is
@@ -6,9 +6,17 @@ drawn with :func:`wandcal.calib.sim.render.render_blobs`. Sequence numbers count
 ``static`` frames show the L-frame alone (the static recording), the next ``frames`` the wand
 (and, with ``lframe=keep``, the L-frame still lying on the floor).
 
-Query options: ``cameras`` (4), ``seed`` (0), ``frames`` (300), ``static`` (0), ``drop`` (lost
-frames, ``cam2:17,cam3:40-45`` by sequence number), ``noise`` (read noise, grey levels; 2),
-``lframe`` (``remove`` or ``keep``), ``bits`` (8 or 16).
+Like a rig with its operator, the scene plays what the capture asks for: a capture of K static
+sets and F wand sets (:func:`wandcal.capture.session.record` calls :meth:`SimCamera.script`)
+shows the L-frame for K frames and then the wand for F. ``frames`` and ``static`` in the URL fix
+the script instead (a run that ends early, for tests of a camera that runs out).
+
+Query options, with their limits (a value outside them is refused, naming the option):
+``cameras`` (4; 2 to :data:`MAX_CAMERAS`), ``seed`` (0; 0 to 2**32 - 1), ``frames`` (what the
+capture asks; 300 outside a capture; 1 to :data:`MAX_WAND_FRAMES`), ``static`` (what the capture
+asks, else 0; 0 to :data:`MAX_STATIC_FRAMES`), ``drop`` (lost frames, ``cam2:17,cam3:40-45`` by
+sequence number, below ``MAX_STATIC_FRAMES + MAX_WAND_FRAMES``), ``noise`` (read noise, grey levels
+of 8 bits; 2; 0 to :data:`MAX_NOISE`), ``lframe`` (``remove`` or ``keep``), ``bits`` (8 or 16).
 """
 
 from __future__ import annotations
@@ -23,9 +31,10 @@ import numpy as np
 from wandcal.calib.geometry import depth, distort_points, project_normalized
 from wandcal.calib.rig import Rig
 from wandcal.calib.sim.render import RENDER_HALF_WIDTH_SIGMAS, render_blobs
-from wandcal.calib.sim.simulate import L_FRAME_M, Truth, simulate_capture
+from wandcal.calib.sim.simulate import L_FRAME_M, Truth, ring_cameras, wand_path
 from wandcal.drivers.camera import CameraDriver, CameraSettings, Frame, TriggerMode
 from wandcal.drivers.errors import DriverError, FrameTimeout
+from wandcal.drivers.registry import CameraUrlError
 
 # A 14 mm retro-reflective marker, the common mocap size: its image radius f * r / z is ~2.5 px
 # at 3 m for f ~ 1100 px. The spot is drawn as a Gaussian of that sigma, clipped to the 1.5-2.5 px
@@ -37,6 +46,16 @@ BACKGROUND_8BIT = 8.0  # a dark IR-filtered background
 DEFAULT_PERIOD_US = 10_000  # the camera clock's frame period without a configured rate: 100 fps
 CLOCK_PPM = 30.0  # crystal tolerance of a camera clock: timestamps drift by up to this much
 NOISE_FRAMES = 4  # precomputed background-noise frames per camera, cycled (noise is 5% of the cost)
+WAND_LENGTH_M = 0.5  # the simulated wand, as wandcal simulate's
+UNSCRIPTED_WAND_FRAMES = 300  # a scene read outside a capture (tests, replay) without frames= in its URL
+# Limits of the URL's options. Each simulated camera keeps NOISE_FRAMES background frames of up to
+# 1280 x 1024 x 2 bytes (10 MB), so 32 cameras hold 340 MB: the largest rig of our benchmarks.
+MAX_CAMERAS = 32
+# An hour of wanding at 100 Hz; the wand path is 48 bytes a frame (17 MB), built at once.
+MAX_WAND_FRAMES = 360_000
+MAX_STATIC_FRAMES = 100_000  # the service's own limit for static_frames
+MAX_SEED = 2**32 - 1
+MAX_NOISE = 1000.0  # grey levels: far past any sensor's read noise, still a finite image
 
 
 @dataclass(eq=False)
@@ -50,12 +69,31 @@ class SimScene:
     keep_lframe: bool = False
     noise: float = 2.0
     bits: int = 8
-    drops: dict[str, set[int]] = field(default_factory=dict)
+    drops: dict[str, list[tuple[int, int]]] = field(default_factory=dict)  # inclusive sequence ranges
     seed: int = 0
+    url: str = "sim://"
+    fixed_static: bool = False  # static= given in the URL: the capture's script does not change it
+    fixed_wand: bool = False  # frames= given in the URL
 
     @property
     def total_frames(self) -> int:
         return self.static_frames + self.wand_frames
+
+    def script(self, static_frames: int, wand_frames: int) -> None:
+        """Play a capture of ``static_frames`` sets of the L-frame, then ``wand_frames`` of the
+        wand: what the operator of a real rig does. Counts the URL fixes stay as they are."""
+        static = self.static_frames if self.fixed_static else static_frames
+        wand = self.wand_frames if self.fixed_wand else wand_frames
+        if static > MAX_STATIC_FRAMES or wand > MAX_WAND_FRAMES:
+            raise CameraUrlError(f"{self.url}: a simulated rig plays at most {MAX_STATIC_FRAMES} static and "
+                                 f"{MAX_WAND_FRAMES} wand frames (an hour at 100 Hz); asked for {static} and {wand}: "
+                                 "ask for fewer --frames / --static-frames")
+        if wand != self.wand_frames:
+            self.truth = _truth(len(self.rig.cameras), self.seed, wand)[1]
+        self.static_frames, self.wand_frames = static, wand
+
+    def dropped(self, camera_id: str, sequence: int) -> bool:
+        return any(lo <= sequence <= hi for lo, hi in self.drops.get(camera_id, ()))
 
     def points(self, sequence: int) -> np.ndarray:
         """(P, 3) marker positions in the world at frame ``sequence``, metres."""
@@ -103,6 +141,10 @@ class SimCamera(CameraDriver):
         self._line: queue.Queue[tuple[int, int]] = queue.Queue()
         self._first_counter: int | None = None
 
+    def script(self, static_frames: int, wand_frames: int) -> None:
+        """The capture about to start: see :meth:`SimScene.script` (shared by the scene's cameras)."""
+        self.scene.script(static_frames, wand_frames)
+
     def trigger_input(self, counter: int, t_us: int) -> None:
         """A pulse on the trigger input: pulse ``counter`` of the strobe box at ``t_us`` (its clock)."""
         self._line.put((counter, t_us))
@@ -132,7 +174,6 @@ class SimCamera(CameraDriver):
                                   f"{name}={want} is not available")
 
     def _read(self, timeout: float | None) -> Frame | None:
-        drops = self.scene.drops.get(self.camera_id, ())
         while True:
             if self._next >= self.scene.total_frames:
                 return None
@@ -141,7 +182,7 @@ class SimCamera(CameraDriver):
             else:
                 seq, stamp = self._next, None
                 self._next += 1
-            if seq not in drops:
+            if not self.scene.dropped(self.camera_id, seq):
                 break  # a dropped frame was exposed but lost in transfer: a gap in the sequence
         if seq >= self.scene.total_frames:
             return None
@@ -198,41 +239,59 @@ class SimCamera(CameraDriver):
             self._sleep(delay)
 
 
-def parse_drops(text: str, camera_ids: list[str], url: str) -> dict[str, set[int]]:
-    """``cam2:17,cam3:40-45`` -> {"cam2": {17}, "cam3": {40, ..., 45}}."""
-    drops: dict[str, set[int]] = {}
+def parse_drops(text: str, camera_ids: list[str], url: str) -> dict[str, list[tuple[int, int]]]:
+    """``cam2:17,cam3:40-45`` -> {"cam2": [(17, 17)], "cam3": [(40, 45)]} (inclusive ranges)."""
+    drops: dict[str, list[tuple[int, int]]] = {}
+    last = MAX_STATIC_FRAMES + MAX_WAND_FRAMES - 1
     for item in filter(None, text.split(",")):
         cid, _, span = item.partition(":")
         if cid not in camera_ids:
-            raise DriverError(f"{url}: drop names camera {cid!r}; the simulated cameras are {', '.join(camera_ids)}")
+            raise CameraUrlError(f"{url}: drop names camera {cid!r}; the simulated cameras are {', '.join(camera_ids)}")
         try:
-            lo, _, hi = span.partition("-")
-            drops.setdefault(cid, set()).update(range(int(lo), int(hi or lo) + 1))
+            lo_text, _, hi_text = span.partition("-")
+            lo, hi = int(lo_text), int(hi_text or lo_text)
         except ValueError:
-            raise DriverError(f"{url}: drop item {item!r} must look like cam2:17 or cam2:40-45") from None
+            raise CameraUrlError(f"{url}: drop item {item!r} must look like cam2:17 or cam2:40-45") from None
+        if not 0 <= lo <= hi <= last:
+            raise CameraUrlError(f"{url}: drop item {item!r} must name frames from 0 to {last}, the first one first")
+        drops.setdefault(cid, []).append((lo, hi))
     return drops
 
 
+def _truth(cameras: int, seed: int, wand_frames: int) -> tuple[Rig, Truth]:
+    """The rig and truth of ``wandcal.calib.sim.simulate.simulate_capture(cameras, wand_frames,
+    seed=seed)`` (the same draws in the same order), without its observations: the rig depends on
+    the seed alone, so a capture of any length sees the same cameras."""
+    rng = np.random.default_rng(seed)
+    cams, R, t = ring_cameras(cameras, rng)
+    wand = wand_path(wand_frames, WAND_LENGTH_M, rng)
+    rig = Rig(cameras=tuple(cams), wand_length=WAND_LENGTH_M, static_markers=L_FRAME_M.copy())
+    return rig, Truth(R=R, t=t, wand=wand)
+
+
 def open_sim(url: str, query: dict[str, str]) -> list[SimCamera]:
-    def number(key: str, default, kind=int, low=0):
+    def number(key: str, default, kind=int, low=0, high=None):
         try:
             value = kind(query.get(key, default))
         except ValueError:
-            raise DriverError(f"{url}: {key}={query[key]!r} is not a number") from None
-        if value < low:
-            raise DriverError(f"{url}: {key} must be at least {low}")
+            raise CameraUrlError(f"{url}: {key}={query[key]!r} is not a number") from None
+        if not low <= value <= (value if high is None else high):  # NaN fails too
+            raise CameraUrlError(f"{url}: {key} must be at least {low}" + (f" and at most {high}" if high else "")
+                                 + f"; got {query[key]}")
         return value
 
-    n = number("cameras", 4, low=2)
-    seed = number("seed", 0)
-    frames = number("frames", 300, low=1)
+    n = number("cameras", 4, low=2, high=MAX_CAMERAS)
+    seed = number("seed", 0, high=MAX_SEED)
+    frames = number("frames", UNSCRIPTED_WAND_FRAMES, low=1, high=MAX_WAND_FRAMES)
+    static = number("static", 0, high=MAX_STATIC_FRAMES)
+    noise = number("noise", 2.0, float, high=MAX_NOISE)
     lframe = query.get("lframe", "remove")
     bits = number("bits", 8)
     if lframe not in ("remove", "keep") or bits not in (8, 16):
-        raise DriverError(f"{url}: lframe must be 'remove' or 'keep' and bits 8 or 16")
-    sim = simulate_capture(cameras=n, frames=frames, noise_px=0.0, static=True, seed=seed, occlusion=0.0)
-    ids = sim.rig.ids
-    scene = SimScene(rig=sim.rig, truth=sim.truth, static_frames=number("static", 0), wand_frames=frames,
-                     keep_lframe=lframe == "keep", noise=number("noise", 2.0, float), bits=bits,
-                     drops=parse_drops(query.get("drop", ""), ids, url), seed=seed)
-    return [SimCamera(cid, url, scene, i) for i, cid in enumerate(ids)]
+        raise CameraUrlError(f"{url}: lframe must be 'remove' or 'keep' and bits 8 or 16")
+    rig, truth = _truth(n, seed, frames)
+    scene = SimScene(rig=rig, truth=truth, static_frames=static, wand_frames=frames,
+                     keep_lframe=lframe == "keep", noise=noise, bits=bits,
+                     drops=parse_drops(query.get("drop", ""), rig.ids, url), seed=seed, url=url,
+                     fixed_static="static" in query, fixed_wand="frames" in query)
+    return [SimCamera(cid, url, scene, i) for i, cid in enumerate(rig.ids)]

@@ -26,6 +26,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="wandcal", description="Capture and calibrate multi-camera motion-capture rigs with a wand."
     )
+    parser.add_argument("--version", action=_Version, nargs=0, help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     command = next((a for a in (argv or []) if not a.startswith("-")), None)
     modules = [m for m, names in COMMAND_MODULES.items() if command in names] or list(COMMAND_MODULES)
@@ -40,6 +41,21 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+class _Version(argparse.Action):
+    """``--version``: the installed distribution's version, looked up only when asked (so the
+    metadata machinery stays out of every other command's start-up)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            text = version("wandcal")
+        except PackageNotFoundError:
+            text = "unknown (not installed; pip install -e .)"
+        print(f"wandcal {text}")
+        parser.exit()
+
+
 def main(argv: list[str] | None = None) -> int:
     from wandcal.calib.errors import CalibrationError
 
@@ -50,8 +66,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wandcal {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
+        from wandcal.drivers.registry import CameraUrlError  # bad input, not a device fault
+
         print(f"wandcal {args.command}: error: {exc}", file=sys.stderr)
-        return 3
+        return 2 if isinstance(exc, CameraUrlError) else 3
     except KeyboardInterrupt:
         print(f"wandcal {args.command}: interrupted", file=sys.stderr)
         return 130

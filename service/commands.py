@@ -18,10 +18,21 @@ from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.solve.reprojection import INTRINSICS
+from wandcal.capture.arguments import MAX_SEED, number, whole
 from wandcal.capture.folder import read_capture, write_capture
 from wandcal.service.progress import ProgressLine
 
 TRUTH_FILE = "truth.json"
+# Bounds of the numeric options (exit 2 outside them). 10,000 paper rounds are ~40 min at 8 x 1500,
+# where the scheme converges in ~170; a day is a time limit no LP step needs.
+MAX_PAPER_ROUNDS = 10_000
+MAX_LP_SECONDS = 86_400.0
+# The simulator holds every observation in memory (~100 bytes a camera-frame): 64 cameras by
+# 100,000 frames is ~0.6 GB, the most a demo should ask of a workstation.
+MAX_SIM_CAMERAS = 64
+MAX_SIM_FRAMES = 100_000
+MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
+RESULT_FILE = "result.json"  # the default method's result; the others get their own (result_path)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,16 +43,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("calibrate", help="calibrate a capture folder and write wandcal-result/1 JSON")
     p.add_argument("capture", type=Path, help="capture folder (points level, or image level: detected first)")
-    p.add_argument("--out", type=Path, help="result file (default: CAPTURE/result.json)")
+    p.add_argument("--out", type=Path, help="result file (default: CAPTURE/result.json for ba, "
+                   "CAPTURE/result-lp.json and CAPTURE/result-paper.json for the others, so that no method's "
+                   "result replaces another's)")
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"refinement method (default {DEFAULT_METHOD})")
-    p.add_argument("--max-rounds", type=int, default=None, help=f"paper: most rotation/LP rounds (default {MAX_ROUNDS})")
-    p.add_argument("--lp-time-limit", type=float, default=None, help="seconds allowed for each LP solve")
+    p.add_argument("--max-rounds", type=whole(1, MAX_PAPER_ROUNDS), default=None, metavar="N",
+                   help=f"paper: most rotation/LP rounds, 1 to {MAX_PAPER_ROUNDS} (default {MAX_ROUNDS})")
+    p.add_argument("--lp-time-limit", type=number(0, MAX_LP_SECONDS, low_open=True), default=None, metavar="S",
+                   help="lp and paper: seconds allowed for each LP solve (default: no limit)")
     p.add_argument("--keep-outliers", action="store_true", help="do not drop gross-outlier camera-frames")
     p.add_argument("--loss", choices=LOSSES, default=DEFAULT_LOSS,
                    help=f"ba: robust loss (default {DEFAULT_LOSS}; 'linear' is plain least squares)")
     p.add_argument("--refine-intrinsics", type=_intrinsics_list, default=(), metavar="LIST",
                    help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
-    p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
                    help="start from this result: with --solve-only, every other camera keeps its pose exactly")
     p.add_argument("--solve-only", type=_id_list, metavar="CAM[,CAM]",
@@ -55,22 +70,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("result", type=Path, help="wandcal-result/1 file")
     p.add_argument("capture", type=Path, help="a fresh wand capture of the same rig")
     p.add_argument("--json", action="store_true", help='print {"cameras": [{"id", "moved", "rms_px", ...}]}')
+    p.add_argument("--quiet", action="store_true", help="no progress line while an image-level capture is detected")
     p.set_defaults(run=run_check)
 
     p = sub.add_parser("demo", help="simulate a rig, calibrate it and compare with the truth")
     _sim_args(p, cameras=6, frames=800)
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD)
     p.add_argument("--keep", type=Path, help="also keep the simulated capture and result in this folder")
+    p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.set_defaults(run=run_demo)
 
 
 def _sim_args(p: argparse.ArgumentParser, cameras: int, frames: int) -> None:
-    p.add_argument("--cameras", type=_at_least(2), default=cameras)
-    p.add_argument("--frames", type=_at_least(10), default=frames)
-    p.add_argument("--noise", type=float, default=0.3, help="blob noise, pixels (std)")
-    p.add_argument("--outliers", type=float, default=0.0, help="fraction of camera-frames with a gross outlier")
+    p.add_argument("--cameras", type=whole(2, MAX_SIM_CAMERAS), default=cameras, metavar="N",
+                   help=f"cameras on a ring around the volume, 2 to {MAX_SIM_CAMERAS} (default {cameras})")
+    p.add_argument("--frames", type=whole(10, MAX_SIM_FRAMES), default=frames, metavar="N",
+                   help=f"wand frames, 10 to {MAX_SIM_FRAMES} (default {frames})")
+    p.add_argument("--noise", type=number(0, MAX_NOISE_PX), default=0.3, metavar="PX",
+                   help="blob noise, pixels (std; default 0.3)")
+    p.add_argument("--outliers", type=number(0, 1, high_open=True), default=0.0, metavar="SHARE",
+                   help="share of camera-frames with a gross outlier, 0 to below 1 (default 0)")
     p.add_argument("--no-static", action="store_true", help="no L-frame")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=whole(0, MAX_SEED), default=1,
+                   help="random seed: the same seed gives the same rig (default 1)")
 
 
 def _intrinsics_list(text: str) -> tuple[str, ...]:
@@ -88,19 +110,7 @@ def _id_list(text: str) -> tuple[str, ...]:
     return ids
 
 
-def _at_least(n: int):
-    def parse(text: str) -> int:
-        value = int(text)
-        if value < n:
-            raise argparse.ArgumentTypeError(f"must be at least {n}")
-        return value
-
-    return parse
-
-
 def _simulate(args):
-    if args.noise < 0 or not 0 <= args.outliers < 1:
-        raise SystemExit("wandcal: --noise must be >= 0 and --outliers in [0, 1)")
     return simulate_capture(args.cameras, args.frames, args.noise, args.outliers, not args.no_static, args.seed)
 
 
@@ -146,7 +156,11 @@ EXIT_UNJUDGED = 3  # wandcal check: some camera could not be judged, and none wa
 def run_check(args) -> int:
     from wandcal.calib.judge.evaluate import check_cameras
 
-    folder = _points_level(args.capture, ProgressLine(quiet=True))
+    progress = ProgressLine(quiet=args.quiet)
+    try:
+        folder = _points_level(args.capture, progress)
+    finally:
+        progress.close()
     cap = read_capture(folder)
     if cap.wand is None or not len(cap.wand) or cap.rig.wand_length is None:
         raise CalibrationError(f"{args.capture}: has no wand blobs; 'wandcal check' needs a fresh wand capture")
@@ -179,19 +193,31 @@ def run_check(args) -> int:
 
 def run_calibrate(args) -> int:
     progress = ProgressLine(quiet=args.quiet)
-    folder = _points_level(args.capture, progress)
-    cap = read_capture(folder)
-    if args.from_result is not None or args.solve_only:
-        return _run_solve_only(args, cap, progress)
-    options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
-               "loss": args.loss, "refine_intrinsics": args.refine_intrinsics}
-    result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
-                       points=cap.points, axis=cap.axis)
-    progress.close()
+    try:
+        result = _calibrated(args, progress)
+    finally:
+        progress.close()  # the line ends before the summary, or an error, is printed
     return _write_result(args, result.to_json())
 
 
-def _run_solve_only(args, cap, progress) -> int:
+def _calibrated(args, progress):
+    folder = _points_level(args.capture, progress)
+    cap = read_capture(folder)
+    if args.max_rounds is not None and args.method != "paper":
+        raise CalibrationError(f"--max-rounds counts the paper method's rounds; --method {args.method} has none "
+                               "(drop it, or add --method paper)")
+    if args.lp_time_limit is not None and args.method == "ba":
+        raise CalibrationError("--lp-time-limit bounds the LP solves of --method lp and paper; ba solves no LP "
+                               "(drop it, or choose one of those)")
+    if args.from_result is not None or args.solve_only:
+        return _solve_only(args, cap, progress)
+    options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
+               "loss": args.loss, "refine_intrinsics": args.refine_intrinsics}
+    return calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
+                     points=cap.points, axis=cap.axis)
+
+
+def _solve_only(args, cap, progress):
     from wandcal.calib.resolve import solve_only
 
     if args.from_result is None or not args.solve_only:
@@ -203,23 +229,40 @@ def _run_solve_only(args, cap, progress) -> int:
     if cap.wand is None or not len(cap.wand):
         raise CalibrationError(f"{args.capture}: has no wand blobs; --solve-only needs a fresh wand capture")
     options = {"reject_outliers": not args.keep_outliers, "loss": args.loss}
-    result = solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.doc.get("world", {}), entries,
-                        progress=progress, options=options)
-    progress.close()
-    return _write_result(args, result.to_json())
+    return solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.doc.get("world", {}), entries,
+                      progress=progress, options=options)
+
+
+def result_path(capture: Path, method: str) -> Path:
+    """Where ``wandcal calibrate CAPTURE --method METHOD`` writes without ``--out``: ``result.json``
+    for the default method, ``result-METHOD.json`` for the others (a cross-check never replaces
+    the result that report, export and check read by default)."""
+    return capture / (RESULT_FILE if method == DEFAULT_METHOD else f"result-{method}.json")
 
 
 def _write_result(args, doc: dict) -> int:
-    out = args.out or args.capture / "result.json"
+    out = args.out or result_path(args.capture, args.method)
+    replaced = _replaced(out)
     out.write_text(json.dumps(doc, indent=2) + "\n")
     print(format_summary(doc))
-    print(f"wrote {out}")
+    print(f"wrote {out}" + (f" (replacing the earlier {replaced})" if replaced else ""))
     return 0
 
 
 def _number(value, fmt: str, width: int) -> str:
     """A right-aligned figure, or '-' when the result has none (older results, no scale)."""
     return f"{'-' if value is None else format(value, fmt):>{width}}"
+
+
+def _replaced(out: Path) -> str | None:
+    """What an existing ``out`` holds, said when it is replaced: "ba result" or "file"."""
+    if not out.is_file():
+        return None
+    try:
+        method = json.loads(out.read_text()).get("solver", {}).get("method")
+    except (ValueError, OSError, AttributeError):
+        method = None
+    return f"{method} result" if isinstance(method, str) else "file"
 
 
 def format_summary(doc: dict) -> str:
@@ -302,9 +345,11 @@ def run_demo(args) -> int:
         write_capture(folder, sim.rig, sim.wand, sim.static)
         (folder / TRUTH_FILE).write_text(json.dumps(sim.truth.to_json(sim.rig)) + "\n")
         cap = read_capture(folder)
-        progress = ProgressLine()
-        result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress)
-        progress.close()
+        progress = ProgressLine(quiet=args.quiet)
+        try:
+            result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress)
+        finally:
+            progress.close()
         (folder / "result.json").write_text(json.dumps(result.to_json(), indent=2) + "\n")
     print(format_summary(result.to_json()))
     print(truth_table(result, sim))
@@ -320,13 +365,15 @@ def truth_table(result, sim) -> str:
     aligned = np.linalg.norm(s * C @ Ra.T + ta - Ct, axis=1) * 1000
     raw = np.linalg.norm(C - Ct, axis=1) * 1000 if static else None
     rot = np.degrees(rotation_angle(result.R @ Ra.T, sim.truth.R)) * 3600
-    head = f"{'camera':<10} {'centre err (mm)':>16} {'aligned (mm)':>13} {'rotation (arcsec)':>18}"
-    rows = [head]
+    # without a static object the world is the wand volume's own frame: only aligned errors mean anything
+    head = f"{'camera':<10}" + (f" {'centre err (mm)':>16}" if static else "")
+    rows = [head + f" {'aligned (mm)':>13} {'rotation (arcsec)':>18}"]
     for i, cam in enumerate(sim.rig.cameras):
-        rows.append(f"{cam.id:<10} {raw[i] if raw is not None else float('nan'):16.3f} {aligned[i]:13.3f} {rot[i]:18.1f}")
+        raw_col = f" {raw[i]:16.3f}" if raw is not None else ""
+        rows.append(f"{cam.id:<10}{raw_col} {aligned[i]:13.3f} {rot[i]:18.1f}")
     if raw is None:
-        rows.append("(no static object: the world is the wand volume's frame, not the simulator's, so only aligned "
-                    "errors are meaningful)")
+        rows.append("(no static object: the world is the wand volume's frame, not the simulator's, so the errors "
+                    "are after the best similarity alignment)")
     return "\n".join(rows)
 
 

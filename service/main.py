@@ -8,10 +8,11 @@ from __future__ import annotations
 import logging
 import shutil
 import sqlite3
+import time
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import Depends, FastAPI, Request
+from fastapi import Depends, FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
@@ -32,6 +33,9 @@ API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).parent / "static"
 log = logging.getLogger("wandcal.service")
 RETRY_AFTER_S = 5  # a busy database frees in milliseconds, a full disk when someone acts: ask again soon
+# On shutdown a live capture is stopped and given this long to store what it recorded (it stops at
+# its next frame set and registers the folder); past it, the next start recovers the staging folder.
+LIVE_STOP_S = 1.5
 
 
 def _queue(settings: Settings, store: JobStore, capture_store: CaptureStore) -> JobQueue:
@@ -82,6 +86,7 @@ def create_app(settings: Settings) -> FastAPI:
         try:
             yield
         finally:
+            _stop_live_capture(app.state.live_capture)
             queue.stop()
             keeper.close()
 
@@ -149,6 +154,17 @@ def create_app(settings: Settings) -> FastAPI:
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     return app
+
+
+def _stop_live_capture(live: live_capture.LiveCapture, timeout_s: float = LIVE_STOP_S) -> None:
+    """Stop a live capture that is recording or waiting, and wait (briefly) until it has ended."""
+    try:
+        live.stop()
+    except HTTPException:
+        return  # none is running
+    deadline = time.monotonic() + timeout_s
+    while live.status().state in live_capture.BUSY and time.monotonic() < deadline:
+        time.sleep(0.02)
 
 
 def _disk_full(request: Request, exc: BaseException, data_dir: Path) -> JSONResponse:

@@ -6,7 +6,17 @@ import argparse
 import tempfile
 from pathlib import Path
 
+from wandcal.capture.arguments import whole
 from wandcal.service.settings import Settings
+
+# Seconds uvicorn lets open requests finish after Ctrl-C / SIGINT / SIGTERM. The whole stop (this,
+# the live capture's end and the workers', service/main.py and service/worker.py) must fit well in
+# the 5 s a restart may take (issue 21; the systemd unit allows 20 before SIGKILL); requests are
+# short, and a client whose upload is cut sends it again.
+GRACEFUL_SHUTDOWN_S = 1.0
+
+MAX_PORT = 65_535
+MAX_WORKERS = 64  # each solver process holds a capture and its solve: far past what one host can run
 
 NO_TOKEN = (
     "refusing to listen on {host}: a non-loopback address needs a bearer token. Set WANDCAL_TOKEN "
@@ -17,10 +27,11 @@ NO_TOKEN = (
 def register(subparsers) -> None:
     p = subparsers.add_parser("serve", help="run the HTTP API, the job workers and the rig page")
     p.add_argument("--host", help="address to bind (default 127.0.0.1, or 'host' from the settings)")
-    p.add_argument("--port", type=int, help="port (default 8750)")
+    p.add_argument("--port", type=whole(1, MAX_PORT), help="port, 1 to 65535 (default 8750)")
     p.add_argument("--config", type=Path, help="settings TOML file (default $WANDCAL_CONFIG)")
     p.add_argument("--data-dir", type=Path, help="data directory (default $WANDCAL_DATA_DIR or ./wandcal-data)")
-    p.add_argument("--workers", type=int, help="solver processes")
+    p.add_argument("--workers", type=whole(0, MAX_WORKERS), metavar="N",
+                   help=f"solver processes, 0 to {MAX_WORKERS} (0: jobs stay queued; default 1)")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     p.set_defaults(run=run)
 
@@ -46,5 +57,5 @@ def run(args: argparse.Namespace) -> int:
     spool.mkdir(parents=True, exist_ok=True)
     tempfile.tempdir = str(spool)
     app = create_app(settings)
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level, timeout_graceful_shutdown=10)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level, timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S)
     return 0

@@ -131,7 +131,9 @@ class CaptureStore:
     def create_from_replay(self, path: str) -> CaptureRow:
         """Copy the capture folder ``path`` (relative to the replay root) into the store."""
         if self.replay_root is None:
-            raise ReplayPathError("this server has no replay root; set WANDCAL_REPLAY_ROOT or upload the files")
+            raise ReplayPathError("this server has no replay root, so it registers no 'path': start it with "
+                                  "WANDCAL_REPLAY_ROOT=/folder/of/captures (or replay_root in its settings file) "
+                                  "and give a folder under it, or upload the capture's files")
         if "\x00" in path:
             raise ReplayPathError("the replay path contains a NUL byte")
         folder = (self.replay_root / path).resolve()

@@ -3,6 +3,13 @@
 Worker processes are started with the ``spawn`` method (a clean interpreter, no inherited
 locks or sockets) and die with the server (``PR_SET_PDEATHSIG``), so a killed server leaves no
 solver writing behind its back; the restarted server re-queues the job instead.
+
+The pool talks to its workers through a semaphore (wake) and a lock-free shared byte (stop),
+never a ``multiprocessing.Event``: an Event's ``set()`` waits for every process asleep in its
+``wait()`` to acknowledge, so one worker killed while asleep (a cancellation's kill racing the
+job's end) hung every later ``set()``, and with it ``wandcal serve``'s stop (issue 21). Workers
+ignore SIGINT (a terminal's Ctrl-C and the systemd unit's KillSignal reach the whole group): the
+server decides how they stop.
 """
 
 from __future__ import annotations
@@ -30,6 +37,9 @@ PROGRESS_INTERVAL_S = 0.2  # write progress at most this often: the page polls e
 POLL_INTERVAL_S = 0.25  # an idle worker looks for work this often (and at once when woken)
 MONITOR_INTERVAL_S = 0.5  # the pool checks for dead workers and overdue cancellations this often
 CANCEL_GRACE_S = 2.0  # a running job asked to cancel is killed if it has not stopped by then
+# On stop, idle workers leave within one POLL_INTERVAL_S; a worker still busy after this is solving
+# a job, which is killed and queued again (the server's stop must end within a few seconds).
+STOP_GRACE_S = 1.0
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 DISK_FULL_RETRY_S = 1.0  # a full disk frees when someone acts: checking once a second costs nothing
 
@@ -130,8 +140,10 @@ def _die_with_parent() -> None:
 def worker_main(db_path: str, data_dir: str, wake, stop, parent: int | None = None) -> None:
     """Entry point of a spawned worker process: claim and run jobs until told to stop.
 
+    ``wake``: a semaphore released when a job is queued; ``stop``: a shared byte, non-zero to stop.
     ``parent`` is the server's pid, passed in: a server that dies before this process sets
     PR_SET_PDEATHSIG would otherwise leave it polling forever under init (seen in the tests)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _die_with_parent()
     parent = os.getppid() if parent is None else parent
     from wandcal.service.storage import CaptureStore
@@ -139,7 +151,7 @@ def worker_main(db_path: str, data_dir: str, wake, stop, parent: int | None = No
     store = JobStore(Path(db_path))
     captures = CaptureStore(Path(data_dir), Path(db_path), None)
     import wandcal.calib.pipeline  # noqa: F401  (load the solver before the first job, not during it)
-    while not stop.is_set() and os.getppid() == parent:
+    while not stop.value and os.getppid() == parent:
         try:
             claim = store.claim(os.getpid())
         except sqlite3.OperationalError as exc:  # a full disk: claim nothing until there is room
@@ -147,8 +159,7 @@ def worker_main(db_path: str, data_dir: str, wake, stop, parent: int | None = No
                 raise
             claim = None
         if claim is None:
-            if wake.wait(POLL_INTERVAL_S):
-                wake.clear()
+            wake.acquire(timeout=POLL_INTERVAL_S)
             continue
         run_claim(store, captures.load, claim)
 
@@ -161,8 +172,8 @@ class WorkerPool:
         self.data_dir = data_dir
         self.size = size
         self.ctx = multiprocessing.get_context("spawn")
-        self.wake = self.ctx.Event()
-        self.stop_event = self.ctx.Event()
+        self.wake = self.ctx.Semaphore(0)
+        self.stop_event = self.ctx.RawValue("b", 0)  # no lock: one byte written by the pool alone
         self.procs: list = []
         self._monitor: threading.Thread | None = None
         self._halt = threading.Event()
@@ -184,7 +195,8 @@ class WorkerPool:
         self._monitor.start()
 
     def notify(self) -> None:
-        self.wake.set()
+        """A job was queued: wake an idle worker (sem_post never blocks, whoever died)."""
+        self.wake.release()
 
     def _watch(self) -> None:
         while not self._halt.wait(MONITOR_INTERVAL_S):
@@ -205,17 +217,23 @@ class WorkerPool:
                     if proc.pid == pid and proc.is_alive():
                         proc.kill()  # the monitor then records the job as cancelled and respawns
 
-    def stop(self, timeout_s: float = 5.0) -> None:
+    def stop(self, grace_s: float = STOP_GRACE_S) -> None:
+        """Stop the workers: idle ones leave at once, a busy one is given ``grace_s`` and then
+        killed, its job queued again for the next start. Returns within about ``grace_s`` + 1 s."""
         self._halt.set()
-        self.stop_event.set()
-        self.wake.set()
+        self.stop_event.value = 1
+        for _ in self.procs:
+            self.wake.release()
         if self._monitor is not None:
-            self._monitor.join(timeout_s)
+            self._monitor.join(MONITOR_INTERVAL_S * 2)
+        deadline = time.monotonic() + grace_s
         for proc in self.procs:
-            proc.join(timeout_s)
+            proc.join(max(deadline - time.monotonic(), 0.0))
+        for proc in self.procs:
             if proc.is_alive():
                 proc.kill()
-                proc.join()
+        for proc in self.procs:
+            proc.join(1.0)
         pids = [p.pid for p in self.procs]
         if pids:
             self.store.recover("the server stopped while the job was running", pids)

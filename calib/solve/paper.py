@@ -244,6 +244,9 @@ def refine_paper(
     for rounds in range(1, max_rounds + 1):
         R_new = rotation_step(R, t, X, problem, fixed)
         C_old = camera_centers(R_new, t)
+        if progress is not None:  # the LP is most of a round, and the first, cold one takes minutes at 8 x 1500
+            progress({"stage": "refine", "message": f"paper round {rounds}: rotations done, solving the LP"
+                      + (" (from the last round's basis)" if basis is not None else " (cold start: the longest)")})
         t_new, X_new, res = lp_step(R_new, t, X, problem, fixed, up, formulation, time_limit, heights=heights,
                                     basis=basis)
         lp_seconds += res.seconds

@@ -81,7 +81,7 @@ def test_unknown_camera_url_is_refused_before_anything_is_written(tmp_path, caps
     out = tmp_path / "cap"
     code = main(["capture", "--camera", "gopro://cam1", "--frames", "10", "--out", str(out)])
     err = capsys.readouterr().err
-    assert code == 3
+    assert code == 2  # a URL that names no device is bad input (exit 2), not a device fault (3)
     assert "gopro://cam1" in err and "v4l2:, opencv:, replay:, sim:" in err
     assert not out.exists()
 

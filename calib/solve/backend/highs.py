@@ -6,7 +6,11 @@ returns HiGHS's best point, marked ``time_limit``.
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
+import os
+import sys
+import threading
 import time
 from dataclasses import dataclass
 
@@ -15,6 +19,47 @@ import numpy as np
 import scipy.sparse as sp
 
 INF = highspy.kHighsInf
+# HiGHS prints its banner ("Running HiGHS 1.16.0 ... Copyright") to the process's stdout from the
+# first Highs() of a process, before any option can be set; new_highs() hides that one call.
+_banner_lock = threading.Lock()
+_banner_done = False
+
+
+def new_highs() -> highspy.Highs:
+    """A silent ``highspy.Highs``: no banner on stdout, ``output_flag`` off (a command's stdout
+    carries its result, and ``--quiet`` means quiet)."""
+    global _banner_done
+    with _banner_lock:
+        if _banner_done:
+            h = highspy.Highs()
+        else:
+            h = _without_stdout(highspy.Highs)
+            _banner_done = True
+    h.setOptionValue("output_flag", False)
+    return h
+
+
+def _without_stdout(make):
+    """``make()`` with file descriptor 1 pointed at /dev/null: the banner is written by C++ code,
+    past Python's ``sys.stdout``. C's buffer is flushed before fd 1 comes back, or the banner
+    would reach it at exit. Where fd 1 cannot be moved (closed, no libc), ``make()`` as is."""
+    try:
+        libc = ctypes.CDLL(None)
+        sys.stdout.flush()
+        libc.fflush(None)
+        saved = os.dup(1)
+    except (OSError, AttributeError, ValueError):
+        return make()
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        made = make()
+        libc.fflush(None)
+        return made
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,8 +107,7 @@ def solve_lp(
     """
     start = time.perf_counter()
     A = sp.csc_matrix(A)
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
+    h = new_highs()
     h.setOptionValue("solver", solver)
     if time_limit is not None:
         h.setOptionValue("time_limit", float(time_limit))
@@ -136,8 +180,7 @@ class IncrementalLp:
     """
 
     def __init__(self, rhs: np.ndarray, time_limit: float | None = None):
-        self.h = highspy.Highs()
-        self.h.setOptionValue("output_flag", False)
+        self.h = new_highs()
         self.h.setOptionValue("solver", "simplex")
         # presolve finds nothing to remove in these LPs (few dense rows) and took a third of
         # the first solve's time at 16 cameras (0.2 of 0.6 s, HiGHS 1.15)
