@@ -9,7 +9,6 @@ import csv
 import io
 import json
 import math
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -208,17 +207,21 @@ def _frame_table_fast(text: str, rig: Rig, columns: tuple[str, ...]):
     """The table parsed by numpy's C reader, or None when any cell would need a message."""
     if "\0" in text or '"' in text:
         return None
-    first, _, _ = text.partition("\n")
+    first, _, rest = text.partition("\n")
     header = [h.strip() for h in first.split(",")]
     if any(c not in header for c in columns) or len(set(header)) != len(header):
         return None
     frame_c, cam_c, u_c, v_c = (header.index(c) for c in columns)
+    # an empty table makes loadtxt warn; it is checked here instead of turning warnings into
+    # errors, whose filter is process-wide and not thread-safe (the server reads in many threads)
+    if not rest.strip():
+        return None
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")  # an empty table warns: let the row reader say so
-            numbers = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(frame_c, u_c, v_c), ndmin=2)
-            cams = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(cam_c,), dtype=str, ndmin=1)
-    except (ValueError, UserWarning):
+        numbers = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(frame_c, u_c, v_c), ndmin=2)
+        cams = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(cam_c,), dtype=str, ndmin=1)
+    except ValueError:
+        return None
+    if len(numbers) == 0:
         return None
     frame, uv = numbers[:, 0], numbers[:, 1:]
     if not (np.all(np.isfinite(numbers)) and np.all(frame == np.round(frame)) and frame.min() >= 0 and frame.max() <= MAX_FRAME):
