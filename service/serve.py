@@ -33,6 +33,7 @@ def check_bind(settings: Settings) -> None:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from wandcal.service.connections import server_options
     from wandcal.service.main import create_app
 
     overrides = {
@@ -46,5 +47,6 @@ def run(args: argparse.Namespace) -> int:
     spool.mkdir(parents=True, exist_ok=True)
     tempfile.tempdir = str(spool)
     app = create_app(settings)
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level, timeout_graceful_shutdown=10)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level, timeout_graceful_shutdown=10,
+                **server_options(settings))
     return 0
