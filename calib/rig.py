@@ -6,6 +6,7 @@ poses are world->camera, ``x_cam = R @ x_world + t``, in metres.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,6 +16,15 @@ from wandcal.calib.errors import CalibrationError
 PINHOLE = "pinhole"
 FISHEYE = "fisheye"
 DIST_COEFFS = {PINHOLE: 5, FISHEYE: 4}
+# Camera ids are written unquoted into CSV files (wand.csv, sync.csv, blobs.csv), file names and
+# exported formats, and read back by several readers: the safe set has no separator, quote,
+# whitespace or control character, so every writer and reader agrees on what an id is
+# (docs/capture-format.md). 64 characters hold any serial number or "cam_north_upper_left".
+# Spaces inside an id ("Camera 1", as Qualisys and Vicon name them) are safe; at its ends the CSV
+# readers would strip them.
+CAMERA_ID = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9_.:+@# -]{0,62}[A-Za-z0-9_.:+@#-])?")
+CAMERA_ID_RULE = ("1-64 characters: ASCII letters, digits, spaces and _ . - : + @ #, starting with a letter or "
+                  "digit and not ending in a space (no commas, quotes, tabs, line ends or control characters)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,8 +48,10 @@ class Camera:
 
     def __post_init__(self) -> None:
         where = f"camera {self.id!r}"
-        if not isinstance(self.id, str) or not self.id:
-            raise CalibrationError("a camera has an empty or non-string 'id'; give every camera a name")
+        if not isinstance(self.id, str) or not CAMERA_ID.fullmatch(self.id):
+            given = repr(self.id[:80]) if isinstance(self.id, str) else f"{type(self.id).__name__} {str(self.id)[:40]}"
+            raise CalibrationError(f"camera id {given} is not allowed: an id is {CAMERA_ID_RULE}; give every camera "
+                                   "such a name")
         if self.model not in DIST_COEFFS:
             raise CalibrationError(f"{where}: 'model' must be 'pinhole' or 'fisheye', not {self.model!r}")
         K = np.asarray(self.K, dtype=float)

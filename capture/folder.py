@@ -94,7 +94,7 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
         except CaptureFormatError:
             raise
         except CalibrationError as exc:
-            raise CaptureFormatError(f"{source}: {exc}") from None
+            raise CaptureFormatError(f"{where}: {exc}") from None
     wand = doc.get("wand")
     length = wand.get("length_m") if isinstance(wand, dict) else None
     if wand is not None and not isinstance(wand, dict):
@@ -330,6 +330,15 @@ def write_capture(
         _write_csv(folder / AXIS_FILE, AXIS_COLUMNS, ([str(r), ids[c], *px(uv)] for r, c, uv in zip(axis.role, axis.camera, axis.uv)))
 
 
+def csv_records(data: bytes) -> list[bytes]:
+    """The records of a CSV file as wandcal writes them (every writer: :func:`write_capture`, the
+    stream's appends, the recorder): each ends in ``\n`` (``\r\n`` from the csv module), and no
+    cell holds a line end, as camera ids cannot (wandcal.calib.rig.CAMERA_ID). A last piece
+    without its ``\n`` was cut by a crash and is not a record. Crash recovery counts with this."""
+    pieces = data.split(b"\n")
+    return [p + b"\n" for p in pieces[:-1]]
+
+
 def _write_csv(path: Path, columns: tuple[str, ...], rows) -> None:
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
@@ -353,7 +362,9 @@ def _rows(text: str, columns: tuple[str, ...], source: str) -> list[tuple[int, d
     if "\0" in text:
         raise CaptureFormatError(f"{source}: holds binary data (NUL bytes), not CSV text; the header must be "
                                  f"{','.join(columns)}")
-    reader = csv.DictReader(text.splitlines())
+    # newline="": the csv module itself finds each record's end, as it does when writing; str.splitlines
+    # would also split at \x1c-\x1e, \x85 and \u2028, inside a cell
+    reader = csv.DictReader(io.StringIO(text, newline=""))
     try:
         return _dict_rows(reader, columns, source)
     except csv.Error as exc:  # a field past the csv module's size limit, a quote left open
