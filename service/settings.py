@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
 from wandcal.calib.detect.config import DEFAULT_CONFIG as DETECT
@@ -44,6 +44,10 @@ DEFAULT_KEEP_ALIVE_S = 5  # uvicorn's own default: the page polls once a second,
 # page, a few scripts and tools, 16 streaming clients); when full, the connection waiting longest
 # for a header is closed to make room.
 DEFAULT_MAX_CONNECTIONS = 512
+
+
+class SettingsError(CalibrationError):
+    """A setting with a wrong value: the command exits 2 naming it, not with a traceback."""
 
 
 class GuidanceConfig(BaseModel):
@@ -137,6 +141,10 @@ class Settings(BaseSettings):
         _TOML.file = Path(path) if path else None
         try:
             return cls(**overrides)
+        except ValidationError as exc:  # a wrong value in the file, the environment or an option: name it
+            where = f"settings ({path or 'WANDCAL_* environment variables and options'})"
+            problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+            raise SettingsError(f"{where}: {problems}; see deploy/wandcal.toml for every setting") from None
         finally:
             _TOML.file = None
 
