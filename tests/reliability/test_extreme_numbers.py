@@ -36,7 +36,7 @@ def _edits(doc: dict):
         for k in range(len(cam["dist"])):
             yield "dist", ("cameras", c, "dist", k)
     yield "wand.length_m", ("wand", "length_m")
-    for m, marker in enumerate(doc.get("static_object", {}).get("markers_m", [])):
+    for m in range(len(doc.get("static_object", {}).get("markers_m", []))):
         for a in range(3):
             yield "markers_m", ("static_object", "markers_m", m, a)
 
