@@ -80,10 +80,10 @@ class Camera:
         if not (K[0, 0] <= MAX_FOCAL_PX and K[1, 1] <= MAX_FOCAL_PX):
             raise CalibrationError(f"{where}: 'K' focal lengths {K[0, 0]:.4g}, {K[1, 1]:.4g} px are past {MAX_FOCAL_PX:g} px"
                                    "; give the focal length in pixels (focal length / pixel pitch)")
-        if not (-w <= K[0, 2] <= 2 * w and -h <= K[1, 2] <= 2 * h) or abs(K[0, 1]) > K[0, 0]:
+        if np.abs(K[:2, 1:]).max() > MAX_FOCAL_PX:  # principal point and skew, each bounded as a focal length is
             raise CalibrationError(f"{where}: 'K' principal point ({K[0, 2]:.4g}, {K[1, 2]:.4g}) px or skew {K[0, 1]:.4g} "
-                                   f"is implausible for a {w} x {h} image; the principal point lies near the "
-                                   "image's centre, in pixels from its top-left")
+                                   f"is past {MAX_FOCAL_PX:g} px for a {w} x {h} image; the principal point lies near "
+                                   "the image's centre, in pixels from its top-left")
         if np.abs(dist).max(initial=0.0) > MAX_DIST_COEFF:
             raise CalibrationError(f"{where}: 'dist' holds {np.abs(dist).max():.4g}, past {MAX_DIST_COEFF:g}; give the "
                                    "OpenCV distortion coefficients of the lens")

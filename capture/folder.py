@@ -302,7 +302,30 @@ def read_capture(folder: str | Path) -> Capture:
         )
     axis_path = folder / AXIS_FILE
     axis = parse_axis_csv(_read_text(axis_path), rig, str(axis_path)) if axis_path.is_file() else None
+    if static is not None and axis is not None and len(static.camera) and len(axis.camera):
+        raise CaptureFormatError(
+            f"{axis_path}: the world frame is set by {STATIC_FILE} (the static object) and by {AXIS_FILE} (axis "
+            f"points) in this capture; keep one of them (the other would be ignored)"
+        )
     return Capture(rig=rig, wand=wand, static=static, points=points, axis=axis)
+
+
+def check_capture(capture: Capture, source: str) -> None:
+    """Refuse (naming ``source``) a capture that :func:`read_capture` would refuse once written,
+    so that an import never writes a capture that ``wandcal calibrate`` then refuses: it is
+    written to a temporary folder and read back by the one reader."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="wandcal-check-") as tmp:
+        save_capture(tmp, capture)
+        try:
+            back = read_capture(tmp)
+        except CaptureFormatError as exc:
+            raise CaptureFormatError(str(exc).replace(tmp + "/", f"{source}: the capture's ").replace(tmp, source)
+                                     + "; nothing was written") from None
+    if len(back.wand) != len(capture.wand):
+        raise CaptureFormatError(f"{source}: {len(capture.wand)} wand rows would read back as {len(back.wand)}; "
+                                 "nothing was written")
 
 
 def write_capture(
@@ -352,10 +375,16 @@ def save_capture(folder: str | Path, capture: Capture) -> None:
 
 
 def _read_text(path: Path) -> str:
+    return decode_text(path.read_bytes(), str(path))
+
+
+def decode_text(data: bytes, source: str) -> str:
+    """A CSV file's bytes as text: UTF-8, with or without a byte-order mark (spreadsheets write
+    one). The one decoder of every capture CSV, read from a folder (the CLI, replay) or uploaded."""
     try:
-        return path.read_text()
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError:
-        raise CaptureFormatError(f"{path}: not a text file (it does not decode as UTF-8); give a CSV file") from None
+        raise CaptureFormatError(f"{source}: not a text file (it does not decode as UTF-8); give a CSV file") from None
 
 
 def _rows(text: str, columns: tuple[str, ...], source: str) -> list[tuple[int, dict]]:
