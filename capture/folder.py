@@ -39,6 +39,10 @@ AXIS_COLUMNS = ("role", "camera", "u", "v")
 
 MAX_FRAME = 2**53  # frame numbers beyond this lose precision wherever they become floats (JSON, plots)
 MAX_IMAGE_SIDE_PX = 1 << 20  # no sensor is a million pixels wide: a larger width or height is a typo
+# The largest capture CSV read (wand.csv, static.csv, points.csv, axis.csv), checked before reading:
+# the server's upload limit, ~2 million rows (8 cameras waving at 100 fps for 20 minutes, ten times
+# a thorough wanding). Reading and calibrating take a bounded multiple of it (docs/reliability.md).
+MAX_CSV_BYTES = 64 * 1024 * 1024
 
 
 class CaptureFormatError(CalibrationError):
@@ -216,11 +220,17 @@ def _frame_table_fast(text: str, rig: Rig, columns: tuple[str, ...]):
     # errors, whose filter is process-wide and not thread-safe (the server reads in many threads)
     if not rest.strip():
         return None
+    # from bytes, not io.StringIO: a StringIO holds its text as 4 bytes a character, which made
+    # reading a 64 MB wand.csv peak at 8 times its size (bench/bench_memory.py)
+    raw = text.encode()
     try:
-        numbers = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(frame_c, u_c, v_c), ndmin=2)
-        cams = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(cam_c,), dtype=str, ndmin=1)
+        numbers = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(frame_c, u_c, v_c), ndmin=2,
+                             encoding="utf-8")
+        cams = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(cam_c,), dtype=str, ndmin=1,
+                          encoding="utf-8")
     except ValueError:
         return None
+    del raw
     if len(numbers) == 0:
         return None
     frame, uv = numbers[:, 0], numbers[:, 1:]
@@ -375,6 +385,11 @@ def save_capture(folder: str | Path, capture: Capture) -> None:
 
 
 def _read_text(path: Path) -> str:
+    size = path.stat().st_size
+    if size > MAX_CSV_BYTES:
+        raise CaptureFormatError(f"{path}: {size} bytes, more than the {MAX_CSV_BYTES} a capture file may hold "
+                                 "(about 2 million rows); split the recording into shorter captures, or keep every "
+                                 "n-th frame")
     return decode_text(path.read_bytes(), str(path))
 
 
