@@ -9,7 +9,6 @@ import time
 
 from fastapi import HTTPException
 
-
 # A JSON body is parsed whole into Python objects (about 10-20 bytes of memory per byte of JSON,
 # docs/reliability.md), so JSON routes get a limit of their own, far below the uploads': 5,000
 # blob sets of 8 cameras with two blobs each are ~1.5 MB; 8 MiB leaves room for more blobs.
