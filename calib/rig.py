@@ -6,6 +6,7 @@ poses are world->camera, ``x_cam = R @ x_world + t``, in metres.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,6 +16,24 @@ from wandcal.calib.errors import CalibrationError
 PINHOLE = "pinhole"
 FISHEYE = "fisheye"
 DIST_COEFFS = {PINHOLE: 5, FISHEYE: 4}
+# Camera ids are written unquoted into CSV files (wand.csv, sync.csv, blobs.csv), file names and
+# exported formats, and read back by several readers: the safe set has no separator, quote,
+# whitespace or control character, so every writer and reader agrees on what an id is
+# (docs/capture-format.md). 64 characters hold any serial number or "cam_north_upper_left".
+# Physical plausibility where a rig enters (rig.json, imports, results): values past these are
+# typos or damage, and reached the linear algebra as LinAlgError or overflow (1e308 intrinsics).
+MAX_FOCAL_PX = 1e6  # a 1000 mm lens on 1 um pixels; mocap and machine-vision lenses are 300-20,000 px
+MAX_DIST_COEFF = 1e3  # OpenCV fits of strong lenses give |k3| in the tens; thousands is no lens
+MAX_WORLD_M = 1e4  # static-object coordinates and wand lengths: a rig's volume is metres, not kilometres
+MIN_MARKER_SEPARATION_M = 1e-3  # markers are balls of 3 mm and more: two closer than 1 mm are one marker
+MIN_MARKER_SPREAD_M = 1e-3  # the static object's markers must span a plane (an L-frame's arms are decimetres)
+MIN_WAND_M = 1e-3  # a wand shorter than a marker ball's diameter cannot be seen as two blobs
+
+# Spaces inside an id ("Camera 1", as Qualisys and Vicon name them) are safe; at its ends the CSV
+# readers would strip them.
+CAMERA_ID = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9_.:+@# -]{0,62}[A-Za-z0-9_.:+@#-])?")
+CAMERA_ID_RULE = ("1-64 characters: ASCII letters, digits, spaces and _ . - : + @ #, starting with a letter or "
+                  "digit and not ending in a space (no commas, quotes, tabs, line ends or control characters)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,8 +57,10 @@ class Camera:
 
     def __post_init__(self) -> None:
         where = f"camera {self.id!r}"
-        if not isinstance(self.id, str) or not self.id:
-            raise CalibrationError("a camera has an empty or non-string 'id'; give every camera a name")
+        if not isinstance(self.id, str) or not CAMERA_ID.fullmatch(self.id):
+            given = repr(self.id[:80]) if isinstance(self.id, str) else f"{type(self.id).__name__} {str(self.id)[:40]}"
+            raise CalibrationError(f"camera id {given} is not allowed: an id is {CAMERA_ID_RULE}; give every camera "
+                                   "such a name")
         if self.model not in DIST_COEFFS:
             raise CalibrationError(f"{where}: 'model' must be 'pinhole' or 'fisheye', not {self.model!r}")
         K = np.asarray(self.K, dtype=float)
@@ -55,6 +76,17 @@ class Camera:
             )
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise CalibrationError(f"{where}: 'width' and 'height' must be positive pixel counts")
+        w, h = int(self.width), int(self.height)
+        if not (K[0, 0] <= MAX_FOCAL_PX and K[1, 1] <= MAX_FOCAL_PX):
+            raise CalibrationError(f"{where}: 'K' focal lengths {K[0, 0]:.4g}, {K[1, 1]:.4g} px are past {MAX_FOCAL_PX:g} px"
+                                   "; give the focal length in pixels (focal length / pixel pitch)")
+        if np.abs(K[:2, 1:]).max() > MAX_FOCAL_PX:  # principal point and skew, each bounded as a focal length is
+            raise CalibrationError(f"{where}: 'K' principal point ({K[0, 2]:.4g}, {K[1, 2]:.4g}) px or skew {K[0, 1]:.4g} "
+                                   f"is past {MAX_FOCAL_PX:g} px for a {w} x {h} image; the principal point lies near "
+                                   "the image's centre, in pixels from its top-left")
+        if np.abs(dist).max(initial=0.0) > MAX_DIST_COEFF:
+            raise CalibrationError(f"{where}: 'dist' holds {np.abs(dist).max():.4g}, past {MAX_DIST_COEFF:g}; give the "
+                                   "OpenCV distortion coefficients of the lens")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist)
         object.__setattr__(self, "width", int(self.width))
@@ -95,6 +127,9 @@ class Rig:
             length = float(self.wand_length)
             if not np.isfinite(length) or length <= 0:
                 raise CalibrationError(f"wand.length_m must be a positive length in metres, got {self.wand_length!r}")
+            if not MIN_WAND_M <= length <= MAX_WORLD_M:
+                raise CalibrationError(f"wand.length_m {length:.4g} is not a wand's length; give the distance between "
+                                       f"its two marker centres in metres ({MIN_WAND_M:g} to {MAX_WORLD_M:g})")
             object.__setattr__(self, "wand_length", length)
         object.__setattr__(self, "cameras", tuple(self.cameras))
         if self.static_markers is not None:
@@ -103,6 +138,7 @@ class Rig:
                 raise CalibrationError(
                     "static_object.markers_m must be a list of at least 4 finite [x, y, z] points in metres"
                 )
+            _check_static_markers(markers)
             object.__setattr__(self, "static_markers", markers)
 
     @property
@@ -116,6 +152,27 @@ class Rig:
             raise CalibrationError(
                 f"unknown camera id {camera_id!r}; rig.json lists {', '.join(self.ids)}"
             ) from None
+
+
+def _check_static_markers(markers: np.ndarray) -> None:
+    """The static object's markers (M, 3), metres: within the world's size, distinct, spanning a
+    plane; each failure names static_object.markers_m and the markers."""
+    where = "static_object.markers_m"
+    if np.abs(markers).max() > MAX_WORLD_M:
+        raise CalibrationError(f"{where}: a coordinate of {np.abs(markers).max():.4g} m is past {MAX_WORLD_M:g} m; give "
+                               "the markers' positions in metres in the object's own frame")
+    gaps = np.where(np.eye(len(markers), dtype=bool), np.inf, np.linalg.norm(markers[:, None] - markers[None], axis=-1))
+    i, j = np.unravel_index(np.argmin(gaps), gaps.shape)
+    if gaps[i, j] < MIN_MARKER_SEPARATION_M:
+        raise CalibrationError(f"{where}: markers {min(i, j)} and {max(i, j)} are {gaps[i, j] * 1000:.3g} mm apart, "
+                               "so they are one marker; give each marker's own position")
+    try:
+        spread = np.linalg.svd(markers - markers.mean(axis=0), compute_uv=False)
+    except np.linalg.LinAlgError:
+        spread = np.zeros(3)
+    if spread[1] / np.sqrt(len(markers)) < MIN_MARKER_SPREAD_M:
+        raise CalibrationError(f"{where}: the markers lie on one line, which fixes no orientation; give an object "
+                               "whose markers span a plane (an L-frame)")
 
 
 @dataclass(frozen=True, eq=False)

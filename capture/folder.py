@@ -9,7 +9,6 @@ import csv
 import io
 import json
 import math
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +39,10 @@ AXIS_COLUMNS = ("role", "camera", "u", "v")
 
 MAX_FRAME = 2**53  # frame numbers beyond this lose precision wherever they become floats (JSON, plots)
 MAX_IMAGE_SIDE_PX = 1 << 20  # no sensor is a million pixels wide: a larger width or height is a typo
+# The largest capture CSV read (wand.csv, static.csv, points.csv, axis.csv), checked before reading:
+# the server's upload limit, ~2 million rows (8 cameras waving at 100 fps for 20 minutes, ten times
+# a thorough wanding). Reading and calibrating take a bounded multiple of it (docs/reliability.md).
+MAX_CSV_BYTES = 64 * 1024 * 1024
 
 
 class CaptureFormatError(CalibrationError):
@@ -95,7 +98,7 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
         except CaptureFormatError:
             raise
         except CalibrationError as exc:
-            raise CaptureFormatError(f"{source}: {exc}") from None
+            raise CaptureFormatError(f"{where}: {exc}") from None
     wand = doc.get("wand")
     length = wand.get("length_m") if isinstance(wand, dict) else None
     if wand is not None and not isinstance(wand, dict):
@@ -208,17 +211,27 @@ def _frame_table_fast(text: str, rig: Rig, columns: tuple[str, ...]):
     """The table parsed by numpy's C reader, or None when any cell would need a message."""
     if "\0" in text or '"' in text:
         return None
-    first, _, _ = text.partition("\n")
+    first, _, rest = text.partition("\n")
     header = [h.strip() for h in first.split(",")]
     if any(c not in header for c in columns) or len(set(header)) != len(header):
         return None
     frame_c, cam_c, u_c, v_c = (header.index(c) for c in columns)
+    # an empty table makes loadtxt warn; it is checked here instead of turning warnings into
+    # errors, whose filter is process-wide and not thread-safe (the server reads in many threads)
+    if not rest.strip():
+        return None
+    # from bytes, not io.StringIO: a StringIO holds its text as 4 bytes a character, which made
+    # reading a 64 MB wand.csv peak at 8 times its size (bench/bench_memory.py)
+    raw = text.encode()
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")  # an empty table warns: let the row reader say so
-            numbers = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(frame_c, u_c, v_c), ndmin=2)
-            cams = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=(cam_c,), dtype=str, ndmin=1)
-    except (ValueError, UserWarning):
+        numbers = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(frame_c, u_c, v_c), ndmin=2,
+                             encoding="utf-8")
+        cams = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(cam_c,), dtype=str, ndmin=1,
+                          encoding="utf-8")
+    except ValueError:
+        return None
+    del raw
+    if len(numbers) == 0:
         return None
     frame, uv = numbers[:, 0], numbers[:, 1:]
     if not (np.all(np.isfinite(numbers)) and np.all(frame == np.round(frame)) and frame.min() >= 0 and frame.max() <= MAX_FRAME):
@@ -299,7 +312,30 @@ def read_capture(folder: str | Path) -> Capture:
         )
     axis_path = folder / AXIS_FILE
     axis = parse_axis_csv(_read_text(axis_path), rig, str(axis_path)) if axis_path.is_file() else None
+    if static is not None and axis is not None and len(static.camera) and len(axis.camera):
+        raise CaptureFormatError(
+            f"{axis_path}: the world frame is set by {STATIC_FILE} (the static object) and by {AXIS_FILE} (axis "
+            f"points) in this capture; keep one of them (the other would be ignored)"
+        )
     return Capture(rig=rig, wand=wand, static=static, points=points, axis=axis)
+
+
+def check_capture(capture: Capture, source: str) -> None:
+    """Refuse (naming ``source``) a capture that :func:`read_capture` would refuse once written,
+    so that an import never writes a capture that ``wandcal calibrate`` then refuses: it is
+    written to a temporary folder and read back by the one reader."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="wandcal-check-") as tmp:
+        save_capture(tmp, capture)
+        try:
+            back = read_capture(tmp)
+        except CaptureFormatError as exc:
+            raise CaptureFormatError(str(exc).replace(tmp + "/", f"{source}: the capture's ").replace(tmp, source)
+                                     + "; nothing was written") from None
+    if len(back.wand) != len(capture.wand):
+        raise CaptureFormatError(f"{source}: {len(capture.wand)} wand rows would read back as {len(back.wand)}; "
+                                 "nothing was written")
 
 
 def write_capture(
@@ -327,6 +363,15 @@ def write_capture(
         _write_csv(folder / AXIS_FILE, AXIS_COLUMNS, ([str(r), ids[c], *px(uv)] for r, c, uv in zip(axis.role, axis.camera, axis.uv)))
 
 
+def csv_records(data: bytes) -> list[bytes]:
+    """The records of a CSV file as wandcal writes them (every writer: :func:`write_capture`, the
+    stream's appends, the recorder): each ends in ``\n`` (``\r\n`` from the csv module), and no
+    cell holds a line end, as camera ids cannot (wandcal.calib.rig.CAMERA_ID). A last piece
+    without its ``\n`` was cut by a crash and is not a record. Crash recovery counts with this."""
+    pieces = data.split(b"\n")
+    return [p + b"\n" for p in pieces[:-1]]
+
+
 def _write_csv(path: Path, columns: tuple[str, ...], rows) -> None:
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
@@ -340,17 +385,30 @@ def save_capture(folder: str | Path, capture: Capture) -> None:
 
 
 def _read_text(path: Path) -> str:
+    size = path.stat().st_size
+    if size > MAX_CSV_BYTES:
+        raise CaptureFormatError(f"{path}: {size} bytes, more than the {MAX_CSV_BYTES} a capture file may hold "
+                                 "(about 2 million rows); split the recording into shorter captures, or keep every "
+                                 "n-th frame")
+    return decode_text(path.read_bytes(), str(path))
+
+
+def decode_text(data: bytes, source: str) -> str:
+    """A CSV file's bytes as text: UTF-8, with or without a byte-order mark (spreadsheets write
+    one). The one decoder of every capture CSV, read from a folder (the CLI, replay) or uploaded."""
     try:
-        return path.read_text()
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError:
-        raise CaptureFormatError(f"{path}: not a text file (it does not decode as UTF-8); give a CSV file") from None
+        raise CaptureFormatError(f"{source}: not a text file (it does not decode as UTF-8); give a CSV file") from None
 
 
 def _rows(text: str, columns: tuple[str, ...], source: str) -> list[tuple[int, dict]]:
     if "\0" in text:
         raise CaptureFormatError(f"{source}: holds binary data (NUL bytes), not CSV text; the header must be "
                                  f"{','.join(columns)}")
-    reader = csv.DictReader(text.splitlines())
+    # newline="": the csv module itself finds each record's end, as it does when writing; str.splitlines
+    # would also split at \x1c-\x1e, \x85 and \u2028, inside a cell
+    reader = csv.DictReader(io.StringIO(text, newline=""))
     try:
         return _dict_rows(reader, columns, source)
     except csv.Error as exc:  # a field past the csv module's size limit, a quote left open

@@ -15,6 +15,7 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Camera, Rig
 from wandcal.capture.folder import MAX_IMAGE_SIDE_PX, CaptureFormatError, positive_number
+from wandcal.capture.result_schema import CAMERA_FIELDS, RESULT_FIELDS, check_fields
 
 RESULT_FORMAT = "wandcal-result/1"
 ROTATION_TOLERANCE = 1e-6  # |R^T R - I|: a result written by wandcal is orthonormal to ~1e-15
@@ -47,8 +48,24 @@ def read_result(path: str | Path) -> ResultFile:
     return result_from_json(doc, str(path), path)
 
 
-def result_from_json(doc: object, source: str = "result", path: Path | None = None) -> ResultFile:
-    """Check a parsed result document; errors name ``source``, the camera and the field."""
+def result_from_json(doc: object, source: str = "result", path: Path | None = None, rig: Rig | None = None) -> ResultFile:
+    """Check a parsed result document; errors name ``source``, the camera and the field. A camera
+    entry without intrinsics (width, height, K, dist, model) takes them from ``rig``, if given."""
+    cameras, R, t = check_result(doc, source, rig)
+    assert isinstance(doc, dict)
+    wand = doc.get("wand")
+    length = wand.get("length_m") if isinstance(wand, dict) else None
+    try:
+        rig = Rig(cameras, float(length) if length is not None else None)
+    except CalibrationError as exc:
+        raise CaptureFormatError(f"{source}: {exc}") from None
+    return ResultFile(path or Path(source), doc, rig, np.array(R), np.array(t))
+
+
+def check_result(doc: object, source: str = "result", rig: Rig | None = None) -> tuple[list[Camera], list, list]:
+    """The cameras, rotations and translations of a result document, every field its consumers
+    use checked (capture/result_schema.py); raises :class:`CaptureFormatError` naming the field."""
+    by_id = {c.id: c for c in rig.cameras} if rig is not None else {}
     if not isinstance(doc, dict):
         raise CaptureFormatError(f"{source}: the top level must be a JSON object")
     if doc.get("format") != RESULT_FORMAT:
@@ -65,10 +82,16 @@ def result_from_json(doc: object, source: str = "result", path: Path | None = No
         where = f"{source}: camera {entry.get('id', k)!r}"
         if not isinstance(entry.get("model", "pinhole"), str):
             raise CaptureFormatError(f"{where}: 'model' must be \"pinhole\" or \"fisheye\"")
+        known = by_id.get(entry.get("id")) if isinstance(entry.get("id"), str) else None
+        if known is not None:  # a result without intrinsics takes them from the capture's rig
+            entry = {"width": known.width, "height": known.height, "K": known.K.tolist(), "dist": known.dist.tolist(),
+                     "model": known.model} | {key: v for key, v in entry.items() if v is not None}
         try:
             cameras.append(Camera(entry.get("id"), _int(entry, "width", where), _int(entry, "height", where),
                                   _array(entry, "K", (3, 3), where), _array(entry, "dist", None, where),
                                   entry.get("model", "pinhole")))
+        except CaptureFormatError:
+            raise
         except CalibrationError as exc:
             raise CaptureFormatError(f"{source}: {exc}") from None
         Rk = _array(entry, "R", (3, 3), where)
@@ -76,18 +99,16 @@ def result_from_json(doc: object, source: str = "result", path: Path | None = No
             raise CaptureFormatError(f"{where}: 'R' is not a rotation matrix (orthonormal, determinant +1)")
         R.append(Rk)
         t.append(_array(entry, "t", (3,), where))
-    ids = [c.id for c in cameras]
-    if len(set(ids)) != len(ids):
-        raise CaptureFormatError(f"{source}: camera ids must be unique; {ids}")
+        check_fields(entry, CAMERA_FIELDS, f"{where}:")
+    check_fields(doc, RESULT_FIELDS, f"{source}:")
     wand = doc.get("wand")
     length = wand.get("length_m") if isinstance(wand, dict) else None
     if length is not None and not positive_number(length):
         raise CaptureFormatError(f"{source}: 'wand.length_m' must be a positive number of metres")
-    try:
-        rig = Rig(cameras, float(length) if length is not None else None)
-    except CalibrationError as exc:
-        raise CaptureFormatError(f"{source}: {exc}") from None
-    return ResultFile(path or Path(source), doc, rig, np.array(R), np.array(t))
+    ids = [c.id for c in cameras]
+    if len(set(ids)) != len(ids):
+        raise CaptureFormatError(f"{source}: camera ids must be unique; {ids}")
+    return cameras, R, t
 
 
 def _no_constant(name: str):

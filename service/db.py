@@ -8,13 +8,43 @@ from __future__ import annotations
 
 import errno
 import logging
+import os
 import sqlite3
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from wandcal.calib.errors import CalibrationError
+
 log = logging.getLogger("wandcal.service")
+# the folders a server keeps in its data directory (captures, reports, spooled uploads, recordings
+# kept after a failure); each must be a folder, or absent and then made
+DATA_FOLDERS = ("captures", "reports", "tmp", "recovered")
+
+
+class DataDirectoryError(CalibrationError):
+    """A data directory the server cannot start on (a file where a folder belongs, a database
+    path that is a folder, no permission); the message names the path and what to do."""
+
+
+def check_data_dir(data_dir: Path, db_path: Path) -> None:
+    """Refuse, naming the path, a data directory whose layout a start would trip over."""
+    if data_dir.exists() and not data_dir.is_dir():
+        raise DataDirectoryError(f"{data_dir}: the data directory is not a folder; give a folder (WANDCAL_DATA_DIR "
+                                 "or --data-dir), or move this file away")
+    for path in (db_path, *(data_dir / name for name in DATA_FOLDERS)):
+        if path.is_symlink() and not path.exists():
+            raise DataDirectoryError(f"{path}: a link to nothing ({os.readlink(path)}); remove the link and start again")
+    for name in DATA_FOLDERS:
+        folder = data_dir / name
+        if folder.exists() and not folder.is_dir():
+            raise DataDirectoryError(f"{folder}: must be a folder of the data directory, but is a file; move it away "
+                                     "and start again")
+    if db_path.exists() and not db_path.is_file():
+        raise DataDirectoryError(f"{db_path}: the database path is a {'folder' if db_path.is_dir() else 'special file'}"
+                                 ", not a file; move it away (the captures are registered again from their "
+                                 "folders) and start again")
 
 BUSY_TIMEOUT_S = 30.0  # a writer holds the lock for milliseconds; 30 s only trips on a wedged disk
 
@@ -68,12 +98,21 @@ def init_db(path: Path) -> Path | None:
     moved aside, never deleted, and a new one is made: returns the moved file's path (the caller
     re-registers the captures from their folders), else None.
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
+    check_data_dir(path.parent, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataDirectoryError(f"{path.parent}: the data directory cannot be made ({exc.strerror or exc}); give "
+                                 "a folder the server may write to") from None
     moved = None
     try:
         _check(path)
     except sqlite3.DatabaseError as exc:
         if isinstance(exc, sqlite3.OperationalError) and not _corrupt_error(exc):
+            if getattr(exc, "sqlite_errorcode", None) in (sqlite3.SQLITE_CANTOPEN, sqlite3.SQLITE_PERM,
+                                                          sqlite3.SQLITE_READONLY, sqlite3.SQLITE_IOERR):
+                raise DataDirectoryError(f"{path}: the database cannot be opened ({exc}); check that the server may "
+                                         "read and write it and its folder") from None
             raise  # locked, or the disk: not the file's fault, so it stays where it is
         moved = path.with_name(f"{path.name}.corrupt-{time.strftime('%Y%m%d-%H%M%S')}")
         for suffix in ("", "-wal", "-shm"):
@@ -83,9 +122,15 @@ def init_db(path: Path) -> Path | None:
         log.warning("%s is corrupt (%s); moved it to %s and started a new database: the captures are "
                     "re-registered from their folders, the job records stay in the moved file "
                     "(sqlite3 %s .recover)", path, exc, moved, moved)
-    with connect(path) as conn:
-        conn.execute("PRAGMA journal_mode=WAL")
-        conn.executescript(SCHEMA)
+    try:
+        with connect(path) as conn:
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.executescript(SCHEMA)
+    except sqlite3.OperationalError as exc:
+        if getattr(exc, "sqlite_errorcode", None) in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
+            raise
+        raise DataDirectoryError(f"{path}: the database cannot be written ({exc}); check that the server may write "
+                                 "it and its folder") from None
     return moved
 
 

@@ -16,11 +16,14 @@ from fastapi import Depends, FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
+from threadpoolctl import threadpool_limits
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.api.deps import AppState, require_token
 from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
+from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
+from wandcal.service.connections import install_repeat_filter
 from wandcal.service.db import disk_full, init_db
 from wandcal.service.jobs import JobStore
 from wandcal.service.limits import BodySizeLimit, RateLimiter
@@ -70,6 +73,12 @@ def create_app(settings: Settings) -> FastAPI:
     """Build the app: database, capture store, job queue (started with the app), routes and page."""
     data_dir = settings.data_dir.resolve()
     settings = settings.model_copy(update={"data_dir": data_dir})
+    # BLAS on one thread in the server's own process, set once here and never by a request: the
+    # request threads already share the cores, and the solvers' `threadpool_limits(1)` (guidance
+    # runs one in a request thread) then have nothing to change, so concurrent ones cannot leave
+    # the process-wide count altered (tests/reliability/test_global_state.py)
+    threadpool_limits(limits=1, user_api="blas")
+    install_repeat_filter()
     init_db(settings.db_path)  # a corrupt database is moved aside; recover() registers the captures again
     capture_store = CaptureStore(data_dir, settings.db_path, settings.replay_root)
     recover(capture_store, data_dir)
@@ -100,6 +109,10 @@ def create_app(settings: Settings) -> FastAPI:
         settings=settings, captures=capture_store, queue=queue, limiter=RateLimiter(settings.framesets_per_second)
     )
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    roots = [str(data_dir)] + ([str(settings.replay_root.resolve())] if settings.replay_root else [])
+    app.add_middleware(RelativePaths, roots=roots)
+    app.add_middleware(CrossSiteGuard)
+    app.add_middleware(HostGuard, bound=settings.host, allowed=settings.allowed_hosts)  # outermost: first
     secured = [Depends(require_token)]
     app.include_router(health.router, prefix=API_PREFIX)
     app.include_router(captures.router, prefix=API_PREFIX, dependencies=secured)

@@ -19,7 +19,7 @@ import os
 import shutil
 from pathlib import Path
 
-from wandcal.capture.folder import STATIC_FILE, WAND_FILE, read_capture
+from wandcal.capture.folder import STATIC_FILE, WAND_FILE, csv_records, read_capture
 from wandcal.service.db import connect
 from wandcal.service.report.store import REPORTS_DIR
 from wandcal.service.storage import CAPTURE_ID, WAND_PAIR, CaptureStore
@@ -79,7 +79,7 @@ def keep_failed_recording(store: CaptureStore, staging: Path, capture_id: str) -
     deleted (None)."""
     sync = staging / "sync.csv"
     try:
-        recorded = sync.is_file() and len(sync.read_bytes().splitlines()) > 1  # a row below the header
+        recorded = sync.is_file() and len(csv_records(sync.read_bytes())) > 1  # a row below the header
     except OSError:
         recorded = False
     if not recorded:
@@ -110,13 +110,16 @@ def trim_uncommitted_rows(store: CaptureStore) -> list[str]:
         path = store.folder(capture_id) / WAND_FILE
         committed = 1 + WAND_PAIR * sum(c["pairs"] for c in json.loads(counts).values())
         try:
-            lines = path.read_bytes().splitlines(keepends=True)
+            data = path.read_bytes()
         except OSError:
             continue  # a missing file is register_orphans's and read_capture's to report
-        if len(lines) > committed:
-            os.truncate(path, sum(map(len, lines[:committed])))
-            done.append(f"capture {capture_id}: cut {len(lines) - committed} wand.csv rows of a frame set whose "
-                        "commit a crash interrupted (its client was not answered and sends it again)")
+        lines = csv_records(data)  # as the writers count them: whole records, a crash's cut tail apart
+        keep = sum(map(len, lines[:committed]))
+        if len(data) > keep:
+            os.truncate(path, keep)
+            done.append(f"capture {capture_id}: cut {max(len(lines) - committed, 0)} wand.csv rows (and any row a "
+                        "crash cut mid-line) of a frame set whose commit a crash interrupted (its client was not "
+                        "answered and sends it again)")
     return done
 
 

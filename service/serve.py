@@ -44,6 +44,7 @@ def check_bind(settings: Settings) -> None:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from wandcal.service.connections import server_options
     from wandcal.service.main import create_app
 
     overrides = {
@@ -57,5 +58,6 @@ def run(args: argparse.Namespace) -> int:
     spool.mkdir(parents=True, exist_ok=True)
     tempfile.tempdir = str(spool)
     app = create_app(settings)
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level, timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
+                timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S, **server_options(settings))
     return 0

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
 from wandcal.calib.detect.config import DEFAULT_CONFIG as DETECT
@@ -36,6 +36,18 @@ DEFAULT_FRAMESETS_PER_SECOND = 60.0
 # Removing the L-frame and picking up the wand takes a minute or two; ten minutes also covers
 # walking to a rig in the next room, and still frees the cameras if the operator forgets.
 DEFAULT_CONTINUE_TIMEOUT_S = 600.0
+# A client on the lab network sends its whole request header in milliseconds; 10 s covers a
+# congested Wi-Fi link, and a connection that takes longer is a stuck or hostile one.
+DEFAULT_HEADER_TIMEOUT_S = 10.0
+DEFAULT_KEEP_ALIVE_S = 5  # uvicorn's own default: the page polls once a second, so it keeps its connection
+# Far below the unit's LimitNOFILE (65536, deploy/wandcal.service) and above what a lab uses (a
+# page, a few scripts and tools, 16 streaming clients); when full, the connection waiting longest
+# for a header is closed to make room.
+DEFAULT_MAX_CONNECTIONS = 512
+
+
+class SettingsError(CalibrationError):
+    """A setting with a wrong value: the command exits 2 naming it, not with a traceback."""
 
 
 class GuidanceConfig(BaseModel):
@@ -97,12 +109,20 @@ class Settings(BaseSettings):
     token: str | None = Field(None, description="bearer token; required for a non-loopback bind",
                               repr=False)  # never in a log line or a traceback's locals
     host: str = DEFAULT_HOST
+    allowed_hosts: list[str] = Field(default_factory=list, description="names the Host header may give besides "
+                                     "the bound address, localhost and IP addresses (DNS rebinding guard); "
+                                     "'*' turns the check off")
     port: int = Field(DEFAULT_PORT, ge=1, le=65535)
     max_upload_bytes: int = Field(DEFAULT_MAX_UPLOAD_BYTES, gt=0, description="largest request body, bytes")
     framesets_per_second: float = Field(DEFAULT_FRAMESETS_PER_SECOND, gt=0, description="per-capture ingest limit")
     capture_continue_timeout_s: float = Field(
         DEFAULT_CONTINUE_TIMEOUT_S, gt=0, description="live capture: longest wait for POST /capture/continue, seconds"
     )
+    header_timeout_s: float = Field(DEFAULT_HEADER_TIMEOUT_S, gt=0, description="a connection that has not sent a "
+                                    "whole request header this long after opening (or its last answer) is closed")
+    keep_alive_s: int = Field(DEFAULT_KEEP_ALIVE_S, ge=1, description="an idle connection is closed after this")
+    max_connections: int = Field(DEFAULT_MAX_CONNECTIONS, ge=2, description="open connections; past it the one "
+                                 "waiting longest for a header is closed")
     workers: int = Field(1, ge=0, description="solver processes; 0 leaves jobs queued (tests call drain())")
     guidance: GuidanceConfig = Field(default_factory=GuidanceConfig, description="wanding guidance: target and "
                                      "coverage goal (TOML [guidance], or WANDCAL_GUIDANCE as JSON)")
@@ -121,6 +141,10 @@ class Settings(BaseSettings):
         _TOML.file = Path(path) if path else None
         try:
             return cls(**overrides)
+        except ValidationError as exc:  # a wrong value in the file, the environment or an option: name it
+            where = f"settings ({path or 'WANDCAL_* environment variables and options'})"
+            problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+            raise SettingsError(f"{where}: {problems}; see deploy/wandcal.toml for every setting") from None
         finally:
             _TOML.file = None
 

@@ -12,7 +12,6 @@ gravity recording (``gravityFreq`` set) is not an axis and is left out.
 
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -163,8 +162,8 @@ def _load_struct(path: Path):
     except NotImplementedError:
         raise CaptureFormatError(f"{path}: a MATLAB v7.3 (HDF5) file; re-save it in MATLAB with "
                                  f"save(file, '{STRUCT}', '-v7') and import that") from None
-    except (ValueError, TypeError, OSError, EOFError, KeyError, IndexError, zipfile.BadZipFile, UnicodeDecodeError,
-            AttributeError, MemoryError) as exc:
+    except Exception as exc:  # scipy's parser raises whatever damaged bytes lead it to (zlib.error
+        # from corrupted compressed data, struct.error, OverflowError, ...): each means this file is not readable
         raise CaptureFormatError(f"{path}: not a MATLAB .mat file ({type(exc).__name__}: {exc}); give the "
                                  "*_easyWandData.mat that easyWand's Save wrote") from None
     if STRUCT not in mat:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.capture.folder import Capture
+from wandcal.capture.folder import Capture, check_capture
 
 
 @dataclass(frozen=True, eq=False)
@@ -23,6 +23,9 @@ class Imported:
     capture: Capture
     source: str
     notes: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_capture(self.capture, self.source)  # what an import gives, calibrate reads (issue 20, class 8)
 
 
 def summary_lines(imported: Imported) -> list[str]:

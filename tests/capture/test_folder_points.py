@@ -35,7 +35,7 @@ def _points_and_axis(rig):
 
 def test_points_and_axis_round_trip(sim, tmp_path):
     points, axis = _points_and_axis(sim.rig)
-    write_capture(tmp_path, sim.rig, sim.wand, sim.static, points, axis)
+    write_capture(tmp_path, sim.rig, sim.wand, None, points, axis)  # axis points set the world: no static.csv
     assert (tmp_path / POINTS_FILE).read_text().splitlines()[0] == "frame,camera,u,v"
     assert (tmp_path / AXIS_FILE).read_text().splitlines()[1].startswith("origin,cam1,")
     cap = read_capture(tmp_path)

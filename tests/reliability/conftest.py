@@ -6,7 +6,12 @@ from __future__ import annotations
 import pytest
 
 from tests.reliability.fuzzing import TRIED
-from tests.service.conftest import Server, free_port, server_env
+from tests.service.conftest import (
+    Server,
+    free_port,
+    server_env,
+    small_capture,  # noqa: F401  (a fixture the tests here share)
+)
 
 
 @pytest.fixture

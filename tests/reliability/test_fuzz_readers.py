@@ -97,7 +97,10 @@ def fuzz_one_file(folder: Path, files: dict[str, bytes], name: str, reads: dict,
 @pytest.mark.parametrize("name", [RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE])
 def test_capture_folder_files(valid, tmp_path_factory, name):
     folder = tmp_path_factory.mktemp("fuzz")
-    fuzz_one_file(folder, valid, name, {"": lambda: read_capture(folder)}, name)
+    # static.csv and axis.csv both set the world frame, and a capture may hold one of them only
+    left_out = STATIC_FILE if name == AXIS_FILE else AXIS_FILE
+    files = {n: data for n, data in valid.items() if n != left_out}
+    fuzz_one_file(folder, files, name, {"": lambda: read_capture(folder)}, name)
 
 
 def test_calibrate_command_never_shows_a_traceback(valid, tmp_path_factory, capsys):
@@ -299,7 +302,8 @@ def _nasty_documents(doc: dict) -> list[bytes]:
 @pytest.mark.parametrize("name", [RIG_FILE, "result.json"])
 def test_documents_that_once_crashed(valid, result_text, tmp_path, name):
     for n, content in valid.items():
-        (tmp_path / n).write_bytes(content)
+        if n != AXIS_FILE:  # static.csv sets the world frame; a capture holds one of the two
+            (tmp_path / n).write_bytes(content)
     doc = json.loads(valid[RIG_FILE] if name == RIG_FILE else result_text)
     for data in _nasty_documents(doc):
         (tmp_path / name).write_bytes(data)

@@ -11,7 +11,7 @@ from starlette.datastructures import FormData, UploadFile
 
 from wandcal.calib.rig import StaticObservations
 from wandcal.calib.start.static import solve_static
-from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, decode_text
 from wandcal.service.api.deps import CaptureDep, State, require_content_type
 from wandcal.service.schemas import (
     CameraCoverage,
@@ -70,10 +70,7 @@ async def _text(value, name: str, limit: int) -> str | None:
     data = await value.read() if isinstance(value, UploadFile) else value.encode()
     if len(data) > limit:
         raise HTTPException(413, f"{name} is larger than the upload limit of {limit} bytes")
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        raise HTTPException(422, f"{name} is not UTF-8 text; upload the file as written by wandcal") from None
+    return decode_text(data, name)  # the CLI's decoder: a byte-order mark is read alike by both
 
 
 async def _form(request: Request, state) -> FormData:

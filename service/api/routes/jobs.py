@@ -9,6 +9,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, RedirectResponse
 
 from wandcal.service.api.deps import State, require_content_type
+from wandcal.service.api.security import relative_paths
 from wandcal.service.jobs import JobRecord, JobState
 from wandcal.service.schemas import (
     ErrorPublic,
@@ -43,11 +44,18 @@ def _job(state, job_id: str) -> JobRecord:
     return record
 
 
-def to_public(r: JobRecord) -> JobPublic:
+def to_public(r: JobRecord, state=None) -> JobPublic:
+    """The record as answered; a job's error and progress message show paths relative to the
+    data directory (a solver's message names the capture's files by their absolute path)."""
+    roots = [str(state.settings.data_dir)] if state is not None else []
+    progress = r.progress
+    if isinstance(progress, dict) and isinstance(progress.get("message"), str):
+        progress = progress | {"message": relative_paths(progress["message"], roots)}
     return JobPublic(
         id=r.id, capture_id=r.capture_id, method=r.method, options=r.options, state=r.state, attempts=r.attempts,
-        created=r.created, started=r.started, finished=r.finished, progress=r.progress, error=r.error,
-        cancel_requested=r.cancel_requested, result=r.result,
+        created=r.created, started=r.started, finished=r.finished, progress=progress,
+        error=relative_paths(r.error, roots) if r.error else r.error, cancel_requested=r.cancel_requested,
+        result=r.result,
     )
 
 
@@ -83,7 +91,7 @@ def create_job(body: JobCreate, state: State) -> JobPublic:
         raise HTTPException(422, f"capture {capture.id} cannot be calibrated: {why}")
     record = state.queue.store.create(capture.id, body.method.value, body.options.model_dump())
     state.queue.submit(record)
-    return to_public(record)
+    return to_public(record, state)
 
 
 @router.get("", response_model=JobList, responses={401: UNAUTHORISED}, summary="List jobs, newest first")
@@ -91,7 +99,7 @@ def list_jobs(
     state: State, capture_id: Annotated[str | None, Query(max_length=64)] = None
 ) -> JobList:
     records = [state.queue.refresh(r.id) if not r.state.finished else r for r in state.queue.store.list(capture_id)]
-    return JobList(jobs=[JobSummary(**to_public(r).model_dump(exclude={"result"})) for r in records if r])
+    return JobList(jobs=[JobSummary(**to_public(r, state).model_dump(exclude={"result"})) for r in records if r])
 
 
 @router.get(
@@ -99,7 +107,7 @@ def list_jobs(
     summary="A job's state, progress and, when done, its wandcal-result/1 document",
 )
 def get_job(job_id: str, state: State) -> JobPublic:
-    return to_public(_job(state, job_id))
+    return to_public(_job(state, job_id), state)
 
 
 @router.delete(
@@ -111,7 +119,7 @@ def cancel_job(job_id: str, state: State) -> JobPublic:
     record = _job(state, job_id)
     if record.state.finished:
         raise HTTPException(409, f"job {job_id} is already {record.state.value}; there is nothing to cancel")
-    return to_public(state.queue.cancel(job_id))
+    return to_public(state.queue.cancel(job_id), state)
 
 
 @router.get(
@@ -140,7 +148,7 @@ async def get_result(
 ) -> Response:
     record = await run_in_threadpool(_job, state, job_id)
     if record.state is not JobState.done or record.result is None:
-        hint = f": {record.error}" if record.error else "; poll GET /api/v1/jobs/{id} until its state is done"
+        hint = f": {relative_paths(record.error, [str(state.settings.data_dir)])}" if record.error else "; poll GET /api/v1/jobs/{id} until its state is done"
         raise HTTPException(409, f"job {job_id} is {record.state.value}, it has no result{hint}")
     media, ext = MEDIA_TYPES[format]
     if format is ResultFormat.json:
@@ -175,7 +183,7 @@ def _report(state, job_id: str):
 
     record = _job(state, job_id)
     if record.state is not JobState.done or record.result is None:
-        hint = f": {record.error}" if record.error else "; poll GET /api/v1/jobs/{id} until its state is done"
+        hint = f": {relative_paths(record.error, [str(state.settings.data_dir)])}" if record.error else "; poll GET /api/v1/jobs/{id} until its state is done"
         raise HTTPException(409, f"job {job_id} is {record.state.value}, it has no report{hint}")
 
     def capture():

@@ -1,0 +1,72 @@
+"""Bounded work (issue 20, class 3): every size a request or a file can have is checked before the
+work starts: a JSON body over its route's limit is a 413 before it is parsed, a capture CSV over
+MAX_CSV_BYTES is refused (exit 2) before it is read. The peak memory of the largest allowed
+ones is measured by bench/bench_memory.py and published in docs/reliability.md."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from fastapi.testclient import TestClient
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from tests.reliability.fuzzing import TRIED
+from wandcal.capture.folder import MAX_CSV_BYTES, RIG_FILE, WAND_FILE, rig_to_json, write_capture
+from wandcal.service.limits import MAX_BLOBSETS_BODY_BYTES, MAX_JSON_BODY_BYTES, body_limit
+from wandcal.service.main import create_app
+from wandcal.service.settings import Settings
+
+ROUTES = ["/api/v1/captures/0123/blobsets", "/api/v1/jobs", "/api/v1/capture/start", "/api/v1/capture",
+          "/api/v1/captures", "/api/v1/captures/0123/framesets", "/api/v1/captures/0123/static"]
+
+
+@settings(max_examples=100, deadline=None, derandomize=True)
+@given(path=st.sampled_from(ROUTES), upload=st.integers(1, 1 << 40))
+def test_every_route_has_a_limit_no_larger_than_the_upload_limit(path, upload):
+    limit, what = body_limit(path, upload)
+    assert 0 < limit <= upload and what
+    if "blobsets" in path:
+        assert limit == min(upload, MAX_BLOBSETS_BODY_BYTES)
+    elif path.endswith(("/jobs", "/capture/start", "/capture")):
+        assert limit == min(upload, MAX_JSON_BODY_BYTES)
+
+
+@pytest.fixture
+def client(tmp_path):
+    (tmp_path / "replay").mkdir()
+    app = create_app(Settings(data_dir=tmp_path / "data", replay_root=tmp_path / "replay", workers=0))
+    with TestClient(app, base_url="http://127.0.0.1/api/v1", raise_server_exceptions=False) as c:
+        yield c
+
+
+def test_json_bodies_over_their_limit_are_refused_before_parsing(client, small_capture):
+    _, sim = small_capture
+    capture_id = client.post("/captures", files={RIG_FILE: (RIG_FILE, json.dumps(rig_to_json(sim.rig)))}).json()["id"]
+
+    @settings(max_examples=10, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+    @given(extra=st.integers(1, 4096), chunked=st.booleans())
+    def fuzz(extra, chunked):
+        TRIED["JSON bodies over their route's limit"] += 1
+        body = b'{"sets": [' + b" " * (MAX_BLOBSETS_BODY_BYTES + extra) + b"]}"
+        content = iter([body[i:i + (1 << 20)] for i in range(0, len(body), 1 << 20)]) if chunked else body
+        r = client.post(f"/captures/{capture_id}/blobsets", content=content, headers={"content-type": "application/json"})
+        assert r.status_code == 413 and "blob-set limit" in r.json()["detail"], r.text
+        r = client.post("/jobs", content=b" " * (MAX_JSON_BODY_BYTES + extra), headers={"content-type": "application/json"})
+        assert r.status_code == 413
+
+    fuzz()
+    assert client.get(f"/captures/{capture_id}").json()["framesets"] == 0
+
+
+def test_a_capture_file_over_the_limit_exits_2_before_it_is_read(small_capture, tmp_path, capsys):
+    from wandcal.service.cli import main
+
+    _, sim = small_capture
+    write_capture(tmp_path, sim.rig, sim.wand, sim.static)
+    with open(tmp_path / WAND_FILE, "ab") as fh:  # a sparse file: the size is checked, never the content
+        fh.truncate(MAX_CSV_BYTES + 1)
+    code = main(["calibrate", str(tmp_path), "--out", str(tmp_path / "result.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and f"{tmp_path / WAND_FILE}: {MAX_CSV_BYTES + 1} bytes, more than" in err, err
