@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import re
 from urllib.parse import urlsplit
 
 STATE_CHANGING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
@@ -111,7 +112,9 @@ def relative_paths(text: str, roots: list[str]) -> str:
     itself becomes ``.``. Roots are tried longest first, so a root inside another is cut whole."""
     for root in sorted({r.rstrip("/") for r in roots if r and r != "/"}, key=len, reverse=True):
         for form in {root, json.dumps(root)[1:-1]}:  # as written, and as JSON escapes it
-            text = text.replace(form + "/", "").replace(form, ".")
+            # only where the root starts a path: not "/a" inside "x/a", nor "/data" inside "/data2"
+            text = re.sub(rf"(?<![\w.\-/]){re.escape(form)}(/|(?![\w.\-]))",
+                          lambda m: "" if m.group(1) == "/" else ".", text)
     return text
 
 
