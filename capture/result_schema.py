@@ -114,6 +114,14 @@ def counts(value: object, where: str) -> None:
         whole()(v, f"{where}.{key}")
 
 
+def number_map(value: object, where: str) -> None:
+    """An object of finite numbers (``world.axis_misalignment_rad``: radians by axis)."""
+    if not isinstance(value, dict):
+        _fail(where, "a JSON object of numbers", value)
+    for key, v in value.items():  # type: ignore[union-attr]
+        number()(v, f"{where}.{key}")
+
+
 def anything(value: object, where: str) -> None:
     """Fields no consumer reads into arithmetic (a fault's evidence): any JSON value."""
 
@@ -160,7 +168,7 @@ RESULT_FIELDS: dict[str, Check] = {
                    "solved_only": TEXTS, "refined_intrinsics": TEXTS}),
     "world": obj({"frame": text(), "description": text(), "scale": choice("wand", "arbitrary"),
                   "fit_rms_m": NON_NEGATIVE, "expected_fit_rms_m": NON_NEGATIVE, "static_blob_rms_px": NON_NEGATIVE,
-                  "cameras_used": TEXTS, "axis_misalignment_rad": number(),
+                  "cameras_used": TEXTS, "axis_misalignment_rad": either(number(), number_map),
                   "placement": obj({"origin_std_mm": NON_NEGATIVE, "axes_std_deg": NON_NEGATIVE})}),
     "dropped": counts,
     "verdict": obj(VERDICT_FIELDS | {"faults": items(obj(FAULT_FIELDS, nullable=False)),

@@ -19,7 +19,7 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 # a log line repeated within this many seconds is counted rather than written ("Too many open
 # files" from the accept loop filled 57 MB of log in seconds)
 REPEAT_WINDOW_S = 1.0
-MAX_HEADER_BYTES = 64 * 1024  # browsers send 1-8 kB of header; a larger one is a 400, not buffered memory
+MAX_HEADER_BYTES = 16 * 1024  # h11's default, stated: browsers send 1-8 kB of header; a larger one is a 400
 
 
 def guarded_protocol(header_timeout_s: float, max_connections: int) -> type[H11Protocol]:

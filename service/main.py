@@ -111,7 +111,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
     roots = [str(data_dir)] + ([str(settings.replay_root.resolve())] if settings.replay_root else [])
     app.add_middleware(RelativePaths, roots=roots)
-    app.add_middleware(CrossSiteGuard)
+    app.add_middleware(CrossSiteGuard, has_token=settings.token is not None)
     app.add_middleware(HostGuard, bound=settings.host, allowed=settings.allowed_hosts)  # outermost: first
     secured = [Depends(require_token)]
     app.include_router(health.router, prefix=API_PREFIX)

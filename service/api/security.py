@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
+import re
 from urllib.parse import urlsplit
 
 STATE_CHANGING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
@@ -82,8 +83,9 @@ class CrossSiteGuard:
     """Refuses (403) state-changing requests a browser marks cross-site, unless they carry a
     bearer token (which the token check then verifies)."""
 
-    def __init__(self, app):
+    def __init__(self, app, has_token: bool):
         self.app = app
+        self.has_token = has_token  # a server without a token has none a request could carry
 
     @staticmethod
     def cross_site(scope) -> bool:
@@ -99,7 +101,7 @@ class CrossSiteGuard:
 
     async def __call__(self, scope, receive, send):
         if (scope["type"] != "http" or scope["method"] not in STATE_CHANGING or not self.cross_site(scope)
-                or (_header(scope, b"authorization") or "").lower().startswith("bearer ")):
+                or (self.has_token and (_header(scope, b"authorization") or "").lower().startswith("bearer "))):
             return await self.app(scope, receive, send)
         await _refuse(send, 403, "a cross-site request may not change anything on this server (its Origin or "
                                  "Sec-Fetch-Site says another site sent it); send it from the server's own page "
@@ -111,7 +113,9 @@ def relative_paths(text: str, roots: list[str]) -> str:
     itself becomes ``.``. Roots are tried longest first, so a root inside another is cut whole."""
     for root in sorted({r.rstrip("/") for r in roots if r and r != "/"}, key=len, reverse=True):
         for form in {root, json.dumps(root)[1:-1]}:  # as written, and as JSON escapes it
-            text = text.replace(form + "/", "").replace(form, ".")
+            # only where the root starts a path: not "/a" inside "x/a", nor "/data" inside "/data2"
+            text = re.sub(rf"(?<![\w.\-/]){re.escape(form)}(/|(?![\w.\-]))",
+                          lambda m: "" if m.group(1) == "/" else ".", text)
     return text
 
 
