@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
+import time
+from pathlib import Path
 
+import numpy as np
 import pytest
 
-from tests.service.conftest import capture_files, wait_job
+from tests.service.browser import Browser
+from tests.service.conftest import JOB_TIMEOUT_S, capture_files, wait_job
 from tests.service.test_live_capture import (
     LOOSE_GUIDANCE,
     STATIC_SETS,
@@ -127,3 +132,119 @@ def test_page_shows_the_guidance_filling_in_and_when_it_is_enough(make_server, t
     assert '<p id="live-enough" class="enough">Enough: you can stop waving.</p>' in panel
     assert panel.count("✓") == len(started["cameras"])  # no camera needs anything
     assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr
+
+
+# -- the 3D rig view, driven over the DevTools protocol ---------------------------------------
+def artefact(tmp_path, name: str) -> Path:
+    """Where a screenshot goes: $WANDCAL_ARTEFACTS when set (kept after the run), else pytest's tmp dir."""
+    folder = Path(os.environ.get("WANDCAL_ARTEFACTS") or tmp_path / "artefacts")
+    path = folder / name
+    print(f"screenshot: {path}")
+    return path
+
+
+LABELS_JS = """(() => {
+  const c = document.querySelector('#rig').getBoundingClientRect();
+  return {canvas: [c.left, c.top, c.right, c.bottom],
+          labels: [...document.querySelectorAll('.rig-label')].filter((n) => !n.hidden).map((n) => {
+            const b = n.getBoundingClientRect(); return [n.textContent, b.left, b.top, b.right, b.bottom]; })};
+})()"""
+
+
+def assert_labels_fit(browser: Browser, where: str) -> list:
+    """Every label of the 3D view lies inside its canvas and on no other label; the labels."""
+    got = browser.js(LABELS_JS)
+    left, top, right, bottom = got["canvas"]
+    labels = got["labels"]
+    assert labels, f"{where}: no labels"
+    for text, x0, y0, x1, y1 in labels:
+        assert x0 >= left and y0 >= top and x1 <= right and y1 <= bottom, f"{where}: {text!r} clipped {got}"
+    for i, (ta, *a) in enumerate(labels):
+        for tb, *b in labels[i + 1:]:
+            w = min(a[2], b[2]) - max(a[0], b[0])
+            h = min(a[3], b[3]) - max(a[1], b[1])
+            assert w <= 0 or h <= 0, f"{where}: {ta!r} overlaps {tb!r} ({w:.1f} x {h:.1f} px)"
+    return labels
+
+
+TURN_DRAG_PX = 160  # turns the view by 1.3 rad (TURN_PER_PX in rigview.js)
+MIN_MOVE_PX = 20  # a turn that large moves every camera on the screen by far more than this
+VIEWS = 4
+ZOOM_DELTA = 400  # wheel delta: zooms in by 45% (ZOOM_PER_DELTA in rigview.js)
+ZOOM_GROWTH = 1.3
+PAN_PX = 60
+PAN_TOL_PX = 1.0  # a sideways pan moves nothing up or down, beyond rounding
+
+
+def project(browser: Browser, points) -> np.ndarray:
+    """(N, 2) screen positions of world points in the 3D view (CSS pixels of its canvas)."""
+    return np.array(browser.js(f"{json.dumps(points)}.map((p) => window.wandcalRig.project(p))"), float)
+
+
+def wait_newest_job(client, older: str) -> dict:
+    """The newest job once it is done, failed or cancelled; it must not be ``older``."""
+    deadline = time.monotonic() + JOB_TIMEOUT_S
+    while time.monotonic() < deadline:
+        newest = client.get("/jobs").json()["jobs"][0]
+        if newest["id"] != older and newest["state"] in ("done", "failed", "cancelled"):
+            return client.get(f"/jobs/{newest['id']}").json()
+        time.sleep(0.05)
+    raise AssertionError(f"no job newer than {older} finished in {JOB_TIMEOUT_S} s")
+
+
+def test_the_rig_view_turns_zooms_keeps_its_labels_apart_and_follows_the_newest_job(make_server, small_capture,
+                                                                                      tmp_path):
+    folder, sim = small_capture
+    server = make_server(workers=1).start()
+    with server.client() as c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        first = wait_job(c, c.post("/jobs", json={"capture_id": capture_id}).json()["id"])
+        assert first["state"] == "done", first["error"]
+        with Browser(CHROMIUM, tmp_path / "profile") as browser:
+            browser.open(server.url + "/")
+            browser.wait_for(f"document.querySelector('#result-section')?.dataset.drawn === '{first['id']}'")
+            browser.screenshot(artefact(tmp_path, "page-rig.png"))
+            labels = assert_labels_fit(browser, "first view")
+            texts = [t for t, *_ in labels]
+            for cam in first["result"]["cameras"]:
+                assert f'{cam["id"]} {cam["reprojection_rms_px"]:.2f} px' in texts
+            assert {"x", "y", "z", "origin"} <= set(texts) and any(t.startswith("volume ") for t in texts)
+            assert browser.js("document.querySelectorAll('#rig-view canvas').length") == 1
+            centres = [cam["center"] for cam in first["result"]["cameras"]]
+
+            # a drag turns the view: every camera moves on the screen, and the labels still fit
+            browser.js("document.querySelector('#rig').scrollIntoView()")
+            left, top, right, bottom = browser.js(LABELS_JS)["canvas"]
+            middle = ((left + right) / 2, (top + bottom) / 2)
+            before = project(browser, centres)
+            browser.drag(middle, (middle[0] + TURN_DRAG_PX, middle[1] + TURN_DRAG_PX / 4))
+            after = project(browser, centres)
+            moved = np.linalg.norm(after - before, axis=1)
+            assert moved.min() > MIN_MOVE_PX, moved
+            assert_labels_fit(browser, "turned")
+            browser.screenshot(artefact(tmp_path, "page-rig-turned.png"))
+            for k in range(VIEWS):  # round the rig and over it: no view crowds a label out
+                browser.drag(middle, (middle[0] + TURN_DRAG_PX, middle[1] - TURN_DRAG_PX / 3))
+                assert_labels_fit(browser, f"turned {k + 2} times")
+
+            # the wheel zooms in: the cameras spread apart on the screen; a shift-drag pans: all move alike
+            spread = np.ptp(project(browser, centres), axis=0).max()
+            browser.wheel(middle, -ZOOM_DELTA)
+            assert np.ptp(project(browser, centres), axis=0).max() > ZOOM_GROWTH * spread
+            assert_labels_fit(browser, "zoomed in")
+            before = project(browser, centres)
+            browser.drag(middle, (middle[0] - PAN_PX, middle[1]), shift=True)
+            shift = project(browser, centres) - before
+            # to the left, by about the drag (nearer cameras more, farther less: perspective), not up or down
+            assert np.all(shift[:, 0] < -PAN_PX / 2) and np.all(shift[:, 0] > -2 * PAN_PX), shift
+            np.testing.assert_allclose(shift[:, 1], 0, atol=PAN_TOL_PX)
+
+            # "calibrate" on the page: the Rig panel moves to the new job when it is done
+            browser.js(f"document.querySelector('tr[data-capture-id=\"{capture_id}\"] button').click()")
+            second = wait_newest_job(c, first["id"])
+            assert second["state"] == "done", second["error"]
+            browser.wait_for(f"document.querySelector('#result-section')?.dataset.drawn === '{second['id']}'")
+            assert second["id"][:8] in browser.js("document.querySelector('#result-title').textContent")
+            assert_labels_fit(browser, "the newer job")
+            browser.screenshot(artefact(tmp_path, "page-rig-newest-job.png"))
+            assert not browser.errors, browser.errors
