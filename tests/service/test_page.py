@@ -36,6 +36,15 @@ VIRTUAL_TIME_BUDGET_MS = 5000
 PAGE_CLOCK_SLACK_S = 2 + 1
 
 
+def artefact(tmp_path, name: str) -> Path:
+    """Where a screenshot goes: $WANDCAL_ARTEFACTS when set (kept after the run), else pytest's tmp dir."""
+    folder = Path(os.environ.get("WANDCAL_ARTEFACTS") or tmp_path / "artefacts")
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / name
+    print(f"screenshot: {path}")
+    return path
+
+
 def chromium(url: str, profile, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -67,7 +76,7 @@ def test_page_shows_captures_jobs_and_the_solved_rig(make_server, small_capture,
     assert f'verdict: {job["result"]["verdict"]["level"]}' in html
     assert 'id="result-section" hidden' not in html
 
-    shot = tmp_path / "page.png"
+    shot = artefact(tmp_path, "page-solved-rig.png")
     run = chromium(server.url + "/", tmp_path / "profile2", f"--screenshot={shot}", "--window-size=1280,1100")
     assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr
 
@@ -76,6 +85,10 @@ def live_panel(html: str) -> str:
     """The live-capture section of a dumped DOM."""
     start = html.index('<section id="live"')
     return html[start:html.index("</section>", start)]
+
+
+def live_prompt(panel: str) -> str:
+    return re.search(r'<p id="live-prompt">(.*?)</p>', panel).group(1)
 
 
 def test_page_shows_a_live_capture_waiting_for_the_wand_until_continue(make_server, tmp_path):
@@ -94,6 +107,14 @@ def test_page_shows_a_live_capture_waiting_for_the_wand_until_continue(make_serv
         assert '<button id="live-stop">' in panel
         for cam in waiting["cameras"]:
             assert f'<tr data-camera="{cam}"><td>{cam}</td><td class="">0</td></tr>' in panel
+        # a prompt for the person at the rig, and no warning about cameras before there is a wand to see
+        assert "press Continue" in panel and "POST" not in live_prompt(panel)
+        assert '<div id="live-guidance" hidden=""' in panel and "check that it is on" not in panel
+        guidance = c.get(f"/captures/{started['capture_id']}/guidance").json()
+        assert not any("check that it is on" in a for a in guidance["advice"]), guidance["advice"]
+        shot = artefact(tmp_path, "page-waiting-for-the-wand.png")
+        run = chromium(server.url + "/", tmp_path / "profile-shot", f"--screenshot={shot}", "--window-size=1280,900")
+        assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr
 
         assert c.post("/capture/continue").status_code == 202
         status = wait_capture(c)
@@ -125,7 +146,7 @@ def test_page_shows_the_guidance_filling_in_and_when_it_is_enough(make_server, t
         status = wait_capture(c)
         assert status["state"] == "done" and status["enough"], status["error"]
         html = chromium(server.url + "/", tmp_path / "profile2", "--dump-dom").stdout
-        shot = tmp_path / "guidance.png"
+        shot = artefact(tmp_path, "page-live-guidance-enough.png")
         run = chromium(server.url + "/", tmp_path / "profile3", f"--screenshot={shot}", "--window-size=1280,1400")
     panel = live_panel(html)
     assert '<div id="live-guidance" data-enough="true">' in panel
@@ -135,14 +156,6 @@ def test_page_shows_the_guidance_filling_in_and_when_it_is_enough(make_server, t
 
 
 # -- the 3D rig view, driven over the DevTools protocol ---------------------------------------
-def artefact(tmp_path, name: str) -> Path:
-    """Where a screenshot goes: $WANDCAL_ARTEFACTS when set (kept after the run), else pytest's tmp dir."""
-    folder = Path(os.environ.get("WANDCAL_ARTEFACTS") or tmp_path / "artefacts")
-    path = folder / name
-    print(f"screenshot: {path}")
-    return path
-
-
 LABELS_JS = """(() => {
   const c = document.querySelector('#rig').getBoundingClientRect();
   return {canvas: [c.left, c.top, c.right, c.bottom],
