@@ -42,6 +42,7 @@ class Browser:
         self._in = os.fdopen(from_chrome_r, "rb")
         self._buffer = b""
         self._next = 0
+        self._replies: dict[int, dict] = {}
         self.errors: list[str] = []
         self.fulfil: dict[str, dict] = {}  # URL -> JSON document answered instead of the server's
         target = self.call("Target.createTarget", url="about:blank")["targetId"]
@@ -60,13 +61,16 @@ class Browser:
             message["sessionId"] = session
         self._out.write(json.dumps(message).encode() + b"\0")
         self._out.flush()
-        while True:
-            reply = self._read()
-            if reply.get("id") == ident:
-                if "error" in reply:
-                    raise RuntimeError(f"{method}: {reply['error']}")
-                return reply.get("result", {})
-            self._event(reply)
+        while ident not in self._replies:
+            message = self._read()
+            if "id" in message:  # a reply, maybe to an outer call while an event's own call waits
+                self._replies[message["id"]] = message
+            else:
+                self._event(message)
+        reply = self._replies.pop(ident)
+        if "error" in reply:
+            raise RuntimeError(f"{method}: {reply['error']}")
+        return reply.get("result", {})
 
     def send(self, method: str, **params) -> dict:
         """A command to the page's session."""

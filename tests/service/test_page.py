@@ -261,3 +261,74 @@ def test_the_rig_view_turns_zooms_keeps_its_labels_apart_and_follows_the_newest_
             assert_labels_fit(browser, "the newer job")
             browser.screenshot(artefact(tmp_path, "page-rig-newest-job.png"))
             assert not browser.errors, browser.errors
+
+
+# the judgement fields (wandcal-result/1, issue 19), added by hand to a real result; older results lack them
+GEOMETRY_MM = [0.11, 0.22, 0.33, 0.44]
+FAULT = {"kind": "intrinsics", "camera": "cam3", "message": "cam3's residuals grow towards its rim; check its lens",
+         "evidence": {"rim_ratio": 1.9}}
+CROWD = 3  # copies of each camera a few centimetres apart: labels that must find room of their own
+CROWD_STEP_M = 0.04
+
+
+def judged(result: dict) -> dict:
+    doc = json.loads(json.dumps(result))
+    for cam, geometry in zip(doc["cameras"], GEOMETRY_MM):
+        cam |= {"geometry_std_mm": geometry, "geometry_rotation_std_deg": geometry / 10, "residual_mm": 0.05,
+                "outlier_share": 0.012, "verdict": {"level": "good", "reasons": ["centre known to 0.3 mm"],
+                                                     "advice": ["wave nearer " + cam["id"]]}}
+    doc["world"]["placement"] = {"origin_std_mm": 0.42, "axes_std_deg": 0.031}
+    doc["verdict"] = {"level": "poor", "reasons": ["cam3's lens"], "advice": ["check cam3's intrinsics"],
+                      "faults": [FAULT, {"kind": "timing", "camera": None, "message": "the cameras are out of step",
+                                         "evidence": {}}],
+                      "placement": {"level": "good", "reasons": ["L-frame seen by 4 cameras"]}}
+    crowd = [cam | {"id": f"{cam['id']}-{k}", "center": [v + k * CROWD_STEP_M for v in cam["center"]]}
+             for cam in doc["cameras"] for k in range(1, CROWD)]
+    doc["cameras"] += crowd
+    return doc
+
+
+def test_the_rig_panel_shows_the_judgement_and_a_crowded_rig_keeps_its_labels_apart(make_server, small_capture,
+                                                                                     tmp_path):
+    folder, _ = small_capture
+    server = make_server(workers=1).start()
+    with server.client() as c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        job = wait_job(c, c.post("/jobs", json={"capture_id": capture_id}).json()["id"])
+    assert job["state"] == "done", job["error"]
+    doc = judged(job["result"])
+    with Browser(CHROMIUM, tmp_path / "profile") as browser:
+        browser.answer(f"{server.url}/api/v1/jobs/{job['id']}", job | {"result": doc})
+        browser.open(server.url + "/")
+        browser.wait_for(f"document.querySelector('#result-section')?.dataset.drawn === '{job['id']}'")
+        browser.js("document.querySelector('#rig').scrollIntoView()")
+        browser.screenshot(artefact(tmp_path, "page-rig-judgement-crowded.png"))
+        labels = [t for t, *_ in assert_labels_fit(browser, "a crowded rig")]
+        assert sum(t.startswith("cam") for t in labels) == len(doc["cameras"])
+        rows = browser.js("[...document.querySelectorAll('#residuals tbody tr')].map((r) => "
+                          "[...r.cells].map((c) => c.textContent))")
+        head = browser.js("[...document.querySelectorAll('#residuals thead th')].map((c) => c.textContent)")
+        column = {name: [row[head.index(name)] for row in rows] for name in head}
+        assert column["geometry ± (mm)"][:4] == [f"{g:.2f}" for g in GEOMETRY_MM]
+        assert column["geometry ± (deg)"][:4] == [f"{g / 10:.3f}" for g in GEOMETRY_MM]
+        assert column["ray distance (mm)"][:4] == ["0.05"] * 4 and column["outliers"][:4] == ["1.2%"] * 4
+        assert column["verdict"][:4] == ["good"] * 4
+        assert column["± (mm)"][:4] == [f'{cam["center_std_mm"]:.2f}' for cam in doc["cameras"][:4]]
+        judgement = browser.js("document.querySelector('#judgement').innerText")
+        assert "verdict: poor" in judgement and "intrinsics (cam3): " + FAULT["message"] in judgement
+        assert "timing: the cameras are out of step" in judgement and "check cam3's intrinsics" in judgement
+        assert "origin ± 0.42 mm, axes ± 0.031 deg" in judgement and "good (L-frame seen by 4 cameras)" in judgement
+
+        # an older result (none of these fields): a dash where each would be, and nothing breaks
+        older = json.loads(json.dumps(job["result"]))
+        older.pop("verdict")
+        for cam in older["cameras"]:
+            for key in ("center_std_mm", "rotation_std_deg", "verdict"):
+                cam.pop(key, None)
+        browser.answer(f"{server.url}/api/v1/jobs/{job['id']}", job | {"result": older})
+        browser.js(f"document.querySelector('tr[data-job-id=\"{job['id']}\"] button').click()")
+        browser.wait_for("document.querySelector('#judgement').innerText.includes('verdict: –')")
+        row = browser.js("[...document.querySelector('#residuals tbody tr').cells].map((c) => c.textContent)")
+        assert row.count("–") == 7, row  # both ±, both geometry ±, ray distance, outliers and the verdict
+        assert "origin ± – mm, axes ± – deg" in browser.js("document.querySelector('#judgement').innerText")
+        assert not browser.errors, browser.errors
