@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.capture.formats.test_import_easywand import USHICHKA_HEIGHT
 from tests.conftest import SHARED_DATA
 from tests.service.conftest import REPO, capture_files, wait_job
 from tests.service.test_cli_imports import loaded_packages
@@ -27,7 +28,16 @@ from wandcal.capture.folder import Capture, read_capture, write_capture
 from wandcal.capture.results import read_result, result_from_json
 from wandcal.service.report import INSTALL_HINT, RIG_PNG, WAND_PNG, ReportUnavailable, camera_png
 from wandcal.service.report.analysis import analyse, rim_ratio
-from wandcal.service.report.figures import CAMERA_SIZE_PX, RIG_SIZE_PX, WAND_SIZE_PX, frustum
+from wandcal.service.report.figures import (
+    CAMERA_SIZE_PX,
+    RIG_SIZE_PX,
+    WAND_SIZE_PX,
+    draw_camera,
+    draw_rig,
+    draw_wand,
+    frustum,
+)
+from wandcal.service.report.labels import text_overlaps
 from wandcal.service.report.store import rendered_report, report_folder
 
 pytest.importorskip("matplotlib", reason="pip install 'wandcal[report]' (in the 'test' extra)")
@@ -328,3 +338,49 @@ def test_report_of_a_job_not_done_is_409(make_server, small_capture):
         for path in ("report", "report/", "report/rig.png"):
             r = c.get(f"/jobs/{job_id}/{path}")
             assert r.status_code == 409 and "queued" in r.json()["detail"], r.text
+
+
+# -- no text on text: every figure's labels, titles, ticks and legends apart ------------------
+# easyWand sessions in ../shared/data: sparse, with axis points and background points; (file, import options)
+REAL_SESSIONS = {
+    "brown-1": (SHARED_DATA / "easywand_brown_windtunnel_4cam" / "calibration1" / "extrinsicCalib_20230228_easyWandData.mat",
+                ()),
+    "brown-2": (SHARED_DATA / "easywand_brown_windtunnel_4cam" / "calibration2" / "extrinsicCalib_20230228_easyWandData.mat",
+                ()),
+    # its cameras' height is not in the file (tests/capture/formats/test_import_easywand.py)
+    "ushichka": (SHARED_DATA / "easywand_ushichka_thermal_3cam" / "round3_2018-07-28_easyWandData.mat",
+                 ("--height", str(USHICHKA_HEIGHT))),
+}
+
+
+def assert_no_text_overlaps(data) -> None:
+    """Every figure of a report, drawn: no two texts' boxes (from matplotlib's renderer) meet."""
+    figures = {"rig": draw_rig(data)}
+    if len(data.wand_frames):
+        figures["wand"] = draw_wand(data)
+    if data.has_capture:
+        figures |= {cam.id: draw_camera(cam) for cam in data.cameras}
+    for name, fig in figures.items():
+        assert not text_overlaps(fig), f"{name}: {text_overlaps(fig)}"
+
+
+def test_no_text_overlaps_in_the_figures_of_a_simulated_report(sim_report):
+    tmp, _, _ = sim_report
+    assert_no_text_overlaps(analyse(read_result(tmp / "result.json"), read_capture(tmp / "capture")))
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("session", sorted(REAL_SESSIONS))
+def test_no_text_overlaps_in_the_figures_of_real_sessions(session, tmp_path):
+    """The Brown wind tunnel's top view put camera ids and "origin" on one another."""
+    mat, options = REAL_SESSIONS[session]
+    if not mat.is_file():
+        pytest.skip(f"third-party data not found at {mat.parent}")
+    capture = tmp_path / "capture"
+    run = wandcal("import", "easywand", str(mat), *options, "--out", str(capture))
+    assert run.returncode == 0, run.stderr
+    run = wandcal("calibrate", str(capture), "--out", str(tmp_path / "result.json"), "--quiet")
+    assert run.returncode == 0, run.stderr
+    data = analyse(read_result(tmp_path / "result.json"), read_capture(capture))
+    assert data.axis or len(data.points)  # the crowded elements this test is about
+    assert_no_text_overlaps(data)
