@@ -43,6 +43,7 @@ WAND_DOTS = ("#566573", "blue-grey")
 POINT_DOTS = ("#e67e22", "orange")
 AXIS_POINTS = ("#8e44ad", "purple")
 OUTLIER_CROSSES = ("#1f77b4", "blue")
+FRAME_DOTS = ("#2c6fbb", "blue")  # the wand figure's frames
 
 
 def camera_colour(index: int):
@@ -379,7 +380,7 @@ def draw_wand(data: ReportData) -> Figure:
     pad = max(hi - lo, 1e-3) * 0.6
     ymin, ymax = lo - pad, hi + pad
     shown = np.clip(mm, ymin, ymax)  # a frame far off still shows, at the edge
-    ax.scatter(data.wand_frames[~bad], shown[~bad], s=10, c="#2c6fbb", linewidths=0, label="frames")
+    ax.scatter(data.wand_frames[~bad], shown[~bad], s=10, c=FRAME_DOTS[0], linewidths=0, label="frames")
     if bad.any():
         label = f"outlier frames ({int(bad.sum())}; \u25b2\u25bc: off the scale)"
         for marker, sel in (("x", (mm >= ymin) & (mm <= ymax)), ("^", mm > ymax), ("v", mm < ymin)):
@@ -392,7 +393,7 @@ def draw_wand(data: ReportData) -> Figure:
         for a in (ax, side):
             a.axhline(1000 * nominal, color="black", linewidth=1, linestyle="--",
                       label=f"nominal {1000 * nominal:.1f} mm")
-    side.hist(shown, bins=HIST_BINS, range=(ymin, ymax), orientation="horizontal", color="#2c6fbb")
+    side.hist(shown, bins=HIST_BINS, range=(ymin, ymax), orientation="horizontal", color=FRAME_DOTS[0])
     ax.set_ylim(ymin, ymax)
     ax.set_xlabel("frame")
     ax.set_ylabel("wand length (mm)")
