@@ -194,6 +194,14 @@ def project(browser: Browser, points) -> np.ndarray:
     return np.array(browser.js(f"{json.dumps(points)}.map((p) => window.wandcalRig.project(p))"), float)
 
 
+def solved(client, folder) -> tuple[str, dict]:
+    """Upload a capture folder and calibrate it: the capture's id and the done job."""
+    capture_id = client.post("/captures", files=capture_files(folder)).json()["id"]
+    job = wait_job(client, client.post("/jobs", json={"capture_id": capture_id}).json()["id"])
+    assert job["state"] == "done", job["error"]
+    return capture_id, job
+
+
 def wait_newest_job(client, older: str) -> dict:
     """The newest job once it is done, failed or cancelled; it must not be ``older``."""
     deadline = time.monotonic() + JOB_TIMEOUT_S
@@ -210,9 +218,7 @@ def test_the_rig_view_turns_zooms_keeps_its_labels_apart_and_follows_the_newest_
     folder, sim = small_capture
     server = make_server(workers=1).start()
     with server.client() as c:
-        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
-        first = wait_job(c, c.post("/jobs", json={"capture_id": capture_id}).json()["id"])
-        assert first["state"] == "done", first["error"]
+        capture_id, first = solved(c, folder)
         with Browser(CHROMIUM, tmp_path / "profile") as browser:
             browser.open(server.url + "/")
             browser.wait_for(f"document.querySelector('#result-section')?.dataset.drawn === '{first['id']}'")
@@ -293,9 +299,8 @@ def test_the_rig_panel_shows_the_judgement_and_a_crowded_rig_keeps_its_labels_ap
     folder, _ = small_capture
     server = make_server(workers=1).start()
     with server.client() as c:
-        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
-        job = wait_job(c, c.post("/jobs", json={"capture_id": capture_id}).json()["id"])
-    assert job["state"] == "done", job["error"]
+        _, job = solved(c, folder)
+        assert c.get("/jobs/" + "0" * 32 + "/scene").status_code == 404
     doc = judged(job["result"])
     with Browser(CHROMIUM, tmp_path / "profile") as browser:
         browser.answer(f"{server.url}/api/v1/jobs/{job['id']}", job | {"result": doc})
