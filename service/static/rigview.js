@@ -167,6 +167,7 @@ export class RigView {
       labels.push({ text: cam.id + rms, at: v3(a), kind: "camera", colour, camera: cam.id });
     });
 
+    if (this.scene) this.scene.traverse((o) => { if (o.geometry) o.geometry.dispose(); if (o.material) o.material.dispose(); });
     this.scene = scene;
     this.M = M;
     this.extent = extent;

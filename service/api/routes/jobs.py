@@ -233,7 +233,7 @@ async def get_report_file(job_id: str, name: str, state: State) -> FileResponse:
 
 # -- the page's 3D view: the capture's samples in the world (service/report/scene.py) ----------
 def _scene(state, job_id: str) -> dict:
-    from wandcal.capture.folder import CaptureFormatError
+    from wandcal.calib.errors import CalibrationError
     from wandcal.capture.results import result_from_json
     from wandcal.service.report.scene import scene
 
@@ -246,7 +246,7 @@ def _scene(state, job_id: str) -> dict:
         capture = None  # the cameras alone: the page draws them from the result
     try:
         return scene(result_from_json(record.result, f"the result of job {job_id}"), capture)
-    except CaptureFormatError as exc:
+    except CalibrationError as exc:  # the stored capture is not the result's (CaptureFormatError), or will not triangulate
         raise HTTPException(422, f"job {job_id}'s capture {record.capture_id}: {exc}") from None
 
 
