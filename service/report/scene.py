@@ -11,7 +11,7 @@ import numpy as np
 
 from wandcal.capture.folder import Capture
 from wandcal.capture.results import ResultFile
-from wandcal.service.report.analysis import _aligned, _point_tracks, _wand_midpoints
+from wandcal.service.report.analysis import aligned_observations, triangulated_points, wand_midpoints
 
 SCENE_FORMAT = "wandcal-scene/1"
 # Samples sent to the page: a browser draws 4000 points at once without effort, and a trail that
@@ -43,12 +43,12 @@ def scene(result: ResultFile, capture: Capture | None) -> dict:
         return empty
     from wandcal.calib.start.world import axis_points
 
-    rig, wand, points, axis = _aligned(result, capture)
+    rig, wand, points, axis = aligned_observations(result, capture)
     R, t = result.R, result.t
     trail = np.zeros((0, 3))
     if rig.wand_length is not None and len(wand):
-        trail, _ = _wand_midpoints(rig, R, t, wand)
-    cloud = _point_tracks(rig, R, t, points)[0]
+        trail, _ = wand_midpoints(rig, R, t, wand)
+    cloud = triangulated_points(rig, R, t, points)[0]
     world = result.doc.get("world") or {}
     static = rig.static_markers if world.get("frame") == "static_object" and rig.static_markers is not None else None
     axis_pts = axis_points(rig, axis, R, t) if axis is not None and len(axis.role) else {}
