@@ -240,8 +240,11 @@ async function showResult(jobId) {
     rigView = rigView || new RigView($("#rig-view"));
     rigView.show(job.result, samples);
     window.wandcalRig = rigView;  // the browser tests' handle on the projection and the labels
-    const n = samples ? samples.wand_frames : 0;
-    $("#rig-note").textContent = n ? `wand samples: ${n} frames (pale: first, dark: last)` + (samples.volume ? "; the box is the volume they fill" : "") : "";
+    const s = samples || { wand_frames: 0, points: [], volume: null };
+    const said = [s.wand_frames ? `wand samples: ${s.wand_frames} frames (pale: first, dark: last)` : null,
+      s.points.length ? `orange: ${s.points.length} single points` : null,
+      s.volume ? "the box is the volume they fill" : null].filter(Boolean);
+    $("#rig-note").textContent = said.join("; ");
     section.dataset.drawn = jobId;
   } catch (err) { $("#health").textContent = err.message; }
 }
