@@ -50,6 +50,12 @@ MIN_SOLVE_FRAMES = 10
 # Advice names a camera's links when it shares fewer frames than this with the rest: two
 # frames per 8 x 8 cell, so the shared frames can at least spread over its image.
 FEW_SHARED_FRAMES = 2 * GRID[0] * GRID[1]
+# A camera that has seen no wand while the rest of the rig saw it in this many frames (as many as a
+# camera needs shared to be linked at all) is off, blocked or aimed away: say so then, and not
+# before -- with no wand yet (the L-frame still being recorded, nobody waving) silence says nothing
+# about a camera.
+SILENT_CAMERA_FRAMES = FEW_SHARED_FRAMES
+NO_WAND_YET = "no wand frames yet: wave the wand through the volume, where several cameras see it"
 # Cameras left out, weakest first, when the fast solve cannot place them all; the rest are solved.
 MAX_LEFT_OUT = 2
 # Knuth's multiplicative hash: a fixed pseudo-random number in [0, 1) per frame number, so one
@@ -150,7 +156,8 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
     solution, failure, info = None, None, {"frames_used": 0, "cameras": 0, "warm_start": False}
     left_out: dict[str, str] = {}
     if solve_set.sum() < 2:
-        failure = "no two cameras share enough frames to solve yet; wave the wand where several cameras see it"
+        failure = (NO_WAND_YET if not len(seen.pairs) else
+                   "no two cameras share enough frames to solve yet; wave the wand where several cameras see it")
     for attempt in range(MAX_LEFT_OUT + 1):
         if solve_set.sum() < 2:
             break
@@ -305,6 +312,7 @@ def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, s
     ids = rig.ids
     target, goal = settings.target_std_mm, settings.min_coverage
     cameras, worst = [], []
+    rig_frames = int(len(np.unique(seen.pairs.frames[seen.pairs.frame])) if len(seen.pairs) else 0)
     for c, cam in enumerate(rig.cameras):
         uv = seen.pairs.uv[seen.pairs.camera == c].reshape(-1, 2)
         grid = coverage_grid(uv, cam.width, cam.height, settings.grid)
@@ -320,7 +328,7 @@ def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, s
             "center_std_mm": sigma_mm,
             "rotation_std_deg": None if np.isnan(rotation[c]) else float(np.degrees(rotation[c])),
         }
-        advice, severity = _camera_advice(entry, grid, bool(solve_set[c]), settings)
+        advice, severity = _camera_advice(entry, grid, bool(solve_set[c]), settings, rig_frames)
         entry["advice"] = advice
         cameras.append(entry)
         if advice is not None:
@@ -331,7 +339,7 @@ def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, s
     advice = ([info["message"]] if not info["ok"] and info["message"] else []) + [w[2] for w in worst]
     return {
         "format": GUIDANCE_FORMAT,
-        "frames": int(len(np.unique(seen.pairs.frames[seen.pairs.frame])) if len(seen.pairs) else 0),
+        "frames": rig_frames,
         "enough": bool(enough),
         "advice": advice,
         "target": {"center_std_mm": target, "coverage": goal},
@@ -340,16 +348,23 @@ def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, s
     }
 
 
-def _camera_advice(entry: dict, grid: np.ndarray, solved: bool, settings: GuidanceSettings) -> tuple[str | None, float]:
+def _camera_advice(entry: dict, grid: np.ndarray, solved: bool, settings: GuidanceSettings,
+                   rig_frames: int) -> tuple[str | None, float]:
     """Words for one camera, or None when it needs nothing, and how badly it needs them (for the
     worst-first order): a camera without frames or outside the solve first, then by the larger
-    of its sigma over the target and the coverage goal over its coverage."""
+    of its sigma over the target and the coverage goal over its coverage. ``rig_frames``: the
+    frames in which any camera saw both wand ends (a camera is only suspect when the others saw
+    the wand and it did not)."""
     cid, frames, shared = entry["id"], entry["frames"], entry["shared_frames"]
     sigma, fraction = entry["center_std_mm"], entry["coverage"]
     target, goal = settings.target_std_mm, settings.min_coverage
     if frames == 0:
-        return (f"{cid} has not seen both wand ends yet; check that it is on and aimed at the volume, then wave "
-                f"the wand in its view"), float("inf")
+        if rig_frames == 0:
+            return f"{cid}: waiting for the wand", float("inf")
+        if rig_frames < SILENT_CAMERA_FRAMES:
+            return f"{cid} has not seen both wand ends yet; wave the wand in its view", float("inf")
+        return (f"{cid} has not seen both wand ends in any of the {rig_frames} frames the other cameras saw; check "
+                "that it is on and aimed at the volume, then wave the wand in its view"), float("inf")
     neighbours = sorted(entry["linked"], key=lambda d: -entry["linked"][d])[:2]
     near = f" and {' or '.join(neighbours)}" if neighbours else ""
     linking = (f"{cid} shares only {shared} frames with the others; wave the wand where {cid}{near} see it "

@@ -129,16 +129,16 @@ def analyse(result: ResultFile, capture: Capture | None) -> ReportData:
         return ReportData(result, cams, False, np.zeros((0, 3)), z.astype(int), z.astype(int), z, z.astype(bool),
                           None, {}, np.zeros((0, 3)), notes)
 
-    rig, wand, points, axis = _aligned(result, capture)
+    rig, wand, points, axis = aligned_observations(result, capture)
     R, t = result.R, result.t
     notes = []
     ev, trajectory, trajectory_frames = None, np.zeros((0, 3)), np.zeros(0, int)
     if rig.wand_length is not None and len(wand):
         ev = evaluate_wand(rig, R, t, wand)
-        trajectory, trajectory_frames = _wand_midpoints(rig, R, t, wand)
+        trajectory, trajectory_frames = wand_midpoints(rig, R, t, wand)
     else:
         notes.append("The capture has no wand: no wand length over frames and no wand path.")
-    cloud, p_cam, p_uv, p_res = _point_tracks(rig, R, t, points)
+    cloud, p_cam, p_uv, p_res = triangulated_points(rig, R, t, points)
     p_out = outlier_mask(np.linalg.norm(p_res, axis=1))
 
     static = None
@@ -212,7 +212,7 @@ def rim_ratio(cam: CameraSummary) -> float | None:
     return float(np.median(err[radius > outer]) / max(np.median(err[radius < inner]), 1e-12))
 
 
-def _aligned(result: ResultFile, capture: Capture
+def aligned_observations(result: ResultFile, capture: Capture
              ) -> tuple[Rig, WandObservations, PointObservations | None, AxisObservations | None]:
     """The capture's observations indexed by the result's cameras, and a rig with the result's
     (refined) intrinsics, the capture's wand length and static object."""
@@ -240,7 +240,7 @@ def _aligned(result: ResultFile, capture: Capture
     return rig, wand, points, axis
 
 
-def _wand_midpoints(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations) -> tuple[np.ndarray, np.ndarray]:
+def wand_midpoints(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations) -> tuple[np.ndarray, np.ndarray]:
     """(T, 3) the wand's midpoint in each frame two cameras saw, world, and (T,) their frame numbers."""
     try:
         pairs = labelled_pairs(rig, R, t, wand)
@@ -252,7 +252,7 @@ def _wand_midpoints(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservatio
     return mid[ok], pairs.frames[ok]
 
 
-def _point_tracks(rig: Rig, R: np.ndarray, t: np.ndarray, points: PointObservations | None):
+def triangulated_points(rig: Rig, R: np.ndarray, t: np.ndarray, points: PointObservations | None):
     """Single-point tracks triangulated with the result's poses: (T, 3) points, and per
     observation (Q,) camera, (Q, 2) raw pixels and (Q, 2) residuals in pixels."""
     if points is None or not len(points):

@@ -14,11 +14,12 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
-from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (registers the "3d" projection)
+from mpl_toolkits.mplot3d import Axes3D, proj3d  # noqa: F401  (Axes3D registers the "3d" projection)
 
 from wandcal.calib.judge.coverage import GRID
 from wandcal.calib.judge.quality import HIGH_RMS_PX, OUTLIER_SIGMAS, robust_sigma
 from wandcal.service.report.analysis import CameraSummary, ReportData
+from wandcal.service.report.labels import Label, axes_of, hide_colliding_ticks, place_labels
 
 DPI = 100
 # (width, height) in pixels: wide enough for a laptop screen, readable when the page scales them down
@@ -34,7 +35,15 @@ HIST_BINS = 40
 CAMERA_COLOURS = "tab10"  # one colour per camera, the same in every figure
 AXIS_COLOURS = {"x": "#c0392b", "y": "#27ae60", "z": "#2c6fbb"}  # red, green, blue as in every 3D tool
 EMPTY_CELL = "#f4c7c3"  # a pale red: an empty cell is what the operator should act on
+AXIS_LABEL_PAD = 10  # points: a 3D axis's name clear of its tick numbers (matplotlib's 4 puts them on one another)
 TEXT_BOX = {"facecolor": "white", "alpha": 0.75, "edgecolor": "none", "pad": 1.5}
+# (colour, its name in the captions) of the rig's samples: service/report/page.py words the
+# caption from these, so a caption cannot name a colour the figure does not draw
+WAND_DOTS = ("#566573", "blue-grey")
+POINT_DOTS = ("#e67e22", "orange")
+AXIS_POINTS = ("#8e44ad", "purple")
+OUTLIER_CROSSES = ("#1f77b4", "blue")
+FRAME_DOTS = ("#2c6fbb", "blue")  # the wand figure's frames
 
 
 def camera_colour(index: int):
@@ -93,8 +102,13 @@ def _scene_extent(data: ReportData, centres: np.ndarray, M: np.ndarray) -> tuple
 
 
 def rig_figure(data: ReportData, path: Path) -> Path:
+    return _save(draw_rig(data), path)
+
+
+def draw_rig(data: ReportData) -> Figure:
     """The rig in 3D and from above: cameras as frusta with their ids, the wand's path, the static
-    object, axis points, single-point tracks and the world axes."""
+    object, axis points, single-point tracks and the world axes. Labels placed apart
+    (:func:`wandcal.service.report.labels.place_labels`)."""
     docs = data.result.doc["cameras"]
     world = data.result.doc.get("world") or {}
     M, names = display_axes(world.get("frame"))
@@ -103,11 +117,10 @@ def rig_figure(data: ReportData, path: Path) -> Path:
     depth = FRUSTUM_DEPTH * extent
     frusta = [frustum(d, depth) for d in docs]
     fig = _figure(RIG_SIZE_PX, layout=None)  # constrained layout squeezes 3D axes: placed by hand
-    ax3 = fig.add_axes((0.0, 0.0, 0.50, 0.95), projection="3d")
+    ax3 = fig.add_axes((0.0, 0.04, 0.50, 0.9), projection="3d")  # room below for the x axis's name
     top = fig.add_axes((0.59, 0.2, 0.36, 0.72))
     unit = data.unit
-    for ax, dims in ((ax3, (0, 1, 2)), (top, (0, 1))):
-        _draw_scene(ax, dims, M, data, docs, frusta, extent)
+    labels = {ax: _draw_scene(ax, dims, M, data, docs, frusta, extent) for ax, dims in ((ax3, (0, 1, 2)), (top, (0, 1)))}
     # equal scale on every axis, with some room for the labels
     pad = 0.08 * extent
     frusta_pts = np.vstack(frusta) @ M.T
@@ -123,7 +136,8 @@ def rig_figure(data: ReportData, path: Path) -> Path:
     ax3.set_ylabel(f"{names[1]} ({unit})")
     ax3.set_zlabel(f"{names[2]} ({unit})")
     ax3.view_init(elev=25, azim=-60)
-    fig.text(0.25, 0.96, f"the rig in 3D (world frame: {world.get('frame', '?')})", ha="center", va="top", fontsize=12)
+    title = fig.text(0.25, 0.96, f"the rig in 3D (world frame: {world.get('frame', '?')})", ha="center", va="top",
+                     fontsize=12)
     top.set_aspect("equal")
     top.set_xlim(lo[0], hi[0])
     top.set_ylim(lo[1], hi[1])
@@ -132,38 +146,51 @@ def rig_figure(data: ReportData, path: Path) -> Path:
     top.grid(True, alpha=0.3)
     top.set_title("from above (looking down the z axis)" if world.get("frame") != "camera" else
                   f"from above if {docs[0]['id']} is level (looking along its y axis)")
-    handles, labels = top.get_legend_handles_labels()
+    handles, legend_labels = top.get_legend_handles_labels()
     if handles:
-        top.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncols=2, fontsize=9,
+        top.legend(handles, legend_labels, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncols=2, fontsize=9,
                    frameon=False, markerscale=2)
-    return _save(fig, path)
+    for axis in axes_of(ax3):
+        axis.labelpad = AXIS_LABEL_PAD
+    hide_colliding_ticks(fig, [ax3, top])  # draws the figure: the 3D projection and every text's place are known
+    for ax, wanted in labels.items():
+        fixed = [title, ax.title, *(a.label for a in axes_of(ax)),
+                 *(t.label1 for a in axes_of(ax) for t in a.get_major_ticks())]
+        place_labels(ax, [Label(text, _projected(ax, point), style) for text, point, style in wanted], fixed)
+    return fig
+
+
+def _projected(ax, point: np.ndarray) -> tuple[float, float]:
+    """Where a drawing-space point lands in the axes' 2D data coordinates (a 3D axes' projection)."""
+    if not hasattr(ax, "zaxis"):
+        return float(point[0]), float(point[1])
+    x, y, _ = proj3d.proj_transform(*point, ax.get_proj())
+    return float(x), float(y)
 
 
 def _draw_scene(ax, dims: tuple[int, ...], M: np.ndarray, data: ReportData, docs: list[dict],
-                frusta: list[np.ndarray], extent: float) -> None:
+                frusta: list[np.ndarray], extent: float) -> list[tuple[str, np.ndarray, dict]]:
     """Draw the rig's elements (world coordinates, drawn as ``M @ x``) on a 3D axes (dims 0, 1, 2)
-    or a top view (dims 0, 1)."""
+    or a top view (dims 0, 1); return the labels to place, (text, drawing-space point, style),
+    cameras first."""
     sel = list(dims)
-    up = M.T @ np.array([0, 0, 1.0])  # the world direction drawn upwards
 
     def xy(points):
         points = np.atleast_2d(points) @ M.T
         return [points[:, d] for d in sel]
 
-    def at(point):
-        return [float(v) for v in (M @ point)[sel]]
-
     if len(data.trajectory):
-        ax.scatter(*xy(data.trajectory), s=4, c="#566573", alpha=0.45, linewidths=0,
+        ax.scatter(*xy(data.trajectory), s=4, c=WAND_DOTS[0], alpha=0.45, linewidths=0,
                    label=f"wand midpoints ({len(data.trajectory)} frames)")
     if len(data.points):
-        ax.scatter(*xy(data.points), s=4, c="#e67e22", alpha=0.5, linewidths=0,
+        ax.scatter(*xy(data.points), s=4, c=POINT_DOTS[0], alpha=0.5, linewidths=0,
                    label=f"single-point tracks ({len(data.points)})")
     if data.static_markers is not None:
         ax.scatter(*xy(data.static_markers), s=36, c="black", marker="s", label="static object markers")
+    cameras, others = [], []
     for role, p in data.axis.items():
-        ax.scatter(*xy(p), s=40, c="#8e44ad", marker="D")
-        ax.text(*at(p + 0.02 * extent), str(role), color="#8e44ad", fontsize=10)
+        ax.scatter(*xy(p), s=40, c=AXIS_POINTS[0], marker="D")
+        others.append((str(role), M @ p, {"color": AXIS_POINTS[0], "fontsize": 10, "bbox": TEXT_BOX}))
     length = AXIS_LENGTH * extent
     for k, name in enumerate("xyz"):
         tip = np.zeros(3)
@@ -171,8 +198,8 @@ def _draw_scene(ax, dims: tuple[int, ...], M: np.ndarray, data: ReportData, docs
         if len(sel) == 3 or abs(M[2, k]) < 0.5:  # an axis pointing at the viewer is a dot: left out
             seg = np.vstack([np.zeros(3), tip])
             ax.plot(*xy(seg), color=AXIS_COLOURS[name], linewidth=2.5)
-            ax.text(*at(tip * 1.15), name, color=AXIS_COLOURS[name], fontsize=12, fontweight="bold",
-                    ha="center", va="center")
+            others.append((name, M @ tip, {"color": AXIS_COLOURS[name], "fontsize": 12, "fontweight": "bold",
+                                           "bbox": TEXT_BOX}))
     for i, (doc, f) in enumerate(zip(docs, frusta)):
         colour = camera_colour(i)
         apex, corners = f[0], f[1:]
@@ -182,14 +209,19 @@ def _draw_scene(ax, dims: tuple[int, ...], M: np.ndarray, data: ReportData, docs
         ax.plot(*xy(ring), color=colour, linewidth=1)
         ax.plot(*xy(corners[:2]), color=colour, linewidth=3.5)  # the image's top edge: which way is up
         ax.scatter(*xy(apex), s=25, color=colour)
-        ax.text(*at(apex + 0.03 * extent * up), doc["id"], color="black", fontsize=11,
-                fontweight="bold", bbox=TEXT_BOX, zorder=10)
+        cameras.append((doc["id"], M @ apex, {"color": "black", "fontsize": 11, "fontweight": "bold",
+                                              "bbox": TEXT_BOX | {"edgecolor": colour}, "zorder": 10}))
     if len(sel) == 2:
         ax.plot([], [], color="gray", linewidth=1, label="camera frustum (thick edge: image top)")
+    return cameras + others
 
 
 # -- one camera -------------------------------------------------------------------------------
 def camera_figure(cam: CameraSummary, path: Path) -> Path:
+    return _save(draw_camera(cam), path)
+
+
+def draw_camera(cam: CameraSummary) -> Figure:
     """Three panels of one camera: where it saw the wand (a grid of counts, empty cells pale red),
     its residuals over the image (RMS per cell, arrows of the mean residual), their histogram."""
     fig = _figure(CAMERA_SIZE_PX)
@@ -198,7 +230,7 @@ def camera_figure(cam: CameraSummary, path: Path) -> Path:
     _coverage_panel(fig, axes[0], cam)
     _residual_map_panel(fig, axes[1], cam)
     _histogram_panel(axes[2], cam)
-    return _save(fig, path)
+    return fig
 
 
 def _image_axes(ax, cam: CameraSummary) -> None:
@@ -270,7 +302,7 @@ def _residual_map_panel(fig: Figure, ax, cam: CameraSummary) -> None:
     ax.quiverkey(q, 0.97, 1.04, key, f"mean residual {key:g} px", labelpos="W", coordinates="axes",
                  fontproperties={"size": 9})
     if bad.any():
-        ax.scatter(uv_all[bad, 0], uv_all[bad, 1], marker="x", s=30, c="#1f77b4", linewidths=1.5)
+        ax.scatter(uv_all[bad, 0], uv_all[bad, 1], marker="x", s=30, c=OUTLIER_CROSSES[0], linewidths=1.5)
         ax.set_xlabel(f"u (px); \u00d7: {int(bad.sum())} outliers, left out of the cells")
     ax.set_title("residuals", fontsize=11, loc="left")
 
@@ -332,6 +364,10 @@ def _round_down(x: float) -> float:
 
 # -- the wand ---------------------------------------------------------------------------------
 def wand_figure(data: ReportData, path: Path) -> Path:
+    return _save(draw_wand(data), path)
+
+
+def draw_wand(data: ReportData) -> Figure:
     """The wand's length over the frames (each end triangulated on its own), outlier frames as red
     crosses (pinned to the plot's edge when far off), the nominal length as a line; and the
     lengths' histogram beside it."""
@@ -344,7 +380,7 @@ def wand_figure(data: ReportData, path: Path) -> Path:
     pad = max(hi - lo, 1e-3) * 0.6
     ymin, ymax = lo - pad, hi + pad
     shown = np.clip(mm, ymin, ymax)  # a frame far off still shows, at the edge
-    ax.scatter(data.wand_frames[~bad], shown[~bad], s=10, c="#2c6fbb", linewidths=0, label="frames")
+    ax.scatter(data.wand_frames[~bad], shown[~bad], s=10, c=FRAME_DOTS[0], linewidths=0, label="frames")
     if bad.any():
         label = f"outlier frames ({int(bad.sum())}; \u25b2\u25bc: off the scale)"
         for marker, sel in (("x", (mm >= ymin) & (mm <= ymax)), ("^", mm > ymax), ("v", mm < ymin)):
@@ -357,7 +393,7 @@ def wand_figure(data: ReportData, path: Path) -> Path:
         for a in (ax, side):
             a.axhline(1000 * nominal, color="black", linewidth=1, linestyle="--",
                       label=f"nominal {1000 * nominal:.1f} mm")
-    side.hist(shown, bins=HIST_BINS, range=(ymin, ymax), orientation="horizontal", color="#2c6fbb")
+    side.hist(shown, bins=HIST_BINS, range=(ymin, ymax), orientation="horizontal", color=FRAME_DOTS[0])
     ax.set_ylim(ymin, ymax)
     ax.set_xlabel("frame")
     ax.set_ylabel("wand length (mm)")
@@ -368,4 +404,4 @@ def wand_figure(data: ReportData, path: Path) -> Path:
     mean, std = float(np.mean(good)), float(np.std(good))
     ax.set_title(f"wand length, each end triangulated on its own: {mean:.2f} \u00b1 {std:.2f} mm over "
                  f"{int((~bad).sum())} frames without outliers ({100 * std / mean:.3f}%)", fontsize=11)
-    return _save(fig, path)
+    return fig

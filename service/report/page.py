@@ -6,8 +6,11 @@ import html
 import math
 
 from wandcal.service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
+from wandcal.service.report.figures import AXIS_POINTS, FRAME_DOTS, OUTLIER_CROSSES, POINT_DOTS, WAND_DOTS
 
 DASH = "\u2014"  # what a field an older result lacks shows
+FAULT_WORDS = {"intrinsics": "intrinsics", "timing": "timing", "wand_scale": "wand scale", "outliers": "outliers",
+               "unconverged": "not converged", "undetermined": "undetermined"}  # verdict.faults[].kind, for people
 STYLE = """
 body { font: 15px/1.45 system-ui, sans-serif; color: #1d2630; margin: 1.5em auto; max-width: 1540px; padding: 0 1em; }
 h1 { margin-bottom: 0.2em; } h2 { border-bottom: 1px solid #d5dae0; padding-bottom: 0.2em; margin-top: 1.6em; }
@@ -47,15 +50,11 @@ def render_page(data: ReportData, figures: dict[str, str]) -> str:
     ]
     parts += [f'<p class="note">{_e(n)}</p>' for n in data.notes]
     parts += ['<section id="rig"><h2>The rig</h2>', _img(figures.get("rig"), _rig_alt(data)),
-              ("<p>Each camera is a frustum pointing where it looks, its thick edge the top of its image. "
-               "Grey dots are the wand's midpoint in each frame; the red, green and blue lines are the world's "
-               "x, y and z axes at its origin.</p></section>")]
+              f'<p class="caption">{_e(rig_caption(data))}</p></section>']
     parts += ['<section id="cameras"><h2>Cameras</h2>', _overview(data), "</section>"]
     if "wand" in figures:
         parts += ['<section id="wand"><h2>The wand</h2>', _img(figures["wand"], _wand_alt(data)),
-                  ("<p>Each wand end triangulated on its own, without the known length: its spread is an "
-                   "independent check of the calibration (easyWand's wand score is std / mean). Red crosses are "
-                   "frames with an outlier observation or a length far off the others.</p></section>")]
+                  f'<p class="caption">{_e(wand_caption(data))}</p></section>']
     for cam in data.cameras:
         parts += _camera_section(data, cam, figures.get(cam.id))
     parts.append("</body></html>")
@@ -81,7 +80,30 @@ def _summary(data: ReportData) -> list[str]:
     out = [f'<p class="meta">{_e(line)}</p>' for line in lines]
     out.append(f'<p id="rig-verdict">Rig verdict: {_verdict_html(word)}'
                + (f" \u2014 {_e('; '.join(reasons))}" if reasons else "") + "</p>")
+    v = doc.get("verdict") if isinstance(doc.get("verdict"), dict) else {}
+    faults = v.get("faults")
+    words = [f"{_e(FAULT_WORDS.get(f.get('kind'), f.get('kind')))}{_e(' (' + f['camera'] + ')') if f.get('camera') else ''}: "
+             f"{_e(f.get('message', ''))}" for f in faults or [] if isinstance(f, dict)]
+    out.append('<p id="rig-faults">Faults: ' + (DASH if faults is None else "none found" if not words else "")
+               + ('<ul>' + "".join(f"<li>{w}</li>" for w in words) + "</ul>" if words else "") + "</p>")
+    if _advice_of(v):
+        out.append('<div id="rig-advice">What to do:' + _items(_advice_of(v)) + "</div>")
+    place = world.get("placement") if isinstance(world.get("placement"), dict) else {}
+    p_word, p_reasons = verdict(v.get("placement"))
+    out.append(f'<p id="placement">World frame placement: origin \u00b1 {_num(place.get("origin_std_mm"), ".2f", " mm")}'
+               f', axes \u00b1 {_num(place.get("axes_std_deg"), ".3f", " deg")}'
+               + (f" \u2014 {_verdict_html(p_word)}" + (f" ({_e('; '.join(p_reasons))})" if p_reasons else "")
+                  if p_word else "") + "</p>")
     return out
+
+
+def _advice_of(value) -> list[str]:
+    advice = value.get("advice") if isinstance(value, dict) else None
+    return [str(a) for a in advice] if isinstance(advice, list) else []
+
+
+def _items(items: list[str]) -> str:
+    return ("<ul>" + "".join(f"<li>{_e(i)}</li>" for i in items) + "</ul>") if items else ""
 
 
 def _advice(data: ReportData) -> list[str]:
@@ -101,7 +123,8 @@ def _list(section_id: str, title: str, items: list[str], empty: str) -> list[str
 def _overview(data: ReportData) -> str:
     unit = data.unit
     head = ["camera", f"centre x, y, z ({unit})", "reprojection RMS (px)", "observations", "centre \u00b1 (mm)",
-            "rotation \u00b1 (deg)", "verdict", "coverage"]
+            "rotation \u00b1 (deg)", "geometry \u00b1 (mm)", "geometry rotation \u00b1 (deg)", "ray distance (mm)",
+            "outliers", "verdict", "coverage"]
     rows = []
     for cam in data.cameras:
         d = cam.doc
@@ -113,6 +136,10 @@ def _overview(data: ReportData) -> str:
             f'<td class="num">{_num(d.get("observations"), "d")}</td>'
             f'<td class="num">{_num(d.get("center_std_mm"), ".2f")}</td>'
             f'<td class="num">{_num(d.get("rotation_std_deg"), ".4f")}</td>'
+            f'<td class="num">{_num(d.get("geometry_std_mm"), ".2f")}</td>'
+            f'<td class="num">{_num(d.get("geometry_rotation_std_deg"), ".4f")}</td>'
+            f'<td class="num">{_num(d.get("residual_mm"), ".2f")}</td>'
+            f'<td class="num">{_num(d.get("outlier_share"), ".1%")}</td>'
             f"<td>{_verdict_html(word)}</td>"
             f'<td class="num">{_num(coverage(cam), ".0%")}</td></tr>')
     return _table(head, rows)
@@ -131,8 +158,12 @@ def _camera_section(data: ReportData, cam: CameraSummary, figure: str | None) ->
         ("point observations", _num(d.get("point_observations"), "d")),
         ("centre standard deviation (center_std_mm)", _num(d.get("center_std_mm"), ".2f", " mm")),
         ("rotation standard deviation (rotation_std_deg)", _num(d.get("rotation_std_deg"), ".4f", " deg")),
-        ("verdict", _verdict_html(word) + ("<ul>" + "".join(f"<li>{_e(r)}</li>" for r in reasons) + "</ul>"
-                                           if reasons else "")),
+        ("centre relative to the other cameras (geometry_std_mm)", _num(d.get("geometry_std_mm"), ".2f", " mm")),
+        ("rotation relative to the other cameras (geometry_rotation_std_deg)",
+         _num(d.get("geometry_rotation_std_deg"), ".4f", " deg")),
+        ("ray distance in the volume (residual_mm)", _num(d.get("residual_mm"), ".2f", " mm")),
+        ("outliers (outlier_share)", _num(d.get("outlier_share"), ".1%")),
+        ("verdict", _verdict_html(word) + _items(reasons + _advice_of(d.get("verdict")))),
         ("coverage of the image", _num(coverage(cam), ".0%")
          + (f" (no samples in {_e(', '.join(d['uncovered']))})" if d.get("uncovered") else "")),
         ("first pose from", _e(d.get("initial_pose") or DASH)),
@@ -148,13 +179,49 @@ def _camera_section(data: ReportData, cam: CameraSummary, figure: str | None) ->
         out.append('<ul class="advice">' + "".join(f"<li>{_e(s)}</li>" for s in said) + "</ul>")
     if figure:
         out.append(_img(figure, _camera_alt(cam)))
-        out.append("<p>Left: how many samples (wand ends, and single points if any) it saw in each cell of its "
-                   "image (pale red: none). Middle: the "
-                   "RMS residual per cell, with arrows of the mean residual (a pattern of arrows means a "
-                   "systematic error, not noise). Right: the residuals' histogram against what Gaussian noise "
-                   "would give.</p>")
+        out.append(f'<p class="caption">{_e(camera_caption(cam))}</p>')
     out.append("</section>")
     return out
+
+
+# -- captions: worded from what each figure draws (the colours' names come with the colours) --
+def rig_caption(data: ReportData) -> str:
+    drawn = []
+    if len(data.trajectory):
+        drawn.append(f"{WAND_DOTS[1]} dots are the wand's midpoint in each frame ({len(data.trajectory)} frames)")
+    if len(data.points):
+        drawn.append(f"{POINT_DOTS[1]} dots are the single-point tracks ({len(data.points)} points)")
+    if data.static_markers is not None:
+        drawn.append("black squares are the static object's markers")
+    if data.axis:
+        drawn.append(f"{AXIS_POINTS[1]} diamonds are the axis points ({', '.join(data.axis)})")
+    samples = (_sentence("; ".join(drawn)) + " ") if drawn else ""
+    return ("Each camera is a frustum in its own colour pointing where it looks, its thick edge the top of its "
+            f"image, its id beside it (with a line to it when the id had to move aside). {samples}The red, green "
+            "and blue lines are the world's x, y and z axes at its origin.")
+
+
+def camera_caption(cam: CameraSummary) -> str:
+    seen = "white dots its wand ends" + (f", {POINT_DOTS[1]} dots its single points" if len(cam.point_uv) else "")
+    outliers = (f"; {OUTLIER_CROSSES[1]} crosses are outliers, left out of the cells"
+                if cam.outlier.any() or cam.point_outlier.any() else "")
+    return (f"Left: how many samples it saw in each cell of its image (pale red: none), {seen}. Middle: the RMS "
+            "residual per cell, with arrows of the mean residual (a pattern of arrows means a systematic error, "
+            f"not noise){outliers}. Right: the residuals' histogram, stacked by kind, against what Gaussian noise "
+            "would give (black line); the dashed line is their RMS without outliers.")
+
+
+def wand_caption(data: ReportData) -> str:
+    outliers = (" Red crosses are frames with an outlier observation or a length far off the others (triangles: off "
+                "the scale, drawn at its edge)." if data.outlier_frame.any() else "")
+    nominal = " The dashed line is the wand's nominal length." if (data.result.doc.get("wand") or {}).get("length_m") else ""
+    return ("Each wand end triangulated on its own, without the known length: its spread is an independent check "
+            f"of the calibration (easyWand's wand score is std / mean). {FRAME_DOTS[1].capitalize()} dots are the "
+            f"frames, the histogram beside them their lengths.{outliers}{nominal}")
+
+
+def _sentence(text: str) -> str:
+    return text[:1].upper() + text[1:] + "."
 
 
 def coverage(cam: CameraSummary) -> float | None:

@@ -1,10 +1,12 @@
-// The rig page: polls the API once a second and draws what it finds. No external scripts.
-"use strict";
+// The rig page: polls the API once a second and draws what it finds. Nothing from elsewhere: the
+// 3D view's library is vendored (static/vendor/).
+import { $, el } from "./dom.js";
+import { cameraTable, rigJudgement } from "./results.js";
+import { RigView } from "./rigview.js";
 
 const API = "/api/v1";
 const POLL_MS = 1000;  // progress is written every 0.2 s; once a second is enough for people
 const CLOCK_SLACK_S = 2;  // the Date header has whole seconds: a smaller difference is its rounding, not skew
-const VIEW = { azimuth: -0.6, elevation: 0.45 };  // radians: a three-quarter view from above
 let token = new URLSearchParams(location.hash.slice(1)).get("token") || localStorage.getItem("wandcal-token") || "";
 // links opened in a tab of their own (a job's report) cannot send the Authorization header: the
 // server also takes the token from this cookie, for reads only (service/api/deps.py)
@@ -13,21 +15,15 @@ const setTokenCookie = () => {
     + (token ? "" : "; max-age=0");
 };
 setTokenCookie();
-let shownJob = null;
+let shownJob = null;  // the job the Rig panel shows
+let followNewest = true;  // the panel moves on to each newer finished job, until someone picks one with "show"
 let serverSkewS = 0;  // server clock minus this browser's, from the Date header: wait_deadline is server time
 const SIGMA_HISTORY = 120;  // guidance updates kept per camera for its sparkline: two minutes at one a second
 const sigmaHistory = new Map();  // "capture/camera" -> the predicted centre sigmas seen so far (mm)
 const SVG = "http://www.w3.org/2000/svg";
+const SOURCE_WORDS = { upload: "uploaded", replay: "recorded folder", stream: "streamed", live: "live capture" };
+let rigView = null;  // made when the first result is shown: the section is hidden until then
 
-const $ = (sel) => document.querySelector(sel);
-const el = (tag, attrs = {}, ...children) => {
-  const node = document.createElement(tag);
-  for (const [k, v] of Object.entries(attrs)) {
-    if (k === "class") node.className = v; else if (k.startsWith("data-")) node.setAttribute(k, v); else node[k] = v;
-  }
-  for (const c of children) node.append(c instanceof Node ? c : document.createTextNode(String(c)));
-  return node;
-};
 const short = (id) => id.slice(0, 8);
 
 async function api(path, options = {}) {
@@ -55,12 +51,19 @@ function coverage(capture) {
   });
 }
 
+// "live capture: cam1 cam2", not "live (live: cam1 cam2)": the name without its source's prefix
+function sourceText(c) {
+  const source = SOURCE_WORDS[c.source] || c.source;
+  const name = (c.name || "").replace(new RegExp(`^${c.source}:\\s*`), "");
+  return name && name !== c.source ? `${source}: ${name}` : source;
+}
+
 function renderCaptures(captures) {
   const body = $("#captures tbody");
   body.replaceChildren(...captures.map((c) => {
     const run = el("button", { onclick: () => startJob(c.id) }, "calibrate");
     return el("tr", { "data-capture-id": c.id },
-      el("td", { class: "id", title: c.id }, short(c.id)), el("td", {}, c.source + (c.name && c.name !== c.source ? ` (${c.name})` : "")),
+      el("td", { class: "id", title: c.id }, short(c.id)), el("td", {}, sourceText(c)),
       el("td", {}, c.frames), el("td", {}, ...coverage(c)), el("td", {}, run));
   }));
   $("#no-captures").hidden = captures.length > 0;
@@ -76,7 +79,7 @@ function progressText(job) {
 
 function renderJobs(jobs) {
   $("#jobs tbody").replaceChildren(...jobs.map((j) => {
-    const action = j.state === "done" ? el("button", { onclick: () => showResult(j.id) }, "show")
+    const action = j.state === "done" ? el("button", { onclick: () => { followNewest = false; showResult(j.id); } }, "show")
       : ["queued", "running"].includes(j.state) ? el("button", { onclick: () => cancelJob(j.id) }, "cancel") : "";
     // the illustrated report (drawn by the server on the first visit), in a tab of its own
     const report = j.state === "done" ? [" ", el("a", { href: `${API}/jobs/${j.id}/report`, target: "_blank",
@@ -86,14 +89,19 @@ function renderJobs(jobs) {
       el("td", {}, j.method), el("td", { class: "state-" + j.state }, j.state), el("td", {}, progressText(j)),
       el("td", {}, j.attempts), el("td", {}, action, ...report));
   }));
+  // jobs come newest first: the panel follows the newest finished job, and says when a newer one runs
   const latest = jobs.find((j) => j.state === "done");
-  if (latest && shownJob === null) showResult(latest.id);
+  if (latest && (shownJob === null || (followNewest && latest.id !== shownJob))) showResult(latest.id);
+  const newer = jobs.findIndex((j) => j.id === shownJob);
+  const pending = jobs.slice(0, Math.max(newer, 0)).find((j) => ["queued", "running"].includes(j.state));
+  $("#result-newer").textContent = pending ? `· job ${short(pending.id)} is ${pending.state}; the panel moves to it when it is done` : "";
 }
 
 async function startJob(captureId) {
   try {
     await api("/jobs", { method: "POST", headers: { "Content-Type": "application/json" },
       body: JSON.stringify({ capture_id: captureId }) });  // the server's default method
+    followNewest = true;
     poll();
   } catch (err) { alert(err.message); }
 }
@@ -189,7 +197,10 @@ function renderGuidance(captureId, g) {
 }
 
 async function pollGuidance(live) {
-  const show = live.capture_id && live.enough != null && !["idle", "failed"].includes(live.state);
+  // none while the L-frame is recorded or the rig waits for the wand: with no wand yet, every camera
+  // would be "missing" the wand, which says nothing about the camera
+  const wandPhase = live.phase === "wand" || ["done", "stopping"].includes(live.state);
+  const show = live.capture_id && live.enough != null && wandPhase && !["idle", "failed"].includes(live.state);
   if (!show) { $("#live-guidance").hidden = true; return; }
   try { renderGuidance(live.capture_id, await api(`/captures/${live.capture_id}/guidance`)); }
   catch (err) { $("#live-goal").textContent = err.message; }
@@ -211,60 +222,30 @@ async function liveAction(button, path, question) {
   poll();
 }
 
-// Orthographic view of world points (metres, z up) onto the canvas.
-function projector(points, canvas) {
-  const [ca, sa, ce, se] = [Math.cos(VIEW.azimuth), Math.sin(VIEW.azimuth), Math.cos(VIEW.elevation), Math.sin(VIEW.elevation)];
-  // a right-handed view from above: x to the right, y away from the viewer (so farther is higher), z up
-  const view = ([x, y, z]) => { const xr = ca * x - sa * y, yr = sa * x + ca * y; return [xr, ce * z + se * yr]; };
-  const flat = points.map(view);
-  const xs = flat.map((p) => p[0]), ys = flat.map((p) => p[1]);
-  const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
-  const margin = 50, scale = Math.min((canvas.width - 2 * margin) / Math.max(x1 - x0, 1e-6), (canvas.height - 2 * margin) / Math.max(y1 - y0, 1e-6));
-  return (p) => { const [u, v] = view(p); return [margin + (u - x0) * scale, canvas.height - margin - (v - y0) * scale]; };
-}
-
-function drawRig(result) {
-  const canvas = $("#rig"), ctx = canvas.getContext("2d");
-  const cams = result.cameras;
-  const reach = Math.max(...cams.map((c) => Math.hypot(...c.center))) || 1;
-  const axis = 0.25 * reach;  // viewing-direction arrows a quarter of the rig's size
-  const dirs = cams.map((c) => c.R[2]);  // third row of world->camera R: the optical axis in the world
-  const pts = [[0, 0, 0], ...cams.map((c) => c.center), ...cams.map((c, i) => c.center.map((v, k) => v + axis * dirs[i][k]))];
-  const P = projector(pts, canvas);
-  ctx.clearRect(0, 0, canvas.width, canvas.height);
-  const line = (a, b, color, width = 1) => { ctx.strokeStyle = color; ctx.lineWidth = width; ctx.beginPath(); ctx.moveTo(...P(a)); ctx.lineTo(...P(b)); ctx.stroke(); };
-  const unit = 0.2 * reach;
-  line([0, 0, 0], [unit, 0, 0], "#c0392b", 2); line([0, 0, 0], [0, unit, 0], "#27ae60", 2); line([0, 0, 0], [0, 0, unit], "#2c6fbb", 2);
-  ctx.font = "12px system-ui, sans-serif";
-  cams.forEach((c, i) => {
-    const tip = c.center.map((v, k) => v + axis * dirs[i][k]);
-    line(c.center, tip, "#7a8591", 1.5);
-    const [u, v] = P(c.center);
-    ctx.fillStyle = "#1d2630"; ctx.beginPath(); ctx.arc(u, v, 5, 0, 2 * Math.PI); ctx.fill();
-    const rms = c.reprojection_rms_px != null ? ` ${c.reprojection_rms_px.toFixed(2)} px` : "";
-    ctx.fillText(c.id + rms, u + 8, v - 8);
-  });
-}
-
 async function showResult(jobId) {
   try {
     const job = await api(`/jobs/${jobId}`);
     if (!job.result) return;
     shownJob = jobId;
-    $("#result-section").hidden = false;
+    const section = $("#result-section");
+    section.hidden = false;
+    section.dataset.jobId = jobId;
     $("#result-title").textContent = `job ${short(jobId)}, method ${job.method}`;
-    drawRig(job.result);
-    $("#residuals tbody").replaceChildren(...job.result.cameras.map((c) => el("tr", { "data-camera": c.id },
-      el("td", {}, c.id), el("td", {}, c.center.map((v) => v.toFixed(3)).join(", ")),
-      el("td", {}, c.center_std_mm != null ? c.center_std_mm.toFixed(2) : "–"),
-      el("td", {}, c.reprojection_rms_px != null ? c.reprojection_rms_px.toFixed(3) : "–"),
-      el("td", {}, c.observations != null ? c.observations : "–"),
-      el("td", { class: c.verdict ? `verdict-${c.verdict.level}` : "", title: c.verdict ? c.verdict.reasons.join("\n") : "" },
-        c.verdict ? c.verdict.level : "–"))));
-    const v = job.result.verdict;
-    $("#verdict").replaceChildren(...(v ? [el("strong", { class: `verdict-${v.level}` }, `verdict: ${v.level}`),
-      ...(v.reasons.length ? [` (${v.reasons.join("; ")})`] : [])] : []));
+    $("#residuals").replaceChildren(...cameraTable(job.result));
+    $("#judgement").replaceChildren(...rigJudgement(job.result));
     $("#warnings").replaceChildren(...(job.result.warnings || []).map((w) => el("li", {}, w)));
+    let samples = null;
+    try { samples = await api(`/jobs/${jobId}/scene`); } catch (err) { $("#rig-note").textContent = `no wand samples: ${err.message}`; }
+    if (shownJob !== jobId) return;  // another job was chosen meanwhile
+    rigView = rigView || new RigView($("#rig-view"));
+    rigView.show(job.result, samples);
+    window.wandcalRig = rigView;  // the browser tests' handle on the projection and the labels
+    const s = samples || { wand_frames: 0, points: [], volume: null };
+    const said = [s.wand_frames ? `wand samples: ${s.wand_frames} frames (pale: first, dark: last)` : null,
+      s.points.length ? `orange: ${s.points.length} single points` : null,
+      s.volume ? "the box is the volume they fill" : null].filter(Boolean);
+    $("#rig-note").textContent = said.join("; ");
+    section.dataset.drawn = jobId;
   } catch (err) { $("#health").textContent = err.message; }
 }
 

@@ -116,7 +116,8 @@ def test_capture_pauses_after_the_static_object_until_continue(make_server):
         assert r.status_code == 409 and "waiting for the wand" in r.json()["detail"]
         started, waiting = start_paused(c, emu)
         assert waiting["phase"] == "waiting" and waiting["frames_recorded"] == STATIC_SETS
-        assert "remove the L-frame" in waiting["prompt"] and "/capture/continue" in waiting["prompt"]
+        assert "remove the L-frame" in waiting["prompt"] and "press Continue" in waiting["prompt"]
+        assert "POST" not in waiting["prompt"]  # words for the operator, not for a program
         assert waiting["wait_deadline"] > waiting["started"]
         # nothing more is recorded while the operator swaps the L-frame for the wand
         assert c.get("/capture").json()["frames_recorded"] == STATIC_SETS

@@ -237,3 +237,33 @@ async def get_report_file(job_id: str, name: str, state: State) -> FileResponse:
         raise HTTPException(404, f"job {job_id}'s report has no file {name!r}; its page is report/index.html")
     headers = {"Content-Security-Policy": REPORT_CSP, "X-Content-Type-Options": "nosniff"}
     return FileResponse(path, media_type=media_type(path), headers=headers)
+
+
+# -- the page's 3D view: the capture's samples in the world (service/report/scene.py) ----------
+def _scene(state, job_id: str) -> dict:
+    from wandcal.calib.errors import CalibrationError
+    from wandcal.capture.results import result_from_json
+    from wandcal.service.report.scene import scene
+
+    record = _job(state, job_id)
+    if record.state is not JobState.done or record.result is None:
+        raise HTTPException(409, f"job {job_id} is {record.state.value}, it has no rig to draw yet")
+    try:
+        capture = state.captures.load(record.capture_id)
+    except CaptureNotFound:
+        capture = None  # the cameras alone: the page draws them from the result
+    try:
+        return scene(result_from_json(record.result, f"the result of job {job_id}"), capture)
+    except CalibrationError as exc:  # the stored capture is not the result's (CaptureFormatError), or will not triangulate
+        raise HTTPException(422, f"job {job_id}'s capture {record.capture_id}: {exc}") from None
+
+
+@router.get(
+    "/{job_id}/scene",
+    responses={401: UNAUTHORISED, 404: UNKNOWN_JOB, 409: NOT_DONE,
+               422: {"model": ErrorPublic, "description": "the stored capture does not match the result"}},
+    summary="The wand's samples, single points, axis points and volume of a done job's capture, in its world "
+            "frame (wandcal-scene/1), for the page's 3D view",
+)
+async def get_scene(job_id: str, state: State) -> dict:
+    return await run_in_threadpool(_scene, state, job_id)

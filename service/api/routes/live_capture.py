@@ -201,9 +201,10 @@ class LiveCapture:
             self._status = self._status.model_copy(update={
                 "state": LiveCaptureState.waiting_for_wand, "phase": "waiting",
                 "frames_recorded": static_sets, "wait_deadline": time.time() + timeout,
-                "prompt": "static object recorded: remove the L-frame from the volume and take the wand, then "
-                          "POST /api/v1/capture/continue to record the wand (POST /api/v1/capture/stop keeps only "
-                          f"the static recording); giving up after {timeout:g} s",
+                # for the operator at the rig (the page shows it above Continue); the API is in docs/api.md
+                "prompt": "The L-frame is recorded. Now remove the L-frame from the volume and pick up the wand, "
+                          "then press Continue to record the wand. Stop keeps only the L-frame recording. "
+                          f"Without Continue, the capture stops after {_duration(timeout)}.",
             })
         self._resume.wait(timeout)
         with self._lock:  # continue and stop set their state with the event, under this lock
@@ -338,6 +339,15 @@ def _register(store: CaptureStore, capture_id: str, staging: Path, name: str) ->
     """Make the detected staging folder the stored capture ``capture_id`` (images kept beside
     the points level), under the id announced when the capture started."""
     store.adopt(staging, capture_id, read_capture(staging), SOURCE, name)
+
+
+def _duration(seconds: float) -> str:
+    """'10 minutes', '1 minute 30 seconds', '45 seconds': a wait in words for the operator."""
+    minutes, rest = divmod(round(seconds), 60)
+    parts = [f"{minutes} minute{'s' * (minutes != 1)}"] if minutes else []
+    if rest or not minutes:
+        parts.append(f"{rest} second{'s' * (rest != 1)}")
+    return " ".join(parts)
 
 
 def get_live(request: Request) -> LiveCapture:

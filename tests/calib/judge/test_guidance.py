@@ -10,6 +10,8 @@ from wandcal.calib.geometry import camera_centers
 from wandcal.calib.guidance import (
     DEFAULT_MIN_COVERAGE,
     DEFAULT_TARGET_STD_MM,
+    NO_WAND_YET,
+    SILENT_CAMERA_FRAMES,
     GuidanceSettings,
     subsample,
     wanding_guidance,
@@ -107,8 +109,21 @@ def test_nothing_yet_is_not_enough_and_says_why():
     rig, _, static, _ = covering_capture(cameras=3, frames=10, seed=1)
     doc = wanding_guidance(rig, WandObservations([], [], np.zeros((0, 2))), static).document
     assert not doc["enough"] and not doc["solve"]["ok"] and doc["frames"] == 0
-    assert doc["advice"][0] == doc["solve"]["message"] and "no two cameras" in doc["advice"][0]
-    assert len(doc["advice"]) == 4 and all("has not seen" in a for a in doc["advice"][1:])
+    assert doc["advice"][0] == doc["solve"]["message"] == NO_WAND_YET
+    # no wand yet says nothing about a camera: no camera is suspected of being off
+    assert len(doc["advice"]) == 4 and all(a.endswith("waiting for the wand") for a in doc["advice"][1:])
+
+
+def test_a_silent_camera_is_suspected_only_once_the_others_saw_the_wand():
+    """Before the rest of the rig has seen the wand in SILENT_CAMERA_FRAMES frames, a camera that
+    saw none is asked for the wand, not suspected of being off."""
+    rig, wand, static, _ = covering_capture(cameras=4, frames=500, seed=4)
+    for frames, suspected in ((20, False), (SILENT_CAMERA_FRAMES + 50, True)):
+        keep = (wand.camera != 2) & (wand.frame < frames)
+        doc = wanding_guidance(rig, WandObservations(wand.frame[keep], wand.camera[keep], wand.uv[keep]), static).document
+        said = doc["cameras"][2]["advice"]
+        assert not doc["enough"] and said.startswith("cam3 has not seen both wand ends"), said
+        assert ("check that it is on" in said) == suspected, (frames, said)
 
 
 def test_a_camera_that_saw_a_still_wand_is_named_and_spoils_no_other():

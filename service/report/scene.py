@@ -1,0 +1,75 @@
+"""What the page's 3D rig view draws besides the cameras: the wand's samples in the world, the
+single-point tracks, the axis points and the static object's markers, and the volume they fill.
+
+The result holds the cameras only; the samples come from its capture, triangulated with the
+result's poses (the report's own analysis, :mod:`wandcal.service.report.analysis`). No matplotlib.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wandcal.capture.folder import Capture
+from wandcal.capture.results import ResultFile
+from wandcal.service.report.analysis import aligned_observations, triangulated_points, wand_midpoints
+
+SCENE_FORMAT = "wandcal-scene/1"
+# Samples sent to the page: a browser draws 4000 points at once without effort, and a trail that
+# dense already shows every gap in the volume; a longer capture is thinned evenly over its frames.
+MAX_SAMPLES = 4000
+# The volume is the box of the middle 98% of the samples on each axis: a stray triangulation
+# (a reflection seen by two cameras) does not stretch it.
+VOLUME_PERCENTILES = (1, 99)
+DECIMALS = 4  # 0.1 mm in metres: far below the calibration's own error, and a short document
+
+
+def scene(result: ResultFile, capture: Capture | None) -> dict:
+    """The 3D samples of a result's capture (``wandcal-scene/1``), world frame, metres (or the
+    result's arbitrary unit).
+
+    Returns:
+        ``{"format", "wand": [[x, y, z], ...] (the wand's midpoint per frame, at most
+        MAX_SAMPLES), "wand_frames": the number of frames before thinning, "points": single-point
+        tracks, "axis": {role: [x, y, z]}, "static_markers": [[x, y, z], ...] (only when the
+        world is the static object's frame), "volume": {"min", "max"} or None}``. Without a
+        capture every list is empty and the volume None.
+
+    Raises:
+        CaptureFormatError: the capture is not the one the result came from.
+    """
+    empty = {"format": SCENE_FORMAT, "wand": [], "wand_frames": 0, "points": [], "axis": {},
+             "static_markers": [], "volume": None}
+    if capture is None:
+        return empty
+    from wandcal.calib.start.world import axis_points
+
+    rig, wand, points, axis = aligned_observations(result, capture)
+    R, t = result.R, result.t
+    trail = np.zeros((0, 3))
+    if rig.wand_length is not None and len(wand):
+        trail, _ = wand_midpoints(rig, R, t, wand)
+    cloud = triangulated_points(rig, R, t, points)[0]
+    world = result.doc.get("world") or {}
+    static = rig.static_markers if world.get("frame") == "static_object" and rig.static_markers is not None else None
+    axis_pts = axis_points(rig, axis, R, t) if axis is not None and len(axis.role) else {}
+    samples = np.vstack([trail, cloud])
+    volume = None
+    if len(samples):
+        lo, hi = np.percentile(samples, VOLUME_PERCENTILES, axis=0)
+        volume = {"min": _rounded(lo), "max": _rounded(hi)}
+    return empty | {
+        "wand": _rounded(_thinned(trail)), "wand_frames": len(trail), "points": _rounded(_thinned(cloud)),
+        "axis": {str(k): _rounded(v) for k, v in axis_pts.items()},
+        "static_markers": _rounded(static) if static is not None else [], "volume": volume,
+    }
+
+
+def _thinned(points: np.ndarray) -> np.ndarray:
+    """At most MAX_SAMPLES of ``points``, evenly spread over them (the frames' order kept)."""
+    if len(points) <= MAX_SAMPLES:
+        return points
+    return points[np.linspace(0, len(points) - 1, MAX_SAMPLES).round().astype(int)]
+
+
+def _rounded(values) -> list:
+    return np.round(np.asarray(values, float), DECIMALS).tolist()

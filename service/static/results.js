@@ -1,0 +1,59 @@
+// The Rig panel's words and numbers: each camera's pose, its two uncertainties (in the world
+// frame, and relative to the other cameras), its residuals and verdict; the rig's verdict, its
+// named faults, its advice and how well the world frame is placed. Older results lack some of
+// these fields: a dash then.
+import { el } from "./dom.js";
+
+export const DASH = "–";  // what a field an older result lacks shows
+const FAULT_WORDS = {  // wandcal-result/1 verdict.faults[].kind, for people
+  intrinsics: "intrinsics", timing: "timing", wand_scale: "wand scale", outliers: "outliers",
+  unconverged: "not converged", undetermined: "undetermined",
+};
+
+const num = (v, digits, scale = 1) => (typeof v === "number" && Number.isFinite(v) ? (v * scale).toFixed(digits) : DASH);
+const level = (v) => (v && typeof v.level === "string" ? v.level : null);
+const words = (v) => [...((v && v.reasons) || []), ...((v && v.advice) || [])].join("\n");
+
+// (header, tooltip, cell) of each column of the camera table
+const COLUMNS = [
+  ["camera", "", (c) => c.id],
+  ["centre x, y, z (m)", "the camera's centre in the world frame", (c) => c.center.map((v) => v.toFixed(3)).join(", ")],
+  ["± (mm)", "predicted 1σ of the centre in the world frame (center_std_mm): the camera relative to the rig plus the world frame's own placement", (c) => num(c.center_std_mm, 2)],
+  ["± (deg)", "predicted 1σ of the rotation in the world frame (rotation_std_deg)", (c) => num(c.rotation_std_deg, 3)],
+  ["geometry ± (mm)", "1σ of the centre relative to the other cameras, gauge-free (geometry_std_mm): what 3D accuracy depends on", (c) => num(c.geometry_std_mm, 2)],
+  ["geometry ± (deg)", "1σ of the rotation relative to the other cameras (geometry_rotation_std_deg)", (c) => num(c.geometry_rotation_std_deg, 3)],
+  ["RMS (px)", "reprojection RMS of its wand observations", (c) => num(c.reprojection_rms_px, 3)],
+  ["ray distance (mm)", "RMS distance of its rays from the triangulated points in the volume (residual_mm)", (c) => num(c.residual_mm, 2, 1)],
+  ["outliers", "share of its observations judged gross outliers (outlier_share)", (c) => (typeof c.outlier_share === "number" ? `${(100 * c.outlier_share).toFixed(1)}%` : DASH)],
+  ["observations", "wand ends (and single points) it saw that the solve used", (c) => (c.observations != null ? c.observations : DASH)],
+];
+
+export function cameraTable(result) {
+  const head = el("thead", {}, el("tr", {}, ...COLUMNS.map(([h, tip]) => el("th", tip ? { title: tip } : {}, h)),
+    el("th", { title: "excellent / good / poor, with the reasons and what to do (hover)" }, "verdict")));
+  const rows = result.cameras.map((c) => {
+    const v = c.verdict, lv = level(v);
+    return el("tr", { "data-camera": c.id }, ...COLUMNS.map(([, , cell]) => el("td", {}, cell(c))),
+      el("td", { class: lv ? `verdict-${lv}` : "", title: words(v) }, lv || DASH));
+  });
+  return [head, el("tbody", {}, ...rows)];
+}
+
+// The rig's verdict, its faults (each naming its camera, if one), its advice and the world's placement.
+export function rigJudgement(result) {
+  const v = result.verdict, lv = level(v);
+  const out = [el("p", { id: "verdict" }, ...(lv ? [el("strong", { class: `verdict-${lv}` }, `verdict: ${lv}`),
+    ...(v.reasons && v.reasons.length ? [` (${v.reasons.join("; ")})`] : [])] : [`verdict: ${DASH}`]))];
+  const faults = (v && Array.isArray(v.faults)) ? v.faults : [];
+  out.push(el("h3", {}, "Faults"), faults.length
+    ? el("ul", { id: "faults" }, ...faults.map((f) => el("li", { "data-kind": f.kind, "data-camera": f.camera || "" },
+      el("strong", {}, `${FAULT_WORDS[f.kind] || f.kind}${f.camera ? ` (${f.camera})` : ""}: `), f.message || "")))
+    : el("p", { id: "faults", class: "muted" }, v && Array.isArray(v.faults) ? "none found" : DASH));
+  const advice = (v && v.advice) || [];
+  if (advice.length) out.push(el("h3", {}, "What to do"), el("ol", { id: "rig-advice" }, ...advice.map((a) => el("li", {}, a))));
+  const placement = (result.world || {}).placement, pv = v && v.placement, plv = level(pv);
+  out.push(el("p", { id: "placement" }, el("strong", {}, "world frame placement: "),
+    `origin ± ${num(placement && placement.origin_std_mm, 2)} mm, axes ± ${num(placement && placement.axes_std_deg, 3)} deg`,
+    ...(plv ? [" · ", el("span", { class: `verdict-${plv}` }, plv), ...(pv.reasons && pv.reasons.length ? [` (${pv.reasons.join("; ")})`] : [])] : [])));
+  return out;
+}
