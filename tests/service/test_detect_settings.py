@@ -9,14 +9,13 @@ import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from pydantic import ValidationError
 
 from wandcal.calib.detect import DetectConfig
 from wandcal.calib.sim.render import render_blobs
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import RIG_FILE, rig_to_json
 from wandcal.service.main import create_app
-from wandcal.service.settings import Settings
+from wandcal.service.settings import Settings, SettingsError
 
 SPOTS = np.array([[300.0, 400.0], [900.5, 610.2]])  # two wand markers in a 1280x1024 frame
 
@@ -75,8 +74,9 @@ def test_detect_settings_from_toml_and_environment(tmp_path, monkeypatch):
     monkeypatch.setenv("WANDCAL_DETECT", json.dumps({"background": "highpass", "highpass_px": 6}))
     assert Settings.load().detect.config() == DetectConfig(background="highpass", highpass_px=6)
     monkeypatch.setenv("WANDCAL_DETECT", json.dumps({"min_area_px": 9, "max_area_px": 5}))
-    with pytest.raises(ValidationError, match="max_area_px must be a whole number >= min_area_px"):
+    # a wrong setting is refused naming it (SettingsError, the CLI's exit 2), not a pydantic traceback
+    with pytest.raises(SettingsError, match="max_area_px must be a whole number >= min_area_px"):
         Settings.load()
     monkeypatch.setenv("WANDCAL_DETECT", json.dumps({"background": "running"}))
-    with pytest.raises(ValidationError, match="background"):
+    with pytest.raises(SettingsError, match="background"):
         Settings.load()

@@ -277,6 +277,22 @@ CROWD = 3  # copies of each camera a few centimetres apart: labels that must fin
 CROWD_STEP_M = 0.04
 
 
+JUDGEMENT_FIELDS = ("center_std_mm", "rotation_std_deg", "verdict", "geometry_std_mm", "geometry_rotation_std_deg",
+                    "geometry_std", "residual_mm", "residual_of_volume", "ray_mrad", "outlier_share", "noise_px",
+                    "geometry_of_volume")
+
+
+def older_result(result: dict) -> dict:
+    """The result as a version before issue 19 wrote it: none of the judgement's fields."""
+    doc = json.loads(json.dumps(result))
+    doc.pop("verdict", None)
+    doc["world"].pop("placement", None)
+    for cam in doc["cameras"]:
+        for key in JUDGEMENT_FIELDS:
+            cam.pop(key, None)
+    return doc
+
+
 def judged(result: dict) -> dict:
     doc = json.loads(json.dumps(result))
     for cam, geometry in zip(doc["cameras"], GEOMETRY_MM):
@@ -325,11 +341,7 @@ def test_the_rig_panel_shows_the_judgement_and_a_crowded_rig_keeps_its_labels_ap
         assert "origin ± 0.42 mm, axes ± 0.031 deg" in judgement and "good (L-frame seen by 4 cameras)" in judgement
 
         # an older result (none of these fields): a dash where each would be, and nothing breaks
-        older = json.loads(json.dumps(job["result"]))
-        older.pop("verdict")
-        for cam in older["cameras"]:
-            for key in ("center_std_mm", "rotation_std_deg", "verdict"):
-                cam.pop(key, None)
+        older = older_result(job["result"])
         browser.answer(f"{server.url}/api/v1/jobs/{job['id']}", job | {"result": older})
         browser.js(f"document.querySelector('tr[data-job-id=\"{job['id']}\"] button').click()")
         browser.wait_for("document.querySelector('#judgement').innerText.includes('verdict: –')")

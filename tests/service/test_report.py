@@ -418,7 +418,7 @@ def test_no_text_overlaps_in_the_figures_of_real_sessions(session, tmp_path):
 
 def test_the_report_shows_the_judgement(sim_report, tmp_path):
     """The fields of issue 19's judgement, added by hand to a real result (results before it lack them)."""
-    from tests.service.test_page import FAULT, GEOMETRY_MM, judged
+    from tests.service.test_page import FAULT, GEOMETRY_MM, judged, older_result
 
     tmp, _, _ = sim_report
     doc = judged(json.loads((tmp / "result.json").read_text()))
@@ -438,7 +438,7 @@ def test_the_report_shows_the_judgement(sim_report, tmp_path):
     assert "check cam3's intrinsics" in text
     assert "World frame placement: origin \u00b1 0.42 mm, axes \u00b1 0.031 deg" in text and "L-frame seen by 4" in text
 
-    older = json.loads((tmp / "result.json").read_text())  # no judgement fields: dashes
+    older = older_result(json.loads((tmp / "result.json").read_text()))  # no judgement fields: dashes
     (tmp_path / "older.json").write_text(json.dumps(older))
     run = wandcal("report", str(tmp_path / "older.json"), "--out", str(tmp_path / "out-older"))
     assert run.returncode == 0, run.stderr
