@@ -166,10 +166,32 @@ class StaticObservations:
         return self.uv[self.camera == index]
 
 
+@dataclass(frozen=True, eq=False)
 class PointObservations(WandObservations):
-    """Single-point tracks (``points.csv``): one unlabelled marker per camera and frame, the same
-    3D point for every camera that saw it in that frame (an LED, a laser spot, easyWand's
-    background points). Same fields as :class:`WandObservations`; a frame is a 3D point."""
+    """Point tracks (``points.csv``): the same 3D point for every camera that saw it in a frame.
+
+    Unlabelled (``point`` None): one marker per camera and frame (an LED, a laser spot, easyWand's
+    background points), and a frame is a 3D point. Labelled: several named points per frame
+    (body keypoints, the markers of a rigid object), and a (point, frame) pair is a 3D point.
+
+    Args:
+        frame, camera, uv: as :class:`WandObservations`.
+        point: (B,) str, each row's point name, or None for unlabelled rows; never partly empty.
+    """
+
+    point: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.point is None:
+            return
+        point = np.asarray(self.point, dtype=str).ravel()
+        if len(point) != len(self.frame):
+            raise CalibrationError("point observations: point must have one name per row")
+        if len(point) and not np.all(np.char.str_len(np.char.strip(point)) > 0):
+            raise CalibrationError("point observations: a row has an empty point name; name every point "
+                                   "or none (points.csv's 'point' column)")
+        object.__setattr__(self, "point", point)
 
 
 AXIS_ROLES = ("origin", "+x", "+y", "+z")

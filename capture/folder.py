@@ -35,6 +35,7 @@ AXIS_FILE = "axis.csv"
 WAND_COLUMNS = ("frame", "camera", "u", "v")
 STATIC_COLUMNS = ("camera", "u", "v")
 POINTS_COLUMNS = ("frame", "camera", "u", "v")
+POINT_COLUMN = "point"  # points.csv's optional last column: the point's name (labelled points)
 AXIS_COLUMNS = ("role", "camera", "u", "v")
 
 
@@ -177,11 +178,28 @@ def parse_static_csv(text: str, rig: Rig, source: str = STATIC_FILE) -> StaticOb
 
 
 def parse_points_csv(text: str, rig: Rig, source: str = POINTS_FILE) -> PointObservations:
-    """Parse points.csv text (``frame,camera,u,v``: one unlabelled marker per camera-frame, the
-    same 3D point in every camera that saw it in that frame); errors name the line and column."""
+    """Parse points.csv text; errors name the line and column.
+
+    ``frame,camera,u,v``: one unlabelled marker per camera-frame, the same 3D point in every
+    camera that saw it in that frame. With the optional ``point`` column, every row names its
+    point (a body keypoint, a marker of a rigid object) and a (point, frame) pair is one 3D point.
+    """
     # a camera-frame with two points is ambiguous; like a wand camera-frame with three blobs it is
     # dropped and counted by the pipeline (wandcal.calib.observations.point_tracks), not refused here
-    return PointObservations(*_frame_table(text, rig, POINTS_COLUMNS, source))
+    first = text.lstrip("\ufeff").partition("\n")[0]
+    if POINT_COLUMN not in (h.strip() for h in first.split(",")):
+        return PointObservations(*_frame_table(text, rig, POINTS_COLUMNS, source))
+    rows = _rows(text, (*POINTS_COLUMNS, POINT_COLUMN), source)
+    frame, camera, uv = _frame_rows(rows, rig, source)
+    names = [(row[POINT_COLUMN] or "").strip() for _, row in rows]
+    named = [k for k, n in enumerate(names) if n]
+    if named and len(named) < len(names):
+        blank = next(k for k, n in enumerate(names) if not n)
+        raise CaptureFormatError(
+            f"{source} line {rows[blank][0]}, column '{POINT_COLUMN}': empty, but line {rows[named[0]][0]} names point "
+            f"{names[named[0]]!r}; name the point on every row, or drop the '{POINT_COLUMN}' column for one unlabelled "
+            "point per camera and frame")
+    return PointObservations(frame, camera, uv, np.array(names, dtype=str) if named else None)
 
 
 def _frame_table(text: str, rig: Rig, columns: tuple[str, ...], source: str):
@@ -191,7 +209,11 @@ def _frame_table(text: str, rig: Rig, columns: tuple[str, ...], source: str):
     fast = _frame_table_fast(text, rig, columns)
     if fast is not None:
         return fast
-    rows = _rows(text, columns, source)
+    return _frame_rows(_rows(text, columns, source), rig, source)
+
+
+def _frame_rows(rows: list[tuple[int, dict]], rig: Rig, source: str):
+    """(frame (B,), camera (B,), uv (B, 2)) of parsed ``frame,camera,u,v`` rows, row by row."""
     frame = np.empty(len(rows), dtype=np.int64)
     camera = np.empty(len(rows), dtype=np.int64)
     uv = np.empty((len(rows), 2))
@@ -320,7 +342,11 @@ def write_capture(
     _write_csv(folder / WAND_FILE, WAND_COLUMNS, ([int(f), ids[c], *px(uv)] for f, c, uv in zip(wand.frame, wand.camera, wand.uv)))
     if static is not None:
         _write_csv(folder / STATIC_FILE, STATIC_COLUMNS, ([ids[c], *px(uv)] for c, uv in zip(static.camera, static.uv)))
-    if points is not None:
+    if points is not None and points.point is not None:
+        _write_csv(folder / POINTS_FILE, (*POINTS_COLUMNS, POINT_COLUMN),
+                   ([int(f), ids[c], *px(uv), str(n)]
+                    for f, c, uv, n in zip(points.frame, points.camera, points.uv, points.point)))
+    elif points is not None:
         _write_csv(folder / POINTS_FILE, POINTS_COLUMNS,
                    ([int(f), ids[c], *px(uv)] for f, c, uv in zip(points.frame, points.camera, points.uv)))
     if axis is not None:
