@@ -152,8 +152,9 @@ def _imported(cameras, wand_length, wand_table: XyTable | None, background: XyTa
         check_inside(background.values, cameras, background.source)
         first = first_free_frame(last_wand_frame)
         points = points_from_table(background, cameras, first)
+        above = ", above every wand frame" if wand_length is not None else ""
         notes.append(f"background point r of {background.source} (its source_row or row index, 0-based) is "
-                     f"points.csv frame {first} + r, above every wand frame")
+                     f"points.csv frame {first} + r{above}")
         if not len(points):
             points = None
     if wand_length is None and points is None:
