@@ -299,11 +299,6 @@ def read_capture(folder: str | Path) -> Capture:
         raise CaptureFormatError(
             f"{wand_path}: not found; run 'wandcal detect {folder}' on an image-level capture first"
         )
-    if rig.wand_length is None and len(wand):
-        raise CaptureFormatError(
-            f"{wand_path}: {len(wand)} wand rows but {folder / RIG_FILE} gives no 'wand.length_m'; "
-            "give the wand's marker distance in metres, or remove the wand rows"
-        )
     static = None
     static_path = folder / STATIC_FILE
     if static_path.is_file():
@@ -314,14 +309,25 @@ def read_capture(folder: str | Path) -> Capture:
                 "add the static object's marker coordinates or remove static.csv"
             )
     points = parse_points_csv(_read_text(points_path), rig, str(points_path)) if has_points else None
-    if rig.wand_length is None and not len(points):
-        raise CaptureFormatError(
-            f"{points_path}: no rows; a capture without a wand needs single-point tracks in points.csv "
-            f"(or give 'wand.length_m' in rig.json and the wand in wand.csv)"
-        )
+    check_wandless(rig, wand, points, str(folder / RIG_FILE), str(wand_path), str(points_path))
     axis_path = folder / AXIS_FILE
     axis = parse_axis_csv(_read_text(axis_path), rig, str(axis_path)) if axis_path.is_file() else None
     return Capture(rig=rig, wand=wand, static=static, points=points, axis=axis)
+
+
+def check_wandless(rig: Rig, wand: WandObservations, points: PointObservations | None, rig_source: str = RIG_FILE,
+                   wand_source: str = WAND_FILE, points_source: str = POINTS_FILE) -> None:
+    """A capture without a wand (no ``wand.length_m``) has no wand rows and some point rows."""
+    if rig.wand_length is None and len(wand):
+        raise CaptureFormatError(
+            f"{wand_source}: {len(wand)} wand rows but {rig_source} gives no 'wand.length_m'; "
+            "give the wand's marker distance in metres, or remove the wand rows"
+        )
+    if rig.wand_length is None and (points is None or not len(points)):
+        raise CaptureFormatError(
+            f"{points_source}: no rows; a capture without a wand needs point tracks in points.csv "
+            f"(or give 'wand.length_m' in rig.json and the wand in wand.csv)"
+        )
 
 
 def write_capture(
