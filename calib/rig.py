@@ -15,6 +15,7 @@ from wandcal.calib.errors import CalibrationError
 PINHOLE = "pinhole"
 FISHEYE = "fisheye"
 DIST_COEFFS = {PINHOLE: 5, FISHEYE: 4}
+LENGTH_AGREEMENT_M = 1e-6  # wand.length_m beside markers_m: the same length to a micrometre (printed digits)
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,11 +77,15 @@ class Rig:
             without a wand (single-point tracks only), which calibrates up to scale.
         static_markers: (M, 3) marker coordinates of the static object in its own frame
             (metres, z up), or None.
+        wand_markers: (K, 3) the wand's marker positions in its own frame (metres), 2-5
+            collinear markers (wandcal.calib.wandlayout), or None for the two-marker wand of
+            ``wand_length``; ``wand_length`` is then the distance between its extreme markers.
     """
 
     cameras: tuple[Camera, ...]
     wand_length: float | None
     static_markers: np.ndarray | None = None
+    wand_markers: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         ids = [c.id for c in self.cameras]
@@ -91,6 +96,8 @@ class Rig:
             raise CalibrationError(
                 f"the rig has {len(self.cameras)} camera(s); wand calibration needs at least two cameras"
             )
+        if self.wand_markers is not None:
+            self._set_wand_markers()
         if self.wand_length is not None:
             length = float(self.wand_length)
             if not np.isfinite(length) or length <= 0:
@@ -104,6 +111,16 @@ class Rig:
                     "static_object.markers_m must be a list of at least 4 finite [x, y, z] points in metres"
                 )
             object.__setattr__(self, "static_markers", markers)
+
+    def _set_wand_markers(self) -> None:
+        from wandcal.calib.wandlayout import check_layout, span
+
+        markers = check_layout(np.asarray(self.wand_markers, dtype=float))
+        if self.wand_length is not None and abs(float(self.wand_length) - span(markers)) > LENGTH_AGREEMENT_M:
+            raise CalibrationError(f"wand.length_m is {float(self.wand_length)!r} but wand.markers_m spans "
+                                   f"{span(markers)!r} m between its extreme markers; give one, or make them agree")
+        object.__setattr__(self, "wand_markers", markers)
+        object.__setattr__(self, "wand_length", span(markers))
 
     @property
     def ids(self) -> list[str]:

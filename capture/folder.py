@@ -101,6 +101,17 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
     length = wand.get("length_m") if isinstance(wand, dict) else None
     if wand is not None and not isinstance(wand, dict):
         raise CaptureFormatError(f"{source}: 'wand' must be an object like {{\"length_m\": 0.5}}, got {wand!r}")
+    wand_markers = None
+    if isinstance(wand, dict) and wand.get("markers_m") is not None:
+        wand_markers = _matrix(wand["markers_m"], None, f"{source}: wand.markers_m")
+        try:
+            from wandcal.calib.wandlayout import check_layout, span
+
+            length = span(check_layout(wand_markers, f"{source}: wand.markers_m")) if length is None else length
+        except CaptureFormatError:
+            raise
+        except CalibrationError as exc:
+            raise CaptureFormatError(str(exc)) from None
     if length is None:
         if not allow_no_wand:
             raise CaptureFormatError(
@@ -116,7 +127,8 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
             raise CaptureFormatError(f"{source}: 'static_object' needs 'markers_m', a list of [x, y, z] in metres")
         markers = _matrix(so["markers_m"], None, f"{source}: static_object.markers_m")
     try:
-        return Rig(cameras=tuple(cameras), wand_length=None if length is None else float(length), static_markers=markers)
+        return Rig(cameras=tuple(cameras), wand_length=None if length is None else float(length), static_markers=markers,
+                   wand_markers=wand_markers)
     except CalibrationError as exc:
         raise CaptureFormatError(f"{source}: {exc}") from None
 
@@ -132,6 +144,8 @@ def rig_to_json(rig: Rig) -> dict:
     }
     if rig.wand_length is not None:  # a capture without a wand (points.csv only) has no "wand"
         doc["wand"] = {"length_m": rig.wand_length}
+    if rig.wand_markers is not None:
+        doc["wand"]["markers_m"] = rig.wand_markers.tolist()
     if rig.static_markers is not None:
         doc["static_object"] = {"markers_m": rig.static_markers.tolist()}
     return doc
