@@ -139,7 +139,7 @@ def calibrate(
 
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs and point tracks"})
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
-    pairs = wand_pairs(rig, wand) if has_wand else WandPairs.empty()
+    pairs = _wand_pairs(rig, wand, warnings) if has_wand else WandPairs.empty()
     tracks = point_tracks(rig, points) if points is not None and len(points) else None
     if not has_wand and (tracks is None or not len(tracks)):
         raise CalibrationError(
@@ -239,6 +239,18 @@ def calibrate(
         rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
         solver=solver, world=world, dropped=dropped, warnings=warnings, points=X, verdict=verdict,
     )
+
+
+def _wand_pairs(rig: Rig, wand: WandObservations, warnings: list[str]) -> WandPairs:
+    """The wand's end pairs; a wand of more markers (rig.json ``wand.markers_m``) gives its end
+    markers, found by their order along the wand's image (wandcal.calib.start.markerlabels)."""
+    if rig.wand_markers is None or len(rig.wand_markers) == 2:
+        return wand_pairs(rig, wand)
+    from wandcal.calib.start.markerlabels import order_markers
+
+    warnings.append(f"the wand's {len(rig.wand_markers)} markers are labelled and its end markers refine the rig; "
+                    "its interior markers do not yet enter this command's refinement")
+    return order_markers(rig, wand).ends()
 
 
 def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings) -> list[dict]:
