@@ -139,7 +139,8 @@ def calibrate(
 
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs and point tracks"})
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
-    pairs = _wand_pairs(rig, wand, warnings) if has_wand else WandPairs.empty()
+    blobs = _marker_blobs(rig, wand) if has_wand else None
+    pairs = (blobs.ends() if blobs is not None else wand_pairs(rig, wand)) if has_wand else WandPairs.empty()
     tracks = point_tracks(rig, points) if points is not None and len(points) else None
     if not has_wand and (tracks is None or not len(tracks)):
         raise CalibrationError(
@@ -200,6 +201,9 @@ def calibrate(
         )
     if options.get("reject_outliers", True):
         r = reject_outliers(r, method, options, tell)
+    marker_pairs = None
+    if blobs is not None:
+        r, marker_pairs = _with_markers(rig, blobs, r, method, options, tell, warnings)
     dropped = dict(pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
     dropped |= {"outliers": r.outliers} | ({"point_outliers": r.point_outliers} if tracks is not None else {})
     rig, setup, tracks, info = r.rig, r.setup, r.tracks, r.info
@@ -227,7 +231,7 @@ def calibrate(
             "length_mean_m": float(lengths.mean()),
             "length_std_m": float(lengths.std()),
             "frames_used": int(setup.problem.n_frames),
-        }
+        } | ({"marker_pairs": marker_pairs} if marker_pairs is not None else {})
     seen_cam, seen_uv = setup.problem.camera, setup.uv
     if tracks is not None and len(tracks):
         seen_cam, seen_uv = np.concatenate([seen_cam, tracks.camera]), np.concatenate([seen_uv, tracks.uv])
@@ -241,16 +245,42 @@ def calibrate(
     )
 
 
-def _wand_pairs(rig: Rig, wand: WandObservations, warnings: list[str]) -> WandPairs:
-    """The wand's end pairs; a wand of more markers (rig.json ``wand.markers_m``) gives its end
-    markers, found by their order along the wand's image (wandcal.calib.start.markerlabels)."""
+def _marker_blobs(rig: Rig, wand: WandObservations):
+    """A wand of three or more markers (rig.json ``wand.markers_m``): its camera-frames ordered
+    along the wand's image (wandcal.calib.start.markerlabels); None for two markers."""
     if rig.wand_markers is None or len(rig.wand_markers) == 2:
-        return wand_pairs(rig, wand)
+        return None
     from wandcal.calib.start.markerlabels import order_markers
 
-    warnings.append(f"the wand's {len(rig.wand_markers)} markers are labelled and its end markers refine the rig; "
-                    "its interior markers do not yet enter this command's refinement")
-    return order_markers(rig, wand).ends()
+    return order_markers(rig, wand)
+
+
+def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings: list[str]):
+    """Label every marker at the refined poses and, with ``ba``, refine again with the interior
+    markers' known positions in the wand model; the refinement and each marker pair's lengths."""
+    from dataclasses import replace
+
+    from wandcal.calib.solve.ba import bundle_adjust_points
+    from wandcal.calib.solve.markerwand import marker_model, marker_pair_lengths
+    from wandcal.calib.start.markerlabels import label_interior
+
+    labels = label_interior(rig, blobs, r.labelled, r.R, r.t)
+    if method != "ba" or r.info.get("refined_intrinsics"):
+        warnings.append(f"the wand's interior markers label its frames; only --method ba without "
+                        f"--refine-intrinsics refines with them ({method} did not)")
+    else:
+        tell({"stage": "refine", "message": "refining with every wand marker"})
+        model = marker_model(r.setup.problem, r.setup.pair_index, r.labelled.camera, labels.xy, labels.along, r.R, r.t,
+                             r.wand, r.setup.model.fixed)
+        out = bundle_adjust_points(model, r.tracks, r.X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS)
+        info = r.info | {"iterations": r.info.get("iterations", 0) + out.info.get("iterations", 0),
+                         "seconds": r.info.get("seconds", 0.0) + out.info.get("seconds", 0.0)}
+        r = replace(r, R=model.poses(out.x)[0], t=model.poses(out.x)[1], wand=model.wand(out.x), X=out.X,
+                    camera_std=out.camera_std, covariance=out.covariance, info=info)
+    kept = np.zeros(len(r.labelled), bool)
+    kept[r.setup.pair_index] = True
+    return r, marker_pair_lengths(r.R, r.t, r.labelled.frame[kept], r.labelled.camera[kept], labels.xy[kept],
+                                  labels.marker[kept], rig.wand_markers)
 
 
 def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings) -> list[dict]:
