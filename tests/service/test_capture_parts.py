@@ -71,3 +71,23 @@ def test_unknown_and_bad_parts_are_refused_and_nothing_is_stored(client, importe
     r = c.post("/captures", files=_files(imported, RIG_FILE))
     assert r.status_code == 422 and "wand.length_m" in r.text
     assert c.get("/captures").json()["captures"] == []
+
+
+def test_a_multi_marker_wand_layout_is_taken_and_a_bad_one_refused(client, tmp_path):
+    import json
+
+    from wandcal.calib.sim.simulate import simulate_capture
+    from wandcal.capture.folder import WAND_FILE, write_capture
+
+    app, c = client
+    layout = [[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.5, 0.0, 0.0]]
+    sim = simulate_capture(3, 20, seed=0, static=False, wand_markers=np.array(layout))
+    write_capture(tmp_path / "w", sim.rig, sim.wand, None)
+    r = c.post("/captures", files=_files(tmp_path / "w", RIG_FILE, WAND_FILE))
+    assert r.status_code == 201, r.text
+    assert np.allclose(read_capture(app.state.wandcal.captures.folder(r.json()["id"])).rig.wand_markers, layout)
+    doc = json.loads((tmp_path / "w" / RIG_FILE).read_text())
+    doc["wand"] = {"markers_m": [[0, 0, 0], [0.2, 0, 0], [0.2, 0, 0]]}
+    bad = {RIG_FILE: (RIG_FILE, json.dumps(doc).encode(), "application/json")}
+    r = c.post("/captures", files=bad)
+    assert r.status_code == 422 and "wand.markers_m: markers 1 and 2 coincide" in r.text
