@@ -209,3 +209,23 @@ def test_labelled_tracks_are_point_and_frame(tmp_path):
     assert tracks.frames.tolist() == [5, 5] and tracks.labels.tolist() == ["nose", "tail"]
     assert np.bincount(tracks.track).tolist() == [2, 3]
     assert tracks.dropped == {"extra_points": 1, "single_view": 2}
+
+
+def test_collected_data_csv_with_image_paths_and_no_likelihood(tmp_path):
+    """DeepLabCut's hand-labelled CollectedData_*.csv: three index columns (the image path split),
+    x and y only; the frame is the number in the image's name."""
+    text = ("scorer,,,me,me,me,me\n"
+            "bodyparts,,,nose,nose,tail,tail\n"
+            "coords,,,x,y,x,y\n"
+            "labeled-data,vid_camA,img0012.png,10.5,20.25,,\n"
+            "labeled-data,vid_camA,img0040.png,11,21,30,40\n")
+    (tmp_path / "CollectedData_me.csv").write_text(text)
+    kp = read_dlc_csv(tmp_path / "CollectedData_me.csv")
+    assert kp.frame.tolist() == [12, 40, 40] and kp.label.tolist() == ["nose", "nose", "tail"]
+    assert np.allclose(kp.uv, [[10.5, 20.25], [11, 21], [30, 40]]) and kp.left_out == 1
+    (tmp_path / "bad.csv").write_text(text.replace("img0040.png", "img0012.png"))
+    with pytest.raises(CaptureFormatError, match=r"bad.csv line 5: frame 12 again \(first on line 4\)"):
+        read_dlc_csv(tmp_path / "bad.csv")
+    (tmp_path / "worse.csv").write_text(text.replace("11,21", "eleven,21"))
+    with pytest.raises(CaptureFormatError, match=r"worse.csv line 5, column 4: 'eleven' is not a number"):
+        read_dlc_csv(tmp_path / "worse.csv")
