@@ -265,22 +265,41 @@ def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings
     from wandcal.calib.start.markerlabels import label_interior
 
     labels = label_interior(rig, blobs, r.labelled, r.R, r.t)
+    pair_index = _labelled_rows(r)
+    outlying = np.zeros(0, int)
     if method != "ba" or r.info.get("refined_intrinsics"):
         warnings.append(f"the wand's interior markers label its frames; only --method ba without "
                         f"--refine-intrinsics refines with them ({method} did not)")
     else:
         tell({"stage": "refine", "message": "refining with every wand marker"})
-        model = marker_model(r.setup.problem, r.setup.pair_index, r.labelled.camera, labels.xy, labels.along, r.R, r.t,
-                             r.wand, r.setup.model.fixed)
+        model, rows = marker_model(r.setup.problem, pair_index, r.labelled.camera, labels.xy, labels.along,
+                                   r.R, r.t, r.wand, r.setup.model.fixed)
         out = bundle_adjust_points(model, r.tracks, r.X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS)
+        # an interior blob the robust fit left far off is an outlier: its camera-frame stays out
+        # of the marker pairs' lengths, as the ends' outliers stay out of the wand's
+        err = np.linalg.norm(model.residuals(out.x).reshape(-1, 2), axis=1)
+        limit = max(quality.OUTLIER_SIGMAS * quality.robust_sigma(err), quality.MIN_OUTLIER_PX)
+        outlying = rows[err[len(r.setup.problem.camera):] > limit]
         info = r.info | {"iterations": r.info.get("iterations", 0) + out.info.get("iterations", 0),
                          "seconds": r.info.get("seconds", 0.0) + out.info.get("seconds", 0.0)}
         r = replace(r, R=model.poses(out.x)[0], t=model.poses(out.x)[1], wand=model.wand(out.x), X=out.X,
                     camera_std=out.camera_std, covariance=out.covariance, info=info)
     kept = np.zeros(len(r.labelled), bool)
-    kept[r.setup.pair_index] = True
+    kept[pair_index] = True
+    kept[outlying] = False
     return r, marker_pair_lengths(r.R, r.t, r.labelled.frame[kept], r.labelled.camera[kept], labels.xy[kept],
                                   labels.marker[kept], rig.wand_markers)
+
+
+def _labelled_rows(r) -> np.ndarray:
+    """(M,) the row of ``r.labelled`` each observation of ``r.setup`` came from. After outlier
+    rejection the setup's own ``pair_index`` counts the kept rows only; the raw pixels (camera,
+    u, v) of a row's end name it whatever was dropped."""
+    p = r.setup.problem
+    row_of = {(int(c), e, float(uv[0]), float(uv[1])): k for e in (0, 1)
+              for k, (c, uv) in enumerate(zip(r.labelled.camera, r.labelled.uv[:, e]))}
+    return np.array([row_of[(int(c), int(e), float(uv[0]), float(uv[1]))]
+                     for c, e, uv in zip(p.camera, p.end, r.setup.uv)], dtype=np.int64)
 
 
 def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings) -> list[dict]:

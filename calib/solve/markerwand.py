@@ -40,8 +40,10 @@ def with_interior(problem: WandProblem, row: np.ndarray, camera: np.ndarray, xy:
 
 
 def marker_model(problem: WandProblem, pair_index: np.ndarray, labelled_camera: np.ndarray, xy: np.ndarray,
-                 along: np.ndarray, R: np.ndarray, t: np.ndarray, wand: np.ndarray, fixed: np.ndarray) -> WandModel:
-    """The wand model of every marker, started at the given poses and wand ends.
+                 along: np.ndarray, R: np.ndarray, t: np.ndarray, wand: np.ndarray,
+                 fixed: np.ndarray) -> tuple[WandModel, np.ndarray]:
+    """The wand model of every marker, started at the given poses and wand ends, and (Q,) the
+    labelled pair of each interior observation (they follow the ends' observations).
 
     Args:
         problem: the end markers' problem; pair_index: (M,) the labelled pair of each of its
@@ -57,7 +59,7 @@ def marker_model(problem: WandProblem, pair_index: np.ndarray, labelled_camera: 
     rank = np.tile(np.arange(1, k - 1), P)
     full = with_interior(problem, row, labelled_camera[row], xy[:, 1:-1].reshape(-1, 2), along[:, 1:-1].ravel(), rank,
                          row_frame)
-    return WandModel(full, R, t, wand, fixed)
+    return WandModel(full, R, t, wand, fixed), row[row_frame[row] >= 0]
 
 
 def marker_pair_lengths(R: np.ndarray, t: np.ndarray, frame: np.ndarray, camera: np.ndarray, xy: np.ndarray,

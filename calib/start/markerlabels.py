@@ -9,7 +9,8 @@
 3. Which end is which marker (:func:`label_interior`): with the ends triangulated, the two
    readings of the layout (end 0 is the first marker of the layout's axis, or the last) put the
    interior markers at different 3D points for an asymmetric layout; the reading whose points
-   reproject nearer the frame's interior blobs, summed over every camera, wins. Multi-view, it
+   reproject nearer the frame's interior blobs, summed over every camera (each blob's error
+   capped at :data:`CAP_PX`, so that an outlier cannot outvote the rest), wins. Multi-view, it
    does not rest on one image's foreshortened spacing (3 markers have no projective invariant;
    with 4 or more the cross-ratio would tell the ends apart in one image too).
 """
@@ -26,6 +27,12 @@ from wandcal.calib.observations import WandPairs
 from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.triangulate import triangulate_points
 from wandcal.calib.wandlayout import axial_offsets
+
+# a blob farther than this from both readings' interior marker is an outlier (a reflection, a
+# merged blob) and must not outvote the frame's other cameras: its error counts at most this
+# much. 4 px is 8 sigma of a 0.5 px blob centre, and far below the 20-100 px that the two
+# readings of a real layout put the interior markers apart
+CAP_PX = 4.0
 
 
 class MarkerBlobs(WandPairs):
@@ -109,12 +116,14 @@ def label_interior(rig: Rig, blobs: MarkerBlobs, labelled: WandPairs, R: np.ndar
     d = vec / np.where(measured > 0, measured, 1.0)[:, None]
     scale = measured / rig.wand_length  # the start's own scale, so that a scale error is not read as a label error
     along_a, along_b = o, -o[::-1]  # end 0 is the axis' first marker, or its last
+    focal = np.array([c.focal for c in rig.cameras])[blobs.camera]  # (P, 2) pixels per normalised unit
     err = np.zeros((n_frames, 2))
     for h, along in enumerate((along_a, along_b)):
         P = mid[blobs.frame][:, None] + (scale[blobs.frame][:, None] * along[None])[..., None] * d[blobs.frame][:, None]
         xc = np.einsum("pij,pkj->pki", R[blobs.camera], P) + t[blobs.camera][:, None]
-        e = np.linalg.norm(xc[..., :2] / xc[..., 2:3] - xy, axis=2)[:, 1:-1].sum(axis=1)
-        err[:, h] = np.bincount(blobs.frame, np.where(np.isfinite(e), e, 0.0), minlength=n_frames)
+        px = np.linalg.norm((xc[..., :2] / xc[..., 2:3] - xy) * focal[:, None], axis=2)[:, 1:-1]
+        e = np.minimum(np.where(np.isfinite(px), px, CAP_PX), CAP_PX).sum(axis=1)
+        err[:, h] = np.bincount(blobs.frame, e, minlength=n_frames)
     reversed_ = err[:, 1] < err[:, 0]
     rev = reversed_[blobs.frame]
     marker = np.where(rev[:, None], by_axis[::-1][None], by_axis[None])
