@@ -256,8 +256,9 @@ def _marker_blobs(rig: Rig, wand: WandObservations):
 
 
 def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings: list[str]):
-    """Label every marker at the refined poses and, with ``ba``, refine again with the interior
-    markers' known positions in the wand model; the refinement and each marker pair's lengths."""
+    """Label every marker at the refined poses and, with ``ba`` or ``lp``, refine again with the
+    interior markers' known positions in the wand model; the refinement and each marker pair's
+    lengths (wandcal.calib.solve.markerwand)."""
     from dataclasses import replace
 
     from wandcal.calib.solve.ba import bundle_adjust_points
@@ -266,27 +267,34 @@ def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings
 
     labels = label_interior(rig, blobs, r.labelled, r.R, r.t)
     pair_index = _labelled_rows(r)
-    outlying = np.zeros(0, int)
-    if method != "ba" or r.info.get("refined_intrinsics"):
-        warnings.append(f"the wand's interior markers label its frames; only --method ba without "
+    model, rows = marker_model(r.setup.problem, pair_index, r.labelled.camera, labels.xy, labels.along, r.R, r.t,
+                               r.wand, r.setup.model.fixed)
+    x = model.x0()
+    if method == "paper" or r.info.get("refined_intrinsics"):
+        warnings.append(f"the wand's interior markers label its frames; only --method ba or lp without "
                         f"--refine-intrinsics refines with them ({method} did not)")
     else:
         tell({"stage": "refine", "message": "refining with every wand marker"})
-        model, rows = marker_model(r.setup.problem, pair_index, r.labelled.camera, labels.xy, labels.along,
-                                   r.R, r.t, r.wand, r.setup.model.fixed)
-        out = bundle_adjust_points(model, r.tracks, r.X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS)
-        # an interior blob the robust fit left far off is an outlier: its camera-frame stays out
-        # of the marker pairs' lengths, as the ends' outliers stay out of the wand's
-        err = np.linalg.norm(model.residuals(out.x).reshape(-1, 2), axis=1)
-        limit = max(quality.OUTLIER_SIGMAS * quality.robust_sigma(err), quality.MIN_OUTLIER_PX)
-        outlying = rows[err[len(r.setup.problem.camera):] > limit]
+        if method == "lp":
+            from wandcal.calib.solve.lp import refine_lp
+
+            x, lp_info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
+            out = bundle_adjust_points(model, None, None, x0=x, loss="linear", max_iter=0)  # its covariance only
+            out = replace(out, x=x, X=r.X, info=lp_info)
+        else:
+            out = bundle_adjust_points(model, r.tracks, r.X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS)
+        x = out.x
         info = r.info | {"iterations": r.info.get("iterations", 0) + out.info.get("iterations", 0),
                          "seconds": r.info.get("seconds", 0.0) + out.info.get("seconds", 0.0)}
-        r = replace(r, R=model.poses(out.x)[0], t=model.poses(out.x)[1], wand=model.wand(out.x), X=out.X,
+        r = replace(r, R=model.poses(x)[0], t=model.poses(x)[1], wand=model.wand(x), X=out.X,
                     camera_std=out.camera_std, covariance=out.covariance, info=info)
+    # an interior blob the fit leaves far off is an outlier: its camera-frame stays out of the
+    # marker pairs' lengths, as the ends' outliers stay out of the wand's
+    err = np.linalg.norm(model.residuals(x).reshape(-1, 2), axis=1)
+    limit = max(quality.OUTLIER_SIGMAS * quality.robust_sigma(err), quality.MIN_OUTLIER_PX)
     kept = np.zeros(len(r.labelled), bool)
     kept[pair_index] = True
-    kept[outlying] = False
+    kept[rows[err[len(r.setup.problem.camera):] > limit]] = False
     return r, marker_pair_lengths(r.R, r.t, r.labelled.frame[kept], r.labelled.camera[kept], labels.xy[kept],
                                   labels.marker[kept], rig.wand_markers)
 
