@@ -16,7 +16,7 @@ from wandcal.calib.solve.ba import DEFAULT_LOSS, STOP_SE, IntrinsicsFit, bundle_
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.uncertainty import PoseCovariance
 from wandcal.calib.solve.wandmodel import WandModel, WandProblem
-from wandcal.calib.start.labels import flatten
+from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 
 GAUGE_CAMERA = 0
@@ -228,6 +228,10 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         limit, errors, point_err = _outlier_limit(r)
         new_keep = keep
         if robust_ba:
+            # a camera-frame whose ends fit the solved rig the other way round was labelled
+            # wrongly (a frame two cameras see can fit both ways at the start): relabel it
+            # instead of dropping it
+            r, errors = relabelled(r, errors, limit)
             # the robust fit's own residuals: no outlier pulled it, so none hides in its frame,
             # and a bent wand shows, its length being built in
             new_keep = np.ones(len(r.labelled), bool)
@@ -259,9 +263,47 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         r = refine(r.rig, r.labelled, setup, tracks, X, method, options, tell, up_direction(r.rig, r.R, r.t, setup))
         r = replace(r, info=r.info | {"iterations": before["iterations"] + r.info["iterations"],
                                       "seconds": before["seconds"] + r.info["seconds"],
-                                      "loss": before.get("loss", r.info.get("loss"))})
+                                      "loss": before.get("loss", r.info.get("loss"))}
+                      | ({"relabelled": before["relabelled"]} if "relabelled" in before else {}))
     # the labelled pairs stay whole; the setup holds the kept ones
     return replace(r, outliers=int((~keep).sum()), point_outliers=point_drops)
+
+
+def relabelled(r: Refined, errors: np.ndarray, limit: float) -> tuple[Refined, np.ndarray]:
+    """The outcome with the wand ends of every frame that holds an outlying camera-frame
+    labelled again at the solved rig (:func:`wandcal.calib.start.labels.label_ends`), the
+    frame's majority keeping its end order, and the observations' errors (M,) after it;
+    ``info["relabelled"]`` counts the camera-frames swapped. ``r.setup`` must hold every
+    labelled pair (its ``pair_index`` indexes ``r.labelled``)."""
+    p, rows = r.setup.problem, r.setup.pair_index
+    if not len(p.camera) or p.along is not None or r.rig.wand_length is None:
+        return r, errors
+    P = len(r.labelled)
+    outlying = np.bincount(rows, errors > limit, minlength=P) > 0
+    doubtful = np.isin(r.labelled.frame, r.labelled.frame[outlying])
+    if not doubtful.any():
+        return r, errors
+    sub = r.labelled.subset(doubtful)
+    again, _ = label_ends(r.R, r.t, sub, np.ones(len(r.rig.cameras), bool), r.rig.wand_length)
+    turned = ~np.all(np.isclose(again.uv, sub.uv), axis=(1, 2))
+    # a frame turned as a whole is the same labelling: keep its majority's order
+    share = np.bincount(sub.frame, turned, minlength=len(sub.frames)) / np.maximum(
+        np.bincount(sub.frame, minlength=len(sub.frames)), 1)
+    turned ^= share[sub.frame] > 0.5
+    swap = np.zeros(P, bool)
+    swap[np.flatnonzero(doubtful)[turned]] = True
+    if not swap.any():
+        return r, errors
+    flip = swap[rows]
+    problem = replace(p, end=np.where(flip, 1 - p.end, p.end))
+    # the relabelled frames judged afresh: their ends triangulated with the new labels (the
+    # robust fit's wand there followed the old ones)
+    X = triangulate_points(r.R, r.t, problem.point, p.camera, p.xy, 2 * p.n_frames)
+    fresh = np.linalg.norm(reprojection_errors(r.R, r.t, problem.point, p.camera, p.xy, X) * p.focal[p.camera], axis=1)
+    again_frames = np.isin(p.frame, p.frame[flip])
+    setup = replace(r.setup, problem=problem, model=WandModel(problem, r.R, r.t, r.wand, r.setup.model.fixed))
+    info = r.info | {"relabelled": int(r.info.get("relabelled", 0)) + int(swap.sum())}
+    return replace(r, setup=setup, labelled=r.labelled.swapped(swap), info=info), np.where(again_frames, fresh, errors)
 
 
 def _starved(labelled: WandPairs, keep: np.ndarray, n_cams: int) -> np.ndarray:
