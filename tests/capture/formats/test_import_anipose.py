@@ -229,3 +229,21 @@ def test_collected_data_csv_with_image_paths_and_no_likelihood(tmp_path):
     (tmp_path / "worse.csv").write_text(text.replace("11,21", "eleven,21"))
     with pytest.raises(CaptureFormatError, match=r"worse.csv line 5, column 4: 'eleven' is not a number"):
         read_dlc_csv(tmp_path / "worse.csv")
+
+
+def test_pose2sim_toml_with_four_distortions(tmp_path):
+    """Pose2Sim writes [cam_01] tables with OpenCV's four-coefficient lens [k1, k2, p1, p2]."""
+    toml = tmp_path / "Calib.toml"
+    toml.write_text('[cam_01]\nname = "cam_01"\nsize = [ 1920.0, 1080.0]\n'
+                    'matrix = [ [ 1500.0, 0.0, 960.0], [ 0.0, 1500.0, 540.0], [ 0.0, 0.0, 1.0]]\n'
+                    'distortions = [ -0.1, 0.02, 0.001, -0.002]\nrotation = [ 0.1, 0.2, 0.3]\n'
+                    'translation = [ 0.5, -0.2, 3.0]\nfisheye = false\n\n'
+                    '[cam_02]\nname = "cam_02"\nsize = [ 1920.0, 1080.0]\n'
+                    'matrix = [ [ 1500.0, 0.0, 960.0], [ 0.0, 1500.0, 540.0], [ 0.0, 0.0, 1.0]]\n'
+                    'distortions = [ 0.0, 0.0, 0.0, 0.0]\nrotation = [ 0.0, 0.0, 0.0]\n'
+                    'translation = [ 0.0, 0.0, 0.0]\nfisheye = false\n\n[metadata]\nadjusted = false\nerror = 0.0\n')
+    imported, posed = read_anipose(toml)
+    cam = imported.capture.rig.cameras[0]
+    assert cam.id == "cam_01" and (cam.width, cam.height) == (1920, 1080)
+    assert np.allclose(cam.dist, [-0.1, 0.02, 0.001, -0.002, 0.0])
+    assert np.allclose(posed.t[0], [0.5, -0.2, 3.0])
