@@ -184,9 +184,9 @@ def calibrate(
     setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
     if tracks is not None:
         tracks, X = triangulated(init.R, init.t, tracks)
-        if method != "ba":
+        if method == "paper":
             warnings.append(f"the {len(tracks)} point-track observations placed the cameras at the start; only "
-                            "--method ba refines with them")
+                            "--method ba and lp refine with them")
             tracks = None
     else:
         X = None

@@ -19,6 +19,8 @@ from wandcal.calib.solve.wandmodel import WandModel, WandProblem
 from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 
+TRACK_FRAME_HALF = np.array([0.5, 0.0, 0.0])  # a point track's frame in with_tracks: any unit direction
+
 GAUGE_CAMERA = 0
 MAX_OUTLIER_PASSES = 3  # reject-and-refine passes; the kept set settles after two on simulated rigs
 # A robust ba that a least squares polish follows stops this close to its optimum (in standard
@@ -147,10 +149,13 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     if method == "lp":
         from wandcal.calib.solve.lp import refine_lp
 
-        x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
-        R, t = model.poses(x)
-        return Refined(rig, setup, labelled, tracks, R, t, model.wand(x), X, info,
-                       covariance=_information(setup, R, t, model.wand(x), final))
+        joint = with_tracks(model, tracks, X)
+        x, info = refine_lp(joint, progress=tell, time_limit=options.get("time_limit"))
+        R, t = joint.poses(x)
+        frames = joint.wand(x)
+        wand, X = frames[: setup.problem.n_frames], (frames[setup.problem.n_frames :].mean(axis=1) if X is not None else X)
+        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info,
+                       covariance=_information(setup, R, t, wand, final, tracks, X))
     names = tuple(name for name in INTRINSICS if name in (options.get("refine_intrinsics") or ()))
     fit = None
     if names:
@@ -166,13 +171,37 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     return refined
 
 
-def _information(setup: Setup, R: np.ndarray, t: np.ndarray, wand: np.ndarray, final: bool) -> PoseCovariance | None:
-    """The pose covariance of another method's solution: the wand model's information matrix
-    at its poses and wand (one linearisation, no step taken)."""
+def _information(setup: Setup, R: np.ndarray, t: np.ndarray, wand: np.ndarray, final: bool,
+                 tracks: PointTracks | None = None, X: np.ndarray | None = None) -> PoseCovariance | None:
+    """The pose covariance of another method's solution: the information matrix of the wand
+    model (and of the point tracks at ``X``, when given) at its poses and wand (one
+    linearisation, no step taken)."""
     if not final or not setup.problem.n_frames:
         return None
     model = WandModel(setup.problem, R, t, wand, setup.model.fixed)
-    return bundle_adjust_points(model, None, None, loss="linear", max_iter=0).covariance
+    return bundle_adjust_points(model, tracks if X is not None else None, X, loss="linear", max_iter=0).covariance
+
+
+def with_tracks(model: WandModel, tracks: PointTracks | None, X: np.ndarray | None) -> WandModel:
+    """The wand model with each point track as one more frame whose observations sit at the
+    frame's midpoint (``along`` 0): its 3D point is the midpoint and its direction is left free
+    (the frame's normal matrix is then singular in it, which the LP's elimination regularises),
+    so ``lp`` refines point tracks beside the wand with no new kind of unknown. ``model`` itself
+    without tracks. X: (T, 3) the tracks' start points, metres."""
+    if tracks is None or X is None or not len(tracks):
+        return model
+    p = model.p
+    F = p.n_frames
+    problem = WandProblem(
+        camera=np.concatenate([p.camera, tracks.camera]), frame=np.concatenate([p.frame, F + tracks.track]),
+        end=np.concatenate([p.end, np.zeros(len(tracks), dtype=p.end.dtype)]), xy=np.concatenate([p.xy, tracks.xy]),
+        focal=p.focal, length=p.length, n_frames=F + tracks.n_tracks,
+        along=np.concatenate([p.offsets, np.zeros(len(tracks))]),
+    )
+    # any direction starts a point's frame: its observations do not depend on it
+    ends = np.stack([X - TRACK_FRAME_HALF, X + TRACK_FRAME_HALF], axis=1)
+    wand0 = model.wand(model.x0()) if F else np.zeros((0, 2, 3))
+    return WandModel(problem, model.R0, model.t0, np.concatenate([wand0, ends]), model.fixed)
 
 
 def _intrinsics(rig: Rig) -> np.ndarray:
