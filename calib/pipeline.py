@@ -19,6 +19,7 @@ from wandcal.calib.refine import (
     GAUGE_CAMERA,
     build_problem,
     check_intrinsics_request,
+    labelled_rows,
     refine,
     reject_outliers,
     triangulated,
@@ -266,7 +267,7 @@ def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings
     from wandcal.calib.start.markerlabels import label_interior
 
     labels = label_interior(rig, blobs, r.labelled, r.R, r.t)
-    pair_index = _labelled_rows(r)
+    pair_index = labelled_rows(r)
     model, rows = marker_model(r.setup.problem, pair_index, r.labelled.camera, labels.xy, labels.along, r.R, r.t,
                                r.wand, r.setup.model.fixed)
     x = model.x0()
@@ -297,17 +298,6 @@ def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings
     kept[rows[err[len(r.setup.problem.camera):] > limit]] = False
     return r, marker_pair_lengths(r.R, r.t, r.labelled.frame[kept], r.labelled.camera[kept], labels.xy[kept],
                                   labels.marker[kept], rig.wand_markers)
-
-
-def _labelled_rows(r) -> np.ndarray:
-    """(M,) the row of ``r.labelled`` each observation of ``r.setup`` came from. After outlier
-    rejection the setup's own ``pair_index`` counts the kept rows only; the raw pixels (camera,
-    u, v) of a row's end name it whatever was dropped."""
-    p = r.setup.problem
-    row_of = {(int(c), e, float(uv[0]), float(uv[1])): k for e in (0, 1)
-              for k, (c, uv) in enumerate(zip(r.labelled.camera, r.labelled.uv[:, e]))}
-    return np.array([row_of[(int(c), int(e), float(uv[0]), float(uv[1]))]
-                     for c, e, uv in zip(p.camera, p.end, r.setup.uv)], dtype=np.int64)
 
 
 def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings) -> list[dict]:

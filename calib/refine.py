@@ -335,6 +335,17 @@ def relabelled(r: Refined, errors: np.ndarray, limit: float) -> tuple[Refined, n
     return replace(r, setup=setup, labelled=r.labelled.swapped(swap), info=info), np.where(again_frames, fresh, errors)
 
 
+def labelled_rows(r: Refined) -> np.ndarray:
+    """(M,) the row of ``r.labelled`` each observation of ``r.setup`` came from. After outlier
+    rejection the setup's own ``pair_index`` counts the kept rows only; the raw pixels (camera,
+    u, v) of a row's end name it whatever was dropped."""
+    p = r.setup.problem
+    row_of = {(int(c), e, float(uv[0]), float(uv[1])): k for e in (0, 1)
+              for k, (c, uv) in enumerate(zip(r.labelled.camera, r.labelled.uv[:, e]))}
+    return np.array([row_of[(int(c), int(e), float(uv[0]), float(uv[1]))]
+                     for c, e, uv in zip(p.camera, p.end, r.setup.uv)], dtype=np.int64)
+
+
 def _starved(labelled: WandPairs, keep: np.ndarray, n_cams: int) -> np.ndarray:
     """(N,) bool: the cameras that had wand frames shared with another camera and would have none
     if only ``keep`` (P,) of the labelled pairs were kept (on a sparse rig of ~30 frames the
