@@ -152,3 +152,21 @@ def test_gross_outliers_stay_out_of_every_marker_pair(method):
         assert pair["std_m"] < 1.5 * ends  # measured 1.17-1.34 mm against 1.33 mm
     err = np.linalg.norm(r.centers - camera_centers(sim.truth.R, sim.truth.t), axis=1)
     assert np.all(err < 4 * np.array([c["center_std_mm"] for c in r.cameras]) / 1000)
+
+
+def test_rig_json_errors_name_the_file_and_field():
+    from wandcal.capture.folder import CaptureFormatError, rig_from_json, rig_to_json
+
+    doc = rig_to_json(simulate_capture(2, 10, seed=0, wand_markers=CW500_M).rig)
+    assert doc["wand"]["markers_m"] == CW500_M.tolist() and doc["wand"]["length_m"] == pytest.approx(0.5)
+    del doc["wand"]["length_m"]
+    assert rig_from_json(doc, "r.json").wand_length == pytest.approx(0.5)  # the span, when length_m is left out
+    for markers, message in (([[0, 0, 0]], "r.json: wand.markers_m must be 2 to 5"),
+                             ([[0, 0, 0], [0, 0, 0.0002], [0.5, 0, 0]], "r.json: wand.markers_m: markers 0 and 1 coincide"),
+                             ([[0, 0, 0], [0.1, "x", 0]], "r.json: wand.markers_m must be numbers")):
+        doc["wand"] = {"markers_m": markers}
+        with pytest.raises(CaptureFormatError, match=message):
+            rig_from_json(doc, "r.json")
+    doc["wand"] = {"markers_m": CW500_M.tolist(), "length_m": 0.45}
+    with pytest.raises(CaptureFormatError, match="r.json: wand.length_m is 0.45 but wand.markers_m spans"):
+        rig_from_json(doc, "r.json")
