@@ -378,7 +378,8 @@ def _intrinsics_reports(cameras: list[dict], rig: Rig, std: np.ndarray, names: l
 
 def _summary_warnings(warnings: list[str], dropped: dict, info: dict, method: str, camera_frames: int) -> None:
     if dropped.get("extra_blobs"):
-        warnings.append(f"{dropped['extra_blobs']} camera-frames showed more than two blobs and were dropped")
+        markers = "the wand's markers" if "fewer_blobs" in dropped else "two"  # fewer_blobs: a multi-marker wand
+        warnings.append(f"{dropped['extra_blobs']} camera-frames showed more blobs than {markers} and were dropped")
     if dropped.get("outliers"):
         share = dropped["outliers"] / max(camera_frames, 1)
         # a 5-sigma limit over ~10^4 camera-frames leaves a few borderline ones on clean data:
