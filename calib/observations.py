@@ -82,11 +82,13 @@ def wand_pairs(rig: Rig, wand: WandObservations) -> WandPairs:
 
 @dataclass(frozen=True, eq=False)
 class PointTracks:
-    """Single-point observations grouped into 3D points, in normalised coordinates.
+    """Point observations grouped into 3D points, in normalised coordinates.
 
     track: (Q,) index of the 3D point in [0, T); camera: (Q,) camera index; xy: (Q, 2)
     normalised coordinates; uv: (Q, 2) the raw pixels; frames: (T,) the capture frame of each
-    point. Sorted by track, then camera; every track is seen by at least two cameras.
+    point; labels: (T,) str, each point's name for labelled points (points.csv's ``point``
+    column: a track is a (point, frame) pair, so frames repeat), or None. Sorted by track, then
+    camera; every track is seen by at least two cameras.
     """
 
     track: np.ndarray
@@ -95,6 +97,7 @@ class PointTracks:
     uv: np.ndarray
     frames: np.ndarray
     dropped: dict = field(default_factory=dict)
+    labels: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.track)
@@ -110,30 +113,51 @@ class PointTracks:
         count = np.bincount(track, minlength=self.n_tracks)
         ok = count[track] >= 2
         used, new = np.unique(track[ok], return_inverse=True)
-        return PointTracks(new, camera[ok], self.xy[keep][ok], self.uv[keep][ok], self.frames[used], self.dropped)
+        labels = None if self.labels is None else self.labels[used]
+        return PointTracks(new, camera[ok], self.xy[keep][ok], self.uv[keep][ok], self.frames[used], self.dropped,
+                           labels)
 
 
 def point_tracks(rig: Rig, points: PointObservations) -> PointTracks:
-    """Undistort single-point observations and keep the frames at least two cameras saw.
+    """Undistort point observations and keep the 3D points at least two cameras saw.
 
-    A camera-frame with more than one point is ambiguous and dropped (``dropped["extra_points"]``);
-    a point seen by one camera only constrains nothing (``dropped["single_view"]``).
+    A 3D point is a frame (unlabelled points) or a (point name, frame) pair (labelled points).
+    A camera with more than one observation of the same 3D point is ambiguous and dropped
+    (``dropped["extra_points"]``); a point seen by one camera only constrains nothing
+    (``dropped["single_view"]``).
     """
     n_cams = len(rig.cameras)
     _check(rig, points, "points.csv refers to", "point of camera {id} in frame {frame} of points.csv is not finite; "
            "leave out rows of undetected points instead of writing NaN")
-    order, uniq, start, count = _camera_frames(points, n_cams)
+    names, code = _point_codes(points)
+    frame_nos, dense = np.unique(points.frame, return_inverse=True)
+    # a labelled point is a frame of its own: (frame * names + name) numbers the 3D points, over
+    # dense frame indices so that large frame numbers cannot overflow
+    order, uniq, start, count = _camera_frames(points, n_cams, dense.astype(np.int64) * len(names) + code)
     one = count == 1
     idx = order[start[one]]
-    frame_no, camera = uniq[one] // n_cams, uniq[one] % n_cams
-    frames, track, views = np.unique(frame_no, return_inverse=True, return_counts=True)
+    key, camera = uniq[one] // n_cams, uniq[one] % n_cams
+    _, track, views = np.unique(key, return_inverse=True, return_counts=True)
     multi = views[track] >= 2
     dropped = {"extra_points": int((~one).sum()), "single_view": int((~multi).sum())}
-    idx, camera, frame_no = idx[multi], camera[multi], frame_no[multi]
-    frames, track = np.unique(frame_no, return_inverse=True)
+    idx, camera, key = idx[multi], camera[multi], key[multi]
+    keys, track = np.unique(key, return_inverse=True)
     uv = points.uv[idx]
     xy = undistort_by_camera(rig.cameras, camera, uv)
-    return PointTracks(track=track, camera=camera, xy=xy, uv=uv, frames=frames, dropped=dropped)
+    labels = None if points.point is None else names[keys % len(names)]
+    return PointTracks(track=track, camera=camera, xy=xy, uv=uv, frames=frame_nos[keys // len(names)], dropped=dropped,
+                       labels=labels)
+
+
+def _point_codes(points: PointObservations) -> tuple[np.ndarray, np.ndarray]:
+    """(names (L,), code (B,)): the point names and each row's index into them; one empty name
+    and code 0 for unlabelled points."""
+    if points.point is None:
+        return np.array([""]), np.zeros(len(points.frame), dtype=np.int64)
+    names, code = np.unique(points.point, return_inverse=True)
+    if not len(names):
+        names = np.array([""])
+    return names, code.astype(np.int64)
 
 
 def _check(rig: Rig, blobs: WandObservations, where: str, not_finite: str) -> None:
@@ -147,10 +171,11 @@ def _check(rig: Rig, blobs: WandObservations, where: str, not_finite: str) -> No
         raise CalibrationError(not_finite.format(id=repr(rig.cameras[blobs.camera[k]].id), frame=blobs.frame[k]))
 
 
-def _camera_frames(blobs: WandObservations, n_cams: int):
+def _camera_frames(blobs: WandObservations, n_cams: int, frame: np.ndarray | None = None):
     """Blobs grouped by camera-frame: (order (B,) that sorts them, the groups' keys
-    ``frame * n_cams + camera``, each group's start in the sorted order, its size)."""
-    key = blobs.frame * n_cams + blobs.camera
+    ``frame * n_cams + camera``, each group's start in the sorted order, its size); ``frame``
+    (B,) replaces the blobs' frame numbers (a labelled point's own number)."""
+    key = (blobs.frame if frame is None else frame) * n_cams + blobs.camera
     order = np.argsort(key, kind="stable")
     uniq, start, count = np.unique(key[order], return_index=True, return_counts=True)
     return order, uniq, start, count

@@ -19,6 +19,7 @@ from wandcal.calib.refine import (
     GAUGE_CAMERA,
     build_problem,
     check_intrinsics_request,
+    labelled_rows,
     refine,
     reject_outliers,
     triangulated,
@@ -140,7 +141,8 @@ def calibrate(
 
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs and point tracks"})
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
-    pairs = wand_pairs(rig, wand) if has_wand else WandPairs.empty()
+    blobs = _marker_blobs(rig, wand) if has_wand else None
+    pairs = (blobs.ends() if blobs is not None else wand_pairs(rig, wand)) if has_wand else WandPairs.empty()
     tracks = point_tracks(rig, points) if points is not None and len(points) else None
     if not has_wand and (tracks is None or not len(tracks)):
         raise CalibrationError(
@@ -185,9 +187,9 @@ def calibrate(
     all_tracks = tracks  # every method is judged on the same observations, point tracks included
     if tracks is not None:
         tracks, X = triangulated(init.R, init.t, tracks)
-        if method != "ba":
+        if method == "paper":
             warnings.append(f"the {len(tracks)} point-track observations placed the cameras at the start; only "
-                            "--method ba refines with them")
+                            "--method ba and lp refine with them")
             tracks = None
     else:
         X = None
@@ -202,6 +204,9 @@ def calibrate(
         )
     if options.get("reject_outliers", True):
         r = reject_outliers(r, method, options, tell)
+    marker_pairs = None
+    if blobs is not None:
+        r, marker_pairs = _with_markers(rig, blobs, r, method, options, tell, warnings)
     dropped = dict(pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
     dropped |= {"outliers": r.outliers} | ({"point_outliers": r.point_outliers} if tracks is not None else {})
     rig, setup, tracks, info = r.rig, r.setup, r.tracks, r.info
@@ -229,7 +234,7 @@ def calibrate(
             "length_mean_m": float(lengths.mean()),
             "length_std_m": float(lengths.std()),
             "frames_used": int(setup.problem.n_frames),
-        }
+        } | ({"marker_pairs": marker_pairs} if marker_pairs is not None else {})
     seen_cam, seen_uv = setup.problem.camera, setup.uv
     if tracks is not None and len(tracks):
         seen_cam, seen_uv = np.concatenate([seen_cam, tracks.camera]), np.concatenate([seen_uv, tracks.uv])
@@ -246,6 +251,60 @@ def calibrate(
         rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
         solver=solver, world=world, dropped=dropped, warnings=warnings, points=X, verdict=verdict,
     )
+
+
+def _marker_blobs(rig: Rig, wand: WandObservations):
+    """A wand of three or more markers (rig.json ``wand.markers_m``): its camera-frames ordered
+    along the wand's image (wandcal.calib.start.markerlabels); None for two markers."""
+    if rig.wand_markers is None or len(rig.wand_markers) == 2:
+        return None
+    from wandcal.calib.start.markerlabels import order_markers
+
+    return order_markers(rig, wand)
+
+
+def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings: list[str]):
+    """Label every marker at the refined poses and, with ``ba`` or ``lp``, refine again with the
+    interior markers' known positions in the wand model; the refinement and each marker pair's
+    lengths (wandcal.calib.solve.markerwand)."""
+    from dataclasses import replace
+
+    from wandcal.calib.solve.ba import bundle_adjust_points
+    from wandcal.calib.solve.markerwand import marker_model, marker_pair_lengths
+    from wandcal.calib.start.markerlabels import label_interior
+
+    labels = label_interior(rig, blobs, r.labelled, r.R, r.t)
+    pair_index = labelled_rows(r)
+    model, rows = marker_model(r.setup.problem, pair_index, r.labelled.camera, labels.xy, labels.along, r.R, r.t,
+                               r.wand, r.setup.model.fixed)
+    x = model.x0()
+    if method == "paper" or r.info.get("refined_intrinsics"):
+        warnings.append(f"the wand's interior markers label its frames; only --method ba or lp without "
+                        f"--refine-intrinsics refines with them ({method} did not)")
+    else:
+        tell({"stage": "refine", "message": "refining with every wand marker"})
+        if method == "lp":
+            from wandcal.calib.solve.lp import refine_lp
+
+            x, lp_info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
+            out = bundle_adjust_points(model, None, None, x0=x, loss="linear", max_iter=0)  # its covariance only
+            out = replace(out, x=x, X=r.X, info=lp_info)
+        else:
+            out = bundle_adjust_points(model, r.tracks, r.X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS)
+        x = out.x
+        info = r.info | {"iterations": r.info.get("iterations", 0) + out.info.get("iterations", 0),
+                         "seconds": r.info.get("seconds", 0.0) + out.info.get("seconds", 0.0)}
+        r = replace(r, R=model.poses(x)[0], t=model.poses(x)[1], wand=model.wand(x), X=out.X,
+                    camera_std=out.camera_std, covariance=out.covariance, info=info)
+    # an interior blob the fit leaves far off is an outlier: its camera-frame stays out of the
+    # marker pairs' lengths, as the ends' outliers stay out of the wand's
+    err = np.linalg.norm(model.residuals(x).reshape(-1, 2), axis=1)
+    limit = max(quality.OUTLIER_SIGMAS * quality.robust_sigma(err), quality.MIN_OUTLIER_PX)
+    kept = np.zeros(len(r.labelled), bool)
+    kept[pair_index] = True
+    kept[rows[err[len(r.setup.problem.camera):] > limit]] = False
+    return r, marker_pair_lengths(r.R, r.t, r.labelled.frame[kept], r.labelled.camera[kept], labels.xy[kept],
+                                  labels.marker[kept], rig.wand_markers)
 
 
 def _camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings) -> list[dict]:
@@ -333,7 +392,8 @@ def _intrinsics_reports(cameras: list[dict], rig: Rig, std: np.ndarray, names: l
 
 def _summary_warnings(warnings: list[str], dropped: dict, info: dict, method: str, camera_frames: int) -> None:
     if dropped.get("extra_blobs"):
-        warnings.append(f"{dropped['extra_blobs']} camera-frames showed more than two blobs and were dropped")
+        markers = "the wand's markers" if "fewer_blobs" in dropped else "two"  # fewer_blobs: a multi-marker wand
+        warnings.append(f"{dropped['extra_blobs']} camera-frames showed more blobs than {markers} and were dropped")
     if dropped.get("outliers"):
         share = dropped["outliers"] / max(camera_frames, 1)
         # a 5-sigma limit over ~10^4 camera-frames leaves a few borderline ones on clean data:

@@ -16,8 +16,10 @@ from wandcal.calib.solve.ba import DEFAULT_LOSS, STOP_SE, IntrinsicsFit, bundle_
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.uncertainty import PoseCovariance
 from wandcal.calib.solve.wandmodel import WandModel, WandProblem
-from wandcal.calib.start.labels import flatten
+from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
+
+TRACK_FRAME_HALF = np.array([0.5, 0.0, 0.0])  # a point track's frame in with_tracks: any unit direction
 
 GAUGE_CAMERA = 0
 MAX_OUTLIER_PASSES = 3  # reject-and-refine passes; the kept set settles after two on simulated rigs
@@ -147,10 +149,13 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     if method == "lp":
         from wandcal.calib.solve.lp import refine_lp
 
-        x, info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
-        R, t = model.poses(x)
-        return Refined(rig, setup, labelled, tracks, R, t, model.wand(x), X, info,
-                       covariance=_information(setup, R, t, model.wand(x), final))
+        joint = with_tracks(model, tracks, X)
+        x, info = refine_lp(joint, progress=tell, time_limit=options.get("time_limit"))
+        R, t = joint.poses(x)
+        frames = joint.wand(x)
+        wand, X = frames[: setup.problem.n_frames], (frames[setup.problem.n_frames :].mean(axis=1) if X is not None else X)
+        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info,
+                       covariance=_information(setup, R, t, wand, final, tracks, X))
     names = tuple(name for name in INTRINSICS if name in (options.get("refine_intrinsics") or ()))
     fit = None
     if names:
@@ -166,13 +171,37 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     return refined
 
 
-def _information(setup: Setup, R: np.ndarray, t: np.ndarray, wand: np.ndarray, final: bool) -> PoseCovariance | None:
-    """The pose covariance of another method's solution: the wand model's information matrix
-    at its poses and wand (one linearisation, no step taken)."""
+def _information(setup: Setup, R: np.ndarray, t: np.ndarray, wand: np.ndarray, final: bool,
+                 tracks: PointTracks | None = None, X: np.ndarray | None = None) -> PoseCovariance | None:
+    """The pose covariance of another method's solution: the information matrix of the wand
+    model (and of the point tracks at ``X``, when given) at its poses and wand (one
+    linearisation, no step taken)."""
     if not final or not setup.problem.n_frames:
         return None
     model = WandModel(setup.problem, R, t, wand, setup.model.fixed)
-    return bundle_adjust_points(model, None, None, loss="linear", max_iter=0).covariance
+    return bundle_adjust_points(model, tracks if X is not None else None, X, loss="linear", max_iter=0).covariance
+
+
+def with_tracks(model: WandModel, tracks: PointTracks | None, X: np.ndarray | None) -> WandModel:
+    """The wand model with each point track as one more frame whose observations sit at the
+    frame's midpoint (``along`` 0): its 3D point is the midpoint and its direction is left free
+    (the frame's normal matrix is then singular in it, which the LP's elimination regularises),
+    so ``lp`` refines point tracks beside the wand with no new kind of unknown. ``model`` itself
+    without tracks. X: (T, 3) the tracks' start points, metres."""
+    if tracks is None or X is None or not len(tracks):
+        return model
+    p = model.p
+    F = p.n_frames
+    problem = WandProblem(
+        camera=np.concatenate([p.camera, tracks.camera]), frame=np.concatenate([p.frame, F + tracks.track]),
+        end=np.concatenate([p.end, np.zeros(len(tracks), dtype=p.end.dtype)]), xy=np.concatenate([p.xy, tracks.xy]),
+        focal=p.focal, length=p.length, n_frames=F + tracks.n_tracks,
+        along=np.concatenate([p.offsets, np.zeros(len(tracks))]),
+    )
+    # any direction starts a point's frame: its observations do not depend on it
+    ends = np.stack([X - TRACK_FRAME_HALF, X + TRACK_FRAME_HALF], axis=1)
+    wand0 = model.wand(model.x0()) if F else np.zeros((0, 2, 3))
+    return WandModel(problem, model.R0, model.t0, np.concatenate([wand0, ends]), model.fixed)
 
 
 def _intrinsics(rig: Rig) -> np.ndarray:
@@ -228,6 +257,10 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         limit, errors, point_err = _outlier_limit(r)
         new_keep = keep
         if robust_ba:
+            # a camera-frame whose ends fit the solved rig the other way round was labelled
+            # wrongly (a frame two cameras see can fit both ways at the start): relabel it
+            # instead of dropping it
+            r, errors = relabelled(r, errors, limit)
             # the robust fit's own residuals: no outlier pulled it, so none hides in its frame,
             # and a bent wand shows, its length being built in
             new_keep = np.ones(len(r.labelled), bool)
@@ -262,9 +295,58 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         r = refine(r.rig, r.labelled, setup, tracks, X, method, options, tell, up_direction(r.rig, r.R, r.t, setup))
         r = replace(r, info=r.info | {"iterations": before["iterations"] + r.info["iterations"],
                                       "seconds": before["seconds"] + r.info["seconds"],
-                                      "loss": before.get("loss", r.info.get("loss"))})
+                                      "loss": before.get("loss", r.info.get("loss"))}
+                      | ({"relabelled": before["relabelled"]} if "relabelled" in before else {}))
     # the labelled pairs stay whole; the setup holds the kept ones
     return replace(r, outliers=int((~keep).sum()), point_outliers=point_drops)
+
+
+def relabelled(r: Refined, errors: np.ndarray, limit: float) -> tuple[Refined, np.ndarray]:
+    """The outcome with the wand ends of every frame that holds an outlying camera-frame
+    labelled again at the solved rig (:func:`wandcal.calib.start.labels.label_ends`), the
+    frame's majority keeping its end order, and the observations' errors (M,) after it;
+    ``info["relabelled"]`` counts the camera-frames swapped. ``r.setup`` must hold every
+    labelled pair (its ``pair_index`` indexes ``r.labelled``)."""
+    p, rows = r.setup.problem, r.setup.pair_index
+    if not len(p.camera) or p.along is not None or r.rig.wand_length is None:
+        return r, errors
+    P = len(r.labelled)
+    outlying = np.bincount(rows, errors > limit, minlength=P) > 0
+    doubtful = np.isin(r.labelled.frame, r.labelled.frame[outlying])
+    if not doubtful.any():
+        return r, errors
+    sub = r.labelled.subset(doubtful)
+    again, _ = label_ends(r.R, r.t, sub, np.ones(len(r.rig.cameras), bool), r.rig.wand_length)
+    turned = ~np.all(np.isclose(again.uv, sub.uv), axis=(1, 2))
+    # a frame turned as a whole is the same labelling: keep its majority's order
+    share = np.bincount(sub.frame, turned, minlength=len(sub.frames)) / np.maximum(
+        np.bincount(sub.frame, minlength=len(sub.frames)), 1)
+    turned ^= share[sub.frame] > 0.5
+    swap = np.zeros(P, bool)
+    swap[np.flatnonzero(doubtful)[turned]] = True
+    if not swap.any():
+        return r, errors
+    flip = swap[rows]
+    problem = replace(p, end=np.where(flip, 1 - p.end, p.end))
+    # the relabelled frames judged afresh: their ends triangulated with the new labels (the
+    # robust fit's wand there followed the old ones)
+    X = triangulate_points(r.R, r.t, problem.point, p.camera, p.xy, 2 * p.n_frames)
+    fresh = np.linalg.norm(reprojection_errors(r.R, r.t, problem.point, p.camera, p.xy, X) * p.focal[p.camera], axis=1)
+    again_frames = np.isin(p.frame, p.frame[flip])
+    setup = replace(r.setup, problem=problem, model=WandModel(problem, r.R, r.t, r.wand, r.setup.model.fixed))
+    info = r.info | {"relabelled": int(r.info.get("relabelled", 0)) + int(swap.sum())}
+    return replace(r, setup=setup, labelled=r.labelled.swapped(swap), info=info), np.where(again_frames, fresh, errors)
+
+
+def labelled_rows(r: Refined) -> np.ndarray:
+    """(M,) the row of ``r.labelled`` each observation of ``r.setup`` came from. After outlier
+    rejection the setup's own ``pair_index`` counts the kept rows only; the raw pixels (camera,
+    u, v) of a row's end name it whatever was dropped."""
+    p = r.setup.problem
+    row_of = {(int(c), e, float(uv[0]), float(uv[1])): k for e in (0, 1)
+              for k, (c, uv) in enumerate(zip(r.labelled.camera, r.labelled.uv[:, e]))}
+    return np.array([row_of[(int(c), int(e), float(uv[0]), float(uv[1]))]
+                     for c, e, uv in zip(p.camera, p.end, r.setup.uv)], dtype=np.int64)
 
 
 def _starved(labelled: WandPairs, keep: np.ndarray, n_cams: int) -> np.ndarray:

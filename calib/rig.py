@@ -34,6 +34,7 @@ MIN_WAND_M = 1e-3  # a wand shorter than a marker ball's diameter cannot be seen
 CAMERA_ID = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9_.:+@# -]{0,62}[A-Za-z0-9_.:+@#-])?")
 CAMERA_ID_RULE = ("1-64 characters: ASCII letters, digits, spaces and _ . - : + @ #, starting with a letter or "
                   "digit and not ending in a space (no commas, quotes, tabs, line ends or control characters)")
+LENGTH_AGREEMENT_M = 1e-6  # wand.length_m beside markers_m: the same length to a micrometre (printed digits)
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,11 +109,15 @@ class Rig:
             without a wand (single-point tracks only), which calibrates up to scale.
         static_markers: (M, 3) marker coordinates of the static object in its own frame
             (metres, z up), or None.
+        wand_markers: (K, 3) the wand's marker positions in its own frame (metres), 2-5
+            collinear markers (wandcal.calib.wandlayout), or None for the two-marker wand of
+            ``wand_length``; ``wand_length`` is then the distance between its extreme markers.
     """
 
     cameras: tuple[Camera, ...]
     wand_length: float | None
     static_markers: np.ndarray | None = None
+    wand_markers: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         ids = [c.id for c in self.cameras]
@@ -123,6 +128,8 @@ class Rig:
             raise CalibrationError(
                 f"the rig has {len(self.cameras)} camera(s); wand calibration needs at least two cameras"
             )
+        if self.wand_markers is not None:
+            self._set_wand_markers()
         if self.wand_length is not None:
             length = float(self.wand_length)
             if not np.isfinite(length) or length <= 0:
@@ -140,6 +147,16 @@ class Rig:
                 )
             _check_static_markers(markers)
             object.__setattr__(self, "static_markers", markers)
+
+    def _set_wand_markers(self) -> None:
+        from wandcal.calib.wandlayout import check_layout, span
+
+        markers = check_layout(np.asarray(self.wand_markers, dtype=float))
+        if self.wand_length is not None and abs(float(self.wand_length) - span(markers)) > LENGTH_AGREEMENT_M:
+            raise CalibrationError(f"wand.length_m is {float(self.wand_length)!r} but wand.markers_m spans "
+                                   f"{span(markers)!r} m between its extreme markers; give one, or make them agree")
+        object.__setattr__(self, "wand_markers", markers)
+        object.__setattr__(self, "wand_length", span(markers))
 
     @property
     def ids(self) -> list[str]:
@@ -223,10 +240,32 @@ class StaticObservations:
         return self.uv[self.camera == index]
 
 
+@dataclass(frozen=True, eq=False)
 class PointObservations(WandObservations):
-    """Single-point tracks (``points.csv``): one unlabelled marker per camera and frame, the same
-    3D point for every camera that saw it in that frame (an LED, a laser spot, easyWand's
-    background points). Same fields as :class:`WandObservations`; a frame is a 3D point."""
+    """Point tracks (``points.csv``): the same 3D point for every camera that saw it in a frame.
+
+    Unlabelled (``point`` None): one marker per camera and frame (an LED, a laser spot, easyWand's
+    background points), and a frame is a 3D point. Labelled: several named points per frame
+    (body keypoints, the markers of a rigid object), and a (point, frame) pair is a 3D point.
+
+    Args:
+        frame, camera, uv: as :class:`WandObservations`.
+        point: (B,) str, each row's point name, or None for unlabelled rows; never partly empty.
+    """
+
+    point: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.point is None:
+            return
+        point = np.asarray(self.point, dtype=str).ravel()
+        if len(point) != len(self.frame):
+            raise CalibrationError("point observations: point must have one name per row")
+        if len(point) and not np.all(np.char.str_len(np.char.strip(point)) > 0):
+            raise CalibrationError("point observations: a row has an empty point name; name every point "
+                                   "or none (points.csv's 'point' column)")
+        object.__setattr__(self, "point", point)
 
 
 AXIS_ROLES = ("origin", "+x", "+y", "+z")

@@ -1,4 +1,4 @@
-"""``wandcal capture``, ``wandcal detect``, ``wandcal import`` and ``wandcal trigger-emulator``."""
+"""``wandcal capture``, ``wandcal detect`` and ``wandcal trigger-emulator`` (``wandcal import``: capture/import_cli.py)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from wandcal.calib.rig import Rig
 from wandcal.capture.arguments import number, whole
 from wandcal.capture.detect_cli import add_detect_options
 from wandcal.capture.folder import read_rig
-from wandcal.capture.guidance_cli import add_guidance_options, positive_number
+from wandcal.capture.guidance_cli import add_guidance_options
 from wandcal.capture.progress import StatusLine, bar
 from wandcal.drivers.camera import CameraDriver
 from wandcal.drivers.errors import DriverError
@@ -23,7 +23,6 @@ DEFAULT_WAND_LENGTH_M = 0.5
 MAX_FRAMES = 10_000_000
 MAX_STATIC_FRAMES = 100_000
 MAX_WAND_LENGTH_M = 10.0
-MAX_IMAGE_HEIGHT = 65_535
 MAX_WORKERS = 256
 MAX_DEVICE_US = 2**32 - 1  # the trigger's microsecond counter is 32 bits and wraps
 
@@ -71,8 +70,6 @@ def register(subparsers) -> None:
     add_detect_options(p)
     p.set_defaults(run=run_detect)
 
-    _register_import(subparsers)
-
     p = subparsers.add_parser("trigger-emulator", help="emulate the strobe trigger on a pseudo-terminal",
                               description="Speak wandcal-trigger/1 on a new pseudo-terminal; prints its path.")
     p.add_argument("--vanish-after", type=whole(0), default=None, metavar="N",
@@ -80,47 +77,6 @@ def register(subparsers) -> None:
     p.add_argument("--start-us", type=whole(0, MAX_DEVICE_US), default=0, metavar="US",
                    help=f"device clock at start, 0 to {MAX_DEVICE_US} (near the top tests the wrap; default 0)")
     p.set_defaults(run=run_emulator)
-
-
-def _register_import(subparsers) -> None:
-    p = subparsers.add_parser("import", help="convert an easyWand, Argus or MultiCamSelfCal session to a capture folder",
-                              description="Write a points-level wandcal-capture/1 folder from another tool's session "
-                                          "and print what it found (docs/import.md).")
-    formats = p.add_subparsers(dest="format", required=True, metavar="FORMAT")
-
-    e = formats.add_parser("easywand", help="an easyWand session (*_easyWandData.mat) or its input files",
-                           description="wandcal import easywand SESSION.mat --out CAPTURE, or wandcal import easywand "
-                                       "--wand CSV --profile TXT --wand-length M [--background CSV] [--axis CSV] "
-                                       "--out CAPTURE")
-    e.add_argument("source", nargs="?", type=Path, metavar="SESSION.mat", help="easyWand's saved session")
-    e.add_argument("--intrinsics", choices=("optimised", "profile"), default="optimised",
-                   help="with a .mat: the intrinsics easyWand's result used (default) or the profile's estimates")
-    e.add_argument("--wand", type=Path, metavar="CSV", help="wand points (2 tracks, y-up pixels) instead of a .mat")
-    e.add_argument("--profile", type=Path, metavar="TXT", help="camera profile, with --wand")
-    e.add_argument("--wand-length", type=positive_number, metavar="M", help="wand marker distance in metres, with --wand")
-    e.add_argument("--background", type=Path, metavar="CSV", help="background (unpaired) points, with --wand")
-    e.add_argument("--axis", type=Path, metavar="CSV", help="axis points (1-4 rows), with --wand")
-    _common(e)
-    e.set_defaults(run=run_import_easywand)
-
-    a = formats.add_parser("argus", help="Argus Wand's -xypts.csv files and camera profile",
-                           description="wandcal import argus PAIRED-xypts.csv --profile TXT --wand-length M "
-                                       "[--unpaired CSV] [--reference CSV] --out CAPTURE")
-    a.add_argument("source", type=Path, metavar="PAIRED-xypts.csv", help="the wand's two tracks")
-    a.add_argument("--profile", type=Path, required=True, metavar="TXT", help="Argus camera profile, a row per camera")
-    a.add_argument("--wand-length", type=positive_number, required=True, metavar="M", help="wand marker distance, metres")
-    a.add_argument("--unpaired", type=Path, metavar="CSV", help="unpaired points -xypts.csv (written to points.csv)")
-    a.add_argument("--reference", type=Path, metavar="CSV", help="reference points -xypts.csv (1-4 axis points)")
-    _common(a)
-    a.set_defaults(run=run_import_argus)
-
-    s = formats.add_parser("svoboda", help="a MultiCamSelfCal folder (points.dat, IdMat.dat, Res.dat)",
-                           description="wandcal import svoboda FOLDER --out CAPTURE [--focal-px F]")
-    s.add_argument("source", type=Path, metavar="FOLDER", help="the MultiCamSelfCal data folder")
-    s.add_argument("--focal-px", type=positive_number, metavar="F",
-                   help="focal length for cameras without a .rad file (centred principal point, no distortion)")
-    s.add_argument("--out", type=Path, required=True, help="new capture folder")
-    s.set_defaults(run=run_import_svoboda)
 
 
 def _live_detectors(args, rig: Rig, config):
@@ -138,59 +94,6 @@ def _live_detectors(args, rig: Rig, config):
         print(setup.line(), file=sys.stderr)
     return [detectors[cid] for cid in rig.ids]
 
-
-def _common(p) -> None:
-    p.add_argument("--height", type=whole(1, MAX_IMAGE_HEIGHT), metavar="H",
-                   help="image height in pixels of every camera, when the session's is wrong")
-    p.add_argument("--out", type=Path, required=True, help="new capture folder")
-
-
-def run_import_easywand(args) -> int:
-    from wandcal.capture.folder import CaptureFormatError
-    from wandcal.capture.formats.easywand import read_easywand_files, read_easywand_mat
-
-    files = {"--wand": args.wand, "--profile": args.profile, "--wand-length": args.wand_length,
-             "--background": args.background, "--axis": args.axis}
-    if args.source is not None:
-        given = [k for k, v in files.items() if v is not None]
-        if given:
-            raise CaptureFormatError(f"{args.source}: a .mat session brings its own points and cameras; drop "
-                                     f"{', '.join(given)} (or drop the .mat to import files)")
-        imported = read_easywand_mat(args.source, args.intrinsics, args.height)
-    else:
-        missing = [k for k in ("--wand", "--profile", "--wand-length") if files[k] is None]
-        if missing:
-            raise CaptureFormatError(f"give an easyWand session (SESSION.mat), or its files: {', '.join(missing)} "
-                                     "missing")
-        imported = read_easywand_files(args.wand, args.profile, args.wand_length, args.background, args.axis,
-                                       args.height)
-    return _write_import(imported, args.out)
-
-
-def run_import_argus(args) -> int:
-    from wandcal.capture.formats.argus import read_argus
-
-    return _write_import(read_argus(args.source, args.profile, args.wand_length, args.unpaired, args.reference,
-                                    args.height), args.out)
-
-
-def run_import_svoboda(args) -> int:
-    from wandcal.capture.formats.svoboda import read_svoboda
-
-    return _write_import(read_svoboda(args.source, args.focal_px), args.out)
-
-
-def _write_import(imported, out: Path) -> int:
-    from wandcal.capture.folder import CAPTURE_FORMAT, CaptureFormatError, save_capture
-    from wandcal.capture.formats import summary_lines
-
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise CaptureFormatError(f"{out}: already exists and is not an empty folder; choose a new --out folder")
-    save_capture(out, imported.capture)
-    for line in summary_lines(imported):
-        print(line)
-    print(f"wrote {out} ({CAPTURE_FORMAT})")
-    return 0
 
 
 def run_emulator(args) -> int:

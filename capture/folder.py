@@ -34,6 +34,7 @@ AXIS_FILE = "axis.csv"
 WAND_COLUMNS = ("frame", "camera", "u", "v")
 STATIC_COLUMNS = ("camera", "u", "v")
 POINTS_COLUMNS = ("frame", "camera", "u", "v")
+POINT_COLUMN = "point"  # points.csv's optional last column: the point's name (labelled points)
 AXIS_COLUMNS = ("role", "camera", "u", "v")
 
 
@@ -103,6 +104,17 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
     length = wand.get("length_m") if isinstance(wand, dict) else None
     if wand is not None and not isinstance(wand, dict):
         raise CaptureFormatError(f"{source}: 'wand' must be an object like {{\"length_m\": 0.5}}, got {wand!r}")
+    wand_markers = None
+    if isinstance(wand, dict) and wand.get("markers_m") is not None:
+        wand_markers = _matrix(wand["markers_m"], None, f"{source}: wand.markers_m")
+        try:
+            from wandcal.calib.wandlayout import check_layout, span
+
+            length = span(check_layout(wand_markers, f"{source}: wand.markers_m")) if length is None else length
+        except CaptureFormatError:
+            raise
+        except CalibrationError as exc:
+            raise CaptureFormatError(str(exc)) from None
     if length is None:
         if not allow_no_wand:
             raise CaptureFormatError(
@@ -118,7 +130,8 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
             raise CaptureFormatError(f"{source}: 'static_object' needs 'markers_m', a list of [x, y, z] in metres")
         markers = _matrix(so["markers_m"], None, f"{source}: static_object.markers_m")
     try:
-        return Rig(cameras=tuple(cameras), wand_length=None if length is None else float(length), static_markers=markers)
+        return Rig(cameras=tuple(cameras), wand_length=None if length is None else float(length), static_markers=markers,
+                   wand_markers=wand_markers)
     except CalibrationError as exc:
         raise CaptureFormatError(f"{source}: {exc}") from None
 
@@ -134,6 +147,8 @@ def rig_to_json(rig: Rig) -> dict:
     }
     if rig.wand_length is not None:  # a capture without a wand (points.csv only) has no "wand"
         doc["wand"] = {"length_m": rig.wand_length}
+    if rig.wand_markers is not None:
+        doc["wand"]["markers_m"] = rig.wand_markers.tolist()
     if rig.static_markers is not None:
         doc["static_object"] = {"markers_m": rig.static_markers.tolist()}
     return doc
@@ -180,11 +195,28 @@ def parse_static_csv(text: str, rig: Rig, source: str = STATIC_FILE) -> StaticOb
 
 
 def parse_points_csv(text: str, rig: Rig, source: str = POINTS_FILE) -> PointObservations:
-    """Parse points.csv text (``frame,camera,u,v``: one unlabelled marker per camera-frame, the
-    same 3D point in every camera that saw it in that frame); errors name the line and column."""
+    """Parse points.csv text; errors name the line and column.
+
+    ``frame,camera,u,v``: one unlabelled marker per camera-frame, the same 3D point in every
+    camera that saw it in that frame. With the optional ``point`` column, every row names its
+    point (a body keypoint, a marker of a rigid object) and a (point, frame) pair is one 3D point.
+    """
     # a camera-frame with two points is ambiguous; like a wand camera-frame with three blobs it is
     # dropped and counted by the pipeline (wandcal.calib.observations.point_tracks), not refused here
-    return PointObservations(*_frame_table(text, rig, POINTS_COLUMNS, source))
+    first = text.lstrip("\ufeff").partition("\n")[0]
+    if POINT_COLUMN not in (h.strip() for h in first.split(",")):
+        return PointObservations(*_frame_table(text, rig, POINTS_COLUMNS, source))
+    rows = _rows(text, (*POINTS_COLUMNS, POINT_COLUMN), source)
+    frame, camera, uv = _frame_rows(rows, rig, source)
+    names = [(row[POINT_COLUMN] or "").strip() for _, row in rows]
+    named = [k for k, n in enumerate(names) if n]
+    if named and len(named) < len(names):
+        blank = next(k for k, n in enumerate(names) if not n)
+        raise CaptureFormatError(
+            f"{source} line {rows[blank][0]}, column '{POINT_COLUMN}': empty, but line {rows[named[0]][0]} names point "
+            f"{names[named[0]]!r}; name the point on every row, or drop the '{POINT_COLUMN}' column for one unlabelled "
+            "point per camera and frame")
+    return PointObservations(frame, camera, uv, np.array(names, dtype=str) if named else None)
 
 
 def _frame_table(text: str, rig: Rig, columns: tuple[str, ...], source: str):
@@ -194,7 +226,11 @@ def _frame_table(text: str, rig: Rig, columns: tuple[str, ...], source: str):
     fast = _frame_table_fast(text, rig, columns)
     if fast is not None:
         return fast
-    rows = _rows(text, columns, source)
+    return _frame_rows(_rows(text, columns, source), rig, source)
+
+
+def _frame_rows(rows: list[tuple[int, dict]], rig: Rig, source: str):
+    """(frame (B,), camera (B,), uv (B, 2)) of parsed ``frame,camera,u,v`` rows, row by row."""
     frame = np.empty(len(rows), dtype=np.int64)
     camera = np.empty(len(rows), dtype=np.int64)
     uv = np.empty((len(rows), 2))
@@ -290,11 +326,6 @@ def read_capture(folder: str | Path) -> Capture:
         raise CaptureFormatError(
             f"{wand_path}: not found; run 'wandcal detect {folder}' on an image-level capture first"
         )
-    if rig.wand_length is None and len(wand):
-        raise CaptureFormatError(
-            f"{wand_path}: {len(wand)} wand rows but {folder / RIG_FILE} gives no 'wand.length_m'; "
-            "give the wand's marker distance in metres, or remove the wand rows"
-        )
     static = None
     static_path = folder / STATIC_FILE
     if static_path.is_file():
@@ -305,11 +336,7 @@ def read_capture(folder: str | Path) -> Capture:
                 "add the static object's marker coordinates or remove static.csv"
             )
     points = parse_points_csv(_read_text(points_path), rig, str(points_path)) if has_points else None
-    if rig.wand_length is None and not len(points):
-        raise CaptureFormatError(
-            f"{points_path}: no rows; a capture without a wand needs single-point tracks in points.csv "
-            f"(or give 'wand.length_m' in rig.json and the wand in wand.csv)"
-        )
+    check_wandless(rig, wand, points, str(folder / RIG_FILE), str(wand_path), str(points_path))
     axis_path = folder / AXIS_FILE
     axis = parse_axis_csv(_read_text(axis_path), rig, str(axis_path)) if axis_path.is_file() else None
     if static is not None and axis is not None and len(static.camera) and len(axis.camera):
@@ -338,6 +365,21 @@ def check_capture(capture: Capture, source: str) -> None:
                                  "nothing was written")
 
 
+def check_wandless(rig: Rig, wand: WandObservations, points: PointObservations | None, rig_source: str = RIG_FILE,
+                   wand_source: str = WAND_FILE, points_source: str = POINTS_FILE) -> None:
+    """A capture without a wand (no ``wand.length_m``) has no wand rows and some point rows."""
+    if rig.wand_length is None and len(wand):
+        raise CaptureFormatError(
+            f"{wand_source}: {len(wand)} wand rows but {rig_source} gives no 'wand.length_m'; "
+            "give the wand's marker distance in metres, or remove the wand rows"
+        )
+    if rig.wand_length is None and (points is None or not len(points)):
+        raise CaptureFormatError(
+            f"{points_source}: no rows; a capture without a wand needs point tracks in points.csv "
+            f"(or give 'wand.length_m' in rig.json and the wand in wand.csv)"
+        )
+
+
 def write_capture(
     folder: str | Path,
     rig: Rig,
@@ -356,7 +398,11 @@ def write_capture(
     _write_csv(folder / WAND_FILE, WAND_COLUMNS, ([int(f), ids[c], *px(uv)] for f, c, uv in zip(wand.frame, wand.camera, wand.uv)))
     if static is not None:
         _write_csv(folder / STATIC_FILE, STATIC_COLUMNS, ([ids[c], *px(uv)] for c, uv in zip(static.camera, static.uv)))
-    if points is not None:
+    if points is not None and points.point is not None:
+        _write_csv(folder / POINTS_FILE, (*POINTS_COLUMNS, POINT_COLUMN),
+                   ([int(f), ids[c], *px(uv), str(n)]
+                    for f, c, uv, n in zip(points.frame, points.camera, points.uv, points.point)))
+    elif points is not None:
         _write_csv(folder / POINTS_FILE, POINTS_COLUMNS,
                    ([int(f), ids[c], *px(uv)] for f, c, uv in zip(points.frame, points.camera, points.uv)))
     if axis is not None:

@@ -12,7 +12,8 @@ import sys
 
 COMMAND_MODULES = {
     "wandcal.service.commands": ("simulate", "calibrate", "demo", "check"),
-    "wandcal.capture.cli": ("capture", "detect", "trigger-emulator", "import"),
+    "wandcal.capture.cli": ("capture", "detect", "trigger-emulator"),
+    "wandcal.capture.import_cli": ("import",),
     "wandcal.capture.guidance_cli": ("guidance",),
     "wandcal.service.serve": ("serve",),
     "wandcal.service.export_command": ("export",),

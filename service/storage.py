@@ -28,7 +28,10 @@ from wandcal.capture.folder import (
     WAND_FILE,
     Capture,
     CaptureFormatError,
+    check_wandless,
     load_json,
+    parse_axis_csv,
+    parse_points_csv,
     parse_static_csv,
     parse_wand_csv,
     read_capture,
@@ -113,11 +116,16 @@ class CaptureStore:
 
     # -- creating -----------------------------------------------------------------------------
     def create_from_texts(
-        self, rig_text: str, wand_text: str | None, static_text: str | None, name: str = "upload"
+        self, rig_text: str, wand_text: str | None, static_text: str | None, name: str = "upload",
+        points_text: str | None = None, axis_text: str | None = None,
     ) -> CaptureRow:
-        """Validate uploaded rig.json / wand.csv / static.csv texts and store them."""
-        rig = rig_from_json(load_json(rig_text, "rig.json"))
+        """Validate uploaded rig.json / wand.csv / static.csv / points.csv / axis.csv texts and store them."""
+        rig = rig_from_json(load_json(rig_text, "rig.json"), allow_no_wand=points_text is not None)
         wand = parse_wand_csv(wand_text, rig) if wand_text is not None else WandObservations([], [], np.zeros((0, 2)))
+        points = parse_points_csv(points_text, rig) if points_text is not None else None
+        axis = parse_axis_csv(axis_text, rig) if axis_text is not None else None
+        if points is not None:  # a stream fills wand.csv later; an upload with points is whole now
+            check_wandless(rig, wand, points)
         static = None
         if static_text is not None:
             static = parse_static_csv(static_text, rig)
@@ -126,7 +134,8 @@ class CaptureStore:
                     "static.csv: static blobs are given but rig.json has no 'static_object.markers_m'; "
                     "add the static object's marker coordinates or leave static.csv out"
                 )
-        return self._store(Capture(rig=rig, wand=wand, static=static), "upload" if wand_text else "stream", name)
+        return self._store(Capture(rig=rig, wand=wand, static=static, points=points, axis=axis),
+                           "upload" if wand_text or points_text else "stream", name)
 
     def create_from_replay(self, path: str) -> CaptureRow:
         """Copy the capture folder ``path`` (relative to the replay root) into the store."""

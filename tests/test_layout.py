@@ -35,7 +35,7 @@ CALIB_RANK = {
     "run": 3,
     "sim": 4,
 }
-CORE = {"errors", "rig", "geometry", "observations", "triangulate"}
+CORE = {"errors", "rig", "geometry", "observations", "triangulate", "wandlayout"}
 RUN = {"pipeline", "refine", "resolve", "guidance", "judgement"}
 MAX_MODULES_PER_FOLDER = 12
 

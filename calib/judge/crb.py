@@ -42,7 +42,12 @@ def pose_crb(problem: WandProblem, R: np.ndarray, t: np.ndarray, wand: np.ndarra
     """
     fixed = np.zeros(len(R), bool)
     fixed[gauge] = True
-    model = WandModel(problem, R, t, orient_wand(wand, problem, R, t), fixed)
+    return model_crb(WandModel(problem, R, t, orient_wand(wand, problem, R, t), fixed), sigma_px)
+
+
+def model_crb(model: WandModel, sigma_px: float):
+    """:func:`pose_crb` of a model already at the true state (its start), whatever its markers."""
+    R, t, problem = model.R0, model.t0, model.p
     x = model.x0()
     J = model.jacobian(x).tocsc()
     nc = model.frame_col0

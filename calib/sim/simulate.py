@@ -113,9 +113,10 @@ def wand_path(frames: int, length: float, rng: np.random.Generator) -> np.ndarra
 
 
 def observe_wand(cams, R, t, wand, noise_px, outliers, occlusion, rng) -> WandObservations:
-    """Blobs of wand ends (F, 2, 3) in every camera: noise, gross outliers (one blob of a
-    camera-frame moved 20-60 px), occlusion, the image border, and a random blob order."""
-    frames = len(wand)
+    """Blobs of wand markers (F, K, 3) in every camera (K = 2: the ends): noise, gross outliers
+    (one blob of a camera-frame moved 20-60 px), occlusion, the image border, and a random blob
+    order."""
+    frames, k = wand.shape[:2]
     rows_f, rows_c, rows_uv = [], [], []
     pts = wand.reshape(-1, 3)
     for c, cam in enumerate(cams):
@@ -127,11 +128,11 @@ def observe_wand(cams, R, t, wand, noise_px, outliers, occlusion, rng) -> WandOb
             & (uv[:, 1] > BORDER_PX) & (uv[:, 1] < cam.height - BORDER_PX)
             & (rng.random(len(pts)) > occlusion)
         )
-        uv = uv.reshape(frames, 2, 2)
-        inside = inside.reshape(frames, 2)
+        uv = uv.reshape(frames, k, 2)
+        inside = inside.reshape(frames, k)
         gross = (rng.random(frames) < outliers) & inside.all(1)
         if gross.any():
-            which = rng.integers(0, 2, gross.sum())
+            which = rng.integers(0, k, gross.sum())
             ang = rng.uniform(0, 2 * np.pi, gross.sum())
             mag = rng.uniform(20, 60, gross.sum())
             uv[np.flatnonzero(gross), which] += np.stack([np.cos(ang), np.sin(ang)], 1) * mag[:, None]
@@ -164,6 +165,7 @@ def simulate_capture(
     seed: int = 0,
     wand_length: float = 0.5,
     occlusion: float = 0.03,
+    wand_markers: np.ndarray | None = None,
 ) -> SimulatedCapture:
     """Simulate a wand capture.
 
@@ -176,13 +178,25 @@ def simulate_capture(
         seed: random seed.
         wand_length: metres.
         occlusion: probability that a marker is hidden from a camera in a frame.
+        wand_markers: (K, 3) a collinear multi-marker wand's layout (metres; its span replaces
+            ``wand_length``), or None for two markers. ``truth.wand`` is then (F, K, 3), the
+            markers in the layout's order.
     """
     rng = np.random.default_rng(seed)
     cams, R, t = ring_cameras(cameras, rng)
+    if wand_markers is not None:
+        from wandcal.calib.wandlayout import axial_offsets, check_layout, span
+
+        wand_markers = check_layout(wand_markers)
+        wand_length = span(wand_markers)
     wand = wand_path(frames, wand_length, rng)
+    if wand_markers is not None:
+        d = (wand[:, 1] - wand[:, 0]) / wand_length
+        wand = wand.mean(axis=1)[:, None, :] + axial_offsets(wand_markers)[None, :, None] * d[:, None, :]
     obs = observe_wand(cams, R, t, wand, noise_px, outliers, occlusion, rng)
     static_obs = observe_static(cams, R, t, L_FRAME_M, noise_px / np.sqrt(STATIC_FRAMES_AVERAGED), rng) if static else None
-    rig = Rig(cameras=tuple(cams), wand_length=wand_length, static_markers=L_FRAME_M.copy() if static else None)
+    rig = Rig(cameras=tuple(cams), wand_length=wand_length, static_markers=L_FRAME_M.copy() if static else None,
+              wand_markers=wand_markers)
     return SimulatedCapture(rig=rig, wand=obs, static=static_obs, truth=Truth(R=R, t=t, wand=wand))
 
 

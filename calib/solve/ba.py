@@ -146,7 +146,8 @@ def bundle_adjust_points(
     terms = []
     if len(p.camera):
         raw = (intrinsics.wand_uv, refine) if refine else None
-        terms.append(WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, free, n, raw))
+        terms.append(WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, free, n, raw,
+                              p.along))
     if tracks is not None and len(tracks):
         raw = (intrinsics.point_uv, refine) if refine else None
         terms.append(PointTerm(tracks.camera, tracks.track, tracks.xy, p.focal[tracks.camera], tracks.n_tracks, free, n, raw))

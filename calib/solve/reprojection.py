@@ -80,12 +80,13 @@ class WandTerm(_Term):
 
     size = FRAME_PARAMS
 
-    def __init__(self, camera, frame, end, xy, focal, length, n_frames, free, n_cams, raw=None):
+    def __init__(self, camera, frame, end, xy, focal, length, n_frames, free, n_cams, raw=None, along=None):
         """``raw``: None, or (uv (M, 2) raw pixels, refined intrinsics names) to fit raw pixels
-        through the distortion with the cameras' intrinsics among the unknowns."""
+        through the distortion with the cameras' intrinsics among the unknowns. ``along``: (M,)
+        a multi-marker wand's marker positions on the axis, metres (WandProblem.along), or None."""
         self.camera, self.frame, self.xy, self.focal = camera, frame, xy, focal
         self.raw = raw
-        self.half = np.where(end == 1, 0.5, -0.5) * length
+        self.half = np.where(end == 1, 0.5, -0.5) * length if along is None else np.asarray(along, float)
         self.structure = schur.TermStructure(camera_index(free, camera, n_cams), camera, frame, len(free), n_frames, FRAME_PARAMS)
 
     def _ends(self, s: BundleState, sl: slice) -> np.ndarray:

@@ -29,6 +29,9 @@ class WandProblem:
 
     camera: (M,) camera index; frame: (M,) wand-frame index in [0, F); end: (M,) 0 or 1;
     xy: (M, 2) normalised coordinates; focal: (N, 2) fx, fy per camera; length: metres.
+    along: (M,) for a wand of more markers (wandcal.calib.start.markerlabels), each observed
+    marker's position on the axis from the midpoint of the end markers, metres (end 0 at
+    -length/2, end 1 at +length/2); None for the two ends alone.
     """
 
     camera: np.ndarray
@@ -38,6 +41,7 @@ class WandProblem:
     focal: np.ndarray
     length: float
     n_frames: int
+    along: np.ndarray | None = None
 
     @property
     def n_cams(self) -> int:
@@ -48,7 +52,13 @@ class WandProblem:
         return 2 * self.frame + self.end
 
     def subset(self, keep: np.ndarray) -> WandProblem:
-        return WandProblem(self.camera[keep], self.frame[keep], self.end[keep], self.xy[keep], self.focal, self.length, self.n_frames)
+        return WandProblem(self.camera[keep], self.frame[keep], self.end[keep], self.xy[keep], self.focal, self.length,
+                           self.n_frames, None if self.along is None else self.along[keep])
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """(M,) each observation's marker position on the axis from the wand's midpoint, metres."""
+        return self.along if self.along is not None else np.where(self.end == 1, 0.5, -0.5) * self.length
 
 
 class WandModel:
@@ -118,7 +128,7 @@ class WandModel:
         E = euler_to_matrix(delta)
         R = E @ self.R0
         d, vnorm = self.directions(ab)
-        sign = np.where(p.end == 1, 0.5, -0.5) * p.length
+        sign = p.offsets
         X = m[p.frame] + sign[:, None] * d[p.frame]
         xc = np.einsum("mij,mj->mi", R[p.camera], X) + t[p.camera]
         return delta, R, d, vnorm, sign, X, xc

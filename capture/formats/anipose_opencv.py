@@ -16,6 +16,8 @@ from wandcal.calib.geometry import matrix_to_rotvec, rotvec_to_matrix
 from wandcal.calib.rig import FISHEYE, PINHOLE, Camera, Rig
 from wandcal.capture.formats.cameras import PosedCameras, check_unit, posed_cameras, read_cameras
 
+OPENCV_SHORT_DIST = 4  # OpenCV's shortest pinhole distortion vector, [k1, k2, p1, p2]
+
 
 def _toml_value(value) -> str:
     if isinstance(value, bool):
@@ -74,8 +76,11 @@ def read_anipose_toml(text: str, unit: str = "m", source: str = "calibration.tom
         try:
             size = [int(v) for v in entry["size"]]
             model = FISHEYE if entry.get("fisheye", False) else PINHOLE
+            dist = np.array(entry["distortions"], dtype=float).ravel()
+            if model == PINHOLE and len(dist) == OPENCV_SHORT_DIST:
+                dist = np.r_[dist, 0.0]  # OpenCV's [k1, k2, p1, p2] (Pose2Sim writes four): k3 = 0
             cams.append(Camera(str(entry.get("name", key)), size[0], size[1], np.array(entry["matrix"], dtype=float),
-                               np.array(entry["distortions"], dtype=float), model))
+                               dist, model))
             R.append(rotvec_to_matrix(np.array(entry["rotation"], dtype=float).reshape(3)))
             t.append(np.array(entry["translation"], dtype=float).reshape(3) / scale)
         except KeyError as exc:

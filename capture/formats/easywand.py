@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wandcal.calib.rig import AXIS_ROLES, Camera, Rig
+from wandcal.calib.rig import AXIS_ROLES, Camera, Rig, WandObservations
 from wandcal.capture.folder import Capture, CaptureFormatError
 from wandcal.capture.formats.dltdv import (
     AXIS_ROLES_BY_COUNT,
@@ -67,11 +67,12 @@ def read_easywand_mat(path: str | Path, intrinsics: str = "optimised", height: i
                          f"{path}: {STRUCT} camera {c + 1} ({f_field}, {pp_field}, {dist_field})")
         for c in range(n)
     ]
-    wand_length = _floats(ew, "wandLen", path, 1)[0]
     wand_pts = _table(ew, "wandPts", path, n, 4 * n)
-    if wand_pts is None:
-        raise CaptureFormatError(f"{path}: {STRUCT}.wandPts is empty; this session has no wand points to import")
     background = _table(ew, "backgroundPts", path, n)
+    if wand_pts is None and background is None:
+        raise CaptureFormatError(f"{path}: {STRUCT}.wandPts and backgroundPts are both empty; this session has no "
+                                 "points to import")
+    wand_length = _floats(ew, "wandLen", path, 1)[0] if wand_pts is not None else None
     notes = [f"intrinsics: {intrinsics} ({f_field}, {pp_field}, {dist_field})"]
     axis = None
     axis_pts = _table(ew, "axisPts", path, n, 2 * n)
@@ -81,20 +82,27 @@ def read_easywand_mat(path: str | Path, intrinsics: str = "optimised", height: i
     marked = _marked(ew)
     if marked:
         notes.append(marked)
-    imported = _imported(cameras, wand_length, wand_pts, background, axis, len(wand_pts.values) - 1,
+    last = len(wand_pts.values) - 1 if wand_pts is not None else -1
+    imported = _imported(cameras, wand_length, wand_pts, background, axis, last,
                          f"{path} ({STRUCT}, easyWand {getattr(ew, 'version', '?')})", notes)
     return Imported(imported.capture, imported.source, imported.notes + (NOT_USED,))
 
 
-def read_easywand_files(wand_csv: str | Path, profile: str | Path, wand_length_m: float,
+def read_easywand_files(wand_csv: str | Path | None, profile: str | Path, wand_length_m: float | None,
                         background: str | Path | None = None, axis: str | Path | None = None,
                         height: int | None = None) -> Imported:
     """Import easyWand's input files: wand points (two tracks), a camera profile, and the
     optional background (unpaired) and axis points, all in DLTdv's y-up layout
-    (:mod:`wandcal.capture.formats.dltdv`)."""
+    (:mod:`wandcal.capture.formats.dltdv`). Without ``wand_csv`` (a background-only session)
+    the capture has no wand and no metric scale."""
     cameras = parse_profile(read_text(profile, "camera profile"), str(profile), height)
     n = len(cameras)
-    wand = parse_xypts(read_text(wand_csv, "wand points CSV"), str(wand_csv), n, 4 * n)
+    wand = None
+    if wand_csv is not None:
+        wand = parse_xypts(read_text(wand_csv, "wand points CSV"), str(wand_csv), n, 4 * n)
+    if wand is None and background is None:
+        raise CaptureFormatError(f"{profile}: give the wand points (--wand) or the background points (--background); "
+                                 "there is nothing to calibrate from")
     bg = None
     if background is not None:
         bg = parse_xypts(read_text(background, "background points CSV"), str(background), n)
@@ -104,8 +112,8 @@ def read_easywand_files(wand_csv: str | Path, profile: str | Path, wand_length_m
         table = parse_xypts(read_text(axis, "axis points CSV"), str(axis), n, 2 * n)
         axis_obs, note = axis_from_table(table, cameras)
         notes.append(note)
-    return _imported(cameras, wand_length_m, wand, bg, axis_obs, int(wand.frames.max()),
-                     f"{wand_csv}, {profile}" + "".join(f", {p}" for p in (background, axis) if p), notes)
+    return _imported(cameras, wand_length_m, wand, bg, axis_obs, int(wand.frames.max()) if wand is not None else -1,
+                     ", ".join(str(p) for p in (wand_csv, profile, background, axis) if p), notes)
 
 
 def read_easywand(wand_csv: str | Path, profile: str | Path, wand_length_m: float,
@@ -126,24 +134,33 @@ def axis_from_table(table: XyTable, cameras: list[Camera]) -> tuple[object, str]
     return axis, f"{table.source}: {len(rows)} reference points taken as {', '.join(roles)} (by their count)"
 
 
-def _imported(cameras, wand_length, wand_table: XyTable, background: XyTable | None, axis, last_wand_frame: int,
+def _imported(cameras, wand_length, wand_table: XyTable | None, background: XyTable | None, axis, last_wand_frame: int,
               source: str, notes: list[str]) -> Imported:
-    check_inside(wand_table.values, cameras, wand_table.source)
-    wand, one_end = wand_from_table(wand_table, cameras)
-    if one_end.any():
-        notes.append("left out camera-frames of the wand with one end only (the other end not digitised): "
-                     + ", ".join(f"{c.id} {k}" for c, k in zip(cameras, one_end)))
+    if wand_table is not None:
+        check_inside(wand_table.values, cameras, wand_table.source)
+        wand, one_end = wand_from_table(wand_table, cameras)
+        if one_end.any():
+            notes.append("left out camera-frames of the wand with one end only (the other end not digitised): "
+                         + ", ".join(f"{c.id} {k}" for c, k in zip(cameras, one_end)))
+    if wand_table is None or (not len(wand) and background is not None):
+        wand = WandObservations(np.zeros(0), np.zeros(0), np.zeros((0, 2)))
+        wand_length = None
+        notes.append("no wand points: background points only, so the calibration has no metric scale")
     points = None
     if background is not None:
         check_inside(background.values, cameras, background.source)
         first = first_free_frame(last_wand_frame)
         points = points_from_table(background, cameras, first)
+        above = ", above every wand frame" if wand_length is not None else ""
         notes.append(f"background point r of {background.source} (its source_row or row index, 0-based) is "
-                     f"points.csv frame {first} + r, above every wand frame")
+                     f"points.csv frame {first} + r{above}")
         if not len(points):
             points = None
+    if wand_length is None and points is None:
+        raise CaptureFormatError(f"{source}: no wand points and no background point seen; there is nothing to "
+                                 "calibrate from")
     try:
-        rig = Rig(tuple(cameras), float(wand_length))
+        rig = Rig(tuple(cameras), None if wand_length is None else float(wand_length))
     except (ValueError, TypeError) as exc:
         raise CaptureFormatError(f"{source}: {exc}") from None
     return Imported(Capture(rig=rig, wand=wand, static=None, points=points, axis=axis), source, tuple(notes))

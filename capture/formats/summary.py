@@ -40,7 +40,7 @@ def summary_lines(imported: Imported) -> list[str]:
             f"principal point ({cam.K[0, 2]:.1f}, {cam.K[1, 2]:.1f}) y down, dist [{dist}]"
         )
     if rig.wand_length is None:
-        lines.append("wand: none (single-point tracks only; the calibration has no metric scale)")
+        lines.append("wand: none (point tracks only; the calibration has no metric scale)")
     else:
         frames, per_cam = _frames_per_camera(cap.wand.frame, cap.wand.camera, len(rig.cameras))
         lines.append(
@@ -55,6 +55,11 @@ def summary_lines(imported: Imported) -> list[str]:
             f"{_multi_view(cap.points.frame, cap.points.camera)} of them seen by 2 or more cameras"
         )
         lines.append("  points per camera: " + _per_camera(rig.ids, per_cam))
+        if cap.points.point is not None:
+            names = np.unique(cap.points.point)
+            pairs = len(np.unique(np.stack([cap.points.frame.astype(str), cap.points.point]), axis=1)[0])
+            lines.append(f"  labelled: {len(names)} point names ({', '.join(names[:8])}{', ...' if len(names) > 8 else ''}), "
+                         f"{pairs} (point, frame) pairs, each one 3D point")
     else:
         lines.append("other points: none")
     if cap.axis is not None and len(cap.axis.role):

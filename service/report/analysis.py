@@ -227,7 +227,7 @@ def aligned_observations(result: ResultFile, capture: Capture
     wand = WandObservations(wand.frame, to_result[wand.camera.astype(int)], wand.uv) if len(wand) else wand
     points = capture.points
     if points is not None and len(points):
-        points = PointObservations(points.frame, to_result[points.camera.astype(int)], points.uv)
+        points = PointObservations(points.frame, to_result[points.camera.astype(int)], points.uv, points.point)
     axis = capture.axis
     if axis is not None and len(axis.role):
         axis = AxisObservations(role=axis.role, camera=to_result[axis.camera.astype(int)], uv=axis.uv)

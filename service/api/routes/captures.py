@@ -11,7 +11,7 @@ from starlette.datastructures import FormData, UploadFile
 
 from wandcal.calib.rig import StaticObservations
 from wandcal.calib.start.static import solve_static
-from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, decode_text
+from wandcal.capture.folder import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE, decode_text
 from wandcal.service.api.deps import CaptureDep, State, require_content_type
 from wandcal.service.schemas import (
     CameraCoverage,
@@ -28,6 +28,7 @@ router = APIRouter(prefix="/captures", tags=["captures"])
 
 WHOLE = re.compile(r"^[0-9]{1,12}$")  # ASCII digits only; 12 digits outlast any real frame counter
 FORM = ("multipart/form-data", "application/x-www-form-urlencoded")
+UPLOAD_PARTS = (RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE, "path")  # POST /captures' form fields
 MAX_STATIC_IMAGES_PER_CAMERA = 100  # averaging beyond ~100 frames gains nothing (noise falls as 1/sqrt(N))
 ERRORS = {
     400: {"model": ErrorPublic, "description": "malformed request"},
@@ -91,6 +92,9 @@ async def _form(request: Request, state) -> FormData:
                 RIG_FILE: _file_schema("the rig description (wandcal-capture/1)"),
                 WAND_FILE: _file_schema("wand blobs: frame,camera,u,v; omit to stream frame sets later"),
                 STATIC_FILE: _file_schema("static-object blobs: camera,u,v"),
+                POINTS_FILE: _file_schema("point tracks: frame,camera,u,v[,point]; a capture without a wand "
+                                          "needs them (rig.json without wand.length_m)"),
+                AXIS_FILE: _file_schema("axis points: role,camera,u,v"),
                 "path": {"type": "string", "description": "a capture folder under the replay root"},
             },
         },
@@ -98,12 +102,17 @@ async def _form(request: Request, state) -> FormData:
     ),
 )
 async def create_capture(request: Request, state: State) -> CapturePublic:
-    """Give either the files (``rig.json``, optional ``wand.csv`` and ``static.csv``) or ``path``.
+    """Give either the files (``rig.json``, optional ``wand.csv``, ``static.csv``, ``points.csv`` and
+    ``axis.csv``) or ``path``; any other part is refused (422), never dropped.
 
     A capture from ``rig.json`` alone starts empty and fills from ``POST /captures/{id}/framesets``.
     """
     form = await _form(request, state)
     limit = state.settings.max_upload_bytes
+    unknown = sorted(set(form.keys()) - set(UPLOAD_PARTS))
+    if unknown:
+        raise HTTPException(422, f"unknown part {unknown[0]!r}; a capture upload takes {', '.join(UPLOAD_PARTS)} "
+                                 "(docs/capture-format.md)")
     path = form.get("path")
     if path is not None:
         if form.get(RIG_FILE) is not None:
@@ -120,7 +129,10 @@ async def create_capture(request: Request, state: State) -> CapturePublic:
         raise HTTPException(422, f"no '{RIG_FILE}' part; upload rig.json (and wand.csv), or name a replay 'path'")
     wand_text = await _text(form.get(WAND_FILE), WAND_FILE, limit)
     static_text = await _text(form.get(STATIC_FILE), STATIC_FILE, limit)
-    row = await run_in_threadpool(state.captures.create_from_texts, rig_text, wand_text, static_text)
+    points_text = await _text(form.get(POINTS_FILE), POINTS_FILE, limit)
+    axis_text = await _text(form.get(AXIS_FILE), AXIS_FILE, limit)
+    row = await run_in_threadpool(state.captures.create_from_texts, rig_text, wand_text, static_text, "upload",
+                                  points_text, axis_text)
     return to_public(row)
 
 
