@@ -4,7 +4,7 @@ real sessions in ../shared/data, through the whole `calibrate`.
 Each broken case has one fault (calib/sim/faults.py: a camera's focal length or k1 in rig.json,
 a camera late or early by 0.4-3.5 frames, reflections in one camera, one noisy camera, the wand's
 length off the static object's by 2-6%), its magnitude and camera drawn from the seed. Seeds
-here start at 100: the limits were set looking at seeds 1-7 (decision 0016), so these are
+here start at 100: the limits were set looking at seeds 1-7 (decision 0015), so these are
 held out. A case is right when a good rig is not called poor and names no fault, and a broken one
 is poor and names the fault's kind and camera, and no other camera.
 

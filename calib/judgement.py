@@ -16,6 +16,8 @@ limits and why.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
@@ -97,7 +99,7 @@ def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, 
     index[keep] = np.arange(len(keep))
     sub = labelled.subset(others)
     sub = WandPairs(sub.frame, index[sub.camera], sub.xy, sub.uv, sub.frames, sub.dropped)
-    sub_rig = Rig(tuple(rig.cameras[k] for k in keep), rig.wand_length, rig.static_markers)
+    sub_rig = replace(rig, cameras=tuple(rig.cameras[k] for k in keep))
     setup = build_problem(sub_rig, sub, R[keep], t[keep], 0)
     r = refine(sub_rig, sub, setup, None, None, "ba", {}, lambda event: None, up_direction(sub_rig, R[keep], t[keep], setup),
                final=False)

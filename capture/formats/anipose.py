@@ -56,13 +56,13 @@ def read_anipose(toml: str | Path, points: list[str] | None = None, unit: str = 
     tables = _camera_tables(text)
     notes = [f"the TOML's poses are written to {POSES_FILE} (a wandcal-result/1 document; translations read in "
              f"{unit}); the calibration solves its own"]
-    obs = None
-    if points:
-        per_camera = _read_points(points, names, tables, toml, min_likelihood)
-        obs, note = _observations(per_camera)
-        notes.append(note)
-    else:
-        notes.append("no --points given: rig.json only; give the 2D keypoints to calibrate")
+    if not points:
+        # a capture without a wand needs its points (docs/capture-format.md): no capture to write
+        raise CaptureFormatError(f"{toml}: no --points given; give the 2D keypoints (DeepLabCut CSVs or an aniposelib "
+                                 ".npy) to calibrate, or read the cameras alone with 'wandcal import cameras'")
+    per_camera = _read_points(points, names, tables, toml, min_likelihood)
+    obs, note = _observations(per_camera)
+    notes.append(note)
     try:
         rig = Rig(tuple(posed.cameras), None)
     except CalibrationError as exc:

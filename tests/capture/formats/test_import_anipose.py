@@ -12,6 +12,7 @@ from wandcal.calib.sim.simulate import ring_cameras
 from wandcal.capture.folder import CaptureFormatError, parse_points_csv, read_capture
 from wandcal.capture.formats.anipose import read_anipose
 from wandcal.capture.formats.anipose_opencv import to_anipose_toml
+from wandcal.capture.formats.cameras_in import read_camera_file
 from wandcal.capture.formats.deeplabcut import read_dlc_csv
 from wandcal.service.cli import main
 
@@ -242,8 +243,17 @@ def test_pose2sim_toml_with_four_distortions(tmp_path):
                     'matrix = [ [ 1500.0, 0.0, 960.0], [ 0.0, 1500.0, 540.0], [ 0.0, 0.0, 1.0]]\n'
                     'distortions = [ 0.0, 0.0, 0.0, 0.0]\nrotation = [ 0.0, 0.0, 0.0]\n'
                     'translation = [ 0.0, 0.0, 0.0]\nfisheye = false\n\n[metadata]\nadjusted = false\nerror = 0.0\n')
-    imported, posed = read_anipose(toml)
-    cam = imported.capture.rig.cameras[0]
+    posed = read_camera_file(toml, "anipose-toml")
+    cam = posed.cameras[0]
     assert cam.id == "cam_01" and (cam.width, cam.height) == (1920, 1080)
     assert np.allclose(cam.dist, [-0.1, 0.02, 0.001, -0.002, 0.0])
     assert np.allclose(posed.t[0], [0.5, -0.2, 3.0])
+
+
+def test_an_anipose_import_without_points_says_what_to_give(tmp_path):
+    toml = tmp_path / "calibration.toml"
+    toml.write_text('[cam_0]\nname = "cam_0"\nsize = [640, 480]\nmatrix = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], '
+                    '[0.0, 0.0, 1.0]]\ndistortions = [0.0, 0.0, 0.0, 0.0, 0.0]\nrotation = [0.0, 0.0, 0.0]\n'
+                    'translation = [0.0, 0.0, 0.0]\n')
+    with pytest.raises(CaptureFormatError, match="no --points given.*wandcal import cameras"):
+        read_anipose(toml)
