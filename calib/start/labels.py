@@ -14,6 +14,9 @@ from wandcal.calib.observations import WandPairs
 from wandcal.calib.triangulate import triangulate_points
 
 RELABEL_ROUNDS = 2  # a second reprojection pass changes nothing on simulated rigs
+# cameras per frame whose pairs vote with every other camera of the frame in the consensus: the
+# least ambiguous ones; more only adds pairs (every pair votes while a frame has at most 17 cameras)
+VOTERS = 16
 COST_CHUNK = 32768  # camera-pair costs per pass: 2x faster than all at once (its temporaries stay in cache)
 
 
@@ -113,25 +116,17 @@ def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> np.ndarra
 
 
 def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_passes: int = 8) -> np.ndarray:
-    """(P,) bool flips that lower each frame's epipolar cost summed over all its camera pairs.
+    """(P,) bool flips that lower each frame's epipolar cost summed over its voting camera pairs.
 
     The reference-based order trusts one camera per frame; when the wand lies near an epipolar
-    plane of that camera, other cameras can split into two camps. Here every pair of cameras in
-    a frame votes, and single-camera flips are taken greedily (the best one per frame and pass)
-    while they lower the frame's total.
+    plane of that camera, other cameras can split into two camps. Here pairs of cameras in a
+    frame vote, and single-camera flips are taken greedily (the best one per frame and pass)
+    while they lower the frame's total. Every camera votes with the frame's :data:`VOTERS`
+    least ambiguous ones (blobs furthest apart), so the work per frame grows with its cameras,
+    not with their pairs; a frame seen by at most ``VOTERS + 1`` cameras has every pair vote.
     """
     P = len(pairs)
-    order = np.argsort(pairs.frame, kind="stable")
-    fr = pairs.frame[order]
-    start = np.searchsorted(fr, fr, side="left")
-    count = np.bincount(fr, minlength=len(pairs.frames))[fr]
-    # all ordered pairs (i, j), i != j, within a frame
-    reps = count
-    i_idx = np.repeat(order, reps)
-    offs = np.arange(len(i_idx)) - np.repeat(np.cumsum(reps) - reps, reps)
-    j_idx = order[np.repeat(start, reps) + offs]
-    keep = i_idx < j_idx  # each unordered pair once: the Sampson distance is symmetric
-    a_idx, b_idx = i_idx[keep], j_idx[keep]
+    a_idx, b_idx = _voting_pairs(pairs)
     if len(a_idx) == 0:
         return np.zeros(P, bool)
     same, cross = _epipolar_costs(R, t, pairs, a_idx, b_idx)
@@ -156,6 +151,26 @@ def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_pass
             break
         flip ^= first
     return flip
+
+
+def _voting_pairs(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray]:
+    """Unordered pairs of pairs (a (K,), b (K,)) in the same frame that vote in
+    :func:`_pairwise_consensus`: each pair with each of its frame's :data:`VOTERS` voters (the
+    pairs whose blobs are furthest apart), each unordered pair once."""
+    order = np.lexsort((-np.linalg.norm(pairs.xy[:, 0] - pairs.xy[:, 1], axis=1), pairs.frame))
+    fr = pairs.frame[order]
+    first = np.searchsorted(fr, fr, side="left")  # sorted position of the frame's first pair
+    rank = np.arange(len(order)) - first  # 0 for the frame's widest pair
+    count = np.bincount(fr, minlength=len(pairs.frames))[fr]
+    voters = np.minimum(count, VOTERS)
+    # each pair (sorted position s) against its frame's voters (sorted positions first .. first + voters)
+    i_pos = np.repeat(np.arange(len(order)), voters)
+    offs = np.arange(len(i_pos)) - np.repeat(np.cumsum(voters) - voters, voters)
+    j_pos = np.repeat(first, voters) + offs
+    j_rank = offs
+    # a voter meets another voter twice (once from each side): keep the one from the later rank
+    keep = (j_pos != i_pos) & ((np.repeat(rank, voters) >= VOTERS) | (j_rank < np.repeat(rank, voters)))
+    return order[i_pos[keep]], order[j_pos[keep]]
 
 
 def _essential_matrices(R: np.ndarray, t: np.ndarray) -> np.ndarray:
