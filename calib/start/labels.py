@@ -132,25 +132,43 @@ def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_pass
     same, cross = _epipolar_costs(R, t, pairs, a_idx, b_idx)
     worse = same - cross  # what a pair of pairs gains when one of them flips while they agree
     del same, cross
-    i_idx, j_idx = np.concatenate([a_idx, b_idx]), np.concatenate([b_idx, a_idx])
-    worse = np.concatenate([worse, worse])
+    # the votes come grouped by frame: a pass looks only at the frames whose pairs flipped in the
+    # pass before, the others' gains being unchanged (the first pass, with nothing flipped, at all)
+    F = len(pairs.frames)
+    vote_frame = pairs.frame[a_idx]
+    v_lo, v_hi = np.searchsorted(vote_frame, np.arange(F)), np.searchsorted(vote_frame, np.arange(F), side="right")
+    by_frame = np.argsort(pairs.frame, kind="stable")
+    p_lo = np.searchsorted(pairs.frame[by_frame], np.arange(F))
+    p_hi = np.searchsorted(pairs.frame[by_frame], np.arange(F), side="right")
     flip = np.zeros(P, bool)
-    for _ in range(max_passes):
-        agree = flip[i_idx] == flip[j_idx]
-        # flipping i changes its agreement with every j: it gains `worse` where they agree now
-        gain = np.bincount(i_idx, np.where(agree, worse, -worse), minlength=P)
-        best = np.full(len(pairs.frames), 0.0)
-        np.maximum.at(best, pairs.frame, gain)
-        take = (gain > 0) & (gain >= best[pairs.frame])
-        # one flip per frame and pass: the frame's best single flip
-        first = np.zeros(P, bool)
-        idx = np.flatnonzero(take)
-        _, first_of_frame = np.unique(pairs.frame[idx], return_index=True)
-        first[idx[first_of_frame]] = True
-        if not first.any():
+    active = np.arange(F)
+    # flipping a pair changes its agreement with every pair it votes with: it gains `worse` where
+    # they agree now and loses it where they do not, and so does the other pair of the vote
+    gain = np.bincount(a_idx, worse, minlength=P) + np.bincount(b_idx, worse, minlength=P)
+    for k in range(max_passes):
+        if k:
+            votes = _ranges(v_lo[active], v_hi[active])
+            a, b = a_idx[votes], b_idx[votes]
+            term = np.where(flip[a] == flip[b], worse[votes], -worse[votes])
+            gain = np.bincount(a, term, minlength=P) + np.bincount(b, term, minlength=P)
+        mine = by_frame[_ranges(p_lo[active], p_hi[active])]  # the pairs of the active frames, by frame
+        best = np.zeros(F)
+        np.maximum.at(best, pairs.frame[mine], gain[mine])
+        take = mine[(gain[mine] > 0) & (gain[mine] >= best[pairs.frame[mine]])]
+        # one flip per frame and pass: the frame's best single flip (the first pair of a tie)
+        _, first_of_frame = np.unique(pairs.frame[take], return_index=True)
+        chosen = take[first_of_frame]
+        if not len(chosen):
             break
-        flip ^= first
+        flip[chosen] ^= True
+        active = pairs.frame[chosen]
     return flip
+
+
+def _ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The integers of the ranges [lo, hi) (each (K,)), concatenated."""
+    n = hi - lo
+    return np.repeat(lo - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
 
 
 def _voting_pairs(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray]:
