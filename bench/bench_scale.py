@@ -17,7 +17,7 @@ each stage's cumulative time (attributed by caller, so a stage's nested calls ar
 twice) and its growth exponent: the least-squares slope of log(seconds) against log(cameras).
 
 Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages] [--rigs 64x3000,128x3000]
-    [--stage-cameras 16,32,64,128] [--no-colmap] [--no-write]
+    [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--no-write]
 """
 
 from __future__ import annotations
@@ -48,6 +48,11 @@ POINT_NOISE_PX = 0.3
 PROBE = ("import sys; from wandcal.service.cli import main; code = main(sys.argv[1:]); "
          "print(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:')), file=sys.stderr); "
          "sys.exit(code)")
+# the stage profile counts the process's CPU seconds, not wall seconds: the machine is shared, and
+# another job's load stretches wall time unevenly between runs (BLAS may use both cores: CPU
+# seconds can exceed wall seconds)
+PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; p = cProfile.Profile(time.process_time); "
+           "code = p.runcall(main, sys.argv[2:]); p.dump_stats(sys.argv[1]); sys.exit(code)")
 # stage: (caller, callee) function names whose cumulative time (the callee's, called from that
 # caller) makes the stage; the rest of the process is "other" (imports, reports, the verdict)
 STAGES = {
@@ -105,8 +110,7 @@ def run_process(folder: Path, out: Path, profile: Path | None = None) -> tuple[f
     """(wall seconds, peak RSS MB) of one `wandcal calibrate` process, optionally under cProfile."""
     cmd = [sys.executable, "-c", PROBE, "calibrate", str(folder), "--quiet", "--out", str(out)]
     if profile is not None:
-        cmd = [sys.executable, "-m", "cProfile", "-o", str(profile), "-m", "wandcal.service.cli", "calibrate",
-               str(folder), "--quiet", "--out", str(out)]
+        cmd = [sys.executable, "-c", PROFILE, str(profile), "calibrate", str(folder), "--quiet", "--out", str(out)]
     start = time.perf_counter()
     done = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=REPO)
     seconds = time.perf_counter() - start
@@ -142,7 +146,7 @@ def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str]:
     return seconds, peer_error(R, t, sim), str(iterations)
 
 
-def part_peers(rigs: list[str], repeats: int, colmap: bool) -> str:
+def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
     rows = ["| rig | outliers | `wandcal calibrate` process (s) | COLMAP-Cauchy solve (s) | ratio | centre error wandcal / COLMAP (mm) | process peak RSS (MB) |",
             "|---|---|---|---|---|---|---|"]
     for rig in rigs:
@@ -150,27 +154,27 @@ def part_peers(rigs: list[str], repeats: int, colmap: bool) -> str:
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp) / "capture"
             simulate(folder, cameras, frames)
-            times, peaks, cm, ratios = [], [], [], []
+            times, peaks, cm = [], [], []
             error = colmap_error = float("nan")
-            for _ in range(repeats):
+            iterations = "-"
+            for k in range(repeats):
                 seconds, peak = run_process(folder, Path(tmp) / "result.json")
                 times.append(seconds)
                 peaks.append(peak)
                 error = centre_error_mm(Path(tmp) / "result.json", folder / "truth.json")
-                if colmap:
-                    c_seconds, colmap_error, _ = colmap_cauchy(cameras, frames)
+                if k < colmap_repeats:
+                    c_seconds, colmap_error, iterations = colmap_cauchy(cameras, frames)
                     cm.append(c_seconds)
-                    ratios.append(seconds / c_seconds)
-                print(f"{rig}: process {seconds:.2f} s, {peak:.0f} MB" + (f"; COLMAP-Cauchy {cm[-1]:.2f} s" if colmap else ""),
+                print(f"{rig}: process {seconds:.2f} s, {peak:.0f} MB" + (f"; COLMAP-Cauchy {cm[-1]:.2f} s" if cm else ""),
                       flush=True)
-        ratio = f"{np.median(ratios):.2f}" if ratios else "-"
-        cm_s = f"{np.median(cm):.2f}" if cm else "-"
+        cm_s, ratio = (f"{np.median(cm):.2f} ({iterations} steps)", f"{np.median(times) / np.median(cm):.2f}") if cm else ("-", "-")
         rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} | {cm_s} | {ratio} | {error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
         print(rows[-1], flush=True)
     return ("The whole command (Python start-up included) on a simulated capture folder (0.3 px, 2% outliers, "
             "L-frame), and COLMAP-Cauchy's solve of the same rig labelled at the truth and started 1 deg / 3 cm off "
-            f"(bench_peers.py's scene), alternated in one run; medians of {repeats}; ratio: the median of each "
-            "repeat's process / COLMAP. Centre error: RMS after a similarity alignment to the truth.\n\n"
+            f"(bench_peers.py's scene; its steps: successful+unsuccessful), alternated in one run; medians of {repeats} "
+            f"processes and {colmap_repeats} COLMAP solves (minutes each at 128 cameras); ratio: median process / "
+            "median COLMAP. Centre error: RMS after a similarity alignment to the truth.\n\n"
             + "\n".join(rows) + "\n\nGoals (issue 22): 128 x 3000 process <= 0.3x COLMAP-Cauchy, peak RSS <= 1.2 GB, "
             "accuracy within 1.05x of before; 64 x 3000 <= 0.3x COLMAP-Cauchy.")
 
@@ -205,7 +209,7 @@ def part_stages(cameras_list: list[int], repeats: int) -> str:
             per[cameras] = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
             print(cameras, {k: round(v, 2) for k, v in per[cameras].items()}, flush=True)
     names = list(STAGES) + ["other", "whole"]
-    head = "| stage | " + " | ".join(f"{c} cams (s)" for c in cameras_list) + " | growth exponent | last doubling |"
+    head = "| stage | " + " | ".join(f"{c} cams (CPU s)" for c in cameras_list) + " | growth exponent | last doubling |"
     rows = [head, "|" + "---|" * (len(cameras_list) + 3)]
     x = np.log(cameras_list)
     for name in names:
@@ -213,9 +217,10 @@ def part_stages(cameras_list: list[int], repeats: int) -> str:
         slope = np.polyfit(x, np.log(y), 1)[0]
         last = np.log(y[-1] / y[-2]) / np.log(cameras_list[-1] / cameras_list[-2])
         rows.append(f"| {name} | " + " | ".join(f"{v:.2f}" for v in y) + f" | {slope:.2f} | {last:.2f} |")
-    return (f"The whole `wandcal calibrate` process under cProfile at {STAGE_FRAMES} frames (0.3 px, 2% outliers, "
-            f"L-frame), the median of {repeats} runs per rig and stage; each stage's cumulative time attributed by caller (the profiler's overhead "
-            "included, so the totals exceed the plain process's). Growth exponent: the least-squares slope of "
+    return (f"`wandcal calibrate` under cProfile at {STAGE_FRAMES} frames (0.3 px, 2% outliers, L-frame), in CPU "
+            f"seconds (the machine is shared), the median of {repeats} runs per rig and stage; each stage's cumulative "
+            "time attributed by caller (the profiler's overhead included; imports not counted, \"other\" is the "
+            "reports and the verdict). Growth exponent: the least-squares slope of "
             "log(seconds) on log(cameras); last doubling: the slope from the second-largest rig to the largest.\n\n"
             + "\n".join(rows) + "\n\nGoal (issue 22): every stage at most cameras^1.2.")
 
@@ -226,13 +231,13 @@ def main() -> int:
     ap.add_argument("--parts", default="peers,points,stages")
     ap.add_argument("--rigs", default="64x3000,128x3000")
     ap.add_argument("--stage-cameras", default="16,32,64,128")
-    ap.add_argument("--no-colmap", action="store_true")
+    ap.add_argument("--colmap-repeats", type=int, default=1, help="COLMAP solves per rig (0: none)")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     parts = args.parts.split(",")
     sections = []
     if "peers" in parts:
-        sections.append(("Scale: the whole command beside COLMAP", part_peers(args.rigs.split(","), args.repeats, not args.no_colmap)))
+        sections.append(("Scale: the whole command beside COLMAP", part_peers(args.rigs.split(","), args.repeats, args.colmap_repeats)))
     if "points" in parts:
         sections.append(("Scale: point-heavy rig", part_points(args.repeats)))
     if "stages" in parts:
