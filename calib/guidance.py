@@ -348,8 +348,12 @@ def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, s
     ids = rig.ids
     target, goal = settings.target_std_mm, settings.min_coverage
     cameras, worst = [], []
+    # each camera's blobs as one slice of the pairs sorted by camera (a mask per camera is N passes)
+    order = np.argsort(seen.pairs.camera, kind="stable")
+    by_camera = seen.pairs.uv[order]
+    bounds = np.searchsorted(seen.pairs.camera[order], np.arange(len(rig.cameras) + 1))
     for c, cam in enumerate(rig.cameras):
-        uv = seen.pairs.uv[seen.pairs.camera == c].reshape(-1, 2)
+        uv = by_camera[bounds[c] : bounds[c + 1]].reshape(-1, 2)
         grid = coverage_grid(uv, cam.width, cam.height, settings.grid)
         fraction = covered_fraction(grid)
         sigma_mm = None if np.isnan(center[c]) else float(1000 * center[c])
