@@ -16,7 +16,9 @@ Part 3 ("Scale: stages"): the process under cProfile at 16, 32, 64 and 128 camer
 each stage's cumulative time (attributed by caller, so a stage's nested calls are not counted
 twice) and its growth exponent: the least-squares slope of log(seconds) against log(cameras).
 
-Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages] [--rigs 64x3000,128x3000]
+Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000.
+
+Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance] [--rigs 64x3000,128x3000]
     [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--no-write]
 """
 
@@ -225,10 +227,37 @@ def part_stages(cameras_list: list[int], repeats: int) -> str:
             + "\n".join(rows) + "\n\nGoal (issue 22): every stage at most cameras^1.2.")
 
 
+def part_guidance(cameras: int, frames: int, repeats: int) -> str:
+    """The live guidance update at a big rig: cold, and live (the capture grew by 10% since the
+    update it starts from), wall and CPU seconds, medians."""
+    from wandcal.calib.guidance import wanding_guidance
+    from wandcal.calib.rig import WandObservations
+    from wandcal.calib.sim.simulate import simulate_capture
+
+    sim = simulate_capture(cameras, frames, 0.3, 0.0, True, 1)
+    keep = sim.wand.frame < int(0.9 * frames)
+    before = WandObservations(sim.wand.frame[keep], sim.wand.camera[keep], sim.wand.uv[keep])
+    start = wanding_guidance(sim.rig, before, sim.static).solution
+
+    def timed(fn):
+        wall, cpu = time.perf_counter(), time.process_time()
+        fn()
+        return time.perf_counter() - wall, time.process_time() - cpu
+
+    cold = np.median([timed(lambda: wanding_guidance(sim.rig, before, sim.static)) for _ in range(repeats)], axis=0)
+    live = np.median([timed(lambda: wanding_guidance(sim.rig, sim.wand, sim.static, start=start)) for _ in range(repeats)], axis=0)
+    print(f"guidance {cameras} x {frames}: cold {cold}, live {live}", flush=True)
+    return (f"`wanding_guidance` on a simulated {cameras} x {frames} capture (0.3 px, L-frame), in this process, median "
+            f"of {repeats}; CPU seconds beside the wall seconds because the machine is shared:\n\n"
+            "| rig | cold update, wall / CPU (s) | live update (+10% frames, warm start), wall / CPU (s) |\n|---|---|---|\n"
+            f"| {cameras} x {frames} | {cold[0]:.2f} / {cold[1]:.2f} | {live[0]:.2f} / {live[1]:.2f} |\n\n"
+            "Goal (issue 22): the live update at 64 x 3000 in <= 1 s.")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--parts", default="peers,points,stages")
+    ap.add_argument("--parts", default="peers,points,stages,guidance")
     ap.add_argument("--rigs", default="64x3000,128x3000")
     ap.add_argument("--stage-cameras", default="16,32,64,128")
     ap.add_argument("--colmap-repeats", type=int, default=1, help="COLMAP solves per rig (0: none)")
@@ -240,6 +269,8 @@ def main() -> int:
         sections.append(("Scale: the whole command beside COLMAP", part_peers(args.rigs.split(","), args.repeats, args.colmap_repeats)))
     if "points" in parts:
         sections.append(("Scale: point-heavy rig", part_points(args.repeats)))
+    if "guidance" in parts:
+        sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
     if "stages" in parts:
         sections.append(("Scale: stages", part_stages([int(c) for c in args.stage_cameras.split(",")], args.repeats)))
     for title, body in sections:
