@@ -16,10 +16,12 @@ Part 3 ("Scale: stages"): the process under cProfile at 16, 32, 64 and 128 camer
 each stage's cumulative time (attributed by caller, so a stage's nested calls are not counted
 twice) and its growth exponent: the least-squares slope of log(seconds) against log(cameras).
 
-Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000.
+Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000. Part 5 ("Scale: small rigs before
+and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated.
 
 Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance] [--rigs 64x3000,128x3000]
-    [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--no-write]
+    [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
+    e.g. git archive 3925791 | tar -x -C /tmp/base && python bench/bench_scale.py --parts regression --base /tmp/base
 """
 
 from __future__ import annotations
@@ -254,6 +256,59 @@ def part_guidance(cameras: int, frames: int, repeats: int) -> str:
             "Goal (issue 22): the live update at 64 x 3000 in <= 1 s.")
 
 
+def _view(checkout: Path, into: Path) -> Path:
+    """A directory that imports ``wandcal`` from another checkout (its four folders under
+    wandcal/), ahead of this one's editable install when put on PYTHONPATH."""
+    (into / "wandcal").mkdir(parents=True, exist_ok=True)
+    for top in ("calib", "capture", "drivers", "service"):
+        link = into / "wandcal" / top
+        if not link.exists():
+            link.symlink_to(checkout.resolve() / top)
+    return into
+
+
+def _cpu_run(folder: Path, out: Path, pythonpath: Path | None) -> tuple[float, float]:
+    """(wall seconds, CPU seconds) of one `wandcal calibrate` process (CPU: user + system of the child)."""
+    import os
+    import resource
+
+    env = dict(os.environ) | ({"PYTHONPATH": str(pythonpath)} if pythonpath is not None else {})
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(folder), "--quiet", "--out", str(out)],
+                   check=True, capture_output=True, cwd=REPO, env=env)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def part_regression(base: Path, repeats: int) -> str:
+    """The small rigs of the Peers bench, this checkout against ``base``, alternated run by run."""
+    rows = ["| rig | outliers | before: wall / CPU (s) | after: wall / CPU (s) | after / before (CPU) | centre error before / after (mm) |",
+            "|---|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory() as tmp:
+        view = _view(base, Path(tmp) / "view")
+        for cameras, frames, outliers in ((8, 1500, 0.0), (8, 1500, 0.08), (16, 2500, 0.0)):
+            folder = Path(tmp) / f"c{cameras}x{frames}"
+            simulate(folder, cameras, frames, outliers)
+            runs: dict[str, list] = {"before": [], "after": []}
+            errors = {}
+            for _ in range(repeats):
+                for name, path in (("before", view), ("after", None)):
+                    out = Path(tmp) / f"{name}.json"
+                    runs[name].append(_cpu_run(folder, out, path))
+                    errors[name] = centre_error_mm(out, folder / "truth.json")
+            b, a = np.median(runs["before"], axis=0), np.median(runs["after"], axis=0)
+            ratio = np.median([x[1] / y[1] for x, y in zip(runs["after"], runs["before"])])
+            rows.append(f"| {cameras}x{frames} | {outliers:.0%} | {b[0]:.2f} / {b[1]:.2f} | {a[0]:.2f} / {a[1]:.2f} | "
+                        f"{ratio:.2f} | {errors['before']:.3f} / {errors['after']:.3f} |")
+            print(rows[-1], flush=True)
+    return (f"The Peers bench's small rigs (`wandcal simulate`, 0.3 px, L-frame), the whole `wandcal calibrate` process "
+            f"of the checkout before issue 22 (`--base`) and after it, alternated run by run, medians of {repeats}; CPU "
+            "seconds beside wall seconds because the machine is shared:\n\n" + "\n".join(rows)
+            + "\n\nGoal (issue 22): 8 x 1500 and 16 x 2500 no slower than before.")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
@@ -261,6 +316,7 @@ def main() -> int:
     ap.add_argument("--rigs", default="64x3000,128x3000")
     ap.add_argument("--stage-cameras", default="16,32,64,128")
     ap.add_argument("--colmap-repeats", type=int, default=1, help="COLMAP solves per rig (0: none)")
+    ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     parts = args.parts.split(",")
@@ -269,6 +325,10 @@ def main() -> int:
         sections.append(("Scale: the whole command beside COLMAP", part_peers(args.rigs.split(","), args.repeats, args.colmap_repeats)))
     if "points" in parts:
         sections.append(("Scale: point-heavy rig", part_points(args.repeats)))
+    if "regression" in parts:
+        if args.base is None:
+            ap.error("--parts regression needs --base CHECKOUT (the code before, e.g. from git archive)")
+        sections.append(("Scale: small rigs before and after", part_regression(args.base, args.repeats)))
     if "guidance" in parts:
         sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
     if "stages" in parts:
