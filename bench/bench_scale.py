@@ -46,6 +46,7 @@ from wandcal.calib.geometry import kabsch  # noqa: E402
 
 OUTLIERS = 0.02
 STAGE_FRAMES = 3000
+REGRESSION_RIGS = "8x1500:0,8x1500:0.08,16x2500:0"  # the Peers bench's whole-command rigs
 POINT_RIG = (12, 1500, 15000)  # cameras, wand frames, point frames
 POINT_NOISE_PX = 0.3
 # VmHWM, not ru_maxrss: Linux carries ru_maxrss over from the forking bench through exec
@@ -282,13 +283,16 @@ def _cpu_run(folder: Path, out: Path, pythonpath: Path | None) -> tuple[float, f
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
-def part_regression(base: Path, repeats: int) -> str:
-    """The small rigs of the Peers bench, this checkout against ``base``, alternated run by run."""
+def part_regression(base: Path, repeats: int, rigs: str) -> str:
+    """Rigs ``CAMSxFRAMES:OUTLIERS,...`` (the Peers bench's small ones by default), this checkout
+    against ``base``, alternated run by run."""
     rows = ["| rig | outliers | before: wall / CPU (s) | after: wall / CPU (s) | after / before (CPU) | centre error before / after (mm) |",
             "|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory() as tmp:
         view = _view(base, Path(tmp) / "view")
-        for cameras, frames, outliers in ((8, 1500, 0.0), (8, 1500, 0.08), (16, 2500, 0.0)):
+        for rig in rigs.split(","):
+            size, outliers = rig.split(":")[0], float(rig.split(":")[1])
+            cameras, frames = (int(v) for v in size.split("x"))
             folder = Path(tmp) / f"c{cameras}x{frames}"
             simulate(folder, cameras, frames, outliers)
             runs: dict[str, list] = {"before": [], "after": []}
@@ -303,7 +307,7 @@ def part_regression(base: Path, repeats: int) -> str:
             rows.append(f"| {cameras}x{frames} | {outliers:.0%} | {b[0]:.2f} / {b[1]:.2f} | {a[0]:.2f} / {a[1]:.2f} | "
                         f"{ratio:.2f} | {errors['before']:.3f} / {errors['after']:.3f} |")
             print(rows[-1], flush=True)
-    return (f"The Peers bench's small rigs (`wandcal simulate`, 0.3 px, L-frame), the whole `wandcal calibrate` process "
+    return (f"Simulated rigs (`wandcal simulate`, 0.3 px, L-frame), the whole `wandcal calibrate` process "
             f"of the checkout before issue 22 (`--base`) and after it, alternated run by run, medians of {repeats}; CPU "
             "seconds beside wall seconds because the machine is shared:\n\n" + "\n".join(rows)
             + "\n\nGoal (issue 22): 8 x 1500 and 16 x 2500 no slower than before.")
@@ -317,6 +321,8 @@ def main() -> int:
     ap.add_argument("--stage-cameras", default="16,32,64,128")
     ap.add_argument("--colmap-repeats", type=int, default=1, help="COLMAP solves per rig (0: none)")
     ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression")
+    ap.add_argument("--regression-rigs", default=REGRESSION_RIGS,
+                    help="CAMSxFRAMES:OUTLIERS,... for --parts regression")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     parts = args.parts.split(",")
@@ -328,7 +334,9 @@ def main() -> int:
     if "regression" in parts:
         if args.base is None:
             ap.error("--parts regression needs --base CHECKOUT (the code before, e.g. from git archive)")
-        sections.append(("Scale: small rigs before and after", part_regression(args.base, args.repeats)))
+        small = args.regression_rigs == REGRESSION_RIGS
+        title = "Scale: small rigs before and after" if small else f"Scale: before and after ({args.regression_rigs})"
+        sections.append((title, part_regression(args.base, args.repeats, args.regression_rigs)))
     if "guidance" in parts:
         sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
     if "stages" in parts:
