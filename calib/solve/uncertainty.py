@@ -94,7 +94,10 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
         pc: their covariance.
         frame: callable(R, t, centroid_shift (3,)) -> (Rw (3, 3), tw (3,)), the map
             ``x_world = Rw x + tw`` built from those poses (and the wand centroid moved by the
-            shift), exactly as the result's world frame is built.
+            shift), exactly as the result's world frame is built. It may carry ``jacobian(R, t)``
+            -> (6, N, 6), the frame's small rotation (``Rw <- exp([phi]) Rw``) and translation per
+            camera's (w, t) increment; without one, the frame is rebuilt once per free camera
+            parameter.
         frame_cov: (6, 6) covariance of the world frame's own small rotation (radians, about the
             world axes at ``frame_origin``) and translation (metres), from its markers' noise; see
             :func:`registration_covariance`. None when the frame has no noise of its own.
