@@ -23,11 +23,12 @@ The last solution starts the next solve (:class:`Solution`), which skips the ini
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import camera_centers, undistort_by_camera
 from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
 from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
@@ -184,7 +185,8 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
 
 def _seen(rig: Rig, wand: WandObservations) -> _Seen:
     n = len(rig.cameras)
-    pairs = wand_pairs(rig, wand) if len(wand) else WandPairs.empty()
+    # the pairs' normalised coordinates are taken in _solve, for the frames it keeps only
+    pairs = wand_pairs(rig, wand, undistort=False) if len(wand) else WandPairs.empty()
     linked = shared_frames(pairs, n)
     frames = np.diag(linked).copy()
     np.fill_diagonal(linked, 0)
@@ -257,6 +259,7 @@ def _solve(rig: Rig, seen: _Seen, solve_set: np.ndarray, static, settings: Guida
     all_rows = np.bincount(mine.camera, minlength=len(cams))
     kept = mine.subset(subsample(mine, settings.frames_per_camera)[mine.frame])
     sub = _sub_rig(rig, cams)
+    kept = replace(kept, xy=undistort_by_camera(sub.cameras, kept.camera, kept.uv))
     ids = tuple(sub.ids)
     warm = start is not None and start.ids == ids
     if warm:
@@ -313,8 +316,12 @@ def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, s
     target, goal = settings.target_std_mm, settings.min_coverage
     cameras, worst = [], []
     rig_frames = int(len(np.unique(seen.pairs.frames[seen.pairs.frame])) if len(seen.pairs) else 0)
+    # each camera's blobs as one slice of the pairs sorted by camera (a mask per camera is N passes)
+    order = np.argsort(seen.pairs.camera, kind="stable")
+    by_camera = seen.pairs.uv[order]
+    bounds = np.searchsorted(seen.pairs.camera[order], np.arange(len(rig.cameras) + 1))
     for c, cam in enumerate(rig.cameras):
-        uv = seen.pairs.uv[seen.pairs.camera == c].reshape(-1, 2)
+        uv = by_camera[bounds[c] : bounds[c + 1]].reshape(-1, 2)
         grid = coverage_grid(uv, cam.width, cam.height, settings.grid)
         fraction = covered_fraction(grid)
         sigma_mm = None if np.isnan(center[c]) else float(1000 * center[c])

@@ -51,12 +51,14 @@ class WandPairs:
         return WandPairs(self.frame, self.camera, xy, uv, self.frames, self.dropped)
 
 
-def wand_pairs(rig: Rig, wand: WandObservations) -> WandPairs:
+def wand_pairs(rig: Rig, wand: WandObservations, undistort: bool = True) -> WandPairs:
     """Group blobs by camera-frame, keep the two-blob ones and undistort them.
 
     Args:
         rig: the rig (for intrinsics).
         wand: raw blobs.
+        undistort: False leaves ``xy`` NaN, for a caller that undistorts only the pairs it
+            keeps (the live guidance solves on a subsample; undistorting is most of the grouping).
 
     Returns:
         :class:`WandPairs`; ``dropped`` counts camera-frames with one blob (``"one_blob"``) or more
@@ -75,7 +77,7 @@ def wand_pairs(rig: Rig, wand: WandObservations) -> WandPairs:
     cam = uniq[two] % n_cams
     frame_no = uniq[two] // n_cams
     uv = np.stack([wand.uv[first], wand.uv[second]], axis=1)
-    xy = undistort_by_camera(rig.cameras, cam, uv)
+    xy = undistort_by_camera(rig.cameras, cam, uv) if undistort else np.full(uv.shape, np.nan)
     frames, frame_idx = np.unique(frame_no, return_inverse=True)
     return WandPairs(frame=frame_idx, camera=cam, xy=xy, uv=uv, frames=frames, dropped=dropped)
 

@@ -33,8 +33,8 @@ from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty
 from wandcal.calib.start.degenerate import check_capture
 from wandcal.calib.start.initial import initial_poses
 from wandcal.calib.start.labels import label_ends
-from wandcal.calib.start.static import solve_static
-from wandcal.calib.start.world import apply, axis_points, static_fit_expectation, world_frame
+from wandcal.calib.start.static import solve_static, static_frame_jacobian
+from wandcal.calib.start.world import _static_views, apply, axis_points, static_fit_expectation, world_frame
 from wandcal.calib.triangulate import reprojection_errors
 
 RESULT_FORMAT = "wandcal-result/1"
@@ -346,6 +346,9 @@ def _uncertainty_reports(cameras: list[dict], rig: Rig, r, world: dict, frame_da
     if world["frame"] == "static_object":
         points = rig.static_markers
         world.update(static_fit_expectation(rig, static, static_poses, r.R, r.t, world["cameras_used"]) or {})
+        # the frame's derivative in closed form: one triangulation instead of 6N rebuilds
+        point, camera, xy = _static_views(rig, static, static_poses, [rig.index(c) for c in world["cameras_used"]])
+        frame.jacobian = lambda Rp, tp: static_frame_jacobian(Rp, tp, point, camera, xy, rig.static_markers)
     elif world["frame"] == "axis":
         points = np.array(list(axis_points(rig, axis, r.R, r.t).values())) @ Rw.T + tw
     frame_cov, origin = frame_noise(world, rig, points, r.covariance)

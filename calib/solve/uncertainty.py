@@ -6,8 +6,9 @@ pose increments in the refinement's gauge (the first camera fixed, the scale set
 frame is itself estimated, from the same cameras (the static object or the axis points are
 triangulated with them, the wand volume's centroid moves with them) and from its own markers,
 whose positions carry their own noise. :func:`world_uncertainty` propagates both to first order:
-the map from the gauge poses to the world-frame poses is differentiated numerically, through the
-very function that builds the world frame, and the frame's own noise is added.
+a world pose moves with its own camera (in closed form) and with the world frame, whose six
+degrees of freedom are differentiated through the very function that builds it (numerically, or
+by the frame's own ``jacobian`` when it has one), and the frame's own noise is added.
 
 ``center_std`` is the 3D RMS, sqrt(trace) of the centre's covariance; ``rotation_std`` the RMS
 angle, sqrt(trace) of the covariance of the rotation's small-angle vector.
@@ -93,7 +94,10 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
         pc: their covariance.
         frame: callable(R, t, centroid_shift (3,)) -> (Rw (3, 3), tw (3,)), the map
             ``x_world = Rw x + tw`` built from those poses (and the wand centroid moved by the
-            shift), exactly as the result's world frame is built.
+            shift), exactly as the result's world frame is built. It may carry ``jacobian(R, t)``
+            -> (6, N, 6), the frame's small rotation (``Rw <- exp([phi]) Rw``) and translation per
+            camera's (w, t) increment; without one, the frame is rebuilt once per free camera
+            parameter.
         frame_cov: (6, 6) covariance of the world frame's own small rotation (radians, about the
             world axes at ``frame_origin``) and translation (metres), from its markers' noise; see
             :func:`registration_covariance`. None when the frame has no noise of its own.
@@ -105,35 +109,20 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
         (radians, camera side), the frame's own noise included, for the geometry/placement split.
     """
     n = len(R)
+    free = np.asarray(pc.free)
+    K = len(free)
     Rw, tw = frame(R, t, np.zeros(3))
     base_C = camera_centers(R, t) @ Rw.T + tw
-    base_R = R @ Rw.T
-    K = len(pc.free)
-
-    def world(Rp, tp, shift):
-        Rw_, tw_ = frame(Rp, tp, shift)
-        C = camera_centers(Rp, tp) @ Rw_.T + tw_
-        dR = (Rp @ Rw_.T) @ np.swapaxes(base_R, 1, 2)
-        # the small angle of dR = I + [w]x: its skew part (exact to second order in the step)
-        w = 0.5 * np.stack([dR[:, 2, 1] - dR[:, 1, 2], dR[:, 0, 2] - dR[:, 2, 0], dR[:, 1, 0] - dR[:, 0, 1]], axis=1)
-        return np.concatenate([C - base_C, w], axis=1).ravel()  # (N * 6,)
-
-    G = np.zeros((n * 6, K * POSE_PARAMS))
-    for k, cam in enumerate(pc.free):
-        for j in range(POSE_PARAMS):
-            h = STEP_RAD if j < 3 else STEP_M
-            Rp, tp = R.copy(), t.copy()
-            if j < 3:
-                w = np.zeros(3)
-                w[j] = h
-                Rp[cam] = rotvec_to_matrix(w) @ R[cam]
-            else:
-                tp[cam, j - 3] += h
-            col = k * POSE_PARAMS + j
-            G[:, col] = world(Rp, tp, pc.centroid_response[:, col] * h) / h
+    # a world pose moves with its own camera (a block per free camera) and with the frame, which
+    # follows every camera and the wand's centroid: G = direct + A F, the frame's 6 DOF between
+    Aw = _world_response(R, Rw, base_C - tw)  # (6N, 6)
+    Fm = np.stack([_frame_change(frame(R, t, STEP_M * e), Rw, tw) / STEP_M for e in np.eye(3)], axis=1)  # (6, 3)
+    F = _frame_jacobian(frame, R, t, free, Rw, tw) + Fm @ pc.centroid_response  # (6, 6K)
+    G = Aw @ F
+    G.reshape(n, 6, K, POSE_PARAMS)[free, :, np.arange(K), :] += _direct_blocks(R[free], t[free], Rw)
     cov = G @ pc.cov @ G.T
     if np.any(pc.centroid_cov):
-        Gm = np.stack([world(R, t, h * e) / h for e, h in zip(np.eye(3), [STEP_M] * 3)], axis=1)
+        Gm = Aw @ Fm
         cov += Gm @ pc.centroid_cov @ Gm.T
     if frame_cov is not None:
         # the frame's own error moves every camera together: fully correlated between them
@@ -144,6 +133,64 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
     center = np.sqrt(np.maximum(np.einsum("nii->n", blocks[:, :3, :3]), 0.0))
     rotation = np.sqrt(np.maximum(np.einsum("nii->n", blocks[:, 3:, 3:]), 0.0))
     return (center, rotation, cov) if full else (center, rotation)
+
+
+def _frame_change(frame_value, Rw: np.ndarray, tw: np.ndarray) -> np.ndarray:
+    """(6,) a moved frame ``(Rw', tw')`` against ``(Rw, tw)``: the small angle phi of
+    ``Rw' = exp([phi]) Rw`` (the skew part, exact to second order) and ``tw' - tw``."""
+    Rn, tn = frame_value
+    dR = Rn @ Rw.T
+    return np.r_[0.5 * np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]]), tn - tw]
+
+
+def _frame_jacobian(frame, R: np.ndarray, t: np.ndarray, free: np.ndarray, Rw: np.ndarray, tw: np.ndarray) -> np.ndarray:
+    """(6, 6K) the frame's (phi, tau) per free camera's increment (w, t): the frame's own
+    ``jacobian(R, t)`` (6, N, 6) when it has one, else a forward difference per parameter (6K
+    rebuilds of the frame)."""
+    jacobian = getattr(frame, "jacobian", None)
+    if jacobian is not None:
+        return np.asarray(jacobian(R, t))[:, free].reshape(6, -1)
+    F = np.zeros((6, len(free) * POSE_PARAMS))
+    for k, cam in enumerate(free):
+        for j in range(POSE_PARAMS):
+            h = STEP_RAD if j < 3 else STEP_M
+            Rp, tp = R.copy(), t.copy()
+            if j < 3:
+                Rp[cam] = rotvec_to_matrix(h * np.eye(3)[j]) @ R[cam]
+            else:
+                tp[cam, j - 3] += h
+            F[:, k * POSE_PARAMS + j] = _frame_change(frame(Rp, tp, np.zeros(3)), Rw, tw) / h
+    return F
+
+
+def _world_response(R: np.ndarray, Rw: np.ndarray, turned_C: np.ndarray) -> np.ndarray:
+    """(6N, 6) what the frame's (phi, tau) does to each camera's world centre and rotation:
+    dC = -[Rw C]x phi + tau (``turned_C``: (N, 3) Rw C); the camera's world rotation R Rw^T turns by
+    -R Rw^T phi."""
+    out = np.zeros((len(R), 6, 6))
+    out[:, :3, :3] = -_skew(turned_C)
+    out[:, :3, 3:] = np.eye(3)
+    out[:, 3:, :3] = -(R @ Rw.T)
+    return out.reshape(-1, 6)
+
+
+def _direct_blocks(R: np.ndarray, t: np.ndarray, Rw: np.ndarray) -> np.ndarray:
+    """(K, 6, 6) each camera's world centre and rotation per its own increment (w, t), the frame
+    held: C = -R^T t moves by -R^T [t]x w - R^T dt (times Rw), the rotation by w."""
+    RwRt = Rw @ np.swapaxes(R, 1, 2)
+    out = np.zeros((len(R), 6, 6))
+    out[:, :3, :3] = -RwRt @ _skew(t)
+    out[:, :3, 3:] = -RwRt
+    out[:, 3:, :3] = np.eye(3)
+    return out
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) cross-product matrices of (K, 3) vectors."""
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return out
 
 
 def registration_covariance(points: np.ndarray, sigma_m: float) -> tuple[np.ndarray, np.ndarray]:

@@ -14,6 +14,9 @@ from wandcal.calib.observations import WandPairs
 from wandcal.calib.triangulate import triangulate_points
 
 RELABEL_ROUNDS = 2  # a second reprojection pass changes nothing on simulated rigs
+# cameras per frame whose pairs vote with every other camera of the frame in the consensus: the
+# least ambiguous ones; more only adds pairs (every pair votes while a frame has at most 17 cameras)
+VOTERS = 16
 COST_CHUNK = 32768  # camera-pair costs per pass: 2x faster than all at once (its temporaries stay in cache)
 
 
@@ -113,49 +116,79 @@ def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> np.ndarra
 
 
 def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_passes: int = 8) -> np.ndarray:
-    """(P,) bool flips that lower each frame's epipolar cost summed over all its camera pairs.
+    """(P,) bool flips that lower each frame's epipolar cost summed over its voting camera pairs.
 
     The reference-based order trusts one camera per frame; when the wand lies near an epipolar
-    plane of that camera, other cameras can split into two camps. Here every pair of cameras in
-    a frame votes, and single-camera flips are taken greedily (the best one per frame and pass)
-    while they lower the frame's total.
+    plane of that camera, other cameras can split into two camps. Here pairs of cameras in a
+    frame vote, and single-camera flips are taken greedily (the best one per frame and pass)
+    while they lower the frame's total. Every camera votes with the frame's :data:`VOTERS`
+    least ambiguous ones (blobs furthest apart), so the work per frame grows with its cameras,
+    not with their pairs; a frame seen by at most ``VOTERS + 1`` cameras has every pair vote.
     """
     P = len(pairs)
-    order = np.argsort(pairs.frame, kind="stable")
-    fr = pairs.frame[order]
-    start = np.searchsorted(fr, fr, side="left")
-    count = np.bincount(fr, minlength=len(pairs.frames))[fr]
-    # all ordered pairs (i, j), i != j, within a frame
-    reps = count
-    i_idx = np.repeat(order, reps)
-    offs = np.arange(len(i_idx)) - np.repeat(np.cumsum(reps) - reps, reps)
-    j_idx = order[np.repeat(start, reps) + offs]
-    keep = i_idx < j_idx  # each unordered pair once: the Sampson distance is symmetric
-    a_idx, b_idx = i_idx[keep], j_idx[keep]
+    a_idx, b_idx = _voting_pairs(pairs)
     if len(a_idx) == 0:
         return np.zeros(P, bool)
     same, cross = _epipolar_costs(R, t, pairs, a_idx, b_idx)
     worse = same - cross  # what a pair of pairs gains when one of them flips while they agree
     del same, cross
-    i_idx, j_idx = np.concatenate([a_idx, b_idx]), np.concatenate([b_idx, a_idx])
-    worse = np.concatenate([worse, worse])
+    # the votes come grouped by frame: a pass looks only at the frames whose pairs flipped in the
+    # pass before, the others' gains being unchanged (the first pass, with nothing flipped, at all)
+    F = len(pairs.frames)
+    vote_frame = pairs.frame[a_idx]
+    v_lo, v_hi = np.searchsorted(vote_frame, np.arange(F)), np.searchsorted(vote_frame, np.arange(F), side="right")
+    by_frame = np.argsort(pairs.frame, kind="stable")
+    p_lo = np.searchsorted(pairs.frame[by_frame], np.arange(F))
+    p_hi = np.searchsorted(pairs.frame[by_frame], np.arange(F), side="right")
     flip = np.zeros(P, bool)
-    for _ in range(max_passes):
-        agree = flip[i_idx] == flip[j_idx]
-        # flipping i changes its agreement with every j: it gains `worse` where they agree now
-        gain = np.bincount(i_idx, np.where(agree, worse, -worse), minlength=P)
-        best = np.full(len(pairs.frames), 0.0)
-        np.maximum.at(best, pairs.frame, gain)
-        take = (gain > 0) & (gain >= best[pairs.frame])
-        # one flip per frame and pass: the frame's best single flip
-        first = np.zeros(P, bool)
-        idx = np.flatnonzero(take)
-        _, first_of_frame = np.unique(pairs.frame[idx], return_index=True)
-        first[idx[first_of_frame]] = True
-        if not first.any():
+    active = np.arange(F)
+    # flipping a pair changes its agreement with every pair it votes with: it gains `worse` where
+    # they agree now and loses it where they do not, and so does the other pair of the vote
+    gain = np.bincount(a_idx, worse, minlength=P) + np.bincount(b_idx, worse, minlength=P)
+    for k in range(max_passes):
+        if k:
+            votes = _ranges(v_lo[active], v_hi[active])
+            a, b = a_idx[votes], b_idx[votes]
+            term = np.where(flip[a] == flip[b], worse[votes], -worse[votes])
+            gain = np.bincount(a, term, minlength=P) + np.bincount(b, term, minlength=P)
+        mine = by_frame[_ranges(p_lo[active], p_hi[active])]  # the pairs of the active frames, by frame
+        best = np.zeros(F)
+        np.maximum.at(best, pairs.frame[mine], gain[mine])
+        take = mine[(gain[mine] > 0) & (gain[mine] >= best[pairs.frame[mine]])]
+        # one flip per frame and pass: the frame's best single flip (the first pair of a tie)
+        _, first_of_frame = np.unique(pairs.frame[take], return_index=True)
+        chosen = take[first_of_frame]
+        if not len(chosen):
             break
-        flip ^= first
+        flip[chosen] ^= True
+        active = pairs.frame[chosen]
     return flip
+
+
+def _ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The integers of the ranges [lo, hi) (each (K,)), concatenated."""
+    n = hi - lo
+    return np.repeat(lo - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+
+
+def _voting_pairs(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray]:
+    """Unordered pairs of pairs (a (K,), b (K,)) in the same frame that vote in
+    :func:`_pairwise_consensus`: each pair with each of its frame's :data:`VOTERS` voters (the
+    pairs whose blobs are furthest apart), each unordered pair once."""
+    order = np.lexsort((-np.linalg.norm(pairs.xy[:, 0] - pairs.xy[:, 1], axis=1), pairs.frame))
+    fr = pairs.frame[order]
+    first = np.searchsorted(fr, fr, side="left")  # sorted position of the frame's first pair
+    rank = np.arange(len(order)) - first  # 0 for the frame's widest pair
+    count = np.bincount(fr, minlength=len(pairs.frames))[fr]
+    voters = np.minimum(count, VOTERS)
+    # each pair (sorted position s) against its frame's voters (sorted positions first .. first + voters)
+    i_pos = np.repeat(np.arange(len(order)), voters)
+    offs = np.arange(len(i_pos)) - np.repeat(np.cumsum(voters) - voters, voters)
+    j_pos = np.repeat(first, voters) + offs
+    j_rank = offs
+    # a voter meets another voter twice (once from each side): keep the one from the later rank
+    keep = (j_pos != i_pos) & ((np.repeat(rank, voters) >= VOTERS) | (j_rank < np.repeat(rank, voters)))
+    return order[i_pos[keep]], order[j_pos[keep]]
 
 
 def _essential_matrices(R: np.ndarray, t: np.ndarray) -> np.ndarray:

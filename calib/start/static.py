@@ -17,8 +17,9 @@ import cv2
 import numpy as np
 
 from wandcal.calib.errors import Failure
-from wandcal.calib.geometry import depth, project_normalized, rotvec_to_matrix, undistort_points
+from wandcal.calib.geometry import depth, kabsch, project_normalized, rotvec_to_matrix, undistort_points
 from wandcal.calib.rig import Rig, StaticObservations
+from wandcal.calib.triangulate import triangulate_points
 
 MAX_ASSIGNMENTS = 50_000  # 8 markers seen by 5 blobs is 6720; beyond this the search is pointless
 ACCEPT_RMS_PX = 3.0  # averaged static blobs are far better than this; a wrong labelling is far worse
@@ -285,4 +286,62 @@ def resect(X: np.ndarray, xy: np.ndarray, focal_px: float, threshold_px: float =
     t = np.asarray(tvec, float).ravel()
     err = np.linalg.norm(project_normalized(R, t, X) - xy, axis=1) * focal_px
     return R, t, err < threshold_px
+
+
+
+KABSCH_STEP_M = 1e-7  # forward-difference step of the rigid fit in a marker's coordinates: far above
+# rounding over metres, far below the markers' spacing
+
+
+def static_frame_jacobian(R: np.ndarray, t: np.ndarray, point: np.ndarray, camera: np.ndarray, xy: np.ndarray,
+                          markers: np.ndarray) -> np.ndarray:
+    """How the static object's frame follows each camera's pose: (6, N, 6).
+
+    The frame is the rigid fit ``x_world = Rw x + tw`` of the markers triangulated from the
+    static blobs (wandcal.calib.start.world's static fit). Rows: its small rotation phi
+    (``Rw <- exp([phi]) Rw``, radians) and its translation (metres); columns: each camera's left
+    rotation increment w (``R <- exp([w]) R``) and translation. Chained in closed form: a marker
+    triangulated at its reprojection optimum moves by ``-H^-1 J_X^T J_c`` per camera increment
+    (Gauss-Newton, H = sum J_X^T J_X over its views); the fit is differentiated numerically in
+    the markers' 3M coordinates. Replaces 6N rebuilds of the frame by one triangulation.
+
+    Args:
+        R, t: (N, 3, 3), (N, 3) poses; point (K,), camera (K,), xy (K, 2): the identified static
+            blobs' marker, camera and normalised coordinates; markers: (M, 3) the object's
+            coordinates, metres.
+    """
+    M = len(markers)
+    X = triangulate_points(R, t, point, camera, xy, M)
+    ok = np.all(np.isfinite(X), axis=1)
+    use = ok[point]
+    point, camera = point[use], camera[use]
+    Y = np.einsum("kij,kj->ki", R[camera], X[point])
+    xc = Y + t[camera]
+    iz = 1.0 / xc[:, 2]
+    D = np.zeros((len(xc), 2, 3))  # d(x/z, y/z)/d(x_cam)
+    D[:, 0, 0] = D[:, 1, 1] = iz
+    D[:, :, 2] = -xc[:, :2] * (iz**2)[:, None]
+    JX = D @ R[camera]  # (K, 2, 3)
+    Yx = np.stack([np.cross(Y, e) for e in np.eye(3)], axis=2)  # [Y]x, column j = Y x e_j
+    Jc = np.concatenate([-D @ Yx, D], axis=2)  # (K, 2, 6): x_cam moves by w x Y + dt
+    H = np.zeros((M, 3, 3))
+    np.add.at(H, point, np.swapaxes(JX, 1, 2) @ JX)
+    H[~ok] = np.eye(3)
+    dX = -np.linalg.solve(H[point], np.swapaxes(JX, 1, 2) @ Jc)  # (K, 3, 6): marker per camera increment
+    Rw, tw, _ = kabsch(X[ok], markers[ok])
+    dfit = np.zeros((6, M, 3))  # the frame per marker coordinate
+    for m in np.flatnonzero(ok):
+        for i in range(3):
+            Xp = X.copy()
+            Xp[m, i] += KABSCH_STEP_M
+            Rn, tn, _ = kabsch(Xp[ok], markers[ok])
+            dR = Rn @ Rw.T
+            phi = 0.5 * np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
+            dfit[:, m, i] = np.r_[phi, tn - tw] / KABSCH_STEP_M
+    out = np.zeros((6, len(R), 6))
+    per_view = np.einsum("avk,vkj->vaj", dfit[:, point, :], dX)  # (K, 6, 6)
+    for a in range(6):
+        for j in range(6):
+            out[a, :, j] = np.bincount(camera, per_view[:, a, j], minlength=len(R))
+    return out
 

@@ -1,0 +1,353 @@
+"""Stadium-scale rigs (issue 22): the whole `wandcal calibrate` process on 64 and 128 cameras beside
+COLMAP's bundle adjuster with a Cauchy loss, a point-heavy rig, and where the process's time goes
+as the rig grows.
+
+Part 1 ("Scale: the whole command beside COLMAP"): each rig simulated by `wandcal simulate` (0.3
+px noise, 2% gross outliers, an L-frame), the whole `wandcal calibrate` process timed (Python
+start-up included; peak RSS its own VmHWM; centre error against the simulator's truth after a
+similarity alignment), beside COLMAP-Cauchy's solve of the same rig as in bench_peers.py (labelled
+at the truth, started 1 deg / 3 cm off, the Cauchy scale the one `ba` ends with, its solve alone),
+in the same run; medians of the repeats.
+
+Part 2 ("Scale: point-heavy rig"): 12 cameras, a 1500-frame wand capture with its L-frame, and
+15,000 frames of one marker each seen by every camera it falls in (~180k point observations).
+
+Part 3 ("Scale: stages"): the process under cProfile at 16, 32, 64 and 128 cameras x 3000 frames,
+each stage's cumulative time (attributed by caller, so a stage's nested calls are not counted
+twice) and its growth exponent: the least-squares slope of log(seconds) against log(cameras).
+
+Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000. Part 5 ("Scale: small rigs before
+and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated.
+
+Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance] [--rigs 64x3000,128x3000]
+    [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
+    e.g. git archive 3925791 | tar -x -C /tmp/base && python bench/bench_scale.py --parts regression --base /tmp/base
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pstats
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from bench.bench_peers import run_ba, run_colmap, scene  # noqa: E402
+from bench.common import write_section  # noqa: E402
+from wandcal.calib.geometry import kabsch  # noqa: E402
+
+OUTLIERS = 0.02
+STAGE_FRAMES = 3000
+REGRESSION_RIGS = "8x1500:0,8x1500:0.08,16x2500:0"  # the Peers bench's whole-command rigs
+POINT_RIG = (12, 1500, 15000)  # cameras, wand frames, point frames
+POINT_NOISE_PX = 0.3
+# VmHWM, not ru_maxrss: Linux carries ru_maxrss over from the forking bench through exec
+PROBE = ("import sys; from wandcal.service.cli import main; code = main(sys.argv[1:]); "
+         "print(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:')), file=sys.stderr); "
+         "sys.exit(code)")
+# the stage profile counts the process's CPU seconds, not wall seconds: the machine is shared, and
+# another job's load stretches wall time unevenly between runs (BLAS may use both cores: CPU
+# seconds can exceed wall seconds)
+PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; p = cProfile.Profile(time.process_time); "
+           "code = p.runcall(main, sys.argv[2:]); p.dump_stats(sys.argv[1]); sys.exit(code)")
+# stage: (caller, callee) function names whose cumulative time (the callee's, called from that
+# caller) makes the stage; the rest of the process is "other" (imports, reports, the verdict)
+STAGES = {
+    "read": [("run_calibrate", "read_capture")],
+    "start": [("calibrate", "wand_pairs"), ("calibrate", "point_tracks"), ("calibrate", "check_capture"),
+              ("calibrate", "initial_poses")],
+    "labelling": [("calibrate", "label_ends")],
+    "static": [("calibrate", "solve_static"), ("calibrate", "world_frame")],
+    "refinement": [("calibrate", "build_problem"), ("calibrate", "triangulated"), ("calibrate", "refine"),
+                   ("calibrate", "reject_outliers")],
+    "uncertainty": [("calibrate", "_uncertainty_reports")],
+    "write": [("run_calibrate", "to_json"), ("run_calibrate", "_write_result")],
+}
+
+
+def simulate(folder: Path, cameras: int, frames: int, outliers: float = OUTLIERS) -> None:
+    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "simulate", str(folder), "--cameras", str(cameras),
+                    "--frames", str(frames), "--outliers", str(outliers)], check=True, capture_output=True, cwd=REPO)
+
+
+def add_points(folder: Path, cameras: int, wand_frames: int, point_frames: int, seed: int = 5) -> int:
+    """Write a point-heavy capture: the simulator's wand and L-frame, and ``point_frames`` single
+    markers spread through the volume, each seen by every camera it falls in. Returns the number
+    of point observations."""
+    from wandcal.calib.geometry import distort_points, project_normalized
+    from wandcal.calib.rig import PointObservations
+    from wandcal.calib.sim.simulate import simulate_capture
+    from wandcal.capture.folder import write_capture
+
+    sim = simulate_capture(cameras, wand_frames, POINT_NOISE_PX, OUTLIERS, True, 1)
+    rng = np.random.default_rng(seed)
+    X = rng.uniform([-0.9, -0.9, 0.3], [0.9, 0.9, 1.7], (point_frames, 3))
+    cams = sim.rig.cameras
+    uv = np.stack([distort_points(c, project_normalized(sim.truth.R[i], sim.truth.t[i], X)) for i, c in enumerate(cams)], 1)
+    uv += rng.normal(0, POINT_NOISE_PX, uv.shape)
+    inside = (uv[..., 0] > 0) & (uv[..., 0] < cams[0].width) & (uv[..., 1] > 0) & (uv[..., 1] < cams[0].height)
+    frame, camera = np.nonzero(inside)
+    # point frames after the wand's, so no capture frame holds both
+    write_capture(folder, sim.rig, sim.wand, sim.static, PointObservations(frame + wand_frames, camera, uv[frame, camera]))
+    (folder / "truth.json").write_text(json.dumps(sim.truth.to_json(sim.rig)))
+    return len(frame)
+
+
+def centre_error_mm(result: Path, truth: Path) -> float:
+    """RMS camera-centre error of a result against the simulator's truth, after a similarity alignment."""
+    cams = json.loads(result.read_text())["cameras"]
+    true = {c["id"]: c["center"] for c in json.loads(truth.read_text())["cameras"]}
+    C = np.array([c["center"] for c in cams])
+    Ct = np.array([true[c["id"]] for c in cams])
+    Ra, ta, s = kabsch(C, Ct, scale=True)
+    return float(np.sqrt(np.mean(np.sum((s * C @ Ra.T + ta - Ct) ** 2, axis=1))) * 1000)
+
+
+def run_process(folder: Path, out: Path, profile: Path | None = None) -> tuple[float, float]:
+    """(wall seconds, peak RSS MB) of one `wandcal calibrate` process, optionally under cProfile."""
+    cmd = [sys.executable, "-c", PROBE, "calibrate", str(folder), "--quiet", "--out", str(out)]
+    if profile is not None:
+        cmd = [sys.executable, "-c", PROFILE, str(profile), "calibrate", str(folder), "--quiet", "--out", str(out)]
+    start = time.perf_counter()
+    done = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=REPO)
+    seconds = time.perf_counter() - start
+    peak = float(done.stderr.strip().splitlines()[-1]) / 1024 if profile is None else float("nan")
+    return seconds, peak
+
+
+def stage_seconds(profile: Path) -> dict[str, float]:
+    """Each stage's cumulative seconds from a cProfile dump, attributed by caller."""
+    stats = pstats.Stats(str(profile)).stats  # type: ignore[attr-defined]
+    out = {}
+    for stage, pairs in STAGES.items():
+        total = 0.0
+        for caller, callee in pairs:
+            for func, (_, _, _, _, callers) in stats.items():
+                if func[2] != callee:
+                    continue
+                total += sum(ct for c, (_, _, _, ct) in callers.items() if c[2] == caller)
+        out[stage] = total
+    whole = max(ct for (_, _, _, ct, _) in stats.values())
+    out["other"] = whole - sum(out.values())
+    out["whole"] = whole
+    return out
+
+
+def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str]:
+    """COLMAP-Cauchy's solve seconds, its centre error (mm) and iterations on the bench_peers scene."""
+    from bench.bench_peers import centre_error_mm as peer_error
+
+    sim, labelled, setup = scene(cameras, frames, OUTLIERS)
+    scale = run_ba(sim, labelled, setup)[3]
+    R, t, iterations, seconds = run_colmap(sim, labelled, setup, scale)
+    return seconds, peer_error(R, t, sim), str(iterations)
+
+
+def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
+    rows = ["| rig | outliers | `wandcal calibrate` process (s) | COLMAP-Cauchy solve (s) | ratio | centre error wandcal / COLMAP (mm) | process peak RSS (MB) |",
+            "|---|---|---|---|---|---|---|"]
+    for rig in rigs:
+        cameras, frames = (int(v) for v in rig.split("x"))
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = Path(tmp) / "capture"
+            simulate(folder, cameras, frames)
+            times, peaks, cm = [], [], []
+            error = colmap_error = float("nan")
+            iterations = "-"
+            for k in range(repeats):
+                seconds, peak = run_process(folder, Path(tmp) / "result.json")
+                times.append(seconds)
+                peaks.append(peak)
+                error = centre_error_mm(Path(tmp) / "result.json", folder / "truth.json")
+                if k < colmap_repeats:
+                    c_seconds, colmap_error, iterations = colmap_cauchy(cameras, frames)
+                    cm.append(c_seconds)
+                print(f"{rig}: process {seconds:.2f} s, {peak:.0f} MB" + (f"; COLMAP-Cauchy {cm[-1]:.2f} s" if cm else ""),
+                      flush=True)
+        cm_s, ratio = (f"{np.median(cm):.2f} ({iterations} steps)", f"{np.median(times) / np.median(cm):.2f}") if cm else ("-", "-")
+        rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} | {cm_s} | {ratio} | {error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
+        print(rows[-1], flush=True)
+    return ("The whole command (Python start-up included) on a simulated capture folder (0.3 px, 2% outliers, "
+            "L-frame), and COLMAP-Cauchy's solve of the same rig labelled at the truth and started 1 deg / 3 cm off "
+            f"(bench_peers.py's scene; its steps: successful+unsuccessful), alternated in one run; medians of {repeats} "
+            f"processes and {colmap_repeats} COLMAP solves (minutes each at 128 cameras); ratio: median process / "
+            "median COLMAP. Centre error: RMS after a similarity alignment to the truth.\n\n"
+            + "\n".join(rows) + "\n\nGoals (issue 22): 128 x 3000 process <= 0.3x COLMAP-Cauchy, peak RSS <= 1.2 GB, "
+            "accuracy within 1.05x of before; 64 x 3000 <= 0.3x COLMAP-Cauchy.")
+
+
+def part_points(repeats: int) -> str:
+    cameras, wand_frames, point_frames = POINT_RIG
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "capture"
+        n_obs = add_points(folder, cameras, wand_frames, point_frames)
+        runs = [run_process(folder, Path(tmp) / "result.json") for _ in range(repeats)]
+        error = centre_error_mm(Path(tmp) / "result.json", folder / "truth.json")
+    seconds = float(np.median([r[0] for r in runs]))
+    peak = max(r[1] for r in runs)
+    print(f"point-heavy: {seconds:.2f} s, {peak:.0f} MB, {error:.3f} mm", flush=True)
+    return (f"{cameras} cameras, a {wand_frames}-frame wand capture with its L-frame (2% outliers) and {point_frames:,} "
+            f"frames of one marker ({n_obs:,} point observations, 0.3 px); the whole `wandcal calibrate` process, "
+            f"median of {repeats}:\n\n| rig | point observations | process (s) | peak RSS (MB) | centre error (mm) |\n"
+            f"|---|---|---|---|---|\n| {cameras} x {point_frames} points | {n_obs:,} | {seconds:.2f} | {peak:.0f} | {error:.3f} |"
+            "\n\nGoal (issue 22): <= 10 s and <= 1 GB.")
+
+
+def part_stages(cameras_list: list[int], repeats: int) -> str:
+    per = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for cameras in cameras_list:
+            folder = Path(tmp) / f"c{cameras}"
+            simulate(folder, cameras, STAGE_FRAMES)
+            runs = []
+            for _ in range(repeats):
+                run_process(folder, Path(tmp) / "result.json", Path(tmp) / "profile")
+                runs.append(stage_seconds(Path(tmp) / "profile"))
+            per[cameras] = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
+            print(cameras, {k: round(v, 2) for k, v in per[cameras].items()}, flush=True)
+    names = list(STAGES) + ["other", "whole"]
+    head = "| stage | " + " | ".join(f"{c} cams (CPU s)" for c in cameras_list) + " | growth exponent | last doubling |"
+    rows = [head, "|" + "---|" * (len(cameras_list) + 3)]
+    x = np.log(cameras_list)
+    for name in names:
+        y = np.array([max(per[c][name], 1e-4) for c in cameras_list])
+        slope = np.polyfit(x, np.log(y), 1)[0]
+        last = np.log(y[-1] / y[-2]) / np.log(cameras_list[-1] / cameras_list[-2])
+        rows.append(f"| {name} | " + " | ".join(f"{v:.2f}" for v in y) + f" | {slope:.2f} | {last:.2f} |")
+    return (f"`wandcal calibrate` under cProfile at {STAGE_FRAMES} frames (0.3 px, 2% outliers, L-frame), in CPU "
+            f"seconds (the machine is shared), the median of {repeats} runs per rig and stage; each stage's cumulative "
+            "time attributed by caller (the profiler's overhead included; imports not counted, \"other\" is the "
+            "reports and the verdict). Growth exponent: the least-squares slope of "
+            "log(seconds) on log(cameras); last doubling: the slope from the second-largest rig to the largest.\n\n"
+            + "\n".join(rows) + "\n\nGoal (issue 22): every stage at most cameras^1.2.")
+
+
+def part_guidance(cameras: int, frames: int, repeats: int) -> str:
+    """The live guidance update at a big rig: cold, and live (the capture grew by 10% since the
+    update it starts from), wall and CPU seconds, medians."""
+    from wandcal.calib.guidance import wanding_guidance
+    from wandcal.calib.rig import WandObservations
+    from wandcal.calib.sim.simulate import simulate_capture
+
+    sim = simulate_capture(cameras, frames, 0.3, 0.0, True, 1)
+    keep = sim.wand.frame < int(0.9 * frames)
+    before = WandObservations(sim.wand.frame[keep], sim.wand.camera[keep], sim.wand.uv[keep])
+    start = wanding_guidance(sim.rig, before, sim.static).solution
+
+    def timed(fn):
+        wall, cpu = time.perf_counter(), time.process_time()
+        fn()
+        return time.perf_counter() - wall, time.process_time() - cpu
+
+    cold = np.median([timed(lambda: wanding_guidance(sim.rig, before, sim.static)) for _ in range(repeats)], axis=0)
+    live = np.median([timed(lambda: wanding_guidance(sim.rig, sim.wand, sim.static, start=start)) for _ in range(repeats)], axis=0)
+    print(f"guidance {cameras} x {frames}: cold {cold}, live {live}", flush=True)
+    return (f"`wanding_guidance` on a simulated {cameras} x {frames} capture (0.3 px, L-frame), in this process, median "
+            f"of {repeats}; CPU seconds beside the wall seconds because the machine is shared:\n\n"
+            "| rig | cold update, wall / CPU (s) | live update (+10% frames, warm start), wall / CPU (s) |\n|---|---|---|\n"
+            f"| {cameras} x {frames} | {cold[0]:.2f} / {cold[1]:.2f} | {live[0]:.2f} / {live[1]:.2f} |\n\n"
+            "Goal (issue 22): the live update at 64 x 3000 in <= 1 s.")
+
+
+def _view(checkout: Path, into: Path) -> Path:
+    """A directory that imports ``wandcal`` from another checkout (its four folders under
+    wandcal/), ahead of this one's editable install when put on PYTHONPATH."""
+    (into / "wandcal").mkdir(parents=True, exist_ok=True)
+    for top in ("calib", "capture", "drivers", "service"):
+        link = into / "wandcal" / top
+        if not link.exists():
+            link.symlink_to(checkout.resolve() / top)
+    return into
+
+
+def _cpu_run(folder: Path, out: Path, pythonpath: Path | None) -> tuple[float, float]:
+    """(wall seconds, CPU seconds) of one `wandcal calibrate` process (CPU: user + system of the child)."""
+    import os
+    import resource
+
+    env = dict(os.environ) | ({"PYTHONPATH": str(pythonpath)} if pythonpath is not None else {})
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(folder), "--quiet", "--out", str(out)],
+                   check=True, capture_output=True, cwd=REPO, env=env)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def part_regression(base: Path, repeats: int, rigs: str) -> str:
+    """Rigs ``CAMSxFRAMES:OUTLIERS,...`` (the Peers bench's small ones by default), this checkout
+    against ``base``, alternated run by run."""
+    rows = ["| rig | outliers | before: wall / CPU (s) | after: wall / CPU (s) | after / before (CPU) | centre error before / after (mm) |",
+            "|---|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory() as tmp:
+        view = _view(base, Path(tmp) / "view")
+        for rig in rigs.split(","):
+            size, outliers = rig.split(":")[0], float(rig.split(":")[1])
+            cameras, frames = (int(v) for v in size.split("x"))
+            folder = Path(tmp) / f"c{cameras}x{frames}"
+            simulate(folder, cameras, frames, outliers)
+            runs: dict[str, list] = {"before": [], "after": []}
+            errors = {}
+            for _ in range(repeats):
+                for name, path in (("before", view), ("after", None)):
+                    out = Path(tmp) / f"{name}.json"
+                    runs[name].append(_cpu_run(folder, out, path))
+                    errors[name] = centre_error_mm(out, folder / "truth.json")
+            b, a = np.median(runs["before"], axis=0), np.median(runs["after"], axis=0)
+            ratio = np.median([x[1] / y[1] for x, y in zip(runs["after"], runs["before"])])
+            rows.append(f"| {cameras}x{frames} | {outliers:.0%} | {b[0]:.2f} / {b[1]:.2f} | {a[0]:.2f} / {a[1]:.2f} | "
+                        f"{ratio:.2f} | {errors['before']:.3f} / {errors['after']:.3f} |")
+            print(rows[-1], flush=True)
+    return (f"Simulated rigs (`wandcal simulate`, 0.3 px, L-frame), the whole `wandcal calibrate` process "
+            f"of the checkout before issue 22 (`--base`) and after it, alternated run by run, medians of {repeats}; CPU "
+            "seconds beside wall seconds because the machine is shared:\n\n" + "\n".join(rows)
+            + ("\n\nGoal (issue 22): 8 x 1500 and 16 x 2500 no slower than before." if rigs == REGRESSION_RIGS else
+               "\n\nGoal (issue 22): accuracy within 1.05x of before."))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--parts", default="peers,points,stages,guidance")
+    ap.add_argument("--rigs", default="64x3000,128x3000")
+    ap.add_argument("--stage-cameras", default="16,32,64,128")
+    ap.add_argument("--colmap-repeats", type=int, default=1, help="COLMAP solves per rig (0: none)")
+    ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression")
+    ap.add_argument("--regression-rigs", default=REGRESSION_RIGS,
+                    help="CAMSxFRAMES:OUTLIERS,... for --parts regression")
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    parts = args.parts.split(",")
+    sections = []
+    if "peers" in parts:
+        sections.append(("Scale: the whole command beside COLMAP", part_peers(args.rigs.split(","), args.repeats, args.colmap_repeats)))
+    if "points" in parts:
+        sections.append(("Scale: point-heavy rig", part_points(args.repeats)))
+    if "regression" in parts:
+        if args.base is None:
+            ap.error("--parts regression needs --base CHECKOUT (the code before, e.g. from git archive)")
+        small = args.regression_rigs == REGRESSION_RIGS
+        title = "Scale: small rigs before and after" if small else f"Scale: before and after ({args.regression_rigs})"
+        sections.append((title, part_regression(args.base, args.repeats, args.regression_rigs)))
+    if "guidance" in parts:
+        sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
+    if "stages" in parts:
+        sections.append(("Scale: stages", part_stages([int(c) for c in args.stage_cameras.split(",")], args.repeats)))
+    for title, body in sections:
+        print(f"\n## {title}\n\n{body}")
+        if not args.no_write:
+            write_section(title, body)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
