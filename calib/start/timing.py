@@ -1,0 +1,265 @@
+"""Whole-frame time offsets of cameras without a trigger, found from the wand itself.
+
+A camera whose frame k was exposed at the reference camera's frame k + n (n a whole number of
+frames) sees the wand where the others saw it n frames later. Its wand ends agree with another
+camera's epipolar geometry only when its frames are shifted by n: at any other shift the wand has
+moved between the two views (1-3 cm a frame at 1-3 m/s and 100 fps, several pixels), and no
+relative pose fits both ends of most frames. So each camera's offset is the shift at which an
+essential matrix (five-point RANSAC, both matchings of each frame's unlabelled ends, as
+:func:`wandcal.calib.start.chain.pair_pose`) fits the largest share of the frames it shares with
+a camera already timed. Cameras are timed one at a time, best linked first, from a reference
+camera, so a rig whose cameras overlap only pairwise is timed too.
+
+The sub-frame part of the offset, and a rate difference, are refined afterwards with the poses
+known (:mod:`wandcal.calib.solve.sync`). The model and its limits: docs/sync.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.observations import WandPairs
+from wandcal.calib.rig import Rig, WandObservations
+from wandcal.calib.start.chain import ESSENTIAL_CONFIDENCE, ESSENTIAL_THRESHOLD_PX, _sampson, spread
+
+DEFAULT_MAX_OFFSET = 10  # frames searched either side: 0.1 s at 100 fps covers webcams started by hand
+TIMING_FRAMES = 60  # shared frames per shift given to RANSAC (240 candidate matches): enough to tell, 2 ms a shift
+MIN_TIMING_FRAMES = 8  # shared frames a shift needs to be judged: five fix the essential matrix, three confirm
+# a shift is accepted when both ends of at least this share of its frames fit one relative pose
+# within the RANSAC threshold: 0.27-1.0 on simulated rigs (a half-frame offset moves fast frames
+# off by more than the threshold), 0 for a camera that saw another motion; what rejects the latter
+# first is MAX_CONTRAST
+MIN_FIT_SHARE = 0.15
+# the best shift's midpoint score against the median shift's: 0.02-0.3 on simulated rigs, whose
+# fractional offsets blur the best; a camera that saw another motion has no shift that stands out
+MAX_CONTRAST = 0.5
+POSE_PASSES = 2  # a pose from a shift one frame off picks the right neighbour; its own RANSAC confirms it
+MIDPOINT_FRAMES = 150  # shared frames per shift for the midpoint score: a 9x9 eigenproblem, ~0.3 ms
+TRIM_PASSES = 3  # linear fits of the midpoint score, each on the best TRIM_KEEP of the last one's frames
+TRIM_KEEP = 0.8  # drops digitising slips and reflections (a few %) with room to spare
+
+
+@dataclass(frozen=True, eq=False)
+class FrameOffsets:
+    """Whole-frame offsets: camera c's frame k was exposed at the reference camera's frame
+    k + offsets[c].
+
+    offsets: (N,) int frames; reference: the camera of offset 0; timed_against: (N,) the camera
+    each was timed against (-1 for the reference); share: (N,) the share of shared frames whose
+    ends fit at the chosen shift; notes: what the user should know.
+    """
+
+    offsets: np.ndarray
+    reference: int
+    timed_against: np.ndarray
+    share: np.ndarray
+    notes: list[str] = field(default_factory=list)
+
+
+def shift_frames(wand: WandObservations, offsets: np.ndarray) -> WandObservations:
+    """The blobs with each camera's frames renumbered onto the reference camera's clock: camera
+    c's frame k becomes frame k + offsets[c] (offsets (N,) int frames)."""
+    return WandObservations(wand.frame + np.asarray(offsets, dtype=np.int64)[wand.camera], wand.camera, wand.uv)
+
+
+def frame_offsets(
+    rig: Rig, pairs: WandPairs, max_offset: int = DEFAULT_MAX_OFFSET, start: np.ndarray | None = None,
+    reference: int | None = None,
+) -> FrameOffsets:
+    """Each camera's whole-frame offset (see module docstring).
+
+    Args:
+        rig: the rig (camera ids and focal lengths).
+        pairs: two-blob camera-frames on each camera's own frame numbers (normalised coordinates).
+        max_offset: frames searched either side of the start.
+        start: (N,) int, a first guess of each camera's offset (timestamps), searched around;
+            default zeros.
+        reference: the camera of offset 0; default the best-linked camera.
+
+    Raises:
+        CalibrationError: a camera's wand agrees with no timed camera's at any shift searched
+            (it never moved with the others), or the search reaches past the recording; the
+            message names the camera and what to do.
+    """
+    n = len(rig.cameras)
+    start = np.zeros(n, np.int64) if start is None else np.asarray(start, dtype=np.int64)
+    first = int(pairs.frames.min()) if len(pairs.frames) else 0
+    span = int(pairs.frames.max()) - first + 1 if len(pairs.frames) else 0
+    table = np.full((span, n), -1, np.int64)
+    table[pairs.frames[pairs.frame] - first, pairs.camera] = np.arange(len(pairs))
+    seen = table >= 0
+    _check_range(rig, seen, max_offset, start)
+    links = _links(seen, max_offset)
+    if reference is None:
+        reference = int(np.argmax(links.sum(1)))
+    offsets = np.zeros(n, np.int64)
+    against = np.full(n, -1, np.int64)
+    share = np.ones(n)
+    timed = np.zeros(n, bool)
+    timed[reference] = True
+    notes: list[str] = []
+    while not timed.all():
+        strength = np.where(timed[:, None] & ~timed[None, :], links, -1)
+        a, b = np.unravel_index(np.argmax(strength), strength.shape)
+        a, b = int(a), int(b)
+        if strength[a, b] <= 0:
+            b = int(np.flatnonzero(~timed)[0])
+            raise CalibrationError(
+                f"camera {rig.cameras[b].id!r} shares no wand frames with the cameras timed so far "
+                f"({', '.join(rig.cameras[c].id for c in np.flatnonzero(timed))}) at any offset within +-{max_offset} "
+                f"frames; wave the wand where {rig.cameras[b].id} and the others see it at the same time"
+            )
+        guess = int(start[b] - start[reference])
+        shifts = np.arange(guess - max_offset, guess + max_offset + 1)
+        best, score = _best_shift(pairs, table, a, b, offsets[a], shifts, rig)
+        if best is None or score < MIN_FIT_SHARE:
+            what = (f"at best {score:.0%} of the frames they share fit one relative pose" if best is not None
+                    else f"they share fewer than {MIN_TIMING_FRAMES} frames at every shift")
+            raise CalibrationError(
+                f"camera {rig.cameras[b].id!r} does not move with the others: at no offset within +-{max_offset} frames "
+                f"of {guess} does its wand agree with {rig.cameras[a].id}'s ({what}); check that it recorded the same "
+                "session and the same wand, or search wider (sync_max_offset)"
+            )
+        if abs(best - guess) >= max_offset:
+            raise CalibrationError(
+                f"camera {rig.cameras[b].id!r}: its best time offset, {best} frames, is at the edge of the search "
+                f"(+-{max_offset} frames around {guess}); the offset may lie beyond it: search wider (sync_max_offset)"
+            )
+        offsets[b], against[b], share[b] = best, a, score
+        timed[b] = True
+    return FrameOffsets(offsets=offsets, reference=reference, timed_against=against, share=share,
+                        notes=notes)
+
+
+def _check_range(rig: Rig, seen: np.ndarray, max_offset: int, start: np.ndarray) -> None:
+    """A search that reaches past every frame a camera recorded cannot find its offset."""
+    for c, cam in enumerate(rig.cameras):
+        frames = np.flatnonzero(seen[:, c])
+        if not len(frames):
+            continue
+        length = int(frames[-1] - frames[0] + 1)
+        if abs(int(start[c])) + max_offset >= len(seen) or abs(int(start[c])) >= length:
+            raise CalibrationError(
+                f"camera {cam.id!r}: an offset of up to {abs(int(start[c])) + max_offset} frames is as long as the recording "
+                f"({len(seen)} frames, {length} with the wand in {cam.id}); the cameras' recordings must overlap: "
+                "check the timestamps, or lower sync_max_offset"
+            )
+
+
+def _links(seen: np.ndarray, max_offset: int) -> np.ndarray:
+    """(N, N) frames each pair of cameras sees the wand in within ``max_offset`` frames of each
+    other: a link count that the unknown offsets do not hide."""
+    c = np.concatenate([np.zeros((1, seen.shape[1]), np.int64), np.cumsum(seen, 0)])
+    lo = np.clip(np.arange(len(seen)) - max_offset, 0, len(seen))
+    hi = np.clip(np.arange(len(seen)) + max_offset + 1, 0, len(seen))
+    near = (c[hi] - c[lo]) > 0
+    links = seen.astype(np.int64).T @ near.astype(np.int64)
+    links = np.minimum(links, links.T)
+    np.fill_diagonal(links, 0)
+    return links
+
+
+def _best_shift(
+    pairs: WandPairs, table: np.ndarray, a: int, b: int, offset_a: int, shifts: np.ndarray, rig: Rig
+) -> tuple[int | None, float]:
+    """Camera b's offset among ``shifts`` against camera a (offset ``offset_a``) and the share of
+    their frames whose ends fit one relative pose there.
+
+    Every shift is scored by a linear fundamental matrix through the frames' wand midpoints (no
+    end labels needed; the midpoint of two projections is off the projected midpoint by a few
+    pixels, less than a frame of motion), trimmed of its worst fifth: a few hundred microseconds
+    a shift. Only the best shift pays for an essential matrix by RANSAC, whose inlier share
+    judges it; that pose then picks between the best shift and its neighbours by both ends.
+    """
+    scores = np.array([_midpoint_score(pairs, table, a, b, offset_a - s) for s in shifts])
+    if not np.isfinite(scores).any():
+        return None, 0.0
+    best = int(np.nanargmin(scores))
+    if np.nanmin(scores) > MAX_CONTRAST * np.nanmedian(scores):
+        return int(shifts[best]), 0.0  # no shift stands out: the camera saw another motion
+    share = 0.0
+    for _ in range(POSE_PASSES):
+        found = _pose_share(pairs, table, a, b, offset_a - shifts[best], rig)
+        if found is None:
+            return int(shifts[best]), 0.0
+        near = [k for k in (best - 1, best, best + 1) if 0 <= k < len(shifts)]
+        shares = [_share(pairs, table, a, b, offset_a - shifts[k], rig, *found) for k in near]
+        share = max(shares)
+        if near[int(np.argmax(shares))] == best:
+            break
+        best = near[int(np.argmax(shares))]
+    return int(shifts[best]), float(share)
+
+
+def _shared(table: np.ndarray, a: int, b: int, lag: int, most: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of the pairs of a's frame k and b's frame k + lag where both saw both ends, at most
+    ``most`` of them spread over the recording."""
+    span = len(table)
+    k = np.flatnonzero(table[:, a] >= 0)
+    kb = k + lag
+    ok = (kb >= 0) & (kb < span)
+    k, kb = k[ok], kb[ok]
+    k, kb = k[table[kb, b] >= 0], kb[table[kb, b] >= 0]
+    pick = spread(np.arange(len(k)), most)
+    return table[k[pick], a], table[kb[pick], b]
+
+
+def _midpoint_score(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int) -> float:
+    """Median Sampson distance (normalised units) of the wand midpoints to a linear fundamental
+    matrix fitted through them (refitted twice on the best 80%); NaN with too few frames."""
+    ra, rb = _shared(table, a, b, lag, MIDPOINT_FRAMES)
+    if len(ra) < MIN_TIMING_FRAMES:
+        return float("nan")
+    h1 = np.concatenate([pairs.xy[ra].mean(1), np.ones((len(ra), 1))], 1)
+    h2 = np.concatenate([pairs.xy[rb].mean(1), np.ones((len(rb), 1))], 1)
+    rows = (h2[:, :, None] * h1[:, None, :]).reshape(-1, 9)
+    keep = np.ones(len(rows), bool)
+    for _ in range(TRIM_PASSES):
+        _, vecs = np.linalg.eigh(rows[keep].T @ rows[keep])
+        F = vecs[:, 0].reshape(3, 3)
+        Fx, Fty = h1 @ F.T, h2 @ F
+        num = np.einsum("mi,mi->m", h2, Fx) ** 2
+        dist = np.sqrt(num / np.maximum(Fx[:, 0] ** 2 + Fx[:, 1] ** 2 + Fty[:, 0] ** 2 + Fty[:, 1] ** 2, 1e-300))
+        keep = dist <= np.quantile(dist, TRIM_KEEP)
+    return float(np.median(dist))
+
+
+def _pose_share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig):
+    """(R, u) of the essential matrix that RANSAC fits to both matchings of the shared frames'
+    ends at this lag, or None."""
+    ra, rb = _shared(table, a, b, lag, TIMING_FRAMES)
+    if len(ra) < MIN_TIMING_FRAMES:
+        return None
+    xa, xb = pairs.xy[ra], pairs.xy[rb]
+    p1 = np.concatenate([xa[:, 0], xa[:, 1], xa[:, 0], xa[:, 1]])
+    p2 = np.concatenate([xb[:, 0], xb[:, 1], xb[:, 1], xb[:, 0]])
+    threshold = ESSENTIAL_THRESHOLD_PX / _focal(rig, a, b)
+    E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.USAC_DEFAULT, ESSENTIAL_CONFIDENCE, threshold)
+    if E is None or E.shape[1:] != (3,) or len(E) < 3:
+        return None
+    best = None
+    for j in range(len(E) // 3):
+        n_front, R, u, _ = cv2.recoverPose(E[3 * j : 3 * j + 3], p1, p2, np.eye(3), mask=mask.copy())
+        if best is None or n_front > best[0]:
+            best = (n_front, R, u.ravel())
+    return best[1], best[2]
+
+
+def _share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig, R: np.ndarray, u: np.ndarray) -> float:
+    """Share of the shared frames at this lag whose both ends fit the relative pose (R, u)."""
+    ra, rb = _shared(table, a, b, lag, TIMING_FRAMES)
+    if len(ra) < MIN_TIMING_FRAMES:
+        return 0.0
+    xa, xb = pairs.xy[ra], pairs.xy[rb]
+    threshold = ESSENTIAL_THRESHOLD_PX / _focal(rig, a, b)
+    same = np.maximum(_sampson(R, u, xa[:, 0], xb[:, 0]), _sampson(R, u, xa[:, 1], xb[:, 1]))
+    cross = np.maximum(_sampson(R, u, xa[:, 0], xb[:, 1]), _sampson(R, u, xa[:, 1], xb[:, 0]))
+    return float(np.mean(np.minimum(same, cross) < threshold**2))
+
+
+def _focal(rig: Rig, a: int, b: int) -> float:
+    return float(0.5 * (rig.cameras[a].focal.mean() + rig.cameras[b].focal.mean()))
