@@ -38,6 +38,9 @@ SMALL = 1e-9  # an instant within this of a frame is that frame
 # wand frames a fit uses: at 0.3 px and 2 m/s, 800 frames fix an offset to ~0.002 frame, 25 times
 # finer than needed, in a quarter of the time all 2,500 of a 16-camera capture take
 MAX_FIT_FRAMES = 800
+POSE = 6  # a pose's columns: rotation increment (radians), translation (metres)
+PINV_RCOND = 1e-12  # relative to the largest singular value: below it is the gauge
+POSE_TOLERANCE = 1e-7  # radians and metres: a pose step below this has converged
 
 
 def spread_frames(n_frames: int, most: int) -> np.ndarray:
@@ -63,6 +66,8 @@ class Timing:
     sigma_px: float
     used: np.ndarray
     iterations: int = 0
+    R: np.ndarray | None = None  # (N, 3, 3) the poses refined with the offsets (fit_timing(poses=True)), else None
+    t: np.ndarray | None = None  # (N, 3)
 
     def offset_at(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N,) phi_c(f[c]) and its standard error, frames, at frame numbers f (N,)."""
@@ -80,8 +85,9 @@ def zero_timing(n: int, pairs: WandPairs) -> Timing:
 def fit_timing(
     R: np.ndarray, t: np.ndarray, pairs: WandPairs, focal: np.ndarray, reference: int, drift: bool = False,
     start: Timing | None = None, max_frames: int = MAX_FIT_FRAMES, max_iterations: int = MAX_ITERATIONS,
+    poses: bool = False,
 ) -> Timing:
-    """Estimate each camera's sub-frame offset (and drift) with the poses held.
+    """Estimate each camera's sub-frame offset (and drift), with the poses held or refined too.
 
     Args:
         R: (N, 3, 3), t: (N, 3) world->camera poses, metres.
@@ -94,37 +100,59 @@ def fit_timing(
         max_frames: wand frames the fit uses, spread over the recording (all frames' tracks
             still serve the interpolation).
         max_iterations: Gauss-Newton steps at most.
+        poses: refine the poses with the offsets (the wand ends free, no wand length): poses
+            found from frames still out of time by a fraction are biased, and so would be offsets
+            fitted with them held; the result's ``R``, ``t`` are the refined poses. The offsets'
+            covariance then allows for the poses' uncertainty.
     """
     n = len(R)
     model = start or zero_timing(n, pairs)
+    R, t = np.array(R, dtype=float), np.array(t, dtype=float)
     k = 2 if drift else 1
-    free = np.ones(n, bool)
-    free[reference] = False
+    width = POSE + k if poses else k  # each camera's columns: [rotation, translation,] phase[, drift]
+    free = np.ones((n, width), bool)
+    free[reference, width - k :] = False
+    cols = np.flatnonzero(free.ravel())
     tracks = _Tracks(pairs, n)
     rows = np.flatnonzero(np.isin(pairs.frame, spread_frames(len(pairs.frames), max_frames)))
     sub = pairs.subset(rows)
-    cov = np.zeros((n, 2, 2))
-    sigma, used, iterations = 0.0, np.zeros(n, np.int64), 0
-    for iterations in range(1, max_iterations + 1):
+    for iteration in range(1, max_iterations + 1):
         xy, vel, keep, _ = tracks.resample(model, rows)
-        S, rhs, sigma, used = _normal_equations(R, t, sub, xy, vel, keep, focal, model.centre, k)
-        cols = np.flatnonzero(np.repeat(free, k))
+        S, rhs, sigma, used = _normal_equations(R, t, sub, xy, vel, keep, focal, model.centre, k, poses)
         Sf = S[np.ix_(cols, cols)]
-        Sf = Sf + np.eye(len(cols)) * SMALL * max(np.trace(Sf), 1.0)  # a camera with a still wand: no information
-        step = np.zeros(n * k)
-        step[cols] = np.linalg.solve(Sf, rhs[cols])
-        step = np.clip(step, -MAX_STEP, MAX_STEP).reshape(n, k)
-        phase = model.phase + step[:, 0]
-        drift_ = model.drift + (step[:, 1] if drift else 0.0)
-        inv = np.zeros((n * k, n * k))
-        inv[np.ix_(cols, cols)] = np.linalg.inv(Sf) * sigma**2
+        # minimum-norm steps: the poses' similarity gauge (points free, no wand length) is S's
+        # null space, orthogonal to every offset, which it leaves alone
+        inv = np.linalg.pinv(Sf, rcond=PINV_RCOND, hermitian=True)
+        full = np.zeros(n * width)
+        full[cols] = inv @ rhs[cols]
+        step = full.reshape(n, width)
+        time_step = np.clip(step[:, width - k :], -MAX_STEP, MAX_STEP)
+        if poses:
+            R, t = _moved(R, t, step[:, :POSE])
+        cov_full = np.zeros((n * width, n * width))
+        cov_full[np.ix_(cols, cols)] = inv * sigma**2
         cov = np.zeros((n, 2, 2))
         for c in range(n):
-            cov[c, :k, :k] = inv[c * k : c * k + k, c * k : c * k + k]
-        model = Timing(phase, drift_, model.centre, cov, sigma, used, iterations)
-        if np.abs(step).max() < STEP_TOLERANCE:
+            at = c * width + width - k
+            cov[c, :k, :k] = cov_full[at : at + k, at : at + k]
+        model = Timing(model.phase + time_step[:, 0], model.drift + (time_step[:, 1] if drift else 0.0), model.centre,
+                       cov, sigma, used, iteration, R if poses else None, t if poses else None)
+        if np.abs(time_step).max() < STEP_TOLERANCE and (not poses or np.abs(step[:, :POSE]).max() < POSE_TOLERANCE):
             break
     return model
+
+
+def _moved(R: np.ndarray, t: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Poses after a step (N, 6): R <- exp([w]x) R, t <- t + dt (w radians, dt metres)."""
+    w = step[:, :3]
+    angle = np.linalg.norm(w, axis=1)
+    axis = w / np.maximum(angle, 1e-300)[:, None]
+    K = np.zeros((len(w), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+    K = K - K.transpose(0, 2, 1)
+    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+    dR = np.eye(3) + s * K + (1 - c) * K @ K
+    return dR @ R, t + step[:, 3:]
 
 
 def resample(pairs: WandPairs, timing: Timing) -> tuple[WandPairs, np.ndarray]:
@@ -240,9 +268,12 @@ def _interpolate(pts: np.ndarray, u: np.ndarray):
     return value, slope, ok
 
 
-def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k):
-    """The reduced normal equations of the offsets, wand ends eliminated: S (Nk, Nk), rhs (Nk,),
-    the residuals' sigma (pixels) and the observations each camera gave."""
+def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, poses):
+    """The reduced normal equations of each camera's [pose,] phase[, drift] columns, the wand ends
+    eliminated point by point: S (N w, N w), rhs (N w,), the residuals' sigma (pixels) and the
+    observations each camera gave. A residual r (observed - projected, pixels) changes by
+    G d(theta) - A dX: G = -v f [1, f - centre] for the offsets (v the track's velocity), and for
+    a pose (R <- exp([w]x) R, t <- t + dt) -f P [-[R X]x, I], P the projection's derivative."""
     n = len(R)
     F = len(pairs.frames)
     rows = np.flatnonzero(keep)
@@ -253,7 +284,8 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k):
     fr = np.concatenate([pairs.frames[pairs.frame[rows]]] * 2).astype(float)
     X = triangulate_points(R, t, point, cam, obs, 2 * F)
     ok = np.isfinite(X[point]).all(1)
-    Xc = np.einsum("mij,mj->mi", R[cam], np.where(ok[:, None], X[point], 0.0)) + t[cam]
+    RX = np.einsum("mij,mj->mi", R[cam], np.where(ok[:, None], X[point], 0.0))
+    Xc = RX + t[cam]
     z = Xc[:, 2]
     z = np.where(np.abs(z) > SMALL, z, SMALL)
     proj = Xc[:, :2] / z[:, None]
@@ -270,29 +302,38 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k):
     ok &= e <= limit[cam]
     views = np.bincount(point[ok], minlength=2 * F)
     ok &= views[point] >= 2
-    Rc = R[cam]
-    A = np.stack([(Rc[:, 0] - proj[:, :1] * Rc[:, 2]) * fc[:, :1], (Rc[:, 1] - proj[:, 1:] * Rc[:, 2]) * fc[:, 1:]], 1)
-    A /= z[:, None, None]  # (M, 2, 3) d proj / dX, pixels a metre
+    Pj = np.zeros((len(z), 2, 3))  # d proj / d x_cam, pixels, times z
+    Pj[:, 0, 0], Pj[:, 1, 1] = fc[:, 0], fc[:, 1]
+    Pj[:, :, 2] = -proj * fc
+    Pj /= z[:, None, None]
+    A = Pj @ R[cam]  # (M, 2, 3) d proj / dX, pixels a metre
     g = -v * fc  # (M, 2) d r / d phase, pixels a frame
     G = g[:, :, None] * (np.stack([np.ones(len(fr)), fr - centre[cam]], 1)[:, None, :k])  # (M, 2, k)
+    if poses:
+        skew = np.zeros((len(z), 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -RX[:, 2], RX[:, 1], -RX[:, 0]
+        skew = skew - skew.transpose(0, 2, 1)  # [R X]x
+        G = np.concatenate([Pj @ skew, -Pj, G], axis=2)  # d r / d(w, dt) = -P [-[RX]x, I]
+    width = G.shape[2]
     A, G, r, point, cam = A[ok], G[ok], r[ok], point[ok], cam[ok]
     used = np.bincount(cam, minlength=n)
     M = len(r)
-    # per point: H = sum A^T A (3x3); B[p, c] = sum A^T G (3 x k); ar = sum A^T r
     H = _sums(point, np.einsum("mai,maj->mij", A, A), 2 * F)
-    B = _sums(point * n + cam, np.einsum("mai,mak->mik", A, G), 2 * F * n).reshape(2 * F, n, 3, k)
     ar = _sums(point, np.einsum("mai,ma->mi", A, r), 2 * F)
     D = _sums(cam, np.einsum("mak,mal->mkl", G, G), n)
     gr = _sums(cam, np.einsum("mak,ma->mk", G, r), n)
-    seen = np.bincount(point, minlength=2 * F) >= 2
+    seen = np.flatnonzero(np.bincount(point, minlength=2 * F) >= 2)
+    slot = np.full(2 * F, -1)
+    slot[seen] = np.arange(len(seen))
+    B = _sums(slot[point] * n + cam, np.einsum("mai,mak->mik", A, G), len(seen) * n)  # (Ps n, 3, w)
+    B = B.reshape(len(seen), n, 3, width).transpose(0, 2, 1, 3).reshape(len(seen), 3, n * width)
     Hinv = np.linalg.inv(H[seen] + np.eye(3) * SMALL)
-    Bs = B[seen].transpose(0, 2, 1, 3).reshape(-1, 3, n * k)  # (Ps, 3, Nk), columns camera-major
-    W = np.einsum("pij,pjq->piq", Hinv, Bs)
-    S = -np.einsum("piq,pir->qr", Bs, W)
+    W = np.einsum("pij,pjq->piq", Hinv, B)
+    S = -(B.reshape(-1, n * width).T @ W.reshape(-1, n * width))  # one matrix product over all points
     for c in range(n):
-        S[c * k : c * k + k, c * k : c * k + k] += D[c]
+        S[c * width : (c + 1) * width, c * width : (c + 1) * width] += D[c]
     rhs = -gr.ravel() + np.einsum("piq,pi->q", W, ar[seen])
-    dof = max(2 * M - 3 * int(seen.sum()) - n * k, 1)
+    dof = max(2 * M - 3 * len(seen) - n * width, 1)
     sigma = float(np.sqrt(np.sum(r**2) / dof))
     return S, rhs, sigma, used
 
@@ -302,3 +343,53 @@ def _sums(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
     flat = values.reshape(len(values), -1)
     out = np.stack([np.bincount(index, flat[:, j], minlength=size) for j in range(flat.shape[1])], axis=1)
     return out.reshape(size, *values.shape[1:])
+
+
+SYNC_MODES = ("none", "auto")
+DEFAULT_SYNC = "none"  # docs/decisions/0015-sync-from-the-wand.md: a trigger's frames need no search
+# an offset this many standard errors (and OUT_OF_TIME_FRAMES) from its start is worth a warning
+OUT_OF_TIME_SIGMAS = 4.0
+OUT_OF_TIME_FRAMES = 0.05  # frames: below the accuracy the issue asks of the estimate
+
+
+def sync_report(
+    ids: list[str], whole: np.ndarray, reference: int, timing: Timing, start: np.ndarray | None, rate_hz: float | None,
+    drift: bool,
+) -> tuple[dict, list[str]]:
+    """The result's ``sync`` section (docs/result-format.md) and the warnings of cameras found out
+    of time.
+
+    Args:
+        ids: camera ids (N,).
+        whole: (N,) int whole-frame offsets the frames were renumbered by.
+        reference: the camera held at offset 0.
+        timing: the sub-frame model fitted on the renumbered frames.
+        start: (N,) the offsets the capture's timestamps gave (frames), or None (zeros).
+        rate_hz: the reference camera's frame rate, for seconds; None when unknown.
+        drift: whether drift was estimated.
+    """
+    n = len(ids)
+    start = np.zeros(n) if start is None else np.asarray(start, dtype=float)
+    at_zero, std = timing.offset_at(whole.astype(float))  # phi at each camera's own frame 0 (renumbered to whole)
+    offset = whole + at_zero
+    cameras, warnings = [], []
+    for c in range(n):
+        entry = {
+            "id": ids[c],
+            "offset_frames": float(offset[c]),
+            "offset_std_frames": float(std[c]),
+            "offset_s": float(offset[c] / rate_hz) if rate_hz else None,
+            "drift_ppm": float(1e6 * timing.drift[c]) if drift else None,
+            "drift_std_ppm": float(1e6 * np.sqrt(max(timing.cov[c, 1, 1], 0.0))) if drift else None,
+        }
+        cameras.append(entry)
+        gap = offset[c] - start[c]
+        if c != reference and abs(gap) > max(OUT_OF_TIME_SIGMAS * std[c], OUT_OF_TIME_FRAMES):
+            said = "its timestamps" if np.any(start) else "its frame numbers"
+            warnings.append(
+                f"{ids[c]} is out of time: its frame k was exposed at {ids[reference]}'s frame k {offset[c]:+.3f} "
+                f"(+-{std[c]:.3f}) frames, {gap:+.3f} from what {said} said; its frames were realigned by the wand"
+            )
+    doc = {"mode": "auto", "reference": ids[reference], "rate_hz": rate_hz, "residual_sigma_px": timing.sigma_px,
+           "cameras": cameras}
+    return doc, warnings
