@@ -18,6 +18,7 @@ from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.solve.reprojection import INTRINSICS
+from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES
 from wandcal.capture.folder import read_capture, write_capture
 from wandcal.service.progress import ProgressLine
 
@@ -41,6 +42,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"ba: robust loss (default {DEFAULT_LOSS}; 'linear' is plain least squares)")
     p.add_argument("--refine-intrinsics", type=_intrinsics_list, default=(), metavar="LIST",
                    help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
+    p.add_argument("--sync", choices=SYNC_MODES, default=DEFAULT_SYNC,
+                   help="auto: find each camera's time offset from the wand, for cameras without a trigger (docs/sync.md)")
+    p.add_argument("--sync-max-offset", type=_at_least(1), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
+    p.add_argument("--sync-drift", action="store_true", help="with --sync auto: also each camera's rate difference")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
                    help="start from this result: with --solve-only, every other camera keeps its pose exactly")
@@ -109,6 +114,14 @@ def run_simulate(args) -> int:
     return 0
 
 
+def _rate(folder: Path) -> float | None:
+    """The capture log's frame rate (capture.json ``rate_hz``), for offsets in seconds; None without one."""
+    try:
+        return float(json.loads((folder / "capture.json").read_text())["rate_hz"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def _points_level(folder: Path, progress) -> Path:
     """Detect first when the capture is image level (wandcal.capture.images provides it)."""
     if not folder.is_dir() or (folder / "wand.csv").is_file():
@@ -164,7 +177,8 @@ def run_calibrate(args) -> int:
     if args.from_result is not None or args.solve_only:
         return _run_solve_only(args, cap, progress)
     options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
-               "loss": args.loss, "refine_intrinsics": args.refine_intrinsics}
+               "loss": args.loss, "refine_intrinsics": args.refine_intrinsics, "sync": args.sync,
+               "sync_max_offset": args.sync_max_offset, "sync_drift": args.sync_drift, "frame_rate_hz": _rate(folder)}
     result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
                        points=cap.points, axis=cap.axis)
     progress.close()

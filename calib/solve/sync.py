@@ -38,6 +38,14 @@ SMALL = 1e-9  # an instant within this of a frame is that frame
 # wand frames a fit uses: at 0.3 px and 2 m/s, 800 frames fix an offset to ~0.002 frame, 25 times
 # finer than needed, in a quarter of the time all 2,500 of a 16-camera capture take
 MAX_FIT_FRAMES = 800
+# a camera with fewer of its wand frames between two others is held at its whole-frame offset:
+# a digitised session (easyWand's: every 10th frame, or where the wand was clear) has no track to
+# interpolate, and a simulated or recorded one has 90% or more
+DENSE_SHARE = 0.5
+# and one whose track is rougher than this (median distance of an end from the cubic through its
+# neighbouring frames) has frames too far apart in time to interpolate: 0.5 px on a simulated
+# rig at 0.3 px noise, 600-1000 px on the Brown wind-tunnel sessions, digitised frame by frame apart
+ROUGH_PX = 5.0
 POSE = 6  # a pose's columns: rotation increment (radians), translation (metres)
 PINV_RCOND = 1e-12  # relative to the largest singular value: below it is the gauge
 POSE_TOLERANCE = 1e-7  # radians and metres: a pose step below this has converged
@@ -68,6 +76,7 @@ class Timing:
     iterations: int = 0
     R: np.ndarray | None = None  # (N, 3, 3) the poses refined with the offsets (fit_timing(poses=True)), else None
     t: np.ndarray | None = None  # (N, 3)
+    held: np.ndarray | None = None  # (N,) bool: held at phi = 0 (the reference; cameras whose frames are too sparse)
 
     def offset_at(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N,) phi_c(f[c]) and its standard error, frames, at frame numbers f (N,)."""
@@ -110,8 +119,10 @@ def fit_timing(
     R, t = np.array(R, dtype=float), np.array(t, dtype=float)
     k = 2 if drift else 1
     width = POSE + k if poses else k  # each camera's columns: [rotation, translation,] phase[, drift]
+    held = ~interpolable(pairs, focal)
+    held[reference] = True
     free = np.ones((n, width), bool)
-    free[reference, width - k :] = False
+    free[held, width - k :] = False
     cols = np.flatnonzero(free.ravel())
     tracks = _Tracks(pairs, n)
     rows = np.flatnonzero(np.isin(pairs.frame, spread_frames(len(pairs.frames), max_frames)))
@@ -136,7 +147,7 @@ def fit_timing(
             at = c * width + width - k
             cov[c, :k, :k] = cov_full[at : at + k, at : at + k]
         model = Timing(model.phase + time_step[:, 0], model.drift + (time_step[:, 1] if drift else 0.0), model.centre,
-                       cov, sigma, used, iteration, R if poses else None, t if poses else None)
+                       cov, sigma, used, iteration, R if poses else None, t if poses else None, held)
         if np.abs(time_step).max() < STEP_TOLERANCE and (not poses or np.abs(step[:, :POSE]).max() < POSE_TOLERANCE):
             break
     return model
@@ -162,6 +173,37 @@ def resample(pairs: WandPairs, timing: Timing) -> tuple[WandPairs, np.ndarray]:
     xy, _, keep, uv = _Tracks(pairs, max(n, len(timing.phase))).resample(timing)
     out = WandPairs(pairs.frame, pairs.camera, xy, uv, pairs.frames, pairs.dropped).subset(keep)
     return out, keep
+
+
+def interpolable(pairs: WandPairs, focal: np.ndarray) -> np.ndarray:
+    """(N,) bool: whether each camera's wand track can be interpolated in time. At least
+    ``DENSE_SHARE`` of its frames must have a frame on either side, and the track must be smooth:
+    the median distance of an end from the cubic through its four neighbouring frames
+    ((-p[-2] + 4 p[-1] + 4 p[1] - p[2]) / 6) must be under ``ROUGH_PX``.
+
+    Args:
+        pairs: labelled wand pairs; focal: (N, 2) pixels.
+    """
+    n = len(focal)
+    tracks = _Tracks(pairs, n)
+    f = pairs.frames[pairs.frame] - tracks.first + 1
+    span = len(tracks.table)
+    idx = f[:, None] + np.array([-2, -1, 1, 2])[None, :]
+    inside = (idx >= 0) & (idx < span)
+    window = np.where(inside, tracks.table[np.clip(idx, 0, span - 1), pairs.camera[:, None]], -1)
+    between = (window[:, 1] >= 0) & (window[:, 2] >= 0)
+    count = np.maximum(np.bincount(pairs.camera, minlength=n), 1)
+    dense = np.bincount(pairs.camera, between, minlength=n) / count >= DENSE_SHARE
+    full = (window >= 0).all(1)
+    err = np.zeros(len(pairs))
+    for e in range(2):
+        end = np.repeat((tracks.parity ^ bool(e)).astype(np.int64)[:, None], 4, axis=1)
+        pts = np.where(full[:, None, None], tracks._track(window, end, pairs.xy), 0.0)
+        pred = (-pts[:, 0] + 4 * pts[:, 1] + 4 * pts[:, 2] - pts[:, 3]) / 6
+        err = np.maximum(err, np.linalg.norm((pred - pairs.xy[:, e]) * focal[pairs.camera], axis=1))
+    smooth = np.array([np.median(err[full & (pairs.camera == c)]) < ROUGH_PX if (full & (pairs.camera == c)).any()
+                       else False for c in range(n)])
+    return dense & smooth
 
 
 def _centres(pairs: WandPairs, n: int) -> np.ndarray:
@@ -374,16 +416,20 @@ def sync_report(
     offset = whole + at_zero
     cameras, warnings = [], []
     for c in range(n):
+        whole_only = timing.held is not None and timing.held[c] and c != reference
         entry = {
             "id": ids[c],
             "offset_frames": float(offset[c]),
-            "offset_std_frames": float(std[c]),
+            "offset_std_frames": None if whole_only else float(std[c]),
             "offset_s": float(offset[c] / rate_hz) if rate_hz else None,
             "drift_ppm": float(1e6 * timing.drift[c]) if drift else None,
             "drift_std_ppm": float(1e6 * np.sqrt(max(timing.cov[c, 1, 1], 0.0))) if drift else None,
         }
         cameras.append(entry)
         gap = offset[c] - start[c]
+        if whole_only:
+            warnings.append(f"{ids[c]}: its wand frames are too sparse or too far apart in time to interpolate, so its "
+                            "time offset is found in whole frames only")
         if c != reference and abs(gap) > max(OUT_OF_TIME_SIGMAS * std[c], OUT_OF_TIME_FRAMES):
             said = "its timestamps" if np.any(start) else "its frame numbers"
             warnings.append(

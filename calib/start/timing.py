@@ -26,6 +26,7 @@ from wandcal.calib.observations import WandPairs
 from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.start.chain import ESSENTIAL_CONFIDENCE, ESSENTIAL_THRESHOLD_PX, _sampson, spread
 
+REFERENCE_LINKS = 0.5  # the first camera is the reference when it has half the best-linked camera's links
 DEFAULT_MAX_OFFSET = 10  # frames searched either side: 0.1 s at 100 fps covers webcams started by hand
 TIMING_FRAMES = 60  # shared frames per shift given to RANSAC (240 candidate matches): enough to tell, 2 ms a shift
 MIN_TIMING_FRAMES = 8  # shared frames a shift needs to be judged: five fix the essential matrix, three confirm
@@ -37,6 +38,12 @@ MIN_FIT_SHARE = 0.15
 # the best shift's midpoint score against the median shift's: 0.02-0.3 on simulated rigs, whose
 # fractional offsets blur the best; a camera that saw another motion has no shift that stands out
 MAX_CONTRAST = 0.5
+# below this many shared frames (a digitised session: easyWand's have 10-40 a pair) a linear fit through
+# the midpoints fits any shift, and each shift is judged by its own essential matrix instead
+FEW_FRAMES = 60
+# in a sparse session the best shift's share must beat every shift two or more frames away by this:
+# 0.57-0.90 against at most 0.25 on the Brown wind-tunnel sessions
+SPARSE_MARGIN = 0.25
 POSE_PASSES = 2  # a pose from a shift one frame off picks the right neighbour; its own RANSAC confirms it
 MIDPOINT_FRAMES = 150  # shared frames per shift for the midpoint score: a 9x9 eigenproblem, ~0.3 ms
 TRIM_PASSES = 3  # linear fits of the midpoint score, each on the best TRIM_KEEP of the last one's frames
@@ -78,7 +85,8 @@ def frame_offsets(
         max_offset: frames searched either side of the start.
         start: (N,) int, a first guess of each camera's offset (timestamps), searched around;
             default zeros.
-        reference: the camera of offset 0; default the best-linked camera.
+        reference: the camera of offset 0; default the rig's first camera, or the best-linked
+            one when the first has less than half its links.
 
     Raises:
         CalibrationError: a camera's wand agrees with no timed camera's at any shift searched
@@ -94,8 +102,9 @@ def frame_offsets(
     seen = table >= 0
     _check_range(rig, seen, max_offset, start)
     links = _links(seen, max_offset)
-    if reference is None:
-        reference = int(np.argmax(links.sum(1)))
+    if reference is None:  # the rig's first camera, as users number them, unless it is poorly linked
+        total = links.sum(1)
+        reference = 0 if total[0] >= REFERENCE_LINKS * total.max() else int(np.argmax(total))
     offsets = np.zeros(n, np.int64)
     against = np.full(n, -1, np.int64)
     share = np.ones(n)
@@ -175,9 +184,16 @@ def _best_shift(
     a shift. Only the best shift pays for an essential matrix by RANSAC, whose inlier share
     judges it; that pose then picks between the best shift and its neighbours by both ends.
     """
-    scores = np.array([_midpoint_score(pairs, table, a, b, offset_a - s) for s in shifts])
-    if not np.isfinite(scores).any():
+    counts = np.array([len(_shared(table, a, b, offset_a - s, TIMING_FRAMES)[0]) for s in shifts])
+    if counts.max() < MIN_TIMING_FRAMES:
         return None, 0.0
+    if counts.max() < FEW_FRAMES:  # a sparse session: every shift can afford its own RANSAC
+        found = [_pose_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]
+        shares = np.array([_share(pairs, table, a, b, offset_a - s, rig, *f) if f else 0.0 for s, f in zip(shifts, found)])
+        best = int(np.argmax(shares))
+        rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
+        return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0
+    scores = np.array([_midpoint_score(pairs, table, a, b, offset_a - s) for s in shifts])
     best = int(np.nanargmin(scores))
     if np.nanmin(scores) > MAX_CONTRAST * np.nanmedian(scores):
         return int(shifts[best]), 0.0  # no shift stands out: the camera saw another motion
