@@ -122,6 +122,20 @@ def _rate(folder: Path) -> float | None:
         return None
 
 
+def _sync_start(folder: Path, rig, rate_hz: float | None):
+    """Whole-frame offsets from sync.csv's camera timestamps when no trigger stamped it (docs/sync.md), else None."""
+    from wandcal.calib.start.timing import timestamp_offsets
+
+    path = folder / "sync.csv"
+    table = np.genfromtxt(path, delimiter=",", names=True) if path.is_file() else None
+    if table is None or not table.size or np.isfinite(np.atleast_1d(table["trigger_us"])).any():
+        return None
+    table = np.atleast_1d(table)
+    cols = [table[f"{cam.id}_ts"] if f"{cam.id}_ts" in table.dtype.names else np.full(len(table), np.nan) for cam in rig.cameras]
+    frames = [table["frame"][np.isfinite(c)].astype(np.int64) for c in cols]
+    return timestamp_offsets(rig.ids, frames, [c[np.isfinite(c)] for c in cols], rate_hz)
+
+
 def _points_level(folder: Path, progress) -> Path:
     """Detect first when the capture is image level (wandcal.capture.images provides it)."""
     if not folder.is_dir() or (folder / "wand.csv").is_file():
@@ -178,7 +192,8 @@ def run_calibrate(args) -> int:
         return _run_solve_only(args, cap, progress)
     options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
                "loss": args.loss, "refine_intrinsics": args.refine_intrinsics, "sync": args.sync,
-               "sync_max_offset": args.sync_max_offset, "sync_drift": args.sync_drift, "frame_rate_hz": _rate(folder)}
+               "sync_max_offset": args.sync_max_offset, "sync_drift": args.sync_drift, "frame_rate_hz": _rate(folder),
+               "sync_start": _sync_start(folder, cap.rig, _rate(folder)) if args.sync == "auto" else None}
     result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
                        points=cap.points, axis=cap.axis)
     progress.close()

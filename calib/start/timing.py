@@ -35,6 +35,9 @@ MIN_TIMING_FRAMES = 8  # shared frames a shift needs to be judged: five fix the 
 # off by more than the threshold), 0 for a camera that saw another motion; what rejects the latter
 # first is MAX_CONTRAST
 MIN_FIT_SHARE = 0.15
+# a frame fits when both its ends lie this close to their epipolar lines: looser than RANSAC's 2 px,
+# since a camera still off by half a frame moves a 3 m/s wand ~5 px from them
+SHARE_THRESHOLD_PX = 6.0
 # the best shift's midpoint score against the median shift's: 0.02-0.3 on simulated rigs, whose
 # fractional offsets blur the best; a camera that saw another motion has no shift that stands out
 MAX_CONTRAST = 0.5
@@ -189,7 +192,7 @@ def _best_shift(
         return None, 0.0
     if counts.max() < FEW_FRAMES:  # a sparse session: every shift can afford its own RANSAC
         found = [_pose_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]
-        shares = np.array([_share(pairs, table, a, b, offset_a - s, rig, *f) if f else 0.0 for s, f in zip(shifts, found)])
+        shares = np.array([_share(pairs, table, a, b, offset_a - s, rig, *f)[0] if f else 0.0 for s, f in zip(shifts, found)])
         best = int(np.argmax(shares))
         rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
         return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0
@@ -203,11 +206,12 @@ def _best_shift(
         if found is None:
             return int(shifts[best]), 0.0
         near = [k for k in (best - 1, best, best + 1) if 0 <= k < len(shifts)]
-        shares = [_share(pairs, table, a, b, offset_a - shifts[k], rig, *found) for k in near]
-        share = max(shares)
-        if near[int(np.argmax(shares))] == best:
+        fits = [_share(pairs, table, a, b, offset_a - shifts[k], rig, *found) for k in near]
+        pick = int(np.argmin([err for _, err in fits]))  # the closest fit: shares saturate near the right shift
+        share = fits[pick][0]
+        if near[pick] == best:
             break
-        best = near[int(np.argmax(shares))]
+        best = near[pick]
     return int(shifts[best]), float(share)
 
 
@@ -265,17 +269,79 @@ def _pose_share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, r
     return best[1], best[2]
 
 
-def _share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig, R: np.ndarray, u: np.ndarray) -> float:
-    """Share of the shared frames at this lag whose both ends fit the relative pose (R, u)."""
+def _share(
+    pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig, R: np.ndarray, u: np.ndarray
+) -> tuple[float, float]:
+    """Share of the shared frames at this lag whose both ends fit the relative pose (R, u), and
+    the median of their worse end's squared Sampson distance (normalised units)."""
     ra, rb = _shared(table, a, b, lag, TIMING_FRAMES)
     if len(ra) < MIN_TIMING_FRAMES:
-        return 0.0
+        return 0.0, float("inf")
     xa, xb = pairs.xy[ra], pairs.xy[rb]
-    threshold = ESSENTIAL_THRESHOLD_PX / _focal(rig, a, b)
+    threshold = SHARE_THRESHOLD_PX / _focal(rig, a, b)
     same = np.maximum(_sampson(R, u, xa[:, 0], xb[:, 0]), _sampson(R, u, xa[:, 1], xb[:, 1]))
     cross = np.maximum(_sampson(R, u, xa[:, 0], xb[:, 1]), _sampson(R, u, xa[:, 1], xb[:, 0]))
-    return float(np.mean(np.minimum(same, cross) < threshold**2))
+    worse = np.minimum(same, cross)
+    return float(np.mean(worse < threshold**2)), float(np.median(worse))
 
 
 def _focal(rig: Rig, a: int, b: int) -> float:
     return float(0.5 * (rig.cameras[a].focal.mean() + rig.cameras[b].focal.mean()))
+
+
+# a camera's lead over the reference, from timestamps, may wander this far (median absolute
+# deviation, frames) before they contradict themselves: drift of 100 ppm moves it 1 frame in 10,000
+CONTRADICTION_FRAMES = 1.0
+
+
+def timestamp_offsets(
+    ids: list[str], frames: list[np.ndarray], stamps_us: list[np.ndarray], rate_hz: float | None = None, reference: int = 0
+) -> np.ndarray:
+    """Whole-frame offsets from frame timestamps on a clock the cameras share (a host's monotonic
+    clock), the start of :func:`frame_offsets`'s search.
+
+    Args:
+        ids: camera ids (N,).
+        frames: per camera, (K_c,) int frame numbers that carry a timestamp.
+        stamps_us: per camera, (K_c,) their timestamps, microseconds.
+        rate_hz: the frame rate; default from the reference camera's own timestamps.
+        reference: the camera of offset 0.
+
+    Returns:
+        (N,) int: camera c's frame k was exposed about ``offsets[c]`` frames after the reference
+        camera's frame k (0 for a camera without timestamps in common with the reference).
+
+    Raises:
+        CalibrationError: a camera's timestamps go backwards, or its lead over the reference
+            changes by more than ``CONTRADICTION_FRAMES`` within the recording; the message names it.
+    """
+    for c, (f, ts) in enumerate(zip(frames, stamps_us)):
+        order = np.argsort(f)
+        back = np.flatnonzero(np.diff(np.asarray(ts, dtype=float)[order]) <= 0)
+        if len(back):
+            raise CalibrationError(
+                f"camera {ids[c]!r}: its timestamps go backwards (or repeat) at frame {int(np.asarray(f)[order][back[0] + 1])}; "
+                "the timestamps contradict the frame order: fix sync.csv, or calibrate with --sync auto without them"
+            )
+    f0, t0 = np.asarray(frames[reference]), np.asarray(stamps_us[reference], dtype=float)
+    if rate_hz:
+        period = 1e6 / rate_hz
+    else:
+        order = np.argsort(f0)
+        period = float(np.median(np.diff(t0[order]) / np.diff(f0[order]))) if len(f0) > 1 else float("nan")
+    offsets = np.zeros(len(ids), np.int64)
+    for c, (f, ts) in enumerate(zip(frames, stamps_us)):
+        common, ia, ib = np.intersect1d(f0, np.asarray(f), return_indices=True)
+        if c == reference or not len(common) or not np.isfinite(period):
+            continue
+        lead = (np.asarray(ts, dtype=float)[ib] - t0[ia]) / period
+        centre = float(np.median(lead))
+        wander = float(np.median(np.abs(lead - centre)))
+        if wander > CONTRADICTION_FRAMES:
+            raise CalibrationError(
+                f"camera {ids[c]!r}: its timestamps contradict themselves: its lead over {ids[reference]} wanders by "
+                f"{wander:.1f} frames (median deviation) within the recording; its clock is not the others', or frames "
+                "were renumbered: fix sync.csv, or calibrate with --sync auto without timestamps"
+            )
+        offsets[c] = int(np.round(centre))
+    return offsets
