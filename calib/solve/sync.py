@@ -197,7 +197,7 @@ def interpolable(pairs: WandPairs, focal: np.ndarray) -> np.ndarray:
     full = (window >= 0).all(1)
     err = np.zeros(len(pairs))
     for e in range(2):
-        end = np.repeat((tracks.parity ^ bool(e)).astype(np.int64)[:, None], 4, axis=1)
+        end = np.repeat(np.logical_xor(tracks.parity, bool(e)).astype(np.int64)[:, None], 4, axis=1)
         pts = np.where(full[:, None, None], tracks._track(window, end, pairs.xy), 0.0)
         pred = (-pts[:, 0] + 4 * pts[:, 1] + 4 * pts[:, 2] - pts[:, 3]) / 6
         err = np.maximum(err, np.linalg.norm((pred - pairs.xy[:, e]) * focal[pairs.camera], axis=1))

@@ -116,8 +116,8 @@ def frame_offsets(
     notes: list[str] = []
     while not timed.all():
         strength = np.where(timed[:, None] & ~timed[None, :], links, -1)
-        a, b = np.unravel_index(np.argmax(strength), strength.shape)
-        a, b = int(a), int(b)
+        ia, ib = np.unravel_index(np.argmax(strength), strength.shape)
+        a, b = int(ia), int(ib)
         if strength[a, b] <= 0:
             b = int(np.flatnonzero(~timed)[0])
             raise CalibrationError(
@@ -127,7 +127,7 @@ def frame_offsets(
             )
         guess = int(start[b] - start[reference])
         shifts = np.arange(guess - max_offset, guess + max_offset + 1)
-        best, score = _best_shift(pairs, table, a, b, offsets[a], shifts, rig)
+        best, score = _best_shift(pairs, table, a, b, int(offsets[a]), shifts, rig)
         if best is None or score < MIN_FIT_SHARE:
             what = (f"at best {score:.0%} of the frames they share fit one relative pose" if best is not None
                     else f"they share fewer than {MIN_TIMING_FRAMES} frames at every shift")
@@ -261,12 +261,12 @@ def _pose_share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, r
     E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.USAC_DEFAULT, ESSENTIAL_CONFIDENCE, threshold)
     if E is None or E.shape[1:] != (3,) or len(E) < 3:
         return None
-    best = None
+    best: tuple | None = None
     for j in range(len(E) // 3):
         n_front, R, u, _ = cv2.recoverPose(E[3 * j : 3 * j + 3], p1, p2, np.eye(3), mask=mask.copy())
         if best is None or n_front > best[0]:
             best = (n_front, R, u.ravel())
-    return best[1], best[2]
+    return (best[1], best[2]) if best is not None else None
 
 
 def _share(
