@@ -194,7 +194,7 @@ def interpolable(pairs: WandPairs, focal: np.ndarray) -> np.ndarray:
     between = (window[:, 1] >= 0) & (window[:, 2] >= 0)
     count = np.maximum(np.bincount(pairs.camera, minlength=n), 1)
     dense = np.bincount(pairs.camera, between, minlength=n) / count >= DENSE_SHARE
-    full = (window >= 0).all(1)
+    full: np.ndarray = np.all(window >= 0, axis=1)
     err = np.zeros(len(pairs))
     for e in range(2):
         end = np.repeat(np.logical_xor(tracks.parity, bool(e)).astype(np.int64)[:, None], 4, axis=1)
