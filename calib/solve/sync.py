@@ -30,14 +30,22 @@ from wandcal.calib.observations import WandPairs
 from wandcal.calib.triangulate import triangulate_points
 
 MAX_ITERATIONS = 8  # Gauss-Newton steps; from within a frame it settles in 3-4
-STEP_TOLERANCE = 1e-4  # frames: far below any standard error
+STEP_TOLERANCE = 1e-4  # frames: a twentieth of the smallest standard error at 0.3 px and 1-4 m/s
 MAX_STEP = 1.0  # frames a step may move an offset: the interpolant's slope is trusted that far
 OUTLIER_LIMIT = 4.0  # robust sigmas: an observation beyond is left out of a step (chi2 with 2 dof: 3e-4 of clean ones)
 MIN_OUTLIER_PX = 1.0  # never cut closer than this, so a clean rig keeps all its observations
 SMALL = 1e-9  # an instant within this of a frame is that frame
-# wand frames a fit uses: at 0.3 px and 2 m/s, 800 frames fix an offset to ~0.002 frame, 25 times
-# finer than needed, in a quarter of the time all 2,500 of a 16-camera capture take
+# wand frames a fit uses, spread over the recording: 800 fix an offset to ~0.0015 frame at 0.3 px
+# and 1-4 m/s. Fewer cost less but bias it: at 400 of 1500 frames every offset came out 0.005 frame
+# (2-3 SE) low and the rig 1.4x the synchronised one's error, at 800 within 0.0023 and 1.1x
+# (docs/decisions/0015-sync-from-the-wand.md)
 MAX_FIT_FRAMES = 800
+# the first fit, from the start poses, and the last, at the calibrated ones: capped at 250 frames,
+# 4 and 2 steps, they cost 0.2 s less at 16 x 2500 but left the offsets 0.005 frame (2-3 SE) short
+# and the rig 1.7x the synchronised one's error (8 x 1500); run to convergence on 800 they do not
+START_FRAMES = MAX_FIT_FRAMES
+START_ITERATIONS = MAX_ITERATIONS
+FINAL_ITERATIONS = MAX_ITERATIONS
 # a camera with fewer of its wand frames between two others is held at its whole-frame offset:
 # a digitised session (easyWand's: every 10th frame, or where the wand was clear) has no track to
 # interpolate, and a simulated or recorded one has 90% or more
@@ -47,8 +55,8 @@ DENSE_SHARE = 0.5
 # rig at 0.3 px noise, 600-1000 px on the Brown wind-tunnel sessions, digitised frame by frame apart
 ROUGH_PX = 5.0
 POSE = 6  # a pose's columns: rotation increment (radians), translation (metres)
-PINV_RCOND = 1e-12  # relative to the largest singular value: below it is the gauge
-POSE_TOLERANCE = 1e-7  # radians and metres: a pose step below this has converged
+POSE_TOLERANCE = 1e-6  # radians and metres: a pose step below this has settled
+GAUGE_DAMPING = 1e-9  # relative to S's largest diagonal entry: pins the gauge, moves the offsets by ~1e-9 of theirs
 
 
 def spread_frames(n_frames: int, most: int) -> np.ndarray:
@@ -131,9 +139,10 @@ def fit_timing(
         xy, vel, keep, _ = tracks.resample(model, rows)
         S, rhs, sigma, used = _normal_equations(R, t, sub, xy, vel, keep, focal, model.centre, k, poses)
         Sf = S[np.ix_(cols, cols)]
-        # minimum-norm steps: the poses' similarity gauge (points free, no wand length) is S's
-        # null space, orthogonal to every offset, which it leaves alone
-        inv = np.linalg.pinv(Sf, rcond=PINV_RCOND, hermitian=True)
+        # the poses' similarity gauge (points free, no wand length) is S's null space, orthogonal
+        # to every offset: a faint damping of the pose columns pins it, and leaves the offsets alone
+        damp = np.where(np.tile(np.arange(width) < width - k, n)[cols], GAUGE_DAMPING * np.diag(Sf).max(), 0.0)
+        inv = np.linalg.inv(Sf + np.diag(damp + SMALL))
         full = np.zeros(n * width)
         full[cols] = inv @ rhs[cols]
         step = full.reshape(n, width)
@@ -148,6 +157,7 @@ def fit_timing(
             cov[c, :k, :k] = cov_full[at : at + k, at : at + k]
         model = Timing(model.phase + time_step[:, 0], model.drift + (time_step[:, 1] if drift else 0.0), model.centre,
                        cov, sigma, used, iteration, R if poses else None, t if poses else None, held)
+        # the poses must settle too: offsets fitted beside poses still on their way are biased
         if np.abs(time_step).max() < STEP_TOLERANCE and (not poses or np.abs(step[:, :POSE]).max() < POSE_TOLERANCE):
             break
     return model

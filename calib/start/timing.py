@@ -27,7 +27,7 @@ from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.start.chain import ESSENTIAL_CONFIDENCE, ESSENTIAL_THRESHOLD_PX, _sampson, spread
 
 REFERENCE_LINKS = 0.5  # the first camera is the reference when it has half the best-linked camera's links
-DEFAULT_MAX_OFFSET = 10  # frames searched either side: 0.1 s at 100 fps covers webcams started by hand
+DEFAULT_MAX_OFFSET = 8  # frames searched either side: the issue's +-5 and fractions, with room to see the best stand out
 TIMING_FRAMES = 60  # shared frames per shift given to RANSAC (240 candidate matches): enough to tell, 2 ms a shift
 MIN_TIMING_FRAMES = 8  # shared frames a shift needs to be judged: five fix the essential matrix, three confirm
 # a shift is accepted when both ends of at least this share of its frames fit one relative pose
@@ -41,14 +41,19 @@ SHARE_THRESHOLD_PX = 6.0
 # the best shift's midpoint score against the median shift's: 0.02-0.3 on simulated rigs, whose
 # fractional offsets blur the best; a camera that saw another motion has no shift that stands out
 MAX_CONTRAST = 0.5
+# below this the best shift is taken without an essential matrix: simulated rigs at 1-4 m/s score
+# 0.02-0.3, a camera that saw another motion 0.74-0.86, and a neighbour taken in error is corrected
+# by the sub-frame fit (within a frame)
+CLEAR_CONTRAST = 0.2
 # below this many shared frames (a digitised session: easyWand's have 10-40 a pair) a linear fit through
 # the midpoints fits any shift, and each shift is judged by its own essential matrix instead
 FEW_FRAMES = 60
 # in a sparse session the best shift's share must beat every shift two or more frames away by this:
 # 0.57-0.90 against at most 0.25 on the Brown wind-tunnel sessions
 SPARSE_MARGIN = 0.25
-POSE_PASSES = 2  # a pose from a shift one frame off picks the right neighbour; its own RANSAC confirms it
-MIDPOINT_FRAMES = 150  # shared frames per shift for the midpoint score: a 9x9 eigenproblem, ~0.3 ms
+POSE_PASSES = 2
+PARTNERS = 3  # timed cameras a camera is tried against, best linked first, before it is judged out of step  # a pose from a shift one frame off picks the right neighbour; its own RANSAC confirms it
+MIDPOINT_FRAMES = 100  # a partner's frames per shift for the midpoint score: a 9x9 eigenproblem each
 TRIM_PASSES = 3  # linear fits of the midpoint score, each on the best TRIM_KEEP of the last one's frames
 TRIM_KEEP = 0.8  # drops digitising slips and reflections (a few %) with room to spare
 
@@ -127,7 +132,11 @@ def frame_offsets(
             )
         guess = int(start[b] - start[reference])
         shifts = np.arange(guess - max_offset, guess + max_offset + 1)
-        best, score = _best_shift(pairs, table, a, b, int(offsets[a]), shifts, rig)
+        # against the best-linked timed cameras together: one pair's geometry may barely tell the
+        # shifts apart (the wand moving along their epipolar lines), several rarely do
+        partners = [int(c) for c in np.argsort(-strength[:, b], kind="stable")[:PARTNERS] if strength[c, b] > 0]
+        best, score = _best_shift(pairs, table, [(a, int(offsets[a])) for a in partners], b, shifts, rig)
+        a = partners[0]
         if best is None or score < MIN_FIT_SHARE:
             what = (f"at best {score:.0%} of the frames they share fit one relative pose" if best is not None
                     else f"they share fewer than {MIN_TIMING_FRAMES} frames at every shift")
@@ -176,17 +185,21 @@ def _links(seen: np.ndarray, max_offset: int) -> np.ndarray:
 
 
 def _best_shift(
-    pairs: WandPairs, table: np.ndarray, a: int, b: int, offset_a: int, shifts: np.ndarray, rig: Rig
+    pairs: WandPairs, table: np.ndarray, partners: list[tuple[int, int]], b: int, shifts: np.ndarray, rig: Rig
 ) -> tuple[int | None, float]:
-    """Camera b's offset among ``shifts`` against camera a (offset ``offset_a``) and the share of
-    their frames whose ends fit one relative pose there.
+    """Camera b's offset among ``shifts`` against timed cameras ``partners`` ((camera, offset),
+    best linked first) and the share of its frames shared with the first whose ends fit one
+    relative pose there (1 when the shift stands out beyond doubt).
 
     Every shift is scored by a linear fundamental matrix through the frames' wand midpoints (no
     end labels needed; the midpoint of two projections is off the projected midpoint by a few
     pixels, less than a frame of motion), trimmed of its worst fifth: a few hundred microseconds
-    a shift. Only the best shift pays for an essential matrix by RANSAC, whose inlier share
-    judges it; that pose then picks between the best shift and its neighbours by both ends.
+    a shift, each partner's scores relative to its median shift's and averaged over the partners.
+    A best shift that stands out beyond doubt (``CLEAR_CONTRAST``) is taken; otherwise it pays for
+    an essential matrix by RANSAC against the first partner, whose inlier share judges it, and
+    whose pose picks between the best shift and its neighbours by both ends.
     """
+    a, offset_a = partners[0]
     counts = np.array([len(_shared(table, a, b, offset_a - s, TIMING_FRAMES)[0]) for s in shifts])
     if counts.max() < MIN_TIMING_FRAMES:
         return None, 0.0
@@ -196,10 +209,16 @@ def _best_shift(
         best = int(np.argmax(shares))
         rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
         return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0
-    scores = np.array([_midpoint_score(pairs, table, a, b, offset_a - s) for s in shifts])
+    each = [_midpoint_scores(pairs, table, c, b, offset_c - shifts) for c, offset_c in partners]
+    with np.errstate(all="ignore"):  # each partner's scores relative to its own median shift's, averaged
+        scores = np.nanmean([e / np.nanmedian(e) for e in each if np.isfinite(e).sum() > 2], axis=0)
+    if not np.isfinite(scores).any():
+        return None, 0.0
     best = int(np.nanargmin(scores))
     if np.nanmin(scores) > MAX_CONTRAST * np.nanmedian(scores):
         return int(shifts[best]), 0.0  # no shift stands out: the camera saw another motion
+    if np.nanmin(scores) < CLEAR_CONTRAST * np.nanmedian(scores):
+        return int(shifts[best]), 1.0  # stands out beyond doubt: the sub-frame fit settles the neighbour
     share = 0.0
     for _ in range(POSE_PASSES):
         found = _pose_share(pairs, table, a, b, offset_a - shifts[best], rig)
@@ -228,24 +247,40 @@ def _shared(table: np.ndarray, a: int, b: int, lag: int, most: int) -> tuple[np.
     return table[k[pick], a], table[kb[pick], b]
 
 
-def _midpoint_score(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int) -> float:
-    """Median Sampson distance (normalised units) of the wand midpoints to a linear fundamental
-    matrix fitted through them (refitted twice on the best 80%); NaN with too few frames."""
-    ra, rb = _shared(table, a, b, lag, MIDPOINT_FRAMES)
-    if len(ra) < MIN_TIMING_FRAMES:
-        return float("nan")
-    h1 = np.concatenate([pairs.xy[ra].mean(1), np.ones((len(ra), 1))], 1)
-    h2 = np.concatenate([pairs.xy[rb].mean(1), np.ones((len(rb), 1))], 1)
-    rows = (h2[:, :, None] * h1[:, None, :]).reshape(-1, 9)
-    keep = np.ones(len(rows), bool)
+def _midpoint_scores(pairs: WandPairs, table: np.ndarray, a: int, b: int, lags: np.ndarray) -> np.ndarray:
+    """(S,) for each lag, the median Sampson distance (normalised units) of the wand midpoints of
+    a's frame k and b's frame k + lag to a linear fundamental matrix fitted through them (refitted
+    twice on the best 80%); NaN where fewer than ``MIN_TIMING_FRAMES`` frames are shared. All lags
+    at once: a's frames (at most ``MIDPOINT_FRAMES``, spread) against b's at every lag."""
+    span = len(table)
+    k = spread(np.flatnonzero(table[:, a] >= 0), MIDPOINT_FRAMES)
+    kb = k[None, :] + lags[:, None]  # (S, K)
+    rows_b = np.where((kb >= 0) & (kb < span), table[np.clip(kb, 0, span - 1), b], -1)
+    valid = rows_b >= 0
+    h1 = np.concatenate([pairs.xy[table[k, a]].mean(1), np.ones((len(k), 1))], 1)  # (K, 3)
+    h2 = np.concatenate([pairs.xy[np.maximum(rows_b, 0)].mean(2), np.ones((*rows_b.shape, 1))], 2)  # (S, K, 3)
+    rows = (h2[:, :, :, None] * h1[None, :, None, :]).reshape(*rows_b.shape, 9)
+    keep = valid.copy()
+    dist = np.zeros(rows_b.shape)
     for _ in range(TRIM_PASSES):
-        _, vecs = np.linalg.eigh(rows[keep].T @ rows[keep])
-        F = vecs[:, 0].reshape(3, 3)
-        Fx, Fty = h1 @ F.T, h2 @ F
-        num = np.einsum("mi,mi->m", h2, Fx) ** 2
-        dist = np.sqrt(num / np.maximum(Fx[:, 0] ** 2 + Fx[:, 1] ** 2 + Fty[:, 0] ** 2 + Fty[:, 1] ** 2, 1e-300))
-        keep = dist <= np.quantile(dist, TRIM_KEEP)
-    return float(np.median(dist))
+        w = rows * keep[..., None]
+        _, vecs = np.linalg.eigh(np.einsum("ski,skj->sij", w, rows))
+        F = vecs[:, :, 0].reshape(-1, 3, 3)
+        Fx = np.einsum("sij,kj->ski", F, h1)
+        Fty = np.einsum("ski,sij->skj", h2, F)
+        num = np.einsum("ski,ski->sk", h2, Fx) ** 2
+        den = np.maximum(Fx[..., 0] ** 2 + Fx[..., 1] ** 2 + Fty[..., 0] ** 2 + Fty[..., 1] ** 2, 1e-300)
+        dist = np.where(valid, np.sqrt(num / den), np.inf)
+        keep = valid & (dist <= _row_quantile(dist, valid, TRIM_KEEP)[:, None])
+    score = _row_quantile(dist, valid, 0.5)
+    return np.where(valid.sum(1) >= MIN_TIMING_FRAMES, score, np.nan)
+
+
+def _row_quantile(values: np.ndarray, valid: np.ndarray, q: float) -> np.ndarray:
+    """(S,) each row's q-quantile (nearest rank) of ``values`` (S, K) where ``valid``; inf for an empty row."""
+    ordered = np.sort(np.where(valid, values, np.inf), axis=1)
+    count = valid.sum(1)
+    return ordered[np.arange(len(values)), np.clip(np.floor(q * (count - 1)).astype(np.int64), 0, values.shape[1] - 1)]
 
 
 def _pose_share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig):
