@@ -52,6 +52,7 @@ FEW_FRAMES = 60
 # 0.57-0.90 against at most 0.25 on the Brown wind-tunnel sessions
 SPARSE_MARGIN = 0.25
 POSE_PASSES = 2
+CONTRAST_SPAN = 6  # frames either side the midpoint scores are judged over, however narrow the search
 PARTNERS = 3  # timed cameras a camera is tried against, best linked first, before it is judged out of step  # a pose from a shift one frame off picks the right neighbour; its own RANSAC confirms it
 MIDPOINT_FRAMES = 100  # a partner's frames per shift for the midpoint score: a 9x9 eigenproblem each
 TRIM_PASSES = 3  # linear fits of the midpoint score, each on the best TRIM_KEEP of the last one's frames
@@ -209,15 +210,20 @@ def _best_shift(
         best = int(np.argmax(shares))
         rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
         return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0
-    each = [_midpoint_scores(pairs, table, c, b, offset_c - shifts) for c, offset_c in partners]
+    # a narrow search is judged against shifts beyond it too: its own median is the best's neighbours'
+    pad = max(CONTRAST_SPAN - len(shifts) // 2, 0)
+    wide = np.arange(shifts[0] - pad, shifts[-1] + pad + 1)
+    each = [_midpoint_scores(pairs, table, c, b, offset_c - wide) for c, offset_c in partners]
     with np.errstate(all="ignore"):  # each partner's scores relative to its own median shift's, averaged
-        scores = np.nanmean([e / np.nanmedian(e) for e in each if np.isfinite(e).sum() > 2], axis=0)
+        everywhere = np.nanmean([e / np.nanmedian(e) for e in each if np.isfinite(e).sum() > 2], axis=0)
+    scores = everywhere[pad : len(wide) - pad]
     if not np.isfinite(scores).any():
         return None, 0.0
     best = int(np.nanargmin(scores))
-    if np.nanmin(scores) > MAX_CONTRAST * np.nanmedian(scores):
+    typical = np.nanmedian(everywhere)
+    if np.nanmin(scores) > MAX_CONTRAST * typical:
         return int(shifts[best]), 0.0  # no shift stands out: the camera saw another motion
-    if np.nanmin(scores) < CLEAR_CONTRAST * np.nanmedian(scores):
+    if np.nanmin(scores) < CLEAR_CONTRAST * typical:
         return int(shifts[best]), 1.0  # stands out beyond doubt: the sub-frame fit settles the neighbour
     share = 0.0
     for _ in range(POSE_PASSES):

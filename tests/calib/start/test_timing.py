@@ -121,3 +121,18 @@ def test_a_real_session_with_one_camera_shifted_by_whole_frames(shared_data, ses
     auto = calibrate(cap.rig, w, points=cap.points, axis=cap.axis, options={"sync": "auto"})
     assert [c["offset_frames"] for c in auto.sync["cameras"]] == pytest.approx([0, 0, 0, 0], abs=1e-9)
     assert np.all(np.linalg.norm(auto.centers - plain.centers, axis=1) * 1000 < sigma_mm)
+
+
+def test_sync_csv_timestamps_without_a_trigger_give_the_start(tmp_path):
+    """A capture made without a trigger (empty trigger columns) whose camera timestamps share a
+    host clock: the offsets are searched around what they say, and found."""
+    off = np.array([0.0, 3.2, -4.4, 1.0, -0.6])
+    sim = _sim(offsets=off)
+    write_capture(tmp_path, sim.rig, sim.wand, None)
+    rows = ["frame,trigger_count,trigger_us," + ",".join(f"{c.id}_ts" for c in sim.rig.cameras)]
+    rows += [f"{k},,," + ",".join(str(int(1e6 + (k + o) * 10_000)) for o in off) for k in range(600)]
+    (tmp_path / "sync.csv").write_text("\n".join(rows) + "\n")
+    assert main(["calibrate", str(tmp_path), "--sync", "auto", "--sync-max-offset", "2", "--quiet"]) == 0
+    doc = json.loads((tmp_path / "result.json").read_text())
+    found = np.array([c["offset_frames"] for c in doc["sync"]["cameras"]])
+    assert np.abs(found - off).max() < 0.05  # within +-2 frames of the timestamps' start: found only from it
