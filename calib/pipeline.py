@@ -164,6 +164,9 @@ def calibrate(
                               options.get("sync_start"))
         wand = shift_frames(wand, timed.offsets)
         warnings += timed.notes
+    elif sync == "auto":
+        warnings.append("sync auto finds the time offsets from the wand; this capture has none, so its frames are taken as "
+                        "synchronised")
     pairs = wand_pairs(rig, wand) if has_wand else WandPairs.empty()
     tracks = point_tracks(rig, points) if points is not None and len(points) else None
     if not has_wand and (tracks is None or not len(tracks)):
