@@ -27,16 +27,7 @@ from wandcal.calib.refine import (
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.solve.ba import DEFAULT_LOSS
 from wandcal.calib.solve.reprojection import INTRINSICS
-from wandcal.calib.solve.sync import (
-    DEFAULT_SYNC,
-    FINAL_ITERATIONS,
-    START_FRAMES,
-    START_ITERATIONS,
-    SYNC_MODES,
-    fit_timing,
-    resample,
-    sync_report,
-)
+from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, fit_timing, resample, sync_report
 from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty
 from wandcal.calib.start.degenerate import check_capture
 from wandcal.calib.start.initial import initial_poses
@@ -210,8 +201,7 @@ def calibrate(
     labelled = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0] if has_wand else pairs
     if timed is not None:  # sub-frame offsets with the start poses refined; the frames resampled to the reference's instants
         focal, drift = np.array([c.focal for c in rig.cameras]), bool(options.get("sync_drift"))
-        timing = fit_timing(init.R, init.t, labelled, focal, timed.reference, drift, poses=True, max_frames=START_FRAMES,
-                            max_iterations=START_ITERATIONS)
+        timing = fit_timing(init.R, init.t, labelled, focal, timed.reference, drift, poses=True)
         unsampled, (labelled, _), init = labelled, resample(labelled, timing), replace(init, R=timing.R, t=timing.t)
     setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
     if tracks is not None:
@@ -235,8 +225,7 @@ def calibrate(
         r = reject_outliers(r, method, options, tell)
     sync_doc = None
     if timed is not None:  # the offsets again at the refined poses: the reported ones, with their standard errors
-        timing = fit_timing(r.R, r.t, unsampled, focal, timed.reference, drift, start=timing, poses=True,
-                            max_iterations=FINAL_ITERATIONS)
+        timing = fit_timing(r.R, r.t, unsampled, focal, timed.reference, drift, start=timing, poses=True)
         sync_doc, found = sync_report(rig.ids, timed.offsets, timed.reference, timing, options.get("sync_start"),
                                       options.get("frame_rate_hz"), drift)
         warnings += found

@@ -42,12 +42,6 @@ MIN_OUTLIER_PX = 1.0  # never cut closer than this, so a clean rig keeps all its
 # (2-3 SE) low and the rig 1.4x the synchronised one's error, at 800 within 0.0023 and 1.1x
 # (docs/decisions/0015-sync-from-the-wand.md)
 MAX_FIT_FRAMES = 800
-# the first fit, from the start poses, and the last, at the calibrated ones: capped at 250 frames,
-# 4 and 2 steps, they cost 0.2 s less at 16 x 2500 but left the offsets 0.005 frame (2-3 SE) short
-# and the rig 1.7x the synchronised one's error (8 x 1500); run to convergence on 800 they do not
-START_FRAMES = MAX_FIT_FRAMES
-START_ITERATIONS = MAX_ITERATIONS
-FINAL_ITERATIONS = MAX_ITERATIONS
 POSE = 6  # a pose's columns: rotation increment (radians), translation (metres)
 GAUGE_DAMPING = 1e-9  # relative to S's largest diagonal entry: pins the gauge, moves the offsets by ~1e-9 of theirs
 
