@@ -136,3 +136,14 @@ def test_sync_csv_timestamps_without_a_trigger_give_the_start(tmp_path):
     doc = json.loads((tmp_path / "result.json").read_text())
     found = np.array([c["offset_frames"] for c in doc["sync"]["cameras"]])
     assert np.abs(found - off).max() < 0.05  # within +-2 frames of the timestamps' start: found only from it
+
+
+def test_guidance_names_a_camera_out_of_time():
+    from wandcal.calib.guidance import wanding_guidance
+
+    sim = _sim(offsets=(0.0, 0.0, 2.0, 0.0, 0.0))
+    doc = wanding_guidance(sim.rig, sim.wand).document
+    assert doc["advice"][0].startswith("cam3 looks out of time") and "+2 frames" in doc["advice"][0]
+    assert doc["solve"]["out_of_time"] == {"cam3": 2} and not doc["enough"]
+    synced = wanding_guidance(sim.rig, _sim(offsets=(0.0,) * 5).wand).document
+    assert synced["solve"]["out_of_time"] == {}
