@@ -386,10 +386,10 @@ def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, s
     enough = info["ok"] and not worst
     worst.sort(key=lambda w: (-w[0], w[1]))
     # a failed solve is the rig's problem, not one camera's: it leads the list
-    advice = ([info["message"]] if not info["ok"] and info["message"] else []) + [w[2] for w in worst]
     # a camera out of time spoils every other figure it touches: it leads the list
-    advice = [f"{cid} looks out of time: its wand matches the others' {shift:+d} frames away; check its trigger "
-              "connection, or calibrate with --sync auto" for cid, shift in info.get("out_of_time", {}).items()] + advice
+    late = [f"{cid} looks out of time: its wand matches the others' {shift:+d} frames away; check its trigger "
+            "connection, or calibrate with --sync auto" for cid, shift in info.get("out_of_time", {}).items()]
+    advice = late + ([info["message"]] if not info["ok"] and info["message"] else []) + [w[2] for w in worst]
     enough = enough and not info.get("out_of_time")
     return {
         "format": GUIDANCE_FORMAT,
