@@ -59,6 +59,9 @@ SILENT_CAMERA_FRAMES = FEW_SHARED_FRAMES
 NO_WAND_YET = "no wand frames yet: wave the wand through the volume, where several cameras see it"
 # Cameras left out, weakest first, when the fast solve cannot place them all; the rest are solved.
 MAX_LEFT_OUT = 2
+# a cold update also asks whether any camera's frames match the others' a few frames away (a
+# camera without the trigger, or one that lost pulses): docs/sync.md's whole-frame search, narrow
+OUT_OF_TIME_SEARCH = 3  # frames either side; ~0.1 s at 16 cameras, so warm (live) updates skip it
 # Knuth's multiplicative hash: a fixed pseudo-random number in [0, 1) per frame number, so one
 # update's subsample is nested in the last one's (no jitter from redrawing).
 _HASH = 2654435761
@@ -178,9 +181,23 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
         solve_set = solve_set.copy()
         solve_set[weakest] = False
     info |= {"ok": failure is None, "message": failure, "left_out": left_out,
+             "out_of_time": {} if info.get("warm_start") else _out_of_time(rig, seen.pairs),
              "seconds": round(time.perf_counter() - started, 4)}
     document = _document(rig, seen, center, rotation, solve_set, settings, info)
     return Guidance(document, solution)
+
+
+def _out_of_time(rig: Rig, pairs: WandPairs) -> dict[str, int]:
+    """{camera id: whole frames} of the cameras whose wand matches the others' only at another
+    frame (wandcal.calib.start.timing.frame_offsets, +-``OUT_OF_TIME_SEARCH``); {} when none does,
+    or when the frames so far cannot tell."""
+    from wandcal.calib.start.timing import frame_offsets
+
+    try:
+        found = frame_offsets(rig, pairs, OUT_OF_TIME_SEARCH)
+    except CalibrationError:  # too few frames yet, or a camera that sees no wand with the others
+        return {}
+    return {rig.cameras[c].id: int(found.offsets[c]) for c in range(len(rig.cameras)) if found.offsets[c] != 0}
 
 
 def _seen(rig: Rig, wand: WandObservations) -> _Seen:
@@ -343,7 +360,11 @@ def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, s
     enough = info["ok"] and not worst
     worst.sort(key=lambda w: (-w[0], w[1]))
     # a failed solve is the rig's problem, not one camera's: it leads the list
-    advice = ([info["message"]] if not info["ok"] and info["message"] else []) + [w[2] for w in worst]
+    # a camera out of time spoils every other figure it touches: it leads the list
+    late = [f"{cid} looks out of time: its wand matches the others' {shift:+d} frames away; check its trigger "
+            "connection, or calibrate with --sync auto" for cid, shift in info.get("out_of_time", {}).items()]
+    advice = late + ([info["message"]] if not info["ok"] and info["message"] else []) + [w[2] for w in worst]
+    enough = enough and not info.get("out_of_time")
     return {
         "format": GUIDANCE_FORMAT,
         "frames": rig_frames,

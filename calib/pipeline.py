@@ -29,11 +29,13 @@ from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticOb
 from wandcal.calib.solve.ba import DEFAULT_LOSS
 from wandcal.calib.solve.gauge_free import split_uncertainty
 from wandcal.calib.solve.reprojection import INTRINSICS
+from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, fit_timing, resample, sync_report
 from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty
 from wandcal.calib.start.degenerate import check_capture
 from wandcal.calib.start.initial import initial_poses
 from wandcal.calib.start.labels import label_ends
 from wandcal.calib.start.static import solve_static, static_frame_jacobian
+from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, frame_offsets, shift_frames
 from wandcal.calib.start.world import _static_views, apply, axis_points, static_fit_expectation, world_frame
 from wandcal.calib.triangulate import reprojection_errors
 
@@ -67,6 +69,7 @@ class CalibrationResult:
     warnings: list[str] = field(default_factory=list)
     points: np.ndarray | None = None  # (T, 3) the single-point tracks' refined points, world frame
     verdict: dict | None = None  # the rig's {"level", "reasons"} (calib/judge/verdict.py)
+    sync: dict | None = None  # the cameras' time offsets under options["sync"] = "auto" (docs/sync.md)
 
     @property
     def centers(self) -> np.ndarray:
@@ -97,7 +100,7 @@ class CalibrationResult:
             "dropped": self.dropped,
             "verdict": self.verdict,
             "warnings": list(self.warnings),
-        }
+        } | ({"sync": self.sync} if self.sync is not None else {})
 
 
 def calibrate(
@@ -123,7 +126,10 @@ def calibrate(
         options: ``time_limit`` (seconds per LP solve) for "lp" and "paper"; ``max_rounds``
             for "paper"; ``loss`` ("cauchy", the default, or "linear") for "ba";
             ``reject_outliers`` (default True) for all; ``refine_intrinsics``, a subset of
-            ("focal", "principal", "k1") to refine per camera inside ``ba`` (default none).
+            ("focal", "principal", "k1") to refine per camera inside ``ba`` (default none);
+            ``sync`` ("none", the default, or "auto": each camera's time offset found from the
+            wand, docs/sync.md) with ``sync_max_offset`` (frames searched), ``sync_start`` ((N,)
+            offsets from timestamps), ``sync_drift`` (also a rate difference), ``frame_rate_hz``.
         points: single-point tracks (points.csv), or None. ``ba`` refines them as free 3D
             points; the other methods use them for the start only.
         axis: axis points (axis.csv) that set the world frame when there is no static object.
@@ -138,9 +144,22 @@ def calibrate(
     tell = progress or (lambda event: None)
     started = time.perf_counter()
     warnings: list[str] = []
+    sync = options.get("sync") or DEFAULT_SYNC
+    if sync not in SYNC_MODES:
+        raise CalibrationError(f"unknown sync mode {sync!r}; choose one of {', '.join(SYNC_MODES)}")
 
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs and point tracks"})
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
+    timed = None
+    if sync == "auto" and has_wand:  # whole frames first: a camera out of time by frames cannot be placed
+        tell({"stage": "sync", "message": "finding each camera's time offset from the wand"})
+        timed = frame_offsets(rig, wand_pairs(rig, wand), int(options.get("sync_max_offset") or DEFAULT_MAX_OFFSET),
+                              options.get("sync_start"))
+        wand = shift_frames(wand, timed.offsets)
+        warnings += timed.notes
+    elif sync == "auto":
+        warnings.append("sync auto finds the time offsets from the wand; this capture has none, so its frames are taken as "
+                        "synchronised")
     blobs = _marker_blobs(rig, wand) if has_wand else None
     pairs = (blobs.ends() if blobs is not None else wand_pairs(rig, wand)) if has_wand else WandPairs.empty()
     tracks = point_tracks(rig, points) if points is not None and len(points) else None
@@ -183,6 +202,10 @@ def calibrate(
 
     tell({"stage": "labels", "message": "telling the wand ends apart"})
     labelled = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0] if has_wand else pairs
+    if timed is not None:  # sub-frame offsets with the start poses refined; the frames resampled to the reference's instants
+        focal, drift = np.array([c.focal for c in rig.cameras]), bool(options.get("sync_drift"))
+        timing = fit_timing(init.R, init.t, labelled, focal, timed.reference, drift, poses=True)
+        unsampled, (labelled, _), init = labelled, resample(labelled, timing), replace(init, R=timing.R, t=timing.t)
     setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
     all_tracks = tracks  # every method is judged on the same observations, point tracks included
     if tracks is not None:
@@ -207,6 +230,12 @@ def calibrate(
     marker_pairs = None
     if blobs is not None:
         r, marker_pairs = _with_markers(rig, blobs, r, method, options, tell, warnings)
+    sync_doc = None
+    if timed is not None:  # the offsets again at the refined poses: the reported ones, with their standard errors
+        timing = fit_timing(r.R, r.t, unsampled, focal, timed.reference, drift, start=timing, poses=True)
+        sync_doc, found = sync_report(rig.ids, timed.offsets, timed.reference, timing, options.get("sync_start"),
+                                      options.get("frame_rate_hz"), drift)
+        warnings += found
     dropped = dict(pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
     dropped |= {"outliers": r.outliers} | ({"point_outliers": r.point_outliers} if tracks is not None else {})
     rig, setup, tracks, info = r.rig, r.setup, r.tracks, r.info
@@ -249,7 +278,7 @@ def calibrate(
     tell({"stage": "done", "message": "calibration finished"})
     return CalibrationResult(
         rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
-        solver=solver, world=world, dropped=dropped, warnings=warnings, points=X, verdict=verdict,
+        solver=solver, world=world, dropped=dropped, warnings=warnings, points=X, verdict=verdict, sync=sync_doc,
     )
 
 

@@ -19,6 +19,7 @@ from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.capture.arguments import MAX_SEED, number, whole
+from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES
 from wandcal.capture.folder import read_capture, write_capture
 from wandcal.service.progress import ProgressLine
 
@@ -33,6 +34,9 @@ MAX_SIM_CAMERAS = 64
 MAX_SIM_FRAMES = 100_000
 MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
 RESULT_FILE = "result.json"  # the default method's result; the others get their own (result_path)
+
+
+MAX_SYNC_OFFSET = 10_000  # --sync-max-offset, frames: 100 s at 100 fps; further off is another recording
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -56,7 +60,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"ba: robust loss (default {DEFAULT_LOSS}; 'linear' is plain least squares)")
     p.add_argument("--refine-intrinsics", type=_intrinsics_list, default=(), metavar="LIST",
                    help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
-    p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
+    p.add_argument("--sync", choices=SYNC_MODES, default=DEFAULT_SYNC,
+                   help="auto: find each camera's time offset from the wand, for cameras without a trigger (docs/sync.md)")
+    p.add_argument("--sync-max-offset", type=whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
+    p.add_argument("--sync-drift", action="store_true", help="with --sync auto: also each camera's rate difference")
+        p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
                    help="start from this result: with --solve-only, every other camera keeps its pose exactly")
     p.add_argument("--solve-only", type=_id_list, metavar="CAM[,CAM]",
@@ -120,6 +128,28 @@ def run_simulate(args) -> int:
     (args.out / TRUTH_FILE).write_text(json.dumps(sim.truth.to_json(sim.rig)) + "\n")
     print(f"wrote {args.out}: {len(sim.rig.cameras)} cameras, {args.frames} frames, {len(sim.wand)} wand blobs")
     return 0
+
+
+def _rate(folder: Path) -> float | None:
+    """The capture log's frame rate (capture.json ``rate_hz``), for offsets in seconds; None without one."""
+    try:
+        return float(json.loads((folder / "capture.json").read_text())["rate_hz"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _sync_start(folder: Path, rig, rate_hz: float | None):
+    """Whole-frame offsets from sync.csv's camera timestamps when no trigger stamped it (docs/sync.md), else None."""
+    from wandcal.calib.start.timing import timestamp_offsets
+
+    path = folder / "sync.csv"
+    table = np.genfromtxt(path, delimiter=",", names=True) if path.is_file() else None
+    if table is None or not table.size or np.isfinite(np.atleast_1d(table["trigger_us"])).any():
+        return None
+    table = np.atleast_1d(table)
+    cols = [table[f"{cam.id}_ts"] if f"{cam.id}_ts" in table.dtype.names else np.full(len(table), np.nan) for cam in rig.cameras]
+    frames = [table["frame"][np.isfinite(c)].astype(np.int64) for c in cols]
+    return timestamp_offsets(rig.ids, frames, [c[np.isfinite(c)] for c in cols], rate_hz)
 
 
 def _points_level(folder: Path, progress) -> Path:
@@ -212,7 +242,9 @@ def _calibrated(args, progress):
     if args.from_result is not None or args.solve_only:
         return _solve_only(args, cap, progress)
     options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
-               "loss": args.loss, "refine_intrinsics": args.refine_intrinsics}
+               "loss": args.loss, "refine_intrinsics": args.refine_intrinsics, "sync": args.sync,
+               "sync_max_offset": args.sync_max_offset, "sync_drift": args.sync_drift, "frame_rate_hz": _rate(folder),
+               "sync_start": _sync_start(folder, cap.rig, _rate(folder)) if args.sync == "auto" else None}
     return calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
                      points=cap.points, axis=cap.axis)
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import enum
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -106,6 +106,8 @@ class JobOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     use_static: bool = Field(True, description="use the capture's static object (if any) to fix the world frame")
+    sync: Literal["none", "auto"] = Field("none", description="auto: find each camera's time offset from the wand, for "
+                                          "cameras without a trigger (docs/sync.md)")
 
 
 class JobCreate(BaseModel):

@@ -54,7 +54,7 @@ def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict
 
     static = capture.static if options.get("use_static", True) else None
     result = calibrate(capture.rig, capture.wand, static=static, method=method, progress=progress,
-                       points=capture.points, axis=capture.axis)
+                       points=capture.points, axis=capture.axis, options={"sync": options.get("sync", "none")})
     return result.to_json()
 
 

@@ -88,38 +88,62 @@ def ring_cameras(n: int, rng: np.random.Generator, radius: float = 3.2) -> tuple
     return cams, np.array(Rs), np.array(ts)
 
 
-def wand_path(frames: int, length: float, rng: np.random.Generator) -> np.ndarray:
+def wand_path(
+    frames: int, length: float, rng: np.random.Generator, times: np.ndarray | None = None, sweep_frames: float = 150.0
+) -> np.ndarray:
     """A smooth wand path through a 2 x 2 x 1.6 m volume that starts low.
 
-    Returns (F, 2, 3) marker positions, metres.
+    Args:
+        times: (K, T) or (T,) instants to sample, in frames (fractions and instants outside
+            [0, frames) allowed: the path is a smooth function of time); default every frame.
+        sweep_frames: about one sweep this many frames long (150: 1-4 m/s at 100 fps, median 2.3).
+
+    Returns (F, 2, 3) marker positions, metres, or (K, T, 2, 3) with ``times`` (K, T).
     """
-    s = np.linspace(0.0, 1.0, frames)[:, None]
+    grid = np.arange(frames, dtype=float) if times is None else np.asarray(times, dtype=float)
+    s = grid.reshape(-1)[:, None] / max(frames - 1, 1)
     k = np.arange(1, 4)[None, :]
+    cycles = max(2.0, frames / sweep_frames)
 
     def smooth(scale: float) -> np.ndarray:
         amp = rng.normal(0, 1, (3, 3)) / k.T
         phase = rng.uniform(0, 2 * np.pi, (3, 3))
-        cycles = max(2.0, frames / 150.0)  # about one sweep every 150 frames
         out = np.stack([(amp[d] * np.sin(2 * np.pi * cycles * k * s / 2 + phase[d])).sum(1) for d in range(3)], 1)
-        return scale * out / np.abs(out).max(0)
+        # normalised by the path's own extreme over the recording, whatever instants are sampled
+        full = np.linspace(0.0, 1.0, frames)[:, None]
+        peak = np.stack([(amp[d] * np.sin(2 * np.pi * cycles * k * full / 2 + phase[d])).sum(1) for d in range(3)], 1)
+        return scale * out / np.abs(peak).max(0)
 
     mid = smooth(1.0) * [0.9, 0.9, 0.55] + [0.0, 0.0, 1.0]
     # start low: the first part of the path sweeps up from about 0.4 m, as in the seed paper
-    ramp = np.clip(np.linspace(0, 4, frames), 0, 1)[:, None]
+    ramp = np.clip(4 * s, 0, 1)
     mid[:, 2:] = ramp * mid[:, 2:] + (1 - ramp) * 0.45
     direction = smooth(1.0) + rng.normal(0, 0.3, 3)
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    return np.stack([mid - direction * length / 2, mid + direction * length / 2], axis=1)
+    out = np.stack([mid - direction * length / 2, mid + direction * length / 2], axis=1)
+    return out.reshape(*grid.shape, 2, 3)
+
+
+def camera_times(frames: int, offsets: np.ndarray, drift_ppm: np.ndarray | None = None) -> np.ndarray:
+    """(N, F) the instant, in frames of the reference clock, at which each camera exposed its
+    frame k: ``k * (1 + drift_ppm 1e-6) + offset`` (docs/sync.md's model).
+
+    Args:
+        offsets: (N,) frames, any sign, fractions allowed; drift_ppm: (N,) rate differences, ppm.
+    """
+    k = np.arange(frames, dtype=float)[None, :]
+    drift = np.zeros(len(offsets)) if drift_ppm is None else np.asarray(drift_ppm, dtype=float)
+    return k * (1 + 1e-6 * drift[:, None]) + np.asarray(offsets, dtype=float)[:, None]
 
 
 def observe_wand(cams, R, t, wand, noise_px, outliers, occlusion, rng) -> WandObservations:
-    """Blobs of wand markers (F, K, 3) in every camera (K = 2: the ends): noise, gross outliers
-    (one blob of a camera-frame moved 20-60 px), occlusion, the image border, and a random blob
-    order."""
-    frames, k = wand.shape[:2]
+    """Blobs of wand markers (F, K, 3), or (N, F, K, 3) each camera's own instants, in every camera
+    (K = 2: the ends): noise, gross outliers (one blob of a camera-frame moved 20-60 px),
+    occlusion, the image border, and a random blob order."""
+    frames, k = wand.shape[-3], wand.shape[-2]
     rows_f, rows_c, rows_uv = [], [], []
-    pts = wand.reshape(-1, 3)
     for c, cam in enumerate(cams):
+        pts = (wand[c] if wand.ndim == 4 else wand).reshape(-1, 3)  # (N, F, 2, 3): each camera's own instants
         z = depth(R[c], t[c], pts)
         uv = distort_points(cam, project_normalized(R[c], t[c], pts)) + rng.normal(0, noise_px, (len(pts), 2))
         inside = (
@@ -166,6 +190,9 @@ def simulate_capture(
     wand_length: float = 0.5,
     occlusion: float = 0.03,
     wand_markers: np.ndarray | None = None,
+    offsets: np.ndarray | None = None,
+    drift_ppm: np.ndarray | None = None,
+    sweep_frames: float = 150.0,
 ) -> SimulatedCapture:
     """Simulate a wand capture.
 
@@ -181,6 +208,11 @@ def simulate_capture(
         wand_markers: (K, 3) a collinear multi-marker wand's layout (metres; its span replaces
             ``wand_length``), or None for two markers. ``truth.wand`` is then (F, K, 3), the
             markers in the layout's order.
+        offsets: (N,) each camera's time offset, frames: its frame k shows the wand at the
+            reference instant k + offset (``truth.wand`` is at the reference instants); None: all
+            cameras synchronised.
+        drift_ppm: (N,) each camera's rate difference, ppm (:func:`camera_times`); with offsets.
+        sweep_frames: the wand's sweep length in frames (:func:`wand_path`; larger is slower).
     """
     rng = np.random.default_rng(seed)
     cams, R, t = ring_cameras(cameras, rng)
@@ -189,11 +221,22 @@ def simulate_capture(
 
         wand_markers = check_layout(wand_markers)
         wand_length = span(wand_markers)
-    wand = wand_path(frames, wand_length, rng)
+    if offsets is None and drift_ppm is None:
+        wand = wand_path(frames, wand_length, rng, sweep_frames=sweep_frames)
+        seen = wand
+    else:
+        times = camera_times(frames, np.zeros(cameras) if offsets is None else offsets, drift_ppm)
+        both = wand_path(frames, wand_length, rng, np.concatenate([np.arange(frames)[None], times]), sweep_frames)
+        wand, seen = both[0], both[1:]
     if wand_markers is not None:
-        d = (wand[:, 1] - wand[:, 0]) / wand_length
-        wand = wand.mean(axis=1)[:, None, :] + axial_offsets(wand_markers)[None, :, None] * d[:, None, :]
-    obs = observe_wand(cams, R, t, wand, noise_px, outliers, occlusion, rng)
+        along = axial_offsets(wand_markers)
+
+        def markers(ends: np.ndarray) -> np.ndarray:  # (..., 2, 3) ends -> (..., K, 3) every marker
+            d = (ends[..., 1, :] - ends[..., 0, :]) / wand_length
+            return ends.mean(axis=-2)[..., None, :] + along[:, None] * d[..., None, :]
+
+        wand, seen = markers(wand), markers(seen)
+    obs = observe_wand(cams, R, t, seen, noise_px, outliers, occlusion, rng)
     static_obs = observe_static(cams, R, t, L_FRAME_M, noise_px / np.sqrt(STATIC_FRAMES_AVERAGED), rng) if static else None
     rig = Rig(cameras=tuple(cams), wand_length=wand_length, static_markers=L_FRAME_M.copy() if static else None,
               wand_markers=wand_markers)

@@ -1,0 +1,153 @@
+"""Each camera's wand track over time, and its blobs resampled at other instants.
+
+A camera's two wand ends are followed from frame to frame by proximity, so the same physical end
+is interpolated; the interpolation is a cubic through four frames, a line through two at gaps
+(:func:`interpolate`). Used by :mod:`wandcal.calib.solve.sync` to bring each camera's frames to
+the reference camera's instants.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wandcal.calib.observations import WandPairs
+
+SMALL = 1e-9  # an instant within this of a frame is that frame
+# a camera with fewer of its wand frames between two others is held at its whole-frame offset:
+# a digitised session (easyWand's: every 10th frame, or where the wand was clear) has no track to
+# interpolate, and a simulated or recorded one has 90% or more
+DENSE_SHARE = 0.5
+# and one whose track is rougher than this (median distance of an end from the cubic through its
+# neighbouring frames) has frames too far apart in time to interpolate: 0.5 px on a simulated
+# rig at 0.3 px noise, 600-1000 px on the Brown wind-tunnel sessions, digitised frame by frame apart
+ROUGH_PX = 5.0
+
+
+def interpolable(pairs: WandPairs, focal: np.ndarray) -> np.ndarray:
+    """(N,) bool: whether each camera's wand track can be interpolated in time. At least
+    ``DENSE_SHARE`` of its frames must have a frame on either side, and the track must be smooth:
+    the median distance of an end from the cubic through its four neighbouring frames
+    ((-p[-2] + 4 p[-1] + 4 p[1] - p[2]) / 6) must be under ``ROUGH_PX``.
+
+    Args:
+        pairs: labelled wand pairs; focal: (N, 2) pixels.
+    """
+    n = len(focal)
+    tracks = Tracks(pairs, n)
+    f = pairs.frames[pairs.frame] - tracks.first + 1
+    span = len(tracks.table)
+    idx = f[:, None] + np.array([-2, -1, 1, 2])[None, :]
+    inside = (idx >= 0) & (idx < span)
+    window = np.where(inside, tracks.table[np.clip(idx, 0, span - 1), pairs.camera[:, None]], -1)
+    between = (window[:, 1] >= 0) & (window[:, 2] >= 0)
+    count = np.maximum(np.bincount(pairs.camera, minlength=n), 1)
+    dense = np.bincount(pairs.camera, between, minlength=n) / count >= DENSE_SHARE
+    full: np.ndarray = np.all(window >= 0, axis=1)
+    err = np.zeros(len(pairs))
+    for e in range(2):
+        end = np.repeat(np.logical_xor(tracks.parity, bool(e)).astype(np.int64)[:, None], 4, axis=1)
+        pts = np.where(full[:, None, None], tracks.track(window, end, pairs.xy), 0.0)
+        pred = (-pts[:, 0] + 4 * pts[:, 1] + 4 * pts[:, 2] - pts[:, 3]) / 6
+        err = np.maximum(err, np.linalg.norm((pred - pairs.xy[:, e]) * focal[pairs.camera], axis=1))
+    smooth = np.array([np.median(err[full & (pairs.camera == c)]) < ROUGH_PX if (full & (pairs.camera == c)).any()
+                       else False for c in range(n)])
+    return dense & smooth
+
+
+class Tracks:
+    """Each camera's wand ends over time, in an order continuous from frame to frame.
+
+    Camera c's ends at consecutive frames are matched by proximity (a frame moves an end a few
+    pixels, the two ends lie tens to hundreds apart), so end e of pair row p is the track's end
+    ``e ^ parity[p]``.
+    """
+
+    def __init__(self, pairs: WandPairs, n: int) -> None:
+        self.pairs = pairs
+        f = pairs.frames[pairs.frame]
+        self.first = int(f.min()) if len(f) else 0
+        span = int(f.max()) - self.first + 1 if len(f) else 0
+        self.table = np.full((span + 2, n), -1, np.int64)  # a spare row each side: neighbours past the ends are absent
+        self.table[f - self.first + 1, pairs.camera] = np.arange(len(pairs))
+        self.parity = np.zeros(len(pairs), bool)
+        order = np.lexsort((f, pairs.camera))
+        cam, fs, xy = pairs.camera[order], f[order], pairs.xy[order]
+        nxt = (cam[1:] == cam[:-1]) & (fs[1:] == fs[:-1] + 1)
+        same = np.linalg.norm(xy[1:] - xy[:-1], axis=2).sum(1)
+        cross = np.linalg.norm(xy[1:] - xy[:-1, ::-1], axis=2).sum(1)
+        flip = np.concatenate([[False], nxt & (cross < same)])
+        # parity accumulates along each camera's frames; across a gap it restarts (no neighbour uses it)
+        run = np.concatenate([[0], np.cumsum(~np.concatenate([[False], nxt])[1:])])
+        parity = np.cumsum(flip) % 2
+        start_parity = np.zeros(run.max() + 1, np.int64)
+        first_of_run = np.concatenate([[True], ~nxt])
+        start_parity[run[first_of_run]] = parity[first_of_run] - flip[first_of_run]
+        self.parity[order] = ((parity - start_parity[run]) % 2).astype(bool)
+
+    def resample(self, phase: np.ndarray, drift: np.ndarray, centre: np.ndarray, rows: np.ndarray | None = None):
+        """(xy (Q, 2, 2), velocity (Q, 2, 2) normalised units a frame, keep (Q,), uv (Q, 2, 2))
+        of the pair rows ``rows`` (Q,) (default all), each camera c's frame f sampled at
+        f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames)."""
+        p = self.pairs if rows is None else self.pairs.subset(rows)
+        parity = self.parity if rows is None else self.parity[rows]
+        f = p.frames[p.frame].astype(float)
+        phi = phase[p.camera] + drift[p.camera] * (f - centre[p.camera])
+        tau = f - phi - self.first + 1
+        i0 = np.floor(tau + SMALL).astype(np.int64)
+        u = np.clip(tau - i0, 0.0, 1.0)
+        u[u < SMALL] = 0.0
+        span = len(self.table)
+        idx = i0[:, None] + np.arange(-1, 3)[None, :]  # (P, 4) frames i0-1 .. i0+2
+        inside = (idx >= 0) & (idx < span)
+        window = np.where(inside, self.table[np.clip(idx, 0, span - 1), p.camera[:, None]], -1)
+        xy = np.zeros((len(p), 2, 2))
+        uv = np.zeros((len(p), 2, 2))
+        vel = np.zeros((len(p), 2, 2))
+        keep = np.ones(len(p), bool)
+        for e in range(2):
+            # row q's end e is the track's end e ^ parity[p], whichever frame holds it
+            end = np.repeat((parity ^ bool(e)).astype(np.int64)[:, None], 4, axis=1)
+            pts = self.track(window, end, self.pairs.xy)
+            raw = self.track(window, end, self.pairs.uv)
+            value, slope, ok = interpolate(pts, u)
+            xy[:, e], vel[:, e] = value, slope
+            uv[:, e] = interpolate(raw, u)[0]
+            keep &= ok
+        return xy, vel, keep, uv
+
+    def track(self, rows: np.ndarray, end: np.ndarray, what: np.ndarray) -> np.ndarray:
+        """(P, 4, 2) the track end ``end`` (P, 4) (in the track's continuous order) at each row of
+        ``rows`` (P, 4), NaN where absent."""
+        ok = rows >= 0
+        r = np.where(ok, rows, 0)
+        e = end ^ self.parity[r]
+        out = what[r, e]
+        return np.where(ok[..., None], out, np.nan)
+
+
+def interpolate(pts: np.ndarray, u: np.ndarray):
+    """Value and slope (per frame) at i0 + u from samples at i0-1 .. i0+2 (P, 4, 2).
+
+    The value is the cubic through the four where all four are there, else the line through
+    i0 and i0 + 1, else at u = 0 the sample itself. The slope is the secant over the outer two,
+    (p[i0+2] - p[i0-1]) / 3, else the nearest secant there is: a slope taken from the same
+    samples as the value would share their noise, and the offset regressed on it would be
+    biased (by sigma^2 / |v|^2 x 0.5 frame at u = 0, 0.001-0.003 frame at 0.3 px); the cubic's
+    outer weights are small and nearly equal, so its value and this slope hardly share any.
+    Returns (value, slope, ok)."""
+    uu = u[:, None]
+    w = np.stack([-uu * (uu - 1) * (uu - 2) / 6, (uu + 1) * (uu - 1) * (uu - 2) / 2,
+                  -(uu + 1) * uu * (uu - 2) / 2, (uu + 1) * uu * (uu - 1) / 6], axis=1)  # Lagrange weights (P, 4, 1)
+    have = np.isfinite(pts[..., 0])
+    filled = np.where(have[..., None], pts, 0.0)
+    cubic = have.all(1)
+    line = have[:, 1] & have[:, 2]
+    value = np.where(cubic[:, None], (w * filled).sum(1), filled[:, 1] + uu * (filled[:, 2] - filled[:, 1]))
+    at_frame = (u == 0) & have[:, 1] & ~line
+    value = np.where(at_frame[:, None], filled[:, 1], value)
+    slope = np.where((have[:, 0] & have[:, 3])[:, None], (filled[:, 3] - filled[:, 0]) / 3, 0.0)
+    for lo, hi in ((1, 3), (0, 2), (1, 2), (0, 1)):
+        fill = ~(have[:, 0] & have[:, 3]) & have[:, lo] & have[:, hi] & np.all(slope == 0, axis=1)
+        slope = np.where(fill[:, None], (filled[:, hi] - filled[:, lo]) / (hi - lo), slope)
+    ok = cubic | line | at_frame
+    return value, slope, ok

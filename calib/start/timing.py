@@ -1,0 +1,388 @@
+"""Whole-frame time offsets of cameras without a trigger, found from the wand itself.
+
+A camera whose frame k was exposed at the reference camera's frame k + n (n a whole number of
+frames) sees the wand where the others saw it n frames later. Its wand ends agree with another
+camera's epipolar geometry only when its frames are shifted by n: at any other shift the wand has
+moved between the two views (1-3 cm a frame at 1-3 m/s and 100 fps, several pixels), and no
+relative pose fits both ends of most frames. So each camera's offset is the shift at which an
+essential matrix (five-point RANSAC, both matchings of each frame's unlabelled ends, as
+:func:`wandcal.calib.start.chain.pair_pose`) fits the largest share of the frames it shares with
+a camera already timed. Cameras are timed one at a time, best linked first, from a reference
+camera, so a rig whose cameras overlap only pairwise is timed too.
+
+The sub-frame part of the offset, and a rate difference, are refined afterwards with the poses
+known (:mod:`wandcal.calib.solve.sync`). The model and its limits: docs/sync.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.observations import WandPairs
+from wandcal.calib.rig import Rig, WandObservations
+from wandcal.calib.start.chain import ESSENTIAL_CONFIDENCE, ESSENTIAL_THRESHOLD_PX, _sampson, spread
+
+REFERENCE_LINKS = 0.5  # the first camera is the reference when it has half the best-linked camera's links
+DEFAULT_MAX_OFFSET = 8  # frames searched either side: the issue's +-5 and fractions, with room to see the best stand out
+TIMING_FRAMES = 60  # shared frames per shift given to RANSAC (240 candidate matches): enough to tell, 2 ms a shift
+MIN_TIMING_FRAMES = 8  # shared frames a shift needs to be judged: five fix the essential matrix, three confirm
+# a shift is accepted when both ends of at least this share of its frames fit one relative pose
+# within the RANSAC threshold: 0.27-1.0 on simulated rigs (a half-frame offset moves fast frames
+# off by more than the threshold), 0 for a camera that saw another motion; what rejects the latter
+# first is MAX_CONTRAST
+MIN_FIT_SHARE = 0.15
+# a frame fits when both its ends lie this close to their epipolar lines: looser than RANSAC's 2 px,
+# since a camera still off by half a frame moves a 3 m/s wand ~5 px from them
+SHARE_THRESHOLD_PX = 6.0
+# the best shift's midpoint score against the median shift's: 0.02-0.3 on simulated rigs, whose
+# fractional offsets blur the best; a camera that saw another motion has no shift that stands out
+MAX_CONTRAST = 0.5
+# below this the best shift is taken without an essential matrix: simulated rigs at 1-4 m/s score
+# 0.02-0.3, a camera that saw another motion 0.74-0.86, and a neighbour taken in error is corrected
+# by the sub-frame fit (within a frame)
+CLEAR_CONTRAST = 0.2
+# below this many shared frames (a digitised session: easyWand's have 10-40 a pair) a linear fit through
+# the midpoints fits any shift, and each shift is judged by its own essential matrix instead
+FEW_FRAMES = 60
+# in a sparse session the best shift's share must beat every shift two or more frames away by this:
+# 0.57-0.90 against at most 0.25 on the Brown wind-tunnel sessions
+SPARSE_MARGIN = 0.25
+POSE_PASSES = 2
+CONTRAST_SPAN = 6  # frames either side the midpoint scores are judged over, however narrow the search
+PARTNERS = 3  # timed cameras a camera is tried against, best linked first, before it is judged out of step  # a pose from a shift one frame off picks the right neighbour; its own RANSAC confirms it
+MIDPOINT_FRAMES = 100  # a partner's frames per shift for the midpoint score: a 9x9 eigenproblem each
+TRIM_PASSES = 3  # linear fits of the midpoint score, each on the best TRIM_KEEP of the last one's frames
+TRIM_KEEP = 0.8  # drops digitising slips and reflections (a few %) with room to spare
+
+
+@dataclass(frozen=True, eq=False)
+class FrameOffsets:
+    """Whole-frame offsets: camera c's frame k was exposed at the reference camera's frame
+    k + offsets[c].
+
+    offsets: (N,) int frames; reference: the camera of offset 0; timed_against: (N,) the camera
+    each was timed against (-1 for the reference); share: (N,) the share of shared frames whose
+    ends fit at the chosen shift; notes: what the user should know.
+    """
+
+    offsets: np.ndarray
+    reference: int
+    timed_against: np.ndarray
+    share: np.ndarray
+    notes: list[str] = field(default_factory=list)
+
+
+def shift_frames(wand: WandObservations, offsets: np.ndarray) -> WandObservations:
+    """The blobs with each camera's frames renumbered onto the reference camera's clock: camera
+    c's frame k becomes frame k + offsets[c] (offsets (N,) int frames)."""
+    return WandObservations(wand.frame + np.asarray(offsets, dtype=np.int64)[wand.camera], wand.camera, wand.uv)
+
+
+def frame_offsets(
+    rig: Rig, pairs: WandPairs, max_offset: int = DEFAULT_MAX_OFFSET, start: np.ndarray | None = None,
+    reference: int | None = None,
+) -> FrameOffsets:
+    """Each camera's whole-frame offset (see module docstring).
+
+    Args:
+        rig: the rig (camera ids and focal lengths).
+        pairs: two-blob camera-frames on each camera's own frame numbers (normalised coordinates).
+        max_offset: frames searched either side of the start.
+        start: (N,) int, a first guess of each camera's offset (timestamps), searched around;
+            default zeros.
+        reference: the camera of offset 0; default the rig's first camera, or the best-linked
+            one when the first has less than half its links.
+
+    Raises:
+        CalibrationError: a camera's wand agrees with no timed camera's at any shift searched
+            (it never moved with the others), or the search reaches past the recording; the
+            message names the camera and what to do.
+    """
+    n = len(rig.cameras)
+    start = np.zeros(n, np.int64) if start is None else np.asarray(start, dtype=np.int64)
+    first = int(pairs.frames.min()) if len(pairs.frames) else 0
+    span = int(pairs.frames.max()) - first + 1 if len(pairs.frames) else 0
+    table = np.full((span, n), -1, np.int64)
+    table[pairs.frames[pairs.frame] - first, pairs.camera] = np.arange(len(pairs))
+    seen = table >= 0
+    _check_range(rig, seen, max_offset, start)
+    links = _links(seen, max_offset)
+    if reference is None:  # the rig's first camera, as users number them, unless it is poorly linked
+        total = links.sum(1)
+        reference = 0 if total[0] >= REFERENCE_LINKS * total.max() else int(np.argmax(total))
+    offsets = np.zeros(n, np.int64)
+    against = np.full(n, -1, np.int64)
+    share = np.ones(n)
+    timed = np.zeros(n, bool)
+    timed[reference] = True
+    notes: list[str] = []
+    while not timed.all():
+        strength = np.where(timed[:, None] & ~timed[None, :], links, -1)
+        ia, ib = np.unravel_index(np.argmax(strength), strength.shape)
+        a, b = int(ia), int(ib)
+        if strength[a, b] <= 0:
+            b = int(np.flatnonzero(~timed)[0])
+            raise CalibrationError(
+                f"camera {rig.cameras[b].id!r} shares no wand frames with the cameras timed so far "
+                f"({', '.join(rig.cameras[c].id for c in np.flatnonzero(timed))}) at any offset within +-{max_offset} "
+                f"frames; wave the wand where {rig.cameras[b].id} and the others see it at the same time"
+            )
+        guess = int(start[b] - start[reference])
+        shifts = np.arange(guess - max_offset, guess + max_offset + 1)
+        # against the best-linked timed cameras together: one pair's geometry may barely tell the
+        # shifts apart (the wand moving along their epipolar lines), several rarely do
+        partners = [int(c) for c in np.argsort(-strength[:, b], kind="stable")[:PARTNERS] if strength[c, b] > 0]
+        best, score = _best_shift(pairs, table, [(a, int(offsets[a])) for a in partners], b, shifts, rig)
+        a = partners[0]
+        if best is None or score < MIN_FIT_SHARE:
+            what = (f"at best {score:.0%} of the frames they share fit one relative pose" if best is not None
+                    else f"they share fewer than {MIN_TIMING_FRAMES} frames at every shift")
+            raise CalibrationError(
+                f"camera {rig.cameras[b].id!r} does not move with the others: at no offset within +-{max_offset} frames "
+                f"of {guess} does its wand agree with {rig.cameras[a].id}'s ({what}); check that it recorded the same "
+                "session and the same wand, or search wider (sync_max_offset)"
+            )
+        if abs(best - guess) >= max_offset:
+            raise CalibrationError(
+                f"camera {rig.cameras[b].id!r}: its best time offset, {best} frames, is at the edge of the search "
+                f"(+-{max_offset} frames around {guess}); the offset may lie beyond it: search wider (sync_max_offset)"
+            )
+        offsets[b], against[b], share[b] = best, a, score
+        timed[b] = True
+    return FrameOffsets(offsets=offsets, reference=reference, timed_against=against, share=share,
+                        notes=notes)
+
+
+def _check_range(rig: Rig, seen: np.ndarray, max_offset: int, start: np.ndarray) -> None:
+    """A search that reaches past every frame a camera recorded cannot find its offset."""
+    for c, cam in enumerate(rig.cameras):
+        frames = np.flatnonzero(seen[:, c])
+        if not len(frames):
+            continue
+        length = int(frames[-1] - frames[0] + 1)
+        if abs(int(start[c])) + max_offset >= len(seen) or abs(int(start[c])) >= length:
+            raise CalibrationError(
+                f"camera {cam.id!r}: an offset of up to {abs(int(start[c])) + max_offset} frames is as long as the recording "
+                f"({len(seen)} frames, {length} with the wand in {cam.id}); the cameras' recordings must overlap: "
+                "check the timestamps, or lower sync_max_offset"
+            )
+
+
+def _links(seen: np.ndarray, max_offset: int) -> np.ndarray:
+    """(N, N) frames each pair of cameras sees the wand in within ``max_offset`` frames of each
+    other: a link count that the unknown offsets do not hide."""
+    c = np.concatenate([np.zeros((1, seen.shape[1]), np.int64), np.cumsum(seen, 0)])
+    lo = np.clip(np.arange(len(seen)) - max_offset, 0, len(seen))
+    hi = np.clip(np.arange(len(seen)) + max_offset + 1, 0, len(seen))
+    near = (c[hi] - c[lo]) > 0
+    links = seen.astype(np.int64).T @ near.astype(np.int64)
+    links = np.minimum(links, links.T)
+    np.fill_diagonal(links, 0)
+    return links
+
+
+def _best_shift(
+    pairs: WandPairs, table: np.ndarray, partners: list[tuple[int, int]], b: int, shifts: np.ndarray, rig: Rig
+) -> tuple[int | None, float]:
+    """Camera b's offset among ``shifts`` against timed cameras ``partners`` ((camera, offset),
+    best linked first) and the share of its frames shared with the first whose ends fit one
+    relative pose there (1 when the shift stands out beyond doubt).
+
+    Every shift is scored by a linear fundamental matrix through the frames' wand midpoints (no
+    end labels needed; the midpoint of two projections is off the projected midpoint by a few
+    pixels, less than a frame of motion), trimmed of its worst fifth: a few hundred microseconds
+    a shift, each partner's scores relative to its median shift's and averaged over the partners.
+    A best shift that stands out beyond doubt (``CLEAR_CONTRAST``) is taken; otherwise it pays for
+    an essential matrix by RANSAC against the first partner, whose inlier share judges it, and
+    whose pose picks between the best shift and its neighbours by both ends.
+    """
+    a, offset_a = partners[0]
+    counts = np.array([len(_shared(table, a, b, offset_a - s, TIMING_FRAMES)[0]) for s in shifts])
+    if counts.max() < MIN_TIMING_FRAMES:
+        return None, 0.0
+    if counts.max() < FEW_FRAMES:  # a sparse session: every shift can afford its own RANSAC
+        found = [_pose_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]
+        shares = np.array([_share(pairs, table, a, b, offset_a - s, rig, *f)[0] if f else 0.0 for s, f in zip(shifts, found)])
+        best = int(np.argmax(shares))
+        rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
+        return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0
+    # a narrow search is judged against shifts beyond it too: its own median is the best's neighbours'
+    pad = max(CONTRAST_SPAN - len(shifts) // 2, 0)
+    wide = np.arange(shifts[0] - pad, shifts[-1] + pad + 1)
+    each = [_midpoint_scores(pairs, table, c, b, offset_c - wide) for c, offset_c in partners]
+    with np.errstate(all="ignore"):  # each partner's scores relative to its own median shift's, averaged
+        everywhere = np.nanmean([e / np.nanmedian(e) for e in each if np.isfinite(e).sum() > 2], axis=0)
+    scores = everywhere[pad : len(wide) - pad]
+    if not np.isfinite(scores).any():
+        return None, 0.0
+    best = int(np.nanargmin(scores))
+    typical = np.nanmedian(everywhere)
+    if np.nanmin(scores) > MAX_CONTRAST * typical:
+        return int(shifts[best]), 0.0  # no shift stands out: the camera saw another motion
+    if np.nanmin(scores) < CLEAR_CONTRAST * typical:
+        return int(shifts[best]), 1.0  # stands out beyond doubt: the sub-frame fit settles the neighbour
+    share = 0.0
+    for _ in range(POSE_PASSES):
+        found = _pose_share(pairs, table, a, b, offset_a - shifts[best], rig)
+        if found is None:
+            return int(shifts[best]), 0.0
+        near = [k for k in (best - 1, best, best + 1) if 0 <= k < len(shifts)]
+        fits = [_share(pairs, table, a, b, offset_a - shifts[k], rig, *found) for k in near]
+        pick = int(np.argmin([err for _, err in fits]))  # the closest fit: shares saturate near the right shift
+        share = fits[pick][0]
+        if near[pick] == best:
+            break
+        best = near[pick]
+    return int(shifts[best]), float(share)
+
+
+def _shared(table: np.ndarray, a: int, b: int, lag: int, most: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of the pairs of a's frame k and b's frame k + lag where both saw both ends, at most
+    ``most`` of them spread over the recording."""
+    span = len(table)
+    k = np.flatnonzero(table[:, a] >= 0)
+    kb = k + lag
+    ok = (kb >= 0) & (kb < span)
+    k, kb = k[ok], kb[ok]
+    k, kb = k[table[kb, b] >= 0], kb[table[kb, b] >= 0]
+    pick = spread(np.arange(len(k)), most)
+    return table[k[pick], a], table[kb[pick], b]
+
+
+def _midpoint_scores(pairs: WandPairs, table: np.ndarray, a: int, b: int, lags: np.ndarray) -> np.ndarray:
+    """(S,) for each lag, the median Sampson distance (normalised units) of the wand midpoints of
+    a's frame k and b's frame k + lag to a linear fundamental matrix fitted through them (refitted
+    twice on the best 80%); NaN where fewer than ``MIN_TIMING_FRAMES`` frames are shared. All lags
+    at once: a's frames (at most ``MIDPOINT_FRAMES``, spread) against b's at every lag."""
+    span = len(table)
+    k = spread(np.flatnonzero(table[:, a] >= 0), MIDPOINT_FRAMES)
+    kb = k[None, :] + lags[:, None]  # (S, K)
+    rows_b = np.where((kb >= 0) & (kb < span), table[np.clip(kb, 0, span - 1), b], -1)
+    valid = rows_b >= 0
+    h1 = np.concatenate([pairs.xy[table[k, a]].mean(1), np.ones((len(k), 1))], 1)  # (K, 3)
+    h2 = np.concatenate([pairs.xy[np.maximum(rows_b, 0)].mean(2), np.ones((*rows_b.shape, 1))], 2)  # (S, K, 3)
+    rows = (h2[:, :, :, None] * h1[None, :, None, :]).reshape(*rows_b.shape, 9)
+    keep = valid.copy()
+    dist = np.zeros(rows_b.shape)
+    for _ in range(TRIM_PASSES):
+        w = rows * keep[..., None]
+        _, vecs = np.linalg.eigh(np.einsum("ski,skj->sij", w, rows))
+        F = vecs[:, :, 0].reshape(-1, 3, 3)
+        Fx = np.einsum("sij,kj->ski", F, h1)
+        Fty = np.einsum("ski,sij->skj", h2, F)
+        num = np.einsum("ski,ski->sk", h2, Fx) ** 2
+        den = np.maximum(Fx[..., 0] ** 2 + Fx[..., 1] ** 2 + Fty[..., 0] ** 2 + Fty[..., 1] ** 2, 1e-300)
+        dist = np.where(valid, np.sqrt(num / den), np.inf)
+        keep = valid & (dist <= _row_quantile(dist, valid, TRIM_KEEP)[:, None])
+    score = _row_quantile(dist, valid, 0.5)
+    return np.where(valid.sum(1) >= MIN_TIMING_FRAMES, score, np.nan)
+
+
+def _row_quantile(values: np.ndarray, valid: np.ndarray, q: float) -> np.ndarray:
+    """(S,) each row's q-quantile (nearest rank) of ``values`` (S, K) where ``valid``; inf for an empty row."""
+    ordered = np.sort(np.where(valid, values, np.inf), axis=1)
+    count = valid.sum(1)
+    return ordered[np.arange(len(values)), np.clip(np.floor(q * (count - 1)).astype(np.int64), 0, values.shape[1] - 1)]
+
+
+def _pose_share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig):
+    """(R, u) of the essential matrix that RANSAC fits to both matchings of the shared frames'
+    ends at this lag, or None."""
+    ra, rb = _shared(table, a, b, lag, TIMING_FRAMES)
+    if len(ra) < MIN_TIMING_FRAMES:
+        return None
+    xa, xb = pairs.xy[ra], pairs.xy[rb]
+    p1 = np.concatenate([xa[:, 0], xa[:, 1], xa[:, 0], xa[:, 1]])
+    p2 = np.concatenate([xb[:, 0], xb[:, 1], xb[:, 1], xb[:, 0]])
+    threshold = ESSENTIAL_THRESHOLD_PX / _focal(rig, a, b)
+    E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.USAC_DEFAULT, ESSENTIAL_CONFIDENCE, threshold)
+    if E is None or E.shape[1:] != (3,) or len(E) < 3:
+        return None
+    best: tuple | None = None
+    for j in range(len(E) // 3):
+        n_front, R, u, _ = cv2.recoverPose(E[3 * j : 3 * j + 3], p1, p2, np.eye(3), mask=mask.copy())
+        if best is None or n_front > best[0]:
+            best = (n_front, R, u.ravel())
+    return (best[1], best[2]) if best is not None else None
+
+
+def _share(
+    pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig, R: np.ndarray, u: np.ndarray
+) -> tuple[float, float]:
+    """Share of the shared frames at this lag whose both ends fit the relative pose (R, u), and
+    the median of their worse end's squared Sampson distance (normalised units)."""
+    ra, rb = _shared(table, a, b, lag, TIMING_FRAMES)
+    if len(ra) < MIN_TIMING_FRAMES:
+        return 0.0, float("inf")
+    xa, xb = pairs.xy[ra], pairs.xy[rb]
+    threshold = SHARE_THRESHOLD_PX / _focal(rig, a, b)
+    same = np.maximum(_sampson(R, u, xa[:, 0], xb[:, 0]), _sampson(R, u, xa[:, 1], xb[:, 1]))
+    cross = np.maximum(_sampson(R, u, xa[:, 0], xb[:, 1]), _sampson(R, u, xa[:, 1], xb[:, 0]))
+    worse = np.minimum(same, cross)
+    return float(np.mean(worse < threshold**2)), float(np.median(worse))
+
+
+def _focal(rig: Rig, a: int, b: int) -> float:
+    return float(0.5 * (rig.cameras[a].focal.mean() + rig.cameras[b].focal.mean()))
+
+
+# a camera's lead over the reference, from timestamps, may wander this far (median absolute
+# deviation, frames) before they contradict themselves: drift of 100 ppm moves it 1 frame in 10,000
+CONTRADICTION_FRAMES = 1.0
+
+
+def timestamp_offsets(
+    ids: list[str], frames: list[np.ndarray], stamps_us: list[np.ndarray], rate_hz: float | None = None, reference: int = 0
+) -> np.ndarray:
+    """Whole-frame offsets from frame timestamps on a clock the cameras share (a host's monotonic
+    clock), the start of :func:`frame_offsets`'s search.
+
+    Args:
+        ids: camera ids (N,).
+        frames: per camera, (K_c,) int frame numbers that carry a timestamp.
+        stamps_us: per camera, (K_c,) their timestamps, microseconds.
+        rate_hz: the frame rate; default from the reference camera's own timestamps.
+        reference: the camera of offset 0.
+
+    Returns:
+        (N,) int: camera c's frame k was exposed about ``offsets[c]`` frames after the reference
+        camera's frame k (0 for a camera without timestamps in common with the reference).
+
+    Raises:
+        CalibrationError: a camera's timestamps go backwards, or its lead over the reference
+            changes by more than ``CONTRADICTION_FRAMES`` within the recording; the message names it.
+    """
+    for c, (f, ts) in enumerate(zip(frames, stamps_us)):
+        order = np.argsort(f)
+        back = np.flatnonzero(np.diff(np.asarray(ts, dtype=float)[order]) <= 0)
+        if len(back):
+            raise CalibrationError(
+                f"camera {ids[c]!r}: its timestamps go backwards (or repeat) at frame {int(np.asarray(f)[order][back[0] + 1])}; "
+                "the timestamps contradict the frame order: fix sync.csv, or calibrate with --sync auto without them"
+            )
+    f0, t0 = np.asarray(frames[reference]), np.asarray(stamps_us[reference], dtype=float)
+    if rate_hz:
+        period = 1e6 / rate_hz
+    else:
+        order = np.argsort(f0)
+        period = float(np.median(np.diff(t0[order]) / np.diff(f0[order]))) if len(f0) > 1 else float("nan")
+    offsets = np.zeros(len(ids), np.int64)
+    for c, (f, ts) in enumerate(zip(frames, stamps_us)):
+        common, ia, ib = np.intersect1d(f0, np.asarray(f), return_indices=True)
+        if c == reference or not len(common) or not np.isfinite(period):
+            continue
+        lead = (np.asarray(ts, dtype=float)[ib] - t0[ia]) / period
+        centre = float(np.median(lead))
+        wander = float(np.median(np.abs(lead - centre)))
+        if wander > CONTRADICTION_FRAMES:
+            raise CalibrationError(
+                f"camera {ids[c]!r}: its timestamps contradict themselves: its lead over {ids[reference]} wanders by "
+                f"{wander:.1f} frames (median deviation) within the recording; its clock is not the others', or frames "
+                "were renumbered: fix sync.csv, or calibrate with --sync auto without timestamps"
+            )
+        offsets[c] = int(np.round(centre))
+    return offsets

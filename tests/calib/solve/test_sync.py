@@ -1,0 +1,125 @@
+"""Time offsets of cameras without a trigger (docs/sync.md): simulated rigs whose cameras expose
+their frames at their own instants (calib/sim/simulate.py's offsets and drift_ppm)."""
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from wandcal.calib.geometry import kabsch, project_normalized
+from wandcal.calib.observations import wand_pairs
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.calib.solve.sync import fit_timing
+from wandcal.calib.start.labels import label_ends
+
+NOISE_PX = 0.3
+OFFSET_TOL_FRAMES = 0.05  # the issue's goal
+RIG_RATIO = 1.2  # the issue's goal: the rig's error within 1.2x the same rig synchronised
+DRIFT_TOL_PPM = 20.0  # the issue's goal at 100 ppm
+CHI2_TAIL = 0.001  # each side: a correct SE fails the spread test once in 500 runs
+
+
+def _offsets(n: int, rng: np.random.Generator) -> np.ndarray:
+    """Whole frames up to +-5 plus fractions, the first camera (the reference) at 0."""
+    off = rng.integers(-5, 6, n) + rng.uniform(-0.5, 0.5, n)
+    off[0] = 0.0
+    return off
+
+
+def _found(result) -> tuple[np.ndarray, np.ndarray]:
+    cams = result.sync["cameras"]
+    assert result.sync["reference"] == cams[0]["id"]
+    return np.array([c["offset_frames"] for c in cams]), np.array([c["offset_std_frames"] for c in cams])
+
+
+def _centre_error_mm(result, sim) -> float:
+    Ra, ta, s = kabsch(result.centers, sim.truth.centers, scale=True)
+    return float(np.sqrt(np.mean(np.sum((s * result.centers @ Ra.T + ta - sim.truth.centers) ** 2, 1))) * 1000)
+
+
+def test_offsets_found_within_a_twentieth_of_a_frame_and_the_rig_as_good_as_synchronised():
+    errors, synced = [], []
+    for seed in (11, 12):
+        off = _offsets(6, np.random.default_rng(seed))
+        sim = simulate_capture(6, 1000, NOISE_PX, static=False, seed=seed, offsets=off)
+        result = calibrate(sim.rig, sim.wand, options={"sync": "auto"})
+        found, _ = _found(result)
+        assert np.abs(found - off).max() < OFFSET_TOL_FRAMES, (found, off)
+        assert any("cam2 is out of time" in w or "out of time" in w for w in result.warnings)
+        errors.append(_centre_error_mm(result, sim))
+        plain = simulate_capture(6, 1000, NOISE_PX, static=False, seed=seed)
+        synced.append(_centre_error_mm(calibrate(plain.rig, plain.wand), plain))
+    # RMS over the seeds: one seed's ratio scatters by ~15% with the noise alone
+    assert np.sqrt(np.mean(np.square(errors))) <= RIG_RATIO * np.sqrt(np.mean(np.square(synced)))
+
+
+def test_predicted_standard_error_matches_the_spread_over_seeds():
+    """sum of z^2 over independent seeds (one camera each: offsets share the reference's noise)
+    lies within the chi^2 bounds of that many degrees of freedom. 1500 frames: at 600 the spread
+    exceeds the prediction by up to 1.5x (docs/sync.md, "Limits")."""
+    z = []
+    for seed in range(20, 32):
+        off = _offsets(5, np.random.default_rng(seed))
+        sim = simulate_capture(5, 1500, NOISE_PX, static=False, seed=seed, offsets=off)
+        found, std = _found(calibrate(sim.rig, sim.wand, options={"sync": "auto"}))
+        z.append((found[1] - off[1]) / std[1])
+    total = float(np.sum(np.square(z)))
+    assert chi2.ppf(CHI2_TAIL, len(z)) < total < chi2.ppf(1 - CHI2_TAIL, len(z)), z
+
+
+def test_drift_of_100_ppm_found_within_20_ppm():
+    rng = np.random.default_rng(5)
+    off = _offsets(6, rng)
+    drift = rng.choice([-100.0, 100.0], 6)
+    drift[0] = 0.0
+    sim = simulate_capture(6, 3000, NOISE_PX, static=False, seed=5, offsets=off, drift_ppm=drift)
+    result = calibrate(sim.rig, sim.wand, options={"sync": "auto", "sync_drift": True})
+    cams = result.sync["cameras"]
+    found = np.array([c["drift_ppm"] for c in cams])
+    assert np.abs(found - drift).max() < DRIFT_TOL_PPM, (found, drift)
+    offsets = np.array([c["offset_frames"] for c in cams])
+    assert np.abs(offsets - off).max() < OFFSET_TOL_FRAMES
+
+
+def test_a_synchronised_capture_under_auto_reports_zero_and_matches_none():
+    sim = simulate_capture(6, 1000, NOISE_PX, static=True, seed=7)
+    none = calibrate(sim.rig, sim.wand, sim.static)
+    auto = calibrate(sim.rig, sim.wand, sim.static, options={"sync": "auto"})
+    found, std = _found(auto)
+    z = found[1:] / std[1:]
+    assert np.sum(z**2) < chi2.ppf(1 - CHI2_TAIL, len(z)), z
+    assert not any("out of time" in w for w in auto.warnings)
+    sigma_mm = np.array([c["center_std_mm"] for c in none.cameras])
+    moved_mm = np.linalg.norm(auto.centers - none.centers, axis=1) * 1000
+    assert np.all(moved_mm < sigma_mm), (moved_mm, sigma_mm)
+    assert "sync" not in none.to_json() and auto.to_json()["sync"]["mode"] == "auto"
+
+
+@pytest.mark.parametrize("sweep", [150.0, 600.0])
+def test_standard_error_follows_the_wands_image_speed(sweep):
+    """SE(offset) ~ sigma_px / (|v|_rms sqrt(n)) (docs/sync.md), with the poses known: a wand four
+    times slower gives a standard error four times larger."""
+    off = np.array([0.0, 0.3, -0.2, 0.4])
+    sim = simulate_capture(4, 800, NOISE_PX, static=False, seed=3, offsets=off, sweep_frames=sweep)
+    pairs = wand_pairs(sim.rig, sim.wand)
+    labelled = label_ends(sim.truth.R, sim.truth.t, pairs, np.ones(4, bool), sim.rig.wand_length)[0]
+    focal = np.array([c.focal for c in sim.rig.cameras])
+    timing = fit_timing(sim.truth.R, sim.truth.t, labelled, focal, 0)
+    value, std = timing.offset_at(np.zeros(4))
+    # the formula from each camera's own image speed, the points' share of the information taken
+    # out as 1 - 1/views (each wand end is seen by ~4 cameras, which share its triangulation); the
+    # offset is relative to the reference camera, whose own timing is as uncertain: their
+    # variances add
+    def alone(c: int) -> float:
+        mine = labelled.camera == c
+        f = labelled.frames[labelled.frame[mine]]
+        f = f[f + 1 < len(sim.truth.wand)]
+        ends = sim.truth.wand[np.concatenate([f, f + 1])].reshape(2, -1, 3)
+        uv = [project_normalized(sim.truth.R[c], sim.truth.t[c], e) * focal[c] for e in ends]
+        v = np.linalg.norm(uv[1] - uv[0], axis=1)  # each end's image speed, px a frame
+        views = np.bincount(labelled.frame, minlength=len(labelled.frames))[labelled.frame[mine]].mean()
+        return timing.sigma_px / (np.sqrt(np.mean(v**2)) * np.sqrt(2 * mine.sum() * (1 - 1 / views)))
+
+    c = 1
+    assert std[c] == pytest.approx(np.hypot(alone(c), alone(0)), rel=0.2)
+    assert abs(value[c] - off[c]) < 5 * std[c]
