@@ -40,7 +40,7 @@ MIN_OUTLIER_PX = 1.0  # never cut closer than this, so a clean rig keeps all its
 # wand frames a fit uses, spread over the recording: 800 fix an offset to ~0.0015 frame at 0.3 px
 # and 1-4 m/s. Fewer cost less but bias it: at 400 of 1500 frames every offset came out 0.005 frame
 # (2-3 SE) low and the rig 1.4x the synchronised one's error, at 800 within 0.0023 and 1.1x
-# (docs/decisions/0015-sync-from-the-wand.md)
+# (docs/decisions/0018-sync-from-the-wand.md)
 MAX_FIT_FRAMES = 800
 POSE = 6  # a pose's columns: rotation increment (radians), translation (metres)
 GAUGE_DAMPING = 1e-9  # relative to S's largest diagonal entry: pins the gauge, moves the offsets by ~1e-9 of theirs
@@ -263,7 +263,7 @@ def _sums(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
 
 
 SYNC_MODES = ("none", "auto")
-DEFAULT_SYNC = "none"  # docs/decisions/0015-sync-from-the-wand.md: a trigger's frames need no search
+DEFAULT_SYNC = "none"  # docs/decisions/0018-sync-from-the-wand.md: a trigger's frames need no search
 # an offset this many standard errors (and OUT_OF_TIME_FRAMES) from its start is worth a warning
 OUT_OF_TIME_SIGMAS = 4.0
 OUT_OF_TIME_FRAMES = 0.05  # frames: below the accuracy the issue asks of the estimate
