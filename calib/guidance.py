@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.geometry import camera_centers, undistort_by_camera
+from wandcal.calib.geometry import undistort_by_camera
 from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
 from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations

@@ -175,8 +175,8 @@ def _size(text: str) -> tuple[int, int]:
         size = (int(w), int(h))
     except ValueError:
         size = (0, 0)
-    if not sep or min(size) <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT in pixels, e.g. 1920x1080")
+    if not sep or min(size) <= 0 or max(size) > MAX_IMAGE_HEIGHT:
+        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT in pixels (1 to {MAX_IMAGE_HEIGHT}), e.g. 1920x1080")
     return size
 
 

@@ -18,8 +18,8 @@ from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.solve.reprojection import INTRINSICS
-from wandcal.capture.arguments import MAX_SEED, number, whole
 from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES
+from wandcal.capture.arguments import MAX_SEED, number, whole
 from wandcal.capture.folder import read_capture, write_capture
 from wandcal.service.progress import ProgressLine
 
@@ -64,7 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="auto: find each camera's time offset from the wand, for cameras without a trigger (docs/sync.md)")
     p.add_argument("--sync-max-offset", type=whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
     p.add_argument("--sync-drift", action="store_true", help="with --sync auto: also each camera's rate difference")
-        p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
+    p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
                    help="start from this result: with --solve-only, every other camera keeps its pose exactly")
     p.add_argument("--solve-only", type=_id_list, metavar="CAM[,CAM]",

@@ -113,6 +113,7 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
     K = len(free)
     Rw, tw = frame(R, t, np.zeros(3))
     base_C = camera_centers(R, t) @ Rw.T + tw
+    base_R = R @ Rw.T  # the world-frame rotations
     # a world pose moves with its own camera (a block per free camera) and with the frame, which
     # follows every camera and the wand's centroid: G = direct + A F, the frame's 6 DOF between
     Aw = _world_response(R, Rw, base_C - tw)  # (6N, 6)
