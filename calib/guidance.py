@@ -193,6 +193,8 @@ def _out_of_time(rig: Rig, pairs: WandPairs) -> dict[str, int]:
     or when the frames so far cannot tell."""
     from wandcal.calib.start.timing import frame_offsets
 
+    if not np.isfinite(pairs.xy).all():  # grouped without undistorting (the live path): undistort here
+        pairs = replace(pairs, xy=undistort_by_camera(rig.cameras, pairs.camera, pairs.uv))
     try:
         found = frame_offsets(rig, pairs, OUT_OF_TIME_SEARCH)
     except CalibrationError:  # too few frames yet, or a camera that sees no wand with the others
