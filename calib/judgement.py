@@ -89,12 +89,13 @@ def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list
     return sorted(out, key=lambda c: -max(ratio[c] / SUSPECT_NOISE_RATIO, share[c] / SUSPECT_OUTLIER_SHARE, patterned[c]))
 
 
-def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int):
-    """Every other camera's pose refined without camera c's observations (c's pose as given)."""
+def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, out: list[int]):
+    """Every other camera's pose refined without the observations of the cameras ``out`` (theirs
+    as given)."""
     from wandcal.calib.refine import build_problem, refine, up_direction
 
-    others = labelled.camera != c
-    keep = np.flatnonzero(np.arange(len(rig.cameras)) != c)
+    others = ~np.isin(labelled.camera, out)
+    keep = np.flatnonzero(~np.isin(np.arange(len(rig.cameras)), out))
     index = np.full(len(rig.cameras), -1)
     index[keep] = np.arange(len(keep))
     sub = labelled.subset(others)
@@ -108,15 +109,18 @@ def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, 
     return R2, t2
 
 
-def isolate(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int) -> tuple[Timing | None, Lens | None]:
-    """Camera c's timing and lens patterns against the rig solved without it."""
-    if len(rig.cameras) - 1 < 2 or rig.wand_length is None:
+def isolate(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int,
+            at_fault: list[int] | None = None) -> tuple[Timing | None, Lens | None]:
+    """Camera c's timing and lens patterns against the rig solved without it, and without the
+    cameras already found ``at_fault`` (whose error would otherwise show in c's residuals)."""
+    out = [c, *(at_fault or [])]
+    if len(rig.cameras) - len(out) < 2 or rig.wand_length is None:
         return None, None
     try:
-        R2, t2 = _others_solved(rig, labelled, R, t, c)
+        R2, t2 = _others_solved(rig, labelled, R, t, out)
     except (CalibrationError, np.linalg.LinAlgError):  # the others alone may not solve: judge them as they are
         R2, t2 = R, t
-    point, xy, X = held_out(R2, t2, labelled, c)
+    point, xy, X = held_out(R2, t2, labelled.subset(~np.isin(labelled.camera, at_fault or [])), c)
     return analyse_camera(R2[c], t2[c], labelled.frames, X, point, xy)
 
 
@@ -130,7 +134,8 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
     for c in suspects(figures, screened)[:MAX_SUSPECTS]:
         cam, fig = rig.cameras[c].id, figures[c]
         ratio = fig["noise_px"] / median if median > 0 else np.inf
-        timing, lens = isolate(rig, labelled, R, t, c) if len(labelled) else (None, None)
+        at_fault = [rig.index(f["camera"]) for f in faults]
+        timing, lens = isolate(rig, labelled, R, t, c, at_fault) if len(labelled) else (None, None)
         kind, evidence = classify(timing, lens)
         evidence |= {"noise_px": round(fig["noise_px"], 4), "rig_noise_px": round(median, 4),
                      "outlier_share": round(fig["outlier_share"], 4)}
@@ -206,8 +211,8 @@ def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> li
 
 
 def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, world: dict, R: np.ndarray,
-          t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None, solver: dict, seen: tuple[np.ndarray, np.ndarray]
-          ) -> tuple[dict, list[str]]:
+          t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None, solver: dict, seen: tuple[np.ndarray, np.ndarray],
+          known: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[dict, list[str]]:
     """Judge a calibration: run :func:`sanity_check`, add each camera's judged figures, coverage and
     verdict to its entry, and return (the rig's verdict with its ``faults`` and ``placement``,
     warnings).
@@ -216,13 +221,15 @@ def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, 
         R, t: (N, 3, 3), (N, 3) final poses, world frame; labelled: every labelled wand pair the
             refinement started from (outliers included); tracks: the point tracks, or None;
         seen: (camera (M,), uv (M, 2)) the observations that placed the cameras (coverage).
+        known: (capture frame numbers (F2,), wand ends (F2, 2, 3), world frame) the solver's own
+            wand points, which the judgement uses rather than triangulating them again.
     """
     from wandcal.calib.geometry import camera_centers
 
     warnings = sanity_check(method, rig, cameras, wand_report, world, camera_centers(R, t))
     scaled = wand_report is not None
     focal = np.array([c.focal for c in rig.cameras], float)
-    res = observation_residuals(R, t, labelled, tracks, focal)
+    res = observation_residuals(R, t, labelled, tracks, focal, known)
     figures = camera_figures(res, len(rig.cameras), scaled)
     noise = [f["noise_px"] for f in figures if f["noise_px"]]
     rig_noise = float(np.median(noise)) if noise else None

@@ -272,7 +272,7 @@ def calibrate(
     if all_tracks is not None and info.get("refined_intrinsics"):
         all_tracks = replace(all_tracks, xy=undistort_by_camera(rig.cameras, all_tracks.camera, all_tracks.uv))
     verdict, checks = judge(method, rig, cameras, wand_report, world, R, t, r.labelled, all_tracks, solver,
-                            (seen_cam, seen_uv))
+                            (seen_cam, seen_uv), (setup.frames, wand_pts) if has_wand else None)
     warnings += checks
     solver |= {"total_seconds": time.perf_counter() - started}
     tell({"stage": "done", "message": "calibration finished"})

@@ -24,6 +24,7 @@ MIN_OUTLIER_PX = 1.0  # never call a residual under a pixel an outlier, however 
 # uniformly filled box): far-off points (nearly parallel rays) leave it alone
 EXTENT_QUANTILES = (10.0, 90.0)
 EXTENT_SHARE = 0.8
+RAY_ANGLE_POINTS = 4000  # points the median ray angle is taken over
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,14 +61,36 @@ def _depths(R: np.ndarray, t: np.ndarray, camera: np.ndarray, X: np.ndarray) -> 
     return np.einsum("mj,mj->m", R[camera, 2, :], X) + t[camera, 2]
 
 
-def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks: PointTracks | None,
-                          focal: np.ndarray) -> Residuals:
-    """Triangulate every labelled wand frame and point track with all cameras and measure each
-    observation. A camera-frame that is a gross outlier is left out of its frame's triangulation
-    (worst first, as the refinement does), so that its error stays with its own camera instead of
-    spreading over the frame's others. R, t: (N, 3, 3), (N, 3) final poses; focal: (N, 2) fx, fy."""
+def _wand_points(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known) -> np.ndarray:
+    """(2F, 3) every labelled frame's ends: the solver's where it holds them (``known``: capture
+    frame numbers (F2,) and ends (F2, 2, 3), world frame), triangulated with all cameras elsewhere."""
     point, camera, xy = flatten(pairs)
-    X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames))
+    n = 2 * len(pairs.frames)
+    if known is None or not len(known[0]) or np.shape(known[1])[1:] != (2, 3):
+        return triangulate_points(R, t, point, camera, xy, n)
+    frames, ends = known
+    at = np.clip(np.searchsorted(pairs.frames, frames), 0, max(len(pairs.frames) - 1, 0))
+    held = pairs.frames[at] == frames
+    table = np.full((len(pairs.frames), 2, 3), np.nan)
+    table[at[held]] = ends[held]
+    X = table.reshape(n, 3)
+    missing = ~np.isfinite(X[:, 0])
+    rows = missing[point]
+    if rows.any():  # the frames the solver dropped or never held: triangulated here
+        X[missing] = triangulate_points(R, t, point[rows], camera[rows], xy[rows], n)[missing]
+    return X
+
+
+def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks: PointTracks | None,
+                          focal: np.ndarray, known: tuple[np.ndarray, np.ndarray] | None = None) -> Residuals:
+    """Measure every labelled wand observation and point track against its point: the solver's
+    wand ends where it holds them (``known``: capture frame numbers (F2,), ends (F2, 2, 3)), each
+    other point triangulated with all cameras. A camera-frame that is a gross outlier is left out
+    of its frame's triangulation (worst first, as the refinement does), so that its error stays with
+    its own camera instead of spreading over the frame's others. R, t: (N, 3, 3), (N, 3) final
+    poses; focal: (N, 2) fx, fy."""
+    point, camera, xy = flatten(pairs)
+    X = _wand_points(R, t, pairs, known)
     first = np.linalg.norm(reprojection_errors(R, t, point, camera, xy, X) * focal[camera], axis=1)
     first_camera = camera
     if tracks is not None and len(tracks):
@@ -162,8 +185,12 @@ def median_ray_angle(R: np.ndarray, res: Residuals) -> float | None:
     ray /= np.linalg.norm(ray, axis=1, keepdims=True)
     if len(res.point) < 2:
         return None
-    order = np.argsort(res.point, kind="stable")
-    k, r = res.point[order], ray[order]
+    # a median over every point's rays is a median over a few thousand as well: keep the points
+    # whose index falls on a stride (all their rays, so each point's first ray is among them)
+    stride = max(1, (int(res.point.max()) - int(res.point.min()) + 1) // RAY_ANGLE_POINTS)
+    sample = res.point % stride == 0
+    order = np.argsort(res.point[sample], kind="stable")
+    k, r = res.point[sample][order], ray[sample][order]
     first = np.r_[True, k[1:] != k[:-1]]
     lead = np.maximum.accumulate(np.where(first, np.arange(len(k)), 0))
     cos = np.einsum("mi,mi->m", r, r[lead])[~first]
