@@ -199,7 +199,10 @@ def _out_of_time(rig: Rig, pairs: WandPairs) -> dict[str, int]:
         found = frame_offsets(rig, pairs, OUT_OF_TIME_SEARCH)
     except CalibrationError:  # too few frames yet, or a camera that sees no wand with the others
         return {}
-    return {rig.cameras[c].id: int(found.offsets[c]) for c in range(len(rig.cameras)) if found.offsets[c] != 0}
+    # only a shift that stands out beyond doubt (timing's CLEAR_CONTRAST, share 1): a live warning
+    # must be true, and a slow wand in a trigger-synchronised recording leaves neighbours nearly tied
+    return {rig.cameras[c].id: int(found.offsets[c]) for c in range(len(rig.cameras))
+            if found.offsets[c] != 0 and found.share[c] >= 1.0}
 
 
 def _seen(rig: Rig, wand: WandObservations) -> _Seen:

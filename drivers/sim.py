@@ -74,6 +74,11 @@ class SimScene:
     url: str = "sim://"
     fixed_static: bool = False  # static= given in the URL: the capture's script does not change it
     fixed_wand: bool = False  # frames= given in the URL
+    # the strobe box's counter at the capture's first pulse, whichever camera saw it: every camera
+    # numbers its frames from it, so a camera armed a pulse late shows the same instant as the rest
+    # (numbered from its own first pulse, it showed the scene one frame behind: an out-of-time
+    # camera in a trigger-synchronised recording, which the wanding guidance caught)
+    first_counter: int | None = None
 
     @property
     def total_frames(self) -> int:
@@ -91,6 +96,7 @@ class SimScene:
         if wand != self.wand_frames:
             self.truth = _truth(len(self.rig.cameras), self.seed, wand)[1]
         self.static_frames, self.wand_frames = static, wand
+        self.first_counter = None  # a new capture numbers its frames from its own first pulse
 
     def dropped(self, camera_id: str, sequence: int) -> bool:
         return any(lo <= sequence <= hi for lo, hi in self.drops.get(camera_id, ()))
@@ -139,7 +145,6 @@ class SimCamera(CameraDriver):
         self._start: float | None = None
         self._backgrounds: list[np.ndarray] = []
         self._line: queue.Queue[tuple[int, int]] = queue.Queue()
-        self._first_counter: int | None = None
 
     def script(self, static_frames: int, wand_frames: int) -> None:
         """The capture about to start: see :meth:`SimScene.script` (shared by the scene's cameras)."""
@@ -152,7 +157,6 @@ class SimCamera(CameraDriver):
     def _open(self) -> None:
         self._next = 0
         self._start = None
-        self._first_counter = None
         self._line = queue.Queue()
         cam = self.intrinsics
         scale = (1 << (self.scene.bits - 8))
@@ -197,9 +201,9 @@ class SimCamera(CameraDriver):
             counter, t_us = self._line.get(timeout=timeout)
         except queue.Empty:
             raise FrameTimeout(f"camera {self.camera_id}: no trigger pulse within {timeout:.2f} s") from None
-        if self._first_counter is None:
-            self._first_counter = counter
-        seq = counter - self._first_counter  # a pulse whose line the host lost still exposed a frame
+        if self.scene.first_counter is None or counter < self.scene.first_counter:
+            self.scene.first_counter = counter
+        seq = counter - self.scene.first_counter  # a pulse whose line the host lost still exposed a frame
         self._next = seq + 1
         return seq, t_us
 
