@@ -11,5 +11,8 @@
 | :mod:`~wandcal.calib.solve.lpstep` | one trust-region LP step of the LP method |
 | :mod:`~wandcal.calib.solve.robustloss` | the LP method's piecewise-linear M-estimator loss |
 | :mod:`~wandcal.calib.solve.uncertainty` | pose covariances from the solver's information matrix |
+| :mod:`~wandcal.calib.solve.gauge_free` | the rig's geometry uncertainty apart from the world's placement |
+| :mod:`~wandcal.calib.solve.markerwand` | wands of 3-5 collinear markers in the wand model |
+| :mod:`~wandcal.calib.solve.sync` | cameras without a trigger: sub-frame time offsets and drift |
 | :mod:`~wandcal.calib.solve.backend` | the numerical back-ends: Schur solve, interior point, HiGHS |
 """

@@ -7,7 +7,7 @@ reference camera's clock to within a frame. What is left is modelled per camera 
 
 camera c's frame numbered f showing the wand at the reference instant f + phi_c(f). The
 observations are brought to the reference instants by **resampling the camera's own track in
-time** (:mod:`wandcal.calib.solve.tracks`): the blob of each wand end at frame ``f - phi_c(f)``,
+time** (:mod:`wandcal.calib.solve.sync.tracks`): the blob of each wand end at frame ``f - phi_c(f)``,
 interpolated from its neighbouring frames. The wand moves smoothly at 100 fps, so the
 interpolation error is far below the blob noise.
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.observations import WandPairs
-from wandcal.calib.solve.tracks import SMALL, Tracks, interpolable
+from wandcal.calib.solve.sync.tracks import SMALL, Tracks, interpolable
 from wandcal.calib.triangulate import refine_points, triangulate_points
 
 MAX_ITERATIONS = 8  # Gauss-Newton steps; from within a frame it settles in 3-4
