@@ -1,7 +1,7 @@
 """``wandcal report``: an illustrated calibration report, an ``index.html`` with PNG figures.
 
-matplotlib is an optional extra (``pip install 'wandcal[report]'``); without it
-:func:`write_report` raises :class:`ReportUnavailable` and says so.
+matplotlib comes with wandcal (a core dependency); should it be missing from an environment all
+the same, :func:`write_report` raises :class:`ReportUnavailable` and says how to install it.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from wandcal.capture.results import ResultFile
 INDEX = "index.html"
 RIG_PNG = "rig.png"
 WAND_PNG = "wand-length.png"
-INSTALL_HINT = "pip install 'wandcal[report]'"
+INSTALL_HINT = "pip install matplotlib (a dependency of wandcal: reinstall wandcal, or install it alone)"
 # a report's file names: what write_report makes, and all the service serves from a report folder
 FILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,120}\.(png|html)$")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]+")

@@ -47,7 +47,7 @@ from wandcal.service.report.labels import text_overlaps
 from wandcal.service.report.page import camera_caption, rig_caption
 from wandcal.service.report.store import rendered_report, report_folder
 
-pytest.importorskip("matplotlib", reason="pip install 'wandcal[report]' (in the 'test' extra)")
+pytest.importorskip("matplotlib", reason="matplotlib is a dependency of wandcal: reinstall it")
 
 WEB_FRAMEWORK = {"fastapi", "uvicorn", "starlette", "pydantic", "pydantic_settings", "multipart", "httpx"}
 EMPTY_CAMERA = 1  # cam2: the camera whose left third of the image the wand never reaches
