@@ -255,6 +255,12 @@ def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, 
                                      "advice": report["verdict"]["advice"]}
     named = [{"id": c.id} | r for c, r in zip(rig.cameras, cameras)]
     verdict = rig_verdict(named, wand_report, faults, extent if scaled else None)
+    at_fault = {f["camera"] for f in faults if f["camera"]}
+    dragged = [c["id"] for c in named if c["id"] not in at_fault and c["verdict"]["level"] == "poor"]
+    if at_fault and dragged:  # one camera at fault bends the whole solve: the others are judged again after
+        verdict["reasons"].insert(len(faults), f"{', '.join(dragged)} {'is' if len(dragged) == 1 else 'are'} poor in "
+                                  f"this solve because {', '.join(sorted(at_fault))} bent it: fix "
+                                  f"{'it' if len(at_fault) == 1 else 'them'} and calibrate again before judging the others")
     verdict["placement"] = placement_verdict(world, extent if scaled else None, faults)
     verdict["faults"] = faults
     verdict["volume_m" if scaled else "volume"] = extent

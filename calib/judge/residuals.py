@@ -103,7 +103,10 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
     P = len(pairs)
     worst = np.fmax(first[:P], first[P:len(point)]) if P else np.zeros(0)
     keep = np.ones(P, bool)
-    if np.any(worst > limit):  # a clean rig has none: its one triangulation stands
+    if known is not None:
+        # the solver's points were not pulled by the camera-frames it dropped: each is judged as it stands
+        keep = ~(worst > limit)
+    elif np.any(worst > limit):  # a clean rig has none: its one triangulation stands
         keep = reject_worst_per_frame(R, t, pairs, focal, limit)
         kept_point, kept_camera, kept_xy = flatten(pairs.subset(keep))
         X = triangulate_points(R, t, kept_point, kept_camera, kept_xy, 2 * len(pairs.frames))
