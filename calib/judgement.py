@@ -51,8 +51,9 @@ MIN_RAY_ANGLE_DEG = 2.0
 # a lens pattern in a camera's residuals (no re-solve) that sends it to be isolated: on clean
 # simulated rigs its share stays under 1% (F under 10); a camera whose focal length or k1 is
 # wrong shows 30-70% (F 400-1700) even when its pose absorbed the error and its residual is
-# hardly above the others'; real sessions (easyWand's) reach 15% on a few hundred points, F < 5
-SCREEN_LENS_SHARE = 0.2
+# hardly above the others'; real sessions (easyWand's) reach 15% on a few hundred points, F < 5;
+# a lens error hidden in a poorly covered camera's pose showed 10% at F = 105 (faults.LENS_STRONG_F)
+SCREEN_LENS_SHARE = 0.05
 SCREEN_F_STAT = 100.0
 MAX_SUSPECTS = 2  # the worst cameras looked into; more at fault at once is a rig-wide problem
 MIN_CAMERAS_TO_ISOLATE = 3  # two cameras left cannot say which of them is wrong

@@ -35,6 +35,12 @@ TRIM_SIGMAS = 5.0  # residuals beyond this after a fit are outliers, left out of
 # noise (share ~0.5) doubles the camera's residual, the level at which it stands out of the rig.
 EXPLAINED_SHARE = 0.3
 MIN_T_STAT = 5.0  # and its coefficient is this many standard errors from zero
+# A lens error can hide in a camera's pose: a k1 off by 0.17 on a camera whose samples covered a
+# fifth of its image moved it 5.8 mm while its residual's lens pattern held only 10% of the
+# variance (at F = 105, against F < 10 on every clean camera and F < 5 on easyWand's real
+# sessions). Beyond this F a smaller share names the lens too.
+LENS_STRONG_F = 100.0
+LENS_HIDDEN_SHARE = 0.05
 MIN_OFFSET_FRAMES = 0.1  # an offset under a tenth of a frame is within what a trigger's jitter gives
 POSE_STEP = 1e-6  # finite-difference step of the pose columns, radians and metres
 # observations a camera's lens screen looks at (evenly spaced in the capture): a pattern that
@@ -227,8 +233,9 @@ def classify(timing: Timing | None, lens: Lens | None) -> tuple[str, dict]:
                                   "explained_share": round(lens.explained, 3)}
         if lens.f_stat >= MIN_T_STAT**2:
             lens_share = lens.explained
+    hidden_lens = lens is not None and lens.f_stat >= LENS_STRONG_F and lens.explained >= LENS_HIDDEN_SHARE
     if max(timing_share, lens_share) < EXPLAINED_SHARE:
-        return "unexplained", evidence
+        return ("intrinsics" if hidden_lens and timing_share < EXPLAINED_SHARE else "unexplained"), evidence
     return ("timing" if timing_share >= lens_share else "intrinsics"), evidence
 
 
