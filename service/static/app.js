@@ -16,6 +16,7 @@ const setTokenCookie = () => {
 };
 setTokenCookie();
 let shownJob = null;  // the job the Rig panel shows
+let loadingJob = null;  // the job being fetched for the panel: a poll does not load it twice (each load resets the view)
 let followNewest = true;  // the panel moves on to each newer finished job, until someone picks one with "show"
 let serverSkewS = 0;  // server clock minus this browser's, from the Date header: wait_deadline is server time
 const SIGMA_HISTORY = 120;  // guidance updates kept per camera for its sparkline: two minutes at one a second
@@ -91,7 +92,9 @@ function renderJobs(jobs) {
   }));
   // jobs come newest first: the panel follows the newest finished job, and says when a newer one runs
   const latest = jobs.find((j) => j.state === "done");
-  if (latest && (shownJob === null || (followNewest && latest.id !== shownJob))) showResult(latest.id);
+  if (latest && latest.id !== loadingJob && (shownJob === null || (followNewest && latest.id !== shownJob))) {
+    showResult(latest.id);
+  }
   const newer = jobs.findIndex((j) => j.id === shownJob);
   const pending = jobs.slice(0, Math.max(newer, 0)).find((j) => ["queued", "running"].includes(j.state));
   $("#result-newer").textContent = pending ? `· job ${short(pending.id)} is ${pending.state}; the panel moves to it when it is done` : "";
@@ -223,6 +226,7 @@ async function liveAction(button, path, question) {
 }
 
 async function showResult(jobId) {
+  loadingJob = jobId;
   try {
     const job = await api(`/jobs/${jobId}`);
     if (!job.result) return;
@@ -246,7 +250,9 @@ async function showResult(jobId) {
       s.volume ? "the box is the volume they fill" : null].filter(Boolean);
     $("#rig-note").textContent = said.join("; ");
     section.dataset.drawn = jobId;
-  } catch (err) { $("#health").textContent = err.message; }
+  } catch (err) { $("#health").textContent = err.message; } finally {
+    if (loadingJob === jobId) loadingJob = null;
+  }
 }
 
 async function poll() {
