@@ -68,7 +68,7 @@ STAGES = {
     "static": [("calibrate", "solve_static"), ("calibrate", "world_frame")],
     "refinement": [("calibrate", "build_problem"), ("calibrate", "triangulated"), ("calibrate", "refine"),
                    ("calibrate", "reject_outliers")],
-    "uncertainty": [("calibrate", "_uncertainty_reports")],
+    "uncertainty": [("calibrate", "uncertainty_reports")],
     "write": [("run_calibrate", "to_json"), ("run_calibrate", "_write_result")],
 }
 

@@ -16,8 +16,9 @@ from wandcal.calib.errors import CalibrationError, Failure
 from wandcal.calib.judge import quality
 from wandcal.calib.judgement import judge
 from wandcal.calib.observations import wand_pairs
-from wandcal.calib.pipeline import CalibrationResult, _camera_reports, _summary_warnings
+from wandcal.calib.pipeline import CalibrationResult
 from wandcal.calib.refine import build_problem, refine, reject_outliers, up_direction
+from wandcal.calib.reports import camera_reports, summary_warnings
 from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.solve.uncertainty import world_uncertainty
 from wandcal.calib.start.initial import Initial
@@ -84,7 +85,7 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
     R_new[~moving], t_new[~moving] = R0[~moving], t0[~moving]  # held: bit for bit
     warnings: list[str] = []
     init = Initial(R, t, source)
-    cameras = _camera_reports(rig, r.setup, R_new, t_new, r.wand, init, None, None, True, warnings)
+    cameras = camera_reports(rig, r.setup, R_new, t_new, r.wand, init, None, None, True, warnings)
     if r.covariance is not None:
         # the world is the held cameras': the re-solved poses' uncertainty given them
         center, rotation = world_uncertainty(r.R, r.t, r.covariance, lambda Rp, tp, shift: (np.eye(3), np.zeros(3)))
@@ -93,7 +94,7 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
             report["center_std_mm"] = float(1000 * center[c]) if moving[c] else old.get("center_std_mm")
             report["rotation_std_deg"] = float(np.degrees(rotation[c])) if moving[c] else old.get("rotation_std_deg")
     dropped = dict(pairs.dropped) | {"outliers": r.outliers}
-    _summary_warnings(warnings, dropped, r.info, "ba", len(labelled))
+    summary_warnings(warnings, dropped, r.info, "ba", len(labelled))
     lengths = quality.free_wand_lengths(R_new, t_new, r.setup.problem)
     wand_report = {"length_m": rig.wand_length, "length_mean_m": float(lengths.mean()),
                    "length_std_m": float(lengths.std()), "frames_used": int(r.setup.problem.n_frames)}

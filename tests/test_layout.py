@@ -36,7 +36,7 @@ CALIB_RANK = {
     "sim": 4,
 }
 CORE = {"errors", "rig", "geometry", "observations", "triangulate", "wandlayout"}
-RUN = {"pipeline", "refine", "resolve", "guidance", "judgement"}
+RUN = {"pipeline", "refine", "resolve", "guidance", "judgement", "reports"}
 MAX_MODULES_PER_FOLDER = 12
 
 
