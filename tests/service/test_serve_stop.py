@@ -66,14 +66,14 @@ STATES = {
 }
 
 
-def sigint_and_wait(server) -> float:
+def sigint_and_wait(server, sig: int = signal.SIGINT) -> float:
     sent = time.monotonic()
-    server.proc.send_signal(signal.SIGINT)
+    server.proc.send_signal(sig)
     try:
         server.proc.wait(STOP_LIMIT_S)
     except subprocess.TimeoutExpired:
         server.kill()
-        raise AssertionError(f"serve still running {STOP_LIMIT_S} s after SIGINT:\n{server.log.read_text()[-3000:]}") from None
+        raise AssertionError(f"serve still running {STOP_LIMIT_S} s after signal {sig}:\n{server.log.read_text()[-3000:]}") from None
     return time.monotonic() - sent
 
 
@@ -85,6 +85,17 @@ def test_serve_stops_within_5_s_of_sigint(make_server, big_capture, state):
         STATES[state](c, big_capture[0])
     print(f"{state}: stopped {sigint_and_wait(server):.2f} s after SIGINT")
     assert server.proc.returncode == 0, server.log.read_text()[-3000:]
+    assert "Traceback" not in server.log.read_text()
+
+
+@pytest.mark.slow
+def test_sigterm_stops_it_as_well(make_server, big_capture):
+    server = make_server(workers=1).start()
+    with server.client() as c:
+        start_job(c, big_capture[0])
+    print(f"job running: stopped {sigint_and_wait(server, signal.SIGTERM):.2f} s after SIGTERM")
+    # uvicorn ends by raising the signal again once its shutdown is done: death by SIGTERM is the clean end
+    assert server.proc.returncode in (0, -signal.SIGTERM), server.log.read_text()[-3000:]
     assert "Traceback" not in server.log.read_text()
 
 
