@@ -78,7 +78,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("result", type=Path, help="wandcal-result/1 file")
     p.add_argument("capture", type=Path, help="a fresh wand capture of the same rig")
     p.add_argument("--json", action="store_true", help='print {"cameras": [{"id", "moved", "rms_px", ...}]}')
-    p.add_argument("--quiet", action="store_true", help="no progress line while an image-level capture is detected")
     p.set_defaults(run=run_check)
 
     p = sub.add_parser("demo", help="simulate a rig, calibrate it and compare with the truth")
@@ -186,11 +185,7 @@ EXIT_UNJUDGED = 3  # wandcal check: some camera could not be judged, and none wa
 def run_check(args) -> int:
     from wandcal.calib.judge.evaluate import check_cameras
 
-    progress = ProgressLine(quiet=args.quiet)
-    try:
-        folder = _points_level(args.capture, progress)
-    finally:
-        progress.close()
+    folder = _points_level(args.capture, ProgressLine(quiet=True))
     cap = read_capture(folder)
     if cap.wand is None or not len(cap.wand) or cap.rig.wand_length is None:
         raise CalibrationError(f"{args.capture}: has no wand blobs; 'wandcal check' needs a fresh wand capture")

@@ -220,13 +220,13 @@ class WorkerPool:
     def stop(self, grace_s: float = STOP_GRACE_S) -> None:
         """Stop the workers: idle ones leave at once, a busy one is given ``grace_s`` and then
         killed, its job queued again for the next start. Returns within about ``grace_s`` + 1 s."""
+        deadline = time.monotonic() + grace_s
         self._halt.set()
         self.stop_event.value = 1
         for _ in self.procs:
             self.wake.release()
         if self._monitor is not None:
-            self._monitor.join(MONITOR_INTERVAL_S * 2)
-        deadline = time.monotonic() + grace_s
+            self._monitor.join(grace_s)  # it may be replacing a worker: the new one sees the stop at once
         for proc in self.procs:
             proc.join(max(deadline - time.monotonic(), 0.0))
         for proc in self.procs:

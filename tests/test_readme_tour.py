@@ -124,6 +124,9 @@ def free_port() -> int:
 def serve_and_stop(argv: list[str], cwd: Path) -> None:
     """The tour's serve line on a free port, with the service section's replay root; checked and
     stopped with SIGINT."""
+    service = [" ".join(line) for line in tour_lines("## The service in brief")]
+    # what this function does in place of the section's two lines: the replay root, then the curl
+    assert service[0].startswith("WANDCAL_REPLAY_ROOT=$PWD/out wandcal serve") and "-F path=sim" in service[1]
     port = free_port()
     argv = [port if a == "8750" else a for a in argv]
     env = {k: v for k, v in os.environ.items() if not k.startswith("WANDCAL_")}
@@ -141,7 +144,8 @@ def serve_and_stop(argv: list[str], cwd: Path) -> None:
                 return False
 
         wait_for(healthy, START_TIMEOUT_S, "serve did not answer")
-        r = httpx.post(url + "/captures", data={"path": "sim"}, timeout=30.0)  # the service section's curl
+        # the service section's curl -F path=sim: a multipart form
+        r = httpx.post(url + "/captures", files={"path": (None, "sim")}, timeout=30.0)
         assert r.status_code == 201, r.text
         assert r.json()["cameras"] == [f"cam{i}" for i in range(1, 5)]
     finally:

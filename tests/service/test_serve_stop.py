@@ -11,10 +11,11 @@ from __future__ import annotations
 import signal
 import subprocess
 import time
+from pathlib import Path
 
 import pytest
 
-from tests.service.conftest import capture_files
+from tests.service.conftest import capture_files, simulated_capture
 
 STOP_LIMIT_S = 5.0
 WAIT_S = 60.0  # for a state to be reached on a busy machine
@@ -66,14 +67,14 @@ STATES = {
 }
 
 
-def sigint_and_wait(server) -> float:
+def sigint_and_wait(server, sig: int = signal.SIGINT) -> float:
     sent = time.monotonic()
-    server.proc.send_signal(signal.SIGINT)
+    server.proc.send_signal(sig)
     try:
         server.proc.wait(STOP_LIMIT_S)
     except subprocess.TimeoutExpired:
         server.kill()
-        raise AssertionError(f"serve still running {STOP_LIMIT_S} s after SIGINT:\n{server.log.read_text()[-3000:]}") from None
+        raise AssertionError(f"serve still running {STOP_LIMIT_S} s after signal {sig}:\n{server.log.read_text()[-3000:]}") from None
     return time.monotonic() - sent
 
 
@@ -85,6 +86,17 @@ def test_serve_stops_within_5_s_of_sigint(make_server, big_capture, state):
         STATES[state](c, big_capture[0])
     print(f"{state}: stopped {sigint_and_wait(server):.2f} s after SIGINT")
     assert server.proc.returncode == 0, server.log.read_text()[-3000:]
+    assert "Traceback" not in server.log.read_text()
+
+
+@pytest.mark.slow
+def test_sigterm_stops_it_as_well(make_server, big_capture):
+    server = make_server(workers=1).start()
+    with server.client() as c:
+        start_job(c, big_capture[0])
+    print(f"job running: stopped {sigint_and_wait(server, signal.SIGTERM):.2f} s after SIGTERM")
+    # uvicorn ends by raising the signal again once its shutdown is done: death by SIGTERM is the clean end
+    assert server.proc.returncode in (0, -signal.SIGTERM), server.log.read_text()[-3000:]
     assert "Traceback" not in server.log.read_text()
 
 
@@ -111,3 +123,42 @@ def test_a_path_without_a_replay_root_says_how_to_set_it(tmp_path):
     with TestClient(app, base_url="http://127.0.0.1/api/v1") as c:
         r = c.post("/captures", data={"path": "sim"})
     assert r.status_code == 403 and "WANDCAL_REPLAY_ROOT=" in r.json()["detail"], r.text
+
+
+def test_the_pool_stops_after_a_worker_was_killed_while_idle(tmp_path):
+    """The hang of the report: a cancellation's kill can land on a worker that has just finished
+    the job and gone back to waiting for work. With a multiprocessing Event as the wake-up, every
+    later set() then waited for that dead sleeper; the pool's stop must return anyway."""
+    import threading
+
+    from wandcal.service.db import init_db
+    from wandcal.service.jobs import JobStore
+    from wandcal.service.storage import CaptureStore
+    from wandcal.service.worker import WorkerPool
+
+    db = tmp_path / "wandcal.sqlite"
+    init_db(db)
+    store = JobStore(db)
+    pool = WorkerPool(store, tmp_path, 1)
+    pool.start()
+    first = pool.procs[0]
+    # a job on a capture without wand blobs fails at once: then the worker is in its loop, and an
+    # idle worker spends nearly all its time asleep, waiting for a wake-up; kill it there
+    folder, _ = simulated_capture(tmp_path / "sim", cameras=2, frames=20, seed=1)
+    empty = CaptureStore(tmp_path, db, None).create_from_texts((folder / "rig.json").read_text(), None, None)
+    job = store.create(empty.id, "ba", {})
+    pool.notify()
+    poll(lambda: store.get(job.id).state.value, lambda s: s == "failed", "the worker's first job")
+    poll(lambda: Path(f"/proc/{first.pid}/stat").read_text().split(")")[1].split()[0], lambda s: s == "S",
+         "the idle worker asleep")
+    first.kill()
+    first.join(WAIT_S)
+
+    def notify_then_stop():
+        pool.notify()  # the API's wake-up after a POST /jobs: with an Event this blocked for good
+        pool.stop()
+
+    stopper = threading.Thread(target=notify_then_stop, daemon=True)
+    stopper.start()
+    stopper.join(STOP_LIMIT_S)
+    assert not stopper.is_alive(), "the wake-up or WorkerPool.stop hung after a worker died while waiting"
