@@ -207,14 +207,18 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
     vv = np.einsum("ki,ki->", v[keep], v[keep])
     timing = Timing(offset_frames=best + frac, offset_std_frames=float(sigma / np.sqrt(vv)) if vv > 0 else np.inf,
                     explained=float(max(share, whole)) if rss_best > 0 else 0.0, observations=int(keep.sum()))
-    xk = xy[keep]
-    radius2 = np.sum(xk**2, axis=1, keepdims=True)
-    K = len(xk)
-    lens_cols = np.stack([xk.ravel(), (xk * radius2).ravel(), np.tile([1.0, 0.0], K), np.tile([0.0, 1.0], K)], axis=1)
-    lshare, lcoef, f_stat = _share(y, pose, lens_cols)
-    lens = Lens(focal_error=float(lcoef[0]), k1_error=float(lcoef[1]), principal_error=(float(lcoef[2]), float(lcoef[3])),
-                explained=float(lshare), f_stat=f_stat)
-    return timing, lens
+    return timing, _lens_fit(y, pose, xy[keep])
+
+
+def _lens_fit(y: np.ndarray, pose: np.ndarray, xy: np.ndarray) -> Lens:
+    """The lens pattern of residuals y (2K,) beside the pose columns (2K, 6): a focal-length error
+    (r ~ a x), a k1 error (r ~ dk1 |x|^2 x) and a principal-point shift, at observations xy (K, 2)."""
+    K = len(xy)
+    radius2 = np.sum(xy**2, axis=1, keepdims=True)
+    columns = np.stack([xy.ravel(), (xy * radius2).ravel(), np.tile([1.0, 0.0], K), np.tile([0.0, 1.0], K)], axis=1)
+    share, coef, f_stat = _share(y, pose, columns)
+    return Lens(focal_error=float(coef[0]), k1_error=float(coef[1]), principal_error=(float(coef[2]), float(coef[3])),
+                explained=float(share), f_stat=f_stat)
 
 
 def classify(timing: Timing | None, lens: Lens | None) -> tuple[str, dict]:
@@ -252,9 +256,4 @@ def lens_screen(R: np.ndarray, t: np.ndarray, res, c: int) -> Lens | None:
     xy, r = res.xy[sel], res.residual[sel]
     ok = np.all(np.isfinite(X), axis=1)
     X, xy, r = X[ok], xy[ok], r[ok]
-    K = len(r)
-    radius2 = np.sum(xy**2, axis=1, keepdims=True)
-    lens_cols = np.stack([xy.ravel(), (xy * radius2).ravel(), np.tile([1.0, 0.0], K), np.tile([0.0, 1.0], K)], axis=1)
-    share, coef, f_stat = _share(r.ravel(), _pose_columns(R[c], t[c], X), lens_cols)
-    return Lens(focal_error=float(coef[0]), k1_error=float(coef[1]), principal_error=(float(coef[2]), float(coef[3])),
-                explained=float(share), f_stat=f_stat)
+    return _lens_fit(r.ravel(), _pose_columns(R[c], t[c], X), xy)
