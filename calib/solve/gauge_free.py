@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.geometry import camera_centers
+from wandcal.calib.solve.uncertainty import frame_response
 
 AXIS_POINT_M = 1.0  # the anchor along each optical axis: ties the fit to the cameras' rotations
 MAX_REWEIGHTS = 8
@@ -92,9 +93,7 @@ def _gauge(R: np.ndarray, C: np.ndarray, pivot: np.ndarray, freedoms: int) -> tu
     Ga[..., :3] = -_skew(anchors)
     Ga[..., 3:6] = np.eye(3)
     Gp = np.zeros((n, 6, freedoms))
-    Gp[:, :3, :3] = -_skew(C - pivot)
-    Gp[:, :3, 3:6] = np.eye(3)
-    Gp[:, 3:, :3] = -R
+    Gp[:, :, :6] = frame_response(C, R, pivot)  # a rigid motion of the rig is one of the world frame
     if freedoms == SIMILARITY:
         Ga[..., 6] = anchors
         Gp[:, :3, 6] = C - pivot

@@ -127,7 +127,7 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
         cov += Gm @ pc.centroid_cov @ Gm.T
     if frame_cov is not None:
         # the frame's own error moves every camera together: fully correlated between them
-        A = _frame_response(base_C, base_R, frame_origin).reshape(n * 6, 6)
+        A = frame_response(base_C, base_R, frame_origin).reshape(n * 6, 6)
         cov += A @ frame_cov @ A.T
     cov = cov.reshape(n, 6, n, 6)
     blocks = cov[np.arange(n), :, np.arange(n), :]  # (N, 6, 6)
@@ -210,18 +210,19 @@ def registration_covariance(points: np.ndarray, sigma_m: float) -> tuple[np.ndar
     return cov, centroid
 
 
-def _frame_response(centers: np.ndarray, R: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
+def frame_response(centers: np.ndarray, R: np.ndarray, origin: np.ndarray | None = None) -> np.ndarray:
     """(N, 6, 6) what a small error of the world frame itself (rotation phi about ``origin``,
     translation tau) does to each camera's world centre and its rotation, camera side like every
     rotation here (``R <- exp([w]) R``): dC = -[C - origin]x phi + tau (the frame turns, the camera
-    appears turned the other way), w = -R phi. R: (N, 3, 3) the cameras' world rotations."""
-    origin = np.zeros(3) if origin is None else origin
+    appears turned the other way), w = -R phi. R: (N, 3, 3) the cameras' world rotations. The same
+    map is the rig's rigid gauge freedom (:mod:`wandcal.calib.solve.gauge_free`)."""
+    d = centers - (np.zeros(3) if origin is None else origin)
     out = np.zeros((len(centers), 6, 6))
-    for i, C in enumerate(centers):
-        d = C - origin
-        out[i, :3, :3] = np.array([[0, d[2], -d[1]], [-d[2], 0, d[0]], [d[1], -d[0], 0]])  # -[d]x
-        out[i, :3, 3:] = np.eye(3)
-        out[i, 3:, :3] = -R[i]
+    out[:, 0, 1], out[:, 0, 2] = d[:, 2], -d[:, 1]  # -[d]x
+    out[:, 1, 0], out[:, 1, 2] = -d[:, 2], d[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = d[:, 1], -d[:, 0]
+    out[:, :3, 3:] = np.eye(3)
+    out[:, 3:, :3] = -R
     return out
 
 
