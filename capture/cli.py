@@ -223,7 +223,7 @@ def _sim_scene(cameras: list[CameraDriver]):
 
 
 def _read_rig_file(path: Path) -> Rig:
-    from wandcal.capture.folder import load_json, rig_from_json
+    from wandcal.capture.rig_file import load_json, rig_from_json
 
     try:
         data = path.read_bytes()

@@ -187,8 +187,9 @@ def run_import_svoboda(args) -> int:
 
 
 def _write_import(imported, out: Path) -> int:
-    from wandcal.capture.folder import CAPTURE_FORMAT, CaptureFormatError, save_capture
+    from wandcal.capture.folder import CaptureFormatError, save_capture
     from wandcal.capture.formats import summary_lines
+    from wandcal.capture.rig_file import CAPTURE_FORMAT
 
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise CaptureFormatError(f"{out}: already exists and is not an empty folder; choose a new --out folder")

@@ -14,8 +14,9 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Camera, Rig
-from wandcal.capture.folder import MAX_IMAGE_SIDE_PX, CaptureFormatError, positive_number
+from wandcal.capture.folder import CaptureFormatError
 from wandcal.capture.result_schema import CAMERA_FIELDS, RESULT_FIELDS, check_fields
+from wandcal.capture.rig_file import MAX_IMAGE_SIDE_PX, positive_number
 
 RESULT_FORMAT = "wandcal-result/1"
 ROTATION_TOLERANCE = 1e-6  # |R^T R - I|: a result written by wandcal is orthonormal to ~1e-15

@@ -21,7 +21,8 @@ import time
 from collections.abc import Callable
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.capture.folder import Capture, parse_static_csv, parse_wand_csv, rig_from_json
+from wandcal.capture.folder import Capture, parse_static_csv, parse_wand_csv
+from wandcal.capture.rig_file import rig_from_json
 from wandcal.service.jobs import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
 from wandcal.service.worker import JobStopped, ThrottledProgress, solve
 

@@ -29,16 +29,15 @@ from wandcal.capture.folder import (
     Capture,
     CaptureFormatError,
     check_wandless,
-    load_json,
     parse_axis_csv,
     parse_points_csv,
     parse_static_csv,
     parse_wand_csv,
     read_capture,
     read_rig,
-    rig_from_json,
     save_capture,
 )
+from wandcal.capture.rig_file import load_json, rig_from_json
 from wandcal.service.db import connect, transaction
 
 CAPTURE_ID = re.compile(r"^[0-9a-f]{32}$")

@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from tests.reliability.fuzzing import TRIED
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import CAMERA_ID, Camera
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, CaptureFormatError, read_capture, rig_from_json, write_capture
+from wandcal.capture.folder import RIG_FILE, WAND_FILE, CaptureFormatError, read_capture, write_capture
+from wandcal.capture.rig_file import rig_from_json
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings
 

@@ -15,7 +15,8 @@ from tests.reliability.fuzzing import TRIED
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.pipeline import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.capture.folder import CaptureFormatError, rig_from_json, rig_to_json
+from wandcal.capture.folder import CaptureFormatError, rig_to_json
+from wandcal.capture.rig_file import rig_from_json
 
 EXTREME = st.one_of(st.sampled_from([1e308, -1e308, 1e-308, -1e-308, 0.0, 1e6 + 1, 1e12, -1e12, 5e-324, 1e-12]),
                     st.floats(-1e15, 1e15, allow_nan=False))

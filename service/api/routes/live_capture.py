@@ -28,9 +28,10 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 
-from wandcal.capture.folder import CaptureFormatError, read_capture, rig_from_json
+from wandcal.capture.folder import CaptureFormatError, read_capture
 from wandcal.capture.guidance import LiveGuidance
 from wandcal.capture.record import ImagePolicy
+from wandcal.capture.rig_file import rig_from_json
 from wandcal.capture.session import Progress, record
 from wandcal.drivers.errors import DriverError
 from wandcal.service.api.deps import State

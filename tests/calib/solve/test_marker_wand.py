@@ -155,7 +155,8 @@ def test_gross_outliers_stay_out_of_every_marker_pair(method):
 
 
 def test_rig_json_errors_name_the_file_and_field():
-    from wandcal.capture.folder import CaptureFormatError, rig_from_json, rig_to_json
+    from wandcal.capture.folder import CaptureFormatError, rig_to_json
+    from wandcal.capture.rig_file import rig_from_json
 
     doc = rig_to_json(simulate_capture(2, 10, seed=0, wand_markers=CW500_M).rig)
     assert doc["wand"]["markers_m"] == CW500_M.tolist() and doc["wand"]["length_m"] == pytest.approx(0.5)

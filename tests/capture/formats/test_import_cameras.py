@@ -9,8 +9,9 @@ import pytest
 
 from wandcal.calib.rig import Camera
 from wandcal.calib.sim.simulate import ring_cameras
-from wandcal.capture.folder import read_rig, rig_from_json
+from wandcal.capture.folder import read_rig
 from wandcal.capture.formats.export import FORMAT_NAMES
+from wandcal.capture.rig_file import rig_from_json
 from wandcal.service.cli import main
 
 # exporters print floats with repr(): a conversion on the way (quaternion, RQ decomposition, mm)
