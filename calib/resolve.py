@@ -89,10 +89,10 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
     if r.covariance is not None:
         # the world is the held cameras': the re-solved poses' uncertainty given them
         center, rotation = world_uncertainty(r.R, r.t, r.covariance, lambda Rp, tp, shift: (np.eye(3), np.zeros(3)))
-        for c, report in enumerate(cameras):
-            old = (previous or [{}] * len(cameras))[c]
-            report["center_std_mm"] = float(1000 * center[c]) if moving[c] else old.get("center_std_mm")
-            report["rotation_std_deg"] = float(np.degrees(rotation[c])) if moving[c] else old.get("rotation_std_deg")
+        for k, report in enumerate(cameras):
+            old = (previous or [{}] * len(cameras))[k]
+            report["center_std_mm"] = float(1000 * center[k]) if moving[k] else old.get("center_std_mm")
+            report["rotation_std_deg"] = float(np.degrees(rotation[k])) if moving[k] else old.get("rotation_std_deg")
     dropped = dict(pairs.dropped) | {"outliers": r.outliers}
     summary_warnings(warnings, dropped, r.info, "ba", len(labelled))
     lengths = quality.free_wand_lengths(R_new, t_new, r.setup.problem)

@@ -194,7 +194,7 @@ class CameraDetector:
             raise CalibrationError(f"camera {camera}: an empty-volume background is only used with background "
                                    f"'empty', not {model!r}")
         self.background = None if background is None else _check_image(background, f"camera {camera}: background")
-        self.mask = None if mask is None else MaskIndex(mask, getattr(mask, "shape", ()), f"camera {camera}: mask")
+        self.mask = None if mask is None else MaskIndex(mask, getattr(mask, "shape", (0, 0)), f"camera {camera}: mask")
         self.running = (bg.RunningBackground(self.config.running_frames, self.config.highpass_px)
                         if model == "running" else None)
 

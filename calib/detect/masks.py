@@ -118,7 +118,7 @@ def block_visible(bright: Sequence[np.ndarray], presence: float = BLOCK_PRESENCE
     blocked = (count >= max(1, int(np.ceil(presence * len(bright))))).view(np.uint8)
     if margin_px:
         kernel = np.ones((2 * margin_px + 1, 2 * margin_px + 1), np.uint8)
-        blocked = cv2.dilate(blocked, kernel)
+        blocked = np.asarray(cv2.dilate(blocked, kernel), np.uint8)
     used = blocked == 0
     if not used.any():
         raise CalibrationError(f"{where}: every pixel is bright in the empty volume; check the exposure, or "

@@ -119,22 +119,23 @@ def measure_roi(weight: np.ndarray, x0: int, y0: int, config: DetectConfig) -> l
     # no mask of their own.
     mask = weight if weight.dtype == np.uint8 else (weight > 0).view(np.uint8)
     count, labels = cv2.connectedComponents(mask, connectivity=config.connectivity)
-    out = []
+    out: list[tuple] = []
     if count == 2:
         # The common case, a region holding one blob: OpenCV's moments of the weights are exact
         # and cost a few microseconds, and no per-label statistics are needed.
-        area = cv2.countNonZero(weight)
-        if not config.min_area_px <= area <= config.max_area_px:
+        one_area = cv2.countNonZero(weight)
+        if not config.min_area_px <= one_area <= config.max_area_px:
             return out
         m = cv2.moments(weight)
-        if m["m00"] <= 0:
+        mass = m["m00"]
+        if mass <= 0:
             return out
-        m00 = m["m00"]
-        a, c, b = m["mu20"] / m00 + PIXEL_VARIANCE_PX2, m["mu02"] / m00 + PIXEL_VARIANCE_PX2, m["mu11"] / m00
+        a, c, b = m["mu20"] / mass + PIXEL_VARIANCE_PX2, m["mu02"] / mass + PIXEL_VARIANCE_PX2, m["mu11"] / mass
         half_gap, mean = math.hypot((a - c) / 2.0, b), (a + c) / 2.0  # the eigenvalues, as roundness()
-        r = math.sqrt(max(mean - half_gap, 0.0) / (mean + half_gap))
+        one_round = math.sqrt(max(mean - half_gap, 0.0) / (mean + half_gap))
         h, w = weight.shape
-        out.append((x0 + m["m10"] / m00, y0 + m["m01"] / m00, area, r, m00, x0, y0, x0 + w - 1, y0 + h - 1))
+        out.append((x0 + m["m10"] / mass, y0 + m["m01"] / mass, one_area, one_round, mass,
+                    x0, y0, x0 + w - 1, y0 + h - 1))
         return out
     if count < 2:
         return out

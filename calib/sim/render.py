@@ -74,7 +74,7 @@ def render_blobs(
         py = 0.5 * np.diff(ey)
         # The continuous Gaussian a*exp(-r^2/2s^2) holds volume a*2*pi*s^2; the pixel gets its share.
         light[y0:y1, x0:x1] += (a * 2.0 * np.pi * s * s) * np.outer(py, px)
-    if noise > 0:
+    if noise > 0 and rng is not None:  # checked above: noise needs rng
         light += rng.normal(0.0, noise, light.shape)
     full_scale = 2**bit_depth - 1
     dtype = np.uint8 if bit_depth == 8 else np.uint16

@@ -33,7 +33,7 @@ def prepared_scene(cameras=5, frames=300, noise_px=0.5, seed=0, outliers=0.0, st
     """Simulate a capture and take it through observations, initial poses, labels and problem set-up."""
     sim = simulate_capture(cameras, frames, noise_px, outliers, static, seed)
     pairs = wand_pairs(sim.rig, sim.wand)
-    init = initial_poses(sim.rig, pairs, solve_static(sim.rig, sim.static) if static else None)
+    init = initial_poses(sim.rig, pairs, solve_static(sim.rig, sim.static) if sim.static is not None else None)
     labelled, _ = label_ends(init.R, init.t, pairs, np.ones(cameras, bool), sim.rig.wand_length)
     setup = build_problem(sim.rig, labelled, init.R, init.t)
     return PreparedScene(sim, pairs, init, labelled, setup)
@@ -102,6 +102,8 @@ def knocked_capture(sim: SimulatedCapture, camera: int, degrees: float, metres: 
     with the rig's true poses after the knock."""
     from wandcal.calib.sim.simulate import observe_wand, wand_path
 
+    if sim.rig.wand_length is None:
+        raise ValueError("knocked_capture: the simulated rig has no wand to film")
     rng = np.random.default_rng(seed)
     R, t = sim.truth.R.copy(), sim.truth.t.copy()
     axis = rng.normal(size=3)

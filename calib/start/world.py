@@ -134,6 +134,8 @@ def _static_fit(rig: Rig, static: StaticObservations, static_poses, R, t):
     their known coordinates. Returns (Rw, tw, rms_m, camera ids, the scale of a similarity fit
     (markers over triangulated: the wand's scale against the markers'), that fit's rms_m) or None."""
     markers = rig.static_markers
+    if markers is None:
+        return None
     usable = [c for c, p in enumerate(static_poses) if isinstance(p, StaticPose)]
     unique = [c for c in usable if static_poses[c].unique]
     for cams in ([unique] if len(unique) >= 2 else []) + [usable]:
@@ -177,6 +179,8 @@ def static_fit_expectation(rig: Rig, static: StaticObservations, static_poses, R
     ids = [c.id for c in rig.cameras]
     cams = [ids.index(c) for c in cameras_used]
     point, camera, xy = _static_views(rig, static, static_poses, cams)
+    if rig.static_markers is None:
+        return None
     M = len(rig.static_markers)
     X = triangulate_points(R, t, point, camera, xy, M)
     keep = np.all(np.isfinite(X[point]), axis=1)
