@@ -82,6 +82,16 @@ def shift_frames(wand: WandObservations, offsets: np.ndarray) -> WandObservation
     return WandObservations(wand.frame + np.asarray(offsets, dtype=np.int64)[wand.camera], wand.camera, wand.uv)
 
 
+def shift_pairs(pairs: WandPairs, offsets: np.ndarray) -> WandPairs:
+    """The pairs with each camera's frames renumbered as :func:`shift_frames` renumbers the blobs
+    (the same pairs as grouping the shifted blobs again, in the same order, without undistorting
+    them again)."""
+    number = pairs.frames[pairs.frame] + np.asarray(offsets, dtype=np.int64)[pairs.camera]
+    order = np.lexsort((pairs.camera, number))
+    frames, frame = np.unique(number[order], return_inverse=True)
+    return WandPairs(frame, pairs.camera[order], pairs.xy[order], pairs.uv[order], frames, pairs.dropped)
+
+
 def frame_offsets(
     rig: Rig, pairs: WandPairs, max_offset: int = DEFAULT_MAX_OFFSET, start: np.ndarray | None = None,
     reference: int | None = None,
@@ -270,10 +280,10 @@ def _midpoint_scores(pairs: WandPairs, table: np.ndarray, a: int, b: int, lags: 
     dist = np.zeros(rows_b.shape)
     for _ in range(TRIM_PASSES):
         w = rows * keep[..., None]
-        _, vecs = np.linalg.eigh(np.einsum("ski,skj->sij", w, rows))
+        _, vecs = np.linalg.eigh(np.matmul(w.transpose(0, 2, 1), rows))
         F = vecs[:, :, 0].reshape(-1, 3, 3)
-        Fx = np.einsum("sij,kj->ski", F, h1)
-        Fty = np.einsum("ski,sij->skj", h2, F)
+        Fx = np.matmul(h1, F.transpose(0, 2, 1))  # (S, K, 3): F x1 for each frame
+        Fty = np.matmul(h2, F)
         num = np.einsum("ski,ski->sk", h2, Fx) ** 2
         den = np.maximum(Fx[..., 0] ** 2 + Fx[..., 1] ** 2 + Fty[..., 0] ** 2 + Fty[..., 1] ** 2, 1e-300)
         dist = np.where(valid, np.sqrt(num / den), np.inf)

@@ -24,7 +24,7 @@ reference's own share is added (docs/sync.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,6 +34,10 @@ from wandcal.calib.triangulate import refine_points, triangulate_points
 
 MAX_ITERATIONS = 8  # Gauss-Newton steps; from within a frame it settles in 3-4
 STEP_TOLERANCE = 1e-4  # frames: a twentieth of the smallest standard error at 0.3 px and 1-4 m/s
+# or when every offset's step is this share of its own standard error: a step that small moves
+# the estimate by nothing the data can tell (its variance grows by 1-2%), and the last steps
+# wander by about this much anyway as the outlier cut flips a few observations in and out
+STEP_SHARE_OF_SE = 0.15
 MAX_STEP = 1.0  # frames a step may move an offset: the interpolant's slope is trusted that far
 OUTLIER_LIMIT = 4.0  # robust sigmas: an observation beyond is left out of a step (chi2 with 2 dof: 3e-4 of clean ones)
 MIN_OUTLIER_PX = 1.0  # never cut closer than this, so a clean rig keeps all its observations
@@ -114,17 +118,19 @@ def fit_timing(
     R, t = np.array(R, dtype=float), np.array(t, dtype=float)
     k = 2 if drift else 1
     width = POSE + k if poses else k  # each camera's columns: [rotation, translation,] phase[, drift]
-    held = ~interpolable(pairs, focal)
+    tracks = Tracks(pairs, n)
+    rows = np.flatnonzero(np.isin(pairs.frame, spread_frames(len(pairs.frames), max_frames)))
+    held = ~interpolable(pairs, focal, tracks, rows)
     held[reference] = True
+    if held.all():  # no camera's timing can be fitted (a digitised session): nothing to refine
+        return replace(model, R=R if poses else None, t=t if poses else None, held=held)
     free = np.ones((n, width), bool)
     free[held, width - k :] = False
     cols = np.flatnonzero(free.ravel())
-    tracks = Tracks(pairs, n)
-    rows = np.flatnonzero(np.isin(pairs.frame, spread_frames(len(pairs.frames), max_frames)))
     sub = pairs.subset(rows)
     X = None
     for iteration in range(1, max_iterations + 1):
-        xy, vel, keep, _ = tracks.resample(model.phase, model.drift, model.centre, rows)
+        xy, vel, keep, _ = tracks.resample(model.phase, model.drift, model.centre, rows, pixels=False)
         S, rhs, sigma, used, X = _normal_equations(R, t, sub, xy, vel, keep, focal, model.centre, k, poses, X)
         Sf = S[np.ix_(cols, cols)]
         # the poses' similarity gauge (points free, no wand length) is S's null space, orthogonal
@@ -136,7 +142,7 @@ def fit_timing(
         step = full.reshape(n, width)
         time_step = np.clip(step[:, width - k :], -MAX_STEP, MAX_STEP)
         if poses:
-            R, t = _moved(R, t, step[:, :POSE])
+            R, t = _moved(R, t, _without_gauge(R, t, step[:, :POSE]))
         cov_full = np.zeros((n * width, n * width))
         cov_full[np.ix_(cols, cols)] = inv * sigma**2
         cov = np.zeros((n, 2, 2))
@@ -147,9 +153,28 @@ def fit_timing(
                        cov, sigma, used, iteration, R if poses else None, t if poses else None, held)
         # the offsets settle with the poses (their steps are solved together); the poses' own steps
         # never fall below ~5e-5 along the similarity gauge, which the damping only slows
-        if np.abs(time_step).max() < STEP_TOLERANCE:
+        se = np.sqrt(np.maximum(cov[:, np.arange(k), np.arange(k)], 0.0))
+        if np.all(np.abs(time_step) <= np.maximum(STEP_TOLERANCE, STEP_SHARE_OF_SE * se)):
             break
     return model
+
+
+def _without_gauge(R: np.ndarray, t: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """The pose step (N, 6) less its part along the similarity gauge (a rotation, translation or
+    scaling of the world moves every pose and leaves the residuals as they are). The damping
+    leaves that part to rounding: on a real session it moved the cameras by millimetres at random.
+
+    In R <- exp([w]x) R, t <- t + dt, a world rotation by omega is w = -R omega, a world shift by
+    tau is dt = -R tau, and a scaling by (1 + s) is dt = s t.
+    """
+    n = len(R)
+    N = np.zeros((n, POSE, 7))
+    N[:, :3, :3] = -R
+    N[:, 3:, 3:6] = -R
+    N[:, 3:, 6] = t
+    N = N.reshape(n * POSE, 7)
+    flat = step.reshape(-1)
+    return (flat - N @ np.linalg.lstsq(N, flat, rcond=None)[0]).reshape(n, POSE)
 
 
 def _moved(R: np.ndarray, t: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -237,12 +262,19 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     M = len(r)
     H = _sums(point, np.einsum("mai,maj->mij", A, A), 2 * F)
     ar = _sums(point, np.einsum("mai,ma->mi", A, r), 2 * F)
-    D = _sums(cam, np.einsum("mak,mal->mkl", G, G), n)
-    gr = _sums(cam, np.einsum("mak,ma->mk", G, r), n)
+    D = np.zeros((n, width, width))
+    gr = np.zeros((n, width))
+    for c in range(n):  # a camera's block is one product over its observations
+        mine = cam == c
+        Gc = G[mine].reshape(-1, width)
+        D[c], gr[c] = Gc.T @ Gc, Gc.T @ r[mine].ravel()
     seen = np.flatnonzero(np.bincount(point, minlength=2 * F) >= 2)
     slot = np.full(2 * F, -1)
     slot[seen] = np.arange(len(seen))
-    B = _sums(slot[point] * n + cam, np.einsum("mai,mak->mik", A, G), len(seen) * n)  # (Ps n, 3, w)
+    # a camera sees a wand end once, so each (end, camera) block of B is one observation's A^T G
+    B = np.zeros((len(seen) * n, 3, width))
+    at = slot[point] >= 0
+    B[slot[point[at]] * n + cam[at]] = np.matmul(A[at].transpose(0, 2, 1), G[at])
     B = B.reshape(len(seen), n, 3, width).transpose(0, 2, 1, 3).reshape(len(seen), 3, n * width)
     Hinv = np.linalg.inv(H[seen] + np.eye(3) * SMALL)
     W = np.einsum("pij,pjq->piq", Hinv, B)

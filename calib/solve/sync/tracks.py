@@ -23,17 +23,23 @@ DENSE_SHARE = 0.5
 ROUGH_PX = 5.0
 
 
-def interpolable(pairs: WandPairs, focal: np.ndarray) -> np.ndarray:
+def interpolable(pairs: WandPairs, focal: np.ndarray, tracks: Tracks | None = None,
+                 rows: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: whether each camera's wand track can be interpolated in time. At least
     ``DENSE_SHARE`` of its frames must have a frame on either side, and the track must be smooth:
     the median distance of an end from the cubic through its four neighbouring frames
     ((-p[-2] + 4 p[-1] + 4 p[1] - p[2]) / 6) must be under ``ROUGH_PX``.
 
     Args:
-        pairs: labelled wand pairs; focal: (N, 2) pixels.
+        pairs: labelled wand pairs; focal: (N, 2) pixels; tracks: their tracks, when already built;
+        rows: the pair rows judged (default all; a fit judges the frames it uses).
     """
     n = len(focal)
-    tracks = Tracks(pairs, n)
+    tracks = tracks or Tracks(pairs, n)
+    every = pairs.xy  # the neighbouring frames' rows index all the pairs
+    parity = tracks.parity
+    if rows is not None:
+        pairs, parity = pairs.subset(rows), parity[rows]
     f = pairs.frames[pairs.frame] - tracks.first + 1
     span = len(tracks.table)
     idx = f[:, None] + np.array([-2, -1, 1, 2])[None, :]
@@ -45,8 +51,8 @@ def interpolable(pairs: WandPairs, focal: np.ndarray) -> np.ndarray:
     full: np.ndarray = np.all(window >= 0, axis=1)
     err = np.zeros(len(pairs))
     for e in range(2):
-        end = np.repeat(np.logical_xor(tracks.parity, bool(e)).astype(np.int64)[:, None], 4, axis=1)
-        pts = np.where(full[:, None, None], tracks.track(window, end, pairs.xy), 0.0)
+        end = np.repeat(np.logical_xor(parity, bool(e)).astype(np.int64)[:, None], 4, axis=1)
+        pts = np.where(full[:, None, None], tracks.track(window, end, every), 0.0)
         pred = (-pts[:, 0] + 4 * pts[:, 1] + 4 * pts[:, 2] - pts[:, 3]) / 6
         err = np.maximum(err, np.linalg.norm((pred - pairs.xy[:, e]) * focal[pairs.camera], axis=1))
     smooth = np.array([np.median(err[full & (pairs.camera == c)]) < ROUGH_PX if (full & (pairs.camera == c)).any()
@@ -84,10 +90,12 @@ class Tracks:
         start_parity[run[first_of_run]] = parity[first_of_run] - flip[first_of_run]
         self.parity[order] = ((parity - start_parity[run]) % 2).astype(bool)
 
-    def resample(self, phase: np.ndarray, drift: np.ndarray, centre: np.ndarray, rows: np.ndarray | None = None):
+    def resample(self, phase: np.ndarray, drift: np.ndarray, centre: np.ndarray, rows: np.ndarray | None = None,
+                 pixels: bool = True):
         """(xy (Q, 2, 2), velocity (Q, 2, 2) normalised units a frame, keep (Q,), uv (Q, 2, 2))
         of the pair rows ``rows`` (Q,) (default all), each camera c's frame f sampled at
-        f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames)."""
+        f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames).
+        ``pixels=False`` leaves uv at zero (a fit needs only xy)."""
         p = self.pairs if rows is None else self.pairs.subset(rows)
         parity = self.parity if rows is None else self.parity[rows]
         f = p.frames[p.frame].astype(float)
@@ -100,19 +108,18 @@ class Tracks:
         idx = i0[:, None] + np.arange(-1, 3)[None, :]  # (P, 4) frames i0-1 .. i0+2
         inside = (idx >= 0) & (idx < span)
         window = np.where(inside, self.table[np.clip(idx, 0, span - 1), p.camera[:, None]], -1)
-        xy = np.zeros((len(p), 2, 2))
-        uv = np.zeros((len(p), 2, 2))
-        vel = np.zeros((len(p), 2, 2))
-        keep = np.ones(len(p), bool)
-        for e in range(2):
-            # row q's end e is the track's end e ^ parity[p], whichever frame holds it
-            end = np.repeat((parity ^ bool(e)).astype(np.int64)[:, None], 4, axis=1)
-            pts = self.track(window, end, self.pairs.xy)
-            raw = self.track(window, end, self.pairs.uv)
-            value, slope, ok = interpolate(pts, u)
-            xy[:, e], vel[:, e] = value, slope
-            uv[:, e] = interpolate(raw, u)[0]
-            keep &= ok
+        # row q's end e is the track's end e ^ parity[q], whichever frame holds it: both ends (and
+        # their pixels) interpolated in one pass, (Q, 4, 4 or 8)
+        ok_row = window >= 0
+        r = np.where(ok_row, window, 0)
+        e0 = parity[:, None] ^ self.parity[r]
+        parts = [self.pairs.xy[r, e0.astype(np.int64)], self.pairs.xy[r, (~e0).astype(np.int64)]]
+        if pixels:
+            parts += [self.pairs.uv[r, e0.astype(np.int64)], self.pairs.uv[r, (~e0).astype(np.int64)]]
+        pts = np.where(ok_row[..., None], np.concatenate(parts, axis=2), np.nan)
+        value, slope, keep = interpolate(pts, u)
+        xy, vel = value[:, :4].reshape(-1, 2, 2), slope[:, :4].reshape(-1, 2, 2)
+        uv = value[:, 4:].reshape(-1, 2, 2) if pixels else np.zeros((len(p), 2, 2))
         return xy, vel, keep, uv
 
     def track(self, rows: np.ndarray, end: np.ndarray, what: np.ndarray) -> np.ndarray:
@@ -126,7 +133,8 @@ class Tracks:
 
 
 def interpolate(pts: np.ndarray, u: np.ndarray):
-    """Value and slope (per frame) at i0 + u from samples at i0-1 .. i0+2 (P, 4, 2).
+    """Value and slope (per frame) at i0 + u from samples at i0-1 .. i0+2 (P, 4, D), a sample
+    present in all D columns or in none.
 
     The value is the cubic through the four where all four are there, else the line through
     i0 and i0 + 1, else at u = 0 the sample itself. The slope is the secant over the outer two,
@@ -142,7 +150,8 @@ def interpolate(pts: np.ndarray, u: np.ndarray):
     filled = np.where(have[..., None], pts, 0.0)
     cubic = have.all(1)
     line = have[:, 1] & have[:, 2]
-    value = np.where(cubic[:, None], (w * filled).sum(1), filled[:, 1] + uu * (filled[:, 2] - filled[:, 1]))
+    value = np.where(cubic[:, None], np.einsum("pj,pjd->pd", w[:, :, 0], filled),
+                     filled[:, 1] + uu * (filled[:, 2] - filled[:, 1]))
     at_frame = (u == 0) & have[:, 1] & ~line
     value = np.where(at_frame[:, None], filled[:, 1], value)
     slope = np.where((have[:, 0] & have[:, 3])[:, None], (filled[:, 3] - filled[:, 0]) / 3, 0.0)
