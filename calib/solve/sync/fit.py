@@ -34,10 +34,10 @@ from wandcal.calib.triangulate import refine_points, triangulate_points
 
 MAX_ITERATIONS = 8  # Gauss-Newton steps; from within a frame it settles in 3-4
 STEP_TOLERANCE = 1e-4  # frames: a twentieth of the smallest standard error at 0.3 px and 1-4 m/s
-# or when every offset's step is this share of its own standard error: a step that small moves
-# the estimate by nothing the data can tell (its variance grows by 1-2%), and the last steps
-# wander by about this much anyway as the outlier cut flips a few observations in and out
-STEP_SHARE_OF_SE = 0.15
+# or when every offset's step is this share of its own standard error: with the outliers settled
+# (SETTLED_STEP) each step is a tenth of the last or less, so what is left after a step this small
+# is a few hundredths of a standard error, nothing the data can tell
+STEP_SHARE_OF_SE = 0.3
 MAX_STEP = 1.0  # frames a step may move an offset: the interpolant's slope is trusted that far
 OUTLIER_LIMIT = 4.0  # robust sigmas: an observation beyond is left out of a step (chi2 with 2 dof: 3e-4 of clean ones)
 MIN_OUTLIER_PX = 1.0  # never cut closer than this, so a clean rig keeps all its observations
@@ -46,6 +46,11 @@ MIN_OUTLIER_PX = 1.0  # never cut closer than this, so a clean rig keeps all its
 # (2-3 SE) low and the rig 1.4x the synchronised one's error, at 800 within 0.0023 and 1.1x
 # (docs/decisions/0018-sync-from-the-wand.md)
 MAX_FIT_FRAMES = 800
+# once no offset moves by more than this (frames), the observations left out as outliers are kept
+# out for the rest of the fit: judged again at each step, a few flip in and out, and the fast
+# wand's, whose interpolation is the roughest and whose weight in an offset the largest, moved
+# the offsets by half a standard error a step, back and forth, for as many steps as were allowed
+SETTLED_STEP = 0.02
 POSE = 6  # a pose's columns: rotation increment (radians), translation (metres)
 GAUGE_DAMPING = 1e-9  # relative to S's largest diagonal entry: pins the gauge, moves the offsets by ~1e-9 of theirs
 
@@ -128,10 +133,11 @@ def fit_timing(
     free[held, width - k :] = False
     cols = np.flatnonzero(free.ravel())
     sub = pairs.subset(rows)
-    X = None
+    X = cut = frozen = None
     for iteration in range(1, max_iterations + 1):
-        xy, vel, keep, _ = tracks.resample(model.phase, model.drift, model.centre, rows, pixels=False)
-        S, rhs, sigma, used, X = _normal_equations(R, t, sub, xy, vel, keep, focal, model.centre, k, poses, X)
+        xy, vel, keep, _, spread = tracks.resample(model.phase, model.drift, model.centre, rows, pixels=False)
+        S, rhs, sigma, used, X, cut = _normal_equations(R, t, sub, xy, vel, keep, focal, model.centre, k, poses, X,
+                                                        frozen, spread)
         Sf = S[np.ix_(cols, cols)]
         # the poses' similarity gauge (points free, no wand length) is S's null space, orthogonal
         # to every offset: a faint damping of the pose columns pins it, and leaves the offsets alone
@@ -151,11 +157,12 @@ def fit_timing(
             cov[c, :k, :k] = cov_full[at : at + k, at : at + k]
         model = Timing(model.phase + time_step[:, 0], model.drift + (time_step[:, 1] if drift else 0.0), model.centre,
                        cov, sigma, used, iteration, R if poses else None, t if poses else None, held)
-        # the offsets settle with the poses (their steps are solved together); the poses' own steps
-        # never fall below ~5e-5 along the similarity gauge, which the damping only slows
+        # the offsets settle with the poses (their steps are solved together)
         se = np.sqrt(np.maximum(cov[:, np.arange(k), np.arange(k)], 0.0))
         if np.all(np.abs(time_step) <= np.maximum(STEP_TOLERANCE, STEP_SHARE_OF_SE * se)):
             break
+        if frozen is None and np.abs(time_step).max() < SETTLED_STEP:
+            frozen = cut
     return model
 
 
@@ -172,9 +179,9 @@ def _without_gauge(R: np.ndarray, t: np.ndarray, step: np.ndarray) -> np.ndarray
     N[:, :3, :3] = -R
     N[:, 3:, 3:6] = -R
     N[:, 3:, 6] = t
-    N = N.reshape(n * POSE, 7)
+    basis = N.reshape(n * POSE, 7)
     flat = step.reshape(-1)
-    return (flat - N @ np.linalg.lstsq(N, flat, rcond=None)[0]).reshape(n, POSE)
+    return (flat - basis @ np.linalg.lstsq(basis, flat, rcond=None)[0]).reshape(n, POSE)
 
 
 def _moved(R: np.ndarray, t: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -194,7 +201,7 @@ def resample(pairs: WandPairs, timing: Timing) -> tuple[WandPairs, np.ndarray]:
     """The pairs brought to the reference instants (module docstring), and keep (P,) bool: the
     rows whose neighbouring frames let them be resampled (the others are left out)."""
     n = int(pairs.camera.max()) + 1 if len(pairs) else 0
-    xy, _, keep, uv = Tracks(pairs, max(n, len(timing.phase))).resample(timing.phase, timing.drift, timing.centre)
+    xy, _, keep, uv, _ = Tracks(pairs, max(n, len(timing.phase))).resample(timing.phase, timing.drift, timing.centre)
     out = WandPairs(pairs.frame, pairs.camera, xy, uv, pairs.frames, pairs.dropped).subset(keep)
     return out, keep
 
@@ -205,10 +212,13 @@ def _centres(pairs: WandPairs, n: int) -> np.ndarray:
     return np.bincount(pairs.camera, f, minlength=n) / np.maximum(count, 1)
 
 
-def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, poses, X_last=None):
+def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, poses, X_last=None, cut=None,
+                      spread=None):
     """The reduced normal equations of each camera's [pose,] phase[, drift] columns, the wand ends
     eliminated point by point: S (N w, N w), rhs (N w,), the residuals' sigma (pixels), the
-    observations each camera gave and the wand ends (2F, 3) triangulated (from ``X_last`` when given). A residual r (observed - projected, pixels) changes by
+    observations each camera gave, the wand ends (2F, 3) triangulated (from ``X_last`` when given)
+    and the outliers (P, 2) bool, each pair row's ends left out (``cut``, when given, instead of
+    judging them again). A residual r (observed - projected, pixels) changes by
     G d(theta) - A dX: G = -v f [1, f - centre] for the offsets (v the track's velocity), and for
     a pose (R <- exp([w]x) R, t <- t + dt) -f P [-[R X]x, I], P the projection's derivative."""
     n = len(R)
@@ -236,12 +246,15 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     e = np.linalg.norm(r, axis=1)
     # each camera's own robust sigma: a camera still out of time has larger residuals, and they
     # are the signal, not outliers
-    limit = np.full(n, MIN_OUTLIER_PX)
-    for c in range(n):
-        mine = ok & (cam == c)
-        if mine.any():
-            limit[c] = max(OUTLIER_LIMIT * np.sqrt(np.median(e[mine] ** 2) / (2 * np.log(2))), MIN_OUTLIER_PX)
-    ok &= e <= limit[cam]
+    if cut is None:
+        limit = np.full(n, MIN_OUTLIER_PX)
+        for c in range(n):
+            mine = ok & (cam == c)
+            if mine.any():
+                limit[c] = max(OUTLIER_LIMIT * np.sqrt(np.median(e[mine] ** 2) / (2 * np.log(2))), MIN_OUTLIER_PX)
+        cut = np.zeros((len(pairs), 2), bool)
+        cut[np.concatenate([rows, rows]), np.repeat([0, 1], len(rows))] = e > limit[cam]
+    ok &= ~cut[np.concatenate([rows, rows]), np.repeat([0, 1], len(rows))]
     views = np.bincount(point[ok], minlength=2 * F)
     ok &= views[point] >= 2
     Pj = np.zeros((len(z), 2, 3))  # d proj / d x_cam, pixels, times z
@@ -260,6 +273,18 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     A, G, r, point, cam = A[ok], G[ok], r[ok], point[ok], cam[ok]
     used = np.bincount(cam, minlength=n)
     M = len(r)
+    # each camera's blob noise, from its residuals less the share the resampling smoothed away:
+    # the values' noise is correlated from frame to frame, and over the slowly turning image
+    # velocity that an offset is seen through it adds up to a whole blob's; the residuals' own
+    # variance, 0.64 of it half-way between frames, made the standard errors 1.2-1.3x optimistic
+    dof_share = max(2 * M - 3 * len(np.unique(point)) - n * width, 1) / (2 * M)
+    share = np.concatenate([spread[rows]] * 2)[ok] if spread is not None else np.ones(M)
+    noise = np.bincount(cam, (r**2).sum(1), minlength=n) / np.maximum(2 * np.bincount(cam, share, minlength=n), 1e-300)
+    noise = noise / dof_share
+    noise = np.where(used > 0, noise, 1.0)
+    pooled = float(np.sum(noise * used) / max(used.sum(), 1))
+    weight = np.sqrt(pooled / np.maximum(noise, 1e-300))[cam][:, None]  # each camera by its noise, in pixels
+    A, G, r = A * weight[:, :, None], G * weight[:, :, None], r * weight
     H = _sums(point, np.einsum("mai,maj->mij", A, A), 2 * F)
     ar = _sums(point, np.einsum("mai,ma->mi", A, r), 2 * F)
     D = np.zeros((n, width, width))
@@ -282,9 +307,7 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     for c in range(n):
         S[c * width : (c + 1) * width, c * width : (c + 1) * width] += D[c]
     rhs = -gr.ravel() + np.einsum("piq,pi->q", W, ar[seen])
-    dof = max(2 * M - 3 * len(seen) - n * width, 1)
-    sigma = float(np.sqrt(np.sum(r**2) / dof))
-    return S, rhs, sigma, used, X
+    return S, rhs, float(np.sqrt(pooled)), used, X, cut
 
 
 def _sums(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
@@ -337,7 +360,8 @@ def sync_report(
         if whole_only:
             warnings.append(f"{ids[c]}: its wand frames are too sparse or too far apart in time to interpolate, so its "
                             "time offset is found in whole frames only")
-        if c != reference and abs(gap) > max(OUT_OF_TIME_SIGMAS * std[c], OUT_OF_TIME_FRAMES):
+        entry["out_of_time"] = bool(c != reference and abs(gap) > max(OUT_OF_TIME_SIGMAS * std[c], OUT_OF_TIME_FRAMES))
+        if entry["out_of_time"]:
             said = "its timestamps" if np.any(start) else "its frame numbers"
             warnings.append(
                 f"{ids[c]} is out of time: its frame k was exposed at {ids[reference]}'s frame k {offset[c]:+.3f} "

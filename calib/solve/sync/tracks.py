@@ -21,6 +21,10 @@ DENSE_SHARE = 0.5
 # neighbouring frames) has frames too far apart in time to interpolate: 0.5 px on a simulated
 # rig at 0.3 px noise, 600-1000 px on the Brown wind-tunnel sessions, digitised frame by frame apart
 ROUGH_PX = 5.0
+# two consecutive frames' ends are matched when one matching moves them this many times less than
+# the other: a wand seen end-on (ends ~8 px apart) moving ~6 px a frame was matched crosswise, and
+# the few such frames, the fastest, held the offsets 2-3 standard errors off when not cut as outliers
+MATCH_MARGIN = 2.0
 
 
 def interpolable(pairs: WandPairs, focal: np.ndarray, tracks: Tracks | None = None,
@@ -78,12 +82,18 @@ class Tracks:
         self.parity = np.zeros(len(pairs), bool)
         order = np.lexsort((f, pairs.camera))
         cam, fs, xy = pairs.camera[order], f[order], pairs.xy[order]
-        nxt = (cam[1:] == cam[:-1]) & (fs[1:] == fs[:-1] + 1)
         same = np.linalg.norm(xy[1:] - xy[:-1], axis=2).sum(1)
         cross = np.linalg.norm(xy[1:] - xy[:-1, ::-1], axis=2).sum(1)
+        # consecutive frames whose ends the proximity cannot tell apart (the wand foreshortened to a
+        # few pixels and moving about as far a frame) are not linked: the track breaks there
+        clear = np.maximum(same, cross) >= MATCH_MARGIN * np.minimum(same, cross)
+        nxt = (cam[1:] == cam[:-1]) & (fs[1:] == fs[:-1] + 1) & clear
         flip = np.concatenate([[False], nxt & (cross < same)])
-        # parity accumulates along each camera's frames; across a gap it restarts (no neighbour uses it)
+        # parity accumulates along each linked run of a camera's frames; a neighbour in another run
+        # is not interpolated with (resample)
         run = np.concatenate([[0], np.cumsum(~np.concatenate([[False], nxt])[1:])])
+        self.run = np.zeros(len(pairs), np.int64)
+        self.run[order] = run
         parity = np.cumsum(flip) % 2
         start_parity = np.zeros(run.max() + 1, np.int64)
         first_of_run = np.concatenate([[True], ~nxt])
@@ -92,10 +102,12 @@ class Tracks:
 
     def resample(self, phase: np.ndarray, drift: np.ndarray, centre: np.ndarray, rows: np.ndarray | None = None,
                  pixels: bool = True):
-        """(xy (Q, 2, 2), velocity (Q, 2, 2) normalised units a frame, keep (Q,), uv (Q, 2, 2))
-        of the pair rows ``rows`` (Q,) (default all), each camera c's frame f sampled at
-        f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames).
-        ``pixels=False`` leaves uv at zero (a fit needs only xy)."""
+        """(xy (Q, 2, 2), velocity (Q, 2, 2) normalised units a frame, keep (Q,), uv (Q, 2, 2),
+        spread (Q,)) of the pair rows ``rows`` (Q,) (default all), each camera c's frame f sampled
+        at f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames);
+        spread is the resampled blobs' share of a blob's noise variance (:func:`interpolate`).
+        ``pixels=False`` leaves uv at zero and keeps only the cubic's values (a fit's; the
+        calibration keeps the lines through gaps too)."""
         p = self.pairs if rows is None else self.pairs.subset(rows)
         parity = self.parity if rows is None else self.parity[rows]
         f = p.frames[p.frame].astype(float)
@@ -108,6 +120,8 @@ class Tracks:
         idx = i0[:, None] + np.arange(-1, 3)[None, :]  # (P, 4) frames i0-1 .. i0+2
         inside = (idx >= 0) & (idx < span)
         window = np.where(inside, self.table[np.clip(idx, 0, span - 1), p.camera[:, None]], -1)
+        centre_row = np.where(window[:, 1] >= 0, window[:, 1], window[:, 2])
+        window = np.where((window >= 0) & (self.run[window] == self.run[centre_row][:, None]), window, -1)
         # row q's end e is the track's end e ^ parity[q], whichever frame holds it: both ends (and
         # their pixels) interpolated in one pass, (Q, 4, 4 or 8)
         ok_row = window >= 0
@@ -117,10 +131,10 @@ class Tracks:
         if pixels:
             parts += [self.pairs.uv[r, e0.astype(np.int64)], self.pairs.uv[r, (~e0).astype(np.int64)]]
         pts = np.where(ok_row[..., None], np.concatenate(parts, axis=2), np.nan)
-        value, slope, keep = interpolate(pts, u)
+        value, slope, keep, spread = interpolate(pts, u, strict=not pixels)
         xy, vel = value[:, :4].reshape(-1, 2, 2), slope[:, :4].reshape(-1, 2, 2)
         uv = value[:, 4:].reshape(-1, 2, 2) if pixels else np.zeros((len(p), 2, 2))
-        return xy, vel, keep, uv
+        return xy, vel, keep, uv, spread
 
     def track(self, rows: np.ndarray, end: np.ndarray, what: np.ndarray) -> np.ndarray:
         """(P, 4, 2) the track end ``end`` (P, 4) (in the track's continuous order) at each row of
@@ -132,7 +146,7 @@ class Tracks:
         return np.where(ok[..., None], out, np.nan)
 
 
-def interpolate(pts: np.ndarray, u: np.ndarray):
+def interpolate(pts: np.ndarray, u: np.ndarray, strict: bool = False):
     """Value and slope (per frame) at i0 + u from samples at i0-1 .. i0+2 (P, 4, D), a sample
     present in all D columns or in none.
 
@@ -142,7 +156,12 @@ def interpolate(pts: np.ndarray, u: np.ndarray):
     samples as the value would share their noise, and the offset regressed on it would be
     biased (by sigma^2 / |v|^2 x 0.5 frame at u = 0, 0.001-0.003 frame at 0.3 px); the cubic's
     outer weights are small and nearly equal, so its value and this slope hardly share any.
-    Returns (value, slope, ok)."""
+    ``strict`` keeps only the cubic's values (and the samples themselves): a line through a
+    gap is off by up to an eighth of the acceleration, along it, which an offset fitted to them
+    partly takes up.
+    Returns (value, slope, ok, spread): spread (P,) is the value's share of a sample's noise
+    variance (1 at a frame, 0.64 half-way between two by the cubic), though over consecutive
+    frames the values' noise adds up to a whole sample's again (the weights sum to 1)."""
     uu = u[:, None]
     w = np.stack([-uu * (uu - 1) * (uu - 2) / 6, (uu + 1) * (uu - 1) * (uu - 2) / 2,
                   -(uu + 1) * uu * (uu - 2) / 2, (uu + 1) * uu * (uu - 1) / 6], axis=1)  # Lagrange weights (P, 4, 1)
@@ -154,9 +173,12 @@ def interpolate(pts: np.ndarray, u: np.ndarray):
                      filled[:, 1] + uu * (filled[:, 2] - filled[:, 1]))
     at_frame = (u == 0) & have[:, 1] & ~line
     value = np.where(at_frame[:, None], filled[:, 1], value)
+    # the value's share of one sample's noise variance: the sum of its weights' squares
+    spread = np.where(cubic, (w[:, :, 0] ** 2).sum(1), np.where(line, (1 - u) ** 2 + u**2, 1.0))
     slope = np.where((have[:, 0] & have[:, 3])[:, None], (filled[:, 3] - filled[:, 0]) / 3, 0.0)
     for lo, hi in ((1, 3), (0, 2), (1, 2), (0, 1)):
         fill = ~(have[:, 0] & have[:, 3]) & have[:, lo] & have[:, hi] & np.all(slope == 0, axis=1)
         slope = np.where(fill[:, None], (filled[:, hi] - filled[:, lo]) / (hi - lo), slope)
     ok = cubic | line | at_frame
-    return value, slope, ok
+    exact = cubic | ((u == 0) & have[:, 1])  # no line through a gap: its error follows the acceleration
+    return value, slope, np.where(strict, exact, ok), spread
