@@ -28,7 +28,7 @@ from wandcal.calib.refine import (
 from wandcal.calib.reports import camera_reports, intrinsics_reports, summary_warnings, uncertainty_reports
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.solve.ba import DEFAULT_LOSS
-from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, fit_timing, resample, sync_report
+from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, Tracks, fit_timing, resample, sync_report
 from wandcal.calib.start.degenerate import check_capture
 from wandcal.calib.start.initial import initial_poses
 from wandcal.calib.start.labels import label_ends
@@ -203,9 +203,10 @@ def calibrate(
     sync_doc = None
     if timed is not None:  # sub-frame offsets with the start poses refined; the frames resampled to the reference's instants
         drift = bool(options.get("sync_drift"))
+        tracks_in_time = Tracks(labelled, len(rig.cameras))
         timing = fit_timing(init.R, init.t, labelled, np.array([c.focal for c in rig.cameras]), timed.reference, drift,
-                            poses=True)
-        (labelled, _), init = resample(labelled, timing), replace(init, R=timing.R, t=timing.t)
+                            poses=True, tracks=tracks_in_time)
+        (labelled, _), init = resample(labelled, timing, tracks_in_time), replace(init, R=timing.R, t=timing.t)
         # the offsets reported are this fit's: fitted again at the refined poses they moved by under
         # a twentieth of their standard error (docs/decisions/0022-sync-cost.md)
         sync_doc, found = sync_report(rig.ids, timed.offsets, timed.reference, timing, options.get("sync_start"),

@@ -211,7 +211,7 @@ def _best_shift(
     whose pose picks between the best shift and its neighbours by both ends.
     """
     a, offset_a = partners[0]
-    counts = np.array([len(_shared(table, a, b, offset_a - s, TIMING_FRAMES)[0]) for s in shifts])
+    counts = np.minimum(_shared_counts(table, a, b, offset_a - shifts), TIMING_FRAMES)  # what _shared would give
     if counts.max() < MIN_TIMING_FRAMES:
         return None, 0.0
     if counts.max() < FEW_FRAMES:  # a sparse session: every shift can afford its own RANSAC
@@ -248,6 +248,17 @@ def _best_shift(
             break
         best = near[pick]
     return int(shifts[best]), float(share)
+
+
+def _shared_counts(table: np.ndarray, a: int, b: int, lags: np.ndarray) -> np.ndarray:
+    """(S,) how many frames k a saw the wand in with b at k + lag, for each lag (S,)."""
+    span = len(table)
+    seen_a, seen_b = table[:, a] >= 0, table[:, b] >= 0
+    out = np.zeros(len(lags), np.int64)
+    for i, lag in enumerate(lags):
+        lo, hi = max(0, -lag), min(span, span - lag)
+        out[i] = np.count_nonzero(seen_a[lo:hi] & seen_b[lo + lag : hi + lag]) if hi > lo else 0
+    return out
 
 
 def _shared(table: np.ndarray, a: int, b: int, lag: int, most: int) -> tuple[np.ndarray, np.ndarray]:

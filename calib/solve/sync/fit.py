@@ -35,9 +35,9 @@ from wandcal.calib.triangulate import refine_points, triangulate_points
 MAX_ITERATIONS = 8  # Gauss-Newton steps; from within a frame it settles in 3-4
 STEP_TOLERANCE = 1e-4  # frames: a twentieth of the smallest standard error at 0.3 px and 1-4 m/s
 # or when every offset's step is this share of its own standard error: with the outliers settled
-# (SETTLED_STEP) each step is a tenth of the last or less, so what is left after a step this small
-# is a few hundredths of a standard error, nothing the data can tell
-STEP_SHARE_OF_SE = 0.3
+# (SETTLED_STEP) each step was a tenth of the last or less on simulated rigs, so what is left after
+# a step this small is a few hundredths of a standard error, nothing the data can tell
+STEP_SHARE_OF_SE = 0.5
 MAX_STEP = 1.0  # frames a step may move an offset: the interpolant's slope is trusted that far
 OUTLIER_LIMIT = 4.0  # robust sigmas: an observation beyond is left out of a step (chi2 with 2 dof: 3e-4 of clean ones)
 MIN_OUTLIER_PX = 1.0  # never cut closer than this, so a clean rig keeps all its observations
@@ -98,7 +98,7 @@ def zero_timing(n: int, pairs: WandPairs) -> Timing:
 def fit_timing(
     R: np.ndarray, t: np.ndarray, pairs: WandPairs, focal: np.ndarray, reference: int, drift: bool = False,
     start: Timing | None = None, max_frames: int = MAX_FIT_FRAMES, max_iterations: int = MAX_ITERATIONS,
-    poses: bool = False,
+    poses: bool = False, tracks: Tracks | None = None,
 ) -> Timing:
     """Estimate each camera's sub-frame offset (and drift), with the poses held or refined too.
 
@@ -117,13 +117,14 @@ def fit_timing(
             found from frames still out of time by a fraction are biased, and so would be offsets
             fitted with them held; the result's ``R``, ``t`` are the refined poses. The offsets'
             covariance then allows for the poses' uncertainty.
+        tracks: ``Tracks(pairs, N)`` when the caller has it already.
     """
     n = len(R)
     model = start or zero_timing(n, pairs)
     R, t = np.array(R, dtype=float), np.array(t, dtype=float)
     k = 2 if drift else 1
     width = POSE + k if poses else k  # each camera's columns: [rotation, translation,] phase[, drift]
-    tracks = Tracks(pairs, n)
+    tracks = tracks or Tracks(pairs, n)
     rows = np.flatnonzero(np.isin(pairs.frame, spread_frames(len(pairs.frames), max_frames)))
     held = ~interpolable(pairs, focal, tracks, rows)
     held[reference] = True
@@ -197,11 +198,13 @@ def _moved(R: np.ndarray, t: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, 
     return dR @ R, t + step[:, 3:]
 
 
-def resample(pairs: WandPairs, timing: Timing) -> tuple[WandPairs, np.ndarray]:
+def resample(pairs: WandPairs, timing: Timing, tracks: Tracks | None = None) -> tuple[WandPairs, np.ndarray]:
     """The pairs brought to the reference instants (module docstring), and keep (P,) bool: the
-    rows whose neighbouring frames let them be resampled (the others are left out)."""
+    rows whose neighbouring frames let them be resampled (the others are left out). ``tracks``:
+    ``Tracks(pairs, N)`` when the caller has it already."""
     n = int(pairs.camera.max()) + 1 if len(pairs) else 0
-    xy, _, keep, uv, _ = Tracks(pairs, max(n, len(timing.phase))).resample(timing.phase, timing.drift, timing.centre)
+    tracks = tracks or Tracks(pairs, max(n, len(timing.phase)))
+    xy, _, keep, uv, _ = tracks.resample(timing.phase, timing.drift, timing.centre)
     out = WandPairs(pairs.frame, pairs.camera, xy, uv, pairs.frames, pairs.dropped).subset(keep)
     return out, keep
 
