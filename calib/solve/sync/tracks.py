@@ -107,7 +107,7 @@ class Tracks:
         at f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames);
         spread is the resampled blobs' share of a blob's noise variance (:func:`interpolate`).
         ``pixels=False`` leaves uv at zero and keeps only the cubic's values (a fit's; the
-        calibration keeps the lines through gaps too)."""
+        calibration keeps the lines through gaps too); ``pixels=True`` leaves the velocity at zero."""
         p = self.pairs if rows is None else self.pairs.subset(rows)
         parity = self.parity if rows is None else self.parity[rows]
         f = p.frames[p.frame].astype(float)
@@ -131,7 +131,7 @@ class Tracks:
         if pixels:
             parts += [self.pairs.uv[r, e0.astype(np.int64)], self.pairs.uv[r, (~e0).astype(np.int64)]]
         pts = np.where(ok_row[..., None], np.concatenate(parts, axis=2), np.nan)
-        value, slope, keep, spread = interpolate(pts, u, strict=not pixels)
+        value, slope, keep, spread = interpolate(pts, u, strict=not pixels, slopes=not pixels)
         xy, vel = value[:, :4].reshape(-1, 2, 2), slope[:, :4].reshape(-1, 2, 2)
         uv = value[:, 4:].reshape(-1, 2, 2) if pixels else np.zeros((len(p), 2, 2))
         return xy, vel, keep, uv, spread
@@ -146,7 +146,17 @@ class Tracks:
         return np.where(ok[..., None], out, np.nan)
 
 
-def interpolate(pts: np.ndarray, u: np.ndarray, strict: bool = False):
+def _slope(have: np.ndarray, filled: np.ndarray) -> np.ndarray:
+    """(P, D) the secant over the outer two samples, else the nearest secant there is (see
+    :func:`interpolate`)."""
+    slope = np.where((have[:, 0] & have[:, 3])[:, None], (filled[:, 3] - filled[:, 0]) / 3, 0.0)
+    for lo, hi in ((1, 3), (0, 2), (1, 2), (0, 1)):
+        fill = ~(have[:, 0] & have[:, 3]) & have[:, lo] & have[:, hi] & np.all(slope == 0, axis=1)
+        slope = np.where(fill[:, None], (filled[:, hi] - filled[:, lo]) / (hi - lo), slope)
+    return slope
+
+
+def interpolate(pts: np.ndarray, u: np.ndarray, strict: bool = False, slopes: bool = True):
     """Value and slope (per frame) at i0 + u from samples at i0-1 .. i0+2 (P, 4, D), a sample
     present in all D columns or in none.
 
@@ -158,7 +168,7 @@ def interpolate(pts: np.ndarray, u: np.ndarray, strict: bool = False):
     outer weights are small and nearly equal, so its value and this slope hardly share any.
     ``strict`` keeps only the cubic's values (and the samples themselves): a line through a
     gap is off by up to an eighth of the acceleration, along it, which an offset fitted to them
-    partly takes up.
+    partly takes up. ``slopes=False`` leaves the slope at zero (the calibration's resampling).
     Returns (value, slope, ok, spread): spread (P,) is the value's share of a sample's noise
     variance (1 at a frame, 0.64 half-way between two by the cubic), though over consecutive
     frames the values' noise adds up to a whole sample's again (the weights sum to 1)."""
@@ -175,10 +185,7 @@ def interpolate(pts: np.ndarray, u: np.ndarray, strict: bool = False):
     value = np.where(at_frame[:, None], filled[:, 1], value)
     # the value's share of one sample's noise variance: the sum of its weights' squares
     spread = np.where(cubic, (w[:, :, 0] ** 2).sum(1), np.where(line, (1 - u) ** 2 + u**2, 1.0))
-    slope = np.where((have[:, 0] & have[:, 3])[:, None], (filled[:, 3] - filled[:, 0]) / 3, 0.0)
-    for lo, hi in ((1, 3), (0, 2), (1, 2), (0, 1)):
-        fill = ~(have[:, 0] & have[:, 3]) & have[:, lo] & have[:, hi] & np.all(slope == 0, axis=1)
-        slope = np.where(fill[:, None], (filled[:, hi] - filled[:, lo]) / (hi - lo), slope)
+    slope = _slope(have, filled) if slopes else np.zeros_like(value)
     ok = cubic | line | at_frame
     exact = cubic | ((u == 0) & have[:, 1])  # no line through a gap: its error follows the acceleration
     return value, slope, np.where(strict, exact, ok), spread
