@@ -12,12 +12,15 @@ interpolated from its neighbouring frames. The wand moves smoothly at 100 fps, s
 interpolation error is far below the blob noise.
 
 The offsets are estimated by Gauss-Newton with the wand ends free and the cameras' poses held or
-refined alongside (gauge pinned by a faint damping):
+refined alongside (gauge pinned by a faint damping, and each pose step cleared of it):
 each observation's residual r (observed minus projected, pixels) moves with phi by
 ``dr/dphi = -v`` (v the blob's image velocity, pixels a frame), and the ends, eliminated per
 point (a 3x3 Schur complement each), take up what a common shift of all cameras would explain,
 so the reference camera is held at phi = 0. The covariance of (phase, drift) is
-sigma^2 S^-1, S the reduced normal matrix and sigma the residuals' RMS per degree of freedom:
+sigma^2 S^-1, S the reduced normal matrix (each camera's observations weighed by its blob noise)
+and sigma the blob noise before resampling, per degree of freedom: a resampled blob's own noise
+is smaller, but consecutive ones share samples and over the slowly turning velocity add up to a
+whole blob's (docs/decisions/0022-sync-cost-and-standard-error.md).
 SE(phase) ~ sigma_px / (|v|_rms sqrt(n (1 - 1/m))) for m cameras a wand end, before the
 reference's own share is added (docs/sync.md).
 """
@@ -67,8 +70,9 @@ class Timing:
     """Each camera's offset model, phi_c(f) = phase[c] + drift[c] (f - centre[c]) frames.
 
     phase: (N,) frames; drift: (N,) frames a frame (ppm x 1e-6); centre: (N,) frame numbers;
-    cov: (N, 2, 2) covariance of (phase, drift); sigma_px: the residuals' RMS per degree of
-    freedom; used: (N,) observations each camera gave to the fit.
+    cov: (N, 2, 2) covariance of (phase, drift); sigma_px: the blob noise the fit saw (its
+    residuals' RMS per degree of freedom, less the resampling's smoothing); used: (N,)
+    observations each camera gave to the fit.
     """
 
     phase: np.ndarray
