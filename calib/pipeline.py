@@ -208,7 +208,7 @@ def calibrate(
                             poses=True, tracks=tracks_in_time)
         (labelled, _), init = resample(labelled, timing, tracks_in_time), replace(init, R=timing.R, t=timing.t)
         # the offsets reported are this fit's: fitted again at the refined poses they moved by under
-        # a twentieth of their standard error (docs/decisions/0022-sync-cost.md)
+        # a twentieth of their standard error (docs/decisions/0022-sync-cost-and-standard-error.md)
         sync_doc, found = sync_report(rig.ids, timed.offsets, timed.reference, timing, options.get("sync_start"),
                                       options.get("frame_rate_hz"), drift)
         warnings += found
