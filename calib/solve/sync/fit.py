@@ -271,11 +271,8 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     A = Pj @ R[cam]  # (M, 2, 3) d proj / dX, pixels a metre
     g = -v * fc  # (M, 2) d r / d phase, pixels a frame
     G = g[:, :, None] * (np.stack([np.ones(len(fr)), fr - centre[cam]], 1)[:, None, :k])  # (M, 2, k)
-    if poses:
-        skew = np.zeros((len(z), 3, 3))
-        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -RX[:, 2], RX[:, 1], -RX[:, 0]
-        skew = skew - skew.transpose(0, 2, 1)  # [R X]x
-        G = np.concatenate([Pj @ skew, -Pj, G], axis=2)  # d r / d(w, dt) = -P [-[RX]x, I]
+    if poses:  # d r / d(w, dt) = -P [-[RX]x, I]; a row p of P [RX]x is p x RX
+        G = np.concatenate([_cross_rows(Pj, RX), -Pj, G], axis=2)
     width = G.shape[2]
     A, G, r, point, cam = A[ok], G[ok], r[ok], point[ok], cam[ok]
     used = np.bincount(cam, minlength=n)
@@ -292,7 +289,7 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     pooled = float(np.sum(noise * used) / max(used.sum(), 1))
     weight = np.sqrt(pooled / np.maximum(noise, 1e-300))[cam][:, None]  # each camera by its noise, in pixels
     A, G, r = A * weight[:, :, None], G * weight[:, :, None], r * weight
-    H = _sums(point, np.einsum("mai,maj->mij", A, A), 2 * F)
+    H = _sums(point, _outer_sum(A, A), 2 * F)
     ar = _sums(point, np.einsum("mai,ma->mi", A, r), 2 * F)
     D = np.zeros((n, width, width))
     gr = np.zeros((n, width))
@@ -315,6 +312,19 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
         S[c * width : (c + 1) * width, c * width : (c + 1) * width] += D[c]
     rhs = -gr.ravel() + np.einsum("piq,pi->q", W, ar[seen])
     return S, rhs, float(np.sqrt(pooled)), used, X, cut
+
+
+def _cross_rows(P: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(M, 2, 3) each row of P (M, 2, 3) crossed with v (M, 3): P @ [v]x."""
+    v0, v1, v2 = v[:, None, 0], v[:, None, 1], v[:, None, 2]
+    p0, p1, p2 = P[:, :, 0], P[:, :, 1], P[:, :, 2]
+    return np.stack([p1 * v2 - p2 * v1, p2 * v0 - p0 * v2, p0 * v1 - p1 * v0], axis=2)
+
+
+def _outer_sum(A: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """(M, i, k) A[m]^T G[m] of A (M, 2, i) and G (M, 2, k): the two rows' outer products
+    (for 3 x 3, faster than an einsum or a batched matmul)."""
+    return A[:, 0, :, None] * G[:, 0, None, :] + A[:, 1, :, None] * G[:, 1, None, :]
 
 
 def _sums(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
