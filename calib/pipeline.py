@@ -28,12 +28,12 @@ from wandcal.calib.refine import (
 from wandcal.calib.reports import camera_reports, intrinsics_reports, summary_warnings, uncertainty_reports
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.solve.ba import DEFAULT_LOSS
-from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, fit_timing, resample, sync_report
+from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, Tracks, fit_timing, resample, sync_report
 from wandcal.calib.start.degenerate import check_capture
 from wandcal.calib.start.initial import initial_poses
 from wandcal.calib.start.labels import label_ends
 from wandcal.calib.start.static import solve_static
-from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, frame_offsets, shift_frames
+from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, frame_offsets, shift_frames, shift_pairs
 from wandcal.calib.start.world import apply, world_frame
 
 RESULT_FORMAT = "wandcal-result/1"
@@ -142,10 +142,11 @@ def calibrate(
 
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs and point tracks"})
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
-    timed = None
+    timed = unshifted = None
     if sync == "auto" and has_wand:  # whole frames first: a camera out of time by frames cannot be placed
         tell({"stage": "sync", "message": "finding each camera's time offset from the wand"})
-        timed = frame_offsets(rig, wand_pairs(rig, wand), int(options.get("sync_max_offset") or DEFAULT_MAX_OFFSET),
+        unshifted = wand_pairs(rig, wand)
+        timed = frame_offsets(rig, unshifted, int(options.get("sync_max_offset") or DEFAULT_MAX_OFFSET),
                               options.get("sync_start"))
         wand = shift_frames(wand, timed.offsets)
         warnings += timed.notes
@@ -153,7 +154,12 @@ def calibrate(
         warnings.append("sync auto finds the time offsets from the wand; this capture has none, so its frames are taken as "
                         "synchronised")
     blobs = _marker_blobs(rig, wand) if has_wand else None
-    pairs = (blobs.ends() if blobs is not None else wand_pairs(rig, wand)) if has_wand else WandPairs.empty()
+    if blobs is not None:
+        pairs = blobs.ends()
+    elif timed is not None:  # the pairs already grouped, renumbered
+        pairs = shift_pairs(unshifted, timed.offsets)
+    else:
+        pairs = wand_pairs(rig, wand) if has_wand else WandPairs.empty()
     tracks = point_tracks(rig, points) if points is not None and len(points) else None
     if not has_wand and (tracks is None or not len(tracks)):
         raise CalibrationError(
@@ -194,10 +200,18 @@ def calibrate(
 
     tell({"stage": "labels", "message": "telling the wand ends apart"})
     labelled = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0] if has_wand else pairs
+    sync_doc = None
     if timed is not None:  # sub-frame offsets with the start poses refined; the frames resampled to the reference's instants
-        focal, drift = np.array([c.focal for c in rig.cameras]), bool(options.get("sync_drift"))
-        timing = fit_timing(init.R, init.t, labelled, focal, timed.reference, drift, poses=True)
-        unsampled, (labelled, _), init = labelled, resample(labelled, timing), replace(init, R=timing.R, t=timing.t)
+        drift = bool(options.get("sync_drift"))
+        tracks_in_time = Tracks(labelled, len(rig.cameras))
+        timing = fit_timing(init.R, init.t, labelled, np.array([c.focal for c in rig.cameras]), timed.reference, drift,
+                            poses=True, tracks=tracks_in_time)
+        (labelled, _), init = resample(labelled, timing, tracks_in_time), replace(init, R=timing.R, t=timing.t)
+        # the offsets reported are this fit's: fitted again at the refined poses they moved by under
+        # a twentieth of their standard error (docs/decisions/0022-sync-cost-and-standard-error.md)
+        sync_doc, found = sync_report(rig.ids, timed.offsets, timed.reference, timing, options.get("sync_start"),
+                                      options.get("frame_rate_hz"), drift)
+        warnings += found
     setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
     all_tracks = tracks  # every method is judged on the same observations, point tracks included
     if tracks is not None:
@@ -222,12 +236,6 @@ def calibrate(
     marker_pairs = None
     if blobs is not None:
         r, marker_pairs = _with_markers(rig, blobs, r, method, options, tell, warnings)
-    sync_doc = None
-    if timed is not None:  # the offsets again at the refined poses: the reported ones, with their standard errors
-        timing = fit_timing(r.R, r.t, unsampled, focal, timed.reference, drift, start=timing, poses=True)
-        sync_doc, found = sync_report(rig.ids, timed.offsets, timed.reference, timing, options.get("sync_start"),
-                                      options.get("frame_rate_hz"), drift)
-        warnings += found
     dropped = dict(pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
     dropped |= {"outliers": r.outliers} | ({"point_outliers": r.point_outliers} if tracks is not None else {})
     rig, setup, tracks, info = r.rig, r.setup, r.tracks, r.info

@@ -24,6 +24,7 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; }
 .advice li { margin: 0.25em 0; } .warnings li { color: #8a4b00; }
 .verdict-excellent { color: #1e7d32; font-weight: 600; } .verdict-good { color: #2c6fbb; font-weight: 600; }
 .verdict-poor { color: #b3261e; font-weight: 600; }
+tr.out-of-time td { color: #8a4b00; font-weight: 600; }
 .note { background: #fff8e1; border-left: 4px solid #f0b400; padding: 0.4em 0.8em; }
 section.camera { margin-top: 2em; }
 """
@@ -52,6 +53,7 @@ def render_page(data: ReportData, figures: dict[str, str]) -> str:
     parts += ['<section id="rig"><h2>The rig</h2>', _img(figures.get("rig"), _rig_alt(data)),
               f'<p class="caption">{_e(rig_caption(data))}</p></section>']
     parts += ['<section id="cameras"><h2>Cameras</h2>', _overview(data), "</section>"]
+    parts += _offsets(doc.get("sync"))
     if "wand" in figures:
         parts += ['<section id="wand"><h2>The wand</h2>', _img(figures["wand"], _wand_alt(data)),
                   f'<p class="caption">{_e(wand_caption(data))}</p></section>']
@@ -143,6 +145,44 @@ def _overview(data: ReportData) -> str:
             f"<td>{_verdict_html(word)}</td>"
             f'<td class="num">{_num(coverage(cam), ".0%")}</td></tr>')
     return _table(head, rows)
+
+
+def _offsets(sync) -> list[str]:
+    """The cameras' time offsets (a result of ``--sync auto``, docs/sync.md): each camera's offset
+    against the reference with its standard error, in frames and milliseconds, and the cameras
+    found out of time; nothing for a result without them."""
+    if not isinstance(sync, dict) or not isinstance(sync.get("cameras"), list):
+        return []
+    rate = sync.get("rate_hz")
+    drift = any(isinstance(c, dict) and c.get("drift_ppm") is not None for c in sync["cameras"])
+    head = ["camera", "offset (frames)", "± (frames)", "offset (ms)", "± (ms)"]
+    head += ["drift (ppm)", "± (ppm)"] if drift else []
+    head.append("")
+    rows = []
+    for c in (c for c in sync["cameras"] if isinstance(c, dict)):
+        std = c.get("offset_std_frames")
+        note = ("reference" if c.get("id") == sync.get("reference") else "out of time" if c.get("out_of_time")
+                else "whole frames only" if std is None else "")
+        cells = [_num(c.get("offset_frames"), "+.3f"), _num(std, ".3f"),
+                 _num(1000 * c["offset_frames"] / rate if rate and _finite(c.get("offset_frames")) else None, "+.2f"),
+                 _num(1000 * std / rate if rate and _finite(std) else None, ".2f")]
+        cells += [_num(c.get("drift_ppm"), "+.1f"), _num(c.get("drift_std_ppm"), ".1f")] if drift else []
+        mark = ' class="out-of-time"' if c.get("out_of_time") else ""
+        rows.append(f'<tr data-camera="{_e(c.get("id", "?"))}"{mark}>'
+                    f"<td>{_e(c.get('id', '?'))}</td>" + "".join(f'<td class="num">{x}</td>' for x in cells)
+                    + f"<td>{_e(note)}</td></tr>")
+    late = [c.get("id", "?") for c in sync["cameras"] if isinstance(c, dict) and c.get("out_of_time")]
+    said = (f"Found out of time, against what the frame numbers (or timestamps) said: {', '.join(late)}; their frames "
+            "were realigned by the wand." if late else "No camera was found out of time.")
+    unit = "" if rate else " The frame rate is unknown, so the offsets are in frames only."
+    return ['<section id="sync"><h2>Time offsets</h2>',
+            f"<p>Each camera's frame k was exposed at {_e(sync.get('reference', '?'))}'s frame k + its offset "
+            f"(found from the wand, docs/sync.md), ± one standard error. {_e(said)}{_e(unit)}</p>",
+            _table(head, rows), "</section>"]
+
+
+def _finite(value) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)
 
 
 def _camera_section(data: ReportData, cam: CameraSummary, figure: str | None) -> list[str]:

@@ -1,7 +1,7 @@
 // The rig page: polls the API once a second and draws what it finds. Nothing from elsewhere: the
 // 3D view's library is vendored (static/vendor/).
 import { $, el } from "./dom.js";
-import { cameraTable, rigJudgement } from "./results.js";
+import { cameraTable, offsetsTable, rigJudgement } from "./results.js";
 import { RigView } from "./rigview.js";
 
 const API = "/api/v1";
@@ -237,6 +237,9 @@ async function showResult(jobId) {
     $("#result-title").textContent = `job ${short(jobId)}, method ${job.method}`;
     $("#residuals").replaceChildren(...cameraTable(job.result));
     $("#judgement").replaceChildren(...rigJudgement(job.result));
+    const offsets = offsetsTable(job.result);
+    $("#offsets").replaceChildren(...offsets);
+    $("#offsets").hidden = !offsets.length;
     $("#warnings").replaceChildren(...(job.result.warnings || []).map((w) => el("li", {}, w)));
     let samples = null;
     try { samples = await api(`/jobs/${jobId}/scene`); } catch (err) { $("#rig-note").textContent = `no wand samples: ${err.message}`; }

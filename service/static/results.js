@@ -57,3 +57,28 @@ export function rigJudgement(result) {
     ...(plv ? [" · ", el("span", { class: `verdict-${plv}` }, plv), ...(pv.reasons && pv.reasons.length ? [` (${pv.reasons.join("; ")})`] : [])] : [])));
   return out;
 }
+
+// The cameras' time offsets of a result of --sync auto (docs/sync.md): each camera's offset from the
+// reference ± its standard error, in frames and in ms where the rate is known, the cameras found out
+// of time marked; nothing (the table hidden) for a result without them.
+export function offsetsTable(result) {
+  const sync = result.sync;
+  if (!sync || !Array.isArray(sync.cameras)) return [];
+  const rate = typeof sync.rate_hz === "number" && sync.rate_hz > 0 ? sync.rate_hz : null;
+  const drift = sync.cameras.some((c) => c.drift_ppm != null);
+  const signed = (v, digits, scale = 1) => (typeof v === "number" ? `${v >= 0 ? "+" : ""}${num(v, digits, scale)}` : DASH);
+  const head = ["camera", "offset (frames)", "± (frames)", ...(rate ? ["offset (ms)", "± (ms)"] : []),
+    ...(drift ? ["drift (ppm)", "± (ppm)"] : []), ""];
+  const rows = sync.cameras.map((c) => {
+    const note = c.id === sync.reference ? "reference" : c.out_of_time ? "out of time"
+      : c.offset_std_frames == null ? "whole frames only" : "";
+    const cells = [c.id, signed(c.offset_frames, 3), num(c.offset_std_frames, 3),
+      ...(rate ? [signed(c.offset_frames, 2, 1000 / rate), num(c.offset_std_frames, 2, 1000 / rate)] : []),
+      ...(drift ? [signed(c.drift_ppm, 1), num(c.drift_std_ppm, 1)] : []), note];
+    return el("tr", { "data-camera": c.id, class: c.out_of_time ? "out-of-time" : "" }, ...cells.map((x) => el("td", {}, x)));
+  });
+  const late = sync.cameras.filter((c) => c.out_of_time).map((c) => c.id);
+  return [el("caption", {}, `Time offsets against ${sync.reference}, ± 1 standard error` + (rate ? "" : " (frame rate unknown: frames only)")
+    + (late.length ? ` · out of time: ${late.join(", ")}` : "")),
+  el("thead", {}, el("tr", {}, ...head.map((h) => el("th", {}, h)))), el("tbody", {}, ...rows)];
+}

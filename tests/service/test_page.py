@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from tests.service.browser import Browser
-from tests.service.conftest import JOB_TIMEOUT_S, capture_files, wait_job
+from tests.service.conftest import JOB_TIMEOUT_S, capture_files, simulated_capture, wait_job
 from tests.service.test_live_capture import (
     LOOSE_GUIDANCE,
     STATIC_SETS,
@@ -79,6 +79,36 @@ def test_page_shows_captures_jobs_and_the_solved_rig(make_server, small_capture,
     shot = artefact(tmp_path, "page-solved-rig.png")
     run = chromium(server.url + "/", tmp_path / "profile2", f"--screenshot={shot}", "--window-size=1280,1100")
     assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr
+
+
+def test_the_rig_panel_shows_the_time_offsets_of_a_capture_out_of_time(make_server, tmp_path):
+    """A job with ``"sync": "auto"`` on a capture whose cam3 is two and a half frames late: the
+    panel's offsets table gives each camera's offset and standard error (frames; the service's
+    captures carry no frame rate) and marks cam3 out of time; a job under "none" shows no table."""
+    folder, _ = simulated_capture(tmp_path / "late", cameras=4, frames=400, noise_px=0.3, static=False, seed=5,
+                                  offsets=np.array([0.0, 0.0, 2.5, 0.0]))
+    server = make_server(workers=1).start()
+    with server.client() as c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        job = wait_job(c, c.post("/jobs", json={"capture_id": capture_id, "options": {"sync": "auto"}}).json()["id"])
+    assert job["state"] == "done", job["error"]
+    dom = chromium(server.url + "/", tmp_path / "profile", "--dump-dom")
+    assert dom.returncode == 0, dom.stderr
+    table = dom.stdout[dom.stdout.index('<table id="offsets"'):]
+    table = table[: table.index("</table>")]
+    assert "hidden" not in table[: table.index(">")]
+    assert "out of time: cam3" in table and "frame rate unknown" in table
+    for cam in job["result"]["sync"]["cameras"]:
+        row = table[table.index(f'data-camera="{cam["id"]}"'):]
+        row = row[: row.index("</tr>")]
+        assert f'{cam["offset_frames"]:+.3f}' in row and f'{cam["offset_std_frames"]:.3f}' in row
+        assert ('class="out-of-time"' in row) == cam["out_of_time"] == (cam["id"] == "cam3")
+
+    with server.client() as c:
+        plain = wait_job(c, c.post("/jobs", json={"capture_id": capture_id}).json()["id"])
+    assert plain["state"] == "done", plain["error"]
+    dom = chromium(server.url + "/", tmp_path / "profile2", "--dump-dom")
+    assert '<table id="offsets" hidden=""></table>' in dom.stdout  # the newest job's result has no offsets
 
 
 def live_panel(html: str) -> str:

@@ -444,3 +444,29 @@ def test_the_report_shows_the_judgement(sim_report, tmp_path):
     assert run.returncode == 0, run.stderr
     text = " ".join(Page((tmp_path / "out-older" / "index.html").read_text()).text)
     assert "World frame placement: origin \u00b1 \u2014, axes \u00b1 \u2014" in text and "Faults: \u2014" in text
+
+
+def test_the_report_shows_the_time_offsets(tmp_path):
+    """A result of ``--sync auto`` (cam3 two and a half frames late): the page's "Time offsets"
+    table gives each camera's offset and standard error in frames and ms, and marks cam3 out of
+    time; a result under ``--sync none`` has no such section."""
+    off = np.array([0.0, 0.0, 2.5, 0.0])
+    sim = simulate_capture(4, 400, 0.3, static=False, seed=5, offsets=off)
+    result = calibrate(sim.rig, sim.wand, options={"sync": "auto", "frame_rate_hz": 100.0}).to_json()
+    (tmp_path / "result.json").write_text(json.dumps(result))
+    run = wandcal("report", str(tmp_path / "result.json"), "--out", str(tmp_path / "out"))
+    assert run.returncode == 0, run.stderr
+    html = (tmp_path / "out" / "index.html").read_text()
+    section = html[html.index('<section id="sync">'):]
+    section = section[: section.index("</section>")]
+    for cam in result["sync"]["cameras"]:
+        row = section[section.index(f'<tr data-camera="{cam["id"]}"'):]
+        row = row[: row.index("</tr>")]
+        assert f'{cam["offset_frames"]:+.3f}' in row and f'{cam["offset_std_frames"]:.3f}' in row
+        assert f'{1000 * cam["offset_frames"] / 100.0:+.2f}' in row  # ms at 100 fps
+        assert ('class="out-of-time"' in row) == (cam["id"] == "cam3") == cam["out_of_time"]
+    assert "Found out of time, against what the frame numbers (or timestamps) said: cam3" in section
+    plain = calibrate(sim.rig, sim.wand, options={"sync": "none"}).to_json()
+    (tmp_path / "plain.json").write_text(json.dumps(plain))
+    assert wandcal("report", str(tmp_path / "plain.json"), "--out", str(tmp_path / "plain")).returncode == 0
+    assert 'id="sync"' not in (tmp_path / "plain" / "index.html").read_text()

@@ -18,6 +18,7 @@ from wandcal.calib.solve.sync.fit import (
     sync_report,
     zero_timing,
 )
+from wandcal.calib.solve.sync.tracks import Tracks
 
-__all__ = ["DEFAULT_SYNC", "SYNC_MODES", "Timing", "fit_timing", "resample", "spread_frames", "sync_report",
+__all__ = ["DEFAULT_SYNC", "SYNC_MODES", "Timing", "Tracks", "fit_timing", "resample", "spread_frames", "sync_report",
            "zero_timing"]

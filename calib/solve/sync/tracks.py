@@ -21,19 +21,29 @@ DENSE_SHARE = 0.5
 # neighbouring frames) has frames too far apart in time to interpolate: 0.5 px on a simulated
 # rig at 0.3 px noise, 600-1000 px on the Brown wind-tunnel sessions, digitised frame by frame apart
 ROUGH_PX = 5.0
+# two consecutive frames' ends are matched when one matching moves them this many times less than
+# the other: a wand seen end-on (ends ~8 px apart) moving ~6 px a frame was matched crosswise, and
+# the few such frames, the fastest, held the offsets 2-3 standard errors off when not cut as outliers
+MATCH_MARGIN = 2.0
 
 
-def interpolable(pairs: WandPairs, focal: np.ndarray) -> np.ndarray:
+def interpolable(pairs: WandPairs, focal: np.ndarray, tracks: Tracks | None = None,
+                 rows: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: whether each camera's wand track can be interpolated in time. At least
     ``DENSE_SHARE`` of its frames must have a frame on either side, and the track must be smooth:
     the median distance of an end from the cubic through its four neighbouring frames
     ((-p[-2] + 4 p[-1] + 4 p[1] - p[2]) / 6) must be under ``ROUGH_PX``.
 
     Args:
-        pairs: labelled wand pairs; focal: (N, 2) pixels.
+        pairs: labelled wand pairs; focal: (N, 2) pixels; tracks: their tracks, when already built;
+        rows: the pair rows judged (default all; a fit judges the frames it uses).
     """
     n = len(focal)
-    tracks = Tracks(pairs, n)
+    tracks = tracks or Tracks(pairs, n)
+    every = pairs.xy  # the neighbouring frames' rows index all the pairs
+    parity = tracks.parity
+    if rows is not None:
+        pairs, parity = pairs.subset(rows), parity[rows]
     f = pairs.frames[pairs.frame] - tracks.first + 1
     span = len(tracks.table)
     idx = f[:, None] + np.array([-2, -1, 1, 2])[None, :]
@@ -45,8 +55,8 @@ def interpolable(pairs: WandPairs, focal: np.ndarray) -> np.ndarray:
     full: np.ndarray = np.all(window >= 0, axis=1)
     err = np.zeros(len(pairs))
     for e in range(2):
-        end = np.repeat(np.logical_xor(tracks.parity, bool(e)).astype(np.int64)[:, None], 4, axis=1)
-        pts = np.where(full[:, None, None], tracks.track(window, end, pairs.xy), 0.0)
+        end = np.repeat(np.logical_xor(parity, bool(e)).astype(np.int64)[:, None], 4, axis=1)
+        pts = np.where(full[:, None, None], tracks.track(window, end, every), 0.0)
         pred = (-pts[:, 0] + 4 * pts[:, 1] + 4 * pts[:, 2] - pts[:, 3]) / 6
         err = np.maximum(err, np.linalg.norm((pred - pairs.xy[:, e]) * focal[pairs.camera], axis=1))
     smooth = np.array([np.median(err[full & (pairs.camera == c)]) < ROUGH_PX if (full & (pairs.camera == c)).any()
@@ -72,22 +82,32 @@ class Tracks:
         self.parity = np.zeros(len(pairs), bool)
         order = np.lexsort((f, pairs.camera))
         cam, fs, xy = pairs.camera[order], f[order], pairs.xy[order]
-        nxt = (cam[1:] == cam[:-1]) & (fs[1:] == fs[:-1] + 1)
         same = np.linalg.norm(xy[1:] - xy[:-1], axis=2).sum(1)
         cross = np.linalg.norm(xy[1:] - xy[:-1, ::-1], axis=2).sum(1)
+        # consecutive frames whose ends the proximity cannot tell apart (the wand foreshortened to a
+        # few pixels and moving about as far a frame) are not linked: the track breaks there
+        clear = np.maximum(same, cross) >= MATCH_MARGIN * np.minimum(same, cross)
+        nxt = (cam[1:] == cam[:-1]) & (fs[1:] == fs[:-1] + 1) & clear
         flip = np.concatenate([[False], nxt & (cross < same)])
-        # parity accumulates along each camera's frames; across a gap it restarts (no neighbour uses it)
+        # parity accumulates along each linked run of a camera's frames; a neighbour in another run
+        # is not interpolated with (resample)
         run = np.concatenate([[0], np.cumsum(~np.concatenate([[False], nxt])[1:])])
+        self.run = np.zeros(len(pairs), np.int64)
+        self.run[order] = run
         parity = np.cumsum(flip) % 2
         start_parity = np.zeros(run.max() + 1, np.int64)
         first_of_run = np.concatenate([[True], ~nxt])
         start_parity[run[first_of_run]] = parity[first_of_run] - flip[first_of_run]
         self.parity[order] = ((parity - start_parity[run]) % 2).astype(bool)
 
-    def resample(self, phase: np.ndarray, drift: np.ndarray, centre: np.ndarray, rows: np.ndarray | None = None):
-        """(xy (Q, 2, 2), velocity (Q, 2, 2) normalised units a frame, keep (Q,), uv (Q, 2, 2))
-        of the pair rows ``rows`` (Q,) (default all), each camera c's frame f sampled at
-        f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames)."""
+    def resample(self, phase: np.ndarray, drift: np.ndarray, centre: np.ndarray, rows: np.ndarray | None = None,
+                 pixels: bool = True):
+        """(xy (Q, 2, 2), velocity (Q, 2, 2) normalised units a frame, keep (Q,), uv (Q, 2, 2),
+        spread (Q,)) of the pair rows ``rows`` (Q,) (default all), each camera c's frame f sampled
+        at f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames);
+        spread is the resampled blobs' share of a blob's noise variance (:func:`interpolate`).
+        ``pixels=False`` leaves uv at zero and keeps only the cubic's values (a fit's; the
+        calibration keeps the lines through gaps too); ``pixels=True`` leaves the velocity at zero."""
         p = self.pairs if rows is None else self.pairs.subset(rows)
         parity = self.parity if rows is None else self.parity[rows]
         f = p.frames[p.frame].astype(float)
@@ -100,20 +120,21 @@ class Tracks:
         idx = i0[:, None] + np.arange(-1, 3)[None, :]  # (P, 4) frames i0-1 .. i0+2
         inside = (idx >= 0) & (idx < span)
         window = np.where(inside, self.table[np.clip(idx, 0, span - 1), p.camera[:, None]], -1)
-        xy = np.zeros((len(p), 2, 2))
-        uv = np.zeros((len(p), 2, 2))
-        vel = np.zeros((len(p), 2, 2))
-        keep = np.ones(len(p), bool)
-        for e in range(2):
-            # row q's end e is the track's end e ^ parity[p], whichever frame holds it
-            end = np.repeat((parity ^ bool(e)).astype(np.int64)[:, None], 4, axis=1)
-            pts = self.track(window, end, self.pairs.xy)
-            raw = self.track(window, end, self.pairs.uv)
-            value, slope, ok = interpolate(pts, u)
-            xy[:, e], vel[:, e] = value, slope
-            uv[:, e] = interpolate(raw, u)[0]
-            keep &= ok
-        return xy, vel, keep, uv
+        centre_row = np.where(window[:, 1] >= 0, window[:, 1], window[:, 2])
+        window = np.where((window >= 0) & (self.run[window] == self.run[centre_row][:, None]), window, -1)
+        # row q's end e is the track's end e ^ parity[q], whichever frame holds it: both ends (and
+        # their pixels) interpolated in one pass, (Q, 4, 4 or 8)
+        ok_row = window >= 0
+        r = np.where(ok_row, window, 0)
+        e0 = parity[:, None] ^ self.parity[r]
+        parts = [self.pairs.xy[r, e0.astype(np.int64)], self.pairs.xy[r, (~e0).astype(np.int64)]]
+        if pixels:
+            parts += [self.pairs.uv[r, e0.astype(np.int64)], self.pairs.uv[r, (~e0).astype(np.int64)]]
+        pts = np.where(ok_row[..., None], np.concatenate(parts, axis=2), np.nan)
+        value, slope, keep, spread = interpolate(pts, u, strict=not pixels, slopes=not pixels)
+        xy, vel = value[:, :4].reshape(-1, 2, 2), slope[:, :4].reshape(-1, 2, 2)
+        uv = value[:, 4:].reshape(-1, 2, 2) if pixels else np.zeros((len(p), 2, 2))
+        return xy, vel, keep, uv, spread
 
     def track(self, rows: np.ndarray, end: np.ndarray, what: np.ndarray) -> np.ndarray:
         """(P, 4, 2) the track end ``end`` (P, 4) (in the track's continuous order) at each row of
@@ -125,8 +146,19 @@ class Tracks:
         return np.where(ok[..., None], out, np.nan)
 
 
-def interpolate(pts: np.ndarray, u: np.ndarray):
-    """Value and slope (per frame) at i0 + u from samples at i0-1 .. i0+2 (P, 4, 2).
+def _slope(have: np.ndarray, filled: np.ndarray) -> np.ndarray:
+    """(P, D) the secant over the outer two samples, else the nearest secant there is (see
+    :func:`interpolate`)."""
+    slope = np.where((have[:, 0] & have[:, 3])[:, None], (filled[:, 3] - filled[:, 0]) / 3, 0.0)
+    for lo, hi in ((1, 3), (0, 2), (1, 2), (0, 1)):
+        fill = ~(have[:, 0] & have[:, 3]) & have[:, lo] & have[:, hi] & np.all(slope == 0, axis=1)
+        slope = np.where(fill[:, None], (filled[:, hi] - filled[:, lo]) / (hi - lo), slope)
+    return slope
+
+
+def interpolate(pts: np.ndarray, u: np.ndarray, strict: bool = False, slopes: bool = True):
+    """Value and slope (per frame) at i0 + u from samples at i0-1 .. i0+2 (P, 4, D), a sample
+    present in all D columns or in none.
 
     The value is the cubic through the four where all four are there, else the line through
     i0 and i0 + 1, else at u = 0 the sample itself. The slope is the secant over the outer two,
@@ -134,7 +166,12 @@ def interpolate(pts: np.ndarray, u: np.ndarray):
     samples as the value would share their noise, and the offset regressed on it would be
     biased (by sigma^2 / |v|^2 x 0.5 frame at u = 0, 0.001-0.003 frame at 0.3 px); the cubic's
     outer weights are small and nearly equal, so its value and this slope hardly share any.
-    Returns (value, slope, ok)."""
+    ``strict`` keeps only the cubic's values (and the samples themselves): a line through a
+    gap is off by up to an eighth of the acceleration, along it, which an offset fitted to them
+    partly takes up. ``slopes=False`` leaves the slope at zero (the calibration's resampling).
+    Returns (value, slope, ok, spread): spread (P,) is the value's share of a sample's noise
+    variance (1 at a frame, 0.64 half-way between two by the cubic), though over consecutive
+    frames the values' noise adds up to a whole sample's again (the weights sum to 1)."""
     uu = u[:, None]
     w = np.stack([-uu * (uu - 1) * (uu - 2) / 6, (uu + 1) * (uu - 1) * (uu - 2) / 2,
                   -(uu + 1) * uu * (uu - 2) / 2, (uu + 1) * uu * (uu - 1) / 6], axis=1)  # Lagrange weights (P, 4, 1)
@@ -142,12 +179,13 @@ def interpolate(pts: np.ndarray, u: np.ndarray):
     filled = np.where(have[..., None], pts, 0.0)
     cubic = have.all(1)
     line = have[:, 1] & have[:, 2]
-    value = np.where(cubic[:, None], (w * filled).sum(1), filled[:, 1] + uu * (filled[:, 2] - filled[:, 1]))
+    value = np.where(cubic[:, None], np.einsum("pj,pjd->pd", w[:, :, 0], filled),
+                     filled[:, 1] + uu * (filled[:, 2] - filled[:, 1]))
     at_frame = (u == 0) & have[:, 1] & ~line
     value = np.where(at_frame[:, None], filled[:, 1], value)
-    slope = np.where((have[:, 0] & have[:, 3])[:, None], (filled[:, 3] - filled[:, 0]) / 3, 0.0)
-    for lo, hi in ((1, 3), (0, 2), (1, 2), (0, 1)):
-        fill = ~(have[:, 0] & have[:, 3]) & have[:, lo] & have[:, hi] & np.all(slope == 0, axis=1)
-        slope = np.where(fill[:, None], (filled[:, hi] - filled[:, lo]) / (hi - lo), slope)
+    # the value's share of one sample's noise variance: the sum of its weights' squares
+    spread = np.where(cubic, (w[:, :, 0] ** 2).sum(1), np.where(line, (1 - u) ** 2 + u**2, 1.0))
+    slope = _slope(have, filled) if slopes else np.zeros_like(value)
     ok = cubic | line | at_frame
-    return value, slope, ok
+    exact = cubic | ((u == 0) & have[:, 1])  # no line through a gap: its error follows the acceleration
+    return value, slope, np.where(strict, exact, ok), spread
