@@ -19,7 +19,7 @@ from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES
-from wandcal.capture.arguments import MAX_SEED, number, whole
+from wandcal.capture.arguments import MAX_SEED, MAX_SYNC_OFFSET, number, whole
 from wandcal.capture.folder import read_capture, write_capture
 from wandcal.service.progress import ProgressLine
 
@@ -36,7 +36,6 @@ MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
 RESULT_FILE = "result.json"  # the default method's result; the others get their own (result_path)
 
 
-MAX_SYNC_OFFSET = 10_000  # --sync-max-offset, frames: 100 s at 100 fps; further off is another recording
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -8,6 +8,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from wandcal.calib.pipeline import DEFAULT_METHOD, METHODS
+from wandcal.capture.arguments import MAX_FRAME_RATE_HZ, MAX_SYNC_OFFSET
 from wandcal.service.jobs import JobState
 
 
@@ -108,6 +109,11 @@ class JobOptions(BaseModel):
     use_static: bool = Field(True, description="use the capture's static object (if any) to fix the world frame")
     sync: Literal["none", "auto"] = Field("none", description="auto: find each camera's time offset from the wand, for "
                                           "cameras without a trigger (docs/sync.md)")
+    sync_max_offset: int | None = Field(None, ge=1, le=MAX_SYNC_OFFSET,
+                                        description="with sync auto: frames searched either side (default 8)")
+    sync_drift: bool = Field(False, description="with sync auto: also each camera's clock rate difference (ppm)")
+    frame_rate_hz: float | None = Field(None, gt=0, le=MAX_FRAME_RATE_HZ,
+                                        description="the cameras' frame rate: offsets are then also given in ms")
 
 
 class JobCreate(BaseModel):

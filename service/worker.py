@@ -33,6 +33,7 @@ from wandcal.service.jobs import Claim, JobState, JobStore
 
 log = logging.getLogger("wandcal.worker")
 
+SYNC_OPTIONS = ("sync_max_offset", "sync_drift", "frame_rate_hz")  # job options calibrate() takes as they are
 PROGRESS_INTERVAL_S = 0.2  # write progress at most this often: the page polls every second
 POLL_INTERVAL_S = 0.25  # an idle worker looks for work this often (and at once when woken)
 MONITOR_INTERVAL_S = 0.5  # the pool checks for dead workers and overdue cancellations this often
@@ -54,7 +55,7 @@ def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict
 
     static = capture.static if options.get("use_static", True) else None
     result = calibrate(capture.rig, capture.wand, static=static, method=method, progress=progress,
-                       points=capture.points, axis=capture.axis, options={"sync": options.get("sync", "none")})
+                       points=capture.points, axis=capture.axis, options={"sync": options.get("sync") or "none"} | {key: options.get(key) for key in SYNC_OPTIONS})
     return result.to_json()
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.service.conftest import capture_files
+from tests.service.conftest import capture_files, simulated_capture
 from wandcal.calib.sim.render import render_blobs
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json, write_capture
@@ -240,3 +240,26 @@ def test_settings_from_toml_and_env(tmp_path, monkeypatch):
         Settings.load(tmp_path / "missing.toml")
     assert Settings(host="127.0.0.1").loopback and Settings(host="::1").loopback
     assert not Settings(host="0.0.0.0").loopback
+
+
+def test_sync_job_options_reach_the_solver_and_bad_ones_get_422(app_client, tmp_path):
+    """The command line's --sync-max-offset, --sync-drift and the frame rate as job options: a camera
+    2.5 frames late is found in a search window of 4 frames, its offset reported in seconds at the
+    rate given; out-of-range values are refused with a 422 naming the option."""
+    folder, _ = simulated_capture(tmp_path / "late", cameras=4, frames=400, noise_px=0.3, static=False, seed=5,
+                                  offsets=np.array([0.0, 0.0, 2.5, 0.0]))
+    app, c = app_client()
+    capture = upload(c, folder)
+    for bad in ({"frame_rate_hz": 0}, {"sync_max_offset": 0}, {"sync_drift": "sometimes"}):
+        r = c.post("/jobs", json={"capture_id": capture["id"], "options": {"sync": "auto"} | bad})
+        assert r.status_code == 422 and next(iter(bad)) in r.text, r.text
+    options = {"sync": "auto", "sync_max_offset": 4, "sync_drift": True, "frame_rate_hz": 100.0}
+    job = c.post("/jobs", json={"capture_id": capture["id"], "options": options}).json()
+    app.state.wandcal.queue.drain()
+    job = c.get(f"/jobs/{job['id']}").json()
+    assert job["state"] == "done", job["error"]
+    sync = job["result"]["sync"]
+    assert sync["rate_hz"] == 100.0
+    late = next(cam for cam in sync["cameras"] if cam["id"] == "cam3")
+    assert late["out_of_time"] and late["offset_s"] == pytest.approx(late["offset_frames"] / 100.0)
+    assert all(cam["drift_ppm"] is not None for cam in sync["cameras"])  # --sync-drift's estimate
