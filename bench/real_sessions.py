@@ -67,7 +67,9 @@ def brown(session: int, method: str = "ba", intrinsics: str = "optimised", optio
 def _score_on_easywand_frames(result, folder: Path) -> tuple[float, int]:
     """Our wand score on the frames easyWand scored: the rows of its undistorted points
     (``ptMatu``, where it blanked the ends it judged outliers) with both ends in two or more
-    cameras, each end triangulated from the same camera views with our cameras."""
+    cameras, each end triangulated from the same camera views with our cameras. As easyWand
+    computes its ``wandScore`` (``nanstd(dDLT) ./ nanmean(dDLT) * 100`` in easyWand5.m's
+    DLT step): MATLAB's ``std``, the sample standard deviation (n - 1)."""
     raw = np.genfromtxt(folder / "wandpts_raw.csv", delimiter=",", skip_header=1)
     kept = np.genfromtxt(folder / "wandpts_undistorted_easywand.csv", delimiter=",", skip_header=1)
     n = len(result.rig.cameras)
@@ -89,7 +91,7 @@ def _score_on_easywand_frames(result, folder: Path) -> tuple[float, int]:
         lengths.append(np.linalg.norm(ends[1] - ends[0]))
     lengths = np.array(lengths)
     lengths = lengths[np.isfinite(lengths)]
-    return float(100 * lengths.std() / lengths.mean()), int(len(lengths))
+    return float(100 * lengths.std(ddof=1) / lengths.mean()), int(len(lengths))
 
 
 def ushichka(method: str = "ba") -> dict:
