@@ -122,6 +122,14 @@ class WandModel:
         half = 0.5 * self.p.length * d
         return np.stack([m - half, m + half], axis=1)
 
+    def unit_frames(self, x: np.ndarray) -> np.ndarray:
+        """(F, 2, 3) each frame's midpoint -/+ half its unit direction: what a WandModel starts
+        from (``wand0``), the direction kept also where the wand has no length (the frames of a
+        wand-less capture's point tracks, wandcal.calib.refine.with_tracks)."""
+        _, _, m, ab = self.unpack(x)
+        d, _ = self.directions(ab)
+        return np.stack([m - 0.5 * d, m + 0.5 * d], axis=1)
+
     def _camera_points(self, x: np.ndarray):
         p = self.p
         delta, t, m, ab = self.unpack(x)
