@@ -160,8 +160,8 @@ def calibrate(
             "the capture has no wand blobs (or no wand length) and no point seen by two cameras; record the wand, "
             "or give points.csv with markers seen by several cameras at once"
         )
-    if not has_wand and method != "ba":
-        raise CalibrationError(f"a capture without a wand calibrates with --method ba only, not {method!r}")
+    if not has_wand and method not in ("ba", "lp"):
+        raise CalibrationError(f"a capture without a wand calibrates with --method ba or lp, not {method!r}")
     seen = np.bincount(pairs.camera, minlength=len(rig.cameras))
     if tracks is not None:
         seen = seen + np.bincount(tracks.camera, minlength=len(rig.cameras))
