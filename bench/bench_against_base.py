@@ -98,8 +98,9 @@ def main() -> int:
                     rows += [f"| {label or tree} " + row for row in compare(rig, outliers, envs, Path(tmp), args.rounds)]
     body = (f"The whole `wandcal calibrate` process on the Peers bench's simulated synchronised two-marker captures "
             f"(with an L-frame), this tree against each base, {args.rounds} rounds interleaved (base first in even "
-            f"rounds), medians; BLAS on one thread. Goal (issue 23): head no more than {GOAL:.0%} slower.\n\n"
-            + "\n".join(rows))
+            f"rounds), medians; BLAS on one thread. Goal (issue 23): head no more than {GOAL:.0%} slower. A base of "
+            f"this tree itself (A/A) shows the shared host's noise; a base older than the last merge from main also "
+            f"differs by every other issue merged since.\n\n" + "\n".join(rows))
     print(body)
     if not args.no_write:
         write_section("Issue 23: multi-marker and planar wands against the two-marker speed", body)
