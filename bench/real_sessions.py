@@ -64,13 +64,36 @@ def brown(session: int, method: str = "ba", intrinsics: str = "optimised", optio
     }
 
 
+def easywand_cameras_score(session: int) -> tuple[float, int]:
+    """The wand score of easyWand's own cameras (its DLT's K, R, t in easywand_result.json, our
+    lens model for the distortion) scored our way on its frames: checks that our score is
+    easyWand's ``wandScore``."""
+    import dataclasses
+
+    folder = SHARED_DATA / BROWN / f"calibration{session}"
+    ref = json.loads((folder / "easywand_result.json").read_text())["reference_cameras_derived_from_dlt"]
+    cap = read_easywand_mat(folder / BROWN_MAT).capture
+    cameras = [dataclasses.replace(c, K=np.array(r["K_ydown"])) for c, r in zip(cap.rig.cameras, ref)]
+    R = np.array([r["R_world_to_cam"] for r in ref])
+    t = np.array([r["t_world_to_cam_m"] for r in ref])
+    return _score(R, t, cameras, folder)
+
+
 def _score_on_easywand_frames(result, folder: Path) -> tuple[float, int]:
-    """Our wand score on the frames easyWand scored: the rows of its undistorted points
-    (``ptMatu``, where it blanked the ends it judged outliers) with both ends in two or more
-    cameras, each end triangulated from the same camera views with our cameras."""
+    """:func:`_score` of a calibration's cameras."""
+    return _score(result.R, result.t, result.rig.cameras, folder)
+
+
+def _score(R: np.ndarray, t: np.ndarray, cameras, folder: Path) -> tuple[float, int]:
+    """The wand score (%) and frames of cameras R (N, 3, 3), t (N, 3) on the frames easyWand
+    scored: the rows of its undistorted points (``ptMatu``, where it blanked the ends it judged
+    outliers) with both ends in two or more cameras, each end triangulated from the same camera
+    views. As easyWand
+    computes its ``wandScore`` (``nanstd(dDLT) ./ nanmean(dDLT) * 100`` in easyWand5.m's
+    DLT step): MATLAB's ``std``, the sample standard deviation (n - 1)."""
     raw = np.genfromtxt(folder / "wandpts_raw.csv", delimiter=",", skip_header=1)
     kept = np.genfromtxt(folder / "wandpts_undistorted_easywand.csv", delimiter=",", skip_header=1)
-    n = len(result.rig.cameras)
+    n = len(cameras)
     raw_by_row = {int(r[0]): r[1:] for r in raw}
     lengths = []
     for row in kept:
@@ -84,12 +107,12 @@ def _score_on_easywand_frames(result, folder: Path) -> tuple[float, int]:
         ends = []
         for e in range(2):
             cams = np.flatnonzero(seen[e])
-            xy = np.array([undistort_points(result.rig.cameras[c], np.array([[uv[e, c, 0], result.rig.cameras[c].height - uv[e, c, 1]]]))[0] for c in cams])
-            ends.append(triangulate_points(result.R, result.t, np.zeros(len(cams), int), cams, xy, 1)[0])
+            xy = np.array([undistort_points(cameras[c], np.array([[uv[e, c, 0], cameras[c].height - uv[e, c, 1]]]))[0] for c in cams])
+            ends.append(triangulate_points(R, t, np.zeros(len(cams), int), cams, xy, 1)[0])
         lengths.append(np.linalg.norm(ends[1] - ends[0]))
     lengths = np.array(lengths)
     lengths = lengths[np.isfinite(lengths)]
-    return float(100 * lengths.std() / lengths.mean()), int(len(lengths))
+    return float(100 * lengths.std(ddof=1) / lengths.mean()), int(len(lengths))
 
 
 def ushichka(method: str = "ba") -> dict:

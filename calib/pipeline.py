@@ -166,8 +166,8 @@ def calibrate(
             "the capture has no wand blobs (or no wand length) and no point seen by two cameras; record the wand, "
             "or give points.csv with markers seen by several cameras at once"
         )
-    if not has_wand and method != "ba":
-        raise CalibrationError(f"a capture without a wand calibrates with --method ba only, not {method!r}")
+    if not has_wand and method not in ("ba", "lp"):
+        raise CalibrationError(f"a capture without a wand calibrates with --method ba or lp, not {method!r}")
     seen = np.bincount(pairs.camera, minlength=len(rig.cameras))
     if tracks is not None:
         seen = seen + np.bincount(tracks.camera, minlength=len(rig.cameras))
@@ -199,7 +199,9 @@ def calibrate(
     warnings += init.notes
 
     tell({"stage": "labels", "message": "telling the wand ends apart"})
-    labelled = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0] if has_wand else pairs
+    planar = blobs is not None and blobs.fit_px is not None  # a planar wand's rows come labelled from the layout
+    labelled = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0] if (
+        has_wand and not planar) else pairs
     sync_doc = None
     if timed is not None:  # sub-frame offsets with the start poses refined; the frames resampled to the reference's instants
         drift = bool(options.get("sync_drift"))
@@ -302,10 +304,15 @@ def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings
     from wandcal.calib.solve.markerwand import marker_model, marker_pair_lengths
     from wandcal.calib.start.markerlabels import label_interior
 
-    labels = label_interior(rig, blobs, r.labelled, r.R, r.t)
+    labels = label_interior(rig, blobs, r.labelled, r.R, r.t, (r.setup.frames, r.wand))
     pair_index = labelled_rows(r)
-    model, rows = marker_model(r.setup.problem, pair_index, r.labelled.camera, labels.xy, labels.along, r.R, r.t,
-                               r.wand, r.setup.model.fixed)
+    fit = labels if method != "lp" else labels.on_axis()  # lp's frames have no roll: the markers on the axis
+    model, rows = marker_model(r.setup.problem, pair_index, r.labelled.camera, fit.xy, fit.along, r.R, r.t,
+                               r.wand, r.setup.model.fixed, fit.across)
+    if fit.across is not None:  # a planar wand's ends as the labels at the solved rig name them
+        ends = np.where(r.setup.problem.end == 1, fit.xy.shape[1] - 1, 0)
+        r = replace(r, setup=replace(r.setup, problem=replace(r.setup.problem, xy=fit.xy[pair_index, ends]),
+                                     uv=fit.uv[pair_index, ends]))
     x = model.x0()
     if method == "paper" or r.info.get("refined_intrinsics"):
         warnings.append(f"the wand's interior markers label its frames; only --method ba or lp without "

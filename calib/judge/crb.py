@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.geometry import camera_centers, euler_jacobian, rotation_angle
-from wandcal.calib.solve.wandmodel import CAM_PARAMS, FRAME_PARAMS, WandModel, WandProblem
+from wandcal.calib.solve.wandmodel import CAM_PARAMS, WandModel, WandProblem
 
 
 def orient_wand(wand: np.ndarray, problem: WandProblem, R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -55,14 +55,14 @@ def model_crb(model: WandModel, sigma_px: float):
     Icc = (Jc.T @ Jc).toarray()
     Icf = (Jc.T @ Jf).toarray()
     Iff = (Jf.T @ Jf).tocsr()
-    F = problem.n_frames
-    # the frame block is block-diagonal (5 x 5 per frame): invert it block by block
-    blocks = np.zeros((F, FRAME_PARAMS, FRAME_PARAMS))
+    F, k = problem.n_frames, model.frame_params
+    # the frame block is block-diagonal (5 x 5 per frame, 6 x 6 for a planar wand): invert it block by block
+    blocks = np.zeros((F, k, k))
     coo = Iff.tocoo()
-    blocks[coo.row // FRAME_PARAMS, coo.row % FRAME_PARAMS, coo.col % FRAME_PARAMS] = coo.data
-    blocks += 1e-12 * np.eye(FRAME_PARAMS)
+    blocks[coo.row // k, coo.row % k, coo.col % k] = coo.data
+    blocks += 1e-12 * np.eye(k)
     inv = np.linalg.inv(blocks)
-    Icf3 = Icf.reshape(nc, F, FRAME_PARAMS)
+    Icf3 = Icf.reshape(nc, F, k)
     schur = Icc - np.einsum("cfi,fij,dfj->cd", Icf3, inv, Icf3)
     cov = sigma_px**2 * np.linalg.inv(schur)
     dE = euler_jacobian(np.zeros(3))

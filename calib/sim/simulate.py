@@ -124,6 +124,23 @@ def wand_path(
     return out.reshape(*grid.shape, 2, 3)
 
 
+ROLL_STREAM = 23  # the random stream of a planar wand's roll (issue 23), apart from the capture's own
+ROLL_PERIODS = (173.0, 61.0)  # frames: a slow turn and a quicker wobble of the wand's plane
+
+
+def wand_roll(rng: np.random.Generator):
+    """A planar wand's roll angle (radians) about its axis as a function of the instant (frames):
+    a random start, a full slow turn and a wobble of about a radian, so the plane is seen from
+    every side and, now and then, edge on."""
+    phase = rng.uniform(0, 2 * np.pi, 3)
+    amplitude = rng.uniform(0.6, 1.2)
+
+    def roll(tau: np.ndarray) -> np.ndarray:
+        return (phase[0] + 2 * np.pi * tau / ROLL_PERIODS[0] + amplitude * np.sin(2 * np.pi * tau / ROLL_PERIODS[1]
+                                                                                   + phase[1]))
+    return roll
+
+
 def camera_times(frames: int, offsets: np.ndarray, drift_ppm: np.ndarray | None = None) -> np.ndarray:
     """(N, F) the instant, in frames of the reference clock, at which each camera exposed its
     frame k: ``k * (1 + drift_ppm 1e-6) + offset`` (docs/sync.md's model).
@@ -205,8 +222,9 @@ def simulate_capture(
         seed: random seed.
         wand_length: metres.
         occlusion: probability that a marker is hidden from a camera in a frame.
-        wand_markers: (K, 3) a collinear multi-marker wand's layout (metres; its span replaces
-            ``wand_length``), or None for two markers. ``truth.wand`` is then (F, K, 3), the
+        wand_markers: (K, 3) a collinear or planar multi-marker wand's layout (metres; its span
+            replaces ``wand_length``; a planar wand rolls about its axis, :func:`wand_roll`), or
+            None for two markers. ``truth.wand`` is then (F, K, 3), the
             markers in the layout's order.
         offsets: (N,) each camera's time offset, frames: its frame k shows the wand at the
             reference instant k + offset (``truth.wand`` is at the reference instants); None: all
@@ -217,7 +235,7 @@ def simulate_capture(
     rng = np.random.default_rng(seed)
     cams, R, t = ring_cameras(cameras, rng)
     if wand_markers is not None:
-        from wandcal.calib.wandlayout import axial_offsets, check_layout, span
+        from wandcal.calib.wandlayout import check_layout, plane_offsets, span
 
         wand_markers = check_layout(wand_markers)
         wand_length = span(wand_markers)
@@ -229,13 +247,28 @@ def simulate_capture(
         both = wand_path(frames, wand_length, rng, np.concatenate([np.arange(frames)[None], times]), sweep_frames)
         wand, seen = both[0], both[1:]
     if wand_markers is not None:
-        along = axial_offsets(wand_markers)
+        offsets_2d = plane_offsets(wand_markers)
+        # a planar wand's roll about its axis, a smooth function of the instant (its own stream, so
+        # that collinear captures keep theirs)
+        roll = wand_roll(np.random.default_rng(None if seed is None else [seed, ROLL_STREAM]))
+        instants = np.arange(frames, dtype=float) if offsets is None and drift_ppm is None else np.concatenate(
+            [np.arange(frames, dtype=float)[None], times])
 
-        def markers(ends: np.ndarray) -> np.ndarray:  # (..., 2, 3) ends -> (..., K, 3) every marker
+        def markers(ends: np.ndarray, tau: np.ndarray) -> np.ndarray:  # (..., 2, 3) ends -> (..., K, 3) every marker
             d = (ends[..., 1, :] - ends[..., 0, :]) / wand_length
-            return ends.mean(axis=-2)[..., None, :] + along[:, None] * d[..., None, :]
+            helper = np.where(np.abs(d[..., :1]) < 0.9, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
+            u1 = np.cross(d, helper)
+            u1 /= np.linalg.norm(u1, axis=-1, keepdims=True)
+            phi = roll(tau)[..., None]
+            e = np.cos(phi) * u1 + np.sin(phi) * np.cross(d, u1)
+            return (ends.mean(axis=-2)[..., None, :] + offsets_2d[:, :1] * d[..., None, :]
+                    + offsets_2d[:, 1:] * e[..., None, :])
 
-        wand, seen = markers(wand), markers(seen)
+        if offsets is None and drift_ppm is None:
+            wand = seen = markers(wand, instants)
+        else:
+            both = markers(np.concatenate([wand[None], seen]), instants)
+            wand, seen = both[0], both[1:]
     obs = observe_wand(cams, R, t, seen, noise_px, outliers, occlusion, rng)
     static_obs = observe_static(cams, R, t, L_FRAME_M, noise_px / np.sqrt(STATIC_FRAMES_AVERAGED), rng) if static else None
     rig = Rig(cameras=tuple(cams), wand_length=wand_length, static_markers=L_FRAME_M.copy() if static else None,

@@ -31,9 +31,9 @@ from threadpoolctl import threadpool_limits
 from wandcal.calib.geometry import camera_centers, matrix_to_euler
 from wandcal.calib.observations import PointTracks
 from wandcal.calib.solve.backend import schur
+from wandcal.calib.solve.markerwand import planar_term
 from wandcal.calib.solve.reprojection import (
     CAM_PARAMS,
-    FRAME_PARAMS,
     INTRINSICS,
     BundleState,
     PointTerm,
@@ -146,8 +146,8 @@ def bundle_adjust_points(
     terms = []
     if len(p.camera):
         raw = (intrinsics.wand_uv, refine) if refine else None
-        terms.append(WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, free, n, raw,
-                              p.along))
+        terms.append(planar_term(p, free, raw) if p.planar else
+                     WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, free, n, raw, p.along))
     if tracks is not None and len(tracks):
         raw = (intrinsics.point_uv, refine) if refine else None
         terms.append(PointTerm(tracks.camera, tracks.track, tracks.xy, p.focal[tracks.camera], tracks.n_tracks, free, n, raw))
@@ -156,7 +156,8 @@ def bundle_adjust_points(
     d = wand[:, 1] - wand[:, 0]
     X = np.zeros((0, 3)) if X0 is None else np.asarray(X0, float)
     intr = intrinsics.intr.copy() if refine else None
-    state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), X, intr)
+    Q = model.axes(model.unpack(x0)[3]) if p.planar else None
+    state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), X, intr, Q)
     frozen = [(int(np.flatnonzero(free == g)[0]), j) for g in np.flatnonzero(model.fixed) for j in range(CAM_PARAMS)] if refine else []
     if not len(p.camera):
         frozen.append(_scale_gauge(R, t, free, model.fixed, frozen))
@@ -227,7 +228,7 @@ class _LevenbergMarquardt:
         if self.refine:
             intr = intr.copy()
             intr[self.free] = moved_intrinsics(state.intr[self.free], step.dc[:, 6:], self.refine)
-        state = BundleState(R, t, state.m, state.d, state.X, intr)
+        state = BundleState(R, t, state.m, state.d, state.X, intr, state.Q)
         for term, dp in zip(self.terms, step.dp):
             state = term.moved(state, dp)
         return state
@@ -376,14 +377,18 @@ def _step_in_standard_errors(step: schur.Step, z: np.ndarray) -> float:
 
 def _pack(model: WandModel, s: BundleState) -> np.ndarray:
     """The state in the model's parameters: Euler increments about R0, t, and per frame the
-    midpoint and the direction's coordinates (a, b) with d parallel to d0 + a e1 + b e2."""
+    midpoint and the direction's coordinates (a, b) with d parallel to d0 + a e1 + b e2 (a planar
+    wand's: the Euler increments of its axes about Q0)."""
     x = np.zeros(model.n_params)
     cams = x[: model.frame_col0].reshape(-1, CAM_PARAMS)
     f = model.free
     cams[:, :3] = matrix_to_euler(s.R[f] @ np.swapaxes(model.R0[f], 1, 2))
     cams[:, 3:] = s.t[f]
-    fr = x[model.frame_col0 :].reshape(-1, FRAME_PARAMS)
+    fr = x[model.frame_col0 :].reshape(-1, model.frame_params)
     fr[:, :3] = s.m
+    if model.p.planar:
+        fr[:, 3:] = matrix_to_euler(s.Q @ np.swapaxes(model.Q0, 1, 2))
+        return x
     along = np.einsum("fi,fi->f", s.d, model.d0)
     fr[:, 3] = np.einsum("fi,fi->f", s.d, model.e1) / along
     fr[:, 4] = np.einsum("fi,fi->f", s.d, model.e2) / along

@@ -154,7 +154,7 @@ def _frame_subset(model: WandModel, x: np.ndarray, keep: np.ndarray):
     sel = new_index[p.frame] >= 0
     sub_p = WandProblem(p.camera[sel], new_index[p.frame[sel]], p.end[sel], p.xy[sel], p.focal, p.length, len(keep),
                         None if p.along is None else p.along[sel])
-    sub = WandModel(sub_p, model.R0, model.t0, model.wand(x)[keep], model.fixed)
+    sub = WandModel(sub_p, model.R0, model.t0, model.unit_frames(x)[keep], model.fixed)
     sub_x = sub.x0()
     sub_x[: sub.frame_col0] = x[: model.frame_col0]
     return sub, sub_x

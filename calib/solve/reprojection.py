@@ -26,7 +26,8 @@ INTRINSICS = {"focal": 1, "principal": 2, "k1": 1}
 @dataclass(frozen=True, eq=False)
 class BundleState:
     """R (N, 3, 3), t (N, 3) world->camera, metres; m (F, 3) wand midpoints; d (F, 3) unit wand
-    directions; X (T, 3) free points."""
+    directions; X (T, 3) free points; Q (F, 3, 3) a planar wand's axes (columns d, e, n:
+    wandcal.calib.solve.markerwand.PlanarWandTerm), else None."""
 
     R: np.ndarray
     t: np.ndarray
@@ -34,6 +35,7 @@ class BundleState:
     d: np.ndarray
     X: np.ndarray
     intr: np.ndarray | None = None  # (N, 9) fx, fy, cx, cy, k1, k2, p1, p2, k3 when refined
+    Q: np.ndarray | None = None
 
 
 def camera_index(free: np.ndarray, camera: np.ndarray, n_cams: int) -> np.ndarray:

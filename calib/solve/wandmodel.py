@@ -5,7 +5,10 @@ Parameters:
   paper, ``Rz Ry Rx``; increments about the start never meet gimbal lock), and ``t`` (3,);
 - per wand frame: the midpoint ``m`` (3,) and 2 direction increments ``(a, b)`` with
   ``d = normalize(d0 + a e1 + b e2)``; the ends are ``m -/+ L/2 d``, so the wand length L is
-  built into the parametrisation rather than fitted afterwards.
+  built into the parametrisation rather than fitted afterwards;
+- per frame of a planar wand (``WandProblem.across`` given): the midpoint and 3 Euler increments
+  ``w`` of the wand's own axes, ``Q = E(w) Q0`` with columns (d, e, n): the axis, the in-plane
+  normal to it and the plane's normal; marker k is at ``m + o_k d + q_k e``.
 
 Residuals are reprojection errors in pixels (normalised error times fx, fy). The gauge is fixed
 by holding the cameras in ``fixed`` at their start (one camera: 6 DOF); scale comes from L.
@@ -21,6 +24,7 @@ from wandcal.calib.geometry import euler_jacobian, euler_to_matrix
 
 CAM_PARAMS = 6
 FRAME_PARAMS = 5
+PLANAR_FRAME_PARAMS = 6  # a planar wand's roll about its axis is observed: one more per frame
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,7 +35,9 @@ class WandProblem:
     xy: (M, 2) normalised coordinates; focal: (N, 2) fx, fy per camera; length: metres.
     along: (M,) for a wand of more markers (wandcal.calib.start.markerlabels), each observed
     marker's position on the axis from the midpoint of the end markers, metres (end 0 at
-    -length/2, end 1 at +length/2); None for the two ends alone.
+    -length/2, end 1 at +length/2); None for the two ends alone. across: (M,) for a planar wand,
+    each observed marker's offset across the axis in the wand's plane, metres (wandcal.calib.wandlayout.plane_offsets); None
+    for a collinear one.
     """
 
     camera: np.ndarray
@@ -42,6 +48,7 @@ class WandProblem:
     length: float
     n_frames: int
     along: np.ndarray | None = None
+    across: np.ndarray | None = None
 
     @property
     def n_cams(self) -> int:
@@ -53,7 +60,12 @@ class WandProblem:
 
     def subset(self, keep: np.ndarray) -> WandProblem:
         return WandProblem(self.camera[keep], self.frame[keep], self.end[keep], self.xy[keep], self.focal, self.length,
-                           self.n_frames, None if self.along is None else self.along[keep])
+                           self.n_frames, None if self.along is None else self.along[keep],
+                           None if self.across is None else self.across[keep])
+
+    @property
+    def planar(self) -> bool:
+        return self.across is not None
 
     @property
     def offsets(self) -> np.ndarray:
@@ -69,9 +81,12 @@ class WandModel:
         R0: (N, 3, 3), t0: (N, 3) start poses.
         wand0: (F, 2, 3) start wand ends (only their midpoint and direction are used).
         fixed: (N,) bool, cameras held at their start pose (the gauge).
+        plane0: (F, 3) a planar wand's start in-plane direction across its axis (made normal to
+            the axis here); needed when ``problem.planar``.
     """
 
-    def __init__(self, problem: WandProblem, R0: np.ndarray, t0: np.ndarray, wand0: np.ndarray, fixed: np.ndarray):
+    def __init__(self, problem: WandProblem, R0: np.ndarray, t0: np.ndarray, wand0: np.ndarray, fixed: np.ndarray,
+                 plane0: np.ndarray | None = None):
         self.p = problem
         self.R0 = np.asarray(R0, float)
         self.t0 = np.asarray(t0, float)
@@ -84,33 +99,47 @@ class WandModel:
         e1 = np.cross(self.d0, helper)
         self.e1 = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
         self.e2 = np.cross(self.d0, self.e1)
+        self.frame_params = FRAME_PARAMS
+        if problem.planar:
+            if plane0 is None:
+                raise ValueError("a planar wand's model needs its frames' start planes (plane0)")
+            e = plane0 - np.einsum("fi,fi->f", plane0, self.d0)[:, None] * self.d0
+            e /= np.linalg.norm(e, axis=1, keepdims=True)
+            self.Q0 = np.stack([self.d0, e, np.cross(self.d0, e)], axis=2)  # (F, 3, 3), columns d, e, n
+            self.frame_params = PLANAR_FRAME_PARAMS
         self.cam_col = np.full(problem.n_cams, -1)
         self.cam_col[self.free] = np.arange(len(self.free)) * CAM_PARAMS
         self.frame_col0 = len(self.free) * CAM_PARAMS
-        self.n_params = self.frame_col0 + FRAME_PARAMS * problem.n_frames
+        self.n_params = self.frame_col0 + self.frame_params * problem.n_frames
 
     def x0(self) -> np.ndarray:
         x = np.zeros(self.n_params)
         x[: self.frame_col0] = np.concatenate([np.r_[0.0, 0.0, 0.0, self.t0[c]] for c in self.free]) if len(self.free) else []
-        fr = x[self.frame_col0 :].reshape(-1, FRAME_PARAMS)
+        fr = x[self.frame_col0 :].reshape(-1, self.frame_params)
         fr[:, :3] = self.m0
         return x
 
     def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """x -> (delta (N,3), t (N,3), m (F,3), ab (F,2))."""
+        """x -> (delta (N,3), t (N,3), m (F,3), ab (F,2)); a planar wand's w (F,3) for ab."""
         delta = np.zeros((self.p.n_cams, 3))
         t = self.t0.copy()
         cams = x[: self.frame_col0].reshape(-1, CAM_PARAMS)
         delta[self.free] = cams[:, :3]
         t[self.free] = cams[:, 3:]
-        fr = x[self.frame_col0 :].reshape(-1, FRAME_PARAMS)
+        fr = x[self.frame_col0 :].reshape(-1, self.frame_params)
         return delta, t, fr[:, :3], fr[:, 3:]
 
     def poses(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         delta, t, _, _ = self.unpack(x)
         return euler_to_matrix(delta) @ self.R0, t
 
+    def axes(self, w: np.ndarray) -> np.ndarray:
+        """(F, 3, 3) a planar wand's axes E(w) Q0 at increments w (F, 3): columns d, e, n."""
+        return euler_to_matrix(w) @ self.Q0
+
     def directions(self, ab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.p.planar:
+            return self.axes(ab)[:, :, 0], np.ones(len(ab))
         v = self.d0 + ab[:, :1] * self.e1 + ab[:, 1:] * self.e2
         norm = np.linalg.norm(v, axis=1, keepdims=True)
         return v / norm, norm[:, 0]
@@ -122,6 +151,14 @@ class WandModel:
         half = 0.5 * self.p.length * d
         return np.stack([m - half, m + half], axis=1)
 
+    def unit_frames(self, x: np.ndarray) -> np.ndarray:
+        """(F, 2, 3) each frame's midpoint -/+ half its unit direction: what a WandModel starts
+        from (``wand0``), the direction kept also where the wand has no length (the frames of a
+        wand-less capture's point tracks, wandcal.calib.refine.with_tracks)."""
+        _, _, m, ab = self.unpack(x)
+        d, _ = self.directions(ab)
+        return np.stack([m - 0.5 * d, m + 0.5 * d], axis=1)
+
     def _camera_points(self, x: np.ndarray):
         p = self.p
         delta, t, m, ab = self.unpack(x)
@@ -130,6 +167,8 @@ class WandModel:
         d, vnorm = self.directions(ab)
         sign = p.offsets
         X = m[p.frame] + sign[:, None] * d[p.frame]
+        if p.across is not None:
+            X = X + p.across[:, None] * self.axes(ab)[p.frame, :, 1]
         xc = np.einsum("mij,mj->mi", R[p.camera], X) + t[p.camera]
         return delta, R, d, vnorm, sign, X, xc
 
@@ -169,11 +208,17 @@ class WandModel:
         J_t = Dp
         DpR = Dp @ R[p.camera]
         fr = p.frame
-        P = (np.eye(3)[None] - d[fr][:, :, None] * d[fr][:, None, :]) / vnorm[fr][:, None, None]
-        basis = np.stack([self.e1[fr], self.e2[fr]], axis=2)  # (M, 3, 2)
-        J_ab = sign[:, None, None] * (DpR @ P @ basis)
-        blocks = np.concatenate([J_rot, J_t, DpR, J_ab], axis=2)  # (M, 2, 11)
+        if p.across is not None:
+            # X = m + E(w) Q0 (o, q, 0): dX/dw_k = dE_k Q0 (o, q, 0)
+            body = np.einsum("mij,mj->mi", self.Q0[fr], np.stack([sign, p.across, np.zeros_like(sign)], axis=1))
+            dE = euler_jacobian(self.unpack(x)[3])[fr]  # (M, 3, 3, 3): dE/dw_k
+            J_ab = DpR @ np.einsum("mkij,mj->mik", dE, body)
+        else:
+            P = (np.eye(3)[None] - d[fr][:, :, None] * d[fr][:, None, :]) / vnorm[fr][:, None, None]
+            basis = np.stack([self.e1[fr], self.e2[fr]], axis=2)  # (M, 3, 2)
+            J_ab = sign[:, None, None] * (DpR @ P @ basis)
+        blocks = np.concatenate([J_rot, J_t, DpR, J_ab], axis=2)  # (M, 2, 6 + frame_params)
         cam_base = self.cam_col[p.camera]
         cam_cols = np.where(cam_base[:, None] >= 0, cam_base[:, None] + np.arange(CAM_PARAMS), -1)
-        frame_cols = self.frame_col0 + FRAME_PARAMS * fr[:, None] + np.arange(FRAME_PARAMS)
+        frame_cols = self.frame_col0 + self.frame_params * fr[:, None] + np.arange(self.frame_params)
         return blocks, np.concatenate([cam_cols, frame_cols], axis=1)

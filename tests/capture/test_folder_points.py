@@ -128,3 +128,27 @@ def test_cli_refuses_garbage_mat_files(tmp_path, capsys):
     assert main(["import", "easywand", str(tmp_path / "missing.mat"), "--out", str(tmp_path / "d")]) == 2
     assert "missing.mat: not found" in capsys.readouterr().err
     assert not any((tmp_path / d).exists() for d in "abcd")
+
+
+@pytest.mark.parametrize("part, bad, message", [
+    (RIG_FILE, {"markers_m": [[0, 0, 0], [0.2, 0, 0], [0.2, 0, 0]]}, "rig.json: wand.markers_m: markers 1 and 2 coincide"),
+    (POINTS_FILE, "frame,camera,u,v,point\n0,cam1,1,2,nose\n0,cam2,3,4,\n",
+     "points.csv line 3, column 'point': empty, but line 2 names point 'nose'"),
+])
+def test_calibrate_refuses_a_bad_wand_layout_or_mixed_point_column_naming_file_and_field(sim, tmp_path, capsys, part,
+                                                                                           bad, message):
+    """Exit 2 with the file and field named, and nothing written: the capture stays as it was."""
+    folder = tmp_path / "cap"
+    write_capture(folder, sim.rig, sim.wand, sim.static)
+    if part == RIG_FILE:
+        doc = json.loads((folder / RIG_FILE).read_text())
+        doc["wand"] = bad
+        (folder / RIG_FILE).write_text(json.dumps(doc))
+    else:
+        (folder / part).write_text(bad)
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert main(["calibrate", str(folder), "--quiet", "--out", str(tmp_path / "result.json")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "result.json").exists()
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before

@@ -22,6 +22,12 @@ def _std_of_std(n: int) -> float:
     return 1 / np.sqrt(2 * (n - 1))
 
 
+# Brown cal2: ours 0.298% (ba) / 0.287% (lp) against easyWand's 0.245%; why, and what was tried,
+# in docs/decisions/0020-brown-wand-score.md. Strict: the mark must go when the goal is met.
+_SHORT_OF_EASYWAND = pytest.mark.xfail(strict=True, reason="cal2's background points hold the cameras where the "
+                                       "wand lengths spread more than easyWand's (decision 0020)")
+
+
 @pytest.mark.parametrize("session", [1, 2])
 @pytest.mark.parametrize("method", ["ba", "lp"])
 def test_brown_wind_tunnel_calibrates_as_easywand_did(session, method):
@@ -32,10 +38,36 @@ def test_brown_wind_tunnel_calibrates_as_easywand_did(session, method):
           f"({got['wand_score_percent']:.3f}% on our {got['wand_frames']}), easyWand {got['easywand_wand_score_percent']:.3f}% "
           f"on {got['easywand_frames']}; centres vs easyWand {np.round(got['centre_diff_mm'], 1)} mm")
     assert n == got["easywand_frames"]
-    # the issue's goal is <= easyWand's score; a score measured on ~25 frames has a sampling error
-    # of 1/sqrt(2(n-1)) ~ 15% of itself, so ours must not be worse by more than two of those
+    # a score measured on ~25 frames has a sampling error of 1/sqrt(2(n-1)) ~ 15% of itself:
+    # ours must not be worse than easyWand's by more than two of those
     assert score <= got["easywand_wand_score_percent"] * (1 + 2 * _std_of_std(n))
     assert np.sqrt(np.mean(got["centre_diff_mm"] ** 2)) <= 10.0  # the issue's goal: within 10 mm RMS
+
+
+@pytest.mark.parametrize("session, method", [(1, "ba"), (1, "lp"), pytest.param(2, "ba", marks=_SHORT_OF_EASYWAND),
+                                             pytest.param(2, "lp", marks=_SHORT_OF_EASYWAND)])
+def test_brown_wand_score_at_most_easywands(session, method):
+    """Issue 23's goal, the published figure itself the tolerance: easyWand's ``wandScore`` (the
+    sample std of its triangulated wand lengths over their mean, on its frames)."""
+    got = rs.brown(session, method)
+    score, n = got["wand_score_on_easywand_frames"]
+    print(f"\nBrown cal{session} {method}: ours {score:.3f}%, easyWand {got['easywand_wand_score_percent']:.3f}% (n={n})")
+    assert score <= got["easywand_wand_score_percent"]
+
+
+@pytest.mark.parametrize("session", [1, 2])
+def test_our_wand_score_is_easywands(session):
+    """easyWand's own cameras scored our way reproduce its published wandScore: the score the
+    goal above holds ours to is the one easyWand computes (sample std over mean, its frames).
+    The cameras are its DLT's decomposition (K with fx != fy, printed to 1e-6) under our lens
+    model: measured 0.532% against 0.558% (cal1) and 0.2452% against 0.2445% (cal2). The two
+    differ only by that decomposition and its printed precision, so a tenth of the published
+    figure is the tolerance, well under the 14-15% sampling error of a std from 24-28 frames
+    that separates two calibrations."""
+    own, n = rs.easywand_cameras_score(session)
+    published = rs.brown(session)["easywand_wand_score_percent"]
+    print(f"\nBrown cal{session}: easyWand's own cameras scored our way {own:.4f}% (n={n}), published {published:.4f}%")
+    assert abs(own - published) <= 0.1 * published
 
 
 def test_brown_session_1_refines_rough_focal_lengths():

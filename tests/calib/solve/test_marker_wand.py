@@ -70,15 +70,16 @@ def _solve(layout, seed, cameras=6, frames=400):
     return sim, labels, true_marker, labelled, setup.model.poses(x), model.poses(x2), truth_model
 
 
-@pytest.mark.parametrize("layout", [CW500_M, FIVE_M], ids=["3-marker CW-500-like", "5-marker collinear"])
-def test_labels_and_accuracy_against_the_bound_and_the_ends_alone(layout):
+def check_labels_and_accuracy(runs, what: str) -> None:
+    """The issue's goals over seeded runs, each (sim, rows' frames (P,), mislabelled rows (P,),
+    ends-only poses, all-marker poses, the all-marker model at the truth): labelling right in
+    >= 99.9% of frames; camera centres (camera 0's gauge) within 1.1x the Cramér–Rao bound (an
+    efficient estimator's RMS(error / sqrt(CRB)) is ~1 over 30 cameras) and no worse than the two
+    ends alone on the same frames."""
     wrong, frames, ratios, err_ends, err_all = 0, 0, [], [], []
-    for seed in range(6):
-        sim, labels, truth, labelled, ends_pose, all_pose, truth_model = _solve(layout, seed)
-        bad_rows = np.any(labels.marker != truth, axis=1)
-        seen = np.unique(labelled.frame)
-        wrong += len(np.unique(labelled.frame[bad_rows]))
-        frames += len(seen)
+    for sim, row_frame, bad_rows, ends_pose, all_pose, truth_model in runs:
+        wrong += len(np.unique(row_frame[bad_rows]))
+        frames += len(np.unique(row_frame))
         T = sim.truth
         bound, _ = model_crb(truth_model, NOISE)
         e_all, _ = gauge_errors(*all_pose, T.R, T.t, 0)
@@ -86,7 +87,7 @@ def test_labels_and_accuracy_against_the_bound_and_the_ends_alone(layout):
         ratios += list(e_all[1:] / bound[1:])
         err_all += list(e_all[1:])
         err_ends += list(e_ends[1:])
-    print(f"labelling wrong in {wrong} of {frames} frames; RMS error/CRB {np.sqrt(np.mean(np.square(ratios))):.3f}; "
+    print(f"\n{what}: labelling wrong in {wrong} of {frames} frames; RMS error/CRB {np.sqrt(np.mean(np.square(ratios))):.3f}; "
           f"RMS centre error all markers {1e3 * np.sqrt(np.mean(np.square(err_all))):.3f} mm, ends alone "
           f"{1e3 * np.sqrt(np.mean(np.square(err_ends))):.3f} mm")
     assert wrong <= 0.001 * frames
@@ -94,11 +95,21 @@ def test_labels_and_accuracy_against_the_bound_and_the_ends_alone(layout):
     assert np.sqrt(np.mean(np.square(err_all))) <= np.sqrt(np.mean(np.square(err_ends)))
 
 
+@pytest.mark.parametrize("layout", [CW500_M, FIVE_M], ids=["3-marker CW-500-like", "5-marker collinear"])
+def test_labels_and_accuracy_against_the_bound_and_the_ends_alone(layout):
+    def runs():
+        for seed in range(6):
+            sim, labels, truth, labelled, ends_pose, all_pose, truth_model = _solve(layout, seed)
+            yield sim, labelled.frame, np.any(labels.marker != truth, axis=1), ends_pose, all_pose, truth_model
+
+    check_labels_and_accuracy(runs(), "collinear")
+
+
 def test_layouts_are_checked():
     cams = simulate_capture(2, 10, seed=0).rig.cameras
     with pytest.raises(CalibrationError, match="markers 1 and 2 coincide"):
         Rig(cams, None, wand_markers=[[0, 0, 0], [0.2, 0, 0], [0.2, 0, 0.0001]])
-    with pytest.raises(CalibrationError, match="planar wands .* not supported yet"):
+    with pytest.raises(CalibrationError, match="a planar wand needs 4 or more markers"):
         Rig(cams, None, wand_markers=[[0, 0, 0], [0.5, 0, 0], [0.25, 0.1, 0]])
     with pytest.raises(CalibrationError, match="wand.length_m is 0.4 but wand.markers_m spans 0.5"):
         Rig(cams, 0.4, wand_markers=CW500_M)

@@ -63,8 +63,8 @@ def test_wand_length_absent_refuses_other_methods_with_a_reason():
     points = pairwise_points(sim, 300, np.random.default_rng(4), noise_px=NOISE)
     from wandcal.calib.errors import CalibrationError
 
-    with pytest.raises(CalibrationError, match="--method ba only"):
-        calibrate(Rig(sim.rig.cameras, None), None, None, "lp", points=points)
+    with pytest.raises(CalibrationError, match="--method ba or lp, not 'paper'"):
+        calibrate(Rig(sim.rig.cameras, None), None, None, "paper", points=points)
 
 
 def test_axis_points_set_the_world_frame():
