@@ -73,9 +73,18 @@ STAGES = {
 }
 
 
+# in a child process, as `wandcal simulate` does (seed 1), but past the command's 64-camera cap
+SIMULATE = ("import json, sys; from pathlib import Path; from wandcal.calib.sim.simulate import simulate_capture; "
+            "from wandcal.capture.folder import write_capture; out = Path(sys.argv[1]); "
+            "sim = simulate_capture(int(sys.argv[2]), int(sys.argv[3]), 0.3, float(sys.argv[4]), True, 1); "
+            "write_capture(out, sim.rig, sim.wand, sim.static); "
+            "(out / 'truth.json').write_text(json.dumps(sim.truth.to_json(sim.rig)))")
+
+
 def simulate(folder: Path, cameras: int, frames: int, outliers: float = OUTLIERS) -> None:
-    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "simulate", str(folder), "--cameras", str(cameras),
-                    "--frames", str(frames), "--outliers", str(outliers)], check=True, capture_output=True, cwd=REPO)
+    """A capture folder and its truth.json: `wandcal simulate`'s rig (0.3 px, L-frame, seed 1)."""
+    subprocess.run([sys.executable, "-c", SIMULATE, str(folder), str(cameras), str(frames), str(outliers)],
+                   check=True, capture_output=True, cwd=REPO)
 
 
 def add_points(folder: Path, cameras: int, wand_frames: int, point_frames: int, seed: int = 5) -> int:

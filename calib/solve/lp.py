@@ -90,6 +90,7 @@ def refine_lp(
     time_limit: float | None = None,
     subset_frames: int = SUBSET_FRAMES,
     scheme: str = "irls",
+    certify: bool = True,
 ):
     """Refine all free cameras and wand frames by sequential LP.
 
@@ -105,6 +106,10 @@ def refine_lp(
         subset_frames: frames of the first phase (0: none).
         scheme: "irls" (IRLS steps, then LP steps that certify the optimum) or "lp" (LP steps
             only, the scheme before; the same estimator, kept to check the other against).
+        certify: with ``scheme="irls"``, False stops at the last phase's IRLS point, near the
+            optimum but not on it, without the LP that certifies it: for a solve that only tells
+            the outliers before the solve that counts (calib/refine.py), where the LP is most of
+            the time at 128 cameras.
 
     Returns:
         (x, info) with info: iterations, seconds, lp_seconds, lp_rows_mean, scale, and status:
@@ -115,10 +120,10 @@ def refine_lp(
     # more in hand-offs than it gains, as in calib/solve/ba.py (32 x 2000, bench_peers's scene: the LP solves
     # took 1.6-2.0 s with two BLAS threads, 0.5 s with one)
     with threadpool_limits(limits=1, user_api="blas"):
-        return _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme)
+        return _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme, certify)
 
 
-def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme):
+def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme, certify=True):
     if scheme not in SCHEMES:
         raise ValueError(f"scheme must be one of {SCHEMES}, not {scheme!r}")
     start = time.perf_counter()
@@ -134,7 +139,7 @@ def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme)
     if info_sub is not None and info_sub["status"] != "converged":
         info = dict(info_sub, iterations=0, lp_seconds=0.0)  # the first phase's best state stands
     else:
-        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, scheme)
+        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, scheme, certify=certify)
     if info_sub is not None:
         info["iterations"] += info_sub["iterations"]
         info["lp_seconds"] += info_sub["lp_seconds"]
