@@ -170,8 +170,9 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS, intrinsics=fit,
                                stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
-    refined = Refined(rig, setup, labelled, tracks, *model.poses(out.x), model.wand(out.x), out.X, info, out.camera_std,
-                      out.covariance, final=final)
+    R, t = model.poses(out.x)
+    refined = Refined(rig, setup, labelled, tracks, R, t, model.wand(out.x), out.X, info, out.camera_std, out.covariance,
+                      final=final)
     if names:
         refined = _with_intrinsics(refined, out.intr)
     return refined
