@@ -138,7 +138,8 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     ``final`` (an outlier pass follows): a robust ``ba`` stops at ``ROBUST_STAGE_SE``, ``lp`` at its
     IRLS point without the certifying LP, and ``lp`` and ``paper`` leave out the pose covariance
     (:func:`finished` completes such an outcome). ``warm``: the start is the solution of nearly
-    the same problem (an outlier pass), so ``lp`` skips its first phase on a subset of frames."""
+    the same problem (an outlier pass), so ``lp`` skips its first phase on a subset of frames and
+    linearises its phase once."""
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
     # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
@@ -152,11 +153,10 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
         return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=_information(setup, R, t, wand, final),
                        final=final)
     if method == "lp":
-        from wandcal.calib.solve.lp import SUBSET_FRAMES, refine_lp
+        from wandcal.calib.solve.lp import refine_lp
 
         joint = with_tracks(model, tracks, X)
-        x, info = refine_lp(joint, progress=tell, time_limit=options.get("time_limit"),
-                            subset_frames=0 if warm else SUBSET_FRAMES, certify=final)
+        x, info = refine_lp(joint, progress=tell, time_limit=options.get("time_limit"), certify=final, warm=warm)
         R, t = joint.poses(x)
         frames = joint.wand(x)
         wand, X = frames[: setup.problem.n_frames], (frames[setup.problem.n_frames :].mean(axis=1) if X is not None else X)
