@@ -63,6 +63,19 @@ class Views:
         )
 
 
+def camera_groups(linked: np.ndarray, keep: np.ndarray | None = None) -> list[list[int]]:
+    """The connected groups of cameras of the graph ``linked`` (N, N) bool, restricted to ``keep``
+    (N,) bool (all when None): sorted camera indices each, the groups largest first (ties: by
+    their lowest camera)."""
+    from scipy.sparse.csgraph import connected_components  # the start's other users need no scipy
+
+    keep = np.ones(len(linked), bool) if keep is None else keep
+    idx = np.flatnonzero(keep)
+    _, label = connected_components(linked[np.ix_(idx, idx)], directed=False)
+    groups = [idx[label == g].tolist() for g in range(label.max() + 1)] if len(idx) else []
+    return sorted(groups, key=lambda g: (-len(g), g[0]))
+
+
 def camera_views(pairs: WandPairs, points: PointTracks | None, n_cams: int) -> Views:
     """The :class:`Views` tables of a capture's wand pairs and (optional) point tracks."""
     wand = np.full((len(pairs.frames), n_cams), -1, dtype=np.int64)

@@ -26,6 +26,7 @@ from wandcal.calib.start.chain import (
     ESSENTIAL_THRESHOLD_PX,
     MIN_PAIR_MATCHES,
     Views,
+    camera_groups,
     camera_views,
     spread,
 )
@@ -158,13 +159,13 @@ def weak_links(rig: Rig, views: Views) -> list[str]:
     n = len(rig.cameras)
     linked = views.links() >= MIN_PAIR_MATCHES
     np.fill_diagonal(linked, False)
-    if n < 3 or len(_components(linked, np.ones(n, bool))) != 1:
+    if n < 3 or len(camera_groups(linked)) != 1:
         return []  # a disconnected rig cannot be placed at all: the initial poses say which camera
     out = []
     for v in range(n):
         keep = np.ones(n, bool)
         keep[v] = False
-        parts = sorted(_components(linked, keep), key=lambda p: (-len(p), min(p)))
+        parts = camera_groups(linked, keep)
         for part in parts[1:]:
             ids = [rig.cameras[c].id for c in part]
             names = ", ".join(ids)
@@ -173,22 +174,3 @@ def weak_links(rig: Rig, views: Views) -> list[str]:
                        f"{'it' if len(ids) == 1 else 'them'} unchecked; wave the wand where {names} and a camera other "
                        f"than {rig.cameras[v].id} see it at the same time")
     return out
-
-
-def _components(linked: np.ndarray, keep: np.ndarray) -> list[list[int]]:
-    """Connected components of the graph ``linked`` (N, N) bool restricted to ``keep`` (N,)."""
-    seen = ~keep
-    parts = []
-    for start in np.flatnonzero(keep):
-        if seen[start]:
-            continue
-        stack, part = [int(start)], []
-        seen[start] = True
-        while stack:
-            c = stack.pop()
-            part.append(c)
-            for d in np.flatnonzero(linked[c] & ~seen):
-                seen[d] = True
-                stack.append(int(d))
-        parts.append(sorted(part))
-    return parts
