@@ -48,9 +48,12 @@ class Views:
         """(N, N) correspondences each camera pair shares: 2 per wand frame plus 1 per track
         (the diagonal holds each camera's own count); ``capped``: only as many as
         :func:`pair_pose` uses."""
-        w = (self.wand >= 0).astype(np.int64)
-        k = (self.track >= 0).astype(np.int64)
-        frames, tracks = w.T @ w, k.T @ k
+        # counted in floating point, exact to 2^53: BLAS's product, where NumPy's integer one is a
+        # plain loop (0.09 s against ~3 ms at 128 cameras x 3000 frames, and 3 ms of it per call grows
+        # only as cameras^2 x frames)
+        w = (self.wand >= 0).astype(float)
+        k = (self.track >= 0).astype(float)
+        frames, tracks = (w.T @ w).astype(np.int64), (k.T @ k).astype(np.int64)
         if capped:
             frames, tracks = np.minimum(frames, MAX_PAIR_FRAMES), np.minimum(tracks, MAX_PAIR_TRACKS)
         return 2 * frames + tracks

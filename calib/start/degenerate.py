@@ -162,7 +162,7 @@ def weak_links(rig: Rig, views: Views) -> list[str]:
     if n < 3 or len(camera_groups(linked)) != 1:
         return []  # a disconnected rig cannot be placed at all: the initial poses say which camera
     out = []
-    for v in range(n):
+    for v in _cut_cameras(linked):
         keep = np.ones(n, bool)
         keep[v] = False
         parts = camera_groups(linked, keep)
@@ -174,3 +174,33 @@ def weak_links(rig: Rig, views: Views) -> list[str]:
                        f"{'it' if len(ids) == 1 else 'them'} unchecked; wave the wand where {names} and a camera other "
                        f"than {rig.cameras[v].id} see it at the same time")
     return out
+
+
+def _cut_cameras(linked: np.ndarray) -> list[int]:
+    """The cut vertices of the connected graph ``linked`` (N, N) bool, ascending: one depth-first
+    search (Hopcroft and Tarjan's low points), O(N + links), where removing each camera in turn
+    and grouping the rest is O(N (N + links)) (0.5 s at 128 cameras)."""
+    n = len(linked)
+    neighbours = [np.flatnonzero(row) for row in linked]
+    depth, low = np.full(n, -1), np.zeros(n, int)
+    cut = np.zeros(n, bool)
+    depth[0] = 0
+    stack = [(0, -1, 0)]  # (camera, parent, next neighbour to look at)
+    root_children = 0
+    while stack:
+        v, parent, i = stack.pop()
+        if i < len(neighbours[v]):
+            stack.append((v, parent, i + 1))
+            u = int(neighbours[v][i])
+            if depth[u] < 0:
+                depth[u] = low[u] = depth[v] + 1
+                root_children += v == 0
+                stack.append((u, v, 0))
+            elif u != parent:
+                low[v] = min(low[v], depth[u])
+        elif parent >= 0:  # v is done: its low point bounds its parent's
+            low[parent] = min(low[parent], low[v])
+            if parent != 0 and low[v] >= depth[parent]:
+                cut[parent] = True
+    cut[0] = root_children > 1
+    return np.flatnonzero(cut).tolist()

@@ -179,3 +179,23 @@ def test_sound_captures_raise_no_alarm(cameras, seed):
     assert check_capture(sim.rig, pairs, None, None) == []
     moved = np.sqrt(((pairs.uv.mean(1) - pairs.uv.mean(1).mean(0)) ** 2).sum(1).mean())
     assert moved > 10 * STILL_PX  # the threshold sits far below a waved wand's motion
+
+
+def test_cut_cameras_are_the_cameras_whose_removal_splits_the_rig():
+    """The one-pass search (calib/start/degenerate.py) against removing each camera in turn, on
+    random linked graphs."""
+    from wandcal.calib.start.chain import camera_groups
+    from wandcal.calib.start.degenerate import _cut_cameras
+
+    rng = np.random.default_rng(0)
+    checked = 0
+    for _ in range(400):
+        n = int(rng.integers(3, 12))
+        linked = rng.random((n, n)) < rng.uniform(0.15, 0.6)
+        linked = linked | linked.T
+        np.fill_diagonal(linked, False)
+        if len(camera_groups(linked)) != 1:
+            continue
+        checked += 1
+        assert _cut_cameras(linked) == [v for v in range(n) if len(camera_groups(linked, np.arange(n) != v)) > 1]
+    assert checked > 100
