@@ -17,9 +17,10 @@ each stage's cumulative time (attributed by caller, so a stage's nested calls ar
 twice) and its growth exponent: the least-squares slope of log(seconds) against log(cameras).
 
 Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000. Part 5 ("Scale: small rigs before
-and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated.
+and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated. Part 6
+("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`.
 
-Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance] [--rigs 64x3000,128x3000]
+Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance,methods] [--rigs 64x3000,128x3000]
     [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
     e.g. git archive 3925791 | tar -x -C /tmp/base && python bench/bench_scale.py --parts regression --base /tmp/base
 """
@@ -61,7 +62,7 @@ PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; p 
 # stage: (caller, callee) function names whose cumulative time (the callee's, called from that
 # caller) makes the stage; the rest of the process is "other" (imports, reports, the verdict)
 STAGES = {
-    "read": [("run_calibrate", "read_capture")],
+    "read": [("run_calibrate", "read_capture"), ("_calibrated", "read_capture")],
     "start": [("calibrate", "wand_pairs"), ("calibrate", "point_tracks"), ("calibrate", "check_capture"),
               ("calibrate", "initial_poses")],
     "labelling": [("calibrate", "label_ends")],
@@ -277,7 +278,7 @@ def _view(checkout: Path, into: Path) -> Path:
     return into
 
 
-def _cpu_run(folder: Path, out: Path, pythonpath: Path | None) -> tuple[float, float]:
+def _cpu_run(folder: Path, out: Path, pythonpath: Path | None, method: str = "ba") -> tuple[float, float]:
     """(wall seconds, CPU seconds) of one `wandcal calibrate` process (CPU: user + system of the child)."""
     import os
     import resource
@@ -285,11 +286,38 @@ def _cpu_run(folder: Path, out: Path, pythonpath: Path | None) -> tuple[float, f
     env = dict(os.environ) | ({"PYTHONPATH": str(pythonpath)} if pythonpath is not None else {})
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(folder), "--quiet", "--out", str(out)],
-                   check=True, capture_output=True, cwd=REPO, env=env)
+    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(folder), "--quiet", "--out", str(out),
+                    "--method", method], check=True, capture_output=True, cwd=REPO, env=env)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def part_methods(cameras_list: list[int], repeats: int) -> str:
+    """`--method lp` against `--method ba` (the default), the whole process on the same capture,
+    alternated run by run; the ratio of CPU seconds, median of the runs' ratios."""
+    rows = ["| rig | `ba`: wall / CPU (s) | `lp`: wall / CPU (s) | lp / ba (CPU) | centre error ba / lp (mm) |", "|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory() as tmp:
+        for cameras in cameras_list:
+            folder = Path(tmp) / f"c{cameras}"
+            simulate(folder, cameras, STAGE_FRAMES)
+            runs: dict[str, list] = {"ba": [], "lp": []}
+            errors = {}
+            for _ in range(repeats):
+                for method in ("ba", "lp"):
+                    out = Path(tmp) / f"{method}.json"
+                    runs[method].append(_cpu_run(folder, out, None, method))
+                    errors[method] = centre_error_mm(out, folder / "truth.json")
+                print(cameras, runs, flush=True)
+            b, lp = np.median(runs["ba"], axis=0), np.median(runs["lp"], axis=0)
+            ratio = np.median([x[1] / y[1] for x, y in zip(runs["lp"], runs["ba"])])
+            rows.append(f"| {cameras} x {STAGE_FRAMES} | {b[0]:.2f} / {b[1]:.2f} | {lp[0]:.2f} / {lp[1]:.2f} | {ratio:.2f} | "
+                        f"{errors['ba']:.3f} / {errors['lp']:.3f} |")
+            print(rows[-1], flush=True)
+    return (f"The whole `wandcal calibrate` process with `--method ba` and `--method lp` on the same simulated capture "
+            f"(0.3 px, 2% outliers, L-frame), alternated run by run, medians of {repeats}; CPU seconds (user + system) "
+            "beside wall seconds because the machine is shared; the ratio is the median of the runs' CPU ratios.\n\n"
+            + "\n".join(rows) + "\n\nGoal (issue 22): `lp` at 128 cameras <= 1.5x `ba`.")
 
 
 def part_regression(base: Path, repeats: int, rigs: str) -> str:
@@ -333,6 +361,7 @@ def main() -> int:
     ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression")
     ap.add_argument("--regression-rigs", default=REGRESSION_RIGS,
                     help="CAMSxFRAMES:OUTLIERS,... for --parts regression")
+    ap.add_argument("--method-cameras", default="64,128", help="rigs (cameras x 3000 frames) for --parts methods")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     parts = args.parts.split(",")
@@ -347,6 +376,8 @@ def main() -> int:
         small = args.regression_rigs == REGRESSION_RIGS
         title = "Scale: small rigs before and after" if small else f"Scale: before and after ({args.regression_rigs})"
         sections.append((title, part_regression(args.base, args.repeats, args.regression_rigs)))
+    if "methods" in parts:
+        sections.append(("Scale: lp beside ba", part_methods([int(c) for c in args.method_cameras.split(",")], args.repeats)))
     if "guidance" in parts:
         sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
     if "stages" in parts:
