@@ -121,16 +121,21 @@ def centre_error_mm(result: Path, truth: Path) -> float:
     return float(np.sqrt(np.mean(np.sum((s * C @ Ra.T + ta - Ct) ** 2, axis=1))) * 1000)
 
 
-def run_process(folder: Path, out: Path, profile: Path | None = None) -> tuple[float, float]:
-    """(wall seconds, peak RSS MB) of one `wandcal calibrate` process, optionally under cProfile."""
+def run_process(folder: Path, out: Path, profile: Path | None = None) -> tuple[float, float, float]:
+    """(wall seconds, peak RSS MB, CPU seconds: user + system) of one `wandcal calibrate` process,
+    optionally under cProfile."""
+    import resource
+
     cmd = [sys.executable, "-c", PROBE, "calibrate", str(folder), "--quiet", "--out", str(out)]
     if profile is not None:
         cmd = [sys.executable, "-c", PROFILE, str(profile), "calibrate", str(folder), "--quiet", "--out", str(out)]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=REPO)
     seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     peak = float(done.stderr.strip().splitlines()[-1]) / 1024 if profile is None else float("nan")
-    return seconds, peak
+    return seconds, peak, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def stage_seconds(profile: Path) -> dict[str, float]:
@@ -151,45 +156,55 @@ def stage_seconds(profile: Path) -> dict[str, float]:
     return out
 
 
-def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str]:
-    """COLMAP-Cauchy's solve seconds, its centre error (mm) and iterations on the bench_peers scene."""
+def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str, float]:
+    """COLMAP-Cauchy's solve seconds, its centre error (mm), iterations and the CPU seconds of this
+    process over the solve (Ceres's threads included) on the bench_peers scene."""
     from bench.bench_peers import centre_error_mm as peer_error
 
     sim, labelled, setup = scene(cameras, frames, OUTLIERS)
     scale = run_ba(sim, labelled, setup)[3]
+    cpu = time.process_time()
     R, t, iterations, seconds = run_colmap(sim, labelled, setup, scale)
-    return seconds, peer_error(R, t, sim), str(iterations)
+    cpu = time.process_time() - cpu
+    return seconds, peer_error(R, t, sim), str(iterations), cpu
 
 
 def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
-    rows = ["| rig | outliers | `wandcal calibrate` process (s) | COLMAP-Cauchy solve (s) | ratio | centre error wandcal / COLMAP (mm) | process peak RSS (MB) |",
+    rows = ["| rig | outliers | `wandcal calibrate` process: wall / CPU (s) | COLMAP-Cauchy solve: wall / CPU (s) | ratio: wall / CPU "
+            "| centre error wandcal / COLMAP (mm) | process peak RSS (MB) |",
             "|---|---|---|---|---|---|---|"]
     for rig in rigs:
         cameras, frames = (int(v) for v in rig.split("x"))
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp) / "capture"
             simulate(folder, cameras, frames)
-            times, peaks, cm = [], [], []
+            times, peaks, cpus, cm, cm_cpu = [], [], [], [], []
             error = colmap_error = float("nan")
             iterations = "-"
             for k in range(repeats):
-                seconds, peak = run_process(folder, Path(tmp) / "result.json")
+                seconds, peak, cpu = run_process(folder, Path(tmp) / "result.json")
                 times.append(seconds)
                 peaks.append(peak)
+                cpus.append(cpu)
                 error = centre_error_mm(Path(tmp) / "result.json", folder / "truth.json")
                 if k < colmap_repeats:
-                    c_seconds, colmap_error, iterations = colmap_cauchy(cameras, frames)
+                    c_seconds, colmap_error, iterations, c_cpu = colmap_cauchy(cameras, frames)
                     cm.append(c_seconds)
+                    cm_cpu.append(c_cpu)
                 print(f"{rig}: process {seconds:.2f} s, {peak:.0f} MB" + (f"; COLMAP-Cauchy {cm[-1]:.2f} s" if cm else ""),
                       flush=True)
-        cm_s, ratio = (f"{np.median(cm):.2f} ({iterations} steps)", f"{np.median(times) / np.median(cm):.2f}") if cm else ("-", "-")
-        rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} | {cm_s} | {ratio} | {error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
+        cm_s, ratio = ((f"{np.median(cm):.2f} / {np.median(cm_cpu):.2f} ({iterations} steps)",
+                        f"{np.median(times) / np.median(cm):.2f} / {np.median(cpus) / np.median(cm_cpu):.2f}") if cm else ("-", "-"))
+        rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} / {np.median(cpus):.2f} | {cm_s} | {ratio} | "
+                    f"{error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
         print(rows[-1], flush=True)
     return ("The whole command (Python start-up included) on a simulated capture folder (0.3 px, 2% outliers, "
             "L-frame), and COLMAP-Cauchy's solve of the same rig labelled at the truth and started 1 deg / 3 cm off "
-            f"(bench_peers.py's scene; its steps: successful+unsuccessful), alternated in one run; medians of {repeats} "
-            f"processes and {colmap_repeats} COLMAP solves (minutes each at 128 cameras); ratio: median process / "
-            "median COLMAP. Centre error: RMS after a similarity alignment to the truth.\n\n"
+            "(bench_peers.py's scene, its gauge on the camera farthest from the first: decision 0019; its steps: "
+            f"successful+unsuccessful), alternated in one run; medians of {repeats} processes and {colmap_repeats} COLMAP "
+            "solves (minutes each at 128 cameras); ratio: median process / median COLMAP, of wall and of CPU seconds "
+            "(COLMAP's Ceres runs on both cores, wandcal's BLAS on one). Centre error: RMS after a similarity alignment "
+            "to the truth.\n\n"
             + "\n".join(rows) + "\n\nGoals (issue 22): 128 x 3000 process <= 0.3x COLMAP-Cauchy, peak RSS <= 1.2 GB, "
             "accuracy within 1.05x of before; 64 x 3000 <= 0.3x COLMAP-Cauchy.")
 
@@ -199,7 +214,7 @@ def part_points(repeats: int) -> str:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "capture"
         n_obs = add_points(folder, cameras, wand_frames, point_frames)
-        runs = [run_process(folder, Path(tmp) / "result.json") for _ in range(repeats)]
+        runs = [run_process(folder, Path(tmp) / "result.json")[:2] for _ in range(repeats)]
         error = centre_error_mm(Path(tmp) / "result.json", folder / "truth.json")
     seconds = float(np.median([r[0] for r in runs]))
     peak = max(r[1] for r in runs)
@@ -345,7 +360,7 @@ def part_regression(base: Path, repeats: int, rigs: str) -> str:
                         f"{ratio:.2f} | {errors['before']:.3f} / {errors['after']:.3f} |")
             print(rows[-1], flush=True)
     return (f"Simulated rigs (`wandcal simulate`, 0.3 px, L-frame), the whole `wandcal calibrate` process "
-            f"of the checkout before issue 22 (`--base`) and after it, alternated run by run, medians of {repeats}; CPU "
+            f"of the checkout given by `--base` (before) and of this one (after), alternated run by run, medians of {repeats}; CPU "
             "seconds beside wall seconds because the machine is shared:\n\n" + "\n".join(rows)
             + ("\n\nGoal (issue 22): 8 x 1500 and 16 x 2500 no slower than before." if rigs == REGRESSION_RIGS else
                "\n\nGoal (issue 22): accuracy within 1.05x of before."))
