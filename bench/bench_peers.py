@@ -106,6 +106,26 @@ def run_lp(sim, labelled, setup):
     return (*setup.model.poses(x), info["iterations"], None)
 
 
+def image_ids(setup) -> np.ndarray:
+    """(N,) COLMAP's image (and camera) id of each camera: 1, 2, ... except that the camera whose
+    start centre is farthest from the first camera's takes id 2.
+
+    COLMAP's TWO_CAMS_FROM_WORLD gauge holds the first image's pose and one translation coordinate
+    of the next image (by id) it finds with a baseline, the one along the baseline's largest
+    component. On a ring the next camera by number is the first one's neighbour (0.5 m away at
+    128 cameras, against 6.4 m across): the held coordinate then pins the scale by a short lever,
+    the reduced camera system is near singular, and Ceres's sparse Schur solve failed ("CHOLMOD
+    warning: Matrix not positive definite") and wandered off (30 mm after 101 steps; decision
+    0019). The same gauge on the camera across the ring converges (0.186 mm after 6 steps)."""
+    from wandcal.calib.geometry import camera_centers
+
+    C = camera_centers(setup.model.R0, setup.model.t0)
+    ids = np.arange(1, len(C) + 1)
+    far = int(np.argmax(np.linalg.norm(C - C[0], axis=1)))
+    ids[[1, far]] = ids[[far, 1]]
+    return ids
+
+
 def colmap_reconstruction(sim, setup):
     import pycolmap
 
@@ -113,20 +133,22 @@ def colmap_reconstruction(sim, setup):
     m, p = setup.model, setup.problem
     wand = m.wand(m.x0()).reshape(-1, 3)
     point = p.point
+    ids = image_ids(setup)
     for c, cam in enumerate(sim.rig.cameras):
         fx, fy, cx, cy = cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]
+        i = int(ids[c])
         rec.add_camera_with_trivial_rig(pycolmap.Camera(model="PINHOLE", width=cam.width, height=cam.height,
-                                                        params=[fx, fy, cx, cy], camera_id=c + 1))
+                                                        params=[fx, fy, cx, cy], camera_id=i))
         sel = np.flatnonzero(p.camera == c)
         pixels = p.xy[sel] * [fx, fy] + [cx, cy]  # the undistorted observations wandcal fits
-        image = pycolmap.Image(name=cam.id, keypoints=pixels, camera_id=c + 1, image_id=c + 1)
+        image = pycolmap.Image(name=cam.id, keypoints=pixels, camera_id=i, image_id=i)
         pose = pycolmap.Rigid3d(pycolmap.Rotation3d(m.R0[c]), m.t0[c])
         rec.add_image_with_trivial_frame(image, pose)
     tracks = {}
     for c in range(len(sim.rig.cameras)):
         sel = np.flatnonzero(p.camera == c)
         for k, obs in enumerate(sel):
-            tracks.setdefault(int(point[obs]), []).append(pycolmap.TrackElement(c + 1, k))
+            tracks.setdefault(int(point[obs]), []).append(pycolmap.TrackElement(int(ids[c]), k))
     for pt, elements in tracks.items():
         rec.add_point3D(wand[pt], pycolmap.Track(elements))
     return rec
@@ -149,9 +171,9 @@ def run_colmap(sim, labelled, setup, cauchy_px: float | None = None):
     adjuster = pycolmap.create_default_bundle_adjuster(options, config, rec)
     summary = adjuster.solve()
     seconds = time.perf_counter() - start
-    n = len(sim.rig.cameras)
-    R = np.array([rec.image(c + 1).cam_from_world().rotation.matrix() for c in range(n)])
-    t = np.array([rec.image(c + 1).cam_from_world().translation for c in range(n)])
+    ids = image_ids(setup)
+    R = np.array([rec.image(int(i)).cam_from_world().rotation.matrix() for i in ids])
+    t = np.array([rec.image(int(i)).cam_from_world().translation for i in ids])
     ceres = getattr(summary, "ceres_summary", None)
     iterations = f"{ceres.num_successful_steps}+{ceres.num_unsuccessful_steps}" if ceres is not None else "?"
     return R, t, iterations, seconds

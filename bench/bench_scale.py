@@ -17,9 +17,10 @@ each stage's cumulative time (attributed by caller, so a stage's nested calls ar
 twice) and its growth exponent: the least-squares slope of log(seconds) against log(cameras).
 
 Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000. Part 5 ("Scale: small rigs before
-and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated.
+and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated. Part 6
+("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`.
 
-Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance] [--rigs 64x3000,128x3000]
+Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance,methods] [--rigs 64x3000,128x3000]
     [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
     e.g. git archive 3925791 | tar -x -C /tmp/base && python bench/bench_scale.py --parts regression --base /tmp/base
 """
@@ -61,7 +62,7 @@ PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; p 
 # stage: (caller, callee) function names whose cumulative time (the callee's, called from that
 # caller) makes the stage; the rest of the process is "other" (imports, reports, the verdict)
 STAGES = {
-    "read": [("run_calibrate", "read_capture")],
+    "read": [("run_calibrate", "read_capture"), ("_calibrated", "read_capture")],
     "start": [("calibrate", "wand_pairs"), ("calibrate", "point_tracks"), ("calibrate", "check_capture"),
               ("calibrate", "initial_poses")],
     "labelling": [("calibrate", "label_ends")],
@@ -73,9 +74,18 @@ STAGES = {
 }
 
 
+# in a child process, as `wandcal simulate` does (seed 1), but past the command's 64-camera cap
+SIMULATE = ("import json, sys; from pathlib import Path; from wandcal.calib.sim.simulate import simulate_capture; "
+            "from wandcal.capture.folder import write_capture; out = Path(sys.argv[1]); "
+            "sim = simulate_capture(int(sys.argv[2]), int(sys.argv[3]), 0.3, float(sys.argv[4]), True, 1); "
+            "write_capture(out, sim.rig, sim.wand, sim.static); "
+            "(out / 'truth.json').write_text(json.dumps(sim.truth.to_json(sim.rig)))")
+
+
 def simulate(folder: Path, cameras: int, frames: int, outliers: float = OUTLIERS) -> None:
-    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "simulate", str(folder), "--cameras", str(cameras),
-                    "--frames", str(frames), "--outliers", str(outliers)], check=True, capture_output=True, cwd=REPO)
+    """A capture folder and its truth.json: `wandcal simulate`'s rig (0.3 px, L-frame, seed 1)."""
+    subprocess.run([sys.executable, "-c", SIMULATE, str(folder), str(cameras), str(frames), str(outliers)],
+                   check=True, capture_output=True, cwd=REPO)
 
 
 def add_points(folder: Path, cameras: int, wand_frames: int, point_frames: int, seed: int = 5) -> int:
@@ -111,16 +121,21 @@ def centre_error_mm(result: Path, truth: Path) -> float:
     return float(np.sqrt(np.mean(np.sum((s * C @ Ra.T + ta - Ct) ** 2, axis=1))) * 1000)
 
 
-def run_process(folder: Path, out: Path, profile: Path | None = None) -> tuple[float, float]:
-    """(wall seconds, peak RSS MB) of one `wandcal calibrate` process, optionally under cProfile."""
+def run_process(folder: Path, out: Path, profile: Path | None = None) -> tuple[float, float, float]:
+    """(wall seconds, peak RSS MB, CPU seconds: user + system) of one `wandcal calibrate` process,
+    optionally under cProfile."""
+    import resource
+
     cmd = [sys.executable, "-c", PROBE, "calibrate", str(folder), "--quiet", "--out", str(out)]
     if profile is not None:
         cmd = [sys.executable, "-c", PROFILE, str(profile), "calibrate", str(folder), "--quiet", "--out", str(out)]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=REPO)
     seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     peak = float(done.stderr.strip().splitlines()[-1]) / 1024 if profile is None else float("nan")
-    return seconds, peak
+    return seconds, peak, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def stage_seconds(profile: Path) -> dict[str, float]:
@@ -141,45 +156,55 @@ def stage_seconds(profile: Path) -> dict[str, float]:
     return out
 
 
-def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str]:
-    """COLMAP-Cauchy's solve seconds, its centre error (mm) and iterations on the bench_peers scene."""
+def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str, float]:
+    """COLMAP-Cauchy's solve seconds, its centre error (mm), iterations and the CPU seconds of this
+    process over the solve (Ceres's threads included) on the bench_peers scene."""
     from bench.bench_peers import centre_error_mm as peer_error
 
     sim, labelled, setup = scene(cameras, frames, OUTLIERS)
     scale = run_ba(sim, labelled, setup)[3]
+    cpu = time.process_time()
     R, t, iterations, seconds = run_colmap(sim, labelled, setup, scale)
-    return seconds, peer_error(R, t, sim), str(iterations)
+    cpu = time.process_time() - cpu
+    return seconds, peer_error(R, t, sim), str(iterations), cpu
 
 
 def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
-    rows = ["| rig | outliers | `wandcal calibrate` process (s) | COLMAP-Cauchy solve (s) | ratio | centre error wandcal / COLMAP (mm) | process peak RSS (MB) |",
+    rows = ["| rig | outliers | `wandcal calibrate` process: wall / CPU (s) | COLMAP-Cauchy solve: wall / CPU (s) | ratio: wall / CPU "
+            "| centre error wandcal / COLMAP (mm) | process peak RSS (MB) |",
             "|---|---|---|---|---|---|---|"]
     for rig in rigs:
         cameras, frames = (int(v) for v in rig.split("x"))
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp) / "capture"
             simulate(folder, cameras, frames)
-            times, peaks, cm = [], [], []
+            times, peaks, cpus, cm, cm_cpu = [], [], [], [], []
             error = colmap_error = float("nan")
             iterations = "-"
             for k in range(repeats):
-                seconds, peak = run_process(folder, Path(tmp) / "result.json")
+                seconds, peak, cpu = run_process(folder, Path(tmp) / "result.json")
                 times.append(seconds)
                 peaks.append(peak)
+                cpus.append(cpu)
                 error = centre_error_mm(Path(tmp) / "result.json", folder / "truth.json")
                 if k < colmap_repeats:
-                    c_seconds, colmap_error, iterations = colmap_cauchy(cameras, frames)
+                    c_seconds, colmap_error, iterations, c_cpu = colmap_cauchy(cameras, frames)
                     cm.append(c_seconds)
+                    cm_cpu.append(c_cpu)
                 print(f"{rig}: process {seconds:.2f} s, {peak:.0f} MB" + (f"; COLMAP-Cauchy {cm[-1]:.2f} s" if cm else ""),
                       flush=True)
-        cm_s, ratio = (f"{np.median(cm):.2f} ({iterations} steps)", f"{np.median(times) / np.median(cm):.2f}") if cm else ("-", "-")
-        rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} | {cm_s} | {ratio} | {error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
+        cm_s, ratio = ((f"{np.median(cm):.2f} / {np.median(cm_cpu):.2f} ({iterations} steps)",
+                        f"{np.median(times) / np.median(cm):.2f} / {np.median(cpus) / np.median(cm_cpu):.2f}") if cm else ("-", "-"))
+        rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} / {np.median(cpus):.2f} | {cm_s} | {ratio} | "
+                    f"{error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
         print(rows[-1], flush=True)
     return ("The whole command (Python start-up included) on a simulated capture folder (0.3 px, 2% outliers, "
             "L-frame), and COLMAP-Cauchy's solve of the same rig labelled at the truth and started 1 deg / 3 cm off "
-            f"(bench_peers.py's scene; its steps: successful+unsuccessful), alternated in one run; medians of {repeats} "
-            f"processes and {colmap_repeats} COLMAP solves (minutes each at 128 cameras); ratio: median process / "
-            "median COLMAP. Centre error: RMS after a similarity alignment to the truth.\n\n"
+            "(bench_peers.py's scene, its gauge on the camera farthest from the first: decision 0019; its steps: "
+            f"successful+unsuccessful), alternated in one run; medians of {repeats} processes and {colmap_repeats} COLMAP "
+            "solves (minutes each at 128 cameras); ratio: median process / median COLMAP, of wall and of CPU seconds "
+            "(COLMAP's Ceres runs on both cores, wandcal's BLAS on one). Centre error: RMS after a similarity alignment "
+            "to the truth.\n\n"
             + "\n".join(rows) + "\n\nGoals (issue 22): 128 x 3000 process <= 0.3x COLMAP-Cauchy, peak RSS <= 1.2 GB, "
             "accuracy within 1.05x of before; 64 x 3000 <= 0.3x COLMAP-Cauchy.")
 
@@ -189,7 +214,7 @@ def part_points(repeats: int) -> str:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "capture"
         n_obs = add_points(folder, cameras, wand_frames, point_frames)
-        runs = [run_process(folder, Path(tmp) / "result.json") for _ in range(repeats)]
+        runs = [run_process(folder, Path(tmp) / "result.json")[:2] for _ in range(repeats)]
         error = centre_error_mm(Path(tmp) / "result.json", folder / "truth.json")
     seconds = float(np.median([r[0] for r in runs]))
     peak = max(r[1] for r in runs)
@@ -268,7 +293,7 @@ def _view(checkout: Path, into: Path) -> Path:
     return into
 
 
-def _cpu_run(folder: Path, out: Path, pythonpath: Path | None) -> tuple[float, float]:
+def _cpu_run(folder: Path, out: Path, pythonpath: Path | None, method: str = "ba") -> tuple[float, float]:
     """(wall seconds, CPU seconds) of one `wandcal calibrate` process (CPU: user + system of the child)."""
     import os
     import resource
@@ -276,11 +301,38 @@ def _cpu_run(folder: Path, out: Path, pythonpath: Path | None) -> tuple[float, f
     env = dict(os.environ) | ({"PYTHONPATH": str(pythonpath)} if pythonpath is not None else {})
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(folder), "--quiet", "--out", str(out)],
-                   check=True, capture_output=True, cwd=REPO, env=env)
+    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(folder), "--quiet", "--out", str(out),
+                    "--method", method], check=True, capture_output=True, cwd=REPO, env=env)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def part_methods(cameras_list: list[int], repeats: int) -> str:
+    """`--method lp` against `--method ba` (the default), the whole process on the same capture,
+    alternated run by run; the ratio of CPU seconds, median of the runs' ratios."""
+    rows = ["| rig | `ba`: wall / CPU (s) | `lp`: wall / CPU (s) | lp / ba (CPU) | centre error ba / lp (mm) |", "|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory() as tmp:
+        for cameras in cameras_list:
+            folder = Path(tmp) / f"c{cameras}"
+            simulate(folder, cameras, STAGE_FRAMES)
+            runs: dict[str, list] = {"ba": [], "lp": []}
+            errors = {}
+            for _ in range(repeats):
+                for method in ("ba", "lp"):
+                    out = Path(tmp) / f"{method}.json"
+                    runs[method].append(_cpu_run(folder, out, None, method))
+                    errors[method] = centre_error_mm(out, folder / "truth.json")
+                print(cameras, runs, flush=True)
+            b, lp = np.median(runs["ba"], axis=0), np.median(runs["lp"], axis=0)
+            ratio = np.median([x[1] / y[1] for x, y in zip(runs["lp"], runs["ba"])])
+            rows.append(f"| {cameras} x {STAGE_FRAMES} | {b[0]:.2f} / {b[1]:.2f} | {lp[0]:.2f} / {lp[1]:.2f} | {ratio:.2f} | "
+                        f"{errors['ba']:.3f} / {errors['lp']:.3f} |")
+            print(rows[-1], flush=True)
+    return (f"The whole `wandcal calibrate` process with `--method ba` and `--method lp` on the same simulated capture "
+            f"(0.3 px, 2% outliers, L-frame), alternated run by run, medians of {repeats}; CPU seconds (user + system) "
+            "beside wall seconds because the machine is shared; the ratio is the median of the runs' CPU ratios.\n\n"
+            + "\n".join(rows) + "\n\nGoal (issue 22): `lp` at 128 cameras <= 1.5x `ba`.")
 
 
 def part_regression(base: Path, repeats: int, rigs: str) -> str:
@@ -308,7 +360,7 @@ def part_regression(base: Path, repeats: int, rigs: str) -> str:
                         f"{ratio:.2f} | {errors['before']:.3f} / {errors['after']:.3f} |")
             print(rows[-1], flush=True)
     return (f"Simulated rigs (`wandcal simulate`, 0.3 px, L-frame), the whole `wandcal calibrate` process "
-            f"of the checkout before issue 22 (`--base`) and after it, alternated run by run, medians of {repeats}; CPU "
+            f"of the checkout given by `--base` (before) and of this one (after), alternated run by run, medians of {repeats}; CPU "
             "seconds beside wall seconds because the machine is shared:\n\n" + "\n".join(rows)
             + ("\n\nGoal (issue 22): 8 x 1500 and 16 x 2500 no slower than before." if rigs == REGRESSION_RIGS else
                "\n\nGoal (issue 22): accuracy within 1.05x of before."))
@@ -324,6 +376,7 @@ def main() -> int:
     ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression")
     ap.add_argument("--regression-rigs", default=REGRESSION_RIGS,
                     help="CAMSxFRAMES:OUTLIERS,... for --parts regression")
+    ap.add_argument("--method-cameras", default="64,128", help="rigs (cameras x 3000 frames) for --parts methods")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     parts = args.parts.split(",")
@@ -338,6 +391,8 @@ def main() -> int:
         small = args.regression_rigs == REGRESSION_RIGS
         title = "Scale: small rigs before and after" if small else f"Scale: before and after ({args.regression_rigs})"
         sections.append((title, part_regression(args.base, args.repeats, args.regression_rigs)))
+    if "methods" in parts:
+        sections.append(("Scale: lp beside ba", part_methods([int(c) for c in args.method_cameras.split(",")], args.repeats)))
     if "guidance" in parts:
         sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
     if "stages" in parts:

@@ -180,9 +180,13 @@ def undistort_by_camera(cameras, camera: np.ndarray, uv: np.ndarray) -> np.ndarr
     """
     uv = np.asarray(uv, dtype=float)
     xy = np.empty_like(uv)
+    # each camera's rows by one sort, not a mask over all rows per camera (cameras x rows: 0.28 s
+    # of the grouping's 0.5 s at 128 cameras x 3000 frames)
+    order = np.argsort(camera, kind="stable")
+    bounds = np.searchsorted(camera[order], np.arange(len(cameras) + 1))
     for c, cam in enumerate(cameras):
-        sel = camera == c
-        if sel.any():
+        sel = order[bounds[c] : bounds[c + 1]]
+        if len(sel):
             xy[sel] = undistort_points(cam, uv[sel].reshape(-1, 2)).reshape(uv[sel].shape)
     return xy
 

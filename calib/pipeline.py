@@ -225,7 +225,8 @@ def calibrate(
     else:
         X = None
 
-    polish = options.get("reject_outliers", True) and method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
+    # an outlier pass follows (a robust ba's polish; lp's and paper's passes): this solve is not the final one
+    polish = options.get("reject_outliers", True) and (method != "ba" or (options.get("loss") or DEFAULT_LOSS) != "linear")
     r = refine(rig, labelled, setup, tracks, X, method, options, tell, up_direction(rig, init.R, init.t, setup),
                final=not polish)
     if not (np.all(np.isfinite(r.R)) and np.all(np.isfinite(r.t))):

@@ -119,6 +119,7 @@ class Refined:
     covariance: PoseCovariance | None = None
     outliers: int = 0
     point_outliers: int = 0
+    final: bool = True
 
 
 def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> None:
@@ -133,9 +134,13 @@ def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> 
         raise CalibrationError(f"--refine-intrinsics supports the pinhole model only; {fisheye[0]} is {rig.cameras[0].model}")
 
 
-def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bool = True) -> Refined:
-    """Run ``method`` on the problem; ``options`` as :func:`wandcal.calib.pipeline.calibrate`'s. A robust
-    ``ba`` that is not ``final`` (a least squares polish follows) stops at ``ROBUST_STAGE_SE``."""
+def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bool = True, warm: bool = False) -> Refined:
+    """Run ``method`` on the problem; ``options`` as :func:`wandcal.calib.pipeline.calibrate`'s. Not
+    ``final`` (an outlier pass follows): a robust ``ba`` stops at ``ROBUST_STAGE_SE``, ``lp`` at its
+    IRLS point without the certifying LP, and ``lp`` and ``paper`` leave out the pose covariance
+    (:func:`finished` completes such an outcome). ``warm``: the start is the solution of nearly
+    the same problem (an outlier pass), so ``lp`` skips its first phase on a subset of frames and
+    linearises its phase once."""
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
     # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
@@ -146,17 +151,18 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
             model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, up,
             max_rounds=int(options.get("max_rounds") or MAX_ROUNDS), time_limit=options.get("time_limit"), progress=tell,
         )
-        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=_information(setup, R, t, wand, final))
+        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=_information(setup, R, t, wand, final),
+                       final=final)
     if method == "lp":
         from wandcal.calib.solve.lp import refine_lp
 
         joint = with_tracks(model, tracks, X)
-        x, info = refine_lp(joint, progress=tell, time_limit=options.get("time_limit"))
+        x, info = refine_lp(joint, progress=tell, time_limit=options.get("time_limit"), certify=final, warm=warm)
         R, t = joint.poses(x)
         frames = joint.wand(x)
         wand, X = frames[: setup.problem.n_frames], (frames[setup.problem.n_frames :].mean(axis=1) if X is not None else X)
         return Refined(rig, setup, labelled, tracks, R, t, wand, X, info,
-                       covariance=_information(setup, R, t, wand, final, tracks, X))
+                       covariance=_information(setup, R, t, wand, final, tracks, X), final=final)
     names = tuple(name for name in INTRINSICS if name in (options.get("refine_intrinsics") or ()))
     fit = None
     if names:
@@ -165,8 +171,9 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS, intrinsics=fit,
                                stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
-    refined = Refined(rig, setup, labelled, tracks, *model.poses(out.x), model.wand(out.x), out.X, info, out.camera_std,
-                      out.covariance)
+    R, t = model.poses(out.x)
+    refined = Refined(rig, setup, labelled, tracks, R, t, model.wand(out.x), out.X, info, out.camera_std, out.covariance,
+                      final=final)
     if names:
         refined = _with_intrinsics(refined, out.intr)
     return refined
@@ -248,7 +255,9 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
     After a robust ``ba`` the outliers have had no pull on the cameras, so one pass over its own
     residuals finds them all, and plain least squares on the rest (a few iterations from the
     robust solution, which :data:`ROBUST_STAGE_SE` let stop early) gives the fully efficient
-    estimate."""
+    estimate. ``lp``'s passes certify their optimum (the pass after which the kept set settles
+    is the last one); ``paper``'s take the pose covariance once, after the passes; an outcome
+    that is not final when the set settles is finished then (:func:`finished`)."""
     robust_ba = method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
     if robust_ba:
         options = options | {"loss": "linear"}
@@ -293,13 +302,29 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         else:
             setup = build_problem(r.rig, r.labelled.subset(keep), r.R, r.t, GAUGE_CAMERA)
         before = r.info
-        r = refine(r.rig, r.labelled, setup, tracks, X, method, options, tell, up_direction(r.rig, r.R, r.t, setup))
+        r = refine(r.rig, r.labelled, setup, tracks, X, method, options, tell, up_direction(r.rig, r.R, r.t, setup),
+                   final=method != "paper", warm=True)
         r = replace(r, info=r.info | {"iterations": before["iterations"] + r.info["iterations"],
                                       "seconds": before["seconds"] + r.info["seconds"],
                                       "loss": before.get("loss", r.info.get("loss"))}
                       | ({"relabelled": before["relabelled"]} if "relabelled" in before else {}))
+    if not r.final:
+        r = finished(r, keep, method, options, tell)
     # the labelled pairs stay whole; the setup holds the kept ones
     return replace(r, outliers=int((~keep).sum()), point_outliers=point_drops)
+
+
+def finished(r: Refined, keep: np.ndarray, method: str, options: dict, tell) -> Refined:
+    """The final outcome of a refinement that was not ``final``: ``paper``'s with its pose
+    covariance; another method's refined once more, from its own solution, on the camera-frames
+    ``keep`` (P,) bool of ``r.labelled``."""
+    if method == "paper":
+        return replace(r, covariance=_information(r.setup, r.R, r.t, r.wand, True), final=True)
+    setup = build_problem(r.rig, r.labelled.subset(keep), r.R, r.t, GAUGE_CAMERA)
+    again = refine(r.rig, r.labelled, setup, r.tracks, r.X, method, options, tell, up_direction(r.rig, r.R, r.t, setup),
+                   warm=True)
+    return replace(again, info=again.info | {"iterations": r.info["iterations"] + again.info["iterations"],
+                                             "seconds": r.info["seconds"] + again.info["seconds"]})
 
 
 def relabelled(r: Refined, errors: np.ndarray, limit: float) -> tuple[Refined, np.ndarray]:

@@ -117,18 +117,20 @@ def split_uncertainty(R: np.ndarray, t: np.ndarray, cov: np.ndarray, scale_free:
     Ga, Gp = _gauge(R, C, pivot, g)
     B = _anchor_map(R)
     S = cov.reshape(n * 6, n * 6)
-    Ga2, Gp2 = Ga.reshape(n * 6, g), Gp.reshape(n * 6, g)
-    # B as a block-diagonal (6N anchors coordinates x 6N pose coordinates)
-    blocks4 = np.zeros((n, 6, n, 6))
-    blocks4[np.arange(n), :, np.arange(n), :] = B.reshape(n, 6, 6)
-    Bfull = blocks4.reshape(n * 6, n * 6)
+    Ga2 = Ga.reshape(n * 6, g)
+    own = cov[np.arange(n), :, np.arange(n), :]  # (N, 6, 6) each camera's block of S
     weight = np.ones(n)
     center = np.full(n, np.inf)
     for _ in range(MAX_REWEIGHTS):
         w = np.repeat(weight, 6)
-        H = np.linalg.solve(Ga2.T @ (Ga2 * w[:, None]), (Ga2 * w[:, None]).T @ Bfull)  # (g, 6N): gauge fit
-        P = np.eye(n * 6) - Gp2 @ H
-        blocks = (P @ S @ P.T).reshape(n, 6, n, 6)[np.arange(n), :, np.arange(n), :]  # (N, 6, 6)
+        # the gauge fit H (g, 6N) = (Ga^T W Ga)^-1 (W Ga)^T B, B block-diagonal (N, 6, 6)
+        WGaB = np.einsum("nag,nab->gnb", (Ga2 * w[:, None]).reshape(n, 6, g), B.reshape(n, 6, 6)).reshape(g, n * 6)
+        H = np.linalg.solve(Ga2.T @ (Ga2 * w[:, None]), WGaB)
+        # the diagonal blocks of P S P^T, P = I - Gp H, without the (6N)^3 products (0.19 s at
+        # 128 cameras): S_nn - Gp_n (HS)_n - its transpose + Gp_n (H S H^T) Gp_n^T
+        HS = (H @ S).reshape(g, n, 6)
+        GHS = np.einsum("nag,gnb->nab", Gp, HS)
+        blocks = own - GHS - GHS.transpose(0, 2, 1) + np.einsum("nag,gh,nbh->nab", Gp, HS.reshape(g, -1) @ H.T, Gp)
         last = center
         center = np.sqrt(np.maximum(np.einsum("nii->n", blocks[:, :3, :3]), 0.0))
         rotation = np.sqrt(np.maximum(np.einsum("nii->n", blocks[:, 3:, 3:]), 0.0))

@@ -90,6 +90,8 @@ def refine_lp(
     time_limit: float | None = None,
     subset_frames: int = SUBSET_FRAMES,
     scheme: str = "irls",
+    certify: bool = True,
+    warm: bool = False,
 ):
     """Refine all free cameras and wand frames by sequential LP.
 
@@ -105,6 +107,13 @@ def refine_lp(
         subset_frames: frames of the first phase (0: none).
         scheme: "irls" (IRLS steps, then LP steps that certify the optimum) or "lp" (LP steps
             only, the scheme before; the same estimator, kept to check the other against).
+        certify: with ``scheme="irls"``, False stops at the last phase's IRLS point, near the
+            optimum but not on it, without the LP that certifies it: for a solve that only tells
+            the outliers before the solve that counts (calib/refine.py), where the LP is most of
+            the time at 128 cameras.
+        warm: x0 is the solution of nearly the same problem (an outlier pass, calib/refine.py): no
+            first phase on a subset, and the phase linearises once at its start (no Gauss-Newton
+            step to refit frames fitted to other cameras).
 
     Returns:
         (x, info) with info: iterations, seconds, lp_seconds, lp_rows_mean, scale, and status:
@@ -115,10 +124,10 @@ def refine_lp(
     # more in hand-offs than it gains, as in calib/solve/ba.py (32 x 2000, bench_peers's scene: the LP solves
     # took 1.6-2.0 s with two BLAS threads, 0.5 s with one)
     with threadpool_limits(limits=1, user_api="blas"):
-        return _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme)
+        return _refine_lp(model, x0, progress, max_iter, time_limit, 0 if warm else subset_frames, scheme, certify, warm)
 
 
-def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme):
+def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme, certify=True, warm=False):
     if scheme not in SCHEMES:
         raise ValueError(f"scheme must be one of {SCHEMES}, not {scheme!r}")
     start = time.perf_counter()
@@ -134,7 +143,8 @@ def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme)
     if info_sub is not None and info_sub["status"] != "converged":
         info = dict(info_sub, iterations=0, lp_seconds=0.0)  # the first phase's best state stands
     else:
-        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, scheme)
+        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, scheme, certify=certify,
+                       warm=warm)
     if info_sub is not None:
         info["iterations"] += info_sub["iterations"]
         info["lp_seconds"] += info_sub["lp_seconds"]
@@ -160,7 +170,7 @@ def _frame_subset(model: WandModel, x: np.ndarray, keep: np.ndarray):
     return sub, sub_x
 
 
-def _phase_start(model: WandModel, x: np.ndarray, loss) -> tuple[ReducedSystem, ReducedSystem]:
+def _phase_start(model: WandModel, x: np.ndarray, loss, warm: bool = False) -> tuple[ReducedSystem, ReducedSystem]:
     """The linearisation a phase starts from, and the one its steps are taken on.
 
     One Gauss-Newton step of the reduced system moves the cameras and refits every frame to them
@@ -169,7 +179,9 @@ def _phase_start(model: WandModel, x: np.ndarray, loss) -> tuple[ReducedSystem, 
     elimination with no camera step): it brings most residuals near where the LP will put them,
     so the LP crosses few breakpoints. The phase's robust scale is taken at the point kept, and
     the phase's steps are linearised there. Points are judged by their residuals alone, so this
-    costs two linearisations, not three (decision 0004, fourth session).
+    costs two linearisations, not three (decision 0004, fourth session). ``warm`` (x solves nearly
+    this problem, its frames fitted to its cameras): the start's linearisation is the phase's,
+    rescaled (one linearisation; decision 0019).
 
     Returns:
         (the start's system, the phase's system with its scale).
@@ -178,6 +190,8 @@ def _phase_start(model: WandModel, x: np.ndarray, loss) -> tuple[ReducedSystem, 
     # the start's rows are kept by their residuals with the frames refitted (b): the raw ones of
     # frames fitted to other cameras are many pixels off, and their scale would keep gross outliers
     start = start.rescaled(robust_scale(start.b), by=start.b)
+    if warm:
+        return start, start
     d_gn = start.gauss_newton_step()
     x_fit, x_gn = start.apply(np.zeros_like(d_gn)), start.apply(d_gn)
     r_fit, r_gn = model.residuals(x_fit), model.residuals(x_gn)
@@ -188,13 +202,13 @@ def _phase_start(model: WandModel, x: np.ndarray, loss) -> tuple[ReducedSystem, 
 
 
 def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, phase: str, loss,
-         scheme: str = "irls", certify: bool = True):
+         scheme: str = "irls", certify: bool = True, warm: bool = False):
     """One phase (one loss, one robust scale): LP steps, after IRLS steps with ``scheme="irls"``
     (then LP steps only with ``certify``)."""
     n_free = model.frame_col0 // CAM_PARAMS
     radius = np.array([ROT_RADIUS, T_RADIUS])
     lp_seconds, lp_rows, lp_log, status, uncertified = 0.0, [], [], "iteration_limit", 0
-    start, state = _phase_start(model, x, loss)
+    start, state = _phase_start(model, x, loss, warm)
     irls_steps, se_phase, d_about = 0, None, np.zeros(len(state.free_cols))
     if scheme == "irls":
         # for IRLS's stop and the LP's guard: the start's, rescaled, is near enough for both

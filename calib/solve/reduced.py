@@ -140,7 +140,7 @@ class ReducedSystem:
         return self._se_cache
 
     def _eliminate(self) -> None:
-        """Per-frame elimination: K (M,2,5), G (F,N,5,6), g (F,5), Hinv (F,5,5), b (M,2)."""
+        """Per-frame elimination: K (M,2,5), Gf (F*5, N*6), g (F,5), Hinv (F,5,5), b (M,2)."""
         p = self.model.p
         # plain least squares on the kept rows: weights that moved with the residuals would make
         # the frames' fit an iteration of its own, and the projected merit would drift under it
@@ -153,7 +153,7 @@ class ReducedSystem:
         Hinv = np.linalg.inv(H + FRAME_RIDGE * np.eye(FRAME_PARAMS))
         G = sum_by(m, "frame_camera", outer(FW, self.C)).reshape(p.n_frames, p.n_cams, FRAME_PARAMS, CAM_PARAMS)
         self.K = np.matmul(self.F, Hinv[p.frame])
-        self.Hf, self.Hinv, self.G, self.g = H, Hinv, G, g
+        self.Hf, self.Hinv, self.g = H, Hinv, g
         self.b = self.r - apply(self.K, g[p.frame])
         # G with each frame's rows stacked: (F*5, N*6), the operand of the normal equations' products
         self.Gf = np.ascontiguousarray(G.transpose(0, 2, 1, 3)).reshape(-1, p.n_cams * CAM_PARAMS)
@@ -225,9 +225,14 @@ class ReducedSystem:
     def rows(self, obs: np.ndarray, comp: np.ndarray) -> np.ndarray:
         """Dense reduced rows a_i, (k, n_cam_params), for observation ``obs`` component ``comp``."""
         p, m = self.model.p, self.model
-        K = self.K[obs, comp]  # (k, 5)
-        KG = np.einsum("kj,knjc->knc", K, self.G[p.frame[obs]])  # (k, N, 6)
-        out = -KG[:, m.free].reshape(len(obs), -1)
+        k = len(obs)
+        # K_i G_f as one sparse (k, F*5) times Gf: no (k, N, 5, 6) copy of the frames' blocks
+        # (460 MB for 15k rows at 128 cameras; 15k rows at 64 took 0.47 s that way, 0.05 s this one)
+        at = (FRAME_PARAMS * p.frame[obs])[:, None] + np.arange(FRAME_PARAMS)
+        Ks = sp.csr_matrix((self.K[obs, comp].ravel(), (np.repeat(np.arange(k), FRAME_PARAMS), at.ravel())),
+                           shape=(k, self.Gf.shape[0]))
+        KG = np.asarray(Ks @ self.Gf).reshape(k, p.n_cams, CAM_PARAMS)
+        out = -KG[:, m.free].reshape(k, -1)
         own = np.flatnonzero(self.own[obs])
         cols = self.cam_cols[obs[own]]
         np.add.at(out, (own[:, None], cols), self.C[obs[own], comp[own]])

@@ -119,9 +119,19 @@ def world_uncertainty(R: np.ndarray, t: np.ndarray, pc: PoseCovariance, frame, f
     Aw = _world_response(R, Rw, base_C - tw)  # (6N, 6)
     Fm = np.stack([_frame_change(frame(R, t, STEP_M * e), Rw, tw) / STEP_M for e in np.eye(3)], axis=1)  # (6, 3)
     F = _frame_jacobian(frame, R, t, free, Rw, tw) + Fm @ pc.centroid_response  # (6, 6K)
-    G = Aw @ F
-    G.reshape(n, 6, K, POSE_PARAMS)[free, :, np.arange(K), :] += _direct_blocks(R[free], t[free], Rw)
-    cov = G @ pc.cov @ G.T
+    # G = Aw F + D (D: a 6 x 6 block per free camera) taken apart, so that G C G^T costs O(N^2)
+    # and not the dense (6N)^3 products (0.2 s at 128 cameras)
+    D = _direct_blocks(R[free], t[free], Rw)  # (K, 6, 6)
+    DC = np.einsum("kab,kbm->kam", D, pc.cov.reshape(K, POSE_PARAMS, -1)).reshape(K * 6, -1)  # D C, (6K, 6K)
+    DCD = np.einsum("kalc,ldc->kald", DC.reshape(K, 6, K, POSE_PARAMS), D)  # D C D^T, (K, 6, K, 6)
+    FC = F @ pc.cov  # (6, 6K)
+    AwFCD = Aw @ np.einsum("alc,ldc->ald", FC.reshape(6, K, POSE_PARAMS), D).reshape(6, K * 6)  # Aw F C D^T, (6N, 6K)
+    cov = Aw @ (FC @ F.T) @ Aw.T  # (6N, 6N)
+    cov4 = cov.reshape(n, 6, n, 6)
+    cross = AwFCD.reshape(n, 6, K, 6)
+    cov4[:, :, free, :] += cross
+    cov4[free, :, :, :] += cross.transpose(2, 3, 0, 1)
+    cov4[np.ix_(free, np.arange(6), free, np.arange(6))] += DCD
     if np.any(pc.centroid_cov):
         Gm = Aw @ Fm
         cov += Gm @ pc.centroid_cov @ Gm.T

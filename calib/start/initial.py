@@ -35,6 +35,7 @@ from wandcal.calib.start.chain import (
     MIN_SCALE_FRAMES,
     PairPose,
     Views,
+    camera_groups,
     camera_views,
     pair_pose,
     points_scale,
@@ -141,6 +142,8 @@ def initial_poses(
             elif isinstance(pose, StaticPose):
                 st.notes.append(f"{rig.cameras[c].id}: static-object pose is ambiguous (planar flip); placed from the wand")
     st.scaled = st.placed.sum() >= 2
+    if st.placed.any():
+        _refuse_split(st)
     if not st.placed.any():
         _start_pair(st)
     while not st.placed.all():
@@ -284,6 +287,26 @@ def _by_resection(st: _State, c: int) -> bool | Failure:
     st.R[c], st.t[c] = found
     st.source[c] = "wand resection" if len(ends) else "point resection"
     return True
+
+
+def _refuse_split(st: _State) -> None:
+    """Refuse a rig whose cameras form groups that share no wand frame or point track, even when
+    the static object placed cameras of each: the groups' poses relative to each other would
+    rest on the static object alone, and the refinement could neither check nor move them. The
+    message names a camera of each group apart from the largest."""
+    groups = camera_groups(st.links > 0)
+    if len(groups) < 2:
+        return
+    ids = [c.id for c in st.rig.cameras]
+    main = ", ".join(ids[c] for c in groups[0])
+    cam = ids[groups[1][0]]
+    apart = "; ".join(", ".join(ids[c] for c in g) for g in groups[1:])
+    raise CalibrationError(
+        f"camera {cam!r} cannot be placed: no wand frame or point track ties it to the cameras {main} "
+        f"(the camera groups apart from them: {apart}); the static object alone would place the groups, "
+        f"and nothing would check their poses against each other; it needs at least {(MIN_PAIR_MATCHES + 1) // 2} "
+        f"wand frames shared with one of {main}. Wave the wand where {cam} and the others see it at the same time"
+    )
 
 
 def _describe(views: Views, a: int, b: int) -> str:

@@ -165,3 +165,26 @@ def test_one_camera_missing_the_static_object_is_placed_from_the_wand():
     assert result.cameras[2]["initial_pose"] == "wand resection"
     _, aligned = _errors(result, sim)
     assert aligned.max() < 0.002
+
+
+@pytest.mark.parametrize("outliers, reject", [(0.0, True), (0.08, True), (0.08, False)])
+def test_lp_ends_on_a_certified_step_with_its_pose_uncertainty(outliers, reject):
+    """The solve before the outlier pass stops short of the LP (calib/refine.py): the outcome is
+    still the one the last solve certified, with the pose covariance at its poses; with no outlier
+    pass, the one solve is the final one."""
+    sim = simulate_capture(4, 200, NOISE, outliers=outliers, seed=33)
+    result = calibrate(sim.rig, sim.wand, sim.static, "lp", options={"reject_outliers": reject})
+    doc = result.to_json()
+    assert doc["solver"]["lp_steps"] and doc["solver"]["uncertified_steps"] == 0, doc["solver"]
+    assert all(np.isfinite(c["center_std_mm"]) and c["center_std_mm"] > 0 for c in doc["cameras"])
+    ba = calibrate(sim.rig, sim.wand, sim.static, "ba", options={"reject_outliers": reject})
+    _, aligned = _errors(result, sim)
+    _, ba_aligned = _errors(ba, sim)
+    # lp is ba's equal on such rigs (decision 0004: 0.98-1.08x its centre error)
+    assert aligned.max() < 1.5 * ba_aligned.max() + 0.0005
+
+
+def test_paper_takes_its_pose_uncertainty_once_after_the_outlier_passes():
+    sim = simulate_capture(4, 120, NOISE, outliers=0.05, seed=34)
+    doc = calibrate(sim.rig, sim.wand, sim.static, "paper", options={"max_rounds": 4}).to_json()
+    assert all(np.isfinite(c["center_std_mm"]) and c["center_std_mm"] > 0 for c in doc["cameras"])

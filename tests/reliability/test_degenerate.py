@@ -3,6 +3,10 @@ alarm on sound captures."""
 
 from __future__ import annotations
 
+import re
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -133,6 +137,41 @@ def test_a_camera_linked_to_the_others_only_through_one_camera():
     assert shape_error(result.centers, truth) < SHAPE_TOL_M
 
 
+def two_groups(seed: int = 3):
+    """A 6-camera ring whose cam1-cam3 see the wand in its first 200 frames only and cam4-cam6 in
+    its last 200 only: no wand frame ties the two groups, and every camera sees the L-frame."""
+    centres = [[3.2 * np.cos(a), 3.2 * np.sin(a), 2.6] for a in np.linspace(0, 2 * np.pi, 7)[:-1]]
+    rig, obs, st, _ = scene(centres, moving_wand(400, seed))
+    keep = np.where(obs.frame < 200, obs.camera < 3, obs.camera >= 3)
+    return rig, WandObservations(obs.frame[keep], obs.camera[keep], obs.uv[keep]), st
+
+
+SPLIT = r"camera 'cam4' cannot be placed: no wand frame or point track ties it to the cameras cam1, cam2, cam3 .*cam4, cam5, cam6"
+
+
+@pytest.mark.parametrize("with_static", [True, False])
+def test_two_groups_that_share_no_wand_frame_are_refused(with_static):
+    """Whether or not the L-frame places cameras of both groups, their poses relative to each other
+    would rest on nothing the refinement can check: refused, naming a camera of the group apart."""
+    rig, obs, st = two_groups()
+    # without the L-frame the start finds it as it places cameras one by one: the same refusal, its own words
+    expected = SPLIT if with_static else r"camera 'cam4' cannot be placed: of the placed cameras .* linked to none of them"
+    with pytest.raises(CalibrationError, match=expected):
+        calibrate(rig, obs, st if with_static else None)
+
+
+def test_two_groups_exit_2_on_the_command_line(tmp_path):
+    from wandcal.capture.folder import write_capture
+
+    rig, obs, st = two_groups()
+    write_capture(tmp_path / "cap", rig, obs, st)
+    done = subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(tmp_path / "cap"), "--quiet",
+                           "--out", str(tmp_path / "result.json")], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    assert re.search(SPLIT, done.stderr) and "Traceback" not in done.stderr, done.stderr
+    assert not (tmp_path / "result.json").exists()
+
+
 @pytest.mark.parametrize("cameras, seed", [(3, 1), (4, 2), (8, 3), (16, 4)])
 def test_sound_captures_raise_no_alarm(cameras, seed):
     sim = simulate_capture(cameras=cameras, frames=300, seed=seed)
@@ -140,3 +179,23 @@ def test_sound_captures_raise_no_alarm(cameras, seed):
     assert check_capture(sim.rig, pairs, None, None) == []
     moved = np.sqrt(((pairs.uv.mean(1) - pairs.uv.mean(1).mean(0)) ** 2).sum(1).mean())
     assert moved > 10 * STILL_PX  # the threshold sits far below a waved wand's motion
+
+
+def test_cut_cameras_are_the_cameras_whose_removal_splits_the_rig():
+    """The one-pass search (calib/start/degenerate.py) against removing each camera in turn, on
+    random linked graphs."""
+    from wandcal.calib.start.chain import camera_groups
+    from wandcal.calib.start.degenerate import _cut_cameras
+
+    rng = np.random.default_rng(0)
+    checked = 0
+    for _ in range(400):
+        n = int(rng.integers(3, 12))
+        linked = rng.random((n, n)) < rng.uniform(0.15, 0.6)
+        linked = linked | linked.T
+        np.fill_diagonal(linked, False)
+        if len(camera_groups(linked)) != 1:
+            continue
+        checked += 1
+        assert _cut_cameras(linked) == [v for v in range(n) if len(camera_groups(linked, np.arange(n) != v)) > 1]
+    assert checked > 100

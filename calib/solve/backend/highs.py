@@ -197,8 +197,20 @@ class IncrementalLp:
         self.h.addRows(self.m, rhs, rhs, 0, np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0))
         self.n = 0
 
-    def add_columns(self, cost: np.ndarray, lo: np.ndarray, hi: np.ndarray, A: sp.spmatrix) -> None:
-        """Append columns: costs (k,), bounds (k,), and their (m, k) coefficients."""
+    def add_columns(self, cost: np.ndarray, lo: np.ndarray, hi: np.ndarray, A: sp.spmatrix | np.ndarray) -> None:
+        """Append columns: costs (k,), bounds (k,), and their (m, k) coefficients, sparse or dense.
+
+        Dense columns (the LP step's pairs) go to HiGHS as they are, every entry stored: a CSC
+        copy scans them for zeros they hardly have (1.2 s against 0.3 s for 15k pairs at 128
+        cameras)."""
+        if isinstance(A, np.ndarray):
+            m, k = A.shape
+            start = np.arange(0, m * k, m, dtype=np.int32)
+            index = np.tile(np.arange(m, dtype=np.int32), k)
+            self.h.addCols(k, np.asarray(cost, float), _inf(lo), _inf(hi), m * k, start, index,
+                           np.asarray(A, float).ravel(order="F"))
+            self.n += k
+            return
         A = sp.csc_matrix(A)
         self.h.addCols(
             A.shape[1], np.asarray(cost, float), _inf(lo), _inf(hi), A.nnz,
