@@ -118,6 +118,7 @@ class Refined:
     covariance: PoseCovariance | None = None
     outliers: int = 0
     point_outliers: int = 0
+    dt: np.ndarray | None = None  # (N,) time offsets refined by ``ba`` (frames; options["sync_columns"])
 
 
 def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> None:
@@ -134,7 +135,9 @@ def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> 
 
 def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bool = True) -> Refined:
     """Run ``method`` on the problem; ``options`` as :func:`wandcal.calib.pipeline.calibrate`'s. A robust
-    ``ba`` that is not ``final`` (a least squares polish follows) stops at ``ROBUST_STAGE_SE``."""
+    ``ba`` that is not ``final`` (a least squares polish follows) stops at ``ROBUST_STAGE_SE``; a
+    final ``ba`` refines the time offsets too when ``options["sync_columns"]`` (a
+    :class:`wandcal.calib.solve.sync.joint.TimeColumns`) gives their columns for the setup."""
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
     # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
@@ -160,12 +163,15 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     fit = None
     if names:
         fit = IntrinsicsFit(_intrinsics(rig), names, setup.uv, tracks.uv if tracks is not None else None)
+    columns = options.get("sync_columns")
+    timing = columns(setup) if columns is not None and final else None
     # standard errors and the pose covariance cost one more linearisation and solve: final stage only
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS, intrinsics=fit,
-                               stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final)
+                               stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final, timing=timing)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
-    refined = Refined(rig, setup, labelled, tracks, *model.poses(out.x), model.wand(out.x), out.X, info, out.camera_std,
-                      out.covariance)
+    R, t = model.poses(out.x)
+    refined = Refined(rig, setup, labelled, tracks, R, t, model.wand(out.x), out.X, info, out.camera_std, out.covariance,
+                      dt=out.dt)
     if names:
         refined = _with_intrinsics(refined, out.intr)
     return refined
