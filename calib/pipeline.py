@@ -29,6 +29,7 @@ from wandcal.calib.reports import camera_reports, intrinsics_reports, summary_wa
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.solve.ba import DEFAULT_LOSS
 from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, TimeColumns, Tracks, fit_timing, sync_report
+from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture
 from wandcal.calib.start.initial import initial_poses
 from wandcal.calib.start.labels import label_ends
@@ -205,7 +206,8 @@ def calibrate(
         focal = np.array([c.focal for c in rig.cameras])
         tracks_in_time = Tracks(labelled, len(rig.cameras))
         timing = fit_timing(init.R, init.t, labelled, focal, timed.reference, bool(options.get("sync_drift")),
-                            poses=True, tracks=tracks_in_time)
+                            max_frames=BA_FIT_FRAMES if method == "ba" else MAX_FIT_FRAMES, poses=True,
+                            tracks=tracks_in_time)
         columns = TimeColumns(labelled, tracks_in_time, timing, focal)
         labelled, init = columns.resampled, replace(init, R=timing.R, t=timing.t)
         if method == "ba":  # the offsets refined again in the final bundle adjustment, over every frame
