@@ -24,6 +24,12 @@ from wandcal.calib.solve.reprojection import TimeFit
 from wandcal.calib.solve.sync.fit import Timing
 from wandcal.calib.solve.sync.tracks import Tracks
 
+# frames either side whose wand gives an end's 3D motion: a resampled blob at frame f is the cubic
+# through its camera's samples up to two frames either side of f, so the wand 5 frames away shares
+# none of them (with +-1 one 16-camera rig's offsets had a mean z^2 of 5.9, 0.4 with 5); the
+# motion's own error there (the path's third derivative) only scales a column by a few percent
+SPAN = 5
+
 
 class TimeColumns:
     """Each resampled observation's image velocity, for the offsets' columns in ``ba``.
@@ -67,13 +73,30 @@ class TimeColumns:
 
     def __call__(self, setup) -> TimeFit | None:
         """The offsets' columns for ``setup``'s observations; None for a wand of more than two
-        markers (its interior markers have no track of their own here)."""
-        if setup.problem.along is not None or not len(setup.problem.camera):
+        markers (its interior markers have no track of their own here).
+
+        Each observation's velocity is the wand end's 3D motion at its frame (the central
+        difference of the setup's start wand ``SPAN`` frames either side) projected into its
+        camera: so every camera's column is the image of one motion, and a shift common to all
+        cameras stays the wand's own time. Each camera's own track secant carries that camera's
+        blob noise; with it the columns disagreed, and holding the reference left every other
+        camera 2-3 standard errors off together (docs/decisions/0022-sync-cost-and-standard-error.md).
+        Where one of those frames is not in the setup, the track's secant."""
+        p, model = setup.problem, setup.model
+        if p.along is not None or not len(p.camera):
             return None
         row, end = self.rows(setup)
         # the resampled blobs' share of a blob's noise variance, over the observations ba uses
         self.share = float(np.mean(self.spread[row]))
-        return TimeFit(self.velocity[row, end], self.held)
+        wand = model.wand(model.x0())  # (F, 2, 3) metres
+        motion = _wand_motion(wand, setup.frames)
+        X, dX = wand[p.frame, p.end], motion[p.frame, p.end]
+        R, t = model.R0[p.camera], model.t0[p.camera]
+        xc = np.einsum("mij,mj->mi", R, X) + t
+        dxc = np.einsum("mij,mj->mi", R, dX)
+        v = (dxc[:, :2] - xc[:, :2] / xc[:, 2:3] * dxc[:, 2:3]) / xc[:, 2:3] * p.focal[p.camera]
+        v = np.where(np.isfinite(v).all(axis=1)[:, None], v, self.velocity[row, end])
+        return TimeFit(v, self.held)
 
     def folded(self, dt: np.ndarray | None, std: np.ndarray | None) -> Timing:
         """The fitted offsets with ``ba``'s increments ``dt`` (N,) frames added, and each offset's
@@ -93,3 +116,27 @@ class TimeColumns:
         cov[:, 0, 1] *= ratio
         cov[:, 1, 0] *= ratio
         return replace(t, phase=t.phase + dt, cov=cov)
+
+
+def _wand_motion(wand: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """(F, 2, 3) each wand end's motion, metres a frame: the difference of its positions ``SPAN``
+    frames either side over 2 ``SPAN`` (capture frame numbers ``frames`` (F,)), those frames' ends
+    matched by proximity (a frame's end order is its own); NaN where one is missing."""
+    F = len(frames)
+    out = np.full_like(wand, np.nan)
+    if not F:
+        return out
+    lo = int(frames.min())
+    index = np.full(int(frames.max()) - lo + 1 + 2 * SPAN, -1)
+    index[frames - lo + SPAN] = np.arange(F)
+    before, after = index[frames - lo], index[frames - lo + 2 * SPAN]
+    both = (before >= 0) & (after >= 0)
+
+    def matched(k: np.ndarray) -> np.ndarray:
+        w = wand[k]
+        same = np.linalg.norm(w - wand[both], axis=2).sum(1)
+        cross = np.linalg.norm(w[:, ::-1] - wand[both], axis=2).sum(1)
+        return np.where((cross < same)[:, None, None], w[:, ::-1], w)
+
+    out[both] = (matched(after[both]) - matched(before[both])) / (2 * SPAN)
+    return out
