@@ -28,7 +28,8 @@ from wandcal.calib.refine import (
 from wandcal.calib.reports import camera_reports, intrinsics_reports, summary_warnings, uncertainty_reports
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.solve.ba import DEFAULT_LOSS
-from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, Tracks, fit_timing, resample, sync_report
+from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, TimeColumns, Tracks, fit_timing, sync_report
+from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture
 from wandcal.calib.start.initial import initial_poses
 from wandcal.calib.start.labels import label_ends
@@ -202,18 +203,17 @@ def calibrate(
     planar = blobs is not None and blobs.fit_px is not None  # a planar wand's rows come labelled from the layout
     labelled = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0] if (
         has_wand and not planar) else pairs
-    sync_doc = None
+    columns = None
     if timed is not None:  # sub-frame offsets with the start poses refined; the frames resampled to the reference's instants
-        drift = bool(options.get("sync_drift"))
+        focal = np.array([c.focal for c in rig.cameras])
         tracks_in_time = Tracks(labelled, len(rig.cameras))
-        timing = fit_timing(init.R, init.t, labelled, np.array([c.focal for c in rig.cameras]), timed.reference, drift,
-                            poses=True, tracks=tracks_in_time)
-        (labelled, _), init = resample(labelled, timing, tracks_in_time), replace(init, R=timing.R, t=timing.t)
-        # the offsets reported are this fit's: fitted again at the refined poses they moved by under
-        # a twentieth of their standard error (docs/decisions/0022-sync-cost-and-standard-error.md)
-        sync_doc, found = sync_report(rig.ids, timed.offsets, timed.reference, timing, options.get("sync_start"),
-                                      options.get("frame_rate_hz"), drift)
-        warnings += found
+        timing = fit_timing(init.R, init.t, labelled, focal, timed.reference, bool(options.get("sync_drift")),
+                            max_frames=BA_FIT_FRAMES if method == "ba" else MAX_FIT_FRAMES, poses=True,
+                            tracks=tracks_in_time)
+        columns = TimeColumns(labelled, tracks_in_time, timing, focal)
+        labelled, init = columns.resampled, replace(init, R=timing.R, t=timing.t)
+        if method == "ba":  # the offsets refined again in the final bundle adjustment, over every frame
+            options["sync_columns"] = columns
     setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
     all_tracks = tracks  # every method is judged on the same observations, point tracks included
     if tracks is not None:
@@ -236,6 +236,14 @@ def calibrate(
         )
     if options.get("reject_outliers", True):
         r = reject_outliers(r, method, options, tell)
+    sync_doc = None
+    if columns is not None and timed is not None:
+        # the fit's offsets plus what ba added over every frame (docs/decisions/0022-sync-cost-and-standard-error.md)
+        timing = columns.folded(r.dt, r.camera_std[:, -1] if r.dt is not None and r.camera_std is not None else None)
+        sync_doc, found = sync_report(rig.ids, timed.offsets, timed.reference, timing, options.get("sync_start"),
+                                      options.get("frame_rate_hz"), bool(options.get("sync_drift")))
+        warnings += found
+        options.pop("sync_columns", None)
     marker_pairs = None
     if blobs is not None:
         r, marker_pairs = _with_markers(rig, blobs, r, method, options, tell, warnings)

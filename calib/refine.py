@@ -120,6 +120,7 @@ class Refined:
     outliers: int = 0
     point_outliers: int = 0
     final: bool = True
+    dt: np.ndarray | None = None  # (N,) time offsets refined by ``ba`` (frames; options["sync_columns"])
 
 
 def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> None:
@@ -140,7 +141,9 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     IRLS point without the certifying LP, and ``lp`` and ``paper`` leave out the pose covariance
     (:func:`finished` completes such an outcome). ``warm``: the start is the solution of nearly
     the same problem (an outlier pass), so ``lp`` skips its first phase on a subset of frames and
-    linearises its phase once."""
+    linearises its phase once. A final ``ba`` refines the time offsets too when
+    ``options["sync_columns"]`` (a :class:`wandcal.calib.solve.sync.joint.TimeColumns`) gives their
+    columns for the setup."""
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
     # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
@@ -167,13 +170,15 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     fit = None
     if names:
         fit = IntrinsicsFit(_intrinsics(rig), names, setup.uv, tracks.uv if tracks is not None else None)
+    columns = options.get("sync_columns")
+    timing = columns(setup) if columns is not None and final else None
     # standard errors and the pose covariance cost one more linearisation and solve: final stage only
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS, intrinsics=fit,
-                               stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final)
+                               stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final, timing=timing)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
     R, t = model.poses(out.x)
     refined = Refined(rig, setup, labelled, tracks, R, t, model.wand(out.x), out.X, info, out.camera_std, out.covariance,
-                      final=final)
+                      final=final, dt=out.dt)
     if names:
         refined = _with_intrinsics(refined, out.intr)
     return refined

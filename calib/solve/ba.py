@@ -35,8 +35,10 @@ from wandcal.calib.solve.markerwand import planar_term
 from wandcal.calib.solve.reprojection import (
     CAM_PARAMS,
     INTRINSICS,
+    TIME_PARAMS,
     BundleState,
     PointTerm,
+    TimeFit,
     WandTerm,
     exp_so3,
     moved_intrinsics,
@@ -95,8 +97,10 @@ class IntrinsicsFit:
 class BundleResult:
     """x: the model's parameters; X: (T, 3) points or None; intr: (N, 9) refined intrinsics or
     None; camera_std: (N, c) standard errors of each camera's parameters (w, t, refined
-    intrinsics; 0 where held); covariance: the free poses' covariance (None when standard errors
-    were not asked for); info: the solver's record."""
+    intrinsics, time offset; 0 where held); covariance: the free poses' covariance (None when
+    standard errors were not asked for); info: the solver's record; dt: (N,) the time offsets
+    refined (frames, added to the observations' own: an observation moved by dt is xy - dt v), or
+    None."""
 
     x: np.ndarray
     X: np.ndarray | None
@@ -104,6 +108,7 @@ class BundleResult:
     camera_std: np.ndarray
     info: dict
     covariance: PoseCovariance | None = None
+    dt: np.ndarray | None = None
 
 
 def bundle_adjust_points(
@@ -117,6 +122,7 @@ def bundle_adjust_points(
     intrinsics: IntrinsicsFit | None = None,
     stop_se: float = STOP_SE,
     standard_errors: bool = True,
+    timing: TimeFit | None = None,
 ) -> BundleResult:
     """:func:`bundle_adjust` with single-point tracks as free 3D points beside the wand, and
     optionally the cameras' intrinsics among the unknowns (fitting raw pixels through the lens
@@ -130,6 +136,7 @@ def bundle_adjust_points(
             of the optimum (a robust first stage that a least squares polish follows needs less).
         standard_errors: compute ``camera_std`` (one more evaluation and solve; a first stage
             whose result is polished further does not need them).
+        timing: the time offsets to refine with the poses, or None to hold them (no extra column).
 
     Without wand observations the scale is free: it is held by fixing the one translation
     component of one camera that most changes with it (the poses are then up to scale).
@@ -141,27 +148,36 @@ def bundle_adjust_points(
     p = model.p
     n = p.n_cams
     refine = intrinsics.refine if intrinsics is not None else ()
-    # a camera held for the gauge keeps its pose, but its intrinsics may still move
-    free = np.arange(n) if refine else model.free
+    # a camera held for the gauge keeps its pose, but its intrinsics and time offset may still move
+    every = bool(refine) or timing is not None
+    free = np.arange(n) if every else model.free
     terms = []
     if len(p.camera):
         raw = (intrinsics.wand_uv, refine) if refine else None
+        if p.planar and timing is not None:  # the pipeline refines a planar wand's markers after the sync
+            raise ValueError("bundle_adjust_points: a planar wand's term carries no image velocities to refine offsets with")
         terms.append(planar_term(p, free, raw) if p.planar else
-                     WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, free, n, raw, p.along))
+                     WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, free, n, raw,
+                              p.along, timing.velocity if timing is not None else None))
     if tracks is not None and len(tracks):
         raw = (intrinsics.point_uv, refine) if refine else None
-        terms.append(PointTerm(tracks.camera, tracks.track, tracks.xy, p.focal[tracks.camera], tracks.n_tracks, free, n, raw))
+        terms.append(PointTerm(tracks.camera, tracks.track, tracks.xy, p.focal[tracks.camera], tracks.n_tracks, free, n, raw,
+                               timing is not None))
     R, t = model.poses(x0)
     wand = model.wand(x0) if p.n_frames else np.zeros((0, 2, 3))
     d = wand[:, 1] - wand[:, 0]
     X = np.zeros((0, 3)) if X0 is None else np.asarray(X0, float)
     intr = intrinsics.intr.copy() if refine else None
     Q = model.axes(model.unpack(x0)[3]) if p.planar else None
-    state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), X, intr, Q)
-    frozen = [(int(np.flatnonzero(free == g)[0]), j) for g in np.flatnonzero(model.fixed) for j in range(CAM_PARAMS)] if refine else []
+    dt = np.zeros(n) if timing is not None else None
+    state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), X, intr, Q, dt)
+    frozen = [(int(np.flatnonzero(free == g)[0]), j) for g in np.flatnonzero(model.fixed) for j in range(CAM_PARAMS)] if every else []
+    if timing is not None:
+        time_col = CAM_PARAMS + sum(INTRINSICS[name] for name in refine)
+        frozen += [(int(g), time_col) for g in np.flatnonzero(timing.held)]  # free is every camera
     if not len(p.camera):
         frozen.append(_scale_gauge(R, t, free, model.fixed, frozen))
-    solver = _LevenbergMarquardt(terms, free, loss, frozen, refine, stop_se)
+    solver = _LevenbergMarquardt(terms, free, loss, frozen, refine, stop_se, timing is not None)
     # the dense products here are small: a second BLAS thread costs more in hand-offs than it
     # gains (0.26 s against 0.42 s at 8 x 1500 on 2 cores, and no gain at 32 x 2000)
     with threadpool_limits(limits=1, user_api="blas"):
@@ -171,7 +187,7 @@ def bundle_adjust_points(
     camera_std = np.zeros((n, std.shape[1]))
     camera_std[free] = std
     return BundleResult(_pack(model, state), state.X if X0 is not None else None, state.intr, camera_std, info,
-                        getattr(solver, "covariance", None))
+                        getattr(solver, "covariance", None), state.dt)
 
 
 def _scale_gauge(R: np.ndarray, t: np.ndarray, free: np.ndarray, fixed: np.ndarray, frozen) -> tuple[int, int]:
@@ -192,7 +208,7 @@ class _LevenbergMarquardt:
     """Levenberg–Marquardt with Nielsen's damping update and iteratively reweighted loss."""
 
     def __init__(self, terms: list, free: np.ndarray, loss: str, frozen: list[tuple[int, int]], refine: tuple[str, ...],
-                 stop_se: float = STOP_SE):
+                 stop_se: float = STOP_SE, timed: bool = False):
         self.terms = terms
         self.stop_se = stop_se
         self.free = free
@@ -200,7 +216,9 @@ class _LevenbergMarquardt:
         self.loss = loss
         self.frozen = frozen
         self.refine = refine
-        self.cam_size = CAM_PARAMS + sum(INTRINSICS[name] for name in refine)
+        self.intr_size = sum(INTRINSICS[name] for name in refine)
+        self.timed = timed
+        self.cam_size = CAM_PARAMS + self.intr_size + (TIME_PARAMS if timed else 0)
         self.scale = np.inf
         self.split = np.cumsum([len(t.structure.cam) for t in terms])[:-1]
 
@@ -227,8 +245,12 @@ class _LevenbergMarquardt:
         intr = state.intr
         if self.refine:
             intr = intr.copy()
-            intr[self.free] = moved_intrinsics(state.intr[self.free], step.dc[:, 6:], self.refine)
-        state = BundleState(R, t, state.m, state.d, state.X, intr, state.Q)
+            intr[self.free] = moved_intrinsics(state.intr[self.free], step.dc[:, 6 : 6 + self.intr_size], self.refine)
+        dt = state.dt
+        if self.timed:
+            dt = dt.copy()
+            dt[self.free] += step.dc[:, CAM_PARAMS + self.intr_size]
+        state = BundleState(R, t, state.m, state.d, state.X, intr, state.Q, dt)
         for term, dp in zip(self.terms, step.dp):
             state = term.moved(state, dp)
         return state

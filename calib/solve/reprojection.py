@@ -21,6 +21,9 @@ POINT_PARAMS = 3
 # intrinsics a camera may refine, in this order, and how many parameters each takes: the focal
 # length as a relative change of fx and fy together, the principal point (cx, cy), radial k1
 INTRINSICS = {"focal": 1, "principal": 2, "k1": 1}
+# a camera's time offset, refined when its observations carry their image velocity (``--sync
+# auto``, docs/sync.md): one column after the intrinsics, the residual moving by dt v
+TIME_PARAMS = 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,7 +38,21 @@ class BundleState:
     d: np.ndarray
     X: np.ndarray
     intr: np.ndarray | None = None  # (N, 9) fx, fy, cx, cy, k1, k2, p1, p2, k3 when refined
-    Q: np.ndarray | None = None
+    Q: np.ndarray | None = None  # (F, 3, 3) a planar wand's frame axes, or None
+    dt: np.ndarray | None = None  # (N,) time offsets refined, frames, when the terms carry velocities
+
+
+@dataclass(frozen=True, eq=False)
+class TimeFit:
+    """Time offsets to refine (``--sync auto``, docs/sync.md), one column per camera after the
+    intrinsics (``TIME_PARAMS``): velocity (M, 2) each wand observation's image velocity in the
+    model's order, pixels a frame (normalised units times the focal length; with the intrinsics
+    refined the lens's local stretch, a few percent, is left out of it); held (N,) bool the
+    cameras whose offset stays at 0 (the reference camera, the gauge: a common shift of every
+    camera is the wand's own time)."""
+
+    velocity: np.ndarray
+    held: np.ndarray
 
 
 def camera_index(free: np.ndarray, camera: np.ndarray, n_cams: int) -> np.ndarray:
@@ -54,6 +71,9 @@ class _Term:
     normal equations take a chunk at a time."""
 
     camera: np.ndarray
+    # (M, 2) each observation's image velocity, residual pixels a frame, when the time offsets
+    # are refined: the observation at the camera's offset moved by dt is xy - dt v, so r moves by +dt v
+    velocity: np.ndarray | None = None
 
     def residuals(self, s: BundleState) -> np.ndarray:
         """(M, 2) pixel residuals."""
@@ -72,8 +92,12 @@ class _Term:
     def _project(self, s: BundleState, X: np.ndarray, sl: slice) -> np.ndarray:
         xc = np.einsum("mij,mj->mi", s.R[self.camera[sl]], X) + s.t[self.camera[sl]]
         if self.raw is not None:
-            return distorted_pixels(xc, s.intr[self.camera[sl]])[0] - self.raw[0][sl]
-        return (xc[:, :2] / xc[:, 2:3] - self.xy[sl]) * self.focal[sl]
+            r = distorted_pixels(xc, s.intr[self.camera[sl]])[0] - self.raw[0][sl]
+        else:
+            r = (xc[:, :2] / xc[:, 2:3] - self.xy[sl]) * self.focal[sl]
+        if self.velocity is not None:
+            r += s.dt[self.camera[sl], None] * self.velocity[sl]
+        return r
 
 
 class WandTerm(_Term):
@@ -82,12 +106,16 @@ class WandTerm(_Term):
 
     size = FRAME_PARAMS
 
-    def __init__(self, camera, frame, end, xy, focal, length, n_frames, free, n_cams, raw=None, along=None):
+    def __init__(self, camera, frame, end, xy, focal, length, n_frames, free, n_cams, raw=None, along=None,
+                 velocity=None):
         """``raw``: None, or (uv (M, 2) raw pixels, refined intrinsics names) to fit raw pixels
         through the distortion with the cameras' intrinsics among the unknowns. ``along``: (M,)
-        a multi-marker wand's marker positions on the axis, metres (WandProblem.along), or None."""
+        a multi-marker wand's marker positions on the axis, metres (WandProblem.along), or None.
+        ``velocity``: (M, 2) image velocities in the residual's pixels a frame, to refine each
+        camera's time offset (``TIME_PARAMS`` column), or None."""
         self.camera, self.frame, self.xy, self.focal = camera, frame, xy, focal
         self.raw = raw
+        self.velocity = velocity
         self.half = np.where(end == 1, 0.5, -0.5) * length if along is None else np.asarray(along, float)
         self.structure = schur.TermStructure(camera_index(free, camera, n_cams), camera, frame, len(free), n_frames, FRAME_PARAMS)
 
@@ -102,7 +130,8 @@ class WandTerm(_Term):
         Rc = s.R[camera]
         Y = np.einsum("mij,mj->mi", Rc, self._ends(s, sl))
         raw = None if self.raw is None else (self.raw[0][sl], self.raw[1])
-        r, J = _linearised_projection(Y, s, camera, Rc, self.xy[sl], self.focal[sl], raw, FRAME_PARAMS)
+        velocity = None if self.velocity is None else self.velocity[sl]
+        r, J = _linearised_projection(Y, s, camera, Rc, self.xy[sl], self.focal[sl], raw, FRAME_PARAMS, velocity)
         u1, u2 = tangent_basis(s.d[frame])
         c = J.shape[2] - FRAME_PARAMS
         dX = J[:, :, c : c + 3]  # d/dX of the end; the end moves by half * (a u1 + b u2)
@@ -121,11 +150,14 @@ class PointTerm(_Term):
 
     size = POINT_PARAMS
 
-    def __init__(self, camera, track, xy, focal, n_tracks, free, n_cams, raw=None):
+    def __init__(self, camera, track, xy, focal, n_tracks, free, n_cams, raw=None, timed=False):
+        """``timed``: the cameras' time offsets are refined (the wand's motion shows them; a
+        point is taken as still, its rows' time column zero)."""
         order = np.lexsort((camera, track))  # one group per (point, camera)
         self.order = order
         self.camera, self.track, self.xy, self.focal = camera[order], track[order], xy[order], focal[order]
         self.raw = None if raw is None else (raw[0][order], raw[1])
+        self.velocity = np.zeros((len(camera), 2)) if timed else None
         self.structure = schur.TermStructure(camera_index(free, self.camera, n_cams), self.camera, self.track, len(free), n_tracks, POINT_PARAMS)
 
     def _residuals(self, s: BundleState, sl: slice) -> np.ndarray:
@@ -136,29 +168,41 @@ class PointTerm(_Term):
         Rc = s.R[camera]
         Y = np.einsum("mij,mj->mi", Rc, s.X[self.track[sl]])
         raw = None if self.raw is None else (self.raw[0][sl], self.raw[1])
-        return _linearised_projection(Y, s, camera, Rc, self.xy[sl], self.focal[sl], raw, POINT_PARAMS)
+        velocity = None if self.velocity is None else self.velocity[sl]
+        return _linearised_projection(Y, s, camera, Rc, self.xy[sl], self.focal[sl], raw, POINT_PARAMS, velocity)
 
     def moved(self, s: BundleState, dp: np.ndarray) -> BundleState:
         return replace(s, X=s.X + dp)
 
 
-def _linearised_projection(Y, s: BundleState, camera, Rc, xy, focal, raw, point_size):
-    """(r, J) of one term's observations, with the camera's columns first: (w, t) and, when
-    fitting raw pixels, the refined intrinsics; the last ``point_size`` columns start with d/dX."""
+def _linearised_projection(Y, s: BundleState, camera, Rc, xy, focal, raw, point_size, velocity=None):
+    """(r, J) of one term's observations, with the camera's columns first: (w, t), when fitting
+    raw pixels the refined intrinsics, and with ``velocity`` (K, 2) the time offset (d r / d dt =
+    v); the last ``point_size`` columns start with d/dX."""
+    timed = 0 if velocity is None else TIME_PARAMS
     if raw is None:
-        J = np.empty((len(Y), 2, CAM_PARAMS + point_size))
-        return project_into(J, Y, s.t[camera], Rc, xy, focal), J
+        if velocity is None:
+            J = np.empty((len(Y), 2, CAM_PARAMS + point_size))
+            return project_into(J, Y, s.t[camera], Rc, xy, focal), J
+        J = np.empty((len(Y), 2, CAM_PARAMS + timed + point_size))
+        r = project_into(J, Y, s.t[camera], Rc, xy, focal, CAM_PARAMS + timed)
+        J[:, :, CAM_PARAMS] = velocity
+        return r + s.dt[camera, None] * velocity, J
     uv, refine = raw
     k = sum(INTRINSICS[name] for name in refine)
-    J = np.empty((len(Y), 2, CAM_PARAMS + k + point_size))
+    J = np.empty((len(Y), 2, CAM_PARAMS + k + timed + point_size))
     xc = Y + s.t[camera]
     pixels, A, dintr = distorted_pixels(xc, s.intr[camera], refine)
     J[:, 0, :3] = np.cross(Y, A[:, 0])
     J[:, 1, :3] = np.cross(Y, A[:, 1])
     J[:, :, 3:6] = A
     J[:, :, 6 : 6 + k] = dintr
-    J[:, :, 6 + k : 9 + k] = A @ Rc
-    return pixels - uv, J
+    c = 6 + k + timed
+    J[:, :, c : c + 3] = A @ Rc
+    if velocity is None:
+        return pixels - uv, J
+    J[:, :, 6 + k] = velocity
+    return pixels - uv + s.dt[camera, None] * velocity, J
 
 
 def distorted_pixels(xc: np.ndarray, intr: np.ndarray, refine: tuple[str, ...] | None = None):
@@ -220,10 +264,12 @@ def moved_intrinsics(intr: np.ndarray, step: np.ndarray, refine: tuple[str, ...]
     return out
 
 
-def project_into(J: np.ndarray, Y: np.ndarray, t: np.ndarray, R: np.ndarray, xy: np.ndarray, focal: np.ndarray):
+def project_into(J: np.ndarray, Y: np.ndarray, t: np.ndarray, R: np.ndarray, xy: np.ndarray, focal: np.ndarray,
+                 point_col: int = CAM_PARAMS):
     """Pixel residuals (M, 2) of points ``R X + t`` with ``Y = R X`` (M, 3), against normalised
-    ``xy`` (M, 2) scaled by ``focal`` (M, 2); writes into ``J[:, :, :9]`` the derivatives w.r.t.
-    the camera's rotation increment w (``R <- exp([w]) R``), its translation, and the point X.
+    ``xy`` (M, 2) scaled by ``focal`` (M, 2); writes into ``J[:, :, :6]`` the derivatives w.r.t.
+    the camera's rotation increment w (``R <- exp([w]) R``) and its translation, and into
+    ``J[:, :, point_col : point_col + 3]`` those w.r.t. the point X.
 
     With p = (x/z, y/z) of x_cam = Y + t, dp/dx_cam = [[1, 0, -px], [0, 1, -py]] / z; dx_cam/dw
     = -[Y]x, so row k of dp/dw is Y x (row k of dp/dx_cam); dx_cam/dX = R."""
@@ -242,8 +288,13 @@ def project_into(J: np.ndarray, Y: np.ndarray, t: np.ndarray, R: np.ndarray, xy:
     J[:, 1, 2] = Yx
     J[:, 0, 3], J[:, 0, 4], J[:, 0, 5] = 1.0, 0.0, -px
     J[:, 1, 3], J[:, 1, 4], J[:, 1, 5] = 0.0, 1.0, -py
-    J[:, :, 6:9] = R[:, :2, :] - proj[:, :, None] * R[:, 2:3, :]
-    J[:, :, :9] *= fz[:, :, None]
+    if point_col == CAM_PARAMS:
+        J[:, :, 6:9] = R[:, :2, :] - proj[:, :, None] * R[:, 2:3, :]
+        J[:, :, :9] *= fz[:, :, None]
+        return r
+    J[:, :, point_col : point_col + 3] = R[:, :2, :] - proj[:, :, None] * R[:, 2:3, :]
+    J[:, :, :6] *= fz[:, :, None]
+    J[:, :, point_col : point_col + 3] *= fz[:, :, None]
     return r
 
 

@@ -5,6 +5,7 @@ starts it is :mod:`wandcal.calib.start.timing`.
 | module | holds |
 |---|---|
 | :mod:`~wandcal.calib.solve.sync.fit` | :func:`fit_timing`, :func:`resample`, :func:`sync_report`: the offsets' Gauss-Newton fit and the result's ``sync`` section |
+| :mod:`~wandcal.calib.solve.sync.joint` | :class:`TimeColumns`: the offsets refined again inside ``ba``, over every frame |
 | :mod:`~wandcal.calib.solve.sync.tracks` | each camera's wand track as a function of time, interpolated between its frames |
 """
 
@@ -18,7 +19,8 @@ from wandcal.calib.solve.sync.fit import (
     sync_report,
     zero_timing,
 )
+from wandcal.calib.solve.sync.joint import TimeColumns
 from wandcal.calib.solve.sync.tracks import Tracks
 
-__all__ = ["DEFAULT_SYNC", "SYNC_MODES", "Timing", "Tracks", "fit_timing", "resample", "spread_frames", "sync_report",
+__all__ = ["DEFAULT_SYNC", "SYNC_MODES", "Timing", "TimeColumns", "Tracks", "fit_timing", "resample", "spread_frames", "sync_report",
            "zero_timing"]

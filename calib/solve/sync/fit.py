@@ -49,6 +49,11 @@ MIN_OUTLIER_PX = 1.0  # never cut closer than this, so a clean rig keeps all its
 # (2-3 SE) low and the rig 1.4x the synchronised one's error, at 800 within 0.0023 and 1.1x
 # (docs/decisions/0018-sync-from-the-wand.md)
 MAX_FIT_FRAMES = 800
+# with ``ba``, whose final stage refines the offsets again over every frame (sync/joint.py), the
+# fit only starts them: at 16 x 2500 (seeds 1-6) 400 frames left the rig 1.15x the synchronised
+# one's error as 800 did, at 8 x 1500 1.09x against 1.10x, and the command's CPU time 1.17x that
+# of --sync none against 1.22-1.28x (docs/decisions/0022-sync-cost-and-standard-error.md)
+BA_FIT_FRAMES = 400
 # once no offset moves by more than this (frames), the observations left out as outliers are kept
 # out for the rest of the fit: judged again at each step, a few flip in and out, and the fast
 # wand's, whose interpolation is the roughest and whose weight in an offset the largest, moved

@@ -101,13 +101,14 @@ class Tracks:
         self.parity[order] = ((parity - start_parity[run]) % 2).astype(bool)
 
     def resample(self, phase: np.ndarray, drift: np.ndarray, centre: np.ndarray, rows: np.ndarray | None = None,
-                 pixels: bool = True):
+                 pixels: bool = True, velocity: bool = False):
         """(xy (Q, 2, 2), velocity (Q, 2, 2) normalised units a frame, keep (Q,), uv (Q, 2, 2),
         spread (Q,)) of the pair rows ``rows`` (Q,) (default all), each camera c's frame f sampled
         at f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames);
         spread is the resampled blobs' share of a blob's noise variance (:func:`interpolate`).
         ``pixels=False`` leaves uv at zero and keeps only the cubic's values (a fit's; the
-        calibration keeps the lines through gaps too); ``pixels=True`` leaves the velocity at zero."""
+        calibration keeps the lines through gaps too); ``pixels=True`` leaves the velocity at zero
+        unless ``velocity`` (the offsets refined in the bundle adjustment, :mod:`.joint`)."""
         p = self.pairs if rows is None else self.pairs.subset(rows)
         parity = self.parity if rows is None else self.parity[rows]
         f = p.frames[p.frame].astype(float)
@@ -131,7 +132,7 @@ class Tracks:
         if pixels:
             parts += [self.pairs.uv[r, e0.astype(np.int64)], self.pairs.uv[r, (~e0).astype(np.int64)]]
         pts = np.where(ok_row[..., None], np.concatenate(parts, axis=2), np.nan)
-        value, slope, keep, spread = interpolate(pts, u, strict=not pixels, slopes=not pixels)
+        value, slope, keep, spread = interpolate(pts, u, strict=not pixels, slopes=velocity or not pixels)
         xy, vel = value[:, :4].reshape(-1, 2, 2), slope[:, :4].reshape(-1, 2, 2)
         uv = value[:, 4:].reshape(-1, 2, 2) if pixels else np.zeros((len(p), 2, 2))
         return xy, vel, keep, uv, spread

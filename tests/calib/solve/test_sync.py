@@ -1,6 +1,8 @@
 """Time offsets of cameras without a trigger (docs/sync.md): simulated rigs whose cameras expose
 their frames at their own instants (calib/sim/simulate.py's offsets and drift_ppm)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.stats import chi2
@@ -8,7 +10,10 @@ from scipy.stats import chi2
 from wandcal.calib.geometry import kabsch, project_normalized
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.pipeline import calibrate
+from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.calib.solve.ba import bundle_adjust_points
+from wandcal.calib.solve.reprojection import CAM_PARAMS, TIME_PARAMS, TimeFit
 from wandcal.calib.solve.sync import fit_timing
 from wandcal.calib.start.labels import label_ends
 
@@ -124,3 +129,52 @@ def test_standard_error_follows_the_wands_image_speed(sweep):
     c = 1
     assert std[c] == pytest.approx(np.hypot(alone(c), alone(0)), rel=0.2)
     assert abs(value[c] - off[c]) < 5 * std[c]
+
+
+def _true_velocity(scene) -> np.ndarray:
+    """(M, 2) each wand observation's image velocity from the true path, pixels a frame (the
+    central difference of the true end's projections; the end nearest the observation's blob)."""
+    T, p = scene.sim.truth, scene.setup.problem
+    f = scene.setup.frames[p.frame]
+    before, after = np.clip(f - 1, 0, len(T.wand) - 1), np.clip(f + 1, 0, len(T.wand) - 1)
+    focal = p.focal[p.camera]
+    def seen(frames, end):
+        return np.array([project_normalized(T.R[c], T.t[c], T.wand[k, e][None])[0]
+                         for c, k, e in zip(p.camera, frames, end)])
+    near = [np.linalg.norm(seen(f, np.full(len(f), e)) - p.xy, axis=1) for e in (0, 1)]
+    end = (near[1] < near[0]).astype(int)
+    return (seen(after, end) - seen(before, end)) / (after - before)[:, None] * focal
+
+
+def test_ba_without_the_time_columns_is_the_plain_path():
+    """``--sync none`` (and every method but ``ba`` under auto) adds no column: the offsets' block
+    held at zero with no velocity changes nothing, and without it there is no extra column."""
+    scene = prepared_scene(cameras=4, frames=200, noise_px=NOISE_PX, seed=2)
+    model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=2)
+    plain = bundle_adjust_points(model, None, None, loss="linear")
+    assert plain.dt is None and plain.camera_std.shape == (4, CAM_PARAMS)
+    held = bundle_adjust_points(model, None, None, loss="linear",
+                                timing=TimeFit(np.zeros((len(model.p.camera), 2)), np.ones(4, bool)))
+    assert held.camera_std.shape == (4, CAM_PARAMS + TIME_PARAMS) and np.all(held.dt == 0)
+    # the same steps: only rounding in the reduced system's extra (identity) rows may differ
+    assert np.allclose(held.x, plain.x, rtol=0, atol=1e-9)
+
+
+def test_ba_refines_time_offsets_left_in_the_observations():
+    """Each camera's observations resampled with an offset delta too large (a few hundredths of a
+    frame, as a fit on fewer frames may leave): each blob is the one at f - delta, xy - delta v (v
+    the true image velocity). ``ba`` with the time columns finds the increment -delta within the
+    chi^2 bound of its own standard errors, the reference camera held."""
+    scene = prepared_scene(cameras=5, frames=400, noise_px=NOISE_PX, seed=4)
+    p = scene.setup.problem
+    velocity = _true_velocity(scene)
+    delta = np.array([0.0, 0.03, -0.02, 0.05, -0.04])
+    moved = p.xy - delta[p.camera, None] * velocity / p.focal[p.camera]
+    setup = dataclasses.replace(scene.setup, problem=dataclasses.replace(p, xy=moved))
+    model = perturbed_model(dataclasses.replace(scene, setup=setup), degrees=1.0, metres=0.03, seed=4)
+    held = np.zeros(5, bool)
+    held[0] = True
+    out = bundle_adjust_points(model, None, None, loss="linear", timing=TimeFit(velocity, held))
+    assert out.dt[0] == 0 and out.info["status"] == "converged"
+    z = (out.dt[1:] + delta[1:]) / out.camera_std[1:, -1]
+    assert np.sum(z**2) < chi2.ppf(1 - CHI2_TAIL, len(z)), z
