@@ -32,7 +32,9 @@ from wandcal.calib.geometry import undistort_by_camera
 from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
 from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
+from wandcal.calib.solve.sync import SYNC_MODES
 from wandcal.calib.start.initial import shared_frames
+from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, frame_offsets, shift_frames
 
 GUIDANCE_FORMAT = "wandcal-guidance/1"
 # Motive's "exceptional" wanding result is a mean 3D error under ~0.5 mm on a room-sized volume;
@@ -77,14 +79,20 @@ class GuidanceSettings:
         min_coverage: every camera's covered share of its image grid must reach this, in [0, 1].
         frames_per_camera: frames each camera keeps in the fast solve (the rest are subsampled away).
         grid: (rows, columns) of the coverage grid over each image.
+        sync: ``"none"`` (a trigger's capture: a camera out of time is a fault to mend) or
+            ``"auto"`` (cameras without a trigger: each update finds their whole-frame offsets
+            as ``wandcal calibrate --sync auto`` does and judges the frames realigned).
     """
 
     target_std_mm: float = DEFAULT_TARGET_STD_MM
     min_coverage: float = DEFAULT_MIN_COVERAGE
     frames_per_camera: int = DEFAULT_FRAMES_PER_CAMERA
     grid: tuple[int, int] = GRID
+    sync: str = "none"
 
     def __post_init__(self) -> None:
+        if self.sync not in SYNC_MODES:
+            raise CalibrationError(f"guidance sync must be one of {', '.join(SYNC_MODES)}, got {self.sync!r}")
         if not (np.isfinite(self.target_std_mm) and self.target_std_mm > 0):
             raise CalibrationError(f"guidance target_std_mm must be a positive number of millimetres, got {self.target_std_mm!r}")
         if not 0.0 <= self.min_coverage <= 1.0:
@@ -152,6 +160,9 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
                                "distance in metres")
     started = time.perf_counter()
     settings = settings or GuidanceSettings()
+    offsets = _sync_offsets(rig, wand) if settings.sync == "auto" else None
+    if offsets is not None:  # cameras without a trigger: their frames realigned as calibrate's
+        wand = shift_frames(wand, offsets)
     seen = _seen(rig, wand)
     solve_set = _solve_set(seen)
     n = len(rig.cameras)
@@ -181,18 +192,27 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
         solve_set = solve_set.copy()
         solve_set[weakest] = False
     info |= {"ok": failure is None, "message": failure, "left_out": left_out,
-             "out_of_time": {} if info.get("warm_start") else _out_of_time(rig, seen.pairs),
+             "out_of_time": {} if info.get("warm_start") or offsets is not None else _out_of_time(rig, seen.pairs),
+             "offsets": None if offsets is None else {cid: int(k) for cid, k in zip(rig.ids, offsets) if k},
              "seconds": round(time.perf_counter() - started, 4)}
     document = _document(rig, seen, center, rotation, solve_set, settings, info)
     return Guidance(document, solution)
+
+
+def _sync_offsets(rig: Rig, wand: WandObservations) -> np.ndarray | None:
+    """(N,) int whole-frame offsets of cameras without a trigger (``--sync auto``'s search,
+    wandcal.calib.start.timing.frame_offsets, its default window), or None while the frames so far
+    cannot tell them (too few, or a camera that sees no wand with the others yet)."""
+    try:
+        return frame_offsets(rig, wand_pairs(rig, wand), DEFAULT_MAX_OFFSET).offsets
+    except CalibrationError:
+        return None
 
 
 def _out_of_time(rig: Rig, pairs: WandPairs) -> dict[str, int]:
     """{camera id: whole frames} of the cameras whose wand matches the others' only at another
     frame (wandcal.calib.start.timing.frame_offsets, +-``OUT_OF_TIME_SEARCH``); {} when none does,
     or when the frames so far cannot tell."""
-    from wandcal.calib.start.timing import frame_offsets
-
     if not np.isfinite(pairs.xy).all():  # grouped without undistorting (the live path): undistort here
         pairs = replace(pairs, xy=undistort_by_camera(rig.cameras, pairs.camera, pairs.uv))
     try:

@@ -30,10 +30,13 @@ def add_guidance_options(p: argparse.ArgumentParser) -> None:
                         f"{DEFAULT_TARGET_STD_MM:g} mm)")
     p.add_argument("--min-coverage", type=_share, default=DEFAULT_MIN_COVERAGE, metavar="SHARE",
                    help=f"... and its image grid is covered at least this much, 0-1 (default {DEFAULT_MIN_COVERAGE:g})")
+    p.add_argument("--sync", choices=("none", "auto"), default="none",
+                   help="auto: cameras without a trigger, judged with their frames realigned by the offsets found "
+                        "from the wand, as calibrate --sync auto does (default none: a camera out of time is a fault)")
 
 
 def settings_from(args) -> GuidanceSettings:
-    return GuidanceSettings(target_std_mm=args.target_mm, min_coverage=args.min_coverage)
+    return GuidanceSettings(target_std_mm=args.target_mm, min_coverage=args.min_coverage, sync=args.sync)
 
 
 def positive_number(text: str) -> float:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from wandcal.calib.guidance import GuidanceSettings, Solution, wanding_guidance
 from wandcal.service.settings import GuidanceConfig
@@ -43,29 +43,31 @@ class GuidanceBoard:
         self.config = config
         self.settings = guidance_settings(config)
         self.clock = clock
-        self._entries: OrderedDict[str, _Entry] = OrderedDict()
+        self._entries: OrderedDict[tuple[str, str], _Entry] = OrderedDict()  # by (capture, sync mode)
         self._lock = threading.Lock()
 
-    def _entry(self, capture_id: str) -> _Entry:
+    def _entry(self, key: tuple[str, str]) -> _Entry:
         with self._lock:
-            entry = self._entries.pop(capture_id, None) or _Entry(threading.Lock())
-            self._entries[capture_id] = entry
+            entry = self._entries.pop(key, None) or _Entry(threading.Lock())
+            self._entries[key] = entry
             while len(self._entries) > KEPT_CAPTURES:
                 self._entries.popitem(last=False)
             return entry
 
-    def get(self, capture_id: str) -> dict:
-        """The capture's guidance document. Raises CaptureNotFound, or CalibrationError for a
-        capture the guidance cannot judge (no wand)."""
+    def get(self, capture_id: str, sync: str = "none") -> dict:
+        """The capture's guidance document (``sync`` as calibrate's: "auto" for cameras without a
+        trigger). Raises CaptureNotFound, or CalibrationError for a capture the guidance cannot
+        judge (no wand)."""
         row = self.store.get(capture_id)
         key = (row.frames, row.framesets, row.has_static, tuple(sorted((c, v["pairs"]) for c, v in row.counts.items())))
-        entry = self._entry(capture_id)
+        entry = self._entry((capture_id, sync))
         with entry.lock:
             if entry.document is not None and (entry.key == key or
                                                self.clock() - entry.when < self.config.update_interval_s):
                 return entry.document
             capture = self.store.load(capture_id)
-            guidance = wanding_guidance(capture.rig, capture.wand, capture.static, self.settings, entry.solution)
+            guidance = wanding_guidance(capture.rig, capture.wand, capture.static, replace(self.settings, sync=sync),
+                                        entry.solution)
             entry.key, entry.when = key, self.clock()
             entry.document = guidance.document | {"updated": time.time(), "live": False}
             entry.solution = guidance.solution or entry.solution

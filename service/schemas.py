@@ -296,6 +296,11 @@ class GuidanceSolve(BaseModel):
     warm_start: bool = Field(description="started from the previous update's solution")
     iterations: int | None = None
     seconds: float = Field(description="time this update took")
+    out_of_time: dict[str, int] = Field(default_factory=dict, description="under sync none: cameras whose wand matches "
+                                        "the others' only that many frames away (a trigger fault)")
+    offsets: dict[str, int] | None = Field(None, description="under sync auto: each camera's whole-frame offset found "
+                                           "from the wand (cameras at 0 left out); null under none or while the "
+                                           "frames cannot tell yet")
 
 
 class GuidancePublic(BaseModel):

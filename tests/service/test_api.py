@@ -245,11 +245,18 @@ def test_settings_from_toml_and_env(tmp_path, monkeypatch):
 def test_sync_job_options_reach_the_solver_and_bad_ones_get_422(app_client, tmp_path):
     """The command line's --sync-max-offset, --sync-drift and the frame rate as job options: a camera
     2.5 frames late is found in a search window of 4 frames, its offset reported in seconds at the
-    rate given; out-of-range values are refused with a 422 naming the option."""
+    rate given; out-of-range values are refused with a 422 naming the option. The guidance takes
+    the same mode: under auto cam3's frames are realigned, under none it is a camera out of time."""
     folder, _ = simulated_capture(tmp_path / "late", cameras=4, frames=400, noise_px=0.3, static=False, seed=5,
                                   offsets=np.array([0.0, 0.0, 2.5, 0.0]))
     app, c = app_client()
     capture = upload(c, folder)
+    auto = c.get(f"/captures/{capture['id']}/guidance", params={"sync": "auto"}).json()
+    none = c.get(f"/captures/{capture['id']}/guidance").json()
+    assert set(auto["solve"]["offsets"]) == {"cam3"} and not auto["solve"]["out_of_time"]
+    assert set(none["solve"]["out_of_time"]) == {"cam3"} and none["solve"]["offsets"] is None
+    r = c.get(f"/captures/{capture['id']}/guidance", params={"sync": "sometimes"})
+    assert r.status_code == 422 and "sync" in r.text
     for bad in ({"frame_rate_hz": 0}, {"sync_max_offset": 0}, {"sync_drift": "sometimes"}):
         r = c.post("/jobs", json={"capture_id": capture["id"], "options": {"sync": "auto"} | bad})
         assert r.status_code == 422 and next(iter(bad)) in r.text, r.text

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import threading
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, HTTPException, Request
+from fastapi import APIRouter, HTTPException, Query, Request
 
 from wandcal.service.api.deps import State
 from wandcal.service.guidance import GuidanceBoard
@@ -12,6 +13,7 @@ from wandcal.service.schemas import ErrorPublic, GuidancePublic
 from wandcal.service.storage import CaptureNotFound
 
 router = APIRouter(prefix="/captures", tags=["guidance"])
+SyncMode = Literal["none", "auto"]  # as the job option "sync" (wandcal.calib.solve.sync.SYNC_MODES)
 _board_lock = threading.Lock()
 
 
@@ -32,7 +34,9 @@ def _board(request: Request, state) -> GuidanceBoard:
                422: {"model": ErrorPublic, "description": "a capture the guidance cannot judge (no wand)"}},
     summary="Wanding guidance: per camera frames, image coverage, links and predicted centre 1-sigma; enough?",
 )
-def get_guidance(capture_id: str, request: Request, state: State) -> dict:
+def get_guidance(capture_id: str, request: Request, state: State,
+                 sync: Annotated[SyncMode, Query(description="auto: cameras without a trigger, their frames "
+                                                 "realigned by the offsets found from the wand (docs/sync.md)")] = "none") -> dict:
     """For a stored capture, or for the live capture while it records (``capture_id`` as announced
     by ``POST /capture/start``; the document then has ``live: true`` and updates every second or
     so). ``enough`` is true when every camera's ``center_std_mm`` is below the target and its
@@ -41,7 +45,7 @@ def get_guidance(capture_id: str, request: Request, state: State) -> dict:
     if document is not None:
         return document
     try:
-        return _board(request, state).get(capture_id)
+        return _board(request, state).get(capture_id, sync)
     except CaptureNotFound:
         raise HTTPException(404, f"no capture with id {capture_id!r}; list captures with GET /api/v1/captures, "
                                  "or GET /api/v1/capture for the live one") from None

@@ -147,3 +147,21 @@ def test_guidance_names_a_camera_out_of_time():
     assert doc["solve"]["out_of_time"] == {"cam3": 2} and not doc["enough"]
     synced = wanding_guidance(sim.rig, _sim(offsets=(0.0,) * 5).wand).document
     assert synced["solve"]["out_of_time"] == {}
+
+
+def test_guidance_under_sync_auto_realigns_a_camera_without_a_trigger():
+    """The same capture judged as a rig without a trigger: cam3's whole-frame offset is found and
+    its frames realigned, so it is no fault, and every camera's predicted centre sigma is the
+    synchronised capture's (the same wand path less the 2 frames the shift moves past the
+    recording's end: well under 1% of 600), where under none cam3's mismatched frames inflate it."""
+    from wandcal.calib.guidance import GuidanceSettings, wanding_guidance
+
+    late = _sim(offsets=(0.0, 0.0, 2.0, 0.0, 0.0))
+    doc = wanding_guidance(late.rig, late.wand, settings=GuidanceSettings(sync="auto")).document
+    assert doc["solve"]["offsets"] == {"cam3": 2}
+    assert doc["solve"]["out_of_time"] == {} and not any("out of time" in a for a in doc["advice"])
+    synced = wanding_guidance(late.rig, _sim(offsets=(0.0,) * 5).wand).document
+    sigma = np.array([c["center_std_mm"] for c in doc["cameras"]])
+    np.testing.assert_allclose(sigma, [c["center_std_mm"] for c in synced["cameras"]], rtol=0.02)
+    with pytest.raises(CalibrationError, match="sync"):
+        GuidanceSettings(sync="sometimes")
