@@ -37,8 +37,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from bench.common import peak_rss_mb, reset_peak_rss, write_section  # noqa: E402
-from wandcal.calib.geometry import camera_centers, kabsch, rotvec_to_matrix  # noqa: E402
+from bench.common import aligned_rms_mm, peak_rss_mb, reset_peak_rss, write_section  # noqa: E402
+from wandcal.calib.geometry import camera_centers, rotvec_to_matrix  # noqa: E402
 from wandcal.calib.observations import wand_pairs  # noqa: E402
 from wandcal.calib.refine import build_problem, refine, reject_outliers, up_direction  # noqa: E402
 from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
@@ -82,9 +82,7 @@ def perturbed_start(sim, seed: int):
 
 
 def centre_error_mm(R, t, sim) -> float:
-    C, Ct = camera_centers(R, t), sim.truth.centers
-    Ra, ta, s = kabsch(C, Ct, scale=True)
-    return float(np.sqrt(np.mean(np.sum((s * C @ Ra.T + ta - Ct) ** 2, axis=1))) * 1000)
+    return aligned_rms_mm(camera_centers(R, t), sim.truth.centers)
 
 
 def run_ba(sim, labelled, setup):

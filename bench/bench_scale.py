@@ -42,8 +42,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from bench.bench_peers import run_ba, run_colmap, scene  # noqa: E402
-from bench.common import write_section  # noqa: E402
-from wandcal.calib.geometry import kabsch  # noqa: E402
+from bench.common import aligned_rms_mm, write_section  # noqa: E402
 
 OUTLIERS = 0.02
 STAGE_FRAMES = 3000
@@ -115,10 +114,7 @@ def centre_error_mm(result: Path, truth: Path) -> float:
     """RMS camera-centre error of a result against the simulator's truth, after a similarity alignment."""
     cams = json.loads(result.read_text())["cameras"]
     true = {c["id"]: c["center"] for c in json.loads(truth.read_text())["cameras"]}
-    C = np.array([c["center"] for c in cams])
-    Ct = np.array([true[c["id"]] for c in cams])
-    Ra, ta, s = kabsch(C, Ct, scale=True)
-    return float(np.sqrt(np.mean(np.sum((s * C @ Ra.T + ta - Ct) ** 2, axis=1))) * 1000)
+    return aligned_rms_mm(np.array([c["center"] for c in cams]), np.array([true[c["id"]] for c in cams]))
 
 
 def run_process(folder: Path, out: Path, profile: Path | None = None) -> tuple[float, float, float]:

@@ -20,9 +20,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine, replace_section
+from common import aligned_rms_mm, machine, replace_section
 
-from wandcal.calib.geometry import kabsch
 from wandcal.calib.pipeline import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 
@@ -39,8 +38,7 @@ def offsets(n: int, seed: int) -> np.ndarray:
 
 
 def centre_error_mm(result, sim) -> float:
-    Ra, ta, s = kabsch(result.centers, sim.truth.centers, scale=True)
-    return float(np.sqrt(np.mean(np.sum((s * result.centers @ Ra.T + ta - sim.truth.centers) ** 2, 1))) * 1000)
+    return aligned_rms_mm(result.centers, sim.truth.centers)
 
 
 def one_seed(n: int, frames: int, seed: int) -> dict:

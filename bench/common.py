@@ -1,4 +1,5 @@
-"""Shared helpers for the benchmark scripts: timing and writing a section of docs/benchmarks.md."""
+"""Shared helpers for the benchmark scripts: timing, camera-centre errors after alignment, and
+writing a section of docs/benchmarks.md."""
 
 from __future__ import annotations
 
@@ -8,7 +9,23 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
+from wandcal.calib.geometry import kabsch
+
 DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+
+
+def aligned_centres_mm(centres: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(N,) distances, mm, of ``centres`` (N, 3) from ``reference`` (N, 3), metres, after the best
+    similarity map of the one onto the other (the gauge and scale a calibration may choose)."""
+    Ra, ta, s = kabsch(centres, reference, scale=True)
+    return np.linalg.norm(s * centres @ Ra.T + ta - reference, axis=1) * 1000
+
+
+def aligned_rms_mm(centres: np.ndarray, reference: np.ndarray) -> float:
+    """The RMS of :func:`aligned_centres_mm`: the rig's centre error against the truth, mm."""
+    return float(np.sqrt(np.mean(np.square(aligned_centres_mm(centres, reference)))))
 
 
 def timed(fn, *args, **kwargs):

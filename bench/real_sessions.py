@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wandcal.calib.geometry import kabsch, undistort_points
+from bench.common import aligned_centres_mm
+from wandcal.calib.geometry import undistort_points
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS, robust_sigma
 from wandcal.calib.observations import point_tracks
 from wandcal.calib.pipeline import calibrate
@@ -30,12 +31,6 @@ USHICHKA = "easywand_ushichka_thermal_3cam"
 USHICHKA_HEIGHT = 512  # the .mat and the profile say 320, a typo: the principal point is (320, 256)
 SVOBODA = "multicamselfcal_strawlab_testdata/caldata20130726_122220"
 SVOBODA_NO_INTRINSICS = "multicamselfcal_strawlab_testdata/DATA20100906_134124"
-
-
-def aligned_centres_mm(centres: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """(N,) distances, mm, after the best similarity map of ``centres`` onto ``reference``."""
-    Ra, ta, s = kabsch(centres, reference, scale=True)
-    return np.linalg.norm(s * centres @ Ra.T + ta - reference, axis=1) * 1000
 
 
 def brown(session: int, method: str = "ba", intrinsics: str = "optimised", options: dict | None = None) -> dict:
