@@ -34,7 +34,7 @@ from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
 from wandcal.calib.solve.sync import SYNC_MODES
 from wandcal.calib.start.initial import shared_frames
-from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, frame_offsets, shift_frames
+from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, FrameOffsets, frame_offsets, shift_pairs
 
 GUIDANCE_FORMAT = "wandcal-guidance/1"
 # Motive's "exceptional" wanding result is a mean 3D error under ~0.5 mm on a room-sized volume;
@@ -160,10 +160,15 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
                                "distance in metres")
     started = time.perf_counter()
     settings = settings or GuidanceSettings()
-    offsets = _sync_offsets(rig, wand) if settings.sync == "auto" else None
-    if offsets is not None:  # cameras without a trigger: their frames realigned as calibrate's
-        wand = shift_frames(wand, offsets)
-    seen = _seen(rig, wand)
+    # the pairs' normalised coordinates are taken in _solve, for the frames it keeps only
+    pairs = wand_pairs(rig, wand, undistort=False) if len(wand) else WandPairs.empty()
+    offsets = None
+    if settings.sync == "auto":  # cameras without a trigger: their frames realigned as calibrate's
+        found = _whole_frames(rig, pairs, DEFAULT_MAX_OFFSET)
+        if found is not None:
+            offsets = found.offsets
+            pairs = shift_pairs(pairs, offsets)
+    seen = _seen(len(rig.cameras), pairs)
     solve_set = _solve_set(seen)
     n = len(rig.cameras)
     center = np.full(n, np.nan)
@@ -192,32 +197,30 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
         solve_set = solve_set.copy()
         solve_set[weakest] = False
     info |= {"ok": failure is None, "message": failure, "left_out": left_out,
-             "out_of_time": {} if info.get("warm_start") or offsets is not None else _out_of_time(rig, seen.pairs),
+             "out_of_time": {} if info.get("warm_start") or settings.sync == "auto" else _out_of_time(rig, seen.pairs),
              "offsets": None if offsets is None else {cid: int(k) for cid, k in zip(rig.ids, offsets) if k},
              "seconds": round(time.perf_counter() - started, 4)}
     document = _document(rig, seen, center, rotation, solve_set, settings, info)
     return Guidance(document, solution)
 
 
-def _sync_offsets(rig: Rig, wand: WandObservations) -> np.ndarray | None:
-    """(N,) int whole-frame offsets of cameras without a trigger (``--sync auto``'s search,
-    wandcal.calib.start.timing.frame_offsets, its default window), or None while the frames so far
-    cannot tell them (too few, or a camera that sees no wand with the others yet)."""
+def _whole_frames(rig: Rig, pairs: WandPairs, window: int) -> FrameOffsets | None:
+    """The cameras' whole-frame offsets within +-``window`` (docs/sync.md's search,
+    wandcal.calib.start.timing.frame_offsets), or None while the frames so far cannot tell them
+    (too few, or a camera that sees no wand with the others yet)."""
+    if not np.isfinite(pairs.xy).all():  # grouped without undistorting (guidance's pairs): undistort here
+        pairs = replace(pairs, xy=undistort_by_camera(rig.cameras, pairs.camera, pairs.uv))
     try:
-        return frame_offsets(rig, wand_pairs(rig, wand), DEFAULT_MAX_OFFSET).offsets
+        return frame_offsets(rig, pairs, window)
     except CalibrationError:
         return None
 
 
 def _out_of_time(rig: Rig, pairs: WandPairs) -> dict[str, int]:
     """{camera id: whole frames} of the cameras whose wand matches the others' only at another
-    frame (wandcal.calib.start.timing.frame_offsets, +-``OUT_OF_TIME_SEARCH``); {} when none does,
-    or when the frames so far cannot tell."""
-    if not np.isfinite(pairs.xy).all():  # grouped without undistorting (the live path): undistort here
-        pairs = replace(pairs, xy=undistort_by_camera(rig.cameras, pairs.camera, pairs.uv))
-    try:
-        found = frame_offsets(rig, pairs, OUT_OF_TIME_SEARCH)
-    except CalibrationError:  # too few frames yet, or a camera that sees no wand with the others
+    frame (+-``OUT_OF_TIME_SEARCH``); {} when none does, or when the frames so far cannot tell."""
+    found = _whole_frames(rig, pairs, OUT_OF_TIME_SEARCH)
+    if found is None:
         return {}
     # only a shift that stands out beyond doubt (timing's CLEAR_CONTRAST, share 1): a live warning
     # must be true, and a slow wand in a trigger-synchronised recording leaves neighbours nearly tied
@@ -225,10 +228,8 @@ def _out_of_time(rig: Rig, pairs: WandPairs) -> dict[str, int]:
             if found.offsets[c] != 0 and found.share[c] >= 1.0}
 
 
-def _seen(rig: Rig, wand: WandObservations) -> _Seen:
-    n = len(rig.cameras)
-    # the pairs' normalised coordinates are taken in _solve, for the frames it keeps only
-    pairs = wand_pairs(rig, wand, undistort=False) if len(wand) else WandPairs.empty()
+def _seen(n: int, pairs: WandPairs) -> _Seen:
+    """What ``pairs`` of ``n`` cameras say before any solve."""
     linked = shared_frames(pairs, n)
     frames = np.diag(linked).copy()
     np.fill_diagonal(linked, 0)
