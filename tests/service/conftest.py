@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -14,8 +15,11 @@ from pathlib import Path
 import httpx
 import pytest
 
+from wandcal.calib.judge.coverage import GRID
+from wandcal.calib.pipeline import calibrate
+from wandcal.calib.rig import WandObservations
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, write_capture
+from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, read_capture, write_capture
 
 REPO = Path(__file__).resolve().parents[2]
 STARTUP_TIMEOUT_S = 60.0  # spawning workers imports numpy/scipy/OpenCV; slow on a busy 2-core CI box
@@ -138,3 +142,36 @@ def wait_job(client: httpx.Client, job_id: str, timeout_s: float = JOB_TIMEOUT_S
             return job
         time.sleep(0.05)
     raise AssertionError(f"job {job_id} still {job['state']} after {timeout_s} s")
+
+
+EMPTY_CAMERA = 1  # cam2: the camera whose left third of the image the wand never reaches
+
+
+def wandcal(*args):
+    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *args], capture_output=True, text=True, cwd=REPO,
+                          timeout=600)
+
+
+def left_third_px(width: int) -> float:
+    """The right edge of the coverage grid's left third, pixels (wandcal.calib.judge.coverage splits columns
+    into thirds of whole cells)."""
+    return round(GRID[1] / 3) * width / GRID[1]
+
+
+@pytest.fixture(scope="session")  # one report for test_report*.py
+def sim_report(tmp_path_factory):
+    """A simulated 4-camera capture whose cam2 never sees the wand in its left third, its
+    result, and its report drawn by the command line."""
+    tmp = tmp_path_factory.mktemp("report")
+    sim = simulate_capture(4, 300, 0.3, 0.0, True, 11)
+    cam = sim.rig.cameras[EMPTY_CAMERA]
+    keep = ~((sim.wand.camera == EMPTY_CAMERA) & (sim.wand.uv[:, 0] < left_third_px(cam.width)))
+    wand = WandObservations(sim.wand.frame[keep], sim.wand.camera[keep], sim.wand.uv[keep])
+    folder = tmp / "capture"
+    write_capture(folder, sim.rig, wand, sim.static)
+    cap = read_capture(folder)
+    result = calibrate(cap.rig, cap.wand, cap.static)
+    (tmp / "result.json").write_text(json.dumps(result.to_json()))
+    run = wandcal("report", str(tmp / "result.json"), "--capture", str(folder), "--out", str(tmp / "out"))
+    assert run.returncode == 0, run.stderr
+    return tmp, sim, run

@@ -14,53 +14,35 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from matplotlib.collections import PathCollection
-from matplotlib.colors import to_hex
 
-from tests.capture.formats.test_import_easywand import USHICHKA_HEIGHT
 from tests.conftest import SHARED_DATA
-from tests.service.conftest import REPO, capture_files, wait_job
+from tests.service.conftest import EMPTY_CAMERA, capture_files, wait_job, wandcal
 from tests.service.test_cli_imports import loaded_packages
 from tests.service.test_http import ABSOLUTE_TOL_M
 from wandcal.calib.judge.coverage import GRID
 from wandcal.calib.pipeline import calibrate
-from wandcal.calib.rig import Camera, Rig, WandObservations
+from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import Capture, read_capture, write_capture
 from wandcal.capture.results import read_result, result_from_json
 from wandcal.service.report import INSTALL_HINT, RIG_PNG, WAND_PNG, ReportUnavailable, camera_png
 from wandcal.service.report.analysis import analyse, rim_ratio
 from wandcal.service.report.figures import (
-    AXIS_POINTS,
     CAMERA_SIZE_PX,
-    OUTLIER_CROSSES,
-    POINT_DOTS,
     RIG_SIZE_PX,
-    WAND_DOTS,
     WAND_SIZE_PX,
-    draw_camera,
-    draw_rig,
-    draw_wand,
     frustum,
 )
-from wandcal.service.report.labels import text_overlaps
-from wandcal.service.report.page import camera_caption, rig_caption
 from wandcal.service.report.store import rendered_report, report_folder
 
 pytest.importorskip("matplotlib", reason="matplotlib is a dependency of wandcal: reinstall it")
 
 WEB_FRAMEWORK = {"fastapi", "uvicorn", "starlette", "pydantic", "pydantic_settings", "multipart", "httpx"}
-EMPTY_CAMERA = 1  # cam2: the camera whose left third of the image the wand never reaches
 # an image is "not empty" when this share of its pixels differs from the background: a figure
 # with its axes, labels and data drawn covers far more (a blank canvas covers none)
 MIN_INK = 0.02
 BROWN = SHARED_DATA / "easywand_brown_windtunnel_4cam" / "calibration1" / "extrinsicCalib_20230228_easyWandData.mat"
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-
-
-def wandcal(*args):
-    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *args], capture_output=True, text=True, cwd=REPO,
-                          timeout=600)
 
 
 class Page(HTMLParser):
@@ -79,31 +61,6 @@ class Page(HTMLParser):
 
     def handle_data(self, data):
         self.text.append(data)
-
-
-def left_third_px(width: int) -> float:
-    """The right edge of the coverage grid's left third, pixels (wandcal.calib.judge.coverage splits columns
-    into thirds of whole cells)."""
-    return round(GRID[1] / 3) * width / GRID[1]
-
-
-@pytest.fixture(scope="module")
-def sim_report(tmp_path_factory):
-    """A simulated 4-camera capture whose cam2 never sees the wand in its left third, its
-    result, and its report drawn by the command line."""
-    tmp = tmp_path_factory.mktemp("report")
-    sim = simulate_capture(4, 300, 0.3, 0.0, True, 11)
-    cam = sim.rig.cameras[EMPTY_CAMERA]
-    keep = ~((sim.wand.camera == EMPTY_CAMERA) & (sim.wand.uv[:, 0] < left_third_px(cam.width)))
-    wand = WandObservations(sim.wand.frame[keep], sim.wand.camera[keep], sim.wand.uv[keep])
-    folder = tmp / "capture"
-    write_capture(folder, sim.rig, wand, sim.static)
-    cap = read_capture(folder)
-    result = calibrate(cap.rig, cap.wand, cap.static)
-    (tmp / "result.json").write_text(json.dumps(result.to_json()))
-    run = wandcal("report", str(tmp / "result.json"), "--capture", str(folder), "--out", str(tmp / "out"))
-    assert run.returncode == 0, run.stderr
-    return tmp, sim, run
 
 
 def assert_figure(path: Path, size_px: tuple[int, int]) -> None:
@@ -345,75 +302,6 @@ def test_report_of_a_job_not_done_is_409(make_server, small_capture):
         for path in ("report", "report/", "report/rig.png"):
             r = c.get(f"/jobs/{job_id}/{path}")
             assert r.status_code == 409 and "queued" in r.json()["detail"], r.text
-
-
-# -- no text on text: every figure's labels, titles, ticks and legends apart ------------------
-# easyWand sessions in ../shared/data: sparse, with axis points and background points; (file, import options)
-REAL_SESSIONS = {
-    "brown-1": (SHARED_DATA / "easywand_brown_windtunnel_4cam" / "calibration1" / "extrinsicCalib_20230228_easyWandData.mat",
-                ()),
-    "brown-2": (SHARED_DATA / "easywand_brown_windtunnel_4cam" / "calibration2" / "extrinsicCalib_20230228_easyWandData.mat",
-                ()),
-    # its cameras' height is not in the file (tests/capture/formats/test_import_easywand.py)
-    "ushichka": (SHARED_DATA / "easywand_ushichka_thermal_3cam" / "round3_2018-07-28_easyWandData.mat",
-                 ("--height", str(USHICHKA_HEIGHT))),
-}
-
-
-def assert_no_text_overlaps(data) -> None:
-    """Every figure of a report, drawn: no two texts' boxes (from matplotlib's renderer) meet."""
-    figures = {"rig": draw_rig(data)}
-    if len(data.wand_frames):
-        figures["wand"] = draw_wand(data)
-    if data.has_capture:
-        figures |= {cam.id: draw_camera(cam) for cam in data.cameras}
-    for name, fig in figures.items():
-        assert not text_overlaps(fig), f"{name}: {text_overlaps(fig)}"
-
-
-def scatter_colours(fig) -> set[str]:
-    """The colours of a figure's scattered marks (dots, crosses, diamonds)."""
-    return {to_hex(c) for ax in fig.axes for col in ax.collections if isinstance(col, PathCollection)
-            for c in col.get_facecolors()}
-
-
-def assert_captions_match(data) -> None:
-    """Each caption names the marks its figure draws, by the colours they are drawn in, and no other."""
-    colours = scatter_colours(draw_rig(data))
-    caption = rig_caption(data)
-    for (colour, word), what in ((WAND_DOTS, "dots"), (POINT_DOTS, "dots"), (AXIS_POINTS, "diamonds")):
-        assert (f"{word} {what}" in caption.lower()) == (colour in colours), (word, colour, caption)
-    assert not re.search(r"(?<!blue-)grey dots", caption.lower()), caption
-    for cam in data.cameras if data.has_capture else []:
-        said = camera_caption(cam)
-        drawn = scatter_colours(draw_camera(cam))
-        assert ("crosses are outliers" in said) == (to_hex(OUTLIER_CROSSES[0]) in drawn), said
-        assert (f"{POINT_DOTS[1]} dots" in said) == bool(len(cam.point_uv)), said
-
-
-def test_no_text_overlaps_in_the_figures_of_a_simulated_report(sim_report):
-    tmp, _, _ = sim_report
-    data = analyse(read_result(tmp / "result.json"), read_capture(tmp / "capture"))
-    assert_no_text_overlaps(data)
-    assert_captions_match(data)
-
-
-@pytest.mark.shared_data
-@pytest.mark.parametrize("session", sorted(REAL_SESSIONS))
-def test_no_text_overlaps_in_the_figures_of_real_sessions(session, tmp_path):
-    """The Brown wind tunnel's top view put camera ids and "origin" on one another."""
-    mat, options = REAL_SESSIONS[session]
-    if not mat.is_file():
-        pytest.skip(f"third-party data not found at {mat.parent}")
-    capture = tmp_path / "capture"
-    run = wandcal("import", "easywand", str(mat), *options, "--out", str(capture))
-    assert run.returncode == 0, run.stderr
-    run = wandcal("calibrate", str(capture), "--out", str(tmp_path / "result.json"), "--quiet")
-    assert run.returncode == 0, run.stderr
-    data = analyse(read_result(tmp_path / "result.json"), read_capture(capture))
-    assert data.axis or len(data.points)  # the crowded elements this test is about
-    assert_no_text_overlaps(data)
-    assert_captions_match(data)
 
 
 def test_the_report_shows_the_judgement(sim_report, tmp_path):
