@@ -222,6 +222,16 @@ PAN_TOL_PX = 1.0  # a sideways pan moves nothing up or down, beyond rounding
 VIEW_POLL_S = 10.0  # how long an input event may take to reach the view on a loaded machine
 
 
+def canvas_middle(browser: Browser) -> tuple[float, float]:
+    """The rig view's canvas scrolled into view: its middle in the viewport's CSS pixels, checked
+    to be the canvas itself (an event sent there reaches the view)."""
+    browser.js("document.querySelector('#rig').scrollIntoView()")
+    left, top, right, bottom = browser.js(LABELS_JS)["canvas"]
+    x, y = (left + right) / 2, (top + bottom) / 2
+    assert browser.js(f"document.elementFromPoint({x}, {y}) === document.querySelector('#rig-view canvas')"), (x, y)
+    return x, y
+
+
 def until(condition) -> bool:
     """Poll ``condition`` until it holds or :data:`VIEW_POLL_S` pass; whether it held."""
     deadline = time.monotonic() + VIEW_POLL_S
@@ -275,9 +285,7 @@ def test_the_rig_view_turns_zooms_keeps_its_labels_apart_and_follows_the_newest_
             centres = [cam["center"] for cam in first["result"]["cameras"]]
 
             # a drag turns the view: every camera moves on the screen, and the labels still fit
-            browser.js("document.querySelector('#rig').scrollIntoView()")
-            left, top, right, bottom = browser.js(LABELS_JS)["canvas"]
-            middle = ((left + right) / 2, (top + bottom) / 2)
+            middle = canvas_middle(browser)
             before = project(browser, centres)
             browser.drag(middle, (middle[0] + TURN_DRAG_PX, middle[1] + TURN_DRAG_PX / 4))
             after = project(browser, centres)
@@ -290,6 +298,8 @@ def test_the_rig_view_turns_zooms_keeps_its_labels_apart_and_follows_the_newest_
                 assert_labels_fit(browser, f"turned {k + 2} times")
 
             # the wheel zooms in: the cameras spread apart on the screen; a shift-drag pans: all move alike
+            # (the canvas found again first: a drag that leaves the canvas may scroll the page under it)
+            middle = canvas_middle(browser)
             spread = np.ptp(project(browser, centres), axis=0).max()
             browser.wheel(middle, -ZOOM_DELTA)
             # the browser takes a wheel event in its own time: poll for the zoom (a busy machine is slow)
