@@ -34,7 +34,13 @@ from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
 from wandcal.calib.solve.sync import SYNC_MODES
 from wandcal.calib.start.initial import shared_frames
-from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, FrameOffsets, frame_offsets, shift_pairs
+from wandcal.calib.start.timing import (
+    DEFAULT_MAX_OFFSET,
+    FrameOffsets,
+    confirmed_offsets,
+    frame_offsets,
+    shift_pairs,
+)
 
 GUIDANCE_FORMAT = "wandcal-guidance/1"
 # Motive's "exceptional" wanding result is a mean 3D error under ~0.5 mm on a room-sized volume;
@@ -219,13 +225,14 @@ def _whole_frames(rig: Rig, pairs: WandPairs, window: int) -> FrameOffsets | Non
 def _out_of_time(rig: Rig, pairs: WandPairs) -> dict[str, int]:
     """{camera id: whole frames} of the cameras whose wand matches the others' only at another
     frame (+-``OUT_OF_TIME_SEARCH``); {} when none does, or when the frames so far cannot tell."""
+    if not np.isfinite(pairs.xy).all():  # undistorted once, for the search and the confirmation
+        pairs = replace(pairs, xy=undistort_by_camera(rig.cameras, pairs.camera, pairs.uv))
     found = _whole_frames(rig, pairs, OUT_OF_TIME_SEARCH)
     if found is None:
         return {}
-    # only a shift that stands out beyond doubt (timing's CLEAR_CONTRAST, share 1): a live warning
-    # must be true, and a slow wand in a trigger-synchronised recording leaves neighbours nearly tied
-    return {rig.cameras[c].id: int(found.offsets[c]) for c in range(len(rig.cameras))
-            if found.offsets[c] != 0 and found.share[c] >= 1.0}
+    # only an offset both wand ends confirm: a live warning must be true, and a slow wand in a
+    # trigger-synchronised recording leaves the midpoint search's neighbouring shifts nearly tied
+    return {rig.cameras[c].id: k for c, k in confirmed_offsets(rig, pairs, found).items()}
 
 
 def _seen(n: int, pairs: WandPairs) -> _Seen:

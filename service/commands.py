@@ -138,7 +138,7 @@ def _rate(folder: Path) -> float | None:
 
 def _sync_start(folder: Path, rig, rate_hz: float | None):
     """Whole-frame offsets from sync.csv's camera timestamps when no trigger stamped it (docs/sync.md), else None."""
-    from wandcal.calib.start.timing import timestamp_offsets
+    from wandcal.calib.start.timestamps import timestamp_offsets
 
     path = folder / "sync.csv"
     table = np.genfromtxt(path, delimiter=",", names=True) if path.is_file() else None

@@ -52,6 +52,11 @@ FEW_FRAMES = 60
 # 0.57-0.90 against at most 0.25 on the Brown wind-tunnel sessions
 SPARSE_MARGIN = 0.25
 POSE_PASSES = 2
+# an offset is confirmed when the shared frames' ends fit their own relative pose at none this many
+# times worse (median squared Sampson distance) than at the offset: a camera a whole frame out of
+# time fits 100-10,000 times worse at none (motion against noise), one in time fits best at none,
+# and a fractional offset f is confirmed from f = 2/3 of a frame ((f / (1 - f))^2 >= 4)
+CONFIRM_RATIO = 4.0
 CONTRAST_SPAN = 6  # frames either side the midpoint scores are judged over, however narrow the search
 PARTNERS = 3  # timed cameras a camera is tried against, best linked first, before it is judged out of step  # a pose from a shift one frame off picks the right neighbour; its own RANSAC confirms it
 MIDPOINT_FRAMES = 100  # a partner's frames per shift for the midpoint score: a 9x9 eigenproblem each
@@ -114,10 +119,7 @@ def frame_offsets(
     """
     n = len(rig.cameras)
     start = np.zeros(n, np.int64) if start is None else np.asarray(start, dtype=np.int64)
-    first = int(pairs.frames.min()) if len(pairs.frames) else 0
-    span = int(pairs.frames.max()) - first + 1 if len(pairs.frames) else 0
-    table = np.full((span, n), -1, np.int64)
-    table[pairs.frames[pairs.frame] - first, pairs.camera] = np.arange(len(pairs))
+    table = _table(pairs, n)
     seen = table >= 0
     _check_range(rig, seen, max_offset, start)
     links = _links(seen, max_offset)
@@ -165,6 +167,48 @@ def frame_offsets(
         timed[b] = True
     return FrameOffsets(offsets=offsets, reference=reference, timed_against=against, share=share,
                         notes=notes)
+
+
+def _table(pairs: WandPairs, n: int) -> np.ndarray:
+    """(span, N) each frame's pair row for each camera, -1 where it saw no wand; frames from the first."""
+    first = int(pairs.frames.min()) if len(pairs.frames) else 0
+    span = int(pairs.frames.max()) - first + 1 if len(pairs.frames) else 0
+    table = np.full((span, n), -1, np.int64)
+    table[pairs.frames[pairs.frame] - first, pairs.camera] = np.arange(len(pairs))
+    return table
+
+
+def confirmed_offsets(rig: Rig, pairs: WandPairs, found: FrameOffsets) -> dict[int, int]:
+    """{camera: whole frames} of the cameras of ``found`` with an offset that both wand ends
+    confirm against none at all: what a live warning may say (docs/sync.md).
+
+    The midpoint scores that :func:`frame_offsets` takes without an essential matrix can leave a
+    neighbouring shift ahead when the wand moves little between frames (in a few hundred frames of
+    a synchronised recording, 16 of 144 short captures had a camera one frame "off"). Here each
+    camera with an offset is matched, by both ends, against the reference camera (or, when they
+    share under half of ``TIMING_FRAMES``, the camera in time it shares most frames with), at none and at the offset and its neighbours, each lag with its own
+    RANSAC pose: the best of the neighbours is the offset, and it stands when none fits
+    ``CONFIRM_RATIO`` times worse. Cameras with no camera in time to compare with are left out.
+    """
+    table = _table(pairs, len(rig.cameras))
+    # the reference first (the offsets are its clock's), else the camera in time sharing most frames
+    in_time = [found.reference, *(int(c) for c in np.flatnonzero(found.offsets == 0) if c != found.reference)]
+    out: dict[int, int] = {}
+    for b in np.flatnonzero(found.offsets != 0):
+        counts = np.array([_shared_counts(table, a, int(b), np.zeros(1, np.int64))[0] for a in in_time])
+        enough = np.flatnonzero(counts >= TIMING_FRAMES // 2)
+        if not len(enough):
+            continue
+        a = in_time[0] if enough[0] == 0 else in_time[int(np.argmax(counts))]
+        s = int(found.offsets[b])
+        errors = {}
+        for shift in (0, s - 1, s, s + 1):
+            pose = _pose_share(pairs, table, a, int(b), -shift, rig)
+            errors[shift] = _share(pairs, table, a, int(b), -shift, rig, *pose)[1] if pose else np.inf
+        best = min((s - 1, s, s + 1), key=lambda k: errors[k])
+        if best != 0 and errors[0] >= CONFIRM_RATIO * errors[best]:
+            out[int(b)] = best
+    return out
 
 
 def _check_range(rig: Rig, seen: np.ndarray, max_offset: int, start: np.ndarray) -> None:
@@ -354,61 +398,3 @@ def _share(
 
 def _focal(rig: Rig, a: int, b: int) -> float:
     return float(0.5 * (rig.cameras[a].focal.mean() + rig.cameras[b].focal.mean()))
-
-
-# a camera's lead over the reference, from timestamps, may wander this far (median absolute
-# deviation, frames) before they contradict themselves: drift of 100 ppm moves it 1 frame in 10,000
-CONTRADICTION_FRAMES = 1.0
-
-
-def timestamp_offsets(
-    ids: list[str], frames: list[np.ndarray], stamps_us: list[np.ndarray], rate_hz: float | None = None, reference: int = 0
-) -> np.ndarray:
-    """Whole-frame offsets from frame timestamps on a clock the cameras share (a host's monotonic
-    clock), the start of :func:`frame_offsets`'s search.
-
-    Args:
-        ids: camera ids (N,).
-        frames: per camera, (K_c,) int frame numbers that carry a timestamp.
-        stamps_us: per camera, (K_c,) their timestamps, microseconds.
-        rate_hz: the frame rate; default from the reference camera's own timestamps.
-        reference: the camera of offset 0.
-
-    Returns:
-        (N,) int: camera c's frame k was exposed about ``offsets[c]`` frames after the reference
-        camera's frame k (0 for a camera without timestamps in common with the reference).
-
-    Raises:
-        CalibrationError: a camera's timestamps go backwards, or its lead over the reference
-            changes by more than ``CONTRADICTION_FRAMES`` within the recording; the message names it.
-    """
-    for c, (f, ts) in enumerate(zip(frames, stamps_us)):
-        order = np.argsort(f)
-        back = np.flatnonzero(np.diff(np.asarray(ts, dtype=float)[order]) <= 0)
-        if len(back):
-            raise CalibrationError(
-                f"camera {ids[c]!r}: its timestamps go backwards (or repeat) at frame {int(np.asarray(f)[order][back[0] + 1])}; "
-                "the timestamps contradict the frame order: fix sync.csv, or calibrate with --sync auto without them"
-            )
-    f0, t0 = np.asarray(frames[reference]), np.asarray(stamps_us[reference], dtype=float)
-    if rate_hz:
-        period = 1e6 / rate_hz
-    else:
-        order = np.argsort(f0)
-        period = float(np.median(np.diff(t0[order]) / np.diff(f0[order]))) if len(f0) > 1 else float("nan")
-    offsets = np.zeros(len(ids), np.int64)
-    for c, (f, ts) in enumerate(zip(frames, stamps_us)):
-        common, ia, ib = np.intersect1d(f0, np.asarray(f), return_indices=True)
-        if c == reference or not len(common) or not np.isfinite(period):
-            continue
-        lead = (np.asarray(ts, dtype=float)[ib] - t0[ia]) / period
-        centre = float(np.median(lead))
-        wander = float(np.median(np.abs(lead - centre)))
-        if wander > CONTRADICTION_FRAMES:
-            raise CalibrationError(
-                f"camera {ids[c]!r}: its timestamps contradict themselves: its lead over {ids[reference]} wanders by "
-                f"{wander:.1f} frames (median deviation) within the recording; its clock is not the others', or frames "
-                "were renumbered: fix sync.csv, or calibrate with --sync auto without timestamps"
-            )
-        offsets[c] = int(np.round(centre))
-    return offsets
