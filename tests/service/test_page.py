@@ -232,6 +232,11 @@ def canvas_middle(browser: Browser) -> tuple[float, float]:
     return x, y
 
 
+# counts the wheel events that reach the page, whatever element they land on
+WHEEL_COUNTER_JS = ("window.wheelsSeen = 0; if (!window.wheelCounted) { window.wheelCounted = true; "
+                    "window.addEventListener('wheel', () => { window.wheelsSeen += 1; }, { capture: true, passive: true }); }")
+
+
 def until(condition) -> bool:
     """Poll ``condition`` until it holds or :data:`VIEW_POLL_S` pass; whether it held."""
     deadline = time.monotonic() + VIEW_POLL_S
@@ -301,10 +306,17 @@ def test_the_rig_view_turns_zooms_keeps_its_labels_apart_and_follows_the_newest_
             # (the canvas found again first: a drag that leaves the canvas may scroll the page under it)
             middle = canvas_middle(browser)
             spread = np.ptp(project(browser, centres), axis=0).max()
+            browser.js(WHEEL_COUNTER_JS)
             browser.wheel(middle, -ZOOM_DELTA)
             # the browser takes a wheel event in its own time: poll for the zoom (a busy machine is slow)
             zoomed = until(lambda: np.ptp(project(browser, centres), axis=0).max() > ZOOM_GROWTH * spread)
-            assert zoomed, f"the view did not zoom in within {VIEW_POLL_S} s"
+            if not zoomed and not browser.js("window.wheelsSeen"):
+                # the event never reached the page (the harness's input lost, twice in full runs under
+                # load): send it again; a wheel the canvas saw without zooming still fails below
+                browser.wheel(canvas_middle(browser), -ZOOM_DELTA)
+                zoomed = until(lambda: np.ptp(project(browser, centres), axis=0).max() > ZOOM_GROWTH * spread)
+            assert zoomed, (f"the view did not zoom in within {VIEW_POLL_S} s; wheel events the page saw: "
+                            f"{browser.js('window.wheelsSeen')}")
             assert_labels_fit(browser, "zoomed in")
             before = project(browser, centres)
             browser.drag(middle, (middle[0] - PAN_PX, middle[1]), shift=True)
