@@ -9,6 +9,7 @@ import csv
 import io
 import json
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -143,10 +144,12 @@ def _frame_table_fast(text: str, rig: Rig, columns: tuple[str, ...]):
     # reading a 64 MB wand.csv peak at 8 times its size (bench/bench_memory.py)
     raw = text.encode()
     try:
-        numbers = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(frame_c, u_c, v_c), ndmin=2,
-                             encoding="utf-8")
-        cams = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(cam_c,), dtype=str, ndmin=1,
-                          encoding="utf-8")
+        with warnings.catch_warnings():  # a blank line is skipped; NumPy's note on how it counts rows is not the user's
+            warnings.simplefilter("ignore", UserWarning)
+            numbers = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(frame_c, u_c, v_c), ndmin=2,
+                                 encoding="utf-8")
+            cams = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(cam_c,), dtype=str, ndmin=1,
+                              encoding="utf-8")
     except ValueError:
         return None
     del raw

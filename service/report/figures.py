@@ -349,9 +349,7 @@ def _cell_lines(ax, cam: CameraSummary) -> None:
 
 def _cmap(name: str, bad: str):
     """A copy of a colour map showing masked cells (no samples) in ``bad``."""
-    cmap = colormaps[name].copy()
-    cmap.set_bad(bad)
-    return cmap
+    return colormaps[name].with_extremes(bad=bad)
 
 
 def _round_down(x: float) -> float:
