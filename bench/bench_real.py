@@ -17,6 +17,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench import real_sessions as rs
 from bench.common import write_section
 
+# cal2's wand ends' per-axis noise: their variance component (squared residuals over their
+# redundancy, from the exact hat matrix at ba's solution), measured in decision 0020
+CAL2_END_NOISE_PX = 1.59
+
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -29,6 +33,7 @@ def main() -> int:
         "| session | method | wand score, easyWand's frames | wand score, our frames | easyWand's score | centres vs easyWand (mm, after similarity) | s |",
         "|---|---|---|---|---|---|---|",
     ]
+    per_px = []  # the score 1 px of end noise gives with exact cameras (ba's), per session
     for session in (1, 2):
         for method, label, kw in (
             ("ba", "ba", {}),
@@ -39,6 +44,9 @@ def main() -> int:
                 continue
             got = rs.brown(session, method, **kw)
             score, n = got["wand_score_on_easywand_frames"]
+            if method == "ba" and not kw:
+                per_px.append(rs.score_per_pixel(session, got["result"]))
+                published = got["easywand_wand_score_percent"]  # the last: cal2's
             d = got["centre_diff_mm"]
             rows.append(
                 f"| Brown cal{session} | {label} | {score:.3f}% (n={n}) | {got['wand_score_percent']:.3f}% (n={got['wand_frames']}) "
@@ -68,11 +76,15 @@ Our score is easyWand's: easyWand's own cameras (its DLT's K, R, t), scored our 
 frames, give {own[0][0]:.3f}% (cal1) and {own[1][0]:.3f}% (cal2) against its published 0.558% and
 0.245%.
 
-Why neither method reaches easyWand's 0.245% on cal2 (docs/decisions/0020-brown-wand-score.md):
-the ~300 background points hold the cameras; without them `ba` scores 0.21%, fitting its camera
-poses to the very frames that are scored. The points are not the noisier observations (their
-variance component is 1.24 px against the wand ends' 1.59 px), so weighting by noise leans on them
-more, not less.
+Why neither method reaches easyWand's 0.245% on cal2 (docs/decisions/0020-brown-wand-score.md,
+docs/decisions/0023-brown-noise-floor.md): the ~300 background points hold the cameras; without
+them `ba` scores 0.21%, fitting its camera poses to the very frames that are scored. The points
+are not the noisier observations (their variance component is 1.24 px against the wand ends'
+1.59 px), so weighting by noise leans on them more, not less; a noise variance of each point's
+own (a Student-t model of the tracks) scores 0.299%. With exact cameras (`ba`'s), 1 px per axis
+of independent noise on each end spreads the lengths on easyWand's frames by {per_px[0]:.3f}% (cal1)
+and {per_px[1]:.3f}% (cal2): at the wand ends' own {CAL2_END_NOISE_PX} px that is {CAL2_END_NOISE_PX * per_px[1]:.2f}% on cal2, and
+easyWand's {published:.3f}% is what {published / per_px[1]:.2f} px would give, less than either group's noise.
 
 | session | ours | published |
 |---|---|---|

@@ -79,18 +79,15 @@ def _score_on_easywand_frames(result, folder: Path) -> tuple[float, int]:
     return _score(result.R, result.t, result.rig.cameras, folder)
 
 
-def _score(R: np.ndarray, t: np.ndarray, cameras, folder: Path) -> tuple[float, int]:
-    """The wand score (%) and frames of cameras R (N, 3, 3), t (N, 3) on the frames easyWand
-    scored: the rows of its undistorted points (``ptMatu``, where it blanked the ends it judged
-    outliers) with both ends in two or more cameras, each end triangulated from the same camera
-    views. As easyWand
-    computes its ``wandScore`` (``nanstd(dDLT) ./ nanmean(dDLT) * 100`` in easyWand5.m's
-    DLT step): MATLAB's ``std``, the sample standard deviation (n - 1)."""
+def scored_ends(cameras, folder: Path):
+    """The rows easyWand scored, as it scored them: its undistorted points (``ptMatu``, where it
+    blanked the ends it judged outliers) with both ends in two or more cameras. Yields, per row,
+    one (cameras (k,), xy (k, 2) normalised) per end: the views that end is triangulated from,
+    our undistortion of the raw pixels."""
     raw = np.genfromtxt(folder / "wandpts_raw.csv", delimiter=",", skip_header=1)
     kept = np.genfromtxt(folder / "wandpts_undistorted_easywand.csv", delimiter=",", skip_header=1)
     n = len(cameras)
     raw_by_row = {int(r[0]): r[1:] for r in raw}
-    lengths = []
     for row in kept:
         src, ew = int(row[0]), row[1:]
         if src not in raw_by_row:
@@ -103,11 +100,54 @@ def _score(R: np.ndarray, t: np.ndarray, cameras, folder: Path) -> tuple[float, 
         for e in range(2):
             cams = np.flatnonzero(seen[e])
             xy = np.array([undistort_points(cameras[c], np.array([[uv[e, c, 0], cameras[c].height - uv[e, c, 1]]]))[0] for c in cams])
-            ends.append(triangulate_points(R, t, np.zeros(len(cams), int), cams, xy, 1)[0])
-        lengths.append(np.linalg.norm(ends[1] - ends[0]))
-    lengths = np.array(lengths)
+            ends.append((cams, xy))
+        yield ends
+
+
+def triangulated_end(R: np.ndarray, t: np.ndarray, cams: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(3,) one wand end triangulated from its views."""
+    return triangulate_points(R, t, np.zeros(len(cams), int), cams, xy, 1)[0]
+
+
+def wand_length(R: np.ndarray, t: np.ndarray, ends) -> float:
+    """The distance between the two ends of one of :func:`scored_ends`' rows, metres."""
+    return float(np.linalg.norm(triangulated_end(R, t, *ends[1]) - triangulated_end(R, t, *ends[0])))
+
+
+def _score(R: np.ndarray, t: np.ndarray, cameras, folder: Path) -> tuple[float, int]:
+    """The wand score (%) and frames of cameras R (N, 3, 3), t (N, 3) on the frames easyWand
+    scored (:func:`scored_ends`), each end triangulated from the same camera views. As easyWand
+    computes its ``wandScore`` (``nanstd(dDLT) ./ nanmean(dDLT) * 100`` in easyWand5.m's
+    DLT step): MATLAB's ``std``, the sample standard deviation (n - 1)."""
+    lengths = np.array([wand_length(R, t, ends) for ends in scored_ends(cameras, folder)])
     lengths = lengths[np.isfinite(lengths)]
     return float(100 * lengths.std(ddof=1) / lengths.mean()), int(len(lengths))
+
+
+NUDGE_PX = 1e-3  # finite-difference step of a pixel: the length is smooth over far more than this
+
+
+def score_per_pixel(session: int, result) -> float:
+    """The wand score (%) that 1 px per axis of independent noise on each wand end would give
+    with exact cameras (``result``'s) on easyWand's frames of a Brown session: the root mean over
+    the frames of each length's variance, to first order through the same triangulations, over
+    the mean length. The score a rig can be expected to reach scales with the ends' noise."""
+    folder = SHARED_DATA / BROWN / f"calibration{session}"
+    R, t, cameras = result.R, result.t, result.rig.cameras
+    lengths, variances = [], []
+    for ends in scored_ends(cameras, folder):
+        X = [triangulated_end(R, t, *end) for end in ends]
+        length = float(np.linalg.norm(X[1] - X[0]))
+        var = 0.0
+        for e, (cams, xy) in enumerate(ends):
+            for k, c in enumerate(cams):
+                for axis in range(2):
+                    moved = xy.copy()
+                    moved[k, axis] += NUDGE_PX / cameras[c].focal[axis]  # normalised units per pixel
+                    var += ((np.linalg.norm(triangulated_end(R, t, cams, moved) - X[1 - e]) - length) / NUDGE_PX) ** 2
+        lengths.append(length)
+        variances.append(var)
+    return float(100 * np.sqrt(np.mean(variances)) / np.mean(lengths))
 
 
 def ushichka(method: str = "ba") -> dict:
