@@ -13,8 +13,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from wandcal.calib.solve.backend.highs import IncrementalLp
-from wandcal.calib.solve.backend.ipm import solve_dual_form
+from wandcal.calib.solve.backend.ipm import certified_duals, solve_dual_form
 from wandcal.calib.solve.reduced import ReducedSystem
 
 NEAR_BREAK = 0.01  # a row within this many sigmas of a breakpoint, at the predicted step, starts in the LP
@@ -96,9 +95,6 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     lo = np.where(kept, np.searchsorted(P, np.minimum(b, z_pred) - near), 0)
     hi = np.where(kept, np.searchsorted(P, np.maximum(b, z_pred) + near) - 1, -1)
     n = len(rho)
-    lp = IncrementalLp(-c_fold, time_limit)
-    eye = sp.identity(n, format="csc")
-    lp.add_columns(np.zeros(2 * n), np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
     old_lo, old_hi = base, base - 1  # nothing modelled yet
     trust_lo, trust_hi = -rho - d_ref, rho - d_ref  # the trust region, in the LP's variable
     seconds, d, rounds, total, certified, iterations = 0.0, None, 0, 0, False, 0
@@ -106,7 +102,6 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
         box_lo = np.maximum(trust_lo, d_pred - guard)
         box_hi = np.minimum(trust_hi, d_pred + guard)
-        lp.set_costs(np.arange(2 * n), np.r_[-box_lo, box_hi])
         # the pairs not modelled before: below the old range and above it
         rows_a, bps_a = _pairs(lo, np.minimum(hi, old_lo - 1))
         rows_b, bps_b = _pairs(np.maximum(lo, old_hi + 1), hi)
@@ -115,22 +110,21 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
             side = np.where(bps >= base[rows_i], 1.0, -1.0)  # right hinge, or left hinge
             A = state.rows(rows_i // 2, rows_i % 2) * side[:, None]
             cost, jump = -side * (b[rows_i] - P[bps]), S[bps + 1] - S[bps]
-            lp.add_columns(cost, np.zeros(len(rows_i)), jump, A.T)
             cols_A.append(A), cols_c.append(cost), cols_u.append(jump)
             total += len(rows_i)
         # the interior point names the basis (a point short of optimal, or a basis HiGHS finds
         # singular, only costs simplex iterations from there)
         deadline = None if time_limit is None else time.perf_counter() + time_limit
-        ipm = solve_dual_form(np.concatenate(cols_A), np.concatenate(cols_c), np.concatenate(cols_u),
-                              -box_lo, box_hi, -c_fold, deadline)
+        lp_args = (np.concatenate(cols_A), np.concatenate(cols_c), np.concatenate(cols_u), -box_lo, box_hi, -c_fold)
+        ipm = solve_dual_form(*lp_args, deadline)
         seconds += ipm.seconds
         if ipm.status == "time_limit":
             return None, {"seconds": seconds, "rows": total, "status": "time_limit", "rounds": rounds,
                           "iterations": iterations}
         if ipm.status == "optimal" and rounds < MAX_ACTIVE_ROUNDS:
             # rows that the interior point's step takes past their modelled breakpoints need another
-            # round whatever HiGHS's vertex (the two differ by ~1e-8 of the step): HiGHS confirms
-            # only a round that may be the last (its basis and solve took 1.2 s per round at 128 x 3000)
+            # round whatever the basis's vertex (the two differ by ~1e-8 of the step): the basis is
+            # certified only in a round that may be the last
             where, out_lo, out_hi = _left_rows(P, b + state.change(ipm.duals).ravel(), lo, hi, kept)
             pinned = _pinned(ipm.duals, box_lo, box_hi, trust_lo, trust_hi, IPM_PINNED)
             if out_lo.any() or out_hi.any() or pinned.any():
@@ -138,15 +132,20 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
                 old_lo, old_hi = lo, hi
                 lo, hi = np.where(out_lo, where, lo), np.where(out_hi, where - 1, hi)
                 continue
-        lp.set_basis(ipm.basic, ipm.at_upper)
-        res = lp.solve(FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
-        seconds += res.seconds
-        iterations += res.iterations
-        if res.status != "optimal" or res.row_duals is None:
-            # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
-            return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds,
-                          "iterations": iterations}
-        d = res.row_duals.copy()
+        # the basis the interior point names, certified optimal as it is (the usual case); else
+        # HiGHS's dual simplex from it
+        started = time.perf_counter()
+        d = certified_duals(*lp_args, ipm.basic, ipm.at_upper) if ipm.status == "optimal" else None
+        seconds += time.perf_counter() - started
+        if d is None:
+            res = _highs_vertex(lp_args, ipm, time_limit, FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
+            seconds += res.seconds
+            iterations += res.iterations
+            if res.status != "optimal" or res.row_duals is None:
+                # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
+                return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds,
+                              "iterations": iterations}
+            d = res.row_duals.copy()
         where, out_lo, out_hi = _left_rows(P, b + state.change(d).ravel(), lo, hi, kept)
         pinned = _pinned(d, box_lo, box_hi, trust_lo, trust_hi, VERTEX_PINNED)
         if not (out_lo.any() or out_hi.any() or pinned.any()):
@@ -160,6 +159,22 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     # caller takes it only if it lowers the true merit, like any trust-region step
     return d + d_ref, {"seconds": seconds, "rows": total, "status": "optimal" if certified else "uncertified",
                        "rounds": rounds, "iterations": iterations}
+
+
+def _highs_vertex(lp_args, ipm, time_limit, strategy: int):
+    """HiGHS's simplex on the LP of :func:`wandcal.calib.solve.backend.ipm.solve_dual_form`'s
+    arguments ``lp_args``, started from the basis the interior point ``ipm`` names: an LpResult.
+    HiGHS is loaded only here (most steps never need it)."""
+    from wandcal.calib.solve.backend.highs import IncrementalLp
+
+    A, c, jump, c_lo, c_hi, r = lp_args
+    n = len(r)
+    lp = IncrementalLp(r, time_limit)
+    eye = sp.identity(n, format="csc")
+    lp.add_columns(np.r_[c_lo, c_hi], np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
+    lp.add_columns(c, np.zeros(len(c)), jump, A.T)
+    lp.set_basis(ipm.basic, ipm.at_upper)
+    return lp.solve(strategy)
 
 
 def _pinned(d, box_lo, box_hi, trust_lo, trust_hi, tol: float) -> np.ndarray:
