@@ -27,6 +27,12 @@ VERTEX_PINNED = 1e-9  # a vertex's parameter this near the guard (relative to it
 # so a looser test; a parameter it misses is caught at HiGHS's vertex, one it flags wrongly only
 # widens the guard (the optimum is the same)
 IPM_PINNED = 1e-6
+# the first round's interior point stops once rows leave their modelled pieces (ipm.LEAVE_TOL):
+# that round cannot be the last, whatever its optimum, and more pairs never change the LP's
+# optimum. Only the first: on a 4-camera step that needs several rounds, every round stopped so
+# took the 12 rounds of MAX_ACTIVE_ROUNDS (rows that leave near the optimum of one working set
+# need not leave at the next one's), and the step was left uncertified
+EARLY_LEAVE = True
 
 
 def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se: float | None,
@@ -116,12 +122,12 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         # singular, only costs simplex iterations from there)
         deadline = None if time_limit is None else time.perf_counter() + time_limit
         lp_args = (np.concatenate(cols_A), np.concatenate(cols_c), np.concatenate(cols_u), -box_lo, box_hi, -c_fold)
-        ipm = solve_dual_form(*lp_args, deadline)
+        ipm = solve_dual_form(*lp_args, deadline, leave=_leaving(state, P, b, lo, hi, kept) if EARLY_LEAVE and rounds == 1 else None)
         seconds += ipm.seconds
         if ipm.status == "time_limit":
             return None, {"seconds": seconds, "rows": total, "status": "time_limit", "rounds": rounds,
                           "iterations": iterations}
-        if ipm.status == "optimal" and rounds < MAX_ACTIVE_ROUNDS:
+        if ipm.status in ("optimal", "left") and rounds < MAX_ACTIVE_ROUNDS:
             # rows that the interior point's step takes past their modelled breakpoints need another
             # round whatever the basis's vertex (the two differ by ~1e-8 of the step): the basis is
             # certified only in a round that may be the last
@@ -175,6 +181,14 @@ def _highs_vertex(lp_args, ipm, time_limit, strategy: int):
     lp.add_columns(c, np.zeros(len(c)), jump, A.T)
     lp.set_basis(ipm.basic, ipm.at_upper)
     return lp.solve(strategy)
+
+
+def _leaving(state: ReducedSystem, P: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray, kept: np.ndarray):
+    """For the interior point: does a step (n,) take a row past its modelled breakpoints?"""
+    def leaves(d: np.ndarray) -> bool:
+        _, out_lo, out_hi = _left_rows(P, b + state.change(d).ravel(), lo, hi, kept)
+        return bool(out_lo.any() or out_hi.any())
+    return leaves
 
 
 def _pinned(d, box_lo, box_hi, trust_lo, trust_hi, tol: float) -> np.ndarray:
