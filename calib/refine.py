@@ -139,9 +139,9 @@ def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> 
 
 def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bool = True, warm: bool = False) -> Refined:
     """Run ``method`` on the problem; ``options`` as :func:`wandcal.calib.pipeline.calibrate`'s. Not
-    ``final`` (an outlier pass follows): a robust ``ba`` stops at ``ROBUST_STAGE_SE``, ``lp`` at its
-    IRLS point without the certifying LP, and ``lp`` and ``paper`` leave out the pose covariance
-    (:func:`finished` completes such an outcome). ``warm``: the start is the solution of nearly
+    ``final`` (an outlier pass follows): a robust ``ba`` stops at ``ROBUST_STAGE_SE``, ``lp`` runs
+    that robust ``ba`` in its place (its passes then start from it, ``warm``), and ``paper`` leaves
+    out the pose covariance (:func:`finished` completes such an outcome). ``warm``: the start is the solution of nearly
     the same problem (an outlier pass), so ``lp`` skips its first phase on a subset of frames and
     linearises its phase once. A final ``ba`` refines the time offsets too when
     ``options["sync_columns"]`` (a :class:`wandcal.calib.solve.sync.joint.TimeColumns`) gives their

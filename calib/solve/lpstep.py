@@ -2,8 +2,9 @@
 
 The step minimises the robust loss of the reduced rows (calib/solve/reduced.py) linearised about a
 state; the loss is convex piecewise-linear, so this is an LP, solved in its small dual form by an
-interior-point method (calib/solve/backend/ipm.py) whose basis HiGHS's simplex then confirms as optimal
-(calib/solve/backend/highs.py). Design and measurements: docs/decisions/0004-lp-method.md.
+interior-point method (calib/solve/backend/ipm.py) whose basis is then certified optimal (primal and
+dual feasible: ipm.certified_duals), or, where it is not, HiGHS's simplex carries on from it
+(calib/solve/backend/highs.py). Design and measurements: docs/decisions/0004-lp-method.md, 0024.
 """
 
 from __future__ import annotations
@@ -62,15 +63,18 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     with s_q = +1 for right hinges and -1 for left ones. The step d is the row duals: where
     0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0, the row on its breakpoint. Each
     solve (the first and each after a widening) runs the interior-point method on every pair so
-    far, and HiGHS's dual simplex starts from the basis its point names: that basis was optimal,
-    with no simplex iteration, on every LP step measured at 8-32 x 2000, and the answer is HiGHS's
-    vertex, as exact as a cold simplex (decision 0004, fifth session). Cold, the dual simplex took
-    ~3.5 iterations per camera parameter, each pricing every dense column: ~cameras^3.
+    far, and the basis its point names is certified optimal as it is (the vertex's values within
+    their bounds, its reduced costs of the right signs, to HiGHS's tolerances): that basis was
+    optimal, with no simplex iteration, on every LP step measured at 8-32 x 2000 (decision 0004,
+    fifth session), and the answer is its vertex, as exact as a cold simplex. Where the check
+    fails, HiGHS's dual simplex starts from that basis. Cold, the dual simplex took ~3.5
+    iterations per camera parameter, each pricing every dense column: ~cameras^3. The first
+    round's interior point stops early once rows leave their pieces (``EARLY_LEAVE``).
 
     Args:
         state: the reduced rows at the current state.
         rho: (n,) trust region, per camera parameter.
-        time_limit: seconds per solve (the interior-point method's, then HiGHS's), or None.
+        time_limit: seconds per solve (the interior-point method's, then HiGHS's if needed), or None.
         loss: (signed breakpoints, slopes) in robust sigmas (calib/solve/robustloss.py).
         guard_se: guard half-width in standard errors, or None for twice the trust region.
         d_pred: (n,) a step to write the LP about, or None for the clipped Gauss-Newton step.
@@ -78,7 +82,8 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         se: (n,) standard errors for the guard, or None for the state's own.
 
     Returns:
-        (d (n,) or None, info dict: seconds, rows (pairs), status, rounds, iterations (HiGHS's)).
+        (d (n,) or None, info dict: seconds, rows (pairs), status, rounds, iterations (HiGHS's
+        simplex iterations, 0 where the interior point's basis was certified as it is)).
     """
     P, S = loss[0] * state.scale, loss[1]  # breakpoints in pixels, interval slopes
     b = state.b.ravel()

@@ -1,13 +1,14 @@
-"""A primal-dual interior-point method for the LP step's dual form, and the simplex basis it
-points to (calib/solve/lpstep.py).
+"""A primal-dual interior-point method for the LP step's dual form, the simplex basis it
+points to, and that basis's certificate of optimality (calib/solve/lpstep.py).
 
 The LP step's dual has one row per camera parameter (n) and one dense column per (row,
 breakpoint) pair (k of them, each touching every camera of its frame). HiGHS's dual simplex
 needs ~3.5 n iterations on it, each pricing every column, so its time grows as ~cameras^3
 (decision 0004). An interior-point method takes ~12-15 iterations whatever the size, each one
 dense (n, n) normal matrix ``A^T D A`` (k n^2 / 2 flops) and its Cholesky factor; its point
-names the optimal basis (the n columns strictly inside their bounds), from which HiGHS's simplex
-confirms the optimum in no or few iterations, so the step stays an exact vertex of the LP.
+names the optimal basis (the n columns strictly inside their bounds), which one LU factor then
+certifies optimal (:func:`certified_duals`; HiGHS's simplex carries on from it when not), so the
+step stays an exact vertex of the LP.
 
 The LP, with A (k, n) the pairs' rows:
     min  c_lo . u_lo + c_hi . u_hi + c . y
@@ -40,6 +41,13 @@ SINGLE_PRECISION_RANGE = 1e6
 # double precision keeps (they are at a bound): left out, the last 3 of 17 matrices used 15-100% of
 # the pairs at 128 x 3000, with the same iterations and basis; 1e-9 broke the Cholesky factor
 NEGLIGIBLE_WEIGHT = 1e-12
+# Outside that range, the pairs weighted below this fraction of the largest go to the normal
+# matrix in single precision: each one's rounding error (~6e-8 of its own term, so < 6e-13 of the
+# largest) stays below the terms NEGLIGIBLE_WEIGHT already leaves out. The double product then
+# holds only the heavy pairs (decision 0024)
+SINGLE_WEIGHT = 1e-5
+MAX_SINGLE_WEIGHT = 1e30  # and only while the light terms fit single precision's range (3e38)
+MIXED_PRECISION = True
 # the first iterate this near the optimum (relative residuals and gap, as TOL) is shown to
 # ``leave``. On the 128 x 3000 step the first round's rows left by then: it stopped after 9 of
 # its 17 iterations (1.2 s against 2.8 s), with 11 at 1e-3 and 13 at 1e-4, and the same pairs,
@@ -98,7 +106,7 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     n_compl = len(x) + int(ub.sum())  # complementarity products: x z, and s w where bounded
     r_norm, c_norm = 1 + np.abs(r).max(), 1 + np.abs(cost).max()
     status, it = "iteration_limit", 0
-    A_single = B_single = B_double = None
+    normal = _NormalMatrix(A)
     for it in range(1, MAX_ITER + 1):  # noqa: B007 (the count is reported after the loop)
         rp = r - _times(A, x)
         ru = (upper - x - s) * one
@@ -120,21 +128,7 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
         mu = gap / n_compl
         D = 1.0 / (z / x + w / s * one)
         Dy = D[2 * n:]
-        # the normal matrix E D E^T: A^T D_y A plus the box columns' diagonal; B^T B is one symmetric
-        # product in NumPy (3 ms at 2.6k x 186, against 5.5 ms for SciPy's dsyrk, which copies A)
-        # the scaled rows go to one buffer per precision, reused: a fresh (k, n) array per iteration
-        # is a fresh mapping the kernel zero-fills page by page (91 MB at 128 x 3000)
-        if len(Dy) and Dy.max() < SINGLE_PRECISION_RANGE * Dy.min():
-            A_single = A.astype(np.float32) if A_single is None else A_single
-            B_single = np.empty_like(A_single) if B_single is None else B_single
-            np.multiply(A_single, np.sqrt(Dy).astype(np.float32)[:, None], out=B_single)
-            M = (B_single.T @ B_single).astype(float)
-        else:
-            heavy = Dy >= NEGLIGIBLE_WEIGHT * Dy.max() if len(Dy) else Dy > 0
-            B_double = np.empty_like(A) if B_double is None else B_double
-            B = B_double[: int(heavy.sum())]
-            np.multiply(A if heavy.all() else A[heavy], np.sqrt(Dy[heavy])[:, None], out=B)
-            M = B.T @ B
+        M = normal(Dy)
         M[np.diag_indices(n)] += D[:n] + D[n:2 * n]
         try:
             factor = sla.cho_factor(M, lower=False, overwrite_a=True, check_finite=False)
@@ -203,6 +197,54 @@ def certified_duals(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     if lower_ok.all() and upper_ok.all() and dual_ok.all():
         return duals
     return None
+
+
+class _NormalMatrix:
+    """``A^T D_y A`` (n, n) for the pairs' weights D_y (k,), with A's scaled rows in one reused
+    buffer per precision: a fresh (k, n) array per iteration is a fresh mapping the kernel
+    zero-fills page by page (91 MB at 128 x 3000). B^T B is one symmetric product in NumPy (3 ms
+    at 2.6k x 186, against 5.5 ms for SciPy's dsyrk, which copies A)."""
+
+    def __init__(self, A: np.ndarray):
+        self.A = A
+        self.A_single: np.ndarray | None = None
+        self.B_single: np.ndarray | None = None
+        self.B_double: np.ndarray | None = None
+
+    def _single(self, rows: np.ndarray | None, Dy: np.ndarray) -> np.ndarray:
+        """The rows ``rows`` (a mask, or None for all) of A^T D A in single precision, as doubles."""
+        if self.A_single is None:
+            self.A_single = self.A.astype(np.float32)
+            self.B_single = np.empty_like(self.A_single)
+        assert self.B_single is not None
+        if rows is None:
+            B = self.B_single
+            np.multiply(self.A_single, np.sqrt(Dy).astype(np.float32)[:, None], out=B)
+        else:
+            B = self.B_single[: int(rows.sum())]
+            np.compress(rows, self.A_single, axis=0, out=B)
+            B *= np.sqrt(Dy[rows]).astype(np.float32)[:, None]
+        return (B.T @ B).astype(float)
+
+    def __call__(self, Dy: np.ndarray) -> np.ndarray:
+        A = self.A
+        if len(Dy) and Dy.max() < SINGLE_PRECISION_RANGE * Dy.min():
+            return self._single(None, Dy)
+        top = Dy.max() if len(Dy) else 0.0
+        heavy = Dy >= NEGLIGIBLE_WEIGHT * top if len(Dy) else Dy > 0
+        double = heavy & (Dy >= SINGLE_WEIGHT * top) if MIXED_PRECISION and top < MAX_SINGLE_WEIGHT else heavy
+        self.B_double = np.empty_like(A) if self.B_double is None else self.B_double
+        B = self.B_double[: int(double.sum())]
+        if double.all():
+            np.multiply(A, np.sqrt(Dy)[:, None], out=B)
+        else:  # the rows gathered into the buffer, not into a fresh array
+            np.compress(double, A, axis=0, out=B)
+            B *= np.sqrt(Dy[double])[:, None]
+        M = B.T @ B
+        light = heavy & ~double
+        if light.any():
+            M += self._single(light, Dy)
+        return M
 
 
 def _times(A: np.ndarray, v: np.ndarray) -> np.ndarray:
