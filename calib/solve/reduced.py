@@ -200,7 +200,8 @@ class ReducedSystem:
             lam, V = np.linalg.eigh(self.Hf)
             lam = np.maximum(lam, 0.0)
             D = np.sqrt(lam + 2 * FRAME_RIDGE) / (lam + FRAME_RIDGE)
-            Z = np.matmul(V.swapaxes(1, 2), self.Gf[:, free].reshape(p.n_frames, FRAME_PARAMS, -1)) * D[:, :, None]
+            Z = np.matmul(V.swapaxes(1, 2), self.Gf[:, free].reshape(p.n_frames, FRAME_PARAMS, -1))
+            Z *= D[:, :, None]  # in place: one (F*5, n) array fewer (91 MB at 128 x 3000)
             Z = Z.reshape(-1, len(free))
             S = -(Z.T @ Z)
             idx = np.arange(len(m.free))
