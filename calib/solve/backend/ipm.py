@@ -20,7 +20,6 @@ Interior-Point Methods, 1997, ch. 10, with upper bounds as in Lustig, Marsten an
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -179,16 +178,12 @@ def certified_duals(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     B[box % n, np.arange(len(box))] = np.where(box < n, -1.0, 1.0)
     B[:, len(box):] = A[pairs].T
     order = np.r_[box, pairs + 2 * n]  # the basic columns in B's order
-    try:
-        with warnings.catch_warnings():  # a singular basis is refused below, not warned about
-            warnings.simplefilter("ignore", sla.LinAlgWarning)
-            lu = sla.lu_factor(B, check_finite=False)
-    except (np.linalg.LinAlgError, ValueError):
+    # LAPACK's LU directly: scipy's lu_factor warns on a singular basis, which is refused here
+    lu, piv, info = sla.lapack.dgetrf(B)
+    if info != 0 or not np.all(np.isfinite(lu)) or np.min(np.abs(np.diag(lu))) <= SINGULAR_PIVOT * np.abs(lu).max():
         return None
-    if not np.all(np.isfinite(lu[0])) or np.min(np.abs(np.diag(lu[0]))) <= SINGULAR_PIVOT * np.abs(lu[0]).max():
-        return None
-    x_basic = sla.lu_solve(lu, r - _times(A, x), check_finite=False)
-    duals = sla.lu_solve(lu, cost[order], trans=1, check_finite=False)
+    x_basic, _ = sla.lapack.dgetrs(lu, piv, r - _times(A, x))
+    duals, _ = sla.lapack.dgetrs(lu, piv, cost[order], trans=1)
     reduced = cost - _times_t(A, duals)
     lower_ok = x_basic >= -PRIMAL_TOL
     upper_ok = x_basic <= up[order] + PRIMAL_TOL
