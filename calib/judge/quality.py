@@ -28,12 +28,19 @@ def reject_worst_per_frame(
     """(P,) bool, the labelled pairs to keep: in rounds, triangulate every frame from its kept
     pairs and drop the frame's single worst pair when its error exceeds ``limit_px``.
 
+    A round after the first triangulates only the frames that lost a pair in the round before:
+    the others' points, errors and worst pair are as they were, so none of them can drop one
+    (each point is triangulated from its own observations alone). At 128 cameras nearly every
+    frame holds an outlier in the first round, and the later rounds' frames get fewer.
+
     Args:
         R, t: (N, 3, 3), (N, 3) poses; pairs: labelled WandPairs; focal: (N, 2) fx, fy.
     """
     keep = np.ones(len(pairs), bool)
+    changed = np.ones(len(pairs.frames), bool)  # the frames whose kept pairs changed since judged
     for _ in range(max_rounds):
-        sub = pairs.subset(keep)
+        judged = keep & changed[pairs.frame]
+        sub = pairs.subset(judged)
         point, camera, xy = flatten(sub)
         X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames))
         err = reprojection_errors(R, t, point, camera, xy, X)
@@ -41,13 +48,15 @@ def reject_worst_per_frame(
         e = np.where(np.isfinite(e), e, np.inf)
         P = len(sub)
         pair_err = np.maximum(e[:P], e[P:])
-        idx = np.flatnonzero(keep)
+        idx = np.flatnonzero(judged)
         worst = np.full(len(pairs.frames), -1.0)
         np.maximum.at(worst, sub.frame, np.where(np.isfinite(pair_err), pair_err, 0.0))
         drop = (pair_err > limit_px) & np.isfinite(pair_err) & (pair_err >= worst[sub.frame])
         if not drop.any():
             break
         keep[idx[drop]] = False
+        changed = np.zeros(len(pairs.frames), bool)
+        changed[sub.frame[drop]] = True
     return keep
 
 

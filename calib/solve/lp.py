@@ -108,9 +108,9 @@ def refine_lp(
         scheme: "irls" (IRLS steps, then LP steps that certify the optimum) or "lp" (LP steps
             only, the scheme before; the same estimator, kept to check the other against).
         certify: with ``scheme="irls"``, False stops at the last phase's IRLS point, near the
-            optimum but not on it, without the LP that certifies it: for a solve that only tells
-            the outliers before the solve that counts (calib/refine.py), where the LP is most of
-            the time at 128 cameras.
+            optimum but not on it, without the LP that certifies it (the first phase's, and a
+            solve that only tells outliers; calib/refine.py now uses a robust ba for that,
+            decision 0024).
         warm: x0 is the solution of nearly the same problem (an outlier pass, calib/refine.py): no
             first phase on a subset, and the phase linearises once at its start (no Gauss-Newton
             step to refit frames fitted to other cameras).

@@ -2,8 +2,9 @@
 
 The step minimises the robust loss of the reduced rows (calib/solve/reduced.py) linearised about a
 state; the loss is convex piecewise-linear, so this is an LP, solved in its small dual form by an
-interior-point method (calib/solve/backend/ipm.py) whose basis HiGHS's simplex then confirms as optimal
-(calib/solve/backend/highs.py). Design and measurements: docs/decisions/0004-lp-method.md.
+interior-point method (calib/solve/backend/ipm.py) whose basis is then certified optimal (primal and
+dual feasible: ipm.certified_duals), or, where it is not, HiGHS's simplex carries on from it
+(calib/solve/backend/highs.py). Design and measurements: docs/decisions/0004-lp-method.md, 0024.
 """
 
 from __future__ import annotations
@@ -13,8 +14,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from wandcal.calib.solve.backend.highs import IncrementalLp
-from wandcal.calib.solve.backend.ipm import solve_dual_form
+from wandcal.calib.solve.backend.ipm import certified_duals, solve_dual_form
 from wandcal.calib.solve.reduced import ReducedSystem
 
 NEAR_BREAK = 0.01  # a row within this many sigmas of a breakpoint, at the predicted step, starts in the LP
@@ -28,6 +28,12 @@ VERTEX_PINNED = 1e-9  # a vertex's parameter this near the guard (relative to it
 # so a looser test; a parameter it misses is caught at HiGHS's vertex, one it flags wrongly only
 # widens the guard (the optimum is the same)
 IPM_PINNED = 1e-6
+# the first round's interior point stops once rows leave their modelled pieces (ipm.LEAVE_TOL):
+# that round cannot be the last, whatever its optimum, and more pairs never change the LP's
+# optimum. Only the first: on a 4-camera step that needs several rounds, every round stopped so
+# took the 12 rounds of MAX_ACTIVE_ROUNDS (rows that leave near the optimum of one working set
+# need not leave at the next one's), and the step was left uncertified
+EARLY_LEAVE = True
 
 
 def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se: float | None,
@@ -57,15 +63,18 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     with s_q = +1 for right hinges and -1 for left ones. The step d is the row duals: where
     0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0, the row on its breakpoint. Each
     solve (the first and each after a widening) runs the interior-point method on every pair so
-    far, and HiGHS's dual simplex starts from the basis its point names: that basis was optimal,
-    with no simplex iteration, on every LP step measured at 8-32 x 2000, and the answer is HiGHS's
-    vertex, as exact as a cold simplex (decision 0004, fifth session). Cold, the dual simplex took
-    ~3.5 iterations per camera parameter, each pricing every dense column: ~cameras^3.
+    far, and the basis its point names is certified optimal as it is (the vertex's values within
+    their bounds, its reduced costs of the right signs, to HiGHS's tolerances): that basis was
+    optimal, with no simplex iteration, on every LP step measured at 8-32 x 2000 (decision 0004,
+    fifth session), and the answer is its vertex, as exact as a cold simplex. Where the check
+    fails, HiGHS's dual simplex starts from that basis. Cold, the dual simplex took ~3.5
+    iterations per camera parameter, each pricing every dense column: ~cameras^3. The first
+    round's interior point stops early once rows leave their pieces (``EARLY_LEAVE``).
 
     Args:
         state: the reduced rows at the current state.
         rho: (n,) trust region, per camera parameter.
-        time_limit: seconds per solve (the interior-point method's, then HiGHS's), or None.
+        time_limit: seconds per solve (the interior-point method's, then HiGHS's if needed), or None.
         loss: (signed breakpoints, slopes) in robust sigmas (calib/solve/robustloss.py).
         guard_se: guard half-width in standard errors, or None for twice the trust region.
         d_pred: (n,) a step to write the LP about, or None for the clipped Gauss-Newton step.
@@ -73,7 +82,8 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         se: (n,) standard errors for the guard, or None for the state's own.
 
     Returns:
-        (d (n,) or None, info dict: seconds, rows (pairs), status, rounds, iterations (HiGHS's)).
+        (d (n,) or None, info dict: seconds, rows (pairs), status, rounds, iterations (HiGHS's
+        simplex iterations, 0 where the interior point's basis was certified as it is)).
     """
     P, S = loss[0] * state.scale, loss[1]  # breakpoints in pixels, interval slopes
     b = state.b.ravel()
@@ -96,9 +106,6 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     lo = np.where(kept, np.searchsorted(P, np.minimum(b, z_pred) - near), 0)
     hi = np.where(kept, np.searchsorted(P, np.maximum(b, z_pred) + near) - 1, -1)
     n = len(rho)
-    lp = IncrementalLp(-c_fold, time_limit)
-    eye = sp.identity(n, format="csc")
-    lp.add_columns(np.zeros(2 * n), np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
     old_lo, old_hi = base, base - 1  # nothing modelled yet
     trust_lo, trust_hi = -rho - d_ref, rho - d_ref  # the trust region, in the LP's variable
     seconds, d, rounds, total, certified, iterations = 0.0, None, 0, 0, False, 0
@@ -106,7 +113,6 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
         box_lo = np.maximum(trust_lo, d_pred - guard)
         box_hi = np.minimum(trust_hi, d_pred + guard)
-        lp.set_costs(np.arange(2 * n), np.r_[-box_lo, box_hi])
         # the pairs not modelled before: below the old range and above it
         rows_a, bps_a = _pairs(lo, np.minimum(hi, old_lo - 1))
         rows_b, bps_b = _pairs(np.maximum(lo, old_hi + 1), hi)
@@ -115,22 +121,21 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
             side = np.where(bps >= base[rows_i], 1.0, -1.0)  # right hinge, or left hinge
             A = state.rows(rows_i // 2, rows_i % 2) * side[:, None]
             cost, jump = -side * (b[rows_i] - P[bps]), S[bps + 1] - S[bps]
-            lp.add_columns(cost, np.zeros(len(rows_i)), jump, A.T)
             cols_A.append(A), cols_c.append(cost), cols_u.append(jump)
             total += len(rows_i)
         # the interior point names the basis (a point short of optimal, or a basis HiGHS finds
         # singular, only costs simplex iterations from there)
         deadline = None if time_limit is None else time.perf_counter() + time_limit
-        ipm = solve_dual_form(np.concatenate(cols_A), np.concatenate(cols_c), np.concatenate(cols_u),
-                              -box_lo, box_hi, -c_fold, deadline)
+        lp_args = (np.concatenate(cols_A), np.concatenate(cols_c), np.concatenate(cols_u), -box_lo, box_hi, -c_fold)
+        ipm = solve_dual_form(*lp_args, deadline, leave=_leaving(state, P, b, lo, hi, kept) if EARLY_LEAVE and rounds == 1 else None)
         seconds += ipm.seconds
         if ipm.status == "time_limit":
             return None, {"seconds": seconds, "rows": total, "status": "time_limit", "rounds": rounds,
                           "iterations": iterations}
-        if ipm.status == "optimal" and rounds < MAX_ACTIVE_ROUNDS:
+        if ipm.status in ("optimal", "left") and rounds < MAX_ACTIVE_ROUNDS:
             # rows that the interior point's step takes past their modelled breakpoints need another
-            # round whatever HiGHS's vertex (the two differ by ~1e-8 of the step): HiGHS confirms
-            # only a round that may be the last (its basis and solve took 1.2 s per round at 128 x 3000)
+            # round whatever the basis's vertex (the two differ by ~1e-8 of the step): the basis is
+            # certified only in a round that may be the last
             where, out_lo, out_hi = _left_rows(P, b + state.change(ipm.duals).ravel(), lo, hi, kept)
             pinned = _pinned(ipm.duals, box_lo, box_hi, trust_lo, trust_hi, IPM_PINNED)
             if out_lo.any() or out_hi.any() or pinned.any():
@@ -138,15 +143,20 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
                 old_lo, old_hi = lo, hi
                 lo, hi = np.where(out_lo, where, lo), np.where(out_hi, where - 1, hi)
                 continue
-        lp.set_basis(ipm.basic, ipm.at_upper)
-        res = lp.solve(FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
-        seconds += res.seconds
-        iterations += res.iterations
-        if res.status != "optimal" or res.row_duals is None:
-            # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
-            return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds,
-                          "iterations": iterations}
-        d = res.row_duals.copy()
+        # the basis the interior point names, certified optimal as it is (the usual case); else
+        # HiGHS's dual simplex from it
+        started = time.perf_counter()
+        d = certified_duals(*lp_args, ipm.basic, ipm.at_upper) if ipm.status == "optimal" else None
+        seconds += time.perf_counter() - started
+        if d is None:
+            res = _highs_vertex(lp_args, ipm, time_limit, FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
+            seconds += res.seconds
+            iterations += res.iterations
+            if res.status != "optimal" or res.row_duals is None:
+                # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
+                return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds,
+                              "iterations": iterations}
+            d = res.row_duals.copy()
         where, out_lo, out_hi = _left_rows(P, b + state.change(d).ravel(), lo, hi, kept)
         pinned = _pinned(d, box_lo, box_hi, trust_lo, trust_hi, VERTEX_PINNED)
         if not (out_lo.any() or out_hi.any() or pinned.any()):
@@ -160,6 +170,30 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     # caller takes it only if it lowers the true merit, like any trust-region step
     return d + d_ref, {"seconds": seconds, "rows": total, "status": "optimal" if certified else "uncertified",
                        "rounds": rounds, "iterations": iterations}
+
+
+def _highs_vertex(lp_args, ipm, time_limit, strategy: int):
+    """HiGHS's simplex on the LP of :func:`wandcal.calib.solve.backend.ipm.solve_dual_form`'s
+    arguments ``lp_args``, started from the basis the interior point ``ipm`` names: an LpResult.
+    HiGHS is loaded only here (most steps never need it)."""
+    from wandcal.calib.solve.backend.highs import IncrementalLp
+
+    A, c, jump, c_lo, c_hi, r = lp_args
+    n = len(r)
+    lp = IncrementalLp(r, time_limit)
+    eye = sp.identity(n, format="csc")
+    lp.add_columns(np.r_[c_lo, c_hi], np.zeros(2 * n), np.full(2 * n, np.inf), sp.hstack([-eye, eye]))
+    lp.add_columns(c, np.zeros(len(c)), jump, A.T)
+    lp.set_basis(ipm.basic, ipm.at_upper)
+    return lp.solve(strategy)
+
+
+def _leaving(state: ReducedSystem, P: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray, kept: np.ndarray):
+    """For the interior point: does a step (n,) take a row past its modelled breakpoints?"""
+    def leaves(d: np.ndarray) -> bool:
+        _, out_lo, out_hi = _left_rows(P, b + state.change(d).ravel(), lo, hi, kept)
+        return bool(out_lo.any() or out_hi.any())
+    return leaves
 
 
 def _pinned(d, box_lo, box_hi, trust_lo, trust_hi, tol: float) -> np.ndarray:

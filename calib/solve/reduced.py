@@ -140,7 +140,7 @@ class ReducedSystem:
         return self._se_cache
 
     def _eliminate(self) -> None:
-        """Per-frame elimination: K (M,2,5), Gf (F*5, N*6), g (F,5), Hinv (F,5,5), b (M,2)."""
+        """Per-frame elimination: K (M,2,5), g (F,5), Hinv (F,5,5), b (M,2); Gf on first use."""
         p = self.model.p
         # plain least squares on the kept rows: weights that moved with the residuals would make
         # the frames' fit an iteration of its own, and the projected merit would drift under it
@@ -151,12 +151,23 @@ class ReducedSystem:
         H = sum_by(m, "frame", outer(FW, self.F)).reshape(-1, FRAME_PARAMS, FRAME_PARAMS)
         g = sum_by(m, "frame", apply_t(FW, self.r))
         Hinv = np.linalg.inv(H + FRAME_RIDGE * np.eye(FRAME_PARAMS))
-        G = sum_by(m, "frame_camera", outer(FW, self.C)).reshape(p.n_frames, p.n_cams, FRAME_PARAMS, CAM_PARAMS)
         self.K = np.matmul(self.F, Hinv[p.frame])
         self.Hf, self.Hinv, self.g = H, Hinv, g
         self.b = self.r - apply(self.K, g[p.frame])
-        # G with each frame's rows stacked: (F*5, N*6), the operand of the normal equations' products
-        self.Gf = np.ascontiguousarray(G.transpose(0, 2, 1, 3)).reshape(-1, p.n_cams * CAM_PARAMS)
+        self._Gf: np.ndarray | None = None
+
+    @property
+    def Gf(self) -> np.ndarray:
+        """(F*5, N*6) each frame's camera coupling ``sum F^T W C`` with its rows stacked, the operand
+        of the normal equations' products. Formed on first use: a system only rescaled (the start
+        of an lp phase, which needs its projected residuals b alone) never forms it (~350 MB of
+        temporaries at 128 x 3000, decision 0024)."""
+        if self._Gf is None:
+            p, m = self.model.p, self.model
+            G = sum_by(m, "frame_camera", outer(self.F * self.Wt[:, :, None], self.C))
+            G = G.reshape(p.n_frames, p.n_cams, FRAME_PARAMS, CAM_PARAMS)
+            self._Gf = np.ascontiguousarray(G.transpose(0, 2, 1, 3)).reshape(-1, p.n_cams * CAM_PARAMS)
+        return self._Gf
 
     def gauss_newton_step(self) -> np.ndarray:
         """The weighted least-squares step of the reduced system, (n_cam_params,)."""
@@ -189,7 +200,8 @@ class ReducedSystem:
             lam, V = np.linalg.eigh(self.Hf)
             lam = np.maximum(lam, 0.0)
             D = np.sqrt(lam + 2 * FRAME_RIDGE) / (lam + FRAME_RIDGE)
-            Z = np.matmul(V.swapaxes(1, 2), self.Gf[:, free].reshape(p.n_frames, FRAME_PARAMS, -1)) * D[:, :, None]
+            Z = np.matmul(V.swapaxes(1, 2), self.Gf[:, free].reshape(p.n_frames, FRAME_PARAMS, -1))
+            Z *= D[:, :, None]  # in place: one (F*5, n) array fewer (91 MB at 128 x 3000)
             Z = Z.reshape(-1, len(free))
             S = -(Z.T @ Z)
             idx = np.arange(len(m.free))

@@ -1,13 +1,14 @@
-"""A primal-dual interior-point method for the LP step's dual form, and the simplex basis it
-points to (calib/solve/lpstep.py).
+"""A primal-dual interior-point method for the LP step's dual form, the simplex basis it
+points to, and that basis's certificate of optimality (calib/solve/lpstep.py).
 
 The LP step's dual has one row per camera parameter (n) and one dense column per (row,
 breakpoint) pair (k of them, each touching every camera of its frame). HiGHS's dual simplex
 needs ~3.5 n iterations on it, each pricing every column, so its time grows as ~cameras^3
 (decision 0004). An interior-point method takes ~12-15 iterations whatever the size, each one
 dense (n, n) normal matrix ``A^T D A`` (k n^2 / 2 flops) and its Cholesky factor; its point
-names the optimal basis (the n columns strictly inside their bounds), from which HiGHS's simplex
-confirms the optimum in no or few iterations, so the step stays an exact vertex of the LP.
+names the optimal basis (the n columns strictly inside their bounds), which one LU factor then
+certifies optimal (:func:`certified_duals`; HiGHS's simplex carries on from it when not), so the
+step stays an exact vertex of the LP.
 
 The LP, with A (k, n) the pairs' rows:
     min  c_lo . u_lo + c_hi . u_hi + c . y
@@ -39,13 +40,30 @@ SINGLE_PRECISION_RANGE = 1e6
 # double precision keeps (they are at a bound): left out, the last 3 of 17 matrices used 15-100% of
 # the pairs at 128 x 3000, with the same iterations and basis; 1e-9 broke the Cholesky factor
 NEGLIGIBLE_WEIGHT = 1e-12
+# Outside that range, the pairs weighted below this fraction of the largest go to the normal
+# matrix in single precision: each one's rounding error (~6e-8 of its own term, so < 6e-13 of the
+# largest) stays below the terms NEGLIGIBLE_WEIGHT already leaves out. The double product then
+# holds only the heavy pairs (decision 0024)
+SINGLE_WEIGHT = 1e-5
+MAX_SINGLE_WEIGHT = 1e30  # and only while the light terms fit single precision's range (3e38)
+MIXED_PRECISION = True
+# the first iterate this near the optimum (relative residuals and gap, as TOL) is shown to
+# ``leave``. On the 128 x 3000 step the first round's rows left by then: it stopped after 9 of
+# its 17 iterations (1.2 s against 2.8 s), with 11 at 1e-3 and 13 at 1e-4, and the same pairs,
+# rounds and optimum (decision 0024)
+LEAVE_TOL = 1e-2
+# a basis's certificate (certified_duals) to HiGHS's default primal and dual feasibility
+# tolerances (absolute, as HiGHS applies them to these LPs, which it is told not to scale)
+PRIMAL_TOL = 1e-7
+DUAL_TOL = 1e-7
+SINGULAR_PIVOT = 1e-13  # an LU pivot this small against the largest entry: the basis is taken as singular
 
 
 @dataclass(frozen=True, eq=False)
 class IpmResult:
     """duals: (n,) the step; basic, at_upper: (2n + k,) masks over the columns (u_lo, u_hi, y)
-    of the basis the point names; status: "optimal", "time_limit", "iteration_limit" or
-    "breakdown" (a normal matrix not positive definite in floating point)."""
+    of the basis the point names; status: "optimal", "left" (``leave`` stopped it), "time_limit",
+    "iteration_limit" or "breakdown" (a normal matrix not positive definite in floating point)."""
 
     duals: np.ndarray
     basic: np.ndarray
@@ -56,7 +74,7 @@ class IpmResult:
 
 
 def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.ndarray, c_hi: np.ndarray,
-                    r: np.ndarray, deadline: float | None = None) -> IpmResult:
+                    r: np.ndarray, deadline: float | None = None, leave=None) -> IpmResult:
     """Solve the LP above to ``TOL`` and name its optimal basis: the n columns furthest inside
     their bounds (relative to their reduced costs), the others at the bound they are nearer.
 
@@ -65,6 +83,9 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
         c_lo, c_hi: (n,) costs of the box columns (the box's bounds, -lo and hi).
         r: (n,) right-hand side.
         deadline: ``time.perf_counter()`` value to give up at, or None.
+        leave: optional callable(duals (n,)) -> bool, asked at the first iterate within
+            ``LEAVE_TOL`` of the optimum: True stops there with status "left" (the caller knows the LP must
+            change whatever its optimum: calib/solve/lpstep.py).
     """
     start = time.perf_counter()
     n = A.shape[1]
@@ -84,7 +105,7 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     n_compl = len(x) + int(ub.sum())  # complementarity products: x z, and s w where bounded
     r_norm, c_norm = 1 + np.abs(r).max(), 1 + np.abs(cost).max()
     status, it = "iteration_limit", 0
-    A_single = B_single = B_double = None
+    normal = _NormalMatrix(A)
     for it in range(1, MAX_ITER + 1):  # noqa: B007 (the count is reported after the loop)
         rp = r - _times(A, x)
         ru = (upper - x - s) * one
@@ -94,27 +115,19 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
                 and gap <= TOL * (1 + abs(cost @ x))):
             status = "optimal"
             break
+        if (leave is not None and np.abs(rp).max() <= LEAVE_TOL * r_norm and np.abs(rd).max() <= LEAVE_TOL * c_norm
+                and gap <= LEAVE_TOL * (1 + abs(cost @ x))):
+            if leave(lam):
+                status = "left"
+                break
+            leave = None  # asked once: each question costs a product over every row
         if deadline is not None and time.perf_counter() > deadline:
             status = "time_limit"
             break
         mu = gap / n_compl
         D = 1.0 / (z / x + w / s * one)
         Dy = D[2 * n:]
-        # the normal matrix E D E^T: A^T D_y A plus the box columns' diagonal; B^T B is one symmetric
-        # product in NumPy (3 ms at 2.6k x 186, against 5.5 ms for SciPy's dsyrk, which copies A)
-        # the scaled rows go to one buffer per precision, reused: a fresh (k, n) array per iteration
-        # is a fresh mapping the kernel zero-fills page by page (91 MB at 128 x 3000)
-        if len(Dy) and Dy.max() < SINGLE_PRECISION_RANGE * Dy.min():
-            A_single = A.astype(np.float32) if A_single is None else A_single
-            B_single = np.empty_like(A_single) if B_single is None else B_single
-            np.multiply(A_single, np.sqrt(Dy).astype(np.float32)[:, None], out=B_single)
-            M = (B_single.T @ B_single).astype(float)
-        else:
-            heavy = Dy >= NEGLIGIBLE_WEIGHT * Dy.max() if len(Dy) else Dy > 0
-            B_double = np.empty_like(A) if B_double is None else B_double
-            B = B_double[: int(heavy.sum())]
-            np.multiply(A if heavy.all() else A[heavy], np.sqrt(Dy[heavy])[:, None], out=B)
-            M = B.T @ B
+        M = normal(Dy)
         M[np.diag_indices(n)] += D[:n] + D[n:2 * n]
         try:
             factor = sla.cho_factor(M, lower=False, overwrite_a=True, check_finite=False)
@@ -140,6 +153,93 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     basic = np.zeros(len(x), bool)
     basic[np.argsort(-np.minimum(lo_side, hi_side), kind="stable")[:n]] = True
     return IpmResult(lam, basic, ~basic & (hi_side < lo_side), status, it, time.perf_counter() - start)
+
+
+def certified_duals(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.ndarray, c_hi: np.ndarray,
+                    r: np.ndarray, basic: np.ndarray, at_upper: np.ndarray) -> np.ndarray | None:
+    """The row duals (n,) of the vertex that a basis names, if that basis is optimal, else None.
+
+    The certificate a simplex method gives when it starts from an optimal basis and stops
+    without a pivot: the basic columns' values (the nonbasic ones at their bounds) are within
+    their bounds, and every nonbasic column's reduced cost ``c - E^T duals`` has the sign its
+    bound allows, both to HiGHS's default tolerances. It costs one LU factor of the (n, n) basis
+    and two products with A, against HiGHS's basis load and solve (1.5-1.9 s at 128 x 3000,
+    decision 0024). The LP and the masks (2n + k,) are those of :func:`solve_dual_form`."""
+    n = A.shape[1]
+    cost = np.r_[c_lo, c_hi, c]
+    up = np.r_[np.full(2 * n, np.inf), jump]
+    if basic.sum() != n or np.any(at_upper & ~np.isfinite(up)):
+        return None
+    x = np.where(at_upper, np.where(np.isfinite(up), up, 0.0), 0.0)
+    x[basic] = 0.0
+    cols = np.flatnonzero(basic)
+    box, pairs = cols[cols < 2 * n], cols[cols >= 2 * n] - 2 * n
+    B = np.zeros((n, n))
+    B[box % n, np.arange(len(box))] = np.where(box < n, -1.0, 1.0)
+    B[:, len(box):] = A[pairs].T
+    order = np.r_[box, pairs + 2 * n]  # the basic columns in B's order
+    # LAPACK's LU directly: scipy's lu_factor warns on a singular basis, which is refused here
+    lu, piv, info = sla.lapack.dgetrf(B)
+    if info != 0 or not np.all(np.isfinite(lu)) or np.min(np.abs(np.diag(lu))) <= SINGULAR_PIVOT * np.abs(lu).max():
+        return None
+    x_basic, _ = sla.lapack.dgetrs(lu, piv, r - _times(A, x))
+    duals, _ = sla.lapack.dgetrs(lu, piv, cost[order], trans=1)
+    reduced = cost - _times_t(A, duals)
+    lower_ok = x_basic >= -PRIMAL_TOL
+    upper_ok = x_basic <= up[order] + PRIMAL_TOL
+    nonbasic = ~basic
+    dual_ok = np.where(at_upper, reduced <= DUAL_TOL, reduced >= -DUAL_TOL)[nonbasic]
+    if lower_ok.all() and upper_ok.all() and dual_ok.all():
+        return duals
+    return None
+
+
+class _NormalMatrix:
+    """``A^T D_y A`` (n, n) for the pairs' weights D_y (k,), with A's scaled rows in one reused
+    buffer per precision: a fresh (k, n) array per iteration is a fresh mapping the kernel
+    zero-fills page by page (91 MB at 128 x 3000). B^T B is one symmetric product in NumPy (3 ms
+    at 2.6k x 186, against 5.5 ms for SciPy's dsyrk, which copies A)."""
+
+    def __init__(self, A: np.ndarray):
+        self.A = A
+        self.A_single: np.ndarray | None = None
+        self.B_single: np.ndarray | None = None
+        self.B_double: np.ndarray | None = None
+
+    def _single(self, rows: np.ndarray | None, Dy: np.ndarray) -> np.ndarray:
+        """The rows ``rows`` (a mask, or None for all) of A^T D A in single precision, as doubles."""
+        if self.A_single is None:
+            self.A_single = self.A.astype(np.float32)
+            self.B_single = np.empty_like(self.A_single)
+        assert self.B_single is not None
+        if rows is None:
+            B = self.B_single
+            np.multiply(self.A_single, np.sqrt(Dy).astype(np.float32)[:, None], out=B)
+        else:
+            B = self.B_single[: int(rows.sum())]
+            np.compress(rows, self.A_single, axis=0, out=B)
+            B *= np.sqrt(Dy[rows]).astype(np.float32)[:, None]
+        return (B.T @ B).astype(float)
+
+    def __call__(self, Dy: np.ndarray) -> np.ndarray:
+        A = self.A
+        if len(Dy) and Dy.max() < SINGLE_PRECISION_RANGE * Dy.min():
+            return self._single(None, Dy)
+        top = Dy.max() if len(Dy) else 0.0
+        heavy = Dy >= NEGLIGIBLE_WEIGHT * top if len(Dy) else Dy > 0
+        double = heavy & (Dy >= SINGLE_WEIGHT * top) if MIXED_PRECISION and top < MAX_SINGLE_WEIGHT else heavy
+        self.B_double = np.empty_like(A) if self.B_double is None else self.B_double
+        B = self.B_double[: int(double.sum())]
+        if double.all():
+            np.multiply(A, np.sqrt(Dy)[:, None], out=B)
+        else:  # the rows gathered into the buffer, not into a fresh array
+            np.compress(double, A, axis=0, out=B)
+            B *= np.sqrt(Dy[double])[:, None]
+        M = B.T @ B
+        light = heavy & ~double
+        if light.any():
+            M += self._single(light, Dy)
+        return M
 
 
 def _times(A: np.ndarray, v: np.ndarray) -> np.ndarray:

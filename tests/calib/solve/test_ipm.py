@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse as sp
 
 from wandcal.calib.solve.backend.highs import IncrementalLp
-from wandcal.calib.solve.backend.ipm import solve_dual_form
+from wandcal.calib.solve.backend.ipm import certified_duals, solve_dual_form
 
 
 def _dual_form(seed, n=12, k=200):
@@ -55,3 +55,20 @@ def test_no_pairs_leaves_the_box():
 def test_a_deadline_in_the_past_stops_it():
     ipm = solve_dual_form(*_dual_form(0), deadline=0.0)
     assert ipm.status == "time_limit"
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_certificate_gives_the_simplex_vertex_and_refuses_a_wrong_basis(seed):
+    """The interior point's basis, checked by one LU factor, gives HiGHS's row duals; a basis
+    with one column swapped for another is not certified (it is not the optimal one)."""
+    problem = _dual_form(seed)
+    cold = _lp(*problem).solve(1)
+    ipm = solve_dual_form(*problem)
+    duals = certified_duals(*problem, ipm.basic, ipm.at_upper)
+    assert duals is not None
+    np.testing.assert_allclose(duals, cold.row_duals, rtol=1e-9, atol=1e-9 * np.abs(cold.row_duals).max())
+    wrong = ipm.basic.copy()
+    wrong[np.flatnonzero(wrong)[-1]] = False
+    wrong[np.flatnonzero(~ipm.basic)[0]] = True
+    assert certified_duals(*problem, wrong, ipm.at_upper & ~wrong) is None
+    assert certified_duals(*problem, np.zeros_like(ipm.basic), ipm.at_upper) is None  # too few basic columns
