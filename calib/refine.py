@@ -276,7 +276,7 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         options = options | {"loss": "linear"}
     keep = np.ones(len(r.labelled), bool)
     point_drops = 0
-    for _ in range(1 if robust_ba else MAX_OUTLIER_PASSES):
+    for k in range(1 if robust_ba else MAX_OUTLIER_PASSES):
         limit, errors, point_err = _outlier_limit(r)
         new_keep = keep
         if robust_ba:
@@ -289,6 +289,8 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
             new_keep = np.ones(len(r.labelled), bool)
             new_keep[r.setup.pair_index[errors > limit]] = False
         elif len(r.labelled):
+            if k == 0:  # the first solve's rig relabels a frame it fits the other way round, as above
+                r, _ = relabelled(r, errors, limit)
             new_keep = quality.reject_worst_per_frame(r.R, r.t, r.labelled, r.setup.problem.focal, limit)
             if r.rig.wand_length is not None:
                 new_keep &= ~quality.length_outlier_frames(r.R, r.t, r.labelled, new_keep, r.rig.wand_length)[r.labelled.frame]
@@ -317,10 +319,7 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         before = r.info
         r = refine(r.rig, r.labelled, setup, tracks, X, method, options, tell, up_direction(r.rig, r.R, r.t, setup),
                    final=method != "paper", warm=True)
-        r = replace(r, info=r.info | {"iterations": before["iterations"] + r.info["iterations"],
-                                      "seconds": before["seconds"] + r.info["seconds"],
-                                      "loss": before.get("loss", r.info.get("loss"))}
-                      | ({"relabelled": before["relabelled"]} if "relabelled" in before else {}))
+        r = replace(r, info=r.info | _carried(before, r.info) | {"loss": before.get("loss", r.info.get("loss"))})
     if not r.final:
         r = finished(r, keep, method, options, tell)
     # the labelled pairs stay whole; the setup holds the kept ones
@@ -336,8 +335,14 @@ def finished(r: Refined, keep: np.ndarray, method: str, options: dict, tell) -> 
     setup = build_problem(r.rig, r.labelled.subset(keep), r.R, r.t, GAUGE_CAMERA)
     again = refine(r.rig, r.labelled, setup, r.tracks, r.X, method, options, tell, up_direction(r.rig, r.R, r.t, setup),
                    warm=True)
-    return replace(again, info=again.info | {"iterations": r.info["iterations"] + again.info["iterations"],
-                                             "seconds": r.info["seconds"] + again.info["seconds"]})
+    return replace(again, info=again.info | _carried(r.info, again.info))
+
+
+def _carried(before: dict, after: dict) -> dict:
+    """What a refinement's info keeps from the solve before it: the iterations and seconds
+    summed, and the camera-frames relabelled on the way."""
+    return ({"iterations": before["iterations"] + after["iterations"], "seconds": before["seconds"] + after["seconds"]}
+            | ({"relabelled": before["relabelled"]} if "relabelled" in before else {}))
 
 
 def relabelled(r: Refined, errors: np.ndarray, limit: float) -> tuple[Refined, np.ndarray]:

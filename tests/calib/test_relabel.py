@@ -12,8 +12,10 @@ from wandcal.calib.sim.scenes import prepared_scene
 NOISE = 0.5
 
 
-@pytest.mark.parametrize("seed", [4, 5])
-def test_swapped_ends_are_relabelled_not_dropped(seed):
+@pytest.mark.parametrize("seed,method", [(4, "ba"), (5, "ba"), (4, "lp")])
+def test_swapped_ends_are_relabelled_not_dropped(seed, method):
+    """ba's robust pass relabels; lp's passes (which start from a robust ba) relabel at their
+    first, before judging each frame's worst camera."""
     scene = prepared_scene(cameras=5, frames=300, noise_px=NOISE, seed=seed)
     rig, good = scene.sim.rig, scene.labelled
     rng = np.random.default_rng(0)
@@ -25,9 +27,9 @@ def test_swapped_ends_are_relabelled_not_dropped(seed):
     labelled = good.swapped(wrong)
     setup = build_problem(rig, labelled, scene.init.R, scene.init.t)
     options = {"loss": "cauchy"}
-    r = refine(rig, labelled, setup, None, None, "ba", options, lambda e: None,
+    r = refine(rig, labelled, setup, None, None, method, options, lambda e: None,
                up_direction(rig, scene.init.R, scene.init.t, setup), final=False)
-    r = reject_outliers(r, "ba", options, lambda e: None)
+    r = reject_outliers(r, method, options, lambda e: None)
     assert r.info["relabelled"] == 30 and r.outliers == 0
     # every row now agrees with the good labelling, up to each frame's own end order
     same = np.all(np.isclose(r.labelled.uv, good.uv), axis=(1, 2))
