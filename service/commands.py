@@ -14,7 +14,6 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import kabsch, rotation_angle
 from wandcal.calib.pipeline import DEFAULT_METHOD, METHODS, calibrate
-from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.solve.reprojection import INTRINSICS
@@ -117,6 +116,8 @@ def _id_list(text: str) -> tuple[str, ...]:
 
 
 def _simulate(args):
+    from wandcal.calib.sim.simulate import simulate_capture  # simulate and demo only: calibrate does not pay for it
+
     return simulate_capture(args.cameras, args.frames, args.noise, args.outliers, not args.no_static, args.seed)
 
 
