@@ -56,8 +56,9 @@ def label_ends(
     sub = pairs.subset(known[pairs.camera])
     if len(sub) == 0:
         return sub, np.zeros(0)
-    sub = sub.swapped(_epipolar_order(R, t, sub))
-    sub = sub.swapped(_pairwise_consensus(R, t, sub))
+    ranked = _Ranked(sub)  # swapping a pair's ends leaves its rank: one sort serves both passes
+    sub = sub.swapped(_epipolar_order(R, t, sub, ranked))
+    sub = sub.swapped(_pairwise_consensus(R, t, sub, ranked))
     margin = np.zeros(len(sub))
     for _ in range(RELABEL_ROUNDS):
         point, camera, xy = flatten(sub)
@@ -101,21 +102,19 @@ def _project(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
     return xc[:, :2] / xc[:, 2:3]
 
 
-def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> np.ndarray:
+def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None) -> np.ndarray:
     """(P,) bool: swap each pair so it agrees with its frame's reference pair (the one whose
     blobs are furthest apart, which is the least ambiguous)."""
-    order = np.lexsort((-np.linalg.norm(pairs.xy[:, 0] - pairs.xy[:, 1], axis=1), pairs.frame))
-    frame_sorted = pairs.frame[order]
-    first = np.r_[True, frame_sorted[1:] != frame_sorted[:-1]]
-    ref_of_sorted = order[np.maximum.accumulate(np.where(first, np.arange(len(order)), 0))]
+    ranked = ranked or _Ranked(pairs)
     ref = np.empty(len(pairs), dtype=np.int64)
-    ref[order] = ref_of_sorted
+    ref[ranked.order] = ranked.order[ranked.first]
     a, b = ref, np.arange(len(pairs))
     same, swap = _epipolar_costs(R, t, pairs, a, b)
     return (swap < same) & (a != b)
 
 
-def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_passes: int = 8) -> np.ndarray:
+def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None,
+                        max_passes: int = 8) -> np.ndarray:
     """(P,) bool flips that lower each frame's epipolar cost summed over its voting camera pairs.
 
     The reference-based order trusts one camera per frame; when the wand lies near an epipolar
@@ -126,7 +125,7 @@ def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, max_pass
     not with their pairs; a frame seen by at most ``VOTERS + 1`` cameras has every pair vote.
     """
     P = len(pairs)
-    a_idx, b_idx, worse = _votes(R, t, pairs)  # worse: what a vote gains when one of its pairs flips while they agree
+    a_idx, b_idx, worse = _votes(R, t, pairs, ranked)  # worse: what a vote gains when one of its pairs flips while they agree
     if len(a_idx) == 0:
         return np.zeros(P, bool)
     # the votes come grouped by frame, and within it by their first pair (`_voting_pairs`); the
@@ -195,13 +194,13 @@ def _voting_pairs(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray]:
         np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
-def _votes(R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _votes(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_voting_pairs` (a (K,), b (K,)) with what each vote gains when one of its pairs flips
     while they agree (K,): ``same - cross`` of :func:`_epipolar_costs`. Made :data:`COST_CHUNK`
     votes at a time, each block's votes costed as they are made, so no vote-sized temporary leaves
     the cache (at 128 cameras x 3000 frames there are 5.4M votes, and the votes made whole took
     3.7x as long as at 64 cameras for 2.2x as many)."""
-    ranked = _Ranked(pairs)
+    ranked = ranked or _Ranked(pairs)
     costs = _EpipolarCosts(R, t, pairs)
     a_parts, b_parts, w_parts = [], [], []
     for lo, hi in ranked.blocks():
