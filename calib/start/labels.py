@@ -276,18 +276,22 @@ def _epipolar_costs(R: np.ndarray, t: np.ndarray, pairs: WandPairs, a: np.ndarra
 
 class _EpipolarCosts:
     """The tables :func:`_epipolar_costs` reads: every camera pair's essential matrix (E's nine
-    entries as nine rows), and the blobs' x, y (four rows)."""
+    entries as nine rows, the pair's column b-major), and the blobs' x, y (four rows)."""
 
     def __init__(self, R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> None:
         self.n = len(R)
-        self.E_table = np.ascontiguousarray(_essential_matrices(R, t).reshape(self.n * self.n, 9).T)  # (9, N*N)
+        # column b * N + a holds E[a, b]: a frame's votes pair every camera a of the frame with a few
+        # voters b, whose columns then lie side by side (at 128 cameras the table is 1.2 MB, and
+        # a-major columns had each vote read nine cache lines of its own)
+        E = np.swapaxes(_essential_matrices(R, t), 0, 1)
+        self.E_table = np.ascontiguousarray(E.reshape(self.n * self.n, 9).T)  # (9, N*N)
         self.xy_table = np.ascontiguousarray(pairs.xy.reshape(-1, 4).T)  # (4, P): x0, y0, x1, y1
         self.camera = pairs.camera
 
     def __call__(self, ca: np.ndarray, cb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(same, cross) of the pairs ``ca`` (K,) against ``cb`` (K,); worked on flat rows (E's
         nine entries, each blob's x and y), each end's epipolar line formed once for both matchings."""
-        E = np.take(self.E_table, self.camera[ca] * self.n + self.camera[cb], axis=1)
+        E = np.take(self.E_table, self.camera[cb] * self.n + self.camera[ca], axis=1)
         xa, xb = np.take(self.xy_table, ca, axis=1), np.take(self.xy_table, cb, axis=1)
         # E x_a (the line in b) of each end of a, and E^T x_b's first two entries of each end of b
         line = [[E[3 * r] * xa[2 * e] + E[3 * r + 1] * xa[2 * e + 1] + E[3 * r + 2] for r in range(3)] for e in range(2)]
