@@ -9,6 +9,7 @@ import csv
 import io
 import json
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -148,8 +149,10 @@ def _frame_table_fast(text: str, rig: Rig, columns: tuple[str, ...]):
     width = max(map(len, rig.ids), default=0) + 1
     dtype = np.dtype([("frame", "f8"), ("camera", f"U{width}"), ("u", "f8"), ("v", "f8")])
     try:
-        table = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(frame_c, cam_c, u_c, v_c), dtype=dtype,
-                           ndmin=1, encoding="utf-8")
+        with warnings.catch_warnings():  # a blank line is skipped; NumPy's note on how it counts rows is not the user's
+            warnings.simplefilter("ignore", UserWarning)
+            table = np.loadtxt(io.BytesIO(raw), delimiter=",", skiprows=1, usecols=(frame_c, cam_c, u_c, v_c),
+                               dtype=dtype, ndmin=1, encoding="utf-8")
     except ValueError:
         return None
     del raw
