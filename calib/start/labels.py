@@ -57,8 +57,9 @@ def label_ends(
     if len(sub) == 0:
         return sub, np.zeros(0)
     ranked = _Ranked(sub)  # swapping a pair's ends leaves its rank: one sort serves both passes
-    sub = sub.swapped(_epipolar_order(R, t, sub, ranked))
-    sub = sub.swapped(_pairwise_consensus(R, t, sub, ranked))
+    E_table = _essential_table(R, t)  # and one table of the N^2 essential matrices
+    sub = sub.swapped(_epipolar_order(R, t, sub, ranked, E_table))
+    sub = sub.swapped(_pairwise_consensus(R, t, sub, ranked, E_table))
     margin = np.zeros(len(sub))
     for _ in range(RELABEL_ROUNDS):
         point, camera, xy = flatten(sub)
@@ -102,19 +103,20 @@ def _project(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
     return xc[:, :2] / xc[:, 2:3]
 
 
-def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None) -> np.ndarray:
+def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None,
+                    E_table: np.ndarray | None = None) -> np.ndarray:
     """(P,) bool: swap each pair so it agrees with its frame's reference pair (the one whose
     blobs are furthest apart, which is the least ambiguous)."""
     ranked = ranked or _Ranked(pairs)
     ref = np.empty(len(pairs), dtype=np.int64)
     ref[ranked.order] = ranked.order[ranked.first]
     a, b = ref, np.arange(len(pairs))
-    same, swap = _epipolar_costs(R, t, pairs, a, b)
+    same, swap = _epipolar_costs(R, t, pairs, a, b, E_table)
     return (swap < same) & (a != b)
 
 
 def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None,
-                        max_passes: int = 8) -> np.ndarray:
+                        E_table: np.ndarray | None = None, max_passes: int = 8) -> np.ndarray:
     """(P,) bool flips that lower each frame's epipolar cost summed over its voting camera pairs.
 
     The reference-based order trusts one camera per frame; when the wand lies near an epipolar
@@ -125,7 +127,7 @@ def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: 
     not with their pairs; a frame seen by at most ``VOTERS + 1`` cameras has every pair vote.
     """
     P = len(pairs)
-    a_idx, b_idx, worse = _votes(R, t, pairs, ranked)  # worse: what a vote gains when one of its pairs flips while they agree
+    a_idx, b_idx, worse = _votes(R, t, pairs, ranked, E_table)  # worse: what a vote gains when one of its pairs flips while they agree
     if len(a_idx) == 0:
         return np.zeros(P, bool)
     # the votes come grouped by frame, and within it by their first pair (`_voting_pairs`); the
@@ -194,14 +196,15 @@ def _voting_pairs(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray]:
         np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
-def _votes(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _votes(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None,
+           E_table: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_voting_pairs` (a (K,), b (K,)) with what each vote gains when one of its pairs flips
     while they agree (K,): ``same - cross`` of :func:`_epipolar_costs`. Made :data:`COST_CHUNK`
     votes at a time, each block's votes costed as they are made, so no vote-sized temporary leaves
     the cache (at 128 cameras x 3000 frames there are 5.4M votes, and the votes made whole took
     3.7x as long as at 64 cameras for 2.2x as many)."""
     ranked = ranked or _Ranked(pairs)
-    costs = _EpipolarCosts(R, t, pairs)
+    costs = _EpipolarCosts(R, t, pairs, E_table)
     a_parts, b_parts, w_parts = [], [], []
     for lo, hi in ranked.blocks():
         a, b = ranked.votes(lo, hi)
@@ -263,28 +266,34 @@ def _skew(v: np.ndarray) -> np.ndarray:
     )
 
 
-def _epipolar_costs(R: np.ndarray, t: np.ndarray, pairs: WandPairs, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _epipolar_costs(R: np.ndarray, t: np.ndarray, pairs: WandPairs, a: np.ndarray, b: np.ndarray,
+                    E_table: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Epipolar costs of the pairs ``a`` (K,) against the pairs ``b`` (K,) of other cameras in the
     same frames: (same, cross), each (K,), the Sampson distances summed over both ends matched in
     their present order and crossed; :data:`COST_CHUNK` at a time so the temporaries stay in cache."""
-    costs = _EpipolarCosts(R, t, pairs)
+    costs = _EpipolarCosts(R, t, pairs, E_table)
     same, cross = np.empty(len(a)), np.empty(len(a))
     for s in range(0, len(a), COST_CHUNK):
         same[s : s + COST_CHUNK], cross[s : s + COST_CHUNK] = costs(a[s : s + COST_CHUNK], b[s : s + COST_CHUNK])
     return same, cross
 
 
+def _essential_table(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(9, N*N): column b * N + a holds E[a, b]'s nine entries (:func:`_essential_matrices`)."""
+    # b-major: a frame's votes pair every camera a of the frame with a few voters b, whose columns
+    # then lie side by side (at 128 cameras the table is 1.2 MB, and a-major columns had each vote
+    # read nine cache lines of its own)
+    n = len(R)
+    return np.ascontiguousarray(np.swapaxes(_essential_matrices(R, t), 0, 1).reshape(n * n, 9).T)
+
+
 class _EpipolarCosts:
     """The tables :func:`_epipolar_costs` reads: every camera pair's essential matrix (E's nine
     entries as nine rows, the pair's column b-major), and the blobs' x, y (four rows)."""
 
-    def __init__(self, R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> None:
+    def __init__(self, R: np.ndarray, t: np.ndarray, pairs: WandPairs, E_table: np.ndarray | None = None) -> None:
         self.n = len(R)
-        # column b * N + a holds E[a, b]: a frame's votes pair every camera a of the frame with a few
-        # voters b, whose columns then lie side by side (at 128 cameras the table is 1.2 MB, and
-        # a-major columns had each vote read nine cache lines of its own)
-        E = np.swapaxes(_essential_matrices(R, t), 0, 1)
-        self.E_table = np.ascontiguousarray(E.reshape(self.n * self.n, 9).T)  # (9, N*N)
+        self.E_table = _essential_table(R, t) if E_table is None else E_table
         self.xy_table = np.ascontiguousarray(pairs.xy.reshape(-1, 4).T)  # (4, P): x0, y0, x1, y1
         self.camera = pairs.camera
 
