@@ -61,19 +61,27 @@ def label_ends(
     sub = sub.swapped(_epipolar_order(R, t, sub, ranked, E_table))
     sub = sub.swapped(_pairwise_consensus(R, t, sub, ranked, E_table))
     margin = np.zeros(len(sub))
+    judged = np.ones(len(sub), bool)  # the pairs whose frames are triangulated again this round
     for _ in range(RELABEL_ROUNDS):
-        point, camera, xy = flatten(sub)
+        part = sub if judged.all() else sub.subset(judged)
+        point, camera, xy = flatten(part)
         X = triangulate_points(R, t, point, camera, xy, 2 * len(sub.frames)).reshape(-1, 2, 3)
-        ends = X[sub.frame]  # (P, 2, 3)
-        Rc, tc = R[sub.camera], t[sub.camera]
+        ends = X[part.frame]  # (P', 2, 3)
+        Rc, tc = R[part.camera], t[part.camera]
         proj = np.stack([_project(Rc, tc, ends[:, e]) for e in range(2)], axis=1)
-        same = np.linalg.norm(proj - sub.xy, axis=2).sum(1)
-        other = np.linalg.norm(proj[:, ::-1] - sub.xy, axis=2).sum(1)
-        flip = np.isfinite(other) & (other < same)
-        margin = np.where(np.isfinite(same), np.abs(other - same), 0.0)
+        same = np.linalg.norm(proj - part.xy, axis=2).sum(1)
+        other = np.linalg.norm(proj[:, ::-1] - part.xy, axis=2).sum(1)
+        margin[judged] = np.where(np.isfinite(same), np.abs(other - same), 0.0)
+        flip = np.zeros(len(sub), bool)
+        flip[np.flatnonzero(judged)[np.isfinite(other) & (other < same)]] = True
         if not flip.any():
             break
         sub = sub.swapped(flip)
+        # only the frames where a pair flipped have new ends: the next round judges them alone (the
+        # others' ends, projections and margins stay as they are), not every pair again
+        changed = np.zeros(len(sub.frames), bool)
+        changed[sub.frame[flip]] = True
+        judged = changed[sub.frame]
     if length is not None:
         sub = _two_view_by_length(R, t, sub, length)
     return sub, margin
