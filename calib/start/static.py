@@ -117,8 +117,7 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
     n_assign = int(np.prod(range(m - k + 1, m + 1)))
     if n_assign > MAX_ASSIGNMENTS:
         return Failure(f"{where}: {n_assign} possible labellings of {k} blobs to {m} markers are too many to try")
-    normal = _plane_normal(markers)
-    lines = _collinear_triples(markers)
+    normal, lines = _object_shape(np.ascontiguousarray(markers, dtype=np.float64).tobytes(), m)
     # SQPnP on every possible labelling screens them; the survivors also get every P3P start (a
     # planar object's mirror pose, which SQPnP does not return)
     screened = []
@@ -165,6 +164,15 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
     runner = distinct[0][0] if distinct else np.inf
     close = tuple((f[1], f[2]) for f in distinct if f[0] < AMBIGUITY_RATIO * max(rms, MIN_RMS_PX))
     return StaticPose(R=R, t=t, labels=labels, rms_px=rms, runner_up_px=float(runner), alternatives=close)
+
+
+@functools.lru_cache(maxsize=16)
+def _object_shape(markers: bytes, m: int) -> tuple[np.ndarray | None, list[tuple[int, int, int]]]:
+    """The static object's plane normal (:func:`_plane_normal`) and collinear triples
+    (:func:`_collinear_triples`) of its ``m`` markers (float64 bytes), worked out once for every
+    camera (0.04 s at 64 cameras)."""
+    points = np.frombuffer(markers).reshape(m, 3)
+    return _plane_normal(points), _collinear_triples(points)
 
 
 def _collinear_triples(markers: np.ndarray) -> list[tuple[int, int, int]]:
