@@ -217,12 +217,19 @@ def run_check(args) -> int:
 
 
 def run_calibrate(args) -> int:
-    progress = ProgressLine(quiet=args.quiet)
-    try:
-        result = _calibrated(args, progress)
-    finally:
-        progress.close()  # the line ends before the summary, or an error, is printed
-    return _write_result(args, result.to_json())
+    from threadpoolctl import threadpool_limits
+
+    # BLAS on one thread for the whole command, as the server sets it at its start (service/main.py):
+    # ba and lp pin it for their solves already, and the products outside them (pair tables,
+    # uncertainty) are too small for a second thread to pay for its hand-offs and spinning
+    # (64 x 3000: 5.28 -> 4.86 s CPU, 5.01 -> 4.86 s wall; docs/decisions/0025)
+    with threadpool_limits(limits=1, user_api="blas"):
+        progress = ProgressLine(quiet=args.quiet)
+        try:
+            result = _calibrated(args, progress)
+        finally:
+            progress.close()  # the line ends before the summary, or an error, is printed
+        return _write_result(args, result.to_json())
 
 
 def _calibrated(args, progress):
