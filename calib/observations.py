@@ -51,6 +51,15 @@ class WandPairs:
         return WandPairs(self.frame, self.camera, xy, uv, self.frames, self.dropped)
 
 
+def camera_rows(camera: np.ndarray, n_cameras: int) -> list[np.ndarray]:
+    """Each camera's rows: for camera (M,) indices, the (M_c,) ascending row numbers of each camera
+    0 .. n_cameras - 1, as ``np.flatnonzero(camera == c)`` gives them, from one stable sort (a mask
+    per camera costs cameras x rows: a quarter of the verdict's time at 128 cameras)."""
+    order = np.argsort(camera, kind="stable")
+    bounds = np.searchsorted(camera[order], np.arange(n_cameras + 1))
+    return [order[bounds[c] : bounds[c + 1]] for c in range(n_cameras)]
+
+
 def wand_pairs(rig: Rig, wand: WandObservations, undistort: bool = True) -> WandPairs:
     """Group blobs by camera-frame, keep the two-blob ones and undistort them.
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.judge import quality
+from wandcal.calib.observations import camera_rows
 from wandcal.calib.refine import GAUGE_CAMERA
 from wandcal.calib.rig import Rig
 from wandcal.calib.solve.gauge_free import split_uncertainty
@@ -27,15 +28,16 @@ OUTLIER_WARN_SHARE = 0.001  # warn about dropped outliers from this share of the
 
 def camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings) -> list[dict]:
     errors = quality.pixel_errors(R, t, wand_pts, setup.problem)
-    point_err = None
+    point_err = point_rows = None
     if tracks is not None and len(tracks):
+        point_rows = camera_rows(tracks.camera, len(rig.cameras))
         r = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, X)
         point_err = np.linalg.norm(r * setup.problem.focal[tracks.camera], axis=1)
     cameras = []
     for c, cam in enumerate(rig.cameras):
         report = quality.camera_report(errors, setup.problem, setup.frames, c) | {"initial_pose": init.source[c]}
-        if point_err is not None:
-            e = point_err[tracks.camera == c]
+        if point_err is not None and point_rows is not None:
+            e = point_err[point_rows[c]]
             report |= {"point_observations": int(len(e)),
                        "point_rms_px": float(np.sqrt(np.mean(e**2))) if len(e) else None}
         cameras.append(report)

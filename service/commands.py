@@ -14,7 +14,6 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import kabsch, rotation_angle
 from wandcal.calib.pipeline import DEFAULT_METHOD, METHODS, calibrate
-from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.solve.reprojection import INTRINSICS
@@ -117,6 +116,8 @@ def _id_list(text: str) -> tuple[str, ...]:
 
 
 def _simulate(args):
+    from wandcal.calib.sim.simulate import simulate_capture  # simulate and demo only: calibrate does not pay for it
+
     return simulate_capture(args.cameras, args.frames, args.noise, args.outliers, not args.no_static, args.seed)
 
 
@@ -216,12 +217,19 @@ def run_check(args) -> int:
 
 
 def run_calibrate(args) -> int:
-    progress = ProgressLine(quiet=args.quiet)
-    try:
-        result = _calibrated(args, progress)
-    finally:
-        progress.close()  # the line ends before the summary, or an error, is printed
-    return _write_result(args, result.to_json())
+    from threadpoolctl import threadpool_limits
+
+    # BLAS on one thread for the whole command, as the server sets it at its start (service/main.py):
+    # ba and lp pin it for their solves already, and the products outside them (pair tables,
+    # uncertainty) are too small for a second thread to pay for its hand-offs and spinning
+    # (64 x 3000: 5.28 -> 4.86 s CPU, 5.01 -> 4.86 s wall; docs/decisions/0025)
+    with threadpool_limits(limits=1, user_api="blas"):
+        progress = ProgressLine(quiet=args.quiet)
+        try:
+            result = _calibrated(args, progress)
+        finally:
+            progress.close()  # the line ends before the summary, or an error, is printed
+        return _write_result(args, result.to_json())
 
 
 def _calibrated(args, progress):

@@ -248,7 +248,8 @@ def lens_screen(R: np.ndarray, t: np.ndarray, res, c: int) -> Lens | None:
     (:class:`wandcal.calib.judge.residuals.Residuals`), without solving anything again: a lens
     error can hide in a camera's pose, its residuals hardly above the others', while the pose is
     millimetres off. A pattern found here sends the camera to :func:`analyse_camera`."""
-    sel = np.flatnonzero((res.camera == c) & (res.point >= 0) & ~res.outlier)
+    sel = res.rows_of(c)
+    sel = sel[(res.point[sel] >= 0) & ~res.outlier[sel]]
     if len(sel) < 20:
         return None
     sel = sel[:: max(1, len(sel) // SCREEN_ROWS)]

@@ -11,11 +11,12 @@ Qualisys's "camera residual").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS, reject_worst_per_frame, robust_sigma
-from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.observations import PointTracks, WandPairs, camera_rows
 from wandcal.calib.start.labels import flatten
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 
@@ -55,6 +56,14 @@ class Residuals:
     def error_px(self) -> np.ndarray:
         """(M,) residual magnitudes, pixels (normalised residuals times the mean focal length)."""
         return np.linalg.norm(self.residual, axis=1) * self.focal
+
+    @cached_property
+    def _rows(self) -> list[np.ndarray]:
+        return camera_rows(self.camera, int(self.camera.max()) + 1 if len(self.camera) else 0)
+
+    def rows_of(self, c: int) -> np.ndarray:
+        """(M_c,) camera c's rows, ascending (``np.flatnonzero(self.camera == c)``, sorted once for all cameras)."""
+        return self._rows[c] if c < len(self._rows) else np.zeros(0, dtype=np.int64)
 
 
 def _depths(R: np.ndarray, t: np.ndarray, camera: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -98,7 +107,9 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
         track_err = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, points) * focal[tracks.camera]
         first = np.concatenate([first, np.linalg.norm(track_err, axis=1)])
         first_camera = np.concatenate([camera, tracks.camera])
-    sigmas = [robust_sigma(first[(first_camera == c) & np.isfinite(first)]) for c in np.unique(first_camera)]
+    finite = np.isfinite(first)
+    sigmas = [robust_sigma(first[rows[finite[rows]]])
+              for rows in camera_rows(first_camera, int(first_camera.max()) + 1 if len(first_camera) else 0) if len(rows)]
     limit = max(OUTLIER_SIGMAS * float(np.median(sigmas)) if sigmas else 0.0, MIN_OUTLIER_PX)
     P = len(pairs)
     worst = np.fmax(first[:P], first[P:len(point)]) if P else np.zeros(0)
@@ -140,7 +151,7 @@ def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
     err = res.error_px
     out: list[dict] = []
     for c in range(n_cameras):
-        sel = res.camera == c
+        sel = res.rows_of(c)
         e = err[sel]
         if not len(e):
             out.append({"observations": 0, "rms_px": None, "inlier_rms_px": None, "noise_px": None,
@@ -183,17 +194,17 @@ def median_ray_angle(R: np.ndarray, res: Residuals) -> float | None:
     """The median angle, radians, at which two cameras' rays meet at a point: each observation's
     ray against the first ray to that point. Nearly parallel rays leave the depth undetermined (a
     rig collapsed onto one spot, points at infinity). None when no point has two views."""
-    ray = np.concatenate([res.xy - res.residual, np.ones((len(res.xy), 1))], axis=1)  # the projected point's ray
-    ray = np.einsum("mji,mj->mi", R[res.camera], ray)  # camera -> world directions
-    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
     if len(res.point) < 2:
         return None
     # a median over every point's rays is a median over a few thousand as well: keep the points
     # whose index falls on a stride (all their rays, so each point's first ray is among them)
     stride = max(1, (int(res.point.max()) - int(res.point.min()) + 1) // RAY_ANGLE_POINTS)
-    sample = res.point % stride == 0
+    sample = np.flatnonzero(res.point % stride == 0)
+    ray = np.concatenate([res.xy[sample] - res.residual[sample], np.ones((len(sample), 1))], axis=1)  # the projected point's ray
+    ray = np.einsum("mji,mj->mi", R[res.camera[sample]], ray)  # camera -> world directions
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
     order = np.argsort(res.point[sample], kind="stable")
-    k, r = res.point[sample][order], ray[sample][order]
+    k, r = res.point[sample][order], ray[order]
     first = np.r_[True, k[1:] != k[:-1]]
     lead = np.maximum.accumulate(np.where(first, np.arange(len(k)), 0))
     cos = np.einsum("mi,mi->m", r, r[lead])[~first]

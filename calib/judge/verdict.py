@@ -15,6 +15,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.coverage import coverage_grid, covered_fraction, empty_regions
+from wandcal.calib.observations import camera_rows
 from wandcal.calib.rig import Rig
 
 LEVELS = ("excellent", "good", "poor")
@@ -76,8 +77,8 @@ def coverage_reports(rig: Rig, camera: np.ndarray, uv: np.ndarray) -> list[dict]
     """Per camera: ``coverage`` (share of the grid holding wand samples) and ``uncovered`` (the
     empty parts in words). camera: (M,) index; uv: (M, 2) raw pixels of the observations used."""
     out = []
-    for c, cam in enumerate(rig.cameras):
-        counts = coverage_grid(uv[camera == c], cam.width, cam.height)
+    for cam, rows in zip(rig.cameras, camera_rows(camera, len(rig.cameras))):
+        counts = coverage_grid(uv[rows], cam.width, cam.height)
         out.append({"coverage": covered_fraction(counts), "uncovered": empty_regions(counts)})
     return out
 

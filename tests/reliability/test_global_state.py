@@ -118,6 +118,8 @@ GLOBAL_CALLS = ("warnings.simplefilter", "warnings.filterwarnings", "warnings.ca
 ALLOWED = {
     # once at the server's start: one BLAS thread in the server process (see its comment)
     ("service/main.py", "threadpool_limits("),
+    # around a `wandcal calibrate` command, which serves no requests, restored after it (see its comment)
+    ("service/commands.py", "threadpool_limits("),
     # the solvers pin BLAS to one thread for their own run; in the server that is a no-op, as the
     # server set one thread at its start, so concurrent solves cannot leave the count changed
     ("calib/solve/ba.py", "threadpool_limits("),
