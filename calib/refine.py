@@ -268,18 +268,20 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
     After a robust ``ba`` the outliers have had no pull on the cameras, so one pass over its own
     residuals finds them all, and plain least squares on the rest (a few iterations from the
     robust solution, which :data:`ROBUST_STAGE_SE` let stop early) gives the fully efficient
-    estimate. ``lp``'s passes certify their optimum (the pass after which the kept set settles
-    is the last one); ``paper``'s take the pose covariance once, after the passes; an outcome
-    that is not final when the set settles is finished then (:func:`finished`)."""
+    estimate. ``lp``'s first solve is that robust ``ba`` (:func:`refine`), so its outliers are
+    judged as ``ba``'s, in one pass, and ``lp`` then solves its own LP on the rest to its certified
+    optimum. ``paper``'s passes take the pose covariance once, after the passes; an outcome that
+    is not final when the set settles is finished then (:func:`finished`)."""
     robust_ba = method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
     if robust_ba:
         options = options | {"loss": "linear"}
+    one_pass = robust_ba or method == "lp"  # lp's first solve: a robust ba (FIRST_SOLVE)
     keep = np.ones(len(r.labelled), bool)
     point_drops = 0
-    for k in range(1 if robust_ba else MAX_OUTLIER_PASSES):
+    for k in range(1 if one_pass else MAX_OUTLIER_PASSES):
         limit, errors, point_err = _outlier_limit(r)
         new_keep = keep
-        if robust_ba:
+        if one_pass:
             # a camera-frame whose ends fit the solved rig the other way round was labelled
             # wrongly (a frame two cameras see can fit both ways at the start): relabel it
             # instead of dropping it
@@ -297,14 +299,14 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         starved = _starved(r.labelled, new_keep, len(r.rig.cameras))
         if starved.any():
             # dropping these would leave a camera without a frame to refine it from
-            if not robust_ba:
+            if not one_pass:
                 break  # keep the last set
             new_keep = new_keep | starved[r.labelled.camera]  # the polish still runs, on them too
         tracks, X, bad_points = r.tracks, r.X, point_err > limit
         if bad_points.any():
             point_drops += int(bad_points.sum())
             tracks, X = triangulated(r.R, r.t, tracks.subset(~bad_points))
-        if np.array_equal(new_keep, keep) and not bad_points.any() and not robust_ba:
+        if np.array_equal(new_keep, keep) and not bad_points.any() and not one_pass:
             break
         keep = new_keep
         dropped = int((~keep).sum())
