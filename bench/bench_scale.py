@@ -342,6 +342,23 @@ def _cpu_run(folder: Path, out: Path, pythonpath: Path | None, method: str = "ba
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
+def _alternated(folder: Path, tmp: Path, variants: dict[str, tuple[Path | None, str]], repeats: int):
+    """Each variant (name -> (checkout on PYTHONPATH or None for this one, method)) run as a whole
+    `wandcal calibrate` process on ``folder``, alternated run by run: ({name: median (wall, CPU)},
+    the median over the rounds of the last variant's CPU over the first's, {name: centre error mm})."""
+    runs: dict[str, list] = {name: [] for name in variants}
+    errors = {}
+    for _ in range(repeats):
+        for name, (path, method) in variants.items():
+            out = tmp / f"{name}.json"
+            runs[name].append(_cpu_run(folder, out, path, method))
+            errors[name] = centre_error_mm(out, folder / "truth.json")
+        print(folder.name, runs, flush=True)
+    first, last = runs[next(iter(variants))], runs[list(variants)[-1]]
+    ratio = float(np.median([x[1] / y[1] for x, y in zip(last, first)]))
+    return {name: np.median(r, axis=0) for name, r in runs.items()}, ratio, errors
+
+
 def part_methods(cameras_list: list[int], repeats: int) -> str:
     """`--method lp` against `--method ba` (the default), the whole process on the same capture,
     alternated run by run; the ratio of CPU seconds, median of the runs' ratios."""
@@ -350,16 +367,8 @@ def part_methods(cameras_list: list[int], repeats: int) -> str:
         for cameras in cameras_list:
             folder = Path(tmp) / f"c{cameras}"
             simulate(folder, cameras, STAGE_FRAMES)
-            runs: dict[str, list] = {"ba": [], "lp": []}
-            errors = {}
-            for _ in range(repeats):
-                for method in ("ba", "lp"):
-                    out = Path(tmp) / f"{method}.json"
-                    runs[method].append(_cpu_run(folder, out, None, method))
-                    errors[method] = centre_error_mm(out, folder / "truth.json")
-                print(cameras, runs, flush=True)
-            b, lp = np.median(runs["ba"], axis=0), np.median(runs["lp"], axis=0)
-            ratio = np.median([x[1] / y[1] for x, y in zip(runs["lp"], runs["ba"])])
+            medians, ratio, errors = _alternated(folder, Path(tmp), {"ba": (None, "ba"), "lp": (None, "lp")}, repeats)
+            b, lp = medians["ba"], medians["lp"]
             rows.append(f"| {cameras} x {STAGE_FRAMES} | {b[0]:.2f} / {b[1]:.2f} | {lp[0]:.2f} / {lp[1]:.2f} | {ratio:.2f} | "
                         f"{errors['ba']:.3f} / {errors['lp']:.3f} |")
             print(rows[-1], flush=True)
@@ -383,15 +392,8 @@ def part_regression(base: Path, repeats: int, rigs: str) -> str:
             cameras, frames = (int(v) for v in size.split("x"))
             folder = Path(tmp) / f"c{cameras}x{frames}"
             simulate(folder, cameras, frames, outliers)
-            runs: dict[str, list] = {"before": [], "after": []}
-            errors = {}
-            for _ in range(repeats):
-                for name, path in (("before", view), ("after", None)):
-                    out = Path(tmp) / f"{name}.json"
-                    runs[name].append(_cpu_run(folder, out, path))
-                    errors[name] = centre_error_mm(out, folder / "truth.json")
-            b, a = np.median(runs["before"], axis=0), np.median(runs["after"], axis=0)
-            ratio = np.median([x[1] / y[1] for x, y in zip(runs["after"], runs["before"])])
+            medians, ratio, errors = _alternated(folder, Path(tmp), {"before": (view, "ba"), "after": (None, "ba")}, repeats)
+            b, a = medians["before"], medians["after"]
             rows.append(f"| {cameras}x{frames} | {outliers:.0%} | {b[0]:.2f} / {b[1]:.2f} | {a[0]:.2f} / {a[1]:.2f} | "
                         f"{ratio:.2f} | {errors['before']:.3f} / {errors['after']:.3f} |")
             print(rows[-1], flush=True)
