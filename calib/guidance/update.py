@@ -1,24 +1,5 @@
-"""Wanding guidance: where each camera still needs the wand, and whether the operator can stop.
-
-:func:`wanding_guidance` turns the wand blobs recorded so far into a document
-(``wandcal-guidance/1``, docs/api.md) that says, per camera, how many frames saw both wand ends,
-how much of its image the wand has covered (:mod:`wandcal.calib.judge.coverage`), how many frames it shares
-with each other camera, and the predicted 1-sigma of its centre from a fast ``ba`` solve; then
-whether that is ``enough``, and what to do next, worst camera first.
-
-The predicted sigma is each camera's centre *relative to the rest of the rig*: the solve's pose
-covariance (``sigma^2 (J^T J)^-1``, calib/solve/uncertainty.py) carried into the frame that best fits
-every camera's centre and a point one metre along its optical axis, each camera weighted by how
-well it is known. That is the part of the error that waving reduces. The result's
-``center_std_mm`` is in the user's world frame and adds the L-frame's own noise, which no amount
-of waving removes (docs/decisions/0009-guidance-uncertainty.md has the measurements).
-
-Fast and honest: each camera keeps about ``frames_per_camera`` of its frames (drawn the same way
-at every update, so the estimate does not jitter) and its sigma is scaled by
-sqrt(kept / all) -- information adds up over frames, so the full capture's sigma is the
-subsample's shrunk by that ratio (measured within 3% at 8 x 1500 and 16 x 2500, in the decision).
-The last solution starts the next solve (:class:`Solution`), which skips the initial poses.
-"""
+"""The guidance update: the fast solve over the wand frames so far and each camera's predicted
+sigma (the package docstring, :mod:`wandcal.calib.guidance`, says how)."""
 
 from __future__ import annotations
 
@@ -29,10 +10,10 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import undistort_by_camera
-from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
+from wandcal.calib.guidance.document import Seen, guidance_document
+from wandcal.calib.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
 from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
-from wandcal.calib.solve.sync import SYNC_MODES
 from wandcal.calib.start.initial import shared_frames
 from wandcal.calib.start.timing import (
     DEFAULT_MAX_OFFSET,
@@ -42,28 +23,6 @@ from wandcal.calib.start.timing import (
     shift_pairs,
 )
 
-GUIDANCE_FORMAT = "wandcal-guidance/1"
-# Motive's "exceptional" wanding result is a mean 3D error under ~0.5 mm on a room-sized volume;
-# wandcal's simulated 8-camera ring reaches it after ~400 well-spread frames (docs/benchmarks.md).
-DEFAULT_TARGET_STD_MM = 0.5
-# Half of the 8 x 8 cells: the wand has then reached every third of a typical view, which is what
-# keeps the lens distortion and the pose from trading off against each other.
-DEFAULT_MIN_COVERAGE = 0.5
-# Frames per camera in the fast solve: at 400 the scaled sigma is within 3% of the full solve's
-# and an update of 16 cameras takes ~0.15 s (docs/decisions/0009-guidance-uncertainty.md).
-DEFAULT_FRAMES_PER_CAMERA = 400
-# A camera enters the solve with this many frames shared with others: with fewer its pose is the
-# initial guess of a handful of correspondences, not a measurement (wandcal.calib.start.chain needs 10
-# correspondences, i.e. 5 frames, to place a pair at all).
-MIN_SOLVE_FRAMES = 10
-# Advice names a camera's links when it shares fewer frames than this with the rest: two
-# frames per 8 x 8 cell, so the shared frames can at least spread over its image.
-FEW_SHARED_FRAMES = 2 * GRID[0] * GRID[1]
-# A camera that has seen no wand while the rest of the rig saw it in this many frames (as many as a
-# camera needs shared to be linked at all) is off, blocked or aimed away: say so then, and not
-# before -- with no wand yet (the L-frame still being recorded, nobody waving) silence says nothing
-# about a camera.
-SILENT_CAMERA_FRAMES = FEW_SHARED_FRAMES
 NO_WAND_YET = "no wand frames yet: wave the wand through the volume, where several cameras see it"
 # Cameras left out, weakest first, when the fast solve cannot place them all; the rest are solved.
 MAX_LEFT_OUT = 2
@@ -74,40 +33,6 @@ OUT_OF_TIME_SEARCH = 3  # frames either side; ~0.1 s at 16 cameras, so warm (liv
 # update's subsample is nested in the last one's (no jitter from redrawing).
 _HASH = 2654435761
 _HASH_RANGE = 2**32
-
-
-@dataclass(frozen=True)
-class GuidanceSettings:
-    """What counts as enough, and how the fast solve is sized.
-
-    Args:
-        target_std_mm: every camera's predicted centre 1-sigma must be below this, millimetres.
-        min_coverage: every camera's covered share of its image grid must reach this, in [0, 1].
-        frames_per_camera: frames each camera keeps in the fast solve (the rest are subsampled away).
-        grid: (rows, columns) of the coverage grid over each image.
-        sync: ``"none"`` (a trigger's capture: a camera out of time is a fault to mend) or
-            ``"auto"`` (cameras without a trigger: each update finds their whole-frame offsets
-            as ``wandcal calibrate --sync auto`` does and judges the frames realigned).
-    """
-
-    target_std_mm: float = DEFAULT_TARGET_STD_MM
-    min_coverage: float = DEFAULT_MIN_COVERAGE
-    frames_per_camera: int = DEFAULT_FRAMES_PER_CAMERA
-    grid: tuple[int, int] = GRID
-    sync: str = "none"
-
-    def __post_init__(self) -> None:
-        if self.sync not in SYNC_MODES:
-            raise CalibrationError(f"guidance sync must be one of {', '.join(SYNC_MODES)}, got {self.sync!r}")
-        if not (np.isfinite(self.target_std_mm) and self.target_std_mm > 0):
-            raise CalibrationError(f"guidance target_std_mm must be a positive number of millimetres, got {self.target_std_mm!r}")
-        if not 0.0 <= self.min_coverage <= 1.0:
-            raise CalibrationError(f"guidance min_coverage must lie in [0, 1], got {self.min_coverage!r}")
-        if self.frames_per_camera < MIN_SOLVE_FRAMES:
-            raise CalibrationError(f"guidance frames_per_camera must be at least {MIN_SOLVE_FRAMES}, "
-                                   f"got {self.frames_per_camera!r}")
-        if len(self.grid) != 2 or min(self.grid) < 1:
-            raise CalibrationError(f"guidance grid must be (rows, columns) of at least 1, got {self.grid!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,16 +55,6 @@ class Guidance:
     @property
     def enough(self) -> bool:
         return bool(self.document["enough"])
-
-
-@dataclass(frozen=True, eq=False)
-class _Seen:
-    """What the blobs say before any solve: the two-blob camera-frames and their links."""
-
-    pairs: WandPairs
-    frames: np.ndarray  # (N,) frames in which each camera saw both ends
-    linked: np.ndarray  # (N, N) frames both cameras saw both ends in
-    shared: np.ndarray  # (N,) frames in which the camera and at least one other saw both ends
 
 
 def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservations | None = None,
@@ -206,7 +121,7 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
              "out_of_time": {} if info.get("warm_start") or settings.sync == "auto" else _out_of_time(rig, seen.pairs),
              "offsets": None if offsets is None else {cid: int(k) for cid, k in zip(rig.ids, offsets) if k},
              "seconds": round(time.perf_counter() - started, 4)}
-    document = _document(rig, seen, center, rotation, solve_set, settings, info)
+    document = guidance_document(rig, seen, center, rotation, solve_set, settings, info)
     return Guidance(document, solution)
 
 
@@ -235,17 +150,17 @@ def _out_of_time(rig: Rig, pairs: WandPairs) -> dict[str, int]:
     return {rig.cameras[c].id: k for c, k in confirmed_offsets(rig, pairs, found).items()}
 
 
-def _seen(n: int, pairs: WandPairs) -> _Seen:
+def _seen(n: int, pairs: WandPairs) -> Seen:
     """What ``pairs`` of ``n`` cameras say before any solve."""
     linked = shared_frames(pairs, n)
     frames = np.diag(linked).copy()
     np.fill_diagonal(linked, 0)
     per_frame = np.bincount(pairs.frame, minlength=len(pairs.frames))
     shared = np.bincount(pairs.camera[per_frame[pairs.frame] >= 2], minlength=n)
-    return _Seen(pairs, frames, linked, shared)
+    return Seen(pairs, frames, linked, shared)
 
 
-def _solve_set(seen: _Seen) -> np.ndarray:
+def _solve_set(seen: Seen) -> np.ndarray:
     """(N,) bool: the largest group of cameras linked by at least ``MIN_SOLVE_FRAMES`` shared
     frames, each with that many frames shared with the others."""
     n = len(seen.frames)
@@ -289,7 +204,7 @@ def _sub_rig(rig: Rig, cams: np.ndarray) -> Rig:
                static_markers=rig.static_markers)
 
 
-def _solve(rig: Rig, seen: _Seen, solve_set: np.ndarray, static, settings: GuidanceSettings, start: Solution | None):
+def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: GuidanceSettings, start: Solution | None):
     """The fast solve over the cameras of ``solve_set`` and their predicted sigmas (N,), metres
     and radians (NaN for the others)."""
     # the solver loads when a solve runs: the command line reads this module's defaults at start-up
@@ -358,96 +273,3 @@ def relative_uncertainty(R: np.ndarray, t: np.ndarray, covariance) -> tuple[np.n
 
     split = split_uncertainty(R, t, gauge_covariance(R, t, covariance.free, covariance.cov))
     return split.center_std, split.rotation_std
-
-
-def _document(rig: Rig, seen: _Seen, center: np.ndarray, rotation: np.ndarray, solve_set: np.ndarray,
-              settings: GuidanceSettings, info: dict) -> dict:
-    ids = rig.ids
-    target, goal = settings.target_std_mm, settings.min_coverage
-    cameras, worst = [], []
-    rig_frames = int(len(np.unique(seen.pairs.frames[seen.pairs.frame])) if len(seen.pairs) else 0)
-    # each camera's blobs as one slice of the pairs sorted by camera (a mask per camera is N passes)
-    order = np.argsort(seen.pairs.camera, kind="stable")
-    by_camera = seen.pairs.uv[order]
-    bounds = np.searchsorted(seen.pairs.camera[order], np.arange(len(rig.cameras) + 1))
-    for c, cam in enumerate(rig.cameras):
-        uv = by_camera[bounds[c] : bounds[c + 1]].reshape(-1, 2)
-        grid = coverage_grid(uv, cam.width, cam.height, settings.grid)
-        fraction = covered_fraction(grid)
-        sigma_mm = None if np.isnan(center[c]) else float(1000 * center[c])
-        entry = {
-            "id": cam.id,
-            "frames": int(seen.frames[c]),
-            "shared_frames": int(seen.shared[c]),
-            "coverage": round(fraction, 4),
-            "grid": grid.tolist(),
-            "linked": {ids[d]: int(seen.linked[c, d]) for d in range(len(ids)) if d != c},
-            "center_std_mm": sigma_mm,
-            "rotation_std_deg": None if np.isnan(rotation[c]) else float(np.degrees(rotation[c])),
-        }
-        advice, severity = _camera_advice(entry, grid, bool(solve_set[c]), settings, rig_frames)
-        entry["advice"] = advice
-        cameras.append(entry)
-        if advice is not None:
-            worst.append((severity, c, advice))
-    enough = info["ok"] and not worst
-    worst.sort(key=lambda w: (-w[0], w[1]))
-    # a failed solve is the rig's problem, not one camera's: it leads the list
-    # a camera out of time spoils every other figure it touches: it leads the list
-    late = [f"{cid} looks out of time: its wand matches the others' {shift:+d} frames away; check its trigger "
-            "connection, or calibrate with --sync auto" for cid, shift in info.get("out_of_time", {}).items()]
-    advice = late + ([info["message"]] if not info["ok"] and info["message"] else []) + [w[2] for w in worst]
-    enough = enough and not info.get("out_of_time")
-    return {
-        "format": GUIDANCE_FORMAT,
-        "frames": rig_frames,
-        "enough": bool(enough),
-        "advice": advice,
-        "target": {"center_std_mm": target, "coverage": goal},
-        "cameras": cameras,
-        "solve": info,
-    }
-
-
-def _camera_advice(entry: dict, grid: np.ndarray, solved: bool, settings: GuidanceSettings,
-                   rig_frames: int) -> tuple[str | None, float]:
-    """Words for one camera, or None when it needs nothing, and how badly it needs them (for the
-    worst-first order): a camera without frames or outside the solve first, then by the larger
-    of its sigma over the target and the coverage goal over its coverage. ``rig_frames``: the
-    frames in which any camera saw both wand ends (a camera is only suspect when the others saw
-    the wand and it did not)."""
-    cid, frames, shared = entry["id"], entry["frames"], entry["shared_frames"]
-    sigma, fraction = entry["center_std_mm"], entry["coverage"]
-    target, goal = settings.target_std_mm, settings.min_coverage
-    if frames == 0:
-        if rig_frames == 0:
-            return f"{cid}: waiting for the wand", float("inf")
-        if rig_frames < SILENT_CAMERA_FRAMES:
-            return f"{cid} has not seen both wand ends yet; wave the wand in its view", float("inf")
-        return (f"{cid} has not seen both wand ends in any of the {rig_frames} frames the other cameras saw; check "
-                "that it is on and aimed at the volume, then wave the wand in its view"), float("inf")
-    neighbours = sorted(entry["linked"], key=lambda d: -entry["linked"][d])[:2]
-    near = f" and {' or '.join(neighbours)}" if neighbours else ""
-    linking = (f"{cid} shares only {shared} frames with the others; wave the wand where {cid}{near} see it "
-               "together")
-    if not solved:
-        if shared >= FEW_SHARED_FRAMES:  # enough frames, but they did not place it (left out of the solve)
-            return (f"{cid} could not be placed from the {shared} frames it shares with the others; wave the wand "
-                    f"where {cid}{near} see it together, near and far"), 1e6 - shared
-        return linking, 1e6 - shared
-    parts, severity = [], 0.0
-    coverage_words = coverage_advice(grid, cid, goal)
-    if coverage_words is not None:
-        parts.append(coverage_words.removeprefix(f"{cid}: "))
-        severity = max(severity, goal / max(fraction, 1e-3))
-    if sigma is not None and sigma >= target:
-        if shared < FEW_SHARED_FRAMES:
-            parts.append(linking.removeprefix(f"{cid} "))
-        else:
-            parts.append(f"its centre is known to +-{sigma:.2f} mm (goal {target:g} mm); keep waving in its view "
-                         "where other cameras see the wand too")
-        severity = max(severity, sigma / target)
-    if not parts:
-        return None, 0.0
-    return f"{cid}: " + "; ".join(parts), severity
-
