@@ -192,7 +192,7 @@ def calibrate_process(cameras: int, frames: int, outliers: float, repeats: int) 
     simulated capture folder (the default one, with its L-frame, as a new user would make it)."""
     # VmHWM, not ru_maxrss: Linux carries ru_maxrss over from the (v)forking bench through exec,
     # so a child's ru_maxrss is never below the bench's own peak
-    probe = ("import sys; from wandcal.service.cli import main; code = main(sys.argv[1:]); "
+    probe = ("import sys; from wandcal.service.cli import main; code = main(); "
              "print(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:')), file=sys.stderr); "
              "sys.exit(code)")
     with tempfile.TemporaryDirectory() as tmp:

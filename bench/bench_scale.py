@@ -50,13 +50,14 @@ REGRESSION_RIGS = "8x1500:0,8x1500:0.08,16x2500:0"  # the Peers bench's whole-co
 POINT_RIG = (12, 1500, 15000)  # cameras, wand frames, point frames
 POINT_NOISE_PX = 0.3
 # VmHWM, not ru_maxrss: Linux carries ru_maxrss over from the forking bench through exec
-PROBE = ("import sys; from wandcal.service.cli import main; code = main(sys.argv[1:]); "
+PROBE = ("import sys; from wandcal.service.cli import main; code = main(); "
          "print(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:')), file=sys.stderr); "
          "sys.exit(code)")
 # the stage profile counts the process's CPU seconds, not wall seconds: the machine is shared, and
 # another job's load stretches wall time unevenly between runs (BLAS may use both cores: CPU
 # seconds can exceed wall seconds)
-PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; p = cProfile.Profile(time.process_time); "
+PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; from wandcal.service.batch_memory import keep_freed_memory; "
+           "keep_freed_memory(); p = cProfile.Profile(time.process_time); "
            "code = p.runcall(main, sys.argv[2:]); p.dump_stats(sys.argv[1]); sys.exit(code)")
 # stage: (caller, callee) function names whose cumulative time (the callee's, called from that
 # caller) makes the stage; the rest of the process is "other" (imports, reports, the verdict)

@@ -165,15 +165,19 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
         first = refine(rig, labelled, setup, tracks, X, "ba", options | FIRST_SOLVE, tell, up, final=False)
         return replace(first, info={k: v for k, v in first.info.items() if k != "loss"})
     if method == "lp":
-        from wandcal.calib.solve.lp import refine_lp
+        from wandcal.calib.solve.lp import refine_lp, refine_lp_covariance
 
         joint = with_tracks(model, tracks, X)
-        x, info = refine_lp(joint, progress=tell, time_limit=options.get("time_limit"), certify=final, warm=warm)
+        covariance = None
+        if final and setup.problem.n_frames:  # the covariance from the LP's own last linearisation
+            x, info, covariance = refine_lp_covariance(joint, setup.problem.n_frames, progress=tell,
+                                                       time_limit=options.get("time_limit"), warm=warm)
+        else:
+            x, info = refine_lp(joint, progress=tell, time_limit=options.get("time_limit"), certify=final, warm=warm)
         R, t = joint.poses(x)
         frames = joint.wand(x)
         wand, X = frames[: setup.problem.n_frames], (frames[setup.problem.n_frames :].mean(axis=1) if X is not None else X)
-        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info,
-                       covariance=_information(setup, R, t, wand, final, tracks, X), final=final)
+        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=covariance, final=final)
     names = tuple(name for name in INTRINSICS if name in (options.get("refine_intrinsics") or ()))
     fit = None
     if names:
@@ -192,15 +196,13 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     return refined
 
 
-def _information(setup: Setup, R: np.ndarray, t: np.ndarray, wand: np.ndarray, final: bool,
-                 tracks: PointTracks | None = None, X: np.ndarray | None = None) -> PoseCovariance | None:
-    """The pose covariance of another method's solution: the information matrix of the wand
-    model (and of the point tracks at ``X``, when given) at its poses and wand (one
-    linearisation, no step taken)."""
+def _information(setup: Setup, R: np.ndarray, t: np.ndarray, wand: np.ndarray, final: bool) -> PoseCovariance | None:
+    """The pose covariance of ``paper``'s solution: the information matrix of the wand model at its
+    poses and wand (one linearisation, no step taken)."""
     if not final or not setup.problem.n_frames:
         return None
     model = WandModel(setup.problem, R, t, wand, setup.model.fixed)
-    return bundle_adjust_points(model, tracks if X is not None else None, X, loss="linear", max_iter=0).covariance
+    return bundle_adjust_points(model, None, None, loss="linear", max_iter=0).covariance
 
 
 def with_tracks(model: WandModel, tracks: PointTracks | None, X: np.ndarray | None) -> WandModel:

@@ -19,6 +19,8 @@ COMMAND_MODULES = {
     "wandcal.service.export_command": ("export",),
     "wandcal.service.report.command": ("report",),
 }
+# commands that compute once and exit: their process keeps the memory it frees (service/batch_memory.py)
+BATCH_COMMANDS = frozenset({"simulate", "calibrate", "demo", "check", "detect", "import", "export", "report"})
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
@@ -58,9 +60,16 @@ class _Version(argparse.Action):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command. ``argv`` None: this is the ``wandcal`` process itself (its arguments are
+    ``sys.argv``), so a batch command also takes the batch memory policy; a caller that passes
+    ``argv`` (a test, another program) keeps its own process's."""
     from wandcal.calib.errors import CalibrationError
 
     args = build_parser(sys.argv[1:] if argv is None else argv).parse_args(argv)
+    if argv is None and args.command in BATCH_COMMANDS:
+        from wandcal.service.batch_memory import keep_freed_memory
+
+        keep_freed_memory()
     try:
         return int(args.run(args) or 0)
     except CalibrationError as exc:

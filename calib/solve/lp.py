@@ -46,6 +46,7 @@ from threadpoolctl import threadpool_limits
 from wandcal.calib.solve.lpstep import GUARD_SE, solve_step
 from wandcal.calib.solve.reduced import ReducedSystem, residual_cost, robust_scale
 from wandcal.calib.solve.robustloss import EFFICIENT, L1, REJECT_SIGMAS, irls_weights
+from wandcal.calib.solve.uncertainty import PoseCovariance
 from wandcal.calib.solve.wandmodel import CAM_PARAMS, WandModel, WandProblem
 
 ROT_RADIUS = 0.02  # initial trust region: radians per rotation increment
@@ -79,6 +80,7 @@ IRLS_NEAR_BREAK = 0.003
 # the first phase's L1 optimum only starts the second phase: IRLS near it is enough, and its
 # certifying LPs took 1.0-1.4 s of the 32 x 2000 time (the second phase's robust scale moved 1e-4)
 CERTIFY_FIRST_PHASE = False
+POINT_PARAMS = 3  # a point track's frame fixes its midpoint alone (its direction is free: calib/refine.with_tracks)
 SCHEMES = ("irls", "lp")  # IRLS steps then certifying LPs (default); LP steps only (the scheme before, decision 0004)
 
 
@@ -124,7 +126,32 @@ def refine_lp(
     # more in hand-offs than it gains, as in calib/solve/ba.py (32 x 2000, bench_peers's scene: the LP solves
     # took 1.6-2.0 s with two BLAS threads, 0.5 s with one)
     with threadpool_limits(limits=1, user_api="blas"):
-        return _refine_lp(model, x0, progress, max_iter, time_limit, 0 if warm else subset_frames, scheme, certify, warm)
+        x, info, _ = _refine_lp(model, x0, progress, max_iter, time_limit, 0 if warm else subset_frames, scheme, certify,
+                                warm)
+    return x, info
+
+
+def refine_lp_covariance(model: WandModel, n_wand_frames: int, progress=None, time_limit: float | None = None,
+                         warm: bool = False) -> tuple[np.ndarray, dict, PoseCovariance]:
+    """:func:`refine_lp` to its certified optimum, and the pose covariance there (what
+    calib/refine.py reports for ``lp``): from the reduced system the last step was taken on, whose
+    Schur complement the phase has already formed for its standard errors, so it costs no other
+    linearisation (at 128 x 3000 a separate one, ``ba``'s information matrix, took 1.3-1.6 s CPU;
+    decision 0027). The first ``n_wand_frames`` frames are the wand's (the rest point tracks).
+
+    Returns:
+        (x, info, covariance).
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        x, info, state = _refine_lp(model, None, progress, MAX_ITER, time_limit, 0 if warm else SUBSET_FRAMES, "irls",
+                                    True, warm)
+        if state is None or state.model is not model:  # the first phase's state stood: linearise here
+            state = ReducedSystem(model, x)
+        # sigma as ba's: the median 2D residual at the solution, over n - p degrees of freedom
+        n_res = 2 * len(model.p.camera)
+        n_par = model.frame_col0 + model.frame_params * n_wand_frames + POINT_PARAMS * (model.p.n_frames - n_wand_frames)
+        sigma = robust_scale(model.residuals(x).reshape(-1, 2)) * np.sqrt(n_res / max(n_res - n_par, 1))
+        return x, info, state.pose_covariance(sigma, n_wand_frames)
 
 
 def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme, certify=True, warm=False):
@@ -132,18 +159,18 @@ def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme,
         raise ValueError(f"scheme must be one of {SCHEMES}, not {scheme!r}")
     start = time.perf_counter()
     x = model.x0() if x0 is None else x0.copy()
-    info_sub = None
+    info_sub, state = None, None
     F = model.p.n_frames
     if subset_frames and F > SUBSET_ONLY_ABOVE * subset_frames:
         keep = np.unique(np.linspace(0, F - 1, subset_frames).round().astype(int))
         sub, sub_x = _frame_subset(model, x, keep)
-        sub_x, info_sub = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, scheme,
+        sub_x, info_sub, _ = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, scheme,
                                certify=CERTIFY_FIRST_PHASE)
         x[: model.frame_col0] = sub_x[: model.frame_col0]  # the frames follow in the phase's first step
     if info_sub is not None and info_sub["status"] != "converged":
         info = dict(info_sub, iterations=0, lp_seconds=0.0)  # the first phase's best state stands
     else:
-        x, info = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, scheme, certify=certify,
+        x, info, state = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, scheme, certify=certify,
                        warm=warm)
     if info_sub is not None:
         info["iterations"] += info_sub["iterations"]
@@ -153,7 +180,7 @@ def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme,
         info["lp_steps"] = info_sub["lp_steps"] + info["lp_steps"]
         info["subset"] = {"frames": int(len(keep)), "iterations": info_sub["iterations"]}
     info["seconds"] = time.perf_counter() - start
-    return x, info
+    return x, info, state
 
 
 def _frame_subset(model: WandModel, x: np.ndarray, keep: np.ndarray):
@@ -204,7 +231,8 @@ def _phase_start(model: WandModel, x: np.ndarray, loss, warm: bool = False) -> t
 def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, phase: str, loss,
          scheme: str = "irls", certify: bool = True, warm: bool = False):
     """One phase (one loss, one robust scale): LP steps, after IRLS steps with ``scheme="irls"``
-    (then LP steps only with ``certify``)."""
+    (then LP steps only with ``certify``). Returns (x, info, the reduced system the last step was
+    taken on)."""
     n_free = model.frame_col0 // CAM_PARAMS
     radius = np.array([ROT_RADIUS, T_RADIUS])
     lp_seconds, lp_rows, lp_log, status, uncertified = 0.0, [], [], "iteration_limit", 0
@@ -288,7 +316,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         "uncertified_steps": uncertified,
         "irls_steps": irls_steps,
         "lp_steps": lp_log,
-    }
+    }, state
 
 
 def _irls(model: WandModel, state: ReducedSystem, loss, rho: np.ndarray, se: np.ndarray, progress, phase: str,

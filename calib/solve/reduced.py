@@ -14,7 +14,9 @@ import copy
 import numpy as np
 import scipy.sparse as sp
 
+from wandcal.calib.geometry import euler_jacobian, euler_to_matrix
 from wandcal.calib.solve.robustloss import REJECT_SIGMAS, capped_loss
+from wandcal.calib.solve.uncertainty import POSE_PARAMS, PoseCovariance
 from wandcal.calib.solve.wandmodel import CAM_PARAMS, FRAME_PARAMS, WandModel
 
 FRAME_RIDGE = 1e-9  # added to each frame's normal matrix (pixels^2 per unit^2), which is singular where
@@ -100,7 +102,7 @@ class ReducedSystem:
     def _set_scale(self, scale: float, by: np.ndarray | None = None) -> None:
         self.scale = scale
         self.kept = np.abs(self.r if by is None else by) <= REJECT_SIGMAS * self.scale  # (M, 2)
-        self._schur_cache = self._se_cache = self._factor_cache = None
+        self._schur_cache = self._se_cache = self._factor_cache = self._inv_cache = None
         self._eliminate()
 
     def rescaled(self, scale: float, by: np.ndarray | None = None) -> ReducedSystem:
@@ -135,9 +137,51 @@ class ReducedSystem:
         """(n_cam_params,) standard errors of the camera parameters from the reduced normal
         equations and the robust scale (valid near the optimum). Cached."""
         if getattr(self, "_se_cache", None) is None:
-            S = self._schur()[0]
-            self._se_cache = self.scale * np.sqrt(np.maximum(np.diag(np.linalg.inv(S)), 0.0))
+            self._se_cache = self.scale * np.sqrt(np.maximum(np.diag(self._schur_inverse()), 0.0))
         return self._se_cache
+
+    def _schur_inverse(self) -> np.ndarray:
+        """S^-1 of the free cameras (the reduced normal matrix's inverse), cached."""
+        if getattr(self, "_inv_cache", None) is None:
+            self._inv_cache = np.linalg.inv(self._schur()[0])
+        return self._inv_cache
+
+    def pose_covariance(self, sigma: float, n_wand_frames: int) -> PoseCovariance:
+        """The free cameras' pose covariance from this linearisation, as ``ba``'s information
+        matrix gives it (calib/solve/uncertainty.py): sigma^2 S^-1, S the kept rows' Gauss-Newton
+        Schur complement of the frames (the one the steps and standard errors already use: no
+        other linearisation), taken from this model's Euler increments about R0 to ba's left
+        rotation increments (w = B d, [w]x = sum_k dE/d(delta_k) E^T). The first ``n_wand_frames``
+        frames are the wand's (the rest are point tracks, calib/refine.with_tracks): the
+        centroid's response and variance and a point's sigma are theirs.
+
+        Args:
+            sigma: the residuals' noise per axis, pixels.
+            n_wand_frames: how many of the model's frames are wand frames.
+        """
+        m = self.model
+        free, K = m.free, len(m.free)
+        delta = m.unpack(self.x)[0][free]
+        dE, E = euler_jacobian(delta), euler_to_matrix(delta)  # (K, 3, 3, 3), (K, 3, 3)
+        A = dE @ E.swapaxes(1, 2)[:, None]  # (K, 3 angles, 3, 3): skew
+        B = np.zeros((K, CAM_PARAMS, CAM_PARAMS))
+        B[:, :3, :3] = np.stack([A[:, :, 2, 1], A[:, :, 0, 2], A[:, :, 1, 0]], axis=1)  # w_i per d(delta_k)
+        B[:, 3:, 3:] = np.eye(3)
+        cov_d = (sigma**2 * self._schur_inverse()).reshape(K, CAM_PARAMS, K, CAM_PARAMS)
+        cov = np.einsum("kab,kblc,ldc->kald", B, cov_d, B).reshape(K * POSE_PARAMS, K * POSE_PARAMS)
+        F = n_wand_frames
+        response, centroid_cov, point_sigma = np.zeros((3, K * POSE_PARAMS)), np.zeros((3, 3)), 0.0
+        if F:
+            # each frame's midpoint follows the cameras by -H_f^-1 G_f d (calib/solve/reduced.apply)
+            G = self.Gf[: F * FRAME_PARAMS].reshape(F, FRAME_PARAMS, -1)
+            per_d = -np.einsum("fij,fjc->ic", self.Hinv[:F, :3, :], G)[:, self.free_cols] / F  # (3, 6K)
+            Binv = np.linalg.inv(B)
+            response = np.einsum("ikb,kba->ika", per_d.reshape(3, K, CAM_PARAMS), Binv).reshape(3, -1)
+            mid = self.Hinv[:F, :3, :3]
+            centroid_cov = sigma**2 * mid.sum(0) / F**2
+            # a wand midpoint averages two ends: a single point seen as often is sqrt(2) worse
+            point_sigma = np.sqrt(2.0) * sigma * float(np.median(np.sqrt(np.einsum("fii->f", mid) / 3)))
+        return PoseCovariance(free.copy(), cov, response, centroid_cov, point_sigma)
 
     def _eliminate(self) -> None:
         """Per-frame elimination: K (M,2,5), g (F,5), Hinv (F,5,5), b (M,2); Gf on first use."""

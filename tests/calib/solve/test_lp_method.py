@@ -168,3 +168,28 @@ def test_the_answer_is_a_fixed_point_of_the_lp_step(seed):
     d, step = lpstep.solve_step(system, rho, None, EFFICIENT, lpstep.GUARD_SE)
     assert step["status"] == "optimal"
     assert np.max(np.abs(d) / system.standard_errors()) < slp.CONVERGED_SE
+
+
+def test_lp_covariance_is_the_information_matrix_at_its_solution():
+    """``lp``'s pose covariance comes from the reduced system its last step was taken on; it is
+    ``ba``'s information matrix at lp's solution (calib/refine.py's `_information`, which cost one
+    more linearisation). The two linearisations lie the LP's last steps apart (a few standard
+    errors, ~1e-4 of the rig's depth), and the reduced system leaves out only rows beyond
+    REJECT_SIGMAS (6 sigma: a Gaussian share of 2e-9), so on a capture without gross outliers (the
+    pipeline drops them before lp's final solve) they agree to 1e-3."""
+    from wandcal.calib.solve.ba import bundle_adjust_points
+    from wandcal.calib.solve.wandmodel import WandModel
+
+    scene = prepared_scene(cameras=6, frames=400, noise_px=NOISE, seed=4)
+    model = scene.setup.model
+    x, info, cov = slp.refine_lp_covariance(model, model.p.n_frames)
+    assert info["status"] == "converged"
+    R, t = model.poses(x)
+    ref = bundle_adjust_points(WandModel(model.p, R, t, model.wand(x), model.fixed), None, None, loss="linear",
+                               max_iter=0).covariance
+    assert np.array_equal(cov.free, ref.free)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov.cov)), np.sqrt(np.diag(ref.cov)), rtol=1e-3)
+    assert np.linalg.norm(cov.cov - ref.cov) <= 1e-3 * np.linalg.norm(ref.cov)
+    assert np.linalg.norm(cov.centroid_response - ref.centroid_response) <= 1e-3 * np.linalg.norm(ref.centroid_response)
+    np.testing.assert_allclose(cov.centroid_cov, ref.centroid_cov, rtol=1e-3, atol=1e-3 * np.abs(ref.centroid_cov).max())
+    assert cov.point_sigma_m == pytest.approx(ref.point_sigma_m, rel=1e-3)
