@@ -139,15 +139,22 @@ def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> 
 
 def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bool = True, warm: bool = False) -> Refined:
     """Run ``method`` on the problem; ``options`` as :func:`wandcal.calib.pipeline.calibrate`'s. Not
-    ``final`` (an outlier pass follows): a robust ``ba`` stops at ``ROBUST_STAGE_SE``, ``lp`` runs
-    that robust ``ba`` in its place (its passes then start from it, ``warm``), and ``paper`` leaves
-    out the pose covariance (:func:`finished` completes such an outcome). ``warm``: the start is the solution of nearly
+    ``final`` (an outlier pass follows): a robust ``ba`` stops at ``ROBUST_STAGE_SE``, and ``lp`` and
+    ``paper`` run that robust ``ba`` in their place (their passes then start from it, ``warm``);
+    ``paper``'s passes leave out the pose covariance (:func:`finished` completes such an outcome). ``warm``: the start is the solution of nearly
     the same problem (an outlier pass), so ``lp`` skips its first phase on a subset of frames and
     linearises its phase once. A final ``ba`` refines the time offsets too when
     ``options["sync_columns"]`` (a :class:`wandcal.calib.solve.sync.joint.TimeColumns`) gives their
     columns for the setup."""
     model = setup.model
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
+    if method in ("lp", "paper") and not final and not warm:
+        # the solve before the outlier pass only tells the outliers and starts the method's passes,
+        # each of which solves the method's own problem from there: a robust ba (Cauchy, to
+        # ROBUST_STAGE_SE) does both at a third of the cost of lp's first phases (decision 0024),
+        # and paper's own least-squares rotation step is not robust (decision 0028)
+        first = refine(rig, labelled, setup, tracks, X, "ba", options | FIRST_SOLVE, tell, up, final=False)
+        return replace(first, info={k: v for k, v in first.info.items() if k != "loss"})
     # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
     if method == "paper":
         from wandcal.calib.solve.paper import MAX_ROUNDS, refine_paper
@@ -158,12 +165,6 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
         )
         return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=_information(setup, R, t, wand, final),
                        final=final)
-    if method == "lp" and not final and not warm:
-        # the solve before the outlier pass only tells the outliers and starts lp's passes, each of
-        # which solves lp's own LP to its certified optimum from there: a robust ba (Cauchy, to
-        # ROBUST_STAGE_SE) does both at a third of the cost of lp's first phases (decision 0024)
-        first = refine(rig, labelled, setup, tracks, X, "ba", options | FIRST_SOLVE, tell, up, final=False)
-        return replace(first, info={k: v for k, v in first.info.items() if k != "loss"})
     if method == "lp":
         from wandcal.calib.solve.lp import refine_lp, refine_lp_covariance
 
@@ -270,14 +271,14 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
     After a robust ``ba`` the outliers have had no pull on the cameras, so one pass over its own
     residuals finds them all, and plain least squares on the rest (a few iterations from the
     robust solution, which :data:`ROBUST_STAGE_SE` let stop early) gives the fully efficient
-    estimate. ``lp``'s first solve is that robust ``ba`` (:func:`refine`), so its outliers are
-    judged as ``ba``'s, in one pass, and ``lp`` then solves its own LP on the rest to its certified
-    optimum. ``paper``'s passes take the pose covariance once, after the passes; an outcome that
-    is not final when the set settles is finished then (:func:`finished`)."""
+    estimate. ``lp``'s and ``paper``'s first solve is that robust ``ba`` (:func:`refine`), so their
+    outliers are judged as ``ba``'s, in one pass, and each then solves its own problem on the rest
+    (``lp`` to its certified optimum). ``paper``'s pass leaves out the pose covariance, which
+    :func:`finished` adds after it."""
     robust_ba = method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
     if robust_ba:
         options = options | {"loss": "linear"}
-    one_pass = robust_ba or method == "lp"  # lp's first solve: a robust ba (FIRST_SOLVE)
+    one_pass = robust_ba or method in ("lp", "paper")  # their first solve: a robust ba (FIRST_SOLVE)
     keep = np.ones(len(r.labelled), bool)
     point_drops = 0
     for k in range(1 if one_pass else MAX_OUTLIER_PASSES):
