@@ -11,6 +11,8 @@ camera or input. docs/verdict.md gives every threshold's source or derivation.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
@@ -240,9 +242,31 @@ def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict
             reasons.append(f"{word} {'for' if word == 'poor' else 'but not excellent for'} "
                            + "; ".join(f"{name} in {camera_list(ids, len(cameras))}" for name, ids in by_criterion.items())
                            + " (each camera's verdict says why)")
-    for c in cameras:
-        advice += c["verdict"].get("advice", [])
+    advice += fold_advice([(c["id"], text) for c in cameras for text in c["verdict"].get("advice", [])], len(cameras))
     return {"level": LEVELS[level], "reasons": reasons, "advice": advice}
+
+
+def fold_advice(advice: list[tuple[str, str]], rig_cameras: int) -> list[str]:
+    """The cameras' advice, (camera id, instruction) in rig order, as the rig's list: an instruction
+    that more than :data:`LISTED_CAMERAS` cameras give but for their id becomes one line naming them
+    (:func:`camera_list`; "all 64 cameras: check their focus, exposure and blob detection"), at the
+    first one's place; each camera's own verdict keeps its own. A small rig's list is unchanged."""
+    templates = []  # each instruction with its camera's id masked
+    by_template: dict[str, list[str]] = {}
+    for cam_id, text in advice:
+        template = re.sub(rf"(?<![\w-]){re.escape(cam_id)}(?![\w-])", "\0", text)
+        templates.append(template)
+        by_template.setdefault(template, []).append(cam_id)
+    out, done = [], set()
+    for (_, text), template in zip(advice, templates):
+        ids = by_template[template]
+        if len(ids) <= LISTED_CAMERAS or "\0" not in template:
+            out.append(text)
+        elif template not in done:
+            done.add(template)
+            plural = re.sub(r"\bits\b", "their", template.replace("\0's", "their").replace("\0", "them"))
+            out.append(f"{camera_list(ids, rig_cameras)}: {plural}")
+    return out
 
 
 def sanity_check(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, world: dict,

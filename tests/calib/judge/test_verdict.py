@@ -142,3 +142,20 @@ def test_a_small_rigs_verdict_lists_its_cameras_as_before():
     cams = [judged_camera(k, {"coverage": "good"}) for k in range(1, 4)] + [judged_camera(4, {})]
     v = rig_verdict(cams, None, [], None)
     assert v["reasons"] == ["good but not excellent for coverage in cam1, cam2, cam3 (each camera's verdict says why)"]
+
+
+def test_advice_many_cameras_share_is_one_line_and_a_small_rigs_is_as_before():
+    def advised(k: int) -> dict:
+        cam = judged_camera(k, {"noise": "poor"})
+        cam["verdict"]["advice"] = [f"check cam{k}'s focus, exposure and blob detection"]
+        return cam
+
+    big = [advised(k) for k in range(1, 65)]
+    big[3]["verdict"]["advice"].append("wave the wand in the top left of cam4's image")  # its own words: kept
+    assert rig_verdict(big, None, [], None)["advice"] == [
+        "all 64 cameras: check their focus, exposure and blob detection", "wave the wand in the top left of cam4's image"]
+    assert rig_verdict(big[:8] + [judged_camera(k, {}) for k in range(9, 65)], None, [], None)["advice"] == [
+        "cam1, cam2, cam3, cam4, cam5, cam6 and 2 more: check their focus, exposure and blob detection",
+        "wave the wand in the top left of cam4's image"]
+    small = big[:3]
+    assert rig_verdict(small, None, [], None)["advice"] == [a for c in small for a in c["verdict"]["advice"]]
