@@ -20,6 +20,8 @@ Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000. Part 5 ("Scal
 and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated. Part 6
 ("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`.
 
+How a whole process is run, timed and profiled, and the captures it reads: bench/whole_process.py.
+
 Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance,methods] [--rigs 64x3000,128x3000]
     [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
     e.g. git archive 3925791 | tar -x -C /tmp/base && python bench/bench_scale.py --parts regression --base /tmp/base
@@ -28,9 +30,6 @@ Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,gu
 from __future__ import annotations
 
 import argparse
-import json
-import pstats
-import subprocess
 import sys
 import tempfile
 import time
@@ -42,137 +41,23 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from bench.bench_peers import run_ba, run_colmap, scene  # noqa: E402
-from bench.common import aligned_rms_mm, write_section  # noqa: E402
+from bench.common import write_section  # noqa: E402
+from bench.whole_process import (  # noqa: E402
+    OUTLIERS,
+    STAGES,
+    add_points,
+    alternated,
+    centre_error_mm,
+    checkout_view,
+    run_process,
+    simulate,
+    stage_seconds,
+    warm_bytecode,
+)
 
-OUTLIERS = 0.02
 STAGE_FRAMES = 3000
 REGRESSION_RIGS = "8x1500:0,8x1500:0.08,16x2500:0"  # the Peers bench's whole-command rigs
 POINT_RIG = (12, 1500, 15000)  # cameras, wand frames, point frames
-POINT_NOISE_PX = 0.3
-# VmHWM, not ru_maxrss: Linux carries ru_maxrss over from the forking bench through exec
-PROBE = ("import sys; from wandcal.service.cli import main; code = main(); "
-         "print(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:')), file=sys.stderr); "
-         "sys.exit(code)")
-# the stage profile counts the process's CPU seconds, not wall seconds: the machine is shared, and
-# another job's load stretches wall time unevenly between runs (BLAS may use both cores: CPU
-# seconds can exceed wall seconds)
-PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; from wandcal.service.batch_memory import keep_freed_memory; "
-           "keep_freed_memory(); p = cProfile.Profile(time.process_time); "
-           "code = p.runcall(main, sys.argv[2:]); p.dump_stats(sys.argv[1]); sys.exit(code)")
-# stage: (caller, callee) function names whose cumulative time (the callee's, called from that
-# caller) makes the stage; the rest of the process is "other" (imports, reports, the verdict)
-STAGES = {
-    "read": [("run_calibrate", "read_capture"), ("_calibrated", "read_capture")],
-    "start": [("calibrate", "wand_pairs"), ("calibrate", "point_tracks"), ("calibrate", "check_capture"),
-              ("calibrate", "initial_poses")],
-    "labelling": [("calibrate", "label_ends")],
-    "static": [("calibrate", "solve_static"), ("calibrate", "world_frame")],
-    "refinement": [("calibrate", "build_problem"), ("calibrate", "triangulated"), ("calibrate", "refine"),
-                   ("calibrate", "reject_outliers")],
-    "uncertainty": [("calibrate", "uncertainty_reports")],
-    "write": [("run_calibrate", "to_json"), ("run_calibrate", "_write_result")],
-}
-
-
-# The processes timed here run as an installed package does: from compiled bytecode (a pip
-# install writes it). PYTHONDONTWRITEBYTECODE, set on some machines (this one), made every process
-# compile wandcal's ~50 modules again: 0.07 s wall, 0.1 s CPU of each run. The bytecode goes to
-# its own folder, not into the checkout.
-PYCACHE = Path(tempfile.gettempdir()) / "wandcal-bench-pycache"
-
-
-def child_env(pythonpath: Path | None = None) -> dict[str, str]:
-    """The environment of a timed `wandcal` process: bytecode cached under :data:`PYCACHE`, and
-    ``pythonpath`` (another checkout's view) first on the path when given."""
-    import os
-
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"} | {"PYTHONPYCACHEPREFIX": str(PYCACHE)}
-    return env | ({"PYTHONPATH": str(pythonpath)} if pythonpath is not None else {})
-
-
-def warm_bytecode(pythonpath: Path | None = None) -> None:
-    """Compile the modules `wandcal calibrate` imports into :data:`PYCACHE`, untimed."""
-    subprocess.run([sys.executable, "-c", "import wandcal.service.commands, wandcal.service.cli"], check=True, cwd=REPO,
-                   env=child_env(pythonpath))
-
-
-# in a child process, as `wandcal simulate` does (seed 1), but past the command's 64-camera cap
-SIMULATE = ("import json, sys; from pathlib import Path; from wandcal.calib.sim.simulate import simulate_capture; "
-            "from wandcal.capture.folder import write_capture; out = Path(sys.argv[1]); "
-            "sim = simulate_capture(int(sys.argv[2]), int(sys.argv[3]), 0.3, float(sys.argv[4]), True, 1); "
-            "write_capture(out, sim.rig, sim.wand, sim.static); "
-            "(out / 'truth.json').write_text(json.dumps(sim.truth.to_json(sim.rig)))")
-
-
-def simulate(folder: Path, cameras: int, frames: int, outliers: float = OUTLIERS) -> None:
-    """A capture folder and its truth.json: `wandcal simulate`'s rig (0.3 px, L-frame, seed 1)."""
-    subprocess.run([sys.executable, "-c", SIMULATE, str(folder), str(cameras), str(frames), str(outliers)],
-                   check=True, capture_output=True, cwd=REPO)
-
-
-def add_points(folder: Path, cameras: int, wand_frames: int, point_frames: int, seed: int = 5) -> int:
-    """Write a point-heavy capture: the simulator's wand and L-frame, and ``point_frames`` single
-    markers spread through the volume, each seen by every camera it falls in. Returns the number
-    of point observations."""
-    from wandcal.calib.geometry import distort_points, project_normalized
-    from wandcal.calib.rig import PointObservations
-    from wandcal.calib.sim.simulate import simulate_capture
-    from wandcal.capture.folder import write_capture
-
-    sim = simulate_capture(cameras, wand_frames, POINT_NOISE_PX, OUTLIERS, True, 1)
-    rng = np.random.default_rng(seed)
-    X = rng.uniform([-0.9, -0.9, 0.3], [0.9, 0.9, 1.7], (point_frames, 3))
-    cams = sim.rig.cameras
-    uv = np.stack([distort_points(c, project_normalized(sim.truth.R[i], sim.truth.t[i], X)) for i, c in enumerate(cams)], 1)
-    uv += rng.normal(0, POINT_NOISE_PX, uv.shape)
-    inside = (uv[..., 0] > 0) & (uv[..., 0] < cams[0].width) & (uv[..., 1] > 0) & (uv[..., 1] < cams[0].height)
-    frame, camera = np.nonzero(inside)
-    # point frames after the wand's, so no capture frame holds both
-    write_capture(folder, sim.rig, sim.wand, sim.static, PointObservations(frame + wand_frames, camera, uv[frame, camera]))
-    (folder / "truth.json").write_text(json.dumps(sim.truth.to_json(sim.rig)))
-    return len(frame)
-
-
-def centre_error_mm(result: Path, truth: Path) -> float:
-    """RMS camera-centre error of a result against the simulator's truth, after a similarity alignment."""
-    cams = json.loads(result.read_text())["cameras"]
-    true = {c["id"]: c["center"] for c in json.loads(truth.read_text())["cameras"]}
-    return aligned_rms_mm(np.array([c["center"] for c in cams]), np.array([true[c["id"]] for c in cams]))
-
-
-def run_process(folder: Path, out: Path, profile: Path | None = None) -> tuple[float, float, float]:
-    """(wall seconds, peak RSS MB, CPU seconds: user + system) of one `wandcal calibrate` process,
-    optionally under cProfile."""
-    import resource
-
-    cmd = [sys.executable, "-c", PROBE, "calibrate", str(folder), "--quiet", "--out", str(out)]
-    if profile is not None:
-        cmd = [sys.executable, "-c", PROFILE, str(profile), "calibrate", str(folder), "--quiet", "--out", str(out)]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
-    done = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=REPO, env=child_env())
-    seconds = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    peak = float(done.stderr.strip().splitlines()[-1]) / 1024 if profile is None else float("nan")
-    return seconds, peak, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-
-
-def stage_seconds(profile: Path) -> dict[str, float]:
-    """Each stage's cumulative seconds from a cProfile dump, attributed by caller."""
-    stats = pstats.Stats(str(profile)).stats  # type: ignore[attr-defined]
-    out = {}
-    for stage, pairs in STAGES.items():
-        total = 0.0
-        for caller, callee in pairs:
-            for func, (_, _, _, _, callers) in stats.items():
-                if func[2] != callee:
-                    continue
-                total += sum(ct for c, (_, _, _, ct) in callers.items() if c[2] == caller)
-        out[stage] = total
-    whole = max(ct for (_, _, _, ct, _) in stats.values())
-    out["other"] = whole - sum(out.values())
-    out["whole"] = whole
-    return out
 
 
 def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str, float]:
@@ -318,48 +203,6 @@ def part_guidance(cameras: int, frames: int, repeats: int) -> str:
             "Goal (issue 22): the live update at 64 x 3000 in <= 1 s.")
 
 
-def _view(checkout: Path, into: Path) -> Path:
-    """A directory that imports ``wandcal`` from another checkout (its four folders under
-    wandcal/), ahead of this one's editable install when put on PYTHONPATH."""
-    (into / "wandcal").mkdir(parents=True, exist_ok=True)
-    for top in ("calib", "capture", "drivers", "service"):
-        link = into / "wandcal" / top
-        if not link.exists():
-            link.symlink_to(checkout.resolve() / top)
-    return into
-
-
-def _cpu_run(folder: Path, out: Path, pythonpath: Path | None, method: str = "ba") -> tuple[float, float]:
-    """(wall seconds, CPU seconds) of one `wandcal calibrate` process (CPU: user + system of the child)."""
-    import resource
-
-    env = child_env(pythonpath)
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(folder), "--quiet", "--out", str(out),
-                    "--method", method], check=True, capture_output=True, cwd=REPO, env=env)
-    wall = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-
-
-def _alternated(folder: Path, tmp: Path, variants: dict[str, tuple[Path | None, str]], repeats: int):
-    """Each variant (name -> (checkout on PYTHONPATH or None for this one, method)) run as a whole
-    `wandcal calibrate` process on ``folder``, alternated run by run: ({name: median (wall, CPU)},
-    the median over the rounds of the last variant's CPU over the first's, {name: centre error mm})."""
-    runs: dict[str, list] = {name: [] for name in variants}
-    errors = {}
-    for _ in range(repeats):
-        for name, (path, method) in variants.items():
-            out = tmp / f"{name}.json"
-            runs[name].append(_cpu_run(folder, out, path, method))
-            errors[name] = centre_error_mm(out, folder / "truth.json")
-        print(folder.name, runs, flush=True)
-    first, last = runs[next(iter(variants))], runs[list(variants)[-1]]
-    ratio = float(np.median([x[1] / y[1] for x, y in zip(last, first)]))
-    return {name: np.median(r, axis=0) for name, r in runs.items()}, ratio, errors
-
-
 def part_methods(cameras_list: list[int], repeats: int) -> str:
     """`--method lp` against `--method ba` (the default), the whole process on the same capture,
     alternated run by run; the ratio of CPU seconds, median of the runs' ratios."""
@@ -368,7 +211,7 @@ def part_methods(cameras_list: list[int], repeats: int) -> str:
         for cameras in cameras_list:
             folder = Path(tmp) / f"c{cameras}"
             simulate(folder, cameras, STAGE_FRAMES)
-            medians, ratio, errors = _alternated(folder, Path(tmp), {"ba": (None, "ba"), "lp": (None, "lp")}, repeats)
+            medians, ratio, errors = alternated(folder, Path(tmp), {"ba": (None, "ba"), "lp": (None, "lp")}, repeats)
             b, lp = medians["ba"], medians["lp"]
             rows.append(f"| {cameras} x {STAGE_FRAMES} | {b[0]:.2f} / {b[1]:.2f} | {lp[0]:.2f} / {lp[1]:.2f} | {ratio:.2f} | "
                         f"{errors['ba']:.3f} / {errors['lp']:.3f} |")
@@ -385,7 +228,7 @@ def part_regression(base: Path, repeats: int, rigs: str) -> str:
     rows = ["| rig | outliers | before: wall / CPU (s) | after: wall / CPU (s) | after / before (CPU) | centre error before / after (mm) |",
             "|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory() as tmp:
-        view = _view(base, Path(tmp) / "view")
+        view = checkout_view(base, Path(tmp) / "view")
         warm_bytecode(view)
         warm_bytecode()
         for rig in rigs.split(","):
@@ -393,7 +236,7 @@ def part_regression(base: Path, repeats: int, rigs: str) -> str:
             cameras, frames = (int(v) for v in size.split("x"))
             folder = Path(tmp) / f"c{cameras}x{frames}"
             simulate(folder, cameras, frames, outliers)
-            medians, ratio, errors = _alternated(folder, Path(tmp), {"before": (view, "ba"), "after": (None, "ba")}, repeats)
+            medians, ratio, errors = alternated(folder, Path(tmp), {"before": (view, "ba"), "after": (None, "ba")}, repeats)
             b, a = medians["before"], medians["after"]
             rows.append(f"| {cameras}x{frames} | {outliers:.0%} | {b[0]:.2f} / {b[1]:.2f} | {a[0]:.2f} / {a[1]:.2f} | "
                         f"{ratio:.2f} | {errors['before']:.3f} / {errors['after']:.3f} |")

@@ -32,6 +32,7 @@ from wandcal.calib.judge.residuals import (
 )
 from wandcal.calib.judge.verdict import (
     NOISE_RATIO,
+    camera_list,
     camera_verdict,
     coverage_reports,
     placement_verdict,
@@ -259,7 +260,7 @@ def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, 
     at_fault = {f["camera"] for f in faults if f["camera"]}
     dragged = [c["id"] for c in named if c["id"] not in at_fault and c["verdict"]["level"] == "poor"]
     if at_fault and dragged:  # one camera at fault bends the whole solve: the others are judged again after
-        verdict["reasons"].insert(len(faults), f"{', '.join(dragged)} {'is' if len(dragged) == 1 else 'are'} poor in "
+        verdict["reasons"].insert(len(faults), f"{camera_list(dragged, len(named))} {'is' if len(dragged) == 1 else 'are'} poor in "
                                   f"this solve because {', '.join(sorted(at_fault))} bent it: fix "
                                   f"{'it' if len(at_fault) == 1 else 'them'} and calibrate again before judging the others")
     verdict["placement"] = placement_verdict(world, extent if scaled else None, faults)

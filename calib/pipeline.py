@@ -265,7 +265,7 @@ def calibrate(
         uncertainty_reports(cameras, rig, r, world, (static, static_poses, axis), Rw, tw, has_wand)
     if info.get("refined_intrinsics"):
         intrinsics_reports(cameras, rig, r.camera_std, info["refined_intrinsics"], warnings)
-    summary_warnings(warnings, dropped, info, method, len(labelled))
+    summary_warnings(warnings, dropped, info, method, len(labelled), (rig.ids, cameras))
     wand_report = None
     if has_wand:
         lengths = quality.free_wand_lengths(R, t, setup.problem)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.judge import quality
+from wandcal.calib.judge.verdict import camera_list
 from wandcal.calib.observations import camera_rows
 from wandcal.calib.refine import GAUGE_CAMERA
 from wandcal.calib.rig import Rig
@@ -113,7 +114,47 @@ def intrinsics_reports(cameras: list[dict], rig: Rig, std: np.ndarray, names: li
         cameras[c]["intrinsics"] = entry
 
 
-def summary_warnings(warnings: list[str], dropped: dict, info: dict, method: str, camera_frames: int) -> None:
+def names_camera(text: str, camera_id: str) -> bool:
+    """Whether a warning is about this camera: it starts with the camera's id, or quotes it
+    ("cam3: ...", "cam3 saw ...", "camera 'cam3' ...")."""
+    return text.startswith(camera_id + " ") or f"{camera_id}:" in text or f"'{camera_id}'" in text
+
+
+def fold_camera_warnings(warnings: list[str], ids: list[str], cameras: list[dict]) -> list[str]:
+    """The warnings with those that differ only in the camera they start with ("cam5: static-object
+    pose is ambiguous ...", once a camera) folded into one line naming the cameras compactly
+    ("cam5, cam9: ...", "all 64 cameras: ..."; :func:`wandcal.calib.judge.verdict.camera_list`), at
+    the first one's place. Nothing is lost: each camera's entry in ``cameras`` (rig order) gets
+    ``warnings``, every warning about it in full (:func:`names_camera`).
+    ids: (N,) the rig's camera ids."""
+    for cam_id, report in zip(ids, cameras):
+        report["warnings"] = [w for w in warnings if names_camera(w, cam_id)]
+    rests: list[str | None] = []  # each warning's text after the camera id it starts with, when foldable
+    by_rest: dict[str, list[str]] = {}  # that text -> the cameras it follows
+    for w in warnings:
+        cam_id = next((i for i in ids if w.startswith(i + ": ")), None)
+        rest = w[len(cam_id):] if cam_id is not None else None
+        if rest is not None and any(names_camera(rest, i) for i in ids):
+            rest = None  # it names another camera in its own words: kept as it is
+        rests.append(rest)
+        if rest is not None:
+            by_rest.setdefault(rest, []).append(cam_id)
+    out, done = [], set()
+    for w, rest in zip(warnings, rests):
+        if rest is None or len(set(by_rest[rest])) == 1:
+            out.append(w)
+        elif rest not in done:
+            done.add(rest)
+            named = set(by_rest[rest])
+            out.append(camera_list([i for i in ids if i in named], len(ids)) + rest)
+    return out
+
+
+def summary_warnings(warnings: list[str], dropped: dict, info: dict, method: str, camera_frames: int,
+                     cameras: tuple[list[str], list[dict]] | None = None) -> None:
+    """The result's warnings about the whole capture and solve, appended to ``warnings``; with
+    ``cameras`` ((N,) ids, (N,) camera reports), the per-camera ones then folded
+    (:func:`fold_camera_warnings`)."""
     if dropped.get("extra_blobs"):
         markers = "the wand's markers" if "fewer_blobs" in dropped else "two"  # fewer_blobs: a multi-marker wand
         warnings.append(f"{dropped['extra_blobs']} camera-frames showed more blobs than {markers} and were dropped")
@@ -134,3 +175,5 @@ def summary_warnings(warnings: list[str], dropped: dict, info: dict, method: str
     if info.get("uncertified_steps"):
         warnings.append(f"{info['uncertified_steps']} LP steps were taken without an optimality certificate (their "
                         "working set had not settled); each still lowered the cost")
+    if cameras is not None:
+        warnings[:] = fold_camera_warnings(warnings, *cameras)

@@ -94,7 +94,7 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
             report["center_std_mm"] = float(1000 * center[k]) if moving[k] else old.get("center_std_mm")
             report["rotation_std_deg"] = float(np.degrees(rotation[k])) if moving[k] else old.get("rotation_std_deg")
     dropped = dict(pairs.dropped) | {"outliers": r.outliers}
-    summary_warnings(warnings, dropped, r.info, "ba", len(labelled))
+    summary_warnings(warnings, dropped, r.info, "ba", len(labelled), (rig.ids, cameras))
     lengths = quality.free_wand_lengths(R_new, t_new, r.setup.problem)
     wand_report = {"length_m": rig.wand_length, "length_mean_m": float(lengths.mean()),
                    "length_std_m": float(lengths.std()), "frames_used": int(r.setup.problem.n_frames)}

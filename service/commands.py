@@ -1,4 +1,6 @@
-"""``wandcal simulate``, ``wandcal calibrate`` and ``wandcal demo``."""
+"""``wandcal simulate``, ``wandcal calibrate`` and ``wandcal demo``, and the arguments of those and of
+``wandcal check`` (its run: :mod:`wandcal.service.check_command`). What they read beside the blobs
+is in :mod:`wandcal.service.command_inputs`; what they print, :mod:`wandcal.service.summary`."""
 
 from __future__ import annotations
 
@@ -6,13 +8,9 @@ import argparse
 import json
 import sys
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.geometry import kabsch, rotation_angle
 from wandcal.calib.pipeline import DEFAULT_METHOD, METHODS, calibrate
 from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
@@ -20,7 +18,10 @@ from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES
 from wandcal.capture.arguments import MAX_SEED, MAX_SYNC_OFFSET, number, whole
 from wandcal.capture.folder import read_capture, write_capture
+from wandcal.service.check_command import run_check
+from wandcal.service.command_inputs import capture_rate, points_level, result_for, timestamp_start
 from wandcal.service.progress import ProgressLine
+from wandcal.service.summary import format_summary, truth_table
 
 TRUTH_FILE = "truth.json"
 # Bounds of the numeric options (exit 2 outside them). 10,000 paper rounds are ~40 min at 8 x 1500,
@@ -33,8 +34,6 @@ MAX_SIM_CAMERAS = 64
 MAX_SIM_FRAMES = 100_000
 MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
 RESULT_FILE = "result.json"  # the default method's result; the others get their own (result_path)
-
-
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -129,93 +128,6 @@ def run_simulate(args) -> int:
     return 0
 
 
-def _rate(folder: Path) -> float | None:
-    """The capture log's frame rate (capture.json ``rate_hz``), for offsets in seconds; None without one."""
-    try:
-        return float(json.loads((folder / "capture.json").read_text())["rate_hz"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-
-
-def _sync_start(folder: Path, rig, rate_hz: float | None):
-    """Whole-frame offsets from sync.csv's camera timestamps when no trigger stamped it (docs/sync.md), else None."""
-    from wandcal.calib.start.timestamps import timestamp_offsets
-
-    path = folder / "sync.csv"
-    table = np.genfromtxt(path, delimiter=",", names=True) if path.is_file() else None
-    if table is None or not table.size or np.isfinite(np.atleast_1d(table["trigger_us"])).any():
-        return None
-    table = np.atleast_1d(table)
-    cols = [table[f"{cam.id}_ts"] if f"{cam.id}_ts" in table.dtype.names else np.full(len(table), np.nan) for cam in rig.cameras]
-    frames = [table["frame"][np.isfinite(c)].astype(np.int64) for c in cols]
-    return timestamp_offsets(rig.ids, frames, [c[np.isfinite(c)] for c in cols], rate_hz)
-
-
-def _points_level(folder: Path, progress) -> Path:
-    """Detect first when the capture is image level (wandcal.capture.images provides it)."""
-    if not folder.is_dir() or (folder / "wand.csv").is_file():
-        return folder  # read_capture names what is missing
-    try:
-        from wandcal.capture.images import ensure_points_level
-    except ImportError:
-        return folder
-    return ensure_points_level(folder, progress=progress)
-
-
-def _result_for(result_path: Path, cap):
-    """The result's cameras (calibrated intrinsics and poses) in the capture's camera order."""
-    from wandcal.calib.judge.evaluate import rig_mismatches
-    from wandcal.capture.results import read_result
-
-    prev = read_result(result_path)
-    mismatch = rig_mismatches(prev.rig, cap.rig)
-    if mismatch:
-        raise CalibrationError(f"{result_path}: the capture is not of this result's rig: {'; '.join(mismatch[:3])}; check "
-                               "that the capture and the result are of one rig, or calibrate the capture afresh")
-    order = [prev.rig.index(cid) for cid in cap.rig.ids]
-    rig = replace(cap.rig, cameras=tuple(prev.rig.cameras[k] for k in order))
-    entries = [prev.doc["cameras"][k] for k in order]
-    return prev, rig, prev.R[order], prev.t[order], entries
-
-
-EXIT_MOVED = 1  # wandcal check: a camera moved (named)
-EXIT_UNJUDGED = 3  # wandcal check: some camera could not be judged, and none was seen to move
-
-
-def run_check(args) -> int:
-    from wandcal.calib.judge.evaluate import check_cameras
-
-    folder = _points_level(args.capture, ProgressLine(quiet=True))
-    cap = read_capture(folder)
-    if cap.wand is None or not len(cap.wand) or cap.rig.wand_length is None:
-        raise CalibrationError(f"{args.capture}: has no wand blobs; 'wandcal check' needs a fresh wand capture")
-    _, rig, R, t, entries = _result_for(args.result, cap)
-    expected = np.array([e.get("reprojection_rms_px") or np.nan for e in entries], float)
-    checks = check_cameras(rig, R, t, cap.wand, None if np.isnan(expected).any() else expected)
-    moved = [c.id for c in checks if c.moved]
-    unjudged = [c.id for c in checks if c.moved is None]
-    rebuilt = len(moved) > len(checks) / 2  # a bump moves a camera or two; most of them is another rig
-    if args.json:
-        print(json.dumps({"cameras": [vars(c) for c in checks], "moved": moved, "unjudged": unjudged,
-                          "rebuilt": rebuilt}, indent=2))
-    else:
-        for c in checks:
-            mark = "MOVED" if c.moved else ("?" if c.moved is None else "ok")
-            print(f"{c.id:<16} {mark:<6} {c.reason}")
-        if rebuilt:
-            print(f"most cameras disagree with the result ({', '.join(moved)}): this is not a bumped camera but a "
-                  f"rebuilt rig or a capture of another one; calibrate afresh: wandcal calibrate {args.capture}")
-        elif moved:
-            print(f"moved: {', '.join(moved)}; recalibrate with: wandcal calibrate {args.capture} --from {args.result} "
-                  f"--solve-only {','.join(moved)}")
-        if unjudged:
-            print(f"could not judge {', '.join(unjudged)}: too few frames shared with two other cameras; record a longer "
-                  "wand capture where every camera sees the wand with two others")
-        elif not moved:
-            print("every camera agrees with the others")
-    return EXIT_UNJUDGED if rebuilt else EXIT_MOVED if moved else EXIT_UNJUDGED if unjudged else 0
-
-
 def run_calibrate(args) -> int:
     from threadpoolctl import threadpool_limits
 
@@ -233,7 +145,7 @@ def run_calibrate(args) -> int:
 
 
 def _calibrated(args, progress):
-    folder = _points_level(args.capture, progress)
+    folder = points_level(args.capture, progress)
     cap = read_capture(folder)
     if args.max_rounds is not None and args.method != "paper":
         raise CalibrationError(f"--max-rounds counts the paper method's rounds; --method {args.method} has none "
@@ -245,8 +157,8 @@ def _calibrated(args, progress):
         return _solve_only(args, cap, progress)
     options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
                "loss": args.loss, "refine_intrinsics": args.refine_intrinsics, "sync": args.sync,
-               "sync_max_offset": args.sync_max_offset, "sync_drift": args.sync_drift, "frame_rate_hz": _rate(folder),
-               "sync_start": _sync_start(folder, cap.rig, _rate(folder)) if args.sync == "auto" else None}
+               "sync_max_offset": args.sync_max_offset, "sync_drift": args.sync_drift, "frame_rate_hz": capture_rate(folder),
+               "sync_start": timestamp_start(folder, cap.rig, capture_rate(folder)) if args.sync == "auto" else None}
     return calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
                      points=cap.points, axis=cap.axis)
 
@@ -259,7 +171,7 @@ def _solve_only(args, cap, progress):
                                "and the cameras to re-solve")
     if args.method != "ba" or args.refine_intrinsics:
         raise CalibrationError("--solve-only re-solves poses with --method ba only, intrinsics held")
-    prev, rig, R, t, entries = _result_for(args.from_result, cap)
+    prev, rig, R, t, entries = result_for(args.from_result, cap)
     if cap.wand is None or not len(cap.wand):
         raise CalibrationError(f"{args.capture}: has no wand blobs; --solve-only needs a fresh wand capture")
     options = {"reject_outliers": not args.keep_outliers, "loss": args.loss}
@@ -283,11 +195,6 @@ def _write_result(args, doc: dict) -> int:
     return 0
 
 
-def _number(value, fmt: str, width: int) -> str:
-    """A right-aligned figure, or '-' when the result has none (older results, no scale)."""
-    return f"{'-' if value is None else format(value, fmt):>{width}}"
-
-
 def _replaced(out: Path) -> str | None:
     """What an existing ``out`` holds, said when it is replaced: "ba result" or "file"."""
     if not out.is_file():
@@ -297,75 +204,6 @@ def _replaced(out: Path) -> str | None:
     except (ValueError, OSError, AttributeError):
         method = None
     return f"{method} result" if isinstance(method, str) else "file"
-
-
-def format_summary(doc: dict) -> str:
-    """The result as a person reads it: a row a camera, the wand, the rig's verdict with the camera
-    or input at fault, the world's placement, what to do, and the warnings."""
-    points = any("point_observations" in cam for cam in doc["cameras"])
-    intrinsics = any("intrinsics" in cam for cam in doc["cameras"])
-    scaled = doc["world"].get("scale", "wand") != "arbitrary"
-    unit = "m" if scaled else "rig units"
-    width = max(16, *(len(cam["id"]) + 1 for cam in doc["cameras"]))
-    head = (f"{'camera':<{width}} {'centre x, y, z (' + unit + ')':>32}  {'geom +-mm':>9} {'world +-mm':>10} "
-            f"{'rms px':>7} {'resid mm':>8} {'outl %':>6} {'obs':>6} {'verdict':>9}")
-    head += f" {'pts rms':>7} {'pts':>6}" if points else ""
-    head += f" {'focal px':>14}" if intrinsics else ""
-    lines = [head]
-    for cam in doc["cameras"]:
-        c = cam["center"]
-        share = cam.get("outlier_share")
-        row = (f"{cam['id']:<{width}} {c[0]:10.4f} {c[1]:10.4f} {c[2]:10.4f}  "
-               f"{_number(cam.get('geometry_std_mm'), '.2f', 9)} {_number(cam.get('center_std_mm'), '.2f', 10)} "
-               f"{_number(cam.get('reprojection_rms_px'), '.3f', 7)} {_number(cam.get('residual_mm'), '.2f', 8)} "
-               f"{_number(None if share is None else 100 * share, '.1f', 6)} {cam['observations']:6d} "
-               f"{cam.get('verdict', {}).get('level', '-'):>9}")
-        if points:
-            row += f" {_number(cam.get('point_rms_px'), '.3f', 7)} {cam.get('point_observations', 0):6d}"
-        if intrinsics and "focal_px" in cam.get("intrinsics", {}):
-            row += f" {cam['intrinsics']['focal_px']:8.1f}+-{cam['intrinsics']['focal_std_px']:<4.1f}"
-        lines.append(row)
-    w, s = doc["wand"], doc["solver"]
-    iterations = s["iterations"]
-    solved = f"{s['method']}: {iterations} iteration{'' if iterations == 1 else 's'}, {s['seconds']:.2f} s ({s['status']})"
-    if w is None:
-        lines.append(f"no wand: calibrated up to scale (lengths in rig units); {solved}")
-    else:
-        frames = w["frames_used"]
-        lines.append(
-            f"wand {w['length_mean_m'] * 1000:.2f} +- {w['length_std_m'] * 1000:.2f} mm "
-            f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {frames} frame{'' if frames == 1 else 's'}; {solved}"
-        )
-    lines += _verdict_lines(doc)
-    lines += [f"warning: {text}" for text in doc["warnings"]]
-    return "\n".join(lines)
-
-
-def _verdict_lines(doc: dict) -> list[str]:
-    """The judgement: the rig's geometry, the faults it names, the world's placement, the advice."""
-    verdict = doc.get("verdict")
-    if not verdict:
-        return []
-    lines = [f"rig geometry: {verdict['level']}"]
-    faults = verdict.get("faults") or []
-    for fault in faults:
-        lines.append(f"  fault ({fault['kind']}{', ' + fault['camera'] if fault.get('camera') else ''}): {fault['message']}")
-    shown = {fault["message"] for fault in faults}
-    lines += [f"  {reason}" for reason in verdict["reasons"] if reason not in shown]
-    lines += [f"  {reason}" for cam in doc["cameras"] for reason in cam.get("verdict", {}).get("reasons", [])
-              if cam["verdict"]["level"] == "poor" and reason not in shown]
-    placement = verdict.get("placement")
-    if placement:
-        where = doc["world"].get("placement") or {}
-        figures = ""
-        if where.get("axes_std_deg") is not None:
-            origin = where.get("origin_std_mm")
-            figures = (f" (origin +-{origin:.2f} mm, " if origin is not None else " (") + f"axes +-{where['axes_std_deg']:.3f} deg)"
-        lines.append(f"world placement ({doc['world'].get('frame')}): {placement['level']}{figures}")
-        lines += [f"  {reason}" for reason in placement["reasons"] if reason not in shown]
-    advice = list(dict.fromkeys([*verdict.get("advice", []), *(placement or {}).get("advice", [])]))
-    lines += [f"to do: {text}" for text in advice]
-    return lines
 
 
 def run_demo(args) -> int:
@@ -388,27 +226,6 @@ def run_demo(args) -> int:
     print(format_summary(result.to_json()))
     print(truth_table(result, sim))
     return 0
-
-
-def truth_table(result, sim) -> str:
-    """Per-camera errors against the simulator's truth, in the world frame and after the best
-    rigid (similarity without a static object) alignment."""
-    C, Ct = result.centers, sim.truth.centers
-    static = sim.rig.static_markers is not None
-    Ra, ta, s = kabsch(C, Ct, scale=not static)
-    aligned = np.linalg.norm(s * C @ Ra.T + ta - Ct, axis=1) * 1000
-    raw = np.linalg.norm(C - Ct, axis=1) * 1000 if static else None
-    rot = np.degrees(rotation_angle(result.R @ Ra.T, sim.truth.R)) * 3600
-    # without a static object the world is the wand volume's own frame: only aligned errors mean anything
-    head = f"{'camera':<10}" + (f" {'centre err (mm)':>16}" if static else "")
-    rows = [head + f" {'aligned (mm)':>13} {'rotation (arcsec)':>18}"]
-    for i, cam in enumerate(sim.rig.cameras):
-        raw_col = f" {raw[i]:16.3f}" if raw is not None else ""
-        rows.append(f"{cam.id:<10}{raw_col} {aligned[i]:13.3f} {rot[i]:18.1f}")
-    if raw is None:
-        rows.append("(no static object: the world is the wand volume's frame, not the simulator's, so the errors "
-                    "are after the best similarity alignment)")
-    return "\n".join(rows)
 
 
 if __name__ == "__main__":

@@ -11,6 +11,8 @@ camera or input. docs/verdict.md gives every threshold's source or derivation.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
@@ -63,6 +65,21 @@ PLACEMENT_ADVICE = {
     "axis": "digitise the axis points in more cameras and frames, or space them further apart",
     "wand_volume": "place an L-frame (static object) in the volume, seen by several cameras, to fix the world frame",
 }
+# a message names at most this many cameras, then "and N more": six ids still read at a glance on
+# one line (a 64-camera ring's 64 ids do not); the full list stays in each camera's own entry
+LISTED_CAMERAS = 6
+
+
+def camera_list(ids: list[str], rig_cameras: int) -> str:
+    """Cameras named in a message, readable at any rig size: every id when there are at most
+    :data:`LISTED_CAMERAS` ("cam1, cam2"); "all 64 cameras" when they are the whole rig; else the
+    first few and "and N more" ("cam1, ..., cam6 and 12 more"). ids: in rig order;
+    rig_cameras: how many cameras the rig has."""
+    if len(ids) <= LISTED_CAMERAS:
+        return ", ".join(ids)
+    if len(ids) == rig_cameras:
+        return f"all {rig_cameras} cameras"
+    return f"{', '.join(ids[:LISTED_CAMERAS])} and {len(ids) - LISTED_CAMERAS} more"
 
 
 def _grade(value: float | None, limits: tuple[float, float], higher_is_better: bool = False) -> int:
@@ -223,11 +240,33 @@ def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict
                     by_criterion.setdefault(name, []).append(c["id"])
         if by_criterion:
             reasons.append(f"{word} {'for' if word == 'poor' else 'but not excellent for'} "
-                           + "; ".join(f"{name} in {', '.join(ids)}" for name, ids in by_criterion.items())
+                           + "; ".join(f"{name} in {camera_list(ids, len(cameras))}" for name, ids in by_criterion.items())
                            + " (each camera's verdict says why)")
-    for c in cameras:
-        advice += c["verdict"].get("advice", [])
+    advice += fold_advice([(c["id"], text) for c in cameras for text in c["verdict"].get("advice", [])], len(cameras))
     return {"level": LEVELS[level], "reasons": reasons, "advice": advice}
+
+
+def fold_advice(advice: list[tuple[str, str]], rig_cameras: int) -> list[str]:
+    """The cameras' advice, (camera id, instruction) in rig order, as the rig's list: an instruction
+    that more than :data:`LISTED_CAMERAS` cameras give but for their id becomes one line naming them
+    (:func:`camera_list`; "all 64 cameras: check their focus, exposure and blob detection"), at the
+    first one's place; each camera's own verdict keeps its own. A small rig's list is unchanged."""
+    templates = []  # each instruction with its camera's id masked
+    by_template: dict[str, list[str]] = {}
+    for cam_id, text in advice:
+        template = re.sub(rf"(?<![\w-]){re.escape(cam_id)}(?![\w-])", "\0", text)
+        templates.append(template)
+        by_template.setdefault(template, []).append(cam_id)
+    out, done = [], set()
+    for (_, text), template in zip(advice, templates):
+        ids = by_template[template]
+        if len(ids) <= LISTED_CAMERAS or "\0" not in template:
+            out.append(text)
+        elif template not in done:
+            done.add(template)
+            plural = re.sub(r"\bits\b", "their", template.replace("\0's", "their").replace("\0", "them"))
+            out.append(f"{camera_list(ids, rig_cameras)}: {plural}")
+    return out
 
 
 def sanity_check(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, world: dict,
@@ -240,7 +279,7 @@ def sanity_check(method: str, rig: Rig, cameras: list[dict], wand_report: dict |
     ids = rig.ids
     empty = [ids[k] for k, c in enumerate(cameras) if c.get("observations", 0) + c.get("point_observations", 0) == 0]
     if empty:
-        raise CalibrationError(f"method {method!r} ended with {', '.join(empty)} holding no observations (all were "
+        raise CalibrationError(f"method {method!r} ended with {camera_list(empty, len(ids))} holding no observations (all were "
                                f"dropped as outliers), so those poses are not calibrated{other}")
     if wand_report is not None and rig.wand_length:
         off = wand_report["length_mean_m"] / rig.wand_length - 1
@@ -254,7 +293,7 @@ def sanity_check(method: str, rig: Rig, cameras: list[dict], wand_report: dict |
         below = [ids[k] for k, C in enumerate(centers) if C[2] < BELOW_FLOOR_M]
         if below:
             what = "the static object's" if world["frame"] == "static_object" else "the axis points'"
-            warnings.append(f"{', '.join(below)} {'is' if len(below) == 1 else 'are'} below the floor (z < 0) of "
+            warnings.append(f"{camera_list(below, len(ids))} {'is' if len(below) == 1 else 'are'} below the floor (z < 0) of "
                             f"{what} frame: the world may be mirrored or upside down; check the order of the "
                             "markers in rig.json (z must point up, towards the cameras)")
     return warnings

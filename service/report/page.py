@@ -5,6 +5,7 @@ from __future__ import annotations
 import html
 import math
 
+from wandcal.calib.judge.verdict import LISTED_CAMERAS, camera_list
 from wandcal.service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
 from wandcal.service.report.figures import AXIS_POINTS, FRAME_DOTS, OUTLIER_CROSSES, POINT_DOTS, WAND_DOTS
 
@@ -212,7 +213,9 @@ def _camera_section(data: ReportData, cam: CameraSummary, figure: str | None) ->
     if not any("point_observations" in c for c in data.result.doc["cameras"]):  # a capture without points.csv
         fields = [(k, v) for k, v in fields if not k.startswith("point")]
     rows = [f"<tr><th>{_e(k)}</th><td>{v}</td></tr>" for k, v in fields]
-    said = cam.advice + [w for w in data.result.doc.get("warnings") or [] if _names(w, cam.id)]
+    own = d.get("warnings")  # its own in full; the result's warnings fold those several cameras share
+    said = cam.advice + ([str(w) for w in own] if isinstance(own, list) else
+                         [w for w in data.result.doc.get("warnings") or [] if _names(w, cam.id)])
     out = [f'<section class="camera" id="camera-{_e(cam.id)}" data-camera="{_e(cam.id)}"><h2>{_e(cam.id)}</h2>',
            "<table>" + "".join(rows) + "</table>"]
     if said:
@@ -312,9 +315,10 @@ def _img(name: str | None, alt: str) -> str:
 
 
 def _rig_alt(data: ReportData) -> str:
-    ids = ", ".join(c.id for c in data.cameras)
+    ids = camera_list([c.id for c in data.cameras], len(data.cameras))  # "all 64 cameras" on a big rig
+    who = f"cameras {ids}" if len(data.cameras) <= LISTED_CAMERAS else ids
     extra = f", the wand's path over {len(data.trajectory)} frames" if len(data.trajectory) else ""
-    return f"The rig in 3D and from above: cameras {ids} as frusta with their ids{extra}, and the world axes."
+    return f"The rig in 3D and from above: {who} as frusta with their ids{extra}, and the world axes."
 
 
 def _wand_alt(data: ReportData) -> str:

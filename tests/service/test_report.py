@@ -358,3 +358,24 @@ def test_the_report_shows_the_time_offsets(tmp_path):
     (tmp_path / "plain.json").write_text(json.dumps(plain))
     assert wandcal("report", str(tmp_path / "plain.json"), "--out", str(tmp_path / "plain")).returncode == 0
     assert 'id="sync"' not in (tmp_path / "plain" / "index.html").read_text()
+
+
+def test_each_camera_section_shows_its_own_warning_when_the_result_folds_them(sim_report, tmp_path):
+    """A warning several cameras share is one line of the result's ``warnings`` ("cam1, cam2, ...: ...",
+    or "all 64 cameras: ..." on a big rig, wandcal.calib.reports.fold_camera_warnings); each camera's
+    section still shows it, from the camera's own ``warnings``."""
+    tmp, _, _ = sim_report
+    doc = json.loads((tmp / "result.json").read_text())
+    said = ": static-object pose is ambiguous (planar flip); placed from the wand"
+    ids = [cam["id"] for cam in doc["cameras"]]
+    doc["warnings"] = ["all 64 cameras" + said]  # as a big rig's reads: no id of its own
+    for cam in doc["cameras"]:
+        cam["warnings"] = [cam["id"] + said]
+    (tmp_path / "folded.json").write_text(json.dumps(doc))
+    run = wandcal("report", str(tmp_path / "folded.json"), "--out", str(tmp_path / "out"))
+    assert run.returncode == 0, run.stderr
+    html = (tmp_path / "out" / "index.html").read_text()
+    for cam_id in ids:
+        section = html[html.index(f'<section class="camera" id="camera-{cam_id}"'):]
+        assert escape(cam_id + said) in section[: section.index("</section>")], cam_id
+    assert escape("all 64 cameras" + said) in html  # and the result's own list

@@ -5,7 +5,14 @@ import pytest
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import distort_points, project_normalized
-from wandcal.calib.judge.verdict import RESIDUAL_OF_VOLUME, camera_verdict, rig_verdict, sanity_check
+from wandcal.calib.judge.verdict import (
+    LISTED_CAMERAS,
+    RESIDUAL_OF_VOLUME,
+    camera_list,
+    camera_verdict,
+    rig_verdict,
+    sanity_check,
+)
 from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import AxisObservations, Rig
 from wandcal.calib.sim.simulate import simulate_capture
@@ -101,3 +108,54 @@ def test_axis_points_with_z_clicked_downwards_put_the_cameras_under_the_floor_an
     res = calibrate(sim.rig, sim.wand, None, axis=AxisObservations(role, camera, uv))
     assert res.world["frame"] == "axis" and np.all(res.centers[:, 2] < 0)
     assert any("below the floor" in w and "z must point up" in w for w in res.warnings)
+
+
+def judged_camera(k: int, short: dict[str, str]) -> dict:
+    """A rig_verdict input: camera k's entry, short of excellent in ``short`` ({criterion: level})."""
+    level = "poor" if "poor" in short.values() else "good" if short else "excellent"
+    return {"id": f"cam{k}", "verdict": {"level": level, "reasons": [f"cam{k}: {name}" for name in short], "advice": [],
+                                          "short_of_excellent": short}}
+
+
+@pytest.mark.parametrize("named, rig_cameras, text", [
+    (3, 3, "cam1, cam2, cam3"),  # a small rig's lists stay as they were
+    (LISTED_CAMERAS, 64, ", ".join(f"cam{k}" for k in range(1, LISTED_CAMERAS + 1))),
+    (64, 64, "all 64 cameras"),
+    (10, 64, ", ".join(f"cam{k}" for k in range(1, LISTED_CAMERAS + 1)) + f" and {10 - LISTED_CAMERAS} more"),
+])
+def test_camera_lists_are_compact_past_a_handful(named, rig_cameras, text):
+    assert camera_list([f"cam{k}" for k in range(1, named + 1)], rig_cameras) == text
+
+
+def test_a_64_camera_rigs_verdict_names_all_cameras_in_a_few_words():
+    cams = [judged_camera(k, {"coverage": "good"} | ({"noise": "poor"} if k <= 10 else {})) for k in range(1, 65)]
+    v = rig_verdict(cams, None, [], None)
+    assert v["level"] == "poor"
+    assert v["reasons"] == ["poor for noise in cam1, cam2, cam3, cam4, cam5, cam6 and 4 more (each camera's verdict says why)",
+                            "good but not excellent for coverage in all 64 cameras (each camera's verdict says why)"]
+    # the full list stays machine-readable, in each camera's own verdict
+    assert [c["id"] for c in cams if c["verdict"]["short_of_excellent"].get("noise") == "poor"] == [
+        f"cam{k}" for k in range(1, 11)]
+
+
+def test_a_small_rigs_verdict_lists_its_cameras_as_before():
+    cams = [judged_camera(k, {"coverage": "good"}) for k in range(1, 4)] + [judged_camera(4, {})]
+    v = rig_verdict(cams, None, [], None)
+    assert v["reasons"] == ["good but not excellent for coverage in cam1, cam2, cam3 (each camera's verdict says why)"]
+
+
+def test_advice_many_cameras_share_is_one_line_and_a_small_rigs_is_as_before():
+    def advised(k: int) -> dict:
+        cam = judged_camera(k, {"noise": "poor"})
+        cam["verdict"]["advice"] = [f"check cam{k}'s focus, exposure and blob detection"]
+        return cam
+
+    big = [advised(k) for k in range(1, 65)]
+    big[3]["verdict"]["advice"].append("wave the wand in the top left of cam4's image")  # its own words: kept
+    assert rig_verdict(big, None, [], None)["advice"] == [
+        "all 64 cameras: check their focus, exposure and blob detection", "wave the wand in the top left of cam4's image"]
+    assert rig_verdict(big[:8] + [judged_camera(k, {}) for k in range(9, 65)], None, [], None)["advice"] == [
+        "cam1, cam2, cam3, cam4, cam5, cam6 and 2 more: check their focus, exposure and blob detection",
+        "wave the wand in the top left of cam4's image"]
+    small = big[:3]
+    assert rig_verdict(small, None, [], None)["advice"] == [a for c in small for a in c["verdict"]["advice"]]

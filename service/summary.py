@@ -1,0 +1,110 @@
+"""A result as a person reads it on the terminal: ``wandcal calibrate``'s summary (a row a camera, the
+wand, the verdict, the warnings) and ``wandcal demo``'s errors against the simulator's truth."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wandcal.calib.geometry import kabsch, rotation_angle
+from wandcal.calib.judge.verdict import LISTED_CAMERAS, camera_list
+
+
+def format_summary(doc: dict) -> str:
+    """The result as a person reads it: a row a camera, the wand, the rig's verdict with the camera
+    or input at fault, the world's placement, what to do, and the warnings."""
+    points = any("point_observations" in cam for cam in doc["cameras"])
+    intrinsics = any("intrinsics" in cam for cam in doc["cameras"])
+    scaled = doc["world"].get("scale", "wand") != "arbitrary"
+    unit = "m" if scaled else "rig units"
+    width = max(16, *(len(cam["id"]) + 1 for cam in doc["cameras"]))
+    head = (f"{'camera':<{width}} {'centre x, y, z (' + unit + ')':>32}  {'geom +-mm':>9} {'world +-mm':>10} "
+            f"{'rms px':>7} {'resid mm':>8} {'outl %':>6} {'obs':>6} {'verdict':>9}")
+    head += f" {'pts rms':>7} {'pts':>6}" if points else ""
+    head += f" {'focal px':>14}" if intrinsics else ""
+    lines = [head]
+    for cam in doc["cameras"]:
+        c = cam["center"]
+        share = cam.get("outlier_share")
+        row = (f"{cam['id']:<{width}} {c[0]:10.4f} {c[1]:10.4f} {c[2]:10.4f}  "
+               f"{_number(cam.get('geometry_std_mm'), '.2f', 9)} {_number(cam.get('center_std_mm'), '.2f', 10)} "
+               f"{_number(cam.get('reprojection_rms_px'), '.3f', 7)} {_number(cam.get('residual_mm'), '.2f', 8)} "
+               f"{_number(None if share is None else 100 * share, '.1f', 6)} {cam['observations']:6d} "
+               f"{cam.get('verdict', {}).get('level', '-'):>9}")
+        if points:
+            row += f" {_number(cam.get('point_rms_px'), '.3f', 7)} {cam.get('point_observations', 0):6d}"
+        if intrinsics and "focal_px" in cam.get("intrinsics", {}):
+            row += f" {cam['intrinsics']['focal_px']:8.1f}+-{cam['intrinsics']['focal_std_px']:<4.1f}"
+        lines.append(row)
+    w, s = doc["wand"], doc["solver"]
+    iterations = s["iterations"]
+    solved = f"{s['method']}: {iterations} iteration{'' if iterations == 1 else 's'}, {s['seconds']:.2f} s ({s['status']})"
+    if w is None:
+        lines.append(f"no wand: calibrated up to scale (lengths in rig units); {solved}")
+    else:
+        frames = w["frames_used"]
+        lines.append(
+            f"wand {w['length_mean_m'] * 1000:.2f} +- {w['length_std_m'] * 1000:.2f} mm "
+            f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {frames} frame{'' if frames == 1 else 's'}; {solved}"
+        )
+    lines += _verdict_lines(doc)
+    lines += [f"warning: {text}" for text in doc["warnings"]]
+    return "\n".join(lines)
+
+
+def _verdict_lines(doc: dict) -> list[str]:
+    """The judgement: the rig's geometry, the faults it names, the world's placement, the advice."""
+    verdict = doc.get("verdict")
+    if not verdict:
+        return []
+    lines = [f"rig geometry: {verdict['level']}"]
+    faults = verdict.get("faults") or []
+    for fault in faults:
+        lines.append(f"  fault ({fault['kind']}{', ' + fault['camera'] if fault.get('camera') else ''}): {fault['message']}")
+    shown = {fault["message"] for fault in faults}
+    lines += [f"  {reason}" for reason in verdict["reasons"] if reason not in shown]
+    poor = [cam for cam in doc["cameras"] if cam.get("verdict", {}).get("level") == "poor"
+            and any(reason not in shown for reason in cam["verdict"].get("reasons", []))]
+    for cam in poor[:LISTED_CAMERAS]:  # the first few poor cameras' reasons; a big rig's others by name
+        lines += [f"  {reason}" for reason in cam["verdict"]["reasons"] if reason not in shown]
+    more = [cam["id"] for cam in poor[LISTED_CAMERAS:]]
+    if more:
+        lines.append(f"  {camera_list(more, len(doc['cameras']))} {'is' if len(more) == 1 else 'are'} poor too (each "
+                     "camera's verdict in the result says why)")
+    placement = verdict.get("placement")
+    if placement:
+        where = doc["world"].get("placement") or {}
+        figures = ""
+        if where.get("axes_std_deg") is not None:
+            origin = where.get("origin_std_mm")
+            figures = (f" (origin +-{origin:.2f} mm, " if origin is not None else " (") + f"axes +-{where['axes_std_deg']:.3f} deg)"
+        lines.append(f"world placement ({doc['world'].get('frame')}): {placement['level']}{figures}")
+        lines += [f"  {reason}" for reason in placement["reasons"] if reason not in shown]
+    advice = list(dict.fromkeys([*verdict.get("advice", []), *(placement or {}).get("advice", [])]))
+    lines += [f"to do: {text}" for text in advice]
+    return lines
+
+
+def _number(value, fmt: str, width: int) -> str:
+    """A right-aligned figure, or '-' when the result has none (older results, no scale)."""
+    return f"{'-' if value is None else format(value, fmt):>{width}}"
+
+
+def truth_table(result, sim) -> str:
+    """Per-camera errors against the simulator's truth, in the world frame and after the best
+    rigid (similarity without a static object) alignment."""
+    C, Ct = result.centers, sim.truth.centers
+    static = sim.rig.static_markers is not None
+    Ra, ta, s = kabsch(C, Ct, scale=not static)
+    aligned = np.linalg.norm(s * C @ Ra.T + ta - Ct, axis=1) * 1000
+    raw = np.linalg.norm(C - Ct, axis=1) * 1000 if static else None
+    rot = np.degrees(rotation_angle(result.R @ Ra.T, sim.truth.R)) * 3600
+    # without a static object the world is the wand volume's own frame: only aligned errors mean anything
+    head = f"{'camera':<10}" + (f" {'centre err (mm)':>16}" if static else "")
+    rows = [head + f" {'aligned (mm)':>13} {'rotation (arcsec)':>18}"]
+    for i, cam in enumerate(sim.rig.cameras):
+        raw_col = f" {raw[i]:16.3f}" if raw is not None else ""
+        rows.append(f"{cam.id:<10}{raw_col} {aligned[i]:13.3f} {rot[i]:18.1f}")
+    if raw is None:
+        rows.append("(no static object: the world is the wand volume's frame, not the simulator's, so the errors "
+                    "are after the best similarity alignment)")
+    return "\n".join(rows)

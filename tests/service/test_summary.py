@@ -1,0 +1,48 @@
+"""``wandcal calibrate``'s summary on a big rig: a row a camera, but the verdict's lists and the poor
+cameras' reasons compact (the first few, then the others by name), a small rig's as before."""
+
+from wandcal.calib.judge.verdict import LISTED_CAMERAS, rig_verdict
+from wandcal.service.summary import format_summary
+
+
+def result(n: int, poor: int) -> dict:
+    """A wandcal-result/1 document of ``n`` cameras, the first ``poor`` of them poor for their noise,
+    every one short of excellent in coverage; its rig verdict by :func:`rig_verdict`."""
+    cameras = []
+    for k in range(1, n + 1):
+        short = {"coverage": "good"} | ({"noise": "poor"} if k <= poor else {})
+        reasons = [f"cam{k}: samples cover 30% of its image, good"] + (
+            [f"cam{k}: its blob noise is 2.5 times the median camera's, poor"] if k <= poor else [])
+        cameras.append({"id": f"cam{k}", "center": [0.0, 0.0, 2.0], "observations": 3000,
+                        "verdict": {"level": "poor" if k <= poor else "good", "reasons": reasons, "advice": [],
+                                    "short_of_excellent": short}})
+    return {"cameras": cameras, "wand": None, "world": {"frame": "wand_volume", "scale": "arbitrary"},
+            "solver": {"method": "ba", "iterations": 5, "seconds": 1.0, "status": "converged"},
+            "verdict": rig_verdict(cameras, None, [], None), "warnings": []}
+
+
+def verdict_lines(doc: dict) -> list[str]:
+    lines = format_summary(doc).splitlines()
+    return lines[lines.index(f"rig geometry: {doc['verdict']['level']}") + 1:]
+
+
+def test_a_64_camera_summary_names_the_cameras_compactly():
+    doc = result(64, 10)
+    lines = format_summary(doc).splitlines()
+    assert sum(line.split()[0] == f"cam{k}" for k, line in enumerate(lines[1:65], 1)) == 64  # a row a camera
+    first = [f"cam{k}" for k in range(1, LISTED_CAMERAS + 1)]
+    assert verdict_lines(doc) == [
+        f"  poor for noise in {', '.join(first)} and {10 - LISTED_CAMERAS} more (each camera's verdict says why)",
+        "  good but not excellent for coverage in all 64 cameras (each camera's verdict says why)",
+        *(f"  {reason}" for cam in doc["cameras"][:LISTED_CAMERAS] for reason in cam["verdict"]["reasons"]),
+        "  cam7, cam8, cam9, cam10 are poor too (each camera's verdict in the result says why)",
+    ]
+
+
+def test_a_small_rigs_summary_is_as_before():
+    doc = result(4, 2)
+    assert verdict_lines(doc) == [
+        "  poor for noise in cam1, cam2 (each camera's verdict says why)",
+        "  good but not excellent for coverage in cam1, cam2, cam3, cam4 (each camera's verdict says why)",
+        *(f"  {reason}" for cam in doc["cameras"][:2] for reason in cam["verdict"]["reasons"]),
+    ]
