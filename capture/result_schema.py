@@ -155,6 +155,7 @@ CAMERA_FIELDS: dict[str, Check] = {
     "coverage": SHARE,
     "uncovered": TEXTS,
     "verdict": obj(VERDICT_FIELDS),
+    "warnings": TEXTS,  # every warning about this camera in full (the result's own list folds them)
     "intrinsics": obj({"refined": TEXTS, "focal_px": NON_NEGATIVE, "focal_std_px": NON_NEGATIVE,
                        "principal_px": either(vector(2), number()), "principal_std_px": either(vector(2), number()),
                        "k1": number(), "k1_std": NON_NEGATIVE}),

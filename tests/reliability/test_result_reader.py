@@ -22,7 +22,8 @@ from wandcal.capture.results import read_result, result_from_json
 
 # The fields the lead engineer adds in this round (issue 20): a reader must accept them present.
 NEW_CAMERA_FIELDS = {"geometry_std_mm": 0.2, "geometry_rotation_std_deg": 0.01, "residual_mm": 0.3,
-                     "outlier_share": 0.02, "verdict": {"level": "good", "reasons": ["a reason"], "advice": ["wave"]}}
+                     "outlier_share": 0.02, "verdict": {"level": "good", "reasons": ["a reason"], "advice": ["wave"]},
+                     "warnings": ["cam1: static-object pose is ambiguous (planar flip); placed from the wand"]}
 NEW_RESULT_FIELDS = {
     "world": {"frame": "static_object", "placement": {"origin_std_mm": 0.4, "axes_std_deg": 0.05}, "scale": "wand"},
     "verdict": {"level": "good", "reasons": [], "advice": "wave more", "placement": {"level": "good", "reasons": []},
