@@ -43,18 +43,21 @@ class _Sum:
         self.keep = None if keep.all() else np.flatnonzero(keep)
         idx = index[keep]
         self.onehot = self.order = None
+        self.targets: np.ndarray | slice
         if len(idx) and n_out <= DENSE_SUM_ROWS and np.any(np.diff(idx) < 0):
-            self.targets = np.arange(n_out)
-            self.onehot = (idx[None, :] == self.targets[:, None]).astype(float)
+            # a row left out is a zero column of the one-hot matrix: no copy of the kept rows
+            self.targets, self.keep = slice(None), None
+            self.onehot = (index[None, :] == np.arange(n_out)[:, None]).astype(float)
             return
         if np.any(np.diff(idx) < 0):
             self.order = np.argsort(idx, kind="stable")
             idx = idx[self.order]
         self.starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]]) if len(idx) else np.zeros(0, int)
-        self.targets = idx[self.starts]
+        targets = idx[self.starts]
         self.single = len(self.starts) == len(idx)  # every run one row long: nothing to add up
-        if self.single and np.array_equal(self.targets, np.arange(n_out)):
-            self.targets = slice(None)  # and every output row once, in order
+        # consecutive output rows (a chunk's frames, its camera-frame pairs): added in place into
+        # a view, not through an index
+        self.targets = slice(int(targets[0]), int(targets[-1]) + 1) if len(idx) and np.all(np.diff(targets) == 1) else targets
 
     def __call__(self, X: np.ndarray) -> tuple[np.ndarray | slice, np.ndarray]:
         if self.keep is not None:
@@ -162,12 +165,21 @@ def normal_equations(cam_size: int, n_cams: int, parts, like: Normal | None = No
             Jg = J.reshape(-1, 2 * s.group, c + p)
             rc = r.reshape(len(Jg), -1)
             Jc, Jp = Jg[:, :, :c], Jg[:, :, c:]
-            sums = [(gc, np.einsum("gri,gr->gi", Jc, rc), to_cam),
-                    (gp, np.einsum("gri,gr->gi", Jp, rc), to_pt)]
+            sums = [(gp, np.einsum("gri,gr->gi", Jp, rc), to_pt)]
             if like is None:
-                sums += [(U, np.einsum("gri,grj->gij", Jc, Jc, optimize=True), to_cam),
-                         (V, np.einsum("gri,grj->gij", Jp, Jp, optimize=True), to_pt),
-                         (W, np.einsum("gri,grj->gij", Jc, Jp, optimize=True), to_pair)]
+                # the products by matmul on the transposed views: half the time of einsum's
+                # batched product (which copies the column slices first), the same sums; a
+                # camera's products and gradient side by side, summed in one pass
+                JcT = np.swapaxes(Jc, 1, 2)
+                cam = np.empty((len(Jg), c * c + c))
+                np.matmul(JcT, Jc, out=cam[:, : c * c].reshape(-1, c, c))
+                cam[:, c * c :] = np.einsum("gri,gr->gi", Jc, rc)
+                targets, summed = to_cam(cam)
+                U[targets] += summed[:, : c * c].reshape(-1, c, c)
+                gc[targets] += summed[:, c * c :]
+                sums += [(V, np.swapaxes(Jp, 1, 2) @ Jp, to_pt), (W, JcT @ Jp, to_pair)]
+            else:
+                sums.append((gc, np.einsum("gri,gr->gi", Jc, rc), to_cam))
             for out, products, sum_ in sums:
                 targets, summed = sum_(products)
                 out[targets] += summed
