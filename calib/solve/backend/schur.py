@@ -28,6 +28,9 @@ MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagon
 
 
 DENSE_SUM_ROWS = 64  # sums into at most this many rows (cameras) go through a one-hot matrix product
+# ... of at most this many entries (a chunk of groups into 64 cameras, 8 MB): the camera-block
+# pairs' sums into cameras (174k pairs at 64 x 3000) would need an 88 MB matrix held all along
+DENSE_SUM_ENTRIES = DENSE_SUM_ROWS * CHUNK_GROUPS
 
 
 class _Sum:
@@ -44,7 +47,7 @@ class _Sum:
         idx = index[keep]
         self.onehot = self.order = None
         self.targets: np.ndarray | slice
-        if len(idx) and n_out <= DENSE_SUM_ROWS and np.any(np.diff(idx) < 0):
+        if len(idx) and n_out <= DENSE_SUM_ROWS and n_out * len(index) <= DENSE_SUM_ENTRIES and np.any(np.diff(idx) < 0):
             # a row left out is a zero column of the one-hot matrix: no copy of the kept rows
             self.targets, self.keep = slice(None), None
             self.onehot = (index[None, :] == np.arange(n_out)[:, None]).astype(float)
