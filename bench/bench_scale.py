@@ -74,20 +74,26 @@ def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str, float]:
 
 
 def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
-    rows = ["| rig | outliers | `wandcal calibrate` process: wall / CPU (s) | COLMAP-Cauchy solve: wall / CPU (s) | ratio: wall / CPU "
+    import resource
+
+    rows = ["| rig | outliers | `wandcal calibrate` process: wall / CPU (s) | process CPU: user + system (s) "
+            "| COLMAP-Cauchy solve: wall / CPU (s) | COLMAP's solves, wall (s) | ratio: wall / CPU "
             "| centre error wandcal / COLMAP (mm) | process peak RSS (MB) |",
-            "|---|---|---|---|---|---|---|"]
+            "|---|---|---|---|---|---|---|---|---|"]
     for rig in rigs:
         cameras, frames = (int(v) for v in rig.split("x"))
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp) / "capture"
             simulate(folder, cameras, frames)
             warm_bytecode()
-            times, peaks, cpus, cm, cm_cpu = [], [], [], [], []
+            times, peaks, cpus, cm, cm_cpu, split = [], [], [], [], [], []
             error = colmap_error = float("nan")
             iterations = "-"
             for k in range(repeats):
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 seconds, peak, cpu = run_process(folder, Path(tmp) / "result.json")
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                split.append((after.ru_utime - before.ru_utime, after.ru_stime - before.ru_stime))
                 times.append(seconds)
                 peaks.append(peak)
                 cpus.append(cpu)
@@ -100,15 +106,18 @@ def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
                       flush=True)
         cm_s, ratio = ((f"{np.median(cm):.2f} / {np.median(cm_cpu):.2f} ({iterations} steps)",
                         f"{np.median(times) / np.median(cm):.2f} / {np.median(cpus) / np.median(cm_cpu):.2f}") if cm else ("-", "-"))
-        rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} / {np.median(cpus):.2f} | {cm_s} | {ratio} | "
-                    f"{error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
+        user, system = np.median(split, axis=0)
+        solves = ", ".join(f"{c:.1f}" for c in cm) or "-"
+        rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} / {np.median(cpus):.2f} | {user:.2f} + {system:.2f} | "
+                    f"{cm_s} | {solves} | {ratio} | {error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
         print(rows[-1], flush=True)
     return ("The whole command (Python start-up included) on a simulated capture folder (0.3 px, 2% outliers, "
             "L-frame), and COLMAP-Cauchy's solve of the same rig labelled at the truth and started 1 deg / 3 cm off "
             "(bench_peers.py's scene, its gauge on the camera farthest from the first: decision 0019; its steps: "
             f"successful+unsuccessful), alternated in one run; medians of {repeats} processes and {colmap_repeats} COLMAP "
             "solves (minutes each at 128 cameras); ratio: median process / median COLMAP, of wall and of CPU seconds "
-            "(COLMAP's Ceres runs on both cores, wandcal's BLAS on one). Centre error: RMS after a similarity alignment "
+            "(COLMAP's Ceres runs on both cores, wandcal's BLAS on one); the process's CPU split into user and system "
+            "seconds (medians of each). Centre error: RMS after a similarity alignment "
             "to the truth.\n\n"
             + "\n".join(rows) + "\n\nGoals (issue 22): 128 x 3000 process <= 0.3x COLMAP-Cauchy, peak RSS <= 1.2 GB, "
             "accuracy within 1.05x of before; 64 x 3000 <= 0.3x COLMAP-Cauchy.")

@@ -18,6 +18,11 @@ pixels) ends with a weight of ~1e-3. ``loss="linear"`` is plain least squares.
 Stop: when every parameter is estimated to lie within ``STOP_SE`` of its standard error of the
 optimum, from the last step and the rate at which steps shrink, so the remaining error is
 statistically invisible; not on a tolerance in cost that keeps a solver crawling near it.
+
+Least squares (the polish of a robust solution) tries Gauss-Newton's undamped step first, and
+follows an accepted undamped step with the chord method's: the new point's gradient through the
+inverse just computed, which proves convergence without building and reducing the normal
+equations again; the standard errors reuse that inverse (docs/decisions/0026).
 """
 
 from __future__ import annotations
@@ -265,9 +270,10 @@ class _LevenbergMarquardt:
             for t in normal.terms:
                 t.W[t.structure.pair_cam == k, j, :] = 0.0
 
-    def _normal(self, state: BundleState, z: np.ndarray) -> schur.Normal:
+    def _normal(self, state: BundleState, z: np.ndarray, like: schur.Normal | None = None) -> schur.Normal:
         """The weighted normal equations at ``state`` (``z``: its squared errors, for the
-        weights), linearised a chunk at a time inside the sums."""
+        weights), linearised a chunk at a time inside the sums; with ``like``, only the gradient
+        is new and the matrix blocks are ``like``'s (the chord method's system)."""
         sw = np.split(np.sqrt(self._weights(z)), self.split)
         parts = []
         for term, w in zip(self.terms, sw):
@@ -277,7 +283,7 @@ class _LevenbergMarquardt:
                 J *= w[lo:hi, None, None]
                 return r, J
             parts.append((term.structure, rows))
-        normal = schur.normal_equations(self.cam_size, self.n_free, parts)
+        normal = schur.normal_equations(self.cam_size, self.n_free, parts, like)
         self._freeze(normal)
         return normal
 
@@ -285,37 +291,37 @@ class _LevenbergMarquardt:
         z = self._squared_errors(state)
         self._rescale(z)
         cost = self._cost(z)
-        lam, nu = LAMBDA0, 2.0
+        # least squares tries Gauss-Newton's undamped step first: near the optimum (the polish of
+        # a robust solution) it is Newton's step up to the residuals' curvature, and Marquardt's
+        # damping would shrink it along the rig's weakly determined directions (the polish's second
+        # step at 64 x 3000: 0.076 SE after a first step damped by LAMBDA0, 0.0006 after an undamped one)
+        lam, nu = (0.0 if self.loss == "linear" else LAMBDA0), 2.0
         status, message, iterations, evaluations = "iteration_limit", "most iterations reached", 0, 1
         last_ratio = np.inf
+        self.undamped = chord = None
         for it in range(max_iter):
-            self.recent = None  # one normal matrix alive at a time
-            normal = self.recent = self._normal(state, z)
             accepted = None
-            while lam < LAMBDA_MAX:
-                step = schur.solve(normal, lam)
-                if step is None:
-                    lam, nu = lam * nu, 2 * nu
-                    continue
-                new = self._moved(state, step)
-                z_new = self._squared_errors(new)
-                new_cost = self._cost(z_new)
+            if chord is not None:
+                accepted = self._chord_step(state, z, cost, *chord)
                 evaluations += 1
-                pred = _predicted_gain(normal, step)
-                gain = (cost - new_cost) / pred if pred > 0 else -1.0
-                if np.isfinite(new_cost) and gain > 0:
-                    lam *= max(1 / 3, 1 - (2 * gain - 1) ** 3)
-                    nu = 2.0
-                    accepted = (new, step, new_cost, z_new)
-                    break
-                lam, nu = lam * nu, 2 * nu
+                if accepted is not None:
+                    # the chord method's rate is unmeasured (its Jacobian's products are a step
+                    # old): what is left is estimated at MAX_RATE, as after a first step
+                    last_ratio = np.inf
+            if accepted is None:
+                self.recent = self.undamped = chord = None  # one normal matrix alive at a time
+                normal = self.recent = self._normal(state, z)
+                accepted, lam, nu, tried = self._damped_step(normal, state, cost, lam, nu)
+                evaluations += tried
             if accepted is None:
                 status, message = "converged", "no step lowers the cost further"
                 break
             state, step, new_cost, z = accepted
+            # after an undamped step of least squares, the next is the chord method's: the same
+            # inverse with the new point's gradient (one linearisation, no products, no Gram)
+            chord = self.undamped if self.loss == "linear" and self.undamped is not None and step is self.undamped[1] else None
             iterations = it + 1
             relative_gain = (cost - new_cost) / max(cost, 1e-300)
-            normal = None
             self._rescale(z)
             cost = self._cost(z)
             if progress is not None:
@@ -342,6 +348,44 @@ class _LevenbergMarquardt:
         self.last = (state, z)  # the final state's squared errors, for standard_errors
         return state, info
 
+    def _damped_step(self, normal: schur.Normal, state: BundleState, cost: float, lam: float, nu: float):
+        """Levenberg–Marquardt's step at ``normal``, raising the damping until the cost falls
+        (Nielsen's update): (accepted (state, step, cost, z) or None, lam, nu, evaluations)."""
+        evaluations = 0
+        while lam < LAMBDA_MAX:
+            step = schur.solve(normal, lam)
+            if step is not None and lam == 0.0:
+                self.undamped = (normal, step)  # what the standard errors need, if it is the last
+            if step is None:
+                lam, nu = (lam * nu if lam else LAMBDA0), 2 * nu
+                continue
+            new = self._moved(state, step)
+            z_new = self._squared_errors(new)
+            new_cost = self._cost(z_new)
+            evaluations += 1
+            pred = schur.predicted_gain(normal, step)
+            gain = (cost - new_cost) / pred if pred > 0 else -1.0
+            if np.isfinite(new_cost) and gain > 0:
+                lam *= max(1 / 3, 1 - (2 * gain - 1) ** 3)
+                return (new, step, new_cost, z_new), lam, 2.0, evaluations
+            lam, nu = (lam * nu if lam else LAMBDA0), 2 * nu
+        return None, lam, nu, evaluations
+
+    def _chord_step(self, state: BundleState, z: np.ndarray, cost: float, normal0: schur.Normal, step0: schur.Step):
+        """The chord method's step (Newton's with the Jacobian's products of the last point): the
+        gradient at ``state`` through the inverses of the undamped solve ``step0`` of ``normal0``.
+        One step from the optimum's neighbourhood, the products change by a fraction of the
+        step's relative size, and so does this step from Gauss-Newton's. None when the cost does
+        not fall: the caller then builds the normal equations here."""
+        normal = self._normal(state, z, like=normal0)
+        step = schur.solve_again(normal, step0)
+        new = self._moved(state, step)
+        z_new = self._squared_errors(new)
+        new_cost = self._cost(z_new)
+        if np.isfinite(new_cost) and schur.predicted_gain(normal, step) > 0 and new_cost < cost:
+            return new, step, new_cost, z_new
+        return None
+
     def standard_errors(self, state: BundleState) -> np.ndarray:
         """(n_free, c) standard errors of the cameras' parameters at the solution: sigma times the
         root diagonal of the undamped reduced system's inverse (0 for held parameters)."""
@@ -349,11 +393,17 @@ class _LevenbergMarquardt:
         recent = getattr(self, "recent", None)
         if last_state is not state:
             z, recent = self._squared_errors(state), None
-        # the last iteration's normal matrix, built at this state or one step before it: the run
-        # stopped when steps fell under stop_se standard errors, far below what moves a covariance
+        # the last normal matrix built, at this state or up to two steps before it (a step and the
+        # chord step after it): the run stopped when what was left fell under stop_se standard
+        # errors, and its last steps were of a few standard errors at most, far below what moves
+        # a covariance (3e-5 of the standard errors at 64 x 3000, docs/decisions/0026)
         normal = (recent if recent is not None else self._normal(state, z)) if self.n_free else None
-        self.recent = None
-        step = schur.solve(normal, 0.0) if self.n_free else None
+        undamped = getattr(self, "undamped", None)
+        self.recent = self.undamped = None
+        if undamped is not None and undamped[0] is normal:
+            step = undamped[1]  # the run solved this very matrix undamped: the same inverse
+        else:
+            step = schur.solve(normal, 0.0) if self.n_free else None
         if step is None:
             return np.full((self.n_free, self.cam_size), np.inf)
         # the residuals are smaller than the noise by the parameters fitted to them: sigma^2 is
@@ -372,18 +422,6 @@ class _LevenbergMarquardt:
 def _robust_sigma(z: np.ndarray) -> float:
     """Per-axis noise from squared 2D errors: the median radius of a 2D Gaussian is sigma sqrt(2 ln 2)."""
     return float(np.median(np.sqrt(z))) / np.sqrt(2 * np.log(2)) if len(z) else 0.0
-
-
-def _predicted_gain(normal: schur.Normal, step: schur.Step) -> float:
-    """Decrease of the weighted least squares model, -(g . dx) - |J dx|^2 / 2, with |J dx|^2 =
-    dx^T (J^T J) dx taken from the normal equations' blocks (no pass over the observations)."""
-    dc = step.dc
-    gain = -float(np.sum(normal.gc * dc)) - 0.5 * float(np.einsum("ni,nij,nj->", dc, normal.U, dc))
-    for t, dp in zip(normal.terms, step.dp):
-        s = t.structure
-        gain -= float(np.sum(t.gp * dp)) + 0.5 * float(np.einsum("pi,pij,pj->", dp, t.V, dp))
-        gain -= float(np.einsum("ki,kij,kj->", dc[s.pair_cam], t.W, dp[s.pair_pt]))
-    return gain
 
 
 def _step_in_standard_errors(step: schur.Step, z: np.ndarray) -> float:

@@ -132,7 +132,7 @@ class WandTerm(_Term):
         raw = None if self.raw is None else (self.raw[0][sl], self.raw[1])
         velocity = None if self.velocity is None else self.velocity[sl]
         r, J = _linearised_projection(Y, s, camera, Rc, self.xy[sl], self.focal[sl], raw, FRAME_PARAMS, velocity)
-        u1, u2 = tangent_basis(s.d[frame])
+        u1, u2 = (u[frame] for u in tangent_basis(s.d))  # a frame's basis once, not once per observation
         c = J.shape[2] - FRAME_PARAMS
         dX = J[:, :, c : c + 3]  # d/dX of the end; the end moves by half * (a u1 + b u2)
         J[:, :, c + 3] = np.einsum("mki,mi->mk", dX, u1) * self.half[sl, None]

@@ -17,7 +17,7 @@ matrix product per chunk of points.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,6 +28,9 @@ MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagon
 
 
 DENSE_SUM_ROWS = 64  # sums into at most this many rows (cameras) go through a one-hot matrix product
+# ... of at most this many entries (a chunk of groups into 64 cameras, 8 MB): the camera-block
+# pairs' sums into cameras (174k pairs at 64 x 3000) would need an 88 MB matrix held all along
+DENSE_SUM_ENTRIES = DENSE_SUM_ROWS * CHUNK_GROUPS
 
 
 class _Sum:
@@ -43,18 +46,21 @@ class _Sum:
         self.keep = None if keep.all() else np.flatnonzero(keep)
         idx = index[keep]
         self.onehot = self.order = None
-        if len(idx) and n_out <= DENSE_SUM_ROWS and np.any(np.diff(idx) < 0):
-            self.targets = np.arange(n_out)
-            self.onehot = (idx[None, :] == self.targets[:, None]).astype(float)
+        self.targets: np.ndarray | slice
+        if len(idx) and n_out <= DENSE_SUM_ROWS and n_out * len(index) <= DENSE_SUM_ENTRIES and np.any(np.diff(idx) < 0):
+            # a row left out is a zero column of the one-hot matrix: no copy of the kept rows
+            self.targets, self.keep = slice(None), None
+            self.onehot = (index[None, :] == np.arange(n_out)[:, None]).astype(float)
             return
         if np.any(np.diff(idx) < 0):
             self.order = np.argsort(idx, kind="stable")
             idx = idx[self.order]
         self.starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]]) if len(idx) else np.zeros(0, int)
-        self.targets = idx[self.starts]
+        targets = idx[self.starts]
         self.single = len(self.starts) == len(idx)  # every run one row long: nothing to add up
-        if self.single and np.array_equal(self.targets, np.arange(n_out)):
-            self.targets = slice(None)  # and every output row once, in order
+        # consecutive output rows (a chunk's frames, its camera-frame pairs): added in place into
+        # a view, not through an index
+        self.targets = slice(int(targets[0]), int(targets[-1]) + 1) if len(idx) and np.all(np.diff(targets) == 1) else targets
 
     def __call__(self, X: np.ndarray) -> tuple[np.ndarray | slice, np.ndarray]:
         if self.keep is not None:
@@ -135,7 +141,7 @@ class Normal:
     terms: list[TermBlocks]
 
 
-def normal_equations(cam_size: int, n_cams: int, parts) -> Normal:
+def normal_equations(cam_size: int, n_cams: int, parts, like: Normal | None = None) -> Normal:
     """Sum the per-observation products into blocks, a chunk of groups at a time.
 
     Args:
@@ -144,30 +150,42 @@ def normal_equations(cam_size: int, n_cams: int, parts) -> Normal:
             and Jacobian (hi-lo, 2, c + p) of observations lo..hi (camera columns first), already
             multiplied by the square roots of their weights. The whole Jacobian never exists at
             once: at 8 x 32,000 it would be 84 MB.
+        like: None, or normal equations of the same problem whose matrix blocks (U, V, W) to
+            keep: then only the gradient (gc, gp) is summed here, the chord method's system
+            (the Jacobian's products, 60% of a build, are left out).
     """
     c = cam_size
-    U = np.zeros((n_cams, c, c))
+    U = np.zeros((n_cams, c, c)) if like is None else like.U
     gc = np.zeros((n_cams, c))
     terms = []
-    for s, rows in parts:
+    for k, (s, rows) in enumerate(parts):
         p = s.size
-        V = np.zeros((s.n_pts, p, p))
+        V = np.zeros((s.n_pts, p, p)) if like is None else like.terms[k].V
         gp = np.zeros((s.n_pts, p))
-        W = np.zeros((s.n_pairs, c, p))
+        W = np.zeros((s.n_pairs, c, p)) if like is None else like.terms[k].W
         for a, b, to_cam, to_pt, to_pair in s.chunks:
             r, J = rows(a * s.group, min(b, s.n_groups) * s.group)
             Jg = J.reshape(-1, 2 * s.group, c + p)
             rc = r.reshape(len(Jg), -1)
             Jc, Jp = Jg[:, :, :c], Jg[:, :, c:]
-            for out, products, sum_ in (
-                (U, np.einsum("gri,grj->gij", Jc, Jc, optimize=True), to_cam),
-                (gc, np.einsum("gri,gr->gi", Jc, rc), to_cam),
-                (V, np.einsum("gri,grj->gij", Jp, Jp, optimize=True), to_pt),
-                (gp, np.einsum("gri,gr->gi", Jp, rc), to_pt),
-                (W, np.einsum("gri,grj->gij", Jc, Jp, optimize=True), to_pair),
-            ):
-                targets, sums = sum_(products)
-                out[targets] += sums
+            sums = [(gp, np.einsum("gri,gr->gi", Jp, rc), to_pt)]
+            if like is None:
+                # the products by matmul on the transposed views: half the time of einsum's
+                # batched product (which copies the column slices first), the same sums; a
+                # camera's products and gradient side by side, summed in one pass
+                JcT = np.swapaxes(Jc, 1, 2)
+                cam = np.empty((len(Jg), c * c + c))
+                np.matmul(JcT, Jc, out=cam[:, : c * c].reshape(-1, c, c))
+                cam[:, c * c :] = np.einsum("gri,gr->gi", Jc, rc)
+                targets, summed = to_cam(cam)
+                U[targets] += summed[:, : c * c].reshape(-1, c, c)
+                gc[targets] += summed[:, c * c :]
+                sums += [(V, np.swapaxes(Jp, 1, 2) @ Jp, to_pt), (W, JcT @ Jp, to_pair)]
+            else:
+                sums.append((gc, np.einsum("gri,gr->gi", Jc, rc), to_cam))
+            for out, products, sum_ in sums:
+                targets, summed = sum_(products)
+                out[targets] += summed
         terms.append(TermBlocks(s, V, gp, W))
     return Normal(U, gc, terms)
 
@@ -185,7 +203,8 @@ def _damped(blocks: np.ndarray, lam: float) -> np.ndarray:
 class Step:
     """A solved step: dc (N, c) for the cameras, dp per term (P, p), and, for standard errors,
     the diagonal of the reduced camera system's inverse (N, c) and of each V^-1 (P, p); the
-    whole inverse (N c, N c) and the V^-1 blocks are kept for the pose covariance."""
+    whole inverse (N c, N c) and the V^-1 blocks are kept for the pose covariance (and for
+    :func:`solve_again`)."""
 
     dc: np.ndarray
     dp: list[np.ndarray]
@@ -193,6 +212,7 @@ class Step:
     pt_var: list[np.ndarray]
     cam_cov: np.ndarray
     pt_inv: list[np.ndarray]
+    lam: float = 0.0  # the damping it was solved at
 
 
 def solve(normal: Normal, lam: float) -> Step | None:
@@ -226,14 +246,43 @@ def solve(normal: Normal, lam: float) -> Step | None:
         return None
     S_inv = np.linalg.inv(S)
     dc = -(S_inv @ b.ravel()).reshape(n, c)
-    cam_var = np.diag(S_inv).reshape(n, c).copy()
-    dp, pt_var = [], []
-    for t, Vinv in zip(normal.terms, solved):
+    return Step(dc, _back_substituted(normal, solved, dc), np.diag(S_inv).reshape(n, c).copy(),
+                [np.einsum("pii->pi", Vinv) for Vinv in solved], S_inv, solved, lam)
+
+
+def solve_again(normal: Normal, factored: Step) -> Step:
+    """The step of ``normal``, whose matrix blocks are those ``factored`` solved (only its gradient
+    differs: :func:`normal_equations` ``like``), from that solve's inverses: no Gram and no
+    factorisation, a few products over the pairs."""
+    n, c = normal.gc.shape
+    b = normal.gc.copy()
+    for t, Vinv in zip(normal.terms, factored.pt_inv):
+        s = t.structure
+        b -= _summed(s.pair_to_cam, np.einsum("kij,kj->ki", t.W, np.einsum("pij,pj->pi", Vinv, t.gp)[s.pair_pt]), n)
+    dc = -(factored.cam_cov @ b.ravel()).reshape(n, c)
+    return replace(factored, dc=dc, dp=_back_substituted(normal, factored.pt_inv, dc))
+
+
+def _back_substituted(normal: Normal, Vinvs: list[np.ndarray], dc: np.ndarray) -> list[np.ndarray]:
+    """Each term's block steps (P, p) given the cameras' dc (N, c): V^-1 (-gp - W^T dc)."""
+    dp = []
+    for t, Vinv in zip(normal.terms, Vinvs):
         s = t.structure
         rhs = -t.gp - _summed(s.pair_to_pt, np.einsum("kji,kj->ki", t.W, dc[s.pair_cam]), s.n_pts)
         dp.append(np.einsum("pij,pj->pi", Vinv, rhs))
-        pt_var.append(np.einsum("pii->pi", Vinv))
-    return Step(dc, dp, cam_var, pt_var, S_inv, solved)
+    return dp
+
+
+def predicted_gain(normal: Normal, step: Step) -> float:
+    """Decrease of the weighted least squares model, -(g . dx) - |J dx|^2 / 2, with |J dx|^2 =
+    dx^T (J^T J) dx taken from the normal equations' blocks (no pass over the observations)."""
+    dc = step.dc
+    gain = -float(np.sum(normal.gc * dc)) - 0.5 * float(np.einsum("ni,nij,nj->", dc, normal.U, dc))
+    for t, dp in zip(normal.terms, step.dp):
+        s = t.structure
+        gain -= float(np.sum(t.gp * dp)) + 0.5 * float(np.einsum("pi,pij,pj->", dp, t.V, dp))
+        gain -= float(np.einsum("ki,kij,kj->", dc[s.pair_cam], t.W, dp[s.pair_pt]))
+    return gain
 
 
 def _subtract_gram(S: np.ndarray, W: np.ndarray, LinvT: np.ndarray, s: TermStructure) -> None:

@@ -8,6 +8,8 @@ from scipy.optimize import least_squares
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
 from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 from wandcal.calib.solve import ba
+from wandcal.calib.solve.backend import schur
+from wandcal.calib.solve.reprojection import BundleState, WandTerm
 
 NOISE = 0.5
 
@@ -87,3 +89,49 @@ def test_rejects_an_unknown_loss():
     scene = prepared_scene(cameras=3, frames=40, noise_px=NOISE, seed=1)
     with pytest.raises(ValueError, match="loss"):
         ba.bundle_adjust(scene.setup.model, loss="huber")
+
+
+def test_polish_takes_an_undamped_step_then_a_chord_step_and_reuses_its_inverse(monkeypatch):
+    """The least-squares polish of a robust solution (the pipeline's second ``ba`` run): one
+    normal matrix solved once, undamped; the step after it is the chord method's (the same
+    inverse, the new gradient), and the standard errors come from that same solve. They agree
+    with a fresh solve at the final point, two steps of under a few standard errors away."""
+    scene = prepared_scene(cameras=5, frames=300, noise_px=NOISE, seed=4)
+    model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=4)
+    robust = ba.bundle_adjust_points(model, None, None, stop_se=0.5, standard_errors=False)
+    solves = []
+    solve = schur.solve
+    monkeypatch.setattr(schur, "solve", lambda normal, lam: solves.append(lam) or solve(normal, lam))
+    polish = ba.bundle_adjust_points(model, None, None, x0=robust.x, loss="linear")
+    assert polish.info["status"] == "converged" and polish.info["iterations"] == 2
+    assert solves == [0.0]  # no damping, no second Gram, no solve for the standard errors
+    monkeypatch.setattr(schur, "solve", solve)
+    fresh = ba.bundle_adjust_points(model, None, None, x0=polish.x, loss="linear", max_iter=0)
+    free = ~model.fixed
+    # the inverse is taken one step (< 2 SE) before the end: the Jacobian there differs by about
+    # that step over the cameras' distance (1e-3 m over metres), and so do the standard errors
+    assert np.allclose(polish.camera_std[free], fresh.camera_std[free], rtol=1e-3)
+    # the chord step leaves the polish at least as close to the optimum as STOP_SE says
+    x_more = ba.bundle_adjust_points(model, None, None, x0=polish.x, loss="linear", stop_se=1e-6,
+                                     standard_errors=False).x
+    diff, _ = gauge_errors(*model.poses(polish.x), *model.poses(x_more), 0)
+    T = scene.sim.truth
+    bound, _ = pose_crb(scene.setup.problem, T.R, T.t, T.wand[scene.setup.frames], 0, NOISE)
+    assert np.all(diff[1:] < 4 * ba.STOP_SE * bound[1:])
+
+
+def test_solve_again_with_the_same_gradient_is_the_same_step():
+    """``solve_again`` reuses a solve's inverses: on that solve's own system it gives its step."""
+    scene = prepared_scene(cameras=4, frames=120, noise_px=NOISE, seed=5)
+    model = perturbed_model(scene, degrees=0.5, metres=0.01, seed=5)
+    p = model.p
+    R, t = model.poses(model.x0())
+    wand = model.wand(model.x0())
+    d = wand[:, 1] - wand[:, 0]
+    state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), np.zeros((0, 3)), None, None, None)
+    term = WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, model.free, p.n_cams)
+    normal = schur.normal_equations(6, len(model.free), [(term.structure, lambda lo, hi: term.linearise_rows(state, slice(lo, hi)))])
+    step = schur.solve(normal, 0.0)
+    again = schur.solve_again(normal, step)
+    assert np.allclose(again.dc, step.dc, rtol=1e-9, atol=1e-12 * np.abs(step.dc).max())
+    assert np.allclose(again.dp[0], step.dp[0], rtol=1e-9, atol=1e-12 * np.abs(step.dp[0]).max())
