@@ -2,7 +2,7 @@
 
 | module | holds |
 |---|---|
-| :mod:`~wandcal.calib.solve.ba` | ``--method ba``: Schur-complement Levenberg-Marquardt with the wand length built in |
+| :mod:`~wandcal.calib.solve.ba` | ``--method ba``: Schur-complement Levenberg-Marquardt with the wand length built in (its entry points, and its loop) |
 | :mod:`~wandcal.calib.solve.lp` | ``--method lp``: sequential LP with a robust piecewise-linear loss |
 | :mod:`~wandcal.calib.solve.paper` | ``--method paper``: the seed paper's Euler-angle LM plus least-absolute-error LP |
 | :mod:`~wandcal.calib.solve.wandmodel` | the wand reprojection model every method shares |

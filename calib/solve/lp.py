@@ -123,7 +123,7 @@ def refine_lp(
         state reached before it) or "lp_<status>" (HiGHS failed; x likewise); irls_steps.
     """
     # the dense products are small (a 186 x 186 Cholesky at 32 cameras): a second BLAS thread costs
-    # more in hand-offs than it gains, as in calib/solve/ba.py (32 x 2000, bench_peers's scene: the LP solves
+    # more in hand-offs than it gains, as in calib/solve/ba/adjust.py (32 x 2000, bench_peers's scene: the LP solves
     # took 1.6-2.0 s with two BLAS threads, 0.5 s with one)
     with threadpool_limits(limits=1, user_api="blas"):
         x, info, _ = _refine_lp(model, x0, progress, max_iter, time_limit, 0 if warm else subset_frames, scheme, certify,

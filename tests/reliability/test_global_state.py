@@ -114,7 +114,7 @@ def test_readers_in_many_threads_leave_the_warnings_filter_alone(small_capture):
 # listed with its reason.
 GLOBAL_CALLS = ("warnings.simplefilter", "warnings.filterwarnings", "warnings.catch_warnings", "os.chdir",
                 "os.environ[", "os.putenv", "locale.setlocale", "np.seterr(", "numpy.seterr(", "setNumThreads",
-                "threadpool_limits(")
+                "threadpool_limits(", "mallopt(", "_set_madvise_hugepage(")
 ALLOWED = {
     # once at the server's start: one BLAS thread in the server process (see its comment)
     ("service/main.py", "threadpool_limits("),
@@ -122,8 +122,12 @@ ALLOWED = {
     ("service/commands.py", "threadpool_limits("),
     # the solvers pin BLAS to one thread for their own run; in the server that is a no-op, as the
     # server set one thread at its start, so concurrent solves cannot leave the count changed
-    ("calib/solve/ba.py", "threadpool_limits("),
+    ("calib/solve/ba/adjust.py", "threadpool_limits("),
     ("calib/solve/lp.py", "threadpool_limits("),
+    # the memory policy of a command that computes once and exits, taken by the CLI's own process
+    # only (service/cli.py: never by the server, a worker or an in-process caller)
+    ("service/batch_memory.py", "mallopt("),
+    ("service/batch_memory.py", "_set_madvise_hugepage("),
 }
 
 
