@@ -165,13 +165,13 @@ def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme,
         keep = np.unique(np.linspace(0, F - 1, subset_frames).round().astype(int))
         sub, sub_x = _frame_subset(model, x, keep)
         sub_x, info_sub, _ = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, scheme,
-                               certify=CERTIFY_FIRST_PHASE)
+                                  certify=CERTIFY_FIRST_PHASE)
         x[: model.frame_col0] = sub_x[: model.frame_col0]  # the frames follow in the phase's first step
     if info_sub is not None and info_sub["status"] != "converged":
         info = dict(info_sub, iterations=0, lp_seconds=0.0)  # the first phase's best state stands
     else:
         x, info, state = _slp(model, x, progress, max_iter, time_limit, "all frames", EFFICIENT, scheme, certify=certify,
-                       warm=warm)
+                              warm=warm)
     if info_sub is not None:
         info["iterations"] += info_sub["iterations"]
         info["lp_seconds"] += info_sub["lp_seconds"]
