@@ -9,10 +9,9 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.judge import quality
-from wandcal.calib.judge.verdict import camera_list
 from wandcal.calib.observations import camera_rows
 from wandcal.calib.refine import GAUGE_CAMERA
-from wandcal.calib.rig import Rig
+from wandcal.calib.rig import Rig, camera_list
 from wandcal.calib.solve.gauge_free import split_uncertainty
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty

@@ -298,3 +298,20 @@ class AxisObservations:
 
     def __len__(self) -> int:
         return len(self.role)
+
+
+# a message names at most this many cameras, then "and N more": six ids still read at a glance on
+# one line (a 64-camera ring's 64 ids do not); the full list stays in each camera's own entry
+LISTED_CAMERAS = 6
+
+
+def camera_list(ids: list[str], rig_cameras: int) -> str:
+    """Cameras named in a message, readable at any rig size: every id when there are at most
+    :data:`LISTED_CAMERAS` ("cam1, cam2"); "all 64 cameras" when they are the whole rig; else the
+    first few and "and N more" ("cam1, ..., cam6 and 12 more"). ids: in rig order;
+    rig_cameras: how many cameras the rig has."""
+    if len(ids) <= LISTED_CAMERAS:
+        return ", ".join(ids)
+    if len(ids) == rig_cameras:
+        return f"all {rig_cameras} cameras"
+    return f"{', '.join(ids[:LISTED_CAMERAS])} and {len(ids) - LISTED_CAMERAS} more"

@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.verdict import camera_list
+from wandcal.calib.rig import camera_list
 from wandcal.capture.folder import read_capture
 from wandcal.service.command_inputs import points_level, result_for
 from wandcal.service.progress import ProgressLine

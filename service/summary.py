@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.geometry import kabsch, rotation_angle
-from wandcal.calib.judge.verdict import LISTED_CAMERAS, camera_list
+from wandcal.calib.rig import LISTED_CAMERAS, camera_list
 
 
 def format_summary(doc: dict) -> str:

@@ -18,7 +18,7 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.coverage import coverage_grid, covered_fraction, empty_regions
 from wandcal.calib.observations import camera_rows
-from wandcal.calib.rig import Rig
+from wandcal.calib.rig import LISTED_CAMERAS, Rig, camera_list
 
 LEVELS = ("excellent", "good", "poor")
 # a camera's RMS ray distance over the volume's size: 0.3 px of blob noise, a typical good
@@ -65,23 +65,6 @@ PLACEMENT_ADVICE = {
     "axis": "digitise the axis points in more cameras and frames, or space them further apart",
     "wand_volume": "place an L-frame (static object) in the volume, seen by several cameras, to fix the world frame",
 }
-# a message names at most this many cameras, then "and N more": six ids still read at a glance on
-# one line (a 64-camera ring's 64 ids do not); the full list stays in each camera's own entry
-LISTED_CAMERAS = 6
-
-
-def camera_list(ids: list[str], rig_cameras: int) -> str:
-    """Cameras named in a message, readable at any rig size: every id when there are at most
-    :data:`LISTED_CAMERAS` ("cam1, cam2"); "all 64 cameras" when they are the whole rig; else the
-    first few and "and N more" ("cam1, ..., cam6 and 12 more"). ids: in rig order;
-    rig_cameras: how many cameras the rig has."""
-    if len(ids) <= LISTED_CAMERAS:
-        return ", ".join(ids)
-    if len(ids) == rig_cameras:
-        return f"all {rig_cameras} cameras"
-    return f"{', '.join(ids[:LISTED_CAMERAS])} and {len(ids) - LISTED_CAMERAS} more"
-
-
 def _grade(value: float | None, limits: tuple[float, float], higher_is_better: bool = False) -> int:
     if value is None or not np.isfinite(value):
         return 0

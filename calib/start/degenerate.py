@@ -21,7 +21,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import PointTracks, WandPairs
-from wandcal.calib.rig import Rig
+from wandcal.calib.rig import Rig, camera_list
 from wandcal.calib.start.chain import (
     ESSENTIAL_THRESHOLD_PX,
     MIN_PAIR_MATCHES,
@@ -100,7 +100,7 @@ def _check_motion(rig: Rig, pairs: WandPairs) -> None:
             f"through the volume moves over {STILL_PX:g} px), and two fixed points cannot place a camera. Record "
             "again, waving the wand through the whole volume"
         )
-    ids = ", ".join(rig.cameras[c].id for c in still)
+    ids = camera_list([rig.cameras[c].id for c in still], len(rig.cameras))
     raise CalibrationError(
         f"camera(s) {ids} saw the wand in one place only ({per_camera}), which cannot place a camera: wave the "
         f"wand through {ids}'s view as well, or remove {ids} from rig.json"
@@ -172,7 +172,7 @@ def weak_links(rig: Rig, views: Views) -> list[str]:
         parts = camera_groups(linked, keep)
         for part in parts[1:]:
             ids = [rig.cameras[c].id for c in part]
-            names = ", ".join(ids)
+            names = camera_list(ids, n)
             out.append(f"{names} {'is' if len(ids) == 1 else 'are'} linked to the other cameras only through "
                        f"{rig.cameras[v].id}: an error in {rig.cameras[v].id}'s pose carries into "
                        f"{'it' if len(ids) == 1 else 'them'} unchecked; wave the wand where {names} and a camera other "

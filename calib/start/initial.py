@@ -29,7 +29,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError, Failure
 from wandcal.calib.observations import PointTracks, WandPairs
-from wandcal.calib.rig import Rig
+from wandcal.calib.rig import Rig, camera_list
 from wandcal.calib.start.chain import (
     MIN_PAIR_MATCHES,
     MIN_SCALE_FRAMES,
@@ -298,9 +298,9 @@ def _refuse_split(st: _State) -> None:
     if len(groups) < 2:
         return
     ids = [c.id for c in st.rig.cameras]
-    main = ", ".join(ids[c] for c in groups[0])
+    main = camera_list([ids[c] for c in groups[0]], len(ids))
     cam = ids[groups[1][0]]
-    apart = "; ".join(", ".join(ids[c] for c in g) for g in groups[1:])
+    apart = "; ".join(camera_list([ids[c] for c in g], len(ids)) for g in groups[1:])
     raise CalibrationError(
         f"camera {cam!r} cannot be placed: no wand frame or point track ties it to the cameras {main} "
         f"(the camera groups apart from them: {apart}); the static object alone would place the groups, "

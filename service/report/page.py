@@ -5,7 +5,7 @@ from __future__ import annotations
 import html
 import math
 
-from wandcal.calib.judge.verdict import LISTED_CAMERAS, camera_list
+from wandcal.calib.rig import LISTED_CAMERAS, camera_list
 from wandcal.service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
 from wandcal.service.report.figures import AXIS_POINTS, FRAME_DOTS, OUTLIER_CROSSES, POINT_DOTS, WAND_DOTS
 

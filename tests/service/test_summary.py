@@ -1,7 +1,8 @@
 """``wandcal calibrate``'s summary on a big rig: a row a camera, but the verdict's lists and the poor
 cameras' reasons compact (the first few, then the others by name), a small rig's as before."""
 
-from wandcal.calib.judge.verdict import LISTED_CAMERAS, rig_verdict
+from wandcal.calib.judge.verdict import rig_verdict
+from wandcal.calib.rig import LISTED_CAMERAS
 from wandcal.service.summary import format_summary
 
 
