@@ -32,7 +32,6 @@ from wandcal.calib.judge.residuals import (
 )
 from wandcal.calib.judge.verdict import (
     NOISE_RATIO,
-    camera_list,
     camera_verdict,
     coverage_reports,
     placement_verdict,
@@ -40,7 +39,7 @@ from wandcal.calib.judge.verdict import (
     sanity_check,
 )
 from wandcal.calib.observations import PointTracks, WandPairs
-from wandcal.calib.rig import Rig
+from wandcal.calib.rig import Rig, camera_list
 from wandcal.calib.solve.uncertainty import chi2_quantile
 
 SUSPECT_NOISE_RATIO = 1.5  # a camera this much noisier than the median camera is looked into

@@ -11,7 +11,7 @@ import numpy as np
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import camera_rows
 from wandcal.calib.refine import GAUGE_CAMERA
-from wandcal.calib.rig import Rig, camera_list
+from wandcal.calib.rig import Rig, camera_list, names_camera
 from wandcal.calib.solve.gauge_free import split_uncertainty
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty
@@ -111,12 +111,6 @@ def intrinsics_reports(cameras: list[dict], rig: Rig, std: np.ndarray, names: li
                                     "the image's edges, or hold k1")
             col += INTRINSICS[name]
         cameras[c]["intrinsics"] = entry
-
-
-def names_camera(text: str, camera_id: str) -> bool:
-    """Whether a warning is about this camera: it starts with the camera's id, or quotes it
-    ("cam3: ...", "cam3 saw ...", "camera 'cam3' ...")."""
-    return text.startswith(camera_id + " ") or f"{camera_id}:" in text or f"'{camera_id}'" in text
 
 
 def fold_camera_warnings(warnings: list[str], ids: list[str], cameras: list[dict]) -> list[str]:

@@ -315,3 +315,9 @@ def camera_list(ids: list[str], rig_cameras: int) -> str:
     if len(ids) == rig_cameras:
         return f"all {rig_cameras} cameras"
     return f"{', '.join(ids[:LISTED_CAMERAS])} and {len(ids) - LISTED_CAMERAS} more"
+
+
+def names_camera(text: str, camera_id: str) -> bool:
+    """Whether a warning is about this camera: it starts with the camera's id, or quotes it
+    ("cam3: ...", "cam3 saw ...", "camera 'cam3' ...")."""
+    return text.startswith(camera_id + " ") or f"{camera_id}:" in text or f"'{camera_id}'" in text

@@ -5,7 +5,7 @@ from __future__ import annotations
 import html
 import math
 
-from wandcal.calib.rig import LISTED_CAMERAS, camera_list
+from wandcal.calib.rig import LISTED_CAMERAS, camera_list, names_camera
 from wandcal.service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
 from wandcal.service.report.figures import AXIS_POINTS, FRAME_DOTS, OUTLIER_CROSSES, POINT_DOTS, WAND_DOTS
 
@@ -215,7 +215,7 @@ def _camera_section(data: ReportData, cam: CameraSummary, figure: str | None) ->
     rows = [f"<tr><th>{_e(k)}</th><td>{v}</td></tr>" for k, v in fields]
     own = d.get("warnings")  # its own in full; the result's warnings fold those several cameras share
     said = cam.advice + ([str(w) for w in own] if isinstance(own, list) else
-                         [w for w in data.result.doc.get("warnings") or [] if _names(w, cam.id)])
+                         [w for w in data.result.doc.get("warnings") or [] if names_camera(w, cam.id)])
     out = [f'<section class="camera" id="camera-{_e(cam.id)}" data-camera="{_e(cam.id)}"><h2>{_e(cam.id)}</h2>',
            "<table>" + "".join(rows) + "</table>"]
     if said:
@@ -284,11 +284,6 @@ def verdict(value) -> tuple[str | None, list[str]]:
         reasons = value.get("reasons") or []
         return word, [str(r) for r in reasons] if isinstance(reasons, list) else [str(reasons)]
     return None, []
-
-
-def _names(text: str, camera_id: str) -> bool:
-    """Whether a warning is about this camera (warnings start with, or quote, the camera's id)."""
-    return text.startswith(camera_id + " ") or f"{camera_id}:" in text or f"'{camera_id}'" in text
 
 
 def _verdict_html(word: str | None) -> str:
