@@ -38,6 +38,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from bench.common import aligned_rms_mm, peak_rss_mb, reset_peak_rss, write_section  # noqa: E402
+from bench.whole_process import PROBE  # noqa: E402
 from wandcal.calib.geometry import camera_centers, rotvec_to_matrix  # noqa: E402
 from wandcal.calib.observations import wand_pairs  # noqa: E402
 from wandcal.calib.refine import build_problem, refine, reject_outliers, up_direction  # noqa: E402
@@ -190,11 +191,6 @@ def measure(label, fn, *args):
 def calibrate_process(cameras: int, frames: int, outliers: float, repeats: int) -> tuple[float, float]:
     """Median wall time (s) and peak RSS (MB) of the whole `wandcal calibrate` process on a
     simulated capture folder (the default one, with its L-frame, as a new user would make it)."""
-    # VmHWM, not ru_maxrss: Linux carries ru_maxrss over from the (v)forking bench through exec,
-    # so a child's ru_maxrss is never below the bench's own peak
-    probe = ("import sys; from wandcal.service.cli import main; code = main(); "
-             "print(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:')), file=sys.stderr); "
-             "sys.exit(code)")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "capture"
         subprocess.run([sys.executable, "-m", "wandcal.service.cli", "simulate", str(folder), "--cameras", str(cameras),
@@ -202,7 +198,7 @@ def calibrate_process(cameras: int, frames: int, outliers: float, repeats: int) 
         times, peaks = [], []
         for _ in range(repeats):
             start = time.perf_counter()
-            done = subprocess.run([sys.executable, "-c", probe, "calibrate", str(folder), "--quiet",
+            done = subprocess.run([sys.executable, "-c", PROBE, "calibrate", str(folder), "--quiet",
                                    "--out", str(Path(tmp) / "result.json")], check=True, capture_output=True, text=True, cwd=REPO)
             times.append(time.perf_counter() - start)
             peaks.append(float(done.stderr.strip().splitlines()[-1]) / 1024)
