@@ -46,7 +46,7 @@ from threadpoolctl import threadpool_limits
 from wandcal.calib.solve.lpstep import GUARD_SE, solve_step
 from wandcal.calib.solve.reduced import ReducedSystem, residual_cost, robust_scale
 from wandcal.calib.solve.robustloss import EFFICIENT, L1, REJECT_SIGMAS, irls_weights
-from wandcal.calib.solve.uncertainty import PoseCovariance
+from wandcal.calib.solve.uncertainty import PoseCovariance, fitted_sigma
 from wandcal.calib.solve.wandmodel import CAM_PARAMS, WandModel, WandProblem
 
 ROT_RADIUS = 0.02  # initial trust region: radians per rotation increment
@@ -126,8 +126,7 @@ def refine_lp(
     # more in hand-offs than it gains, as in calib/solve/ba/adjust.py (32 x 2000, bench_peers's scene: the LP solves
     # took 1.6-2.0 s with two BLAS threads, 0.5 s with one)
     with threadpool_limits(limits=1, user_api="blas"):
-        x, info, _ = _refine_lp(model, x0, progress, max_iter, time_limit, 0 if warm else subset_frames, scheme, certify,
-                                warm)
+        x, info, _ = _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme, certify, warm)
     return x, info
 
 
@@ -143,14 +142,12 @@ def refine_lp_covariance(model: WandModel, n_wand_frames: int, progress=None, ti
         (x, info, covariance).
     """
     with threadpool_limits(limits=1, user_api="blas"):
-        x, info, state = _refine_lp(model, None, progress, MAX_ITER, time_limit, 0 if warm else SUBSET_FRAMES, "irls",
-                                    True, warm)
+        x, info, state = _refine_lp(model, None, progress, MAX_ITER, time_limit, SUBSET_FRAMES, "irls", True, warm)
         if state is None or state.model is not model:  # the first phase's state stood: linearise here
             state = ReducedSystem(model, x)
         # sigma as ba's: the median 2D residual at the solution, over n - p degrees of freedom
-        n_res = 2 * len(model.p.camera)
         n_par = model.frame_col0 + model.frame_params * n_wand_frames + POINT_PARAMS * (model.p.n_frames - n_wand_frames)
-        sigma = robust_scale(model.residuals(x).reshape(-1, 2)) * np.sqrt(n_res / max(n_res - n_par, 1))
+        sigma = fitted_sigma(np.linalg.norm(model.residuals(x).reshape(-1, 2), axis=1), n_par)
         return x, info, state.pose_covariance(sigma, n_wand_frames)
 
 
@@ -161,7 +158,7 @@ def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme,
     x = model.x0() if x0 is None else x0.copy()
     info_sub, state = None, None
     F = model.p.n_frames
-    if subset_frames and F > SUBSET_ONLY_ABOVE * subset_frames:
+    if subset_frames and not warm and F > SUBSET_ONLY_ABOVE * subset_frames:  # a warm start needs no first phase
         keep = np.unique(np.linspace(0, F - 1, subset_frames).round().astype(int))
         sub, sub_x = _frame_subset(model, x, keep)
         sub_x, info_sub, _ = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, scheme,

@@ -32,7 +32,7 @@ from wandcal.calib.solve.reprojection import (
     exp_so3,
     moved_intrinsics,
 )
-from wandcal.calib.solve.uncertainty import pose_covariance
+from wandcal.calib.solve.uncertainty import fitted_sigma, pose_covariance
 
 # Cauchy scale in robust sigmas: at 4 sigma the estimate is 98.6% efficient on 2D Gaussian noise
 # (Monte Carlo of (E psi')^2 / E psi^2), while a 20 px outlier at 0.3 px noise gets weight 0.004
@@ -243,11 +243,8 @@ class LevenbergMarquardt:
             step = schur.solve(normal, 0.0) if self.n_free else None
         if step is None:
             return np.full((self.n_free, self.cam_size), np.inf)
-        # the residuals are smaller than the noise by the parameters fitted to them: sigma^2 is
-        # RSS / (n - p), not RSS / n (at 6 x 600 the difference is 12% in every standard error)
-        n_res = 2 * len(z)
         n_par = self.n_free * self.cam_size - len(self.frozen) + sum(t.structure.n_pts * t.structure.size for t in self.terms)
-        sigma = _robust_sigma(z) * np.sqrt(n_res / max(n_res - n_par, 1))
+        sigma = fitted_sigma(np.sqrt(z), n_par)
         wand = next((k for k, term in enumerate(self.terms) if isinstance(term, WandTerm)), None)
         self.covariance = pose_covariance(normal, step, sigma, self.free, self.frozen, wand)
         std = sigma * np.sqrt(np.maximum(step.cam_var, 0.0))
