@@ -139,9 +139,8 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
             where, out_lo, out_hi = _left_rows(P, b + state.change(ipm.duals).ravel(), lo, hi, kept)
             pinned = _pinned(ipm.duals, box_lo, box_hi, trust_lo, trust_hi, IPM_PINNED)
             if out_lo.any() or out_hi.any() or pinned.any():
-                guard = np.where(pinned, GUARD_GROWTH * guard, guard)
                 old_lo, old_hi = lo, hi
-                lo, hi = np.where(out_lo, where, lo), np.where(out_hi, where - 1, hi)
+                guard, lo, hi = _widened(guard, lo, hi, where, out_lo, out_hi, pinned)
                 continue
         # the basis the interior point names, certified optimal as it is (the usual case); else
         # HiGHS's dual simplex from it
@@ -162,10 +161,8 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         if not (out_lo.any() or out_hi.any() or pinned.any()):
             certified = True
             break
-        guard = np.where(pinned, GUARD_GROWTH * guard, guard)
         old_lo, old_hi = lo, hi
-        lo = np.where(out_lo, where, lo)
-        hi = np.where(out_hi, where - 1, hi)
+        guard, lo, hi = _widened(guard, lo, hi, where, out_lo, out_hi, pinned)
     # uncertified: the step is the optimum of a working set that some rows still leave; the
     # caller takes it only if it lowers the true merit, like any trust-region step
     return d + d_ref, {"seconds": seconds, "rows": total, "status": "optimal" if certified else "uncertified",
@@ -194,6 +191,12 @@ def _leaving(state: ReducedSystem, P: np.ndarray, b: np.ndarray, lo: np.ndarray,
         _, out_lo, out_hi = _left_rows(P, b + state.change(d).ravel(), lo, hi, kept)
         return bool(out_lo.any() or out_hi.any())
     return leaves
+
+
+def _widened(guard, lo, hi, where, out_lo, out_hi, pinned):
+    """The next round's guard (``GUARD_GROWTH`` wider where the step was pinned to it) and modelled
+    breakpoint ranges (out to the intervals ``where`` the rows that left reached)."""
+    return np.where(pinned, GUARD_GROWTH * guard, guard), np.where(out_lo, where, lo), np.where(out_hi, where - 1, hi)
 
 
 def _pinned(d, box_lo, box_hi, trust_lo, trust_hi, tol: float) -> np.ndarray:
