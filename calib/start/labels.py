@@ -138,7 +138,7 @@ def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: 
     a_idx, b_idx, worse = _votes(R, t, pairs, ranked, E_table)  # worse: what a vote gains when one of its pairs flips while they agree
     if len(a_idx) == 0:
         return np.zeros(P, bool)
-    # the votes come grouped by frame, and within it by their first pair (`_voting_pairs`); the
+    # the votes come grouped by frame, and within it by their first pair (`_votes`); the
     # second pair of a vote is one of its frame's VOTERS least ambiguous pairs
     F = len(pairs.frames)
     vote_frame = pairs.frame[a_idx]
@@ -194,20 +194,12 @@ def _ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.repeat(lo - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
 
 
-def _voting_pairs(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray]:
-    """Unordered pairs of pairs (a (K,), b (K,)) in the same frame that vote in
-    :func:`_pairwise_consensus`: each pair with each of its frame's :data:`VOTERS` voters (the
-    pairs whose blobs are furthest apart), each unordered pair once."""
-    ranked = _Ranked(pairs)
-    parts = [ranked.votes(lo, hi) for lo, hi in ranked.blocks()]
-    return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])) if parts else (
-        np.zeros(0, np.int64), np.zeros(0, np.int64))
-
-
 def _votes(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None,
            E_table: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_voting_pairs` (a (K,), b (K,)) with what each vote gains when one of its pairs flips
-    while they agree (K,): ``same - cross`` of :func:`_epipolar_costs`. Made :data:`COST_CHUNK`
+    """The unordered pairs of pairs (a (K,), b (K,)) in the same frame that vote in
+    :func:`_pairwise_consensus` (each pair with each of its frame's :data:`VOTERS` voters, the pairs
+    whose blobs are furthest apart, each unordered pair once), with what each vote gains when one
+    of its pairs flips while they agree (K,): ``same - cross`` of :func:`_epipolar_costs`. Made :data:`COST_CHUNK`
     votes at a time, each block's votes costed as they are made, so no vote-sized temporary leaves
     the cache (at 128 cameras x 3000 frames there are 5.4M votes, and the votes made whole took
     3.7x as long as at 64 cameras for 2.2x as many)."""
