@@ -51,6 +51,12 @@ class WandPairs:
         return WandPairs(self.frame, self.camera, xy, uv, self.frames, self.dropped)
 
 
+def robust_sigma(errors_px: np.ndarray) -> float:
+    """Per-axis noise estimated from 2D error magnitudes (M,): the median of a 2D Gaussian's radius
+    is sigma * sqrt(2 ln 2), so this is unaffected by a minority of gross outliers; 0 for none."""
+    return float(np.median(errors_px) / np.sqrt(2 * np.log(2))) if len(errors_px) else 0.0
+
+
 def camera_rows(camera: np.ndarray, n_cameras: int) -> list[np.ndarray]:
     """Each camera's rows: for camera (M,) indices, the (M_c,) ascending row numbers of each camera
     0 .. n_cameras - 1, as ``np.flatnonzero(camera == c)`` gives them, from one stable sort (a mask

@@ -14,7 +14,7 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import camera_centers, undistort_by_camera
 from wandcal.calib.judge import quality
 from wandcal.calib.judgement import judge
-from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
+from wandcal.calib.observations import WandPairs, point_tracks, robust_sigma, wand_pairs
 from wandcal.calib.refine import (
     GAUGE_CAMERA,
     build_problem,
@@ -344,7 +344,7 @@ def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings
     # an interior blob the fit leaves far off is an outlier: its camera-frame stays out of the
     # marker pairs' lengths, as the ends' outliers stay out of the wand's
     err = np.linalg.norm(model.residuals(x).reshape(-1, 2), axis=1)
-    limit = max(quality.OUTLIER_SIGMAS * quality.robust_sigma(err), quality.MIN_OUTLIER_PX)
+    limit = max(quality.OUTLIER_SIGMAS * robust_sigma(err), quality.MIN_OUTLIER_PX)
     kept = np.zeros(len(r.labelled), bool)
     kept[pair_index] = True
     kept[rows[err[len(r.setup.problem.camera):] > limit]] = False

@@ -10,7 +10,7 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import camera_centers, undistort_by_camera
 from wandcal.calib.judge import quality
-from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.observations import PointTracks, WandPairs, robust_sigma
 from wandcal.calib.rig import PINHOLE, Camera, Rig
 from wandcal.calib.solve.ba import DEFAULT_LOSS, STOP_SE, IntrinsicsFit, bundle_adjust_points
 from wandcal.calib.solve.reprojection import INTRINSICS
@@ -426,7 +426,7 @@ def _outlier_limit(r: Refined) -> tuple[float, np.ndarray, np.ndarray]:
     if r.tracks is not None and len(r.tracks):
         res = reprojection_errors(r.R, r.t, r.tracks.track, r.tracks.camera, r.tracks.xy, r.X)
         point_err = np.linalg.norm(res * r.setup.problem.focal[r.tracks.camera], axis=1)
-    sigma = quality.robust_sigma(np.concatenate([errors, point_err]))
+    sigma = robust_sigma(np.concatenate([errors, point_err]))
     return max(quality.OUTLIER_SIGMAS * sigma, quality.MIN_OUTLIER_PX), errors, point_err
 
 

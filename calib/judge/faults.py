@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.geometry import rotvec_to_matrix
-from wandcal.calib.judge.quality import robust_sigma
+from wandcal.calib.observations import robust_sigma
 
 MAX_SHIFT_FRAMES = 10  # the whole-frame search; a larger offset is a recording of another take
 TRIM_SIGMAS = 5.0  # residuals beyond this after a fit are outliers, left out of the next fit

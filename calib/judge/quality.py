@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wandcal.calib.observations import robust_sigma
 from wandcal.calib.solve.wandmodel import WandProblem
 from wandcal.calib.start.labels import flatten, wand_lengths
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
@@ -71,12 +72,6 @@ def length_outlier_frames(R: np.ndarray, t: np.ndarray, pairs, keep: np.ndarray,
         return np.zeros(len(dev), bool)
     sigma = 1.4826 * np.median(dev[ok])  # the MAD of zero-mean Gaussian deviations
     return ok & (dev > OUTLIER_SIGMAS * max(sigma, 1e-9))
-
-
-def robust_sigma(errors_px: np.ndarray) -> float:
-    """Per-axis noise estimated from error magnitudes: the median of a 2D Gaussian's radius is
-    sigma * sqrt(2 ln 2), so this is unaffected by a minority of gross outliers."""
-    return float(np.median(errors_px) / np.sqrt(2 * np.log(2))) if len(errors_px) else 0.0
 
 
 def outlier_mask(errors_px: np.ndarray) -> np.ndarray:

@@ -15,8 +15,8 @@ from functools import cached_property
 
 import numpy as np
 
-from wandcal.calib.judge.quality import OUTLIER_SIGMAS, reject_worst_per_frame, robust_sigma
-from wandcal.calib.observations import PointTracks, WandPairs, camera_rows
+from wandcal.calib.judge.quality import OUTLIER_SIGMAS, reject_worst_per_frame
+from wandcal.calib.observations import PointTracks, WandPairs, camera_rows, robust_sigma
 from wandcal.calib.start.labels import flatten
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from wandcal.calib.geometry import euler_jacobian, euler_to_matrix
+from wandcal.calib.observations import robust_sigma
 from wandcal.calib.solve.robustloss import REJECT_SIGMAS, capped_loss
 from wandcal.calib.solve.uncertainty import POSE_PARAMS, PoseCovariance
 from wandcal.calib.solve.wandmodel import CAM_PARAMS, FRAME_PARAMS, WandModel
@@ -27,7 +28,7 @@ SCHUR_RIDGE = 1e-9  # times the mean diagonal, added to the cameras' Schur compl
 
 def robust_scale(r: np.ndarray) -> float:
     """Per-axis noise from (M, 2) residuals: the median radius of a 2D Gaussian is sigma sqrt(2 ln 2)."""
-    return max(float(np.median(np.linalg.norm(r, axis=1))) / np.sqrt(2 * np.log(2)), 1e-9)
+    return max(robust_sigma(np.linalg.norm(r, axis=1)), 1e-9)
 
 
 def residual_cost(r: np.ndarray, scale: float, loss) -> float:

@@ -17,7 +17,8 @@ from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d import Axes3D, proj3d  # noqa: F401  (Axes3D registers the "3d" projection)
 
 from wandcal.calib.judge.coverage import GRID
-from wandcal.calib.judge.quality import HIGH_RMS_PX, OUTLIER_SIGMAS, robust_sigma
+from wandcal.calib.judge.quality import HIGH_RMS_PX, OUTLIER_SIGMAS
+from wandcal.calib.observations import robust_sigma
 from wandcal.service.report.analysis import CameraSummary, ReportData
 from wandcal.service.report.labels import Label, axes_of, hide_colliding_ticks, place_labels
 

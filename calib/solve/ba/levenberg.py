@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wandcal.calib.observations import robust_sigma
 from wandcal.calib.solve.backend import schur
 from wandcal.calib.solve.reprojection import (
     CAM_PARAMS,
@@ -255,7 +256,7 @@ class LevenbergMarquardt:
 
 def _robust_sigma(z: np.ndarray) -> float:
     """Per-axis noise from squared 2D errors: the median radius of a 2D Gaussian is sigma sqrt(2 ln 2)."""
-    return float(np.median(np.sqrt(z))) / np.sqrt(2 * np.log(2)) if len(z) else 0.0
+    return robust_sigma(np.sqrt(z))
 
 
 def _step_in_standard_errors(step: schur.Step, z: np.ndarray) -> float:
