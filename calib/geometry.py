@@ -78,6 +78,18 @@ def euler_jacobian(angles: np.ndarray) -> np.ndarray:
     return out
 
 
+def euler_rates(angles: np.ndarray) -> np.ndarray:
+    """The left rotation increments of :func:`euler_to_matrix`'s angles: (..., 3, 3) whose column k is
+    the w with ``dE/d(angle k) = [w]x E`` (so a point ``E Y`` moves by ``w x (E Y)``): the
+    skew-symmetric ``dE_k E^T`` read as a vector.
+
+    Args:
+        angles: (..., 3) radians.
+    """
+    A = euler_jacobian(angles) @ np.swapaxes(euler_to_matrix(angles), -1, -2)[..., None, :, :]  # (..., k, 3, 3)
+    return np.stack([A[..., 2, 1], A[..., 0, 2], A[..., 1, 0]], axis=-2)
+
+
 def matrix_to_euler(R: np.ndarray) -> np.ndarray:
     """Inverse of :func:`euler_to_matrix` (beta in [-pi/2, pi/2]).
 

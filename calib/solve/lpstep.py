@@ -132,7 +132,7 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         if ipm.status == "time_limit":
             return None, {"seconds": seconds, "rows": total, "status": "time_limit", "rounds": rounds,
                           "iterations": iterations}
-        if ipm.status in ("optimal", "left") and rounds < MAX_ACTIVE_ROUNDS:
+        if ipm.status in ("optimal", "left") and rounds < MAX_ACTIVE_ROUNDS and not ipm.certified:
             # rows that the interior point's step takes past their modelled breakpoints need another
             # round whatever the basis's vertex (the two differ by ~1e-8 of the step): the basis is
             # certified only in a round that may be the last
@@ -142,10 +142,11 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
                 old_lo, old_hi = lo, hi
                 guard, lo, hi = _widened(guard, lo, hi, where, out_lo, out_hi, pinned)
                 continue
-        # the basis the interior point names, certified optimal as it is (the usual case); else
-        # HiGHS's dual simplex from it
+        # the basis the interior point names, certified optimal as it is (the usual case, mostly
+        # by the interior point itself a few iterations before its end); else HiGHS's dual simplex
+        # from it
         started = time.perf_counter()
-        d = certified_duals(*lp_args, ipm.basic, ipm.at_upper) if ipm.status == "optimal" else None
+        d = ipm.duals if ipm.certified else certified_duals(*lp_args, ipm.basic, ipm.at_upper) if ipm.status == "optimal" else None
         seconds += time.perf_counter() - started
         if d is None:
             res = _highs_vertex(lp_args, ipm, time_limit, FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)

@@ -14,7 +14,7 @@ import copy
 import numpy as np
 import scipy.sparse as sp
 
-from wandcal.calib.geometry import euler_jacobian, euler_to_matrix
+from wandcal.calib.geometry import euler_rates
 from wandcal.calib.observations import robust_sigma
 from wandcal.calib.solve.robustloss import REJECT_SIGMAS, capped_loss
 from wandcal.calib.solve.uncertainty import POSE_PARAMS, PoseCovariance
@@ -152,7 +152,7 @@ class ReducedSystem:
         matrix gives it (calib/solve/uncertainty.py): sigma^2 S^-1, S the kept rows' Gauss-Newton
         Schur complement of the frames (the one the steps and standard errors already use: no
         other linearisation), taken from this model's Euler increments about R0 to ba's left
-        rotation increments (w = B d, [w]x = sum_k dE/d(delta_k) E^T). The first ``n_wand_frames``
+        rotation increments (w = B d, B from geometry.euler_rates). The first ``n_wand_frames``
         frames are the wand's (the rest are point tracks, calib/refine.with_tracks): the
         centroid's response and variance and a point's sigma are theirs.
 
@@ -162,11 +162,8 @@ class ReducedSystem:
         """
         m = self.model
         free, K = m.free, len(m.free)
-        delta = m.unpack(self.x)[0][free]
-        dE, E = euler_jacobian(delta), euler_to_matrix(delta)  # (K, 3, 3, 3), (K, 3, 3)
-        A = dE @ E.swapaxes(1, 2)[:, None]  # (K, 3 angles, 3, 3): skew
         B = np.zeros((K, CAM_PARAMS, CAM_PARAMS))
-        B[:, :3, :3] = np.stack([A[:, :, 2, 1], A[:, :, 0, 2], A[:, :, 1, 0]], axis=1)  # w_i per d(delta_k)
+        B[:, :3, :3] = euler_rates(m.unpack(self.x)[0][free])  # w_i per d(delta_k)
         B[:, 3:, 3:] = np.eye(3)
         cov_d = (sigma**2 * self._schur_inverse()).reshape(K, CAM_PARAMS, K, CAM_PARAMS)
         cov = np.einsum("kab,kblc,ldc->kald", B, cov_d, B).reshape(K * POSE_PARAMS, K * POSE_PARAMS)

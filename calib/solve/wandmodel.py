@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.geometry import euler_jacobian, euler_to_matrix
+from wandcal.calib.geometry import euler_jacobian, euler_rates, euler_to_matrix
+from wandcal.calib.solve.reprojection import project_into
 
 CAM_PARAMS = 6
 FRAME_PARAMS = 5
@@ -160,21 +161,22 @@ class WandModel:
         return np.stack([m - 0.5 * d, m + 0.5 * d], axis=1)
 
     def _camera_points(self, x: np.ndarray):
+        """The observed points in their cameras' frames, ``Y + t``: (delta, R (N, 3, 3), d, vnorm,
+        sign, Y = R X (M, 3), t (M, 3) of each observation's camera)."""
         p = self.p
         delta, t, m, ab = self.unpack(x)
-        E = euler_to_matrix(delta)
-        R = E @ self.R0
+        R = euler_to_matrix(delta) @ self.R0
         d, vnorm = self.directions(ab)
         sign = p.offsets
         X = m[p.frame] + sign[:, None] * d[p.frame]
         if p.across is not None:
             X = X + p.across[:, None] * self.axes(ab)[p.frame, :, 1]
-        xc = np.einsum("mij,mj->mi", R[p.camera], X) + t[p.camera]
-        return delta, R, d, vnorm, sign, X, xc
+        return delta, R, d, vnorm, sign, np.einsum("mij,mj->mi", R[p.camera], X), t[p.camera]
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """(2M,) pixel residuals, interleaved (u0, v0, u1, v1, ...)."""
-        xc = self._camera_points(x)[-1]
+        *_, Y, t = self._camera_points(x)
+        xc = Y + t
         r = (xc[:, :2] / xc[:, 2:3] - self.p.xy) * self.p.focal[self.p.camera]
         return r.ravel()
 
@@ -189,36 +191,31 @@ class WandModel:
         return sp.csr_matrix((blocks[keep], (rows[keep], cols2[keep])), shape=(2 * M, self.n_params))
 
     def jacobian_blocks(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Dense per-observation blocks: (M, 2, 11) values and (M, 11) columns (-1 = fixed camera)."""
+        """Dense per-observation blocks: (M, 2, 6 + frame_params) values and (M, 6 + frame_params)
+        columns (-1 = fixed camera).
+
+        The derivatives by the camera's left rotation increment, its translation and the point
+        are ``ba``'s, elementwise (calib/solve/reprojection.project_into); the Euler increments'
+        follow through each camera's :func:`euler_rates`, and the wand direction's through each
+        frame's tangent map. At 128 x 3000 (707k observations) this took 0.3 s against 0.9 s
+        for batched 3 x 3 products per observation (decision 0029)."""
         p = self.p
-        delta, R, d, vnorm, sign, X, xc = self._camera_points(x)
-        z = xc[:, 2]
-        proj = xc[:, :2] / z[:, None]
-        f = p.focal[p.camera]
-        # d(pixel residual)/d(x_cam): f * [[1/z, 0, -x/z^2], [0, 1/z, -y/z^2]]
-        Dp = np.zeros((len(z), 2, 3))
-        Dp[:, 0, 0] = 1 / z
-        Dp[:, 1, 1] = 1 / z
-        Dp[:, :, 2] = -proj / z[:, None]
-        Dp *= f[:, :, None]
-        dE = euler_jacobian(delta)  # (N, 3, 3, 3)
-        Y = np.einsum("mij,mj->mi", self.R0[p.camera], X)
-        dxc_ddelta = np.einsum("mkij,mj->mik", dE[p.camera], Y)  # (M, 3, 3)
-        J_rot = Dp @ dxc_ddelta
-        J_t = Dp
-        DpR = Dp @ R[p.camera]
-        fr = p.frame
+        delta, R, d, vnorm, sign, Y, t = self._camera_points(x)
+        cam, fr = p.camera, p.frame
+        blocks = np.empty((len(cam), 2, CAM_PARAMS + self.frame_params))
+        project_into(blocks, Y, t, R[cam], p.xy, p.focal[cam])
+        blocks[:, :, :3] = np.einsum("mki,mij->mkj", blocks[:, :, :3], euler_rates(delta)[cam])
+        dX = blocks[:, :, 6:9]  # d(pixel)/d(point)
         if p.across is not None:
             # X = m + E(w) Q0 (o, q, 0): dX/dw_k = dE_k Q0 (o, q, 0)
             body = np.einsum("mij,mj->mi", self.Q0[fr], np.stack([sign, p.across, np.zeros_like(sign)], axis=1))
             dE = euler_jacobian(self.unpack(x)[3])[fr]  # (M, 3, 3, 3): dE/dw_k
-            J_ab = DpR @ np.einsum("mkij,mj->mik", dE, body)
+            blocks[:, :, 9:] = dX @ np.einsum("mkij,mj->mik", dE, body)
         else:
-            P = (np.eye(3)[None] - d[fr][:, :, None] * d[fr][:, None, :]) / vnorm[fr][:, None, None]
-            basis = np.stack([self.e1[fr], self.e2[fr]], axis=2)  # (M, 3, 2)
-            J_ab = sign[:, None, None] * (DpR @ P @ basis)
-        blocks = np.concatenate([J_rot, J_t, DpR, J_ab], axis=2)  # (M, 2, 6 + frame_params)
-        cam_base = self.cam_col[p.camera]
+            # the direction's tangent map per frame: d(normalize(d0 + a e1 + b e2))/d(a, b), (F, 3, 2)
+            tangent = (np.eye(3)[None] - d[:, :, None] * d[:, None, :]) / vnorm[:, None, None] @ np.stack([self.e1, self.e2], axis=2)
+            blocks[:, :, 9:] = sign[:, None, None] * (dX @ tangent[fr])
+        cam_base = self.cam_col[cam]
         cam_cols = np.where(cam_base[:, None] >= 0, cam_base[:, None] + np.arange(CAM_PARAMS), -1)
         frame_cols = self.frame_col0 + self.frame_params * fr[:, None] + np.arange(self.frame_params)
         return blocks, np.concatenate([cam_cols, frame_cols], axis=1)

@@ -4,6 +4,7 @@ import pytest
 from wandcal.calib.geometry import (
     distort_points,
     euler_jacobian,
+    euler_rates,
     euler_to_matrix,
     kabsch,
     matrix_to_euler,
@@ -31,6 +32,22 @@ def test_euler_jacobian_matches_finite_differences():
         d[k] = 1e-6
         numeric = (euler_to_matrix(a + d) - euler_to_matrix(a - d)) / 2e-6
         assert np.allclose(J[k], numeric, atol=1e-8)
+
+
+def test_euler_rates_are_the_left_increments_of_each_angle():
+    """A small change of angle k turns E by exp([w_k] h) on the left: E(a + h e_k) E(a)^T = I + h [w_k]x + O(h^2)."""
+    a = np.array([[0.3, -0.4, 1.2], [-2.0, 1.1, 0.2]])
+    W = euler_rates(a)
+    h = 1e-6
+    for k in range(3):
+        step = np.zeros(3)
+        step[k] = h
+        turn = (euler_to_matrix(a + step) - euler_to_matrix(a - step)) @ np.swapaxes(euler_to_matrix(a), 1, 2) / (2 * h)
+        w = W[:, :, k]
+        skew = np.zeros((2, 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+        skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+        assert np.allclose(turn, skew, atol=1e-8)
 
 
 @pytest.mark.parametrize("model,dist", [("pinhole", [-0.3, 0.1, 0.001, -0.002, 0.01]), ("fisheye", [0.05, -0.01, 0.002, 0.0])])

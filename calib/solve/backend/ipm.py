@@ -4,17 +4,18 @@ points to, and that basis's certificate of optimality (calib/solve/lpstep.py).
 The LP step's dual has one row per camera parameter (n) and one dense column per (row,
 breakpoint) pair (k of them, each touching every camera of its frame). HiGHS's dual simplex
 needs ~3.5 n iterations on it, each pricing every column, so its time grows as ~cameras^3
-(decision 0004). An interior-point method takes ~12-15 iterations whatever the size, each one
+(decision 0004). An interior-point method takes ~10-15 iterations whatever the size, each one
 dense (n, n) normal matrix ``A^T D A`` (k n^2 / 2 flops) and its Cholesky factor; its point
 names the optimal basis (the n columns strictly inside their bounds), which one LU factor then
-certifies optimal (:func:`certified_duals`; HiGHS's simplex carries on from it when not), so the
-step stays an exact vertex of the LP.
+certifies optimal (:func:`certified_duals`, tried at each iterate near the end; HiGHS's simplex
+carries on from the basis when no iterate's passes), so the step stays an exact vertex of the LP.
 
 The LP, with A (k, n) the pairs' rows:
     min  c_lo . u_lo + c_hi . u_hi + c . y
     s.t. A^T y - u_lo + u_hi = r,  0 <= y <= jump,  u_lo, u_hi >= 0,
 and the row duals (n,) are the step. Mehrotra's predictor-corrector (Wright, Primal-Dual
-Interior-Point Methods, 1997, ch. 10, with upper bounds as in Lustig, Marsten and Shanno 1992).
+Interior-Point Methods, 1997, ch. 10, with upper bounds as in Lustig, Marsten and Shanno 1992),
+with Gondzio's multiple centrality correctors (Comput. Optim. Appl. 6, 1996).
 """
 
 from __future__ import annotations
@@ -36,10 +37,14 @@ STEP_TO_BOUNDARY = 0.995  # the fraction of the longest feasible step taken (Meh
 # vertex were unchanged, and the matrices took half the time; a ratio of 1e10 broke the Cholesky
 # factor near the end.
 SINGLE_PRECISION_RANGE = 1e6
-# Late on, pairs whose weight is below this fraction of the largest add nothing to the matrix that
-# double precision keeps (they are at a bound): left out, the last 3 of 17 matrices used 15-100% of
-# the pairs at 128 x 3000, with the same iterations and basis; 1e-9 broke the Cholesky factor
-NEGLIGIBLE_WEIGHT = 1e-12
+# Late on, pairs whose weight is below this fraction of the largest are left out of the normal
+# matrix: they are at a bound, and the direction only steers them there. On the LP steps of 32-128 x
+# 3000 (decision 0029) 1e-8 took the same iterations and certified the same vertices as 1e-12, and
+# the last 8 of 12 matrices at 128 cameras used 5-22% of the pairs. Where that leaves the matrix
+# singular in floating point, the factor is taken again with the pairs above STRICT_NEGLIGIBLE
+# (1e-9 broke it once at 128 x 3000, decision 0024)
+NEGLIGIBLE_WEIGHT = 1e-8
+STRICT_NEGLIGIBLE = 1e-12
 # Outside that range, the pairs weighted below this fraction of the largest go to the normal
 # matrix in single precision: each one's rounding error (~6e-8 of its own term, so < 6e-13 of the
 # largest) stays below the terms NEGLIGIBLE_WEIGHT already leaves out. The double product then
@@ -60,13 +65,30 @@ LEAVE_TOL = 1e-1
 PRIMAL_TOL = 1e-7
 DUAL_TOL = 1e-7
 SINGULAR_PIVOT = 1e-13  # an LU pivot this small against the largest entry: the basis is taken as singular
+# Gondzio's multiple centrality correctors (Gondzio 1996): after Mehrotra's direction, at most this
+# many more solves with the same factor, each pulling the complementarity products that the
+# direction would leave outside [BAND[0], BAND[1]] x the target back into that band at step lengths
+# REACH longer; a corrector is kept if it lengthens the steps by GAIN of what it aimed at. On the
+# LP steps of 32-128 x 3000 (decision 0029) 2 correctors at 0.3 took 12-14 iterations against
+# 15-19 and 0.79 of the time; 1 took 13-16, 3 or 4 at 0.5 12-14 at more solves each
+CORRECTORS = 2
+CORRECTOR_REACH = 0.3
+CORRECTOR_BAND = (0.1, 10.0)
+CORRECTOR_GAIN = 0.1
+# from the first iterate this near the optimum (as TOL) on, the basis each iterate names is
+# certified (certified_duals, one LU factor: ~0.03 s at 128 x 3000 against
+# ~0.13 s for an iteration) and the method stops at the first that passes: the vertex is then as
+# exact as at TOL. On the 128 x 3000 step's two LPs the named basis passed 2-3 iterations before
+# TOL (decision 0029)
+CERTIFY_TOL = 1e-5
 
 
 @dataclass(frozen=True, eq=False)
 class IpmResult:
     """duals: (n,) the step; basic, at_upper: (2n + k,) masks over the columns (u_lo, u_hi, y)
     of the basis the point names; status: "optimal", "left" (``leave`` stopped it), "time_limit",
-    "iteration_limit" or "breakdown" (a normal matrix not positive definite in floating point)."""
+    "iteration_limit" or "breakdown" (a normal matrix not positive definite in floating point);
+    certified: the basis was certified optimal (from ``CERTIFY_TOL`` on) and duals are its vertex's."""
 
     duals: np.ndarray
     basic: np.ndarray
@@ -74,6 +96,7 @@ class IpmResult:
     status: str
     iterations: int
     seconds: float
+    certified: bool = False
 
 
 def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.ndarray, c_hi: np.ndarray,
@@ -89,6 +112,9 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
         leave: optional callable(duals (n,)) -> bool, asked at the first iterate within
             ``LEAVE_TOL`` of the optimum: True stops there with status "left" (the caller knows the LP must
             change whatever its optimum: calib/solve/lpstep.py).
+
+    From ``CERTIFY_TOL`` on, the basis each iterate names is certified (:func:`certified_duals`),
+    and the method stops at the first that passes, with its vertex's duals (``certified``).
     """
     start = time.perf_counter()
     n = A.shape[1]
@@ -109,17 +135,21 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     r_norm, c_norm = 1 + np.abs(r).max(), 1 + np.abs(cost).max()
     status, it = "iteration_limit", 0
     normal = _NormalMatrix(A)
-    for it in range(1, MAX_ITER + 1):  # noqa: B007 (the count is reported after the loop)
+    for it in range(1, MAX_ITER + 1):
         rp = r - _times(A, x)
         ru = (upper - x - s) * one
         rd = cost - _times_t(A, lam) - z + w
         gap = x @ z + (s * w) @ one
-        if (np.abs(rp).max() <= TOL * r_norm and np.abs(rd).max() <= TOL * c_norm
-                and gap <= TOL * (1 + abs(cost @ x))):
+        near = max(np.abs(rp).max() / r_norm, np.abs(rd).max() / c_norm, gap / (1 + abs(cost @ x)))
+        if near <= TOL:
             status = "optimal"
             break
-        if (leave is not None and np.abs(rp).max() <= LEAVE_TOL * r_norm and np.abs(rd).max() <= LEAVE_TOL * c_norm
-                and gap <= LEAVE_TOL * (1 + abs(cost @ x))):
+        if near <= CERTIFY_TOL:
+            basic, at_upper = _named_basis(x, z, s, w, ub, n)
+            duals = certified_duals(A, c, jump, c_lo, c_hi, r, basic, at_upper)
+            if duals is not None:
+                return IpmResult(duals, basic, at_upper, "optimal", it, time.perf_counter() - start, certified=True)
+        if leave is not None and near <= LEAVE_TOL:
             if leave(lam):
                 status = "left"
                 break
@@ -130,32 +160,81 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
         mu = gap / n_compl
         D = 1.0 / (z / x + w / s * one)
         Dy = D[2 * n:]
-        M = normal(Dy)
-        M[np.diag_indices(n)] += D[:n] + D[n:2 * n]
-        try:
-            factor = sla.cho_factor(M, lower=False, overwrite_a=True, check_finite=False)
-        except np.linalg.LinAlgError:  # rounding at extreme scalings: HiGHS carries on from the basis so far
+        factor = _factor(normal, Dy, D[:n] + D[n:2 * n])
+        if factor is None:  # rounding at extreme scalings: HiGHS carries on from the basis so far
             status = "breakdown"
             break
         point, residuals = (x, z, s, w, one), (rp, ru, rd)
-        # the affine-scaling predictor, then Mehrotra's corrector
+        # the affine-scaling predictor, then Mehrotra's corrector, then Gondzio's
         dl, dx, dz, ds, dw = _direction(A, factor, D, point, residuals, -x * z, -s * w * one)
-        a_p = min(_longest(x, dx), _longest(s, ds))
-        a_d = min(_longest(z, dz), _longest(w, dw))
+        a_p, a_d = _step_lengths(point, (dx, dz, ds, dw), 1.0)
         gap_aff = (x + a_p * dx) @ (z + a_d * dz) + ((s + a_p * ds) * (w + a_d * dw)) @ one
-        sigma = (gap_aff / gap) ** 3
-        dl, dx, dz, ds, dw = _direction(A, factor, D, point, residuals, sigma * mu - x * z - dx * dz,
-                                        (sigma * mu - s * w - ds * dw) * one)
-        a_p = min(1.0, STEP_TO_BOUNDARY * min(_longest(x, dx), _longest(s, ds)))
-        a_d = min(1.0, STEP_TO_BOUNDARY * min(_longest(z, dz), _longest(w, dw)))
+        target = (gap_aff / gap) ** 3 * mu
+        r_xz, r_sw = target - x * z - dx * dz, (target - s * w - ds * dw) * one
+        direction = _direction(A, factor, D, point, residuals, r_xz, r_sw)
+        a_p, a_d = _step_lengths(point, direction[1:], STEP_TO_BOUNDARY)
+        for _ in range(CORRECTORS):
+            if min(a_p, a_d) >= 1.0:
+                break
+            t_xz, t_sw = _centrality_targets(point, direction[1:], a_p, a_d, target)
+            corrected = _direction(A, factor, D, point, residuals, r_xz + t_xz, r_sw + t_sw)
+            c_p, c_d = _step_lengths(point, corrected[1:], STEP_TO_BOUNDARY)
+            aimed = min(1.0, a_p + CORRECTOR_REACH) - a_p + min(1.0, a_d + CORRECTOR_REACH) - a_d
+            if c_p + c_d < a_p + a_d + CORRECTOR_GAIN * aimed:
+                break
+            direction, a_p, a_d, r_xz, r_sw = corrected, c_p, c_d, r_xz + t_xz, r_sw + t_sw
+        dl, dx, dz, ds, dw = direction
         x, s = x + a_p * dx, np.where(ub, s + a_p * ds, 1.0)
         lam, z, w = lam + a_d * dl, z + a_d * dz, (w + a_d * dw) * one
-    # each column's place in the basis: inside both bounds (basic), or at the one it is nearer
+    basic, at_upper = _named_basis(x, z, s, w, ub, n)
+    return IpmResult(lam, basic, at_upper, status, it, time.perf_counter() - start)
+
+
+def _factor(normal: _NormalMatrix, Dy: np.ndarray, box: np.ndarray):
+    """The Cholesky factor of ``A^T D_y A + diag(box)``, the negligible pairs left out, or with
+    only ``STRICT_NEGLIGIBLE`` ones left out where that is singular in floating point; None if
+    that is singular too."""
+    for negligible in dict.fromkeys((NEGLIGIBLE_WEIGHT, STRICT_NEGLIGIBLE)):
+        M = normal(Dy, negligible)
+        M[np.diag_indices(len(box))] += box
+        try:
+            return sla.cho_factor(M, lower=False, overwrite_a=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            continue
+    return None
+
+
+def _named_basis(x, z, s, w, ub, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The basis a point names: the n columns furthest inside both bounds (relative to their
+    duals), each other column at the bound it is nearer. (basic, at_upper) masks."""
     lo_side = x / (x + z)
     hi_side = np.where(ub, s / (s + w + 1e-300), 1.0)
     basic = np.zeros(len(x), bool)
     basic[np.argsort(-np.minimum(lo_side, hi_side), kind="stable")[:n]] = True
-    return IpmResult(lam, basic, ~basic & (hi_side < lo_side), status, it, time.perf_counter() - start)
+    return basic, ~basic & (hi_side < lo_side)
+
+
+def _step_lengths(point, direction, fraction: float) -> tuple[float, float]:
+    """The primal and dual step lengths (<= 1): ``fraction`` of the longest that keep x, s and z, w
+    nonnegative along the direction (dx, dz, ds, dw)."""
+    x, z, s, w, _ = point
+    dx, dz, ds, dw = direction
+    return (min(1.0, fraction * min(_longest(x, dx), _longest(s, ds))),
+            min(1.0, fraction * min(_longest(z, dz), _longest(w, dw))))
+
+
+def _centrality_targets(point, direction, a_p: float, a_d: float, target: float):
+    """Gondzio's corrector right-hand sides (x z and s w terms): at step lengths ``CORRECTOR_REACH``
+    longer, the complementarity products outside ``CORRECTOR_BAND`` x target moved to its edge,
+    those far above it by no more than its top."""
+    x, z, s, w, one = point
+    dx, dz, ds, dw = direction
+    t_p, t_d = min(1.0, a_p + CORRECTOR_REACH), min(1.0, a_d + CORRECTOR_REACH)
+    lo, hi = CORRECTOR_BAND[0] * target, CORRECTOR_BAND[1] * target
+    v_xz = (x + t_p * dx) * (z + t_d * dz)
+    v_sw = (s + t_p * ds) * (w + t_d * dw)
+    return (np.maximum(np.clip(v_xz, lo, hi) - v_xz, -hi),
+            np.maximum(np.clip(v_sw, lo, hi) - v_sw, -hi) * one)
 
 
 def certified_duals(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.ndarray, c_hi: np.ndarray,
@@ -224,12 +303,12 @@ class _NormalMatrix:
             B *= np.sqrt(Dy[rows]).astype(np.float32)[:, None]
         return (B.T @ B).astype(float)
 
-    def __call__(self, Dy: np.ndarray) -> np.ndarray:
+    def __call__(self, Dy: np.ndarray, negligible: float = NEGLIGIBLE_WEIGHT) -> np.ndarray:
         A = self.A
         if len(Dy) and Dy.max() < SINGLE_PRECISION_RANGE * Dy.min():
             return self._single(None, Dy)
         top = Dy.max() if len(Dy) else 0.0
-        heavy = Dy >= NEGLIGIBLE_WEIGHT * top if len(Dy) else Dy > 0
+        heavy = Dy >= negligible * top if len(Dy) else Dy > 0
         double = heavy & (Dy >= SINGLE_WEIGHT * top) if MIXED_PRECISION and top < MAX_SINGLE_WEIGHT else heavy
         self.B_double = np.empty_like(A) if self.B_double is None else self.B_double
         B = self.B_double[: int(double.sum())]
