@@ -38,13 +38,16 @@ STEP_TO_BOUNDARY = 0.995  # the fraction of the longest feasible step taken (Meh
 # factor near the end.
 SINGLE_PRECISION_RANGE = 1e6
 # Late on, pairs whose weight is below this fraction of the largest are left out of the normal
-# matrix: they are at a bound, and the direction only steers them there. On the LP steps of 32-128 x
-# 3000 (decision 0029) 1e-8 took the same iterations and certified the same vertices as 1e-12, and
-# the last 8 of 12 matrices at 128 cameras used 5-22% of the pairs. Where that leaves the matrix
-# singular in floating point, the factor is taken again with the pairs above STRICT_NEGLIGIBLE
-# (1e-9 broke it once at 128 x 3000, decision 0024)
+# matrix: they are at a bound, and the direction only steers them there. On the 9 full LP solves
+# of five 64-128 x 3000 captures (decision 0029) 1e-8 took 13.9-14.7 s against 15.2-15.7 s at 1e-12,
+# in as many iterations but one solve. Two guards: where leaving them out makes the matrix singular
+# in floating point, the factor is taken again with the pairs above STRICT_NEGLIGIBLE (1e-9 broke
+# it once at 128 x 3000, decision 0024); and once an iterate is no nearer the optimum than STALL of
+# the one two before (that solve stalled at 60 iterations without the guard, 19 with it, 15 with
+# every pair), every pair above STRICT_NEGLIGIBLE is kept to the end
 NEGLIGIBLE_WEIGHT = 1e-8
 STRICT_NEGLIGIBLE = 1e-12
+STALL = 0.5
 # Outside that range, the pairs weighted below this fraction of the largest go to the normal
 # matrix in single precision: each one's rounding error (~6e-8 of its own term, so < 6e-13 of the
 # largest) stays below the terms NEGLIGIBLE_WEIGHT already leaves out. The double product then
@@ -135,12 +138,17 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     r_norm, c_norm = 1 + np.abs(r).max(), 1 + np.abs(cost).max()
     status, it = "iteration_limit", 0
     normal = _NormalMatrix(A)
+    history, strict = [], False
     for it in range(1, MAX_ITER + 1):
         rp = r - _times(A, x)
         ru = (upper - x - s) * one
         rd = cost - _times_t(A, lam) - z + w
         gap = x @ z + (s * w) @ one
         near = max(np.abs(rp).max() / r_norm, np.abs(rd).max() / c_norm, gap / (1 + abs(cost @ x)))
+        history.append(near)
+        # an iterate no nearer than STALL of two before: the normal matrices without their light
+        # pairs have stopped steering it (seen on degenerate LPs), so they keep them from here
+        strict = strict or (len(history) > 2 and near > STALL * history[-3])
         if near <= TOL:
             status = "optimal"
             break
@@ -160,7 +168,7 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
         mu = gap / n_compl
         D = 1.0 / (z / x + w / s * one)
         Dy = D[2 * n:]
-        factor = _factor(normal, Dy, D[:n] + D[n:2 * n])
+        factor = _factor(normal, Dy, D[:n] + D[n:2 * n], strict)
         if factor is None:  # rounding at extreme scalings: HiGHS carries on from the basis so far
             status = "breakdown"
             break
@@ -190,11 +198,11 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     return IpmResult(lam, basic, at_upper, status, it, time.perf_counter() - start)
 
 
-def _factor(normal: _NormalMatrix, Dy: np.ndarray, box: np.ndarray):
+def _factor(normal: _NormalMatrix, Dy: np.ndarray, box: np.ndarray, strict: bool = False):
     """The Cholesky factor of ``A^T D_y A + diag(box)``, the negligible pairs left out, or with
-    only ``STRICT_NEGLIGIBLE`` ones left out where that is singular in floating point; None if
-    that is singular too."""
-    for negligible in dict.fromkeys((NEGLIGIBLE_WEIGHT, STRICT_NEGLIGIBLE)):
+    only ``STRICT_NEGLIGIBLE`` ones left out where that is singular in floating point (or
+    ``strict``); None if that is singular too."""
+    for negligible in dict.fromkeys((STRICT_NEGLIGIBLE,) if strict else (NEGLIGIBLE_WEIGHT, STRICT_NEGLIGIBLE)):
         M = normal(Dy, negligible)
         M[np.diag_indices(len(box))] += box
         try:

@@ -101,3 +101,16 @@ def test_a_normal_matrix_singular_without_its_light_pairs_is_factored_with_them(
     assert factor is not None
     L = np.triu(factor[0])
     np.testing.assert_allclose(L.T @ L, A.T @ (Dy[:, None] * A), rtol=1e-6)  # the light pair in single precision
+
+
+@pytest.mark.parametrize("seed", [0, 1, 3])
+def test_a_stalled_iterate_brings_the_light_pairs_back(seed, monkeypatch):
+    """Normal matrices that leave out far too many pairs (all below 1e-3 of the heaviest) stop
+    steering the iterate; once it stalls they keep every pair, and the method still ends at a
+    certified vertex. Without the guard it runs to its iteration limit."""
+    problem = _dual_form(seed, n=30, k=600)
+    monkeypatch.setattr(ipm_module, "NEGLIGIBLE_WEIGHT", 1e-3)
+    guarded = solve_dual_form(*problem)
+    assert guarded.certified
+    monkeypatch.setattr(ipm_module, "STALL", np.inf)
+    assert solve_dual_form(*problem).status == "iteration_limit"
