@@ -317,7 +317,7 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
         without += [f"{point_drops} point observation" + "s" * (point_drops != 1)] if point_drops else []
         tell({"stage": "outliers", "message": f"refining without {' and '.join(without)}" if without
               else "refining once more on every camera-frame (none is an outlier)"})
-        if robust_ba:  # one pass from the full setup: restart it where the robust solve ended
+        if one_pass:  # one pass from the full setup: restart it where the robust solve ended
             setup = restarted(r.setup, keep, r.R, r.t, r.wand)
         else:
             setup = build_problem(r.rig, r.labelled.subset(keep), r.R, r.t, GAUGE_CAMERA)

@@ -75,8 +75,11 @@ MAX_RELINEARISE = 6  # IRLS moves (each relinearised) before the LP takes over
 RELINEARISE_SE = 20.0
 IRLS_GUARD_SE = 0.25  # the guard of an LP written about an IRLS point (IRLS stalls ~0.1 SE from the optimum)
 # a row this many sigmas from a breakpoint at the IRLS point starts in the LP: 0.01 gave 8.4k
-# pairs (1.4 s) at 32 x 2000 with outliers, 0.003 2.6k (0.6-0.9 s), 0.001 2.8-3.9k after more rounds
-IRLS_NEAR_BREAK = 0.003
+# pairs (1.4 s) at 32 x 2000 with outliers, 0.003 2.6k (0.6-0.9 s), 0.001 2.8-3.9k after more rounds.
+# Since a round after the first also models the breakpoints near its point (lpstep.WIDEN_NEAR),
+# 0.002 takes 2 rounds on six 32-128 x 3000 captures, with 27-31% fewer pairs than 0.003 (11.0-11.3k
+# at 128 cameras); 0.0015 took 3 rounds on two of them, 0.001 on four (decision 0029)
+IRLS_NEAR_BREAK = 0.002
 # the first phase's L1 optimum only starts the second phase: IRLS near it is enough, and its
 # certifying LPs took 1.0-1.4 s of the 32 x 2000 time (the second phase's robust scale moved 1e-4)
 CERTIFY_FIRST_PHASE = False
@@ -204,18 +207,20 @@ def _phase_start(model: WandModel, x: np.ndarray, loss, warm: bool = False) -> t
     so the LP crosses few breakpoints. The phase's robust scale is taken at the point kept, and
     the phase's steps are linearised there. Points are judged by their residuals alone, so this
     costs two linearisations, not three (decision 0004, fourth session). ``warm`` (x solves nearly
-    this problem, its frames fitted to its cameras): the start's linearisation is the phase's,
-    rescaled (one linearisation; decision 0019).
+    this problem, its frames fitted to its cameras): the start's linearisation is the phase's, its
+    scale and kept rows those of its own residuals (one linearisation and one elimination;
+    decisions 0019, 0029: after the outlier pass at 128 x 3000 the residuals' scale was 0.13% from
+    the projected residuals', and the two kept the same rows).
 
     Returns:
         (the start's system, the phase's system with its scale).
     """
     start = ReducedSystem(model, x)
+    if warm:
+        return start, start
     # the start's rows are kept by their residuals with the frames refitted (b): the raw ones of
     # frames fitted to other cameras are many pixels off, and their scale would keep gross outliers
     start = start.rescaled(robust_scale(start.b), by=start.b)
-    if warm:
-        return start, start
     d_gn = start.gauss_newton_step()
     x_fit, x_gn = start.apply(np.zeros_like(d_gn)), start.apply(d_gn)
     r_fit, r_gn = model.residuals(x_fit), model.residuals(x_gn)

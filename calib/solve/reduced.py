@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 
 from wandcal.calib.geometry import euler_rates
@@ -220,9 +221,10 @@ class ReducedSystem:
         normal matrix, plus ``SCHUR_RIDGE``); its Cholesky factor is cached."""
         if getattr(self, "_factor_cache", None) is None:
             S = self._schur()[0]
-            self._factor_cache = np.linalg.cholesky(S + SCHUR_RIDGE * np.trace(S) / len(S) * np.eye(len(S)))
-        L = self._factor_cache
-        return np.linalg.solve(L.T, np.linalg.solve(L, g))
+            self._factor_cache = sla.cho_factor(S + SCHUR_RIDGE * np.trace(S) / len(S) * np.eye(len(S)), lower=True,
+                                                check_finite=False)
+        # two triangular solves (np.linalg.solve on the factor took an LU of it: 20 ms at 762 unknowns)
+        return sla.cho_solve(self._factor_cache, g, check_finite=False)
 
     def _schur(self) -> tuple[np.ndarray, np.ndarray]:
         """Reduced normal matrix and gradient of the free cameras: the Schur complement of the
@@ -242,10 +244,12 @@ class ReducedSystem:
             lam, V = np.linalg.eigh(self.Hf)
             lam = np.maximum(lam, 0.0)
             D = np.sqrt(lam + 2 * FRAME_RIDGE) / (lam + FRAME_RIDGE)
-            Z = np.matmul(V.swapaxes(1, 2), self.Gf[:, free].reshape(p.n_frames, FRAME_PARAMS, -1))
+            # on every camera's columns, the fixed ones' dropped from the product: no (F*5, n) copy of
+            # the free columns (0.07 s at 128 x 3000) for 1% more of the product
+            Z = np.matmul(V.swapaxes(1, 2), self.Gf.reshape(p.n_frames, FRAME_PARAMS, -1))
             Z *= D[:, :, None]  # in place: one (F*5, n) array fewer (91 MB at 128 x 3000)
-            Z = Z.reshape(-1, len(free))
-            S = -(Z.T @ Z)
+            Z = Z.reshape(-1, self.Gf.shape[1])
+            S = -(Z.T @ Z)[np.ix_(free, free)]
             idx = np.arange(len(m.free))
             S.reshape(len(idx), CAM_PARAMS, len(idx), CAM_PARAMS)[idx, :, idx, :] += CC
             self._schur_cache = S, self.folded_cost(self.Wt * self.b)

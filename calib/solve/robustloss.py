@@ -30,15 +30,14 @@ L1 = signed_loss(np.zeros(0), np.ones(1))  # least absolute error: the first pha
 
 
 def loss_value(z: np.ndarray, loss) -> np.ndarray:
-    """The loss of residuals z (robust sigmas), any shape; 0 at z = 0."""
+    """The loss of residuals z (robust sigmas), any shape; 0 at z = 0. Losses are symmetric
+    (:func:`signed_loss`), so this is a function of |z| over the positive breakpoints."""
     P, S = loss
     mid = len(P) // 2
-    out = S[mid + 1] * np.maximum(z, 0.0) + S[mid] * np.minimum(z, 0.0)
-    for q in range(len(P)):
-        if q > mid:
-            out += (S[q + 1] - S[q]) * np.maximum(z - P[q], 0.0)
-        elif q < mid:
-            out += (S[q + 1] - S[q]) * np.maximum(P[q] - z, 0.0)
+    a = np.abs(z)
+    out = S[mid + 1] * a
+    for q in range(mid + 1, len(P)):
+        out += (S[q + 1] - S[q]) * np.maximum(a - P[q], 0.0)
     return out
 
 

@@ -38,14 +38,15 @@ STEP_TO_BOUNDARY = 0.995  # the fraction of the longest feasible step taken (Meh
 # factor near the end.
 SINGLE_PRECISION_RANGE = 1e6
 # Late on, pairs whose weight is below this fraction of the largest are left out of the normal
-# matrix: they are at a bound, and the direction only steers them there. On the 9 full LP solves
-# of five 64-128 x 3000 captures (decision 0029) 1e-8 took 13.9-14.7 s against 15.2-15.7 s at 1e-12,
-# in as many iterations but one solve. Two guards: where leaving them out makes the matrix singular
-# in floating point, the factor is taken again with the pairs above STRICT_NEGLIGIBLE (1e-9 broke
-# it once at 128 x 3000, decision 0024); and once an iterate is no nearer the optimum than STALL of
-# the one two before (that solve stalled at 60 iterations without the guard, 19 with it, 15 with
-# every pair), every pair above STRICT_NEGLIGIBLE is kept to the end
-NEGLIGIBLE_WEIGHT = 1e-8
+# matrix: they are at a bound, and the direction only steers them there. On the 5 final LP solves
+# of five 64-128 x 3000 captures (decision 0029) 1e-10 took 7.8-8.0 s against 8.5-9.0 s at 1e-12,
+# in as many iterations or one fewer; 1e-9 as fast, 1e-8 stalled on a dual-degenerate solve (19
+# iterations against 16). Two guards: where leaving them out makes the matrix singular in floating
+# point, the factor is taken again with the pairs above STRICT_NEGLIGIBLE (1e-9 broke it once at
+# 128 x 3000, decision 0024); and once an iterate is no nearer the optimum than STALL of the one two
+# before, every pair above STRICT_NEGLIGIBLE is kept to the end (at 1e-8 a solve stalled at 60
+# iterations without this guard)
+NEGLIGIBLE_WEIGHT = 1e-10
 STRICT_NEGLIGIBLE = 1e-12
 STALL = 0.5
 # Outside that range, the pairs weighted below this fraction of the largest go to the normal
