@@ -134,7 +134,8 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         # singular, only costs simplex iterations from there)
         deadline = None if time_limit is None else time.perf_counter() + time_limit
         lp_args = (np.concatenate(cols_A), np.concatenate(cols_c), np.concatenate(cols_u), -box_lo, box_hi, -c_fold)
-        ipm = solve_dual_form(*lp_args, deadline, leave=_leaving(state, P, b, lo, hi, kept) if EARLY_LEAVE and rounds == 1 else None)
+        leave = _Leaving(state, P, b, lo, hi, kept) if EARLY_LEAVE and rounds == 1 else None
+        ipm = solve_dual_form(*lp_args, deadline, leave=leave)
         seconds += ipm.seconds
         if ipm.status == "time_limit":
             return None, {"seconds": seconds, "rows": total, "status": "time_limit", "rounds": rounds,
@@ -143,7 +144,10 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
             # rows that the interior point's step takes past their modelled breakpoints need another
             # round whatever the basis's vertex (the two differ by ~1e-8 of the step): the basis is
             # certified only in a round that may be the last
-            z = b + state.change(ipm.duals).ravel()
+            if ipm.status == "left" and leave is not None and leave.z is not None:
+                z = leave.z  # the residuals the question that stopped it was asked about
+            else:
+                z = b + state.change(ipm.duals).ravel()
             _, out_lo, out_hi = _left_rows(P, z, lo, hi, kept)
             pinned = _pinned(ipm.duals, box_lo, box_hi, trust_lo, trust_hi, IPM_PINNED)
             if out_lo.any() or out_hi.any() or pinned.any():
@@ -195,12 +199,19 @@ def _highs_vertex(lp_args, ipm, time_limit, strategy: int):
     return lp.solve(strategy)
 
 
-def _leaving(state: ReducedSystem, P: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray, kept: np.ndarray):
-    """For the interior point: does a step (n,) take a row past its modelled breakpoints?"""
-    def leaves(d: np.ndarray) -> bool:
-        _, out_lo, out_hi = _left_rows(P, b + state.change(d).ravel(), lo, hi, kept)
+class _Leaving:
+    """For the interior point: does a step (n,) take a row past its modelled breakpoints? The
+    residuals z (pixels) at the last step asked about are kept for the round that follows."""
+
+    def __init__(self, state: ReducedSystem, P: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 kept: np.ndarray):
+        self.state, self.P, self.b, self.lo, self.hi, self.kept = state, P, b, lo, hi, kept
+        self.z: np.ndarray | None = None
+
+    def __call__(self, d: np.ndarray) -> bool:
+        self.z = self.b + self.state.change(d).ravel()
+        _, out_lo, out_hi = _left_rows(self.P, self.z, self.lo, self.hi, self.kept)
         return bool(out_lo.any() or out_hi.any())
-    return leaves
 
 
 def _widened(guard, lo, hi, P, z, kept, pinned, margin: float):

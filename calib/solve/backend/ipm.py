@@ -133,6 +133,7 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     x = np.where(ub, upper / 2, 1.0)
     s = np.where(ub, upper - x, 1.0)
     lam = np.zeros(n)
+    Et_lam = np.zeros(2 * n + len(c))  # E^T lam, carried from step to step (E^T dl is each direction's)
     z = np.maximum(cost, 0.0) + 0.1 * size
     w = (np.maximum(-cost, 0.0) + 0.1 * size) * one
     n_compl = len(x) + int(ub.sum())  # complementarity products: x z, and s w where bounded
@@ -143,7 +144,7 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     for it in range(1, MAX_ITER + 1):
         rp = r - _times(A, x)
         ru = (upper - x - s) * one
-        rd = cost - _times_t(A, lam) - z + w
+        rd = cost - Et_lam - z + w
         gap = x @ z + (s * w) @ one
         near = max(np.abs(rp).max() / r_norm, np.abs(rd).max() / c_norm, gap / (1 + abs(cost @ x)))
         history.append(near)
@@ -175,26 +176,27 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
             break
         point, residuals = (x, z, s, w, one), (rp, ru, rd)
         # the affine-scaling predictor, then Mehrotra's corrector, then Gondzio's
-        dl, dx, dz, ds, dw = _direction(A, factor, D, point, residuals, -x * z, -s * w * one)
+        dl, dx, dz, ds, dw, _ = _direction(A, factor, D, point, residuals, -x * z, -s * w * one)
         a_p, a_d = _step_lengths(point, (dx, dz, ds, dw), 1.0)
         gap_aff = (x + a_p * dx) @ (z + a_d * dz) + ((s + a_p * ds) * (w + a_d * dw)) @ one
         target = (gap_aff / gap) ** 3 * mu
         r_xz, r_sw = target - x * z - dx * dz, (target - s * w - ds * dw) * one
         direction = _direction(A, factor, D, point, residuals, r_xz, r_sw)
-        a_p, a_d = _step_lengths(point, direction[1:], STEP_TO_BOUNDARY)
+        a_p, a_d = _step_lengths(point, direction[1:5], STEP_TO_BOUNDARY)
         for _ in range(CORRECTORS):
             if min(a_p, a_d) >= 1.0:
                 break
-            t_xz, t_sw = _centrality_targets(point, direction[1:], a_p, a_d, target)
+            t_xz, t_sw = _centrality_targets(point, direction[1:5], a_p, a_d, target)
             corrected = _direction(A, factor, D, point, residuals, r_xz + t_xz, r_sw + t_sw)
-            c_p, c_d = _step_lengths(point, corrected[1:], STEP_TO_BOUNDARY)
+            c_p, c_d = _step_lengths(point, corrected[1:5], STEP_TO_BOUNDARY)
             aimed = min(1.0, a_p + CORRECTOR_REACH) - a_p + min(1.0, a_d + CORRECTOR_REACH) - a_d
             if c_p + c_d < a_p + a_d + CORRECTOR_GAIN * aimed:
                 break
             direction, a_p, a_d, r_xz, r_sw = corrected, c_p, c_d, r_xz + t_xz, r_sw + t_sw
-        dl, dx, dz, ds, dw = direction
+        dl, dx, dz, ds, dw, Et_dl = direction
         x, s = x + a_p * dx, np.where(ub, s + a_p * ds, 1.0)
         lam, z, w = lam + a_d * dl, z + a_d * dz, (w + a_d * dw) * one
+        Et_lam = Et_lam + a_d * Et_dl
     basic, at_upper = _named_basis(x, z, s, w, ub, n)
     return IpmResult(lam, basic, at_upper, status, it, time.perf_counter() - start)
 
@@ -347,16 +349,18 @@ def _times_t(A: np.ndarray, v: np.ndarray) -> np.ndarray:
 def _direction(A, factor, D, point, residuals, r_xz, r_sw):
     """The Newton direction (dl, dx, dz, ds, dw) of the perturbed optimality conditions
     E dx = rp, dx + ds = ru, E^T dl + dz - dw = rd, Z dx + X dz = r_xz, W ds + S dw = r_sw,
-    reduced to the normal equations (E D E^T) dl = rp + E D rho (``factor``: their Cholesky factor)."""
+    reduced to the normal equations (E D E^T) dl = rp + E D rho (``factor``: their Cholesky factor);
+    and E^T dl, which carries E^T lam to the next iterate without a product."""
     x, z, s, w, one = point
     rp, ru, rd = residuals
     rho = rd - r_xz / x + (r_sw - w * ru) / s * one
     dl = sla.cho_solve(factor, rp + _times(A, D * rho), check_finite=False)
-    dx = D * (_times_t(A, dl) - rho)
+    Et_dl = _times_t(A, dl)
+    dx = D * (Et_dl - rho)
     dz = (r_xz - z * dx) / x
     ds = (ru - dx) * one
     dw = (r_sw - w * ds) / s * one
-    return dl, dx, dz, ds, dw
+    return dl, dx, dz, ds, dw, Et_dl
 
 
 def _longest(v: np.ndarray, dv: np.ndarray) -> float:
