@@ -69,9 +69,21 @@ def _incidence(model: WandModel) -> dict:
             "frame": sp.csr_matrix((ones, (p.frame, obs)), shape=(p.n_frames, M)),
             "camera": sp.csr_matrix((ones, (p.camera, obs)), shape=(p.n_cams, M)),
             "frame_camera": sp.csr_matrix((ones, (p.frame * p.n_cams + p.camera, obs)), shape=(p.n_frames * p.n_cams, M)),
+            "by_camera": np.argsort(p.camera, kind="stable"),
         }
+        cache["camera_bounds"] = np.searchsorted(p.camera[cache["by_camera"]], np.arange(p.n_cams + 1))
         model._slp_incidence = cache
     return cache
+
+
+def camera_grams(model: WandModel, C: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(N, 6, 6) each camera's sum of C^T diag(w) C over its observations' blocks C (M, 2, 6),
+    weights w (M, 2) >= 0: one small product per camera over its rows gathered together (0.06 s at
+    128 x 3000 against 0.12-0.20 s for per-observation outer products summed by camera)."""
+    inc = _incidence(model)
+    rows = (C * np.sqrt(w)[:, :, None])[inc["by_camera"]].reshape(-1, C.shape[2])
+    bounds = 2 * inc["camera_bounds"]
+    return np.stack([rows[a:b].T @ rows[a:b] for a, b in zip(bounds[:-1], bounds[1:])])
 
 
 def sum_by(model: WandModel, key: str, values: np.ndarray) -> np.ndarray:
@@ -92,8 +104,7 @@ class ReducedSystem:
 
     def __init__(self, model: WandModel, x: np.ndarray, scale: float | None = None):
         self.model, self.x = model, x
-        self.r = model.residuals(x).reshape(-1, 2)
-        blocks, cols = model.jacobian_blocks(x)
+        self.r, blocks, cols = model.linearised(x)
         self.own = cols[:, 0] >= 0  # the observation's camera is free
         self.cam_cols = cols[:, :CAM_PARAMS]
         self.C = blocks[:, :, :CAM_PARAMS]  # (M, 2, 6)
@@ -239,8 +250,7 @@ class ReducedSystem:
         if getattr(self, "_schur_cache", None) is None:
             m, p = self.model, self.model.p
             free = self.free_cols
-            Wc = self.C * (self.Wt * self.own[:, None])[:, :, None]
-            CC = sum_by(m, "camera", outer(Wc, self.C)).reshape(p.n_cams, CAM_PARAMS, CAM_PARAMS)[m.free]
+            CC = camera_grams(m, self.C, self.Wt * self.own[:, None])[m.free]
             lam, V = np.linalg.eigh(self.Hf)
             lam = np.maximum(lam, 0.0)
             D = np.sqrt(lam + 2 * FRAME_RIDGE) / (lam + FRAME_RIDGE)
@@ -266,8 +276,7 @@ class ReducedSystem:
         m, p = self.model, self.model.p
         N = p.n_cams
         n = N * CAM_PARAMS
-        Wc = self.C * (w * self.own[:, None])[:, :, None]
-        CC = sum_by(m, "camera", outer(Wc, self.C)).reshape(N, CAM_PARAMS, CAM_PARAMS)
+        CC = camera_grams(m, self.C, w * self.own[:, None])
         WK = self.K * w[:, :, None]
         X = sum_by(m, "frame_camera", outer(WK, self.C) * self.own[:, None, None])
         X = X.reshape(p.n_frames, N, FRAME_PARAMS, CAM_PARAMS).transpose(0, 2, 1, 3).reshape(-1, n)

@@ -191,8 +191,13 @@ class WandModel:
         return sp.csr_matrix((blocks[keep], (rows[keep], cols2[keep])), shape=(2 * M, self.n_params))
 
     def jacobian_blocks(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Dense per-observation blocks: (M, 2, 6 + frame_params) values and (M, 6 + frame_params)
-        columns (-1 = fixed camera).
+        """:meth:`linearised` without the residuals."""
+        return self.linearised(x)[1:]
+
+    def linearised(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pixel residuals (M, 2) (:meth:`residuals`, from the same projection) and the dense
+        per-observation Jacobian blocks: (M, 2, 6 + frame_params) values and (M, 6 +
+        frame_params) columns (-1 = fixed camera).
 
         The derivatives by the camera's left rotation increment, its translation and the point
         are ``ba``'s, elementwise (calib/solve/reprojection.project_into); the Euler increments'
@@ -203,7 +208,7 @@ class WandModel:
         delta, R, d, vnorm, sign, Y, t = self._camera_points(x)
         cam, fr = p.camera, p.frame
         blocks = np.empty((len(cam), 2, CAM_PARAMS + self.frame_params))
-        project_into(blocks, Y, t, R[cam], p.xy, p.focal[cam])
+        r = project_into(blocks, Y, t, R[cam], p.xy, p.focal[cam])
         blocks[:, :, :3] = np.einsum("mki,mij->mkj", blocks[:, :, :3], euler_rates(delta)[cam])
         dX = blocks[:, :, 6:9]  # d(pixel)/d(point)
         if p.across is not None:
@@ -218,4 +223,4 @@ class WandModel:
         cam_base = self.cam_col[cam]
         cam_cols = np.where(cam_base[:, None] >= 0, cam_base[:, None] + np.arange(CAM_PARAMS), -1)
         frame_cols = self.frame_col0 + self.frame_params * fr[:, None] + np.arange(self.frame_params)
-        return blocks, np.concatenate([cam_cols, frame_cols], axis=1)
+        return r, blocks, np.concatenate([cam_cols, frame_cols], axis=1)

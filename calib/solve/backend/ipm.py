@@ -80,10 +80,9 @@ CORRECTOR_REACH = 0.3
 CORRECTOR_BAND = (0.1, 10.0)
 CORRECTOR_GAIN = 0.1
 # from the first iterate this near the optimum (as TOL) on, the basis each iterate names is
-# certified (certified_duals, one LU factor: ~0.03 s at 128 x 3000 against
-# ~0.13 s for an iteration) and the method stops at the first that passes: the vertex is then as
-# exact as at TOL. On the 128 x 3000 step's two LPs the named basis passed 2-3 iterations before
-# TOL (decision 0029)
+# certified (certified_duals, one LU factor: ~0.03 s at 128 x 3000 against ~0.13 s for an
+# iteration) and the method stops at the first that passes: the vertex is then as exact as at TOL.
+# On the 128 x 3000 step's two LPs the named basis passed 1-2 iterations before TOL (decision 0029)
 CERTIFY_TOL = 1e-5
 
 
