@@ -148,7 +148,7 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
                 z = leave.z  # the residuals the question that stopped it was asked about
             else:
                 z = b + state.change(ipm.duals).ravel()
-            _, out_lo, out_hi = _left_rows(P, z, lo, hi, kept)
+            out_lo, out_hi = _left_rows(P, z, lo, hi, kept)
             pinned = _pinned(ipm.duals, box_lo, box_hi, trust_lo, trust_hi, IPM_PINNED)
             if out_lo.any() or out_hi.any() or pinned.any():
                 old_lo, old_hi = lo, hi
@@ -170,7 +170,7 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
                               "iterations": iterations}
             d = res.row_duals.copy()
         z = b + state.change(d).ravel()
-        _, out_lo, out_hi = _left_rows(P, z, lo, hi, kept)
+        out_lo, out_hi = _left_rows(P, z, lo, hi, kept)
         pinned = _pinned(d, box_lo, box_hi, trust_lo, trust_hi, VERTEX_PINNED)
         if not (out_lo.any() or out_hi.any() or pinned.any()):
             certified = True
@@ -210,7 +210,7 @@ class _Leaving:
 
     def __call__(self, d: np.ndarray) -> bool:
         self.z = self.b + self.state.change(d).ravel()
-        _, out_lo, out_hi = _left_rows(self.P, self.z, self.lo, self.hi, self.kept)
+        out_lo, out_hi = _left_rows(self.P, self.z, self.lo, self.hi, self.kept)
         return bool(out_lo.any() or out_hi.any())
 
 
@@ -232,9 +232,9 @@ def _pinned(d, box_lo, box_hi, trust_lo, trust_hi, tol: float) -> np.ndarray:
 
 def _left_rows(P: np.ndarray, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, kept: np.ndarray):
     """The kept rows whose residual z (pixels) lies beyond the breakpoints modelled for them
-    (``P[lo] .. P[hi]``): (each row's interval, those below, those above)."""
+    (``P[lo] .. P[hi]``): (those below, those above)."""
     where = np.searchsorted(P, z)
-    return where, kept & (where < lo), kept & (where > hi + 1)
+    return kept & (where < lo), kept & (where > hi + 1)
 
 
 def _pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
