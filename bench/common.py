@@ -54,13 +54,15 @@ def reset_peak_rss() -> None:
 def machine() -> str:
     import os
 
-    import highspy
     import numpy
     import scipy
 
+    from wandcal.calib.solve.backend.highs import new_highs
+
+    highs = new_highs()  # without HiGHS's banner on the bench's stdout
     return (
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
-        f"NumPy {numpy.__version__}, SciPy {scipy.__version__}, HiGHS (highspy) {highspy.Highs().version() if hasattr(highspy.Highs(), 'version') else '?'}"
+        f"NumPy {numpy.__version__}, SciPy {scipy.__version__}, HiGHS (highspy) {highs.version() if hasattr(highs, 'version') else '?'}"
     )
 
 
