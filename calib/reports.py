@@ -11,7 +11,7 @@ import numpy as np
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import camera_rows
 from wandcal.calib.refine import GAUGE_CAMERA
-from wandcal.calib.rig import Rig, camera_list, names_camera
+from wandcal.calib.rig import Rig, camera_list, folded, names_camera
 from wandcal.calib.solve.gauge_free import split_uncertainty
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty
@@ -116,31 +116,21 @@ def intrinsics_reports(cameras: list[dict], rig: Rig, std: np.ndarray, names: li
 def fold_camera_warnings(warnings: list[str], ids: list[str], cameras: list[dict]) -> list[str]:
     """The warnings with those that differ only in the camera they start with ("cam5: static-object
     pose is ambiguous ...", once a camera) folded into one line naming the cameras compactly
-    ("cam5, cam9: ...", "all 64 cameras: ..."; :func:`wandcal.calib.judge.verdict.camera_list`), at
+    ("cam5, cam9: ...", "all 64 cameras: ..."; :func:`wandcal.calib.rig.camera_list`), at
     the first one's place. Nothing is lost: each camera's entry in ``cameras`` (rig order) gets
     ``warnings``, every warning about it in full (:func:`names_camera`).
     ids: (N,) the rig's camera ids."""
     for cam_id, report in zip(ids, cameras):
         report["warnings"] = [w for w in warnings if names_camera(w, cam_id)]
-    rests: list[str | None] = []  # each warning's text after the camera id it starts with, when foldable
-    by_rest: dict[str, list[str]] = {}  # that text -> the cameras it follows
+    lines = []
     for w in warnings:
         cam_id = next((i for i in ids if w.startswith(i + ": ")), None)
         rest = w[len(cam_id):] if cam_id is not None else None
         if rest is not None and any(names_camera(rest, i) for i in ids):
             rest = None  # it names another camera in its own words: kept as it is
-        rests.append(rest)
-        if rest is not None:
-            by_rest.setdefault(rest, []).append(cam_id)
-    out, done = [], set()
-    for w, rest in zip(warnings, rests):
-        if rest is None or len(set(by_rest[rest])) == 1:
-            out.append(w)
-        elif rest not in done:
-            done.add(rest)
-            named = set(by_rest[rest])
-            out.append(camera_list([i for i in ids if i in named], len(ids)) + rest)
-    return out
+        lines.append((w, rest, cam_id or ""))
+    return folded(lines, lambda named: len(set(named)) > 1,
+                  lambda rest, named: camera_list([i for i in ids if i in set(named)], len(ids)) + rest)
 
 
 def summary_warnings(warnings: list[str], dropped: dict, info: dict, method: str, camera_frames: int,

@@ -7,6 +7,7 @@ poses are world->camera, ``x_cam = R @ x_world + t``, in metres.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -315,6 +316,26 @@ def camera_list(ids: list[str], rig_cameras: int) -> str:
     if len(ids) == rig_cameras:
         return f"all {rig_cameras} cameras"
     return f"{', '.join(ids[:LISTED_CAMERAS])} and {len(ids) - LISTED_CAMERAS} more"
+
+
+def folded(lines: list[tuple[str, str | None, str]], folds: Callable[[list[str]], bool],
+           render: Callable[[str, list[str]], str]) -> list[str]:
+    """Messages about cameras with those that say the same of several folded into one line.
+    lines: (text, key, camera id) in order, ``key`` the text with its camera left out (None: kept
+    as it is). A key whose cameras (in order, repeats kept) ``folds`` is written once, as
+    ``render(key, cameras)``, at its first line's place; every other line stays as it is."""
+    cameras: dict[str, list[str]] = {}
+    for _, key, cam_id in lines:
+        if key is not None:
+            cameras.setdefault(key, []).append(cam_id)
+    out, done = [], set()
+    for text, key, _ in lines:
+        if key is None or not folds(cameras[key]):
+            out.append(text)
+        elif key not in done:
+            done.add(key)
+            out.append(render(key, cameras[key]))
+    return out
 
 
 def names_camera(text: str, camera_id: str) -> bool:

@@ -18,7 +18,7 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.coverage import coverage_grid, covered_fraction, empty_regions
 from wandcal.calib.observations import camera_rows
-from wandcal.calib.rig import LISTED_CAMERAS, Rig, camera_list
+from wandcal.calib.rig import LISTED_CAMERAS, Rig, camera_list, folded
 
 LEVELS = ("excellent", "good", "poor")
 # a camera's RMS ray distance over the volume's size: 0.3 px of blob noise, a typical good
@@ -65,6 +65,8 @@ PLACEMENT_ADVICE = {
     "axis": "digitise the axis points in more cameras and frames, or space them further apart",
     "wand_volume": "place an L-frame (static object) in the volume, seen by several cameras, to fix the world frame",
 }
+
+
 def _grade(value: float | None, limits: tuple[float, float], higher_is_better: bool = False) -> int:
     if value is None or not np.isfinite(value):
         return 0
@@ -234,22 +236,15 @@ def fold_advice(advice: list[tuple[str, str]], rig_cameras: int) -> list[str]:
     that more than :data:`LISTED_CAMERAS` cameras give but for their id becomes one line naming them
     (:func:`camera_list`; "all 64 cameras: check their focus, exposure and blob detection"), at the
     first one's place; each camera's own verdict keeps its own. A small rig's list is unchanged."""
-    templates = []  # each instruction with its camera's id masked
-    by_template: dict[str, list[str]] = {}
+    lines = []
     for cam_id, text in advice:
-        template = re.sub(rf"(?<![\w-]){re.escape(cam_id)}(?![\w-])", "\0", text)
-        templates.append(template)
-        by_template.setdefault(template, []).append(cam_id)
-    out, done = [], set()
-    for (_, text), template in zip(advice, templates):
-        ids = by_template[template]
-        if len(ids) <= LISTED_CAMERAS or "\0" not in template:
-            out.append(text)
-        elif template not in done:
-            done.add(template)
-            plural = re.sub(r"\bits\b", "their", template.replace("\0's", "their").replace("\0", "them"))
-            out.append(f"{camera_list(ids, rig_cameras)}: {plural}")
-    return out
+        template = re.sub(rf"(?<![\w-]){re.escape(cam_id)}(?![\w-])", "\0", text)  # the camera's id masked
+        lines.append((text, template if "\0" in template else None, cam_id))
+
+    def line(template: str, ids: list[str]) -> str:
+        plural = re.sub(r"\bits\b", "their", template.replace("\0's", "their").replace("\0", "them"))
+        return f"{camera_list(ids, rig_cameras)}: {plural}"
+    return folded(lines, lambda ids: len(ids) > LISTED_CAMERAS, line)
 
 
 def sanity_check(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, world: dict,
