@@ -26,8 +26,15 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.common import replace_section  # noqa: E402
-from wandcal.capture.session import BYTES_PER_PIXEL, INBOX_SECONDS, LEAD_SECONDS, WRITE_SECONDS, buffer_frames, record  # noqa: E402
-from wandcal.capture.writer import ImageWriter  # noqa: E402
+from wandcal.capture.recording.session import (  # noqa: E402
+    BYTES_PER_PIXEL,
+    INBOX_SECONDS,
+    LEAD_SECONDS,
+    WRITE_SECONDS,
+    buffer_frames,
+    record,
+)
+from wandcal.capture.recording.writer import ImageWriter  # noqa: E402
 from wandcal.drivers.registry import open_cameras  # noqa: E402
 
 FRAME_BYTES = 1280 * 1024  # one simulated 8-bit frame

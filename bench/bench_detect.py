@@ -40,7 +40,7 @@ from wandcal.calib.sim.render import render_blobs  # noqa: E402
 from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
 from wandcal.capture.folder import rig_to_json  # noqa: E402
 from wandcal.capture.images import detect_capture  # noqa: E402
-from wandcal.capture.writer import PNG_PARAMS  # noqa: E402
+from wandcal.capture.recording.writer import PNG_PARAMS  # noqa: E402
 
 SHAPE = (1024, 1280)  # (H, W), the sensor size
 MARKERS = 6  # 2 wand markers + 4 L-frame markers: "a handful of blobs"

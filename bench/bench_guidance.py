@@ -2,7 +2,7 @@
 
     python bench/bench_guidance.py [--seconds 10] [--repeats 3] [--write-docs]
 
-Part 1 times :func:`wandcal.calib.guidance.wanding_guidance` on simulated captures (8 x 1500 and
+Part 1 times :func:`wandcal.calib.run.guidance.wanding_guidance` on simulated captures (8 x 1500 and
 16 x 2500 frames): a cold update, the live case (the capture grew by 10% since the last update,
 which starts this one), and the same without subsampling, with how far the subsampled sigma is
 from the full solve's. Part 2 compares the guidance's rig-relative sigma with the calibration
@@ -34,9 +34,9 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from bench.common import replace_section  # noqa: E402
-from wandcal.calib.guidance import GuidanceSettings, wanding_guidance  # noqa: E402
-from wandcal.calib.pipeline import calibrate  # noqa: E402
 from wandcal.calib.rig import WandObservations  # noqa: E402
+from wandcal.calib.run.calibrate import calibrate  # noqa: E402
+from wandcal.calib.run.guidance import GuidanceSettings, wanding_guidance  # noqa: E402
 from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
 
 RIGS = ((8, 1500), (16, 2500))
@@ -112,9 +112,9 @@ def bench_frames() -> tuple[list[tuple], list[tuple]]:
 
 def run_capture(images: str, guidance: bool, seconds: float) -> dict:
     """One capture in this process (the child): rate, missed frames, CPU time, guidance updates."""
-    from wandcal.capture.guidance import LiveGuidance
-    from wandcal.capture.record import ImagePolicy
-    from wandcal.capture.session import record
+    from wandcal.capture.recording.live_guidance import LiveGuidance
+    from wandcal.capture.recording.record import ImagePolicy
+    from wandcal.capture.recording.session import record
     from wandcal.drivers.registry import open_cameras
     from wandcal.drivers.trigger import open_trigger
     from wandcal.drivers.trigger_emulator import EmulatorProcess
@@ -255,7 +255,7 @@ def main() -> None:
               "so the capture rates below are what was left to wandcal; beside each run, the cores the other jobs "
               "used during it (the machine's busy time less the capture's, its trigger emulator's and its "
               "solver's).\n\n"
-              "One guidance update (`wandcal.calib.guidance.wanding_guidance`, simulated ring rigs, 0.3 px noise, median of "
+              "One guidance update (`wandcal.calib.run.guidance.wanding_guidance`, simulated ring rigs, 0.3 px noise, median of "
               f"{args.repeats}). The live update starts from the last solution (no initial poses) and keeps about 400 "
               "frames per camera; its sigma, scaled by sqrt(kept / all), is within the last column of the full "
               "solve's:\n")

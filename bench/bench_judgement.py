@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_section
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.faults import CASES, EXPECTED, broken_capture
 
 FIRST_SEED = 100

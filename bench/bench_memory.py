@@ -34,7 +34,7 @@ def rss():
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) * 1024
 from wandcal.capture.folder import read_capture
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 folder = Path(sys.argv[1])
 base = rss()
 t = time.perf_counter()

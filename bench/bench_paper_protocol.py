@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import timed, write_section
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import wand_pairs
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_paper_protocol
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.start.labels import label_ends, wand_lengths

@@ -41,7 +41,7 @@ from bench.common import aligned_rms_mm, peak_rss_mb, reset_peak_rss, write_sect
 from bench.whole_process import PROBE  # noqa: E402
 from wandcal.calib.geometry import camera_centers, rotvec_to_matrix  # noqa: E402
 from wandcal.calib.observations import wand_pairs  # noqa: E402
-from wandcal.calib.refine import build_problem, refine, reject_outliers, up_direction  # noqa: E402
+from wandcal.calib.run.refine import build_problem, refine, reject_outliers, up_direction  # noqa: E402
 from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
 from wandcal.calib.solve.ba import bundle_adjust  # noqa: E402
 from wandcal.calib.start.labels import label_ends  # noqa: E402

@@ -178,8 +178,8 @@ def part_guidance(cameras: int, frames: int, repeats: int) -> str:
 
     from threadpoolctl import threadpool_limits
 
-    from wandcal.calib.guidance import wanding_guidance
     from wandcal.calib.rig import WandObservations
+    from wandcal.calib.run.guidance import wanding_guidance
     from wandcal.calib.sim.simulate import simulate_capture
 
     sim = simulate_capture(cameras, frames, 0.3, 0.0, True, 1)

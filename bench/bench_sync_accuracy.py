@@ -22,7 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import aligned_rms_mm, machine, replace_section
 
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 
 NOISE_PX = 0.3

@@ -19,7 +19,7 @@ from bench.common import aligned_centres_mm
 from wandcal.calib.geometry import undistort_points
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.observations import point_tracks, robust_sigma
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 from wandcal.capture.formats.easywand import read_easywand_mat
 from wandcal.capture.formats.svoboda import read_svoboda

@@ -7,7 +7,7 @@ drawn with :func:`wandcal.calib.sim.render.render_blobs`. Sequence numbers count
 (and, with ``lframe=keep``, the L-frame still lying on the floor).
 
 Like a rig with its operator, the scene plays what the capture asks for: a capture of K static
-sets and F wand sets (:func:`wandcal.capture.session.record` calls :meth:`SimCamera.script`)
+sets and F wand sets (:func:`wandcal.capture.recording.session.record` calls :meth:`SimCamera.script`)
 shows the L-frame for K frames and then the wand for F. ``frames`` and ``static`` in the URL fix
 the script instead (a run that ends early, for tests of a camera that runs out).
 

@@ -25,9 +25,9 @@ from wandcal.service.api.routes import blobsets, captures, guidance, health, job
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
 from wandcal.service.connections import install_repeat_filter
 from wandcal.service.db import disk_full, init_db
-from wandcal.service.jobs import JobStore
+from wandcal.service.jobs.queue import JobQueue, SQLiteQueue
+from wandcal.service.jobs.records import JobStore
 from wandcal.service.limits import BodySizeLimit, RateLimiter
-from wandcal.service.queue import JobQueue, SQLiteQueue
 from wandcal.service.recovery import recover
 from wandcal.service.settings import Settings
 from wandcal.service.storage import CaptureNotFound, CaptureStore, ReplayPathError
@@ -43,7 +43,7 @@ LIVE_STOP_S = 1.5
 
 def _queue(settings: Settings, store: JobStore, capture_store: CaptureStore) -> JobQueue:
     if settings.queue == "redis":
-        from wandcal.service.redis_queue import RedisQueue
+        from wandcal.service.jobs.redis_queue import RedisQueue
 
         def read_files(capture_id: str) -> dict[str, str | None]:
             folder = capture_store.folder(capture_id)

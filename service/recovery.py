@@ -27,7 +27,7 @@ from wandcal.service.storage import CAPTURE_ID, WAND_PAIR, CaptureStore
 log = logging.getLogger("wandcal.service")
 
 RECOVERED_DIR = "recovered"
-SPOOL_DIR = "tmp"  # where ``wandcal serve`` spools large uploads (service/serve.py)
+SPOOL_DIR = "tmp"  # where ``wandcal serve`` spools large uploads (service/cli/serve.py)
 RECORDING_MARKS = ("sync.csv", "capture.json", "frames", "static", "blobs.csv")  # written by a recording only
 RECOVERED_SOURCE = "live (recovered after a crash)"
 

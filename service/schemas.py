@@ -7,9 +7,9 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from wandcal.calib.pipeline import DEFAULT_METHOD, METHODS
-from wandcal.capture.arguments import MAX_FRAME_RATE_HZ, MAX_SYNC_OFFSET
-from wandcal.service.jobs import JobState
+from wandcal.calib.run.calibrate import DEFAULT_METHOD, METHODS
+from wandcal.service.cli.args import MAX_FRAME_RATE_HZ, MAX_SYNC_OFFSET
+from wandcal.service.jobs.records import JobState
 
 
 class ErrorPublic(BaseModel):
@@ -100,7 +100,7 @@ class BlobSetsPublic(BaseModel):
     framesets: int = Field(description="frame sets the capture now holds")
 
 
-Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: wandcal.calib.pipeline.METHODS
+Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: wandcal.calib.run.calibrate.METHODS
 
 
 class JobOptions(BaseModel):

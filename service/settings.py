@@ -17,13 +17,13 @@ from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, Settings
 from wandcal.calib.detect.config import DEFAULT_CONFIG as DETECT
 from wandcal.calib.detect.config import DetectConfig
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.guidance import (
+from wandcal.calib.run.guidance import (
     DEFAULT_FRAMES_PER_CAMERA,
     DEFAULT_MIN_COVERAGE,
     DEFAULT_TARGET_STD_MM,
     MIN_SOLVE_FRAMES,
 )
-from wandcal.capture.guidance import UPDATE_INTERVAL_S
+from wandcal.capture.recording.live_guidance import UPDATE_INTERVAL_S
 
 DEFAULT_PORT = 8750
 DEFAULT_HOST = "127.0.0.1"  # loopback: a rig PC should not expose the API unless someone asks for it

@@ -36,7 +36,6 @@ CALIB_RANK = {
     "sim": 4,
 }
 CORE = {"errors", "rig", "geometry", "observations", "triangulate", "wandlayout"}
-RUN = {"pipeline", "refine", "resolve", "guidance", "judgement", "reports"}
 MAX_MODULES_PER_FOLDER = 12
 
 
@@ -68,8 +67,6 @@ def _calib_group(name: str) -> str:
     parts = name.split(".")[2:]
     if not parts or parts[0] in CORE or parts[0] in ("errors", "CalibrationError", "Camera", "Rig"):
         return "core"
-    if parts[0] in RUN:
-        return "run"
     if parts[0] in CALIB_RANK:
         return parts[0]
     return "core"  # names the package re-exports from its core (wandcal.calib.Rig)

@@ -37,7 +37,7 @@ NOISE_RATIO = (1.5, 2.0)
 # share of a camera's camera-frames that are gross outliers against the rig's limit (5 robust
 # sigmas): Gaussian noise leaves none; real, hand-digitised sessions published as good carry 5-20%
 # (easyWand's Brown wind tunnel, 2-23% per camera), so only a quarter is poor on its own. Outliers
-# concentrated in one camera are a fault of that camera (wandcal.calib.judgement)
+# concentrated in one camera are a fault of that camera (wandcal.calib.run.judgement)
 OUTLIER_SHARE = (0.05, 0.25)
 # wand ends and points per camera: Qualisys asks for at least 300 points per camera
 MIN_OBSERVATIONS = (600, 300)

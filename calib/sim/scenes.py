@@ -8,8 +8,8 @@ import numpy as np
 
 from wandcal.calib.geometry import distort_points, project_normalized, rotvec_to_matrix
 from wandcal.calib.observations import WandPairs, wand_pairs
-from wandcal.calib.refine import Setup, build_problem
 from wandcal.calib.rig import PointObservations, WandObservations
+from wandcal.calib.run.refine import Setup, build_problem
 from wandcal.calib.sim.simulate import SimulatedCapture, simulate_capture
 from wandcal.calib.solve.wandmodel import WandModel
 from wandcal.calib.start.initial import Initial, initial_poses

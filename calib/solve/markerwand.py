@@ -1,6 +1,6 @@
 """A multi-marker wand's interior markers in the wand model: the known geometry inside ``ba``.
 
-The two-marker problem (wandcal.calib.refine.build_problem on the end markers) is extended with
+The two-marker problem (wandcal.calib.run.refine.build_problem on the end markers) is extended with
 one observation per interior blob, placed on the frame's wand at its marker's position along the
 axis (``WandProblem.along``) and, for a planar wand, across it in the wand's plane
 (``WandProblem.across``), so every marker's known position constrains the frame's pose, and
@@ -101,7 +101,7 @@ def marker_model(problem: WandProblem, pair_index: np.ndarray, labelled_camera: 
 
     Args:
         problem: the end markers' problem; pair_index: (M,) the labelled pair of each of its
-            observations (wandcal.calib.refine.Setup).
+            observations (wandcal.calib.run.refine.Setup).
         labelled_camera: (P,) each labelled pair's camera; xy: (P, K, 2) its blobs from end 0
             and along: (P, K) their axial positions, metres (wandcal.calib.start.markerlabels).
         R: (N, 3, 3), t: (N, 3), wand: (F, 2, 3) the start; fixed: (N,) the gauge cameras.

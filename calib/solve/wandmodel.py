@@ -155,7 +155,7 @@ class WandModel:
     def unit_frames(self, x: np.ndarray) -> np.ndarray:
         """(F, 2, 3) each frame's midpoint -/+ half its unit direction: what a WandModel starts
         from (``wand0``), the direction kept also where the wand has no length (the frames of a
-        wand-less capture's point tracks, wandcal.calib.refine.with_tracks)."""
+        wand-less capture's point tracks, wandcal.calib.run.refine.with_tracks)."""
         _, _, m, ab = self.unpack(x)
         d, _ = self.directions(ab)
         return np.stack([m - 0.5 * d, m + 0.5 * d], axis=1)

@@ -11,12 +11,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.guidance import DEFAULT_MIN_COVERAGE
 from wandcal.calib.judge.coverage import coverage_advice, coverage_grid, covered_fraction
 from wandcal.calib.judge.evaluate import WandEvaluation, evaluate_wand, labelled_pairs
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS, outlier_mask
 from wandcal.calib.observations import point_tracks
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, WandObservations
+from wandcal.calib.run.guidance import DEFAULT_MIN_COVERAGE
 from wandcal.calib.start.labels import flatten
 from wandcal.calib.start.world import axis_points
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points

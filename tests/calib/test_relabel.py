@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
-from wandcal.calib.refine import build_problem, refine, reject_outliers, up_direction
+from wandcal.calib.run.refine import build_problem, refine, reject_outliers, up_direction
 from wandcal.calib.sim.scenes import prepared_scene
 
 NOISE = 0.5

@@ -1,8 +1,8 @@
 """The result's warnings: per-camera warnings that several cameras share fold into one line naming
 them compactly, and each camera's entry keeps its own in full."""
 
-from wandcal.calib.reports import fold_camera_warnings, summary_warnings
 from wandcal.calib.rig import LISTED_CAMERAS
+from wandcal.calib.run.camera_reports import fold_camera_warnings, summary_warnings
 
 AMBIGUOUS = ": static-object pose is ambiguous (planar flip); placed from the wand"
 CAPTURE_WIDE = "3674 camera-frames (2.0%) were gross outliers and were dropped"

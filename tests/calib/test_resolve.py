@@ -7,8 +7,8 @@ import pytest
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import camera_centers, rotation_angle
 from wandcal.calib.judge.evaluate import check_cameras
-from wandcal.calib.pipeline import calibrate
-from wandcal.calib.resolve import solve_only
+from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.resolve import solve_only
 from wandcal.calib.sim.scenes import knocked_capture
 from wandcal.calib.sim.simulate import simulate_capture
 

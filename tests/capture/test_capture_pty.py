@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.capture.folder import read_capture
 from wandcal.drivers.registry import open_cameras
 from wandcal.drivers.trigger_emulator import EmulatorProcess
@@ -96,7 +96,7 @@ def test_killing_the_emulator_mid_capture_keeps_the_data(tmp_path):
     import threading
     import time
 
-    from wandcal.capture.session import record
+    from wandcal.capture.recording.session import record
 
     cams = open_cameras("sim://?cameras=2&seed=6&frames=3000")
     out = tmp_path / "cap"

@@ -6,13 +6,13 @@ import json
 import numpy as np
 import pytest
 
-from wandcal.calib.guidance import GuidanceSettings
-from wandcal.capture.centroids import BLOBS_FILE, STILL_WINDOW_SETS
+from wandcal.calib.run.guidance import GuidanceSettings
 from wandcal.capture.folder import read_capture
-from wandcal.capture.guidance import LiveGuidance
 from wandcal.capture.images import detect_capture
-from wandcal.capture.record import ImagePolicy
-from wandcal.capture.session import record
+from wandcal.capture.recording.centroids import BLOBS_FILE, STILL_WINDOW_SETS
+from wandcal.capture.recording.live_guidance import LiveGuidance
+from wandcal.capture.recording.record import ImagePolicy
+from wandcal.capture.recording.session import record
 from wandcal.drivers.registry import open_cameras
 
 FRAMES, STATIC = 240, 20

@@ -8,7 +8,7 @@ import pytest
 
 from wandcal.capture.folder import read_capture
 from wandcal.capture.images import ensure_points_level
-from wandcal.capture.session import record
+from wandcal.capture.recording.session import record
 from wandcal.drivers.registry import open_cameras
 from wandcal.service.cli import main
 

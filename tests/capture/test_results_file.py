@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import CaptureFormatError
 from wandcal.capture.results import read_result

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from wandcal.capture.sync import STALL_S, Assembler
+from wandcal.capture.recording.framesets import STALL_S, Assembler
 from wandcal.drivers.camera import Frame
 
 PERIOD = 10_000  # us, 100 Hz

@@ -6,9 +6,15 @@ import time
 import numpy as np
 import pytest
 
-import wandcal.capture.writer as writer_module
-from wandcal.capture.session import INBOX_SECONDS, LEAD_SECONDS, MEMORY_BUDGET_BYTES, WRITE_SECONDS, buffer_frames
-from wandcal.capture.writer import ImageWriter
+import wandcal.capture.recording.writer as writer_module
+from wandcal.capture.recording.session import (
+    INBOX_SECONDS,
+    LEAD_SECONDS,
+    MEMORY_BUDGET_BYTES,
+    WRITE_SECONDS,
+    buffer_frames,
+)
+from wandcal.capture.recording.writer import ImageWriter
 from wandcal.drivers.errors import DriverError
 
 

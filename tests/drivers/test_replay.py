@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from wandcal.capture.session import record
+from wandcal.capture.recording.session import record
 from wandcal.drivers.errors import DriverError, FrameError
 from wandcal.drivers.registry import open_cameras
 

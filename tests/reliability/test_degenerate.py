@@ -13,8 +13,8 @@ import pytest
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import camera_centers, kabsch
 from wandcal.calib.observations import wand_pairs
-from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import Camera, Rig, StaticObservations, WandObservations
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import (
     IMAGE_SIZE,
     L_FRAME_M,

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from tests.reliability.fuzzing import TRIED
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import CaptureFormatError, rig_to_json
 from wandcal.capture.rig_file import rig_from_json

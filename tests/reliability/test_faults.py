@@ -99,8 +99,8 @@ def _send_ignoring_errors(srv, body, content_type: str) -> None:
 def test_sigkill_during_a_live_recording_keeps_every_recorded_set(server):
     """Killed while recording: at the restart the recording is a capture holding every set whose
     row reached sync.csv, with its blobs (recorded live); only the images still queued for the
-    PNG writer at the kill (its bound: capture/session.py) are missing, and they are the newest."""
-    from wandcal.capture.session import BYTES_PER_PIXEL, WRITE_SECONDS, buffer_frames
+    PNG writer at the kill (its bound: capture/recording/session.py) are missing, and they are the newest."""
+    from wandcal.capture.recording.session import BYTES_PER_PIXEL, WRITE_SECONDS, buffer_frames
 
     rate_hz, cameras = 50.0, 2
     srv = server(workers=0)
@@ -261,7 +261,7 @@ def test_a_full_disk_answers_507_and_loses_nothing(small_disk, capture_folder, c
         assert c.get(f"/captures/{stream['id']}").json()["framesets"] == 1
         assert not list((small_disk / "data" / "captures").glob(".*"))
         # the solve's outcome waits in memory until there is room
-        from wandcal.service.worker import run_claim
+        from wandcal.service.jobs.worker import run_claim
 
         solver = threading.Thread(target=run_claim, args=(store, app.state.wandcal.captures.load, claim))
         solver.start()
@@ -330,7 +330,7 @@ def test_a_live_recording_that_cannot_be_registered_keeps_its_sets(tmp_path, mon
 def test_a_stalled_camera_does_not_hold_the_capture(tmp_path):
     """cam2 stops delivering after frame 50 (a stalled USB camera): the capture goes on at the
     trigger's pace, keeps every set with cam2's slot empty, and says so."""
-    from wandcal.capture.session import record
+    from wandcal.capture.recording.session import record
     from wandcal.drivers.registry import open_cameras
     from wandcal.drivers.trigger import SerialTrigger
     from wandcal.drivers.trigger_emulator import EmulatorProcess

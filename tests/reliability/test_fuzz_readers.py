@@ -126,7 +126,7 @@ def test_calibrate_command_never_shows_a_traceback(valid, tmp_path_factory, caps
 
 @pytest.fixture(scope="module")
 def result_text() -> bytes:
-    from wandcal.calib.pipeline import calibrate
+    from wandcal.calib.run.calibrate import calibrate
 
     return json.dumps(calibrate(SIM.rig, SIM.wand, SIM.static).to_json()).encode()
 

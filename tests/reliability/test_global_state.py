@@ -119,15 +119,15 @@ ALLOWED = {
     # once at the server's start: one BLAS thread in the server process (see its comment)
     ("service/main.py", "threadpool_limits("),
     # around a `wandcal calibrate` command, which serves no requests, restored after it (see its comment)
-    ("service/commands.py", "threadpool_limits("),
+    ("service/cli/calibrate.py", "threadpool_limits("),
     # the solvers pin BLAS to one thread for their own run; in the server that is a no-op, as the
     # server set one thread at its start, so concurrent solves cannot leave the count changed
     ("calib/solve/ba/adjust.py", "threadpool_limits("),
     ("calib/solve/lp.py", "threadpool_limits("),
     # the memory policy of a command that computes once and exits, taken by the CLI's own process
-    # only (service/cli.py: never by the server, a worker or an in-process caller)
-    ("service/batch_memory.py", "mallopt("),
-    ("service/batch_memory.py", "_set_madvise_hugepage("),
+    # only (service/cli/__init__.py: never by the server, a worker or an in-process caller)
+    ("service/cli/batch_memory.py", "mallopt("),
+    ("service/cli/batch_memory.py", "_set_madvise_hugepage("),
 }
 
 

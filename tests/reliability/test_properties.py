@@ -20,8 +20,8 @@ from wandcal.calib.geometry import (
     undistort_points,
 )
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
-from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import Camera, Rig, StaticObservations, WandObservations
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 from wandcal.calib.sim.simulate import look_at, simulate_capture
 from wandcal.calib.solve import ba

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from tests.reliability.fuzzing import TRIED
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.formats.export import FORMAT_NAMES, export
 from wandcal.capture.results import read_result, result_from_json

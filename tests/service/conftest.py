@@ -16,8 +16,8 @@ import httpx
 import pytest
 
 from wandcal.calib.judge.coverage import GRID
-from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import WandObservations
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, read_capture, write_capture
 

@@ -13,7 +13,7 @@ from tests.service.conftest import capture_files, simulated_capture
 from wandcal.calib.sim.render import render_blobs
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json, write_capture
-from wandcal.service.jobs import MAX_ATTEMPTS, JobState, JobStore
+from wandcal.service.jobs.records import MAX_ATTEMPTS, JobState, JobStore
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings
 

@@ -20,8 +20,8 @@ from tests.service.conftest import EMPTY_CAMERA, capture_files, wait_job, wandca
 from tests.service.test_cli_imports import loaded_packages
 from tests.service.test_http import ABSOLUTE_TOL_M
 from wandcal.calib.judge.coverage import GRID
-from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import Camera, Rig
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import Capture, read_capture, write_capture
 from wandcal.capture.results import read_result, result_from_json
@@ -362,7 +362,7 @@ def test_the_report_shows_the_time_offsets(tmp_path):
 
 def test_each_camera_section_shows_its_own_warning_when_the_result_folds_them(sim_report, tmp_path):
     """A warning several cameras share is one line of the result's ``warnings`` ("cam1, cam2, ...: ...",
-    or "all 64 cameras: ..." on a big rig, wandcal.calib.reports.fold_camera_warnings); each camera's
+    or "all 64 cameras: ..." on a big rig, wandcal.calib.run.camera_reports.fold_camera_warnings); each camera's
     section still shows it, from the camera's own ``warnings``."""
     tmp, _, _ = sim_report
     doc = json.loads((tmp / "result.json").read_text())

@@ -3,7 +3,7 @@ state a test can reach, as a real process over real HTTP; a job it was running i
 
 5 s is the requirement itself (issue 21: a stop must finish within a few seconds, well inside the
 unit's TimeoutStopSec=20), not a speed measurement: the stop path's own waits add up to less than
-half of it (service/serve.py, service/worker.py).
+half of it (service/cli/serve.py, service/jobs/worker.py).
 """
 
 from __future__ import annotations
@@ -132,9 +132,9 @@ def test_the_pool_stops_after_a_worker_was_killed_while_idle(tmp_path):
     import threading
 
     from wandcal.service.db import init_db
-    from wandcal.service.jobs import JobStore
+    from wandcal.service.jobs.records import JobStore
+    from wandcal.service.jobs.worker import WorkerPool
     from wandcal.service.storage import CaptureStore
-    from wandcal.service.worker import WorkerPool
 
     db = tmp_path / "wandcal.sqlite"
     init_db(db)

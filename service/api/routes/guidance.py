@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, HTTPException, Query, Request
 
 from wandcal.service.api.deps import State
-from wandcal.service.guidance import GuidanceBoard
+from wandcal.service.guidance_cache import GuidanceBoard
 from wandcal.service.schemas import ErrorPublic, GuidancePublic
 from wandcal.service.storage import CaptureNotFound
 

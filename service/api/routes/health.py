@@ -7,7 +7,7 @@ from importlib.metadata import PackageNotFoundError, version
 from fastapi import APIRouter
 
 from wandcal.service.api.deps import State
-from wandcal.service.jobs import JobState
+from wandcal.service.jobs.records import JobState
 from wandcal.service.schemas import Health
 
 router = APIRouter(tags=["health"])

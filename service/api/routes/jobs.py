@@ -10,7 +10,7 @@ from fastapi.responses import FileResponse, RedirectResponse
 
 from wandcal.service.api.deps import State, require_content_type
 from wandcal.service.api.security import relative_paths
-from wandcal.service.jobs import JobRecord, JobState
+from wandcal.service.jobs.records import JobRecord, JobState
 from wandcal.service.schemas import (
     ErrorPublic,
     JobCreate,

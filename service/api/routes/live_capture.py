@@ -29,13 +29,13 @@ from fastapi import APIRouter, Depends, HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 
 from wandcal.capture.folder import CaptureFormatError, read_capture
-from wandcal.capture.guidance import LiveGuidance
-from wandcal.capture.record import ImagePolicy
+from wandcal.capture.recording.live_guidance import LiveGuidance
+from wandcal.capture.recording.record import ImagePolicy
+from wandcal.capture.recording.session import Progress, record
 from wandcal.capture.rig_file import rig_from_json
-from wandcal.capture.session import Progress, record
 from wandcal.drivers.errors import DriverError
 from wandcal.service.api.deps import State
-from wandcal.service.guidance import guidance_settings
+from wandcal.service.guidance_cache import guidance_settings
 from wandcal.service.recovery import keep_failed_recording
 from wandcal.service.schemas import (
     ErrorPublic,
@@ -59,12 +59,12 @@ BUSY = (LiveCaptureState.running, LiveCaptureState.waiting_for_wand, LiveCapture
 
 
 class _StopRequested(KeyboardInterrupt):
-    """Raised from the progress callback: :func:`wandcal.capture.session.record` ends on an interrupt
+    """Raised from the progress callback: :func:`wandcal.capture.recording.session.record` ends on an interrupt
     exactly as on Ctrl-C in ``wandcal capture``, keeping every set recorded so far."""
 
 
 class _NoContinue(DriverError):
-    """Raised from ``between`` when nobody continued in time. :func:`wandcal.capture.session.record` ends
+    """Raised from ``between`` when nobody continued in time. :func:`wandcal.capture.recording.session.record` ends
     on a :class:`DriverError` as on a device that stops: everything recorded is kept, and the
     message becomes the capture's error in ``capture.json``."""
 
@@ -277,9 +277,9 @@ def _keep(store: CaptureStore, staging: Path, capture_id: str) -> Path | None:
 
 def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack, store: CaptureStore):
     """Cameras, trigger and rig of ``body``, opened in ``stack`` (record re-enters them)."""
-    from wandcal.capture.cli import _rig
     from wandcal.drivers.registry import open_cameras
     from wandcal.drivers.trigger import open_trigger
+    from wandcal.service.cli.capture import _rig
 
     port = _local_port(body.trigger)
     if port is None and body.static_frames and body.pause_after_static:

@@ -7,7 +7,10 @@ from scipy.stats import chi2
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import camera_centers
-from wandcal.calib.guidance import (
+from wandcal.calib.observations import wand_pairs
+from wandcal.calib.rig import Rig, WandObservations
+from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.guidance import (
     DEFAULT_MIN_COVERAGE,
     DEFAULT_TARGET_STD_MM,
     NO_WAND_YET,
@@ -16,9 +19,6 @@ from wandcal.calib.guidance import (
     subsample,
     wanding_guidance,
 )
-from wandcal.calib.observations import wand_pairs
-from wandcal.calib.pipeline import calibrate
-from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.sim.simulate import L_FRAME_M, observe_static, observe_wand, ring_cameras
 from wandcal.calib.solve.gauge_free import AXIS_POINT_M
 

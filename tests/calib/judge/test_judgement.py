@@ -1,12 +1,12 @@
-"""The judgement on cases whose truth is known (calib/judgement.py): good rigs are not called
+"""The judgement on cases whose truth is known (calib/run/judgement.py): good rigs are not called
 poor, broken ones are, naming the camera or input at fault and only that one. The seeds here are
 neither those the limits were set on (1-7) nor the benchmark's (100 on, bench/bench_judgement.py)."""
 
 import numpy as np
 import pytest
 
-from wandcal.calib.judgement import input_faults
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.judgement import input_faults
 from wandcal.calib.sim.faults import EXPECTED, broken_capture
 from wandcal.calib.sim.simulate import simulate_capture
 

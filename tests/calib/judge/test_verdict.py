@@ -13,8 +13,8 @@ from wandcal.calib.judge.verdict import (
     rig_verdict,
     sanity_check,
 )
-from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import AxisObservations, Rig
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 
 

@@ -7,7 +7,7 @@ import pytest
 from scipy.stats import chi2
 
 from wandcal.calib.geometry import camera_centers, rotation_angle
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.gauge_free import AXIS_POINT_M, split_uncertainty
 

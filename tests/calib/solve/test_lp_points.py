@@ -1,10 +1,10 @@
 """``lp`` refines point tracks beside the wand, as ``ba`` does (issue 23): each track is one more
-frame of the wand model with its observations at the frame's midpoint (wandcal.calib.refine.with_tracks)."""
+frame of the wand model with its observations at the frame's midpoint (wandcal.calib.run.refine.with_tracks)."""
 
 import numpy as np
 
 from wandcal.calib.judge.crb import gauge_errors
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.scenes import pairwise_points
 from wandcal.calib.sim.simulate import simulate_capture
 

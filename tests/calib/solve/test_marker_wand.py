@@ -9,8 +9,8 @@ from scipy.optimize import linear_sum_assignment
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import distort_points, project_normalized
 from wandcal.calib.judge.crb import gauge_errors, model_crb
-from wandcal.calib.refine import build_problem
 from wandcal.calib.rig import Rig
+from wandcal.calib.run.refine import build_problem
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve import ba
 from wandcal.calib.solve.markerwand import with_interior
@@ -153,7 +153,7 @@ def test_gross_outliers_stay_out_of_every_marker_pair(method):
     outlier rejection the interior markers still join the right frames, and every pair's free
     length spreads as the ends' do; ``lp`` refines with every marker as ``ba`` does."""
     from wandcal.calib.geometry import camera_centers
-    from wandcal.calib.pipeline import calibrate
+    from wandcal.calib.run.calibrate import calibrate
 
     sim = simulate_capture(6, 400, NOISE, 0.05, True, 2, wand_markers=CW500_M)
     r = calibrate(sim.rig, sim.wand, sim.static, method)

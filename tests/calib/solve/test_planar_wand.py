@@ -9,8 +9,8 @@ import pytest
 from tests.calib.solve.test_marker_wand import check_labels_and_accuracy
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import distort_points, project_normalized
-from wandcal.calib.refine import build_problem
 from wandcal.calib.rig import Rig
+from wandcal.calib.run.refine import build_problem
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve import ba
 from wandcal.calib.solve.markerwand import marker_model

@@ -13,9 +13,9 @@ import pytest
 from wandcal.calib.geometry import camera_centers, distort_points, kabsch, project_normalized
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
 from wandcal.calib.observations import wand_pairs
-from wandcal.calib.pipeline import calibrate
-from wandcal.calib.refine import build_problem
 from wandcal.calib.rig import AxisObservations, Camera, Rig
+from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.refine import build_problem
 from wandcal.calib.sim.scenes import pairwise_points, pairwise_wand
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.start.labels import label_ends

@@ -9,7 +9,7 @@ from scipy.stats import chi2
 
 from wandcal.calib.geometry import kabsch, project_normalized
 from wandcal.calib.observations import wand_pairs
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import bundle_adjust_points

@@ -7,7 +7,7 @@ from scipy.stats import chi2
 
 from wandcal.calib.geometry import camera_centers, rotation_angle
 from wandcal.calib.judge.crb import pose_crb
-from wandcal.calib.pipeline import calibrate
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import bundle_adjust_points

@@ -8,8 +8,8 @@ import pytest
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import wand_pairs
-from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import WandObservations
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.start.timestamps import timestamp_offsets
 from wandcal.calib.start.timing import frame_offsets, shift_frames
@@ -140,7 +140,7 @@ def test_sync_csv_timestamps_without_a_trigger_give_the_start(tmp_path):
 
 
 def test_guidance_names_a_camera_out_of_time():
-    from wandcal.calib.guidance import wanding_guidance
+    from wandcal.calib.run.guidance import wanding_guidance
 
     sim = _sim(offsets=(0.0, 0.0, 2.0, 0.0, 0.0))
     doc = wanding_guidance(sim.rig, sim.wand).document
@@ -155,7 +155,7 @@ def test_guidance_under_sync_auto_realigns_a_camera_without_a_trigger():
     its frames realigned, so it is no fault, and every camera's predicted centre sigma is the
     synchronised capture's (the same wand path less the 2 frames the shift moves past the
     recording's end: well under 1% of 600), where under none cam3's mismatched frames inflate it."""
-    from wandcal.calib.guidance import GuidanceSettings, wanding_guidance
+    from wandcal.calib.run.guidance import GuidanceSettings, wanding_guidance
 
     late = _sim(offsets=(0.0, 0.0, 2.0, 0.0, 0.0))
     doc = wanding_guidance(late.rig, late.wand, settings=GuidanceSettings(sync="auto")).document
@@ -178,7 +178,7 @@ def test_guidance_never_calls_a_synchronised_camera_out_of_time_early_on():
     midpoint search alone called a camera one frame off in 7 of these 7 short captures (CI saw
     it in a trigger-synchronised recording); the warning now needs both ends to confirm it.
     A camera truly one frame late is still named, with its offset, once enough is seen."""
-    from wandcal.calib.guidance import GuidanceSettings, wanding_guidance
+    from wandcal.calib.run.guidance import GuidanceSettings, wanding_guidance
 
     settings = GuidanceSettings(target_std_mm=1.0, min_coverage=0.1)
     synced = simulate_capture(4, 1000, 0.1, static=False, seed=0)

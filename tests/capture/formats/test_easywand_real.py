@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from wandcal.calib.geometry import undistort_points
-from wandcal.calib.pipeline import calibrate
 from wandcal.calib.rig import Camera, Rig
+from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.triangulate import triangulate_points
 from wandcal.capture.formats.easywand import read_easywand
 

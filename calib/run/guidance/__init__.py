@@ -20,15 +20,15 @@ subsample's shrunk by that ratio (measured within 3% at 8 x 1500 and 16 x 2500, 
 The last solution starts the next solve (:class:`Solution`), which skips the initial poses.
 """
 
-from wandcal.calib.guidance.document import GUIDANCE_FORMAT, SILENT_CAMERA_FRAMES
-from wandcal.calib.guidance.settings import (
+from wandcal.calib.run.guidance.document import GUIDANCE_FORMAT, SILENT_CAMERA_FRAMES
+from wandcal.calib.run.guidance.settings import (
     DEFAULT_FRAMES_PER_CAMERA,
     DEFAULT_MIN_COVERAGE,
     DEFAULT_TARGET_STD_MM,
     MIN_SOLVE_FRAMES,
     GuidanceSettings,
 )
-from wandcal.calib.guidance.update import (
+from wandcal.calib.run.guidance.update import (
     NO_WAND_YET,
     Guidance,
     Solution,

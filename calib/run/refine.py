@@ -138,7 +138,7 @@ def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> 
 
 
 def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bool = True, warm: bool = False) -> Refined:
-    """Run ``method`` on the problem; ``options`` as :func:`wandcal.calib.pipeline.calibrate`'s. Not
+    """Run ``method`` on the problem; ``options`` as :func:`wandcal.calib.run.calibrate.calibrate`'s. Not
     ``final`` (an outlier pass follows): a robust ``ba`` stops at ``ROBUST_STAGE_SE``, and ``lp`` and
     ``paper`` run that robust ``ba`` in their place (their passes then start from it, ``warm``);
     ``paper``'s passes leave out the pose covariance (:func:`finished` completes such an outcome). ``warm``: the start is the solution of nearly

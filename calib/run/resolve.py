@@ -14,12 +14,12 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError, Failure
 from wandcal.calib.judge import quality
-from wandcal.calib.judgement import judge
 from wandcal.calib.observations import wand_pairs
-from wandcal.calib.pipeline import CalibrationResult
-from wandcal.calib.refine import build_problem, refine, reject_outliers, up_direction
-from wandcal.calib.reports import camera_reports, summary_warnings
 from wandcal.calib.rig import Rig, WandObservations
+from wandcal.calib.run.calibrate import CalibrationResult
+from wandcal.calib.run.camera_reports import camera_reports, summary_warnings
+from wandcal.calib.run.judgement import judge
+from wandcal.calib.run.refine import build_problem, refine, reject_outliers, up_direction
 from wandcal.calib.solve.uncertainty import world_uncertainty
 from wandcal.calib.start.initial import Initial
 from wandcal.calib.start.labels import flatten, label_ends
@@ -40,7 +40,7 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
         solve: ids of the cameras to re-solve.
         world: the previous result's ``world`` (kept: the held cameras carry its frame).
         previous: the previous result's camera entries, for the held cameras' uncertainty.
-        options: ``loss``, ``reject_outliers`` as :func:`wandcal.calib.pipeline.calibrate`'s.
+        options: ``loss``, ``reject_outliers`` as :func:`wandcal.calib.run.calibrate.calibrate`'s.
 
     Raises:
         CalibrationError: an unknown id, too few held cameras, or a camera that cannot be placed.

@@ -1,6 +1,6 @@
 """``wandcal simulate``, ``wandcal calibrate`` and ``wandcal demo``, and the arguments of those and of
-``wandcal check`` (its run: :mod:`wandcal.service.check_command`). What they read beside the blobs
-is in :mod:`wandcal.service.command_inputs`; what they print, :mod:`wandcal.service.summary`."""
+``wandcal check`` (its run: :mod:`wandcal.service.cli.check`). What they read beside the blobs
+is in :mod:`wandcal.service.cli.inputs`; what they print, :mod:`wandcal.service.cli.summary`."""
 
 from __future__ import annotations
 
@@ -11,17 +11,17 @@ import tempfile
 from pathlib import Path
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.pipeline import DEFAULT_METHOD, METHODS, calibrate
+from wandcal.calib.run.calibrate import DEFAULT_METHOD, METHODS, calibrate
 from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES
-from wandcal.capture.arguments import MAX_SEED, MAX_SYNC_OFFSET, number, whole
 from wandcal.capture.folder import read_capture, write_capture
-from wandcal.service.check_command import run_check
-from wandcal.service.command_inputs import capture_rate, points_level, result_for, timestamp_start
-from wandcal.service.progress import ProgressLine
-from wandcal.service.summary import format_summary, truth_table
+from wandcal.service.cli.args import MAX_SEED, MAX_SYNC_OFFSET, number, whole
+from wandcal.service.cli.check import run_check
+from wandcal.service.cli.inputs import capture_rate, points_level, result_for, timestamp_start
+from wandcal.service.cli.progress import ProgressLine
+from wandcal.service.cli.summary import format_summary, truth_table
 
 TRUTH_FILE = "truth.json"
 # Bounds of the numeric options (exit 2 outside them). 10,000 paper rounds are ~40 min at 8 x 1500,
@@ -164,7 +164,7 @@ def _calibrated(args, progress):
 
 
 def _solve_only(args, cap, progress):
-    from wandcal.calib.resolve import solve_only
+    from wandcal.calib.run.resolve import solve_only
 
     if args.from_result is None or not args.solve_only:
         raise CalibrationError("--from RESULT and --solve-only CAM[,CAM] go together: name the result to start from "

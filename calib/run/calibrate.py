@@ -13,9 +13,11 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import camera_centers, undistort_by_camera
 from wandcal.calib.judge import quality
-from wandcal.calib.judgement import judge
 from wandcal.calib.observations import WandPairs, point_tracks, robust_sigma, wand_pairs
-from wandcal.calib.refine import (
+from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
+from wandcal.calib.run.camera_reports import camera_reports, intrinsics_reports, summary_warnings, uncertainty_reports
+from wandcal.calib.run.judgement import judge
+from wandcal.calib.run.refine import (
     GAUGE_CAMERA,
     build_problem,
     check_intrinsics_request,
@@ -25,8 +27,6 @@ from wandcal.calib.refine import (
     triangulated,
     up_direction,
 )
-from wandcal.calib.reports import camera_reports, intrinsics_reports, summary_warnings, uncertainty_reports
-from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.solve.ba import DEFAULT_LOSS
 from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, TimeColumns, Tracks, fit_timing, sync_report
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES

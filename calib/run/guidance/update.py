@@ -1,5 +1,5 @@
 """The guidance update: the fast solve over the wand frames so far and each camera's predicted
-sigma (the package docstring, :mod:`wandcal.calib.guidance`, says how)."""
+sigma (the package docstring, :mod:`wandcal.calib.run.guidance`, says how)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import undistort_by_camera
-from wandcal.calib.guidance.document import Seen, guidance_document
-from wandcal.calib.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
 from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
+from wandcal.calib.run.guidance.document import Seen, guidance_document
+from wandcal.calib.run.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
 from wandcal.calib.start.initial import shared_frames
 from wandcal.calib.start.timing import (
     DEFAULT_MAX_OFFSET,
@@ -208,7 +208,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     """The fast solve over the cameras of ``solve_set`` and their predicted sigmas (N,), metres
     and radians (NaN for the others)."""
     # the solver loads when a solve runs: the command line reads this module's defaults at start-up
-    from wandcal.calib.refine import GAUGE_CAMERA, build_problem, refine, up_direction
+    from wandcal.calib.run.refine import GAUGE_CAMERA, build_problem, refine, up_direction
     from wandcal.calib.start.initial import initial_poses
     from wandcal.calib.start.labels import label_ends
     from wandcal.calib.start.static import solve_static

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from wandcal.calib.guidance import DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM, GuidanceSettings
+from wandcal.calib.run.guidance import DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM, GuidanceSettings
 
 COVERED, EMPTY = "#", "."  # a coverage grid cell with / without wand samples, in the printed grids
 
@@ -61,7 +61,7 @@ def _share(text: str) -> float:
 
 
 def run_guidance(args) -> int:
-    from wandcal.calib.guidance import wanding_guidance
+    from wandcal.calib.run.guidance import wanding_guidance
     from wandcal.capture.folder import read_capture
 
     capture = read_capture(args.capture)

@@ -1,6 +1,6 @@
 """The points level of a capture, written as its frame sets arrive (centroid recording).
 
-Every frame is detected in the capture loop (capture/session.py), so a capture writes what
+Every frame is detected in the capture loop (capture/recording/session.py), so a capture writes what
 commercial mocap cameras send, centroids, whether or not it keeps images:
 
 - ``blobs.csv``: every blob of every wand frame, ``frame,camera,u,v`` (flushed with each set);

@@ -8,8 +8,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wandcal.capture.arguments import number, whole
-from wandcal.capture.guidance_cli import positive_number
+from wandcal.service.cli.args import number, whole
+from wandcal.service.cli.guidance import positive_number
 
 MAX_IMAGE_HEIGHT = 65_535  # the largest image side any camera format here can hold (16-bit)
 

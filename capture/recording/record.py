@@ -1,6 +1,6 @@
 """Write a ``wandcal-capture/1`` folder as frame sets arrive (docs/capture-format.md).
 
-Centroids always (capture/centroids.py: ``blobs.csv``, ``wand.csv``, ``static.csv``); images as an
+Centroids always (capture/recording/centroids.py: ``blobs.csv``, ``wand.csv``, ``static.csv``); images as an
 :class:`ImagePolicy` says. Rows of ``sync.csv`` are flushed as their sets are handed to the
 writer, and ``rig.json`` is written first, so a capture cut short (trigger unplugged, process
 killed) keeps a readable folder with every set recorded until then.
@@ -14,10 +14,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from wandcal.calib.rig import Rig
-from wandcal.capture.centroids import CentroidRecorder
 from wandcal.capture.folder import RIG_FILE, WAND_FILE, rig_to_json
-from wandcal.capture.sync import FrameSet
-from wandcal.capture.writer import ImageWriter
+from wandcal.capture.recording.centroids import CentroidRecorder
+from wandcal.capture.recording.framesets import FrameSet
+from wandcal.capture.recording.writer import ImageWriter
 from wandcal.drivers.imagefolder import FRAMES_DIR, STATIC_DIR, SYNC_FILE, image_path, sync_header
 
 LOG_FILE = "capture.json"
@@ -74,10 +74,10 @@ class Recorder:
         triggered: False without a trigger; sync.csv then leaves trigger_count empty.
         images: which images to write (centroids are always written); None: all.
         listener: told of every live wand pair and of the static markers (the live guidance;
-            see :class:`wandcal.capture.centroids.CentroidRecorder`).
+            see :class:`wandcal.capture.recording.centroids.CentroidRecorder`).
 
     Frames must carry their blobs (``uv`` (K, 2)) and, where an image is to be written, ``image``
-    (:class:`wandcal.capture.sync.DetectedFrame`).
+    (:class:`wandcal.capture.recording.framesets.DetectedFrame`).
     """
 
     def __init__(self, folder: Path, rig: Rig, writer: ImageWriter, triggered: bool = True,

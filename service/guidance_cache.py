@@ -14,7 +14,7 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 
-from wandcal.calib.guidance import GuidanceSettings, Solution, wanding_guidance
+from wandcal.calib.run.guidance import GuidanceSettings, Solution, wanding_guidance
 from wandcal.service.settings import GuidanceConfig
 from wandcal.service.storage import CaptureStore
 

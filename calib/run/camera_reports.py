@@ -1,6 +1,6 @@
 """A result's per-camera figures and its warnings: residuals, uncertainties in the world frame
 (total, geometry and placement), refined intrinsics, and what the solve dropped. The calibration
-(:mod:`wandcal.calib.pipeline`) and the re-solve of a few cameras (:mod:`wandcal.calib.resolve`)
+(:mod:`wandcal.calib.run.calibrate`) and the re-solve of a few cameras (:mod:`wandcal.calib.run.resolve`)
 write their results with these.
 """
 
@@ -10,8 +10,8 @@ import numpy as np
 
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import camera_rows
-from wandcal.calib.refine import GAUGE_CAMERA
 from wandcal.calib.rig import Rig, camera_list, folded, names_camera
+from wandcal.calib.run.refine import GAUGE_CAMERA
 from wandcal.calib.solve.gauge_free import split_uncertainty
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty

@@ -6,11 +6,11 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from wandcal.capture.arguments import whole
+from wandcal.service.cli.args import whole
 from wandcal.service.settings import Settings
 
 # Seconds uvicorn lets open requests finish after Ctrl-C / SIGINT / SIGTERM. The whole stop (this,
-# the live capture's end and the workers', service/main.py and service/worker.py) must fit well in
+# the live capture's end and the workers', service/main.py and service/jobs/worker.py) must fit well in
 # the 5 s a restart may take (issue 21; the systemd unit allows 20 before SIGKILL); requests are
 # short, and a client whose upload is cut sends it again.
 GRACEFUL_SHUTDOWN_S = 1.0

@@ -23,8 +23,8 @@ from collections.abc import Callable
 from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import Capture, parse_static_csv, parse_wand_csv
 from wandcal.capture.rig_file import rig_from_json
-from wandcal.service.jobs import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
-from wandcal.service.worker import JobStopped, ThrottledProgress, solve
+from wandcal.service.jobs.records import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
+from wandcal.service.jobs.worker import JobStopped, ThrottledProgress, solve
 
 JOB_TIMEOUT_S = 3600  # a large rig with the LP method stays well under an hour on a small PC
 RESULT_TTL_S = 7 * 24 * 3600  # results are copied into SQLite on the first poll; a week is ample
@@ -99,7 +99,7 @@ def _attempts(job, running: bool) -> int:
 
 
 class RedisQueue:
-    """:class:`wandcal.service.queue.JobQueue` on rq; the Redis server and its workers are run by the site."""
+    """:class:`wandcal.service.jobs.queue.JobQueue` on rq; the Redis server and its workers are run by the site."""
 
     def __init__(self, store: JobStore, read_files: Callable[[str], dict[str, str | None]], url: str, name: str):
         from rq import Queue

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.guidance.settings import GuidanceSettings
 from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
 from wandcal.calib.observations import WandPairs
 from wandcal.calib.rig import Rig
+from wandcal.calib.run.guidance.settings import GuidanceSettings
 
 GUIDANCE_FORMAT = "wandcal-guidance/1"
 # Advice names a camera's links when it shares fewer frames than this with the rest: two

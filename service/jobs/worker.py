@@ -29,7 +29,7 @@ from pathlib import Path
 from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import Capture
 from wandcal.service.db import disk_full
-from wandcal.service.jobs import Claim, JobState, JobStore
+from wandcal.service.jobs.records import Claim, JobState, JobStore
 
 log = logging.getLogger("wandcal.worker")
 
@@ -51,7 +51,7 @@ class JobStopped(Exception):
 
 def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict], None]) -> dict:
     """Calibrate a capture; returns the ``wandcal-result/1`` document."""
-    from wandcal.calib.pipeline import calibrate  # the solver; imported here so the API process never loads it
+    from wandcal.calib.run.calibrate import calibrate  # the solver; imported here so the API process never loads it
 
     static = capture.static if options.get("use_static", True) else None
     result = calibrate(capture.rig, capture.wand, static=static, method=method, progress=progress,
@@ -151,7 +151,7 @@ def worker_main(db_path: str, data_dir: str, wake, stop, parent: int | None = No
 
     store = JobStore(Path(db_path))
     captures = CaptureStore(Path(data_dir), Path(db_path), None)
-    import wandcal.calib.pipeline  # noqa: F401  (load the solver before the first job, not during it)
+    import wandcal.calib.run.calibrate  # noqa: F401  (load the solver before the first job, not during it)
     while not stop.value and os.getppid() == parent:
         try:
             claim = store.claim(os.getpid())

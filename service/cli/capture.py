@@ -1,4 +1,4 @@
-"""``wandcal capture``, ``wandcal detect`` and ``wandcal trigger-emulator`` (``wandcal import``: capture/import_cli.py)."""
+"""``wandcal capture``, ``wandcal detect`` and ``wandcal trigger-emulator`` (``wandcal import``: service/cli/import_.py)."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ import sys
 from pathlib import Path
 
 from wandcal.calib.rig import Rig
-from wandcal.capture.arguments import number, whole
-from wandcal.capture.detect_cli import add_detect_options
 from wandcal.capture.folder import read_rig
-from wandcal.capture.guidance_cli import add_guidance_options
-from wandcal.capture.progress import StatusLine, bar
 from wandcal.drivers.camera import CameraDriver
 from wandcal.drivers.errors import DriverError
 from wandcal.drivers.trigger_protocol import MAX_RATE_HZ, MIN_RATE_HZ
+from wandcal.service.cli.args import number, whole
+from wandcal.service.cli.detect import add_detect_options
+from wandcal.service.cli.guidance import add_guidance_options
+from wandcal.service.cli.status_line import StatusLine, bar
 
 DEFAULT_WAND_LENGTH_M = 0.5
 # Bounds of the numeric options (exit 2 outside them): the service's own limits for a live capture
@@ -83,8 +83,8 @@ def _live_detectors(args, rig: Rig, config):
     """The capture loop's detectors: one config for every camera, or, with masks or a per-camera
     background model (an empty-volume recording, a running average), one detector per camera."""
     from wandcal.calib.detect import STATEFUL
-    from wandcal.capture.detect_cli import mask_from_args
     from wandcal.capture.detect_setup import MASK_NONE, camera_detectors
+    from wandcal.service.cli.detect import mask_from_args
 
     mask = mask_from_args(args)
     if mask == MASK_NONE and config.background not in STATEFUL:
@@ -103,8 +103,8 @@ def run_emulator(args) -> int:
 
 
 def run_detect(args) -> int:
-    from wandcal.capture.detect_cli import config_from_args, mask_from_args
     from wandcal.capture.images import detect_capture
+    from wandcal.service.cli.detect import config_from_args, mask_from_args
 
     config = config_from_args(args)
     status = StatusLine(quiet=args.quiet)
@@ -125,15 +125,15 @@ def run_capture(args) -> int:
     import contextlib
 
     from wandcal.calib.errors import CalibrationError
-    from wandcal.capture.guidance import LiveGuidance
-    from wandcal.capture.guidance_cli import guidance_lines, settings_from, summary
-    from wandcal.capture.session import record
+    from wandcal.capture.recording.live_guidance import LiveGuidance
+    from wandcal.capture.recording.session import record
     from wandcal.drivers.registry import open_cameras
     from wandcal.drivers.trigger import open_trigger
+    from wandcal.service.cli.guidance import guidance_lines, settings_from, summary
 
     if args.stop_when_enough and not args.guidance:
         raise CalibrationError("--stop-when-enough needs the guidance; drop --no-guidance")
-    from wandcal.capture.detect_cli import config_from_args
+    from wandcal.service.cli.detect import config_from_args
 
     config = config_from_args(args, live=True)
     cameras: list[CameraDriver] = [cam for url in args.camera for cam in open_cameras(url)]
@@ -189,7 +189,7 @@ def run_capture(args) -> int:
 
 
 def _image_policy(text: str):
-    from wandcal.capture.record import ImagePolicy
+    from wandcal.capture.recording.record import ImagePolicy
 
     try:
         return ImagePolicy.parse(text)

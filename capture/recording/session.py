@@ -2,7 +2,7 @@
 
 Each reader thread detects the blobs of its camera's frames as they arrive (0.3 ms a frame, in
 parallel across cameras), so the recorder writes centroids at the cameras' rate and images only
-as its :class:`~wandcal.capture.record.ImagePolicy` asks; a frame whose image will not be written
+as its :class:`~wandcal.capture.recording.record.ImagePolicy` asks; a frame whose image will not be written
 drops it at once.
 
 Memory bound (docs/capture-format.md, "Image-level capture"): frames wait in three places,
@@ -26,9 +26,9 @@ from pathlib import Path
 from wandcal.calib.detect import CameraDetector, DetectConfig
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Rig
-from wandcal.capture.record import ImagePolicy, Recorder
-from wandcal.capture.sync import Assembler, DetectedFrame, FrameSet
-from wandcal.capture.writer import ImageWriter
+from wandcal.capture.recording.framesets import Assembler, DetectedFrame, FrameSet
+from wandcal.capture.recording.record import ImagePolicy, Recorder
+from wandcal.capture.recording.writer import ImageWriter
 from wandcal.drivers.camera import CameraDriver, Frame, TriggerMode
 from wandcal.drivers.errors import DriverError, FrameError, FrameTimeout
 from wandcal.drivers.trigger import SerialTrigger, TriggerLost
@@ -165,7 +165,7 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         images: which images to write beside the centroids (None: all).
         detect: the blob detector's settings (None: its defaults), or one
             :class:`wandcal.calib.detect.CameraDetector` per camera (with its mask or background).
-        guidance: a :class:`wandcal.capture.guidance.LiveGuidance` told of every wand pair (the caller
+        guidance: a :class:`wandcal.capture.recording.live_guidance.LiveGuidance` told of every wand pair (the caller
             starts and closes it); its latest document rides on each :class:`Progress`.
         until: asked after each batch of wand sets; True ends the capture there, complete (e.g.
             when the guidance says enough).

@@ -15,8 +15,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from wandcal.calib.guidance import GuidanceSettings, Solution, wanding_guidance
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
+from wandcal.calib.run.guidance import GuidanceSettings, Solution, wanding_guidance
 
 # The issue asks for an update every second or two. One update costs 0.05-0.35 s (docs/benchmarks.md,
 # "Guidance"), so once a second leaves the capture loop most of the time.
@@ -29,7 +29,7 @@ class LiveGuidance:
 
     Args:
         rig: the capture's rig (with the wand length).
-        settings: target and coverage goal (:class:`wandcal.calib.guidance.GuidanceSettings`; None: the defaults).
+        settings: target and coverage goal (:class:`wandcal.calib.run.guidance.GuidanceSettings`; None: the defaults).
         interval_s: the least time between two updates of the background thread.
         on_update: called with each new document (from the background thread).
         process: solve in a child process (spawned at :meth:`start`), so the solve's Python work

@@ -93,7 +93,7 @@ def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list
 def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, out: list[int]):
     """Every other camera's pose refined without the observations of the cameras ``out`` (theirs
     as given)."""
-    from wandcal.calib.refine import build_problem, refine, up_direction
+    from wandcal.calib.run.refine import build_problem, refine, up_direction
 
     others = ~np.isin(labelled.camera, out)
     keep = np.flatnonzero(~np.isin(np.arange(len(rig.cameras)), out))

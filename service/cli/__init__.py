@@ -11,15 +11,15 @@ import importlib
 import sys
 
 COMMAND_MODULES = {
-    "wandcal.service.commands": ("simulate", "calibrate", "demo", "check"),
-    "wandcal.capture.cli": ("capture", "detect", "trigger-emulator"),
-    "wandcal.capture.import_cli": ("import",),
-    "wandcal.capture.guidance_cli": ("guidance",),
-    "wandcal.service.serve": ("serve",),
-    "wandcal.service.export_command": ("export",),
-    "wandcal.service.report.command": ("report",),
+    "wandcal.service.cli.calibrate": ("simulate", "calibrate", "demo", "check"),
+    "wandcal.service.cli.capture": ("capture", "detect", "trigger-emulator"),
+    "wandcal.service.cli.import_": ("import",),
+    "wandcal.service.cli.guidance": ("guidance",),
+    "wandcal.service.cli.serve": ("serve",),
+    "wandcal.service.cli.export": ("export",),
+    "wandcal.service.cli.report": ("report",),
 }
-# commands that compute once and exit: their process keeps the memory it frees (service/batch_memory.py)
+# commands that compute once and exit: their process keeps the memory it frees (service/cli/batch_memory.py)
 BATCH_COMMANDS = frozenset({"simulate", "calibrate", "demo", "check", "detect", "import", "export", "report"})
 
 
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
 
     args = build_parser(sys.argv[1:] if argv is None else argv).parse_args(argv)
     if argv is None and args.command in BATCH_COMMANDS:
-        from wandcal.service.batch_memory import keep_freed_memory
+        from wandcal.service.cli.batch_memory import keep_freed_memory
 
         keep_freed_memory()
     try:
@@ -84,6 +84,3 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wandcal {args.command}: interrupted", file=sys.stderr)
         return 130
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -9,8 +9,8 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import camera_list
 from wandcal.capture.folder import read_capture
-from wandcal.service.command_inputs import points_level, result_for
-from wandcal.service.progress import ProgressLine
+from wandcal.service.cli.inputs import points_level, result_for
+from wandcal.service.cli.progress import ProgressLine
 
 EXIT_MOVED = 1  # wandcal check: a camera moved (named)
 EXIT_UNJUDGED = 3  # wandcal check: some camera could not be judged, and none was seen to move

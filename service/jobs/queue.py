@@ -1,7 +1,7 @@
 """The job interface the API talks to, and its default backend: SQLite plus local worker processes.
 
 ``JobQueue`` is what routes use; ``SQLiteQueue`` (here) and ``RedisQueue``
-(:mod:`wandcal.service.redis_queue`) implement it. Job records always live in the service's SQLite
+(:mod:`wandcal.service.jobs.redis_queue`) implement it. Job records always live in the service's SQLite
 database, so finished results survive whatever happens to the queue.
 """
 
@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Protocol
 
 from wandcal.capture.folder import Capture
-from wandcal.service.jobs import JobRecord, JobStore
-from wandcal.service.worker import WorkerPool, run_claim
+from wandcal.service.jobs.records import JobRecord, JobStore
+from wandcal.service.jobs.worker import WorkerPool, run_claim
 
 RESTART_REASON = "the server stopped while the job was running"
 

@@ -1,0 +1,11 @@
+"""The run layer: the stages of ``docs/architecture.md`` run in order, and what a run returns.
+
+| module or package | holds |
+|---|---|
+| :mod:`~wandcal.calib.run.calibrate` | ``calibrate``: observations, sync, start, refine, world frame, figures, judgement |
+| :mod:`~wandcal.calib.run.refine` | the chosen method's refinement and outlier rejection over a built problem |
+| :mod:`~wandcal.calib.run.resolve` | ``solve_only``: re-solve some cameras of a result, the rest held |
+| :mod:`~wandcal.calib.run.judgement` | the verdict of a run, from the judge stage's criteria and faults |
+| :mod:`~wandcal.calib.run.camera_reports` | each camera's figures and the result's warnings |
+| :mod:`~wandcal.calib.run.guidance` | where to wave next, and whether the capture is enough |
+"""

@@ -1,0 +1,12 @@
+"""Recording a capture: camera threads, frame sets assembled from trigger pulses, the folder written
+as they arrive, and the live guidance computed while it runs.
+
+| module | holds |
+|---|---|
+| :mod:`~wandcal.capture.recording.session` | ``record``: reader threads, the trigger, assembly and the recorder |
+| :mod:`~wandcal.capture.recording.framesets` | synchronised frame sets from trigger pulses and camera frames |
+| :mod:`~wandcal.capture.recording.record` | the ``wandcal-capture/1`` folder written as frame sets arrive |
+| :mod:`~wandcal.capture.recording.writer` | bounded-memory image writing |
+| :mod:`~wandcal.capture.recording.centroids` | the points level written as it goes |
+| :mod:`~wandcal.capture.recording.live_guidance` | the guidance recomputed in the background while recording |
+"""
