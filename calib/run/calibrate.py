@@ -63,7 +63,7 @@ class CalibrationResult:
     wand: np.ndarray
     frames: np.ndarray
     cameras: list[dict]
-    wand_report: dict
+    wand_report: dict | None
     solver: dict
     world: dict
     dropped: dict
@@ -328,6 +328,7 @@ def _subframe_sync(rig: Rig, start: Start, sync: SyncState | None,
                         max_frames=BA_FIT_FRAMES if options.method == "ba" else MAX_FIT_FRAMES, poses=True,
                         tracks=tracks_in_time)
     columns = TimeColumns(start.labelled, tracks_in_time, timing, focal)
+    assert timing.R is not None and timing.t is not None  # poses=True: the fit refined them
     start = replace(start, labelled=columns.resampled, init=replace(start.init, R=timing.R, t=timing.t))
     return start, replace(sync, columns=columns, refined=options.method == "ba")
 
@@ -418,7 +419,7 @@ def _figures(solved: Solved, obs: Observations, start: Start, placed: Placed,
         static, axis = frame_data
         uncertainty_reports(cameras, rig, r, placed.world, (static, start.static_poses, axis), placed.Rw, placed.tw,
                             obs.has_wand)
-    if info.get("refined_intrinsics"):
+    if info.get("refined_intrinsics") and r.camera_std is not None:
         intrinsics_reports(cameras, rig, r.camera_std, info["refined_intrinsics"], warnings)
     summary_warnings(warnings, solved.dropped, info, method, len(start.labelled), (rig.ids, cameras))
     if not obs.has_wand:
@@ -471,7 +472,8 @@ def _with_markers(rig: Rig, blobs: MarkerBlobs, r: Refined, options: Calibration
     from wandcal.calib.solve.markerwand import marker_model, marker_pair_lengths
     from wandcal.calib.start.markerlabels import label_interior
 
-    method = options.method
+    method, markers = options.method, rig.wand_markers
+    assert markers is not None  # blobs: a wand of three markers or more
     labels = label_interior(rig, blobs, r.labelled, r.R, r.t, (r.setup.frames, r.wand))
     pair_index = labelled_rows(r)
     fit = labels if method != "lp" else labels.on_axis()  # lp's frames have no roll: the markers on the axis
@@ -495,7 +497,7 @@ def _with_markers(rig: Rig, blobs: MarkerBlobs, r: Refined, options: Calibration
     kept[pair_index] = True
     kept[rows[err[len(r.setup.problem.camera):] > limit]] = False
     return r, marker_pair_lengths(r.R, r.t, r.labelled.frame[kept], r.labelled.camera[kept], labels.xy[kept],
-                                  labels.marker[kept], rig.wand_markers)
+                                  labels.marker[kept], markers)
 
 
 def _refined_with_markers(r: Refined, model, options: CalibrationOptions, tell: Progress) -> tuple[Refined, np.ndarray]:

@@ -124,7 +124,8 @@ def options_from(values: Mapping[str, Any]) -> CalibrationOptions:
     that are no field are left out, and so are None values (the field's default then holds);
     lists become tuples. Not checked: call :meth:`CalibrationOptions.check`."""
     names = {f.name for f in fields(CalibrationOptions)}
-    given = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items() if k in names and v is not None}
+    given: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()
+                             if k in names and v is not None}
     return CalibrationOptions(**given)
 
 

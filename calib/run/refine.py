@@ -33,9 +33,6 @@ MAX_OUTLIER_PASSES = 3  # reject-and-refine passes; the kept set settles after t
 # two steps. Run to the end, the reweighted loss converges only linearly: 42 iterations against
 # 14 on the MultiCamSelfCal tracks, whose 6% outliers leave many weights in between.
 ROBUST_STAGE_SE = 0.5
-# what the robust ba that finds lp's and paper's outliers before their first pass changes in the
-# options (refine): its own loss, the intrinsics held (the time offsets too: no ``columns``)
-FIRST_SOLVE = {"loss": DEFAULT_LOSS, "refine_intrinsics": ()}
 
 Progress = Callable[[dict], None]
 
@@ -160,7 +157,9 @@ def refine(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | No
         # each of which solves the method's own problem from there: a robust ba (Cauchy, to
         # ROBUST_STAGE_SE) does both at a third of the cost of lp's first phases (decision 0024),
         # and paper's own least-squares rotation step is not robust (decision 0028)
-        first = refine(rig, labelled, setup, tracks, X, "ba", replace(options, **FIRST_SOLVE), tell, up, final=False)
+        # (its own loss, the intrinsics held, and the time offsets too: no ``columns``)
+        robust = replace(options, loss=DEFAULT_LOSS, refine_intrinsics=())
+        first = refine(rig, labelled, setup, tracks, X, "ba", robust, tell, up, final=False)
         return replace(first, info={k: v for k, v in first.info.items() if k != "loss"})
     if method == "paper":
         return _refine_paper(rig, labelled, setup, tracks, X, options, tell, up, final)
@@ -215,7 +214,7 @@ def _refine_ba(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks 
     R, t = model.poses(out.x)
     refined = Refined(rig, setup, labelled, tracks, R, t, model.wand(out.x), out.X, info, out.camera_std, out.covariance,
                       final=final, dt=out.dt)
-    if names:
+    if names and out.intr is not None:
         refined = _with_intrinsics(refined, out.intr)
     return refined
 
@@ -303,7 +302,7 @@ def reject_outliers(r: Refined, method: str, options: CalibrationOptions | Mappi
     robust_ba = method == "ba" and options.loss != "linear"
     if robust_ba:
         options = replace(options, loss="linear")
-    one_pass = robust_ba or method in ("lp", "paper")  # their first solve: a robust ba (FIRST_SOLVE)
+    one_pass = robust_ba or method in ("lp", "paper")  # their first solve: a robust ba (refine)
     keep = np.ones(len(r.labelled), bool)
     point_drops = 0
     for k in range(1 if one_pass else MAX_OUTLIER_PASSES):
@@ -331,7 +330,7 @@ def reject_outliers(r: Refined, method: str, options: CalibrationOptions | Mappi
                 break  # keep the last set
             new_keep = new_keep | starved[r.labelled.camera]  # the polish still runs, on them too
         tracks, X, bad_points = r.tracks, r.X, point_err > limit
-        if bad_points.any():
+        if tracks is not None and bad_points.any():
             point_drops += int(bad_points.sum())
             tracks, X = triangulated(r.R, r.t, tracks.subset(~bad_points))
         if np.array_equal(new_keep, keep) and not bad_points.any() and not one_pass:
@@ -449,7 +448,7 @@ def _outlier_limit(r: Refined) -> tuple[float, np.ndarray, np.ndarray]:
     ``MIN_OUTLIER_PX``), the wand observations' errors (M,) and the point observations' (Q,)."""
     errors = quality.pixel_errors(r.R, r.t, r.wand, r.setup.problem)
     point_err = np.zeros(0)
-    if r.tracks is not None and len(r.tracks):
+    if r.tracks is not None and r.X is not None and len(r.tracks):
         res = reprojection_errors(r.R, r.t, r.tracks.track, r.tracks.camera, r.tracks.xy, r.X)
         point_err = np.linalg.norm(res * r.setup.problem.focal[r.tracks.camera], axis=1)
     sigma = robust_sigma(np.concatenate([errors, point_err]))
