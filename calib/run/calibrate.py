@@ -137,7 +137,7 @@ class SyncState:
 class Start:
     """The start of the refinement: static_poses: each camera's pose on the static object (or
     None without one); init: the first poses, gauge frame; labelled: the wand ends told apart
-    (resampled to the reference instants under sync); setup: the problem built from them."""
+    (resampled to the reference instants under sync)."""
 
     static_poses: list[StaticPose | Failure] | None
     init: Initial
@@ -251,14 +251,15 @@ def _whole_frame_sync(rig: Rig, wand: WandObservations | None, options: Calibrat
 
 def _observations(rig: Rig, wand: WandObservations | None, points: PointObservations | None, sync: SyncState | None,
                   has_wand: bool, method: str) -> Observations:
-    """The wand's camera-frames and the point tracks, refused where they cannot calibrate the rig."""
-    blobs = _marker_blobs(rig, wand) if has_wand and wand is not None else None
+    """The wand's camera-frames and the point tracks, refused where they cannot calibrate the rig.
+    ``wand``: None without a wand (``has_wand`` false)."""
+    blobs = _marker_blobs(rig, wand) if wand is not None else None
     if blobs is not None:
         pairs = blobs.ends()
     elif sync is not None:  # the pairs already grouped, renumbered
         pairs = shift_pairs(sync.unshifted, sync.whole.offsets)
     else:
-        pairs = wand_pairs(rig, wand) if has_wand and wand is not None else WandPairs.empty()
+        pairs = wand_pairs(rig, wand) if wand is not None else WandPairs.empty()
     tracks = point_tracks(rig, points) if points is not None and len(points) else None
     if not has_wand and (tracks is None or not len(tracks)):
         raise CalibrationError(
