@@ -17,8 +17,6 @@ from wandcal.calib.run.options import (
     CalibrationOptions,
     options_from,
 )
-from wandcal.calib.solve.ba import DEFAULT_LOSS
-from wandcal.calib.solve.sync import DEFAULT_SYNC
 from wandcal.service.jobs.records import JobState
 
 
@@ -111,8 +109,8 @@ class BlobSetsPublic(BaseModel):
 
 
 Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: wandcal.calib.run.options.METHODS
-# the choices as JSON Schema enums; the same as the lists calibrate checks against
-# (LOSSES, SYNC_MODES, INTRINSICS: tests/service/test_options_drift.py)
+# the choices as JSON Schema enums; the same as the lists calibrate checks against, and the
+# defaults as CalibrationOptions' (LOSSES, SYNC_MODES, INTRINSICS: tests/service/test_options_drift.py)
 Loss = Literal["cauchy", "linear"]
 Sync = Literal["none", "auto"]
 Intrinsic = Literal["focal", "principal", "k1"]
@@ -127,7 +125,7 @@ class JobOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     use_static: bool = Field(True, description="use the capture's static object (if any) to fix the world frame")
-    loss: Loss = Field(DEFAULT_LOSS, description="ba: robust loss ('linear' is plain least squares)")
+    loss: Loss = Field("cauchy", description="ba: robust loss ('linear' is plain least squares)")
     time_limit: float | None = Field(None, gt=0, le=MAX_LP_SECONDS,
                                      description="lp and paper: seconds allowed for each LP solve (default: no limit)")
     max_rounds: int | None = Field(None, ge=1, le=MAX_PAPER_ROUNDS,
@@ -135,7 +133,7 @@ class JobOptions(BaseModel):
     reject_outliers: bool = Field(True, description="drop gross-outlier camera-frames and refine again")
     refine_intrinsics: list[Intrinsic] = Field(default_factory=list,
                                                description="ba: also refine these per camera (default: none)")
-    sync: Sync = Field(DEFAULT_SYNC, description="auto: find each camera's time offset from the wand, for "
+    sync: Sync = Field("none", description="auto: find each camera's time offset from the wand, for "
                        "cameras without a trigger (docs/sync.md)")
     sync_max_offset: int | None = Field(None, ge=1, le=MAX_SYNC_OFFSET,
                                         description="with sync auto: frames searched either side (default 8)")
