@@ -30,8 +30,10 @@ MAX_LP_SECONDS = 86_400.0
 MAX_SYNC_OFFSET = 10_000  # frames: 100 s at 100 fps; further off is another recording
 MAX_FRAME_RATE_HZ = 1_000_000.0  # the fastest high-speed cameras record at about this; more is a typo
 
-# each field's command-line flag, for messages that must make sense on the command line and over HTTP
-FLAGS = {"time_limit": "--lp-time-limit", "reject_outliers": "--keep-outliers"}
+# where the command line takes a field from, when not from --field-name: messages name both, so
+# that they make sense on the command line and over HTTP
+FLAGS = {"time_limit": "--lp-time-limit", "reject_outliers": "--keep-outliers",
+         "sync_start": "sync.csv's timestamps", "frame_rate_hz": "capture.json's rate_hz"}
 
 
 @dataclass(frozen=True)
@@ -95,7 +97,7 @@ class CalibrationOptions:
     def _check_sync_start(self) -> None:
         start = self.sync_start
         if start is not None and not (isinstance(start, tuple) and all(_is_whole(v) for v in start)):
-            raise CalibrationError("sync_start: give a tuple of whole-frame offsets, one per camera "
+            raise CalibrationError(f"{_named('sync_start')}: give a tuple of whole-frame offsets, one per camera "
                                    "(or None to search around zeros)")
 
     def _check_method_options(self) -> None:
@@ -106,11 +108,6 @@ class CalibrationOptions:
         if self.time_limit is not None and self.method == "ba":
             raise CalibrationError(f"{_named('time_limit')} bounds the LP solves of --method lp and paper; ba solves "
                                    "no LP (drop it, or choose one of those)")
-
-    @property
-    def robust_ba(self) -> bool:
-        """A ``ba`` with a robust loss: an outlier pass and a least-squares polish follow it."""
-        return self.method == "ba" and self.loss != "linear"
 
     @property
     def polish(self) -> bool:
@@ -129,15 +126,19 @@ def options_from(values: Mapping[str, Any]) -> CalibrationOptions:
     return CalibrationOptions(**given)
 
 
+def _flag(name: str) -> str:
+    """Where the command line takes a field from: its flag (``--max-rounds``), or a file."""
+    return FLAGS.get(name, "--" + name.replace("_", "-"))
+
+
 def _named(name: str) -> str:
     """A field as a message names it: ``max_rounds (--max-rounds)``."""
-    return f"{name} ({FLAGS.get(name, '--' + name.replace('_', '-'))})"
+    return f"{name} ({_flag(name)})"
 
 
 def _choice(name: str, value: object, choices: tuple[str, ...]) -> None:
     if value not in choices:
-        raise CalibrationError(f"unknown {name} {value!r} ({FLAGS.get(name, '--' + name.replace('_', '-'))}); "
-                               f"choose one of {', '.join(choices)}")
+        raise CalibrationError(f"unknown {name} {value!r} ({_flag(name)}); choose one of {', '.join(choices)}")
 
 
 def _flag_type(name: str, value: object) -> None:

@@ -85,8 +85,8 @@ def test_the_choices_are_calibrates():
     ({"sync_max_offset": 0}, "sync_max_offset (--sync-max-offset): must be a whole number, at least 1"),
     ({"max_rounds": 2.5, "method": "paper"}, "max_rounds (--max-rounds): must be a whole number"),
     ({"time_limit": float("inf"), "method": "lp"}, "time_limit (--lp-time-limit): must be a number, more than 0"),
-    ({"frame_rate_hz": -1.0}, "frame_rate_hz (--frame-rate-hz): must be a number, more than 0"),
-    ({"sync_start": (0, 1.5)}, "sync_start: give a tuple of whole-frame offsets"),
+    ({"frame_rate_hz": -1.0}, "frame_rate_hz (capture.json's rate_hz): must be a number, more than 0"),
+    ({"sync_start": (0, 1.5)}, "sync_start (sync.csv's timestamps): give a tuple of whole-frame offsets"),
     ({"reject_outliers": "yes"}, "reject_outliers (--keep-outliers): give true or false"),
 ])
 def test_check_names_the_field_and_what_to_do(options, words):
