@@ -31,6 +31,7 @@ MAX_OUTLIER_PASSES = 3  # reject-and-refine passes; the kept set settles after t
 # on the cameras alone (the polish solves the frames again): on rings with sparse views a few
 # frames the loss does not determine kept it going for 25-90 iterations (decision 0032).
 ROBUST_STAGE_SE = 0.5
+ROBUST_STAGE_ON_CAMERAS = True  # False: the stop counts every parameter, as before decision 0032 (bench_shapes' reference)
 # the options of the robust ba that finds lp's outliers before its first certified pass (refine)
 FIRST_SOLVE = {"loss": DEFAULT_LOSS, "refine_intrinsics": None, "sync_columns": None}
 
@@ -190,7 +191,7 @@ def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bo
     # standard errors and the pose covariance cost one more linearisation and solve: final stage only
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS, intrinsics=fit,
                                stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final, timing=timing,
-                               stop_on_cameras=not final)
+                               stop_on_cameras=ROBUST_STAGE_ON_CAMERAS and not final)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
     R, t = model.poses(out.x)
     refined = Refined(rig, setup, labelled, tracks, R, t, model.wand(out.x), out.X, info, out.camera_std, out.covariance,
