@@ -18,6 +18,7 @@ from unittest import mock
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import aligned_rms_mm, machine, replace_section, timed
+from wandcal.calib.errors import CalibrationError
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.shapes import RigShape, default_size, simulate_shape
 
@@ -45,10 +46,14 @@ def main() -> int:
     for kind in args.shapes.split(","):
         for n in map(int, args.cameras.split(",")):
             shape = RigShape(kind, n, default_size(kind))
-            it, sec, err = one(shape, args.frames, args.seed, reference=False)
-            rit, rsec, rerr = one(shape, args.frames, args.seed, reference=True)
-            row = (f"| {kind} | {shape.size_m:g} | {n} | {it} | {sec:.1f} | {err:.2f} | {rit} | {rsec:.1f} | {rerr:.2f} | "
-                   f"{err / rerr:.3f} |")
+            try:
+                it, sec, err = one(shape, args.frames, args.seed, reference=False)
+                rit, rsec, rerr = one(shape, args.frames, args.seed, reference=True)
+            except CalibrationError as exc:  # the row says why, and the others still run
+                row = f"| {kind} | {shape.size_m:g} | {n} | failed: {exc} | | | | | | |"
+            else:
+                row = (f"| {kind} | {shape.size_m:g} | {n} | {it} | {sec:.1f} | {err:.2f} | {rit} | {rsec:.1f} | {rerr:.2f} | "
+                       f"{err / rerr:.3f} |")
             print(row, flush=True)
             rows.append(row)
     command = "python bench/bench_shapes.py " + " ".join(sys.argv[1:])
