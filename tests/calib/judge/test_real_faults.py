@@ -37,6 +37,8 @@ CASES = [
     ("brown1", "subsample 60% seed 0"),
     ("brown1", "principal point +2% cam1"),
     ("cpp", "focal -8% cam1"),
+    ("brown1", "k1 off cam1"),
+    ("brown2", "focal -8% cam3"),
     pytest.param("brown2", "subsample 60% seed 0", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     pytest.param("brown1", "focal +3% cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     pytest.param("brown2", "noise 3x cam3", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
