@@ -27,7 +27,7 @@ def sessions():
     if not rf.available():
         pytest.skip(f"third-party data not found at {rf.SHARED_DATA}")
     loaded = {}
-    for key in ("brown1", "brown2", "cpp"):
+    for key in ("brown1", "brown2", "cpp", "svoboda"):
         session = rf.LOADERS[key]()
         loaded[key] = (session, rf.clean_run(session))
     return loaded
@@ -39,6 +39,7 @@ CASES = [
     ("cpp", "focal -8% cam1"),
     ("brown1", "k1 off cam1"),
     ("brown2", "focal -8% cam3"),
+    ("svoboda", "knocked 0.47 deg Basler_21275577"),
     pytest.param("brown2", "subsample 60% seed 0", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     pytest.param("brown1", "focal +3% cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     pytest.param("brown2", "noise 3x cam3", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
