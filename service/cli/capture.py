@@ -62,7 +62,7 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                    help="do not solve the wanding guidance while recording")
     p.add_argument("--stop-when-enough", action="store_true",
                    help="end the wand run, keeping it, as soon as the guidance says enough")
-    p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
+    p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     add_guidance_options(p)
     add_detect_options(p, live=True)
 
@@ -90,8 +90,8 @@ def run_capture(args) -> int:
     from wandcal.capture.recording.session import record
     from wandcal.drivers.registry import open_cameras
     from wandcal.drivers.trigger import open_trigger
-    from wandcal.service.cli.guidance import guidance_lines, settings_from, summary
-    from wandcal.service.cli.support.status_line import StatusLine, bar
+    from wandcal.service.cli.guidance import settings_from
+    from wandcal.service.cli.support.progress import ProgressLine
 
     if args.stop_when_enough and not args.guidance:
         raise CalibrationError("--stop-when-enough needs the guidance; drop --no-guidance")
@@ -100,9 +100,31 @@ def run_capture(args) -> int:
     rig = _rig(args, cameras)
     detect = _live_detectors(args, rig, config)
     trigger = open_trigger(args.trigger)
-    status = StatusLine(quiet=args.quiet)
     guidance = LiveGuidance(rig, settings_from(args)) if args.guidance and rig.wand_length is not None else None
-    told = [None]  # the advice last printed: a new first item gets its own line
+    until = (lambda: guidance.enough) if guidance is not None and args.stop_when_enough else None
+    with ProgressLine(quiet=args.quiet) as status, guidance or contextlib.nullcontext():
+        result = record(cameras, trigger, args.out, rig, frames=args.frames, static_frames=args.static_frames,
+                        rate_hz=args.rate, progress=_shown_on(status), between=_between,
+                        events=lambda m: print(f"\n{m}", file=sys.stderr), images=args.images, guidance=guidance,
+                        until=until, detect=detect)
+        final = guidance.update() if guidance is not None else None
+        scene = _sim_scene(cameras)
+        if scene is not None and rig is scene.rig:
+            # a simulated rig: keep its truth beside the capture, as 'wandcal simulate' does
+            (args.out / "truth.json").write_text(json.dumps(scene.truth.to_json(rig)) + "\n")
+        total = result.frame_sets + result.static_sets
+        status.done(f"recorded {result.frame_sets} wand sets and {result.static_sets} static sets into "
+                    f"{result.folder}; {result.complete_sets} of {total} have every camera's frame")
+    return _print_recorded(result, final)
+
+
+def _shown_on(status):
+    """The recording's progress callback: the phase, its bar, the rate, the drops and the guidance
+    on the progress line; a new first piece of advice on a line of its own."""
+    from wandcal.service.cli.guidance import summary
+    from wandcal.service.cli.support.progress import bar
+
+    told = [None]  # the advice last printed
 
     def show(p) -> None:
         missed = " ".join(f"{cid}:{n}" for cid, n in p.missed.items())
@@ -115,24 +137,18 @@ def run_capture(args) -> int:
                 print(f"\nguidance: {advice}", file=sys.stderr)
         status.update(text)
 
-    def between() -> None:
-        if sys.stdin.isatty():
-            input("\nstatic object recorded; remove it, then press Enter to record the wand... ")
+    return show
 
-    until = (lambda: guidance.enough) if guidance is not None and args.stop_when_enough else None
-    with guidance or contextlib.nullcontext():
-        result = record(cameras, trigger, args.out, rig, frames=args.frames, static_frames=args.static_frames,
-                        rate_hz=args.rate, progress=show, between=between,
-                        events=lambda m: print(f"\n{m}", file=sys.stderr), images=args.images, guidance=guidance,
-                        until=until, detect=detect)
-        final = guidance.update() if guidance is not None else None
-    scene = _sim_scene(cameras)
-    if scene is not None and rig is scene.rig:
-        # a simulated rig: keep its truth beside the capture, as 'wandcal simulate' does
-        (args.out / "truth.json").write_text(json.dumps(scene.truth.to_json(rig)) + "\n")
-    total = result.frame_sets + result.static_sets
-    status.done(f"recorded {result.frame_sets} wand sets and {result.static_sets} static sets into {result.folder}; "
-                f"{result.complete_sets} of {total} have every camera's frame")
+
+def _between() -> None:
+    if sys.stdin.isatty():
+        input("\nstatic object recorded; remove it, then press Enter to record the wand... ")
+
+
+def _print_recorded(result, final: dict | None) -> int:
+    """Each camera's frames, the guidance on what was recorded; exit 3 when the recording stopped early."""
+    from wandcal.service.cli.guidance import guidance_lines
+
     for cid, s in result.per_camera.items():
         print(f"{cid}: {s['delivered']} frame{'s' * (s['delivered'] != 1)}, {s['missed']} missed, "
               f"{s['unreadable']} unreadable"

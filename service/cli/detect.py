@@ -30,21 +30,21 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
         p.add_argument("capture", type=Path, help="image-level capture folder")
         p.add_argument("--workers", type=whole(1, MAX_WORKERS), default=None, metavar="N",
                        help=f"threads that decode and detect images, 1 to {MAX_WORKERS} (default: every core)")
-        p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
+        p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
         add_detect_options(p)
 
 
 def run_detect(args) -> int:
     from wandcal.capture.folder import read_rig
     from wandcal.capture.images import detect_capture
-    from wandcal.service.cli.support.status_line import StatusLine, bar
+    from wandcal.service.cli.support.progress import ProgressLine, bar
 
     config = config_from_args(args)
-    status = StatusLine(quiet=args.quiet)
-    reports = detect_capture(args.capture, config, workers=args.workers,
-                             progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
-                             mask=mask_from_args(args), empty=args.background.folder)
-    status.done(f"detect: done, wrote {args.capture / 'wand.csv'} ({config.describe()})")
+    with ProgressLine(quiet=args.quiet) as status:
+        reports = detect_capture(args.capture, config, workers=args.workers,
+                                 progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
+                                 mask=mask_from_args(args), empty=args.background.folder)
+        status.done(f"detect: done, wrote {args.capture / 'wand.csv'} ({config.describe()})")
     rig = read_rig(args.capture)
     expected = None if rig.static_markers is None else len(rig.static_markers)
     for r in reports:
