@@ -8,7 +8,7 @@ import argparse
 import json
 from pathlib import Path
 
-from wandcal.service.cli.support.args import MAX_SYNC_OFFSET, number, whole
+from wandcal.service.cli.support.args import MAX_SYNC_OFFSET, arg_number, arg_whole
 
 # Bounds of the numeric options (exit 2 outside them). 10,000 paper rounds are ~40 min at 8 x 1500,
 # where the scheme converges in ~170; a day is a time limit no LP step needs.
@@ -36,9 +36,9 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                    "CAPTURE/result-lp.json and CAPTURE/result-paper.json for the others, so that no method's "
                    "result replaces another's)")
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"refinement method (default {DEFAULT_METHOD})")
-    p.add_argument("--max-rounds", type=whole(1, MAX_PAPER_ROUNDS), default=None, metavar="N",
+    p.add_argument("--max-rounds", type=arg_whole(1, MAX_PAPER_ROUNDS), default=None, metavar="N",
                    help=f"paper: most rotation/LP rounds, 1 to {MAX_PAPER_ROUNDS} (default {MAX_ROUNDS})")
-    p.add_argument("--lp-time-limit", type=number(0, MAX_LP_SECONDS, low_open=True), default=None, metavar="S",
+    p.add_argument("--lp-time-limit", type=arg_number(0, MAX_LP_SECONDS, low_open=True), default=None, metavar="S",
                    help="lp and paper: seconds allowed for each LP solve (default: no limit)")
     p.add_argument("--keep-outliers", action="store_true", help="do not drop gross-outlier camera-frames")
     p.add_argument("--loss", choices=LOSSES, default=DEFAULT_LOSS,
@@ -47,7 +47,7 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                    help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
     p.add_argument("--sync", choices=SYNC_MODES, default=DEFAULT_SYNC,
                    help="auto: find each camera's time offset from the wand, for cameras without a trigger (docs/sync.md)")
-    p.add_argument("--sync-max-offset", type=whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
+    p.add_argument("--sync-max-offset", type=arg_whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
     p.add_argument("--sync-drift", action="store_true", help="with --sync auto: also each camera's rate difference")
     p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",

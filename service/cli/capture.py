@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 from wandcal.service.cli.detect import add_detect_options, config_from_args, mask_from_args
 from wandcal.service.cli.guidance import add_guidance_options
-from wandcal.service.cli.support.args import number, whole
+from wandcal.service.cli.support.args import arg_number, arg_whole
 
 if TYPE_CHECKING:
     from wandcal.calib.rig import Rig
@@ -42,16 +42,16 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                    help="camera URL (repeat): v4l2:///dev/video0, opencv:0, replay:///path, sim://?cameras=4")
     p.add_argument("--trigger", default="none", metavar="URL",
                    help="strobe trigger: serial:///dev/ttyACM0, a device path, or 'none' (default)")
-    p.add_argument("--frames", type=whole(1, MAX_FRAMES), required=True, metavar="N",
+    p.add_argument("--frames", type=arg_whole(1, MAX_FRAMES), required=True, metavar="N",
                    help=f"wand frame sets to record, 1 to {MAX_FRAMES}")
-    p.add_argument("--static-frames", type=whole(0, MAX_STATIC_FRAMES), default=0, metavar="K",
+    p.add_argument("--static-frames", type=arg_whole(0, MAX_STATIC_FRAMES), default=0, metavar="K",
                    help=f"first record K frame sets of the static object (L-frame) alone, up to {MAX_STATIC_FRAMES} "
                         "(default 0)")
-    p.add_argument("--rate", type=number(MIN_RATE_HZ, MAX_RATE_HZ), default=100.0, metavar="HZ",
+    p.add_argument("--rate", type=arg_number(MIN_RATE_HZ, MAX_RATE_HZ), default=100.0, metavar="HZ",
                    help=f"trigger / frame rate in Hz, {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} (default 100)")
     p.add_argument("--rig", type=Path, help="rig.json with the cameras' intrinsics (simulated and replayed "
                    "cameras bring their own)")
-    p.add_argument("--wand-length", type=number(0, MAX_WAND_LENGTH_M, low_open=True), default=None, metavar="M",
+    p.add_argument("--wand-length", type=arg_number(0, MAX_WAND_LENGTH_M, low_open=True), default=None, metavar="M",
                    help="wand marker distance in metres, for cameras that do not bring a rig.json (default "
                         f"{DEFAULT_WAND_LENGTH_M:g})")
     p.add_argument("--out", type=Path, required=True, help="new capture folder")

@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from wandcal.service.cli.support.args import MAX_SEED, number, whole
+from wandcal.service.cli.support.args import MAX_SEED, arg_number, arg_whole
 
 TRUTH_FILE = "truth.json"
 # The simulator holds every observation in memory (~100 bytes a camera-frame): 64 cameras by
@@ -27,16 +27,16 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 def sim_args(p: argparse.ArgumentParser, cameras: int, frames: int) -> None:
     """The simulated rig's options, with the command's own defaults for its size."""
-    p.add_argument("--cameras", type=whole(2, MAX_SIM_CAMERAS), default=cameras, metavar="N",
+    p.add_argument("--cameras", type=arg_whole(2, MAX_SIM_CAMERAS), default=cameras, metavar="N",
                    help=f"cameras on a ring around the volume, 2 to {MAX_SIM_CAMERAS} (default {cameras})")
-    p.add_argument("--frames", type=whole(10, MAX_SIM_FRAMES), default=frames, metavar="N",
+    p.add_argument("--frames", type=arg_whole(10, MAX_SIM_FRAMES), default=frames, metavar="N",
                    help=f"wand frames, 10 to {MAX_SIM_FRAMES} (default {frames})")
-    p.add_argument("--noise", type=number(0, MAX_NOISE_PX), default=0.3, metavar="PX",
+    p.add_argument("--noise", type=arg_number(0, MAX_NOISE_PX), default=0.3, metavar="PX",
                    help="blob noise, pixels (std; default 0.3)")
-    p.add_argument("--outliers", type=number(0, 1, high_open=True), default=0.0, metavar="SHARE",
+    p.add_argument("--outliers", type=arg_number(0, 1, high_open=True), default=0.0, metavar="SHARE",
                    help="share of camera-frames with a gross outlier, 0 to below 1 (default 0)")
     p.add_argument("--no-static", action="store_true", help="no L-frame")
-    p.add_argument("--seed", type=whole(0, MAX_SEED), default=1,
+    p.add_argument("--seed", type=arg_whole(0, MAX_SEED), default=1,
                    help="random seed: the same seed gives the same rig (default 1)")
 
 
