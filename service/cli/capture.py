@@ -17,7 +17,6 @@ if TYPE_CHECKING:
     from wandcal.calib.rig import Rig
     from wandcal.drivers.camera import CameraDriver
 
-DEFAULT_WAND_LENGTH_M = 0.5
 # Bounds of the numeric options (exit 2 outside them): the service's own limits for a live capture
 # (service/schemas.py) and a wand no lab builds.
 MAX_FRAMES = 10_000_000
@@ -36,6 +35,7 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 
 def _arguments(p: argparse.ArgumentParser) -> None:
+    from wandcal.capture.recording.camera_rig import DEFAULT_WAND_LENGTH_M
     from wandcal.drivers.trigger_protocol import MAX_RATE_HZ, MIN_RATE_HZ
 
     p.add_argument("--camera", action="append", required=True, metavar="URL",
@@ -86,6 +86,7 @@ def run_capture(args) -> int:
     import contextlib
 
     from wandcal.calib.errors import CalibrationError
+    from wandcal.capture.recording.camera_rig import camera_rig, simulated_scene
     from wandcal.capture.recording.live_guidance import LiveGuidance
     from wandcal.capture.recording.session import record
     from wandcal.drivers.registry import open_cameras
@@ -97,7 +98,7 @@ def run_capture(args) -> int:
         raise CalibrationError("--stop-when-enough needs the guidance; drop --no-guidance")
     config = config_from_args(args, live=True)
     cameras: list[CameraDriver] = [cam for url in args.camera for cam in open_cameras(url)]
-    rig = _rig(args, cameras)
+    rig = camera_rig(cameras, args.rig, args.wand_length)
     detect = _live_detectors(args, rig, config)
     trigger = open_trigger(args.trigger)
     guidance = LiveGuidance(rig, settings_from(args)) if args.guidance and rig.wand_length is not None else None
@@ -108,7 +109,7 @@ def run_capture(args) -> int:
                         events=lambda m: print(f"\n{m}", file=sys.stderr), images=args.images, guidance=guidance,
                         until=until, detect=detect)
         final = guidance.update() if guidance is not None else None
-        scene = _sim_scene(cameras)
+        scene = simulated_scene(cameras)
         if scene is not None and rig is scene.rig:
             # a simulated rig: keep its truth beside the capture, as 'wandcal simulate' does
             (args.out / "truth.json").write_text(json.dumps(scene.truth.to_json(rig)) + "\n")
@@ -171,43 +172,3 @@ def _image_policy(text: str):
         return ImagePolicy.parse(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _rig(args, cameras: list[CameraDriver]) -> Rig:
-    """rig.json from --rig, else the simulated scene's rig or the drivers' own intrinsics."""
-    from wandcal.calib.rig import Rig
-    from wandcal.capture.folder import read_rig
-    from wandcal.drivers.errors import DriverError
-
-    if args.rig:
-        return _read_rig_file(args.rig)
-    scene = _sim_scene(cameras)
-    if scene is not None:
-        return scene.rig
-    missing = [c.camera_id for c in cameras if c.intrinsics is None]
-    if missing:
-        raise DriverError(f"no intrinsics for camera(s) {', '.join(missing)}; give --rig rig.json "
-                          "(docs/capture-format.md) with every camera's K and dist")
-    folders = {getattr(c, "folder", None) for c in cameras} - {None}
-    if len(folders) == 1 and args.wand_length is None:
-        return read_rig(next(iter(folders)))
-    return Rig(cameras=tuple(c.intrinsics for c in cameras), wand_length=args.wand_length or DEFAULT_WAND_LENGTH_M)
-
-
-def _sim_scene(cameras: list[CameraDriver]):
-    """The simulated scene when every camera comes from the same one (one sim:// URL), else None."""
-    scenes = {id(c.scene): c.scene for c in cameras if hasattr(c, "scene")}
-    if len(scenes) == 1 and len(cameras) == len(next(iter(scenes.values())).rig.cameras):
-        return next(iter(scenes.values()))
-    return None
-
-
-def _read_rig_file(path: Path) -> Rig:
-    from wandcal.capture.rig_file import load_json, rig_from_json
-    from wandcal.drivers.errors import DriverError
-
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise DriverError(f"{path}: cannot read the rig ({exc})") from None
-    return rig_from_json(load_json(data, str(path)), str(path))

@@ -52,7 +52,7 @@ def check_bind(settings: Settings) -> None:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from wandcal.service.connections import server_options
+    from wandcal.service.connection_limits import server_options
     from wandcal.service.main import create_app
     from wandcal.service.settings import Settings
 
