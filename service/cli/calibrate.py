@@ -5,7 +5,6 @@ it reads beside the blobs is in :mod:`wandcal.service.cli.support.inputs`; what 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from wandcal.service.cli.support.args import MAX_SYNC_OFFSET, arg_number, arg_whole
@@ -143,6 +142,8 @@ def result_path(capture: Path, method: str) -> Path:
 
 
 def _write_result(args, doc: dict) -> int:
+    import json
+
     from wandcal.service.cli.support.summary import format_summary
 
     out = args.out or result_path(args.capture, args.method)
@@ -155,6 +156,8 @@ def _write_result(args, doc: dict) -> int:
 
 def _replaced(out: Path) -> str | None:
     """What an existing ``out`` holds, said when it is replaced: "ba result" or "file"."""
+    import json
+
     if not out.is_file():
         return None
     try:

@@ -4,7 +4,6 @@ guidance on the status line."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -84,6 +83,7 @@ def _live_detectors(args, rig: Rig, config):
 
 def run_capture(args) -> int:
     import contextlib
+    import json
 
     from wandcal.calib.errors import CalibrationError
     from wandcal.capture.recording.camera_rig import camera_rig, simulated_scene

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -50,6 +49,8 @@ def settings_from(args) -> GuidanceSettings:
 
 
 def run_guidance(args) -> int:
+    import json
+
     from wandcal.calib.run.guidance import wanding_guidance
     from wandcal.capture.folder import read_capture
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -50,6 +49,8 @@ def check_bind(settings: Settings) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import tempfile
+
     import uvicorn
 
     from wandcal.service.connection_limits import server_options

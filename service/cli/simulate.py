@@ -4,7 +4,6 @@ options and run, which ``wandcal demo`` shares."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from wandcal.service.cli.support.args import MAX_SEED, arg_number, arg_whole
@@ -49,6 +48,8 @@ def simulated(args):
 
 def write_simulated(folder: Path, sim) -> None:
     """The capture folder and its truth.json."""
+    import json
+
     from wandcal.capture.folder import write_capture
 
     write_capture(folder, sim.rig, sim.wand, sim.static)
