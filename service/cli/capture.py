@@ -1,5 +1,5 @@
 """``wandcal capture``: record a capture folder from cameras and a strobe trigger, with the wanding
-guidance on the status line."""
+guidance on the progress line."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
     p = sub.add_parser("capture", help="record synchronised frames from cameras and a strobe trigger",
                        description="Record a wandcal-capture/1 folder: every frame's blob centroids "
                                    "(the points level, written as it goes) and the images --images asks "
-                                   "for, with the wanding guidance on the status line.")
+                                   "for, with the wanding guidance on the progress line.")
     p.set_defaults(run=run_capture)
     if arguments:
         _arguments(p)
