@@ -111,9 +111,10 @@ class ProgressLine:
 
     def _width(self) -> int:
         try:
-            return os.get_terminal_size(self.stream.fileno()).columns - 1
+            columns = os.get_terminal_size(self.stream.fileno()).columns
         except (AttributeError, OSError, ValueError):  # not a real terminal (a test's stand-in)
             return WIDTH
+        return columns - 1 if columns > 1 else WIDTH  # a new pseudo-terminal reports 0 columns
 
 
 def bar(done: int, total: int, width: int = 30) -> str:
