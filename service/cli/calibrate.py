@@ -5,10 +5,9 @@ it reads beside the blobs is in :mod:`wandcal.service.cli.support.inputs`; what 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from wandcal.service.cli.support.args import number, whole
+from wandcal.service.cli.support.args import arg_number, arg_whole
 
 RESULT_FILE = "result.json"  # the default method's result; the others get their own (result_path)
 
@@ -34,9 +33,9 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                    "result replaces another's)")
     # each option's dest is its CalibrationOptions field (tests/service/test_options_drift.py)
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"refinement method (default {DEFAULT_METHOD})")
-    p.add_argument("--max-rounds", type=whole(1, MAX_PAPER_ROUNDS), default=None, metavar="N",
+    p.add_argument("--max-rounds", type=arg_whole(1, MAX_PAPER_ROUNDS), default=None, metavar="N",
                    help=f"paper: most rotation/LP rounds, 1 to {MAX_PAPER_ROUNDS} (default {MAX_ROUNDS})")
-    p.add_argument("--lp-time-limit", dest="time_limit", type=number(0, MAX_LP_SECONDS, low_open=True), default=None,
+    p.add_argument("--lp-time-limit", dest="time_limit", type=arg_number(0, MAX_LP_SECONDS, low_open=True), default=None,
                    metavar="S", help="lp and paper: seconds allowed for each LP solve (default: no limit)")
     p.add_argument("--keep-outliers", dest="reject_outliers", action="store_false",
                    help="do not drop gross-outlier camera-frames")
@@ -46,7 +45,7 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                    help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
     p.add_argument("--sync", choices=SYNC_MODES, default=DEFAULT_SYNC,
                    help="auto: find each camera's time offset from the wand, for cameras without a trigger (docs/sync.md)")
-    p.add_argument("--sync-max-offset", type=whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
+    p.add_argument("--sync-max-offset", type=arg_whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
     p.add_argument("--sync-drift", action="store_true", help="with --sync auto: also each camera's rate difference")
     p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
@@ -138,6 +137,8 @@ def result_path(capture: Path, method: str) -> Path:
 
 
 def _write_result(args, doc: dict) -> int:
+    import json
+
     from wandcal.service.cli.support.summary import format_summary
 
     out = args.out or result_path(args.capture, args.method)
@@ -150,6 +151,8 @@ def _write_result(args, doc: dict) -> int:
 
 def _replaced(out: Path) -> str | None:
     """What an existing ``out`` holds, said when it is replaced: "ba result" or "file"."""
+    import json
+
     if not out.is_file():
         return None
     try:

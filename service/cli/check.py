@@ -4,7 +4,6 @@ wand capture."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 EXIT_MOVED = 1  # wandcal check: a camera moved (named)
@@ -24,6 +23,8 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 
 def run_check(args) -> int:
+    import json
+
     import numpy as np
 
     from wandcal.calib.errors import CalibrationError

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
-import tempfile
 from pathlib import Path
 
 from wandcal.service.cli.simulate import sim_args, simulated, write_simulated
@@ -23,6 +21,9 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 
 def run_demo(args) -> int:
+    import json
+    import tempfile
+
     from wandcal.calib.run.calibrate import calibrate
     from wandcal.calib.run.options import CalibrationOptions
     from wandcal.capture.folder import read_capture

@@ -12,13 +12,11 @@ from wandcal.capture.recording.stamps import capture_rate, timestamp_start  # no
 
 
 def points_level(folder: Path, progress) -> Path:
-    """Detect first when the capture is image level (wandcal.capture.images provides it)."""
+    """Detect first when the capture is image level (:func:`wandcal.capture.images.ensure_points_level`)."""
     if not folder.is_dir() or (folder / "wand.csv").is_file():
         return folder  # read_capture names what is missing
-    try:
-        from wandcal.capture.images import ensure_points_level
-    except ImportError:
-        return folder
+    from wandcal.capture.images import ensure_points_level
+
     return ensure_points_level(folder, progress=progress)
 
 
