@@ -6,16 +6,22 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.geometry import camera_centers, undistort_by_camera
+from wandcal.calib.geometry import undistort_by_camera
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import WandPairs, point_tracks, robust_sigma, wand_pairs
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
-from wandcal.calib.run.camera_reports import camera_reports, intrinsics_reports, summary_warnings, uncertainty_reports
+from wandcal.calib.run.camera_reports import (
+    camera_reports,
+    intrinsics_reports,
+    summary_warnings,
+    uncertainty_reports,
+    with_warnings,
+)
 from wandcal.calib.run.judgement import judge
 from wandcal.calib.run.refine import (
     GAUGE_CAMERA,
@@ -27,6 +33,7 @@ from wandcal.calib.run.refine import (
     triangulated,
     up_direction,
 )
+from wandcal.calib.run.result import RESULT_FORMAT, CalibrationResult, SolverReport, WandReport, WorldFrame
 from wandcal.calib.solve.ba import DEFAULT_LOSS
 from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, TimeColumns, Tracks, fit_timing, sync_report
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
@@ -37,63 +44,10 @@ from wandcal.calib.start.static import solve_static
 from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, frame_offsets, shift_frames, shift_pairs
 from wandcal.calib.start.world import apply, world_frame
 
-RESULT_FORMAT = "wandcal-result/1"
+__all__ = ["DEFAULT_METHOD", "METHODS", "RESULT_FORMAT", "CalibrationResult", "calibrate"]  # the result's types: calib/run/result.py
+
 METHODS = ("ba", "lp", "paper")
 DEFAULT_METHOD = "ba"  # docs/decisions/0002-default-method.md
-
-
-@dataclass(eq=False)
-class CalibrationResult:
-    """Poses in the world frame and everything the report needs.
-
-    R: (N, 3, 3), t: (N, 3) world->camera, metres; wand: (F, 2, 3) wand ends, metres.
-    """
-
-    rig: Rig
-    R: np.ndarray
-    t: np.ndarray
-    wand: np.ndarray
-    frames: np.ndarray
-    cameras: list[dict]
-    wand_report: dict
-    solver: dict
-    world: dict
-    dropped: dict
-    warnings: list[str] = field(default_factory=list)
-    points: np.ndarray | None = None  # (T, 3) the single-point tracks' refined points, world frame
-    verdict: dict | None = None  # the rig's {"level", "reasons"} (calib/judge/verdict.py)
-    sync: dict | None = None  # the cameras' time offsets under options["sync"] = "auto" (docs/sync.md)
-
-    @property
-    def centers(self) -> np.ndarray:
-        return camera_centers(self.R, self.t)
-
-    def to_json(self) -> dict:
-        cams = []
-        for i, cam in enumerate(self.rig.cameras):
-            entry = {
-                "id": cam.id,
-                "R": self.R[i].tolist(),
-                "t": self.t[i].tolist(),
-                "center": self.centers[i].tolist(),
-                "K": cam.K.tolist(),
-                "dist": cam.dist.tolist(),
-                "width": cam.width,
-                "height": cam.height,
-            }
-            if cam.model != "pinhole":
-                entry["model"] = cam.model
-            cams.append(entry | self.cameras[i])
-        return {
-            "format": RESULT_FORMAT,
-            "cameras": cams,
-            "wand": self.wand_report,
-            "solver": self.solver,
-            "world": self.world,
-            "dropped": self.dropped,
-            "verdict": self.verdict,
-            "warnings": list(self.warnings),
-        } | ({"sync": self.sync} if self.sync is not None else {})
 
 
 def calibrate(
@@ -255,40 +209,39 @@ def calibrate(
     Rw, tw, world = world_frame(rig, r.R, r.t, GAUGE_CAMERA, static, static_poses, axis, wand=r.wand, points=r.X)
     R, t, wand_pts = apply(Rw, tw, r.R, r.t, r.wand)
     X = r.X @ Rw.T + tw if r.X is not None else None
-    world["scale"] = "wand" if has_wand else "arbitrary"
+    world = WorldFrame.from_json(world | {"scale": "wand" if has_wand else "arbitrary"})
     if not has_wand and not any("scale" in note for note in init.notes):
         warnings.append("no wand: the rig is calibrated up to scale (world.scale is 'arbitrary')")
 
-    cameras = camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings)
+    cameras, found = camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand)
+    warnings += found
     if r.covariance is not None:
         tell({"stage": "uncertainty", "message": "propagating the pose uncertainty into the world frame"})
-        uncertainty_reports(cameras, rig, r, world, (static, static_poses, axis), Rw, tw, has_wand)
+        pose_std, world = uncertainty_reports(rig, r, world, (static, static_poses, axis), Rw, tw, has_wand)
+        cameras = [replace(cam, uncertainty=u) for cam, u in zip(cameras, pose_std)]
     if info.get("refined_intrinsics"):
-        intrinsics_reports(cameras, rig, r.camera_std, info["refined_intrinsics"], warnings)
-    summary_warnings(warnings, dropped, info, method, len(labelled), (rig.ids, cameras))
+        intrinsics, found = intrinsics_reports(rig, r.camera_std, info["refined_intrinsics"])
+        cameras, warnings = [replace(cam, intrinsics=k) for cam, k in zip(cameras, intrinsics)], warnings + found
+    cameras, warnings = with_warnings(cameras, warnings + summary_warnings(dropped, info, method, len(labelled)), rig.ids)
     wand_report = None
     if has_wand:
         lengths = quality.free_wand_lengths(R, t, setup.problem)
-        wand_report = {
-            "length_m": rig.wand_length,
-            "length_mean_m": float(lengths.mean()),
-            "length_std_m": float(lengths.std()),
-            "frames_used": int(setup.problem.n_frames),
-        } | ({"marker_pairs": marker_pairs} if marker_pairs is not None else {})
+        wand_report = WandReport(rig.wand_length, float(lengths.mean()), float(lengths.std()),
+                                 int(setup.problem.n_frames), tuple(marker_pairs) if marker_pairs is not None else None)
     seen_cam, seen_uv = setup.problem.camera, setup.uv
     if tracks is not None and len(tracks):
         seen_cam, seen_uv = np.concatenate([seen_cam, tracks.camera]), np.concatenate([seen_uv, tracks.uv])
-    solver = {"method": method} | info
+    solver = SolverReport(method, info)
     tell({"stage": "judge", "message": "judging the rig and looking for a camera or input at fault"})
     if all_tracks is not None and info.get("refined_intrinsics"):
         all_tracks = replace(all_tracks, xy=undistort_by_camera(rig.cameras, all_tracks.camera, all_tracks.uv))
-    verdict, checks = judge(method, rig, cameras, wand_report, world, R, t, r.labelled, all_tracks, solver,
-                            (seen_cam, seen_uv), (setup.frames, wand_pts) if has_wand else None)
+    cameras, verdict, checks = judge(method, rig, cameras, wand_report, world, R, t, r.labelled, all_tracks, solver,
+                                     (seen_cam, seen_uv), (setup.frames, wand_pts) if has_wand else None)
     warnings += checks
-    solver |= {"total_seconds": time.perf_counter() - started}
+    solver = replace(solver, total_seconds=time.perf_counter() - started)
     tell({"stage": "done", "message": "calibration finished"})
     return CalibrationResult(
-        rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
+        rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=tuple(cameras), wand_report=wand_report,
         solver=solver, world=world, dropped=dropped, warnings=warnings, points=X, verdict=verdict, sync=sync_doc,
     )
 
