@@ -191,7 +191,7 @@ class CameraFigures:
         warnings = doc.get("warnings")
         return cls(
             doc.get("reprojection_rms_px"), doc.get("observations"), doc.get("frames_with_both_ends"),
-            tuple(WorstFrame(w["frame"], w["error_px"]) for w in doc.get("worst_frames") or ()), doc.get("initial_pose"),
+            tuple(WorstFrame(w.get("frame"), w.get("error_px")) for w in doc.get("worst_frames") or ()), doc.get("initial_pose"),
             points, uncertainty, RefinedIntrinsics.from_json(intrinsics) if isinstance(intrinsics, Mapping) else None,
             tuple(warnings) if isinstance(warnings, list) else None, judged, doc.get("verdict"),
         )

@@ -175,7 +175,7 @@ def _solve_only(args, cap, progress):
     if cap.wand is None or not len(cap.wand):
         raise CalibrationError(f"{args.capture}: has no wand blobs; --solve-only needs a fresh wand capture")
     options = {"reject_outliers": not args.keep_outliers, "loss": args.loss}
-    return solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.doc.get("world", {}), entries,
+    return solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.result.world, entries,
                       progress=progress, options=options)
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from wandcal.capture.folder import CaptureFormatError
 from wandcal.capture.formats.export import BOTTOM_LEFT, FORMAT_NAMES, TOP_LEFT, UNITS, export
-from wandcal.capture.results import read_result
+from wandcal.capture.result_file import read_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -21,7 +21,7 @@ from wandcal.calib.start.labels import flatten
 from wandcal.calib.start.world import axis_points
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 from wandcal.capture.folder import Capture, CaptureFormatError
-from wandcal.capture.results import ResultFile
+from wandcal.capture.result_file import ResultFile
 
 COVERAGE_GOAL = DEFAULT_MIN_COVERAGE  # the wanding guidance's goal, and the verdict's "excellent"
 # Residuals are noise, the same over the whole image, when the lens model fits. A camera's samples

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.capture.folder import Capture
-from wandcal.capture.results import ResultFile
+from wandcal.capture.result_file import ResultFile
 from wandcal.service.report.analysis import aligned_observations, triangulated_points, wand_midpoints
 
 SCENE_FORMAT = "wandcal-scene/1"

@@ -18,7 +18,7 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.formats.export import FORMAT_NAMES, export
-from wandcal.capture.results import read_result, result_from_json
+from wandcal.capture.result_file import read_result, result_from_json
 
 # The fields the lead engineer adds in this round (issue 20): a reader must accept them present.
 NEW_CAMERA_FIELDS = {"geometry_std_mm": 0.2, "geometry_rotation_std_deg": 0.01, "residual_mm": 0.3,
