@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
+from typing import NoReturn, cast
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,7 +38,7 @@ MAX_TEXT = 100_000  # a warning or reason is a sentence; a longer string is not 
 MAX_ITEMS = 1_000_000  # lists (worst frames, warnings, faults) are short; a million is damage
 
 
-def _fail(where: str, want: str, value: object) -> None:
+def _fail(where: str, want: str, value: object) -> NoReturn:
     raise CaptureFormatError(f"{where} must be {want}, got {str(value)[:60]!r}")
 
 
@@ -88,7 +89,7 @@ def vector(n: int) -> Check:
     def check(value: object, where: str) -> None:
         if not isinstance(value, list) or len(value) != n:
             _fail(where, f"a list of {n} numbers", value)
-        for i, v in enumerate(value):  # type: ignore[arg-type]
+        for i, v in enumerate(value):
             item(v, f"{where}[{i}]")
     return check
 
@@ -99,7 +100,7 @@ def items(each: Check, nullable: bool = True) -> Check:
             return
         if not isinstance(value, list) or len(value) > MAX_ITEMS:
             _fail(where, "a list", value)
-        for i, v in enumerate(value):  # type: ignore[arg-type]
+        for i, v in enumerate(value):
             each(v, f"{where}[{i}]")
     return check
 
@@ -122,7 +123,7 @@ def obj(fields: dict[str, Check], nullable: bool = True) -> Check:
             return
         if not isinstance(value, dict):
             _fail(where, "a JSON object", value)
-        check_fields(value, fields, where)  # type: ignore[arg-type]
+        check_fields(value, fields, where)
     return check
 
 
@@ -130,7 +131,7 @@ def counts(value: object, where: str) -> None:
     """An object of whole numbers (``dropped``: camera-frames left out, by reason)."""
     if not isinstance(value, dict):
         _fail(where, "a JSON object of whole numbers", value)
-    for key, v in value.items():  # type: ignore[union-attr]
+    for key, v in value.items():
         whole()(v, f"{where}.{key}")
 
 
@@ -138,7 +139,7 @@ def number_map(value: object, where: str) -> None:
     """An object of finite numbers (``world.axis_misalignment_rad``: radians by axis)."""
     if not isinstance(value, dict):
         _fail(where, "a JSON object of numbers", value)
-    for key, v in value.items():  # type: ignore[union-attr]
+    for key, v in value.items():
         number()(v, f"{where}.{key}")
 
 
@@ -238,7 +239,7 @@ def result_from_json(doc: object, source: str = "result", path: Path | None = No
     wand = doc.get("wand")
     length = wand.get("length_m") if isinstance(wand, dict) else None
     try:
-        rig = Rig(cameras, float(length) if length is not None else None)
+        rig = Rig(tuple(cameras), float(length) if length is not None else None)
     except CalibrationError as exc:
         raise CaptureFormatError(f"{source}: {exc}") from None
     R_, t_ = np.array(R), np.array(t)
@@ -265,12 +266,13 @@ def check_result(doc: object, source: str = "result", rig: Rig | None = None) ->
         where = f"{source}: camera {entry.get('id', k)!r}"
         if not isinstance(entry.get("model", "pinhole"), str):
             raise CaptureFormatError(f"{where}: 'model' must be \"pinhole\" or \"fisheye\"")
-        known = by_id.get(entry.get("id")) if isinstance(entry.get("id"), str) else None
+        cam_id = entry.get("id")
+        known = by_id.get(cam_id) if isinstance(cam_id, str) else None
         if known is not None:  # a result without intrinsics takes them from the capture's rig
             entry = {"width": known.width, "height": known.height, "K": known.K.tolist(), "dist": known.dist.tolist(),
                      "model": known.model} | {key: v for key, v in entry.items() if v is not None}
         try:
-            cameras.append(Camera(entry.get("id"), _int(entry, "width", where), _int(entry, "height", where),
+            cameras.append(Camera(cast(str, entry.get("id")), _int(entry, "width", where), _int(entry, "height", where),
                                   _array(entry, "K", (3, 3), where), _array(entry, "dist", None, where),
                                   entry.get("model", "pinhole")))
         except CaptureFormatError:

@@ -57,7 +57,7 @@ def camera_reports(rig: Rig, setup: Setup, R: np.ndarray, t: np.ndarray, wand_pt
     """
     errors = quality.pixel_errors(R, t, wand_pts, setup.problem)
     point_err = point_rows = None
-    if tracks is not None and len(tracks):
+    if tracks is not None and len(tracks) and X is not None:
         point_rows = camera_rows(tracks.camera, len(rig.cameras))
         r = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, X)
         point_err = np.linalg.norm(r * setup.problem.focal[tracks.camera], axis=1)
@@ -101,14 +101,16 @@ def uncertainty_reports(rig: Rig, r: Refined, world: WorldFrame, frame_data: Fra
     points = None
     cameras_used = list(world.details.get("cameras_used") or [])
     if world.frame == "static_object":
-        points = rig.static_markers
+        assert static is not None and rig.static_markers is not None  # what set this frame
+        points = markers = rig.static_markers
         fit = static_fit_expectation(rig, static, static_poses, r.R, r.t, cameras_used)
         if fit is not None:
             world = replace(world, static_fit=StaticFitNoise(fit["static_blob_rms_px"], fit["expected_fit_rms_m"]))
         # the frame's derivative in closed form: one triangulation instead of 6N rebuilds
         point, camera, xy = _static_views(rig, static, static_poses, [rig.index(c) for c in cameras_used])
-        frame.jacobian = lambda Rp, tp: static_frame_jacobian(Rp, tp, point, camera, xy, rig.static_markers)  # type: ignore[attr-defined]
+        frame.jacobian = lambda Rp, tp: static_frame_jacobian(Rp, tp, point, camera, xy, markers)  # type: ignore[attr-defined]
     elif world.frame == "axis":
+        assert axis is not None  # what set this frame
         points = np.array(list(axis_points(rig, axis, r.R, r.t).values())) @ Rw.T + tw
     frame_cov, origin = frame_noise(world.to_json(), rig, points, r.covariance)
     center, rotation, cov = world_uncertainty(r.R, r.t, r.covariance, frame, frame_cov, origin, full=True)
@@ -129,7 +131,8 @@ def intrinsics_reports(rig: Rig, std: np.ndarray, names: list[str]) -> tuple[lis
     intrinsics in ``names``' order (calib/solve/reprojection.py)."""
     out, warnings = [], []
     for c, cam in enumerate(rig.cameras):
-        col, found = 6, {}
+        col = 6
+        found: dict[str, Any] = {}
         for name in names:
             if name == "focal":
                 f, sd = float(cam.K[0, 0]), float(cam.K[0, 0] * std[c, col])

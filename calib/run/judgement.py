@@ -17,6 +17,7 @@ limits and why.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -253,7 +254,7 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
                                   "lengths (rig.json or --focal-px) and that the cameras see the volume from apart"})
     out = [replace(cam, verdict=_camera_verdict(doc, cam_id, faults, extent if scaled else None, rig_noise))
            for cam, doc, cam_id in zip(judged, docs, rig.ids)]
-    named = [{"id": cam_id} | c.to_json() for cam_id, c in zip(rig.ids, out)]
+    named: list[dict[str, Any]] = [{"id": cam_id} | c.to_json() for cam_id, c in zip(rig.ids, out)]
     verdict = rig_verdict(named, wand_doc, faults, extent if scaled else None)
     at_fault = {f["camera"] for f in faults if f["camera"]}
     dragged = [c["id"] for c in named if c["id"] not in at_fault and c["verdict"]["level"] == "poor"]
