@@ -17,9 +17,9 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from typing import NoReturn, cast
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn, cast
 
 import numpy as np
 
