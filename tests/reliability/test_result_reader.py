@@ -91,6 +91,10 @@ def test_unknown_extra_fields_are_tolerated(result_doc, tmp_path):
     path = tmp_path / "result.json"
     path.write_text(json.dumps(doc))
     consume(doc, path)
+    plain = tmp_path / "plain.json"
+    plain.write_text(json.dumps(result_doc))
+    # the known fields read as they do without the unknown ones
+    assert read_result(path).result.to_json() == read_result(plain).result.to_json() == result_from_json(result_doc).result.to_json()
 
 
 def test_any_field_of_any_type_is_read_or_refused_naming_it(result_doc, tmp_path_factory):
