@@ -48,7 +48,7 @@ def brown(session: int, method: str = "ba", intrinsics: str = "optimised", optio
         "result": result,
         "seconds": seconds,
         "wand_score_percent": 100 * w.length_std_m / w.length_mean_m,
-        "wand_frames": w["frames_used"],
+        "wand_frames": w.frames_used,
         "wand_score_on_easywand_frames": _score_on_easywand_frames(result, folder),
         "easywand_wand_score_percent": published["wandScore_percent"],
         "easywand_frames": published["dDLT_wand_lengths_m"]["n"],
