@@ -15,11 +15,12 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError, Failure
 from wandcal.calib.judge import quality
-from wandcal.calib.observations import wand_pairs
+from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.run.camera_reports import camera_reports, summary_warnings, with_warnings
 from wandcal.calib.run.judgement import judge
-from wandcal.calib.run.refine import build_problem, refine, reject_outliers, up_direction
+from wandcal.calib.run.options import CalibrationOptions
+from wandcal.calib.run.refine import Progress, build_problem, refine, reject_outliers, up_direction
 from wandcal.calib.run.result import (
     CalibrationResult,
     CameraFigures,
@@ -38,7 +39,8 @@ MIN_HELD = 2  # the held cameras must triangulate the wand: two at least
 
 
 def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray, solve: list[str], world: WorldFrame,
-               previous: list[CameraFigures] | None = None, progress=None, options: dict | None = None) -> CalibrationResult:
+               previous: list[CameraFigures] | None = None, progress: Progress | None = None,
+               options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:  # noqa: B008  (frozen)
     """Re-solve the cameras named in ``solve``; every other camera keeps (R0, t0) exactly.
 
     Args:
@@ -48,13 +50,16 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
         solve: ids of the cameras to re-solve.
         world: the previous result's world frame (kept: the held cameras carry its frame).
         previous: the previous result's camera figures (rig order), for the held cameras' uncertainty.
-        options: ``loss``, ``reject_outliers`` as :func:`wandcal.calib.run.calibrate.calibrate`'s.
+        options: ``loss`` and ``reject_outliers`` are used; the method must be ``ba``, with the
+            intrinsics held.
 
     Raises:
         CalibrationError: an unknown id, too few held cameras, or a camera that cannot be placed.
     """
-    options = dict(options or {})
-    tell = progress or (lambda event: None)
+    options.check()
+    if options.method != "ba" or options.refine_intrinsics:
+        raise CalibrationError("--solve-only re-solves poses with --method ba only, intrinsics held")
+    tell: Progress = progress or (lambda event: None)
     started = time.perf_counter()
     if rig.wand_length is None:
         raise CalibrationError("--solve-only needs a wand capture: rig.json gives no wand.length_m")
@@ -66,32 +71,18 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
                                "to re-solve more, calibrate the whole rig")
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs"})
     pairs = wand_pairs(rig, wand)
-    R, t = R0.copy(), t0.copy()
     tell({"stage": "initial", "message": "placing the re-solved cameras against the held ones"})
-    held, _ = label_ends(R, t, pairs, ~moving, rig.wand_length)
-    point, camera, xy = flatten(held)
-    ends = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
-    source = ["previous result" for _ in rig.cameras]
-    for c in np.flatnonzero(moving):
-        mine = pairs.camera == c
-        seen = np.all(np.isfinite(ends[pairs.frame[mine]]), axis=(1, 2))
-        pose = resect_camera(ends[pairs.frame[mine]][seen], pairs.xy[mine][seen], np.zeros((0, 3)), np.zeros((0, 2)),
-                             float(rig.cameras[c].focal.mean()))
-        if isinstance(pose, Failure):
-            raise CalibrationError(f"{rig.cameras[c].id} could not be placed against the held cameras ({pose}); "
-                                   f"wave the wand where {rig.cameras[c].id} and two held cameras see it")
-        R[c], t[c] = pose
-        source[c] = "wand resection against the held cameras"
+    init = _placed_against_held(rig, pairs, R0, t0, moving)
+    R, t = init.R, init.t
     tell({"stage": "labels", "message": "telling the wand ends apart"})
     labelled = label_ends(R, t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0]
     setup = build_problem(rig, labelled, R, t, ~moving)
-    polish = options.get("reject_outliers", True) and (options.get("loss") or "cauchy") != "linear"
-    r = refine(rig, labelled, setup, None, None, "ba", options, tell, up_direction(rig, R, t, setup), final=not polish)
-    if options.get("reject_outliers", True):
+    r = refine(rig, labelled, setup, None, None, "ba", options, tell, up_direction(rig, R, t, setup),
+               final=not options.polish)
+    if options.reject_outliers:
         r = reject_outliers(r, "ba", options, tell)
     R_new, t_new = r.R.copy(), r.t.copy()
     R_new[~moving], t_new[~moving] = R0[~moving], t0[~moving]  # held: bit for bit
-    init = Initial(R, t, source)
     cameras, warnings = camera_reports(rig, r.setup, R_new, t_new, r.wand, init, None, None, True)
     if r.covariance is not None:
         # the world is the held cameras': the re-solved poses' uncertainty given them
@@ -120,3 +111,24 @@ def _held_or_new(k: int, moving: np.ndarray, center: np.ndarray, rotation: np.nd
         return PoseUncertainty(float(1000 * center[k]), float(np.degrees(rotation[k])))
     old = previous[k].uncertainty if previous is not None else None
     return PoseUncertainty(old.center_std_mm if old else None, old.rotation_std_deg if old else None)
+
+
+def _placed_against_held(rig: Rig, pairs: WandPairs, R0: np.ndarray, t0: np.ndarray, moving: np.ndarray) -> Initial:
+    """The start poses: the held cameras' (R0, t0) as they are, each ``moving`` (N,) bool camera
+    resected against the wand ends the held cameras triangulate (wand_length set)."""
+    R, t = R0.copy(), t0.copy()
+    held, _ = label_ends(R, t, pairs, ~moving, rig.wand_length)
+    point, camera, xy = flatten(held)
+    ends = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
+    source = ["previous result" for _ in rig.cameras]
+    for c in np.flatnonzero(moving):
+        mine = pairs.camera == c
+        seen = np.all(np.isfinite(ends[pairs.frame[mine]]), axis=(1, 2))
+        pose = resect_camera(ends[pairs.frame[mine]][seen], pairs.xy[mine][seen], np.zeros((0, 3)), np.zeros((0, 2)),
+                             float(rig.cameras[c].focal.mean()))
+        if isinstance(pose, Failure):
+            raise CalibrationError(f"{rig.cameras[c].id} could not be placed against the held cameras ({pose}); "
+                                   f"wave the wand where {rig.cameras[c].id} and two held cameras see it")
+        R[c], t[c] = pose
+        source[c] = "wand resection against the held cameras"
+    return Initial(R, t, source)

@@ -7,6 +7,7 @@ import pytest
 
 from bench import real_sessions as rs
 from wandcal.calib.geometry import kabsch
+from wandcal.calib.run.options import CalibrationOptions
 
 pytestmark = pytest.mark.shared_data
 
@@ -102,7 +103,7 @@ def test_score_per_pixel_is_the_spread_simulated_noise_gives():
 
 def test_brown_session_1_refines_rough_focal_lengths():
     """Start from the profile's focal lengths (up to 2.7% off easyWand's optimised ones)."""
-    got = rs.brown(1, "ba", intrinsics="profile", options={"refine_intrinsics": ("focal",)})
+    got = rs.brown(1, "ba", intrinsics="profile", options=CalibrationOptions(refine_intrinsics=("focal",)))
     score, n = got["wand_score_on_easywand_frames"]
     rel = np.array(got["focal_px"]) / got["easywand_focal_px"] - 1
     print(f"\nBrown cal1 from profile focals: refined {np.round(got['focal_px'], 1)} vs easyWand "

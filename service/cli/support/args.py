@@ -11,8 +11,6 @@ import argparse
 import math
 
 MAX_SEED = 2**32 - 1  # numpy's seeds are unsigned; a bound keeps them printable and portable
-MAX_SYNC_OFFSET = 10_000  # --sync-max-offset, frames: 100 s at 100 fps; further off is another recording
-MAX_FRAME_RATE_HZ = 1_000_000.0  # the fastest high-speed cameras record at about this; more is a typo
 
 
 def whole(low: int, high: int | None = None):

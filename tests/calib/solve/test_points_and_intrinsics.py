@@ -15,6 +15,7 @@ from wandcal.calib.judge.crb import gauge_errors, pose_crb
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.rig import AxisObservations, Camera, Rig
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import build_problem
 from wandcal.calib.sim.scenes import pairwise_points, pairwise_wand
 from wandcal.calib.sim.simulate import simulate_capture
@@ -28,7 +29,7 @@ def test_a_rig_whose_cameras_share_only_pairwise_views_calibrates():
     for seed in (3, 11):
         sim = simulate_capture(6, 600, NOISE, static=False, seed=seed)
         wand = pairwise_wand(sim, np.random.default_rng(seed))
-        result = calibrate(sim.rig, wand, None, "ba")
+        result = calibrate(sim.rig, wand, None)
         # the bound of the same observations, labelled at the truth, in camera 0's gauge
         pairs = wand_pairs(sim.rig, wand)
         labelled, _ = label_ends(sim.truth.R, sim.truth.t, pairs, np.ones(6, bool), sim.rig.wand_length)
@@ -45,7 +46,7 @@ def test_points_only_calibrates_up_to_scale():
     sim = simulate_capture(6, 10, NOISE, static=False, seed=4)
     rig = Rig(sim.rig.cameras, None)
     points = pairwise_points(sim, 1500, np.random.default_rng(4), noise_px=NOISE)
-    result = calibrate(rig, None, None, "ba", points=points)
+    result = calibrate(rig, None, None, points=points)
     assert result.world.scale == "arbitrary" and result.wand_report is None
     C, Ct = result.centers, sim.truth.centers
     Ra, ta, s = kabsch(C, Ct, scale=True)
@@ -64,7 +65,7 @@ def test_wand_length_absent_refuses_other_methods_with_a_reason():
     from wandcal.calib.errors import CalibrationError
 
     with pytest.raises(CalibrationError, match="--method ba or lp, not 'paper'"):
-        calibrate(Rig(sim.rig.cameras, None), None, None, "paper", points=points)
+        calibrate(Rig(sim.rig.cameras, None), None, None, points=points, options=CalibrationOptions(method="paper"))
 
 
 def test_axis_points_set_the_world_frame():
@@ -78,7 +79,7 @@ def test_axis_points_set_the_world_frame():
             p = distort_points(cam, project_normalized(sim.truth.R[c], sim.truth.t[c], np.array([X])))[0]
             role.append(name), camera.append(c), uv.append(p + rng.normal(0, 0.3 / np.sqrt(50), 2))  # averaged over 50 frames
     axis = AxisObservations(role, camera, uv)
-    result = calibrate(sim.rig, sim.wand, None, "ba", axis=axis)
+    result = calibrate(sim.rig, sim.wand, None, axis=axis)
     assert result.world.frame == "axis" and result.world.details["axes_given"] == ["+z", "+x"]
     err = np.linalg.norm(result.centers - sim.truth.centers, axis=1)
     # 6 rays of 0.04 px put each axis point within ~0.1 mm; +z over 0.5 m then tilts the frame by
@@ -95,8 +96,8 @@ def test_intrinsics_refinement_recovers_a_3_percent_focal_error():
         K[:2, :2] *= 1 + 0.03 * sign
         cams.append(Camera(c.id, c.width, c.height, K, c.dist))
     rough = dataclasses.replace(sim.rig, cameras=tuple(cams))
-    held = calibrate(rough, sim.wand, sim.static, "ba")
-    fitted = calibrate(rough, sim.wand, sim.static, "ba", options={"refine_intrinsics": ("focal",)})
+    held = calibrate(rough, sim.wand, sim.static)
+    fitted = calibrate(rough, sim.wand, sim.static, options=CalibrationOptions(refine_intrinsics=("focal",)))
     true_f = np.array([c.K[0, 0] for c in sim.rig.cameras])
     got = np.array([cam.intrinsics.focal_px for cam in fitted.cameras])
     std = np.array([cam.intrinsics.focal_std_px for cam in fitted.cameras])

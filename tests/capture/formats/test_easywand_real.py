@@ -10,6 +10,7 @@ import pytest
 from wandcal.calib.geometry import undistort_points
 from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.triangulate import triangulate_points
 from wandcal.capture.formats.easywand import read_easywand
 
@@ -41,7 +42,7 @@ def _distances(C):
 @pytest.mark.parametrize("method", ["ba", "lp"])
 def test_wand_only_calibration_matches_easywand(session, method):
     folder, ref, rig, wand = session
-    result = calibrate(rig, wand, None, method)
+    result = calibrate(rig, wand, None, options=CalibrationOptions(method=method))
     published = ref["published_result"]
     score = 100 * result.wand_report.length_std_m / result.wand_report.length_mean_m
     # easyWand's wand score is 0.95% with refined intrinsics and extra background points; ours,
@@ -59,7 +60,7 @@ def test_wand_only_calibration_matches_easywand(session, method):
 def test_gravity_from_a_thrown_object(session):
     """An independent check of scale: a thrown object triangulated with our cameras falls at g."""
     folder, ref, rig, wand = session
-    result = calibrate(rig, wand, None, "ba")
+    result = calibrate(rig, wand, None)
     rows = np.genfromtxt(folder / "axis_pts_raw.csv", delimiter=",", skip_header=1)[:, 1:]
     point, camera, xy = [], [], []
     for c, cam in enumerate(rig.cameras):
