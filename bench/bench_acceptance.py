@@ -55,7 +55,7 @@ def main() -> int:
     for method, seconds, raw, aligned, solver in rows:
         ratio = aligned_rms[method] / aligned_rms["ba"] if "ba" in aligned_rms else float("nan")
         body.append(
-            f"| {method} | {seconds:.1f} | {solver['status']} ({solver['iterations']} iterations) | {raw.max():.3f} | "
+            f"| {method} | {seconds:.1f} | {solver.status} ({solver.iterations} iterations) | {raw.max():.3f} | "
             f"{aligned.max():.3f} / {aligned_rms[method]:.3f} | {ratio:.2f} |"
         )
     text = "\n".join(body)

@@ -50,8 +50,8 @@ def brown(session: int, method: str = "ba", intrinsics: str = "optimised", optio
     return {
         "result": result,
         "seconds": seconds,
-        "wand_score_percent": 100 * w["length_std_m"] / w["length_mean_m"],
-        "wand_frames": w["frames_used"],
+        "wand_score_percent": 100 * w.length_std_m / w.length_mean_m,
+        "wand_frames": w.frames_used,
         "wand_score_on_easywand_frames": _score_on_easywand_frames(result, folder),
         "easywand_wand_score_percent": published["wandScore_percent"],
         "easywand_frames": published["dDLT_wand_lengths_m"]["n"],
@@ -163,11 +163,11 @@ def ushichka(method: str = "ba") -> dict:
     return {
         "result": result,
         "folder": folder,
-        "wand_mean_m": w["length_mean_m"],
-        "wand_std_m": w["length_std_m"],
-        "wand_score_percent": 100 * w["length_std_m"] / w["length_mean_m"],
+        "wand_mean_m": w.length_mean_m,
+        "wand_std_m": w.length_std_m,
+        "wand_score_percent": 100 * w.length_std_m / w.length_mean_m,
         "easywand_wand_score_percent": ref["published_result"]["wandScore_percent"],
-        "rms_per_axis_px": [c["reprojection_rms_px"] / np.sqrt(2) for c in result.cameras],
+        "rms_per_axis_px": [c.reprojection_rms_px / np.sqrt(2) for c in result.cameras],
         "easywand_dlt_rmse_px": ref["published_result"]["dltRMSE_px_per_camera"],
         "reference_centres": np.array([c["camera_centre_world_m"] for c in ref["reference_cameras_derived_from_dlt"]]),
     }

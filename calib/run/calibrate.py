@@ -10,17 +10,23 @@ judgement; what one step hands the next is a small frozen dataclass.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError, Failure
-from wandcal.calib.geometry import camera_centers, undistort_by_camera
+from wandcal.calib.geometry import undistort_by_camera
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import PointTracks, WandPairs, point_tracks, robust_sigma, wand_pairs
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
-from wandcal.calib.run.camera_reports import camera_reports, intrinsics_reports, summary_warnings, uncertainty_reports
+from wandcal.calib.run.camera_reports import (
+    camera_reports,
+    intrinsics_reports,
+    summary_warnings,
+    uncertainty_reports,
+    with_warnings,
+)
 from wandcal.calib.run.judgement import judge
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import (
@@ -35,6 +41,13 @@ from wandcal.calib.run.refine import (
     triangulated,
     up_direction,
 )
+from wandcal.calib.run.result import (
+    CalibrationResult,
+    CameraFigures,
+    SolverReport,
+    WandReport,
+    WorldFrame,
+)
 from wandcal.calib.solve.sync import TimeColumns, Tracks, fit_timing, sync_report
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture
@@ -46,63 +59,6 @@ from wandcal.calib.start.world import apply, world_frame
 
 if TYPE_CHECKING:
     from wandcal.calib.start.markerlabels import MarkerBlobs
-
-RESULT_FORMAT = "wandcal-result/1"
-
-
-@dataclass(eq=False)
-class CalibrationResult:
-    """Poses in the world frame and everything the report needs.
-
-    R: (N, 3, 3), t: (N, 3) world->camera, metres; wand: (F, 2, 3) wand ends, metres.
-    """
-
-    rig: Rig
-    R: np.ndarray
-    t: np.ndarray
-    wand: np.ndarray
-    frames: np.ndarray
-    cameras: list[dict]
-    wand_report: dict | None
-    solver: dict
-    world: dict
-    dropped: dict
-    warnings: list[str] = field(default_factory=list)
-    points: np.ndarray | None = None  # (T, 3) the single-point tracks' refined points, world frame
-    verdict: dict | None = None  # the rig's {"level", "reasons"} (calib/judge/verdict.py)
-    sync: dict | None = None  # the cameras' time offsets under options["sync"] = "auto" (docs/sync.md)
-
-    @property
-    def centers(self) -> np.ndarray:
-        return camera_centers(self.R, self.t)
-
-    def to_json(self) -> dict:
-        cams = []
-        for i, cam in enumerate(self.rig.cameras):
-            entry = {
-                "id": cam.id,
-                "R": self.R[i].tolist(),
-                "t": self.t[i].tolist(),
-                "center": self.centers[i].tolist(),
-                "K": cam.K.tolist(),
-                "dist": cam.dist.tolist(),
-                "width": cam.width,
-                "height": cam.height,
-            }
-            if cam.model != "pinhole":
-                entry["model"] = cam.model
-            cams.append(entry | self.cameras[i])
-        return {
-            "format": RESULT_FORMAT,
-            "cameras": cams,
-            "wand": self.wand_report,
-            "solver": self.solver,
-            "world": self.world,
-            "dropped": self.dropped,
-            "verdict": self.verdict,
-            "warnings": list(self.warnings),
-        } | ({"sync": self.sync} if self.sync is not None else {})
-
 
 
 
@@ -162,7 +118,7 @@ class Solved:
 class Placed:
     """The rig in the world frame: R (N, 3, 3), t (N, 3) world->camera, metres; wand (F, 2, 3)
     ends and X (T, 3) points, metres; Rw, tw the map x_world = Rw x + tw from the gauge frame;
-    world: the result's ``world`` section."""
+    world: the result's world frame."""
 
     R: np.ndarray
     t: np.ndarray
@@ -170,7 +126,7 @@ class Placed:
     X: np.ndarray | None
     Rw: np.ndarray
     tw: np.ndarray
-    world: dict
+    world: WorldFrame
 
 
 def calibrate(
@@ -214,13 +170,14 @@ def calibrate(
     start, sync = _subframe_sync(rig, start, sync, options)
     solved = _refine(rig, obs, start, sync, options, tell, warnings)
     placed = _world(solved, obs, start, (static, axis), tell, warnings)
-    cameras, wand_report = _figures(solved, obs, start, placed, (static, axis), options.method, tell, warnings)
-    verdict, solver = _judgement(solved, obs, placed, cameras, wand_report, options.method, tell, warnings)
-    solver |= {"total_seconds": time.perf_counter() - started}
+    cameras, wand_report, world = _figures(solved, obs, start, placed, (static, axis), options.method, tell, warnings)
+    placed = replace(placed, world=world)
+    cameras, verdict, solver = _judgement(solved, obs, placed, cameras, wand_report, options.method, tell, warnings)
+    solver = replace(solver, total_seconds=time.perf_counter() - started)
     tell({"stage": "done", "message": "calibration finished"})
     r = solved.r
     return CalibrationResult(
-        rig=r.rig, R=placed.R, t=placed.t, wand=placed.wand, frames=r.setup.frames, cameras=cameras,
+        rig=r.rig, R=placed.R, t=placed.t, wand=placed.wand, frames=r.setup.frames, cameras=tuple(cameras),
         wand_report=wand_report, solver=solver, world=placed.world, dropped=solved.dropped, warnings=warnings,
         points=placed.X, verdict=verdict, sync=solved.sync,
     )
@@ -400,59 +357,63 @@ def _world(solved: Solved, obs: Observations, start: Start,
     Rw, tw, world = world_frame(r.rig, r.R, r.t, GAUGE_CAMERA, static, start.static_poses, axis, wand=r.wand, points=r.X)
     R, t, wand_pts = apply(Rw, tw, r.R, r.t, r.wand)
     X = r.X @ Rw.T + tw if r.X is not None else None
-    world["scale"] = "wand" if obs.has_wand else "arbitrary"
+    placed_world = WorldFrame.from_json(world | {"scale": "wand" if obs.has_wand else "arbitrary"})
     if not obs.has_wand and not any("scale" in note for note in start.init.notes):
         warnings.append("no wand: the rig is calibrated up to scale (world.scale is 'arbitrary')")
-    return Placed(R=R, t=t, wand=wand_pts, X=X, Rw=Rw, tw=tw, world=world)
+    return Placed(R=R, t=t, wand=wand_pts, X=X, Rw=Rw, tw=tw, world=placed_world)
 
 
 def _figures(solved: Solved, obs: Observations, start: Start, placed: Placed,
              frame_data: tuple[StaticObservations | None, AxisObservations | None], method: str, tell: Progress,
-             warnings: list[str]) -> tuple[list[dict], dict | None]:
-    """Each camera's figures (errors, uncertainty in the world frame, refined intrinsics), the
-    summary warnings and the wand's report (None without a wand)."""
-    r = solved.r
+             warnings: list[str]) -> tuple[list[CameraFigures], WandReport | None, WorldFrame]:
+    """Each camera's figures (errors, uncertainty in the world frame, refined intrinsics, its
+    warnings), the summary warnings (``warnings`` folded in place), the wand's report (None
+    without a wand) and the world frame with its placement's uncertainty."""
+    r, world = solved.r, placed.world
     rig, setup, info = r.rig, r.setup, r.info
-    cameras = camera_reports(rig, setup, placed.R, placed.t, placed.wand, start.init, r.tracks, placed.X, obs.has_wand,
-                             warnings)
+    cameras, found = camera_reports(rig, setup, placed.R, placed.t, placed.wand, start.init, r.tracks, placed.X,
+                                    obs.has_wand)
+    warnings += found
     if r.covariance is not None:
         tell({"stage": "uncertainty", "message": "propagating the pose uncertainty into the world frame"})
         static, axis = frame_data
-        uncertainty_reports(cameras, rig, r, placed.world, (static, start.static_poses, axis), placed.Rw, placed.tw,
-                            obs.has_wand)
+        pose_std, world = uncertainty_reports(rig, r, world, (static, start.static_poses, axis), placed.Rw, placed.tw,
+                                              obs.has_wand)
+        cameras = [replace(cam, uncertainty=u) for cam, u in zip(cameras, pose_std)]
     if info.get("refined_intrinsics") and r.camera_std is not None:
-        intrinsics_reports(cameras, rig, r.camera_std, info["refined_intrinsics"], warnings)
-    summary_warnings(warnings, solved.dropped, info, method, len(start.labelled), (rig.ids, cameras))
+        intrinsics, found = intrinsics_reports(rig, r.camera_std, info["refined_intrinsics"])
+        cameras = [replace(cam, intrinsics=k) for cam, k in zip(cameras, intrinsics)]
+        warnings += found
+    cameras, warnings[:] = with_warnings(cameras, warnings + summary_warnings(solved.dropped, info, method,
+                                                                              len(start.labelled)), rig.ids)
     if not obs.has_wand:
-        return cameras, None
+        return cameras, None, world
     lengths = quality.free_wand_lengths(placed.R, placed.t, setup.problem)
-    wand_report = {
-        "length_m": rig.wand_length,
-        "length_mean_m": float(lengths.mean()),
-        "length_std_m": float(lengths.std()),
-        "frames_used": int(setup.problem.n_frames),
-    } | ({"marker_pairs": solved.marker_pairs} if solved.marker_pairs is not None else {})
-    return cameras, wand_report
+    pairs = solved.marker_pairs
+    return cameras, WandReport(rig.wand_length, float(lengths.mean()), float(lengths.std()), int(setup.problem.n_frames),
+                               tuple(pairs) if pairs is not None else None), world
 
 
-def _judgement(solved: Solved, obs: Observations, placed: Placed, cameras: list[dict], wand_report: dict | None,
-               method: str, tell: Progress, warnings: list[str]) -> tuple[dict, dict]:
-    """The rig's verdict (calib/run/judgement.py) on every observation, point tracks included,
-    its checks appended to ``warnings``; and the solver's report."""
+def _judgement(solved: Solved, obs: Observations, placed: Placed, cameras: list[CameraFigures],
+               wand_report: WandReport | None, method: str, tell: Progress, warnings: list[str]
+               ) -> tuple[list[CameraFigures], dict, SolverReport]:
+    """The cameras' figures judged and the rig's verdict (calib/run/judgement.py) on every
+    observation, point tracks included, its checks appended to ``warnings``; and the solver's report."""
     r = solved.r
     rig, setup, info = r.rig, r.setup, r.info
     seen_cam, seen_uv = setup.problem.camera, setup.uv
     if r.tracks is not None and len(r.tracks):
         seen_cam, seen_uv = np.concatenate([seen_cam, r.tracks.camera]), np.concatenate([seen_uv, r.tracks.uv])
-    solver = {"method": method} | info
+    solver = SolverReport(method, info)
     tell({"stage": "judge", "message": "judging the rig and looking for a camera or input at fault"})
     every_track = solved.every_track  # every method is judged on the same observations, point tracks included
     if every_track is not None and info.get("refined_intrinsics"):
         every_track = replace(every_track, xy=undistort_by_camera(rig.cameras, every_track.camera, every_track.uv))
-    verdict, checks = judge(method, rig, cameras, wand_report, placed.world, placed.R, placed.t, r.labelled, every_track,
-                            solver, (seen_cam, seen_uv), (setup.frames, placed.wand) if obs.has_wand else None)
+    cameras, verdict, checks = judge(method, rig, cameras, wand_report, placed.world, placed.R, placed.t, r.labelled,
+                                     every_track, solver, (seen_cam, seen_uv),
+                                     (setup.frames, placed.wand) if obs.has_wand else None)
     warnings += checks
-    return verdict, solver
+    return cameras, verdict, solver
 
 
 def _marker_blobs(rig: Rig, wand: WandObservations) -> MarkerBlobs | None:

@@ -123,7 +123,7 @@ def _solve_only(args, cap, options, progress):
     prev, rig, R, t, entries = result_for(args.from_result, cap)
     if cap.wand is None or not len(cap.wand):
         raise CalibrationError(f"{args.capture}: has no wand blobs; --solve-only needs a fresh wand capture")
-    return solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.doc.get("world", {}), entries,
+    return solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.result.world, entries,
                       progress=progress, options=options)
 
 

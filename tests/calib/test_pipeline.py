@@ -25,7 +25,7 @@ def test_world_frame_from_the_l_frame():
     sim = simulate_capture(6, 400, NOISE, seed=21)
     result = calibrate(sim.rig, sim.wand, sim.static)
     raw, aligned = _errors(result, sim)
-    assert result.world["frame"] == "static_object"
+    assert result.world.frame == "static_object"
     # world frame error is set by the averaged L-frame blobs (NOISE / sqrt(100) = 0.03 px): from
     # ~4 m with f ~ 1100 px that is ~0.1 mm per marker, which tilts a 0.35-0.5 m L-frame by
     # ~0.3 mrad, i.e. ~1 mm at the cameras; 3 mm is a >3-sigma margin
@@ -46,7 +46,7 @@ def test_world_frame_from_the_l_frame():
 def test_wand_only_world_is_the_wand_volume():
     sim = simulate_capture(5, 400, NOISE, static=False, seed=22)
     result = calibrate(sim.rig, sim.wand, None)
-    assert result.world["frame"] == "wand_volume" and result.world["x_camera"] == "cam1"
+    assert result.world.frame == "wand_volume" and result.world.details["x_camera"] == "cam1"
     # the frame's definition, exactly (float rounding only): origin at the wand midpoints'
     # centroid, z against the cameras' mean image-down, x along cam1's image-right made level
     assert np.abs(result.wand.mean(axis=(0, 1))).max() < 1e-9
@@ -144,7 +144,7 @@ def test_paper_method_end_to_end_small_rig():
     sim = simulate_capture(4, 120, NOISE, seed=29)
     result = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method="paper", max_rounds=6))
     ba = calibrate(sim.rig, sim.wand, sim.static)
-    assert result.solver["method"] == "paper" and result.solver["iterations"] >= 1
+    assert result.solver.method == "paper" and result.solver.iterations >= 1
     _, aligned = _errors(result, sim)
     _, ba_aligned = _errors(ba, sim)
     assert aligned.max() < 4 * ba_aligned.max() + 0.001
@@ -163,7 +163,7 @@ def test_one_camera_missing_the_static_object_is_placed_from_the_wand():
     partial = StaticObservations(sim.static.camera[keep], sim.static.uv[keep])
     result = calibrate(sim.rig, sim.wand, partial)
     assert any("cam3" in w and "placed from the wand" in w for w in result.warnings)
-    assert result.cameras[2]["initial_pose"] == "wand resection"
+    assert result.cameras[2].initial_pose == "wand resection"
     _, aligned = _errors(result, sim)
     assert aligned.max() < 0.002
 

@@ -111,7 +111,7 @@ def test_brown_session_1_refines_rough_focal_lengths():
     assert np.all(np.abs(rel) <= 0.01)  # the goal
     assert score <= got["easywand_wand_score_percent"]
     for cam in got["result"].cameras:
-        assert cam["intrinsics"]["focal_std_px"] < 0.005 * cam["intrinsics"]["focal_px"]
+        assert cam.intrinsics.focal_std_px < 0.005 * cam.intrinsics.focal_px
 
 
 def test_brown_sessions_show_the_rig_moved_between_the_two_dates():
@@ -149,7 +149,7 @@ def test_multicamselfcal_tracks_calibrate_up_to_scale():
     print(f"\nMultiCamSelfCal caldata20130726: mean 2D error {got['mean_error_px']:.3f} px over {got['inliers']} of "
           f"{got['observations']} observations (toolbox: 0.62 px on its sister set); centres vs "
           f"original_cam_centers.dat {np.round(got['centre_diff_mm'], 1)} mm after similarity alignment")
-    assert result.world["scale"] == "arbitrary" and result.wand_report is None
+    assert result.world.scale == "arbitrary" and result.wand_report is None
     assert got["mean_error_px"] <= got["published_mean_error_px"]  # the goal
     # the earlier calibration of the same rig (Align-Existing); a gross error would be a
     # sizeable fraction of the 0.8 m rig

@@ -25,7 +25,7 @@ from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import Capture, read_capture, write_capture
-from wandcal.capture.results import read_result, result_from_json
+from wandcal.capture.result_file import read_result, result_from_json
 from wandcal.service.report import INSTALL_HINT, RIG_PNG, WAND_PNG, ReportUnavailable, camera_png
 from wandcal.service.report.analysis import analyse, rim_ratio
 from wandcal.service.report.figures import (

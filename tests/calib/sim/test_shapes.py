@@ -24,8 +24,8 @@ def test_ba_converges_on_every_shape(kind):
     cameras, size = SMALL[kind]
     sim = simulate_shape(RigShape(kind, cameras, size), frames=800, noise_px=NOISE_PX, outliers=0.02, seed=3)
     result = calibrate(sim.rig, sim.wand, sim.static)
-    assert result.solver["status"] == "converged"
-    assert result.solver["iterations"] <= MAX_ITERATIONS
+    assert result.solver.status == "converged"
+    assert result.solver.iterations <= MAX_ITERATIONS
     focal = np.mean([c.focal for c in sim.rig.cameras])
     distance = np.median(np.linalg.norm(sim.truth.centers - sim.truth.wand.mean(axis=1).mean(axis=0), axis=1))
     assert aligned_rms_mm(result.centers, sim.truth.centers) < NOISE_MARGIN * NOISE_PX / focal * distance * 1000

@@ -96,7 +96,7 @@ def test_a_synchronised_capture_under_auto_reports_zero_and_matches_none():
     z = found[1:] / std[1:]
     assert np.sum(z**2) < chi2.ppf(1 - CHI2_TAIL, len(z)), z
     assert not any("out of time" in w for w in auto.warnings)
-    sigma_mm = np.array([c["center_std_mm"] for c in none.cameras])
+    sigma_mm = np.array([c.uncertainty.center_std_mm for c in none.cameras])
     moved_mm = np.linalg.norm(auto.centers - none.centers, axis=1) * 1000
     assert np.all(moved_mm < sigma_mm), (moved_mm, sigma_mm)
     assert "sync" not in none.to_json() and auto.to_json()["sync"]["mode"] == "auto"

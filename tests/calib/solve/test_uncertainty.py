@@ -66,8 +66,8 @@ def test_predicted_uncertainty_matches_the_real_error_spread(static):
             # the result's frame built from the true poses and wand by the same rule
             Rw, tw, _ = world_frame(sim.rig, T.R, T.t, 0, wand=T.wand)
             Rt, tt, _ = apply(Rw, tw, T.R, T.t, np.zeros((0, 3)))
-        pred_c = np.array([c["center_std_mm"] for c in res.cameras]) / 1000
-        pred_r = np.radians([c["rotation_std_deg"] for c in res.cameras])
+        pred_c = np.array([c.uncertainty.center_std_mm for c in res.cameras]) / 1000
+        pred_r = np.radians([c.uncertainty.rotation_std_deg for c in res.cameras])
         err_c = np.linalg.norm(res.centers - camera_centers(Rt, tt), axis=1)
         err_r = rotation_angle(res.R, Rt)
         use = pred_c > 0  # a camera that is the world frame itself has no error to predict

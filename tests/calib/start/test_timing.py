@@ -117,7 +117,7 @@ def test_a_real_session_with_one_camera_shifted_by_whole_frames(shared_data, ses
     found = calibrate(cap.rig, shifted, points=cap.points, axis=cap.axis, options=CalibrationOptions(sync="auto"))
     offsets = [c["offset_frames"] for c in found.sync["cameras"]]
     assert offsets == pytest.approx([0, 0, -2, 0], abs=1e-9)
-    sigma_mm = np.array([c["center_std_mm"] for c in plain.cameras])
+    sigma_mm = np.array([c.uncertainty.center_std_mm for c in plain.cameras])
     assert np.all(np.linalg.norm(found.centers - plain.centers, axis=1) * 1000 < sigma_mm)
     # the unshifted session under --sync auto: offsets of zero, the same calibration
     auto = calibrate(cap.rig, w, points=cap.points, axis=cap.axis, options=CalibrationOptions(sync="auto"))
