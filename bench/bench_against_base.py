@@ -85,7 +85,7 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
-    pinned = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    pinned = dict.fromkeys(("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"), "1")
     rows = ["| base | rig | outliers | tree | process wall (s) | process CPU (s) | solver (s) | head / base (wall, CPU) |",
             "|---|---|---|---|---|---|---|---|"]
     for spec in args.base:

@@ -46,8 +46,8 @@ def main() -> None:
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/benchmarks.md alone")
     args = parser.parse_args()
     load_average = os.getloadavg()[0]  # other jobs on a shared machine slow every figure below
-    with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
         (tmp / "replay").mkdir()
         folder, _ = simulated_capture(tmp / "capture", cameras=4, frames=300, noise_px=0.3, seed=11)
         sim8 = simulate_capture(cameras=8, frames=POOL, noise_px=0.3, seed=1)

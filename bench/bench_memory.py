@@ -92,7 +92,7 @@ def measure_csv(calibrate: bool) -> list[str]:
 
 
 def server_hwm(pid: int) -> int:
-    for line in open(f"/proc/{pid}/status"):
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmHWM:"):
             return int(line.split()[1]) * 1024
     raise RuntimeError("no VmHWM")

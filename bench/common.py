@@ -3,6 +3,7 @@ writing a section of docs/benchmarks.md."""
 
 from __future__ import annotations
 
+import contextlib
 import platform
 import re
 import sys
@@ -45,10 +46,8 @@ def peak_rss_mb() -> float:
 
 def reset_peak_rss() -> None:
     """Start :func:`peak_rss_mb` again from the present resident set (Linux's clear_refs 5)."""
-    try:
+    with contextlib.suppress(OSError):
         Path("/proc/self/clear_refs").write_text("5")
-    except OSError:
-        pass
 
 
 def machine() -> str:
@@ -72,10 +71,7 @@ def replace_section(title: str, content: str) -> None:
     text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\nEach section was written by the command it names, on the machine it names.\n"
     section = f"## {title}\n\n{content.strip()}\n"
     pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(text):
-        text = pattern.sub(lambda _: section + "\n", text)
-    else:
-        text = text.rstrip() + "\n\n" + section
+    text = pattern.sub(lambda _: section + "\n", text) if pattern.search(text) else text.rstrip() + "\n\n" + section
     DOC.write_text(text.rstrip() + "\n")
 
 

@@ -259,7 +259,7 @@ def _background_rows(frames: int) -> tuple[list[str], str]:
             "empty": lambda kind, empty=empty: CameraDetector(DetectConfig(background="empty"),
                                                               background=empty[kind]),
         }
-        best = {name: np.inf for name in ["frame copy", *models]}
+        best = dict.fromkeys(["frame copy", *models], np.inf)
         for _ in range(REPEATS):  # round robin: a busy spell of the shared machine slows one repeat of each
             for name in best:
                 detector = None if name == "frame copy" else models[name]("flat")

@@ -110,7 +110,7 @@ def _calib_graph() -> dict[str, set[str]]:
         me = _module_name(path)
         for _, name in _imports(path):
             target = _resolve(name, modules) if name.startswith("wandcal.calib") else None
-            if target and target != me and target != "wandcal.calib":
+            if target and target not in (me, "wandcal.calib"):
                 graph[me].add(target)
     return graph
 

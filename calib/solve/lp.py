@@ -161,7 +161,7 @@ def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme,
     x = model.x0() if x0 is None else x0.copy()
     info_sub, state = None, None
     F = model.p.n_frames
-    if subset_frames and not warm and F > SUBSET_ONLY_ABOVE * subset_frames:  # a warm start needs no first phase
+    if subset_frames and not warm and SUBSET_ONLY_ABOVE * subset_frames < F:  # a warm start needs no first phase
         keep = np.unique(np.linspace(0, F - 1, subset_frames).round().astype(int))
         sub, sub_x = _frame_subset(model, x, keep)
         sub_x, info_sub, _ = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, scheme,

@@ -140,8 +140,8 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
         if rms <= screen:
             starts += [(R, t, labels) for R, t in _pnp_starts(markers[labels], xy)]
     fits = []
-    for R, t, labels in starts:
-        R, t = _refined(markers[labels], xy, R, t)
+    for R0, t0, labels in starts:
+        R, t = _refined(markers[labels], xy, R0, t0)
         if np.any(depth(R, t, markers[labels]) <= 0):
             continue
         # cameras look down on a floor-mounted object: a pose below its plane is the mirror image

@@ -57,8 +57,9 @@ class CentroidRecorder:
         self.rig = rig
         self.ids = rig.ids
         self.listener = listener
-        self._blobs = open(self.folder / BLOBS_FILE, "w")
-        self._wand = open(self.folder / WAND_FILE, "w")
+        # open for the recorder's life (rows are appended as sets arrive); close() closes them
+        self._blobs = open(self.folder / BLOBS_FILE, "w")  # noqa: SIM115
+        self._wand = open(self.folder / WAND_FILE, "w")  # noqa: SIM115
         self._blobs.write(_csv_line(WAND_COLUMNS))
         self._wand.write(_csv_line(WAND_COLUMNS))
         n = len(self.ids)

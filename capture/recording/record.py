@@ -93,7 +93,7 @@ class Recorder:
         self.images = images or ImagePolicy()
         (self.folder / RIG_FILE).write_text(json.dumps(rig_to_json(rig), indent=2) + "\n")
         self.points = CentroidRecorder(self.folder, rig, listener)
-        self._sync = open(self.folder / SYNC_FILE, "w", newline="")
+        self._sync = open(self.folder / SYNC_FILE, "w", newline="")  # noqa: SIM115 - open for the recording's life; close() closes it
         self._csv = csv.writer(self._sync)
         self._csv.writerow(sync_header(self.ids))
         self._sync.flush()

@@ -5,6 +5,7 @@ tests/service/test_http.py::test_sigkill_mid_job_requeues_once_and_finishes."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -90,10 +91,8 @@ def _open_files_under(pid: int, folder: str) -> list[str]:
 
 
 def _send_ignoring_errors(srv, body, content_type: str) -> None:
-    try:
+    with contextlib.suppress(httpx.HTTPError):  # the server died under it: that is the test
         httpx.post(srv.url + "/api/v1/captures", content=body, headers={"content-type": content_type}, timeout=30)
-    except httpx.HTTPError:
-        pass  # the server died under it: that is the test
 
 
 def test_sigkill_during_a_live_recording_keeps_every_recorded_set(server):

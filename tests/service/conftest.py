@@ -57,10 +57,11 @@ class Server:
         return httpx.Client(base_url=self.url + "/api/v1", headers=headers, timeout=30.0, **kwargs)
 
     def start(self) -> Server:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "wandcal.service.cli", "serve", "--port", str(self.port), "--log-level", "warning"],
-            cwd=REPO, env=self.env, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT,
-        )
+        with open(self.log, "ab") as log:  # the server writes through its own copy of the descriptor
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "wandcal.service.cli", "serve", "--port", str(self.port), "--log-level", "warning"],
+                cwd=REPO, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+            )
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
@@ -149,7 +150,7 @@ EMPTY_CAMERA = 1  # cam2: the camera whose left third of the image the wand neve
 
 def wandcal(*args):
     return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *args], capture_output=True, text=True, cwd=REPO,
-                          timeout=600)
+                          timeout=600, check=False)
 
 
 def left_third_px(width: int) -> float:

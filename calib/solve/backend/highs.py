@@ -22,19 +22,18 @@ INF = highspy.kHighsInf
 # HiGHS prints its banner ("Running HiGHS 1.16.0 ... Copyright") to the process's stdout from the
 # first Highs() of a process, before any option can be set; new_highs() hides that one call.
 _banner_lock = threading.Lock()
-_banner_done = False
+_banner_done = threading.Event()
 
 
 def new_highs() -> highspy.Highs:
     """A silent ``highspy.Highs``: no banner on stdout, ``output_flag`` off (a command's stdout
     carries its result, and ``--quiet`` means quiet)."""
-    global _banner_done
     with _banner_lock:
-        if _banner_done:
+        if _banner_done.is_set():
             h = highspy.Highs()
         else:
             h = _without_stdout(highspy.Highs)
-            _banner_done = True
+            _banner_done.set()
     h.setOptionValue("output_flag", False)
     return h
 
