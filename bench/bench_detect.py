@@ -255,7 +255,7 @@ def main() -> int:
     parser.add_argument("--touching-pairs", type=int, default=200,
                         help="rendered pairs of touching spots per row of the touching-spots table")
     parser.add_argument("--before", default=BEFORE_REV, metavar="REV",
-                        help=f"git revision of calib/detect.py to time side by side (default {BEFORE_REV})")
+                        help=f"git revision of the detector (rev:calib/detect.py then) to time side by side (default {BEFORE_REV})")
     args = parser.parse_args()
     real_section(args)
     if args.real_only:

@@ -190,7 +190,7 @@ def one_core():
 
 
 def before_module(rev: str):
-    """calib/detect.py as it was at git revision ``rev`` (self-contained: it imports wandcal.calib.errors
+    """The detector as it was at git revision ``rev`` (``rev:calib/detect.py`` then) (self-contained: it imports wandcal.calib.errors
     only), loaded as a module beside the present one for a side-by-side timing."""
     source = subprocess.run(["git", "show", f"{rev}:calib/detect.py"], cwd=REPO, capture_output=True, text=True,
                             check=True).stdout

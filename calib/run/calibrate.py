@@ -31,10 +31,10 @@ from wandcal.calib.solve.ba import DEFAULT_LOSS
 from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, TimeColumns, Tracks, fit_timing, sync_report
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture
+from wandcal.calib.start.frame_offsets import DEFAULT_MAX_OFFSET, frame_offsets, shift_frames, shift_pairs
 from wandcal.calib.start.initial import initial_poses
 from wandcal.calib.start.labels import label_ends
 from wandcal.calib.start.static import solve_static
-from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, frame_offsets, shift_frames, shift_pairs
 from wandcal.calib.start.world import apply, world_frame
 
 RESULT_FORMAT = "wandcal-result/1"

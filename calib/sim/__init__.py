@@ -5,4 +5,5 @@
 | :mod:`~wandcal.calib.sim.simulate` | rigs, wand paths and static objects with their truth (``wandcal simulate``, the demo) |
 | :mod:`~wandcal.calib.sim.render` | marker spots rendered as a camera records them |
 | :mod:`~wandcal.calib.sim.scenes` | scenes taken part-way through the pipeline, for tests and benchmarks |
+| :mod:`~wandcal.calib.sim.faults` | simulated captures with one thing wrong, the cases the judgement is tested on |
 """

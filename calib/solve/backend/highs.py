@@ -217,11 +217,6 @@ class IncrementalLp:
         )
         self.n += A.shape[1]
 
-    def set_rhs(self, rhs: np.ndarray) -> None:
-        rhs = np.asarray(rhs, float)
-        idx = np.arange(self.m, dtype=np.int32)
-        self.h.changeRowsBounds(self.m, idx, rhs, rhs)
-
     def solve(self, strategy: int | None = None) -> LpResult:
         """Solve, from the last basis when there is one. ``strategy``: HiGHS's simplex_strategy
         (1 dual, 4 primal); primal suits a re-solve after adding columns, whose basis stays
@@ -243,7 +238,3 @@ class IncrementalLp:
         basis.row_status = [highspy.HighsBasisStatus.kLower] * self.m
         basis.valid = True
         self.h.setBasis(basis)
-
-    def set_costs(self, columns: np.ndarray, cost: np.ndarray) -> None:
-        idx = np.asarray(columns, dtype=np.int32)
-        self.h.changeColsCost(len(idx), idx, np.asarray(cost, float))
