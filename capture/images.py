@@ -37,8 +37,9 @@ from wandcal.calib.detect import (
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import StaticObservations, WandObservations
 from wandcal.capture.detect_setup import MASK_FOLDER, CameraSetup, camera_detectors
-from wandcal.capture.folder import WAND_FILE, CaptureFormatError, read_rig, write_capture
-from wandcal.drivers.imagefolder import FRAMES_DIR, STATIC_DIR, image_path, listed_indices
+from wandcal.capture.folder import CaptureFormatError, read_rig, write_capture
+from wandcal.drivers.capture_files import FRAMES_DIR, STATIC_DIR, WAND_FILE
+from wandcal.drivers.imagefolder import image_path, listed_indices
 
 # Files queued per worker thread. A queued file is only a path and a finished one a few blob
 # arrays; each worker holds one decoded image at a time, so memory stays at ``workers`` frames

@@ -14,10 +14,9 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Camera, Rig
+from wandcal.drivers.capture_files import POINTS_FILE, RIG_FILE
 
 CAPTURE_FORMAT = "wandcal-capture/1"
-RIG_FILE = "rig.json"
-POINTS_FILE = "points.csv"  # named here too: a rig without a wand needs it
 MAX_IMAGE_SIDE_PX = 1 << 20  # no sensor is a million pixels wide: a larger width or height is a typo
 
 

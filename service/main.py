@@ -19,7 +19,7 @@ from fastapi.staticfiles import StaticFiles
 from threadpoolctl import threadpool_limits
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.api.deps import AppState, require_token
 from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths

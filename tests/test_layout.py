@@ -206,3 +206,26 @@ def test_functions_stay_short(top):
             if lines > MAX_FUNCTION_LINES and where not in LONG_FUNCTIONS_PENDING:
                 long.append(f"{where} ({lines} lines, line {node.lineno})")
     assert not long, f"over {MAX_FUNCTION_LINES} lines: split into named steps: " + "; ".join(long)
+
+
+# Modules still naming a capture folder's files by literal while other work reshapes them; the lead
+# removes each entry when that work is merged.
+FILE_NAME_LITERALS_PENDING = {"service/cli/capture.py", "service/cli/import_.py", "service/cli/inputs.py"}
+
+
+def test_capture_file_names_have_one_home():
+    """rig.json, wand.csv, sync.csv, ... are named once, in drivers/capture_files.py (why there: its
+    docstring); every other module imports the names."""
+    from wandcal.drivers import capture_files
+
+    names = {v for k, v in vars(capture_files).items() if k.isupper() and isinstance(v, str)}
+    home = REPO / "drivers" / "capture_files.py"
+    found = []
+    for top in PACKAGES:
+        for path in _sources(top):
+            where = path.relative_to(REPO).as_posix()
+            if path == home or where in FILE_NAME_LITERALS_PENDING:
+                continue
+            found += [f"{where}:{node.lineno} {node.value!r}" for node in ast.walk(ast.parse(path.read_text()))
+                      if isinstance(node, ast.Constant) and node.value in names and "." in node.value]
+    assert not found, "name these through wandcal.drivers.capture_files: " + "; ".join(found)

@@ -25,9 +25,9 @@ import numpy as np
 
 from wandcal.calib.detect import WAND_MARKERS, WAND_STILL_PRESENCE, static_markers_from_frames, wand_frames
 from wandcal.calib.rig import Rig, StaticObservations
-from wandcal.capture.folder import STATIC_COLUMNS, STATIC_FILE, WAND_COLUMNS, WAND_FILE, parse_wand_csv
+from wandcal.capture.folder import STATIC_COLUMNS, WAND_COLUMNS, parse_wand_csv
+from wandcal.drivers.capture_files import BLOBS_FILE, STATIC_FILE, WAND_FILE
 
-BLOBS_FILE = "blobs.csv"
 # Sets in the window that finds still markers during the wand run: 2 s at 100 fps, long enough
 # that the moving wand never holds half of them at one spot, short enough that a lamp switched
 # on mid-capture stops spoiling the live pairs within seconds.

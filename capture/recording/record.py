@@ -14,13 +14,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from wandcal.calib.rig import Rig
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, rig_to_json
+from wandcal.capture.folder import rig_to_json
 from wandcal.capture.recording.centroids import CentroidRecorder
 from wandcal.capture.recording.framesets import FrameSet
 from wandcal.capture.recording.writer import ImageWriter
-from wandcal.drivers.imagefolder import FRAMES_DIR, STATIC_DIR, SYNC_FILE, image_path, sync_header
+from wandcal.drivers.capture_files import FRAMES_DIR, LOG_FILE, RIG_FILE, STATIC_DIR, SYNC_FILE, WAND_FILE
+from wandcal.drivers.imagefolder import image_path, sync_header
 
-LOG_FILE = "capture.json"
 LOG_FORMAT = "wandcal-capture-log/1"
 
 

@@ -23,7 +23,8 @@ from tests.reliability.servers import poll
 from tests.service.conftest import capture_files, simulated_capture
 from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.sim.render import render_blobs
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json
+from wandcal.capture.folder import read_capture, rig_to_json
+from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.db import connect
 from wandcal.service.main import create_app
 from wandcal.service.recovery import RECOVERED_SOURCE

@@ -19,7 +19,8 @@ from wandcal.calib.judge.coverage import GRID
 from wandcal.calib.rig import WandObservations
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, read_capture, write_capture
+from wandcal.capture.folder import read_capture, write_capture
+from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
 
 REPO = Path(__file__).resolve().parents[2]
 STARTUP_TIMEOUT_S = 60.0  # spawning workers imports numpy/scipy/OpenCV; slow on a busy 2-core CI box
