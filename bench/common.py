@@ -79,3 +79,13 @@ def write_section(title: str, body: str) -> None:
     """:func:`replace_section` with the command line, the machine and the date on top."""
     command = "python " + " ".join(sys.argv)
     replace_section(title, f"Command: `{command}`  \nMachine: {machine()}  \nDate: {time.strftime('%Y-%m-%d')}\n\n{body.strip()}")
+
+
+def publish(title: str, text: str, write: bool, *, header: bool = True) -> int:
+    """A bench's closing block: print ``text`` and, when ``write``, make it docs/benchmarks.md's
+    section ``title`` (:func:`write_section`: the command, machine and date on top; with
+    ``header=False``, :func:`replace_section`: ``text`` as it is). Returns 0, the script's exit status."""
+    print(text)
+    if write:
+        (write_section if header else replace_section)(title, text)
+    return 0
