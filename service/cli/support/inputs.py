@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
+from wandcal.drivers.capture_files import LOG_FILE, SYNC_FILE, WAND_FILE
 
 
 def capture_rate(folder: Path) -> float | None:
     """The capture log's frame rate (capture.json ``rate_hz``), for offsets in seconds; None without one."""
     try:
-        return float(json.loads((folder / "capture.json").read_text())["rate_hz"])
+        return float(json.loads((folder / LOG_FILE).read_text())["rate_hz"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
@@ -25,7 +26,7 @@ def timestamp_start(folder: Path, rig, rate_hz: float | None):
     """Whole-frame offsets from sync.csv's camera timestamps when no trigger stamped it (docs/sync.md), else None."""
     from wandcal.calib.start.timestamps import timestamp_offsets
 
-    path = folder / "sync.csv"
+    path = folder / SYNC_FILE
     table = np.genfromtxt(path, delimiter=",", names=True) if path.is_file() else None
     if table is None or not table.size or np.isfinite(np.atleast_1d(table["trigger_us"])).any():
         return None
@@ -37,7 +38,7 @@ def timestamp_start(folder: Path, rig, rate_hz: float | None):
 
 def points_level(folder: Path, progress) -> Path:
     """Detect first when the capture is image level (wandcal.capture.images provides it)."""
-    if not folder.is_dir() or (folder / "wand.csv").is_file():
+    if not folder.is_dir() or (folder / WAND_FILE).is_file():
         return folder  # read_capture names what is missing
     try:
         from wandcal.capture.images import ensure_points_level
