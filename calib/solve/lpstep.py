@@ -213,7 +213,8 @@ def _still_open(rows: _Rows, z, lo, hi, d, bounds, tol: float) -> np.ndarray | N
     """None if the step ``d`` (n,), with residuals ``z`` (2R,) pixels, keeps every kept row among
     its modelled pieces and touches no guard; else the (n,) parameters it pins to the guard."""
     out_lo, out_hi = _left_rows(rows.P, z, lo, hi, rows.kept)
-    pinned = _pinned(d, *bounds, tol)
+    box_lo, box_hi, trust_lo, trust_hi = bounds
+    pinned = _pinned(d, box_lo, box_hi, trust_lo, trust_hi, tol)
     if out_lo.any() or out_hi.any() or pinned.any():
         return pinned
     return None
@@ -224,8 +225,10 @@ def _vertex(ipm, lp_args, time_limit, rounds: int, seconds: float, iterations: i
     usual case, mostly by the interior point itself a few iterations before its end); else HiGHS's
     dual simplex from it. Returns (d (n,) or None, seconds, iterations, status), the running
     totals ``seconds`` and ``iterations`` carried on."""
+    A, c, jump, c_lo, c_hi, r = lp_args
     started = time.perf_counter()
-    d = ipm.duals if ipm.certified else certified_duals(*lp_args, ipm.basic, ipm.at_upper) if ipm.status == "optimal" else None
+    d = (ipm.duals if ipm.certified else certified_duals(A, c, jump, c_lo, c_hi, r, ipm.basic, ipm.at_upper)
+         if ipm.status == "optimal" else None)
     seconds += time.perf_counter() - started
     if d is not None:
         return d, seconds, iterations, "optimal"
