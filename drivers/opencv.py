@@ -136,7 +136,7 @@ def set_v4l2_control(device: str, assignment: str, camera_id: str) -> None:
     if tool is None:
         raise DriverError(f"camera {camera_id}: setting '{assignment}' needs {V4L2_CTL}; install the "
                           "v4l-utils package (apt-get install v4l-utils)")
-    done = subprocess.run([tool, "-d", device, "-c", assignment], capture_output=True, text=True)
+    done = subprocess.run([tool, "-d", device, "-c", assignment], capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise DriverError(f"camera {camera_id}: {device} refused control '{assignment}': "
                           f"{done.stderr.strip() or done.stdout.strip()}; see 'v4l2-ctl -d {device} --list-ctrls'")

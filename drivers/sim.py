@@ -33,8 +33,7 @@ from wandcal.calib.rig import Rig
 from wandcal.calib.sim.render import RENDER_HALF_WIDTH_SIGMAS, render_blobs
 from wandcal.calib.sim.simulate import L_FRAME_M, Truth, ring_cameras, wand_path
 from wandcal.drivers.camera import CameraDriver, CameraSettings, Frame, TriggerMode
-from wandcal.drivers.errors import DriverError, FrameTimeout
-from wandcal.drivers.registry import CameraUrlError
+from wandcal.drivers.errors import CameraUrlError, DriverError, FrameTimeout
 
 # A 14 mm retro-reflective marker, the common mocap size: its image radius f * r / z is ~2.5 px
 # at 3 m for f ~ 1100 px. The spot is drawn as a Gaussian of that sigma, clipped to the 1.5-2.5 px

@@ -9,6 +9,7 @@ trigger (free-running cameras matched by their sequence numbers).
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 from dataclasses import dataclass
@@ -71,10 +72,8 @@ class SerialTrigger:
         self._depth -= 1
         if self._depth == 0:
             if self.lost is None:
-                try:
+                with contextlib.suppress(DriverError):  # closing anyway; a port that went away is reported by .lost
                     self.stop()
-                except DriverError:
-                    pass  # closing anyway; a port that went away is reported by .lost
             self._closing.set()
             if self._reader is not None:
                 self._reader.join(timeout=1.0)

@@ -21,11 +21,6 @@ import numpy as np
 
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
 from wandcal.capture.folder import (
-    AXIS_FILE,
-    POINTS_FILE,
-    RIG_FILE,
-    STATIC_FILE,
-    WAND_FILE,
     Capture,
     CaptureFormatError,
     check_wandless,
@@ -38,6 +33,7 @@ from wandcal.capture.folder import (
     save_capture,
 )
 from wandcal.capture.rig_file import load_json, rig_from_json
+from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.db import connect, transaction
 
 CAPTURE_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -119,7 +115,7 @@ class CaptureStore:
         points_text: str | None = None, axis_text: str | None = None,
     ) -> CaptureRow:
         """Validate uploaded rig.json / wand.csv / static.csv / points.csv / axis.csv texts and store them."""
-        rig = rig_from_json(load_json(rig_text, "rig.json"), allow_no_wand=points_text is not None)
+        rig = rig_from_json(load_json(rig_text, RIG_FILE), allow_no_wand=points_text is not None)
         wand = parse_wand_csv(wand_text, rig) if wand_text is not None else WandObservations([], [], np.zeros((0, 2)))
         points = parse_points_csv(points_text, rig) if points_text is not None else None
         axis = parse_axis_csv(axis_text, rig) if axis_text is not None else None

@@ -219,10 +219,10 @@ def _place_next(st: _State) -> None:
     link = np.where(st.placed[:, None], st.used, 0).max(0)
     score = np.where(st.placed, -1, np.maximum(2 * points, link))
     failures = []
-    for c in np.argsort(-score, kind="stable"):
+    for order in np.argsort(-score, kind="stable"):
+        c = int(order)
         if st.placed[c]:
             break
-        c = int(c)
         resect_first = points[c] >= MIN_RESECT_POINTS and 2 * points[c] >= link[c]
         steps = (_by_resection, _by_chain) if resect_first else (_by_chain, _by_resection)
         reasons = []
@@ -240,8 +240,8 @@ def _by_chain(st: _State, c: int) -> bool | Failure:
     """Chain camera c from its best-linked placed camera whose pair can be placed and scaled."""
     links = st.links[:, c]
     tried = []
-    for a in np.argsort(-links, kind="stable"):
-        a = int(a)
+    for order in np.argsort(-links, kind="stable"):
+        a = int(order)
         if not st.placed[a] or links[a] < MIN_PAIR_MATCHES:
             continue
         pose = st.edge(a, c)

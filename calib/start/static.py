@@ -140,8 +140,8 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
         if rms <= screen:
             starts += [(R, t, labels) for R, t in _pnp_starts(markers[labels], xy)]
     fits = []
-    for R, t, labels in starts:
-        R, t = _refined(markers[labels], xy, R, t)
+    for R0, t0, labels in starts:
+        R, t = _refined(markers[labels], xy, R0, t0)
         if np.any(depth(R, t, markers[labels]) <= 0):
             continue
         # cameras look down on a floor-mounted object: a pose below its plane is the mirror image
@@ -272,40 +272,6 @@ def _plane_normal(markers: np.ndarray) -> np.ndarray | None:
         return None
     n = vt[2]
     return n if n[2] >= 0 else -n
-
-
-def resect(X: np.ndarray, xy: np.ndarray, focal_px: float, threshold_px: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray] | Failure:
-    """Robust camera resection from 3D-2D correspondences (PnP inside RANSAC).
-
-    Args:
-        X: (M, 3) world points, metres; xy: (M, 2) normalised coordinates (may hold wrong matches).
-        focal_px: focal length in pixels, to set the inlier threshold.
-
-    Returns:
-        (R, t, inlier mask (M,)) or a Failure.
-    """
-    if len(X) < 6:
-        return Failure(f"only {len(X)} correspondences for resection; at least 6 are needed")
-    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-        np.ascontiguousarray(X, dtype=np.float64),
-        np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 1, 2),
-        np.eye(3),
-        None,
-        iterationsCount=2000,
-        reprojectionError=threshold_px / focal_px,
-        confidence=0.9999,
-        flags=cv2.SOLVEPNP_SQPNP,
-    )
-    if not ok or inliers is None or len(inliers) < 6:
-        return Failure("resection found no consistent pose")
-    mask = np.zeros(len(X), bool)
-    mask[inliers.ravel()] = True
-    rvec, tvec = cv2.solvePnPRefineLM(X[mask], xy[mask].reshape(-1, 1, 2), np.eye(3), None, rvec, tvec)
-    R = rotvec_to_matrix(rvec)
-    t = np.asarray(tvec, float).ravel()
-    err = np.linalg.norm(project_normalized(R, t, X) - xy, axis=1) * focal_px
-    return R, t, err < threshold_px
-
 
 
 KABSCH_STEP_M = 1e-7  # forward-difference step of the rigid fit in a marker's coordinates: far above

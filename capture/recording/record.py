@@ -14,13 +14,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from wandcal.calib.rig import Rig
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, rig_to_json
+from wandcal.capture.folder import rig_to_json
 from wandcal.capture.recording.centroids import CentroidRecorder
 from wandcal.capture.recording.framesets import FrameSet
 from wandcal.capture.recording.writer import ImageWriter
-from wandcal.drivers.imagefolder import FRAMES_DIR, STATIC_DIR, SYNC_FILE, image_path, sync_header
+from wandcal.drivers.capture_files import FRAMES_DIR, LOG_FILE, RIG_FILE, STATIC_DIR, SYNC_FILE, WAND_FILE
+from wandcal.drivers.imagefolder import image_path, sync_header
 
-LOG_FILE = "capture.json"
 LOG_FORMAT = "wandcal-capture-log/1"
 
 
@@ -93,7 +93,7 @@ class Recorder:
         self.images = images or ImagePolicy()
         (self.folder / RIG_FILE).write_text(json.dumps(rig_to_json(rig), indent=2) + "\n")
         self.points = CentroidRecorder(self.folder, rig, listener)
-        self._sync = open(self.folder / SYNC_FILE, "w", newline="")
+        self._sync = open(self.folder / SYNC_FILE, "w", newline="")  # noqa: SIM115 - open for the recording's life; close() closes it
         self._csv = csv.writer(self._sync)
         self._csv.writerow(sync_header(self.ids))
         self._sync.flush()

@@ -11,7 +11,8 @@ from starlette.datastructures import FormData, UploadFile
 
 from wandcal.calib.rig import StaticObservations
 from wandcal.calib.start.static import solve_static
-from wandcal.capture.folder import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE, decode_text
+from wandcal.capture.folder import decode_text
+from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.api.deps import CaptureDep, State, require_content_type
 from wandcal.service.schemas import (
     CameraCoverage,
