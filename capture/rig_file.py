@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -100,7 +101,7 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
 
 
 def rig_to_json(rig: Rig) -> dict:
-    doc = {
+    doc: dict[str, Any] = {
         "format": CAPTURE_FORMAT,
         "cameras": [
             {"id": c.id, "width": c.width, "height": c.height, "K": c.K.tolist(), "dist": c.dist.tolist()}

@@ -82,7 +82,8 @@ def read_dlc_csv(path: Path, min_likelihood: float = DEFAULT_MIN_LIKELIHOOD) -> 
         if "x" not in cols or "y" not in cols or not name:
             raise CaptureFormatError(f"{path} line {head['bodyparts'] + 1}: keypoint {name!r} needs an x and a y column")
     body = rows[max(head.values()) + 1:]
-    frame, uv, label, left_out, seen_frames = [], [], [], 0, {}
+    frame, uv, label, left_out = [], [], [], 0
+    seen_frames: dict[int, int] = {}  # frame -> the line it was first on
     for k, row in enumerate(body):
         line = max(head.values()) + 2 + k
         if not any(c.strip() for c in row):
