@@ -27,7 +27,7 @@ PROBE = ("import sys; from wandcal.service.cli import main; code = main(); "
 # the stage profile counts the process's CPU seconds, not wall seconds: the machine is shared, and
 # another job's load stretches wall time unevenly between runs (BLAS may use both cores: CPU
 # seconds can exceed wall seconds)
-PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; from wandcal.service.cli.batch_memory import keep_freed_memory; "
+PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; from wandcal.service.cli.support.batch_memory import keep_freed_memory; "
            "keep_freed_memory(); p = cProfile.Profile(time.process_time); "
            "code = p.runcall(main, sys.argv[2:]); p.dump_stats(sys.argv[1]); sys.exit(code)")
 # stage: (caller, callee) function names whose cumulative time (the callee's, called from that

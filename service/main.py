@@ -25,6 +25,7 @@ from wandcal.service.api.routes import blobsets, captures, guidance, health, job
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
 from wandcal.service.connections import install_repeat_filter
 from wandcal.service.db import disk_full, init_db
+from wandcal.service.folder_lock import hold_data_folder
 from wandcal.service.jobs.queue import JobQueue, SQLiteQueue
 from wandcal.service.jobs.records import JobStore
 from wandcal.service.limits import BodySizeLimit, RateLimiter
@@ -73,6 +74,7 @@ def create_app(settings: Settings) -> FastAPI:
     """Build the app: database, capture store, job queue (started with the app), routes and page."""
     data_dir = settings.data_dir.resolve()
     settings = settings.model_copy(update={"data_dir": data_dir})
+    folder_lock = hold_data_folder(settings)  # before anything reads or writes the folder: one owner recovers it
     # BLAS on one thread in the server's own process, set once here and never by a request: the
     # request threads already share the cores, and the solvers' `threadpool_limits(1)` (guidance
     # runs one in a request thread) then have nothing to change, so concurrent ones cannot leave
@@ -105,6 +107,7 @@ def create_app(settings: Settings) -> FastAPI:
         version="1",
         lifespan=lifespan,
     )
+    app.state.folder_lock = folder_lock  # held while the app lives (service/folder_lock.py)
     app.state.wandcal = AppState(
         settings=settings, captures=capture_store, queue=queue, limiter=RateLimiter(settings.framesets_per_second)
     )

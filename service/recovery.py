@@ -1,5 +1,10 @@
 """What a start does after a crash (SIGKILL, power loss) so that nothing recorded is lost.
 
+Only the data folder's owner runs it: ``create_app`` takes the folder's lock first
+(:mod:`wandcal.service.folder_lock`), so a second server started on a folder in use refuses
+before it gets here. Each action is logged with the id it concerns (INFO for what is only
+deleted, WARNING for what is registered, moved or cut).
+
 | left behind | what the start does |
 |---|---|
 | ``captures/.<id>.partial`` of an upload (points level only) | deleted: the upload was never answered 201, the client sends it again |
@@ -40,6 +45,7 @@ def recover(store: CaptureStore, data_dir: Path) -> list[str]:
         capture_id = staging.name[1 : -len(".partial")]
         if not any((staging / mark).exists() for mark in RECORDING_MARKS) or not CAPTURE_ID.match(capture_id):
             shutil.rmtree(staging, ignore_errors=True)
+            log.info("deleted %s, an upload a crash cut short (it was never answered 201)", staging.name)
             continue
         done.append(_recover_recording(store, staging, capture_id))
     done += register_orphans(store)
@@ -49,9 +55,11 @@ def recover(store: CaptureStore, data_dir: Path) -> list[str]:
         for leftover in spool.iterdir():
             if leftover.is_file():
                 leftover.unlink(missing_ok=True)
+                log.info("deleted %s/%s, an upload body spooled before a crash", SPOOL_DIR, leftover.name)
     # a report whose drawing a crash cut short: the next request draws it again (service/report/store.py)
     for half in (Path(data_dir) / REPORTS_DIR).glob(".*.partial"):
         shutil.rmtree(half, ignore_errors=True)
+        log.info("deleted %s/%s, a report a crash cut short (the next request draws it again)", REPORTS_DIR, half.name)
     for line in done:
         log.warning("%s", line)
     return done

@@ -8,7 +8,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from wandcal.calib.run.calibrate import DEFAULT_METHOD, METHODS
-from wandcal.service.cli.args import MAX_FRAME_RATE_HZ, MAX_SYNC_OFFSET
+from wandcal.service.cli.support.args import MAX_FRAME_RATE_HZ, MAX_SYNC_OFFSET
 from wandcal.service.jobs.records import JobState
 
 

@@ -85,7 +85,7 @@ def read_anipose_toml(text: str, unit: str = "m", source: str = "calibration.tom
             t.append(np.array(entry["translation"], dtype=float).reshape(3) / scale)
         except KeyError as exc:
             raise CalibrationError(f"{where} has no {exc.args[0]!r}") from None
-        except (TypeError, ValueError, IndexError) as exc:
+        except (TypeError, ValueError, IndexError, OverflowError) as exc:  # OverflowError: a size of inf or 1e400
             raise CalibrationError(f"{where}: {exc}") from None
     return read_cameras(cams, R, t, source)
 
@@ -140,9 +140,11 @@ def to_opencv_yaml(result: dict, rig: Rig | None = None, unit: str = "m") -> str
 
 def read_opencv_yaml(text: str, source: str = "calibration.yaml") -> PosedCameras:
     """YAML written by :func:`to_opencv_yaml` back as cameras, read with ``cv2.FileStorage``."""
+    if not text.strip():  # OpenCV fails on an empty buffer with a SystemError, not its own error
+        raise CalibrationError(f"{source}: empty; give the YAML 'wandcal export --format opencv-yaml' writes")
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
-    except cv2.error as exc:
+    except (cv2.error, SystemError) as exc:  # OpenCV's parse errors reach Python as either
         raise CalibrationError(f"{source}: not OpenCV YAML ({str(exc).strip().splitlines()[-1]})") from None
     try:
         unit = fs.getNode("unit").string() or "m"
@@ -169,5 +171,10 @@ def read_opencv_yaml(text: str, source: str = "calibration.yaml") -> PosedCamera
             r = cam.getNode("reprojection_rms_px")
             rms.append(r.real() if not r.empty() else np.nan)
         return read_cameras(cams, R, t, source, rms)
+    except cv2.error as exc:  # a node of another kind than the one asked for (a map where a sequence was)
+        raise CalibrationError(f"{source}: not the OpenCV YAML wandcal writes ({str(exc).strip().splitlines()[-1]}); "
+                               "docs/formats.md, opencv-yaml") from None
+    except (ValueError, OverflowError) as exc:  # an image size of NaN or infinity
+        raise CalibrationError(f"{source}: a camera's image_width or image_height is not a whole number ({exc})") from None
     finally:
         fs.release()

@@ -94,8 +94,11 @@ def read_cameras(cams: list[Camera], R: list, t: list, source: str, rms=None) ->
     """What a reader found, checked: at least one camera, and rotations that are rotations."""
     if not cams:
         raise CalibrationError(f"{source}: no cameras found")
-    for cam, Rk in zip(cams, R):
-        if np.abs(Rk.T @ Rk - np.eye(3)).max() > ROTATION_TOLERANCE or np.linalg.det(Rk) < 0:
+    for cam, Rk, tk in zip(cams, R, t):
+        if not (np.all(np.isfinite(Rk)) and np.all(np.isfinite(tk))):  # NaN passed the comparisons below
+            raise CalibrationError(f"{source}: camera {cam.id!r}: the rotation or translation holds a number that is "
+                                   "not finite (NaN or infinity)")
+        if not np.abs(Rk.T @ Rk - np.eye(3)).max() <= ROTATION_TOLERANCE or np.linalg.det(Rk) < 0:
             raise CalibrationError(f"{source}: camera {cam.id!r}: the rotation is not a rotation matrix")
     n = len(cams)
     rms = np.full(n, np.nan) if rms is None else np.asarray(rms, dtype=float)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wandcal.capture.folder import CaptureFormatError
+from wandcal.capture.folder import MAX_FRAME, CaptureFormatError
 
 # DeepLabCut's own default ``pcutoff`` (config.yaml): below it DeepLabCut's plots and videos hide
 # a keypoint as not found
@@ -136,12 +136,21 @@ def _frame(index: list[str], path: Path, line: int) -> int:
     if not cells:
         raise CaptureFormatError(f"{path} line {line}: no frame number or image name in the first column")
     if re.fullmatch(r"\d+", cells[0]):
-        return int(cells[0])
+        return _bounded(cells[0], path, line)
     found = re.search(r"(\d+)\D*$", Path(cells[-1]).name)
     if found is None:
         raise CaptureFormatError(f"{path} line {line}: {cells[-1]!r} is neither a frame number nor an image name with "
                                  "one; the first column must give the frame")
-    return int(found.group(1))
+    return _bounded(found.group(1), path, line)
+
+
+def _bounded(digits: str, path: Path, line: int) -> int:
+    """A frame number within the capture format's range (before: 20 digits overflowed
+    the frame array, 5,000 passed Python's digit limit, both as tracebacks)."""
+    if len(digits) > len(str(MAX_FRAME)) or int(digits) > MAX_FRAME:
+        raise CaptureFormatError(f"{path} line {line}: frame {digits[:30]}{'...' if len(digits) > 30 else ''} is out of "
+                                 f"range; frame numbers are whole numbers from 0 to {MAX_FRAME}")
+    return int(digits)
 
 
 def _cell(row: list[str], i: int, path: Path, line: int) -> float:

@@ -1,7 +1,12 @@
-"""The ``wandcal`` command line.
+"""The ``wandcal`` command line: one module a command in this package, listed in :data:`COMMANDS`;
+what several commands share (argparse types, the progress line, the summary, what they read beside
+a capture, the batch memory policy) is in :mod:`wandcal.service.cli.support`.
 
-Each command lives with the layer it drives; a module contributes commands through a
-``register(subparsers)`` function listed in :data:`COMMAND_MODULES`.
+Each command module has ``register(sub, *, arguments=True)``, which adds its parser and, with
+``arguments``, its options. Registration imports nothing heavy: a command's numerical code (and the
+constants its options quote, such as the methods' names) is imported when its arguments are added
+or when it runs, so ``wandcal --help`` and ``wandcal --version`` start without NumPy or the web
+framework, and ``wandcal calibrate`` loads neither the web framework nor the camera drivers.
 """
 
 from __future__ import annotations
@@ -10,37 +15,38 @@ import argparse
 import importlib
 import sys
 
-COMMAND_MODULES = {
-    "wandcal.service.cli.calibrate": ("simulate", "calibrate", "demo", "check"),
-    "wandcal.service.cli.capture": ("capture", "detect", "trigger-emulator"),
-    "wandcal.service.cli.import_": ("import",),
-    "wandcal.service.cli.guidance": ("guidance",),
-    "wandcal.service.cli.serve": ("serve",),
-    "wandcal.service.cli.export": ("export",),
-    "wandcal.service.cli.report": ("report",),
+# command -> its module, in the order ``wandcal --help`` lists them
+COMMANDS = {
+    "simulate": "wandcal.service.cli.simulate",
+    "calibrate": "wandcal.service.cli.calibrate",
+    "check": "wandcal.service.cli.check",
+    "demo": "wandcal.service.cli.demo",
+    "capture": "wandcal.service.cli.capture",
+    "detect": "wandcal.service.cli.detect",
+    "trigger-emulator": "wandcal.service.cli.trigger",
+    "import": "wandcal.service.cli.import_",
+    "guidance": "wandcal.service.cli.guidance",
+    "serve": "wandcal.service.cli.serve",
+    "export": "wandcal.service.cli.export",
+    "report": "wandcal.service.cli.report",
 }
-# commands that compute once and exit: their process keeps the memory it frees (service/cli/batch_memory.py)
+# commands that compute once and exit: their process keeps the memory it frees (service/cli/support/batch_memory.py)
 BATCH_COMMANDS = frozenset({"simulate", "calibrate", "demo", "check", "detect", "import", "export", "report"})
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
-    """The parser; when ``argv`` names a command, only that command's module is imported (so
-    ``wandcal calibrate`` loads neither the web framework nor the camera drivers)."""
+    """The parser. When ``argv`` names a command, only that command's module is imported; when it
+    names none (``wandcal --help``, ``--version``), every command is listed without its options;
+    ``argv`` None builds every command with all its options (the tests that walk them)."""
     parser = argparse.ArgumentParser(
         prog="wandcal", description="Capture and calibrate multi-camera motion-capture rigs with a wand."
     )
     parser.add_argument("--version", action=_Version, nargs=0, help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     command = next((a for a in (argv or []) if not a.startswith("-")), None)
-    modules = [m for m, names in COMMAND_MODULES.items() if command in names] or list(COMMAND_MODULES)
-    for name in modules:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-            continue  # a layer that is not built yet contributes no commands
-        module.register(sub)
+    named = [command] if command in COMMANDS else list(COMMANDS)
+    for name in named:
+        importlib.import_module(COMMANDS[name]).register(sub, arguments=argv is None or name == command)
     return parser
 
 
@@ -63,13 +69,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command. ``argv`` None: this is the ``wandcal`` process itself (its arguments are
     ``sys.argv``), so a batch command also takes the batch memory policy; a caller that passes
     ``argv`` (a test, another program) keeps its own process's."""
-    from wandcal.calib.errors import CalibrationError
-
     args = build_parser(sys.argv[1:] if argv is None else argv).parse_args(argv)
     if argv is None and args.command in BATCH_COMMANDS:
-        from wandcal.service.cli.batch_memory import keep_freed_memory
+        from wandcal.service.cli.support.batch_memory import keep_freed_memory
 
         keep_freed_memory()
+    from wandcal.calib.errors import CalibrationError  # after the parse: --help and --version load no NumPy
+
     try:
         return int(args.run(args) or 0)
     except CalibrationError as exc:

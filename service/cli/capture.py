@@ -1,4 +1,5 @@
-"""``wandcal capture``, ``wandcal detect`` and ``wandcal trigger-emulator`` (``wandcal import``: service/cli/import_.py)."""
+"""``wandcal capture``: record a capture folder from cameras and a strobe trigger, with the wanding
+guidance on the status line."""
 
 from __future__ import annotations
 
@@ -6,32 +7,37 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from wandcal.calib.rig import Rig
-from wandcal.capture.folder import read_rig
-from wandcal.drivers.camera import CameraDriver
-from wandcal.drivers.errors import DriverError
-from wandcal.drivers.trigger_protocol import MAX_RATE_HZ, MIN_RATE_HZ
-from wandcal.service.cli.args import number, whole
-from wandcal.service.cli.detect import add_detect_options
+from wandcal.service.cli.detect import add_detect_options, config_from_args, mask_from_args
 from wandcal.service.cli.guidance import add_guidance_options
-from wandcal.service.cli.status_line import StatusLine, bar
+from wandcal.service.cli.support.args import number, whole
+
+if TYPE_CHECKING:
+    from wandcal.calib.rig import Rig
+    from wandcal.drivers.camera import CameraDriver
 
 DEFAULT_WAND_LENGTH_M = 0.5
 # Bounds of the numeric options (exit 2 outside them): the service's own limits for a live capture
-# (service/schemas.py), a wand no lab builds, a sensor taller than any camera's, the trigger's clock.
+# (service/schemas.py) and a wand no lab builds.
 MAX_FRAMES = 10_000_000
 MAX_STATIC_FRAMES = 100_000
 MAX_WAND_LENGTH_M = 10.0
-MAX_WORKERS = 256
-MAX_DEVICE_US = 2**32 - 1  # the trigger's microsecond counter is 32 bits and wraps
 
 
-def register(subparsers) -> None:
-    p = subparsers.add_parser("capture", help="record synchronised frames from cameras and a strobe trigger",
-                              description="Record a wandcal-capture/1 folder: every frame's blob centroids "
-                                          "(the points level, written as it goes) and the images --images asks "
-                                          "for, with the wanding guidance on the status line.")
+def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
+    p = sub.add_parser("capture", help="record synchronised frames from cameras and a strobe trigger",
+                       description="Record a wandcal-capture/1 folder: every frame's blob centroids "
+                                   "(the points level, written as it goes) and the images --images asks "
+                                   "for, with the wanding guidance on the status line.")
+    p.set_defaults(run=run_capture)
+    if arguments:
+        _arguments(p)
+
+
+def _arguments(p: argparse.ArgumentParser) -> None:
+    from wandcal.drivers.trigger_protocol import MAX_RATE_HZ, MIN_RATE_HZ
+
     p.add_argument("--camera", action="append", required=True, metavar="URL",
                    help="camera URL (repeat): v4l2:///dev/video0, opencv:0, replay:///path, sim://?cameras=4")
     p.add_argument("--trigger", default="none", metavar="URL",
@@ -59,24 +65,6 @@ def register(subparsers) -> None:
     p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
     add_guidance_options(p)
     add_detect_options(p, live=True)
-    p.set_defaults(run=run_capture)
-
-    p = subparsers.add_parser("detect", help="detect blobs in an image-level capture and write wand.csv",
-                              description="Run blob detection over frames/ and static/ of a capture folder.")
-    p.add_argument("capture", type=Path, help="image-level capture folder")
-    p.add_argument("--workers", type=whole(1, MAX_WORKERS), default=None, metavar="N",
-                   help=f"threads that decode and detect images, 1 to {MAX_WORKERS} (default: every core)")
-    p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
-    add_detect_options(p)
-    p.set_defaults(run=run_detect)
-
-    p = subparsers.add_parser("trigger-emulator", help="emulate the strobe trigger on a pseudo-terminal",
-                              description="Speak wandcal-trigger/1 on a new pseudo-terminal; prints its path.")
-    p.add_argument("--vanish-after", type=whole(0), default=None, metavar="N",
-                   help="close the terminal after N pulses, as if the board were unplugged (default: never)")
-    p.add_argument("--start-us", type=whole(0, MAX_DEVICE_US), default=0, metavar="US",
-                   help=f"device clock at start, 0 to {MAX_DEVICE_US} (near the top tests the wrap; default 0)")
-    p.set_defaults(run=run_emulator)
 
 
 def _live_detectors(args, rig: Rig, config):
@@ -84,7 +72,6 @@ def _live_detectors(args, rig: Rig, config):
     background model (an empty-volume recording, a running average), one detector per camera."""
     from wandcal.calib.detect import STATEFUL
     from wandcal.capture.detect_setup import MASK_NONE, camera_detectors
-    from wandcal.service.cli.detect import mask_from_args
 
     mask = mask_from_args(args)
     if mask == MASK_NONE and config.background not in STATEFUL:
@@ -93,32 +80,6 @@ def _live_detectors(args, rig: Rig, config):
     for setup in setups:
         print(setup.line(), file=sys.stderr)
     return [detectors[cid] for cid in rig.ids]
-
-
-
-def run_emulator(args) -> int:
-    from wandcal.drivers.trigger_emulator import serve_pty
-
-    return serve_pty(vanish_after=args.vanish_after, start_us=args.start_us)
-
-
-def run_detect(args) -> int:
-    from wandcal.capture.images import detect_capture
-    from wandcal.service.cli.detect import config_from_args, mask_from_args
-
-    config = config_from_args(args)
-    status = StatusLine(quiet=args.quiet)
-    reports = detect_capture(args.capture, config, workers=args.workers,
-                             progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
-                             mask=mask_from_args(args), empty=args.background.folder)
-    status.done(f"detect: done, wrote {args.capture / 'wand.csv'} ({config.describe()})")
-    rig = read_rig(args.capture)
-    expected = None if rig.static_markers is None else len(rig.static_markers)
-    for r in reports:
-        if r.setup is not None and (r.setup.mask_source or r.setup.empty_frames):
-            print(r.setup.line())
-        print(r.line(expected))
-    return 0
 
 
 def run_capture(args) -> int:
@@ -130,11 +91,10 @@ def run_capture(args) -> int:
     from wandcal.drivers.registry import open_cameras
     from wandcal.drivers.trigger import open_trigger
     from wandcal.service.cli.guidance import guidance_lines, settings_from, summary
+    from wandcal.service.cli.support.status_line import StatusLine, bar
 
     if args.stop_when_enough and not args.guidance:
         raise CalibrationError("--stop-when-enough needs the guidance; drop --no-guidance")
-    from wandcal.service.cli.detect import config_from_args
-
     config = config_from_args(args, live=True)
     cameras: list[CameraDriver] = [cam for url in args.camera for cam in open_cameras(url)]
     rig = _rig(args, cameras)
@@ -199,6 +159,10 @@ def _image_policy(text: str):
 
 def _rig(args, cameras: list[CameraDriver]) -> Rig:
     """rig.json from --rig, else the simulated scene's rig or the drivers' own intrinsics."""
+    from wandcal.calib.rig import Rig
+    from wandcal.capture.folder import read_rig
+    from wandcal.drivers.errors import DriverError
+
     if args.rig:
         return _read_rig_file(args.rig)
     scene = _sim_scene(cameras)
@@ -224,6 +188,7 @@ def _sim_scene(cameras: list[CameraDriver]):
 
 def _read_rig_file(path: Path) -> Rig:
     from wandcal.capture.rig_file import load_json, rig_from_json
+    from wandcal.drivers.errors import DriverError
 
     try:
         data = path.read_bytes()

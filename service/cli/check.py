@@ -1,23 +1,37 @@
-"""``wandcal check``: did any camera of a result move? Each camera judged against a fresh wand capture."""
+"""``wandcal check RESULT CAPTURE``: did any camera of a result move? Each camera judged against a fresh
+wand capture."""
 
 from __future__ import annotations
 
+import argparse
 import json
-
-import numpy as np
-
-from wandcal.calib.errors import CalibrationError
-from wandcal.calib.rig import camera_list
-from wandcal.capture.folder import read_capture
-from wandcal.service.cli.inputs import points_level, result_for
-from wandcal.service.cli.progress import ProgressLine
+from pathlib import Path
 
 EXIT_MOVED = 1  # wandcal check: a camera moved (named)
 EXIT_UNJUDGED = 3  # wandcal check: some camera could not be judged, and none was seen to move
 
 
+def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
+    p = sub.add_parser("check", help="judge a result's cameras against a fresh wand capture: did any move?",
+                       epilog="exit status: 0 every camera agrees; 1 a camera moved (named, with the command to re-solve "
+                       "it); 2 bad input, or a capture of another rig; 3 no answer: some camera could not be judged, "
+                       "or most cameras disagree (the rig was rebuilt: calibrate afresh)")
+    p.set_defaults(run=run_check)
+    if arguments:
+        p.add_argument("result", type=Path, help="wandcal-result/1 file")
+        p.add_argument("capture", type=Path, help="a fresh wand capture of the same rig")
+        p.add_argument("--json", action="store_true", help='print {"cameras": [{"id", "moved", "rms_px", ...}]}')
+
+
 def run_check(args) -> int:
+    import numpy as np
+
+    from wandcal.calib.errors import CalibrationError
     from wandcal.calib.judge.evaluate import check_cameras
+    from wandcal.calib.rig import camera_list
+    from wandcal.capture.folder import read_capture
+    from wandcal.service.cli.support.inputs import points_level, result_for
+    from wandcal.service.cli.support.progress import ProgressLine
 
     folder = points_level(args.capture, ProgressLine(quiet=True))
     cap = read_capture(folder)

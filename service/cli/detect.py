@@ -1,7 +1,8 @@
-"""The blob detector's command-line options, shared by ``wandcal detect`` and ``wandcal capture``.
+"""``wandcal detect CAPTURE``: blob detection over an image-level capture; and the blob detector's
+options, which ``wandcal capture`` shares.
 
 Every option maps onto one field of :class:`wandcal.calib.detect.config.DetectConfig`, whose defaults
-the help texts quote (this module imports NumPy only, so registering the options costs nothing); ``--background`` and ``--mask`` also name where a camera's empty-volume
+the help texts quote; ``--background`` and ``--mask`` also name where a camera's empty-volume
 recording and masks come from (docs/capture-format.md, "Detection inputs").
 """
 
@@ -11,9 +12,47 @@ import argparse
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from wandcal.calib.detect.config import CLUTTER_MIN_ROUNDNESS, DEFAULT_CONFIG, MARKER_MIN_ROUNDNESS, DetectConfig
-from wandcal.calib.errors import CalibrationError
+from wandcal.service.cli.support.args import whole
+
+if TYPE_CHECKING:
+    from wandcal.calib.detect.config import DetectConfig
+
+MAX_WORKERS = 256
+
+
+def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
+    p = sub.add_parser("detect", help="detect blobs in an image-level capture and write wand.csv",
+                       description="Run blob detection over frames/ and static/ of a capture folder.")
+    p.set_defaults(run=run_detect)
+    if arguments:
+        p.add_argument("capture", type=Path, help="image-level capture folder")
+        p.add_argument("--workers", type=whole(1, MAX_WORKERS), default=None, metavar="N",
+                       help=f"threads that decode and detect images, 1 to {MAX_WORKERS} (default: every core)")
+        p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
+        add_detect_options(p)
+
+
+def run_detect(args) -> int:
+    from wandcal.capture.folder import read_rig
+    from wandcal.capture.images import detect_capture
+    from wandcal.service.cli.support.status_line import StatusLine, bar
+
+    config = config_from_args(args)
+    status = StatusLine(quiet=args.quiet)
+    reports = detect_capture(args.capture, config, workers=args.workers,
+                             progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
+                             mask=mask_from_args(args), empty=args.background.folder)
+    status.done(f"detect: done, wrote {args.capture / 'wand.csv'} ({config.describe()})")
+    rig = read_rig(args.capture)
+    expected = None if rig.static_markers is None else len(rig.static_markers)
+    for r in reports:
+        if r.setup is not None and (r.setup.mask_source or r.setup.empty_frames):
+            print(r.setup.line())
+        print(r.line(expected))
+    return 0
+
 
 MAX_GREY = 65_535  # the brightest level of a 16-bit frame: a threshold above it finds nothing
 
@@ -84,6 +123,8 @@ def _number(low: float, high: float = float("inf"), whole: bool = False):
 
 def add_detect_options(p: argparse.ArgumentParser, live: bool = False) -> None:
     """The detector's options; ``live`` leaves out the per-camera ones (masks, empty volume)."""
+    from wandcal.calib.detect.config import CLUTTER_MIN_ROUNDNESS, DEFAULT_CONFIG, MARKER_MIN_ROUNDNESS
+
     d = DEFAULT_CONFIG
     g = p.add_argument_group("blob detection", "settings of the marker detector (docs/capture-format.md, "
                                                "'Detection'); defaults work on dark IR frames and on frames with glare")
@@ -125,6 +166,9 @@ def add_detect_options(p: argparse.ArgumentParser, live: bool = False) -> None:
 
 def config_from_args(args, live: bool = False) -> DetectConfig:
     """The :class:`DetectConfig` the options ask for (a bad combination raises CalibrationError)."""
+    from wandcal.calib.detect.config import DetectConfig
+    from wandcal.calib.errors import CalibrationError
+
     choice: BackgroundChoice = args.background
     if live and choice.model == "empty" and choice.folder is None:
         raise CalibrationError("--background empty: a live capture has no empty-volume recording of its own yet; "

@@ -5,26 +5,34 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from wandcal.calib.run.guidance import DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM, GuidanceSettings
+from wandcal.service.cli.support.args import positive_number
+
+if TYPE_CHECKING:
+    from wandcal.calib.run.guidance import GuidanceSettings
 
 COVERED, EMPTY = "#", "."  # a coverage grid cell with / without wand samples, in the printed grids
 
 
-def register(subparsers) -> None:
-    p = subparsers.add_parser("guidance", help="judge a capture's wanding: per camera coverage, links and "
-                              "predicted centre 1-sigma; enough?",
-                              description="Print the wanding guidance of a points-level capture (docs/api.md, "
-                                          "'Guidance'): where each camera still needs the wand, and whether the "
-                                          "capture is enough.")
-    p.add_argument("capture", type=Path, help="points-level capture folder (rig.json, wand.csv)")
-    add_guidance_options(p)
-    p.add_argument("--grid", action="store_true", help="also draw each camera's coverage grid")
-    p.add_argument("--json", action="store_true", help="print the wandcal-guidance/1 document instead")
+def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
+    p = sub.add_parser("guidance", help="judge a capture's wanding: per camera coverage, links and "
+                       "predicted centre 1-sigma; enough?",
+                       description="Print the wanding guidance of a points-level capture (docs/api.md, "
+                                   "'Guidance'): where each camera still needs the wand, and whether the "
+                                   "capture is enough.")
     p.set_defaults(run=run_guidance)
+    if arguments:
+        p.add_argument("capture", type=Path, help="points-level capture folder (rig.json, wand.csv)")
+        add_guidance_options(p)
+        p.add_argument("--grid", action="store_true", help="also draw each camera's coverage grid")
+        p.add_argument("--json", action="store_true", help="print the wandcal-guidance/1 document instead")
 
 
 def add_guidance_options(p: argparse.ArgumentParser) -> None:
+    """The guidance's goal, shared by ``wandcal guidance`` and ``wandcal capture``."""
+    from wandcal.calib.run.guidance import DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM
+
     p.add_argument("--target-mm", type=positive_number, default=DEFAULT_TARGET_STD_MM, metavar="MM",
                    help=f"enough when every camera's predicted centre 1-sigma is below this (default "
                         f"{DEFAULT_TARGET_STD_MM:g} mm)")
@@ -36,18 +44,9 @@ def add_guidance_options(p: argparse.ArgumentParser) -> None:
 
 
 def settings_from(args) -> GuidanceSettings:
+    from wandcal.calib.run.guidance import GuidanceSettings
+
     return GuidanceSettings(target_std_mm=args.target_mm, min_coverage=args.min_coverage, sync=args.sync)
-
-
-def positive_number(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value
 
 
 def _share(text: str) -> float:

@@ -1,30 +1,27 @@
-"""``wandcal import``: other tools' sessions and camera files as capture folders (docs/import.md).
-
-Its own module so that the command loads neither the camera drivers nor the capture loop.
-"""
+"""``wandcal import``: other tools' sessions and camera files as capture folders (docs/import.md)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from wandcal.service.cli.args import number, whole
-from wandcal.service.cli.guidance import positive_number
+from wandcal.service.cli.support.args import number, positive_number, whole
 
 MAX_IMAGE_HEIGHT = 65_535  # the largest image side any camera format here can hold (16-bit)
 
 
-def register(subparsers) -> None:
-    _register_import(subparsers)
+def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
+    p = sub.add_parser("import", help="convert an easyWand, Argus, MultiCamSelfCal or anipose session, or a "
+                       "camera file, to a capture folder",
+                       description="Write a points-level wandcal-capture/1 folder from another tool's session "
+                                   "and print what it found (docs/import.md).")
+    if arguments:
+        _formats(p)
 
 
-def _register_import(subparsers) -> None:
+def _formats(p: argparse.ArgumentParser) -> None:
     from wandcal.capture.formats.cameras_in import CAMERA_FORMATS
 
-    p = subparsers.add_parser("import", help="convert an easyWand, Argus, MultiCamSelfCal or anipose session, or a "
-                              "camera file, to a capture folder",
-                              description="Write a points-level wandcal-capture/1 folder from another tool's session "
-                                          "and print what it found (docs/import.md).")
     formats = p.add_subparsers(dest="format", required=True, metavar="FORMAT")
 
     e = formats.add_parser("easywand", help="an easyWand session (*_easyWandData.mat) or its input files",

@@ -7,12 +7,13 @@ import sys
 from pathlib import Path
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
     p = sub.add_parser("report", help="draw an illustrated report of a result: index.html and PNG figures")
-    p.add_argument("result", type=Path, help="a wandcal-result/1 file written by 'wandcal calibrate'")
-    p.add_argument("--capture", type=Path, help="the capture folder the result came from (residuals, coverage, wand)")
-    p.add_argument("--out", type=Path, required=True, help="folder to write index.html and the figures into")
     p.set_defaults(run=run_report)
+    if arguments:
+        p.add_argument("result", type=Path, help="a wandcal-result/1 file written by 'wandcal calibrate'")
+        p.add_argument("--capture", type=Path, help="the capture folder the result came from (residuals, coverage, wand)")
+        p.add_argument("--out", type=Path, required=True, help="folder to write index.html and the figures into")
 
 
 def run_report(args) -> int:

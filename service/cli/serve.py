@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from wandcal.service.cli.args import whole
-from wandcal.service.settings import Settings
+from wandcal.service.cli.support.args import whole
+
+if TYPE_CHECKING:
+    from wandcal.service.settings import Settings
 
 # Seconds uvicorn lets open requests finish after Ctrl-C / SIGINT / SIGTERM. The whole stop (this,
 # the live capture's end and the workers', service/main.py and service/jobs/worker.py) must fit well in
@@ -24,8 +28,14 @@ NO_TOKEN = (
 )
 
 
-def register(subparsers) -> None:
-    p = subparsers.add_parser("serve", help="run the HTTP API, the job workers and the rig page")
+def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
+    p = sub.add_parser("serve", help="run the HTTP API, the job workers and the rig page")
+    p.set_defaults(run=run)
+    if arguments:
+        _arguments(p)
+
+
+def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", help="address to bind (default 127.0.0.1, or 'host' from the settings)")
     p.add_argument("--port", type=whole(1, MAX_PORT), help="port, 1 to 65535 (default 8750)")
     p.add_argument("--config", type=Path, help="settings TOML file (default $WANDCAL_CONFIG)")
@@ -33,7 +43,6 @@ def register(subparsers) -> None:
     p.add_argument("--workers", type=whole(0, MAX_WORKERS), metavar="N",
                    help=f"solver processes, 0 to {MAX_WORKERS} (0: jobs stay queued; default 1)")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
-    p.set_defaults(run=run)
 
 
 def check_bind(settings: Settings) -> None:
@@ -46,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
 
     from wandcal.service.connections import server_options
     from wandcal.service.main import create_app
+    from wandcal.service.settings import Settings
 
     overrides = {
         k: v for k, v in {"host": args.host, "port": args.port, "data_dir": args.data_dir, "workers": args.workers}.items()
@@ -57,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
     spool = settings.data_dir.resolve() / "tmp"
     spool.mkdir(parents=True, exist_ok=True)
     tempfile.tempdir = str(spool)
+    # the service's own log lines (recovery after a crash, the folder's lock) beside uvicorn's, at its level
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     app = create_app(settings)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
                 timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S, **server_options(settings))

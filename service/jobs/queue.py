@@ -7,16 +7,18 @@ database, so finished results survive whatever happens to the queue.
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
 from wandcal.capture.folder import Capture
-from wandcal.service.jobs.records import JobRecord, JobStore
+from wandcal.service.jobs.records import MAX_ATTEMPTS, JobRecord, JobStore
 from wandcal.service.jobs.worker import WorkerPool, run_claim
 
 RESTART_REASON = "the server stopped while the job was running"
+log = logging.getLogger("wandcal.service")
 
 
 class JobQueue(Protocol):
@@ -48,7 +50,10 @@ class SQLiteQueue:
         self.pool = WorkerPool(store, data_dir, workers) if workers > 0 else None
 
     def start(self) -> None:
-        self.store.recover(RESTART_REASON)
+        # only the data folder's owner starts a queue (service/folder_lock.py): every running job is its own
+        for job in self.store.recover(RESTART_REASON):
+            log.warning("job %s was running when the server stopped: now %s (attempt %d of %d)%s", job.id,
+                        job.state.value, job.attempts, MAX_ATTEMPTS, f": {job.error}" if job.error else "")
         if self.pool is not None:
             self.pool.start()
 

@@ -11,7 +11,9 @@ from __future__ import annotations
 import codecs
 import collections
 import json
+import os
 import random
+import re
 
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
@@ -23,10 +25,12 @@ TRIED: collections.Counter = collections.Counter()  # kind of bad input -> input
 # Deterministic (derandomize) so CI never fails on a new random draw; database=None so a run
 # leaves nothing behind. Examples per reader: enough to reach every branch of a reader's checks
 # (each refusal is a few lines of parsing), small enough for ~2 minutes of these tests in all.
-FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
+# A longer run (docs/reliability.md): WANDCAL_FUZZ_SCALE=50 multiplies every count below.
+SCALE = max(int(os.environ.get("WANDCAL_FUZZ_SCALE", "1") or 1), 1)
+FUZZ = settings(max_examples=60 * SCALE, deadline=None, derandomize=True, database=None,
                 suppress_health_check=list(HealthCheck))
-FUZZ_SLOW = settings(FUZZ, max_examples=20)  # readers whose accepted inputs run a calibration
-FUZZ_PIPELINE = settings(FUZZ, max_examples=8)  # a whole calibration per example (~0.3 s)
+FUZZ_SLOW = settings(FUZZ, max_examples=20 * SCALE)  # readers whose accepted inputs run a calibration
+FUZZ_PIPELINE = settings(FUZZ, max_examples=8 * SCALE)  # a whole calibration per example (~0.3 s)
 
 # Cells a person or a broken tool writes: huge and negative numbers, overflow, not-a-number,
 # other number syntaxes and scripts, quoting, control and bidi characters, JSON words.
@@ -126,6 +130,38 @@ def _finish(text: str, rnd: random.Random) -> bytes:
     if rnd.random() < 0.15:
         data = data[: rnd.randrange(len(data) + 1)]
     return data
+
+
+# -- other text formats (TOML, YAML, XML) ---------------------------------------------------
+NUMBER = re.compile(r"-?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
+
+
+def mutated_text(text: str):
+    """A valid text file (TOML, YAML, XML) with 1-4 line-level mutations: a number replaced by a
+    nasty cell, a line deleted, doubled or moved, a garbage line, other line ends, truncation."""
+    return st.tuples(st.integers(1, 4), st.randoms(use_true_random=False)).map(lambda a: _mutate_text(text, *a))
+
+
+def _mutate_text(text: str, count: int, rnd: random.Random) -> bytes:
+    lines = text.splitlines()
+    for _ in range(count):
+        op = rnd.randrange(8)
+        k = rnd.randrange(len(lines)) if lines else 0
+        if op <= 3 and lines:  # a number (or, without one, a word) replaced
+            found = list(NUMBER.finditer(lines[k])) or list(re.finditer(r"\w+", lines[k]))
+            if found:
+                m = rnd.choice(found)
+                lines[k] = lines[k][: m.start()] + rnd.choice(NASTY_CELLS) + lines[k][m.end():]
+        elif op == 4 and lines:
+            del lines[k]
+        elif op == 5 and lines:
+            lines.insert(rnd.randrange(len(lines) + 1), lines[k])
+        elif op == 6:
+            junk = "".join(rnd.choice("[]{}<>=:,\"' x0123456789.-e\t\u00e9") for _ in range(rnd.randrange(40)))
+            lines.insert(rnd.randrange(len(lines) + 1), junk)
+        else:
+            return _finish(rnd.choice(("\r\n", "\r", "\n\n")).join(lines), rnd)
+    return _finish("\n".join(lines) + "\n", rnd)
 
 
 # -- JSON documents --------------------------------------------------------------------------

@@ -126,8 +126,8 @@ ALLOWED = {
     ("calib/solve/lp.py", "threadpool_limits("),
     # the memory policy of a command that computes once and exits, taken by the CLI's own process
     # only (service/cli/__init__.py: never by the server, a worker or an in-process caller)
-    ("service/cli/batch_memory.py", "mallopt("),
-    ("service/cli/batch_memory.py", "_set_madvise_hugepage("),
+    ("service/cli/support/batch_memory.py", "mallopt("),
+    ("service/cli/support/batch_memory.py", "_set_madvise_hugepage("),
 }
 
 

@@ -1,4 +1,4 @@
-"""The batch commands' memory policy (service/cli/batch_memory.py): freed memory serves the next array."""
+"""The batch commands' memory policy (service/cli/support/batch_memory.py): freed memory serves the next array."""
 
 import os
 import platform
@@ -13,7 +13,7 @@ PROBE = """
 import resource, sys
 import numpy as np
 if sys.argv[1] == "policy":
-    from wandcal.service.cli.batch_memory import keep_freed_memory
+    from wandcal.service.cli.support.batch_memory import keep_freed_memory
     assert keep_freed_memory()
 def faults():
     return resource.getrusage(resource.RUSAGE_SELF).ru_minflt

@@ -14,7 +14,7 @@ import time
 import pytest
 
 from tests.service.conftest import simulated_capture
-from wandcal.service.cli.progress import ProgressLine
+from wandcal.service.cli.support.progress import ProgressLine
 
 READ_TIMEOUT_S = 300.0  # a busy 2-core machine; the loop ends as soon as the process does
 

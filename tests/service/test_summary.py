@@ -3,7 +3,7 @@ cameras' reasons compact (the first few, then the others by name), a small rig's
 
 from wandcal.calib.judge.verdict import rig_verdict
 from wandcal.calib.rig import LISTED_CAMERAS
-from wandcal.service.cli.summary import format_summary
+from wandcal.service.cli.support.summary import format_summary
 
 
 def result(n: int, poor: int) -> dict:

@@ -53,3 +53,14 @@ def _range(low, high, got, low_open: bool = False, high_open: bool = False) -> s
         return f"must be {lower}, got {got}"
     upper = f"less than {high:g}" if high_open else f"at most {high:g}"
     return f"must be {lower} and {upper}, got {got}"
+
+
+def positive_number(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value

@@ -4,35 +4,11 @@ previous result's cameras in the capture's order."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from wandcal.calib.errors import CalibrationError
-
-
-def capture_rate(folder: Path) -> float | None:
-    """The capture log's frame rate (capture.json ``rate_hz``), for offsets in seconds; None without one."""
-    try:
-        return float(json.loads((folder / "capture.json").read_text())["rate_hz"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-
-
-def timestamp_start(folder: Path, rig, rate_hz: float | None):
-    """Whole-frame offsets from sync.csv's camera timestamps when no trigger stamped it (docs/sync.md), else None."""
-    from wandcal.calib.start.timestamps import timestamp_offsets
-
-    path = folder / "sync.csv"
-    table = np.genfromtxt(path, delimiter=",", names=True) if path.is_file() else None
-    if table is None or not table.size or np.isfinite(np.atleast_1d(table["trigger_us"])).any():
-        return None
-    table = np.atleast_1d(table)
-    cols = [table[f"{cam.id}_ts"] if f"{cam.id}_ts" in table.dtype.names else np.full(len(table), np.nan) for cam in rig.cameras]
-    frames = [table["frame"][np.isfinite(c)].astype(np.int64) for c in cols]
-    return timestamp_offsets(rig.ids, frames, [c[np.isfinite(c)] for c in cols], rate_hz)
+from wandcal.capture.recording.stamps import capture_rate, timestamp_start  # noqa: F401  (read here before)
 
 
 def points_level(folder: Path, progress) -> Path:

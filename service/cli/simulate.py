@@ -1,0 +1,62 @@
+"""``wandcal simulate OUT``: a simulated capture folder with its ``truth.json``; also the simulator's
+options and run, which ``wandcal demo`` shares."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from wandcal.service.cli.support.args import MAX_SEED, number, whole
+
+TRUTH_FILE = "truth.json"
+# The simulator holds every observation in memory (~100 bytes a camera-frame): 64 cameras by
+# 100,000 frames is ~0.6 GB, the most a demo should ask of a workstation.
+MAX_SIM_CAMERAS = 64
+MAX_SIM_FRAMES = 100_000
+MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
+
+
+def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
+    p = sub.add_parser("simulate", help="write a simulated capture folder with its truth.json")
+    p.set_defaults(run=run_simulate)
+    if arguments:
+        p.add_argument("out", type=Path, help="folder to write")
+        sim_args(p, cameras=8, frames=1500)
+
+
+def sim_args(p: argparse.ArgumentParser, cameras: int, frames: int) -> None:
+    """The simulated rig's options, with the command's own defaults for its size."""
+    p.add_argument("--cameras", type=whole(2, MAX_SIM_CAMERAS), default=cameras, metavar="N",
+                   help=f"cameras on a ring around the volume, 2 to {MAX_SIM_CAMERAS} (default {cameras})")
+    p.add_argument("--frames", type=whole(10, MAX_SIM_FRAMES), default=frames, metavar="N",
+                   help=f"wand frames, 10 to {MAX_SIM_FRAMES} (default {frames})")
+    p.add_argument("--noise", type=number(0, MAX_NOISE_PX), default=0.3, metavar="PX",
+                   help="blob noise, pixels (std; default 0.3)")
+    p.add_argument("--outliers", type=number(0, 1, high_open=True), default=0.0, metavar="SHARE",
+                   help="share of camera-frames with a gross outlier, 0 to below 1 (default 0)")
+    p.add_argument("--no-static", action="store_true", help="no L-frame")
+    p.add_argument("--seed", type=whole(0, MAX_SEED), default=1,
+                   help="random seed: the same seed gives the same rig (default 1)")
+
+
+def simulated(args):
+    """The scene :func:`sim_args`' options ask for (a :class:`wandcal.calib.sim.simulate.SimulatedCapture`)."""
+    from wandcal.calib.sim.simulate import simulate_capture  # simulate and demo only: calibrate does not pay for it
+
+    return simulate_capture(args.cameras, args.frames, args.noise, args.outliers, not args.no_static, args.seed)
+
+
+def write_simulated(folder: Path, sim) -> None:
+    """The capture folder and its truth.json."""
+    from wandcal.capture.folder import write_capture
+
+    write_capture(folder, sim.rig, sim.wand, sim.static)
+    (folder / TRUTH_FILE).write_text(json.dumps(sim.truth.to_json(sim.rig)) + "\n")
+
+
+def run_simulate(args) -> int:
+    sim = simulated(args)
+    write_simulated(args.out, sim)
+    print(f"wrote {args.out}: {len(sim.rig.cameras)} cameras, {args.frames} frames, {len(sim.wand)} wand blobs")
+    return 0
