@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -104,7 +105,7 @@ def _wand_from_json(wand: object, source: str, allow_no_wand: bool) -> tuple[obj
 
 
 def rig_to_json(rig: Rig) -> dict:
-    doc = {
+    doc: dict[str, Any] = {
         "format": CAPTURE_FORMAT,
         "cameras": [
             {"id": c.id, "width": c.width, "height": c.height, "K": c.K.tolist(), "dist": c.dist.tolist()}

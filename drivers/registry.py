@@ -50,6 +50,7 @@ def _open_cv(url: str, scheme: str, path: str, query: dict[str, str]) -> CameraD
 
     if not path:
         raise CameraUrlError(f"{url}: no device or file; write e.g. v4l2:///dev/video0 or opencv:0")
+    source: int | str
     if scheme == "v4l2":
         source, api = path, cv2.CAP_V4L2
         default_id = Path(path).name

@@ -113,8 +113,8 @@ def open_replay(url: str, path: str, query: dict[str, str]) -> list[ReplayCamera
         present = listed_indices(folder, phase, cid)
         if sync is not None:
             have = set(present)
-            frames = [(r.frame, r.camera_us.get(cid)) for r in sync if r.frame in have]
-            frames = [(n, ts if ts is not None else _nominal_us(n)) for n, ts in frames]
+            stamped = [(r.frame, r.camera_us.get(cid)) for r in sync if r.frame in have]
+            frames = [(n, ts if ts is not None else _nominal_us(n)) for n, ts in stamped]
         else:
             frames = [(n, _nominal_us(n)) for n in present]
         cam = ReplayCamera(cid, url, folder, phase, frames, paced=rate == "recorded")

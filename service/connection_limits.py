@@ -9,6 +9,7 @@ those used every file descriptor a systemd unit has by default and locked every 
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import threading
 import time
@@ -30,20 +31,23 @@ class GuardedH11Protocol(H11Protocol):
 
     header_timeout_s: float
     max_connections: int
+    _waiting_since: float | None = None  # monotonic seconds since it waits for a request header
+    _header_task: asyncio.TimerHandle | None = None
 
-    def connection_made(self, transport) -> None:  # type: ignore[override]
+    def connection_made(self, transport) -> None:
         super().connection_made(transport)
         self._arm_header_deadline()
         if len(self.connections) > self.max_connections:
-            waiting = [c for c in self.connections if c is not self and getattr(c, "_waiting_since", None)]
+            waiting = {c: c._waiting_since for c in self.connections
+                       if c is not self and isinstance(c, GuardedH11Protocol) and c._waiting_since}
             if waiting:
-                min(waiting, key=lambda c: c._waiting_since)._close_waiting()
+                min(waiting, key=waiting.__getitem__)._close_waiting()
             else:  # every other connection is mid-request: refuse this one rather than a request
                 self._close_waiting()
 
     def _arm_header_deadline(self) -> None:
         self._waiting_since = time.monotonic()
-        old = getattr(self, "_header_task", None)
+        old = self._header_task
         if old is not None:
             old.cancel()
         self._header_task = self.loop.call_later(self.header_timeout_s, self._header_deadline)
@@ -69,7 +73,7 @@ class GuardedH11Protocol(H11Protocol):
             self._arm_header_deadline()
 
     def connection_lost(self, exc) -> None:
-        task = getattr(self, "_header_task", None)
+        task = self._header_task
         if task is not None:
             task.cancel()
         self._waiting_since = None

@@ -88,7 +88,8 @@ def height_pairs(R: np.ndarray, t: np.ndarray, X: np.ndarray, up: np.ndarray) ->
     than each camera, kept only where ``(R, t, X)`` satisfies it (else the LP may be infeasible)."""
     n_height = min(HEIGHT_CONSTRAINED_POINTS, len(X))
     ok = (X[:n_height] @ up)[:, None] <= (camera_centers(R, t) @ up)[None, :]
-    return np.nonzero(ok)
+    points, cameras = np.nonzero(ok)
+    return points, cameras
 
 
 def lp_step(

@@ -53,7 +53,7 @@ def placed_points(
     keep = np.all(np.isfinite(ends), axis=(1, 2))
     seen_t = views.track >= 0
     tracks = spread(np.flatnonzero(seen_t[:, c] & (seen_t[:, placed].sum(1) >= 2)), MAX_RESECT_TRACKS)
-    if len(tracks) == 0:
+    if points is None or len(tracks) == 0:  # no tracks without points (camera_views)
         return ends[keep], ends_xy[keep], np.zeros((0, 3)), np.zeros((0, 2))
     local, rows = _first_views(views.track[tracks], rank)
     X = triangulate_points(R, t, local, points.camera[rows], points.xy[rows], len(tracks))

@@ -120,6 +120,7 @@ class _Readers:
             if assembler.lead(i) > max_lead:
                 time.sleep(0.002)  # the others are behind: wait instead of piling frames up
                 continue
+            item: Frame | DetectedFrame | DriverError | None
             try:
                 item = cam.read(timeout=READ_TIMEOUT_S)
                 if item is not None:
@@ -286,7 +287,7 @@ class _Loop:
         error = None
         while self.done < self.total:
             if self.trigger is not None and not self.asm.pulses_ended:
-                error = self._take_pulses() or error
+                error = self._take_pulses(self.trigger) or error
             self._take_frames()
             before = self.done
             self._emit(self.asm.ready())
@@ -316,9 +317,9 @@ class _Loop:
             error = error or "; ".join(self.failed)
         return error
 
-    def _take_pulses(self) -> str | None:
+    def _take_pulses(self, trigger: SerialTrigger) -> str | None:
         try:
-            while (pulse := self.trigger.next_pulse(timeout=0)) is not None:
+            while (pulse := trigger.next_pulse(timeout=0)) is not None:
                 self.asm.add_pulse(pulse.counter, pulse.t_us)
                 for cam in self.wired:
                     cam.trigger_input(pulse.counter, pulse.t_us)

@@ -207,7 +207,8 @@ class RedisQueue:
 
         ids = list(self.queue.get_job_ids())
         SimpleWorker([self.queue], connection=self.redis).work(burst=True)
-        return [self.refresh(i) for i in ids]
+        records = [self.refresh(i) for i in ids]
+        return [r for r in records if r is not None]  # all: a job has its row (JobStore.create) before it is submitted
 
 
 def _last_line(text: str | None) -> str | None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -94,7 +95,9 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
     n = len(rig.cameras)
     center = np.full(n, np.nan)
     rotation = np.full(n, np.nan)
-    solution, failure, info = None, None, {"frames_used": 0, "cameras": 0, "warm_start": False}
+    solution: Solution | None = None
+    failure: str | None = None
+    info: dict[str, Any] = {"frames_used": 0, "cameras": 0, "warm_start": False}  # the document's "solve"
     left_out: dict[str, str] = {}
     if solve_set.sum() < 2:
         failure = (NO_WAND_YET if not len(seen.pairs) else
@@ -227,7 +230,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     kept = replace(kept, xy=undistort_by_camera(sub.cameras, kept.camera, kept.uv))
     ids = tuple(sub.ids)
     warm = start is not None and start.ids == ids
-    if warm:
+    if start is not None and warm:
         R, t = start.R, start.t
     else:
         static_poses = None

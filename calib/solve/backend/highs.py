@@ -231,10 +231,12 @@ class IncrementalLp:
         """Start the next solve from a basis: ``basic`` (n_columns,) mask of the basic columns
         (as many as rows), the others at their upper bound where ``at_upper``, else at their
         lower; the rows' slacks are nonbasic (the rows are equalities)."""
-        status = np.where(basic, highspy.HighsBasisStatus.kBasic,
-                          np.where(at_upper, highspy.HighsBasisStatus.kUpper, highspy.HighsBasisStatus.kLower))
+        kind = highspy.HighsBasisStatus
         basis = self.h.getBasis()
-        basis.col_status = list(status)
+        basis.col_status = [
+            kind.kBasic if b else kind.kUpper if u else kind.kLower
+            for b, u in zip(basic, at_upper)
+        ]
         basis.row_status = [highspy.HighsBasisStatus.kLower] * self.m
         basis.valid = True
         self.h.setBasis(basis)
