@@ -8,5 +8,6 @@
 | :mod:`~wandcal.calib.judge.faults` | why one camera disagrees: its timing (:class:`TimingFault`), its lens, or else |
 | :mod:`~wandcal.calib.judge.verdict` | the verdict per camera and for the rig, with reasons and advice |
 | :mod:`~wandcal.calib.judge.evaluate` | fixed cameras judged against a fresh capture (``wandcal check``) |
+| :mod:`~wandcal.calib.judge.leave_one_out` | rigs of 3-5 cameras: each camera against the points the others triangulate (lens, moved) |
 | :mod:`~wandcal.calib.judge.crb` | the Cramér-Rao bound of the poses, for tests and benchmarks |
 """

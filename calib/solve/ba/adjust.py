@@ -112,9 +112,7 @@ def bundle_adjust_points(
         standard_errors: compute ``camera_std`` (one more evaluation and solve; a first stage
             whose result is polished further does not need them).
         timing: the time offsets to refine with the poses, or None to hold them (no extra column).
-        judge_frames: False: ``stop_se`` is judged on the cameras' parameters and the points',
-            not on the wand frames', which are nuisance parameters
-            (:mod:`wandcal.calib.solve.ba.levenberg`).
+        judge_frames: False: ``stop_se`` is judged on the cameras and points, not the wand frames.
 
     Without wand observations the scale is free: it is held by fixing the one translation
     component of one camera that most changes with it (the poses are then up to scale).
