@@ -84,6 +84,18 @@ class BundleResult:
     dt: np.ndarray | None = None
 
 
+def _point_term(tracks: PointTracks, focal: np.ndarray, free: np.ndarray, n: int, intrinsics: IntrinsicsFit | None,
+                timed: bool) -> PointTerm:
+    """The single-point tracks' term (focal: (N,) pixels; raw pixels when the intrinsics are refined)."""
+    raw = None
+    if intrinsics is not None and intrinsics.refine:
+        if intrinsics.point_uv is None:
+            raise ValueError("bundle_adjust_points: refining the intrinsics with point tracks needs their raw "
+                             "pixels (IntrinsicsFit.point_uv)")
+        raw = (intrinsics.point_uv, intrinsics.refine)
+    return PointTerm(tracks.camera, tracks.track, tracks.xy, focal[tracks.camera], tracks.n_tracks, free, n, raw, timed)
+
+
 def bundle_adjust_points(
     model: WandModel,
     tracks: PointTracks | None,
@@ -136,14 +148,7 @@ def bundle_adjust_points(
                      WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, free, n, raw,
                               p.along, timing.velocity if timing is not None else None))
     if tracks is not None and len(tracks):
-        raw = None
-        if intrinsics is not None and refine:
-            if intrinsics.point_uv is None:
-                raise ValueError("bundle_adjust_points: refining the intrinsics with point tracks needs their raw "
-                                 "pixels (IntrinsicsFit.point_uv)")
-            raw = (intrinsics.point_uv, refine)
-        terms.append(PointTerm(tracks.camera, tracks.track, tracks.xy, p.focal[tracks.camera], tracks.n_tracks, free, n, raw,
-                               timing is not None))
+        terms.append(_point_term(tracks, p.focal, free, n, intrinsics, timing is not None))
     R, t = model.poses(x0)
     wand = model.wand(x0) if p.n_frames else np.zeros((0, 2, 3))
     d = wand[:, 1] - wand[:, 0]
