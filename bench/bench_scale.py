@@ -23,7 +23,8 @@ and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, 
 How a whole process is run, timed and profiled, and the captures it reads: bench/whole_process.py.
 
 Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance,methods] [--rigs 64x3000,128x3000]
-    [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
+    [--stage-cameras 16,32,64,128] [--stage-shape ring] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
+    --rigs ring:64x3000,dome:128x3000 (SHAPE:CAMSxFRAMES): rigs of calib/sim/shapes.py, section "Scale: every shape beside COLMAP"
     e.g. git archive 3925791 | tar -x -C /tmp/base && python bench/bench_scale.py --parts regression --base /tmp/base
 """
 
@@ -60,12 +61,12 @@ REGRESSION_RIGS = "8x1500:0,8x1500:0.08,16x2500:0"  # the Peers bench's whole-co
 POINT_RIG = (12, 1500, 15000)  # cameras, wand frames, point frames
 
 
-def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str, float]:
+def colmap_cauchy(cameras: int, frames: int, shape: str | None = None) -> tuple[float, float, str, float]:
     """COLMAP-Cauchy's solve seconds, its centre error (mm), iterations and the CPU seconds of this
-    process over the solve (Ceres's threads included) on the bench_peers scene."""
+    process over the solve (Ceres's threads included) on the bench_peers scene (of ``shape``)."""
     from bench.bench_peers import centre_error_mm as peer_error
 
-    sim, labelled, setup = scene(cameras, frames, OUTLIERS)
+    sim, labelled, setup = scene(cameras, frames, OUTLIERS, shape=shape)
     scale = run_ba(sim, labelled, setup)[3]
     cpu = time.process_time()
     R, t, iterations, seconds = run_colmap(sim, labelled, setup, scale)
@@ -81,10 +82,11 @@ def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
             "| centre error wandcal / COLMAP (mm) | process peak RSS (MB) |",
             "|---|---|---|---|---|---|---|---|---|"]
     for rig in rigs:
-        cameras, frames = (int(v) for v in rig.split("x"))
+        shape, size = rig.split(":") if ":" in rig else (None, rig)  # SHAPE:CAMSxFRAMES, a rig of calib/sim/shapes.py
+        cameras, frames = (int(v) for v in size.split("x"))
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp) / "capture"
-            simulate(folder, cameras, frames)
+            simulate(folder, cameras, frames, shape=shape)
             warm_bytecode()
             times, peaks, cpus, cm, cm_cpu, split = [], [], [], [], [], []
             error = colmap_error = float("nan")
@@ -99,7 +101,7 @@ def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
                 cpus.append(cpu)
                 error = centre_error_mm(Path(tmp) / "result.json", folder / "truth.json")
                 if k < colmap_repeats:
-                    c_seconds, colmap_error, iterations, c_cpu = colmap_cauchy(cameras, frames)
+                    c_seconds, colmap_error, iterations, c_cpu = colmap_cauchy(cameras, frames, shape)
                     cm.append(c_seconds)
                     cm_cpu.append(c_cpu)
                 print(f"{rig}: process {seconds:.2f} s, {peak:.0f} MB" + (f"; COLMAP-Cauchy {cm[-1]:.2f} s" if cm else ""),
@@ -111,7 +113,9 @@ def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
         rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} / {np.median(cpus):.2f} | {user:.2f} + {system:.2f} | "
                     f"{cm_s} | {solves} | {ratio} | {error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
         print(rows[-1], flush=True)
-    return ("The whole command (Python start-up included) on a simulated capture folder (0.3 px, 2% outliers, "
+    shapes = ("Rigs SHAPE:CAMSxFRAMES are `wandcal simulate --shape SHAPE` at its default size (seed 1; each frame in 2-4 "
+              "cameras, |k1| to 0.1), COLMAP's scene the same rig without its L-frame. " if any(":" in r for r in rigs) else "")
+    return (shapes + "The whole command (Python start-up included) on a simulated capture folder (0.3 px, 2% outliers, "
             "L-frame), and COLMAP-Cauchy's solve of the same rig labelled at the truth and started 1 deg / 3 cm off "
             "(bench_peers.py's scene, its gauge on the camera farthest from the first: decision 0019; its steps: "
             f"successful+unsuccessful), alternated in one run; medians of {repeats} processes and {colmap_repeats} COLMAP "
@@ -141,12 +145,12 @@ def part_points(repeats: int) -> str:
             "\n\nGoal (issue 22): <= 10 s and <= 1 GB.")
 
 
-def part_stages(cameras_list: list[int], repeats: int) -> str:
+def part_stages(cameras_list: list[int], repeats: int, shape: str | None = None) -> str:
     per = {}
     with tempfile.TemporaryDirectory() as tmp:
         for cameras in cameras_list:
             folder = Path(tmp) / f"c{cameras}"
-            simulate(folder, cameras, STAGE_FRAMES)
+            simulate(folder, cameras, STAGE_FRAMES, shape=shape)
             runs = []
             for _ in range(repeats):
                 run_process(folder, Path(tmp) / "result.json", Path(tmp) / "profile")
@@ -162,7 +166,8 @@ def part_stages(cameras_list: list[int], repeats: int) -> str:
         slope = np.polyfit(x, np.log(y), 1)[0]
         last = np.log(y[-1] / y[-2]) / np.log(cameras_list[-1] / cameras_list[-2])
         rows.append(f"| {name} | " + " | ".join(f"{v:.2f}" for v in y) + f" | {slope:.2f} | {last:.2f} |")
-    return (f"`wandcal calibrate` under cProfile at {STAGE_FRAMES} frames (0.3 px, 2% outliers, L-frame), in CPU "
+    rigs = f"`wandcal simulate --shape {shape}` rigs" if shape else "`wandcal simulate` rigs"
+    return (f"`wandcal calibrate` under cProfile on {rigs} at {STAGE_FRAMES} frames (0.3 px, 2% outliers, L-frame), in CPU "
             f"seconds (the machine is shared), the median of {repeats} runs per rig and stage; each stage's cumulative "
             "time attributed by caller (the profiler's overhead included; imports not counted, \"other\" is the "
             "reports and the verdict). Growth exponent: the least-squares slope of "
@@ -263,6 +268,7 @@ def main() -> int:
     ap.add_argument("--parts", default="peers,points,stages,guidance")
     ap.add_argument("--rigs", default="64x3000,128x3000")
     ap.add_argument("--stage-cameras", default="16,32,64,128")
+    ap.add_argument("--stage-shape", default=None, help="rigs of calib/sim/shapes.py (ring, dome, tiers, hallway) for --parts stages")
     ap.add_argument("--colmap-repeats", type=int, default=1, help="COLMAP solves per rig (0: none)")
     ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression")
     ap.add_argument("--regression-rigs", default=REGRESSION_RIGS,
@@ -273,7 +279,9 @@ def main() -> int:
     parts = args.parts.split(",")
     sections = []
     if "peers" in parts:
-        sections.append(("Scale: the whole command beside COLMAP", part_peers(args.rigs.split(","), args.repeats, args.colmap_repeats)))
+        # rigs given as SHAPE:CAMSxFRAMES (calib/sim/shapes.py) get their own section
+        title = "Scale: every shape beside COLMAP" if ":" in args.rigs else "Scale: the whole command beside COLMAP"
+        sections.append((title, part_peers(args.rigs.split(","), args.repeats, args.colmap_repeats)))
     if "points" in parts:
         sections.append(("Scale: point-heavy rig", part_points(args.repeats)))
     if "regression" in parts:
@@ -287,7 +295,8 @@ def main() -> int:
     if "guidance" in parts:
         sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
     if "stages" in parts:
-        sections.append(("Scale: stages", part_stages([int(c) for c in args.stage_cameras.split(",")], args.repeats)))
+        title = f"Scale: stages ({args.stage_shape})" if args.stage_shape else "Scale: stages"
+        sections.append((title, part_stages([int(c) for c in args.stage_cameras.split(",")], args.repeats, args.stage_shape)))
     for title, body in sections:
         print(f"\n## {title}\n\n{body}")
         if not args.no_write:
