@@ -47,6 +47,9 @@ HALLWAY_CAMERAS_SHARE = 0.42  # the cameras stand along this share of the length
 HALLWAY_WALK_PAST_M = 2.0  # the wand is walked this far past the last camera at each end: a camera looks
 # across at a stretch of about 4 m of the far wall, so the end ones see the wand on both sides of their aim
 HALLWAY_SWAY_M = 1.0  # the wand's midpoint sways this far along the corridor about the walk
+HALLWAY_SWEEP_M = 1.0  # the wand is swept once per metre walked, as a person waves it while walking: with
+# wand_path's sweeps (150 frames) the 3000 frames' two walks moved it in near-straight lines across
+# several cameras' views, and two cameras sharing 10 such frames were placed 48 degrees off
 VOLUME_SHARE = 0.4  # the wand's volume reaches this share of a round rig's radius from its centre
 VOLUME_HEIGHT_M = (0.45, 1.55)  # the wand's midpoint between these heights: a person waving it
 # wand_path's own volume: midpoints within +/-0.9 m of the centre in x and y (its normalised path
@@ -198,7 +201,10 @@ def shaped_wand_path(shape: RigShape, frames: int, length: float, rng: np.random
     """(F, 2, 3) wand ends, metres: :func:`wandcal.calib.sim.simulate.wand_path`'s smooth path with
     its midpoints stretched over the shape's volume (a hallway's walked from end to end twice, past
     its last cameras), the wand's direction and length as they were."""
-    ends = wand_path(frames, length, rng)
+    sweep = 150.0  # wand_path's default
+    if shape.kind == "hallway":  # the frames of a metre walked (the walk's 4 lengths of 2 reaches)
+        sweep = HALLWAY_SWEEP_M * frames / (8 * shape.half_volume[0])
+    ends = wand_path(frames, length, rng, sweep_frames=sweep)
     mid, half = ends.mean(axis=1), 0.5 * (ends[:, 1] - ends[:, 0])
     mid[:, :2] *= shape.half_volume / PATH_HALF_M
     if shape.kind == "hallway":
