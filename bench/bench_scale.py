@@ -18,7 +18,8 @@ twice) and its growth exponent: the least-squares slope of log(seconds) against 
 
 Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000. Part 5 ("Scale: small rigs before
 and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated. Part 6
-("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`.
+("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`. Part 7
+(--parts costs, "Scale: judgement, guidance, check and sync"): those commands beside calibrate, --cost-rig.
 
 How a whole process is run, timed and profiled, and the captures it reads: bench/whole_process.py.
 
@@ -31,6 +32,8 @@ Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,gu
 from __future__ import annotations
 
 import argparse
+import pstats
+import subprocess
 import sys
 import tempfile
 import time
@@ -50,6 +53,7 @@ from bench.whole_process import (  # noqa: E402
     alternated,
     centre_error_mm,
     checkout_view,
+    child_env,
     run_process,
     simulate,
     stage_seconds,
@@ -262,6 +266,62 @@ def part_regression(base: Path, repeats: int, rigs: str) -> str:
                "\n\nGoal (issue 22): accuracy within 1.05x of before."))
 
 
+def part_costs(rig: str, repeats: int) -> str:
+    """The commands that follow or accompany a calibration, each a whole process beside `wandcal
+    calibrate` of the same capture, alternated run by run, CPU seconds (the machine is shared):
+    `wandcal check` of the result against the capture, `wandcal guidance`, `calibrate --sync auto`
+    (its cost: the difference), and the judgement inside calibrate (cProfile, the `judge` call)."""
+    import os
+    import resource
+
+    shape, size = rig.split(":") if ":" in rig else (None, rig)
+    cameras, frames = (int(v) for v in size.split("x"))
+    runs: dict[str, list] = {name: [] for name in ("calibrate", "judgement", "check", "guidance", "sync auto")}
+    load = [os.getloadavg()[0]]
+    failed: dict[str, str] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder, out = Path(tmp) / "capture", Path(tmp) / "result.json"
+        simulate(folder, cameras, frames, shape=shape)
+        warm_bytecode()
+
+        def cpu(*argv: str) -> float:
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            done = subprocess.run([sys.executable, "-m", "wandcal.service.cli", *argv], capture_output=True, text=True, cwd=REPO,
+                                  env=child_env())
+            if done.returncode == 2:  # refused: the run measured nothing, and the row says why
+                failed[" ".join(argv[:1] + argv[-2:])] = done.stderr.strip().splitlines()[-1]
+                return float("nan")
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+        for _ in range(repeats):
+            runs["calibrate"].append(cpu("calibrate", str(folder), "--quiet", "--out", str(out)))
+            runs["check"].append(cpu("check", str(out), str(folder)))
+            runs["guidance"].append(cpu("guidance", str(folder)))
+            runs["sync auto"].append(cpu("calibrate", str(folder), "--quiet", "--out", str(Path(tmp) / "sync.json"),
+                                         "--sync", "auto") - runs["calibrate"][-1])
+            run_process(folder, Path(tmp) / "profiled.json", Path(tmp) / "profile")
+            stats = pstats.Stats(str(Path(tmp) / "profile")).stats  # type: ignore[attr-defined]
+            whole = max(ct for (_, _, _, ct, _) in stats.values())
+            judged = sum(ct for func, (_, _, _, ct, _) in stats.items() if func[2] == "judge" and "judgement" in func[0])
+            runs["judgement"].append(judged / whole * runs["calibrate"][-1])
+            load.append(os.getloadavg()[0])
+            print({k: round(v[-1], 2) for k, v in runs.items()}, flush=True)
+    calibrate_s = float(np.median(runs["calibrate"]))
+    rows = ["| command or part | CPU seconds (median) | share of calibrate's | runs (CPU s) |", "|---|---|---|---|"]
+    for name, values in runs.items():
+        med = float(np.median(values))
+        rows.append(f"| {name} | {med:.2f} | {med / calibrate_s:.0%} | {', '.join(f'{v:.2f}' for v in values)} |")
+    what = f"`wandcal simulate --shape {shape}`" if shape else "`wandcal simulate`"
+    return (f"A {what} capture of {cameras} x {frames} (0.3 px, 2% outliers, L-frame, seed 1); each command a whole process "
+            f"(Python start-up included), alternated run by run, {repeats} rounds; CPU seconds, user + system, because the "
+            f"machine is shared (1-minute load average {min(load):.1f}-{max(load):.1f} on its {os.cpu_count()} cores). "
+            "check: the result against the capture it came from; sync auto: `calibrate --sync auto` less plain "
+            "`calibrate` of the same round; judgement: the `judge` call's share of a cProfiled calibrate, times that "
+            "round's calibrate.\n\n" + "\n".join(rows) + "\n\nGoal (issue 33): each at most 20% of the calibrate time."
+            + "".join(f"\n\n`wandcal {k}` refused the capture: {v}" for k, v in failed.items()))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
@@ -274,6 +334,7 @@ def main() -> int:
     ap.add_argument("--regression-rigs", default=REGRESSION_RIGS,
                     help="CAMSxFRAMES:OUTLIERS,... for --parts regression")
     ap.add_argument("--method-cameras", default="64,128", help="rigs (cameras x 3000 frames) for --parts methods")
+    ap.add_argument("--cost-rig", default="ring:128x3000", help="[SHAPE:]CAMSxFRAMES for --parts costs")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     parts = args.parts.split(",")
@@ -294,6 +355,8 @@ def main() -> int:
         sections.append(("Scale: lp beside ba", part_methods([int(c) for c in args.method_cameras.split(",")], args.repeats)))
     if "guidance" in parts:
         sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
+    if "costs" in parts:
+        sections.append((f"Scale: judgement, guidance, check and sync ({args.cost_rig})", part_costs(args.cost_rig, args.repeats)))
     if "stages" in parts:
         title = f"Scale: stages ({args.stage_shape})" if args.stage_shape else "Scale: stages"
         sections.append((title, part_stages([int(c) for c in args.stage_cameras.split(",")], args.repeats, args.stage_shape)))
