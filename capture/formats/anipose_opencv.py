@@ -164,10 +164,13 @@ def read_opencv_yaml(text: str, source: str = "calibration.yaml") -> PosedCamera
         where = f"{source}: cameras[{i}]"
         if not isinstance(cam, dict):
             raise CalibrationError(f"{where} is not a map of id, model, image_width, image_height, camera_matrix, ...")
-        cams.append(Camera(_yaml_text(cam.get("id"), f"cam{i + 1}"), _yaml_whole(cam, "image_width", where),
-                           _yaml_whole(cam, "image_height", where), _yaml_matrix_field(cam, "camera_matrix", where),
-                           _yaml_matrix_field(cam, "distortion_coefficients", where).ravel(),
-                           _yaml_text(cam.get("model"), PINHOLE)))
+        fields = (_yaml_text(cam.get("id"), f"cam{i + 1}"), _yaml_whole(cam, "image_width", where),
+                  _yaml_whole(cam, "image_height", where), _yaml_matrix_field(cam, "camera_matrix", where),
+                  _yaml_matrix_field(cam, "distortion_coefficients", where).ravel(), _yaml_text(cam.get("model"), PINHOLE))
+        try:
+            cams.append(Camera(*fields))
+        except CalibrationError as exc:  # Camera's checks name the camera, not the file
+            raise CalibrationError(f"{where}: {exc}") from None
         R.append(_yaml_matrix_field(cam, "R", where))
         t.append(_yaml_matrix_field(cam, "t", where).ravel() / scale)
         rms.append(_yaml_real(cam, "reprojection_rms_px", where) if "reprojection_rms_px" in cam else np.nan)

@@ -53,31 +53,31 @@ class _Parser:
     def fail(self, line: int, what: str) -> CalibrationError:
         return CalibrationError(f"{self.source}: line {line}: {what}; docs/formats.md, opencv-yaml")
 
-    def block(self, indent: int, depth: int):
+    def block(self, indent: int, depth: int, path: str = ""):
         if depth > MAX_DEPTH:
             raise self.fail(self.lines[self.k][0], f"nested deeper than {MAX_DEPTH} levels")
         content = self.lines[self.k][2]
         if content == "-" or content.startswith("- "):
-            return self.sequence(indent, depth)
-        return self.mapping(indent, depth)
+            return self.sequence(indent, depth, path)
+        return self.mapping(indent, depth, path)
 
-    def sequence(self, indent: int, depth: int) -> list:
+    def sequence(self, indent: int, depth: int, path: str) -> list:
         items = []
         while self.k < len(self.lines) and self.lines[self.k][1] == indent and _is_item(self.lines[self.k][2]):
             line, _, content = self.lines[self.k]
             rest = content[1:].lstrip()
             if not rest:
                 self.k += 1
-                items.append(self.nested(indent, depth, line))
+                items.append(self.nested(indent, depth, f"{path}[{len(items)}]"))
             elif _key_split(rest) is not None:  # "- key: value": a map indented at the key
                 self.lines[self.k] = (line, indent + len(content) - len(rest), rest)
-                items.append(self.block(self.lines[self.k][1], depth + 1))
+                items.append(self.block(self.lines[self.k][1], depth + 1, f"{path}[{len(items)}]"))
             else:
                 self.k += 1
                 items.append(self.flow_whole(rest, line, depth))
         return items
 
-    def mapping(self, indent: int, depth: int) -> dict:
+    def mapping(self, indent: int, depth: int, path: str) -> dict:
         out: dict = {}
         while self.k < len(self.lines) and self.lines[self.k][1] == indent and not _is_item(self.lines[self.k][2]):
             line, _, content = self.lines[self.k]
@@ -96,18 +96,18 @@ class _Parser:
             if rest:
                 value = self.flow_whole(rest, line, depth)
             elif self.k < len(self.lines) and self.lines[self.k][1] == indent and _is_item(self.lines[self.k][2]):
-                value = self.sequence(indent, depth + 1)  # "key:" then "- item" at the key's indent
+                value = self.sequence(indent, depth + 1, _join(path, key))  # "key:" then "- item" at the key's indent
             else:
-                value = self.nested(indent, depth, line)
-            out[key] = _matrix(value, key, line, self) if tagged else value
+                value = self.nested(indent, depth, _join(path, key))
+            out[key] = _matrix(value, _join(path, key), line, self) if tagged else value
         if self.k < len(self.lines) and self.lines[self.k][1] > indent:
             raise self.fail(self.lines[self.k][0], "indented deeper than the line before allows")
         return out
 
-    def nested(self, indent: int, depth: int, line: int):
+    def nested(self, indent: int, depth: int, path: str):
         """The block under a line that ends in ``:`` or ``-``; an empty value when nothing is."""
         if self.k < len(self.lines) and self.lines[self.k][1] > indent:
-            return self.block(self.lines[self.k][1], depth + 1)
+            return self.block(self.lines[self.k][1], depth + 1, path)
         return ""
 
     def flow_whole(self, text: str, line: int, depth: int):
@@ -189,6 +189,10 @@ class _Flow:
         raise self.p.fail(self.line, "a quoted string is not closed")
 
 
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
 def _is_item(content: str) -> bool:
     return content == "-" or content.startswith("- ")
 
@@ -258,9 +262,9 @@ def _flow_balance(content: str) -> int:
     return depth
 
 
-def _matrix(value, key: str, line: int, parser: _Parser) -> np.ndarray:
+def _matrix(value, path: str, line: int, parser: _Parser) -> np.ndarray:
     """An ``!!opencv-matrix`` map as a (rows, cols) float64 array, checked against its own sizes."""
-    where = f"{key!r} (line {line})"
+    where = path
     if not isinstance(value, dict):
         raise parser.fail(line, f"{where} must be a map of rows, cols, dt and data")
     for field in ("rows", "cols", "dt", "data"):
@@ -274,7 +278,7 @@ def _matrix(value, key: str, line: int, parser: _Parser) -> np.ndarray:
             and rows * cols <= MAX_MATRIX_ELEMENTS):
         raise parser.fail(line, f"{where}: rows and cols must be whole numbers with rows x cols at most "
                           f"{MAX_MATRIX_ELEMENTS}, not {value['rows']!r} x {value['cols']!r}")
-    if value["dt"] not in MATRIX_DTYPES:
+    if not isinstance(value["dt"], str) or value["dt"] not in MATRIX_DTYPES:
         raise parser.fail(line, f"{where}: dt must be one channel of {''.join(sorted(MATRIX_DTYPES))}, "
                           f"not {value['dt']!r}")
     data = value["data"]
