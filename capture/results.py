@@ -70,8 +70,9 @@ def check_result(doc: object, source: str = "result", rig: Rig | None = None) ->
     if not isinstance(doc, dict):
         raise CaptureFormatError(f"{source}: the top level must be a JSON object")
     if doc.get("format") != RESULT_FORMAT:
-        raise CaptureFormatError(f"{source}: 'format' must be {RESULT_FORMAT!r}, got {doc.get('format')!r}; "
-                                 "give a file written by 'wandcal calibrate'")
+        from wandcal.capture.rig_file import check_format  # the capture and result formats' one version check
+
+        check_format(doc.get("format"), RESULT_FORMAT, source, hint="give a file written by 'wandcal calibrate'")
     entries = doc.get("cameras")
     if not isinstance(entries, list) or not entries:
         raise CaptureFormatError(f"{source}: 'cameras' must be a non-empty list")

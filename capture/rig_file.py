@@ -25,6 +25,29 @@ class CaptureFormatError(CalibrationError):
     """A capture folder that does not follow wandcal-capture/1."""
 
 
+class NewerFormatError(CaptureFormatError):
+    """A file written by a newer wandcal (a later version of a format this release reads): refused by
+    its name and version, never read as if it were the version this release knows."""
+
+
+def check_format(value: object, expected: str, source: str, hint: str = "") -> None:
+    """Refuse a ``format`` field that is not ``expected`` (``"family/N"``, e.g. ``wandcal-result/1``).
+
+    A later version of the same family is a :class:`NewerFormatError` that names it ("written by a
+    newer wandcal: format wandcal-result/2; upgrade wandcal"); anything else a
+    :class:`CaptureFormatError` (``hint``: what to give instead, appended to the message).
+    """
+    if value == expected:
+        return
+    family, _, version = expected.rpartition("/")
+    if isinstance(value, str) and value.startswith(family + "/"):
+        theirs = value[len(family) + 1:]
+        if theirs.isdecimal() and theirs.isascii() and len(theirs) <= 9 and int(theirs) > int(version):
+            raise NewerFormatError(f"{source}: written by a newer wandcal: format {value}; upgrade wandcal (this "
+                                   f"release reads {expected})")
+    raise CaptureFormatError(f"{source}: 'format' must be {expected!r}, got {value!r}" + (f"; {hint}" if hint else ""))
+
+
 def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = False) -> Rig:
     """Build a :class:`Rig` from a parsed rig.json document; errors name the field.
 
@@ -33,8 +56,7 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
     """
     if not isinstance(doc, dict):
         raise CaptureFormatError(f"{source}: the top level must be a JSON object")
-    if doc.get("format") != CAPTURE_FORMAT:
-        raise CaptureFormatError(f"{source}: 'format' must be {CAPTURE_FORMAT!r}, got {doc.get('format')!r}")
+    check_format(doc.get("format"), CAPTURE_FORMAT, source)
     cams = doc.get("cameras")
     if not isinstance(cams, list) or not cams:
         raise CaptureFormatError(f"{source}: 'cameras' must be a non-empty list")
