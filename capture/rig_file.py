@@ -19,6 +19,10 @@ CAPTURE_FORMAT = "wandcal-capture/1"
 RIG_FILE = "rig.json"
 POINTS_FILE = "points.csv"  # named here too: a rig without a wand needs it
 MAX_IMAGE_SIDE_PX = 1 << 20  # no sensor is a million pixels wide: a larger width or height is a typo
+# The largest optical motion-capture stages run a few hundred cameras. The solve's normal equations
+# grow with the square of the cameras (15 parameters each: 7,680 x 7,680, 0.5 GB, at 512), so past
+# this a rig is calibrated in overlapping groups (docs/reliability.md, "Bounded work").
+MAX_CAMERAS = 512
 
 
 class CaptureFormatError(CalibrationError):
@@ -60,6 +64,9 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
     cams = doc.get("cameras")
     if not isinstance(cams, list) or not cams:
         raise CaptureFormatError(f"{source}: 'cameras' must be a non-empty list")
+    if len(cams) > MAX_CAMERAS:
+        raise CaptureFormatError(f"{source}: {len(cams)} cameras, more than the {MAX_CAMERAS} this release calibrates "
+                                 "at once; calibrate the rig in overlapping groups of cameras")
     cameras = []
     for i, c in enumerate(cams):
         where = f"{source}: cameras[{i}]"
