@@ -167,6 +167,16 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
     return faults
 
 
+def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                      figures: list[dict], res: Residuals) -> list[dict]:
+    """The cameras at fault: in a rig of few cameras first by comparing every camera against the
+    points the others triangulate (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`),
+    else by the suspect screen (:func:`camera_faults`)."""
+    from wandcal.calib.judge.leave_one_out import leave_one_out_faults
+
+    return leave_one_out_faults(list(rig.ids), R, t, labelled, tracks) or camera_faults(rig, labelled, R, t, figures, res)
+
+
 def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> list[dict]:
     """Faults of the inputs and of the solve: the wand's length against the static object, an
     unconverged solve, refined intrinsics the data leave undetermined."""
@@ -241,7 +251,7 @@ def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, 
                          "residual_mm": fig["residual_mm"], "ray_mrad": fig["ray_mrad"],
                          "residual_of_volume": fig["ray_distance"] / extent if extent and fig["ray_distance"] else None,
                          "geometry_of_volume": geometry / extent if extent and geometry is not None else None}
-    faults = camera_faults(rig, labelled, R, t, figures, res) + input_faults(rig, world, solver, cameras)
+    faults = few_camera_faults(rig, labelled, tracks, R, t, figures, res) + input_faults(rig, world, solver, cameras)
     angle = median_ray_angle(R, res)
     if angle is not None and angle < np.radians(MIN_RAY_ANGLE_DEG):
         faults.append({"kind": "undetermined", "camera": None, "evidence": {"median_ray_angle_deg": round(np.degrees(angle), 4)},

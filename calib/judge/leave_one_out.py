@@ -1,0 +1,212 @@
+"""Each camera against every point the others triangulate without it: which camera is at fault
+in a rig of few cameras, and how (its lens, or a knock partway through).
+
+In a rig of three or four cameras a fault bends every pose, and each point is seen by two to four
+cameras, so a camera's residual in the solve holds the others' errors too: the weakest camera
+(the most outliers, the fewest views) takes the blame. Here each camera ``c`` is judged on its own
+observations of every point the *other* cameras triangulate (wand ends and point tracks, two or
+more other views), with its pose refitted to them (:func:`wandcal.calib.judge.faults.resect`), so
+what remains is c's own. Two patterns of what remains name a fault:
+
+- **the lens** (:func:`wandcal.calib.judge.faults._lens_fit`): a focal length, k1 or principal
+  point that the pose cannot take up;
+- **a knock**: the camera turned by a rotation ``w`` after frame k, ``r ~ J_rot w`` on its
+  observations after k and 0 before, with ``J_rot`` its projection's derivative in its own rotation:
+  least squares of the residual on those three columns beside the pose's six, at every candidate
+  k, the best k kept. Only the observations with a time (the wand's, or the point tracks where
+  there is no wand: a moving marker) take part; background points digitised once would put a
+  step where there is none.
+
+Where several cameras show a pattern, the one whose pattern is by far the strongest (its F
+:data:`COMPARE_MARGIN` times any other camera's) is named: the others show the error it spread
+through the points; a tie names nobody. docs/verdict.md gives the limits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.judge.faults import POSE_STEP, Lens, _lens_fit, _pose_columns, _share, resect
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.start.labels import flatten
+from wandcal.calib.triangulate import triangulate_points
+
+MAX_CAMERAS = 5  # "few": beyond this every point has views enough that the suspect screen works
+MIN_VIEWS = 20  # observations of c with two other views before c is judged
+# a lens pattern names a fault at this F statistic and share of the residual beyond the pose: on
+# the clean real sessions (Brown 1, 2, Ushichka) the largest was F = 19 at 15%; a focal length 8%
+# off or k1 left out gave F = 48-460 at 28-90%
+LENS_F = 40.0
+LENS_SHARE = 0.25
+# a knock: F of the three step columns at the best split, and their share: clean sessions stay
+# under F = 15 (the split's choice among STEP_SPLITS is a search, so the limit is well above 25)
+KNOCK_F = 40.0
+KNOCK_SHARE = 0.25
+STEP_SPLITS = 15  # candidate splits, evenly spaced in the timed observations
+STEP_MARGIN = 0.15  # no split within this share of either end: a step needs observations on both sides
+# the camera named must stand out: its pattern's F this many times the next camera's strongest. In
+# three cameras a knock of one shows as a step in all (each is judged against points the knocked
+# one helped triangulate): F 417, 362 and 266 on Ushichka with the third knocked, where the knocked
+# camera of four stood out by 5-7 times (MultiCamSelfCal); such a tie names nobody
+COMPARE_MARGIN = 1.5
+
+
+@dataclass(frozen=True, eq=False)
+class HeldOut:
+    """Camera c's observations of points the others triangulated: X (K, 3) the points (world
+    frame), xy (K, 2) observed, normalised; frame (K,) capture frame numbers; timed (K,) bool,
+    the observations that have a time (see the module's docstring)."""
+
+    X: np.ndarray
+    xy: np.ndarray
+    frame: np.ndarray
+    timed: np.ndarray
+
+
+@dataclass(frozen=True)
+class Knock:
+    """A step in a camera's pose: after capture frame ``frame`` it turned by ``degrees``;
+    explained: the share of its residual beyond the pose the step explains; f_stat its F."""
+
+    frame: int
+    degrees: float
+    explained: float
+    f_stat: float
+
+
+@dataclass(frozen=True)
+class CameraPatterns:
+    """One camera's patterns against the others: lens, knock (None when too few observations)."""
+
+    camera: int
+    observations: int
+    lens: Lens | None
+    knock: Knock | None
+
+
+def held_out_views(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None, c: int) -> HeldOut:
+    """Camera c's wand ends and point-track observations, each against its point triangulated by
+    the other cameras alone (those with two other views). R, t: (N, 3, 3), (N, 3) poses."""
+    groups = []
+    if len(labelled):
+        point, camera, xy = flatten(labelled)
+        groups.append((point, camera, xy, 2 * len(labelled.frames), labelled.frames[point // 2], True))
+    if tracks is not None and len(tracks):
+        groups.append((tracks.track, tracks.camera, tracks.xy, tracks.n_tracks, tracks.frames[tracks.track],
+                       not len(labelled)))
+    Xs, xys, frames, timed = [], [], [], []
+    for point, camera, xy, n, frame, has_time in groups:
+        others = camera != c
+        views = np.bincount(point[others], minlength=n)
+        mine = (camera == c) & (views[point] >= 2)
+        if not mine.any():
+            continue
+        X = triangulate_points(R, t, point[others], camera[others], xy[others], n)
+        Xs.append(X[point[mine]])
+        xys.append(xy[mine])
+        frames.append(frame[mine])
+        timed.append(np.full(int(mine.sum()), has_time))
+    if not Xs:
+        return HeldOut(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, bool))
+    X = np.concatenate(Xs)
+    ok = np.all(np.isfinite(X), axis=1)
+    return HeldOut(X[ok], np.concatenate(xys)[ok], np.concatenate(frames)[ok], np.concatenate(timed)[ok])
+
+
+def _turn_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(2K, 3) the projection's derivative in a turn of the camera about its own centre
+    (``x_cam -> exp(w) x_cam``), at points X (K, 3); the pose columns' rotation turns it about the
+    world's origin, which moves its centre too."""
+    Xc = X @ R.T + t
+    base = Xc[:, :2] / Xc[:, 2:]
+    cols = []
+    for j in range(3):
+        w = np.zeros(3)
+        w[j] = POSE_STEP
+        turned = Xc @ rotvec_to_matrix(w).T
+        cols.append(((turned[:, :2] / turned[:, 2:] - base) / POSE_STEP).ravel())
+    return np.stack(cols, axis=1)
+
+
+def _knock(y: np.ndarray, pose: np.ndarray, turn: np.ndarray, frame: np.ndarray, timed: np.ndarray) -> Knock | None:
+    """The best step of the turn columns (2K, 3) in residual y (2K,) beside the pose columns
+    (2K, 6), over the timed observations' frames (K,)."""
+    times = np.sort(frame[timed])
+    if len(times) < MIN_VIEWS:
+        return None
+    lo, hi = int(STEP_MARGIN * len(times)), int((1 - STEP_MARGIN) * len(times))
+    best = None
+    for k in np.unique(times[np.linspace(lo, hi, STEP_SPLITS).astype(int)]):
+        after = np.repeat(timed & (frame > k), 2)
+        if after.sum() < MIN_VIEWS or (~after).sum() < MIN_VIEWS:
+            continue
+        share, coef, f_stat = _share(y, pose, turn * after[:, None])
+        if best is None or f_stat > best.f_stat:
+            best = Knock(int(k), float(np.degrees(np.linalg.norm(coef))), float(share), float(f_stat))
+    return best
+
+
+def camera_patterns(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None,
+                    c: int) -> CameraPatterns:
+    """Camera c's lens and knock patterns against the points the others triangulate, its pose refitted."""
+    held = held_out_views(R, t, labelled, tracks, c)
+    if len(held.X) < MIN_VIEWS:
+        return CameraPatterns(c, len(held.X), None, None)
+    Rc, tc, r, keep = resect(R[c], t[c], held.X, held.xy)
+    if keep.sum() < MIN_VIEWS:
+        return CameraPatterns(c, int(keep.sum()), None, None)
+    pose = _pose_columns(Rc, tc, held.X[keep])
+    y = r[keep].ravel()
+    return CameraPatterns(c, int(keep.sum()), _lens_fit(y, pose, held.xy[keep]),
+                          _knock(y, pose, _turn_columns(Rc, tc, held.X[keep]), held.frame[keep], held.timed[keep]))
+
+
+def _lens_found(p: CameraPatterns) -> float:
+    """The lens pattern's share where it names a fault, else 0."""
+    lens = p.lens
+    return lens.explained if lens is not None and lens.f_stat >= LENS_F and lens.explained >= LENS_SHARE else 0.0
+
+
+def _knock_found(p: CameraPatterns) -> float:
+    knock = p.knock
+    return knock.explained if knock is not None and knock.f_stat >= KNOCK_F and knock.explained >= KNOCK_SHARE else 0.0
+
+
+def leave_one_out_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPairs,
+                         tracks: PointTracks | None) -> list[dict]:
+    """The camera at fault in a rig of at most :data:`MAX_CAMERAS` cameras, by comparison of every
+    camera's patterns against the others (``{"kind", "camera", "message", "evidence"}``; at most
+    one: the others' patterns are its error spread through the points). Empty when no camera's
+    pattern names a fault, or the rig is larger (the suspect screen judges it)."""
+    if not 3 <= len(ids) <= MAX_CAMERAS:
+        return []
+    patterns = [camera_patterns(R, t, labelled, tracks, c) for c in range(len(ids))]
+    strongest = [max(p.lens.f_stat if p.lens else 0.0, p.knock.f_stat if p.knock else 0.0) for p in patterns]
+    found = [p for p in patterns if max(_lens_found(p), _knock_found(p)) > 0]
+    if not found:
+        return []
+    best = max(found, key=lambda p: strongest[p.camera])
+    runner_up = max((f for c, f in enumerate(strongest) if c != best.camera), default=0.0)
+    if strongest[best.camera] < COMPARE_MARGIN * runner_up:
+        return []
+    cam = ids[best.camera]
+    if _knock_found(best) >= _lens_found(best):
+        k = best.knock
+        return [{"kind": "moved", "camera": cam, "evidence": {
+            "frame": k.frame, "degrees": round(k.degrees, 3), "explained_share": round(k.explained, 3),
+            "f_stat": round(k.f_stat, 1)},
+            "message": f"{cam} moved during the capture: after frame {k.frame} it is turned by {k.degrees:.2f} degrees "
+                       f"against its pose before (the step explains {k.explained:.0%} of its residual); fix its mount "
+                       f"and calibrate again, or calibrate from the frames after {k.frame} only"}]
+    lens = best.lens
+    radial = abs(lens.k1_error) / 4 > abs(lens.focal_error)
+    return [{"kind": "intrinsics", "camera": cam, "evidence": {
+        "intrinsics": {"focal_error": round(lens.focal_error, 5), "k1_error": round(lens.k1_error, 5),
+                       "explained_share": round(lens.explained, 3), "f_stat": round(lens.f_stat, 1)}},
+        "message": f"{cam}'s intrinsics do not fit its images against the points the other cameras see: its residuals "
+                   f"are {'radial' if radial else 'scaled'} about the image centre (focal length "
+                   f"{100 * lens.focal_error:+.1f}% in rig.json against the data, k1 {lens.k1_error:+.3f}); check its "
+                   "focal length and distortion, or run with --refine-intrinsics focal,k1"}]

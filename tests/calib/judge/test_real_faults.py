@@ -1,0 +1,100 @@
+"""The judgement on real sessions with one injected fault (bench/real_faults.py), a handful of
+cases; the whole suite and its table are bench/bench_real_faults.py.
+
+Issue 31's goals: the verdict names the fault's kind on the camera it was put on, and no camera
+else; a clean subsample is never called poor. Cases today's judgement gets wrong are marked
+``xfail(strict=True)``, so a fix that makes one right fails here until its mark is removed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench import real_faults as rf
+
+TODAY_WRONG = "the judgement gets this case wrong today (issue 31)"
+
+
+def _case(session: rf.Session, label: str) -> rf.Case:
+    found = [c for c in rf.cases(session) if c.label == label]
+    assert found, f"no case {label!r} in {session.name}"
+    return found[0]
+
+
+@pytest.fixture(scope="module")
+def sessions():
+    if not rf.available():
+        pytest.skip(f"third-party data not found at {rf.SHARED_DATA}")
+    loaded = {}
+    for key in ("brown1", "brown2", "cpp", "svoboda"):
+        session = rf.LOADERS[key]()
+        loaded[key] = (session, rf.clean_run(session))
+    return loaded
+
+
+CASES = [
+    ("brown1", "subsample 60% seed 0"),
+    ("brown1", "principal point +2% cam1"),
+    ("cpp", "focal -8% cam1"),
+    ("brown1", "k1 off cam1"),
+    ("brown2", "focal -8% cam3"),
+    ("svoboda", "knocked 0.47 deg Basler_21275577"),
+    pytest.param("brown2", "subsample 60% seed 0", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
+    pytest.param("brown1", "focal +3% cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
+    pytest.param("brown2", "noise 3x cam3", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
+    pytest.param("brown1", "late 1 frame cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
+    pytest.param("brown1", "early 0.5 frame cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
+    pytest.param("brown2", "knocked 0.82 deg cam4", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
+]
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("key, label", CASES)
+def test_the_verdict_names_the_injected_fault(sessions, key, label):
+    session, clean = sessions[key]
+    out = rf.run_case(session, clean, _case(session, label))
+    assert out.right, rf.case_line(out)
+
+
+# -- the injectors, on a made-up track (no shared data) ------------------------------------------
+
+def _track_session(n_frames: int = 20) -> rf.Session:
+    from wandcal.calib.rig import Camera, Rig, WandObservations
+
+    K = np.array([[1000.0, 0, 320], [0, 1000.0, 240], [0, 0, 1]])
+    cams = tuple(Camera(f"cam{k}", 640, 480, K, np.zeros(5)) for k in range(2))
+    frame = np.repeat(np.arange(n_frames), 4)
+    camera = np.tile([0, 0, 1, 1], n_frames)
+    # end 0 moves 3 px a frame right, end 1 2 px a frame down: a shift of d frames moves them by 3d, 2d
+    uv = np.stack([np.stack([100 + 3.0 * frame, np.full(len(frame), 100.0)], 1),
+                   np.stack([np.full(len(frame), 300.0), 200 + 2.0 * frame], 1)])[np.tile([0, 1], 2 * n_frames),
+                                                                                    np.arange(len(frame))]
+    return rf.Session("track", Rig(cams, 0.5), WandObservations(frame, camera, uv), None, None, (0, 1))
+
+
+@pytest.mark.parametrize("offset", [1.0, -2.0, 0.3, -0.5])
+def test_a_late_camera_shows_the_track_of_time_k_minus_its_offset(offset):
+    session = _track_session()
+    late = rf.late(session, 0, offset).wand
+    mine = late.camera == 0
+    frame, uv = late.frame[mine], late.uv[mine]
+    assert len(frame) >= 2 * 16  # only the frames at the recording's ends are lost
+    ends = uv[:, 1] == 100.0
+    # a linear track interpolates exactly: the blob of end 0 at frame k sits where it was at k - offset
+    np.testing.assert_allclose(uv[ends, 0], 100 + 3.0 * (frame[ends] - offset), atol=1e-9)
+    np.testing.assert_allclose(uv[~ends, 1], 200 + 2.0 * (frame[~ends] - offset), atol=1e-9)
+    other = late.camera == 1
+    np.testing.assert_array_equal(late.uv[other], session.wand.uv[session.wand.camera == 1])
+
+
+def test_a_knock_turns_only_the_later_half_of_the_cameras_samples():
+    session = _track_session()
+    knocked = rf.knocked(session, 0, 0.5, seed=1).wand
+    moved = np.linalg.norm(knocked.uv - session.wand.uv, axis=1)
+    later = (session.wand.camera == 0) & (session.wand.frame > np.median(session.wand.frame[session.wand.camera == 0]))
+    assert np.all(moved[~later] == 0)
+    # a turn by theta moves a pixel at r px from the centre by at most (f + r^2 / f) theta to first
+    # order: 9.5 px at f = 1000 px, r <= 300 px, 0.5 degree
+    r = np.linalg.norm(session.wand.uv[later] - [320, 240], axis=1)
+    assert np.all(moved[later] > 0) and np.all(moved[later] <= 1.01 * (1000 + r**2 / 1000) * np.radians(0.5))
