@@ -255,10 +255,11 @@ class RedisQueue:
                                    progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
         return self.store.get(job_id)
 
-    def _vanished(self, record: JobRecord, grace_s: float = VANISHED_AFTER_S) -> JobRecord | None:
+    def _vanished(self, record: JobRecord, grace_s: float | None = None) -> JobRecord | None:
         """A job the API accepted that Redis does not know: enqueued again from its capture (its
-        outcome is still recorded once: the record takes the first one it sees)."""
-        if time.time() - record.created < grace_s:
+        outcome is still recorded once: the record takes the first one it sees). ``grace_s``:
+        not within this long of its creation (default :data:`VANISHED_AFTER_S`)."""
+        if time.time() - record.created < (VANISHED_AFTER_S if grace_s is None else grace_s):
             return record  # its enqueue may still be under way
         if record.cancel_requested:
             self.store.set_outcome(record.id, JobState.cancelled, finished=time.time(), error=f"cancelled; {VANISHED}")
