@@ -19,10 +19,37 @@ from wandcal.drivers.capture_files import POINTS_FILE, RIG_FILE
 
 CAPTURE_FORMAT = "wandcal-capture/1"
 MAX_IMAGE_SIDE_PX = 1 << 20  # no sensor is a million pixels wide: a larger width or height is a typo
+# The largest optical motion-capture stages run a few hundred cameras. The solve's normal equations
+# grow with the square of the cameras (15 parameters each: 7,680 x 7,680, 0.5 GB, at 512), so past
+# this a rig is calibrated in overlapping groups (docs/reliability.md, "Bounded work").
+MAX_CAMERAS = 512
 
 
 class CaptureFormatError(CalibrationError):
     """A capture folder that does not follow wandcal-capture/1."""
+
+
+class NewerFormatError(CaptureFormatError):
+    """A file written by a newer wandcal (a later version of a format this release reads): refused by
+    its name and version, never read as if it were the version this release knows."""
+
+
+def check_format(value: object, expected: str, source: str, hint: str = "") -> None:
+    """Refuse a ``format`` field that is not ``expected`` (``"family/N"``, e.g. ``wandcal-result/1``).
+
+    A later version of the same family is a :class:`NewerFormatError` that names it ("written by a
+    newer wandcal: format wandcal-result/2; upgrade wandcal"); anything else a
+    :class:`CaptureFormatError` (``hint``: what to give instead, appended to the message).
+    """
+    if value == expected:
+        return
+    family, _, version = expected.rpartition("/")
+    if isinstance(value, str) and value.startswith(family + "/"):
+        theirs = value[len(family) + 1:]
+        if theirs.isdecimal() and theirs.isascii() and len(theirs) <= 9 and int(theirs) > int(version):
+            raise NewerFormatError(f"{source}: written by a newer wandcal: format {value}; upgrade wandcal (this "
+                                   f"release reads {expected})")
+    raise CaptureFormatError(f"{source}: 'format' must be {expected!r}, got {value!r}" + (f"; {hint}" if hint else ""))
 
 
 def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = False) -> Rig:
@@ -33,11 +60,13 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
     """
     if not isinstance(doc, dict):
         raise CaptureFormatError(f"{source}: the top level must be a JSON object")
-    if doc.get("format") != CAPTURE_FORMAT:
-        raise CaptureFormatError(f"{source}: 'format' must be {CAPTURE_FORMAT!r}, got {doc.get('format')!r}")
+    check_format(doc.get("format"), CAPTURE_FORMAT, source)
     cams = doc.get("cameras")
     if not isinstance(cams, list) or not cams:
         raise CaptureFormatError(f"{source}: 'cameras' must be a non-empty list")
+    if len(cams) > MAX_CAMERAS:
+        raise CaptureFormatError(f"{source}: {len(cams)} cameras, more than the {MAX_CAMERAS} this release calibrates "
+                                 "at once; calibrate the rig in overlapping groups of cameras")
     cameras = [_camera_from_json(c, f"{source}: cameras[{i}]") for i, c in enumerate(cams)]
     length, wand_markers = _wand_from_json(doc.get("wand"), source, allow_no_wand)
     markers = None

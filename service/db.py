@@ -13,6 +13,7 @@ import sqlite3
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from wandcal.calib.errors import CalibrationError
@@ -48,6 +49,8 @@ def check_data_dir(data_dir: Path, db_path: Path) -> None:
 
 BUSY_TIMEOUT_S = 30.0  # a writer holds the lock for milliseconds; 30 s only trips on a wedged disk
 
+# The tables of the first release: migration 1 below. A database made before versioning has these
+# tables (they are unchanged since) and schema version 0; CREATE ... IF NOT EXISTS leaves them as they are.
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS captures (
     id TEXT PRIMARY KEY,
@@ -91,6 +94,27 @@ CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state, created);
 """
 
 
+@dataclass(frozen=True)
+class Migration:
+    """One step of the database's schema: ``sql`` takes a database at ``version - 1`` to ``version``."""
+
+    version: int
+    what: str
+    sql: str
+
+
+# Applied in order at start, each in its own transaction with its PRAGMA user_version. Append a step
+# for every change of the tables; never edit one that has shipped (a released database has run it).
+MIGRATIONS = (
+    Migration(1, "the captures, framesets and jobs tables of the first release", SCHEMA),
+)
+SCHEMA_VERSION = MIGRATIONS[-1].version
+
+
+class NewerDatabaseError(DataDirectoryError):
+    """A database whose schema version is past :data:`SCHEMA_VERSION`: a newer wandcal wrote it."""
+
+
 def init_db(path: Path) -> Path | None:
     """Create the database file and its tables if missing (idempotent).
 
@@ -124,14 +148,47 @@ def init_db(path: Path) -> Path | None:
                     "(sqlite3 %s .recover)", path, exc, moved, moved)
     try:
         with connect(path) as conn:
+            refuse_newer(conn, path)  # before anything is written: a newer release's database stays as it was
             conn.execute("PRAGMA journal_mode=WAL")
-            conn.executescript(SCHEMA)
+            migrate(conn, path)
     except sqlite3.OperationalError as exc:
         if getattr(exc, "sqlite_errorcode", None) in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
             raise
         raise DataDirectoryError(f"{path}: the database cannot be written ({exc}); check that the server may write "
                                  "it and its folder") from None
     return moved
+
+
+def schema_version(conn: sqlite3.Connection) -> int:
+    """The database's schema version (``PRAGMA user_version``; 0 before versioning or when new)."""
+    return int(conn.execute("PRAGMA user_version").fetchone()[0])
+
+
+def refuse_newer(conn: sqlite3.Connection, path: Path) -> int:
+    """The database's schema version; :class:`NewerDatabaseError` naming it when past this release's."""
+    found = schema_version(conn)
+    if found > SCHEMA_VERSION:
+        raise NewerDatabaseError(f"{path}: written by a newer wandcal: database schema version {found}; upgrade "
+                                 f"wandcal (this release reads schema versions up to {SCHEMA_VERSION}), or give "
+                                 "another data directory")
+    return found
+
+
+def migrate(conn: sqlite3.Connection, path: Path) -> list[Migration]:
+    """Bring the database to :data:`SCHEMA_VERSION`, applying the missing :data:`MIGRATIONS` in order;
+    returns those applied. A database from a newer wandcal is refused, naming its version, and left
+    as it is (:class:`NewerDatabaseError`)."""
+    found = refuse_newer(conn, path)
+    applied = []
+    existed = conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0] > 0
+    for step in MIGRATIONS[found:]:
+        # executescript commits what is open first, so the script carries its own transaction; a
+        # failed step rolls back when the connection closes and the database stays at the last step
+        conn.executescript(f"BEGIN IMMEDIATE;\n{step.sql}\nPRAGMA user_version = {step.version};\nCOMMIT;")
+        applied.append(step)
+        if existed:  # a new database is not news; an upgrade of a user's database is
+            log.info("%s: database schema migrated to version %d (%s)", path, step.version, step.what)
+    return applied
 
 
 def _check(path: Path) -> None:

@@ -26,11 +26,12 @@ from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePath
 from wandcal.service.connection_limits import install_repeat_filter
 from wandcal.service.db import disk_full, init_db
 from wandcal.service.folder_lock import hold_data_folder
-from wandcal.service.jobs.queue import JobQueue, SQLiteQueue
+from wandcal.service.jobs.queue import JobQueue, QueueUnavailable, SQLiteQueue
 from wandcal.service.jobs.records import JobStore
 from wandcal.service.live_capture import BUSY, LiveCapture
 from wandcal.service.recovery import recover
 from wandcal.service.request_limits import BodySizeLimit, RateLimiter
+from wandcal.service.retention import Pruner, Retention
 from wandcal.service.settings import Settings
 from wandcal.service.storage import CaptureNotFound, CaptureStore, ReplayPathError
 
@@ -86,6 +87,7 @@ def create_app(settings: Settings) -> FastAPI:
     capture_store = CaptureStore(data_dir, settings.db_path, settings.replay_root)
     recover(capture_store, data_dir)
     queue = _queue(settings, JobStore(settings.db_path), capture_store)
+    pruner = Pruner(data_dir, settings.db_path, Retention(settings.keep_results_days, settings.keep_captures_days))
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -95,9 +97,11 @@ def create_app(settings: Settings) -> FastAPI:
         keeper = sqlite3.connect(settings.db_path)
         keeper.execute("SELECT COUNT(*) FROM captures").fetchall()  # maps the -shm file now
         queue.start()
+        pruner.start()
         try:
             yield
         finally:
+            pruner.stop()
             _stop_live_capture(app.state.live_capture)
             queue.stop()
             keeper.close()
@@ -174,6 +178,11 @@ def _add_error_handlers(app: FastAPI, data_dir: Path) -> None:
         log.error("database error on %s %s: %s", request.method, request.url.path, exc)
         return JSONResponse({"detail": f"the database is busy or unavailable ({exc}); retry in a few seconds"},
                             status_code=503, headers={"Retry-After": str(RETRY_AFTER_S)})
+
+    @app.exception_handler(QueueUnavailable)
+    async def queue_away(request: Request, exc: QueueUnavailable) -> JSONResponse:
+        return JSONResponse({"detail": f"{exc}; job records can still be read"}, status_code=503,
+                            headers={"Retry-After": str(max(1, round(exc.retry_after_s)))})
 
     @app.exception_handler(Exception)
     async def internal(request: Request, exc: Exception) -> JSONResponse:

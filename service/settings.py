@@ -44,6 +44,9 @@ DEFAULT_KEEP_ALIVE_S = 5  # uvicorn's own default: the page polls once a second,
 # page, a few scripts and tools, 16 streaming clients); when full, the connection waiting longest
 # for a header is closed to make room.
 DEFAULT_MAX_CONNECTIONS = 512
+# Guidance keeps about this many frames per camera at most: the fast solve is meant to take well
+# under a second (400 by default); past 20,000 it is as slow as the calibration it is to predict.
+MAX_GUIDANCE_FRAMES = 20_000
 
 
 class SettingsError(CalibrationError):
@@ -59,7 +62,7 @@ class GuidanceConfig(BaseModel):
                                  "1-sigma (relative to the rig) must be below this, millimetres")
     min_coverage: float = Field(DEFAULT_MIN_COVERAGE, ge=0, le=1, description="every camera's share of its "
                                 "8 x 8 image grid holding wand samples must reach this")
-    frames_per_camera: int = Field(DEFAULT_FRAMES_PER_CAMERA, ge=MIN_SOLVE_FRAMES,
+    frames_per_camera: int = Field(DEFAULT_FRAMES_PER_CAMERA, ge=MIN_SOLVE_FRAMES, le=MAX_GUIDANCE_FRAMES,
                                    description="frames each camera keeps in the fast solve")
     update_interval_s: float = Field(UPDATE_INTERVAL_S, gt=0, description="least time between two updates of "
                                      "a live or streamed capture's guidance, seconds")
@@ -145,6 +148,10 @@ class Settings(BaseSettings):
                                      "coverage goal (TOML [guidance], or WANDCAL_GUIDANCE as JSON)")
     detect: DetectGroup = Field(default_factory=DetectGroup, description="blob detection of streamed frame sets "
                                 "and live capture (TOML [detect], or WANDCAL_DETECT as JSON)")
+    keep_results_days: float | None = Field(None, gt=0, description="finished jobs (record, result, report) "
+                                            "older than this many days are deleted; unset (the default): kept")
+    keep_captures_days: float | None = Field(None, gt=0, description="captures older than this many days whose "
+                                             "jobs all finished as long ago are deleted with them; unset: kept")
     queue: Literal["sqlite", "redis"] = "sqlite"
     redis_url: str = "redis://127.0.0.1:6379/0"
     redis_queue_name: str = "wandcal"

@@ -21,6 +21,15 @@ RESTART_REASON = "the server stopped while the job was running"
 log = logging.getLogger("wandcal.service")
 
 
+class QueueUnavailable(Exception):
+    """The queue cannot be reached just now (Redis down): a new job or a cancellation is answered
+    503 with ``Retry-After: retry_after_s``; reads are answered from the records."""
+
+    def __init__(self, message: str, retry_after_s: float):
+        super().__init__(message)
+        self.retry_after_s = retry_after_s
+
+
 class JobQueue(Protocol):
     store: JobStore
 

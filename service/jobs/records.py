@@ -204,6 +204,18 @@ class JobStore:
         with connect(self.db_path) as conn:
             conn.execute(f"UPDATE jobs SET {assignments} WHERE id = ?", (*cols.values(), job_id))
 
+    def unfinished(self) -> list[JobRecord]:
+        """The queued and running jobs, oldest first."""
+        with connect(self.db_path) as conn:
+            rows = conn.execute("SELECT * FROM jobs WHERE state IN (?, ?) ORDER BY created",
+                                (JobState.queued.value, JobState.running.value)).fetchall()
+        return [JobRecord.from_row(r) for r in rows]
+
+    def withdraw(self, job_id: str) -> None:
+        """Delete a job that was never accepted (its queue refused it), if still queued."""
+        with connect(self.db_path) as conn:
+            conn.execute("DELETE FROM jobs WHERE id = ? AND state = ?", (job_id, JobState.queued.value))
+
     def request_cancel(self, job_id: str) -> JobRecord | None:
         """Cancel a queued job now; ask a running one to stop at its next progress report."""
         now = time.time()

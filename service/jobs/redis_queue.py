@@ -6,6 +6,12 @@ machine with wandcal installed runs ``rq worker --url redis://HOST:6379/0 wandca
 records stay in the server's SQLite database; :meth:`RedisQueue.refresh` mirrors the rq job's
 state, progress and result into them, so a finished result outlives Redis' result TTL.
 
+Redis is a transport, the SQLite record the truth. While Redis is away (down, restarting, stopped)
+the API reads the records from SQLite and answers what needs the queue (a new job, a cancellation)
+with :class:`~wandcal.service.jobs.queue.QueueUnavailable`, a 503 with Retry-After; a job the API
+had accepted but that Redis lost (restarted without persistence, flushed) is enqueued again from
+its capture at the next poll. Guarantees: docs/reliability.md, "Jobs over Redis".
+
 A job whose worker dies is re-queued once, then failed with the reason, as on the SQLite queue.
 rq does the re-queueing (``Retry(max=1)``): a worker whose work horse dies (the kernel's OOM
 killer, a crash in native code) retries the job at once, and rq's abandoned-job handling
@@ -17,6 +23,7 @@ crash: the failure callback :func:`on_failure` takes its retry away.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections.abc import Callable
 
@@ -24,6 +31,7 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import Capture, parse_static_csv, parse_wand_csv
 from wandcal.capture.rig_file import rig_from_json
 from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.service.jobs.queue import QueueUnavailable
 from wandcal.service.jobs.records import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
 from wandcal.service.jobs.worker import JobStopped, ThrottledProgress, solve
 
@@ -35,12 +43,33 @@ DIED = "its rq worker died while running it"
 # How often polls of running jobs run rq's abandoned-job cleanup: a dead worker is noticed only
 # once its heartbeat (60 s or more) has lapsed, so every poll need not ask.
 CLEANUP_EVERY_S = 10.0
+# The API's Redis calls give up after this: a stopped Redis (SIGSTOP, a partitioned network) would
+# otherwise hold every request that asks it. Workers keep rq's own connection, which waits.
+REDIS_TIMEOUT_S = 2.0
+# After a failed call the API leaves Redis alone this long (and says so in Retry-After): a page
+# polling a dozen jobs then reads SQLite at once instead of waiting REDIS_TIMEOUT_S for each.
+AWAY_S = 5.0
+# A job the API accepted and Redis does not know is enqueued again, but not within this long of its
+# creation: the enqueue that follows the record's INSERT may still be on its way.
+VANISHED_AFTER_S = 10.0
+VANISHED = "the job vanished from Redis (restarted without persistence, or flushed)"
+log = logging.getLogger("wandcal.service")
 
 
 def _connect(url: str):
     from redis import Redis
+    from redis.backoff import NoBackoff
+    from redis.retry import Retry
 
-    return Redis.from_url(url)
+    return Redis.from_url(url, socket_timeout=REDIS_TIMEOUT_S, socket_connect_timeout=REDIS_TIMEOUT_S,
+                          retry=Retry(NoBackoff(), 0))
+
+
+def _unreachable() -> tuple[type[Exception], ...]:
+    """redis-py's errors of a Redis that cannot be reached (down, loading its data, stopped)."""
+    from redis.exceptions import ConnectionError, TimeoutError
+
+    return ConnectionError, TimeoutError
 
 
 def capture_payload(folder_texts: dict[str, str | None], method: str, options: dict) -> dict:
@@ -110,14 +139,48 @@ class RedisQueue:
         self.redis = _connect(url)
         self.queue = Queue(name, connection=self.redis)
         self._next_cleanup = 0.0  # time.monotonic() of the next abandoned-job cleanup
+        self._away_until = 0.0  # time.monotonic() before which Redis is not asked (it failed just now)
 
     def start(self) -> None:
         self.redis.ping()  # fail at startup, not at the first job, when Redis is unreachable
+        self._enqueue_unknown()
+
+    def _enqueue_unknown(self) -> None:
+        """At the start: a job whose record is unfinished and that Redis does not know is enqueued
+        (a server killed between a job's INSERT and its enqueue; a Redis that lost it while this
+        server was down). Only the data folder's owner starts a queue, so no enqueue is under way."""
+        from rq.job import Job
+
+        unknown = [r for r in self.store.unfinished() if not Job.exists(r.id, connection=self.redis)]
+        for record in unknown:
+            self._vanished(record, grace_s=0.0)
 
     def stop(self) -> None:
         self.redis.close()
 
+    def _check_reachable(self) -> None:
+        wait = self._away_until - time.monotonic()
+        if wait > 0:
+            raise QueueUnavailable(f"the job queue (Redis) is unreachable; try again in {wait:.0f} s", wait)
+
+    def _went_away(self, exc: Exception) -> QueueUnavailable:
+        if time.monotonic() >= self._away_until:
+            log.warning("Redis is unreachable (%s): job records are read from SQLite, new jobs and cancellations "
+                        "are refused with 503 for %g s, then Redis is asked again", exc, AWAY_S)
+        self._away_until = time.monotonic() + AWAY_S
+        return QueueUnavailable(f"the job queue (Redis) is unreachable ({exc}); try again in {AWAY_S:g} s", AWAY_S)
+
     def submit(self, job: JobRecord) -> None:
+        """Enqueue the job; when Redis cannot take it, its record is withdrawn (the job was never
+        accepted) and :class:`QueueUnavailable` raised."""
+        try:
+            self._check_reachable()
+            self._enqueue(job)
+        except (QueueUnavailable, *_unreachable()) as exc:
+            self.store.withdraw(job.id)
+            raise exc if isinstance(exc, QueueUnavailable) else self._went_away(exc) from None
+
+    def _enqueue(self, job: JobRecord) -> None:
         from rq import Callback, Retry
 
         payload = capture_payload(self.read_files(job.capture_id), job.method, job.options)
@@ -129,16 +192,30 @@ class RedisQueue:
     def cancel(self, job_id: str) -> JobRecord | None:
         from rq.job import Job
 
-        record = self.refresh(job_id)
-        if record is None or record.state.finished:
-            return record
-        if record.state is JobState.queued:
-            Job.fetch(job_id, connection=self.redis).cancel()
-        else:
-            self.redis.set(CANCEL_KEY.format(job_id), 1, ex=JOB_TIMEOUT_S)
+        self._check_reachable()
+        try:
+            record = self._refresh(job_id)
+            if record is None or record.state.finished:
+                return record
+            if record.state is JobState.queued:
+                Job.fetch(job_id, connection=self.redis).cancel()
+            else:
+                self.redis.set(CANCEL_KEY.format(job_id), 1, ex=JOB_TIMEOUT_S)
+        except _unreachable() as exc:
+            raise self._went_away(exc) from None
         return self.store.request_cancel(job_id)  # refreshed above, so the record matches rq
 
     def refresh(self, job_id: str) -> JobRecord | None:
+        """The record mirrored from rq; while Redis is unreachable, the record as SQLite has it."""
+        if time.monotonic() < self._away_until:
+            return self.store.get(job_id)
+        try:
+            return self._refresh(job_id)
+        except _unreachable() as exc:
+            self._went_away(exc)
+            return self.store.get(job_id)
+
+    def _refresh(self, job_id: str) -> JobRecord | None:
         from rq.exceptions import NoSuchJobError
         from rq.job import Job, JobStatus
 
@@ -148,11 +225,7 @@ class RedisQueue:
         try:
             job = Job.fetch(job_id, connection=self.redis)
         except NoSuchJobError:
-            self.store.set_outcome(
-                job_id, JobState.failed, finished=time.time(),
-                error="the job vanished from Redis (flushed or expired); submit it again",
-            )
-            return self.store.get(job_id)
+            return self._vanished(record)
         status, meta = job.get_status(), job.get_meta()
         started = job.started_at.timestamp() if job.started_at else None
         ended = job.ended_at.timestamp() if job.ended_at else time.time()
@@ -182,6 +255,25 @@ class RedisQueue:
             self.store.set_outcome(job_id, JobState.queued, attempts=attempts,
                                    progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
         return self.store.get(job_id)
+
+    def _vanished(self, record: JobRecord, grace_s: float | None = None) -> JobRecord | None:
+        """A job the API accepted that Redis does not know: enqueued again from its capture (its
+        outcome is still recorded once: the record takes the first one it sees). ``grace_s``:
+        not within this long of its creation (default :data:`VANISHED_AFTER_S`)."""
+        if time.time() - record.created < (VANISHED_AFTER_S if grace_s is None else grace_s):
+            return record  # its enqueue may still be under way
+        if record.cancel_requested:
+            self.store.set_outcome(record.id, JobState.cancelled, finished=time.time(), error=f"cancelled; {VANISHED}")
+            return self.store.get(record.id)
+        try:
+            self._enqueue(record)
+        except (OSError, CalibrationError) as exc:  # the capture was deleted meanwhile
+            self.store.set_outcome(record.id, JobState.failed, finished=time.time(),
+                                   error=f"{VANISHED}, and its capture cannot be read again ({exc}); submit a new job")
+            return self.store.get(record.id)
+        log.warning("job %s: %s; enqueued again from its capture", record.id, VANISHED)
+        self.store.set_outcome(record.id, JobState.queued, progress={"stage": "requeued", "message": f"re-queued: {VANISHED}"})
+        return self.store.get(record.id)
 
     def _retry_abandoned(self) -> None:
         """rq's abandoned-job handling for this queue, run now: a job whose worker died with its

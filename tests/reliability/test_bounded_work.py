@@ -71,3 +71,57 @@ def test_a_capture_file_over_the_limit_exits_2_before_it_is_read(small_capture, 
     code = main(["calibrate", str(tmp_path), "--out", str(tmp_path / "result.json")])
     err = capsys.readouterr().err
     assert code == 2 and f"{tmp_path / WAND_FILE}: {MAX_CSV_BYTES + 1} bytes, more than" in err, err
+
+
+# Issue 34: every option and input size that scales work has a limit and a clear error past it
+# (the table in docs/reliability.md, "Bounded work").
+
+
+def test_a_rig_past_the_camera_limit_is_refused_naming_the_count(small_capture, tmp_path, capsys):
+    from wandcal.capture.rig_file import MAX_CAMERAS, CaptureFormatError, rig_from_json
+    from wandcal.service.cli import main
+
+    _, sim = small_capture
+    doc = rig_to_json(sim.rig)
+    cams = doc["cameras"]
+    many = doc | {"cameras": [cams[i % len(cams)] | {"id": f"c{i}"} for i in range(MAX_CAMERAS + 1)]}
+    at_limit = many | {"cameras": many["cameras"][:MAX_CAMERAS]}
+    assert len(rig_from_json(at_limit).cameras) == MAX_CAMERAS
+    with pytest.raises(CaptureFormatError, match=f"{MAX_CAMERAS + 1} cameras, more than the {MAX_CAMERAS}"):
+        rig_from_json(many)
+    write_capture(tmp_path, sim.rig, sim.wand, sim.static)
+    (tmp_path / RIG_FILE).write_text(json.dumps(many))
+    assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "result.json")]) == 2
+    assert f"{MAX_CAMERAS + 1} cameras, more than the {MAX_CAMERAS}" in capsys.readouterr().err
+
+
+def test_a_rig_past_the_camera_limit_is_a_422(client, small_capture):
+    from wandcal.capture.rig_file import MAX_CAMERAS
+
+    _, sim = small_capture
+    doc = rig_to_json(sim.rig)
+    doc["cameras"] = [doc["cameras"][0] | {"id": f"c{i}"} for i in range(MAX_CAMERAS + 1)]
+    r = client.post("/captures", files={RIG_FILE: (RIG_FILE, json.dumps(doc))})
+    assert r.status_code == 422 and f"more than the {MAX_CAMERAS}" in r.json()["detail"]
+
+
+def test_sync_max_offset_past_its_limit_exits_2_and_is_a_422(client, small_capture, tmp_path, capsys):
+    from wandcal.service.cli import main
+    from wandcal.service.cli.support.args import MAX_SYNC_OFFSET
+
+    folder, _ = small_capture
+    with pytest.raises(SystemExit) as exited:  # argparse's own refusal: exit 2, naming the option
+        main(["calibrate", str(folder), "--sync", "auto", "--sync-max-offset", str(MAX_SYNC_OFFSET + 1)])
+    assert exited.value.code == 2 and "--sync-max-offset" in capsys.readouterr().err
+    capture_id = client.post("/captures", files={n: (n, (folder / n).read_bytes()) for n in (RIG_FILE, WAND_FILE)}).json()["id"]
+    r = client.post("/jobs", json={"capture_id": capture_id, "options": {"sync": "auto",
+                                                                         "sync_max_offset": MAX_SYNC_OFFSET + 1}})
+    assert r.status_code == 422 and "sync_max_offset" in r.json()["detail"]
+
+
+def test_guidance_frames_past_their_limit_are_a_settings_error(tmp_path):
+    from wandcal.service.settings import MAX_GUIDANCE_FRAMES, Settings, SettingsError
+
+    assert Settings.load(data_dir=tmp_path, guidance={"frames_per_camera": MAX_GUIDANCE_FRAMES})
+    with pytest.raises(SettingsError, match="guidance.frames_per_camera"):
+        Settings.load(data_dir=tmp_path, guidance={"frames_per_camera": MAX_GUIDANCE_FRAMES + 1})

@@ -173,3 +173,93 @@ def test_a_job_whose_worker_dies_is_requeued_once_then_failed(make_server, big_c
     finally:
         for worker in workers:
             worker.kill()
+
+
+@pytest.fixture
+def stoppable_redis(tmp_path):
+    """(url, process) of a redis-server on a loopback port, for a test that stops it (SIGSTOP)."""
+    from redis import Redis
+
+    port = free_port()
+    proc = subprocess.Popen([REDIS_SERVER, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly",
+                             "no", "--dir", str(tmp_path)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    url = f"redis://127.0.0.1:{port}/0"
+    deadline = time.monotonic() + 20
+    while True:
+        try:
+            Redis.from_url(url).ping()
+            break
+        except Exception:
+            if time.monotonic() > deadline or proc.poll() is not None:
+                proc.kill()
+                raise
+            time.sleep(0.05)
+    yield url, proc
+    proc.send_signal(signal.SIGCONT)
+    proc.kill()
+    proc.wait(10)
+
+
+def _in_process(tmp_path, url):
+    from fastapi.testclient import TestClient
+
+    from wandcal.service.main import create_app
+    from wandcal.service.settings import Settings
+
+    app = create_app(Settings(data_dir=tmp_path / "data", queue="redis", redis_url=url, redis_queue_name=QUEUE,
+                              workers=0))
+    return app, TestClient(app, base_url="http://127.0.0.1/api/v1", raise_server_exceptions=False)
+
+
+def test_while_redis_is_stopped_reads_answer_from_sqlite_and_the_queue_answers_503(small_capture, stoppable_redis,
+                                                                                  tmp_path):
+    from wandcal.service.jobs.redis_queue import REDIS_TIMEOUT_S
+
+    folder, _ = small_capture
+    url, redis = stoppable_redis
+    app, c = _in_process(tmp_path, url)
+    with c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        job_id = c.post("/jobs", json={"capture_id": capture_id}).json()["id"]
+        redis.send_signal(signal.SIGSTOP)  # connections open, nothing answered: a hung or partitioned Redis
+        try:
+            started = time.monotonic()
+            assert c.get(f"/jobs/{job_id}").json()["state"] == "queued"  # from SQLite
+            assert time.monotonic() - started < REDIS_TIMEOUT_S + 1.0
+            refused = c.post("/jobs", json={"capture_id": capture_id})
+            cancel = c.delete(f"/jobs/{job_id}")
+            listed = c.get("/jobs").json()["jobs"]
+            health = c.get("/health")
+        finally:
+            redis.send_signal(signal.SIGCONT)
+        assert refused.status_code == 503 and int(refused.headers["Retry-After"]) >= 1
+        assert "Redis" in refused.json()["detail"] and "unreachable" in refused.json()["detail"]
+        assert cancel.status_code == 503 and "Retry-After" in cancel.headers
+        assert [j["id"] for j in listed] == [job_id]  # the refused job left no record
+        assert health.status_code == 200
+        # once Redis answers again (and its 5 s of rest are over), the queue is used again
+        deadline = time.monotonic() + 30
+        while (answer := c.post("/jobs", json={"capture_id": capture_id})).status_code == 503:
+            assert time.monotonic() < deadline, answer.text
+            time.sleep(0.2)
+        assert answer.status_code == 202
+
+
+def test_a_job_that_redis_lost_is_enqueued_again_and_run_once(small_capture, stoppable_redis, tmp_path, monkeypatch):
+    from redis import Redis
+
+    from wandcal.service.jobs import redis_queue
+
+    monkeypatch.setattr(redis_queue, "VANISHED_AFTER_S", 0.0)  # no enqueue is under way in this test
+    folder, _ = small_capture
+    url, _ = stoppable_redis
+    app, c = _in_process(tmp_path, url)
+    with c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+        Redis.from_url(url).flushall()  # as a Redis without persistence restarts
+        job = c.get(f"/jobs/{job_id}").json()
+        assert job["state"] == "queued" and "vanished from Redis" in job["progress"]["message"]
+        (done,) = app.state.wandcal.queue.drain()
+        assert done.state.value == "done" and done.result["cameras"]
+        assert c.get(f"/jobs/{job_id}").json()["result"] == done.result

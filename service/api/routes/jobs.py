@@ -35,6 +35,7 @@ MEDIA_TYPES = {
 }
 UNKNOWN_JOB = {"model": ErrorPublic, "description": "unknown job"}
 UNAUTHORISED = {"model": ErrorPublic, "description": "missing or wrong bearer token"}
+QUEUE_AWAY = {"model": ErrorPublic, "description": "the job queue (Redis) is unreachable; Retry-After says when to ask again"}
 
 
 def _job(state, job_id: str) -> JobRecord:
@@ -69,6 +70,7 @@ def to_public(r: JobRecord, state=None) -> JobPublic:
         404: {"model": ErrorPublic, "description": "unknown capture"},
         415: {"model": ErrorPublic, "description": "the body must be JSON"},
         422: {"model": ValidationErrorPublic, "description": "invalid request or a capture that cannot be solved"},
+        503: QUEUE_AWAY,
     },
     summary="Queue a calibration of a capture",
 )
@@ -112,7 +114,8 @@ def get_job(job_id: str, state: State) -> JobPublic:
 
 @router.delete(
     "/{job_id}", response_model=JobPublic,
-    responses={401: UNAUTHORISED, 404: UNKNOWN_JOB, 409: {"model": ErrorPublic, "description": "already finished"}},
+    responses={401: UNAUTHORISED, 404: UNKNOWN_JOB, 409: {"model": ErrorPublic, "description": "already finished"},
+               503: QUEUE_AWAY},
     summary="Cancel a job (at once if queued; at its next progress report if running)",
 )
 def cancel_job(job_id: str, state: State) -> JobPublic:

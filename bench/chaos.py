@@ -1,0 +1,531 @@
+"""The chaos run: the documented Redis/rq deployment (docs/deploy.md) under worker kills, Redis
+restarts, a Redis outage and an API restart; every accepted job must end exactly once.
+
+    python bench/chaos.py                 # 300 jobs, 24 worker kills, 4 Redis restarts, 30 s away
+    python bench/chaos.py --no-write      # print only; leave docs/benchmarks.md alone
+
+What runs, all on loopback: a ``redis-server`` started here (append-only file, fsync always), the
+API (``wandcal serve`` with ``queue = "redis"`` and no local solver), and ``rq worker`` processes,
+each kept running by a supervisor here as systemd's ``Restart=always`` would (two of them from
+another folder with no WANDCAL_* settings, as services on a second machine). A client submits tiny
+captures' jobs (a 503 is retried after its Retry-After; only a 202 is an accepted job) and polls
+every unfinished job, as the page does. Meanwhile:
+
+- workers are SIGKILLed at random points: most often the work horse (the process solving a job,
+  at a random moment of its solve or of its result's write), sometimes the whole worker with it;
+- Redis is restarted: shut down (its data kept), SIGKILLed (kept: fsync always), and SIGKILLed
+  with its data deleted, as a Redis without persistence loses everything;
+- Redis is SIGSTOPped for ``--away`` seconds (it accepts connections and answers nothing): the run
+  checks that the API meanwhile answers reads from SQLite and a 503 with Retry-After for a new job;
+- the API is SIGKILLed and started again while jobs run.
+
+At the end every job in the database (accepted or not) must be finished, each accepted job
+exactly once: its first finished state and result never change afterwards, none is lost or stuck.
+The rq workers' logs say how often a job's solve completed: more than once is the at-least-once
+execution docs/reliability.md describes, never a second result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import random
+import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.common import write_section
+from tests.service.conftest import REPO, Server, capture_files, free_port, server_env, simulated_capture
+
+QUEUE = "wandcal"
+# workers 1, 2, ... load the solver once (docs/deploy.md); worker 0 is the plain `rq worker`
+PRELOADED = ("-w", "wandcal.service.jobs.rq_worker.Worker")
+FINISHED = ("done", "failed", "cancelled")
+REDIS_START_S = 20.0  # a fresh redis-server answers PING within milliseconds; an AOF replay takes longer
+# rq notices a worker that died with its machine when its heartbeat lapses (rq's job-monitoring
+# interval, 30 s, plus 60 s) and the server's next poll cleans up (10 s): after the chaos, a job
+# still unfinished when no job has finished for this long is stuck.
+STALL_S = 150.0
+SETTLE_S = 1800.0  # and the run ends this long after the chaos whatever happens (a backlog on a slow machine)
+POLL_S = 0.2  # the client's pause between rounds of polls of the unfinished jobs
+LOG_WAIT_S = 10.0  # at the end, how long a solve still running is given to log its end
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What the run does. ``worker_kills`` are spread over the submission; one in
+    ``whole_worker_every`` kills the worker with its horse (0: horses only)."""
+
+    jobs: int = 300
+    workers: int = 3
+    worker_kills: int = 24
+    whole_worker_every: int = 4
+    redis_restarts: tuple[str, ...] = ("shutdown", "sigkill", "lost", "shutdown")
+    away_s: float = 30.0
+    api_restarts: int = 1
+    submit_s: float = 150.0  # the jobs are submitted over this long (the chaos happens meanwhile)
+    settle_s: float = SETTLE_S
+    stall_s: float = STALL_S
+    captures: int = 3
+    seed: int = 34
+
+
+@dataclass
+class Report:
+    accepted: list[str] = field(default_factory=list)
+    refused: int = 0  # 503s (and connection errors while the API restarted) of POST /jobs, retried
+    horse_kills: int = 0
+    worker_kills: int = 0
+    redis_restarts: list[str] = field(default_factory=list)
+    api_restarts: int = 0
+    away: dict = field(default_factory=dict)
+    first_end: dict[str, tuple[str, str]] = field(default_factory=dict)  # job id: (state, result digest)
+    final: dict[str, tuple[str, str]] = field(default_factory=dict)
+    unaccepted_rows: int = 0  # rows of POSTs whose answer was lost (the API killed meanwhile)
+    unaccepted_unfinished: int = 0
+    errors: Counter = field(default_factory=Counter)
+    solves: Counter = field(default_factory=Counter)  # job id: "Job OK" lines in the workers' logs
+    seconds: float = 0.0
+
+    @property
+    def lost(self) -> list[str]:
+        return [j for j in self.accepted if j not in self.final]
+
+    @property
+    def stuck(self) -> list[str]:
+        return [j for j, (state, _) in self.final.items() if state not in FINISHED]
+
+    @property
+    def changed(self) -> list[str]:
+        """Jobs whose outcome changed after it was first seen finished: a duplicate result."""
+        return [j for j, end in self.first_end.items() if self.final.get(j) != end]
+
+    def states(self) -> Counter:
+        return Counter(state for state, _ in self.final.values())
+
+    @property
+    def ok(self) -> bool:
+        return not (self.lost or self.stuck or self.changed or self.unaccepted_unfinished) and bool(self.accepted)
+
+
+class RedisServer:
+    """``redis-server`` on a loopback port, with its append-only file fsynced at every write."""
+
+    def __init__(self, folder: Path, port: int):
+        self.folder, self.port = folder, port
+        self.url = f"redis://127.0.0.1:{port}/0"
+        self.proc: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.proc = subprocess.Popen(
+            ["redis-server", "--port", str(self.port), "--bind", "127.0.0.1", "--dir", str(self.folder),
+             "--appendonly", "yes", "--appendfsync", "always", "--save", ""],
+            stdout=open(self.folder / "redis.log", "ab"), stderr=subprocess.STDOUT,
+        )
+        from redis import Redis
+
+        deadline = time.monotonic() + REDIS_START_S
+        while True:
+            try:
+                Redis.from_url(self.url, socket_timeout=1).ping()
+                return
+            except Exception:
+                if time.monotonic() > deadline or self.proc.poll() is not None:
+                    raise RuntimeError(f"redis-server did not start: {(self.folder / 'redis.log').read_text()[-2000:]}") from None
+                time.sleep(0.05)
+
+    def restart(self, how: str) -> None:
+        """``shutdown``: SIGTERM (it writes its data); ``sigkill``: its data kept on disk; ``lost``:
+        SIGKILL and its files deleted, as a Redis without persistence comes back empty."""
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGTERM if how == "shutdown" else signal.SIGKILL)
+        self.proc.wait(30)
+        if how == "lost":
+            for leftover in self.folder.iterdir():
+                if leftover.name != "redis.log":
+                    shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink()
+        self.start()
+
+    def pause(self, seconds: float, during=None) -> None:
+        """SIGSTOP for ``seconds``: connections are accepted and nothing is answered. ``during()`` runs
+        once it is stopped."""
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGSTOP)
+        end = time.monotonic() + seconds
+        try:
+            if during is not None:
+                during()
+            time.sleep(max(0.0, end - time.monotonic()))
+        finally:
+            self.proc.send_signal(signal.SIGCONT)
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGCONT)
+            self.proc.kill()
+            self.proc.wait(10)
+
+
+class Workers:
+    """``rq worker`` processes, each restarted when it dies (systemd's ``Restart=always``)."""
+
+    def __init__(self, url: str, count: int, env: dict, folder: Path):
+        self.url, self.env, self.folder = url, env, folder
+        self.procs: list[subprocess.Popen | None] = [None] * count
+        self._halt = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._supervise, daemon=True)
+
+    def _spawn(self, i: int) -> subprocess.Popen:
+        # worker 0 beside the API; the others as services of another machine: own folder, no WANDCAL_* settings
+        home = self.folder / f"worker{i}"
+        home.mkdir(parents=True, exist_ok=True)
+        env = self.env if i == 0 else {k: v for k, v in self.env.items() if not k.startswith("WANDCAL_")}
+        return subprocess.Popen(
+            [sys.executable, "-m", "rq.cli", "worker", *(PRELOADED if i else ()), "--url", self.url,
+             "--name", f"chaos-{i}-{time.time_ns()}", QUEUE],
+            cwd=home, env=env, stdout=open(home / "worker.log", "ab"), stderr=subprocess.STDOUT,
+        )
+
+    def start(self) -> None:
+        with self._lock:
+            self.procs = [self._spawn(i) for i in range(len(self.procs))]
+        self._thread.start()
+
+    def _supervise(self) -> None:
+        while not self._halt.wait(0.5):
+            with self._lock:
+                for i, proc in enumerate(self.procs):
+                    if proc is not None and proc.poll() is not None:
+                        self.procs[i] = self._spawn(i)
+
+    def busy_horse(self, rng: random.Random) -> tuple[subprocess.Popen, int] | None:
+        """A worker and the pid of its work horse, for a worker that is running a job now."""
+        with self._lock:
+            procs = [p for p in self.procs if p is not None and p.poll() is None]
+        rng.shuffle(procs)
+        children = _children()
+        for proc in procs:
+            for pid in children.get(proc.pid, []):
+                return proc, pid
+        return None
+
+    def wait_idle(self, timeout_s: float) -> None:
+        """Until no worker runs a job (or ``timeout_s``)."""
+        deadline = time.monotonic() + timeout_s
+        while self.busy_horse(random.Random(0)) is not None and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+    def stop(self) -> None:
+        self._halt.set()
+        self._thread.join(5)
+        with self._lock:
+            for proc in self.procs:
+                if proc is not None and proc.poll() is None:
+                    proc.kill()
+                    proc.wait(10)
+            for horse in (pid for p in self.procs if p for pid in _children().get(p.pid, [])):
+                _kill(horse)
+
+    def solves(self) -> Counter:
+        """Per job id, the solves that completed ("Job OK" in the workers' logs)."""
+        count: Counter = Counter()
+        for log in self.folder.glob("worker*/worker.log"):
+            for line in log.read_text(errors="replace").splitlines():
+                if "Job OK" in line and line.rstrip().endswith(")"):
+                    count[line.rstrip()[:-1].rpartition("(")[2]] += 1
+        return count
+
+
+def _children() -> dict[int, list[int]]:
+    """{parent pid: [child pids]} from /proc."""
+    out: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rpartition(")")[2].split()
+        except OSError:
+            continue
+        out.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    return out
+
+
+def _kill(pid: int) -> None:
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+
+
+def _digest(job: dict) -> str:
+    return hashlib.sha256(json.dumps([job.get("result"), job.get("error")], sort_keys=True).encode()).hexdigest()[:16]
+
+
+class Client:
+    """Submits the jobs and polls the unfinished ones, recording each job's first finished state."""
+
+    def __init__(self, server: Server, report: Report, capture_ids: list[str]):
+        self.server, self.report, self.capture_ids = server, report, capture_ids
+        self.unfinished: set[str] = set()
+        self._lock = threading.Lock()
+
+    def _http(self) -> httpx.Client:
+        return httpx.Client(base_url=self.server.url + "/api/v1", timeout=30.0)
+
+    def submit(self, count: int, over_s: float, halt: threading.Event) -> None:
+        start = time.monotonic()
+        with self._http() as c:
+            for n in range(count):
+                time.sleep(max(0.0, start + over_s * n / count - time.monotonic()))
+                while not halt.is_set():
+                    try:
+                        answer = c.post("/jobs", json={"capture_id": self.capture_ids[n % len(self.capture_ids)],
+                                                       "method": "ba", "options": {"use_static": True}})
+                    except httpx.TransportError:
+                        self.report.refused += 1
+                        time.sleep(0.5)  # the API is restarting
+                        continue
+                    if answer.status_code == 202:
+                        with self._lock:
+                            self.report.accepted.append(answer.json()["id"])
+                            self.unfinished.add(answer.json()["id"])
+                        break
+                    assert answer.status_code == 503, (answer.status_code, answer.text)
+                    assert int(answer.headers["Retry-After"]) >= 1
+                    self.report.refused += 1
+                    time.sleep(min(float(answer.headers["Retry-After"]), 2.0))
+
+    def poll(self, halt: threading.Event) -> None:
+        with self._http() as c:
+            while not halt.is_set():
+                with self._lock:
+                    ids = list(self.unfinished)
+                for job_id in ids:
+                    try:
+                        answer = c.get(f"/jobs/{job_id}")
+                    except httpx.TransportError:
+                        time.sleep(0.5)
+                        break
+                    if answer.status_code != 200:
+                        self.report.errors[f"GET /jobs/{{id}}: {answer.status_code}"] += 1
+                        continue
+                    job = answer.json()
+                    if job["state"] in FINISHED:
+                        with self._lock:
+                            self.unfinished.discard(job_id)
+                            self.report.first_end.setdefault(job_id, (job["state"], _digest(job)))
+                time.sleep(POLL_S)
+
+
+def _outage_probe(server: Server, report: Report, job_id: str | None) -> None:
+    """While Redis is stopped: reads answer from SQLite, a new job gets 503 with Retry-After."""
+    with httpx.Client(base_url=server.url + "/api/v1", timeout=30.0) as c:
+        t0 = time.monotonic()
+        read = c.get(f"/jobs/{job_id}") if job_id else c.get("/jobs")
+        report.away["read"] = f"{read.status_code} in {time.monotonic() - t0:.1f} s"
+        t0 = time.monotonic()
+        listed = c.get("/jobs")
+        report.away["list"] = f"{listed.status_code} in {time.monotonic() - t0:.1f} s"
+        captures = c.get("/captures").json()["captures"]
+        t0 = time.monotonic()
+        new = c.post("/jobs", json={"capture_id": captures[0]["id"], "method": "ba"})
+        report.away["submit"] = (f"{new.status_code} (Retry-After {new.headers.get('Retry-After')}) in "
+                                 f"{time.monotonic() - t0:.1f} s")
+        report.away["health"] = str(c.get("/health").status_code)
+        report.away["ok"] = (read.status_code == 200 and listed.status_code == 200 and new.status_code == 503
+                             and "Retry-After" in new.headers)
+
+
+def _chaos(plan: Plan, rng: random.Random, redis: RedisServer, workers: Workers, server: Server, report: Report,
+           client: Client, done: threading.Event) -> None:
+    """The faults, spread over the submission: kills throughout, the rest at fixed fractions."""
+    events: list[tuple[float, str]] = [(plan.submit_s * (k + 0.5) / plan.worker_kills, "kill")
+                                       for k in range(plan.worker_kills)]
+    events += [(plan.submit_s * (k + 1) / (len(plan.redis_restarts) + 2), f"redis:{how}")
+               for k, how in enumerate(plan.redis_restarts)]
+    events += [(plan.submit_s * 0.5, "away")] if plan.away_s > 0 else []
+    events += [(plan.submit_s * (k + 0.3) / max(plan.api_restarts, 1), "api") for k in range(plan.api_restarts)]
+    start = time.monotonic()
+    kills = 0
+    for at, what in sorted(events):
+        time.sleep(max(0.0, start + at - time.monotonic()))
+        if what == "kill":
+            kills += 1
+            whole = plan.whole_worker_every > 0 and kills % plan.whole_worker_every == 0
+            deadline = time.monotonic() + 10
+            while (busy := workers.busy_horse(rng)) is None and time.monotonic() < deadline:
+                time.sleep(0.02)
+            if busy is None:
+                continue
+            time.sleep(rng.uniform(0.0, 0.3))  # somewhere in the solve or the write of its result
+            worker, horse = busy
+            if whole:
+                worker.kill()  # first, so that it cannot see its horse die and handle that itself
+                report.worker_kills += 1
+            else:
+                report.horse_kills += 1
+            _kill(horse)
+        elif what.startswith("redis:"):
+            redis.restart(what.partition(":")[2])
+            report.redis_restarts.append(what.partition(":")[2])
+        elif what == "away":
+            with client._lock:
+                some = next(iter(client.unfinished), None) or (report.accepted[0] if report.accepted else None)
+            redis.pause(plan.away_s, during=lambda: _outage_probe(server, report, some))
+        elif what == "api":
+            server.kill()
+            server.start()
+            report.api_restarts += 1
+    done.set()
+
+
+def upload_captures(server: Server, folder: Path, count: int) -> list[str]:
+    """``count`` tiny captures (3 cameras, 120 frames: a solve well under a second), uploaded."""
+    ids = []
+    with server.client() as c:
+        for k in range(count):
+            capture, _ = simulated_capture(folder / f"capture{k}", cameras=3, frames=120, noise_px=0.3, seed=100 + k)
+            answer = c.post("/captures", files=capture_files(capture))
+            answer.raise_for_status()
+            ids.append(answer.json()["id"])
+    return ids
+
+
+def _audit(db: Path, report: Report) -> None:
+    with sqlite3.connect(db) as conn:
+        conn.row_factory = sqlite3.Row
+        rows = {r["id"]: r for r in conn.execute("SELECT id, state, result, error FROM jobs")}
+    for job_id, row in rows.items():
+        job = {"result": json.loads(row["result"]) if row["result"] else None, "error": row["error"]}
+        if job_id in set(report.accepted):
+            report.final[job_id] = (row["state"], _digest(job))
+        else:
+            report.unaccepted_rows += 1
+            report.unaccepted_unfinished += row["state"] not in FINISHED
+
+
+def run(plan: Plan, folder: Path) -> Report:
+    """Run ``plan`` in ``folder`` (everything it starts is stopped before it returns)."""
+    rng = random.Random(plan.seed)
+    report = Report()
+    started = time.monotonic()
+    redis = RedisServer(folder / "redis", free_port())
+    redis.start()
+    (folder / "replay").mkdir(parents=True, exist_ok=True)
+    env = server_env(folder, queue="redis", redis_url=redis.url, redis_queue_name=QUEUE, workers=0)
+    env["PYTHONPATH"] = str(REPO)
+    server = Server(port=free_port(), env=env, log=folder / "server.log")
+    workers = Workers(redis.url, plan.workers, env, folder)
+    halt, chaos_done = threading.Event(), threading.Event()
+    threads: list[threading.Thread] = []
+    try:
+        server.start()
+        capture_ids = upload_captures(server, folder / "captures", plan.captures)
+        workers.start()
+        client = Client(server, report, capture_ids)
+        threads = [threading.Thread(target=client.submit, args=(plan.jobs, plan.submit_s, halt), daemon=True),
+                   threading.Thread(target=client.poll, args=(halt,), daemon=True),
+                   threading.Thread(target=_chaos, args=(plan, rng, redis, workers, server, report, client, chaos_done),
+                                    daemon=True)]
+        for t in threads:
+            t.start()
+        threads[0].join()
+        chaos_done.wait()
+        # the jobs of POSTs whose answer a kill of the API cut off: a page listing the jobs polls them too
+        with sqlite3.connect(Path(env["WANDCAL_DATA_DIR"]) / "wandcal.sqlite3") as conn:
+            unanswered = {r[0] for r in conn.execute("SELECT id FROM jobs WHERE state IN ('queued', 'running')")}
+        with client._lock:
+            client.unfinished |= unanswered - set(report.accepted)
+        deadline = time.monotonic() + plan.settle_s
+        last, progress = -1, time.monotonic()
+        while time.monotonic() < min(deadline, progress + plan.stall_s):
+            with client._lock:
+                left = len(client.unfinished)
+            if not left:
+                break
+            if left != last:
+                last, progress = left, time.monotonic()
+            time.sleep(POLL_S)
+        halt.set()
+        for t in threads:
+            t.join(30)
+        workers.wait_idle(LOG_WAIT_S)  # a solve still running (a re-run): its end goes into the logs
+        _audit(Path(env["WANDCAL_DATA_DIR"]) / "wandcal.sqlite3", report)
+    finally:
+        halt.set()
+        workers.stop()
+        server.kill()
+        redis.stop()
+    report.solves = workers.solves()
+    report.seconds = time.monotonic() - started
+    return report
+
+
+def table(plan: Plan, report: Report) -> str:
+    states = report.states()
+    twice = sum(1 for j in report.accepted if report.solves[j] > 1)
+    rows = [
+        ("jobs accepted (202)", f"{len(report.accepted)} (goal >= 300)" if plan.jobs >= 300 else str(len(report.accepted))),
+        ("POST /jobs refused (503, or the API restarting) and retried", str(report.refused)),
+        ("worker kills: work horse / whole worker", f"{report.horse_kills} / {report.worker_kills} "
+         f"(goal >= 20 in all)" if plan.worker_kills >= 20 else f"{report.horse_kills} / {report.worker_kills}"),
+        ("Redis restarts", f"{len(report.redis_restarts)}: {', '.join(report.redis_restarts)}"),
+        (f"Redis stopped (SIGSTOP) {plan.away_s:g} s: read / list / new job / health",
+         " / ".join(str(report.away.get(k, "-")) for k in ("read", "list", "submit", "health"))),
+        ("API restarts (SIGKILL, start)", str(report.api_restarts)),
+        ("finished: done / failed / cancelled", f"{states['done']} / {states['failed']} / {states['cancelled']}"),
+        ("lost / stuck / outcome changed after it was seen", f"{len(report.lost)} / {len(report.stuck)} / "
+         f"{len(report.changed)} (goal 0 / 0 / 0)"),
+        ("jobs solved more than once (at-least-once execution; one result kept)", str(twice)),
+        ("rows of unanswered POSTs, unfinished", f"{report.unaccepted_rows}, {report.unaccepted_unfinished}"),
+        ("unexpected answers while polling", ", ".join(f"{k} x{v}" for k, v in report.errors.items()) or "none"),
+        ("wall time", f"{report.seconds:.0f} s"),
+    ]
+    lines = ["| | |", "|---|---|"] + [f"| {a} | {b} |" for a, b in rows]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--jobs", type=int, default=Plan.jobs)
+    parser.add_argument("--kills", type=int, default=Plan.worker_kills)
+    parser.add_argument("--away", type=float, default=Plan.away_s, help="seconds Redis is stopped")
+    parser.add_argument("--submit-s", type=float, default=Plan.submit_s)
+    parser.add_argument("--keep", type=Path, help="run in this folder and keep it (logs, database)")
+    parser.add_argument("--no-write", action="store_true", help="print only; leave docs/benchmarks.md alone")
+    args = parser.parse_args()
+    if shutil.which("redis-server") is None:
+        sys.exit("chaos: redis-server is not installed (apt-get install redis-server)")
+    plan = Plan(jobs=args.jobs, worker_kills=args.kills, away_s=args.away, submit_s=args.submit_s)
+    load = os.getloadavg()[0]
+    if args.keep:
+        args.keep.mkdir(parents=True, exist_ok=True)
+        report = run(plan, args.keep)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            report = run(plan, Path(tmp))
+    text = (table(plan, report) + f"\n\n`python bench/chaos.py` (seed {plan.seed}); {plan.workers} rq workers, "
+            f"load average {load:.1f} at the start on {os.cpu_count()} cores.")
+    print(text)
+    if report.stuck or report.lost or report.changed:
+        print("stuck:", report.stuck[:10], "lost:", report.lost[:10], "changed:", report.changed[:10])
+    if not args.no_write:
+        write_section("Chaos", text)
+    sys.exit(0 if report.ok else 1)
+
+
+if __name__ == "__main__":
+    main()
