@@ -36,13 +36,15 @@ def main() -> int:
     table = rf.confusion_table(outcomes)
     print()
     print(table)
+    coverage = rf.sigma_coverage(outcomes)
+    print(coverage)
     wrong = "\n".join(f"- {rf.case_line(o)}" for o in outcomes if not o.right)
     if not args.no_write:
         body = (f"Sessions: {', '.join(s.name for s in sessions)}; each fault on two target cameras, one at a time "
                 "(bench/real_faults.py says how each is made and scored). *absorbed*: a principal point the "
                 "camera's rotation takes up (nothing named, the camera within 3 sigma); *called poor*: a clean "
                 "subsample the verdict calls poorer than the whole session.\n\n"
-                f"{table}\n\nThe wrong ones:\n\n```\n{wrong}\n```")
+                f"{table}\n\n{coverage}\n\nThe wrong ones:\n\n```\n{wrong}\n```")
         write_section(TITLE, body)
     return 0
 

@@ -110,6 +110,9 @@ class Outcome:
     sigma_mm: float | None = None
     offset_frames: float | None = None
     absorbed: bool = False
+    limited_right: bool = False
+    honest_sigma_mm: float | None = None
+    limited: bool = False
     message: str = ""
     seconds: float = 0.0
     outcome: str = field(default="")
@@ -422,6 +425,12 @@ def clean_run(session: Session) -> Clean:
 LEVEL_ORDER = ("excellent", "good", "poor")
 
 
+def covered(o: Outcome, sigmas: float = ABSORBED_SIGMAS) -> bool:
+    """The target camera's displacement is within ``sigmas`` of its honest sigma (the geometry
+    sigma with its focal length's, wandcal.calib.judge.intrinsic_limits)."""
+    return o.displacement_mm is not None and o.honest_sigma_mm is not None and o.displacement_mm <= sigmas * o.honest_sigma_mm
+
+
 def run_case(session: Session, clean: Clean, case: Case) -> Outcome:
     """Calibrate the session with ``case``'s fault and score the verdict."""
     broken = inject(session, case, clean.noise_px)
@@ -442,6 +451,8 @@ def run_case(session: Session, clean: Clean, case: Case) -> Outcome:
     if case.camera is not None:
         out.displacement_mm = float(aligned_centres_mm(np.asarray(result.centers), clean.centres)[case.camera])
         out.sigma_mm = doc["cameras"][case.camera].get("geometry_std_mm")
+        out.honest_sigma_mm = doc["cameras"][case.camera].get("geometry_std_honest_mm")
+        out.limited = ids[case.camera] in {limit["camera"] for limit in verdict.get("limits") or []}
     timing = [f["evidence"].get("timing", {}).get("offset_frames") for f in verdict["faults"] if f["kind"] == "timing"]
     out.offset_frames = timing[0] if timing else None
     cams_named = {cam for _, cam in named if cam is not None}
@@ -457,8 +468,10 @@ def run_case(session: Session, clean: Clean, case: Case) -> Outcome:
             and out.displacement_mm is not None and out.sigma_mm \
             and out.displacement_mm <= ABSORBED_SIGMAS * out.sigma_mm:
         out.right = out.absorbed = True
+    if case.family == "focal" and not out.right and not others and out.limited and covered(out):
+        out.right = out.limited_right = True
     if out.right:
-        out.outcome = "absorbed" if out.absorbed else "right"
+        out.outcome = "limited" if out.limited_right else "absorbed" if out.absorbed else "right"
     elif others:
         out.outcome = "wrong camera"
     elif target in cams_named or (target is None and named):
@@ -483,7 +496,7 @@ def run_suite(sessions: list[Session], families: tuple[str, ...] = FAMILIES, pro
     return outcomes
 
 
-OUTCOMES = ("right", "absorbed", "missed", "wrong kind", "wrong camera", "called poor", "refused")
+OUTCOMES = ("right", "absorbed", "limited", "missed", "wrong kind", "wrong camera", "called poor", "refused")
 
 
 def confusion_table(outcomes: list[Outcome]) -> str:
@@ -516,6 +529,27 @@ def confusion_table(outcomes: list[Outcome]) -> str:
 
 def case_line(o: Outcome) -> str:
     """One case as a line of text: session, label, outcome, verdict, faults, displacement and sigma."""
-    disp = f" moved {o.displacement_mm:.1f} mm (sigma {o.sigma_mm:.2f})" if o.displacement_mm is not None and o.sigma_mm else ""
+    honest = f", honest {o.honest_sigma_mm:.2f}" if o.honest_sigma_mm is not None else ""
+    limited = " limit named" if o.limited else ""
+    disp = f" moved {o.displacement_mm:.1f} mm (sigma {o.sigma_mm:.2f}{honest}){limited}" if o.displacement_mm is not None and o.sigma_mm else ""
     off = f" offset {o.offset_frames:+.2f}" if o.offset_frames is not None else ""
     return f"{o.case.session:20s} {o.case.label:32s} {o.outcome:12s} {o.level:9s} {o.named}{disp}{off}"
+
+
+def sigma_coverage(outcomes: list[Outcome], max_error: float = 0.03) -> str:
+    """The honest sigma's coverage on the focal cases at most ``max_error`` off: the share of
+    target cameras whose displacement is within 1, 2 and 3 of their honest sigma (and of their
+    geometry sigma alone), and the share covered within 3 sigma or with the limiting focal length named."""
+    rows = [o for o in outcomes if o.case.family == "focal" and abs(o.case.size - 1) <= max_error + 1e-9
+            and o.displacement_mm is not None and o.honest_sigma_mm is not None]
+    if not rows:
+        return "no focal cases with an honest sigma"
+
+    def share(test) -> str:
+        n = sum(bool(test(o)) for o in rows)
+        return f"{n}/{len(rows)} ({100 * n / len(rows):.0f}%)"
+
+    parts = [f"within {k} sigma: honest {share(lambda o, k=k: covered(o, k))}, geometry alone "
+             f"{share(lambda o, k=k: o.sigma_mm and o.displacement_mm <= k * o.sigma_mm)}" for k in (1, 2, 3)]
+    return (f"Focal length within {100 * max_error:.0f}%, {len(rows)} target cameras: " + "; ".join(parts)
+            + f"; within 3 honest sigma or the focal length named as its limit: {share(lambda o: covered(o) or o.limited)}")

@@ -22,6 +22,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.faults import Lens, Timing, analyse_camera, classify, lens_screen
+from wandcal.calib.judge.intrinsic_limits import judge_intrinsic_limits
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.judge.residuals import (
     Residuals,
@@ -274,5 +275,6 @@ def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, 
                                   f"{'it' if len(at_fault) == 1 else 'them'} and calibrate again before judging the others")
     verdict["placement"] = placement_verdict(world, extent if scaled else None, faults)
     verdict["faults"] = faults
+    verdict["limits"] = judge_intrinsic_limits(rig, cameras, R, t, res, scaled)
     verdict["volume_m" if scaled else "volume"] = extent
     return verdict, warnings
