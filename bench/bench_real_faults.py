@@ -32,7 +32,15 @@ def main() -> int:
         print(f"the shared data are not at {rf.SHARED_DATA}; set WANDCAL_SHARED_DATA", file=sys.stderr)
         return 2
     sessions = rf.load_sessions(args.sessions.split(","))
-    outcomes = rf.run_suite(sessions, tuple(args.families.split(",")), progress=lambda o: print(rf.case_line(o), flush=True))
+    cleans = []
+
+    def on_clean(session, clean) -> None:
+        named = ", ".join(f"{kind} {cam}" for kind, cam in sorted(clean.faults)) or "none"
+        cleans.append(f"{session.name}: {clean.level}, faults named: {named}")
+        print(f"clean {cleans[-1]}", flush=True)
+
+    outcomes = rf.run_suite(sessions, tuple(args.families.split(",")), progress=lambda o: print(rf.case_line(o), flush=True),
+                            on_clean=on_clean)
     table = rf.confusion_table(outcomes)
     print()
     print(table)
@@ -44,7 +52,8 @@ def main() -> int:
                 "(bench/real_faults.py says how each is made and scored). *absorbed*: a principal point the "
                 "camera's rotation takes up (nothing named, the camera within 3 sigma); *called poor*: a clean "
                 "subsample the verdict calls poorer than the whole session.\n\n"
-                f"{table}\n\n{coverage}\n\nThe wrong ones:\n\n```\n{wrong}\n```")
+                "The clean runs (a fault named here is the published data's own, and a case may name it again): "
+                + "; ".join(cleans) + f".\n\n{table}\n\n{coverage}\n\nThe wrong ones:\n\n```\n{wrong}\n```")
         write_section(TITLE, body)
     return 0
 

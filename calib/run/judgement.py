@@ -170,12 +170,18 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
 
 def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                       figures: list[dict], res: Residuals) -> list[dict]:
-    """The cameras at fault: in a rig of few cameras first by comparing every camera against the
+    """The cameras at fault: in a rig of few cameras first a camera out of time, from every pair
+    of cameras (:func:`wandcal.calib.judge.timing_pairs.timing_faults`), then by comparing every camera against the
     points the others triangulate (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`),
     else by the suspect screen (:func:`camera_faults`)."""
-    from wandcal.calib.judge.leave_one_out import leave_one_out_faults
+    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS, leave_one_out_faults
+    from wandcal.calib.judge.timing_pairs import timing_faults
 
-    return leave_one_out_faults(list(rig.ids), R, t, labelled, tracks) or camera_faults(rig, labelled, R, t, figures, res)
+    timing = []
+    if 3 <= len(rig.cameras) <= MAX_CAMERAS:
+        timing = timing_faults(list(rig.ids), R, t, labelled, tracks, np.array([c.focal.mean() for c in rig.cameras]),
+                               [f["noise_px"] for f in figures])
+    return timing or leave_one_out_faults(list(rig.ids), R, t, labelled, tracks) or camera_faults(rig, labelled, R, t, figures, res)
 
 
 def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> list[dict]:
