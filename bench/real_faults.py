@@ -442,8 +442,12 @@ def run_case(session: Session, clean: Clean, case: Case) -> Outcome:
     try:
         result = calibrated(broken)
     except CalibrationError as exc:
-        out = Outcome(case, False, "refused", [], message=str(exc), seconds=time.perf_counter() - start)
-        out.outcome = "refused"
+        # a refusal that names the camera out of time says what to fix: right for a timing case
+        named = str(exc).startswith(f"{session.rig.cameras[case.camera].id} is out of time") if case.camera is not None else False
+        right = named and case.expected == "timing"
+        out = Outcome(case, right, "refused", [("timing", session.rig.cameras[case.camera].id)] if named else [],
+                      message=str(exc), seconds=time.perf_counter() - start)
+        out.outcome = "right" if right else "refused"
         return out
     seconds = time.perf_counter() - start
     doc = result.to_json()

@@ -322,3 +322,19 @@ def timing_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPa
                    f"{'late' if d > 0 else 'early'}{whole} (offset {d:+.2f}: positive is late), which moves its blobs "
                    f"{best.effect_px:.1f} px at the wand's median speed; check its trigger cable and settings, or "
                    f"calibrate with its offset (--sync auto)"}]
+
+
+def timing_refusal(error: Exception, ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPairs,
+                   tracks: PointTracks | None, focal: np.ndarray) -> Exception:
+    """A refusal (the cameras do not agree on the wand) with the camera out of time named first
+    where the pairs find one: its shift, not the wand's length, is then what to fix. ``error``
+    itself where no camera is out of time or the rig is not of 3-5 cameras."""
+    from wandcal.calib.errors import CalibrationError
+    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS
+
+    if not 3 <= len(ids) <= MAX_CAMERAS:
+        return error
+    found = timing_faults(ids, R, t, labelled, tracks, focal, [None] * len(ids))
+    if not found:
+        return error
+    return CalibrationError(f"{found[0]['message']}. It makes the calibration fail: {error}")

@@ -244,7 +244,13 @@ def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, 
     """
     from wandcal.calib.geometry import camera_centers
 
-    warnings = sanity_check(method, rig, cameras, wand_report, world, camera_centers(R, t))
+    try:
+        warnings = sanity_check(method, rig, cameras, wand_report, world, camera_centers(R, t))
+    except CalibrationError as exc:  # a camera out of time, named, may be why
+        from wandcal.calib.judge.timing_pairs import timing_refusal
+
+        raise timing_refusal(exc, list(rig.ids), R, t, labelled, tracks,
+                             np.array([c.focal.mean() for c in rig.cameras])) from None
     scaled = wand_report is not None
     focal = np.array([c.focal for c in rig.cameras], float)
     res = observation_residuals(R, t, labelled, tracks, focal, known)
