@@ -1,5 +1,5 @@
-"""Start-up cost of the command line: ``wandcal --help``, ``wandcal calibrate --help`` and a whole
-``wandcal calibrate`` of a simulated 8 x 1500 capture, each a fresh process.
+"""Start-up cost of the command line: ``wandcal --version``, ``wandcal --help``, ``wandcal calibrate
+--help`` and a whole ``wandcal calibrate`` of a simulated 8 x 1500 capture, each a fresh process.
 
     python bench/bench_cli_startup.py --runs 9 --python before=/venv-a/bin/python --python after=/venv-b/bin/python
 
@@ -44,6 +44,7 @@ def main() -> int:
         subprocess.run([first, "-m", "wandcal.service.cli", "simulate", "sim", "--cameras", "8", "--frames", "1500"],
                        cwd=work, check=True, stdout=subprocess.DEVNULL)
         cases = {
+            "wandcal --version": ["--version"],
             "wandcal --help": ["--help"],
             "wandcal calibrate --help": ["calibrate", "--help"],
             "wandcal calibrate (8 x 1500, ba, whole command)": ["calibrate", "sim", "--quiet", "--out", "r.json"],

@@ -90,8 +90,8 @@ def bench_frames() -> tuple[list[tuple], list[tuple]]:
     growth = []
     for frames in (150, 300, 600, 1200, 2400):
         sim = simulate_capture(8, frames, 0.3, 0.0, True, 1)
-        static = calibrate(sim.rig, sim.wand, sim.static).cameras
-        volume = calibrate(sim.rig, sim.wand, None).cameras
+        static = calibrate(sim.rig, sim.wand, sim.static).to_json()["cameras"]
+        volume = calibrate(sim.rig, sim.wand, None).to_json()["cameras"]
         guide = wanding_guidance(sim.rig, sim.wand, sim.static).document["cameras"]
         growth.append((frames, *(float(np.nanmedian(_sigmas(c))) for c in (static, volume, guide))))
     starved = []
@@ -99,8 +99,8 @@ def bench_frames() -> tuple[list[tuple], list[tuple]]:
     for cam in ("cam1", "cam5"):
         thin = starve(rig, wand, cam, STARVED_FRAMES)
         c = rig.index(cam)
-        for name, run in (("static-object frame (calibrate)", lambda: calibrate(rig, thin, static_obs).cameras),
-                          ("wand-volume frame (calibrate, no static)", lambda: calibrate(rig, thin, None).cameras),
+        for name, run in (("static-object frame (calibrate)", lambda: calibrate(rig, thin, static_obs).to_json()["cameras"]),
+                          ("wand-volume frame (calibrate, no static)", lambda: calibrate(rig, thin, None).to_json()["cameras"]),
                           ("guidance, rig-relative", lambda: wanding_guidance(rig, thin, static_obs).document["cameras"])):
             start = time.perf_counter()
             sig = _sigmas(run())

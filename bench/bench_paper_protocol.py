@@ -25,6 +25,7 @@ from bench.common import timed, write_section
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.simulate import simulate_paper_protocol
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.start.labels import label_ends, wand_lengths
@@ -56,8 +57,8 @@ def main() -> int:
                     continue
                 try:
                     result, seconds = timed(
-                        calibrate, sim.rig, sim.wand, sim.static, method,
-                        options={"reject_outliers": False},
+                        calibrate, sim.rig, sim.wand, sim.static,
+                        options=CalibrationOptions(method=method, reject_outliers=False),
                     )
                 except CalibrationError:
                     stats[method]["failed"] += 1

@@ -16,6 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import real_sessions as rs
 from bench.common import write_section
+from wandcal.calib.run.options import CalibrationOptions
 
 # cal2's wand ends' per-axis noise: their variance component (squared residuals over their
 # redundancy, from the exact hat matrix at ba's solution), measured in decision 0020
@@ -38,7 +39,7 @@ def main() -> int:
         for method, label, kw in (
             ("ba", "ba", {}),
             ("lp", "lp", {}),
-            ("ba", "ba, profile focals + `--refine-intrinsics focal`", {"intrinsics": "profile", "options": {"refine_intrinsics": ("focal",)}}),
+            ("ba", "ba, profile focals + `--refine-intrinsics focal`", {"intrinsics": "profile", "options": CalibrationOptions(refine_intrinsics=("focal",))}),
         ):
             if session == 2 and kw.get("intrinsics") == "profile":
                 continue

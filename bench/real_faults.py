@@ -403,7 +403,7 @@ def _seed(case: Case) -> int:
 
 def calibrated(session: Session):
     """The session's CalibrationResult (``ba``, as the user would run it)."""
-    return calibrate(session.rig, session.wand, None, "ba", points=session.points, axis=session.axis)
+    return calibrate(session.rig, session.wand, None, points=session.points, axis=session.axis)
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,13 +23,14 @@ from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.api.deps import AppState, require_token
 from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
-from wandcal.service.connections import install_repeat_filter
+from wandcal.service.connection_limits import install_repeat_filter
 from wandcal.service.db import disk_full, init_db
 from wandcal.service.folder_lock import hold_data_folder
 from wandcal.service.jobs.queue import JobQueue, SQLiteQueue
 from wandcal.service.jobs.records import JobStore
-from wandcal.service.limits import BodySizeLimit, RateLimiter
+from wandcal.service.live_capture import BUSY, LiveCapture
 from wandcal.service.recovery import recover
+from wandcal.service.request_limits import BodySizeLimit, RateLimiter
 from wandcal.service.settings import Settings
 from wandcal.service.storage import CaptureNotFound, CaptureStore, ReplayPathError
 
@@ -121,7 +122,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(captures.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(blobsets.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(jobs.router, prefix=API_PREFIX, dependencies=secured)
-    app.state.live_capture = live_capture.LiveCapture(capture_store, settings.capture_continue_timeout_s)
+    app.state.live_capture = LiveCapture(capture_store, settings.capture_continue_timeout_s)
     app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(guidance.router, prefix=API_PREFIX, dependencies=secured)
 
@@ -172,14 +173,14 @@ def create_app(settings: Settings) -> FastAPI:
     return app
 
 
-def _stop_live_capture(live: live_capture.LiveCapture, timeout_s: float = LIVE_STOP_S) -> None:
+def _stop_live_capture(live: LiveCapture, timeout_s: float = LIVE_STOP_S) -> None:
     """Stop a live capture that is recording or waiting, and wait (briefly) until it has ended."""
     try:
         live.stop()
     except HTTPException:
         return  # none is running
     deadline = time.monotonic() + timeout_s
-    while live.status().state in live_capture.BUSY and time.monotonic() < deadline:
+    while live.status().state in BUSY and time.monotonic() < deadline:
         time.sleep(0.02)
 
 

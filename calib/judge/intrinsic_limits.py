@@ -186,13 +186,12 @@ def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_st
     return out
 
 
-def judge_intrinsic_limits(rig, cameras: list[dict], R: np.ndarray, t: np.ndarray, res, scaled: bool) -> list[dict]:
-    """Add each camera's :func:`limit_entry` to its report (``cameras``, rig order) and return the
-    cameras whose position hinges on their focal length (:func:`limited_cameras`)."""
-    refined = set(next((c["intrinsics"].get("refined") or [] for c in cameras if c.get("intrinsics")), []))
-    limits = focal_limits(rig, R, t, res, refined)
-    geometry = [report.get("geometry_std") for report in cameras]
-    for report, limit in zip(cameras, limits):
-        if limit is not None:
-            report |= limit_entry(limit, report.get("geometry_std"), scaled)
-    return limited_cameras(list(rig.ids), limits, geometry, scaled)
+def intrinsic_limit_entries(rig, geometry_std: list[float | None], R: np.ndarray, t: np.ndarray, res, scaled: bool,
+                            refined: tuple[str, ...]) -> tuple[list[dict | None], list[dict]]:
+    """Each camera's :func:`limit_entry` (None where its focal length was refined or it has too
+    few observations) and the cameras whose position hinges on their focal length
+    (:func:`limited_cameras`). geometry_std: (N,) each camera's geometry sigma, world units;
+    refined: the intrinsics the solve refined."""
+    limits = focal_limits(rig, R, t, res, set(refined))
+    entries = [limit_entry(limit, geo, scaled) if limit is not None else None for limit, geo in zip(limits, geometry_std)]
+    return entries, limited_cameras(list(rig.ids), limits, geometry_std, scaled)

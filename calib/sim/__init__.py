@@ -3,6 +3,7 @@
 | module | holds |
 |---|---|
 | :mod:`~wandcal.calib.sim.simulate` | rigs, wand paths and static objects with their truth (``wandcal simulate``, the demo) |
+| :mod:`~wandcal.calib.sim.shapes` | rigs of the shapes real rigs have (ring, dome, two tiers, hallway; 8-256 cameras, sparse views; ``simulate --shape``) |
 | :mod:`~wandcal.calib.sim.render` | marker spots rendered as a camera records them |
 | :mod:`~wandcal.calib.sim.scenes` | scenes taken part-way through the pipeline, for tests and benchmarks |
 """

@@ -13,7 +13,7 @@ import httpx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wandcal.service.connections import RepeatFilter
+from wandcal.service.connection_limits import RepeatFilter
 
 HELD = 150  # more than the limit below, so the limit's eviction is what lets the client in
 MAX_CONNECTIONS = 40

@@ -31,7 +31,9 @@ BASE = {
 NOT_NUMBERS = ("nan", "inf", "x")
 # (command, option, values it must refuse); NOT_NUMBERS are refused by every float option too
 CASES = [
-    ("simulate", "--cameras", ["1", "0", "-3", "65", "2.5"]),
+    ("simulate", "--cameras", ["1", "0", "-3", "257", "2.5"]),
+    ("simulate", "--size", ["2", "121", "-1", *NOT_NUMBERS]),
+    ("simulate", "--max-k1", ["-0.01", "0.11", *NOT_NUMBERS]),
     ("simulate", "--frames", ["9", "0", "-1", "100001"]),
     ("simulate", "--noise", ["-0.1", "101", *NOT_NUMBERS]),
     ("simulate", "--outliers", ["-0.1", "1", "2", *NOT_NUMBERS]),
@@ -90,6 +92,15 @@ def test_out_of_range_exits_2_naming_the_option(command, option, values, capsys)
         assert stop.value.code == 2, (option, value)
         err = capsys.readouterr().err
         assert f"argument {option}" in err and "Traceback" not in err, (option, value, err)
+
+
+def test_simulate_past_the_default_ring_needs_a_shape(tmp_path, capsys):
+    """The default ring holds 64 cameras; --shape rigs 256, each in its own size range."""
+    assert main(["simulate", str(tmp_path / "a"), "--cameras", "65"]) == 2
+    assert "--shape ring" in capsys.readouterr().err
+    assert main(["simulate", str(tmp_path / "b"), "--shape", "hallway", "--size", "5"]) == 2
+    assert "give 10.0 to 120.0 m" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
 def test_every_numeric_option_has_a_case():

@@ -96,6 +96,8 @@ def bundle_adjust_points(
     stop_se: float = STOP_SE,
     standard_errors: bool = True,
     timing: TimeFit | None = None,
+    *,
+    judge_frames: bool = True,
 ) -> BundleResult:
     """:func:`bundle_adjust` with single-point tracks as free 3D points beside the wand, and
     optionally the cameras' intrinsics among the unknowns (fitting raw pixels through the lens
@@ -110,6 +112,9 @@ def bundle_adjust_points(
         standard_errors: compute ``camera_std`` (one more evaluation and solve; a first stage
             whose result is polished further does not need them).
         timing: the time offsets to refine with the poses, or None to hold them (no extra column).
+        judge_frames: False: ``stop_se`` is judged on the cameras' parameters and the points',
+            not on the wand frames', which are nuisance parameters
+            (:mod:`wandcal.calib.solve.ba.levenberg`).
 
     Without wand observations the scale is free: it is held by fixing the one translation
     component of one camera that most changes with it (the poses are then up to scale).
@@ -150,7 +155,7 @@ def bundle_adjust_points(
         frozen += [(int(g), time_col) for g in np.flatnonzero(timing.held)]  # free is every camera
     if not len(p.camera):
         frozen.append(_scale_gauge(R, t, free, model.fixed, frozen))
-    solver = LevenbergMarquardt(terms, free, loss, frozen, refine, stop_se, timing is not None)
+    solver = LevenbergMarquardt(terms, free, loss, frozen, refine, stop_se, timing is not None, judge_frames=judge_frames)
     # the dense products here are small: a second BLAS thread costs more in hand-offs than it
     # gains (0.26 s against 0.42 s at 8 x 1500 on 2 cores, and no gain at 32 x 2000)
     with threadpool_limits(limits=1, user_api="blas"):

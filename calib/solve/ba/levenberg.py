@@ -10,7 +10,13 @@ pixels) ends with a weight of ~1e-3. ``loss="linear"`` is plain least squares.
 
 Stop: when every parameter is estimated to lie within ``STOP_SE`` of its standard error of the
 optimum, from the last step and the rate at which steps shrink, so the remaining error is
-statistically invisible; not on a tolerance in cost that keeps a solver crawling near it.
+statistically invisible; not on a tolerance in cost that keeps a solver crawling near it. With
+``judge_frames=False`` (the pipeline's stages) only the cameras' parameters and the point tracks'
+count, not the wand frames': a frame two cameras see, with its wand nearly across both rays, is
+held along one direction by the wand's foreshortening alone, a curvature that Gauss-Newton's
+normal equations leave out, so it converges linearly (0.93 a step) for tens of iterations after
+the cameras have settled; the cameras' own steps carry what its remaining motion still does to
+them (decision 0032).
 
 Least squares (the polish of a robust solution) tries Gauss-Newton's undamped step first, and
 follows an accepted undamped step with the chord method's: the new point's gradient through the
@@ -29,6 +35,7 @@ from wandcal.calib.solve.reprojection import (
     INTRINSICS,
     TIME_PARAMS,
     BundleState,
+    PointTerm,
     WandTerm,
     exp_so3,
     moved_intrinsics,
@@ -51,9 +58,12 @@ class LevenbergMarquardt:
     """Levenberg–Marquardt with Nielsen's damping update and iteratively reweighted loss."""
 
     def __init__(self, terms: list, free: np.ndarray, loss: str, frozen: list[tuple[int, int]], refine: tuple[str, ...],
-                 stop_se: float = STOP_SE, timed: bool = False):
+                 stop_se: float = STOP_SE, timed: bool = False, *, judge_frames: bool = True):
         self.terms = terms
         self.stop_se = stop_se
+        # the terms whose blocks the stop judges: every one, or the point tracks' alone (with no
+        # free camera the frames are all there is to judge)
+        self.judged = [judge_frames or not len(free) or isinstance(t, PointTerm) for t in terms]
         self.free = free
         self.n_free = len(free)
         self.loss = loss
@@ -164,7 +174,7 @@ class LevenbergMarquardt:
             cost = self._cost(z)
             if progress is not None:
                 progress({"stage": "refine", "iteration": iterations, "cost": cost, "message": "bundle adjustment"})
-            ratio = _step_in_standard_errors(step, z)
+            ratio = _step_in_standard_errors(step, z, self.judged)
             # steps shrink at least geometrically near the optimum (quadratically for least
             # squares, linearly for the reweighted loss): the distance left is about
             # step * q / (1 - q), with q the last ratio of successive steps
@@ -259,12 +269,14 @@ def _robust_sigma(z: np.ndarray) -> float:
     return robust_sigma(np.sqrt(z))
 
 
-def _step_in_standard_errors(step: schur.Step, z: np.ndarray) -> float:
-    """Largest |step| / standard error over all parameters. The noise is estimated robustly from
-    the residuals; the blocks' errors use their conditional variance (smaller, so stricter)."""
+def _step_in_standard_errors(step: schur.Step, z: np.ndarray, judged: list[bool]) -> float:
+    """Largest |step| / standard error over the cameras' parameters and the blocks of the terms
+    ``judged`` marks. The noise is estimated robustly from the residuals; the blocks' errors use
+    their conditional variance (smaller, so stricter)."""
     sigma = max(_robust_sigma(z), 1e-12)
     worst = 0.0
-    for d, var in [(step.dc, step.cam_var)] + list(zip(step.dp, step.pt_var)):
+    blocks = [(d, var) for d, var, j in zip(step.dp, step.pt_var, judged) if j]
+    for d, var in [(step.dc, step.cam_var)] + blocks:
         if d.size:
             worst = max(worst, float(np.max(np.abs(d) / (sigma * np.sqrt(np.maximum(var, 1e-300))))))
     return worst

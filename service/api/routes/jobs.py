@@ -242,7 +242,7 @@ async def get_report_file(job_id: str, name: str, state: State) -> FileResponse:
 # -- the page's 3D view: the capture's samples in the world (service/report/scene.py) ----------
 def _scene(state, job_id: str) -> dict:
     from wandcal.calib.errors import CalibrationError
-    from wandcal.capture.results import result_from_json
+    from wandcal.capture.result_file import result_from_json
     from wandcal.service.report.scene import scene
 
     record = _job(state, job_id)

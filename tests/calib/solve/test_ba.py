@@ -35,6 +35,23 @@ def test_reaches_the_optimum_of_a_reference_least_squares_solver():
     assert np.all(diff[1:] < 4 * ba.STOP_SE * bound[1:])
 
 
+def test_a_stop_on_the_cameras_leaves_them_as_near_the_optimum():
+    """The pipeline's stop judges the cameras, not the wand frames (decision 0032): the poses are
+    still within a small fraction of their Cramér–Rao bound of the reference optimum, and the run
+    takes no more iterations than the stop that waits for every frame."""
+    scene = prepared_scene(cameras=5, frames=300, noise_px=NOISE, seed=3)
+    model = perturbed_model(scene, degrees=1.0, metres=0.03, seed=3)
+    ref = least_squares(model.residuals, model.x0(), jac=model.jacobian, method="trf", x_scale="jac",
+                        ftol=1e-15, xtol=1e-15, gtol=1e-15, max_nfev=200, tr_solver="lsmr")
+    every = ba.bundle_adjust_points(model, None, None, loss="linear", standard_errors=False)
+    cameras = ba.bundle_adjust_points(model, None, None, loss="linear", standard_errors=False, judge_frames=False)
+    assert cameras.info["status"] == "converged" and cameras.info["iterations"] <= every.info["iterations"]
+    T = scene.sim.truth
+    bound, _ = pose_crb(scene.setup.problem, T.R, T.t, T.wand[scene.setup.frames], 0, NOISE)
+    diff, _ = gauge_errors(*model.poses(cameras.x), *model.poses(ref.x), 0)
+    assert np.all(diff[1:] < 4 * ba.STOP_SE * bound[1:])
+
+
 @pytest.mark.parametrize("loss", ba.LOSSES)
 def test_reaches_the_cramer_rao_bound(loss):
     ratios = []
