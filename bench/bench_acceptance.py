@@ -17,7 +17,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import timed, write_section
+from bench.common import publish, timed
 from wandcal.calib.geometry import kabsch
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.options import CalibrationOptions
@@ -59,10 +59,7 @@ def main() -> int:
             f"{aligned.max():.3f} / {aligned_rms[method]:.3f} | {ratio:.2f} |"
         )
     text = "\n".join(body)
-    print(text)
-    if not args.no_write:
-        write_section("Calibration core acceptance (8 x 1500)", text)
-    return 0
+    return publish("Calibration core acceptance (8 x 1500)", text, not args.no_write)
 
 
 if __name__ == "__main__":

@@ -275,7 +275,7 @@ def main() -> None:
     frames_text = ("Which sigma tells the operator to keep waving: the median camera's predicted centre 1-sigma "
                    "as wand frames arrive (simulated 8-camera ring, seed 1, every frame used), and the cameras' "
                    f"sigmas when one camera saw the wand in only {STARVED_FRAMES} frames in the top-left of its image "
-                   "(8 x 1500, the wand waved through the whole volume, tests/calib/test_guidance.py):\n")
+                   "(8 x 1500, the wand waved through the whole volume, tests/calib/judge/test_guidance.py):\n")
     text = (header + "\n" + "\n".join(t1) + "\n\n" + frames_text + "\n" + "\n".join(t3) + "\n\n" + "\n".join(t4)
             + "\n\n" + capture_text) + "\n" + "\n".join(t2) + "\n"
     print(text)

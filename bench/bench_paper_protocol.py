@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import timed, write_section
+from bench.common import publish, timed
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.run.calibrate import calibrate
@@ -86,10 +86,7 @@ of each level; `lp` and `ba` run {args.trials} trials per level.
 |---|---|---|---|---|---|---|
 {chr(10).join(rows)}
 """
-    print(body)
-    if not args.no_write:
-        write_section("Seed paper's simulation protocol", body)
-    return 0
+    return publish("Seed paper's simulation protocol", body, not args.no_write)
 
 
 if __name__ == "__main__":

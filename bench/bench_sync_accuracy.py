@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import aligned_rms_mm, machine, replace_section
+from common import aligned_rms_mm, machine, publish
 
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.options import CalibrationOptions
@@ -90,10 +90,7 @@ def main() -> int:
         "The mean z² of a seed's offsets shares the reference camera's noise, so one seed's may stray from 1 "
         "(docs/decisions/0022-sync-cost-and-standard-error.md).\n"
     )
-    print(text)
-    if args.write_docs:
-        replace_section("Sync: the rig against the same rig synchronised", text)
-    return 0
+    return publish("Sync: the rig against the same rig synchronised", text, args.write_docs, header=False)
 
 
 if __name__ == "__main__":

@@ -259,10 +259,11 @@ def check_result(doc: object, source: str = "result", rig: Rig | None = None) ->
     if not isinstance(entries, list) or not entries:
         raise CaptureFormatError(f"{source}: 'cameras' must be a non-empty list")
     cameras, R, t = [], [], []
-    for k, entry in enumerate(entries):
+    for k, given in enumerate(entries):
         where = f"{source}: cameras[{k}]"
-        if not isinstance(entry, dict):
+        if not isinstance(given, dict):
             raise CaptureFormatError(f"{where} must be a JSON object")
+        entry = given
         where = f"{source}: camera {entry.get('id', k)!r}"
         if not isinstance(entry.get("model", "pinhole"), str):
             raise CaptureFormatError(f"{where}: 'model' must be \"pinhole\" or \"fisheye\"")

@@ -104,8 +104,8 @@ class EmulatedTrigger:
         """Pulse lines (and a final DONE) for every pulse due by now."""
         out = []
         now = self.clock()
-        while self.running and self.next_due() <= now:
-            out.append(tp.format_pulse(self.counter, self.now_us(self.next_due())))
+        while (due := self.next_due()) is not None and due <= now:  # None: stopped
+            out.append(tp.format_pulse(self.counter, self.now_us(due)))
             self.counter += 1
             self._run_index += 1
             if self.limited:
@@ -192,7 +192,9 @@ class EmulatorProcess:
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
         self.process = subprocess.Popen([sys.executable, "-m", "wandcal.drivers.trigger_emulator", *extra],
                                         stdout=subprocess.PIPE, text=True, env=env)
-        self.path = self.process.stdout.readline().strip()
+        stdout = self.process.stdout
+        assert stdout is not None  # stdout=PIPE
+        self.path = stdout.readline().strip()
         if not self.path.startswith("/dev/"):
             self.close()
             raise RuntimeError(f"the trigger emulator did not print its terminal path (got {self.path!r})")
@@ -205,7 +207,8 @@ class EmulatorProcess:
         if self.process.poll() is None:
             self.process.kill()
         self.process.wait()
-        self.process.stdout.close()
+        if self.process.stdout is not None:  # always (stdout=PIPE)
+            self.process.stdout.close()
 
     def __enter__(self) -> EmulatorProcess:
         return self

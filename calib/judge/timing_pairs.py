@@ -117,11 +117,10 @@ def camera_track(s: Samples, c: int) -> Track:
     ok = count <= 2
     uf, first, count = uf[ok], first[ok], count[ok]
     pad = np.stack([xy[first], xy[first + count - 1]], axis=1)
-    v = np.full_like(pad, np.nan)
     pos = {"before": np.searchsorted(uf, uf - 1), "after": np.searchsorted(uf, uf + 1)}
     near = {}
-    for side, at in pos.items():
-        at = np.clip(at, 0, len(uf) - 1)
+    for side, found in pos.items():
+        at = np.clip(found, 0, len(uf) - 1)
         has = uf[at] == uf + (1 if side == "after" else -1)
         cand = pad[at]  # (F, 2, 2): the neighbour's blobs
         dist = np.linalg.norm(pad[:, :, None, :] - cand[:, None, :, :], axis=3)  # (F, blob, neighbour blob)

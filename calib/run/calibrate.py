@@ -51,10 +51,10 @@ from wandcal.calib.run.result import (
 from wandcal.calib.solve.sync import TimeColumns, Tracks, fit_timing, sync_report
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture
+from wandcal.calib.start.frame_offsets import FrameOffsets, frame_offsets, shift_frames, shift_pairs
 from wandcal.calib.start.initial import Initial, initial_poses
 from wandcal.calib.start.labels import label_ends
 from wandcal.calib.start.static import StaticPose, solve_static
-from wandcal.calib.start.timing import FrameOffsets, frame_offsets, shift_frames, shift_pairs
 from wandcal.calib.start.world import apply, world_frame
 
 if TYPE_CHECKING:

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.faults import Lens, Timing, analyse_camera, classify, lens_screen
+from wandcal.calib.judge.faults import Lens, TimingFault, analyse_camera, classify, lens_screen
 from wandcal.calib.judge.intrinsic_limits import intrinsic_limit_entries
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.judge.residuals import (
@@ -121,7 +121,7 @@ def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, 
 
 
 def isolate(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int,
-            at_fault: list[int] | None = None) -> tuple[Timing | None, Lens | None]:
+            at_fault: list[int] | None = None) -> tuple[TimingFault | None, Lens | None]:
     """Camera c's timing and lens patterns against the rig solved without it, and without the
     cameras already found ``at_fault`` (whose error would otherwise show in c's residuals)."""
     out = [c, *(at_fault or [])]

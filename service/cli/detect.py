@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from wandcal.drivers.capture_files import WAND_FILE
 from wandcal.service.cli.support.args import arg_number, arg_whole
 
 if TYPE_CHECKING:
@@ -43,7 +44,7 @@ def run_detect(args) -> int:
         reports = detect_capture(args.capture, config, workers=args.workers,
                                  progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
                                  mask=mask_from_args(args), empty=args.background.folder)
-        status.done(f"detect: done, wrote {args.capture / 'wand.csv'} ({config.describe()})")
+        status.done(f"detect: done, wrote {args.capture / WAND_FILE} ({config.describe()})")
     rig = read_rig(args.capture)
     expected = None if rig.static_markers is None else len(rig.static_markers)
     for r in reports:

@@ -151,6 +151,7 @@ def run_import_anipose(args) -> int:
 def run_import_cameras(args) -> int:
     from wandcal.capture.folder import CaptureFormatError
     from wandcal.capture.formats.cameras_in import POSES_FILE, read_camera_file, write_cameras
+    from wandcal.drivers.capture_files import RIG_FILE
 
     out = args.out
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -162,7 +163,7 @@ def run_import_cameras(args) -> int:
     for cam, C in zip(rig.cameras, posed.centers):
         print(f"  {cam.id}: {cam.width}x{cam.height} px, f = {cam.K[0, 0]:.1f} px, centre "
               f"({C[0]:.4f}, {C[1]:.4f}, {C[2]:.4f}) m")
-    print(f"wrote {out / 'rig.json'} and {out / POSES_FILE}")
+    print(f"wrote {out / RIG_FILE} and {out / POSES_FILE}")
     return 0
 
 

@@ -14,6 +14,7 @@ server decides how they stop.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import logging
 import multiprocessing
@@ -134,10 +135,8 @@ def finish_durably(store: JobStore, job_id: str, token: str, state: JobState, re
 
 
 def _die_with_parent() -> None:
-    try:
+    with contextlib.suppress(OSError, AttributeError):  # not Linux: the parent-pid check in the loop still ends the worker
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):
-        pass  # not Linux: the parent-pid check in the loop still ends the worker
 
 
 def worker_main(db_path: str, data_dir: str, wake, stop, parent: int | None = None) -> None:

@@ -91,7 +91,7 @@ def test_repeated_log_lines_pass_once_a_window_and_count_the_rest(events):
             if "repeated" in str(record.msg):
                 reported += int(str(record.msg).split("repeated ")[1].split()[0])
     span = clock.now
-    for message in set(m for _, m in events):
+    for message in {m for _, m in events}:
         assert 1 <= passed[message] <= span / 1.0 + 1  # at most one line a window per message
     # every line is written or counted in a later line, except the repeats since each last one
     assert sum(passed.values()) + reported <= len(events)

@@ -22,7 +22,7 @@ READ_TIMEOUT_S = 300.0  # a busy 2-core machine; the loop ends as soon as the pr
 
 def wandcal(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *args], capture_output=True, text=True,
-                          cwd=cwd, timeout=READ_TIMEOUT_S)
+                          cwd=cwd, timeout=READ_TIMEOUT_S, check=False)
 
 
 def on_a_terminal(*args) -> tuple[int, str]:

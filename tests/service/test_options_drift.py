@@ -22,8 +22,8 @@ from wandcal.service.schemas import JobCreate, JobOptions
 FIELDS = [f.name for f in dataclasses.fields(CalibrationOptions)]
 # the fields that cannot be a flag: the command line reads them from the capture folder
 NOT_FLAGS = {
-    "sync_start": "from sync.csv's camera timestamps (service/cli/inputs.py timestamp_start)",
-    "frame_rate_hz": "from capture.json's rate_hz (service/cli/inputs.py capture_rate)",
+    "sync_start": "from sync.csv's camera timestamps (service/cli/support/inputs.py timestamp_start)",
+    "frame_rate_hz": "from capture.json's rate_hz (service/cli/support/inputs.py capture_rate)",
 }
 # the fields that are not a job option: the job has them elsewhere, or the service cannot give them
 NOT_JOB_OPTIONS = {

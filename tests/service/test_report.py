@@ -290,7 +290,7 @@ def test_report_over_http(make_server, small_capture, tmp_path):
         dom = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
                               "--disable-background-networking", f"--user-data-dir={tmp_path / 'profile'}",
                               "--virtual-time-budget=5000", "--dump-dom", server.url + "/#token=lab-token"],
-                             capture_output=True, text=True, timeout=120)
+                             capture_output=True, text=True, timeout=120, check=False)
         assert f'href="/api/v1/jobs/{job_id}/report"' in dom.stdout
 
 

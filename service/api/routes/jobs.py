@@ -98,7 +98,7 @@ def create_job(body: JobCreate, state: State) -> JobPublic:
 def list_jobs(
     state: State, capture_id: Annotated[str | None, Query(max_length=64)] = None
 ) -> JobList:
-    records = [state.queue.refresh(r.id) if not r.state.finished else r for r in state.queue.store.list(capture_id)]
+    records = [state.queue.refresh(r.id) if not r.state.finished else r for r in state.queue.store.newest(capture_id)]
     return JobList(jobs=[JobSummary(**to_public(r, state).model_dump(exclude={"result"})) for r in records if r])
 
 
@@ -119,7 +119,7 @@ def cancel_job(job_id: str, state: State) -> JobPublic:
     record = _job(state, job_id)
     if record.state.finished:
         raise HTTPException(409, f"job {job_id} is already {record.state.value}; there is nothing to cancel")
-    return to_public(state.queue.cancel(job_id), state)
+    return to_public(state.queue.cancel(job_id) or record, state)  # None only if its row went (rows stay)
 
 
 @router.get(

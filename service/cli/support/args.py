@@ -3,7 +3,7 @@ with exit code 2 and a message that gives the range (argparse names the option).
 
 Every numeric option of every subcommand uses one of these (tests/service/test_cli_numbers.py
 goes through them all). They are named ``arg_*`` because they parse a command-line word; the checks
-of a JSON document's values (``capture/result_schema.py``'s ``number``/``whole``,
+of a JSON document's values (``capture/result_file.py``'s ``number``/``whole``,
 ``capture/rig_file.py``'s ``positive_number``) are another thing.
 """
 

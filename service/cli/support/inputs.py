@@ -9,11 +9,12 @@ from pathlib import Path
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.capture.recording.stamps import capture_rate, timestamp_start  # noqa: F401  (read here before)
+from wandcal.drivers.capture_files import WAND_FILE
 
 
 def points_level(folder: Path, progress) -> Path:
     """Detect first when the capture is image level (:func:`wandcal.capture.images.ensure_points_level`)."""
-    if not folder.is_dir() or (folder / "wand.csv").is_file():
+    if not folder.is_dir() or (folder / WAND_FILE).is_file():
         return folder  # read_capture names what is missing
     from wandcal.capture.images import ensure_points_level
 
