@@ -287,7 +287,7 @@ def part_costs(rig: str, repeats: int) -> str:
         def cpu(*argv: str) -> float:
             before = resource.getrusage(resource.RUSAGE_CHILDREN)
             done = subprocess.run([sys.executable, "-m", "wandcal.service.cli", *argv], capture_output=True, text=True, cwd=REPO,
-                                  env=child_env())
+                                  env=child_env(), check=False)
             if done.returncode == 2:  # refused: the run measured nothing, and the row says why
                 failed[" ".join(argv[:1] + argv[-2:])] = done.stderr.strip().splitlines()[-1]
                 return float("nan")
