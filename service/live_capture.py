@@ -3,7 +3,7 @@ state machine (:class:`LiveCapture`) is here; its routes are in ``service/api/ro
 
 A capture records into a staging folder ``captures/.<capture id>.partial`` (kept by the next start
 if the server dies mid-capture, and moved to ``recovered/<capture id>`` if the recording fails
-before it becomes a capture: service/recovery.py), detecting every frame as it arrives and writing the points
+before it becomes a capture: service/datafolder/recovery.py), detecting every frame as it arrives and writing the points
 level as it goes (images as the start request asks); then the folder becomes the stored capture
 ``<capture id>``, ready for ``POST /jobs``. While it records, its wanding guidance is kept up to
 date (``GET /captures/<capture id>/guidance``), and it may stop itself once that says enough.
@@ -33,8 +33,8 @@ from wandcal.capture.recording.record import ImagePolicy
 from wandcal.capture.recording.session import Progress, record
 from wandcal.capture.rig_file import rig_from_json
 from wandcal.drivers.errors import DriverError
+from wandcal.service.datafolder.recovery import keep_failed_recording
 from wandcal.service.guidance_cache import guidance_settings
-from wandcal.service.recovery import keep_failed_recording
 from wandcal.service.schemas import (
     LiveCaptureCreate,
     LiveCapturePublic,

@@ -24,14 +24,14 @@ from wandcal.service.api.deps import AppState, require_token
 from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
 from wandcal.service.connection_limits import install_repeat_filter
+from wandcal.service.datafolder.lock import hold_data_folder
+from wandcal.service.datafolder.recovery import recover
+from wandcal.service.datafolder.retention import Pruner, Retention
 from wandcal.service.db import disk_full, init_db
-from wandcal.service.folder_lock import hold_data_folder
 from wandcal.service.jobs.queue import JobQueue, QueueUnavailable, SQLiteQueue
 from wandcal.service.jobs.records import JobStore
 from wandcal.service.live_capture import BUSY, LiveCapture
-from wandcal.service.recovery import recover
 from wandcal.service.request_limits import BodySizeLimit, RateLimiter
-from wandcal.service.retention import Pruner, Retention
 from wandcal.service.settings import Settings
 from wandcal.service.storage import CaptureNotFound, CaptureStore, ReplayPathError
 
@@ -112,7 +112,7 @@ def create_app(settings: Settings) -> FastAPI:
         version="1",
         lifespan=lifespan,
     )
-    app.state.folder_lock = folder_lock  # held while the app lives (service/folder_lock.py)
+    app.state.folder_lock = folder_lock  # held while the app lives (service/datafolder/lock.py)
     app.state.wandcal = AppState(
         settings=settings, captures=capture_store, queue=queue, limiter=RateLimiter(settings.framesets_per_second)
     )

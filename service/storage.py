@@ -174,7 +174,7 @@ class CaptureStore:
         """Make the complete folder ``staging`` (under the store) the capture ``capture_id``.
 
         The folder is renamed before its row is written: a crash in between leaves a folder
-        without a row, which the next start registers (service/recovery.py); a row that cannot
+        without a row, which the next start registers (service/datafolder/recovery.py); a row that cannot
         be written (a full disk) puts the folder back to ``staging`` and raises."""
         folder = self.folder(capture_id)
         staging.rename(folder)

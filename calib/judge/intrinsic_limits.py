@@ -33,6 +33,8 @@ import numpy as np
 from wandcal.calib.geometry import rotvec_to_matrix
 from wandcal.calib.judge.faults import _pose_columns
 
+GIVEN_IN_RIG = "given"  # the source of a focal sigma the rig gives (the camera's focal_std_px); else "default"
+
 # a focal length given, not refined, is taken as known to 2% (1 sigma) unless rig.json gives its
 # own sigma: a lens's nominal focal length is marked to 5% and the sensor's pixel pitch is exact,
 # a calibration of another day with the focus touched keeps it to 1-3% (the eWand session's yaml
@@ -130,7 +132,7 @@ def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> l
         rows = res.rows_of(c)
         rows = rows[~res.outlier[rows]]
         given = getattr(cam, "focal_std_px", None)
-        rel, source = (float(given) / float(cam.K[0, 0]), "rig.json") if given else (DEFAULT_FOCAL_REL_STD, "default")
+        rel, source = (float(given) / float(cam.K[0, 0]), GIVEN_IN_RIG) if given else (DEFAULT_FOCAL_REL_STD, "default")
         proj = res.xy[rows] + res.residual[rows]
         out.append(focal_limit(R[c], t[c], proj, res.depth[rows], res.residual[rows], views[rows], rel, source))
     return out
@@ -170,7 +172,7 @@ def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_st
                     "or give it from a lens calibration")
         else:
             todo = "the data cannot determine it: give it from a lens calibration"
-        if limit.source == "rig.json":
+        if limit.source == GIVEN_IN_RIG:
             why = "rig.json's focal_std_px"
         else:
             why = f"assumed, rig.json giving no focal_std_px for {cam}"

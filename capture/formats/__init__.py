@@ -14,6 +14,7 @@
 | :mod:`wandcal.capture.formats.cameras_in` | any camera format ``wandcal export`` writes, read back as a rig (``wandcal import cameras``) |
 | :mod:`wandcal.capture.formats.cameras` | :class:`PosedCameras`, what every camera format writes and reads back |
 | :mod:`wandcal.capture.formats.anipose_opencv` | anipose ``calibration.toml`` and OpenCV YAML |
+| :mod:`wandcal.capture.formats.opencv_yaml` | OpenCV's YAML read without OpenCV (whose parser aborts on damaged files) |
 | :mod:`wandcal.capture.formats.dlt` | DLT coefficients (DLTdv, easyWand, Argus) |
 | :mod:`wandcal.capture.formats.qualisys_vicon` | Qualisys ``.qca`` and Vicon ``.xcp`` |
 

@@ -59,7 +59,7 @@ class SQLiteQueue:
         self.pool = WorkerPool(store, data_dir, workers) if workers > 0 else None
 
     def start(self) -> None:
-        # only the data folder's owner starts a queue (service/folder_lock.py): every running job is its own
+        # only the data folder's owner starts a queue (service/datafolder/lock.py): every running job is its own
         for job in self.store.recover(RESTART_REASON):
             log.warning("job %s was running when the server stopped: now %s (attempt %d of %d)%s", job.id,
                         job.state.value, job.attempts, MAX_ATTEMPTS, f": {job.error}" if job.error else "")

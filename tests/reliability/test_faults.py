@@ -25,9 +25,9 @@ from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.sim.render import render_blobs
 from wandcal.capture.folder import read_capture, rig_to_json
 from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
+from wandcal.service.datafolder.recovery import RECOVERED_SOURCE
 from wandcal.service.db import connect
 from wandcal.service.main import create_app
-from wandcal.service.recovery import RECOVERED_SOURCE
 from wandcal.service.settings import Settings
 
 DISK_BYTES = 4 << 20  # a small tmpfs: the database, a few captures, then full

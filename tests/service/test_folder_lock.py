@@ -1,4 +1,4 @@
-"""One owner per data folder (service/folder_lock.py, issue 34): a second ``wandcal serve`` on a
+"""One owner per data folder (service/datafolder/lock.py, issue 34): a second ``wandcal serve`` on a
 folder in use refuses at once and changes nothing; a killed owner's lock goes with it, and the
 next start recovers."""
 
@@ -15,7 +15,7 @@ import pytest
 
 from tests.reliability.servers import poll
 from tests.service.conftest import REPO, capture_files, free_port
-from wandcal.service.folder_lock import LOCK_FILE, DataFolderInUse, Owner, hold_data_folder
+from wandcal.service.datafolder.lock import LOCK_FILE, DataFolderInUse, Owner, hold_data_folder
 from wandcal.service.jobs.records import JobState, JobStore
 from wandcal.service.settings import Settings
 

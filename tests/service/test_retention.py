@@ -1,4 +1,4 @@
-"""Retention (service/retention.py): nothing is deleted unless a setting allows it; then exactly
+"""Retention (service/datafolder/retention.py): nothing is deleted unless a setting allows it; then exactly
 the finished jobs and idle captures older than the setting, never a queued or running job's."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import time
 from fastapi.testclient import TestClient
 
 from tests.service.conftest import capture_files
+from wandcal.service.datafolder.retention import DAY_S, Pruner, Retention, prune
 from wandcal.service.db import init_db
 from wandcal.service.main import create_app
 from wandcal.service.report.store import report_folder
-from wandcal.service.retention import DAY_S, Pruner, Retention, prune
 from wandcal.service.settings import Settings
 
 

@@ -8,7 +8,7 @@ before the database is opened, so it recovers nothing, re-queues nothing and wri
 (issue 34: a second ``wandcal serve`` on the same folder re-queued the live server's running job
 as if that server had crashed, and failed it at the next try).
 
-Only the owner of a folder runs crash recovery (:mod:`wandcal.service.recovery`, the job
+Only the owner of a folder runs crash recovery (:mod:`wandcal.service.datafolder.recovery`, the job
 re-queue of :meth:`wandcal.service.jobs.queue.SQLiteQueue.start`). Redis workers
 (``rq worker``, :mod:`wandcal.service.jobs.redis_queue`) never open the data folder and take no
 lock; the SQLite queue's solver processes are the owner's own children (spawned without the

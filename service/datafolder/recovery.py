@@ -1,7 +1,7 @@
 """What a start does after a crash (SIGKILL, power loss) so that nothing recorded is lost.
 
 Only the data folder's owner runs it: ``create_app`` takes the folder's lock first
-(:mod:`wandcal.service.folder_lock`), so a second server started on a folder in use refuses
+(:mod:`wandcal.service.datafolder.lock`), so a second server started on a folder in use refuses
 before it gets here. Each action is logged with the id it concerns (INFO for what is only
 deleted, WARNING for what is registered, moved or cut).
 
