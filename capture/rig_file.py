@@ -76,8 +76,8 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
             raise CaptureFormatError(f"{source}: 'static_object' needs 'markers_m', a list of [x, y, z] in metres")
         markers = _matrix(so["markers_m"], None, f"{source}: static_object.markers_m")
     try:
-        return Rig(cameras=tuple(cameras), wand_length=None if length is None else float(length), static_markers=markers,
-                   wand_markers=wand_markers)
+        wand_length = None if length is None else float(length)  # type: ignore[arg-type]  # _wand_from_json checked it
+        return Rig(cameras=tuple(cameras), wand_length=wand_length, static_markers=markers, wand_markers=wand_markers)
     except CalibrationError as exc:
         raise CaptureFormatError(f"{source}: {exc}") from None
 
@@ -182,7 +182,7 @@ def _focal_std(value: object, where: str) -> float | None:
     if not positive_number(value):
         raise CaptureFormatError(f"{where} must be a positive number of pixels (the focal length's 1-sigma), got "
                                  f"{str(value)[:40]!r}; leave it out where it is not known")
-    return float(value)
+    return float(value)  # type: ignore[arg-type]  # positive_number checked that it is a finite number
 
 
 def _positive_int(value: object, where: str) -> int:

@@ -146,7 +146,7 @@ def limit_entry(limit: FocalLimit, geometry_std: float | None, scaled: bool) -> 
     honest = None
     if geometry_std is not None:
         honest = float(np.hypot(geometry_std, limit.std))
-    entry = {"focal_limit": {
+    entry: dict[str, object] = {"focal_limit": {
         "mm_per_percent" if scaled else "per_percent": round(unit * 0.01 * float(np.linalg.norm(limit.shift_m_per_unit)), 4),
         "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": round(unit * 0.01 * limit.along_axis_m_per_unit, 4),
         "focal_std_percent": round(100 * limit.focal_rel_std, 3), "source": limit.source,

@@ -242,7 +242,7 @@ def unfolded_radius(camera: Camera) -> float:
     k1, k2 = camera.dist[0], camera.dist[1]
     k3 = camera.dist[4] if len(camera.dist) > 4 else 0.0
     # d/dr of the model, in s = r^2: 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3
-    roots = np.roots(np.trim_zeros([7 * k3, 5 * k2, 3 * k1, 1.0], "f"))
+    roots = np.roots(np.trim_zeros(np.array([7 * k3, 5 * k2, 3 * k1, 1.0], dtype=float), "f"))
     s = roots[(np.abs(roots.imag) < 1e-12) & (roots.real > 0)].real
     return float(np.sqrt(s.min())) if len(s) else np.inf
 

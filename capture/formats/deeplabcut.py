@@ -57,7 +57,11 @@ def read_dlc_csv(path: Path, min_likelihood: float = DEFAULT_MIN_LIKELIHOOD) -> 
         raise CaptureFormatError(f"{path}: cannot read a DeepLabCut CSV ({exc})") from None
     head, first, columns = _dlc_columns(rows, path)
     body = rows[max(head.values()) + 1:]
-    frame, uv, label, left_out, seen_frames = [], [], [], 0, {}
+    frame: list[int] = []
+    uv: list[list[float]] = []
+    label: list[str] = []
+    left_out = 0
+    seen_frames: dict[int, int] = {}  # frame -> the line it was first on
     for k, row in enumerate(body):
         line = max(head.values()) + 2 + k
         if not any(c.strip() for c in row):

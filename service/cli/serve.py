@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 # the live capture's end and the workers', service/main.py and service/jobs/worker.py) must fit well in
 # the 5 s a restart may take (issue 21; the systemd unit allows 20 before SIGKILL); requests are
 # short, and a client whose upload is cut sends it again.
-GRACEFUL_SHUTDOWN_S = 1.0
+GRACEFUL_SHUTDOWN_S = 1  # whole seconds: uvicorn takes an int
 
 MAX_PORT = 65_535
 MAX_WORKERS = 64  # each solver process holds a capture and its solve: far past what one host can run

@@ -29,7 +29,7 @@ NEVER_TRIM = 2**31 - 1  # bytes of free heap top kept before glibc trims it: the
 def keep_freed_memory() -> bool:
     """Apply the policy to this process; True when glibc took it (elsewhere nothing changes)."""
     try:
-        from numpy._core.multiarray import _set_madvise_hugepage  # NumPy's own switch (NUMPY_MADVISE_HUGEPAGE)
+        from numpy._core.multiarray import _set_madvise_hugepage  # type: ignore[attr-defined]  # private: NumPy's own switch (NUMPY_MADVISE_HUGEPAGE)
 
         _set_madvise_hugepage(False)
     except ImportError:  # another NumPy layout: its default stays
