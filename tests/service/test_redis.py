@@ -25,6 +25,22 @@ HEARTBEAT_LAPSE_S = 30 + 60 + 30
 pytestmark = pytest.mark.skipif(REDIS_SERVER is None, reason="redis-server is not installed (apt-get install redis-server)")
 
 
+def _wait_for_redis(url: str, proc: subprocess.Popen) -> None:
+    """Poll until the server at ``url`` answers PING (20 s at most; a server that died is killed)."""
+    from redis import Redis
+
+    deadline = time.monotonic() + 20
+    while True:
+        try:
+            Redis.from_url(url).ping()
+            return
+        except Exception:
+            if time.monotonic() > deadline or proc.poll() is not None:
+                proc.kill()
+                raise
+            time.sleep(0.05)
+
+
 @pytest.fixture
 def redis_url(tmp_path):
     port = free_port()
@@ -33,19 +49,9 @@ def redis_url(tmp_path):
          "--dir", str(tmp_path)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )
-    from redis import Redis
 
     url = f"redis://127.0.0.1:{port}/0"
-    deadline = time.monotonic() + 20
-    while True:
-        try:
-            Redis.from_url(url).ping()
-            break
-        except Exception:
-            if time.monotonic() > deadline or proc.poll() is not None:
-                proc.kill()
-                raise
-            time.sleep(0.05)
+    _wait_for_redis(url, proc)
     yield url
     proc.terminate()
     proc.wait(10)
@@ -178,22 +184,12 @@ def test_a_job_whose_worker_dies_is_requeued_once_then_failed(make_server, big_c
 @pytest.fixture
 def stoppable_redis(tmp_path):
     """(url, process) of a redis-server on a loopback port, for a test that stops it (SIGSTOP)."""
-    from redis import Redis
 
     port = free_port()
     proc = subprocess.Popen([REDIS_SERVER, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly",
                              "no", "--dir", str(tmp_path)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     url = f"redis://127.0.0.1:{port}/0"
-    deadline = time.monotonic() + 20
-    while True:
-        try:
-            Redis.from_url(url).ping()
-            break
-        except Exception:
-            if time.monotonic() > deadline or proc.poll() is not None:
-                proc.kill()
-                raise
-            time.sleep(0.05)
+    _wait_for_redis(url, proc)
     yield url, proc
     proc.send_signal(signal.SIGCONT)
     proc.kill()
