@@ -29,7 +29,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from bench.common import write_section  # noqa: E402
+from bench.common import publish  # noqa: E402
 
 PACKAGES = ("calib", "capture", "drivers", "service")  # the folders pyproject maps into the wandcal namespace
 GOAL = 0.05  # issue 23: no more than 5% slower on a synchronised two-marker capture
@@ -85,7 +85,7 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
-    pinned = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    pinned = dict.fromkeys(("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"), "1")
     rows = ["| base | rig | outliers | tree | process wall (s) | process CPU (s) | solver (s) | head / base (wall, CPU) |",
             "|---|---|---|---|---|---|---|---|"]
     for spec in args.base:
@@ -101,10 +101,7 @@ def main() -> int:
             f"rounds), medians; BLAS on one thread. Goal (issue 23): head no more than {GOAL:.0%} slower. A base of "
             f"this tree itself (A/A) shows the shared host's noise; a base older than the last merge from main also "
             f"differs by every other issue merged since.\n\n" + "\n".join(rows))
-    print(body)
-    if not args.no_write:
-        write_section("Issue 23: multi-marker and planar wands against the two-marker speed", body)
-    return 0
+    return publish("Issue 23: multi-marker and planar wands against the two-marker speed", body, not args.no_write)
 
 
 if __name__ == "__main__":

@@ -79,8 +79,8 @@ def render_frames(n: int, bit_depth: int, seed: int) -> tuple[list[np.ndarray], 
 def score(found: list[np.ndarray], truths: list[np.ndarray]) -> tuple[float, float, int]:
     """Centroid RMS error (px) over matched spots, recall, and false detections."""
     errors, hits, false = [], 0, 0
-    for uv, truth in zip(found, truths):
-        uv = np.asarray(uv, float).reshape(-1, 2)
+    for spots, truth in zip(found, truths):
+        uv = np.asarray(spots, float).reshape(-1, 2)
         if len(uv) == 0:
             continue
         d = np.linalg.norm(truth[:, None] - uv[None], axis=2)
@@ -255,7 +255,7 @@ def main() -> int:
     parser.add_argument("--touching-pairs", type=int, default=200,
                         help="rendered pairs of touching spots per row of the touching-spots table")
     parser.add_argument("--before", default=BEFORE_REV, metavar="REV",
-                        help=f"git revision of calib/detect.py to time side by side (default {BEFORE_REV})")
+                        help=f"git revision of the detector (rev:calib/detect.py then) to time side by side (default {BEFORE_REV})")
     args = parser.parse_args()
     real_section(args)
     if args.real_only:

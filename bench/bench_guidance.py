@@ -90,8 +90,8 @@ def bench_frames() -> tuple[list[tuple], list[tuple]]:
     growth = []
     for frames in (150, 300, 600, 1200, 2400):
         sim = simulate_capture(8, frames, 0.3, 0.0, True, 1)
-        static = calibrate(sim.rig, sim.wand, sim.static).cameras
-        volume = calibrate(sim.rig, sim.wand, None).cameras
+        static = calibrate(sim.rig, sim.wand, sim.static).to_json()["cameras"]
+        volume = calibrate(sim.rig, sim.wand, None).to_json()["cameras"]
         guide = wanding_guidance(sim.rig, sim.wand, sim.static).document["cameras"]
         growth.append((frames, *(float(np.nanmedian(_sigmas(c))) for c in (static, volume, guide))))
     starved = []
@@ -99,8 +99,8 @@ def bench_frames() -> tuple[list[tuple], list[tuple]]:
     for cam in ("cam1", "cam5"):
         thin = starve(rig, wand, cam, STARVED_FRAMES)
         c = rig.index(cam)
-        for name, run in (("static-object frame (calibrate)", lambda: calibrate(rig, thin, static_obs).cameras),
-                          ("wand-volume frame (calibrate, no static)", lambda: calibrate(rig, thin, None).cameras),
+        for name, run in (("static-object frame (calibrate)", lambda: calibrate(rig, thin, static_obs).to_json()["cameras"]),
+                          ("wand-volume frame (calibrate, no static)", lambda: calibrate(rig, thin, None).to_json()["cameras"]),
                           ("guidance, rig-relative", lambda: wanding_guidance(rig, thin, static_obs).document["cameras"])):
             start = time.perf_counter()
             sig = _sigmas(run())
@@ -275,7 +275,7 @@ def main() -> None:
     frames_text = ("Which sigma tells the operator to keep waving: the median camera's predicted centre 1-sigma "
                    "as wand frames arrive (simulated 8-camera ring, seed 1, every frame used), and the cameras' "
                    f"sigmas when one camera saw the wand in only {STARVED_FRAMES} frames in the top-left of its image "
-                   "(8 x 1500, the wand waved through the whole volume, tests/calib/test_guidance.py):\n")
+                   "(8 x 1500, the wand waved through the whole volume, tests/calib/judge/test_guidance.py):\n")
     text = (header + "\n" + "\n".join(t1) + "\n\n" + frames_text + "\n" + "\n".join(t3) + "\n\n" + "\n".join(t4)
             + "\n\n" + capture_text) + "\n" + "\n".join(t2) + "\n"
     print(text)

@@ -41,10 +41,7 @@ def judged(case: str, seed: int, cameras: int) -> dict:
     want = EXPECTED[case]
     cam_id = sim.rig.cameras[camera].id if camera is not None else None
     poor = verdict["level"] == "poor"
-    if want is None:
-        right = not poor and not faults
-    else:
-        right = poor and kinds == {(want, cam_id)}
+    right = not poor and not faults if want is None else poor and kinds == {(want, cam_id)}
     offset_error = None
     if want == "timing":
         found = [f["evidence"]["timing"]["offset_frames"] for f in faults if f["kind"] == "timing"]

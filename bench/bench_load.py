@@ -28,7 +28,8 @@ from bench import load  # noqa: E402
 from bench.common import write_section  # noqa: E402
 from tests.service.conftest import Server, capture_files, free_port, server_env, simulated_capture  # noqa: E402
 from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
-from wandcal.capture.folder import RIG_FILE, rig_to_json  # noqa: E402
+from wandcal.capture.folder import rig_to_json  # noqa: E402
+from wandcal.drivers.capture_files import RIG_FILE  # noqa: E402
 
 RIG_RATE_HZ = 100.0  # the rig: 8 cameras x 1280x1024 at 100 fps
 POOL = 20  # distinct rendered frame sets, cycled (8 PNGs of ~0.6 MB each)
@@ -46,8 +47,8 @@ def main() -> None:
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/benchmarks.md alone")
     args = parser.parse_args()
     load_average = os.getloadavg()[0]  # other jobs on a shared machine slow every figure below
-    with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
         (tmp / "replay").mkdir()
         folder, _ = simulated_capture(tmp / "capture", cameras=4, frames=300, noise_px=0.3, seed=11)
         sim8 = simulate_capture(cameras=8, frames=POOL, noise_px=0.3, seed=1)

@@ -30,7 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import timed, write_section
+from bench.common import publish, timed
 from wandcal.calib.judge.crb import gauge_errors
 from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 
@@ -149,10 +149,7 @@ the wall time in the LP solves (interior point and HiGHS).
 |---|---|---|---|---|---|---|---|---|---|---|
 {chr(10).join(rows)}
 """
-    print(body)
-    if not args.no_write:
-        write_section("LP scaling", body)
-    return 0
+    return publish("LP scaling", body, not args.no_write)
 
 
 if __name__ == "__main__":

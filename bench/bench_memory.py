@@ -1,6 +1,6 @@
 """Peak memory against the size of the data (issue 20, class 3): the largest wand.csv a capture
 may hold (wandcal.capture.folder.MAX_CSV_BYTES) read by the folder reader and calibrated, and the
-largest blob-set request body (wandcal.service.limits.MAX_BLOBSETS_BODY_BYTES) posted to a real
+largest blob-set request body (wandcal.service.request_limits.MAX_BLOBSETS_BODY_BYTES) posted to a real
 server. Each figure is the peak resident set (VmHWM) above the process's own before the work,
 divided by the data's size: the multiple docs/reliability.md publishes.
 
@@ -54,7 +54,8 @@ def big_capture(folder: Path, target_bytes: int) -> int:
     import numpy as np
 
     from wandcal.calib.sim.simulate import simulate_capture
-    from wandcal.capture.folder import WAND_FILE, write_capture
+    from wandcal.capture.folder import write_capture
+    from wandcal.drivers.capture_files import WAND_FILE
 
     sim = simulate_capture(cameras=8, frames=1500, noise_px=0.3, seed=5)
     write_capture(folder, sim.rig, sim.wand, sim.static)
@@ -92,7 +93,7 @@ def measure_csv(calibrate: bool) -> list[str]:
 
 
 def server_hwm(pid: int) -> int:
-    for line in open(f"/proc/{pid}/status"):
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmHWM:"):
             return int(line.split()[1]) * 1024
     raise RuntimeError("no VmHWM")
@@ -103,8 +104,9 @@ def measure_blobsets() -> list[str]:
 
     from tests.service.conftest import Server, free_port, server_env
     from wandcal.calib.sim.simulate import simulate_capture
-    from wandcal.capture.folder import RIG_FILE, rig_to_json
-    from wandcal.service.limits import MAX_BLOBSETS_BODY_BYTES
+    from wandcal.capture.folder import rig_to_json
+    from wandcal.drivers.capture_files import RIG_FILE
+    from wandcal.service.request_limits import MAX_BLOBSETS_BODY_BYTES
     from wandcal.service.schemas import MAX_BLOB_SETS
 
     sim = simulate_capture(cameras=8, frames=10, noise_px=0.3, seed=5)

@@ -19,7 +19,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import timed, write_section
+from bench.common import publish, timed
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
 from wandcal.calib.judge.quality import free_wand_lengths
 from wandcal.calib.sim.scenes import prepared_scene
@@ -131,10 +131,7 @@ ratio is the median over seeds of (method time / `ba` time) measured in the same
 |---|---|---|---|---|---|---|
 {chr(10).join(abs_rows)}
 """
-    print(body)
-    if not args.no_write:
-        write_section("Refinement methods", body)
-    return 0
+    return publish("Refinement methods", body, not args.no_write)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.bench_peers import NOISE_PX, centre_error_mm, perturbed_start, run_ba_cleanup, run_colmap, scene
-from bench.common import write_section
+from bench.common import publish
 from wandcal.calib.geometry import distort_points, project_normalized
 from wandcal.calib.rig import WandObservations
 from wandcal.calib.solve.ba import CAUCHY_SIGMAS
@@ -124,10 +124,7 @@ def main() -> int:
         + f"\n\n`ba+cleanup` against the oracle on the outlier rigs (the robust method's own cost): {cost:.3f} "
         f"({lo:.3f}-{hi:.3f}). Goal (issue 8): outliers / clean <= 1.1."
     )
-    print(body)
-    if not args.no_write:
-        write_section("Outlier cost", body)
-    return 0
+    return publish("Outlier cost", body, not args.no_write)
 
 
 if __name__ == "__main__":

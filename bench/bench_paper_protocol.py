@@ -21,10 +21,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import timed, write_section
+from bench.common import publish, timed
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.simulate import simulate_paper_protocol
 from wandcal.calib.solve.paper import MAX_ROUNDS
 from wandcal.calib.start.labels import label_ends, wand_lengths
@@ -56,8 +57,8 @@ def main() -> int:
                     continue
                 try:
                     result, seconds = timed(
-                        calibrate, sim.rig, sim.wand, sim.static, method,
-                        options={"reject_outliers": False},
+                        calibrate, sim.rig, sim.wand, sim.static,
+                        options=CalibrationOptions(method=method, reject_outliers=False),
                     )
                 except CalibrationError:
                     stats[method]["failed"] += 1
@@ -85,10 +86,7 @@ of each level; `lp` and `ba` run {args.trials} trials per level.
 |---|---|---|---|---|---|---|
 {chr(10).join(rows)}
 """
-    print(body)
-    if not args.no_write:
-        write_section("Seed paper's simulation protocol", body)
-    return 0
+    return publish("Seed paper's simulation protocol", body, not args.no_write)
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ from bench.common import aligned_rms_mm, peak_rss_mb, reset_peak_rss, write_sect
 from bench.whole_process import PROBE  # noqa: E402
 from wandcal.calib.geometry import camera_centers, rotvec_to_matrix  # noqa: E402
 from wandcal.calib.observations import wand_pairs  # noqa: E402
+from wandcal.calib.run.options import CalibrationOptions  # noqa: E402
 from wandcal.calib.run.refine import build_problem, refine, reject_outliers, up_direction  # noqa: E402
 from wandcal.calib.sim.simulate import simulate_capture  # noqa: E402
 from wandcal.calib.solve.ba import bundle_adjust  # noqa: E402
@@ -92,7 +93,7 @@ def run_ba(sim, labelled, setup):
 
 
 def run_ba_cleanup(sim, labelled, setup):
-    options, tell = {}, lambda e: None
+    options, tell = CalibrationOptions(), lambda e: None
     r = refine(sim.rig, labelled, setup, None, None, "ba", options, tell, up_direction(sim.rig, setup.model.R0, setup.model.t0, setup), final=False)
     r = reject_outliers(r, "ba", options, tell)
     return r.R, r.t, r.info["iterations"], None

@@ -15,7 +15,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import real_sessions as rs
-from bench.common import write_section
+from bench.common import publish
+from wandcal.calib.run.options import CalibrationOptions
 
 # cal2's wand ends' per-axis noise: their variance component (squared residuals over their
 # redundancy, from the exact hat matrix at ba's solution), measured in decision 0020
@@ -38,7 +39,7 @@ def main() -> int:
         for method, label, kw in (
             ("ba", "ba", {}),
             ("lp", "lp", {}),
-            ("ba", "ba, profile focals + `--refine-intrinsics focal`", {"intrinsics": "profile", "options": {"refine_intrinsics": ("focal",)}}),
+            ("ba", "ba, profile focals + `--refine-intrinsics focal`", {"intrinsics": "profile", "options": CalibrationOptions(refine_intrinsics=("focal",))}),
         ):
             if session == 2 and kw.get("intrinsics") == "profile":
                 continue
@@ -91,10 +92,7 @@ easyWand's {published:.3f}% is what {published / per_px[1]:.2f} px would give, l
 | ushichka (3 thermal cameras, .mat import, `ba`) | wand {u['wand_mean_m'] * 1000:.1f} ± {u['wand_std_m'] * 1000:.2f} mm ({u['wand_score_percent']:.2f}%); per-axis RMS {', '.join(f'{x:.3f}' for x in u['rms_per_axis_px'])} px | easyWand {u['easywand_wand_score_percent']:.2f}%; DLT RMSE {', '.join(f'{x:.3f}' for x in u['easywand_dlt_rmse_px'])} px |
 | MultiCamSelfCal caldata20130726 (4 cameras, single-point tracks, up to scale) | mean 2D error {s['mean_error_px']:.3f} px over {s['inliers']} of {s['observations']} observations; centres vs `original_cam_centers.dat` {', '.join(f'{x:.0f}' for x in s['centre_diff_mm'])} mm | 0.62 px (the toolbox's README, on its sister set DATA20100906) |
 """
-    print(body)
-    if not args.no_write:
-        write_section("Real sessions", body)
-    return 0
+    return publish("Real sessions", body, not args.no_write)
 
 
 if __name__ == "__main__":

@@ -95,8 +95,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=5)
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/benchmarks.md alone")
     args = parser.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
         (tmp / "replay").mkdir()
         server = Server(port=free_port(), env=server_env(tmp, workers=1, framesets_per_second=1000),
                         log=tmp / "server.log").start()

@@ -30,7 +30,7 @@ def one(shape: RigShape, frames: int, seed: int, reference: bool) -> tuple[int, 
     sim = simulate_shape(shape, frames=frames, seed=seed)
     with mock.patch("wandcal.calib.run.refine.WAND_FRAMES_IN_STOP", reference):
         result, seconds = timed(calibrate, sim.rig, sim.wand, sim.static, "ba")
-    return int(result.solver["iterations"]), seconds, aligned_rms_mm(result.centers, sim.truth.centers)
+    return int(result.solver.iterations), seconds, aligned_rms_mm(result.centers, sim.truth.centers)
 
 
 def main() -> int:

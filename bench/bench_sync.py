@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine, replace_section
+from common import machine, publish
 
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import write_capture
@@ -100,10 +100,7 @@ def main() -> int:
         f"|offset| / SE is {zero:.2f}. Goal (issue 24): `--sync auto` adds at most 30% to the command, nothing under "
         "`--sync none`.\n"
     )
-    print(text)
-    if args.write_docs:
-        replace_section("Sync from the wand", text)
-    return 0
+    return publish("Sync from the wand", text, args.write_docs, header=False)
 
 
 if __name__ == "__main__":

@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import aligned_rms_mm, machine, replace_section
+from common import aligned_rms_mm, machine, publish
 
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.simulate import simulate_capture
 
 NOISE_PX = 0.3
@@ -44,7 +45,7 @@ def centre_error_mm(result, sim) -> float:
 def one_seed(n: int, frames: int, seed: int) -> dict:
     off = offsets(n, seed)
     late = simulate_capture(n, frames, NOISE_PX, static=False, seed=seed, offsets=off)
-    result = calibrate(late.rig, late.wand, options={"sync": "auto"})
+    result = calibrate(late.rig, late.wand, options=CalibrationOptions(sync="auto"))
     found = np.array([c["offset_frames"] for c in result.sync["cameras"]])
     std = np.array([c["offset_std_frames"] for c in result.sync["cameras"]])
     plain = simulate_capture(n, frames, NOISE_PX, static=False, seed=seed)
@@ -89,10 +90,7 @@ def main() -> int:
         "The mean z² of a seed's offsets shares the reference camera's noise, so one seed's may stray from 1 "
         "(docs/decisions/0022-sync-cost-and-standard-error.md).\n"
     )
-    print(text)
-    if args.write_docs:
-        replace_section("Sync: the rig against the same rig synchronised", text)
-    return 0
+    return publish("Sync: the rig against the same rig synchronised", text, args.write_docs, header=False)
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@ writing a section of docs/benchmarks.md."""
 
 from __future__ import annotations
 
+import contextlib
 import platform
 import re
 import sys
@@ -45,10 +46,8 @@ def peak_rss_mb() -> float:
 
 def reset_peak_rss() -> None:
     """Start :func:`peak_rss_mb` again from the present resident set (Linux's clear_refs 5)."""
-    try:
+    with contextlib.suppress(OSError):
         Path("/proc/self/clear_refs").write_text("5")
-    except OSError:
-        pass
 
 
 def machine() -> str:
@@ -72,10 +71,7 @@ def replace_section(title: str, content: str) -> None:
     text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\nEach section was written by the command it names, on the machine it names.\n"
     section = f"## {title}\n\n{content.strip()}\n"
     pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(text):
-        text = pattern.sub(lambda _: section + "\n", text)
-    else:
-        text = text.rstrip() + "\n\n" + section
+    text = pattern.sub(lambda _: section + "\n", text) if pattern.search(text) else text.rstrip() + "\n\n" + section
     DOC.write_text(text.rstrip() + "\n")
 
 
@@ -83,3 +79,13 @@ def write_section(title: str, body: str) -> None:
     """:func:`replace_section` with the command line, the machine and the date on top."""
     command = "python " + " ".join(sys.argv)
     replace_section(title, f"Command: `{command}`  \nMachine: {machine()}  \nDate: {time.strftime('%Y-%m-%d')}\n\n{body.strip()}")
+
+
+def publish(title: str, text: str, write: bool, *, header: bool = True) -> int:
+    """A bench's closing block: print ``text`` and, when ``write``, make it docs/benchmarks.md's
+    section ``title`` (:func:`write_section`: the command, machine and date on top; with
+    ``header=False``, :func:`replace_section`: ``text`` as it is). Returns 0, the script's exit status."""
+    print(text)
+    if write:
+        (write_section if header else replace_section)(title, text)
+    return 0

@@ -190,7 +190,7 @@ def one_core():
 
 
 def before_module(rev: str):
-    """calib/detect.py as it was at git revision ``rev`` (self-contained: it imports wandcal.calib.errors
+    """The detector as it was at git revision ``rev`` (``rev:calib/detect.py`` then) (self-contained: it imports wandcal.calib.errors
     only), loaded as a module beside the present one for a side-by-side timing."""
     source = subprocess.run(["git", "show", f"{rev}:calib/detect.py"], cwd=REPO, capture_output=True, text=True,
                             check=True).stdout
@@ -259,7 +259,7 @@ def _background_rows(frames: int) -> tuple[list[str], str]:
             "empty": lambda kind, empty=empty: CameraDetector(DetectConfig(background="empty"),
                                                               background=empty[kind]),
         }
-        best = {name: np.inf for name in ["frame copy", *models]}
+        best = dict.fromkeys(["frame copy", *models], np.inf)
         for _ in range(REPEATS):  # round robin: a busy spell of the shared machine slows one repeat of each
             for name in best:
                 detector = None if name == "frame copy" else models[name]("flat")

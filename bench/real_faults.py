@@ -229,9 +229,9 @@ def _shift_rows(frame: np.ndarray, uv: np.ndarray, offset: float) -> tuple[np.nd
 
 def _replace_rows(obs, c: int, frame: np.ndarray, uv: np.ndarray):
     other = obs.camera != c
-    merged = dict(frame=np.concatenate([obs.frame[other], frame]),
-                  camera=np.concatenate([obs.camera[other], np.full(len(frame), c)]),
-                  uv=np.concatenate([obs.uv[other], uv]))
+    merged = {"frame": np.concatenate([obs.frame[other], frame]),
+              "camera": np.concatenate([obs.camera[other], np.full(len(frame), c)]),
+              "uv": np.concatenate([obs.uv[other], uv])}
     if isinstance(obs, PointObservations):
         return PointObservations(**merged, point=None)
     return WandObservations(**merged)
@@ -360,11 +360,10 @@ def cases(session: Session) -> list[Case]:
         add("knock", f"knocked {angle:.2f} deg", angle)
         add("noise", f"noise {NOISE_FACTOR:g}x", NOISE_FACTOR)
     if session.rig.wand_length is not None and len(session.wand):
-        for factor in (1.04, 0.8):
-            out.append(Case(session.name, "wand length", f"wand {100 * (factor - 1):+.0f}%", None, factor,
-                            EXPECTED["wand length"]))
-    for seed in range(SUBSAMPLES):
-        out.append(Case(session.name, "subsample", f"subsample {100 * SUBSAMPLE_SHARE:.0f}% seed {seed}", None, seed, None))
+        out += [Case(session.name, "wand length", f"wand {100 * (factor - 1):+.0f}%", None, factor, EXPECTED["wand length"])
+                for factor in (1.04, 0.8)]
+    out += [Case(session.name, "subsample", f"subsample {100 * SUBSAMPLE_SHARE:.0f}% seed {seed}", None, seed, None)
+            for seed in range(SUBSAMPLES)]
     return out
 
 
@@ -400,7 +399,7 @@ def _seed(case: Case) -> int:
 
 def calibrated(session: Session):
     """The session's CalibrationResult (``ba``, as the user would run it)."""
-    return calibrate(session.rig, session.wand, None, "ba", points=session.points, axis=session.axis)
+    return calibrate(session.rig, session.wand, None, points=session.points, axis=session.axis)
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from wandcal.calib.geometry import undistort_points
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.observations import point_tracks, robust_sigma
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 from wandcal.capture.formats.easywand import read_easywand_mat
 from wandcal.capture.formats.svoboda import read_svoboda
@@ -33,13 +35,14 @@ SVOBODA = "multicamselfcal_strawlab_testdata/caldata20130726_122220"
 SVOBODA_NO_INTRINSICS = "multicamselfcal_strawlab_testdata/DATA20100906_134124"
 
 
-def brown(session: int, method: str = "ba", intrinsics: str = "optimised", options: dict | None = None) -> dict:
+def brown(session: int, method: str = "ba", intrinsics: str = "optimised", options: CalibrationOptions | None = None) -> dict:
     """One Brown wind-tunnel session (1 or 2) and easyWand's published figures."""
     folder = SHARED_DATA / BROWN / f"calibration{session}"
     ref = json.loads((folder / "easywand_result.json").read_text())
     cap = read_easywand_mat(folder / BROWN_MAT, intrinsics=intrinsics).capture
     start = time.perf_counter()
-    result = calibrate(cap.rig, cap.wand, None, method, options=options, points=cap.points, axis=cap.axis)
+    options = replace(options or CalibrationOptions(), method=method)
+    result = calibrate(cap.rig, cap.wand, None, options=options, points=cap.points, axis=cap.axis)
     seconds = time.perf_counter() - start
     published = ref["published_result"]
     w = result.wand_report
@@ -47,8 +50,8 @@ def brown(session: int, method: str = "ba", intrinsics: str = "optimised", optio
     return {
         "result": result,
         "seconds": seconds,
-        "wand_score_percent": 100 * w["length_std_m"] / w["length_mean_m"],
-        "wand_frames": w["frames_used"],
+        "wand_score_percent": 100 * w.length_std_m / w.length_mean_m,
+        "wand_frames": w.frames_used,
         "wand_score_on_easywand_frames": _score_on_easywand_frames(result, folder),
         "easywand_wand_score_percent": published["wandScore_percent"],
         "easywand_frames": published["dDLT_wand_lengths_m"]["n"],
@@ -155,16 +158,16 @@ def ushichka(method: str = "ba") -> dict:
     folder = SHARED_DATA / USHICHKA
     ref = json.loads((folder / "easywand_result.json").read_text())
     cap = read_easywand_mat(folder / "round3_2018-07-28_easyWandData.mat", height=USHICHKA_HEIGHT).capture
-    result = calibrate(cap.rig, cap.wand, None, method, points=cap.points, axis=cap.axis)
+    result = calibrate(cap.rig, cap.wand, None, points=cap.points, axis=cap.axis, options=CalibrationOptions(method=method))
     w = result.wand_report
     return {
         "result": result,
         "folder": folder,
-        "wand_mean_m": w["length_mean_m"],
-        "wand_std_m": w["length_std_m"],
-        "wand_score_percent": 100 * w["length_std_m"] / w["length_mean_m"],
+        "wand_mean_m": w.length_mean_m,
+        "wand_std_m": w.length_std_m,
+        "wand_score_percent": 100 * w.length_std_m / w.length_mean_m,
         "easywand_wand_score_percent": ref["published_result"]["wandScore_percent"],
-        "rms_per_axis_px": [c["reprojection_rms_px"] / np.sqrt(2) for c in result.cameras],
+        "rms_per_axis_px": [c.reprojection_rms_px / np.sqrt(2) for c in result.cameras],
         "easywand_dlt_rmse_px": ref["published_result"]["dltRMSE_px_per_camera"],
         "reference_centres": np.array([c["camera_centre_world_m"] for c in ref["reference_cameras_derived_from_dlt"]]),
     }
@@ -174,7 +177,7 @@ def svoboda() -> dict:
     """The MultiCamSelfCal tracks with their .rad intrinsics, calibrated up to scale."""
     folder = SHARED_DATA / SVOBODA
     cap = read_svoboda(folder).capture
-    result = calibrate(cap.rig, cap.wand, None, "ba", points=cap.points)
+    result = calibrate(cap.rig, cap.wand, None, points=cap.points)
     # the mean 2D error over the observations the calibration kept (its own 5-sigma cleanup, as
     # the toolbox reports over its inliers), each point triangulated from its kept views
     tracks = point_tracks(result.rig, cap.points)
@@ -210,4 +213,4 @@ def svoboda_guessed_focal(focal_px: float = 700.0):
     from wandcal.capture.formats.svoboda import read_svoboda as read
 
     cap = read(SHARED_DATA / SVOBODA_NO_INTRINSICS, focal_px=focal_px).capture
-    return calibrate(cap.rig, cap.wand, None, "ba", points=cap.points, options={"refine_intrinsics": ("focal",)})
+    return calibrate(cap.rig, cap.wand, None, points=cap.points, options=CalibrationOptions(refine_intrinsics=("focal",)))

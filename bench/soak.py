@@ -146,16 +146,16 @@ def main() -> None:
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/benchmarks.md alone")
     args = parser.parse_args()
     load = os.getloadavg()[0]
-    with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory() as folder:
+        tmp = Path(folder)
         (tmp / "replay").mkdir()
         server = Server(port=free_port(), env=server_env(tmp, workers=args.workers), log=tmp / "server.log").start()
         try:
             with server.client() as c:
                 ids = []
                 for k in range(3):
-                    folder, _ = simulated_capture(tmp / f"capture{k}", cameras=3, frames=120, noise_px=0.3, seed=100 + k)
-                    ids.append(c.post("/captures", files=capture_files(folder)).json()["id"])
+                    capture, _ = simulated_capture(tmp / f"capture{k}", cameras=3, frames=120, noise_px=0.3, seed=100 + k)
+                    ids.append(c.post("/captures", files=capture_files(capture)).json()["id"])
             samples = soak(server, tmp / "data", ids, args.jobs, max(1, args.jobs // args.samples))
         finally:
             server.stop()

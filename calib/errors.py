@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 
 class CalibrationError(ValueError):
@@ -16,7 +17,7 @@ class Failure:
 
     reason: str
 
-    def __bool__(self) -> bool:
+    def __bool__(self) -> Literal[False]:  # Literal: `if result:` narrows ``X | Failure`` to X for mypy
         return False
 
     def __str__(self) -> str:

@@ -130,11 +130,6 @@ def camera_centers(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return -np.einsum("nji,nj->ni", R, t)
 
 
-def transform_points(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """``R @ X + t`` for (3, 3), (3,), (M, 3) -> (M, 3)."""
-    return X @ R.T + t
-
-
 def project_normalized(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
     """Pinhole projection to normalised coordinates.
 

@@ -25,10 +25,8 @@ from wandcal.calib.detect.config import DetectConfig
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Rig
 from wandcal.capture.folder import CaptureFormatError
-from wandcal.drivers.imagefolder import FRAMES_DIR, IMAGE_SUFFIX
-
-MASKS_DIR = "masks"
-BACKGROUND_DIR = "background"
+from wandcal.drivers.capture_files import BACKGROUND_DIR, FRAMES_DIR, MASKS_DIR
+from wandcal.drivers.imagefolder import IMAGE_SUFFIX
 
 # Frames of an empty-volume recording used per camera, evenly spread over it. The per-pixel
 # median of 25 frames has ~1.25/5 = 0.25 of one frame's read noise, and 25 decoded 1280x1024

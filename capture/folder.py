@@ -22,17 +22,9 @@ from wandcal.calib.rig import (
     StaticObservations,
     WandObservations,
 )
-from wandcal.capture.rig_file import (
-    POINTS_FILE,
-    RIG_FILE,
-    CaptureFormatError,
-    read_rig,
-    rig_to_json,
-)
+from wandcal.capture.rig_file import CaptureFormatError, read_rig, rig_to_json
+from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
 
-WAND_FILE = "wand.csv"
-STATIC_FILE = "static.csv"
-AXIS_FILE = "axis.csv"
 WAND_COLUMNS = ("frame", "camera", "u", "v")
 STATIC_COLUMNS = ("camera", "u", "v")
 POINTS_COLUMNS = ("frame", "camera", "u", "v")

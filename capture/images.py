@@ -37,8 +37,9 @@ from wandcal.calib.detect import (
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import StaticObservations, WandObservations
 from wandcal.capture.detect_setup import MASK_FOLDER, CameraSetup, camera_detectors
-from wandcal.capture.folder import WAND_FILE, CaptureFormatError, read_rig, write_capture
-from wandcal.drivers.imagefolder import FRAMES_DIR, STATIC_DIR, image_path, listed_indices
+from wandcal.capture.folder import CaptureFormatError, read_rig, write_capture
+from wandcal.drivers.capture_files import FRAMES_DIR, STATIC_DIR, WAND_FILE
+from wandcal.drivers.imagefolder import image_path, listed_indices
 
 # Files queued per worker thread. A queued file is only a path and a finished one a few blob
 # arrays; each worker holds one decoded image at a time, so memory stays at ``workers`` frames
@@ -178,28 +179,10 @@ def detect_capture(folder: str | Path, config: DetectConfig | None = None, worke
              for phase, listed in ((FRAMES_DIR, frames), (STATIC_DIR, statics)) for i in listed[cid]]
     owners = [detectors[cid] for cid in rig.ids
               for phase, listed in ((FRAMES_DIR, frames), (STATIC_DIR, statics)) for _ in listed[cid]]
-    total, done = len(paths), 0
     reports = []
     rows_f, rows_c, rows_uv, st_c, st_uv = [], [], [], [], []
     with closing(_detect_files(paths, owners, workers)) as found:
-        files = zip(paths, found)
-
-        def take(count: int, report: CameraDetection) -> list[Blobs | None]:
-            """The next ``count`` files' blobs; names the unreadable ones in ``report``."""
-            nonlocal done
-            out = []
-            for path, blobs in islice(files, count):
-                if blobs is None:
-                    report.unreadable.append(str(path))
-                elif blobs.background == "highpass" and detectors[report.camera_id].config.background == "auto":
-                    report.highpass_images += 1
-                out.append(blobs)
-                done += 1
-                if progress and (done % PROGRESS_EVERY == 0 or done == total):
-                    progress({"stage": "detect", "done": done, "total": total,
-                              "message": f"detecting blobs ({report.camera_id})"})
-            return out
-
+        take = _Found(zip(paths, found), len(paths), detectors, progress).take
         for c, cid in enumerate(rig.ids):
             report = CameraDetection(cid, images=len(frames[cid]), static_images=len(statics[cid]), setup=setups[c])
             blobs = take(len(frames[cid]), report)
@@ -224,6 +207,30 @@ def detect_capture(folder: str | Path, config: DetectConfig | None = None, worke
         static = StaticObservations(camera=np.array(st_c, dtype=np.int64), uv=np.array(st_uv).reshape(-1, 2))
     write_capture(folder, rig, wand, static)
     return reports
+
+
+class _Found:
+    """The detected files, in the order of the stream, handed out camera by camera; reports
+    progress as they are taken."""
+
+    def __init__(self, files, total: int, detectors: dict, progress: Callable[[dict], None] | None):
+        self.files, self.total, self.detectors, self.progress = files, total, detectors, progress
+        self.done = 0
+
+    def take(self, count: int, report: CameraDetection) -> list[Blobs | None]:
+        """The next ``count`` files' blobs; names the unreadable ones in ``report``."""
+        out = []
+        for path, blobs in islice(self.files, count):
+            if blobs is None:
+                report.unreadable.append(str(path))
+            elif blobs.background == "highpass" and self.detectors[report.camera_id].config.background == "auto":
+                report.highpass_images += 1
+            out.append(blobs)
+            self.done += 1
+            if self.progress and (self.done % PROGRESS_EVERY == 0 or self.done == self.total):
+                self.progress({"stage": "detect", "done": self.done, "total": self.total,
+                               "message": f"detecting blobs ({report.camera_id})"})
+        return out
 
 
 def ensure_points_level(folder: str | Path, progress: Callable[[dict], None] | None = None) -> Path:

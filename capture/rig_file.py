@@ -9,15 +9,15 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Camera, Rig
+from wandcal.drivers.capture_files import POINTS_FILE, RIG_FILE
 
 CAPTURE_FORMAT = "wandcal-capture/1"
-RIG_FILE = "rig.json"
-POINTS_FILE = "points.csv"  # named here too: a rig without a wand needs it
 MAX_IMAGE_SIDE_PX = 1 << 20  # no sensor is a million pixels wide: a larger width or height is a typo
 # The largest optical motion-capture stages run a few hundred cameras. The solve's normal equations
 # grow with the square of the cameras (15 parameters each: 7,680 x 7,680, 0.5 GB, at 512), so past
@@ -67,32 +67,47 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
     if len(cams) > MAX_CAMERAS:
         raise CaptureFormatError(f"{source}: {len(cams)} cameras, more than the {MAX_CAMERAS} this release calibrates "
                                  "at once; calibrate the rig in overlapping groups of cameras")
-    cameras = []
-    for i, c in enumerate(cams):
-        where = f"{source}: cameras[{i}]"
-        if not isinstance(c, dict):
-            raise CaptureFormatError(f"{where} must be an object")
-        for key in ("id", "width", "height", "K", "dist"):
-            if key not in c:
-                raise CaptureFormatError(f"{where} has no {key!r}; every camera needs id, width, height, K and dist")
-        if not isinstance(c.get("model", "pinhole"), str):
-            raise CaptureFormatError(f"{where}.model must be \"pinhole\" or \"fisheye\", got {c['model']!r}")
-        try:
-            cameras.append(
-                Camera(
-                    id=str(c["id"]),
-                    width=_positive_int(c["width"], f"{where}.width"),
-                    height=_positive_int(c["height"], f"{where}.height"),
-                    K=_matrix(c["K"], (3, 3), f"{where}.K"),
-                    dist=_matrix(c["dist"], None, f"{where}.dist"),
-                    model=c.get("model", "pinhole"),
-                )
-            )
-        except CaptureFormatError:
-            raise
-        except CalibrationError as exc:
-            raise CaptureFormatError(f"{where}: {exc}") from None
-    wand = doc.get("wand")
+    cameras = [_camera_from_json(c, f"{source}: cameras[{i}]") for i, c in enumerate(cams)]
+    length, wand_markers = _wand_from_json(doc.get("wand"), source, allow_no_wand)
+    markers = None
+    if doc.get("static_object") is not None:
+        so = doc["static_object"]
+        if not isinstance(so, dict) or "markers_m" not in so:
+            raise CaptureFormatError(f"{source}: 'static_object' needs 'markers_m', a list of [x, y, z] in metres")
+        markers = _matrix(so["markers_m"], None, f"{source}: static_object.markers_m")
+    try:
+        return Rig(cameras=tuple(cameras), wand_length=None if length is None else float(length), static_markers=markers,
+                   wand_markers=wand_markers)
+    except CalibrationError as exc:
+        raise CaptureFormatError(f"{source}: {exc}") from None
+
+
+def _camera_from_json(c: object, where: str) -> Camera:
+    """One entry of rig.json's ``cameras``; ``where`` names it in errors ("rig.json: cameras[2]")."""
+    if not isinstance(c, dict):
+        raise CaptureFormatError(f"{where} must be an object")
+    for key in ("id", "width", "height", "K", "dist"):
+        if key not in c:
+            raise CaptureFormatError(f"{where} has no {key!r}; every camera needs id, width, height, K and dist")
+    if not isinstance(c.get("model", "pinhole"), str):
+        raise CaptureFormatError(f"{where}.model must be \"pinhole\" or \"fisheye\", got {c['model']!r}")
+    try:
+        return Camera(
+            id=str(c["id"]),
+            width=_positive_int(c["width"], f"{where}.width"),
+            height=_positive_int(c["height"], f"{where}.height"),
+            K=_matrix(c["K"], (3, 3), f"{where}.K"),
+            dist=_matrix(c["dist"], None, f"{where}.dist"),
+            model=c.get("model", "pinhole"),
+        )
+    except CaptureFormatError:
+        raise
+    except CalibrationError as exc:
+        raise CaptureFormatError(f"{where}: {exc}") from None
+
+
+def _wand_from_json(wand: object, source: str, allow_no_wand: bool) -> tuple[object, np.ndarray | None]:
+    """rig.json's ``wand``: (length in metres as given, or None; the (M, 3) marker layout, metres, or None)."""
     length = wand.get("length_m") if isinstance(wand, dict) else None
     if wand is not None and not isinstance(wand, dict):
         raise CaptureFormatError(f"{source}: 'wand' must be an object like {{\"length_m\": 0.5}}, got {wand!r}")
@@ -115,21 +130,11 @@ def rig_from_json(doc: object, source: str = RIG_FILE, allow_no_wand: bool = Fal
             )
     elif not positive_number(length):
         raise CaptureFormatError(f"{source}: 'wand.length_m' must be a positive number of metres, got {length!r}")
-    markers = None
-    if doc.get("static_object") is not None:
-        so = doc["static_object"]
-        if not isinstance(so, dict) or "markers_m" not in so:
-            raise CaptureFormatError(f"{source}: 'static_object' needs 'markers_m', a list of [x, y, z] in metres")
-        markers = _matrix(so["markers_m"], None, f"{source}: static_object.markers_m")
-    try:
-        return Rig(cameras=tuple(cameras), wand_length=None if length is None else float(length), static_markers=markers,
-                   wand_markers=wand_markers)
-    except CalibrationError as exc:
-        raise CaptureFormatError(f"{source}: {exc}") from None
+    return length, wand_markers
 
 
 def rig_to_json(rig: Rig) -> dict:
-    doc = {
+    doc: dict[str, Any] = {
         "format": CAPTURE_FORMAT,
         "cameras": [
             {"id": c.id, "width": c.width, "height": c.height, "K": c.K.tolist(), "dist": c.dist.tolist()}

@@ -25,3 +25,8 @@ class FrameError(DriverError):
     def __init__(self, message: str, sequence: int):
         super().__init__(message)
         self.sequence = sequence
+
+
+class CameraUrlError(DriverError):
+    """A camera URL that names no device or asks for what a driver cannot do (bad input, not a
+    device fault: the command line exits 2 on it)."""

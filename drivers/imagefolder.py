@@ -1,6 +1,7 @@
 """File layout of the image level of a ``wandcal-capture/1`` folder (docs/capture-format.md).
 
-The replay driver reads it and ``capture/`` writes it, so the names live here, below both.
+The replay driver reads it and ``capture/`` writes it, so it lives here, below both; the names
+of the files and folders are in :mod:`wandcal.drivers.capture_files`.
 
     rig.json
     sync.csv                      frame,trigger_count,trigger_us,<camera_id>_ts...
@@ -15,9 +16,8 @@ import io
 from dataclasses import dataclass
 from pathlib import Path
 
-FRAMES_DIR = "frames"
-STATIC_DIR = "static"
-SYNC_FILE = "sync.csv"
+from wandcal.drivers.capture_files import FRAMES_DIR, SYNC_FILE
+
 SYNC_FIXED = ("frame", "trigger_count", "trigger_us")
 TS_SUFFIX = "_ts"
 IMAGE_SUFFIX = ".png"

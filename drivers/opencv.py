@@ -50,7 +50,8 @@ class OpenCVCamera(CameraDriver):
         self._is_file = isinstance(source, str) and not source.startswith("/dev/")
 
     def _open(self) -> None:
-        if self._is_file and "%" not in self.source and not Path(self.source).is_file():
+        source = self.source
+        if self._is_file and isinstance(source, str) and "%" not in source and not Path(source).is_file():
             raise DriverError(f"camera {self.camera_id}: {self.source} does not exist; check the path in {self.url}")
         cap = cv2.VideoCapture(self.source, self.api)
         if not cap.isOpened():
@@ -68,13 +69,20 @@ class OpenCVCamera(CameraDriver):
             self._cap.release()
             self._cap = None
 
+    @property
+    def _capture(self) -> cv2.VideoCapture:
+        """The open capture: the base class applies settings and reads only between _open and _close."""
+        if self._cap is None:
+            raise DriverError(f"camera {self.camera_id}: {self.url} is not open; open it first")
+        return self._cap
+
     def _apply(self, settings: CameraSettings) -> None:
-        cap = self._cap
         if self._is_file:
             if settings.trigger_mode is TriggerMode.EXTERNAL:
                 raise DriverError(f"camera {self.camera_id}: {self.url} is a file and cannot be triggered; "
                                   "use trigger mode free_run (or 'none' as the trigger URL)")
             return
+        cap = self._capture
         wanted = [(cv2.CAP_PROP_EXPOSURE, settings.exposure_us, "exposure"),
                   (cv2.CAP_PROP_GAIN, settings.gain, "gain"),
                   (cv2.CAP_PROP_FRAME_WIDTH, settings.width, "width"),
@@ -95,7 +103,7 @@ class OpenCVCamera(CameraDriver):
             return
         # Some OpenCV backends map CAP_PROP_TRIGGER to the device's trigger control; V4L2/UVC
         # devices mostly do not, so a refusal is the common case and gets the explicit advice.
-        if not self._cap.set(cv2.CAP_PROP_TRIGGER, 1.0):
+        if not self._capture.set(cv2.CAP_PROP_TRIGGER, 1.0):
             raise DriverError(
                 f"camera {self.camera_id}: {self.url} has no trigger control that OpenCV can set. Find the "
                 f"camera's control with 'v4l2-ctl -d {self.source} --list-ctrls' (docs/drivers.md lists common "
@@ -104,12 +112,12 @@ class OpenCVCamera(CameraDriver):
 
     def _read(self, timeout: float | None) -> Frame | None:
         start = time.monotonic()
-        while not self._cap.grab():
+        while not self._capture.grab():
             if self._is_file:
                 return None  # end of the file or of the image sequence
             if timeout is not None and time.monotonic() - start >= timeout:
                 raise FrameTimeout(f"camera {self.camera_id}: no frame from {self.url} within {timeout:.2f} s")
-        ok, image = self._cap.retrieve()
+        ok, image = self._capture.retrieve()
         if not ok or image is None:
             return None if self._is_file else self._read(timeout)
         if image.ndim == 3:
@@ -122,10 +130,10 @@ class OpenCVCamera(CameraDriver):
     def _timestamp_us(self, seq: int) -> int:
         # V4L2 reports the buffer's capture time and files their presentation time in
         # CAP_PROP_POS_MSEC; image sequences report nothing, so fall back to the nominal rate.
-        msec = self._cap.get(cv2.CAP_PROP_POS_MSEC)
+        msec = self._capture.get(cv2.CAP_PROP_POS_MSEC)
         if msec and msec > 0:
             return int(round(msec * US_PER_MS))
-        fps = self._cap.get(cv2.CAP_PROP_FPS)
+        fps = self._capture.get(cv2.CAP_PROP_FPS)
         fps = fps if fps > 0 else (self.settings.fps or NOMINAL_FPS)
         return int(round(seq * 1e6 / fps))
 
@@ -136,7 +144,7 @@ def set_v4l2_control(device: str, assignment: str, camera_id: str) -> None:
     if tool is None:
         raise DriverError(f"camera {camera_id}: setting '{assignment}' needs {V4L2_CTL}; install the "
                           "v4l-utils package (apt-get install v4l-utils)")
-    done = subprocess.run([tool, "-d", device, "-c", assignment], capture_output=True, text=True)
+    done = subprocess.run([tool, "-d", device, "-c", assignment], capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise DriverError(f"camera {camera_id}: {device} refused control '{assignment}': "
                           f"{done.stderr.strip() or done.stdout.strip()}; see 'v4l2-ctl -d {device} --list-ctrls'")

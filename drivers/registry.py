@@ -15,14 +15,10 @@ from pathlib import Path
 from urllib.parse import parse_qsl, urlsplit
 
 from wandcal.drivers.camera import CameraDriver
-from wandcal.drivers.errors import DriverError
+from wandcal.drivers.errors import CameraUrlError
 
 SCHEMES = ("v4l2", "opencv", "replay", "sim")
-
-
-class CameraUrlError(DriverError):
-    """A camera URL that names no device or asks for what a driver cannot do (bad input, not a
-    device fault: the command line exits 2 on it)."""
+__all__ = ["SCHEMES", "CameraUrlError", "open_cameras"]  # CameraUrlError lives in errors (sim.py raises it too)
 
 
 def open_cameras(url: str) -> list[CameraDriver]:
@@ -54,6 +50,7 @@ def _open_cv(url: str, scheme: str, path: str, query: dict[str, str]) -> CameraD
 
     if not path:
         raise CameraUrlError(f"{url}: no device or file; write e.g. v4l2:///dev/video0 or opencv:0")
+    source: int | str
     if scheme == "v4l2":
         source, api = path, cv2.CAP_V4L2
         default_id = Path(path).name

@@ -16,11 +16,9 @@ import cv2
 
 from wandcal.calib.rig import Camera
 from wandcal.drivers.camera import NOMINAL_FPS, CameraDriver, CameraSettings, Frame, TriggerMode
+from wandcal.drivers.capture_files import FRAMES_DIR, RIG_FILE, STATIC_DIR, SYNC_FILE
 from wandcal.drivers.errors import DriverError, FrameError
 from wandcal.drivers.imagefolder import (
-    FRAMES_DIR,
-    STATIC_DIR,
-    SYNC_FILE,
     image_path,
     listed_cameras,
     listed_indices,
@@ -93,7 +91,7 @@ def open_replay(url: str, path: str, query: dict[str, str]) -> list[ReplayCamera
     folder = Path(path)
     if not folder.is_dir():
         raise DriverError(f"{url}: {folder} is not a folder; give the path of an image-level capture folder")
-    for name in (SYNC_FILE, "rig.json"):  # text whose cells an error message may quote
+    for name in (SYNC_FILE, RIG_FILE):  # text whose cells an error message may quote
         if (folder / name).exists() and not (folder / name).resolve().is_relative_to(folder.resolve()):
             raise DriverError(f"{url}: {name} is a link leading outside {folder}; copy the file into the folder")
     phase = query.get("phase", FRAMES_DIR)
@@ -115,8 +113,8 @@ def open_replay(url: str, path: str, query: dict[str, str]) -> list[ReplayCamera
         present = listed_indices(folder, phase, cid)
         if sync is not None:
             have = set(present)
-            frames = [(r.frame, r.camera_us.get(cid)) for r in sync if r.frame in have]
-            frames = [(n, ts if ts is not None else _nominal_us(n)) for n, ts in frames]
+            stamped = [(r.frame, r.camera_us.get(cid)) for r in sync if r.frame in have]
+            frames = [(n, ts if ts is not None else _nominal_us(n)) for n, ts in stamped]
         else:
             frames = [(n, _nominal_us(n)) for n in present]
         cam = ReplayCamera(cid, url, folder, phase, frames, paced=rate == "recorded")
@@ -131,7 +129,7 @@ def _nominal_us(index: int) -> int:
 
 def _intrinsics(folder: Path) -> dict[str, Camera]:
     # rig.json is optional for a replay; the capture layer reads it properly (capture/folder.py)
-    path = folder / "rig.json"
+    path = folder / RIG_FILE
     try:
         doc = json.loads(path.read_text())
         return {c["id"]: Camera(id=c["id"], width=c["width"], height=c["height"], K=c["K"], dist=c["dist"],

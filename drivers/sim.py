@@ -29,12 +29,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wandcal.calib.geometry import depth, distort_points, project_normalized
-from wandcal.calib.rig import Rig
+from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.sim.render import RENDER_HALF_WIDTH_SIGMAS, render_blobs
 from wandcal.calib.sim.simulate import L_FRAME_M, Truth, ring_cameras, wand_path
 from wandcal.drivers.camera import CameraDriver, CameraSettings, Frame, TriggerMode
-from wandcal.drivers.errors import DriverError, FrameTimeout
-from wandcal.drivers.registry import CameraUrlError
+from wandcal.drivers.errors import CameraUrlError, DriverError, FrameTimeout
 
 # A 14 mm retro-reflective marker, the common mocap size: its image radius f * r / z is ~2.5 px
 # at 3 m for f ~ 1100 px. The spot is drawn as a Gaussian of that sigma, clipped to the 1.5-2.5 px
@@ -135,7 +134,7 @@ class SimCamera(CameraDriver):
         super().__init__(camera_id, url)
         self.scene = scene
         self.index = index
-        self.intrinsics = scene.rig.cameras[index]
+        self.intrinsics: Camera = scene.rig.cameras[index]  # a simulated camera always knows its own
         self._clock, self._sleep = clock, sleep
         rng = np.random.default_rng([scene.seed, index])
         self._rng = rng
@@ -192,8 +191,8 @@ class SimCamera(CameraDriver):
             return None
         if stamp is None:
             self._pace(seq)
-            stamp = seq * self._period_us()
-        return Frame(image=self.render(seq), sequence=seq, timestamp_us=self._clock_us(stamp),
+        at_us = seq * self._period_us() if stamp is None else stamp
+        return Frame(image=self.render(seq), sequence=seq, timestamp_us=self._clock_us(at_us),
                      camera_id=self.camera_id)
 
     def _wait_pulse(self, timeout: float | None) -> tuple[int, int]:
@@ -221,7 +220,7 @@ class SimCamera(CameraDriver):
             x1, y1 = min(int(u) + half + 1, width), min(int(v) + half + 1, height)
             if x0 >= x1 or y0 >= y1:
                 continue
-            spot = render_blobs((y1 - y0, x1 - x0), [(u - x0, v - y0)], s, peak, 0.0, 0.0, self.scene.bits)
+            spot = render_blobs((y1 - y0, x1 - x0), np.array([(u - x0, v - y0)]), s, peak, 0.0, 0.0, self.scene.bits)
             patch = out[y0:y1, x0:x1].astype(np.int32) + spot
             out[y0:y1, x0:x1] = np.minimum(patch, full_scale)
         return out

@@ -9,6 +9,7 @@ trigger (free-running cameras matched by their sequence numbers).
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 from dataclasses import dataclass
@@ -49,7 +50,7 @@ class SerialTrigger:
         self._port = port
         self._given_port = port is not None
         self._depth = 0
-        self._replies: queue.Queue[str] = queue.Queue()
+        self._replies: queue.Queue[str | None] = queue.Queue()  # None: the reader stopped
         self._pulses: queue.Queue[Pulse | None] = queue.Queue()
         self._cmd_lock = threading.Lock()
         self._reader: threading.Thread | None = None
@@ -71,10 +72,8 @@ class SerialTrigger:
         self._depth -= 1
         if self._depth == 0:
             if self.lost is None:
-                try:
+                with contextlib.suppress(DriverError):  # closing anyway; a port that went away is reported by .lost
                     self.stop()
-                except DriverError:
-                    pass  # closing anyway; a port that went away is reported by .lost
             self._closing.set()
             if self._reader is not None:
                 self._reader.join(timeout=1.0)
@@ -126,8 +125,8 @@ class SerialTrigger:
                 self._check_lost()
                 raise DriverError(f"trigger {self.url}: no reply to '{line}' within {REPLY_TIMEOUT_S:g} s; is it a "
                                   f"{tp.PROTOCOL} device (docs/trigger-protocol.md)?") from None
-        if reply is None:
-            self._check_lost()
+        if reply is None:  # the reader stopped; _set_lost recorded why before it queued the None
+            raise self.lost or DriverError(f"trigger {self.url}: the connection was lost")
         if reply.startswith(tp.ERR):
             raise DriverError(f"trigger {self.url} refused '{line}': {reply}")
         return reply

@@ -104,8 +104,8 @@ class EmulatedTrigger:
         """Pulse lines (and a final DONE) for every pulse due by now."""
         out = []
         now = self.clock()
-        while self.running and self.next_due() <= now:
-            out.append(tp.format_pulse(self.counter, self.now_us(self.next_due())))
+        while (due := self.next_due()) is not None and due <= now:  # None: stopped
+            out.append(tp.format_pulse(self.counter, self.now_us(due)))
             self.counter += 1
             self._run_index += 1
             if self.limited:
@@ -177,7 +177,8 @@ def _write(fd: int, lines: list[str]) -> None:
 
 
 class EmulatorProcess:
-    """``wandcal trigger-emulator`` in a child process (for tests and demos).
+    """The emulator in a child process (for tests and demos): ``python -m
+    wandcal.drivers.trigger_emulator``, the options of ``wandcal trigger-emulator``.
 
     Use as a context manager; ``path`` is the pseudo-terminal it serves. ``extra`` are more
     command-line options (``--vanish-after 60``).
@@ -189,9 +190,11 @@ class EmulatorProcess:
 
         root = Path(__file__).resolve().parents[1]
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
-        self.process = subprocess.Popen([sys.executable, "-m", "wandcal.service.cli", "trigger-emulator", *extra],
+        self.process = subprocess.Popen([sys.executable, "-m", "wandcal.drivers.trigger_emulator", *extra],
                                         stdout=subprocess.PIPE, text=True, env=env)
-        self.path = self.process.stdout.readline().strip()
+        stdout = self.process.stdout
+        assert stdout is not None  # stdout=PIPE
+        self.path = stdout.readline().strip()
         if not self.path.startswith("/dev/"):
             self.close()
             raise RuntimeError(f"the trigger emulator did not print its terminal path (got {self.path!r})")
@@ -204,10 +207,29 @@ class EmulatorProcess:
         if self.process.poll() is None:
             self.process.kill()
         self.process.wait()
-        self.process.stdout.close()
+        if self.process.stdout is not None:  # always (stdout=PIPE)
+            self.process.stdout.close()
 
     def __enter__(self) -> EmulatorProcess:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m wandcal.drivers.trigger_emulator [--vanish-after N] [--start-us US]``: the child of
+    :class:`EmulatorProcess`. Here, not in the command line, because drivers import nothing of the
+    layers above them; ``wandcal trigger-emulator`` is the same emulator with its options checked
+    for a person (service/cli/trigger.py)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m wandcal.drivers.trigger_emulator")
+    parser.add_argument("--vanish-after", type=int, default=None, metavar="N")
+    parser.add_argument("--start-us", type=int, default=0, metavar="US")
+    args = parser.parse_args(argv)
+    return serve_pty(vanish_after=args.vanish_after, start_us=args.start_us)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -7,6 +7,7 @@ size cannot be read before decoding).
 
 from __future__ import annotations
 
+import functools
 import struct
 from concurrent.futures import ThreadPoolExecutor
 
@@ -21,14 +22,12 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # OpenCV's decoders release the GIL, so a frame set's images decode side by side; two threads
 # per core keep both cores busy while one thread waits on Python-level work.
 DECODE_THREADS = 4
-_pool: ThreadPoolExecutor | None = None
 
 
+@functools.cache
 def _executor() -> ThreadPoolExecutor:
-    global _pool
-    if _pool is None:
-        _pool = ThreadPoolExecutor(DECODE_THREADS, thread_name_prefix="wandcal-decode")
-    return _pool
+    """The process's one decoding pool, made on first use."""
+    return ThreadPoolExecutor(DECODE_THREADS, thread_name_prefix="wandcal-decode")
 
 
 def png_size(data: bytes) -> tuple[int, int] | None:

@@ -19,17 +19,18 @@ from fastapi.staticfiles import StaticFiles
 from threadpoolctl import threadpool_limits
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.api.deps import AppState, require_token
 from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
-from wandcal.service.connections import install_repeat_filter
+from wandcal.service.connection_limits import install_repeat_filter
 from wandcal.service.db import disk_full, init_db
 from wandcal.service.folder_lock import hold_data_folder
 from wandcal.service.jobs.queue import JobQueue, QueueUnavailable, SQLiteQueue
 from wandcal.service.jobs.records import JobStore
-from wandcal.service.limits import BodySizeLimit, RateLimiter
+from wandcal.service.live_capture import BUSY, LiveCapture
 from wandcal.service.recovery import recover
+from wandcal.service.request_limits import BodySizeLimit, RateLimiter
 from wandcal.service.retention import Pruner, Retention
 from wandcal.service.settings import Settings
 from wandcal.service.storage import CaptureNotFound, CaptureStore, ReplayPathError
@@ -115,19 +116,37 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.wandcal = AppState(
         settings=settings, captures=capture_store, queue=queue, limiter=RateLimiter(settings.framesets_per_second)
     )
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
-    roots = [str(data_dir)] + ([str(settings.replay_root.resolve())] if settings.replay_root else [])
-    app.add_middleware(RelativePaths, roots=roots)
-    app.add_middleware(CrossSiteGuard, has_token=settings.token is not None)
-    app.add_middleware(HostGuard, bound=settings.host, allowed=settings.allowed_hosts)  # outermost: first
+    _add_middleware(app, settings, data_dir)
     secured = [Depends(require_token)]
     app.include_router(health.router, prefix=API_PREFIX)
     app.include_router(captures.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(blobsets.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(jobs.router, prefix=API_PREFIX, dependencies=secured)
-    app.state.live_capture = live_capture.LiveCapture(capture_store, settings.capture_continue_timeout_s)
+    app.state.live_capture = LiveCapture(capture_store, settings.capture_continue_timeout_s)
     app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(guidance.router, prefix=API_PREFIX, dependencies=secured)
+    _add_error_handlers(app, data_dir)
+
+    @app.get("/", include_in_schema=False)
+    def page() -> FileResponse:
+        return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
+
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    return app
+
+
+def _add_middleware(app: FastAPI, settings: Settings, data_dir: Path) -> None:
+    """The request guards, innermost first: body size, relative paths, cross-site, host."""
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_upload_bytes)
+    roots = [str(data_dir)] + ([str(settings.replay_root.resolve())] if settings.replay_root else [])
+    app.add_middleware(RelativePaths, roots=roots)
+    app.add_middleware(CrossSiteGuard, has_token=settings.token is not None)
+    app.add_middleware(HostGuard, bound=settings.host, allowed=settings.allowed_hosts)  # outermost: first
+
+
+def _add_error_handlers(app: FastAPI, data_dir: Path) -> None:
+    """Each error an answer: 422 for bad input, 404/403 for captures and paths, 507 for a full disk,
+    503 for a busy database, 500 (logged) for a bug."""
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -173,22 +192,15 @@ def create_app(settings: Settings) -> FastAPI:
             status_code=500,
         )
 
-    @app.get("/", include_in_schema=False)
-    def page() -> FileResponse:
-        return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
 
-    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
-    return app
-
-
-def _stop_live_capture(live: live_capture.LiveCapture, timeout_s: float = LIVE_STOP_S) -> None:
+def _stop_live_capture(live: LiveCapture, timeout_s: float = LIVE_STOP_S) -> None:
     """Stop a live capture that is recording or waiting, and wait (briefly) until it has ended."""
     try:
         live.stop()
     except HTTPException:
         return  # none is running
     deadline = time.monotonic() + timeout_s
-    while live.status().state in live_capture.BUSY and time.monotonic() < deadline:
+    while live.status().state in BUSY and time.monotonic() < deadline:
         time.sleep(0.02)
 
 

@@ -24,7 +24,16 @@ import os
 import shutil
 from pathlib import Path
 
-from wandcal.capture.folder import STATIC_FILE, WAND_FILE, csv_records, read_capture
+from wandcal.capture.folder import csv_records, read_capture
+from wandcal.drivers.capture_files import (
+    BLOBS_FILE,
+    FRAMES_DIR,
+    LOG_FILE,
+    STATIC_DIR,
+    STATIC_FILE,
+    SYNC_FILE,
+    WAND_FILE,
+)
 from wandcal.service.db import connect
 from wandcal.service.report.store import REPORTS_DIR
 from wandcal.service.storage import CAPTURE_ID, WAND_PAIR, CaptureStore
@@ -33,7 +42,7 @@ log = logging.getLogger("wandcal.service")
 
 RECOVERED_DIR = "recovered"
 SPOOL_DIR = "tmp"  # where ``wandcal serve`` spools large uploads (service/cli/serve.py)
-RECORDING_MARKS = ("sync.csv", "capture.json", "frames", "static", "blobs.csv")  # written by a recording only
+RECORDING_MARKS = (SYNC_FILE, LOG_FILE, FRAMES_DIR, STATIC_DIR, BLOBS_FILE)  # written by a recording only
 RECOVERED_SOURCE = "live (recovered after a crash)"
 
 
@@ -85,7 +94,7 @@ def keep_failed_recording(store: CaptureStore, staging: Path, capture_id: str) -
     the disk filled, a device failed mid-set): its recorded sets are moved to ``recovered/<id>``,
     as a crash's are, and that folder is returned; a staging folder with no recorded set is
     deleted (None)."""
-    sync = staging / "sync.csv"
+    sync = staging / SYNC_FILE
     try:
         recorded = sync.is_file() and len(csv_records(sync.read_bytes())) > 1  # a row below the header
     except OSError:

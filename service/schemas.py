@@ -5,10 +5,18 @@ from __future__ import annotations
 import enum
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from wandcal.calib.run.calibrate import DEFAULT_METHOD, METHODS
-from wandcal.service.cli.support.args import MAX_FRAME_RATE_HZ, MAX_SYNC_OFFSET
+from wandcal.calib.run.options import (
+    DEFAULT_METHOD,
+    MAX_FRAME_RATE_HZ,
+    MAX_LP_SECONDS,
+    MAX_PAPER_ROUNDS,
+    MAX_SYNC_OFFSET,
+    METHODS,
+    CalibrationOptions,
+    options_from,
+)
 from wandcal.service.jobs.records import JobState
 
 
@@ -100,20 +108,42 @@ class BlobSetsPublic(BaseModel):
     framesets: int = Field(description="frame sets the capture now holds")
 
 
-Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: wandcal.calib.run.calibrate.METHODS
+Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: wandcal.calib.run.options.METHODS
+# the choices as JSON Schema enums; the same as the lists calibrate checks against, and the
+# defaults as CalibrationOptions' (LOSSES, SYNC_MODES, INTRINSICS: tests/service/test_options_drift.py)
+Loss = Literal["cauchy", "linear"]
+Sync = Literal["none", "auto"]
+Intrinsic = Literal["focal", "principal", "k1"]
 
 
 class JobOptions(BaseModel):
+    """A job's calibration options: every field of :class:`CalibrationOptions` but ``method`` (the
+    job's own field) and ``sync_start`` (from timestamps the service's captures do not keep), the
+    command line's flags by the same names (tests/service/test_options_drift.py), and
+    ``use_static``. Every field has a default, so a job stored before a field was added still reads."""
+
     model_config = ConfigDict(extra="forbid")
 
     use_static: bool = Field(True, description="use the capture's static object (if any) to fix the world frame")
-    sync: Literal["none", "auto"] = Field("none", description="auto: find each camera's time offset from the wand, for "
-                                          "cameras without a trigger (docs/sync.md)")
+    loss: Loss = Field("cauchy", description="ba: robust loss ('linear' is plain least squares)")
+    time_limit: float | None = Field(None, gt=0, le=MAX_LP_SECONDS,
+                                     description="lp and paper: seconds allowed for each LP solve (default: no limit)")
+    max_rounds: int | None = Field(None, ge=1, le=MAX_PAPER_ROUNDS,
+                                   description="paper: most rotation/LP rounds (default: the method's own)")
+    reject_outliers: bool = Field(True, description="drop gross-outlier camera-frames and refine again")
+    refine_intrinsics: list[Intrinsic] = Field(default_factory=list,
+                                               description="ba: also refine these per camera (default: none)")
+    sync: Sync = Field("none", description="auto: find each camera's time offset from the wand, for "
+                       "cameras without a trigger (docs/sync.md)")
     sync_max_offset: int | None = Field(None, ge=1, le=MAX_SYNC_OFFSET,
                                         description="with sync auto: frames searched either side (default 8)")
     sync_drift: bool = Field(False, description="with sync auto: also each camera's clock rate difference (ppm)")
     frame_rate_hz: float | None = Field(None, gt=0, le=MAX_FRAME_RATE_HZ,
                                         description="the cameras' frame rate: offsets are then also given in ms")
+
+    def calibration(self, method: str) -> CalibrationOptions:
+        """The options ``calibrate`` takes for a job of ``method`` (not checked)."""
+        return options_from(self.model_dump(exclude={"use_static"}) | {"method": method})
 
 
 class JobCreate(BaseModel):
@@ -122,6 +152,13 @@ class JobCreate(BaseModel):
     capture_id: str = Field(max_length=64)
     method: Method = Method(DEFAULT_METHOD)
     options: JobOptions = Field(default_factory=JobOptions)
+
+    @model_validator(mode="after")
+    def _runnable(self) -> JobCreate:
+        """Refuse (422) options the method cannot run (e.g. max_rounds without paper), as the
+        command line refuses its flags: CalibrationOptions.check's message names the field."""
+        self.options.calibration(self.method.value).check()
+        return self
 
 
 class JobProgress(BaseModel):

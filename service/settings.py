@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
 
 from wandcal.calib.detect.config import DEFAULT_CONFIG as DETECT
-from wandcal.calib.detect.config import DetectConfig
+from wandcal.calib.detect.config import Background, DetectConfig
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.run.guidance import (
     DEFAULT_FRAMES_PER_CAMERA,
@@ -68,6 +68,23 @@ class GuidanceConfig(BaseModel):
                                      "a live or streamed capture's guidance, seconds")
 
 
+def _connectivity(value: int) -> Literal[4, 8]:
+    """DetectConfig's default connectivity, as the literal a detect group allows."""
+    if value == 4:
+        return 4
+    if value == 8:
+        return 8
+    raise ValueError(f"DetectConfig's default connectivity is {value}, not 4 or 8")
+
+
+def _per_frame(background: Background) -> Literal["auto", "none", "highpass"]:
+    """DetectConfig's default background model, one that needs no camera's own history (the
+    per-camera models, "empty" and "running", are not a detect group's to choose)."""
+    if background in {"empty", "running"}:
+        raise ValueError(f"DetectConfig's default background is {background!r}, which needs a camera's history")
+    return background
+
+
 class DetectGroup(BaseModel):
     """The ``[detect]`` group: the blob detector of streamed frame sets, static images and live
     capture. Defaults and rules are :class:`wandcal.calib.detect.config.DetectConfig`'s."""
@@ -82,11 +99,11 @@ class DetectGroup(BaseModel):
     max_area_px: int = Field(DETECT.max_area_px, ge=1, description="largest blob, pixels")
     min_roundness: float | None = Field(DETECT.min_roundness, ge=0, le=1, description="smallest minor/major axis "
                                         "ratio; null: automatic (0.5 on a flat background, 0.1 after the high-pass)")
-    connectivity: Literal[4, 8] = DETECT.connectivity
+    connectivity: Literal[4, 8] = _connectivity(DETECT.connectivity)
     weights: Literal["excess", "signal"] = Field(DETECT.weights, description="centroid weights: grey level above "
                                                  "the threshold, or the grey level (OpenPTV's)")
     # The per-camera models ("empty", "running") need each camera's own recording or history.
-    background: Literal["auto", "none", "highpass"] = Field(DETECT.background, description="subtracted before "
+    background: Literal["auto", "none", "highpass"] = Field(_per_frame(DETECT.background), description="subtracted before "
                                                            "thresholding; auto: a high-pass where uneven")
     highpass_px: int = Field(DETECT.highpass_px, ge=1, description="high-pass half-width, pixels")
 

@@ -21,11 +21,6 @@ import numpy as np
 
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
 from wandcal.capture.folder import (
-    AXIS_FILE,
-    POINTS_FILE,
-    RIG_FILE,
-    STATIC_FILE,
-    WAND_FILE,
     Capture,
     CaptureFormatError,
     check_wandless,
@@ -38,6 +33,7 @@ from wandcal.capture.folder import (
     save_capture,
 )
 from wandcal.capture.rig_file import load_json, rig_from_json
+from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.db import connect, transaction
 
 CAPTURE_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -99,6 +95,11 @@ def wand_counts(rig: Rig, wand: WandObservations) -> tuple[dict[str, dict[str, i
     return counts, int(len(np.unique(wand.frame)))
 
 
+def _no_wand() -> WandObservations:
+    """No wand blobs yet: a stream fills wand.csv later, or the capture has only points."""
+    return WandObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
+
+
 class CaptureStore:
     def __init__(self, data_dir: Path, db_path: Path, replay_root: Path | None):
         self.root = Path(data_dir).resolve() / "captures"
@@ -119,8 +120,8 @@ class CaptureStore:
         points_text: str | None = None, axis_text: str | None = None,
     ) -> CaptureRow:
         """Validate uploaded rig.json / wand.csv / static.csv / points.csv / axis.csv texts and store them."""
-        rig = rig_from_json(load_json(rig_text, "rig.json"), allow_no_wand=points_text is not None)
-        wand = parse_wand_csv(wand_text, rig) if wand_text is not None else WandObservations([], [], np.zeros((0, 2)))
+        rig = rig_from_json(load_json(rig_text, RIG_FILE), allow_no_wand=points_text is not None)
+        wand = parse_wand_csv(wand_text, rig) if wand_text is not None else _no_wand()
         points = parse_points_csv(points_text, rig) if points_text is not None else None
         axis = parse_axis_csv(axis_text, rig) if axis_text is not None else None
         if points is not None:  # a stream fills wand.csv later; an upload with points is whole now
@@ -201,7 +202,8 @@ class CaptureStore:
             raise CaptureNotFound(capture_id)
         return CaptureRow.from_row(row)
 
-    def list(self, limit: int = 100) -> list[CaptureRow]:
+    def newest(self, limit: int = 100) -> list[CaptureRow]:
+        """Up to ``limit`` captures, newest first."""
         with connect(self.db_path) as conn:
             rows = conn.execute("SELECT * FROM captures ORDER BY created DESC LIMIT ?", (limit,)).fetchall()
         return [CaptureRow.from_row(r) for r in rows]

@@ -3,8 +3,9 @@
 Every module's imports (module level and inside functions) are parsed, not executed. The rules:
 one ``wandcal`` namespace and none of the old top-level names; service -> capture -> drivers, with
 calib underneath all of them and importing none; inside calib, a stage imports only its own
-package and the stages below it; no circle between calib's files; and no folder of calib holds more
-than a dozen modules.
+package and the stages below it; no circle between any two files of the four packages; no folder
+holds more than a dozen modules; and no function runs past 80 lines. The same layers are declared
+for import-linter in ``.importlinter`` (run by ``.ci/run``); the tests here keep what it cannot say.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("calib", "capture", "drivers", "service")
 OLD_NAMES = set(PACKAGES)
-# Which top-level package may import which (habit 1 of the style guide).
+# Which top-level package may import which (docs/architecture.md, "Layers").
 ALLOWED = {
     "calib": {"calib"},
     "drivers": {"drivers", "calib"},
@@ -37,6 +38,16 @@ CALIB_RANK = {
 }
 CORE = {"errors", "rig", "geometry", "observations", "triangulate", "wandlayout"}
 MAX_MODULES_PER_FOLDER = 12
+# Folders still over the dozen while other work reshapes them; the lead removes each entry when
+# that work is merged.
+LARGE_FOLDERS_PENDING = {
+    "capture/formats",  # 13 readers and writers: to be grouped (import / export) or merged (anipose's two)
+}
+MAX_FUNCTION_LINES = 80
+# Functions still over MAX_FUNCTION_LINES while other work splits them; the lead removes each entry
+# when that work is merged.
+LONG_FUNCTIONS_PENDING = {
+}
 
 
 def _module_name(path: Path) -> str:
@@ -102,17 +113,23 @@ def test_packages_import_one_way(top):
     assert not bad, f"{top} may import only {sorted(ALLOWED[top])}: " + "; ".join(bad)
 
 
-def _calib_graph() -> dict[str, set[str]]:
-    paths = _sources("calib")
+def _graph(tops: tuple[str, ...] = PACKAGES) -> dict[str, set[str]]:
+    """Module -> the modules of ``tops`` it imports (a package's own face left out)."""
+    paths = [p for top in tops for p in _sources(top)]
     modules = {_module_name(p) for p in paths}
+    faces = {f"wandcal.{top}" for top in tops}
     graph: dict[str, set[str]] = defaultdict(set)
     for path in paths:
         me = _module_name(path)
         for _, name in _imports(path):
-            target = _resolve(name, modules) if name.startswith("wandcal.calib") else None
-            if target and target != me and target != "wandcal.calib":
+            target = _resolve(name, modules) if name.startswith("wandcal.") else None
+            if target and target != me and target not in faces:
                 graph[me].add(target)
     return graph
+
+
+def _calib_graph() -> dict[str, set[str]]:
+    return _graph(("calib",))
 
 
 def test_calib_stages_import_downwards():
@@ -126,8 +143,8 @@ def test_calib_stages_import_downwards():
     assert not bad, "docs/architecture.md's rule: " + "; ".join(sorted(bad))
 
 
-def test_no_import_circle_in_calib():
-    graph = _calib_graph()
+def test_no_import_circle():
+    graph = _graph()
     done: set[str] = set()
 
     def visit(node: str, path: list[str]) -> list[str] | None:
@@ -148,7 +165,61 @@ def test_no_import_circle_in_calib():
         assert cycle is None, " -> ".join(cycle)
 
 
-def test_calib_folders_stay_small():
-    for folder in [REPO / "calib", *(p.parent for p in (REPO / "calib").rglob("*/__init__.py"))]:
-        modules = [p for p in folder.glob("*.py") if p.name != "__init__.py"]
-        assert len(modules) <= MAX_MODULES_PER_FOLDER, f"{folder.relative_to(REPO)} holds {len(modules)} modules"
+@pytest.mark.parametrize("top", PACKAGES)
+def test_folders_stay_small(top):
+    big = []
+    for folder in [REPO / top, *(p.parent for p in (REPO / top).rglob("*/__init__.py"))]:
+        modules = [p for p in folder.glob("*.py") if p.name not in ("__init__.py", "__main__.py")]
+        name = folder.relative_to(REPO).as_posix()
+        if len(modules) > MAX_MODULES_PER_FOLDER and name not in LARGE_FOLDERS_PENDING:
+            big.append(f"{name} holds {len(modules)} modules")
+    assert not big, f"more than {MAX_MODULES_PER_FOLDER} modules: group them by concern: " + "; ".join(big)
+
+
+def _functions(tree: ast.AST):
+    """Every function and method of a module, nested ones on their own: (node, dotted name)."""
+    stack = [(tree, "")]
+    while stack:
+        node, prefix = stack.pop()
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                yield child, prefix + child.name
+                stack.append((child, prefix + child.name + "."))
+            elif isinstance(child, ast.ClassDef):
+                stack.append((child, prefix + child.name + "."))
+            else:
+                stack.append((child, prefix))
+
+
+@pytest.mark.parametrize("top", PACKAGES)
+def test_functions_stay_short(top):
+    """Every function, docstring included, within MAX_FUNCTION_LINES (``end_lineno - lineno + 1``;
+    a nested function counts in its parent's lines and on its own). McCabe complexity is ruff's
+    C901 (``[tool.ruff.lint.mccabe]``)."""
+    long = []
+    for path in _sources(top):
+        for node, name in _functions(ast.parse(path.read_text(), str(path))):
+            lines = node.end_lineno - node.lineno + 1
+            where = f"{path.relative_to(REPO).as_posix()}:{name}"
+            if lines > MAX_FUNCTION_LINES and where not in LONG_FUNCTIONS_PENDING:
+                long.append(f"{where} ({lines} lines, line {node.lineno})")
+    assert not long, f"over {MAX_FUNCTION_LINES} lines: split into named steps: " + "; ".join(long)
+
+
+
+def test_capture_file_names_have_one_home():
+    """rig.json, wand.csv, sync.csv, ... are named once, in drivers/capture_files.py (why there: its
+    docstring); every other module imports the names."""
+    from wandcal.drivers import capture_files
+
+    names = {v for k, v in vars(capture_files).items() if k.isupper() and isinstance(v, str)}
+    home = REPO / "drivers" / "capture_files.py"
+    found = []
+    for top in PACKAGES:
+        for path in _sources(top):
+            where = path.relative_to(REPO).as_posix()
+            if path == home:
+                continue
+            found += [f"{where}:{node.lineno} {node.value!r}" for node in ast.walk(ast.parse(path.read_text()))
+                      if isinstance(node, ast.Constant) and node.value in names and "." in node.value]
+    assert not found, "name these through wandcal.drivers.capture_files: " + "; ".join(found)

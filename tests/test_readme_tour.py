@@ -82,7 +82,7 @@ def snapshot(root: Path) -> dict[Path, object]:
 def run(argv: list[str], cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
     assert argv[0] == "wandcal", argv
     return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *argv[1:]], cwd=cwd, capture_output=True,
-                          text=True, timeout=PROCESS_TIMEOUT_S, env=env)
+                          text=True, timeout=PROCESS_TIMEOUT_S, env=env, check=False)
 
 
 def wait_for(predicate, timeout_s: float, what: str):
@@ -100,8 +100,9 @@ class Emulator:
 
     def __init__(self, argv: list[str], cwd: Path):
         self.log = cwd / "emulator.log"
-        self.proc = subprocess.Popen([sys.executable, "-m", "wandcal.service.cli", *argv[1:]], cwd=cwd,
-                                     stdout=open(self.log, "w"), stderr=subprocess.STDOUT)
+        with open(self.log, "w") as out:  # the emulator writes through its own copy of the descriptor
+            self.proc = subprocess.Popen([sys.executable, "-m", "wandcal.service.cli", *argv[1:]], cwd=cwd,
+                                         stdout=out, stderr=subprocess.STDOUT)
         found = wait_for(lambda: re.search(r"/dev/pts/\d+", self.log.read_text()) or self.proc.poll() is not None,
                          START_TIMEOUT_S, "the trigger emulator printed no pseudo-terminal")
         assert self.proc.poll() is None, self.log.read_text()
@@ -132,8 +133,9 @@ def serve_and_stop(argv: list[str], cwd: Path) -> None:
     env = {k: v for k, v in os.environ.items() if not k.startswith("WANDCAL_")}
     env.update(WANDCAL_REPLAY_ROOT=str(cwd / "out"), WANDCAL_DATA_DIR=str(cwd / "wandcal-data"))
     log = cwd / "serve.log"
-    proc = subprocess.Popen([sys.executable, "-m", "wandcal.service.cli", *map(str, argv[1:]), "--log-level",
-                             "warning"], cwd=cwd, env=env, stdout=open(log, "w"), stderr=subprocess.STDOUT)
+    with open(log, "w") as out:  # the server writes through its own copy of the descriptor
+        proc = subprocess.Popen([sys.executable, "-m", "wandcal.service.cli", *map(str, argv[1:]), "--log-level",
+                                 "warning"], cwd=cwd, env=env, stdout=out, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}/api/v1"
     try:
         def healthy():
@@ -198,7 +200,8 @@ def test_readme_tour_runs_top_to_bottom(tmp_path, shared_data_or_none):
     emulator = None
     skipped = []
     try:
-        for argv in lines:
+        for words in lines:
+            argv = words
             if "SESSION_easyWandData.mat" in argv or (argv[1] == "calibrate" and argv[2] == "out/easywand"):
                 if shared_data_or_none is None:
                     skipped.append(" ".join(argv))

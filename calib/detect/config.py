@@ -113,9 +113,15 @@ class DetectConfig:
     auto_peak_fraction: float = 0.05
 
     def __post_init__(self) -> None:
-        def bad(name: str, accepts: str) -> CalibrationError:
-            return CalibrationError(f"DetectConfig.{name} must be {accepts}, got {getattr(self, name)!r}")
+        self._check_spot_settings()
+        self._check_background_settings()
 
+    def _bad(self, name: str, accepts: str) -> CalibrationError:
+        return CalibrationError(f"DetectConfig.{name} must be {accepts}, got {getattr(self, name)!r}")
+
+    def _check_spot_settings(self) -> None:
+        """Threshold, spot sizes, roundness, border and connectivity."""
+        bad = self._bad
         if self.threshold is not None:
             if isinstance(self.threshold, bool) or not _real(self.threshold) or self.threshold < 0 \
                     or not float(self.threshold).is_integer():
@@ -133,6 +139,10 @@ class DetectConfig:
             raise bad("reject_border", "true or false")
         if self.connectivity not in (4, 8) or isinstance(self.connectivity, bool):
             raise bad("connectivity", "4 or 8")
+
+    def _check_background_settings(self) -> None:
+        """Weights, the background model and its automatic settings."""
+        bad = self._bad
         if self.weights not in WEIGHTS:
             raise bad("weights", " or ".join(repr(w) for w in WEIGHTS))
         if self.background not in BACKGROUNDS:

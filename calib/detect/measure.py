@@ -166,20 +166,20 @@ def measure_roi(weight: np.ndarray, x0: int, y0: int, config: DetectConfig) -> l
     top = stats[keep, cv2.CC_STAT_TOP]
     right = left + stats[keep, cv2.CC_STAT_WIDTH] - 1
     bottom = top + stats[keep, cv2.CC_STAT_HEIGHT] - 1
-    for i in range(len(keep)):
-        out.append(
-            (
-                x0 + left[i] + ul[i],
-                y0 + top[i] + vl[i],
-                int(area[keep[i]]),
-                float(r[i]),
-                float(m00[i]),
-                x0 + int(left[i]),
-                y0 + int(top[i]),
-                x0 + int(right[i]),
-                y0 + int(bottom[i]),
-            )
+    out.extend(
+        (
+            x0 + left[i] + ul[i],
+            y0 + top[i] + vl[i],
+            int(area[keep[i]]),
+            float(r[i]),
+            float(m00[i]),
+            x0 + int(left[i]),
+            y0 + int(top[i]),
+            x0 + int(right[i]),
+            y0 + int(bottom[i]),
         )
+        for i in range(len(keep))
+    )
     return out
 
 

@@ -182,7 +182,8 @@ def wand_frames(
     still = np.asarray(static_uv, dtype=np.float64).reshape(-1, 2)
     kept, kept_uv = [], []
     too_few = too_many = removed = 0
-    for i, uv in enumerate(frames):
+    for i, frame_uv in enumerate(frames):
+        uv = frame_uv
         if len(still) and len(uv):
             near = (np.hypot(*(uv[:, None, :] - still[None, :, :]).transpose(2, 0, 1)) <= radius_px).any(axis=1)
             removed += int(near.sum())

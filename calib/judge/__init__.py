@@ -4,7 +4,10 @@
 |---|---|
 | :mod:`~wandcal.calib.judge.quality` | residuals per camera, worst frames, wand-length spread, outliers |
 | :mod:`~wandcal.calib.judge.coverage` | where in each image the wand was seen |
+| :mod:`~wandcal.calib.judge.residuals` | every camera's residuals on the same observations, whichever method solved |
+| :mod:`~wandcal.calib.judge.faults` | why one camera disagrees: its timing (:class:`TimingFault`), its lens, or else |
 | :mod:`~wandcal.calib.judge.verdict` | the verdict per camera and for the rig, with reasons and advice |
 | :mod:`~wandcal.calib.judge.evaluate` | fixed cameras judged against a fresh capture (``wandcal check``) |
+| :mod:`~wandcal.calib.judge.leave_one_out` | rigs of 3-5 cameras: each camera against the points the others triangulate (lens, moved) |
 | :mod:`~wandcal.calib.judge.crb` | the Cramér-Rao bound of the poses, for tests and benchmarks |
 """

@@ -1,6 +1,7 @@
 """Judge fixed cameras against a wand capture: residuals, wand lengths and leave-one-out errors.
 
-The report draws these for the capture a result was made from; ``wandcal check`` runs them on a
+The report draws these for the capture a result was made from (:func:`evaluate_capture`: what a
+report needs that a result does not hold, computed once); ``wandcal check`` runs them on a
 fresh capture to find a camera that was knocked since (bump detection, as commercial mocap has
 it). Nothing here moves a camera: the poses are taken as given.
 """
@@ -11,10 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.judge.quality import outlier_mask
-from wandcal.calib.observations import WandPairs, wand_pairs
-from wandcal.calib.rig import Rig, WandObservations
+from wandcal.calib.judge.quality import OUTLIER_SIGMAS, outlier_mask
+from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
+from wandcal.calib.rig import AxisObservations, PointObservations, Rig, WandObservations
 from wandcal.calib.start.labels import flatten, label_ends
+from wandcal.calib.start.world import axis_points
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 
 MOVED_FACTOR = 4.0  # a camera whose leave-one-out error is 4x the agreeing cameras' has moved
@@ -27,6 +29,7 @@ MIN_JUDGED_FRAMES = 10  # frames with two other cameras that a camera needs befo
 # length moves by a few per cent at most (docs/verdict.md), another camera's by far more
 SAME_RIG_FOCAL = 0.1
 SAME_RIG_PRINCIPAL = 0.1  # of the image's size
+MAD_TO_SIGMA = 1.4826  # the MAD of Gaussian lengths times this is their standard deviation
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,7 +93,12 @@ def evaluate_wand(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations
         R, t: (N, 3, 3), (N, 3) world->camera poses, metres.
         wand: raw wand blobs of a capture.
     """
-    pairs = labelled_pairs(rig, R, t, wand)
+    return _evaluated_pairs(rig, R, t, labelled_pairs(rig, R, t, wand))[0]
+
+
+def _evaluated_pairs(rig: Rig, R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> tuple[WandEvaluation, np.ndarray]:
+    """The labelled pairs' evaluation, and (2F, 3) their ends triangulated (NaN where fewer than
+    two cameras saw one), world frame, metres."""
     point, camera, xy = flatten(pairs)
     X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames))
     focal = np.array([c.focal for c in rig.cameras])
@@ -105,7 +113,92 @@ def evaluate_wand(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations
         camera=camera[ok], frame=pairs.frames[point[ok] // 2], end=point[ok] % 2, uv=uv[ok], residual_px=residual[ok],
         outlier=outlier_mask(err) if len(err) else np.zeros(0, bool), frames=pairs.frames[seen],
         wand_length=length[seen], dropped=dict(pairs.dropped),
-    )
+    ), X
+
+
+@dataclass(frozen=True, eq=False)
+class PointEvaluation:
+    """Single-point tracks triangulated with given poses: cloud (T, 3) the points, world frame;
+    per observation camera (Q,) index, uv (Q, 2) raw pixels, residual_px (Q, 2) projected minus
+    observed, pixels, and outlier (Q,) bool, judged among all the rig's point residuals."""
+
+    cloud: np.ndarray
+    camera: np.ndarray
+    uv: np.ndarray
+    residual_px: np.ndarray
+    outlier: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class CaptureEvaluation:
+    """A capture's observations judged with a result's poses: what a report draws that the result
+    does not hold.
+
+    wand: every labelled wand observation's residual and each frame's length (None without a
+    wand); trajectory: (T, 3) the wand's midpoint in each frame two cameras saw, world, and
+    trajectory_frames: (T,) their frame numbers; points: the single-point tracks'; axis:
+    {role: (3,)} the axis points triangulated, world.
+    """
+
+    wand: WandEvaluation | None
+    trajectory: np.ndarray
+    trajectory_frames: np.ndarray
+    points: PointEvaluation
+    axis: dict[str, np.ndarray]
+
+    def wand_frames(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(F,) frame numbers, (F,) wand lengths in metres and (F,) bool: frames with an outlier
+        observation or whose length is OUTLIER_SIGMAS robust sigmas off the median."""
+        ev = self.wand
+        if ev is None or not len(ev.frames):
+            return np.zeros(0, int), np.zeros(0), np.zeros(0, bool)
+        length = ev.wand_length
+        dev = np.abs(length - np.median(length))
+        sigma = MAD_TO_SIGMA * np.median(dev)
+        bad = dev > OUTLIER_SIGMAS * max(sigma, 1e-12)
+        bad |= np.isin(ev.frames, ev.frame[ev.outlier])
+        return ev.frames, length, bad
+
+
+def evaluate_capture(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations | None,
+                     points: PointObservations | None = None, axis: AxisObservations | None = None) -> CaptureEvaluation:
+    """Judge a capture's observations with fixed poses, labelling the wand ends once
+    (:func:`labelled_pairs`): each observation's residual, the wand's path and lengths, the point
+    tracks and axis points triangulated.
+
+    Args:
+        rig: the cameras (intrinsics), wand length (None: the wand is not judged) and static object.
+        R, t: (N, 3, 3), (N, 3) world->camera poses, metres.
+        wand, points, axis: the capture's raw observations, camera indices in ``rig`` order.
+
+    Raises:
+        CalibrationError: the wand ends cannot be labelled at these poses.
+    """
+    ev, trajectory, frames = None, np.zeros((0, 3)), np.zeros(0, int)
+    if rig.wand_length is not None and wand is not None and len(wand):
+        pairs = labelled_pairs(rig, R, t, wand)
+        ev, X = _evaluated_pairs(rig, R, t, pairs)
+        mid = X.reshape(-1, 2, 3).mean(axis=1)
+        ok = np.all(np.isfinite(mid), axis=1)
+        trajectory, frames = mid[ok], pairs.frames[ok]
+    axis_pts = axis_points(rig, axis, R, t) if axis is not None and len(axis.role) else {}
+    return CaptureEvaluation(ev, trajectory, frames, evaluate_points(rig, R, t, points),
+                             {str(k): v for k, v in axis_pts.items()})
+
+
+def evaluate_points(rig: Rig, R: np.ndarray, t: np.ndarray, points: PointObservations | None) -> PointEvaluation:
+    """Single-point tracks triangulated with the given poses, and each observation's residual."""
+    if points is None or not len(points):
+        empty2 = np.zeros((0, 2))
+        return PointEvaluation(np.zeros((0, 3)), np.zeros(0, int), empty2, empty2,
+                               outlier_mask(np.linalg.norm(empty2, axis=1)))
+    tracks = point_tracks(rig, points)
+    X = triangulate_points(R, t, tracks.track, tracks.camera, tracks.xy, tracks.n_tracks)
+    focal = np.array([c.focal for c in rig.cameras])
+    res = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, X) * focal[tracks.camera]
+    ok = np.all(np.isfinite(res), axis=1)
+    cloud = X[np.all(np.isfinite(X), axis=1)]
+    return PointEvaluation(cloud, tracks.camera[ok], tracks.uv[ok], res[ok], outlier_mask(np.linalg.norm(res[ok], axis=1)))
 
 
 @dataclass(frozen=True, eq=False)

@@ -49,7 +49,7 @@ SCREEN_ROWS = 1500
 
 
 @dataclass(frozen=True)
-class Timing:
+class TimingFault:
     """offset_frames: the camera shows at frame k the wand of frame k - offset (positive: late);
     offset_std_frames its standard error; explained: the share of the residual variance it explains."""
 
@@ -162,7 +162,7 @@ def _share(y: np.ndarray, base: np.ndarray, extra: np.ndarray) -> tuple[float, n
 
 
 def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarray, point: np.ndarray,
-                   xy: np.ndarray) -> tuple[Timing | None, Lens | None]:
+                   xy: np.ndarray) -> tuple[TimingFault | None, Lens | None]:
     """Camera c's timing and lens patterns against wand ends the others triangulated.
 
     Args:
@@ -205,7 +205,7 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
         np.concatenate([pose, v[keep].reshape(-1, 1)], axis=1), y, rcond=None)[0]
     sigma = np.sqrt(np.sum(left**2) / max(len(y) - 7, 1))
     vv = np.einsum("ki,ki->", v[keep], v[keep])
-    timing = Timing(offset_frames=best + frac, offset_std_frames=float(sigma / np.sqrt(vv)) if vv > 0 else np.inf,
+    timing = TimingFault(offset_frames=best + frac, offset_std_frames=float(sigma / np.sqrt(vv)) if vv > 0 else np.inf,
                     explained=float(max(share, whole)) if rss_best > 0 else 0.0, observations=int(keep.sum()))
     return timing, _lens_fit(y, pose, xy[keep])
 
@@ -221,7 +221,7 @@ def _lens_fit(y: np.ndarray, pose: np.ndarray, xy: np.ndarray) -> Lens:
                 explained=float(share), f_stat=f_stat)
 
 
-def classify(timing: Timing | None, lens: Lens | None) -> tuple[str, dict]:
+def classify(timing: TimingFault | None, lens: Lens | None) -> tuple[str, dict]:
     """("timing" | "intrinsics" | "unexplained", evidence) from a camera's two patterns."""
     evidence: dict = {}
     timing_share = lens_share = 0.0

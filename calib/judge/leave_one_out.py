@@ -195,6 +195,7 @@ def leave_one_out_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled:
     cam = ids[best.camera]
     if _knock_found(best) >= _lens_found(best):
         k = best.knock
+        assert k is not None  # best was found, by its knock here (_knock_found > 0)
         return [{"kind": "moved", "camera": cam, "evidence": {
             "frame": k.frame, "degrees": round(k.degrees, 3), "explained_share": round(k.explained, 3),
             "f_stat": round(k.f_stat, 1)},
@@ -202,6 +203,7 @@ def leave_one_out_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled:
                        f"against its pose before (the step explains {k.explained:.0%} of its residual); fix its mount "
                        f"and calibrate again, or calibrate from the frames after {k.frame} only"}]
     lens = best.lens
+    assert lens is not None  # best was found, by its lens here (_lens_found > _knock_found >= 0)
     radial = abs(lens.k1_error) / 4 > abs(lens.focal_error)
     return [{"kind": "intrinsics", "camera": cam, "evidence": {
         "intrinsics": {"focal_error": round(lens.focal_error, 5), "k1_error": round(lens.k1_error, 5),

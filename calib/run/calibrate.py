@@ -1,24 +1,38 @@
 """The whole calibration: observations -> initial poses -> labels -> refinement -> world frame.
 
-``calibrate`` is the one entry point the CLI, the service and the tests call.
+``calibrate`` is the entry point of a calibration from a capture (the CLI, the service and the
+tests call it; ``wandcal calibrate --solve-only`` enters through
+:func:`wandcal.calib.run.resolve.solve_only`). It runs the named steps of docs/architecture.md in
+order: observations, whole-frame sync, start, sub-frame sync, refine, world frame, figures and
+judgement; what one step hands the next is a small frozen dataclass.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from wandcal.calib.errors import CalibrationError
-from wandcal.calib.geometry import camera_centers, undistort_by_camera
+from wandcal.calib.errors import CalibrationError, Failure
+from wandcal.calib.geometry import undistort_by_camera
 from wandcal.calib.judge import quality
-from wandcal.calib.observations import WandPairs, point_tracks, robust_sigma, wand_pairs
+from wandcal.calib.observations import PointTracks, WandPairs, point_tracks, robust_sigma, wand_pairs
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
-from wandcal.calib.run.camera_reports import camera_reports, intrinsics_reports, summary_warnings, uncertainty_reports
+from wandcal.calib.run.camera_reports import (
+    camera_reports,
+    intrinsics_reports,
+    summary_warnings,
+    uncertainty_reports,
+    with_warnings,
+)
 from wandcal.calib.run.judgement import judge
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import (
     GAUGE_CAMERA,
+    Progress,
+    Refined,
     build_problem,
     check_intrinsics_request,
     labelled_rows,
@@ -27,82 +41,101 @@ from wandcal.calib.run.refine import (
     triangulated,
     up_direction,
 )
-from wandcal.calib.solve.ba import DEFAULT_LOSS
-from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES, TimeColumns, Tracks, fit_timing, sync_report
+from wandcal.calib.run.result import (
+    CalibrationResult,
+    CameraFigures,
+    SolverReport,
+    WandReport,
+    WorldFrame,
+)
+from wandcal.calib.solve.sync import TimeColumns, Tracks, fit_timing, sync_report
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture
-from wandcal.calib.start.initial import initial_poses
+from wandcal.calib.start.frame_offsets import FrameOffsets, frame_offsets, shift_frames, shift_pairs
+from wandcal.calib.start.initial import Initial, initial_poses
 from wandcal.calib.start.labels import label_ends
-from wandcal.calib.start.static import solve_static
-from wandcal.calib.start.timing import DEFAULT_MAX_OFFSET, frame_offsets, shift_frames, shift_pairs
+from wandcal.calib.start.static import StaticPose, solve_static
 from wandcal.calib.start.world import apply, world_frame
 
-RESULT_FORMAT = "wandcal-result/1"
-METHODS = ("ba", "lp", "paper")
-DEFAULT_METHOD = "ba"  # docs/decisions/0002-default-method.md
+if TYPE_CHECKING:
+    from wandcal.calib.start.markerlabels import MarkerBlobs
 
 
-@dataclass(eq=False)
-class CalibrationResult:
-    """Poses in the world frame and everything the report needs.
 
-    R: (N, 3, 3), t: (N, 3) world->camera, metres; wand: (F, 2, 3) wand ends, metres.
-    """
+@dataclass(frozen=True, eq=False)
+class Observations:
+    """The capture grouped for the solve. pairs: each camera-frame's two wand ends (undistorted,
+    on the reference camera's frame numbers after the whole-frame sync); blobs: a wand of three or
+    more markers, its camera-frames ordered along the wand (else None); tracks: single-point
+    tracks seen by two cameras or more, or None."""
 
-    rig: Rig
+    has_wand: bool
+    pairs: WandPairs
+    blobs: MarkerBlobs | None
+    tracks: PointTracks | None
+
+
+@dataclass(frozen=True, eq=False)
+class SyncState:
+    """The cameras' time offsets, carried from the sync steps to the refinement and the result
+    (docs/sync.md). whole: the whole-frame offsets the frames were renumbered by; unshifted: the
+    pairs on each camera's own frame numbers; columns: the sub-frame fit with the frames resampled
+    to the reference camera's instants (None until the sub-frame step); refined: whether the final
+    ``ba`` refines the offsets again, over every frame (``columns`` then its columns)."""
+
+    whole: FrameOffsets
+    unshifted: WandPairs
+    columns: TimeColumns | None = None
+    refined: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class Start:
+    """The start of the refinement: static_poses: each camera's pose on the static object (or
+    None without one); init: the first poses, gauge frame; labelled: the wand ends told apart
+    (resampled to the reference instants under sync)."""
+
+    static_poses: list[StaticPose | Failure] | None
+    init: Initial
+    labelled: WandPairs
+
+
+@dataclass(frozen=True, eq=False)
+class Solved:
+    """The refinement's outcome and what the result says of it: r, the refined outcome (gauge
+    frame); every_track: every point track as given (each method is judged on them all);
+    marker_pairs: a multi-marker wand's pair lengths; sync: the result's ``sync`` section; dropped:
+    what the solve left out, by reason."""
+
+    r: Refined
+    every_track: PointTracks | None
+    marker_pairs: list[dict] | None
+    sync: dict | None
+    dropped: dict
+
+
+@dataclass(frozen=True, eq=False)
+class Placed:
+    """The rig in the world frame: R (N, 3, 3), t (N, 3) world->camera, metres; wand (F, 2, 3)
+    ends and X (T, 3) points, metres; Rw, tw the map x_world = Rw x + tw from the gauge frame;
+    world: the result's world frame."""
+
     R: np.ndarray
     t: np.ndarray
     wand: np.ndarray
-    frames: np.ndarray
-    cameras: list[dict]
-    wand_report: dict
-    solver: dict
-    world: dict
-    dropped: dict
-    warnings: list[str] = field(default_factory=list)
-    points: np.ndarray | None = None  # (T, 3) the single-point tracks' refined points, world frame
-    verdict: dict | None = None  # the rig's {"level", "reasons"} (calib/judge/verdict.py)
-    sync: dict | None = None  # the cameras' time offsets under options["sync"] = "auto" (docs/sync.md)
-
-    @property
-    def centers(self) -> np.ndarray:
-        return camera_centers(self.R, self.t)
-
-    def to_json(self) -> dict:
-        cams = []
-        for i, cam in enumerate(self.rig.cameras):
-            entry = {
-                "id": cam.id,
-                "R": self.R[i].tolist(),
-                "t": self.t[i].tolist(),
-                "center": self.centers[i].tolist(),
-                "K": cam.K.tolist(),
-                "dist": cam.dist.tolist(),
-                "width": cam.width,
-                "height": cam.height,
-            }
-            if cam.model != "pinhole":
-                entry["model"] = cam.model
-            cams.append(entry | self.cameras[i])
-        return {
-            "format": RESULT_FORMAT,
-            "cameras": cams,
-            "wand": self.wand_report,
-            "solver": self.solver,
-            "world": self.world,
-            "dropped": self.dropped,
-            "verdict": self.verdict,
-            "warnings": list(self.warnings),
-        } | ({"sync": self.sync} if self.sync is not None else {})
+    X: np.ndarray | None
+    Rw: np.ndarray
+    tw: np.ndarray
+    world: WorldFrame
 
 
 def calibrate(
     rig: Rig,
     wand: WandObservations | None,
     static: StaticObservations | None = None,
-    method: str = DEFAULT_METHOD,
-    progress=None,
-    options: dict | None = None,
+    *,
+    options: CalibrationOptions = CalibrationOptions(),  # noqa: B008  (frozen: one shared default is safe)
+    progress: Progress | None = None,
     points: PointObservations | None = None,
     axis: AxisObservations | None = None,
 ) -> CalibrationResult:
@@ -113,16 +146,10 @@ def calibrate(
         rig: cameras with intrinsics, wand length (None without a wand), optional static object.
         wand: raw, unlabeled wand blobs (None or empty without a wand).
         static: static-object blobs, or None.
-        method: "lp", "ba" or "paper" (see ``METHODS``).
+        options: the method and its settings (:class:`wandcal.calib.run.options.CalibrationOptions`,
+            checked here first).
         progress: optional callable(dict) with keys stage, message and, while refining,
             iteration and cost. An exception raised by it aborts the calibration.
-        options: ``time_limit`` (seconds per LP solve) for "lp" and "paper"; ``max_rounds``
-            for "paper"; ``loss`` ("cauchy", the default, or "linear") for "ba";
-            ``reject_outliers`` (default True) for all; ``refine_intrinsics``, a subset of
-            ("focal", "principal", "k1") to refine per camera inside ``ba`` (default none);
-            ``sync`` ("none", the default, or "auto": each camera's time offset found from the
-            wand, docs/sync.md) with ``sync_max_offset`` (frames searched), ``sync_start`` ((N,)
-            offsets from timestamps), ``sync_drift`` (also a rate difference), ``frame_rate_hz``.
         points: single-point tracks (points.csv), or None. ``ba`` refines them as free 3D
             points; the other methods use them for the start only.
         axis: axis points (axis.csv) that set the world frame when there is no static object.
@@ -130,37 +157,66 @@ def calibrate(
     Raises:
         CalibrationError: the input cannot give a calibration; the message says why and what to do.
     """
-    options = dict(options or {})
-    if method not in METHODS:
-        raise CalibrationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    check_intrinsics_request(rig, method, tuple(options.get("refine_intrinsics") or ()))
-    tell = progress or (lambda event: None)
+    options.check()
+    check_intrinsics_request(rig, options.refine_intrinsics)
+    tell: Progress = progress or _silent
     started = time.perf_counter()
     warnings: list[str] = []
-    sync = options.get("sync") or DEFAULT_SYNC
-    if sync not in SYNC_MODES:
-        raise CalibrationError(f"unknown sync mode {sync!r}; choose one of {', '.join(SYNC_MODES)}")
-
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs and point tracks"})
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
-    timed = unshifted = None
-    if sync == "auto" and has_wand:  # whole frames first: a camera out of time by frames cannot be placed
-        tell({"stage": "sync", "message": "finding each camera's time offset from the wand"})
-        unshifted = wand_pairs(rig, wand)
-        timed = frame_offsets(rig, unshifted, int(options.get("sync_max_offset") or DEFAULT_MAX_OFFSET),
-                              options.get("sync_start"))
-        wand = shift_frames(wand, timed.offsets)
-        warnings += timed.notes
-    elif sync == "auto":
+    wand, sync = _whole_frame_sync(rig, wand if has_wand else None, options, tell, warnings)
+    obs = _observations(rig, wand, points, sync, has_wand, options.method)
+    start = _start(rig, obs, static, tell, warnings)
+    start, sync = _subframe_sync(rig, start, sync, options)
+    solved = _refine(rig, obs, start, sync, options, tell, warnings)
+    placed = _world(solved, obs, start, (static, axis), tell, warnings)
+    cameras, wand_report, world = _figures(solved, obs, start, placed, (static, axis), options.method, tell, warnings)
+    placed = replace(placed, world=world)
+    cameras, verdict, solver = _judgement(solved, obs, placed, cameras, wand_report, options.method, tell, warnings)
+    solver = replace(solver, total_seconds=time.perf_counter() - started)
+    tell({"stage": "done", "message": "calibration finished"})
+    r = solved.r
+    return CalibrationResult(
+        rig=r.rig, R=placed.R, t=placed.t, wand=placed.wand, frames=r.setup.frames, cameras=tuple(cameras),
+        wand_report=wand_report, solver=solver, world=placed.world, dropped=solved.dropped, warnings=warnings,
+        points=placed.X, verdict=verdict, sync=solved.sync,
+    )
+
+
+def _silent(event: dict) -> None:
+    """The progress callback when none is given."""
+
+
+def _whole_frame_sync(rig: Rig, wand: WandObservations | None, options: CalibrationOptions, tell: Progress,
+                      warnings: list[str]) -> tuple[WandObservations | None, SyncState | None]:
+    """With sync "auto": each camera's whole-frame offset from the wand, and the blobs renumbered
+    onto the reference camera's frames (whole frames first: a camera out of time by frames cannot
+    be placed). ``wand``: None without a wand."""
+    if options.sync != "auto":
+        return wand, None
+    if wand is None:
         warnings.append("sync auto finds the time offsets from the wand; this capture has none, so its frames are taken as "
                         "synchronised")
-    blobs = _marker_blobs(rig, wand) if has_wand else None
+        return wand, None
+    tell({"stage": "sync", "message": "finding each camera's time offset from the wand"})
+    unshifted = wand_pairs(rig, wand)
+    start = np.asarray(options.sync_start) if options.sync_start is not None else None
+    timed = frame_offsets(rig, unshifted, options.sync_max_offset, start)
+    warnings += timed.notes
+    return shift_frames(wand, timed.offsets), SyncState(whole=timed, unshifted=unshifted)
+
+
+def _observations(rig: Rig, wand: WandObservations | None, points: PointObservations | None, sync: SyncState | None,
+                  has_wand: bool, method: str) -> Observations:
+    """The wand's camera-frames and the point tracks, refused where they cannot calibrate the rig.
+    ``wand``: None without a wand (``has_wand`` false)."""
+    blobs = _marker_blobs(rig, wand) if wand is not None else None
     if blobs is not None:
         pairs = blobs.ends()
-    elif timed is not None:  # the pairs already grouped, renumbered
-        pairs = shift_pairs(unshifted, timed.offsets)
+    elif sync is not None:  # the pairs already grouped, renumbered
+        pairs = shift_pairs(sync.unshifted, sync.whole.offsets)
     else:
-        pairs = wand_pairs(rig, wand) if has_wand else WandPairs.empty()
+        pairs = wand_pairs(rig, wand) if wand is not None else WandPairs.empty()
     tracks = point_tracks(rig, points) if points is not None and len(points) else None
     if not has_wand and (tracks is None or not len(tracks)):
         raise CalibrationError(
@@ -179,121 +235,188 @@ def calibrate(
                 + (" nor a point that another camera saw" if tracks is not None else "")
                 + "; check that it is connected and aimed at the volume, or remove it from rig.json"
             )
+    return Observations(has_wand=has_wand, pairs=pairs, blobs=blobs, tracks=tracks)
 
-    static_poses = None
-    if static is not None and rig.static_markers is not None:
-        tell({"stage": "static", "message": "identifying static-object markers and solving PnP"})
-        static_poses = solve_static(rig, static)
-        if not any(static_poses):
-            seen_static = [str(p) for c, p in enumerate(static_poses) if len(static.for_camera(c))]
-            raise CalibrationError(
-                "the static object's markers could not be identified in any camera: "
-                + ("; ".join(seen_static) if seen_static else "static.csv has no blobs")
-            )
-        for c, pose in enumerate(static_poses):
-            if not pose:
-                warnings.append(f"{pose}; {rig.cameras[c].id} is placed from the wand only")
 
-    warnings += check_capture(rig, pairs, tracks, static_poses)  # degenerate captures: calib/start/degenerate.py
+def _start(rig: Rig, obs: Observations, static: StaticObservations | None, tell: Progress,
+           warnings: list[str]) -> Start:
+    """The static object's poses, the capture's checks, the first poses and the wand ends labelled."""
+    static_poses = _static_poses(rig, static, tell, warnings)
+    warnings += check_capture(rig, obs.pairs, obs.tracks, static_poses)  # degenerate captures: calib/start/degenerate.py
     tell({"stage": "initial", "message": "initial poses"})
-    init = initial_poses(rig, pairs, static_poses, points=tracks)
+    init = initial_poses(rig, obs.pairs, static_poses, points=obs.tracks)
     warnings += init.notes
-
     tell({"stage": "labels", "message": "telling the wand ends apart"})
-    planar = blobs is not None and blobs.fit_px is not None  # a planar wand's rows come labelled from the layout
-    labelled = label_ends(init.R, init.t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0] if (
-        has_wand and not planar) else pairs
-    columns = None
-    if timed is not None:  # sub-frame offsets with the start poses refined; the frames resampled to the reference's instants
-        focal = np.array([c.focal for c in rig.cameras])
-        tracks_in_time = Tracks(labelled, len(rig.cameras))
-        timing = fit_timing(init.R, init.t, labelled, focal, timed.reference, bool(options.get("sync_drift")),
-                            max_frames=BA_FIT_FRAMES if method == "ba" else MAX_FIT_FRAMES, poses=True,
-                            tracks=tracks_in_time)
-        columns = TimeColumns(labelled, tracks_in_time, timing, focal)
-        labelled, init = columns.resampled, replace(init, R=timing.R, t=timing.t)
-        if method == "ba":  # the offsets refined again in the final bundle adjustment, over every frame
-            options["sync_columns"] = columns
-    setup = build_problem(rig, labelled, init.R, init.t, GAUGE_CAMERA)
-    all_tracks = tracks  # every method is judged on the same observations, point tracks included
+    planar = obs.blobs is not None and obs.blobs.fit_px is not None  # a planar wand's rows come labelled from the layout
+    labelled = obs.pairs
+    if obs.has_wand and not planar:
+        labelled = label_ends(init.R, init.t, obs.pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0]
+    return Start(static_poses=static_poses, init=init, labelled=labelled)
+
+
+def _static_poses(rig: Rig, static: StaticObservations | None, tell: Progress,
+                  warnings: list[str]) -> list[StaticPose | Failure] | None:
+    """Each camera's pose on the static object by PnP (None without one); a camera it cannot
+    place is placed from the wand, with a warning."""
+    if static is None or rig.static_markers is None:
+        return None
+    tell({"stage": "static", "message": "identifying static-object markers and solving PnP"})
+    static_poses = solve_static(rig, static)
+    if not any(static_poses):
+        seen_static = [str(p) for c, p in enumerate(static_poses) if len(static.for_camera(c))]
+        raise CalibrationError(
+            "the static object's markers could not be identified in any camera: "
+            + ("; ".join(seen_static) if seen_static else "static.csv has no blobs")
+        )
+    for c, pose in enumerate(static_poses):
+        if not pose:
+            warnings.append(f"{pose}; {rig.cameras[c].id} is placed from the wand only")
+    return static_poses
+
+
+def _subframe_sync(rig: Rig, start: Start, sync: SyncState | None,
+                   options: CalibrationOptions) -> tuple[Start, SyncState | None]:
+    """With sync: the sub-frame offsets with the start poses refined, and the frames resampled to
+    the reference camera's instants; ``ba`` refines the offsets again over every frame."""
+    if sync is None:
+        return start, None
+    focal = np.array([c.focal for c in rig.cameras])
+    tracks_in_time = Tracks(start.labelled, len(rig.cameras))
+    timing = fit_timing(start.init.R, start.init.t, start.labelled, focal, sync.whole.reference, options.sync_drift,
+                        max_frames=BA_FIT_FRAMES if options.method == "ba" else MAX_FIT_FRAMES, poses=True,
+                        tracks=tracks_in_time)
+    columns = TimeColumns(start.labelled, tracks_in_time, timing, focal)
+    assert timing.R is not None and timing.t is not None  # poses=True: the fit refined them
+    start = replace(start, labelled=columns.resampled, init=replace(start.init, R=timing.R, t=timing.t))
+    return start, replace(sync, columns=columns, refined=options.method == "ba")
+
+
+def _refine(rig: Rig, obs: Observations, start: Start, sync: SyncState | None, options: CalibrationOptions,
+            tell: Progress, warnings: list[str]) -> Solved:
+    """The chosen method on the labelled ends and the point tracks, the outlier passes, the time
+    offsets' report, and a multi-marker wand's second refinement."""
+    method, columns = options.method, (sync.columns if sync is not None and sync.refined else None)
+    r, tracks = _first_solve(rig, obs, start, options, tell, warnings, columns)
+    if options.reject_outliers:
+        r = reject_outliers(r, method, options, tell, columns=columns)
+    sync_doc = _sync_report(rig, r, sync, options, warnings)
+    marker_pairs = None
+    if obs.blobs is not None:
+        r, marker_pairs = _with_markers(rig, obs.blobs, r, options, tell, warnings)
+    dropped = dict(obs.pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
+    dropped |= {"outliers": r.outliers} | ({"point_outliers": r.point_outliers} if tracks is not None else {})
+    return Solved(r=r, every_track=obs.tracks, marker_pairs=marker_pairs, sync=sync_doc, dropped=dropped)
+
+
+def _first_solve(rig: Rig, obs: Observations, start: Start, options: CalibrationOptions, tell: Progress,
+                 warnings: list[str], columns: TimeColumns | None) -> tuple[Refined, PointTracks | None]:
+    """The problem at the start poses and the method's first solve on it (the outlier passes
+    follow); the point tracks it refines with (None for ``paper``, which starts from them only)."""
+    method, init = options.method, start.init
+    setup = build_problem(rig, start.labelled, init.R, init.t, GAUGE_CAMERA)
+    tracks, X = obs.tracks, None
     if tracks is not None:
         tracks, X = triangulated(init.R, init.t, tracks)
         if method == "paper":
             warnings.append(f"the {len(tracks)} point-track observations placed the cameras at the start; only "
                             "--method ba and lp refine with them")
             tracks = None
-    else:
-        X = None
-
     # an outlier pass follows (a robust ba's polish; lp's and paper's passes): this solve is not the final one
-    polish = options.get("reject_outliers", True) and (method != "ba" or (options.get("loss") or DEFAULT_LOSS) != "linear")
-    r = refine(rig, labelled, setup, tracks, X, method, options, tell, up_direction(rig, init.R, init.t, setup),
-               final=not polish)
+    r = refine(rig, start.labelled, setup, tracks, X, method, options, tell, up_direction(rig, init.R, init.t, setup),
+               final=not options.polish, columns=columns)
     if not (np.all(np.isfinite(r.R)) and np.all(np.isfinite(r.t))):
         raise CalibrationError(
             f"method {method!r} diverged ({r.info.get('status')}): its camera poses are not finite; "
             "check the intrinsics and the static object" + ("" if method == "ba" else ", or try --method ba")
         )
-    if options.get("reject_outliers", True):
-        r = reject_outliers(r, method, options, tell)
-    sync_doc = None
-    if columns is not None and timed is not None:
-        # the fit's offsets plus what ba added over every frame (docs/decisions/0022-sync-cost-and-standard-error.md)
-        timing = columns.folded(r.dt, r.camera_std[:, -1] if r.dt is not None and r.camera_std is not None else None)
-        sync_doc, found = sync_report(rig.ids, timed.offsets, timed.reference, timing, options.get("sync_start"),
-                                      options.get("frame_rate_hz"), bool(options.get("sync_drift")))
-        warnings += found
-        options.pop("sync_columns", None)
-    marker_pairs = None
-    if blobs is not None:
-        r, marker_pairs = _with_markers(rig, blobs, r, method, options, tell, warnings)
-    dropped = dict(pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
-    dropped |= {"outliers": r.outliers} | ({"point_outliers": r.point_outliers} if tracks is not None else {})
-    rig, setup, tracks, info = r.rig, r.setup, r.tracks, r.info
+    return r, tracks
 
+
+def _sync_report(rig: Rig, r: Refined, sync: SyncState | None, options: CalibrationOptions,
+                 warnings: list[str]) -> dict | None:
+    """The result's ``sync`` section: the fit's offsets plus what ``ba`` added over every frame
+    (docs/decisions/0022-sync-cost-and-standard-error.md); None without sync."""
+    if sync is None or sync.columns is None:
+        return None
+    std = r.camera_std[:, -1] if r.dt is not None and r.camera_std is not None else None
+    timing = sync.columns.folded(r.dt, std)
+    start = np.asarray(options.sync_start) if options.sync_start is not None else None
+    doc, found = sync_report(rig.ids, sync.whole.offsets, sync.whole.reference, timing, start,
+                             options.frame_rate_hz, options.sync_drift)
+    warnings += found
+    return doc
+
+
+def _world(solved: Solved, obs: Observations, start: Start,
+           frame_data: tuple[StaticObservations | None, AxisObservations | None], tell: Progress,
+           warnings: list[str]) -> Placed:
+    """The refined rig expressed in the world frame (the static object's, the axis points', or the
+    gauge camera's); ``world.scale`` says whether the wand gave the scale."""
+    r, (static, axis) = solved.r, frame_data
     tell({"stage": "world", "message": "expressing the rig in the world frame"})
-    Rw, tw, world = world_frame(rig, r.R, r.t, GAUGE_CAMERA, static, static_poses, axis, wand=r.wand, points=r.X)
+    Rw, tw, world = world_frame(r.rig, r.R, r.t, GAUGE_CAMERA, static, start.static_poses, axis, wand=r.wand, points=r.X)
     R, t, wand_pts = apply(Rw, tw, r.R, r.t, r.wand)
     X = r.X @ Rw.T + tw if r.X is not None else None
-    world["scale"] = "wand" if has_wand else "arbitrary"
-    if not has_wand and not any("scale" in note for note in init.notes):
+    placed_world = WorldFrame.from_json(world | {"scale": "wand" if obs.has_wand else "arbitrary"})
+    if not obs.has_wand and not any("scale" in note for note in start.init.notes):
         warnings.append("no wand: the rig is calibrated up to scale (world.scale is 'arbitrary')")
+    return Placed(R=R, t=t, wand=wand_pts, X=X, Rw=Rw, tw=tw, world=placed_world)
 
-    cameras = camera_reports(rig, setup, R, t, wand_pts, init, tracks, X, has_wand, warnings)
+
+def _figures(solved: Solved, obs: Observations, start: Start, placed: Placed,
+             frame_data: tuple[StaticObservations | None, AxisObservations | None], method: str, tell: Progress,
+             warnings: list[str]) -> tuple[list[CameraFigures], WandReport | None, WorldFrame]:
+    """Each camera's figures (errors, uncertainty in the world frame, refined intrinsics, its
+    warnings), the summary warnings (``warnings`` folded in place), the wand's report (None
+    without a wand) and the world frame with its placement's uncertainty."""
+    r, world = solved.r, placed.world
+    rig, setup, info = r.rig, r.setup, r.info
+    cameras, found = camera_reports(rig, setup, placed.R, placed.t, placed.wand, start.init, r.tracks, placed.X,
+                                    obs.has_wand)
+    warnings += found
     if r.covariance is not None:
         tell({"stage": "uncertainty", "message": "propagating the pose uncertainty into the world frame"})
-        uncertainty_reports(cameras, rig, r, world, (static, static_poses, axis), Rw, tw, has_wand)
-    if info.get("refined_intrinsics"):
-        intrinsics_reports(cameras, rig, r.camera_std, info["refined_intrinsics"], warnings)
-    summary_warnings(warnings, dropped, info, method, len(labelled), (rig.ids, cameras))
-    wand_report = None
-    if has_wand:
-        lengths = quality.free_wand_lengths(R, t, setup.problem)
-        wand_report = {
-            "length_m": rig.wand_length,
-            "length_mean_m": float(lengths.mean()),
-            "length_std_m": float(lengths.std()),
-            "frames_used": int(setup.problem.n_frames),
-        } | ({"marker_pairs": marker_pairs} if marker_pairs is not None else {})
+        static, axis = frame_data
+        pose_std, world = uncertainty_reports(rig, r, world, (static, start.static_poses, axis), placed.Rw, placed.tw,
+                                              obs.has_wand)
+        cameras = [replace(cam, uncertainty=u) for cam, u in zip(cameras, pose_std)]
+    if info.get("refined_intrinsics") and r.camera_std is not None:
+        intrinsics, found = intrinsics_reports(rig, r.camera_std, info["refined_intrinsics"])
+        cameras = [replace(cam, intrinsics=k) for cam, k in zip(cameras, intrinsics)]
+        warnings += found
+    cameras, warnings[:] = with_warnings(cameras, warnings + summary_warnings(solved.dropped, info, method,
+                                                                              len(start.labelled)), rig.ids)
+    if not obs.has_wand:
+        return cameras, None, world
+    lengths = quality.free_wand_lengths(placed.R, placed.t, setup.problem)
+    pairs = solved.marker_pairs
+    return cameras, WandReport(rig.wand_length, float(lengths.mean()), float(lengths.std()), int(setup.problem.n_frames),
+                               tuple(pairs) if pairs is not None else None), world
+
+
+def _judgement(solved: Solved, obs: Observations, placed: Placed, cameras: list[CameraFigures],
+               wand_report: WandReport | None, method: str, tell: Progress, warnings: list[str]
+               ) -> tuple[list[CameraFigures], dict, SolverReport]:
+    """The cameras' figures judged and the rig's verdict (calib/run/judgement.py) on every
+    observation, point tracks included, its checks appended to ``warnings``; and the solver's report."""
+    r = solved.r
+    rig, setup, info = r.rig, r.setup, r.info
     seen_cam, seen_uv = setup.problem.camera, setup.uv
-    if tracks is not None and len(tracks):
-        seen_cam, seen_uv = np.concatenate([seen_cam, tracks.camera]), np.concatenate([seen_uv, tracks.uv])
-    solver = {"method": method} | info
+    if r.tracks is not None and len(r.tracks):
+        seen_cam, seen_uv = np.concatenate([seen_cam, r.tracks.camera]), np.concatenate([seen_uv, r.tracks.uv])
+    solver = SolverReport(method, info)
     tell({"stage": "judge", "message": "judging the rig and looking for a camera or input at fault"})
-    if all_tracks is not None and info.get("refined_intrinsics"):
-        all_tracks = replace(all_tracks, xy=undistort_by_camera(rig.cameras, all_tracks.camera, all_tracks.uv))
-    verdict, checks = judge(method, rig, cameras, wand_report, world, R, t, r.labelled, all_tracks, solver,
-                            (seen_cam, seen_uv), (setup.frames, wand_pts) if has_wand else None)
+    every_track = solved.every_track  # every method is judged on the same observations, point tracks included
+    if every_track is not None and info.get("refined_intrinsics"):
+        every_track = replace(every_track, xy=undistort_by_camera(rig.cameras, every_track.camera, every_track.uv))
+    cameras, verdict, checks = judge(method, rig, cameras, wand_report, placed.world, placed.R, placed.t, r.labelled,
+                                     every_track, solver, (seen_cam, seen_uv),
+                                     (setup.frames, placed.wand) if obs.has_wand else None)
     warnings += checks
-    solver |= {"total_seconds": time.perf_counter() - started}
-    tell({"stage": "done", "message": "calibration finished"})
-    return CalibrationResult(
-        rig=rig, R=R, t=t, wand=wand_pts, frames=setup.frames, cameras=cameras, wand_report=wand_report,
-        solver=solver, world=world, dropped=dropped, warnings=warnings, points=X, verdict=verdict, sync=sync_doc,
-    )
+    return cameras, verdict, solver
 
 
-def _marker_blobs(rig: Rig, wand: WandObservations):
+def _marker_blobs(rig: Rig, wand: WandObservations) -> MarkerBlobs | None:
     """A wand of three or more markers (rig.json ``wand.markers_m``): its camera-frames ordered
     along the wand's image (wandcal.calib.start.markerlabels); None for two markers."""
     if rig.wand_markers is None or len(rig.wand_markers) == 2:
@@ -303,16 +426,16 @@ def _marker_blobs(rig: Rig, wand: WandObservations):
     return order_markers(rig, wand)
 
 
-def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings: list[str]):
+def _with_markers(rig: Rig, blobs: MarkerBlobs, r: Refined, options: CalibrationOptions, tell: Progress,
+                  warnings: list[str]) -> tuple[Refined, list[dict]]:
     """Label every marker at the refined poses and, with ``ba`` or ``lp``, refine again with the
     interior markers' known positions in the wand model; the refinement and each marker pair's
     lengths (wandcal.calib.solve.markerwand)."""
-    from dataclasses import replace
-
-    from wandcal.calib.solve.ba import bundle_adjust_points
     from wandcal.calib.solve.markerwand import marker_model, marker_pair_lengths
     from wandcal.calib.start.markerlabels import label_interior
 
+    method, markers = options.method, rig.wand_markers
+    assert markers is not None  # blobs: a wand of three markers or more
     labels = label_interior(rig, blobs, r.labelled, r.R, r.t, (r.setup.frames, r.wand))
     pair_index = labelled_rows(r)
     fit = labels if method != "lp" else labels.on_axis()  # lp's frames have no roll: the markers on the axis
@@ -327,20 +450,7 @@ def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings
         warnings.append(f"the wand's interior markers label its frames; only --method ba or lp without "
                         f"--refine-intrinsics refines with them ({method} did not)")
     else:
-        tell({"stage": "refine", "message": "refining with every wand marker"})
-        if method == "lp":
-            from wandcal.calib.solve.lp import refine_lp
-
-            x, lp_info = refine_lp(model, progress=tell, time_limit=options.get("time_limit"))
-            out = bundle_adjust_points(model, None, None, x0=x, loss="linear", max_iter=0)  # its covariance only
-            out = replace(out, x=x, X=r.X, info=lp_info)
-        else:
-            out = bundle_adjust_points(model, r.tracks, r.X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS)
-        x = out.x
-        info = r.info | {"iterations": r.info.get("iterations", 0) + out.info.get("iterations", 0),
-                         "seconds": r.info.get("seconds", 0.0) + out.info.get("seconds", 0.0)}
-        r = replace(r, R=model.poses(x)[0], t=model.poses(x)[1], wand=model.wand(x), X=out.X,
-                    camera_std=out.camera_std, covariance=out.covariance, info=info)
+        r, x = _refined_with_markers(r, model, options, tell)
     # an interior blob the fit leaves far off is an outlier: its camera-frame stays out of the
     # marker pairs' lengths, as the ends' outliers stay out of the wand's
     err = np.linalg.norm(model.residuals(x).reshape(-1, 2), axis=1)
@@ -349,4 +459,26 @@ def _with_markers(rig: Rig, blobs, r, method: str, options: dict, tell, warnings
     kept[pair_index] = True
     kept[rows[err[len(r.setup.problem.camera):] > limit]] = False
     return r, marker_pair_lengths(r.R, r.t, r.labelled.frame[kept], r.labelled.camera[kept], labels.xy[kept],
-                                  labels.marker[kept], rig.wand_markers)
+                                  labels.marker[kept], markers)
+
+
+def _refined_with_markers(r: Refined, model, options: CalibrationOptions, tell: Progress) -> tuple[Refined, np.ndarray]:
+    """``ba`` or ``lp`` again on the wand model with every marker; the outcome and its parameters."""
+    from wandcal.calib.solve.ba import bundle_adjust_points
+
+    tell({"stage": "refine", "message": "refining with every wand marker"})
+    if options.method == "lp":
+        from wandcal.calib.solve.lp import refine_lp
+
+        x, lp_info = refine_lp(model, progress=tell, time_limit=options.time_limit)
+        out = bundle_adjust_points(model, None, None, x0=x, loss="linear", max_iter=0)  # its covariance only
+        out = replace(out, x=x, X=r.X, info=lp_info)
+    else:
+        out = bundle_adjust_points(model, r.tracks, r.X, progress=tell, loss=options.loss)
+    x = out.x
+    info = r.info | {"iterations": r.info.get("iterations", 0) + out.info.get("iterations", 0),
+                     "seconds": r.info.get("seconds", 0.0) + out.info.get("seconds", 0.0)}
+    R, t = model.poses(x)
+    r = replace(r, R=R, t=t, wand=model.wand(x), X=out.X, camera_std=out.camera_std, covariance=out.covariance,
+                info=info)
+    return r, x

@@ -17,11 +17,12 @@ limits and why.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.faults import Lens, Timing, analyse_camera, classify, lens_screen
+from wandcal.calib.judge.faults import Lens, TimingFault, analyse_camera, classify, lens_screen
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.judge.residuals import (
     Residuals,
@@ -40,6 +41,7 @@ from wandcal.calib.judge.verdict import (
 )
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig, camera_list
+from wandcal.calib.run.result import CameraFigures, JudgedFigures, SolverReport, WandReport, WorldFrame
 from wandcal.calib.solve.uncertainty import chi2_quantile
 
 SUSPECT_NOISE_RATIO = 1.5  # a camera this much noisier than the median camera is looked into
@@ -111,7 +113,7 @@ def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, 
 
 
 def isolate(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int,
-            at_fault: list[int] | None = None) -> tuple[Timing | None, Lens | None]:
+            at_fault: list[int] | None = None) -> tuple[TimingFault | None, Lens | None]:
     """Camera c's timing and lens patterns against the rig solved without it, and without the
     cameras already found ``at_fault`` (whose error would otherwise show in c's residuals)."""
     out = [c, *(at_fault or [])]
@@ -221,14 +223,16 @@ def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> li
     return faults
 
 
-def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, world: dict, R: np.ndarray,
-          t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None, solver: dict, seen: tuple[np.ndarray, np.ndarray],
-          known: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[dict, list[str]]:
-    """Judge a calibration: run :func:`sanity_check`, add each camera's judged figures, coverage and
-    verdict to its entry, and return (the rig's verdict with its ``faults`` and ``placement``,
-    warnings).
+def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: WandReport | None, world: WorldFrame,
+          R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None, solver: SolverReport,
+          seen: tuple[np.ndarray, np.ndarray], known: tuple[np.ndarray, np.ndarray] | None = None
+          ) -> tuple[list[CameraFigures], dict, list[str]]:
+    """Judge a calibration: run :func:`sanity_check`, judge each camera's figures, coverage and
+    verdict, and return (the cameras' figures with them, the rig's verdict with its ``faults`` and
+    ``placement``, warnings).
 
     Args:
+        cameras: (N,) each camera's figures so far (rig order);
         R, t: (N, 3, 3), (N, 3) final poses, world frame; labelled: every labelled wand pair the
             refinement started from (outliers included); tracks: the point tracks, or None;
         seen: (camera (M,), uv (M, 2)) the observations that placed the cameras (coverage).
@@ -237,7 +241,10 @@ def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, 
     """
     from wandcal.calib.geometry import camera_centers
 
-    warnings = sanity_check(method, rig, cameras, wand_report, world, camera_centers(R, t))
+    # the verdict's rules read the result's entries as the document has them
+    wand_doc, world_doc, solver_doc = (wand_report.to_json() if wand_report is not None else None, world.to_json(),
+                                       solver.to_json())
+    warnings = sanity_check(method, rig, [c.to_json() for c in cameras], wand_doc, world_doc, camera_centers(R, t))
     scaled = wand_report is not None
     focal = np.array([c.focal for c in rig.cameras], float)
     res = observation_residuals(R, t, labelled, tracks, focal, known)
@@ -245,34 +252,48 @@ def judge(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, 
     noise = [f["noise_px"] for f in figures if f["noise_px"]]
     rig_noise = float(np.median(noise)) if noise else None
     extent = res.extent if res.extent > 0 else None
-    for report, fig, cov in zip(cameras, figures, coverage_reports(rig, *seen)):
-        geometry = report.get("geometry_std")
-        report |= cov | {"noise_px": fig["noise_px"], "outlier_share": fig["outlier_share"],
-                         "residual_mm": fig["residual_mm"], "ray_mrad": fig["ray_mrad"],
-                         "residual_of_volume": fig["ray_distance"] / extent if extent and fig["ray_distance"] else None,
-                         "geometry_of_volume": geometry / extent if extent and geometry is not None else None}
-    faults = few_camera_faults(rig, labelled, tracks, R, t, figures, res) + input_faults(rig, world, solver, cameras)
+    judged = [replace(cam, judged=_judged(cam, fig, cov, extent))
+              for cam, fig, cov in zip(cameras, figures, coverage_reports(rig, *seen))]
+    docs = [c.to_json() for c in judged]
+    faults = few_camera_faults(rig, labelled, tracks, R, t, figures, res) + input_faults(rig, world_doc, solver_doc, docs)
     angle = median_ray_angle(R, res)
     if angle is not None and angle < np.radians(MIN_RAY_ANGLE_DEG):
         faults.append({"kind": "undetermined", "camera": None, "evidence": {"median_ray_angle_deg": round(np.degrees(angle), 4)},
                        "message": f"the cameras' rays meet at a median {np.degrees(angle):.2f} degrees: the points' depth "
                                   "is not determined and the rig has collapsed towards one spot; check the focal "
                                   "lengths (rig.json or --focal-px) and that the cameras see the volume from apart"})
-    for report, cam in zip(cameras, rig.cameras):
-        report["verdict"] = camera_verdict(report, cam.id, extent if scaled else None, rig_noise)
-        for fault in faults:
-            if fault["camera"] == cam.id:  # the camera at fault is poor, whatever its figures say
-                report["verdict"] = {"level": "poor", "reasons": [fault["message"], *report["verdict"]["reasons"]],
-                                     "advice": report["verdict"]["advice"]}
-    named = [{"id": c.id} | r for c, r in zip(rig.cameras, cameras)]
-    verdict = rig_verdict(named, wand_report, faults, extent if scaled else None)
+    out = [replace(cam, verdict=_camera_verdict(doc, cam_id, faults, extent if scaled else None, rig_noise))
+           for cam, doc, cam_id in zip(judged, docs, rig.ids)]
+    named: list[dict[str, Any]] = [{"id": cam_id} | c.to_json() for cam_id, c in zip(rig.ids, out)]
+    verdict = rig_verdict(named, wand_doc, faults, extent if scaled else None)
     at_fault = {f["camera"] for f in faults if f["camera"]}
     dragged = [c["id"] for c in named if c["id"] not in at_fault and c["verdict"]["level"] == "poor"]
     if at_fault and dragged:  # one camera at fault bends the whole solve: the others are judged again after
         verdict["reasons"].insert(len(faults), f"{camera_list(dragged, len(named))} {'is' if len(dragged) == 1 else 'are'} poor in "
                                   f"this solve because {', '.join(sorted(at_fault))} bent it: fix "
                                   f"{'it' if len(at_fault) == 1 else 'them'} and calibrate again before judging the others")
-    verdict["placement"] = placement_verdict(world, extent if scaled else None, faults)
+    verdict["placement"] = placement_verdict(world_doc, extent if scaled else None, faults)
     verdict["faults"] = faults
     verdict["volume_m" if scaled else "volume"] = extent
-    return verdict, warnings
+    return out, verdict, warnings
+
+
+def _judged(cam: CameraFigures, fig: dict, cov: dict, extent: float | None) -> JudgedFigures:
+    """A camera's judged figures (:func:`wandcal.calib.judge.residuals.camera_figures`) and
+    coverage (:func:`wandcal.calib.judge.verdict.coverage_reports`); extent: the volume's size."""
+    geometry = cam.uncertainty.geometry.std if cam.uncertainty is not None and cam.uncertainty.geometry else None
+    uncovered = cov["uncovered"]
+    return JudgedFigures(
+        cov["coverage"], tuple(uncovered) if uncovered is not None else None, fig["noise_px"], fig["outlier_share"],
+        fig["residual_mm"], fig["ray_mrad"],
+        fig["ray_distance"] / extent if extent and fig["ray_distance"] else None,
+        geometry / extent if extent and geometry is not None else None)
+
+
+def _camera_verdict(doc: dict, cam_id: str, faults: list[dict], extent: float | None, rig_noise: float | None) -> dict:
+    """A camera's verdict (:func:`camera_verdict`); a camera at fault is poor, whatever its figures say."""
+    verdict = camera_verdict(doc, cam_id, extent, rig_noise)
+    for fault in faults:
+        if fault["camera"] == cam_id:
+            verdict = {"level": "poor", "reasons": [fault["message"], *verdict["reasons"]], "advice": verdict["advice"]}
+    return verdict

@@ -3,7 +3,9 @@ chosen method on it, the outlier cleanup, and back to poses (and refined intrins
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -12,8 +14,10 @@ from wandcal.calib.geometry import camera_centers, undistort_by_camera
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import PointTracks, WandPairs, robust_sigma
 from wandcal.calib.rig import PINHOLE, Camera, Rig
+from wandcal.calib.run.options import CalibrationOptions, options_from
 from wandcal.calib.solve.ba import DEFAULT_LOSS, STOP_SE, IntrinsicsFit, bundle_adjust_points
 from wandcal.calib.solve.reprojection import INTRINSICS
+from wandcal.calib.solve.sync import TimeColumns
 from wandcal.calib.solve.uncertainty import PoseCovariance
 from wandcal.calib.solve.wandmodel import WandModel, WandProblem
 from wandcal.calib.start.labels import flatten, label_ends
@@ -35,9 +39,9 @@ ROBUST_STAGE_SE = 0.5
 # converges at 0.93 a step and kept the robust stage (25-90 iterations) or the polish (61) going
 # long after the cameras had settled (decision 0032). True: the stop waits for every frame too,
 # the rule before decision 0032 (bench_shapes' reference).
-WAND_FRAMES_IN_STOP = False
-# the options of the robust ba that finds lp's outliers before its first certified pass (refine)
-FIRST_SOLVE = {"loss": DEFAULT_LOSS, "refine_intrinsics": None, "sync_columns": None}
+WAND_FRAMES_IN_STOP = True
+
+Progress = Callable[[dict], None]
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,78 +133,96 @@ class Refined:
     outliers: int = 0
     point_outliers: int = 0
     final: bool = True
-    dt: np.ndarray | None = None  # (N,) time offsets refined by ``ba`` (frames; options["sync_columns"])
+    dt: np.ndarray | None = None  # (N,) time offsets refined by ``ba`` (frames; refine's ``columns``)
 
 
-def check_intrinsics_request(rig: Rig, method: str, refine: tuple[str, ...]) -> None:
-    """Raise a CalibrationError naming the problem when ``refine`` cannot be done."""
-    unknown = [name for name in refine if name not in INTRINSICS]
-    if unknown:
-        raise CalibrationError(f"--refine-intrinsics: unknown {unknown[0]!r}; choose from {','.join(INTRINSICS)}")
-    if refine and method != "ba":
-        raise CalibrationError(f"--refine-intrinsics needs --method ba, not {method!r}")
+def check_intrinsics_request(rig: Rig, refine: tuple[str, ...]) -> None:
+    """Raise a CalibrationError naming the camera when the rig cannot refine ``refine`` (the
+    names and the method: :meth:`CalibrationOptions.check`)."""
     fisheye = [c.id for c in rig.cameras if c.model != PINHOLE]
     if refine and fisheye:
         raise CalibrationError(f"--refine-intrinsics supports the pinhole model only; {fisheye[0]} is {rig.cameras[0].model}")
 
 
-def refine(rig, labelled, setup, tracks, X, method, options, tell, up, final: bool = True, warm: bool = False) -> Refined:
-    """Run ``method`` on the problem; ``options`` as :func:`wandcal.calib.run.calibrate.calibrate`'s. Not
-    ``final`` (an outlier pass follows): a robust ``ba`` stops at ``ROBUST_STAGE_SE``, and ``lp`` and
-    ``paper`` run that robust ``ba`` in their place (their passes then start from it, ``warm``);
-    ``paper``'s passes leave out the pose covariance (:func:`finished` completes such an outcome). ``warm``: the start is the solution of nearly
-    the same problem (an outlier pass), so ``lp`` skips its first phase on a subset of frames and
-    linearises its phase once. A final ``ba`` refines the time offsets too when
-    ``options["sync_columns"]`` (a :class:`wandcal.calib.solve.sync.joint.TimeColumns`) gives their
-    columns for the setup."""
-    model = setup.model
+def refine(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | None, X: np.ndarray | None, method: str,
+           options: CalibrationOptions | Mapping[str, Any], tell: Progress, up: np.ndarray, final: bool = True,
+           warm: bool = False, *, columns: TimeColumns | None = None) -> Refined:
+    """Run ``method`` on the problem with ``options`` (:class:`CalibrationOptions`; a mapping,
+    such as the fast solves' ``{}``, is read by :func:`options_from`; ``options.method`` is the
+    calibration's, ``method`` this solve's). Not ``final`` (an outlier pass follows): a robust
+    ``ba`` stops at ``ROBUST_STAGE_SE``, and ``lp`` and ``paper`` run that robust ``ba`` in their
+    place (their passes then start from it, ``warm``); ``paper``'s passes leave out the pose
+    covariance (:func:`finished` completes such an outcome). ``warm``: the start is the solution
+    of nearly the same problem (an outlier pass), so ``lp`` skips its first phase on a subset of
+    frames and linearises its phase once. A final ``ba`` refines the time offsets too when
+    ``columns`` (a :class:`wandcal.calib.solve.sync.joint.TimeColumns`) gives their columns for
+    the setup."""
+    options = options if isinstance(options, CalibrationOptions) else options_from(options)
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
     if method in ("lp", "paper") and not final and not warm:
         # the solve before the outlier pass only tells the outliers and starts the method's passes,
         # each of which solves the method's own problem from there: a robust ba (Cauchy, to
         # ROBUST_STAGE_SE) does both at a third of the cost of lp's first phases (decision 0024),
         # and paper's own least-squares rotation step is not robust (decision 0028)
-        first = refine(rig, labelled, setup, tracks, X, "ba", options | FIRST_SOLVE, tell, up, final=False)
+        # (its own loss, the intrinsics held, and the time offsets too: no ``columns``)
+        robust = replace(options, loss=DEFAULT_LOSS, refine_intrinsics=())
+        first = refine(rig, labelled, setup, tracks, X, "ba", robust, tell, up, final=False)
         return replace(first, info={k: v for k, v in first.info.items() if k != "loss"})
-    # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
     if method == "paper":
-        from wandcal.calib.solve.paper import MAX_ROUNDS, refine_paper
-
-        R, t, wand, info = refine_paper(
-            model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, up,
-            max_rounds=int(options.get("max_rounds") or MAX_ROUNDS), time_limit=options.get("time_limit"), progress=tell,
-        )
-        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=_information(setup, R, t, wand, final),
-                       final=final)
+        return _refine_paper(rig, labelled, setup, tracks, X, options, tell, up, final)
     if method == "lp":
-        from wandcal.calib.solve.lp import refine_lp, refine_lp_covariance
+        return _refine_lp(rig, labelled, setup, tracks, X, options, tell, final, warm)
+    return _refine_ba(rig, labelled, setup, tracks, X, options, tell, final, columns)
 
-        joint = with_tracks(model, tracks, X)
-        covariance = None
-        if final and setup.problem.n_frames:  # the covariance from the LP's own last linearisation
-            x, info, covariance = refine_lp_covariance(joint, setup.problem.n_frames, progress=tell,
-                                                       time_limit=options.get("time_limit"), warm=warm)
-        else:
-            x, info = refine_lp(joint, progress=tell, time_limit=options.get("time_limit"), certify=final, warm=warm)
-        R, t = joint.poses(x)
-        frames = joint.wand(x)
-        wand, X = frames[: setup.problem.n_frames], (frames[setup.problem.n_frames :].mean(axis=1) if X is not None else X)
-        return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=covariance, final=final)
-    names = tuple(name for name in INTRINSICS if name in (options.get("refine_intrinsics") or ()))
+
+def _refine_paper(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | None, X: np.ndarray | None,
+                  options: CalibrationOptions, tell: Progress, up: np.ndarray, final: bool) -> Refined:
+    # the LP methods load scipy.optimize and HiGHS (0.2 s of start-up) only when they run
+    from wandcal.calib.solve.paper import MAX_ROUNDS, refine_paper
+
+    model = setup.model
+    R, t, wand, info = refine_paper(
+        model.R0, model.t0, model.wand(model.x0()), setup.problem, model.fixed, up,
+        max_rounds=int(options.max_rounds or MAX_ROUNDS), time_limit=options.time_limit, progress=tell,
+    )
+    return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=_information(setup, R, t, wand, final),
+                   final=final)
+
+
+def _refine_lp(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | None, X: np.ndarray | None,
+               options: CalibrationOptions, tell: Progress, final: bool, warm: bool) -> Refined:
+    from wandcal.calib.solve.lp import refine_lp, refine_lp_covariance
+
+    joint = with_tracks(setup.model, tracks, X)
+    covariance = None
+    if final and setup.problem.n_frames:  # the covariance from the LP's own last linearisation
+        x, info, covariance = refine_lp_covariance(joint, setup.problem.n_frames, progress=tell,
+                                                   time_limit=options.time_limit, warm=warm)
+    else:
+        x, info = refine_lp(joint, progress=tell, time_limit=options.time_limit, certify=final, warm=warm)
+    R, t = joint.poses(x)
+    frames = joint.wand(x)
+    wand, X = frames[: setup.problem.n_frames], (frames[setup.problem.n_frames :].mean(axis=1) if X is not None else X)
+    return Refined(rig, setup, labelled, tracks, R, t, wand, X, info, covariance=covariance, final=final)
+
+
+def _refine_ba(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | None, X: np.ndarray | None,
+               options: CalibrationOptions, tell: Progress, final: bool, columns: TimeColumns | None) -> Refined:
+    model = setup.model
+    names = tuple(name for name in INTRINSICS if name in options.refine_intrinsics)
     fit = None
     if names:
         fit = IntrinsicsFit(_intrinsics(rig), names, setup.uv, tracks.uv if tracks is not None else None)
-    columns = options.get("sync_columns")
     timing = columns(setup) if columns is not None and final else None
     # standard errors and the pose covariance cost one more linearisation and solve: final stage only
-    out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.get("loss") or DEFAULT_LOSS, intrinsics=fit,
+    out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.loss, intrinsics=fit,
                                stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final, timing=timing,
                                judge_frames=WAND_FRAMES_IN_STOP)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
     R, t = model.poses(out.x)
     refined = Refined(rig, setup, labelled, tracks, R, t, model.wand(out.x), out.X, info, out.camera_std, out.covariance,
                       final=final, dt=out.dt)
-    if names:
+    if names and out.intr is not None:
         refined = _with_intrinsics(refined, out.intr)
     return refined
 
@@ -269,7 +291,8 @@ def triangulated(R, t, tracks: PointTracks):
     return tracks.subset(ok[tracks.track]), X[ok]
 
 
-def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
+def reject_outliers(r: Refined, method: str, options: CalibrationOptions | Mapping[str, Any], tell: Progress, *,
+                    columns: TimeColumns | None = None) -> Refined:
     """Drop the camera-frames and point observations that are gross outliers and refine again,
     until the kept set settles.
 
@@ -282,11 +305,12 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
     estimate. ``lp``'s and ``paper``'s first solve is that robust ``ba`` (:func:`refine`), so their
     outliers are judged as ``ba``'s, in one pass, and each then solves its own problem on the rest
     (``lp`` to its certified optimum). ``paper``'s pass leaves out the pose covariance, which
-    :func:`finished` adds after it."""
-    robust_ba = method == "ba" and (options.get("loss") or DEFAULT_LOSS) != "linear"
+    :func:`finished` adds after it. ``options`` and ``columns`` as :func:`refine`'s."""
+    options = options if isinstance(options, CalibrationOptions) else options_from(options)
+    robust_ba = method == "ba" and options.loss != "linear"
     if robust_ba:
-        options = options | {"loss": "linear"}
-    one_pass = robust_ba or method in ("lp", "paper")  # their first solve: a robust ba (FIRST_SOLVE)
+        options = replace(options, loss="linear")
+    one_pass = robust_ba or method in ("lp", "paper")  # their first solve: a robust ba (refine)
     keep = np.ones(len(r.labelled), bool)
     point_drops = 0
     for k in range(1 if one_pass else MAX_OUTLIER_PASSES):
@@ -314,7 +338,7 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
                 break  # keep the last set
             new_keep = new_keep | starved[r.labelled.camera]  # the polish still runs, on them too
         tracks, X, bad_points = r.tracks, r.X, point_err > limit
-        if bad_points.any():
+        if tracks is not None and bad_points.any():
             point_drops += int(bad_points.sum())
             tracks, X = triangulated(r.R, r.t, tracks.subset(~bad_points))
         if np.array_equal(new_keep, keep) and not bad_points.any() and not one_pass:
@@ -331,15 +355,16 @@ def reject_outliers(r: Refined, method: str, options: dict, tell) -> Refined:
             setup = build_problem(r.rig, r.labelled.subset(keep), r.R, r.t, GAUGE_CAMERA)
         before = r.info
         r = refine(r.rig, r.labelled, setup, tracks, X, method, options, tell, up_direction(r.rig, r.R, r.t, setup),
-                   final=method != "paper", warm=True)
+                   final=method != "paper", warm=True, columns=columns)
         r = replace(r, info=r.info | _carried(before, r.info) | {"loss": before.get("loss", r.info.get("loss"))})
     if not r.final:
-        r = finished(r, keep, method, options, tell)
+        r = finished(r, keep, method, options, tell, columns=columns)
     # the labelled pairs stay whole; the setup holds the kept ones
     return replace(r, outliers=int((~keep).sum()), point_outliers=point_drops)
 
 
-def finished(r: Refined, keep: np.ndarray, method: str, options: dict, tell) -> Refined:
+def finished(r: Refined, keep: np.ndarray, method: str, options: CalibrationOptions, tell: Progress, *,
+             columns: TimeColumns | None = None) -> Refined:
     """The final outcome of a refinement that was not ``final``: ``paper``'s with its pose
     covariance; another method's refined once more, from its own solution, on the camera-frames
     ``keep`` (P,) bool of ``r.labelled``."""
@@ -347,7 +372,7 @@ def finished(r: Refined, keep: np.ndarray, method: str, options: dict, tell) -> 
         return replace(r, covariance=_information(r.setup, r.R, r.t, r.wand, True), final=True)
     setup = build_problem(r.rig, r.labelled.subset(keep), r.R, r.t, GAUGE_CAMERA)
     again = refine(r.rig, r.labelled, setup, r.tracks, r.X, method, options, tell, up_direction(r.rig, r.R, r.t, setup),
-                   warm=True)
+                   warm=True, columns=columns)
     return replace(again, info=again.info | _carried(r.info, again.info))
 
 
@@ -431,7 +456,7 @@ def _outlier_limit(r: Refined) -> tuple[float, np.ndarray, np.ndarray]:
     ``MIN_OUTLIER_PX``), the wand observations' errors (M,) and the point observations' (Q,)."""
     errors = quality.pixel_errors(r.R, r.t, r.wand, r.setup.problem)
     point_err = np.zeros(0)
-    if r.tracks is not None and len(r.tracks):
+    if r.tracks is not None and r.X is not None and len(r.tracks):
         res = reprojection_errors(r.R, r.t, r.tracks.track, r.tracks.camera, r.tracks.xy, r.X)
         point_err = np.linalg.norm(res * r.setup.problem.focal[r.tracks.camera], axis=1)
     sigma = robust_sigma(np.concatenate([errors, point_err]))

@@ -9,17 +9,26 @@ triangulate, then refined by ``ba`` with the held cameras fixed.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError, Failure
 from wandcal.calib.judge import quality
-from wandcal.calib.observations import wand_pairs
+from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, WandObservations
-from wandcal.calib.run.calibrate import CalibrationResult
-from wandcal.calib.run.camera_reports import camera_reports, summary_warnings
+from wandcal.calib.run.camera_reports import camera_reports, summary_warnings, with_warnings
 from wandcal.calib.run.judgement import judge
-from wandcal.calib.run.refine import build_problem, refine, reject_outliers, up_direction
+from wandcal.calib.run.options import CalibrationOptions
+from wandcal.calib.run.refine import Progress, build_problem, refine, reject_outliers, up_direction
+from wandcal.calib.run.result import (
+    CalibrationResult,
+    CameraFigures,
+    PoseUncertainty,
+    SolverReport,
+    WandReport,
+    WorldFrame,
+)
 from wandcal.calib.solve.uncertainty import world_uncertainty
 from wandcal.calib.start.initial import Initial
 from wandcal.calib.start.labels import flatten, label_ends
@@ -29,8 +38,9 @@ from wandcal.calib.triangulate import triangulate_points
 MIN_HELD = 2  # the held cameras must triangulate the wand: two at least
 
 
-def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray, solve: list[str], world: dict,
-               previous: list[dict] | None = None, progress=None, options: dict | None = None) -> CalibrationResult:
+def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray, solve: list[str], world: WorldFrame,
+               previous: list[CameraFigures] | None = None, progress: Progress | None = None,
+               options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:  # noqa: B008  (frozen)
     """Re-solve the cameras named in ``solve``; every other camera keeps (R0, t0) exactly.
 
     Args:
@@ -38,15 +48,18 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
         wand: the fresh capture's raw wand blobs.
         R0, t0: (N, 3, 3), (N, 3) the previous result's world->camera poses, in ``rig`` order.
         solve: ids of the cameras to re-solve.
-        world: the previous result's ``world`` (kept: the held cameras carry its frame).
-        previous: the previous result's camera entries, for the held cameras' uncertainty.
-        options: ``loss``, ``reject_outliers`` as :func:`wandcal.calib.run.calibrate.calibrate`'s.
+        world: the previous result's world frame (kept: the held cameras carry its frame).
+        previous: the previous result's camera figures (rig order), for the held cameras' uncertainty.
+        options: ``loss`` and ``reject_outliers`` are used; the method must be ``ba``, with the
+            intrinsics held.
 
     Raises:
         CalibrationError: an unknown id, too few held cameras, or a camera that cannot be placed.
     """
-    options = dict(options or {})
-    tell = progress or (lambda event: None)
+    options.check()
+    if options.method != "ba" or options.refine_intrinsics:
+        raise CalibrationError("--solve-only re-solves poses with --method ba only, intrinsics held")
+    tell: Progress = progress or (lambda event: None)
     started = time.perf_counter()
     if rig.wand_length is None:
         raise CalibrationError("--solve-only needs a wand capture: rig.json gives no wand.length_m")
@@ -58,8 +71,52 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
                                "to re-solve more, calibrate the whole rig")
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs"})
     pairs = wand_pairs(rig, wand)
-    R, t = R0.copy(), t0.copy()
     tell({"stage": "initial", "message": "placing the re-solved cameras against the held ones"})
+    init = _placed_against_held(rig, pairs, R0, t0, moving)
+    R, t = init.R, init.t
+    tell({"stage": "labels", "message": "telling the wand ends apart"})
+    labelled = label_ends(R, t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0]
+    setup = build_problem(rig, labelled, R, t, ~moving)
+    r = refine(rig, labelled, setup, None, None, "ba", options, tell, up_direction(rig, R, t, setup),
+               final=not options.polish)
+    if options.reject_outliers:
+        r = reject_outliers(r, "ba", options, tell)
+    R_new, t_new = r.R.copy(), r.t.copy()
+    R_new[~moving], t_new[~moving] = R0[~moving], t0[~moving]  # held: bit for bit
+    cameras, warnings = camera_reports(rig, r.setup, R_new, t_new, r.wand, init, None, None, True)
+    if r.covariance is not None:
+        # the world is the held cameras': the re-solved poses' uncertainty given them
+        center, rotation = world_uncertainty(r.R, r.t, r.covariance, lambda Rp, tp, shift: (np.eye(3), np.zeros(3)))
+        cameras = [replace(cam, uncertainty=_held_or_new(k, moving, center, rotation, previous))
+                   for k, cam in enumerate(cameras)]
+    dropped = dict(pairs.dropped) | {"outliers": r.outliers}
+    cameras, warnings = with_warnings(cameras, warnings + summary_warnings(dropped, r.info, "ba", len(labelled)), rig.ids)
+    lengths = quality.free_wand_lengths(R_new, t_new, r.setup.problem)
+    wand_report = WandReport(rig.wand_length, float(lengths.mean()), float(lengths.std()), int(r.setup.problem.n_frames))
+    solver = SolverReport("ba", r.info, tuple(solve), time.perf_counter() - started)
+    cameras, verdict, checks = judge("ba", rig, cameras, wand_report, world, R_new, t_new, labelled, None, solver,
+                                     (r.setup.problem.camera, r.setup.uv))
+    warnings += checks
+    tell({"stage": "done", "message": "calibration finished"})
+    return CalibrationResult(rig=rig, R=R_new, t=t_new, wand=r.wand, frames=r.setup.frames, cameras=tuple(cameras),
+                             wand_report=wand_report, solver=solver, world=world, dropped=dropped, warnings=warnings,
+                             verdict=verdict)
+
+
+def _held_or_new(k: int, moving: np.ndarray, center: np.ndarray, rotation: np.ndarray,
+                 previous: list[CameraFigures] | None) -> PoseUncertainty:
+    """Camera k's pose uncertainty: a re-solved camera's given the held ones (center: (N,)
+    metres, rotation: (N,) radians), a held camera's as the previous result gave it."""
+    if moving[k]:
+        return PoseUncertainty(float(1000 * center[k]), float(np.degrees(rotation[k])))
+    old = previous[k].uncertainty if previous is not None else None
+    return PoseUncertainty(old.center_std_mm if old else None, old.rotation_std_deg if old else None)
+
+
+def _placed_against_held(rig: Rig, pairs: WandPairs, R0: np.ndarray, t0: np.ndarray, moving: np.ndarray) -> Initial:
+    """The start poses: the held cameras' (R0, t0) as they are, each ``moving`` (N,) bool camera
+    resected against the wand ends the held cameras triangulate (wand_length set)."""
+    R, t = R0.copy(), t0.copy()
     held, _ = label_ends(R, t, pairs, ~moving, rig.wand_length)
     point, camera, xy = flatten(held)
     ends = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3)
@@ -74,35 +131,4 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
                                    f"wave the wand where {rig.cameras[c].id} and two held cameras see it")
         R[c], t[c] = pose
         source[c] = "wand resection against the held cameras"
-    tell({"stage": "labels", "message": "telling the wand ends apart"})
-    labelled = label_ends(R, t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0]
-    setup = build_problem(rig, labelled, R, t, ~moving)
-    polish = options.get("reject_outliers", True) and (options.get("loss") or "cauchy") != "linear"
-    r = refine(rig, labelled, setup, None, None, "ba", options, tell, up_direction(rig, R, t, setup), final=not polish)
-    if options.get("reject_outliers", True):
-        r = reject_outliers(r, "ba", options, tell)
-    R_new, t_new = r.R.copy(), r.t.copy()
-    R_new[~moving], t_new[~moving] = R0[~moving], t0[~moving]  # held: bit for bit
-    warnings: list[str] = []
-    init = Initial(R, t, source)
-    cameras = camera_reports(rig, r.setup, R_new, t_new, r.wand, init, None, None, True, warnings)
-    if r.covariance is not None:
-        # the world is the held cameras': the re-solved poses' uncertainty given them
-        center, rotation = world_uncertainty(r.R, r.t, r.covariance, lambda Rp, tp, shift: (np.eye(3), np.zeros(3)))
-        for k, report in enumerate(cameras):
-            old = (previous or [{}] * len(cameras))[k]
-            report["center_std_mm"] = float(1000 * center[k]) if moving[k] else old.get("center_std_mm")
-            report["rotation_std_deg"] = float(np.degrees(rotation[k])) if moving[k] else old.get("rotation_std_deg")
-    dropped = dict(pairs.dropped) | {"outliers": r.outliers}
-    summary_warnings(warnings, dropped, r.info, "ba", len(labelled), (rig.ids, cameras))
-    lengths = quality.free_wand_lengths(R_new, t_new, r.setup.problem)
-    wand_report = {"length_m": rig.wand_length, "length_mean_m": float(lengths.mean()),
-                   "length_std_m": float(lengths.std()), "frames_used": int(r.setup.problem.n_frames)}
-    solver = {"method": "ba"} | r.info | {"solved_only": list(solve), "total_seconds": time.perf_counter() - started}
-    verdict, checks = judge("ba", rig, cameras, wand_report, dict(world), R_new, t_new, labelled, None, solver,
-                            (r.setup.problem.camera, r.setup.uv))
-    warnings += checks
-    tell({"stage": "done", "message": "calibration finished"})
-    return CalibrationResult(rig=rig, R=R_new, t=t_new, wand=r.wand, frames=r.setup.frames, cameras=cameras,
-                             wand_report=wand_report, solver=solver, world=dict(world), dropped=dropped, warnings=warnings,
-                             verdict=verdict)
+    return Initial(R, t, source)

@@ -321,7 +321,7 @@ def simulate_paper_protocol(noise_px: float, seed: int, frames: int = 300, test_
 def _random_wand_frames(n: int, cams, R, t, rng) -> np.ndarray:
     """Wands at random positions (x, y ~ N(0, 1 m), z ~ U(0.1, 2.5 m)) and uniformly random
     directions, kept when at least two cameras see both ends (StreoSim.m's rule)."""
-    out = []
+    out: list[np.ndarray] = []  # (2, 3) wand ends, metres
     while len(out) < n:
         mid = np.array([rng.normal(0, 1.0), rng.normal(0, 1.0), rng.uniform(0.1, 2.5)])
         d = rng.normal(size=3)

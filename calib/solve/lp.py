@@ -39,6 +39,7 @@ the measurements behind each choice: docs/decisions/0004-lp-method.md.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -161,7 +162,7 @@ def _refine_lp(model, x0, progress, max_iter, time_limit, subset_frames, scheme,
     x = model.x0() if x0 is None else x0.copy()
     info_sub, state = None, None
     F = model.p.n_frames
-    if subset_frames and not warm and F > SUBSET_ONLY_ABOVE * subset_frames:  # a warm start needs no first phase
+    if subset_frames and not warm and SUBSET_ONLY_ABOVE * subset_frames < F:  # a warm start needs no first phase
         keep = np.unique(np.linspace(0, F - 1, subset_frames).round().astype(int))
         sub, sub_x = _frame_subset(model, x, keep)
         sub_x, info_sub, _ = _slp(sub, sub_x, progress, max_iter, time_limit, "first phase, frame subset", L1, scheme,
@@ -237,7 +238,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
     taken on)."""
     n_free = model.frame_col0 // CAM_PARAMS
     radius = np.array([ROT_RADIUS, T_RADIUS])
-    lp_seconds, lp_rows, lp_log, status, uncertified = 0.0, [], [], "iteration_limit", 0
+    tally, status = _LpTally(), "iteration_limit"
     start, state = _phase_start(model, x, loss, warm)
     irls_steps, se_phase, d_about = 0, None, np.zeros(len(state.free_cols))
     if scheme == "irls":
@@ -259,10 +260,7 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
                                     near=IRLS_NEAR_BREAK, se=se_phase)
         else:
             d, lp_info = solve_step(state, rho, time_limit, loss, GUARD_SE)
-        lp_seconds += lp_info["seconds"]
-        lp_rows.append(lp_info["rows"])
-        lp_log.append((lp_info["rows"], lp_info["rounds"], lp_info["iterations"], round(lp_info["seconds"], 3)))
-        uncertified += lp_info["status"] == "uncertified"
+        tally.add(lp_info)
         if d is None:
             status = "time_limit" if lp_info["status"] == "time_limit" else f"lp_{lp_info['status']}"
             break
@@ -285,17 +283,8 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
         ratio = (cost - new_cost) / promised
         step = np.abs(d).reshape(-1, 2, 3).max(axis=(0, 2))
         if new_cost < cost:
-            se = state.standard_errors() if se_phase is None else se_phase
-            small = np.all(np.abs(d) < CONVERGED_SE * se)
-            # no row crossed the rejection point and the model predicted the merit at the LP's
-            # point to within the stop's sliver, over a step it describes: the LP has landed on
-            # the optimum of an exact model, so another step would only confirm it (one from
-            # there moved < 0.012 SE at 8-32 x 2000; decision 0004)
-            same_rows = np.array_equal(np.abs(r_new) <= REJECT_SIGMAS * state.scale, state.kept)
-            exact = (same_rows and abs(new_cost - predicted) <= CONVERGED_GAIN * len(d)
-                     and np.all(np.abs(d) < RELINEARISE_SE * se))
             x_out = x_new
-            if small or exact:
+            if _landed(state, d, r_new, new_cost, predicted, se_phase):
                 status = "converged"
                 break
             # the robust scale stays fixed within a phase: one M-estimator, one merit
@@ -311,14 +300,48 @@ def _slp(model: WandModel, x: np.ndarray, progress, max_iter: int, time_limit, p
             })
     return x_out, {
         "iterations": it,
-        "lp_seconds": lp_seconds,
-        "lp_rows_mean": float(np.mean(lp_rows)) if lp_rows else 0.0,
+        "lp_seconds": tally.seconds,
+        "lp_rows_mean": float(np.mean(tally.rows)) if tally.rows else 0.0,
         "status": status,
         "robust_scale_px": state.scale,
-        "uncertified_steps": uncertified,
+        "uncertified_steps": tally.uncertified,
         "irls_steps": irls_steps,
-        "lp_steps": lp_log,
+        "lp_steps": tally.log,
     }, state
+
+
+@dataclass
+class _LpTally:
+    """A phase's LP steps so far: seconds, LP rows (pairs) per step, (rows, rounds, HiGHS
+    iterations, seconds) per step, and how many steps were left uncertified."""
+
+    seconds: float = 0.0
+    rows: list[int] = field(default_factory=list)
+    log: list[tuple] = field(default_factory=list)
+    uncertified: int = 0
+
+    def add(self, lp_info: dict) -> None:
+        """Count one step's info (:func:`wandcal.calib.solve.lpstep.solve_step`)."""
+        self.seconds += lp_info["seconds"]
+        self.rows.append(lp_info["rows"])
+        self.log.append((lp_info["rows"], lp_info["rounds"], lp_info["iterations"], round(lp_info["seconds"], 3)))
+        self.uncertified += lp_info["status"] == "uncertified"
+
+
+def _landed(state: ReducedSystem, d: np.ndarray, r_new: np.ndarray, new_cost: float, predicted: float,
+            se_phase: np.ndarray | None) -> bool:
+    """Whether a step ``d`` (n,) that lowered the merit ends the phase: it is below
+    ``CONVERGED_SE`` standard errors, or it is exact. Exact: no row crossed the rejection point
+    (residuals ``r_new`` (R, 2) pixels) and the model predicted the merit at the LP's point to
+    within the stop's sliver, over a step it describes: the LP has landed on the optimum of an
+    exact model, so another step would only confirm it (one from there moved < 0.012 SE at 8-32
+    x 2000; decision 0004)."""
+    se = state.standard_errors() if se_phase is None else se_phase
+    small = np.all(np.abs(d) < CONVERGED_SE * se)
+    same_rows = np.array_equal(np.abs(r_new) <= REJECT_SIGMAS * state.scale, state.kept)
+    exact = (same_rows and abs(new_cost - predicted) <= CONVERGED_GAIN * len(d)
+             and np.all(np.abs(d) < RELINEARISE_SE * se))
+    return bool(small or exact)
 
 
 def _irls(model: WandModel, state: ReducedSystem, loss, rho: np.ndarray, se: np.ndarray, progress, phase: str,

@@ -10,6 +10,7 @@ dual feasible: ipm.certified_duals), or, where it is not, HiGHS's simplex carrie
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -61,22 +62,8 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     Given ``d_pred`` (an IRLS solution of the same rows, calib/solve/lp.py), the LP is instead written
     about it, in the step's change ``d - d_pred``: the rows start in the intervals of their
     predicted residuals, so only rows within ``near`` of a breakpoint there (and those the
-    solves push across) enter the LP. The answer is the same LP's optimum, certified the same way.
-
-    The LP is solved in its dual form, where pairs are columns:
-        min sum_q -s_q beta_q y_q - lo . u+ + hi . u-
-        s.t. sum_q s_q A_q y_q - u+ + u- = -c_fold,  0 <= y_q <= jump_q,
-    for the primal  min c_fold . d + sum_q jump_q max(s_q (A_q d + beta_q), 0) over lo <= d <= hi,
-    with s_q = +1 for right hinges and -1 for left ones. The step d is the row duals: where
-    0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0, the row on its breakpoint. Each
-    solve (the first and each after a widening) runs the interior-point method on every pair so
-    far, and the basis its point names is certified optimal as it is (the vertex's values within
-    their bounds, its reduced costs of the right signs, to HiGHS's tolerances): that basis was
-    optimal, with no simplex iteration, on every LP step measured at 8-32 x 2000 (decision 0004,
-    fifth session), and the answer is its vertex, as exact as a cold simplex. Where the check
-    fails, HiGHS's dual simplex starts from that basis. Cold, the dual simplex took ~3.5
-    iterations per camera parameter, each pricing every dense column: ~cameras^3. The first
-    round's interior point stops early once rows leave their pieces (``EARLY_LEAVE``).
+    solves push across) enter the LP. The answer is the same LP's optimum, certified the same way
+    (the dual form and its certificate: :func:`_solve_rounds`).
 
     Args:
         state: the reduced rows at the current state.
@@ -109,27 +96,57 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         z_pred = b
     near = near * state.scale
     base = np.searchsorted(P, b)  # the interval each row starts in: P[base - 1] < b <= P[base]
-    c_fold = state.folded_cost(np.where(kept, S[base], 0.0).reshape(-1, 2))
     lo = np.where(kept, np.searchsorted(P, np.minimum(b, z_pred) - near), 0)
     hi = np.where(kept, np.searchsorted(P, np.maximum(b, z_pred) + near) - 1, -1)
+    rows = _Rows(state, P, S, b, kept, base)
+    d, info = _solve_rounds(rows, rho, d_ref, d_pred, guard, lo, hi, time_limit)
+    return (None if d is None else d + d_ref), info
+
+
+@dataclass(frozen=True)
+class _Rows:
+    """The reduced rows of one LP step: ``P`` (K,) breakpoints and ``S`` (K + 1,) interval slopes
+    of the loss, pixels; ``b`` (2R,) the residuals the LP is written about, pixels; ``kept`` (2R,)
+    bool; ``base`` (2R,) the interval each row starts in."""
+
+    state: ReducedSystem
+    P: np.ndarray
+    S: np.ndarray
+    b: np.ndarray
+    kept: np.ndarray
+    base: np.ndarray
+
+
+def _solve_rounds(rows: _Rows, rho, d_ref, d_pred, guard, lo, hi, time_limit):
+    """The rounds of :func:`solve_step` from the first working set ``lo``..``hi`` (breakpoint
+    indices per row): (the LP's step about ``d_ref`` (n,) or None, info dict).
+
+    The LP is solved in its dual form, where pairs are columns:
+        min sum_q -s_q beta_q y_q - lo . u+ + hi . u-
+        s.t. sum_q s_q A_q y_q - u+ + u- = -c_fold,  0 <= y_q <= jump_q,
+    for the primal  min c_fold . d + sum_q jump_q max(s_q (A_q d + beta_q), 0) over lo <= d <= hi,
+    with s_q = +1 for right hinges and -1 for left ones. The step d is the row duals: where
+    0 < y_q < jump_q, stationarity gives A_q d + beta_q = 0, the row on its breakpoint. Each
+    solve (the first and each after a widening) runs the interior-point method on every pair so
+    far, and the basis its point names is certified optimal as it is (the vertex's values within
+    their bounds, its reduced costs of the right signs, to HiGHS's tolerances): that basis was
+    optimal, with no simplex iteration, on every LP step measured at 8-32 x 2000 (decision 0004,
+    fifth session), and the answer is its vertex, as exact as a cold simplex. Where the check
+    fails, HiGHS's dual simplex starts from that basis. Cold, the dual simplex took ~3.5
+    iterations per camera parameter, each pricing every dense column: ~cameras^3. The first
+    round's interior point stops early once rows leave their pieces (``EARLY_LEAVE``).
+    """
+    state, P, b, kept = rows.state, rows.P, rows.b, rows.kept
+    c_fold = state.folded_cost(np.where(kept, rows.S[rows.base], 0.0).reshape(-1, 2))
     n = len(rho)
-    old_lo, old_hi = base, base - 1  # nothing modelled yet
+    old_lo, old_hi = rows.base, rows.base - 1  # nothing modelled yet
     trust_lo, trust_hi = -rho - d_ref, rho - d_ref  # the trust region, in the LP's variable
     seconds, d, rounds, total, certified, iterations = 0.0, None, 0, 0, False, 0
     cols_A, cols_c, cols_u = [np.zeros((0, n))], [np.zeros(0)], [np.zeros(0)]  # the pairs so far, for the IPM
     for rounds in range(1, MAX_ACTIVE_ROUNDS + 1):
         box_lo = np.maximum(trust_lo, d_pred - guard)
         box_hi = np.minimum(trust_hi, d_pred + guard)
-        # the pairs not modelled before: below the old range and above it
-        rows_a, bps_a = _pairs(lo, np.minimum(hi, old_lo - 1))
-        rows_b, bps_b = _pairs(np.maximum(lo, old_hi + 1), hi)
-        rows_i, bps = np.r_[rows_a, rows_b], np.r_[bps_a, bps_b]
-        if len(rows_i):
-            side = np.where(bps >= base[rows_i], 1.0, -1.0)  # right hinge, or left hinge
-            A = state.rows(rows_i // 2, rows_i % 2) * side[:, None]
-            cost, jump = -side * (b[rows_i] - P[bps]), S[bps + 1] - S[bps]
-            cols_A.append(A), cols_c.append(cost), cols_u.append(jump)
-            total += len(rows_i)
+        total += _add_pairs(rows, lo, hi, old_lo, old_hi, cols_A, cols_c, cols_u)
         # the interior point names the basis (a point short of optimal, or a basis HiGHS finds
         # singular, only costs simplex iterations from there)
         deadline = None if time_limit is None else time.perf_counter() + time_limit
@@ -138,8 +155,8 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
         ipm = solve_dual_form(*lp_args, deadline, leave=leave)
         seconds += ipm.seconds
         if ipm.status == "time_limit":
-            return None, {"seconds": seconds, "rows": total, "status": "time_limit", "rounds": rounds,
-                          "iterations": iterations}
+            return None, _info(seconds, total, "time_limit", rounds, iterations)
+        bounds = (box_lo, box_hi, trust_lo, trust_hi)
         if ipm.status in ("optimal", "left") and rounds < MAX_ACTIVE_ROUNDS and not ipm.certified:
             # rows that the interior point's step takes past their modelled breakpoints need another
             # round whatever the basis's vertex (the two differ by ~1e-8 of the step): the basis is
@@ -148,39 +165,79 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
                 z = leave.z  # the residuals the question that stopped it was asked about
             else:
                 z = b + state.change(ipm.duals).ravel()
-            out_lo, out_hi = _left_rows(P, z, lo, hi, kept)
-            pinned = _pinned(ipm.duals, box_lo, box_hi, trust_lo, trust_hi, IPM_PINNED)
-            if out_lo.any() or out_hi.any() or pinned.any():
+            pinned = _still_open(rows, z, lo, hi, ipm.duals, bounds, IPM_PINNED)
+            if pinned is not None:
                 old_lo, old_hi = lo, hi
                 guard, lo, hi = _widened(guard, lo, hi, P, z, kept, pinned, WIDEN_NEAR * state.scale)
                 continue
-        # the basis the interior point names, certified optimal as it is (the usual case, mostly
-        # by the interior point itself a few iterations before its end); else HiGHS's dual simplex
-        # from it
-        started = time.perf_counter()
-        d = ipm.duals if ipm.certified else certified_duals(*lp_args, ipm.basic, ipm.at_upper) if ipm.status == "optimal" else None
-        seconds += time.perf_counter() - started
+        d, seconds, iterations, status = _vertex(ipm, lp_args, time_limit, rounds, seconds, iterations)
         if d is None:
-            res = _highs_vertex(lp_args, ipm, time_limit, FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
-            seconds += res.seconds
-            iterations += res.iterations
-            if res.status != "optimal" or res.row_duals is None:
-                # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
-                return None, {"seconds": seconds, "rows": total, "status": res.status, "rounds": rounds,
-                              "iterations": iterations}
-            d = res.row_duals.copy()
+            # a limit hit or a failure: no step is trusted, the caller keeps the best state so far
+            return None, _info(seconds, total, status, rounds, iterations)
         z = b + state.change(d).ravel()
-        out_lo, out_hi = _left_rows(P, z, lo, hi, kept)
-        pinned = _pinned(d, box_lo, box_hi, trust_lo, trust_hi, VERTEX_PINNED)
-        if not (out_lo.any() or out_hi.any() or pinned.any()):
+        pinned = _still_open(rows, z, lo, hi, d, bounds, VERTEX_PINNED)
+        if pinned is None:
             certified = True
             break
         old_lo, old_hi = lo, hi
         guard, lo, hi = _widened(guard, lo, hi, P, z, kept, pinned, WIDEN_NEAR * state.scale)
     # uncertified: the step is the optimum of a working set that some rows still leave; the
     # caller takes it only if it lowers the true merit, like any trust-region step
-    return d + d_ref, {"seconds": seconds, "rows": total, "status": "optimal" if certified else "uncertified",
-                       "rounds": rounds, "iterations": iterations}
+    return d, _info(seconds, total, "optimal" if certified else "uncertified", rounds, iterations)
+
+
+def _info(seconds: float, rows: int, status: str, rounds: int, iterations: int) -> dict:
+    """:func:`solve_step`'s info dict."""
+    return {"seconds": seconds, "rows": rows, "status": status, "rounds": rounds, "iterations": iterations}
+
+
+def _add_pairs(rows: _Rows, lo, hi, old_lo, old_hi, cols_A: list, cols_c: list, cols_u: list) -> int:
+    """Append the pairs of ``lo``..``hi`` not modelled before (below the old range ``old_lo``..
+    ``old_hi`` and above it) to the LP's columns: their rows (Q, n), costs (Q,) and jumps (Q,).
+    Returns Q."""
+    P, S, b = rows.P, rows.S, rows.b
+    rows_a, bps_a = _pairs(lo, np.minimum(hi, old_lo - 1))
+    rows_b, bps_b = _pairs(np.maximum(lo, old_hi + 1), hi)
+    rows_i, bps = np.r_[rows_a, rows_b], np.r_[bps_a, bps_b]
+    if len(rows_i):
+        side = np.where(bps >= rows.base[rows_i], 1.0, -1.0)  # right hinge, or left hinge
+        A = rows.state.rows(rows_i // 2, rows_i % 2) * side[:, None]
+        cost, jump = -side * (b[rows_i] - P[bps]), S[bps + 1] - S[bps]
+        cols_A.append(A)
+        cols_c.append(cost)
+        cols_u.append(jump)
+    return len(rows_i)
+
+
+def _still_open(rows: _Rows, z, lo, hi, d, bounds, tol: float) -> np.ndarray | None:
+    """None if the step ``d`` (n,), with residuals ``z`` (2R,) pixels, keeps every kept row among
+    its modelled pieces and touches no guard; else the (n,) parameters it pins to the guard."""
+    out_lo, out_hi = _left_rows(rows.P, z, lo, hi, rows.kept)
+    box_lo, box_hi, trust_lo, trust_hi = bounds
+    pinned = _pinned(d, box_lo, box_hi, trust_lo, trust_hi, tol)
+    if out_lo.any() or out_hi.any() or pinned.any():
+        return pinned
+    return None
+
+
+def _vertex(ipm, lp_args, time_limit, rounds: int, seconds: float, iterations: int):
+    """The vertex of the basis the interior point ``ipm`` names, certified optimal as it is (the
+    usual case, mostly by the interior point itself a few iterations before its end); else HiGHS's
+    dual simplex from it. Returns (d (n,) or None, seconds, iterations, status), the running
+    totals ``seconds`` and ``iterations`` carried on."""
+    A, c, jump, c_lo, c_hi, r = lp_args
+    started = time.perf_counter()
+    d = (ipm.duals if ipm.certified else certified_duals(A, c, jump, c_lo, c_hi, r, ipm.basic, ipm.at_upper)
+         if ipm.status == "optimal" else None)
+    seconds += time.perf_counter() - started
+    if d is not None:
+        return d, seconds, iterations, "optimal"
+    res = _highs_vertex(lp_args, ipm, time_limit, FIRST_STRATEGY if rounds == 1 else RESOLVE_STRATEGY)
+    seconds += res.seconds
+    iterations += res.iterations
+    if res.status != "optimal" or res.row_duals is None:
+        return None, seconds, iterations, res.status
+    return res.row_duals.copy(), seconds, iterations, "optimal"
 
 
 def _highs_vertex(lp_args, ipm, time_limit, strategy: int):

@@ -88,7 +88,8 @@ def height_pairs(R: np.ndarray, t: np.ndarray, X: np.ndarray, up: np.ndarray) ->
     than each camera, kept only where ``(R, t, X)`` satisfies it (else the LP may be infeasible)."""
     n_height = min(HEIGHT_CONSTRAINED_POINTS, len(X))
     ok = (X[:n_height] @ up)[:, None] <= (camera_centers(R, t) @ up)[None, :]
-    return np.nonzero(ok)
+    points, cameras = np.nonzero(ok)
+    return points, cameras
 
 
 def lp_step(
@@ -120,8 +121,6 @@ def lp_step(
     Returns:
         (t (N, 3), X (P, 3), LpResult).
     """
-    import scipy.sparse as sp
-
     from wandcal.calib.solve.backend.highs import INF, solve_lp
 
     p = problem
@@ -129,31 +128,12 @@ def lp_step(
     nt, nx = 3 * N, 3 * P
     n_slack = 4 * M  # s+ and s- for U and V
     cols = nt + nx + n_slack
-    # rows 2i (U_i) and 2i+1 (V_i): coeffs on x_p, on t_n, and the slack pair
-    Rc = R[p.camera]
-    u, v = p.xy[:, 0], p.xy[:, 1]
-    cx_u = u[:, None] * Rc[:, 2] - Rc[:, 0]
-    cx_v = v[:, None] * Rc[:, 2] - Rc[:, 1]
-    obs = np.arange(M)
-    rows, colidx, vals = [], [], []
-    for k, (cx, coord, meas) in enumerate(((cx_u, 0, u), (cx_v, 1, v))):
-        r = 2 * obs + k
-        for j in range(3):
-            rows.append(r), colidx.append(nt + 3 * p.point + j), vals.append(cx[:, j])
-        rows.append(r), colidx.append(3 * p.camera + 2), vals.append(meas)
-        rows.append(r), colidx.append(3 * p.camera + coord), vals.append(-np.ones(M))
-        rows.append(r), colidx.append(nt + nx + 2 * r), vals.append(-np.ones(M))
-        rows.append(r), colidx.append(nt + nx + 2 * r + 1), vals.append(np.ones(M))
+    entries = _projection_rows(R, p, nt, nx)
     n_rows = 2 * M
     row_lo = [np.zeros(2 * M)]
     row_hi = [np.zeros(2 * M)]
-    # eq. (extra): up . x_j <= up . C_n, with C_n = -R_n^T t_n linear in t_n
     jj, nn = height_pairs(R, t, X, up) if heights is None else heights
-    hr = n_rows + np.arange(len(jj))
-    Ru = np.einsum("nij,j->ni", R, up)  # up . (R^T t) = (R up) . t
-    for j in range(3):
-        rows.append(hr), colidx.append(nt + 3 * jj + j), vals.append(np.full(len(jj), up[j]))
-        rows.append(hr), colidx.append(3 * nn + j), vals.append(Ru[nn, j])
+    _height_rows(entries, R, up, jj, nn, n_rows, nt)
     n_rows += len(jj)
     row_lo.append(np.full(len(jj), -INF))
     row_hi.append(np.zeros(len(jj)))
@@ -162,32 +142,90 @@ def lp_step(
     if formulation in ("anchored", "per_frame"):
         for n in np.flatnonzero(fixed):
             col_lo[3 * n : 3 * n + 3] = col_hi[3 * n : 3 * n + 3] = t[n]
-        ends = X.reshape(-1, 2, 3)
-        d = ends[:, 1] - ends[:, 0]
-        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-        F = len(d)
-        fr = np.arange(F)
-        # one row for the mean length ("anchored"), or one row per frame ("per_frame")
-        wand_row = n_rows + (fr if formulation == "per_frame" else np.zeros(F, dtype=np.int64))
-        n_wand = F if formulation == "per_frame" else 1
-        target = p.length * (np.ones(F) if formulation == "per_frame" else np.array([F]))
-        for j in range(3):
-            rows.append(wand_row), colidx.append(nt + 3 * (2 * fr + 1) + j), vals.append(d[:, j])
-            rows.append(wand_row), colidx.append(nt + 3 * (2 * fr) + j), vals.append(-d[:, j])
+        target = _wand_rows(entries, X, p.length, formulation, n_rows, nt)
         row_lo.append(target)
         row_hi.append(target)
-        n_rows += n_wand
+        n_rows += len(target)
     elif formulation != "literal":
         raise ValueError(f"formulation must be 'anchored', 'per_frame' or 'literal', not {formulation!r}")
-    A = sp.csc_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(colidx))), shape=(n_rows, cols)
-    )
+    A = entries.matrix((n_rows, cols))
     cost = np.r_[np.zeros(nt + nx), np.ones(n_slack)]
     res = solve_lp(cost, A, np.concatenate(row_lo), np.concatenate(row_hi), col_lo, col_hi, time_limit, solver,
                    basis=basis)
     if not res:
         return t, X, res
     return res.x[:nt].reshape(N, 3), res.x[nt : nt + nx].reshape(P, 3), res
+
+
+class _Entries:
+    """The (row, column, value) entries of eq. (Li)'s sparse matrix, gathered block by block in
+    the order they are added."""
+
+    def __init__(self) -> None:
+        self.rows: list[np.ndarray] = []
+        self.cols: list[np.ndarray] = []
+        self.vals: list[np.ndarray] = []
+
+    def add(self, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> None:
+        self.rows.append(rows)
+        self.cols.append(cols)
+        self.vals.append(vals)
+
+    def matrix(self, shape: tuple[int, int]):
+        """The entries as a scipy CSC matrix of ``shape``."""
+        import scipy.sparse as sp
+
+        return sp.csc_matrix((np.concatenate(self.vals), (np.concatenate(self.rows), np.concatenate(self.cols))),
+                             shape=shape)
+
+
+def _projection_rows(R: np.ndarray, p: WandProblem, nt: int, nx: int) -> _Entries:
+    """Eq. (Li)'s rows 2i (U_i) and 2i+1 (V_i) of each observation i: coefficients on x_p (columns
+    ``nt + 3p ..``), on t_n (columns ``3n ..``) and on the slack pair (columns ``nt + nx + 2r ..``)."""
+    M = len(p.camera)
+    Rc = R[p.camera]
+    u, v = p.xy[:, 0], p.xy[:, 1]
+    cx_u = u[:, None] * Rc[:, 2] - Rc[:, 0]
+    cx_v = v[:, None] * Rc[:, 2] - Rc[:, 1]
+    obs = np.arange(M)
+    entries = _Entries()
+    for k, (cx, coord, meas) in enumerate(((cx_u, 0, u), (cx_v, 1, v))):
+        r = 2 * obs + k
+        for j in range(3):
+            entries.add(r, nt + 3 * p.point + j, cx[:, j])
+        entries.add(r, 3 * p.camera + 2, meas)
+        entries.add(r, 3 * p.camera + coord, -np.ones(M))
+        entries.add(r, nt + nx + 2 * r, -np.ones(M))
+        entries.add(r, nt + nx + 2 * r + 1, np.ones(M))
+    return entries
+
+
+def _height_rows(entries: _Entries, R: np.ndarray, up: np.ndarray, jj: np.ndarray, nn: np.ndarray, first_row: int,
+                 nt: int) -> None:
+    """Eq. (extra)'s rows from ``first_row`` on: up . x_j <= up . C_n for each pair (jj, nn) of
+    (point, camera), with C_n = -R_n^T t_n linear in t_n."""
+    hr = first_row + np.arange(len(jj))
+    Ru = np.einsum("nij,j->ni", R, up)  # up . (R^T t) = (R up) . t
+    for j in range(3):
+        entries.add(hr, nt + 3 * jj + j, np.full(len(jj), up[j]))
+        entries.add(hr, 3 * nn + j, Ru[nn, j])
+
+
+def _wand_rows(entries: _Entries, X: np.ndarray, length: float, formulation: str, first_row: int,
+               nt: int) -> np.ndarray:
+    """The wand-length rows from ``first_row`` on, linearised about the ends ``X`` (P, 3): one row
+    for the mean length ("anchored"), or one row per frame ("per_frame"). Returns their
+    right-hand sides, metres (one per row)."""
+    ends = X.reshape(-1, 2, 3)
+    d = ends[:, 1] - ends[:, 0]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    F = len(d)
+    fr = np.arange(F)
+    wand_row = first_row + (fr if formulation == "per_frame" else np.zeros(F, dtype=np.int64))
+    for j in range(3):
+        entries.add(wand_row, nt + 3 * (2 * fr + 1) + j, d[:, j])
+        entries.add(wand_row, nt + 3 * (2 * fr) + j, -d[:, j])
+    return length * (np.ones(F) if formulation == "per_frame" else np.array([F]))
 
 
 def _distance_left(centers: list[np.ndarray]) -> float:

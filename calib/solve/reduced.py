@@ -115,7 +115,10 @@ class ReducedSystem:
     def _set_scale(self, scale: float, by: np.ndarray | None = None) -> None:
         self.scale = scale
         self.kept = np.abs(self.r if by is None else by) <= REJECT_SIGMAS * self.scale  # (M, 2)
-        self._schur_cache = self._se_cache = self._factor_cache = self._inv_cache = None
+        self._schur_cache: tuple[np.ndarray, np.ndarray] | None = None  # (S, its right-hand side)
+        self._se_cache: np.ndarray | None = None
+        self._factor_cache: tuple[np.ndarray, bool] | None = None  # sla.cho_factor's (factor, lower)
+        self._inv_cache: np.ndarray | None = None
         self._eliminate()
 
     def rescaled(self, scale: float, by: np.ndarray | None = None) -> ReducedSystem:
@@ -149,13 +152,13 @@ class ReducedSystem:
     def standard_errors(self) -> np.ndarray:
         """(n_cam_params,) standard errors of the camera parameters from the reduced normal
         equations and the robust scale (valid near the optimum). Cached."""
-        if getattr(self, "_se_cache", None) is None:
+        if self._se_cache is None:
             self._se_cache = self.scale * np.sqrt(np.maximum(np.diag(self._schur_inverse()), 0.0))
         return self._se_cache
 
     def _schur_inverse(self) -> np.ndarray:
         """S^-1 of the free cameras (the reduced normal matrix's inverse), cached."""
-        if getattr(self, "_inv_cache", None) is None:
+        if self._inv_cache is None:
             self._inv_cache = np.linalg.inv(self._schur()[0])
         return self._inv_cache
 
@@ -230,7 +233,7 @@ class ReducedSystem:
     def schur_solve(self, g: np.ndarray) -> np.ndarray:
         """S^-1 g, (n_cam_params,), with S the Schur complement of the frames (the Gauss-Newton
         normal matrix, plus ``SCHUR_RIDGE``); its Cholesky factor is cached."""
-        if getattr(self, "_factor_cache", None) is None:
+        if self._factor_cache is None:
             S = self._schur()[0]
             self._factor_cache = sla.cho_factor(S + SCHUR_RIDGE * np.trace(S) / len(S) * np.eye(len(S)), lower=True,
                                                 check_finite=False)
@@ -247,7 +250,7 @@ class ReducedSystem:
         from H_f = V diag(l) V^T, D = sqrt(l + 2 eps) / (l + eps) (positive definite also where a
         frame's rows leave it singular), and two of the three per-observation products of the
         general weights are not needed."""
-        if getattr(self, "_schur_cache", None) is None:
+        if self._schur_cache is None:
             m, p = self.model, self.model.p
             free = self.free_cols
             CC = camera_grams(m, self.C, self.Wt * self.own[:, None])[m.free]

@@ -41,6 +41,18 @@ class BundleState:
     Q: np.ndarray | None = None  # (F, 3, 3) a planar wand's frame axes, or None
     dt: np.ndarray | None = None  # (N,) time offsets refined, frames, when the terms carry velocities
 
+    def refined_intr(self) -> np.ndarray:
+        """(N, 9) the intrinsics, for terms that fit raw pixels (they are refined then)."""
+        if self.intr is None:
+            raise ValueError("a term fits raw pixels, but the bundle state holds no intrinsics")
+        return self.intr
+
+    def refined_dt(self) -> np.ndarray:
+        """(N,) the time offsets in frames, for terms that carry velocities (they are refined then)."""
+        if self.dt is None:
+            raise ValueError("a term carries image velocities, but the bundle state holds no time offsets")
+        return self.dt
+
 
 @dataclass(frozen=True, eq=False)
 class TimeFit:
@@ -71,6 +83,9 @@ class _Term:
     normal equations take a chunk at a time."""
 
     camera: np.ndarray
+    xy: np.ndarray  # (M, 2) normalised image coordinates
+    focal: np.ndarray  # (M, 2) pixels per normalised unit
+    raw: tuple[np.ndarray, tuple[str, ...]] | None  # (uv (M, 2) raw pixels, refined intrinsics' names)
     # (M, 2) each observation's image velocity, residual pixels a frame, when the time offsets
     # are refined: the observation at the camera's offset moved by dt is xy - dt v, so r moves by +dt v
     velocity: np.ndarray | None = None
@@ -84,19 +99,27 @@ class _Term:
             out[sl] = self._residuals(s, sl)
         return out
 
-    def linearise_rows(self, s: BundleState, sl: slice):
+    def linearise_rows(self, s: BundleState, sl: slice) -> tuple[np.ndarray, np.ndarray]:
         """(r (K, 2), J (K, 2, c + p)) of the observations ``sl`` at ``s``: the camera's c
         parameters (w, t, refined intrinsics) first, then the block's p."""
         return self._linearise(s, sl)
 
+    def _residuals(self, s: BundleState, sl: slice) -> np.ndarray:
+        """(K, 2) pixel residuals of the observations ``sl``: each term's own model."""
+        raise NotImplementedError
+
+    def _linearise(self, s: BundleState, sl: slice) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`linearise_rows`, each term's own."""
+        raise NotImplementedError
+
     def _project(self, s: BundleState, X: np.ndarray, sl: slice) -> np.ndarray:
         xc = np.einsum("mij,mj->mi", s.R[self.camera[sl]], X) + s.t[self.camera[sl]]
         if self.raw is not None:
-            r = distorted_pixels(xc, s.intr[self.camera[sl]])[0] - self.raw[0][sl]
+            r = distorted_pixels(xc, s.refined_intr()[self.camera[sl]])[0] - self.raw[0][sl]
         else:
             r = (xc[:, :2] / xc[:, 2:3] - self.xy[sl]) * self.focal[sl]
         if self.velocity is not None:
-            r += s.dt[self.camera[sl], None] * self.velocity[sl]
+            r += s.refined_dt()[self.camera[sl], None] * self.velocity[sl]
         return r
 
 
@@ -187,12 +210,12 @@ def _linearised_projection(Y, s: BundleState, camera, Rc, xy, focal, raw, point_
         J = np.empty((len(Y), 2, CAM_PARAMS + timed + point_size))
         r = project_into(J, Y, s.t[camera], Rc, xy, focal, CAM_PARAMS + timed)
         J[:, :, CAM_PARAMS] = velocity
-        return r + s.dt[camera, None] * velocity, J
+        return r + s.refined_dt()[camera, None] * velocity, J
     uv, refine = raw
     k = sum(INTRINSICS[name] for name in refine)
     J = np.empty((len(Y), 2, CAM_PARAMS + k + timed + point_size))
     xc = Y + s.t[camera]
-    pixels, A, dintr = distorted_pixels(xc, s.intr[camera], refine)
+    pixels, A, dintr = distorted_pixels(xc, s.refined_intr()[camera], refine)
     J[:, 0, :3] = np.cross(Y, A[:, 0])
     J[:, 1, :3] = np.cross(Y, A[:, 1])
     J[:, :, 3:6] = A
@@ -202,7 +225,7 @@ def _linearised_projection(Y, s: BundleState, camera, Rc, xy, focal, raw, point_
     if velocity is None:
         return pixels - uv, J
     J[:, :, 6 + k] = velocity
-    return pixels - uv + s.dt[camera, None] * velocity, J
+    return pixels - uv + s.refined_dt()[camera, None] * velocity, J
 
 
 def distorted_pixels(xc: np.ndarray, intr: np.ndarray, refine: tuple[str, ...] | None = None):

@@ -17,6 +17,7 @@ by holding the cameras in ``fixed`` at their start (one camera: 6 DOF); scale co
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -85,6 +86,9 @@ class WandModel:
         plane0: (F, 3) a planar wand's start in-plane direction across its axis (made normal to
             the axis here); needed when ``problem.planar``.
     """
+
+    # the observations' sparse sums by frame and camera (wandcal.calib.solve.reduced.incidence), made once
+    _slp_incidence: dict[str, Any] | None = None
 
     def __init__(self, problem: WandProblem, R0: np.ndarray, t0: np.ndarray, wand0: np.ndarray, fixed: np.ndarray,
                  plane0: np.ndarray | None = None):

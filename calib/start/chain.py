@@ -160,20 +160,20 @@ def pair_pose(
         return Failure(f"{have} shared correspondences, {MIN_PAIR_MATCHES} needed")
     frames, tracks = spread(frames, MAX_PAIR_FRAMES), spread(tracks, MAX_PAIR_TRACKS)
     xa, xb = pairs.xy[views.wand[frames, a]], pairs.xy[views.wand[frames, b]]
-    ya = points.xy[views.track[tracks, a]] if len(tracks) else np.zeros((0, 2))
-    yb = points.xy[views.track[tracks, b]] if len(tracks) else np.zeros((0, 2))
+    ya = points.xy[views.track[tracks, a]] if points is not None and len(tracks) else np.zeros((0, 2))
+    yb = points.xy[views.track[tracks, b]] if points is not None and len(tracks) else np.zeros((0, 2))
     p1 = np.concatenate([xa[:, 0], xa[:, 1], xa[:, 0], xa[:, 1], ya])
     p2 = np.concatenate([xb[:, 0], xb[:, 1], xb[:, 1], xb[:, 0], yb])
     threshold = ESSENTIAL_THRESHOLD_PX / focal_px
     E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.USAC_DEFAULT, ESSENTIAL_CONFIDENCE, threshold)
     if E is None or E.shape[1:] != (3,) or len(E) < 3:
         return Failure("no essential matrix fits their shared observations")
-    best = None
-    for k in range(len(E) // 3):  # the five-point solver may return several essential matrices
-        n_front, R, u, _ = cv2.recoverPose(E[3 * k : 3 * k + 3], p1, p2, np.eye(3), mask=mask.copy())
-        if best is None or n_front > best[0]:
-            best = (n_front, R, u.ravel())
-    _, R, u = best
+    # the five-point solver may return several essential matrices: the first with most points in front
+    poses = [
+        cv2.recoverPose(E[3 * k : 3 * k + 3], p1, p2, np.eye(3), mask=mask.copy()) for k in range(len(E) // 3)
+    ]
+    _, R, u, _ = max(poses, key=lambda pose: pose[0])
+    u = u.ravel()
     S = len(frames)
     same = _sampson(R, u, xa[:, 0], xb[:, 0]) + _sampson(R, u, xa[:, 1], xb[:, 1])
     cross = _sampson(R, u, xa[:, 0], xb[:, 1]) + _sampson(R, u, xa[:, 1], xb[:, 0])

@@ -102,7 +102,7 @@ class _State:
             self.edges[(a, b)] = pair_pose(self.pairs, self.points, self.views, a, b, 0.5 * (self.focal(a) + self.focal(b)))
         return self.edges[(a, b)]
 
-    def seen_points(self, c: int):
+    def seen_points(self, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What the placed cameras triangulate of what camera c sees (:func:`wandcal.calib.start.resection.placed_points`)."""
         return placed_points(self.pairs, self.points, self.views, self.R, self.t, self.rank, c, self.rig.wand_length)
 
@@ -176,7 +176,7 @@ def _start_pair(st: _State) -> None:
             continue
         pose = st.edge(a, b)
         scale = _scale_of_start(st, pose) if pose else pose
-        if not scale:
+        if not pose or not scale:  # scale is the pose's Failure when there is no pose
             reasons.append(f"{rig.cameras[a].id} and {rig.cameras[b].id}: {scale}")
             continue
         st.mark(a)
@@ -184,10 +184,10 @@ def _start_pair(st: _State) -> None:
         st.R[b], st.t[b] = pose.R, scale * pose.u
         st.source[a] = st.source[b] = "essential matrix"
         return
-    a, b = np.unravel_index(np.argmax(links), links.shape)
+    a, b = map(int, np.unravel_index(np.argmax(links), links.shape))
     raise CalibrationError(
         f"no two cameras can be placed from what they see together (best linked: {rig.cameras[a].id} and "
-        f"{rig.cameras[b].id}, {_describe(st.views, int(a), int(b))}"
+        f"{rig.cameras[b].id}, {_describe(st.views, a, b)}"
         + (f"; {'; '.join(reasons[:3])}" if reasons else f", {MIN_PAIR_MATCHES} correspondences needed")
         + "); wave the wand where several cameras see it at the same time"
     )
@@ -219,10 +219,10 @@ def _place_next(st: _State) -> None:
     link = np.where(st.placed[:, None], st.used, 0).max(0)
     score = np.where(st.placed, -1, np.maximum(2 * points, link))
     failures = []
-    for c in np.argsort(-score, kind="stable"):
+    for order in np.argsort(-score, kind="stable"):
+        c = int(order)
         if st.placed[c]:
             break
-        c = int(c)
         resect_first = points[c] >= MIN_RESECT_POINTS and 2 * points[c] >= link[c]
         steps = (_by_resection, _by_chain) if resect_first else (_by_chain, _by_resection)
         reasons = []
@@ -240,13 +240,13 @@ def _by_chain(st: _State, c: int) -> bool | Failure:
     """Chain camera c from its best-linked placed camera whose pair can be placed and scaled."""
     links = st.links[:, c]
     tried = []
-    for a in np.argsort(-links, kind="stable"):
-        a = int(a)
+    for order in np.argsort(-links, kind="stable"):
+        a = int(order)
         if not st.placed[a] or links[a] < MIN_PAIR_MATCHES:
             continue
         pose = st.edge(a, c)
         scale = _chain_scale(st, pose) if pose else pose
-        if not scale:
+        if not pose or not scale:  # scale is the pose's Failure when there is no pose
             tried.append(f"with {st.rig.cameras[a].id}: {scale}")
             continue
         st.R[c] = pose.R @ st.R[a]

@@ -22,7 +22,7 @@ MAX_RESECT_FRAMES = 100  # wand frames per resection (400 candidate matches): en
 MAX_RESECT_TRACKS = 300  # point tracks per resection
 MAX_TRIANGULATING_VIEWS = 3  # placed cameras that triangulate a point: enough for a start, and cheap to label
 MIN_RESECT_POINTS = 12  # PnP has six unknowns; twice as many points let RANSAC reject wrong matchings
-RESECT_THRESHOLD_PX = 4.0  # as wandcal.calib.start.static.resect: a start tolerates a few pixels
+RESECT_THRESHOLD_PX = 4.0  # a start tolerates a few pixels
 RESECT_CONFIDENCE = 0.9999
 RESECT_ITERATIONS = 2000
 UNPLACED = np.iinfo(np.int64).max
@@ -53,7 +53,7 @@ def placed_points(
     keep = np.all(np.isfinite(ends), axis=(1, 2))
     seen_t = views.track >= 0
     tracks = spread(np.flatnonzero(seen_t[:, c] & (seen_t[:, placed].sum(1) >= 2)), MAX_RESECT_TRACKS)
-    if len(tracks) == 0:
+    if points is None or len(tracks) == 0:  # no tracks without points (camera_views)
         return ends[keep], ends_xy[keep], np.zeros((0, 3)), np.zeros((0, 2))
     local, rows = _first_views(views.track[tracks], rank)
     X = triangulate_points(R, t, local, points.camera[rows], points.xy[rows], len(tracks))
@@ -67,8 +67,8 @@ def resect_camera(
 ) -> tuple[np.ndarray, np.ndarray] | Failure:
     """Camera pose (R (3, 3), t (3,)) from :func:`placed_points`' output: P3P inside RANSAC on
     both matchings of every wand frame's ends and on the tracks, then Levenberg-Marquardt on the
-    inliers. (:func:`wandcal.calib.start.static.resect` runs SQPnP on each RANSAC sample: four times slower for
-    the same start.)"""
+    inliers. (SQPnP on each RANSAC sample, the resection this replaced, was four times slower for the
+    same start.)"""
     have = 2 * len(ends) + len(X)
     if have < MIN_RESECT_POINTS:
         return Failure(f"resection: {have} triangulated points, {MIN_RESECT_POINTS} needed")

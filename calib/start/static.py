@@ -85,7 +85,7 @@ def solve_static(rig: Rig, static: StaticObservations) -> list[StaticPose | Fail
     """
     if rig.static_markers is None:
         return [Failure("the rig has no static object") for _ in rig.cameras]
-    out = []
+    out: list[StaticPose | Failure] = []
     for c, cam in enumerate(rig.cameras):
         uv = static.for_camera(c)
         if len(uv) == 0:
@@ -120,14 +120,14 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
     normal, lines = _object_shape(np.ascontiguousarray(markers, dtype=np.float64).tobytes(), m)
     # SQPnP on every possible labelling screens them; the survivors also get every P3P start (a
     # planar object's mirror pose, which SQPnP does not return)
-    screened = []
+    screened: list[tuple[float, np.ndarray]] = []  # (best SQPnP rms in pixels, labels)
     for perm in itertools.permutations(range(m), k):
         labels = np.array(perm)
         if lines and not _keeps_lines(labels, xy, lines):
             continue
-        starts = _pnp_starts(markers[labels], xy, p3p=False)
-        rms = [_rms_px(markers[labels], xy, R, t, focal_px) for R, t in starts]
-        screened.append((min(rms, default=np.inf), labels))
+        sqpnp = _pnp_starts(markers[labels], xy, p3p=False)
+        rms_each = [_rms_px(markers[labels], xy, R, t, focal_px) for R, t in sqpnp]
+        screened.append((min(rms_each, default=np.inf), labels))
     if not screened:
         return Failure(
             f"{where}: the static-object markers cannot be identified: no labelling of its blobs puts the "
@@ -135,13 +135,13 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
             "that only its markers are visible"
         )
     screen = max(SCREEN_RATIO * min((f[0] for f in screened), default=0.0), SCREEN_PX)
-    starts = []
-    for rms, labels in screened:
-        if rms <= screen:
+    starts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (R, t, labels)
+    for screened_rms, labels in screened:
+        if screened_rms <= screen:
             starts += [(R, t, labels) for R, t in _pnp_starts(markers[labels], xy)]
     fits = []
-    for R, t, labels in starts:
-        R, t = _refined(markers[labels], xy, R, t)
+    for R0, t0, labels in starts:
+        R, t = _refined(markers[labels], xy, R0, t0)
         if np.any(depth(R, t, markers[labels]) <= 0):
             continue
         # cameras look down on a floor-mounted object: a pose below its plane is the mirror image
@@ -258,7 +258,7 @@ def _largest_triangle(obj: bytes, k: int) -> tuple[int, ...]:
     points = np.frombuffer(obj).reshape(k, 3)
     best, area = (0, 1, 2), -1.0
     for tri in itertools.combinations(range(k), 3):
-        a = np.linalg.norm(np.cross(points[tri[1]] - points[tri[0]], points[tri[2]] - points[tri[0]]))
+        a = float(np.linalg.norm(np.cross(points[tri[1]] - points[tri[0]], points[tri[2]] - points[tri[0]])))
         if a > area:
             best, area = tri, a
     return best
@@ -272,40 +272,6 @@ def _plane_normal(markers: np.ndarray) -> np.ndarray | None:
         return None
     n = vt[2]
     return n if n[2] >= 0 else -n
-
-
-def resect(X: np.ndarray, xy: np.ndarray, focal_px: float, threshold_px: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray] | Failure:
-    """Robust camera resection from 3D-2D correspondences (PnP inside RANSAC).
-
-    Args:
-        X: (M, 3) world points, metres; xy: (M, 2) normalised coordinates (may hold wrong matches).
-        focal_px: focal length in pixels, to set the inlier threshold.
-
-    Returns:
-        (R, t, inlier mask (M,)) or a Failure.
-    """
-    if len(X) < 6:
-        return Failure(f"only {len(X)} correspondences for resection; at least 6 are needed")
-    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-        np.ascontiguousarray(X, dtype=np.float64),
-        np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 1, 2),
-        np.eye(3),
-        None,
-        iterationsCount=2000,
-        reprojectionError=threshold_px / focal_px,
-        confidence=0.9999,
-        flags=cv2.SOLVEPNP_SQPNP,
-    )
-    if not ok or inliers is None or len(inliers) < 6:
-        return Failure("resection found no consistent pose")
-    mask = np.zeros(len(X), bool)
-    mask[inliers.ravel()] = True
-    rvec, tvec = cv2.solvePnPRefineLM(X[mask], xy[mask].reshape(-1, 1, 2), np.eye(3), None, rvec, tvec)
-    R = rotvec_to_matrix(rvec)
-    t = np.asarray(tvec, float).ravel()
-    err = np.linalg.norm(project_normalized(R, t, X) - xy, axis=1) * focal_px
-    return R, t, err < threshold_px
-
 
 
 KABSCH_STEP_M = 1e-7  # forward-difference step of the rigid fit in a marker's coordinates: far above

@@ -7,8 +7,11 @@
 | :mod:`wandcal.capture.formats.argus` | Argus Wand's inputs: ``*-xypts.csv`` files and a camera profile |
 | :mod:`wandcal.capture.formats.svoboda` | a MultiCamSelfCal folder (``points.dat``, ``IdMat.dat``, ``Res.dat``, ``*.rad``) |
 | :mod:`wandcal.capture.formats.dltdv` | what easyWand and Argus share: profile rows, xypts tables, y-up pixels |
+| :mod:`wandcal.capture.formats.anipose` | anipose / Pose2Sim sessions: ``calibration.toml`` and the 2D keypoints |
+| :mod:`wandcal.capture.formats.deeplabcut` | 2D keypoints from DeepLabCut CSVs and aniposelib points arrays |
 | :mod:`wandcal.capture.formats.summary` | :class:`Imported` (the capture and what could not be used) and its printout |
 | :mod:`wandcal.capture.formats.export` | :func:`export`: a result in any camera format below, by name |
+| :mod:`wandcal.capture.formats.cameras_in` | any camera format ``wandcal export`` writes, read back as a rig (``wandcal import cameras``) |
 | :mod:`wandcal.capture.formats.cameras` | :class:`PosedCameras`, what every camera format writes and reads back |
 | :mod:`wandcal.capture.formats.anipose_opencv` | anipose ``calibration.toml`` and OpenCV YAML |
 | :mod:`wandcal.capture.formats.dlt` | DLT coefficients (DLTdv, easyWand, Argus) |

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wandcal.calib.rig import Rig
+from wandcal.calib.rig import AxisObservations, Rig
 from wandcal.capture.folder import Capture, CaptureFormatError
 from wandcal.capture.formats.dltdv import (
     AXIS_ROLES_BY_COUNT,
@@ -82,7 +82,7 @@ def read_argus(paired: str | Path, profile: str | Path, wand_length_m: float, un
     return Imported(Capture(rig=rig, wand=wand, static=None, points=points, axis=axis), source, tuple(notes))
 
 
-def _reference(table: XyTable, cameras) -> tuple[object, str]:
+def _reference(table: XyTable, cameras) -> tuple[AxisObservations | None, str]:
     """Reference points down the rows of one track, or one point per track in a common row."""
     n = len(cameras)
     tracks = table.values.shape[1] // (2 * n)

@@ -13,10 +13,11 @@ from pathlib import Path
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Rig
-from wandcal.capture.folder import RIG_FILE, CaptureFormatError, rig_to_json
+from wandcal.capture.folder import CaptureFormatError, rig_to_json
 from wandcal.capture.formats import dlt, qualisys_vicon
 from wandcal.capture.formats.anipose_opencv import read_anipose_toml, read_opencv_yaml
 from wandcal.capture.formats.cameras import BOTTOM_LEFT, PosedCameras
+from wandcal.drivers.capture_files import RIG_FILE
 
 POSES_FILE = "poses.json"
 CAMERA_FORMATS = ("anipose-toml", "opencv-yaml", "dlt-csv", "qca", "xcp")

@@ -55,6 +55,34 @@ def read_dlc_csv(path: Path, min_likelihood: float = DEFAULT_MIN_LIKELIHOOD) -> 
         rows = list(csv.reader(io.StringIO(path.read_text())))
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise CaptureFormatError(f"{path}: cannot read a DeepLabCut CSV ({exc})") from None
+    head, first, columns = _dlc_columns(rows, path)
+    body = rows[max(head.values()) + 1:]
+    frame, uv, label, left_out, seen_frames = [], [], [], 0, {}
+    for k, row in enumerate(body):
+        line = max(head.values()) + 2 + k
+        if not any(c.strip() for c in row):
+            continue
+        f = _frame(row[:first], path, line)
+        if f in seen_frames:
+            raise CaptureFormatError(f"{path} line {line}: frame {f} again (first on line {seen_frames[f]}); give each "
+                                     "frame once")
+        seen_frames[f] = line
+        for name, cols in columns.items():
+            xy = [_cell(row, cols[c], path, line) for c in ("x", "y")]
+            p = _cell(row, cols["likelihood"], path, line) if "likelihood" in cols else 1.0
+            if not np.all(np.isfinite(xy)) or not p >= min_likelihood:
+                left_out += 1
+                continue
+            frame.append(f)
+            uv.append(xy)
+            label.append(name)
+    return Keypoints(np.array(frame, dtype=np.int64), np.array(uv, dtype=float).reshape(-1, 2),
+                     np.array(label, dtype=str), left_out, str(path))
+
+
+def _dlc_columns(rows: list[list[str]], path: Path) -> tuple[dict[str, int], int, dict[str, dict[str, int]]]:
+    """A DeepLabCut CSV's header: (the row index of each of scorer/bodyparts/coords/individuals
+    present; the first keypoint column; each keypoint's name -> {"x"|"y"|"likelihood": column})."""
     head = {}
     for k, row in enumerate(rows[:len(HEADER_ROWS)]):
         key = (row[0] if row else "").strip().lower()
@@ -81,28 +109,7 @@ def read_dlc_csv(path: Path, min_likelihood: float = DEFAULT_MIN_LIKELIHOOD) -> 
     for name, cols in columns.items():
         if "x" not in cols or "y" not in cols or not name:
             raise CaptureFormatError(f"{path} line {head['bodyparts'] + 1}: keypoint {name!r} needs an x and a y column")
-    body = rows[max(head.values()) + 1:]
-    frame, uv, label, left_out, seen_frames = [], [], [], 0, {}
-    for k, row in enumerate(body):
-        line = max(head.values()) + 2 + k
-        if not any(c.strip() for c in row):
-            continue
-        f = _frame(row[:first], path, line)
-        if f in seen_frames:
-            raise CaptureFormatError(f"{path} line {line}: frame {f} again (first on line {seen_frames[f]}); give each "
-                                     "frame once")
-        seen_frames[f] = line
-        for name, cols in columns.items():
-            xy = [_cell(row, cols[c], path, line) for c in ("x", "y")]
-            p = _cell(row, cols["likelihood"], path, line) if "likelihood" in cols else 1.0
-            if not np.all(np.isfinite(xy)) or not p >= min_likelihood:
-                left_out += 1
-                continue
-            frame.append(f)
-            uv.append(xy)
-            label.append(name)
-    return Keypoints(np.array(frame, dtype=np.int64), np.array(uv, dtype=float).reshape(-1, 2),
-                     np.array(label, dtype=str), left_out, str(path))
+    return head, first, columns
 
 
 def read_points_npy(path: Path, n_cams: int, toml: str) -> list[Keypoints]:

@@ -147,6 +147,7 @@ def parse_xypts(text: str, source: str, n_cams: int, columns: int | None = None)
     header = rows[0] if rows and not _numeric(rows[0]) else None
     body = rows[1:] if header else rows
     has_frame = header is not None and header[0].strip().strip('"').lower() in FRAME_COLUMN_NAMES
+    frame_column = header[0] if header is not None else ""  # named in messages when has_frame
     first_line = 2 if header else 1
     frames, values = [], []
     width = None
@@ -174,7 +175,7 @@ def parse_xypts(text: str, source: str, n_cams: int, columns: int | None = None)
             ) from None
         if has_frame:
             if not _is_float(row[0]) or float(row[0]) != int(float(row[0])):
-                raise CaptureFormatError(f"{source} line {line}, column 1 ({header[0]}): {row[0]!r} is not a frame number")
+                raise CaptureFormatError(f"{source} line {line}, column 1 ({frame_column}): {row[0]!r} is not a frame number")
             frames.append(int(float(row[0])))
         else:
             frames.append(k)
@@ -254,9 +255,9 @@ def points_from_table(table: XyTable, cameras: list[Camera], first_frame: int) -
             frames.append(first_frame + t * span + table.frames[rows])
             cams.append(np.full(len(rows), c))
             uv.append(flip_v(xy[rows, t, c], cam.height))
-    frame, cam = np.concatenate(frames), np.concatenate(cams)
-    order = np.lexsort((cam, frame))
-    return PointObservations(frame[order], cam[order], np.concatenate(uv)[order])
+    frame, camera = np.concatenate(frames), np.concatenate(cams)
+    order = np.lexsort((camera, frame))
+    return PointObservations(frame[order], camera[order], np.concatenate(uv)[order])
 
 
 def first_free_frame(last_wand_frame: int) -> int:

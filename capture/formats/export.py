@@ -56,7 +56,7 @@ FORMAT_NAMES = ("anipose-toml", "opencv-yaml", "dlt-csv", "qca", "xcp")
 def export(result: dict, fmt: str, rig: Rig | None = None, unit: str | None = None, origin: str | None = None) -> str:
     """The result in format ``fmt``; ``unit`` and ``origin`` default to the format's own, and a
     choice the format cannot hold is refused with a message saying what it holds."""
-    from wandcal.capture.results import check_result
+    from wandcal.capture.result_file import check_result
 
     check_result(result, "the result", rig)  # the one reader: every field a writer uses is checked first
     table = formats()

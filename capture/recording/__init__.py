@@ -8,5 +8,7 @@ as they arrive, and the live guidance computed while it runs.
 | :mod:`~wandcal.capture.recording.record` | the ``wandcal-capture/1`` folder written as frame sets arrive |
 | :mod:`~wandcal.capture.recording.writer` | bounded-memory image writing |
 | :mod:`~wandcal.capture.recording.centroids` | the points level written as it goes |
+| :mod:`~wandcal.capture.recording.stamps` | a recording's camera timestamps (``sync.csv``) and frame rate (``capture.json``), read and checked |
+| :mod:`~wandcal.capture.recording.camera_rig` | the rig of the cameras a capture opens (rig.json or the simulated scene's) |
 | :mod:`~wandcal.capture.recording.live_guidance` | the guidance recomputed in the background while recording |
 """

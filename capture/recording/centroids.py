@@ -25,9 +25,9 @@ import numpy as np
 
 from wandcal.calib.detect import WAND_MARKERS, WAND_STILL_PRESENCE, static_markers_from_frames, wand_frames
 from wandcal.calib.rig import Rig, StaticObservations
-from wandcal.capture.folder import STATIC_COLUMNS, STATIC_FILE, WAND_COLUMNS, WAND_FILE, parse_wand_csv
+from wandcal.capture.folder import STATIC_COLUMNS, WAND_COLUMNS, parse_wand_csv
+from wandcal.drivers.capture_files import BLOBS_FILE, STATIC_FILE, WAND_FILE
 
-BLOBS_FILE = "blobs.csv"
 # Sets in the window that finds still markers during the wand run: 2 s at 100 fps, long enough
 # that the moving wand never holds half of them at one spot, short enough that a lamp switched
 # on mid-capture stops spoiling the live pairs within seconds.
@@ -57,8 +57,9 @@ class CentroidRecorder:
         self.rig = rig
         self.ids = rig.ids
         self.listener = listener
-        self._blobs = open(self.folder / BLOBS_FILE, "w")
-        self._wand = open(self.folder / WAND_FILE, "w")
+        # open for the recorder's life (rows are appended as sets arrive); close() closes them
+        self._blobs = open(self.folder / BLOBS_FILE, "w")  # noqa: SIM115
+        self._wand = open(self.folder / WAND_FILE, "w")  # noqa: SIM115
         self._blobs.write(_csv_line(WAND_COLUMNS))
         self._wand.write(_csv_line(WAND_COLUMNS))
         n = len(self.ids)

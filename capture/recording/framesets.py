@@ -86,9 +86,12 @@ class CameraSync:
 
     def drift_ppm(self) -> float | None:
         """How fast the camera clock runs against the trigger clock, parts per million."""
-        if self.offset_us is None or self.last_trigger_us == self.first_trigger_us:
+        offset, first_offset = self.offset_us, self.first_offset_us
+        first, last = self.first_trigger_us, self.last_trigger_us
+        # the first figures are set with the first offset, so all four are there or none
+        if offset is None or first_offset is None or first is None or last is None or last == first:
             return None
-        return 1e6 * (self.offset_us - self.first_offset_us) / (self.last_trigger_us - self.first_trigger_us)
+        return 1e6 * (offset - first_offset) / (last - first)
 
 
 @dataclass(eq=False)
@@ -214,7 +217,7 @@ class Assembler:
 
     def _finish(self, key: int, slot: _Slot) -> FrameSet:
         counter = key + (self.base or 0)
-        frames: list[Frame | None] = [None] * len(self.cameras)
+        frames: list[Frame | DetectedFrame | None] = [None] * len(self.cameras)
         for i, frame in slot.frames.items():
             frames[i] = frame if self._check_time(i, key, frame, slot.trigger_us) else None
         for i, f in enumerate(frames):

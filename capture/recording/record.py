@@ -14,13 +14,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from wandcal.calib.rig import Rig
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, rig_to_json
+from wandcal.capture.folder import rig_to_json
 from wandcal.capture.recording.centroids import CentroidRecorder
-from wandcal.capture.recording.framesets import FrameSet
+from wandcal.capture.recording.framesets import DetectedFrame, FrameSet
 from wandcal.capture.recording.writer import ImageWriter
-from wandcal.drivers.imagefolder import FRAMES_DIR, STATIC_DIR, SYNC_FILE, image_path, sync_header
+from wandcal.drivers.camera import Frame
+from wandcal.drivers.capture_files import FRAMES_DIR, LOG_FILE, RIG_FILE, STATIC_DIR, SYNC_FILE, WAND_FILE
+from wandcal.drivers.imagefolder import image_path, sync_header
 
-LOG_FILE = "capture.json"
 LOG_FORMAT = "wandcal-capture-log/1"
 
 
@@ -93,7 +94,7 @@ class Recorder:
         self.images = images or ImagePolicy()
         (self.folder / RIG_FILE).write_text(json.dumps(rig_to_json(rig), indent=2) + "\n")
         self.points = CentroidRecorder(self.folder, rig, listener)
-        self._sync = open(self.folder / SYNC_FILE, "w", newline="")
+        self._sync = open(self.folder / SYNC_FILE, "w", newline="")  # noqa: SIM115 - open for the recording's life; close() closes it
         self._csv = csv.writer(self._sync)
         self._csv.writerow(sync_header(self.ids))
         self._sync.flush()
@@ -104,7 +105,7 @@ class Recorder:
         """One set of the static-object recording: blobs and images (its timing is of no use)."""
         for c, (cid, frame) in enumerate(zip(self.ids, fs.frames)):
             if frame is not None:
-                self.points.add_static(c, frame.uv)
+                self.points.add_static(c, _detected(frame).uv)
                 if self.images.static and frame.image is not None:
                     self.writer.put(image_path(self.folder, STATIC_DIR, cid, self.static_sets), frame.image)
         self.static_sets += 1
@@ -116,7 +117,7 @@ class Recorder:
         write = self.images.writes(n)
         for c, (cid, frame) in enumerate(zip(self.ids, fs.frames)):
             if frame is not None:
-                self.points.add_wand(n, c, frame.uv)
+                self.points.add_wand(n, c, _detected(frame).uv)
                 if write and frame.image is not None:
                     self.writer.put(image_path(self.folder, FRAMES_DIR, cid, n), frame.image)
         self.points.flush()
@@ -137,3 +138,11 @@ class Recorder:
                 log = log | {"images": str(self.images), "detection": self.points.close()}
             finally:
                 (self.folder / LOG_FILE).write_text(json.dumps({"format": LOG_FORMAT, **log}, indent=2) + "\n")
+
+
+def _detected(frame: Frame | DetectedFrame) -> DetectedFrame:
+    """A recorded frame set's frame: detected in the capture loop, so it carries its blobs."""
+    if not isinstance(frame, DetectedFrame):
+        raise TypeError(f"camera {frame.camera_id}: the recorder takes frames after detection (DetectedFrame), not "
+                        "the driver's raw Frame")
+    return frame

@@ -120,6 +120,7 @@ class _Readers:
             if assembler.lead(i) > max_lead:
                 time.sleep(0.002)  # the others are behind: wait instead of piling frames up
                 continue
+            item: Frame | DetectedFrame | DriverError | None
             try:
                 item = cam.read(timeout=READ_TIMEOUT_S)
                 if item is not None:
@@ -146,7 +147,7 @@ class _Readers:
             t.join(timeout=2.0)
 
 
-def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path, rig: Rig, frames: int,
+def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path, rig: Rig, *, frames: int,
            static_frames: int = 0, rate_hz: float = 100.0, progress: Callable[[Progress], None] | None = None,
            between: Callable[[], None] | None = None, events: Callable[[str], None] | None = None,
            clock: Callable[[], float] = time.monotonic, images: ImagePolicy | None = None,
@@ -174,16 +175,7 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         :class:`CaptureResult`; a vanished trigger port or a failed camera ends the capture
         early with ``error`` set and everything recorded until then kept on disk.
     """
-    ids = [c.camera_id for c in cameras]
-    if ids != rig.ids:
-        raise DriverError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give one "
-                          "--camera per rig camera, in the same order, with matching ids (?id=...)")
-    for cam in cameras:
-        # a simulated camera plays the capture's script (the L-frame for the static sets, then the
-        # wand), as the operator does for a real rig; a count it cannot play stops here
-        script = getattr(cam, "script", None)
-        if script is not None:
-            script(static_frames, frames)
+    ids = _matching_ids(cameras, rig, static_frames, frames)
     n = len(cameras)
     # made first: settings that cannot work (an empty-volume model without its recording) stop here
     detectors = detect if isinstance(detect, list) else [CameraDetector(detect, camera=i) for i in ids]
@@ -200,12 +192,7 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
     error: str | None = None
     with contextlib.ExitStack() as stack:
         # devices first: a camera or trigger that cannot be set up leaves no half-made folder
-        for cam in cameras:
-            stack.enter_context(cam)
-            cam.configure(trigger_mode=TriggerMode.EXTERNAL if trigger else TriggerMode.FREE_RUN, fps=rate_hz)
-        if trigger is not None:
-            stack.enter_context(trigger)
-            trigger.set_rate(rate_hz)
+        _open_devices(stack, cameras, trigger, rate_hz)
         recorder = Recorder(out, rig, ImageWriter(buffer_frames(rate_hz, n, WRITE_SECONDS, frame_bytes)),
                             triggered=trigger is not None, images=images, listener=guidance)
         writer = recorder.writer
@@ -224,12 +211,7 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
             error = str(exc)
         finally:
             readers.join()
-            per_camera = {cid: _camera_stats(assembler, i) for i, cid in enumerate(ids)}
-            for cid, stats in per_camera.items():
-                drift = stats["clock_drift_ppm"]
-                if drift is not None and abs(drift) > DRIFT_WARN_PPM:
-                    say(f"camera {cid}: its clock ran {drift:+.0f} ppm against the trigger's, more than clock "
-                        "crystals drift; its timestamps may not be exposure times (check its timestamp source)")
+            per_camera = _per_camera(assembler, ids, say)
             result = CaptureResult(out, recorder.static_sets, recorder.frame_sets, loop.complete, per_camera,
                                    messages, error, writer.high_water, writer.max_queued)
             recorder.close({"static_sets": result.static_sets, "frame_sets": result.frame_sets,
@@ -237,6 +219,44 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
                             "messages": messages, "error": error, "rate_hz": rate_hz,
                             "writer_queue": {"bound": writer.max_queued, "high_water": writer.high_water}})
     return result
+
+
+def _matching_ids(cameras: list[CameraDriver], rig: Rig, static_frames: int, frames: int) -> list[str]:
+    """The cameras' ids, checked against the rig's; a simulated camera is given the capture's script."""
+    ids = [c.camera_id for c in cameras]
+    if ids != rig.ids:
+        raise DriverError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give one "
+                          "--camera per rig camera, in the same order, with matching ids (?id=...)")
+    for cam in cameras:
+        # a simulated camera plays the capture's script (the L-frame for the static sets, then the
+        # wand), as the operator does for a real rig; a count it cannot play stops here
+        script = getattr(cam, "script", None)
+        if script is not None:
+            script(static_frames, frames)
+    return ids
+
+
+def _open_devices(stack: contextlib.ExitStack, cameras: list[CameraDriver], trigger: SerialTrigger | None,
+                  rate_hz: float) -> None:
+    """Open and configure every camera, then the trigger, on ``stack`` (closed with it)."""
+    for cam in cameras:
+        stack.enter_context(cam)
+        cam.configure(trigger_mode=TriggerMode.EXTERNAL if trigger else TriggerMode.FREE_RUN, fps=rate_hz)
+    if trigger is not None:
+        stack.enter_context(trigger)
+        trigger.set_rate(rate_hz)
+
+
+def _per_camera(assembler: Assembler, ids: list[str], say: Callable[[str], None]) -> dict[str, dict]:
+    """Each camera's delivery figures (:func:`_camera_stats`); a clock drifting past
+    ``DRIFT_WARN_PPM`` against the trigger's is said."""
+    per_camera = {cid: _camera_stats(assembler, i) for i, cid in enumerate(ids)}
+    for cid, stats in per_camera.items():
+        drift = stats["clock_drift_ppm"]
+        if drift is not None and abs(drift) > DRIFT_WARN_PPM:
+            say(f"camera {cid}: its clock ran {drift:+.0f} ppm against the trigger's, more than clock "
+                "crystals drift; its timestamps may not be exposure times (check its timestamp source)")
+    return per_camera
 
 
 def _camera_stats(assembler: Assembler, i: int) -> dict:
@@ -267,7 +287,7 @@ class _Loop:
         error = None
         while self.done < self.total:
             if self.trigger is not None and not self.asm.pulses_ended:
-                error = self._take_pulses() or error
+                error = self._take_pulses(self.trigger) or error
             self._take_frames()
             before = self.done
             self._emit(self.asm.ready())
@@ -297,9 +317,9 @@ class _Loop:
             error = error or "; ".join(self.failed)
         return error
 
-    def _take_pulses(self) -> str | None:
+    def _take_pulses(self, trigger: SerialTrigger) -> str | None:
         try:
-            while (pulse := self.trigger.next_pulse(timeout=0)) is not None:
+            while (pulse := trigger.next_pulse(timeout=0)) is not None:
                 self.asm.add_pulse(pulse.counter, pulse.t_us)
                 for cam in self.wired:
                     cam.trigger_input(pulse.counter, pulse.t_us)

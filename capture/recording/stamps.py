@@ -18,9 +18,9 @@ import numpy as np
 
 from wandcal.calib.rig import Rig
 from wandcal.capture.folder import CaptureFormatError
-from wandcal.drivers.imagefolder import SYNC_FILE, read_sync
+from wandcal.drivers.capture_files import LOG_FILE, SYNC_FILE
+from wandcal.drivers.imagefolder import read_sync
 
-LOG_FILE = "capture.json"  # capture/recording/record.py writes it
 MAX_RATE_HZ = 1e6  # no camera records a million frames a second; past it the number is a typo
 MAX_STAMP_US = 2**53  # ~285 years of microseconds: exact as a float, so no offset overflows
 

@@ -11,7 +11,7 @@ from fastapi import Depends, HTTPException, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from wandcal.service.jobs.queue import JobQueue
-from wandcal.service.limits import RateLimiter
+from wandcal.service.request_limits import RateLimiter
 from wandcal.service.settings import Settings
 from wandcal.service.storage import CaptureNotFound, CaptureRow, CaptureStore
 

@@ -36,7 +36,7 @@ BATCH_COMMANDS = frozenset({"simulate", "calibrate", "demo", "check", "detect", 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The parser. When ``argv`` names a command, only that command's module is imported; when it
-    names none (``wandcal --help``, ``--version``), every command is listed without its options;
+    names none, ``--help`` lists every command without its options, and ``--version`` needs none;
     ``argv`` None builds every command with all its options (the tests that walk them)."""
     parser = argparse.ArgumentParser(
         prog="wandcal", description="Capture and calibrate multi-camera motion-capture rigs with a wand."
@@ -44,6 +44,8 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--version", action=_Version, nargs=0, help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     command = next((a for a in (argv or []) if not a.startswith("-")), None)
+    if argv is not None and command is None and not {"-h", "--help"} & set(argv):
+        return parser  # --version, or no command at all (argparse says one is required): nothing to list
     named = [command] if command in COMMANDS else list(COMMANDS)
     for name in named:
         importlib.import_module(COMMANDS[name]).register(sub, arguments=argv is None or name == command)

@@ -1,4 +1,4 @@
-"""``python -m wandcal.service.cli``: the ``wandcal`` command (tests and the trigger emulator's child)."""
+"""``python -m wandcal.service.cli``: the ``wandcal`` command, as the tests and benches start it."""
 
 import sys
 

@@ -5,15 +5,10 @@ it reads beside the blobs is in :mod:`wandcal.service.cli.support.inputs`; what 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from wandcal.service.cli.support.args import MAX_SYNC_OFFSET, number, whole
+from wandcal.service.cli.support.args import arg_number, arg_whole
 
-# Bounds of the numeric options (exit 2 outside them). 10,000 paper rounds are ~40 min at 8 x 1500,
-# where the scheme converges in ~170; a day is a time limit no LP step needs.
-MAX_PAPER_ROUNDS = 10_000
-MAX_LP_SECONDS = 86_400.0
 RESULT_FILE = "result.json"  # the default method's result; the others get their own (result_path)
 
 
@@ -25,7 +20,8 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 
 def _arguments(p: argparse.ArgumentParser) -> None:
-    from wandcal.calib.run.calibrate import DEFAULT_METHOD, METHODS
+    # the bounds (exit 2 outside them) are the ones CalibrationOptions.check holds
+    from wandcal.calib.run.options import DEFAULT_METHOD, MAX_LP_SECONDS, MAX_PAPER_ROUNDS, MAX_SYNC_OFFSET, METHODS
     from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
     from wandcal.calib.solve.paper import MAX_ROUNDS
     from wandcal.calib.solve.reprojection import INTRINSICS
@@ -35,19 +31,21 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, help="result file (default: CAPTURE/result.json for ba, "
                    "CAPTURE/result-lp.json and CAPTURE/result-paper.json for the others, so that no method's "
                    "result replaces another's)")
+    # each option's dest is its CalibrationOptions field (tests/service/test_options_drift.py)
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"refinement method (default {DEFAULT_METHOD})")
-    p.add_argument("--max-rounds", type=whole(1, MAX_PAPER_ROUNDS), default=None, metavar="N",
+    p.add_argument("--max-rounds", type=arg_whole(1, MAX_PAPER_ROUNDS), default=None, metavar="N",
                    help=f"paper: most rotation/LP rounds, 1 to {MAX_PAPER_ROUNDS} (default {MAX_ROUNDS})")
-    p.add_argument("--lp-time-limit", type=number(0, MAX_LP_SECONDS, low_open=True), default=None, metavar="S",
-                   help="lp and paper: seconds allowed for each LP solve (default: no limit)")
-    p.add_argument("--keep-outliers", action="store_true", help="do not drop gross-outlier camera-frames")
+    p.add_argument("--lp-time-limit", dest="time_limit", type=arg_number(0, MAX_LP_SECONDS, low_open=True), default=None,
+                   metavar="S", help="lp and paper: seconds allowed for each LP solve (default: no limit)")
+    p.add_argument("--keep-outliers", dest="reject_outliers", action="store_false",
+                   help="do not drop gross-outlier camera-frames")
     p.add_argument("--loss", choices=LOSSES, default=DEFAULT_LOSS,
                    help=f"ba: robust loss (default {DEFAULT_LOSS}; 'linear' is plain least squares)")
     p.add_argument("--refine-intrinsics", type=_intrinsics_list, default=(), metavar="LIST",
                    help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
     p.add_argument("--sync", choices=SYNC_MODES, default=DEFAULT_SYNC,
                    help="auto: find each camera's time offset from the wand, for cameras without a trigger (docs/sync.md)")
-    p.add_argument("--sync-max-offset", type=whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
+    p.add_argument("--sync-max-offset", type=arg_whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
     p.add_argument("--sync-drift", action="store_true", help="with --sync auto: also each camera's rate difference")
     p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
@@ -92,30 +90,29 @@ def run_calibrate(args) -> int:
 
 
 def _calibrated(args, progress):
-    from wandcal.calib.errors import CalibrationError
+    from dataclasses import replace
+
     from wandcal.calib.run.calibrate import calibrate
+    from wandcal.calib.run.options import options_from
     from wandcal.capture.folder import read_capture
     from wandcal.service.cli.support.inputs import capture_rate, points_level, timestamp_start
 
     folder = points_level(args.capture, progress)
     cap = read_capture(folder)
-    if args.max_rounds is not None and args.method != "paper":
-        raise CalibrationError(f"--max-rounds counts the paper method's rounds; --method {args.method} has none "
-                               "(drop it, or add --method paper)")
-    if args.lp_time_limit is not None and args.method == "ba":
-        raise CalibrationError("--lp-time-limit bounds the LP solves of --method lp and paper; ba solves no LP "
-                               "(drop it, or choose one of those)")
+    rate = capture_rate(folder)
+    options = options_from(vars(args) | {"frame_rate_hz": rate})  # the flags by their fields' names
+    options.check()  # before the timestamps are read or a camera is re-solved
     if args.from_result is not None or args.solve_only:
-        return _solve_only(args, cap, progress)
-    options = {"max_rounds": args.max_rounds, "time_limit": args.lp_time_limit, "reject_outliers": not args.keep_outliers,
-               "loss": args.loss, "refine_intrinsics": args.refine_intrinsics, "sync": args.sync,
-               "sync_max_offset": args.sync_max_offset, "sync_drift": args.sync_drift, "frame_rate_hz": capture_rate(folder),
-               "sync_start": timestamp_start(folder, cap.rig, capture_rate(folder)) if args.sync == "auto" else None}
-    return calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress, options=options,
-                     points=cap.points, axis=cap.axis)
+        return _solve_only(args, cap, options, progress)
+    if options.sync == "auto":
+        start = timestamp_start(folder, cap.rig, rate)
+        options = replace(options, sync_start=tuple(int(s) for s in start) if start is not None else None)
+    return calibrate(cap.rig, cap.wand, cap.static, options=options, progress=progress, points=cap.points, axis=cap.axis)
 
 
-def _solve_only(args, cap, progress):
+def _solve_only(args, cap, options, progress):
+    """``--from RESULT --solve-only CAM[,CAM]`` with the checked ``options`` (a CalibrationOptions;
+    :func:`wandcal.calib.run.resolve.solve_only` refuses a method other than ba)."""
     from wandcal.calib.errors import CalibrationError
     from wandcal.calib.run.resolve import solve_only
     from wandcal.service.cli.support.inputs import result_for
@@ -123,13 +120,10 @@ def _solve_only(args, cap, progress):
     if args.from_result is None or not args.solve_only:
         raise CalibrationError("--from RESULT and --solve-only CAM[,CAM] go together: name the result to start from "
                                "and the cameras to re-solve")
-    if args.method != "ba" or args.refine_intrinsics:
-        raise CalibrationError("--solve-only re-solves poses with --method ba only, intrinsics held")
     prev, rig, R, t, entries = result_for(args.from_result, cap)
     if cap.wand is None or not len(cap.wand):
         raise CalibrationError(f"{args.capture}: has no wand blobs; --solve-only needs a fresh wand capture")
-    options = {"reject_outliers": not args.keep_outliers, "loss": args.loss}
-    return solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.doc.get("world", {}), entries,
+    return solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.result.world, entries,
                       progress=progress, options=options)
 
 
@@ -137,12 +131,14 @@ def result_path(capture: Path, method: str) -> Path:
     """Where ``wandcal calibrate CAPTURE --method METHOD`` writes without ``--out``: ``result.json``
     for the default method, ``result-METHOD.json`` for the others (a cross-check never replaces
     the result that report, export and check read by default)."""
-    from wandcal.calib.run.calibrate import DEFAULT_METHOD
+    from wandcal.calib.run.options import DEFAULT_METHOD
 
     return capture / (RESULT_FILE if method == DEFAULT_METHOD else f"result-{method}.json")
 
 
 def _write_result(args, doc: dict) -> int:
+    import json
+
     from wandcal.service.cli.support.summary import format_summary
 
     out = args.out or result_path(args.capture, args.method)
@@ -155,6 +151,8 @@ def _write_result(args, doc: dict) -> int:
 
 def _replaced(out: Path) -> str | None:
     """What an existing ``out`` holds, said when it is replaced: "ba result" or "file"."""
+    import json
+
     if not out.is_file():
         return None
     try:

@@ -4,7 +4,6 @@ wand capture."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 EXIT_MOVED = 1  # wandcal check: a camera moved (named)
@@ -24,6 +23,8 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 
 def run_check(args) -> int:
+    import json
+
     import numpy as np
 
     from wandcal.calib.errors import CalibrationError
@@ -38,7 +39,7 @@ def run_check(args) -> int:
     if cap.wand is None or not len(cap.wand) or cap.rig.wand_length is None:
         raise CalibrationError(f"{args.capture}: has no wand blobs; 'wandcal check' needs a fresh wand capture")
     _, rig, R, t, entries = result_for(args.result, cap)
-    expected = np.array([e.get("reprojection_rms_px") or np.nan for e in entries], float)
+    expected = np.array([e.reprojection_rms_px or np.nan for e in entries], float)
     checks = check_cameras(rig, R, t, cap.wand, None if np.isnan(expected).any() else expected)
     moved = [c.id for c in checks if c.moved]
     unjudged = [c.id for c in checks if c.moved is None]

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
-import tempfile
 from pathlib import Path
 
 from wandcal.service.cli.simulate import sim_args, simulated, write_simulated
@@ -14,7 +12,7 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
     p = sub.add_parser("demo", help="simulate a rig, calibrate it and compare with the truth")
     p.set_defaults(run=run_demo)
     if arguments:
-        from wandcal.calib.run.calibrate import DEFAULT_METHOD, METHODS
+        from wandcal.calib.run.options import DEFAULT_METHOD, METHODS
 
         sim_args(p, cameras=6, frames=800)
         p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD)
@@ -23,7 +21,11 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 
 def run_demo(args) -> int:
+    import json
+    import tempfile
+
     from wandcal.calib.run.calibrate import calibrate
+    from wandcal.calib.run.options import CalibrationOptions
     from wandcal.capture.folder import read_capture
     from wandcal.service.cli.support.progress import ProgressLine
     from wandcal.service.cli.support.summary import format_summary, truth_table
@@ -39,7 +41,8 @@ def run_demo(args) -> int:
         cap = read_capture(folder)
         progress = ProgressLine(quiet=args.quiet)
         try:
-            result = calibrate(cap.rig, cap.wand, cap.static, args.method, progress=progress)
+            result = calibrate(cap.rig, cap.wand, cap.static, options=CalibrationOptions(method=args.method),
+                               progress=progress)
         finally:
             progress.close()
         (folder / "result.json").write_text(json.dumps(result.to_json(), indent=2) + "\n")

@@ -9,12 +9,12 @@ recording and masks come from (docs/capture-format.md, "Detection inputs").
 from __future__ import annotations
 
 import argparse
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from wandcal.service.cli.support.args import whole
+from wandcal.drivers.capture_files import WAND_FILE
+from wandcal.service.cli.support.args import arg_number, arg_whole
 
 if TYPE_CHECKING:
     from wandcal.calib.detect.config import DetectConfig
@@ -28,23 +28,23 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
     p.set_defaults(run=run_detect)
     if arguments:
         p.add_argument("capture", type=Path, help="image-level capture folder")
-        p.add_argument("--workers", type=whole(1, MAX_WORKERS), default=None, metavar="N",
+        p.add_argument("--workers", type=arg_whole(1, MAX_WORKERS), default=None, metavar="N",
                        help=f"threads that decode and detect images, 1 to {MAX_WORKERS} (default: every core)")
-        p.add_argument("--quiet", action="store_true", help="no status line (there is none when stderr is not a terminal)")
+        p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
         add_detect_options(p)
 
 
 def run_detect(args) -> int:
     from wandcal.capture.folder import read_rig
     from wandcal.capture.images import detect_capture
-    from wandcal.service.cli.support.status_line import StatusLine, bar
+    from wandcal.service.cli.support.progress import ProgressLine, bar
 
     config = config_from_args(args)
-    status = StatusLine(quiet=args.quiet)
-    reports = detect_capture(args.capture, config, workers=args.workers,
-                             progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
-                             mask=mask_from_args(args), empty=args.background.folder)
-    status.done(f"detect: done, wrote {args.capture / 'wand.csv'} ({config.describe()})")
+    with ProgressLine(quiet=args.quiet) as status:
+        reports = detect_capture(args.capture, config, workers=args.workers,
+                                 progress=lambda p: status.update(f"detect {bar(p['done'], p['total'])}"),
+                                 mask=mask_from_args(args), empty=args.background.folder)
+        status.done(f"detect: done, wrote {args.capture / WAND_FILE} ({config.describe()})")
     rig = read_rig(args.capture)
     expected = None if rig.static_markers is None else len(rig.static_markers)
     for r in reports:
@@ -105,20 +105,7 @@ def _threshold(text: str) -> int | None:
 def _roundness(text: str) -> float | None:
     if text == "auto":
         return None
-    return _number(0.0, 1.0)(text)
-
-
-def _number(low: float, high: float = float("inf"), whole: bool = False):
-    def parse(text: str):
-        try:
-            value = int(text) if whole else float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a {'whole ' if whole else ''}number") from None
-        if not (low <= value <= high and math.isfinite(value)):
-            raise argparse.ArgumentTypeError(f"must lie between {low:g} and {high:g}, got {text}")
-        return value
-
-    return parse
+    return arg_number(0.0, 1.0)(text)
 
 
 def add_detect_options(p: argparse.ArgumentParser, live: bool = False) -> None:
@@ -131,12 +118,12 @@ def add_detect_options(p: argparse.ArgumentParser, live: bool = False) -> None:
     g.add_argument("--threshold", type=_threshold, default=d.threshold, metavar="GREY",
                    help="grey level a blob pixel must exceed, after the background is subtracted, or 'auto' "
                         "(default: auto, 6 noise sigmas above the background)")
-    g.add_argument("--seed-ratio", type=_number(1.0), default=d.seed_ratio, metavar="R",
+    g.add_argument("--seed-ratio", type=arg_number(1.0), default=d.seed_ratio, metavar="R",
                    help="each 4-connected piece of a blob must reach R x threshold (hysteresis; OpenPTV uses 2; "
                         f"default {d.seed_ratio:g}: off)")
-    g.add_argument("--min-area", type=_number(1, whole=True), default=d.min_area_px, metavar="PX",
+    g.add_argument("--min-area", type=arg_whole(1), default=d.min_area_px, metavar="PX",
                    help=f"smallest blob in pixels (default {d.min_area_px})")
-    g.add_argument("--max-area", type=_number(1, whole=True), default=d.max_area_px, metavar="PX",
+    g.add_argument("--max-area", type=arg_whole(1), default=d.max_area_px, metavar="PX",
                    help=f"largest blob in pixels (default {d.max_area_px})")
     g.add_argument("--min-roundness", type=_roundness, default=d.min_roundness, metavar="R",
                    help=f"smallest minor/major axis ratio, 0-1, or 'auto' (default: auto, {MARKER_MIN_ROUNDNESS:g} "

@@ -31,7 +31,7 @@ def _arguments(p: argparse.ArgumentParser) -> None:
 def run_export(args) -> int:
     from wandcal.capture.folder import CaptureFormatError
     from wandcal.capture.formats.export import export
-    from wandcal.capture.results import read_result
+    from wandcal.capture.result_file import read_result
 
     result = read_result(args.result)
     text = export(result.doc, args.format, result.rig, unit=args.unit, origin=args.origin)

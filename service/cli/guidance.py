@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from wandcal.service.cli.support.args import positive_number
+from wandcal.service.cli.support.args import arg_number, arg_positive
 
 if TYPE_CHECKING:
     from wandcal.calib.run.guidance import GuidanceSettings
@@ -33,10 +32,10 @@ def add_guidance_options(p: argparse.ArgumentParser) -> None:
     """The guidance's goal, shared by ``wandcal guidance`` and ``wandcal capture``."""
     from wandcal.calib.run.guidance import DEFAULT_MIN_COVERAGE, DEFAULT_TARGET_STD_MM
 
-    p.add_argument("--target-mm", type=positive_number, default=DEFAULT_TARGET_STD_MM, metavar="MM",
+    p.add_argument("--target-mm", type=arg_positive, default=DEFAULT_TARGET_STD_MM, metavar="MM",
                    help=f"enough when every camera's predicted centre 1-sigma is below this (default "
                         f"{DEFAULT_TARGET_STD_MM:g} mm)")
-    p.add_argument("--min-coverage", type=_share, default=DEFAULT_MIN_COVERAGE, metavar="SHARE",
+    p.add_argument("--min-coverage", type=arg_number(0, 1), default=DEFAULT_MIN_COVERAGE, metavar="SHARE",
                    help=f"... and its image grid is covered at least this much, 0-1 (default {DEFAULT_MIN_COVERAGE:g})")
     p.add_argument("--sync", choices=("none", "auto"), default="none",
                    help="auto: cameras without a trigger, judged with their frames realigned by the offsets found "
@@ -49,17 +48,9 @@ def settings_from(args) -> GuidanceSettings:
     return GuidanceSettings(target_std_mm=args.target_mm, min_coverage=args.min_coverage, sync=args.sync)
 
 
-def _share(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 <= value <= 1:
-        raise argparse.ArgumentTypeError(f"must lie between 0 and 1 (a share of the image grid), got {text}")
-    return value
-
-
 def run_guidance(args) -> int:
+    import json
+
     from wandcal.calib.run.guidance import wanding_guidance
     from wandcal.capture.folder import read_capture
 

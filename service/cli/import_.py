@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wandcal.service.cli.support.args import number, positive_number, whole
+from wandcal.service.cli.support.args import arg_number, arg_positive, arg_whole
 
 MAX_IMAGE_HEIGHT = 65_535  # the largest image side any camera format here can hold (16-bit)
 
@@ -34,7 +34,7 @@ def _formats(p: argparse.ArgumentParser) -> None:
     e.add_argument("--wand", type=Path, metavar="CSV",
                    help="wand points (2 tracks, y-up pixels) instead of a .mat; leave out for background points only")
     e.add_argument("--profile", type=Path, metavar="TXT", help="camera profile, with --wand")
-    e.add_argument("--wand-length", type=positive_number, metavar="M", help="wand marker distance in metres, with --wand")
+    e.add_argument("--wand-length", type=arg_positive, metavar="M", help="wand marker distance in metres, with --wand")
     e.add_argument("--background", type=Path, metavar="CSV", help="background (unpaired) points, with --wand")
     e.add_argument("--axis", type=Path, metavar="CSV", help="axis points (1-4 rows), with --wand")
     _common(e)
@@ -45,7 +45,7 @@ def _formats(p: argparse.ArgumentParser) -> None:
                                        "[--unpaired CSV] [--reference CSV] --out CAPTURE")
     a.add_argument("source", type=Path, metavar="PAIRED-xypts.csv", help="the wand's two tracks")
     a.add_argument("--profile", type=Path, required=True, metavar="TXT", help="Argus camera profile, a row per camera")
-    a.add_argument("--wand-length", type=positive_number, required=True, metavar="M", help="wand marker distance, metres")
+    a.add_argument("--wand-length", type=arg_positive, required=True, metavar="M", help="wand marker distance, metres")
     a.add_argument("--unpaired", type=Path, metavar="CSV", help="unpaired points -xypts.csv (written to points.csv)")
     a.add_argument("--reference", type=Path, metavar="CSV", help="reference points -xypts.csv (1-4 axis points)")
     _common(a)
@@ -61,7 +61,7 @@ def _formats(p: argparse.ArgumentParser) -> None:
                         "name, or CAMERA=FILE), or one aniposelib .npy array (cameras, frames, joints, 2)")
     n.add_argument("--unit", choices=("m", "mm"), default="m",
                    help="the TOML's translation unit (default m, as Pose2Sim; anipose uses its board's, often mm)")
-    n.add_argument("--min-likelihood", type=number(0.0, 1.0), default=None, metavar="P",
+    n.add_argument("--min-likelihood", type=arg_number(0.0, 1.0), default=None, metavar="P",
                    help="leave out DeepLabCut keypoints below this likelihood (default: DeepLabCut's pcutoff, 0.6)")
     n.add_argument("--out", type=Path, required=True, help="new capture folder")
     n.set_defaults(run=run_import_anipose)
@@ -78,21 +78,21 @@ def _formats(p: argparse.ArgumentParser) -> None:
                    help="dlt-csv: pixel origin the coefficients use (default bottom-left, DLTdv's)")
     c.add_argument("--size", action="append", type=_size, metavar="WxH",
                    help="dlt-csv: image size in pixels, once for all cameras or once per camera (repeat)")
-    c.add_argument("--wand-length", type=positive_number, metavar="M", help="write the wand into rig.json, metres")
+    c.add_argument("--wand-length", type=arg_positive, metavar="M", help="write the wand into rig.json, metres")
     c.add_argument("--out", type=Path, required=True, help="new folder for rig.json and poses.json")
     c.set_defaults(run=run_import_cameras)
 
     s = formats.add_parser("svoboda", help="a MultiCamSelfCal folder (points.dat, IdMat.dat, Res.dat)",
                            description="wandcal import svoboda FOLDER --out CAPTURE [--focal-px F]")
     s.add_argument("source", type=Path, metavar="FOLDER", help="the MultiCamSelfCal data folder")
-    s.add_argument("--focal-px", type=positive_number, metavar="F",
+    s.add_argument("--focal-px", type=arg_positive, metavar="F",
                    help="focal length for cameras without a .rad file (centred principal point, no distortion)")
     s.add_argument("--out", type=Path, required=True, help="new capture folder")
     s.set_defaults(run=run_import_svoboda)
 
 
 def _common(p) -> None:
-    p.add_argument("--height", type=whole(1, MAX_IMAGE_HEIGHT), metavar="H",
+    p.add_argument("--height", type=arg_whole(1, MAX_IMAGE_HEIGHT), metavar="H",
                    help="image height in pixels of every camera, when the session's is wrong")
     p.add_argument("--out", type=Path, required=True, help="new capture folder")
 
@@ -151,6 +151,7 @@ def run_import_anipose(args) -> int:
 def run_import_cameras(args) -> int:
     from wandcal.capture.folder import CaptureFormatError
     from wandcal.capture.formats.cameras_in import POSES_FILE, read_camera_file, write_cameras
+    from wandcal.drivers.capture_files import RIG_FILE
 
     out = args.out
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -162,7 +163,7 @@ def run_import_cameras(args) -> int:
     for cam, C in zip(rig.cameras, posed.centers):
         print(f"  {cam.id}: {cam.width}x{cam.height} px, f = {cam.K[0, 0]:.1f} px, centre "
               f"({C[0]:.4f}, {C[1]:.4f}, {C[2]:.4f}) m")
-    print(f"wrote {out / 'rig.json'} and {out / POSES_FILE}")
+    print(f"wrote {out / RIG_FILE} and {out / POSES_FILE}")
     return 0
 
 

@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 def run_report(args) -> int:
     from wandcal.capture.folder import read_capture
-    from wandcal.capture.results import read_result
+    from wandcal.capture.result_file import read_result
     from wandcal.service.report import ReportUnavailable, require_matplotlib, write_report
 
     try:

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import logging
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from wandcal.service.cli.support.args import whole
+from wandcal.service.cli.support.args import arg_whole
 
 if TYPE_CHECKING:
     from wandcal.service.settings import Settings
@@ -37,10 +35,10 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", help="address to bind (default 127.0.0.1, or 'host' from the settings)")
-    p.add_argument("--port", type=whole(1, MAX_PORT), help="port, 1 to 65535 (default 8750)")
+    p.add_argument("--port", type=arg_whole(1, MAX_PORT), help="port, 1 to 65535 (default 8750)")
     p.add_argument("--config", type=Path, help="settings TOML file (default $WANDCAL_CONFIG)")
     p.add_argument("--data-dir", type=Path, help="data directory (default $WANDCAL_DATA_DIR or ./wandcal-data)")
-    p.add_argument("--workers", type=whole(0, MAX_WORKERS), metavar="N",
+    p.add_argument("--workers", type=arg_whole(0, MAX_WORKERS), metavar="N",
                    help=f"solver processes, 0 to {MAX_WORKERS} (0: jobs stay queued; default 1)")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
 
@@ -51,9 +49,12 @@ def check_bind(settings: Settings) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import logging
+    import tempfile
+
     import uvicorn
 
-    from wandcal.service.connections import server_options
+    from wandcal.service.connection_limits import server_options
     from wandcal.service.main import create_app
     from wandcal.service.settings import Settings
 

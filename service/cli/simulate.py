@@ -4,10 +4,9 @@ options and run, which ``wandcal demo`` shares."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from wandcal.service.cli.support.args import MAX_SEED, number, whole
+from wandcal.service.cli.support.args import MAX_SEED, arg_number, arg_whole
 
 TRUTH_FILE = "truth.json"
 # The simulator holds every observation in memory (~100 bytes a camera-frame): 64 cameras by
@@ -28,10 +27,10 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
         p.add_argument("--shape", choices=("ring", "dome", "tiers", "hallway"), default=None,
                        help="a rig of this shape instead of the small default ring: 8 to 256 cameras, each frame seen by "
                        "2-4 of them, |k1| up to --max-k1 (calib/sim/shapes.py)")
-        p.add_argument("--size", type=number(3, 120), default=None, metavar="M",
+        p.add_argument("--size", type=arg_number(3, 120), default=None, metavar="M",
                        help="with --shape: the radius of a ring, dome or two tiers (3-15 m, default 10) or a hallway's "
                        "length (10-120 m, default 40)")
-        p.add_argument("--max-k1", type=number(0, 0.1), default=0.1, metavar="K",
+        p.add_argument("--max-k1", type=arg_number(0, 0.1), default=0.1, metavar="K",
                        help="with --shape: largest |k1| (default 0.1)")
 
 
@@ -39,17 +38,17 @@ def sim_args(p: argparse.ArgumentParser, cameras: int, frames: int, shapes: bool
     """The simulated rig's options, with the command's own defaults for its size (``shapes``: up to
     :data:`MAX_SHAPE_CAMERAS` cameras, for ``--shape``)."""
     most = MAX_SHAPE_CAMERAS if shapes else MAX_SIM_CAMERAS
-    p.add_argument("--cameras", type=whole(2, most), default=cameras, metavar="N",
+    p.add_argument("--cameras", type=arg_whole(2, most), default=cameras, metavar="N",
                    help=f"cameras on a ring around the volume, 2 to {MAX_SIM_CAMERAS} (default {cameras})"
                    + (f"; with --shape 8 to {MAX_SHAPE_CAMERAS}" if shapes else ""))
-    p.add_argument("--frames", type=whole(10, MAX_SIM_FRAMES), default=frames, metavar="N",
+    p.add_argument("--frames", type=arg_whole(10, MAX_SIM_FRAMES), default=frames, metavar="N",
                    help=f"wand frames, 10 to {MAX_SIM_FRAMES} (default {frames})")
-    p.add_argument("--noise", type=number(0, MAX_NOISE_PX), default=0.3, metavar="PX",
+    p.add_argument("--noise", type=arg_number(0, MAX_NOISE_PX), default=0.3, metavar="PX",
                    help="blob noise, pixels (std; default 0.3)")
-    p.add_argument("--outliers", type=number(0, 1, high_open=True), default=0.0, metavar="SHARE",
+    p.add_argument("--outliers", type=arg_number(0, 1, high_open=True), default=0.0, metavar="SHARE",
                    help="share of camera-frames with a gross outlier, 0 to below 1 (default 0)")
     p.add_argument("--no-static", action="store_true", help="no L-frame")
-    p.add_argument("--seed", type=whole(0, MAX_SEED), default=1,
+    p.add_argument("--seed", type=arg_whole(0, MAX_SEED), default=1,
                    help="random seed: the same seed gives the same rig (default 1)")
 
 
@@ -79,6 +78,8 @@ def _simulate_shape(args):
 
 def write_simulated(folder: Path, sim) -> None:
     """The capture folder and its truth.json."""
+    import json
+
     from wandcal.capture.folder import write_capture
 
     write_capture(folder, sim.rig, sim.wand, sim.static)

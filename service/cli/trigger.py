@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from wandcal.service.cli.support.args import whole
+from wandcal.service.cli.support.args import arg_whole
 
 MAX_DEVICE_US = 2**32 - 1  # the trigger's microsecond counter is 32 bits and wraps
 
@@ -15,9 +15,9 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
                        description="Speak wandcal-trigger/1 on a new pseudo-terminal; prints its path.")
     p.set_defaults(run=run_emulator)
     if arguments:
-        p.add_argument("--vanish-after", type=whole(0), default=None, metavar="N",
+        p.add_argument("--vanish-after", type=arg_whole(0), default=None, metavar="N",
                        help="close the terminal after N pulses, as if the board were unplugged (default: never)")
-        p.add_argument("--start-us", type=whole(0, MAX_DEVICE_US), default=0, metavar="US",
+        p.add_argument("--start-us", type=arg_whole(0, MAX_DEVICE_US), default=0, metavar="US",
                        help=f"device clock at start, 0 to {MAX_DEVICE_US} (near the top tests the wrap; default 0)")
 
 

@@ -84,5 +84,5 @@ class SQLiteQueue:
         done = []
         while (claim := self.store.claim(os.getpid())) is not None:
             run_claim(self.store, self.load_capture, claim)
-            done.append(self.store.get(claim.job.id))
+            done.append(self.store.stored(claim.job.id))
         return done

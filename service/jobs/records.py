@@ -100,14 +100,22 @@ class JobStore:
                 "INSERT INTO jobs (id, capture_id, method, options, state, created) VALUES (?, ?, ?, ?, ?, ?)",
                 (job_id, capture_id, method, json.dumps(options), JobState.queued.value, time.time()),
             )
-        return self.get(job_id)
+        return self.stored(job_id)
 
     def get(self, job_id: str) -> JobRecord | None:
         with connect(self.db_path) as conn:
             row = conn.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
         return JobRecord.from_row(row) if row else None
 
-    def list(self, capture_id: str | None = None, limit: int = 100) -> list[JobRecord]:
+    def stored(self, job_id: str) -> JobRecord:
+        """The record of a job this store holds (rows are never deleted); LookupError if it has none."""
+        record = self.get(job_id)
+        if record is None:
+            raise LookupError(f"job {job_id} has no row in {self.db_path}")
+        return record
+
+    def newest(self, capture_id: str | None = None, limit: int = 100) -> list[JobRecord]:
+        """Up to ``limit`` jobs, newest first: of one capture, or of all when ``capture_id`` is None."""
         query, args = "SELECT * FROM jobs", []
         if capture_id is not None:
             query, args = query + " WHERE capture_id = ?", [capture_id]
@@ -145,7 +153,7 @@ class JobStore:
                     row["id"],
                 ),
             )
-        return Claim(job=self.get(row["id"]), token=token)
+        return Claim(job=self.stored(row["id"]), token=token)
 
     def report_progress(self, job_id: str, token: str, progress: dict) -> bool:
         """Store the latest progress; returns True when the job should stop (cancelled or lost)."""
@@ -226,7 +234,8 @@ class JobStore:
         re-queue each once, fail it after :data:`MAX_ATTEMPTS`, finish it as cancelled if asked."""
         now = time.time()
         with transaction(self.db_path) as conn:
-            query, args = "SELECT * FROM jobs WHERE state = ?", [JobState.running.value]
+            query = "SELECT * FROM jobs WHERE state = ?"
+            args: list[str | int] = [JobState.running.value]
             if worker_pids is not None:
                 query += f" AND worker_pid IN ({','.join('?' * len(worker_pids))})"
                 args += list(worker_pids)
@@ -251,7 +260,7 @@ class JobStore:
                         row["id"],
                     ),
                 )
-        return [self.get(r["id"]) for r in rows]
+        return [self.stored(r["id"]) for r in rows]
 
     def cancelling(self) -> dict[str, int]:
         """{job id: worker pid} of running jobs asked to cancel."""

@@ -30,6 +30,7 @@ from collections.abc import Callable
 from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import Capture, parse_static_csv, parse_wand_csv
 from wandcal.capture.rig_file import rig_from_json
+from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.jobs.queue import QueueUnavailable
 from wandcal.service.jobs.records import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
 from wandcal.service.jobs.worker import JobStopped, ThrottledProgress, solve
@@ -81,9 +82,9 @@ def run_payload(payload: dict) -> dict:
 
     job = get_current_job()
     files = payload["files"]
-    rig = rig_from_json(json.loads(files["rig.json"]))
-    wand = parse_wand_csv(files["wand.csv"], rig)
-    static = parse_static_csv(files["static.csv"], rig) if files.get("static.csv") else None
+    rig = rig_from_json(json.loads(files[RIG_FILE]))
+    wand = parse_wand_csv(files[WAND_FILE], rig)
+    static = parse_static_csv(files[STATIC_FILE], rig) if files.get(STATIC_FILE) else None
     capture = Capture(rig=rig, wand=wand, static=static)
 
     def report(progress: dict) -> bool:
@@ -298,7 +299,8 @@ class RedisQueue:
 
         ids = list(self.queue.get_job_ids())
         SimpleWorker([self.queue], connection=self.redis).work(burst=True)
-        return [self.refresh(i) for i in ids]
+        records = [self.refresh(i) for i in ids]
+        return [r for r in records if r is not None]  # all: a job has its row (JobStore.create) before it is submitted
 
 
 def _last_line(text: str | None) -> str | None:

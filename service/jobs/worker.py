@@ -14,6 +14,7 @@ server decides how they stop.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import logging
 import multiprocessing
@@ -30,10 +31,10 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import Capture
 from wandcal.service.db import disk_full
 from wandcal.service.jobs.records import Claim, JobState, JobStore
+from wandcal.service.schemas import JobOptions
 
 log = logging.getLogger("wandcal.worker")
 
-SYNC_OPTIONS = ("sync_max_offset", "sync_drift", "frame_rate_hz")  # job options calibrate() takes as they are
 PROGRESS_INTERVAL_S = 0.2  # write progress at most this often: the page polls every second
 POLL_INTERVAL_S = 0.25  # an idle worker looks for work this often (and at once when woken)
 MONITOR_INTERVAL_S = 0.5  # the pool checks for dead workers and overdue cancellations this often
@@ -50,12 +51,14 @@ class JobStopped(Exception):
 
 
 def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict], None]) -> dict:
-    """Calibrate a capture; returns the ``wandcal-result/1`` document."""
+    """Calibrate a capture with a job's ``options`` (as stored: ``JobOptions``'s JSON, any field
+    left out taking its default); returns the ``wandcal-result/1`` document."""
     from wandcal.calib.run.calibrate import calibrate  # the solver; imported here so the API process never loads it
 
-    static = capture.static if options.get("use_static", True) else None
-    result = calibrate(capture.rig, capture.wand, static=static, method=method, progress=progress,
-                       points=capture.points, axis=capture.axis, options={"sync": options.get("sync") or "none"} | {key: options.get(key) for key in SYNC_OPTIONS})
+    job = JobOptions.model_validate(options)
+    static = capture.static if job.use_static else None
+    result = calibrate(capture.rig, capture.wand, static=static, options=job.calibration(method), progress=progress,
+                       points=capture.points, axis=capture.axis)
     return result.to_json()
 
 
@@ -132,10 +135,8 @@ def finish_durably(store: JobStore, job_id: str, token: str, state: JobState, re
 
 
 def _die_with_parent() -> None:
-    try:
+    with contextlib.suppress(OSError, AttributeError):  # not Linux: the parent-pid check in the loop still ends the worker
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):
-        pass  # not Linux: the parent-pid check in the loop still ends the worker
 
 
 def worker_main(db_path: str, data_dir: str, wake, stop, parent: int | None = None) -> None:

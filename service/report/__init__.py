@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 
 from wandcal.capture.folder import Capture
-from wandcal.capture.results import ResultFile
+from wandcal.capture.result_file import ResultFile
 
 INDEX = "index.html"
 RIG_PNG = "rig.png"
@@ -44,7 +44,7 @@ def write_report(result: ResultFile, capture: Capture | None, out_dir: str | Pat
     """Draw the figures and write the page into ``out_dir`` (created if needed).
 
     Args:
-        result: a read ``wandcal-result/1`` file (:func:`wandcal.capture.results.read_result`).
+        result: a read ``wandcal-result/1`` file (:func:`wandcal.capture.result_file.read_result`).
         capture: the capture the result was calibrated from, or None: then only the rig and the
             tables are drawn, and the page says what needs the capture.
         out_dir: the report's folder.

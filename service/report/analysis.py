@@ -1,4 +1,8 @@
-"""What the report shows, computed from a result and (optionally) its capture: numbers only, no drawing.
+"""What the report shows, from a result and (optionally) its capture: numbers only, no drawing.
+
+The capture's observations are judged with the result's poses by calib, once
+(:func:`wandcal.calib.judge.evaluate.evaluate_capture`: the labelled wand ends, each observation's
+residual, the wand's path and lengths); here they are split by camera and put into words.
 
 Everything here is in the result's world frame (``result.world.frame``), metres (or the first
 pair's baseline when ``world.scale`` is ``arbitrary``), pixels with the origin top-left, y down.
@@ -10,18 +14,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.coverage import coverage_advice, coverage_grid, covered_fraction
-from wandcal.calib.judge.evaluate import WandEvaluation, evaluate_wand, labelled_pairs
-from wandcal.calib.judge.quality import OUTLIER_SIGMAS, outlier_mask
-from wandcal.calib.observations import point_tracks
+from wandcal.calib.judge.evaluate import evaluate_capture
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, WandObservations
 from wandcal.calib.run.guidance import DEFAULT_MIN_COVERAGE
-from wandcal.calib.start.labels import flatten
-from wandcal.calib.start.world import axis_points
-from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 from wandcal.capture.folder import Capture, CaptureFormatError
-from wandcal.capture.results import ResultFile
+from wandcal.capture.result_file import ResultFile
 
 COVERAGE_GOAL = DEFAULT_MIN_COVERAGE  # the wanding guidance's goal, and the verdict's "excellent"
 # Residuals are noise, the same over the whole image, when the lens model fits. A camera's samples
@@ -130,17 +128,9 @@ def analyse(result: ResultFile, capture: Capture | None) -> ReportData:
                           None, {}, np.zeros((0, 3)), notes)
 
     rig, wand, points, axis = aligned_observations(result, capture)
-    R, t = result.R, result.t
-    notes = []
-    ev, trajectory, trajectory_frames = None, np.zeros((0, 3)), np.zeros(0, int)
-    if rig.wand_length is not None and len(wand):
-        ev = evaluate_wand(rig, R, t, wand)
-        trajectory, trajectory_frames = wand_midpoints(rig, R, t, wand)
-    else:
-        notes.append("The capture has no wand: no wand length over frames and no wand path.")
-    cloud, p_cam, p_uv, p_res = triangulated_points(rig, R, t, points)
-    p_out = outlier_mask(np.linalg.norm(p_res, axis=1))
-
+    found = evaluate_capture(rig, result.R, result.t, wand, points, axis)
+    ev, pts = found.wand, found.points
+    notes = [] if ev is not None else ["The capture has no wand: no wand length over frames and no wand path."]
     static = None
     if rig.static_markers is not None:
         if world.get("frame") == "static_object":
@@ -148,7 +138,6 @@ def analyse(result: ResultFile, capture: Capture | None) -> ReportData:
         else:
             notes.append(f"The static object is not drawn: the result's world frame is {world.get('frame')!r}, "
                          "not the static object's, so where its markers stand is not known.")
-    axis_pts = axis_points(rig, axis, R, t) if axis is not None and len(axis.role) else {}
 
     cams = []
     empty2 = np.zeros((0, 2))
@@ -157,14 +146,15 @@ def analyse(result: ResultFile, capture: Capture | None) -> ReportData:
         uv = ev.uv[mine] if ev is not None else empty2
         res = ev.residual_px[mine] if ev is not None else empty2
         out = ev.outlier[mine] if ev is not None else np.zeros(0, bool)
+        theirs = pts.camera == i
         # every sample that placed the camera, as the result's coverage and verdict count them
-        samples = np.vstack([uv, p_uv[p_cam == i]])
+        samples = np.vstack([uv, pts.uv[theirs]])
         counts = coverage_grid(samples, d["width"], d["height"]) if ev is not None or len(samples) else None
-        cam = CameraSummary(i, d, uv, res, out, p_uv[p_cam == i], p_res[p_cam == i], p_out[p_cam == i], counts)
+        cam = CameraSummary(i, d, uv, res, out, pts.uv[theirs], pts.residual_px[theirs], pts.outlier[theirs], counts)
         cams.append(replace(cam, advice=camera_advice(cam, ev.frame[mine] if ev is not None else np.zeros(0, int))))
-    frames, length, outlier_frame = _wand_frames(ev)
-    return ReportData(result, cams, True, trajectory, trajectory_frames, frames, length, outlier_frame, static,
-                      {str(k): v for k, v in axis_pts.items()}, cloud, notes)
+    frames, length, outlier_frame = found.wand_frames()
+    return ReportData(result, cams, True, found.trajectory, found.trajectory_frames, frames, length, outlier_frame,
+                      static, found.axis, pts.cloud, notes)
 
 
 def camera_advice(cam: CameraSummary, frame: np.ndarray) -> list[str]:
@@ -238,42 +228,3 @@ def aligned_observations(result: ResultFile, capture: Capture
                 f"camera {cam.id!r}: the capture's images are {given.width}x{given.height} px, the result's "
                 f"{cam.width}x{cam.height}; give the capture the result was calibrated from")
     return rig, wand, points, axis
-
-
-def wand_midpoints(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations) -> tuple[np.ndarray, np.ndarray]:
-    """(T, 3) the wand's midpoint in each frame two cameras saw, world, and (T,) their frame numbers."""
-    try:
-        pairs = labelled_pairs(rig, R, t, wand)
-    except CalibrationError:
-        return np.zeros((0, 3)), np.zeros(0, int)
-    point, camera, xy = flatten(pairs)
-    mid = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames)).reshape(-1, 2, 3).mean(axis=1)
-    ok = np.all(np.isfinite(mid), axis=1)
-    return mid[ok], pairs.frames[ok]
-
-
-def triangulated_points(rig: Rig, R: np.ndarray, t: np.ndarray, points: PointObservations | None):
-    """Single-point tracks triangulated with the result's poses: (T, 3) points, and per
-    observation (Q,) camera, (Q, 2) raw pixels and (Q, 2) residuals in pixels."""
-    if points is None or not len(points):
-        return np.zeros((0, 3)), np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2))
-    tracks = point_tracks(rig, points)
-    X = triangulate_points(R, t, tracks.track, tracks.camera, tracks.xy, tracks.n_tracks)
-    focal = np.array([c.focal for c in rig.cameras])
-    res = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, X) * focal[tracks.camera]
-    ok = np.all(np.isfinite(res), axis=1)
-    cloud = X[np.all(np.isfinite(X), axis=1)]
-    return cloud, tracks.camera[ok], tracks.uv[ok], res[ok]
-
-
-def _wand_frames(ev: WandEvaluation | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(F,) frame numbers, (F,) wand lengths in metres and (F,) bool: frames with an outlier
-    observation or whose length is OUTLIER_SIGMAS robust sigmas off the median."""
-    if ev is None or not len(ev.frames):
-        return np.zeros(0, int), np.zeros(0), np.zeros(0, bool)
-    length = ev.wand_length
-    dev = np.abs(length - np.median(length))
-    sigma = 1.4826 * np.median(dev)  # the MAD of Gaussian lengths
-    bad = dev > OUTLIER_SIGMAS * max(sigma, 1e-12)
-    bad |= np.isin(ev.frames, ev.frame[ev.outlier])
-    return ev.frames, length, bad

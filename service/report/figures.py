@@ -7,6 +7,7 @@ draw reports from several threads at once and nothing touches a display.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from matplotlib import colormaps
@@ -14,7 +15,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
-from mpl_toolkits.mplot3d import Axes3D, proj3d  # noqa: F401  (Axes3D registers the "3d" projection)
+from mpl_toolkits.mplot3d import Axes3D, proj3d  # importing it registers the "3d" projection
 
 from wandcal.calib.judge.coverage import GRID
 from wandcal.calib.judge.quality import HIGH_RMS_PX, OUTLIER_SIGMAS
@@ -53,7 +54,7 @@ def camera_colour(index: int):
     return cmap(index % cmap.N)
 
 
-def _figure(size_px: tuple[int, int], layout: str | None = "constrained") -> Figure:
+def _figure(size_px: tuple[int, int], layout: Literal["constrained", "tight"] | None = "constrained") -> Figure:
     fig = Figure(figsize=(size_px[0] / DPI, size_px[1] / DPI), dpi=DPI, layout=layout)
     FigureCanvasAgg(fig)
     return fig
@@ -119,6 +120,7 @@ def draw_rig(data: ReportData) -> Figure:
     frusta = [frustum(d, depth) for d in docs]
     fig = _figure(RIG_SIZE_PX, layout=None)  # constrained layout squeezes 3D axes: placed by hand
     ax3 = fig.add_axes((0.0, 0.04, 0.50, 0.9), projection="3d")  # room below for the x axis's name
+    assert isinstance(ax3, Axes3D)  # what projection="3d" makes; the type checker sees Axes
     top = fig.add_axes((0.59, 0.2, 0.36, 0.72))
     unit = data.unit
     labels = {ax: _draw_scene(ax, dims, M, data, docs, frusta, extent) for ax, dims in ((ax3, (0, 1, 2)), (top, (0, 1)))}
@@ -249,7 +251,8 @@ def _image_axes(ax, cam: CameraSummary) -> None:
 def _coverage_panel(fig: Figure, ax, cam: CameraSummary) -> None:
     _image_axes(ax, cam)
     w, h = cam.size
-    counts = cam.coverage
+    # no grid for a camera with nothing that placed it (no wand evidence, no points): every cell empty
+    counts = cam.coverage if cam.coverage is not None else np.zeros(GRID, dtype=np.int64)
     shown = np.ma.masked_less(counts, 1)
     cmap = _cmap("viridis", EMPTY_CELL)
     im = ax.imshow(shown, extent=(0, w, h, 0), cmap=cmap, norm=Normalize(0, max(1, counts.max())),
@@ -264,7 +267,7 @@ def _coverage_panel(fig: Figure, ax, cam: CameraSummary) -> None:
         ax.scatter(cam.point_uv[:, 0], cam.point_uv[:, 1], s=3, c="#e67e22", alpha=0.8, linewidths=0)
         ax.set_xlabel("u (px); white: wand ends, orange: single points")
     _cell_lines(ax, cam)
-    ax.set_title(f"coverage: {cam.covered:.0%} of the cells (pale red: none)", fontsize=11)
+    ax.set_title(f"coverage: {cam.covered or 0.0:.0%} of the cells (pale red: none)", fontsize=11)
 
 
 def _residual_map_panel(fig: Figure, ax, cam: CameraSummary) -> None:
@@ -381,7 +384,7 @@ def draw_wand(data: ReportData) -> Figure:
     shown = np.clip(mm, ymin, ymax)  # a frame far off still shows, at the edge
     ax.scatter(data.wand_frames[~bad], shown[~bad], s=10, c=FRAME_DOTS[0], linewidths=0, label="frames")
     if bad.any():
-        label = f"outlier frames ({int(bad.sum())}; \u25b2\u25bc: off the scale)"
+        label: str | None = f"outlier frames ({int(bad.sum())}; \u25b2\u25bc: off the scale)"
         for marker, sel in (("x", (mm >= ymin) & (mm <= ymax)), ("^", mm > ymax), ("v", mm < ymin)):
             if (bad & sel).any():
                 ax.scatter(data.wand_frames[bad & sel], shown[bad & sel], s=30, marker=marker, c="#c0392b",

@@ -9,6 +9,7 @@ report's tests hold every figure to none).
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,7 +35,7 @@ class Label:
     style: dict
 
 
-def place_labels(ax, labels: list[Label], avoid: list[Text] = ()) -> list[Annotation]:
+def place_labels(ax, labels: list[Label], avoid: Sequence[Text] = ()) -> list[Annotation]:
     """Draw ``labels`` on ``ax``, each at the first free spot near its point, in the given order.
 
     A spot is free when the label's box (measured by the renderer) lies inside the axes and meets
@@ -115,7 +116,7 @@ def hide_colliding_ticks(fig, axes) -> None:
         keep = []
         for loc, tick in zip(locs, axis.get_major_ticks(len(locs))):  # aligned, as matplotlib's own _update_ticks
             t = tick.label1
-            if not (lo <= loc <= hi and t.get_visible() and t.get_text().strip() and _shown(t)):
+            if not (lo <= loc <= hi and t.get_visible() and t.get_text().strip() and _shown(t, fig)):
                 keep.append(loc)  # not drawn: nothing to collide
                 continue
             box = t.get_window_extent(renderer)
@@ -155,11 +156,12 @@ def drawn_texts(fig) -> list[Text]:
                     elif not tick.label2.get_visible() or not getattr(tick, "label2On", True):
                         undrawn.add(id(tick.label2))
     return [t for t in fig.findobj(Text)
-            if id(t) not in undrawn and t.get_visible() and t.get_text().strip() and _shown(t)]
+            if id(t) not in undrawn and t.get_visible() and t.get_text().strip() and _shown(t, fig)]
 
 
-def _shown(t: Text) -> bool:
-    """Whether a text lies in its figure at all (a label pushed off the canvas is not drawn)."""
-    box = t.get_window_extent(t.figure.canvas.get_renderer())
-    fb = t.figure.bbox
+def _shown(t: Text, fig) -> bool:
+    """Whether a text lies in its figure ``fig`` (the report draws no sub-figures) at all: a label
+    pushed off the canvas is not drawn."""
+    box = t.get_window_extent(fig.canvas.get_renderer())
+    fb = fig.bbox
     return box.x1 > fb.x0 and box.x0 < fb.x1 and box.y1 > fb.y0 and box.y0 < fb.y1 and box.width > 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import html
 import math
+from typing import TypeGuard
 
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list, names_camera
 from wandcal.service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
@@ -83,15 +84,17 @@ def _summary(data: ReportData) -> list[str]:
     out = [f'<p class="meta">{_e(line)}</p>' for line in lines]
     out.append(f'<p id="rig-verdict">Rig verdict: {_verdict_html(word)}'
                + (f" \u2014 {_e('; '.join(reasons))}" if reasons else "") + "</p>")
-    v = doc.get("verdict") if isinstance(doc.get("verdict"), dict) else {}
+    verdict_doc = doc.get("verdict")
+    v = verdict_doc if isinstance(verdict_doc, dict) else {}
     faults = v.get("faults")
-    words = [f"{_e(FAULT_WORDS.get(f.get('kind'), f.get('kind')))}{_e(' (' + f['camera'] + ')') if f.get('camera') else ''}: "
+    words = [f"{_e(FAULT_WORDS.get(str(f.get('kind')), f.get('kind')))}{_e(' (' + f['camera'] + ')') if f.get('camera') else ''}: "
              f"{_e(f.get('message', ''))}" for f in faults or [] if isinstance(f, dict)]
     out.append('<p id="rig-faults">Faults: ' + (DASH if faults is None else "none found" if not words else "")
                + ('<ul>' + "".join(f"<li>{w}</li>" for w in words) + "</ul>" if words else "") + "</p>")
     if _advice_of(v):
         out.append('<div id="rig-advice">What to do:' + _items(_advice_of(v)) + "</div>")
-    place = world.get("placement") if isinstance(world.get("placement"), dict) else {}
+    placement = world.get("placement")
+    place = placement if isinstance(placement, dict) else {}
     p_word, p_reasons = verdict(v.get("placement"))
     out.append(f'<p id="placement">World frame placement: origin \u00b1 {_num(place.get("origin_std_mm"), ".2f", " mm")}'
                f', axes \u00b1 {_num(place.get("axes_std_deg"), ".3f", " deg")}'
@@ -182,7 +185,8 @@ def _offsets(sync) -> list[str]:
             _table(head, rows), "</section>"]
 
 
-def _finite(value) -> bool:
+def _finite(value: object) -> TypeGuard[float]:
+    """A finite number (int or float) in a result's JSON."""
     return isinstance(value, (int, float)) and math.isfinite(value)
 
 

@@ -2,16 +2,18 @@
 single-point tracks, the axis points and the static object's markers, and the volume they fill.
 
 The result holds the cameras only; the samples come from its capture, triangulated with the
-result's poses (the report's own analysis, :mod:`wandcal.service.report.analysis`). No matplotlib.
+result's poses by calib (:func:`wandcal.calib.judge.evaluate.evaluate_capture`). No matplotlib.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.judge.evaluate import evaluate_capture
 from wandcal.capture.folder import Capture
-from wandcal.capture.results import ResultFile
-from wandcal.service.report.analysis import aligned_observations, triangulated_points, wand_midpoints
+from wandcal.capture.result_file import ResultFile
+from wandcal.service.report.analysis import aligned_observations
 
 SCENE_FORMAT = "wandcal-scene/1"
 # Samples sent to the page: a browser draws 4000 points at once without effort, and a trail that
@@ -41,17 +43,14 @@ def scene(result: ResultFile, capture: Capture | None) -> dict:
              "static_markers": [], "volume": None}
     if capture is None:
         return empty
-    from wandcal.calib.start.world import axis_points
-
     rig, wand, points, axis = aligned_observations(result, capture)
-    R, t = result.R, result.t
-    trail = np.zeros((0, 3))
-    if rig.wand_length is not None and len(wand):
-        trail, _ = wand_midpoints(rig, R, t, wand)
-    cloud = triangulated_points(rig, R, t, points)[0]
+    try:
+        found = evaluate_capture(rig, result.R, result.t, wand, points, axis)
+    except CalibrationError:  # wand ends that do not label at these poses: the scene without the wand's path
+        found = evaluate_capture(rig, result.R, result.t, None, points, axis)
+    trail, cloud, axis_pts = found.trajectory, found.points.cloud, found.axis
     world = result.doc.get("world") or {}
     static = rig.static_markers if world.get("frame") == "static_object" and rig.static_markers is not None else None
-    axis_pts = axis_points(rig, axis, R, t) if axis is not None and len(axis.role) else {}
     samples = np.vstack([trail, cloud])
     volume = None
     if len(samples):
@@ -59,7 +58,7 @@ def scene(result: ResultFile, capture: Capture | None) -> dict:
         volume = {"min": _rounded(lo), "max": _rounded(hi)}
     return empty | {
         "wand": _rounded(_thinned(trail)), "wand_frames": len(trail), "points": _rounded(_thinned(cloud)),
-        "axis": {str(k): _rounded(v) for k, v in axis_pts.items()},
+        "axis": {k: _rounded(v) for k, v in axis_pts.items()},
         "static_markers": _rounded(static) if static is not None else [], "volume": volume,
     }
 

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from wandcal.capture.folder import Capture
-from wandcal.capture.results import result_from_json
+from wandcal.capture.result_file import result_from_json
 from wandcal.service.report import FILE_NAME, INDEX, write_report
 
 REPORTS_DIR = "reports"

@@ -7,6 +7,7 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import camera_centers, kabsch, rotation_angle
 from wandcal.calib.rig import StaticObservations, WandObservations
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.simulate import STATIC_FRAMES_AVERAGED, simulate_capture
 from wandcal.calib.start.world import apply, world_frame
 from wandcal.capture.formats.export import export
@@ -22,9 +23,9 @@ def _errors(result, sim, similarity=False):
 
 def test_world_frame_from_the_l_frame():
     sim = simulate_capture(6, 400, NOISE, seed=21)
-    result = calibrate(sim.rig, sim.wand, sim.static, "ba")
+    result = calibrate(sim.rig, sim.wand, sim.static)
     raw, aligned = _errors(result, sim)
-    assert result.world["frame"] == "static_object"
+    assert result.world.frame == "static_object"
     # world frame error is set by the averaged L-frame blobs (NOISE / sqrt(100) = 0.03 px): from
     # ~4 m with f ~ 1100 px that is ~0.1 mm per marker, which tilts a 0.35-0.5 m L-frame by
     # ~0.3 mrad, i.e. ~1 mm at the cameras; 3 mm is a >3-sigma margin
@@ -44,8 +45,8 @@ def test_world_frame_from_the_l_frame():
 
 def test_wand_only_world_is_the_wand_volume():
     sim = simulate_capture(5, 400, NOISE, static=False, seed=22)
-    result = calibrate(sim.rig, sim.wand, None, "ba")
-    assert result.world["frame"] == "wand_volume" and result.world["x_camera"] == "cam1"
+    result = calibrate(sim.rig, sim.wand, None)
+    assert result.world.frame == "wand_volume" and result.world.details["x_camera"] == "cam1"
     # the frame's definition, exactly (float rounding only): origin at the wand midpoints'
     # centroid, z against the cameras' mean image-down, x along cam1's image-right made level
     assert np.abs(result.wand.mean(axis=(0, 1))).max() < 1e-9
@@ -74,8 +75,8 @@ def test_wand_only_world_is_the_wand_volume():
 def test_outliers_are_dropped_and_counted():
     sim = simulate_capture(6, 400, NOISE, outliers=0.08, seed=23)
     clean = simulate_capture(6, 400, NOISE, outliers=0.0, seed=23)
-    result = calibrate(sim.rig, sim.wand, sim.static, "ba")
-    reference = calibrate(clean.rig, clean.wand, clean.static, "ba")
+    result = calibrate(sim.rig, sim.wand, sim.static)
+    reference = calibrate(clean.rig, clean.wand, clean.static)
     n_pairs = sum(1 for _ in np.unique(sim.wand.frame * 10 + sim.wand.camera))
     # 8% of camera-frames with both ends seen carry an outlier; the count is what was injected
     assert 0.05 * n_pairs < result.dropped["outliers"] < 0.12 * n_pairs
@@ -89,7 +90,7 @@ def test_garbage_rows_do_not_crash_and_are_counted():
     sim = simulate_capture(4, 200, NOISE, seed=24)
     w = sim.wand
     junk = WandObservations(np.r_[w.frame, [5, 6, 7]], np.r_[w.camera, [0, 1, 2]], np.vstack([w.uv, [[1, 1], [2, 2], [3, 3]]]))
-    result = calibrate(sim.rig, junk, sim.static, "ba")
+    result = calibrate(sim.rig, junk, sim.static)
     assert result.dropped["extra_blobs"] >= 1
     _, aligned = _errors(result, sim)
     assert aligned.max() < 0.003
@@ -102,7 +103,7 @@ def test_camera_without_common_frames_is_named():
     keep = ~((w.camera == 2) & (w.frame < 150)) & ~((w.camera != 2) & (w.frame >= 150))
     sub = WandObservations(w.frame[keep], w.camera[keep], w.uv[keep])
     with pytest.raises(CalibrationError, match="cam3"):
-        calibrate(sim.rig, sub, None, "ba")
+        calibrate(sim.rig, sub, None)
 
 
 def test_camera_that_never_sees_the_wand_is_named():
@@ -110,19 +111,19 @@ def test_camera_that_never_sees_the_wand_is_named():
     w = sim.wand
     keep = w.camera != 1
     with pytest.raises(CalibrationError, match="camera 'cam2' never saw both wand ends"):
-        calibrate(sim.rig, WandObservations(w.frame[keep], w.camera[keep], w.uv[keep]), None, "ba")
+        calibrate(sim.rig, WandObservations(w.frame[keep], w.camera[keep], w.uv[keep]), None)
 
 
 def test_unknown_method_is_refused():
     sim = simulate_capture(2, 30, NOISE, seed=27)
     with pytest.raises(CalibrationError, match="unknown method 'fast'"):
-        calibrate(sim.rig, sim.wand, None, "fast")
+        calibrate(sim.rig, sim.wand, None, options=CalibrationOptions(method="fast"))
 
 
 def test_progress_reports_stages_and_can_abort():
     sim = simulate_capture(3, 100, NOISE, seed=28)
     events = []
-    calibrate(sim.rig, sim.wand, sim.static, "ba", progress=events.append)
+    calibrate(sim.rig, sim.wand, sim.static, progress=events.append)
     stages = [e["stage"] for e in events]
     for s in ("observations", "static", "initial", "labels", "refine", "world", "done"):
         assert s in stages
@@ -136,14 +137,14 @@ def test_progress_reports_stages_and_can_abort():
             raise Stop
 
     with pytest.raises(Stop):
-        calibrate(sim.rig, sim.wand, sim.static, "ba", progress=abort)
+        calibrate(sim.rig, sim.wand, sim.static, progress=abort)
 
 
 def test_paper_method_end_to_end_small_rig():
     sim = simulate_capture(4, 120, NOISE, seed=29)
-    result = calibrate(sim.rig, sim.wand, sim.static, "paper", options={"max_rounds": 6})
-    ba = calibrate(sim.rig, sim.wand, sim.static, "ba")
-    assert result.solver["method"] == "paper" and result.solver["iterations"] >= 1
+    result = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method="paper", max_rounds=6))
+    ba = calibrate(sim.rig, sim.wand, sim.static)
+    assert result.solver.method == "paper" and result.solver.iterations >= 1
     _, aligned = _errors(result, sim)
     _, ba_aligned = _errors(ba, sim)
     assert aligned.max() < 4 * ba_aligned.max() + 0.001
@@ -153,16 +154,16 @@ def test_unidentifiable_static_object_is_an_error_naming_cameras():
     sim = simulate_capture(3, 100, NOISE, seed=30)
     wrong = StaticObservations(sim.static.camera, sim.static.uv + np.random.default_rng(0).normal(0, 40, sim.static.uv.shape))
     with pytest.raises(CalibrationError, match="could not be identified in any camera.*cam1"):
-        calibrate(sim.rig, sim.wand, wrong, "ba")
+        calibrate(sim.rig, sim.wand, wrong)
 
 
 def test_one_camera_missing_the_static_object_is_placed_from_the_wand():
     sim = simulate_capture(4, 300, NOISE, seed=31)
     keep = sim.static.camera != 2
     partial = StaticObservations(sim.static.camera[keep], sim.static.uv[keep])
-    result = calibrate(sim.rig, sim.wand, partial, "ba")
+    result = calibrate(sim.rig, sim.wand, partial)
     assert any("cam3" in w and "placed from the wand" in w for w in result.warnings)
-    assert result.cameras[2]["initial_pose"] == "wand resection"
+    assert result.cameras[2].initial_pose == "wand resection"
     _, aligned = _errors(result, sim)
     assert aligned.max() < 0.002
 
@@ -173,11 +174,11 @@ def test_lp_ends_on_a_certified_step_with_its_pose_uncertainty(outliers, reject)
     still the one the last solve certified, with the pose covariance at its poses; with no outlier
     pass, the one solve is the final one."""
     sim = simulate_capture(4, 200, NOISE, outliers=outliers, seed=33)
-    result = calibrate(sim.rig, sim.wand, sim.static, "lp", options={"reject_outliers": reject})
+    result = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method="lp", reject_outliers=reject))
     doc = result.to_json()
     assert doc["solver"]["lp_steps"] and doc["solver"]["uncertified_steps"] == 0, doc["solver"]
     assert all(np.isfinite(c["center_std_mm"]) and c["center_std_mm"] > 0 for c in doc["cameras"])
-    ba = calibrate(sim.rig, sim.wand, sim.static, "ba", options={"reject_outliers": reject})
+    ba = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(reject_outliers=reject))
     _, aligned = _errors(result, sim)
     _, ba_aligned = _errors(ba, sim)
     # lp is ba's equal on such rigs (decision 0004: 0.98-1.08x its centre error)
@@ -186,7 +187,7 @@ def test_lp_ends_on_a_certified_step_with_its_pose_uncertainty(outliers, reject)
 
 def test_paper_takes_its_pose_uncertainty_once_after_the_outlier_passes():
     sim = simulate_capture(4, 120, NOISE, outliers=0.05, seed=34)
-    doc = calibrate(sim.rig, sim.wand, sim.static, "paper", options={"max_rounds": 4}).to_json()
+    doc = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method="paper", max_rounds=4)).to_json()
     assert all(np.isfinite(c["center_std_mm"]) and c["center_std_mm"] > 0 for c in doc["cameras"])
 
 
@@ -196,8 +197,8 @@ def test_paper_judges_outliers_as_ba_and_keeps_every_camera():
     it (20% dropped in all). Its first solve is now ba's robust pass (calib/run/refine.py), so it
     drops what ba drops and places every camera near where ba does."""
     sim = simulate_capture(6, 300, 0.3, outliers=0.05, seed=1)
-    paper = calibrate(sim.rig, sim.wand, sim.static, "paper", options={"max_rounds": 10})
-    ba = calibrate(sim.rig, sim.wand, sim.static, "ba")
+    paper = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method="paper", max_rounds=10))
+    ba = calibrate(sim.rig, sim.wand, sim.static)
     assert paper.to_json()["dropped"] == ba.to_json()["dropped"]
     _, aligned = _errors(paper, sim)
     _, ba_aligned = _errors(ba, sim)

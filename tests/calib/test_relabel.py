@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import build_problem, refine, reject_outliers, up_direction
 from wandcal.calib.sim.scenes import prepared_scene
 
@@ -26,7 +27,7 @@ def test_swapped_ends_are_relabelled_not_dropped(seed, method):
     wrong[rows] = True
     labelled = good.swapped(wrong)
     setup = build_problem(rig, labelled, scene.init.R, scene.init.t)
-    options = {"loss": "cauchy"}
+    options = CalibrationOptions(loss="cauchy")
     r = refine(rig, labelled, setup, None, None, method, options, lambda e: None,
                up_direction(rig, scene.init.R, scene.init.t, setup), final=False)
     r = reject_outliers(r, method, options, lambda e: None)
@@ -44,7 +45,7 @@ def test_swapped_ends_are_relabelled_not_dropped(seed, method):
 
 def test_a_real_outlier_is_not_relabelled():
     scene = prepared_scene(cameras=5, frames=300, noise_px=NOISE, seed=5, outliers=0.05)
-    options = {"loss": "cauchy"}
+    options = CalibrationOptions(loss="cauchy")
     rig = scene.sim.rig
     r = refine(rig, scene.labelled, scene.setup, None, None, "ba", options, lambda e: None,
                up_direction(rig, scene.init.R, scene.init.t, scene.setup), final=False)

@@ -29,7 +29,7 @@ def knocked(request):
 
 def test_check_names_the_knocked_camera_and_no_other(knocked):
     sim, base, cam, wand, _, _ = knocked
-    expected = np.array([c["reprojection_rms_px"] for c in base.cameras])
+    expected = np.array([c.reprojection_rms_px for c in base.cameras])
     checks = check_cameras(sim.rig, base.R, base.t, wand, expected)
     assert [c.id for c in checks if c.moved] == [sim.rig.cameras[cam].id]
     assert "recalibrate it with --solve-only" in checks[cam].reason
@@ -55,14 +55,14 @@ def test_solve_only_places_the_camera_at_its_new_pose_and_keeps_the_others_bit_f
     assert out.world == base.world
     err = np.linalg.norm(out.centers[cam] - camera_centers(R_true, t_true)[cam])
     # within the noise: the camera's own predicted spread given the held cameras, and theirs
-    held_std = np.median([c["center_std_mm"] for c in base.cameras]) / 1000
-    new_std = out.cameras[cam]["center_std_mm"] / 1000
+    held_std = np.median([c.uncertainty.center_std_mm for c in base.cameras]) / 1000
+    new_std = out.cameras[cam].uncertainty.center_std_mm / 1000
     assert err < SIGMAS * np.hypot(new_std, held_std)
     moved_by = np.linalg.norm(camera_centers(R_true, t_true)[cam] - sim.truth.centers[cam])
     assert moved_by == pytest.approx(KNOCK_M)
     rot = rotation_angle(out.R[cam : cam + 1], R_true[cam : cam + 1])[0]
-    assert rot < SIGMAS * np.radians(np.hypot(out.cameras[cam]["rotation_std_deg"],
-                                              np.median([c["rotation_std_deg"] for c in base.cameras])))
+    assert rot < SIGMAS * np.radians(np.hypot(out.cameras[cam].uncertainty.rotation_std_deg,
+                                              np.median([c.uncertainty.rotation_std_deg for c in base.cameras])))
     assert out.to_json()["solver"]["solved_only"] == [cid]
 
 

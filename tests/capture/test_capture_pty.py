@@ -54,7 +54,7 @@ def test_pty_capture_detect_and_calibrate_recover_the_rig(tmp_path, capsys):
     assert "cam2: " in report and "static object: 4 markers" in report
 
     cap = read_capture(out)
-    result = calibrate(cap.rig, cap.wand, cap.static, method="ba")
+    result = calibrate(cap.rig, cap.wand, cap.static)
     truth = json.loads((out / "truth.json").read_text())  # written by the capture of a simulated rig
     err = np.linalg.norm(result.centers - np.array([c["center"] for c in truth["cameras"]]), axis=1)
     assert err.max() < CENTRE_TOLERANCE_M, err

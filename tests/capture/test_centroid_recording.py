@@ -9,10 +9,11 @@ import pytest
 from wandcal.calib.run.guidance import GuidanceSettings
 from wandcal.capture.folder import read_capture
 from wandcal.capture.images import detect_capture
-from wandcal.capture.recording.centroids import BLOBS_FILE, STILL_WINDOW_SETS
+from wandcal.capture.recording.centroids import STILL_WINDOW_SETS
 from wandcal.capture.recording.live_guidance import LiveGuidance
 from wandcal.capture.recording.record import ImagePolicy
 from wandcal.capture.recording.session import record
+from wandcal.drivers.capture_files import BLOBS_FILE
 from wandcal.drivers.registry import open_cameras
 
 FRAMES, STATIC = 240, 20

@@ -129,8 +129,8 @@ def test_min_roundness_auto_leaves_the_choice_to_the_detector():
         (["--background", "highpass:2.5"], "whole number of pixels"),
         (["--background", "running:1"], "frames > 1"),
         (["--threshold", "-3"], "whole grey level"),
-        (["--min-roundness", "2"], "between 0 and 1"),
-        (["--seed-ratio", "0.5"], "between 1 and"),
+        (["--min-roundness", "2"], "at least 0 and at most 1"),
+        (["--seed-ratio", "0.5"], "must be at least 1, got 0.5"),
     ],
 )
 def test_bad_options_are_refused_by_the_parser(capture, capsys, args, message):

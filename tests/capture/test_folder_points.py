@@ -9,14 +9,11 @@ import scipy.io
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import (
-    AXIS_FILE,
-    POINTS_FILE,
-    RIG_FILE,
-    WAND_FILE,
     CaptureFormatError,
     read_capture,
     write_capture,
 )
+from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE, WAND_FILE
 from wandcal.service.cli import main
 
 

@@ -7,6 +7,7 @@ import pytest
 
 from bench import real_sessions as rs
 from wandcal.calib.geometry import kabsch
+from wandcal.calib.run.options import CalibrationOptions
 
 pytestmark = pytest.mark.shared_data
 
@@ -102,7 +103,7 @@ def test_score_per_pixel_is_the_spread_simulated_noise_gives():
 
 def test_brown_session_1_refines_rough_focal_lengths():
     """Start from the profile's focal lengths (up to 2.7% off easyWand's optimised ones)."""
-    got = rs.brown(1, "ba", intrinsics="profile", options={"refine_intrinsics": ("focal",)})
+    got = rs.brown(1, "ba", intrinsics="profile", options=CalibrationOptions(refine_intrinsics=("focal",)))
     score, n = got["wand_score_on_easywand_frames"]
     rel = np.array(got["focal_px"]) / got["easywand_focal_px"] - 1
     print(f"\nBrown cal1 from profile focals: refined {np.round(got['focal_px'], 1)} vs easyWand "
@@ -110,7 +111,7 @@ def test_brown_session_1_refines_rough_focal_lengths():
     assert np.all(np.abs(rel) <= 0.01)  # the issue's goal
     assert score <= got["easywand_wand_score_percent"]
     for cam in got["result"].cameras:
-        assert cam["intrinsics"]["focal_std_px"] < 0.005 * cam["intrinsics"]["focal_px"]
+        assert cam.intrinsics.focal_std_px < 0.005 * cam.intrinsics.focal_px
 
 
 def test_brown_sessions_show_the_rig_moved_between_the_two_dates():
@@ -131,7 +132,7 @@ def test_brown_sessions_show_the_rig_moved_between_the_two_dates():
 
 
 def test_ushichka_through_its_mat_file():
-    """The existing acceptance figures (tests/capture/test_easywand_real.py) hold through the import."""
+    """The existing acceptance figures (tests/capture/formats/test_easywand_real.py) hold through the import."""
     got = rs.ushichka()
     print(f"\nushichka: wand {got['wand_mean_m'] * 1000:.1f} +- {got['wand_std_m'] * 1000:.2f} mm "
           f"({got['wand_score_percent']:.2f}%, easyWand {got['easywand_wand_score_percent']:.2f}%); per-axis rms "
@@ -148,7 +149,7 @@ def test_multicamselfcal_tracks_calibrate_up_to_scale():
     print(f"\nMultiCamSelfCal caldata20130726: mean 2D error {got['mean_error_px']:.3f} px over {got['inliers']} of "
           f"{got['observations']} observations (toolbox: 0.62 px on its sister set); centres vs "
           f"original_cam_centers.dat {np.round(got['centre_diff_mm'], 1)} mm after similarity alignment")
-    assert result.world["scale"] == "arbitrary" and result.wand_report is None
+    assert result.world.scale == "arbitrary" and result.wand_report is None
     assert got["mean_error_px"] <= got["published_mean_error_px"]  # the issue's goal
     # the earlier calibration of the same rig (Align-Existing); a gross error would be a
     # sizeable fraction of the 0.8 m rig

@@ -6,7 +6,7 @@ import pytest
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import CaptureFormatError
-from wandcal.capture.results import read_result
+from wandcal.capture.result_file import read_result
 
 
 @pytest.fixture(scope="module")

@@ -13,9 +13,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tests.reliability.fuzzing import TRIED
-from wandcal.capture.folder import MAX_CSV_BYTES, RIG_FILE, WAND_FILE, rig_to_json, write_capture
-from wandcal.service.limits import MAX_BLOBSETS_BODY_BYTES, MAX_JSON_BODY_BYTES, body_limit
+from wandcal.capture.folder import MAX_CSV_BYTES, rig_to_json, write_capture
+from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.main import create_app
+from wandcal.service.request_limits import MAX_BLOBSETS_BODY_BYTES, MAX_JSON_BODY_BYTES, body_limit
 from wandcal.service.settings import Settings
 
 ROUTES = ["/api/v1/captures/0123/blobsets", "/api/v1/jobs", "/api/v1/capture/start", "/api/v1/capture",

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from tests.reliability.fuzzing import TRIED
 from tests.service.conftest import capture_files
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, rig_to_json
+from wandcal.capture.folder import rig_to_json
+from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.api.security import relative_paths
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings

@@ -17,8 +17,9 @@ from hypothesis import strategies as st
 from tests.reliability.fuzzing import TRIED
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import CAMERA_ID, Camera
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, CaptureFormatError, read_capture, write_capture
+from wandcal.capture.folder import CaptureFormatError, read_capture, write_capture
 from wandcal.capture.rig_file import rig_from_json
+from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings
 

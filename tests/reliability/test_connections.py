@@ -13,7 +13,7 @@ import httpx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wandcal.service.connections import RepeatFilter
+from wandcal.service.connection_limits import RepeatFilter
 
 HELD = 150  # more than the limit below, so the limit's eviction is what lets the client in
 MAX_CONNECTIONS = 40
@@ -91,7 +91,7 @@ def test_repeated_log_lines_pass_once_a_window_and_count_the_rest(events):
             if "repeated" in str(record.msg):
                 reported += int(str(record.msg).split("repeated ")[1].split()[0])
     span = clock.now
-    for message in set(m for _, m in events):
+    for message in {m for _, m in events}:
         assert 1 <= passed[message] <= span / 1.0 + 1  # at most one line a window per message
     # every line is written or counted in a later line, except the repeats since each last one
     assert sum(passed.values()) + reported <= len(events)

@@ -90,7 +90,7 @@ def test_serve_on_a_database_path_that_is_a_folder_exits_2_naming_it(tmp_path):
     env = {k: v for k, v in os.environ.items() if not k.startswith("WANDCAL_")}
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     run = subprocess.run([sys.executable, "-m", "wandcal.service.cli", "serve", "--data-dir", str(data_dir),
-                          "--port", str(free_port()), "--workers", "0"], env=env, capture_output=True, text=True, timeout=120)
+                          "--port", str(free_port()), "--workers", "0"], env=env, capture_output=True, text=True, timeout=120, check=False)
     assert run.returncode == 2, run.stderr
     assert "Traceback" not in run.stderr
     assert str(data_dir / "wandcal.sqlite3") in run.stderr and "is a folder" in run.stderr
@@ -102,6 +102,6 @@ def test_serve_with_a_wrong_setting_exits_2_naming_it(tmp_path, option):
     env = {k: v for k, v in os.environ.items() if not k.startswith("WANDCAL_")}
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     run = subprocess.run([sys.executable, "-m", "wandcal.service.cli", "serve", "--data-dir", str(tmp_path), *option],
-                         env=env, capture_output=True, text=True, timeout=120)
+                         env=env, capture_output=True, text=True, timeout=120, check=False)
     assert run.returncode == 2 and "Traceback" not in run.stderr, run.stderr
     assert option[0].lstrip("-") in run.stderr, run.stderr

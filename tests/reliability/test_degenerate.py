@@ -111,7 +111,7 @@ def test_a_static_object_seen_by_only_some_cameras():
     rig, obs, st, truth = scene(RING, moving_wand())
     some = np.isin(st.camera, [0, 1, 3])
     result = calibrate(rig, obs, StaticObservations(st.camera[some], st.uv[some]))
-    assert result.world["frame"] == "static_object"
+    assert result.world.frame == "static_object"
     for cam in ("cam3", "cam5"):
         assert any(f"camera '{cam}' has no static-object blobs" in w and "placed from the wand" in w
                    for w in result.warnings), result.warnings
@@ -119,7 +119,7 @@ def test_a_static_object_seen_by_only_some_cameras():
 
     one = st.camera == 0
     result = calibrate(rig, obs, StaticObservations(st.camera[one], st.uv[one]))
-    assert result.world["frame"] != "static_object"
+    assert result.world.frame != "static_object"
     assert any("the static object was identified in cam1 only" in w for w in result.warnings), result.warnings
 
 
@@ -166,7 +166,7 @@ def test_two_groups_exit_2_on_the_command_line(tmp_path):
     rig, obs, st = two_groups()
     write_capture(tmp_path / "cap", rig, obs, st)
     done = subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(tmp_path / "cap"), "--quiet",
-                           "--out", str(tmp_path / "result.json")], capture_output=True, text=True, timeout=300)
+                           "--out", str(tmp_path / "result.json")], capture_output=True, text=True, timeout=300, check=False)
     assert done.returncode == 2, done.stderr
     assert re.search(SPLIT, done.stderr) and "Traceback" not in done.stderr, done.stderr
     assert not (tmp_path / "result.json").exists()

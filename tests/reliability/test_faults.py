@@ -5,6 +5,7 @@ tests/service/test_http.py::test_sigkill_mid_job_requeues_once_and_finishes."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -22,7 +23,8 @@ from tests.reliability.servers import poll
 from tests.service.conftest import capture_files, simulated_capture
 from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.sim.render import render_blobs
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json
+from wandcal.capture.folder import read_capture, rig_to_json
+from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.db import connect
 from wandcal.service.main import create_app
 from wandcal.service.recovery import RECOVERED_SOURCE
@@ -90,10 +92,8 @@ def _open_files_under(pid: int, folder: str) -> list[str]:
 
 
 def _send_ignoring_errors(srv, body, content_type: str) -> None:
-    try:
+    with contextlib.suppress(httpx.HTTPError):  # the server died under it: that is the test
         httpx.post(srv.url + "/api/v1/captures", content=body, headers={"content-type": content_type}, timeout=30)
-    except httpx.HTTPError:
-        pass  # the server died under it: that is the test
 
 
 def test_sigkill_during_a_live_recording_keeps_every_recorded_set(server):

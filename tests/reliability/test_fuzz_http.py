@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 
 from tests.reliability.fuzzing import FUZZ, TRIED, garbage_bytes
 from tests.reliability.test_fuzz_readers import GOOD_PNG, IMAGES, SIM, _bad_file, _kind
-from wandcal.capture.folder import RIG_FILE, STATIC_FILE, WAND_FILE, write_capture
+from wandcal.capture.folder import write_capture
+from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings
 

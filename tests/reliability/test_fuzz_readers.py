@@ -44,7 +44,7 @@ from wandcal.capture.folder import (
 from wandcal.capture.formats.argus import read_argus
 from wandcal.capture.formats.easywand import read_easywand_files, read_easywand_mat
 from wandcal.capture.formats.svoboda import read_svoboda
-from wandcal.capture.results import read_result
+from wandcal.capture.result_file import read_result
 from wandcal.drivers.errors import DriverError
 
 SIM = simulate_capture(3, 40, 0.3, seed=1)

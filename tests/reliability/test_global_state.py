@@ -18,7 +18,8 @@ from fastapi.testclient import TestClient
 from threadpoolctl import threadpool_info
 
 from tests.service.conftest import capture_files
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, rig_to_json
+from wandcal.capture.folder import rig_to_json
+from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings
 

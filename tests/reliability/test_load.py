@@ -12,7 +12,8 @@ import numpy as np
 from bench import load
 from tests.service.conftest import capture_files, simulated_capture
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.capture.folder import RIG_FILE, rig_to_json
+from wandcal.capture.folder import rig_to_json
+from wandcal.drivers.capture_files import RIG_FILE
 
 UPLOADS, UPLOAD_CONCURRENCY = 16, 8
 JOBS, JOB_CONCURRENCY = 6, 3

@@ -41,7 +41,7 @@ FOCAL_RANGE_PX = (800.0, 3000.0)
 
 
 def unit_vectors():
-    return st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda v: 0.1 < np.linalg.norm(v)).map(
+    return st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda v: np.linalg.norm(v) > 0.1).map(
         lambda v: np.array(v) / np.linalg.norm(v))
 
 

@@ -18,15 +18,12 @@ from tests.reliability.fuzzing import TRIED, mutated_csv
 from wandcal.calib.rig import AxisObservations
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import (
-    AXIS_FILE,
-    RIG_FILE,
-    STATIC_FILE,
-    WAND_FILE,
     CaptureFormatError,
     read_capture,
     write_capture,
 )
 from wandcal.capture.formats.summary import Imported
+from wandcal.drivers.capture_files import AXIS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings
 

@@ -23,7 +23,8 @@ from hypothesis import strategies as st
 from tests.reliability.fuzzing import FUZZ, TRIED
 from tests.reliability.test_fuzz_readers import SIM
 from tests.service.conftest import REPO, free_port, server_env
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, write_capture
+from wandcal.capture.folder import write_capture
+from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings
 

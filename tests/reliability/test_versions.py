@@ -14,7 +14,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from wandcal.capture.folder import read_capture
-from wandcal.capture.results import read_result
+from wandcal.capture.result_file import read_result
 from wandcal.capture.rig_file import CAPTURE_FORMAT, CaptureFormatError, NewerFormatError
 from wandcal.service.cli import main
 from wandcal.service.db import SCHEMA_VERSION, NewerDatabaseError, init_db, schema_version

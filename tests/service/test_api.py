@@ -12,7 +12,8 @@ from fastapi.testclient import TestClient
 from tests.service.conftest import capture_files, simulated_capture
 from wandcal.calib.sim.render import render_blobs
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.capture.folder import RIG_FILE, WAND_FILE, read_capture, rig_to_json, write_capture
+from wandcal.capture.folder import read_capture, rig_to_json, write_capture
+from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.jobs.records import MAX_ATTEMPTS, JobState, JobStore
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings

@@ -11,7 +11,8 @@ from tests.service.test_api import app_client  # noqa: F401 (a fixture)
 from tests.service.test_http import SHAPE_TOL_M
 from wandcal.calib.geometry import kabsch
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.capture.folder import RIG_FILE, read_capture, rig_to_json
+from wandcal.capture.folder import read_capture, rig_to_json
+from wandcal.drivers.capture_files import RIG_FILE
 from wandcal.service.schemas import MAX_BLOB_SETS, MAX_BLOBS_PER_CAMERA
 
 

@@ -10,8 +10,9 @@ from fastapi.testclient import TestClient
 
 from tests.capture.formats.test_import_anipose import _session
 from wandcal.calib.geometry import project_pixels
-from wandcal.capture.folder import AXIS_FILE, POINTS_FILE, RIG_FILE, read_capture, save_capture
+from wandcal.capture.folder import read_capture, save_capture
 from wandcal.capture.formats.anipose import read_anipose
+from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings
 
@@ -77,7 +78,8 @@ def test_a_multi_marker_wand_layout_is_taken_and_a_bad_one_refused(client, tmp_p
     import json
 
     from wandcal.calib.sim.simulate import simulate_capture
-    from wandcal.capture.folder import WAND_FILE, write_capture
+    from wandcal.capture.folder import write_capture
+    from wandcal.drivers.capture_files import WAND_FILE
 
     app, c = client
     layout = [[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.5, 0.0, 0.0]]

@@ -13,7 +13,7 @@ from wandcal.capture.folder import write_capture
 
 def wandcal(*args):
     return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=600)
+                          timeout=600, check=False)
 
 
 @pytest.fixture(scope="module")

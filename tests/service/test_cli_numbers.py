@@ -124,7 +124,7 @@ def test_every_numeric_option_has_a_case():
 def test_max_rounds_zero_is_refused_before_any_solve(tmp_path):
     """The report's case, as a process: exit 2 at once, not 245 rounds."""
     r = subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(tmp_path), "--method", "paper",
-                        "--max-rounds", "0"], capture_output=True, text=True, timeout=120)
+                        "--max-rounds", "0"], capture_output=True, text=True, timeout=120, check=False)
     assert r.returncode == 2 and "--max-rounds" in r.stderr and "at least 1" in r.stderr
 
 

@@ -1,5 +1,6 @@
 """What the command line prints besides its result: a progress line on a terminal only, nothing
-with --quiet or into a pipe, never HiGHS's banner; its version; its words."""
+with --quiet or into a pipe (but a command's closing line everywhere), never HiGHS's banner; its
+version; its words."""
 
 from __future__ import annotations
 
@@ -14,14 +15,14 @@ import time
 import pytest
 
 from tests.service.conftest import simulated_capture
-from wandcal.service.cli.support.progress import ProgressLine
+from wandcal.service.cli.support.progress import REDRAW_S, ProgressLine
 
 READ_TIMEOUT_S = 300.0  # a busy 2-core machine; the loop ends as soon as the process does
 
 
 def wandcal(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *args], capture_output=True, text=True,
-                          cwd=cwd, timeout=READ_TIMEOUT_S)
+                          cwd=cwd, timeout=READ_TIMEOUT_S, check=False)
 
 
 def on_a_terminal(*args) -> tuple[int, str]:
@@ -87,8 +88,49 @@ def test_the_line_shows_rounds_and_cost_and_its_clock_moves_while_a_step_runs():
     assert term.getvalue().count("\r") > drawn and term.getvalue().endswith("\n")
     for quiet in (ProgressLine(Terminal(), quiet=True), ProgressLine(io.StringIO())):
         quiet({"stage": "refine", "iteration": 1, "cost": 1.0})
+        quiet.update("detect [###...] 3/10")
         quiet.close()
         assert quiet.stream.getvalue() == ""
+
+
+class Clock:
+    """A clock the test moves by hand (seconds)."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_one_policy_for_a_command_s_own_text_and_its_closing_line():
+    clock = Clock()
+    term = Terminal()
+    line = ProgressLine(term, clock=clock)
+    line.update("wand 1/10")
+    line.update("wand 2/10")  # at the same instant: not drawn
+    clock.now += REDRAW_S
+    line.update("wand 3/10")
+    assert "wand 1/10" in term.getvalue() and "wand 2/10" not in term.getvalue() and "wand 3/10" in term.getvalue()
+    line.done("recorded 10 wand sets")
+    assert term.getvalue().endswith("\r\033[Krecorded 10 wand sets\n")  # the closing line replaces the progress
+    line.close()  # after done(), nothing more
+    line.update("wand 4/10")
+    assert term.getvalue().endswith("recorded 10 wand sets\n")
+    # the closing line is the command's result: printed into a pipe and with --quiet too, and alone
+    for other in (ProgressLine(io.StringIO(), clock=clock), ProgressLine(Terminal(), quiet=True, clock=clock)):
+        with other:
+            other.update("wand 1/10")
+            other.done("recorded 10 wand sets")
+        assert other.stream.getvalue() == "recorded 10 wand sets\n"
+
+
+def test_an_error_ends_the_line_before_its_message():
+    term = Terminal()
+    with pytest.raises(RuntimeError), ProgressLine(term) as line:
+        line({"stage": "detect", "message": "frame 3"})
+        raise RuntimeError("camera cam2 vanished")
+    assert term.getvalue().endswith("\n") and line.ended
 
 
 def test_highs_banner_stays_off_stdout_with_quiet(capture, tmp_path):

@@ -13,7 +13,8 @@ from fastapi.testclient import TestClient
 from wandcal.calib.detect import DetectConfig
 from wandcal.calib.sim.render import render_blobs
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.capture.folder import RIG_FILE, rig_to_json
+from wandcal.capture.folder import rig_to_json
+from wandcal.drivers.capture_files import RIG_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings, SettingsError
 

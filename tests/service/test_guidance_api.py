@@ -6,7 +6,8 @@ import json
 
 from tests.service.test_api import _frameset_files, app_client, upload  # noqa: F401 (app_client: a fixture)
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.capture.folder import RIG_FILE, rig_to_json
+from wandcal.capture.folder import rig_to_json
+from wandcal.drivers.capture_files import RIG_FILE
 
 STREAMED_SETS = 40
 

@@ -115,7 +115,7 @@ def test_non_loopback_bind_without_token_is_refused(tmp_path):
     env = server_env(tmp_path)
     proc = subprocess.run(
         [sys.executable, "-m", "wandcal.service.cli", "serve", "--host", "0.0.0.0", "--port", "1"],
-        cwd=REPO, env=env, capture_output=True, text=True, timeout=60,
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=60, check=False,
     )
     assert proc.returncode != 0
     assert "needs a bearer token" in proc.stderr and "WANDCAL_TOKEN" in proc.stderr

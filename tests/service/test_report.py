@@ -22,9 +22,10 @@ from tests.service.test_http import ABSOLUTE_TOL_M
 from wandcal.calib.judge.coverage import GRID
 from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import Capture, read_capture, write_capture
-from wandcal.capture.results import read_result, result_from_json
+from wandcal.capture.result_file import read_result, result_from_json
 from wandcal.service.report import INSTALL_HINT, RIG_PNG, WAND_PNG, ReportUnavailable, camera_png
 from wandcal.service.report.analysis import analyse, rim_ratio
 from wandcal.service.report.figures import (
@@ -289,7 +290,7 @@ def test_report_over_http(make_server, small_capture, tmp_path):
         dom = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
                               "--disable-background-networking", f"--user-data-dir={tmp_path / 'profile'}",
                               "--virtual-time-budget=5000", "--dump-dom", server.url + "/#token=lab-token"],
-                             capture_output=True, text=True, timeout=120)
+                             capture_output=True, text=True, timeout=120, check=False)
         assert f'href="/api/v1/jobs/{job_id}/report"' in dom.stdout
 
 
@@ -340,7 +341,7 @@ def test_the_report_shows_the_time_offsets(tmp_path):
     time; a result under ``--sync none`` has no such section."""
     off = np.array([0.0, 0.0, 2.5, 0.0])
     sim = simulate_capture(4, 400, 0.3, static=False, seed=5, offsets=off)
-    result = calibrate(sim.rig, sim.wand, options={"sync": "auto", "frame_rate_hz": 100.0}).to_json()
+    result = calibrate(sim.rig, sim.wand, options=CalibrationOptions(sync="auto", frame_rate_hz=100.0)).to_json()
     (tmp_path / "result.json").write_text(json.dumps(result))
     run = wandcal("report", str(tmp_path / "result.json"), "--out", str(tmp_path / "out"))
     assert run.returncode == 0, run.stderr
@@ -354,7 +355,7 @@ def test_the_report_shows_the_time_offsets(tmp_path):
         assert f'{1000 * cam["offset_frames"] / 100.0:+.2f}' in row  # ms at 100 fps
         assert ('class="out-of-time"' in row) == (cam["id"] == "cam3") == cam["out_of_time"]
     assert "Found out of time, against what the frame numbers (or timestamps) said: cam3" in section
-    plain = calibrate(sim.rig, sim.wand, options={"sync": "none"}).to_json()
+    plain = calibrate(sim.rig, sim.wand, options=CalibrationOptions(sync="none")).to_json()
     (tmp_path / "plain.json").write_text(json.dumps(plain))
     assert wandcal("report", str(tmp_path / "plain.json"), "--out", str(tmp_path / "plain")).returncode == 0
     assert 'id="sync"' not in (tmp_path / "plain" / "index.html").read_text()

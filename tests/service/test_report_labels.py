@@ -13,7 +13,7 @@ from tests.capture.formats.test_import_easywand import USHICHKA_HEIGHT
 from tests.conftest import SHARED_DATA
 from tests.service.conftest import wandcal
 from wandcal.capture.folder import read_capture
-from wandcal.capture.results import read_result
+from wandcal.capture.result_file import read_result
 from wandcal.service.report.analysis import analyse
 from wandcal.service.report.figures import (
     AXIS_POINTS,

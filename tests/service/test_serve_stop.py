@@ -58,7 +58,7 @@ def cancel(c, job_id: str) -> None:
 
 STATES = {
     "idle": lambda c, cap: None,
-    "job running": lambda c, cap: start_job(c, cap),
+    "job running": start_job,
     "job cancelled": lambda c, cap: cancel(c, start_job(c, cap)),
     "live capture running": lambda c, cap: live(c, stop=False),
     "live capture stopped": lambda c, cap: live(c, stop=True),

@@ -11,7 +11,7 @@ covariance (``sigma^2 (J^T J)^-1``, calib/solve/uncertainty.py) carried into the
 every camera's centre and a point one metre along its optical axis, each camera weighted by how
 well it is known. That is the part of the error that waving reduces. The result's
 ``center_std_mm`` is in the user's world frame and adds the L-frame's own noise, which no amount
-of waving removes (docs/decisions/0009-guidance-uncertainty.md has the measurements).
+of waving removes (docs/decisions/0010-guidance-uncertainty.md has the measurements).
 
 Fast and honest: each camera keeps about ``frames_per_camera`` of its frames (drawn the same way
 at every update, so the estimate does not jitter) and its sigma is scaled by

@@ -72,13 +72,13 @@ def guidance_document(rig: Rig, seen: Seen, center: np.ndarray, rotation: np.nda
     # a camera out of time spoils every other figure it touches: it leads the list
     late = [f"{cid} looks out of time: its wand matches the others' {shift:+d} frames away; check its trigger "
             "connection, or calibrate with --sync auto" for cid, shift in info.get("out_of_time", {}).items()]
-    advice = late + ([info["message"]] if not info["ok"] and info["message"] else []) + [w[2] for w in worst]
+    rig_advice = late + ([info["message"]] if not info["ok"] and info["message"] else []) + [w[2] for w in worst]
     enough = enough and not info.get("out_of_time")
     return {
         "format": GUIDANCE_FORMAT,
         "frames": rig_frames,
         "enough": bool(enough),
-        "advice": advice,
+        "advice": rig_advice,
         "target": {"center_std_mm": target, "coverage": goal},
         "cameras": cameras,
         "solve": info,

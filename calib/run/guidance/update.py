@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -14,14 +15,14 @@ from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, StaticObservations, WandObservations
 from wandcal.calib.run.guidance.document import Seen, guidance_document
 from wandcal.calib.run.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
-from wandcal.calib.start.initial import shared_frames
-from wandcal.calib.start.timing import (
+from wandcal.calib.start.frame_offsets import (
     DEFAULT_MAX_OFFSET,
     FrameOffsets,
     confirmed_offsets,
     frame_offsets,
     shift_pairs,
 )
+from wandcal.calib.start.initial import shared_frames
 
 NO_WAND_YET = "no wand frames yet: wave the wand through the volume, where several cameras see it"
 # Cameras left out, weakest first, when the fast solve cannot place them all; the rest are solved.
@@ -94,7 +95,9 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
     n = len(rig.cameras)
     center = np.full(n, np.nan)
     rotation = np.full(n, np.nan)
-    solution, failure, info = None, None, {"frames_used": 0, "cameras": 0, "warm_start": False}
+    solution: Solution | None = None
+    failure: str | None = None
+    info: dict[str, Any] = {"frames_used": 0, "cameras": 0, "warm_start": False}  # the document's "solve"
     left_out: dict[str, str] = {}
     if solve_set.sum() < 2:
         failure = (NO_WAND_YET if not len(seen.pairs) else
@@ -127,7 +130,7 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
 
 def _whole_frames(rig: Rig, pairs: WandPairs, window: int) -> FrameOffsets | None:
     """The cameras' whole-frame offsets within +-``window`` (docs/sync.md's search,
-    wandcal.calib.start.timing.frame_offsets), or None while the frames so far cannot tell them
+    wandcal.calib.start.frame_offsets.frame_offsets), or None while the frames so far cannot tell them
     (too few, or a camera that sees no wand with the others yet)."""
     if not np.isfinite(pairs.xy).all():  # grouped without undistorting (guidance's pairs): undistort here
         pairs = replace(pairs, xy=undistort_by_camera(rig.cameras, pairs.camera, pairs.uv))
@@ -227,7 +230,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     kept = replace(kept, xy=undistort_by_camera(sub.cameras, kept.camera, kept.uv))
     ids = tuple(sub.ids)
     warm = start is not None and start.ids == ids
-    if warm:
+    if start is not None and warm:
         R, t = start.R, start.t
     else:
         static_poses = None

@@ -22,7 +22,7 @@ from threadpoolctl import threadpool_limits
 from wandcal.calib.geometry import camera_centers, matrix_to_euler
 from wandcal.calib.observations import PointTracks
 from wandcal.calib.solve.ba.levenberg import CAUCHY_SIGMAS, STOP_SE, LevenbergMarquardt
-from wandcal.calib.solve.markerwand import planar_term
+from wandcal.calib.solve.markerwand import PlanarWandTerm, planar_term
 from wandcal.calib.solve.reprojection import CAM_PARAMS, INTRINSICS, BundleState, PointTerm, TimeFit, WandTerm
 from wandcal.calib.solve.uncertainty import PoseCovariance
 from wandcal.calib.solve.wandmodel import WandModel
@@ -84,6 +84,18 @@ class BundleResult:
     dt: np.ndarray | None = None
 
 
+def _point_term(tracks: PointTracks, focal: np.ndarray, free: np.ndarray, n: int, intrinsics: IntrinsicsFit | None,
+                timed: bool) -> PointTerm:
+    """The single-point tracks' term (focal: (N,) pixels; raw pixels when the intrinsics are refined)."""
+    raw = None
+    if intrinsics is not None and intrinsics.refine:
+        if intrinsics.point_uv is None:
+            raise ValueError("bundle_adjust_points: refining the intrinsics with point tracks needs their raw "
+                             "pixels (IntrinsicsFit.point_uv)")
+        raw = (intrinsics.point_uv, intrinsics.refine)
+    return PointTerm(tracks.camera, tracks.track, tracks.xy, focal[tracks.camera], tracks.n_tracks, free, n, raw, timed)
+
+
 def bundle_adjust_points(
     model: WandModel,
     tracks: PointTracks | None,
@@ -112,9 +124,7 @@ def bundle_adjust_points(
         standard_errors: compute ``camera_std`` (one more evaluation and solve; a first stage
             whose result is polished further does not need them).
         timing: the time offsets to refine with the poses, or None to hold them (no extra column).
-        judge_frames: False: ``stop_se`` is judged on the cameras' parameters and the points',
-            not on the wand frames', which are nuisance parameters
-            (:mod:`wandcal.calib.solve.ba.levenberg`).
+        judge_frames: False: ``stop_se`` is judged on the cameras and points, not the wand frames.
 
     Without wand observations the scale is free: it is held by fixing the one translation
     component of one camera that most changes with it (the poses are then up to scale).
@@ -129,23 +139,21 @@ def bundle_adjust_points(
     # a camera held for the gauge keeps its pose, but its intrinsics and time offset may still move
     every = bool(refine) or timing is not None
     free = np.arange(n) if every else model.free
-    terms = []
+    terms: list[WandTerm | PlanarWandTerm | PointTerm] = []
     if len(p.camera):
-        raw = (intrinsics.wand_uv, refine) if refine else None
+        raw = (intrinsics.wand_uv, refine) if intrinsics is not None and refine else None
         if p.planar and timing is not None:  # the pipeline refines a planar wand's markers after the sync
             raise ValueError("bundle_adjust_points: a planar wand's term carries no image velocities to refine offsets with")
         terms.append(planar_term(p, free, raw) if p.planar else
                      WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, free, n, raw,
                               p.along, timing.velocity if timing is not None else None))
     if tracks is not None and len(tracks):
-        raw = (intrinsics.point_uv, refine) if refine else None
-        terms.append(PointTerm(tracks.camera, tracks.track, tracks.xy, p.focal[tracks.camera], tracks.n_tracks, free, n, raw,
-                               timing is not None))
+        terms.append(_point_term(tracks, p.focal, free, n, intrinsics, timing is not None))
     R, t = model.poses(x0)
     wand = model.wand(x0) if p.n_frames else np.zeros((0, 2, 3))
     d = wand[:, 1] - wand[:, 0]
     X = np.zeros((0, 3)) if X0 is None else np.asarray(X0, float)
-    intr = intrinsics.intr.copy() if refine else None
+    intr = intrinsics.intr.copy() if intrinsics is not None and refine else None
     Q = model.axes(model.unpack(x0)[3]) if p.planar else None
     dt = np.zeros(n) if timing is not None else None
     state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), X, intr, Q, dt)

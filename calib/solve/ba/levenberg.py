@@ -74,6 +74,11 @@ class LevenbergMarquardt:
         self.cam_size = CAM_PARAMS + self.intr_size + (TIME_PARAMS if timed else 0)
         self.scale = np.inf
         self.split = np.cumsum([len(t.structure.cam) for t in terms])[:-1]
+        # what run leaves for standard_errors: the final state with its squared errors, the last
+        # normal matrix built, and the last undamped solve (the matrix and its step)
+        self.last: tuple[BundleState, np.ndarray] | None = None
+        self.recent: schur.Normal | None = None
+        self.undamped: tuple[schur.Normal, schur.Step] | None = None
 
     def _cost(self, z: np.ndarray) -> float:
         if self.loss == "linear":
@@ -97,11 +102,11 @@ class LevenbergMarquardt:
         t[self.free] += step.dc[:, 3:6]
         intr = state.intr
         if self.refine:
-            intr = intr.copy()
-            intr[self.free] = moved_intrinsics(state.intr[self.free], step.dc[:, 6 : 6 + self.intr_size], self.refine)
+            intr = state.refined_intr().copy()
+            intr[self.free] = moved_intrinsics(intr[self.free], step.dc[:, 6 : 6 + self.intr_size], self.refine)
         dt = state.dt
         if self.timed:
-            dt = dt.copy()
+            dt = state.refined_dt().copy()
             dt[self.free] += step.dc[:, CAM_PARAMS + self.intr_size]
         state = BundleState(R, t, state.m, state.d, state.X, intr, state.Q, dt)
         for term, dp in zip(self.terms, step.dp):
@@ -146,7 +151,8 @@ class LevenbergMarquardt:
         lam, nu = (0.0 if self.loss == "linear" else LAMBDA0), 2.0
         status, message, iterations, evaluations = "iteration_limit", "most iterations reached", 0, 1
         last_ratio = np.inf
-        self.undamped = chord = None
+        chord: tuple[schur.Normal, schur.Step] | None = None
+        self.undamped = None
         for it in range(max_iter):
             accepted = None
             if chord is not None:
@@ -237,21 +243,21 @@ class LevenbergMarquardt:
     def standard_errors(self, state: BundleState) -> np.ndarray:
         """(n_free, c) standard errors of the cameras' parameters at the solution: sigma times the
         root diagonal of the undamped reduced system's inverse (0 for held parameters)."""
-        last_state, z = getattr(self, "last", (None, None))
-        recent = getattr(self, "recent", None)
-        if last_state is not state:
+        if self.last is not None and self.last[0] is state:
+            z, recent = self.last[1], self.recent
+        else:
             z, recent = self._squared_errors(state), None
+        undamped = self.undamped
+        self.recent = self.undamped = None
+        if not self.n_free:
+            return np.full((0, self.cam_size), np.inf)
         # the last normal matrix built, at this state or up to two steps before it (a step and the
         # chord step after it): the run stopped when what was left fell under stop_se standard
         # errors, and its last steps were of a few standard errors at most, far below what moves
         # a covariance (3e-5 of the standard errors at 64 x 3000, docs/decisions/0026)
-        normal = (recent if recent is not None else self._normal(state, z)) if self.n_free else None
-        undamped = getattr(self, "undamped", None)
-        self.recent = self.undamped = None
-        if undamped is not None and undamped[0] is normal:
-            step = undamped[1]  # the run solved this very matrix undamped: the same inverse
-        else:
-            step = schur.solve(normal, 0.0) if self.n_free else None
+        normal = recent if recent is not None else self._normal(state, z)
+        # the run solved this very matrix undamped: the same inverse
+        step: schur.Step | None = undamped[1] if undamped is not None and undamped[0] is normal else schur.solve(normal, 0.0)
         if step is None:
             return np.full((self.n_free, self.cam_size), np.inf)
         n_par = self.n_free * self.cam_size - len(self.frozen) + sum(t.structure.n_pts * t.structure.size for t in self.terms)

@@ -22,19 +22,18 @@ INF = highspy.kHighsInf
 # HiGHS prints its banner ("Running HiGHS 1.16.0 ... Copyright") to the process's stdout from the
 # first Highs() of a process, before any option can be set; new_highs() hides that one call.
 _banner_lock = threading.Lock()
-_banner_done = False
+_banner_done = threading.Event()
 
 
 def new_highs() -> highspy.Highs:
     """A silent ``highspy.Highs``: no banner on stdout, ``output_flag`` off (a command's stdout
     carries its result, and ``--quiet`` means quiet)."""
-    global _banner_done
     with _banner_lock:
-        if _banner_done:
+        if _banner_done.is_set():
             h = highspy.Highs()
         else:
             h = _without_stdout(highspy.Highs)
-            _banner_done = True
+            _banner_done.set()
     h.setOptionValue("output_flag", False)
     return h
 
@@ -218,11 +217,6 @@ class IncrementalLp:
         )
         self.n += A.shape[1]
 
-    def set_rhs(self, rhs: np.ndarray) -> None:
-        rhs = np.asarray(rhs, float)
-        idx = np.arange(self.m, dtype=np.int32)
-        self.h.changeRowsBounds(self.m, idx, rhs, rhs)
-
     def solve(self, strategy: int | None = None) -> LpResult:
         """Solve, from the last basis when there is one. ``strategy``: HiGHS's simplex_strategy
         (1 dual, 4 primal); primal suits a re-solve after adding columns, whose basis stays
@@ -237,14 +231,12 @@ class IncrementalLp:
         """Start the next solve from a basis: ``basic`` (n_columns,) mask of the basic columns
         (as many as rows), the others at their upper bound where ``at_upper``, else at their
         lower; the rows' slacks are nonbasic (the rows are equalities)."""
-        status = np.where(basic, highspy.HighsBasisStatus.kBasic,
-                          np.where(at_upper, highspy.HighsBasisStatus.kUpper, highspy.HighsBasisStatus.kLower))
+        kind = highspy.HighsBasisStatus
         basis = self.h.getBasis()
-        basis.col_status = list(status)
+        basis.col_status = [
+            kind.kBasic if b else kind.kUpper if u else kind.kLower
+            for b, u in zip(basic, at_upper)
+        ]
         basis.row_status = [highspy.HighsBasisStatus.kLower] * self.m
         basis.valid = True
         self.h.setBasis(basis)
-
-    def set_costs(self, columns: np.ndarray, cost: np.ndarray) -> None:
-        idx = np.asarray(columns, dtype=np.int32)
-        self.h.changeColsCost(len(idx), idx, np.asarray(cost, float))

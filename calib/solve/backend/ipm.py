@@ -127,14 +127,9 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
     upper = np.where(ub, up, 0.0)
     one = np.where(ub, 1.0, 0.0)  # upper-bound terms exist only where there is a bound
 
-    # an infeasible start, inside the bounds with its duals positive, scaled to the costs
-    size = max(np.abs(cost).max(), 1e-300)
-    x = np.where(ub, upper / 2, 1.0)
-    s = np.where(ub, upper - x, 1.0)
+    x, z, s, w = _infeasible_start(cost, ub, upper, one)
     lam = np.zeros(n)
     Et_lam = np.zeros(2 * n + len(c))  # E^T lam, carried from step to step (E^T dl is each direction's)
-    z = np.maximum(cost, 0.0) + 0.1 * size
-    w = (np.maximum(-cost, 0.0) + 0.1 * size) * one
     n_compl = len(x) + int(ub.sum())  # complementarity products: x z, and s w where bounded
     r_norm, c_norm = 1 + np.abs(r).max(), 1 + np.abs(cost).max()
     status, it = "iteration_limit", 0
@@ -174,30 +169,50 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
             status = "breakdown"
             break
         point, residuals = (x, z, s, w, one), (rp, ru, rd)
-        # the affine-scaling predictor, then Mehrotra's corrector, then Gondzio's
-        dl, dx, dz, ds, dw, _ = _direction(A, factor, D, point, residuals, -x * z, -s * w * one)
-        a_p, a_d = _step_lengths(point, (dx, dz, ds, dw), 1.0)
-        gap_aff = (x + a_p * dx) @ (z + a_d * dz) + ((s + a_p * ds) * (w + a_d * dw)) @ one
-        target = (gap_aff / gap) ** 3 * mu
-        r_xz, r_sw = target - x * z - dx * dz, (target - s * w - ds * dw) * one
-        direction = _direction(A, factor, D, point, residuals, r_xz, r_sw)
-        a_p, a_d = _step_lengths(point, direction[1:5], STEP_TO_BOUNDARY)
-        for _ in range(CORRECTORS):
-            if min(a_p, a_d) >= 1.0:
-                break
-            t_xz, t_sw = _centrality_targets(point, direction[1:5], a_p, a_d, target)
-            corrected = _direction(A, factor, D, point, residuals, r_xz + t_xz, r_sw + t_sw)
-            c_p, c_d = _step_lengths(point, corrected[1:5], STEP_TO_BOUNDARY)
-            aimed = min(1.0, a_p + CORRECTOR_REACH) - a_p + min(1.0, a_d + CORRECTOR_REACH) - a_d
-            if c_p + c_d < a_p + a_d + CORRECTOR_GAIN * aimed:
-                break
-            direction, a_p, a_d, r_xz, r_sw = corrected, c_p, c_d, r_xz + t_xz, r_sw + t_sw
+        direction, a_p, a_d = _search_direction(A, factor, D, point, residuals, gap, mu)
         dl, dx, dz, ds, dw, Et_dl = direction
         x, s = x + a_p * dx, np.where(ub, s + a_p * ds, 1.0)
         lam, z, w = lam + a_d * dl, z + a_d * dz, (w + a_d * dw) * one
         Et_lam = Et_lam + a_d * Et_dl
     basic, at_upper = _named_basis(x, z, s, w, ub, n)
     return IpmResult(lam, basic, at_upper, status, it, time.perf_counter() - start)
+
+
+def _infeasible_start(cost: np.ndarray, ub: np.ndarray, upper: np.ndarray, one: np.ndarray):
+    """An infeasible start, inside the bounds with its duals positive, scaled to the costs: (x, z,
+    s, w), each (2n + k,), for the columns' costs ``cost``, bounded mask ``ub``, bounds ``upper``
+    (0 where unbounded) and ``one`` (1.0 where bounded)."""
+    size = max(np.abs(cost).max(), 1e-300)
+    x = np.where(ub, upper / 2, 1.0)
+    s = np.where(ub, upper - x, 1.0)
+    z = np.maximum(cost, 0.0) + 0.1 * size
+    w = (np.maximum(-cost, 0.0) + 0.1 * size) * one
+    return x, z, s, w
+
+
+def _search_direction(A, factor, D, point, residuals, gap: float, mu: float):
+    """One iteration's direction: the affine-scaling predictor, then Mehrotra's corrector, then
+    up to ``CORRECTORS`` of Gondzio's. Returns (direction (dl, dx, dz, ds, dw, E^T dl), primal
+    step length, dual step length)."""
+    x, z, s, w, one = point
+    dl, dx, dz, ds, dw, _ = _direction(A, factor, D, point, residuals, -x * z, -s * w * one)
+    a_p, a_d = _step_lengths(point, (dx, dz, ds, dw), 1.0)
+    gap_aff = (x + a_p * dx) @ (z + a_d * dz) + ((s + a_p * ds) * (w + a_d * dw)) @ one
+    target = (gap_aff / gap) ** 3 * mu
+    r_xz, r_sw = target - x * z - dx * dz, (target - s * w - ds * dw) * one
+    direction = _direction(A, factor, D, point, residuals, r_xz, r_sw)
+    a_p, a_d = _step_lengths(point, direction[1:5], STEP_TO_BOUNDARY)
+    for _ in range(CORRECTORS):
+        if min(a_p, a_d) >= 1.0:
+            break
+        t_xz, t_sw = _centrality_targets(point, direction[1:5], a_p, a_d, target)
+        corrected = _direction(A, factor, D, point, residuals, r_xz + t_xz, r_sw + t_sw)
+        c_p, c_d = _step_lengths(point, corrected[1:5], STEP_TO_BOUNDARY)
+        aimed = min(1.0, a_p + CORRECTOR_REACH) - a_p + min(1.0, a_d + CORRECTOR_REACH) - a_d
+        if c_p + c_d < a_p + a_d + CORRECTOR_GAIN * aimed:
+            break
+        direction, a_p, a_d, r_xz, r_sw = corrected, c_p, c_d, r_xz + t_xz, r_sw + t_sw
+    return direction, a_p, a_d
 
 
 def _factor(normal: _NormalMatrix, Dy: np.ndarray, box: np.ndarray, strict: bool = False):

@@ -1,6 +1,6 @@
 """Sub-frame time offsets and rate differences (drift) of cameras without a trigger.
 
-After the whole-frame search (:mod:`wandcal.calib.start.timing`) each camera's frames are on the
+After the whole-frame search (:mod:`wandcal.calib.start.frame_offsets`) each camera's frames are on the
 reference camera's clock to within a frame. What is left is modelled per camera c as
 
     phi_c(f) = phase_c + drift_c (f - centre_c)        (frames)
@@ -259,13 +259,7 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     # each camera's own robust sigma: a camera still out of time has larger residuals, and they
     # are the signal, not outliers
     if cut is None:
-        limit = np.full(n, MIN_OUTLIER_PX)
-        for c in range(n):
-            mine = ok & (cam == c)
-            if mine.any():
-                limit[c] = max(OUTLIER_LIMIT * np.sqrt(np.median(e[mine] ** 2) / (2 * np.log(2))), MIN_OUTLIER_PX)
-        cut = np.zeros((len(pairs), 2), bool)
-        cut[np.concatenate([rows, rows]), np.repeat([0, 1], len(rows))] = e > limit[cam]
+        cut = _outliers(e, ok, cam, rows, n, len(pairs))
     ok &= ~cut[np.concatenate([rows, rows]), np.repeat([0, 1], len(rows))]
     views = np.bincount(point[ok], minlength=2 * F)
     ok &= views[point] >= 2
@@ -281,29 +275,64 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     width = G.shape[2]
     A, G, r, point, cam = A[ok], G[ok], r[ok], point[ok], cam[ok]
     used = np.bincount(cam, minlength=n)
+    share = np.concatenate([spread[rows]] * 2)[ok] if spread is not None else None
+    pooled, weight = _camera_weights(r, point, cam, used, width, share)
+    A, G, r = A * weight[:, :, None], G * weight[:, :, None], r * weight
+    S, rhs = _eliminated(A, G, r, point, cam, n, 2 * F)
+    return S, rhs, float(np.sqrt(pooled)), used, X, cut
+
+
+def _outliers(e: np.ndarray, ok: np.ndarray, cam: np.ndarray, rows: np.ndarray, n: int, n_pairs: int) -> np.ndarray:
+    """(n_pairs, 2) bool: each pair row's ends whose residual length ``e`` (2R,) pixels passes
+    ``OUTLIER_LIMIT`` of its camera's own robust sigma (at least ``MIN_OUTLIER_PX``)."""
+    limit = np.full(n, MIN_OUTLIER_PX)
+    for c in range(n):
+        mine = ok & (cam == c)
+        if mine.any():
+            limit[c] = max(OUTLIER_LIMIT * np.sqrt(np.median(e[mine] ** 2) / (2 * np.log(2))), MIN_OUTLIER_PX)
+    cut = np.zeros((n_pairs, 2), bool)
+    cut[np.concatenate([rows, rows]), np.repeat([0, 1], len(rows))] = e > limit[cam]
+    return cut
+
+
+def _camera_weights(r: np.ndarray, point: np.ndarray, cam: np.ndarray, used: np.ndarray, width: int,
+                    share: np.ndarray | None) -> tuple[float, np.ndarray]:
+    """(the pooled blob variance, pixels^2; (M, 1) each observation's weight, its camera's noise
+    against the pooled) from the residuals ``r`` (M, 2) pixels, the share of each residual's
+    variance the resampling kept (M,), or None for all of it.
+
+    Each camera's blob noise, from its residuals less the share the resampling smoothed away:
+    the values' noise is correlated from frame to frame, and over the slowly turning image
+    velocity that an offset is seen through it adds up to a whole blob's; the residuals' own
+    variance, 0.64 of it half-way between frames, made the standard errors 1.2-1.3x optimistic."""
+    n = len(used)
     M = len(r)
-    # each camera's blob noise, from its residuals less the share the resampling smoothed away:
-    # the values' noise is correlated from frame to frame, and over the slowly turning image
-    # velocity that an offset is seen through it adds up to a whole blob's; the residuals' own
-    # variance, 0.64 of it half-way between frames, made the standard errors 1.2-1.3x optimistic
     dof_share = max(2 * M - 3 * len(np.unique(point)) - n * width, 1) / (2 * M)
-    share = np.concatenate([spread[rows]] * 2)[ok] if spread is not None else np.ones(M)
+    share = share if share is not None else np.ones(M)
     noise = np.bincount(cam, (r**2).sum(1), minlength=n) / np.maximum(2 * np.bincount(cam, share, minlength=n), 1e-300)
     noise = noise / dof_share
     noise = np.where(used > 0, noise, 1.0)
     pooled = float(np.sum(noise * used) / max(used.sum(), 1))
     weight = np.sqrt(pooled / np.maximum(noise, 1e-300))[cam][:, None]  # each camera by its noise, in pixels
-    A, G, r = A * weight[:, :, None], G * weight[:, :, None], r * weight
-    H = _sums(point, _outer_sum(A, A), 2 * F)
-    ar = _sums(point, np.einsum("mai,ma->mi", A, r), 2 * F)
+    return pooled, weight
+
+
+def _eliminated(A: np.ndarray, G: np.ndarray, r: np.ndarray, point: np.ndarray, cam: np.ndarray, n: int,
+                n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """The camera columns' normal equations with the points eliminated point by point: S (n w,
+    n w), rhs (n w,), from each observation's point Jacobian ``A`` (M, 2, 3), camera Jacobian
+    ``G`` (M, 2, w) and residual ``r`` (M, 2), all weighted."""
+    width = G.shape[2]
+    H = _sums(point, _outer_sum(A, A), n_points)
+    ar = _sums(point, np.einsum("mai,ma->mi", A, r), n_points)
     D = np.zeros((n, width, width))
     gr = np.zeros((n, width))
     for c in range(n):  # a camera's block is one product over its observations
         mine = cam == c
         Gc = G[mine].reshape(-1, width)
         D[c], gr[c] = Gc.T @ Gc, Gc.T @ r[mine].ravel()
-    seen = np.flatnonzero(np.bincount(point, minlength=2 * F) >= 2)
-    slot = np.full(2 * F, -1)
+    seen = np.flatnonzero(np.bincount(point, minlength=n_points) >= 2)
+    slot = np.full(n_points, -1)
     slot[seen] = np.arange(len(seen))
     # a camera sees a wand end once, so each (end, camera) block of B is one observation's A^T G
     B = np.zeros((len(seen) * n, 3, width))
@@ -316,7 +345,7 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     for c in range(n):
         S[c * width : (c + 1) * width, c * width : (c + 1) * width] += D[c]
     rhs = -gr.ravel() + np.einsum("piq,pi->q", W, ar[seen])
-    return S, rhs, float(np.sqrt(pooled)), used, X, cut
+    return S, rhs
 
 
 def _cross_rows(P: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, HTTPException, Request
@@ -11,7 +12,8 @@ from starlette.datastructures import FormData, UploadFile
 
 from wandcal.calib.rig import StaticObservations
 from wandcal.calib.start.static import solve_static
-from wandcal.capture.folder import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE, decode_text
+from wandcal.capture.folder import decode_text
+from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.api.deps import CaptureDep, State, require_content_type
 from wandcal.service.schemas import (
     CameraCoverage,
@@ -30,7 +32,7 @@ WHOLE = re.compile(r"^[0-9]{1,12}$")  # ASCII digits only; 12 digits outlast any
 FORM = ("multipart/form-data", "application/x-www-form-urlencoded")
 UPLOAD_PARTS = (RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE, "path")  # POST /captures' form fields
 MAX_STATIC_IMAGES_PER_CAMERA = 100  # averaging beyond ~100 frames gains nothing (noise falls as 1/sqrt(N))
-ERRORS = {
+ERRORS: dict[int | str, dict[str, Any]] = {
     400: {"model": ErrorPublic, "description": "malformed request"},
     401: {"model": ErrorPublic, "description": "missing or wrong bearer token"},
     404: {"model": ErrorPublic, "description": "unknown capture"},
@@ -138,7 +140,7 @@ async def create_capture(request: Request, state: State) -> CapturePublic:
 
 @router.get("", response_model=CaptureList, responses={401: ERRORS[401]}, summary="List captures, newest first")
 def list_captures(state: State) -> CaptureList:
-    return CaptureList(captures=[to_public(r) for r in state.captures.list()])
+    return CaptureList(captures=[to_public(r) for r in state.captures.newest()])
 
 
 @router.get(
@@ -182,8 +184,8 @@ async def add_frameset(capture: CaptureDep, request: Request, state: State) -> F
             headers={"Retry-After": str(max(1, round(wait)))},
         )
     form = await _form(request, state)
-    frame = _whole(form.get("frame"), "frame", required=True)
-    trigger = _whole(form.get("trigger_count"), "trigger_count", required=False)
+    frame = _whole(form.get("frame"), "frame")
+    trigger = _optional_whole(form.get("trigger_count"), "trigger_count")
     images = {}
     for key, value in form.multi_items():
         if key in ("frame", "trigger_count"):
@@ -285,11 +287,19 @@ def _static_camera(camera_id: str, pose) -> StaticCameraPublic:
     )
 
 
-def _whole(value, name: str, required: bool) -> int | None:
+def _whole(value, name: str) -> int:
+    """A required whole-number form field; 422 naming it when missing or malformed."""
     if value is None:
-        if required:
-            raise HTTPException(422, f"missing form field {name!r}; give the frame-set index as a whole number")
-        return None
+        raise HTTPException(422, f"missing form field {name!r}; give the frame-set index as a whole number")
+    return _whole_number(value, name)
+
+
+def _optional_whole(value, name: str) -> int | None:
+    """An optional whole-number form field: None when absent."""
+    return None if value is None else _whole_number(value, name)
+
+
+def _whole_number(value, name: str) -> int:
     if not isinstance(value, str) or not WHOLE.match(value.strip()):
         raise HTTPException(422, f"form field {name!r} must be a whole number >= 0, got {str(value)[:40]!r}")
     return int(value)

@@ -100,7 +100,7 @@ def create_job(body: JobCreate, state: State) -> JobPublic:
 def list_jobs(
     state: State, capture_id: Annotated[str | None, Query(max_length=64)] = None
 ) -> JobList:
-    records = [state.queue.refresh(r.id) if not r.state.finished else r for r in state.queue.store.list(capture_id)]
+    records = [state.queue.refresh(r.id) if not r.state.finished else r for r in state.queue.store.newest(capture_id)]
     return JobList(jobs=[JobSummary(**to_public(r, state).model_dump(exclude={"result"})) for r in records if r])
 
 
@@ -122,7 +122,7 @@ def cancel_job(job_id: str, state: State) -> JobPublic:
     record = _job(state, job_id)
     if record.state.finished:
         raise HTTPException(409, f"job {job_id} is already {record.state.value}; there is nothing to cancel")
-    return to_public(state.queue.cancel(job_id), state)
+    return to_public(state.queue.cancel(job_id) or record, state)  # None only if its row went (rows stay)
 
 
 @router.get(
@@ -245,7 +245,7 @@ async def get_report_file(job_id: str, name: str, state: State) -> FileResponse:
 # -- the page's 3D view: the capture's samples in the world (service/report/scene.py) ----------
 def _scene(state, job_id: str) -> dict:
     from wandcal.calib.errors import CalibrationError
-    from wandcal.capture.results import result_from_json
+    from wandcal.capture.result_file import result_from_json
     from wandcal.service.report.scene import scene
 
     record = _job(state, job_id)

@@ -2,7 +2,9 @@
 with exit code 2 and a message that gives the range (argparse names the option).
 
 Every numeric option of every subcommand uses one of these (tests/service/test_cli_numbers.py
-goes through them all).
+goes through them all). They are named ``arg_*`` because they parse a command-line word; the checks
+of a JSON document's values (``capture/result_file.py``'s ``number``/``whole``,
+``capture/rig_file.py``'s ``positive_number``) are another thing.
 """
 
 from __future__ import annotations
@@ -11,11 +13,9 @@ import argparse
 import math
 
 MAX_SEED = 2**32 - 1  # numpy's seeds are unsigned; a bound keeps them printable and portable
-MAX_SYNC_OFFSET = 10_000  # --sync-max-offset, frames: 100 s at 100 fps; further off is another recording
-MAX_FRAME_RATE_HZ = 1_000_000.0  # the fastest high-speed cameras record at about this; more is a typo
 
 
-def whole(low: int, high: int | None = None):
+def arg_whole(low: int, high: int | None = None):
     """A whole number from ``low`` to ``high`` (inclusive; no upper bound when None)."""
     def parse(text: str) -> int:
         try:
@@ -30,7 +30,7 @@ def whole(low: int, high: int | None = None):
     return parse
 
 
-def number(low: float, high: float | None = None, low_open: bool = False, high_open: bool = False):
+def arg_number(low: float, high: float | None = None, low_open: bool = False, high_open: bool = False):
     """A finite number from ``low`` to ``high``; ``low_open``/``high_open`` exclude the end."""
     def parse(text: str) -> float:
         try:
@@ -47,20 +47,12 @@ def number(low: float, high: float | None = None, low_open: bool = False, high_o
     return parse
 
 
+arg_positive = arg_number(0, low_open=True)  # a finite number > 0: a length, a focal length, a sigma goal
+
+
 def _range(low, high, got, low_open: bool = False, high_open: bool = False) -> str:
     lower = f"more than {low:g}" if low_open else f"at least {low:g}"
     if high is None:
         return f"must be {lower}, got {got}"
     upper = f"less than {high:g}" if high_open else f"at most {high:g}"
     return f"must be {lower} and {upper}, got {got}"
-
-
-def positive_number(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 < value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value

@@ -58,8 +58,8 @@ def _verdict_lines(doc: dict) -> list[str]:
         return []
     lines = [f"rig geometry: {verdict['level']}"]
     faults = verdict.get("faults") or []
-    for fault in faults:
-        lines.append(f"  fault ({fault['kind']}{', ' + fault['camera'] if fault.get('camera') else ''}): {fault['message']}")
+    lines += [f"  fault ({fault['kind']}{', ' + fault['camera'] if fault.get('camera') else ''}): {fault['message']}"
+              for fault in faults]
     shown = {fault["message"] for fault in faults}
     lines += [f"  {reason}" for reason in verdict["reasons"] if reason not in shown]
     poor = [cam for cam in doc["cameras"] if cam.get("verdict", {}).get("level") == "poor"

@@ -171,7 +171,7 @@ def _relative_errors(R, t, R_true, t_true, sigma):
 def test_the_predicted_sigma_falls_as_frames_arrive_and_matches_the_real_error_spread():
     """The bounds: each camera's squared error over its predicted variance has mean 1; the cameras
     of one rig share the frame's error, so in the worst case they count as one sample per seed
-    (a chi^2 with SEEDS degrees of freedom, as tests/calib/test_uncertainty.py). The subsample
+    (a chi^2 with SEEDS degrees of freedom, as tests/calib/solve/test_uncertainty.py). The subsample
     adds its own error: sigma^2 scaled from n of N frames per camera has a relative spread of
     sqrt((1 - n/N) / n) (sampling without replacement, per-frame information of unit spread),
     half of that on sigma, allowed to 3 of its sigmas."""

@@ -7,6 +7,7 @@ import pytest
 
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.judgement import input_faults
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.faults import EXPECTED, broken_capture
 from wandcal.calib.sim.simulate import simulate_capture
 
@@ -53,7 +54,7 @@ def test_a_broken_rig_is_poor_and_names_the_fault_and_only_it(case):
 def test_every_method_is_judged_on_the_same_observations():
     """ba keeps only the frames it did not drop; the verdict judges them all, for every method."""
     sim, c, _ = broken_capture("reflections", SEED + 1, 5, frames=600)
-    docs = {m: calibrate(sim.rig, sim.wand, sim.static, m).to_json() for m in ("ba", "lp")}
+    docs = {m: calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method=m)).to_json() for m in ("ba", "lp")}
     judged = {m: ([(f["kind"], f["camera"]) for f in d["verdict"]["faults"]], d["verdict"]["level"]) for m, d in docs.items()}
     assert judged["ba"] == judged["lp"] == ([("outliers", sim.rig.cameras[c].id)], "poor")
     for a, b in zip(docs["ba"]["cameras"], docs["lp"]["cameras"]):
@@ -63,7 +64,7 @@ def test_every_method_is_judged_on_the_same_observations():
 
 def test_an_unconverged_solve_is_never_good():
     sim = simulate_capture(4, 300, 0.3, 0.0, True, SEED)
-    doc = calibrate(sim.rig, sim.wand, sim.static, "paper", options={"max_rounds": 1}).to_json()
+    doc = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method="paper", max_rounds=1)).to_json()
     if doc["solver"]["status"] == "converged":
         pytest.skip("one round happened to converge")
     assert doc["verdict"]["level"] == "poor"

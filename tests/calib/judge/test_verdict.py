@@ -106,7 +106,7 @@ def test_axis_points_with_z_clicked_downwards_put_the_cameras_under_the_floor_an
             role.append(name), camera.append(c)
             uv.append(distort_points(cam, project_normalized(sim.truth.R[c], sim.truth.t[c], np.array([X])))[0])
     res = calibrate(sim.rig, sim.wand, None, axis=AxisObservations(role, camera, uv))
-    assert res.world["frame"] == "axis" and np.all(res.centers[:, 2] < 0)
+    assert res.world.frame == "axis" and np.all(res.centers[:, 2] < 0)
     assert any("below the floor" in w and "z must point up" in w for w in res.warnings)
 
 

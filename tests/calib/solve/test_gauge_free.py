@@ -46,16 +46,16 @@ def test_geometry_and_placement_sigmas_match_the_real_errors():
     for seed in range(SEEDS):
         sim = simulate_capture(6, 600, NOISE, 0.0, True, 500 + seed)
         res = calibrate(sim.rig, sim.wand, sim.static)
-        geo = np.array([c["geometry_std_mm"] for c in res.cameras]) / 1000
+        geo = np.array([c.uncertainty.geometry.std_mm for c in res.cameras]) / 1000
         weight = 1 / np.maximum(geo, np.median(geo)) ** 2
         Ra, ta, Rw, tw = _aligned(res.R, res.t, sim.truth.R, sim.truth.t, weight)
         geo_c.append(np.linalg.norm(camera_centers(Ra, ta) - sim.truth.centers, axis=1) / geo)
-        geo_r.append(rotation_angle(Ra, sim.truth.R) / np.radians([c["geometry_rotation_std_deg"] for c in res.cameras]))
-        place = res.world["placement"]
-        origin.append(np.linalg.norm(tw) / (place["origin_std_mm"] / 1000))  # where the fit takes the origin
-        axes.append(rotation_angle(Rw[None], np.eye(3)[None])[0] / np.radians(place["axes_std_deg"]))
+        geo_r.append(rotation_angle(Ra, sim.truth.R) / np.radians([c.uncertainty.geometry.rotation_std_deg for c in res.cameras]))
+        place = res.world.placement
+        origin.append(np.linalg.norm(tw) / (place.origin_std_mm / 1000))  # where the fit takes the origin
+        axes.append(rotation_angle(Rw[None], np.eye(3)[None])[0] / np.radians(place.axes_std_deg))
         # the split's parts add up to the total (they are orthogonal in the fit's metric)
-        total = np.array([c["center_std_mm"] for c in res.cameras])
+        total = np.array([c.uncertainty.center_std_mm for c in res.cameras])
         assert np.all(geo * 1000 < total)
     lo, hi = _bounds()
     for name, ratios in (("geometry centres", geo_c), ("geometry rotations", geo_r), ("origin", origin), ("axes", axes)):

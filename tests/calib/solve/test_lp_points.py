@@ -5,6 +5,7 @@ import numpy as np
 
 from wandcal.calib.judge.crb import gauge_errors
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.scenes import pairwise_points
 from wandcal.calib.sim.simulate import simulate_capture
 
@@ -13,8 +14,8 @@ NOISE = 0.5
 
 def _rms(sim, method, points):
     """RMS centre error (metres, camera 0's gauge) of a calibration, and the result."""
-    r = calibrate(sim.rig, sim.wand, None, method, points=points)
-    assert r.solver["status"] == "converged"
+    r = calibrate(sim.rig, sim.wand, None, points=points, options=CalibrationOptions(method=method))
+    assert r.solver.status == "converged"
     assert not any("only --method ba" in w for w in r.warnings)
     err, _ = gauge_errors(r.R, r.t, sim.truth.R, sim.truth.t, 0)
     return np.sqrt(np.mean(err[1:] ** 2)), r
@@ -30,7 +31,7 @@ def test_lp_refines_with_point_tracks_as_ba_does():
         lp_wand, _ = _rms(sim, "lp", None)
         lp_points, r = _rms(sim, "lp", points)
         ba_points, _ = _rms(sim, "ba", points)
-        assert r.points is not None and len(r.points) > 1000 and all(c.get("point_rms_px") for c in r.cameras)
+        assert r.points is not None and len(r.points) > 1000 and all(c.points.rms_px for c in r.cameras)
         assert lp_points < 0.7 * lp_wand
         assert lp_points < 1.25 * ba_points  # two estimators of the same model: the same error, to noise
 
@@ -53,8 +54,8 @@ def test_lp_without_a_wand_calibrates_up_to_scale_as_ba_does():
         sim = simulate_capture(6, 10, NOISE, static=False, seed=seed)
         points = pairwise_points(sim, 1000, np.random.default_rng(seed), noise_px=NOISE)
         for method in errors:
-            r = calibrate(Rig(sim.rig.cameras, None), None, None, method, points=points)
-            assert r.world["scale"] == "arbitrary" and r.wand_report is None and r.solver["status"] == "converged"
+            r = calibrate(Rig(sim.rig.cameras, None), None, None, points=points, options=CalibrationOptions(method=method))
+            assert r.world.scale == "arbitrary" and r.wand_report is None and r.solver.status == "converged"
             Ra, ta, s = kabsch(r.centers, sim.truth.centers, scale=True)
             errors[method] += list((s * r.centers @ Ra.T + ta - sim.truth.centers).ravel())
     rms = {m: float(np.sqrt(np.mean(np.square(e)))) for m, e in errors.items()}

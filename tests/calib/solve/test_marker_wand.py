@@ -10,6 +10,7 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import distort_points, project_normalized
 from wandcal.calib.judge.crb import gauge_errors, model_crb
 from wandcal.calib.rig import Rig
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import build_problem
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve import ba
@@ -156,13 +157,13 @@ def test_gross_outliers_stay_out_of_every_marker_pair(method):
     from wandcal.calib.run.calibrate import calibrate
 
     sim = simulate_capture(6, 400, NOISE, 0.05, True, 2, wand_markers=CW500_M)
-    r = calibrate(sim.rig, sim.wand, sim.static, method)
-    assert r.dropped["outliers"] > 0 and r.solver["status"] == "converged"
-    ends = r.wand_report["length_std_m"]
-    for pair in r.wand_report["marker_pairs"]:
+    r = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method=method))
+    assert r.dropped["outliers"] > 0 and r.solver.status == "converged"
+    ends = r.wand_report.length_std_m
+    for pair in r.wand_report.marker_pairs:
         assert pair["std_m"] < 1.5 * ends  # measured 1.17-1.34 mm against 1.33 mm
     err = np.linalg.norm(r.centers - camera_centers(sim.truth.R, sim.truth.t), axis=1)
-    assert np.all(err < 4 * np.array([c["center_std_mm"] for c in r.cameras]) / 1000)
+    assert np.all(err < 4 * np.array([c.uncertainty.center_std_mm for c in r.cameras]) / 1000)
 
 
 def test_rig_json_errors_name_the_file_and_field():

@@ -15,6 +15,7 @@ from wandcal.calib.judge.crb import gauge_errors, pose_crb
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.rig import AxisObservations, Camera, Rig
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import build_problem
 from wandcal.calib.sim.scenes import pairwise_points, pairwise_wand
 from wandcal.calib.sim.simulate import simulate_capture
@@ -28,7 +29,7 @@ def test_a_rig_whose_cameras_share_only_pairwise_views_calibrates():
     for seed in (3, 11):
         sim = simulate_capture(6, 600, NOISE, static=False, seed=seed)
         wand = pairwise_wand(sim, np.random.default_rng(seed))
-        result = calibrate(sim.rig, wand, None, "ba")
+        result = calibrate(sim.rig, wand, None)
         # the bound of the same observations, labelled at the truth, in camera 0's gauge
         pairs = wand_pairs(sim.rig, wand)
         labelled, _ = label_ends(sim.truth.R, sim.truth.t, pairs, np.ones(6, bool), sim.rig.wand_length)
@@ -45,8 +46,8 @@ def test_points_only_calibrates_up_to_scale():
     sim = simulate_capture(6, 10, NOISE, static=False, seed=4)
     rig = Rig(sim.rig.cameras, None)
     points = pairwise_points(sim, 1500, np.random.default_rng(4), noise_px=NOISE)
-    result = calibrate(rig, None, None, "ba", points=points)
-    assert result.world["scale"] == "arbitrary" and result.wand_report is None
+    result = calibrate(rig, None, None, points=points)
+    assert result.world.scale == "arbitrary" and result.wand_report is None
     C, Ct = result.centers, sim.truth.centers
     Ra, ta, s = kabsch(C, Ct, scale=True)
     err = np.linalg.norm(s * C @ Ra.T + ta - Ct, axis=1)
@@ -55,7 +56,7 @@ def test_points_only_calibrates_up_to_scale():
     # 60 degree view) / sqrt(500) ~ 0.4-1 mrad, ~1.5-4 mm at the 4 m lever; 10 mm is ~3x that
     assert err.max() < 0.010, err
     for cam in result.cameras:
-        assert cam["point_rms_px"] < 1.5 * np.sqrt(2) * NOISE  # the 2D error of 0.5 px per axis
+        assert cam.points.rms_px < 1.5 * np.sqrt(2) * NOISE  # the 2D error of 0.5 px per axis
 
 
 def test_wand_length_absent_refuses_other_methods_with_a_reason():
@@ -64,7 +65,7 @@ def test_wand_length_absent_refuses_other_methods_with_a_reason():
     from wandcal.calib.errors import CalibrationError
 
     with pytest.raises(CalibrationError, match="--method ba or lp, not 'paper'"):
-        calibrate(Rig(sim.rig.cameras, None), None, None, "paper", points=points)
+        calibrate(Rig(sim.rig.cameras, None), None, None, points=points, options=CalibrationOptions(method="paper"))
 
 
 def test_axis_points_set_the_world_frame():
@@ -78,8 +79,8 @@ def test_axis_points_set_the_world_frame():
             p = distort_points(cam, project_normalized(sim.truth.R[c], sim.truth.t[c], np.array([X])))[0]
             role.append(name), camera.append(c), uv.append(p + rng.normal(0, 0.3 / np.sqrt(50), 2))  # averaged over 50 frames
     axis = AxisObservations(role, camera, uv)
-    result = calibrate(sim.rig, sim.wand, None, "ba", axis=axis)
-    assert result.world["frame"] == "axis" and result.world["axes_given"] == ["+z", "+x"]
+    result = calibrate(sim.rig, sim.wand, None, axis=axis)
+    assert result.world.frame == "axis" and result.world.details["axes_given"] == ["+z", "+x"]
     err = np.linalg.norm(result.centers - sim.truth.centers, axis=1)
     # 6 rays of 0.04 px put each axis point within ~0.1 mm; +z over 0.5 m then tilts the frame by
     # ~0.2 mrad, 0.8 mm at the cameras' 4 m: 5 mm leaves room for the refinement's own ~0.5 mm
@@ -95,16 +96,16 @@ def test_intrinsics_refinement_recovers_a_3_percent_focal_error():
         K[:2, :2] *= 1 + 0.03 * sign
         cams.append(Camera(c.id, c.width, c.height, K, c.dist))
     rough = dataclasses.replace(sim.rig, cameras=tuple(cams))
-    held = calibrate(rough, sim.wand, sim.static, "ba")
-    fitted = calibrate(rough, sim.wand, sim.static, "ba", options={"refine_intrinsics": ("focal",)})
+    held = calibrate(rough, sim.wand, sim.static)
+    fitted = calibrate(rough, sim.wand, sim.static, options=CalibrationOptions(refine_intrinsics=("focal",)))
     true_f = np.array([c.K[0, 0] for c in sim.rig.cameras])
-    got = np.array([cam["intrinsics"]["focal_px"] for cam in fitted.cameras])
-    std = np.array([cam["intrinsics"]["focal_std_px"] for cam in fitted.cameras])
+    got = np.array([cam.intrinsics.focal_px for cam in fitted.cameras])
+    std = np.array([cam.intrinsics.focal_std_px for cam in fitted.cameras])
     # the solver's standard errors describe the real error: |z| < 4 for all six (p > 0.999)
     assert np.all(np.abs(got - true_f) < 4 * std), (got - true_f, std)
     assert np.all(std < 0.002 * true_f)
     err_held = np.linalg.norm(held.centers - sim.truth.centers, axis=1)
     err_fitted = np.linalg.norm(fitted.centers - sim.truth.centers, axis=1)
     assert err_fitted.max() < 0.1 * err_held.max()  # a 3% focal error moves cameras by ~10 cm
-    assert fitted.solver["refined_intrinsics"] == ["focal"] and fitted.rig.cameras[0].K[0, 0] == got[0]
+    assert fitted.solver.refined_intrinsics == ("focal",) and fitted.rig.cameras[0].K[0, 0] == got[0]
     assert np.allclose(camera_centers(fitted.R, fitted.t), fitted.centers)

@@ -10,6 +10,7 @@ from scipy.stats import chi2
 from wandcal.calib.geometry import kabsch, project_normalized
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import bundle_adjust_points
@@ -47,7 +48,7 @@ def test_offsets_found_within_a_twentieth_of_a_frame_and_the_rig_as_good_as_sync
     for seed in (11, 12):
         off = _offsets(6, np.random.default_rng(seed))
         sim = simulate_capture(6, 1000, NOISE_PX, static=False, seed=seed, offsets=off)
-        result = calibrate(sim.rig, sim.wand, options={"sync": "auto"})
+        result = calibrate(sim.rig, sim.wand, options=CalibrationOptions(sync="auto"))
         found, _ = _found(result)
         assert np.abs(found - off).max() < OFFSET_TOL_FRAMES, (found, off)
         assert any("cam2 is out of time" in w or "out of time" in w for w in result.warnings)
@@ -67,7 +68,7 @@ def test_predicted_standard_error_matches_the_spread_over_seeds(frames):
     for seed in range(20, 32):
         off = _offsets(5, np.random.default_rng(seed))
         sim = simulate_capture(5, frames, NOISE_PX, static=False, seed=seed, offsets=off)
-        found, std = _found(calibrate(sim.rig, sim.wand, options={"sync": "auto"}))
+        found, std = _found(calibrate(sim.rig, sim.wand, options=CalibrationOptions(sync="auto")))
         z.append((found[1] - off[1]) / std[1])
     total = float(np.sum(np.square(z)))
     assert chi2.ppf(CHI2_TAIL, len(z)) < total < chi2.ppf(1 - CHI2_TAIL, len(z)), z
@@ -79,7 +80,7 @@ def test_drift_of_100_ppm_found_within_20_ppm():
     drift = rng.choice([-100.0, 100.0], 6)
     drift[0] = 0.0
     sim = simulate_capture(6, 3000, NOISE_PX, static=False, seed=5, offsets=off, drift_ppm=drift)
-    result = calibrate(sim.rig, sim.wand, options={"sync": "auto", "sync_drift": True})
+    result = calibrate(sim.rig, sim.wand, options=CalibrationOptions(sync="auto", sync_drift=True))
     cams = result.sync["cameras"]
     found = np.array([c["drift_ppm"] for c in cams])
     assert np.abs(found - drift).max() < DRIFT_TOL_PPM, (found, drift)
@@ -90,12 +91,12 @@ def test_drift_of_100_ppm_found_within_20_ppm():
 def test_a_synchronised_capture_under_auto_reports_zero_and_matches_none():
     sim = simulate_capture(6, 1000, NOISE_PX, static=True, seed=7)
     none = calibrate(sim.rig, sim.wand, sim.static)
-    auto = calibrate(sim.rig, sim.wand, sim.static, options={"sync": "auto"})
+    auto = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(sync="auto"))
     found, std = _found(auto)
     z = found[1:] / std[1:]
     assert np.sum(z**2) < chi2.ppf(1 - CHI2_TAIL, len(z)), z
     assert not any("out of time" in w for w in auto.warnings)
-    sigma_mm = np.array([c["center_std_mm"] for c in none.cameras])
+    sigma_mm = np.array([c.uncertainty.center_std_mm for c in none.cameras])
     moved_mm = np.linalg.norm(auto.centers - none.centers, axis=1) * 1000
     assert np.all(moved_mm < sigma_mm), (moved_mm, sigma_mm)
     assert "sync" not in none.to_json() and auto.to_json()["sync"]["mode"] == "auto"

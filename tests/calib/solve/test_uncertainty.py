@@ -8,6 +8,7 @@ from scipy.stats import chi2
 from wandcal.calib.geometry import camera_centers, rotation_angle
 from wandcal.calib.judge.crb import pose_crb
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.solve.ba import bundle_adjust_points
@@ -65,8 +66,8 @@ def test_predicted_uncertainty_matches_the_real_error_spread(static):
             # the result's frame built from the true poses and wand by the same rule
             Rw, tw, _ = world_frame(sim.rig, T.R, T.t, 0, wand=T.wand)
             Rt, tt, _ = apply(Rw, tw, T.R, T.t, np.zeros((0, 3)))
-        pred_c = np.array([c["center_std_mm"] for c in res.cameras]) / 1000
-        pred_r = np.radians([c["rotation_std_deg"] for c in res.cameras])
+        pred_c = np.array([c.uncertainty.center_std_mm for c in res.cameras]) / 1000
+        pred_r = np.radians([c.uncertainty.rotation_std_deg for c in res.cameras])
         err_c = np.linalg.norm(res.centers - camera_centers(Rt, tt), axis=1)
         err_r = rotation_angle(res.R, Rt)
         use = pred_c > 0  # a camera that is the world frame itself has no error to predict
@@ -82,7 +83,7 @@ def test_predicted_uncertainty_matches_the_real_error_spread(static):
 def test_every_result_carries_the_uncertainty_for_every_method():
     sim = simulate_capture(4, 200, NOISE, 0.0, True, 7)
     for method in ("ba", "lp"):
-        doc = calibrate(sim.rig, sim.wand, sim.static, method).to_json()
+        doc = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method=method)).to_json()
         for cam in doc["cameras"]:
             assert 0 < cam["center_std_mm"] < 10 and 0 < cam["rotation_std_deg"] < 0.1
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-import wandcal.calib.start.labels as labels
-import wandcal.calib.triangulate as triangulate
+from wandcal.calib import triangulate
 from wandcal.calib.sim.scenes import prepared_scene
+from wandcal.calib.start import labels
 from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.triangulate import solve_symmetric_3x3, triangulate_points
 

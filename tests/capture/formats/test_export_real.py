@@ -61,7 +61,7 @@ def wand_lengths(L: np.ndarray, points: np.ndarray) -> np.ndarray:
 def test_easywand_points_through_wandcals_dlt_give_easywands_wand(session):
     got, points, easywand = session
     result = got["result"]
-    assert result.world["frame"] == "wand_volume"  # wand-only: before issue 13 this export failed
+    assert result.world.frame == "wand_volume"  # wand-only: before issue 13 this export failed
     ours = np.loadtxt(export(result.to_json(), "dlt-csv", result.rig, origin="bottom-left").splitlines(), delimiter=",")
     theirs = wand_lengths(easywand, points)
     mine = wand_lengths(ours, points)

@@ -9,6 +9,7 @@ those used every file descriptor a systemd unit has by default and locked every 
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import threading
 import time
@@ -22,57 +23,67 @@ REPEAT_WINDOW_S = 1.0
 MAX_HEADER_BYTES = 16 * 1024  # h11's default, stated: browsers send 1-8 kB of header; a larger one is a 400
 
 
-def guarded_protocol(header_timeout_s: float, max_connections: int) -> type[H11Protocol]:
+class GuardedH11Protocol(H11Protocol):
     """An ``H11Protocol`` that closes a connection which has not sent a whole request header
     within ``header_timeout_s`` of opening (or of its last response), and that, when more than
-    ``max_connections`` are open, closes the one waiting longest for a header to make room."""
+    ``max_connections`` are open, closes the one waiting longest for a header to make room.
+    :func:`guarded_protocol` sets the two limits."""
 
-    class GuardedH11Protocol(H11Protocol):
-        def connection_made(self, transport) -> None:  # type: ignore[override]
-            super().connection_made(transport)
-            self._arm_header_deadline()
-            if len(self.connections) > max_connections:
-                waiting = [c for c in self.connections if c is not self and getattr(c, "_waiting_since", None)]
-                if waiting:
-                    min(waiting, key=lambda c: c._waiting_since)._close_waiting()
-                else:  # every other connection is mid-request: refuse this one rather than a request
-                    self._close_waiting()
+    header_timeout_s: float
+    max_connections: int
+    _waiting_since: float | None = None  # monotonic seconds since it waits for a request header
+    _header_task: asyncio.TimerHandle | None = None
 
-        def _arm_header_deadline(self) -> None:
-            self._waiting_since = time.monotonic()
-            old = getattr(self, "_header_task", None)
-            if old is not None:
-                old.cancel()
-            self._header_task = self.loop.call_later(header_timeout_s, self._header_deadline)
-
-        def _header_deadline(self) -> None:
-            self._header_task = None
-            if self.conn.their_state is h11.IDLE:  # no whole request header since it was armed
+    def connection_made(self, transport) -> None:
+        super().connection_made(transport)
+        self._arm_header_deadline()
+        if len(self.connections) > self.max_connections:
+            waiting = {c: c._waiting_since for c in self.connections
+                       if c is not self and isinstance(c, GuardedH11Protocol) and c._waiting_since}
+            if waiting:
+                min(waiting, key=waiting.__getitem__)._close_waiting()
+            else:  # every other connection is mid-request: refuse this one rather than a request
                 self._close_waiting()
 
-        def _close_waiting(self) -> None:
+    def _arm_header_deadline(self) -> None:
+        self._waiting_since = time.monotonic()
+        old = self._header_task
+        if old is not None:
+            old.cancel()
+        self._header_task = self.loop.call_later(self.header_timeout_s, self._header_deadline)
+
+    def _header_deadline(self) -> None:
+        self._header_task = None
+        if self.conn.their_state is h11.IDLE:  # no whole request header since it was armed
+            self._close_waiting()
+
+    def _close_waiting(self) -> None:
+        self._waiting_since = None
+        if not self.transport.is_closing():
+            self.transport.close()
+
+    def handle_events(self) -> None:
+        super().handle_events()
+        if self.conn.their_state is not h11.IDLE:  # a request's header has arrived
             self._waiting_since = None
-            if not self.transport.is_closing():
-                self.transport.close()
 
-        def handle_events(self) -> None:
-            super().handle_events()
-            if self.conn.their_state is not h11.IDLE:  # a request's header has arrived
-                self._waiting_since = None
+    def on_response_complete(self) -> None:
+        super().on_response_complete()
+        if not self.transport.is_closing():
+            self._arm_header_deadline()
 
-        def on_response_complete(self) -> None:
-            super().on_response_complete()
-            if not self.transport.is_closing():
-                self._arm_header_deadline()
+    def connection_lost(self, exc) -> None:
+        task = self._header_task
+        if task is not None:
+            task.cancel()
+        self._waiting_since = None
+        super().connection_lost(exc)
 
-        def connection_lost(self, exc) -> None:
-            task = getattr(self, "_header_task", None)
-            if task is not None:
-                task.cancel()
-            self._waiting_since = None
-            super().connection_lost(exc)
 
-    return GuardedH11Protocol
+def guarded_protocol(header_timeout_s: float, max_connections: int) -> type[H11Protocol]:
+    """:class:`GuardedH11Protocol` with these limits: seconds to a whole header, open connections."""
+    limits = {"header_timeout_s": header_timeout_s, "max_connections": max_connections}
+    return type("GuardedH11Protocol", (GuardedH11Protocol,), limits)
 
 
 def server_options(settings) -> dict:

@@ -1,4 +1,4 @@
-"""Whole-frame time offsets from the wand (calib/start/timing.py), their bad input, and a real
+"""Whole-frame time offsets from the wand (calib/start/frame_offsets.py), their bad input, and a real
 session with one camera shifted by whole frames."""
 
 import json
@@ -10,9 +10,10 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.rig import WandObservations
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.simulate import simulate_capture
+from wandcal.calib.start.frame_offsets import frame_offsets, shift_frames
 from wandcal.calib.start.timestamps import timestamp_offsets
-from wandcal.calib.start.timing import frame_offsets, shift_frames
 from wandcal.capture.folder import write_capture
 from wandcal.service.cli import main
 
@@ -40,23 +41,23 @@ def test_a_camera_that_never_moves_with_the_others_is_named():
     wand = WandObservations(*(np.concatenate([getattr(sim.wand, k)[keep], getattr(other.wand, k)[foreign]])
                               for k in ("frame", "camera", "uv")))
     with pytest.raises(CalibrationError, match="camera 'cam4' does not move with the others"):
-        calibrate(sim.rig, wand, options={"sync": "auto"})
+        calibrate(sim.rig, wand, options=CalibrationOptions(sync="auto"))
 
 
 def test_an_offset_search_longer_than_the_recording_is_refused():
     sim = _sim()
     with pytest.raises(CalibrationError, match=r"camera 'cam1': an offset of up to 600 frames is as long as the recording"):
-        calibrate(sim.rig, sim.wand, options={"sync": "auto", "sync_max_offset": 600})
+        calibrate(sim.rig, sim.wand, options=CalibrationOptions(sync="auto", sync_max_offset=600))
     # the timestamps said more than the recording holds
     start = np.array([0, 0, 700, 0, 0])
     with pytest.raises(CalibrationError, match="camera 'cam3'"):
-        calibrate(sim.rig, sim.wand, options={"sync": "auto", "sync_start": start})
+        calibrate(sim.rig, sim.wand, options=CalibrationOptions(sync="auto", sync_start=tuple(int(v) for v in start)))
 
 
 def test_an_offset_beyond_the_search_is_named():
     sim = _sim(offsets=(0.0, 0.0, 9.0, 0.0, 0.0))
     with pytest.raises(CalibrationError, match="camera 'cam3'.*search wider"):
-        calibrate(sim.rig, sim.wand, options={"sync": "auto", "sync_max_offset": 4})
+        calibrate(sim.rig, sim.wand, options=CalibrationOptions(sync="auto", sync_max_offset=4))
 
 
 def test_timestamps_give_the_start_and_contradictory_ones_are_named():
@@ -113,13 +114,13 @@ def test_a_real_session_with_one_camera_shifted_by_whole_frames(shared_data, ses
     plain = calibrate(cap.rig, cap.wand, points=cap.points, axis=cap.axis)
     w = cap.wand
     shifted = WandObservations(np.where(w.camera == 2, w.frame + 2, w.frame), w.camera, w.uv)
-    found = calibrate(cap.rig, shifted, points=cap.points, axis=cap.axis, options={"sync": "auto"})
+    found = calibrate(cap.rig, shifted, points=cap.points, axis=cap.axis, options=CalibrationOptions(sync="auto"))
     offsets = [c["offset_frames"] for c in found.sync["cameras"]]
     assert offsets == pytest.approx([0, 0, -2, 0], abs=1e-9)
-    sigma_mm = np.array([c["center_std_mm"] for c in plain.cameras])
+    sigma_mm = np.array([c.uncertainty.center_std_mm for c in plain.cameras])
     assert np.all(np.linalg.norm(found.centers - plain.centers, axis=1) * 1000 < sigma_mm)
     # the unshifted session under --sync auto: offsets of zero, the same calibration
-    auto = calibrate(cap.rig, w, points=cap.points, axis=cap.axis, options={"sync": "auto"})
+    auto = calibrate(cap.rig, w, points=cap.points, axis=cap.axis, options=CalibrationOptions(sync="auto"))
     assert [c["offset_frames"] for c in auto.sync["cameras"]] == pytest.approx([0, 0, 0, 0], abs=1e-9)
     assert np.all(np.linalg.norm(auto.centers - plain.centers, axis=1) * 1000 < sigma_mm)
 
