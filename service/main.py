@@ -28,10 +28,10 @@ from wandcal.service.db import disk_full, init_db
 from wandcal.service.folder_lock import hold_data_folder
 from wandcal.service.jobs.queue import JobQueue, QueueUnavailable, SQLiteQueue
 from wandcal.service.jobs.records import JobStore
+from wandcal.service.jobs.retention import Pruner, Retention
 from wandcal.service.live_capture import BUSY, LiveCapture
 from wandcal.service.recovery import recover
 from wandcal.service.request_limits import BodySizeLimit, RateLimiter
-from wandcal.service.retention import Pruner, Retention
 from wandcal.service.settings import Settings
 from wandcal.service.storage import CaptureNotFound, CaptureStore, ReplayPathError
 

@@ -10,9 +10,9 @@ from fastapi.testclient import TestClient
 
 from tests.service.conftest import capture_files
 from wandcal.service.db import init_db
+from wandcal.service.jobs.retention import DAY_S, Pruner, Retention, prune
 from wandcal.service.main import create_app
 from wandcal.service.report.store import report_folder
-from wandcal.service.retention import DAY_S, Pruner, Retention, prune
 from wandcal.service.settings import Settings
 
 
