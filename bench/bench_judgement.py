@@ -54,7 +54,7 @@ def judging_share(repeats: int, cameras: int = 16, frames: int = 2500) -> tuple[
     """(median calibrate seconds, median seconds inside the judgement, median share) over
     ``repeats`` in-process runs of the whole `calibrate` on a clean simulated rig (the Peers bench's
     16 x 2500), the judgement timed from inside the same runs."""
-    from wandcal.calib import pipeline
+    from wandcal.calib.run import calibrate as pipeline
     from wandcal.calib.sim.simulate import simulate_capture
 
     inside = []

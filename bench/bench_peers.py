@@ -62,8 +62,14 @@ OUTLIERS = 0.08
 NOISE_PX = 0.3
 
 
-def scene(cameras: int, frames: int, outliers: float, seed: int = 1):
-    """(sim, labelled wand, setup from the perturbed start)."""
+def scene(cameras: int, frames: int, outliers: float, seed: int = 1, shape: str | None = None):
+    """(sim, labelled wand, setup from the perturbed start); ``shape``: a rig of calib/sim/shapes.py
+    at its default size instead of `wandcal simulate`'s ring."""
+    if shape is not None:
+        from wandcal.calib.sim.shapes import RigShape, default_size, simulate_shape
+
+        rig = RigShape(shape, cameras, default_size(shape))
+        return perturbed_start(simulate_shape(rig, frames, NOISE_PX, outliers, seed, static=False), seed)
     return perturbed_start(simulate_capture(cameras, frames, NOISE_PX, outliers, False, seed), seed)
 
 

@@ -18,18 +18,22 @@ twice) and its growth exponent: the least-squares slope of log(seconds) against 
 
 Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000. Part 5 ("Scale: small rigs before
 and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated. Part 6
-("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`.
+("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`. Part 7
+(--parts costs, "Scale: judgement, guidance, check and sync"): those commands beside calibrate, --cost-rig.
 
 How a whole process is run, timed and profiled, and the captures it reads: bench/whole_process.py.
 
 Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance,methods] [--rigs 64x3000,128x3000]
-    [--stage-cameras 16,32,64,128] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
+    [--stage-cameras 16,32,64,128] [--stage-shape ring] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
+    --rigs ring:64x3000,dome:128x3000 (SHAPE:CAMSxFRAMES): rigs of calib/sim/shapes.py, section "Scale: every shape beside COLMAP"
     e.g. git archive 3925791 | tar -x -C /tmp/base && python bench/bench_scale.py --parts regression --base /tmp/base
 """
 
 from __future__ import annotations
 
 import argparse
+import pstats
+import subprocess
 import sys
 import tempfile
 import time
@@ -49,6 +53,7 @@ from bench.whole_process import (  # noqa: E402
     alternated,
     centre_error_mm,
     checkout_view,
+    child_env,
     run_process,
     simulate,
     stage_seconds,
@@ -60,12 +65,12 @@ REGRESSION_RIGS = "8x1500:0,8x1500:0.08,16x2500:0"  # the Peers bench's whole-co
 POINT_RIG = (12, 1500, 15000)  # cameras, wand frames, point frames
 
 
-def colmap_cauchy(cameras: int, frames: int) -> tuple[float, float, str, float]:
+def colmap_cauchy(cameras: int, frames: int, shape: str | None = None) -> tuple[float, float, str, float]:
     """COLMAP-Cauchy's solve seconds, its centre error (mm), iterations and the CPU seconds of this
-    process over the solve (Ceres's threads included) on the bench_peers scene."""
+    process over the solve (Ceres's threads included) on the bench_peers scene (of ``shape``)."""
     from bench.bench_peers import centre_error_mm as peer_error
 
-    sim, labelled, setup = scene(cameras, frames, OUTLIERS)
+    sim, labelled, setup = scene(cameras, frames, OUTLIERS, shape=shape)
     scale = run_ba(sim, labelled, setup)[3]
     cpu = time.process_time()
     R, t, iterations, seconds = run_colmap(sim, labelled, setup, scale)
@@ -81,10 +86,11 @@ def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
             "| centre error wandcal / COLMAP (mm) | process peak RSS (MB) |",
             "|---|---|---|---|---|---|---|---|---|"]
     for rig in rigs:
-        cameras, frames = (int(v) for v in rig.split("x"))
+        shape, size = rig.split(":") if ":" in rig else (None, rig)  # SHAPE:CAMSxFRAMES, a rig of calib/sim/shapes.py
+        cameras, frames = (int(v) for v in size.split("x"))
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp) / "capture"
-            simulate(folder, cameras, frames)
+            simulate(folder, cameras, frames, shape=shape)
             warm_bytecode()
             times, peaks, cpus, cm, cm_cpu, split = [], [], [], [], [], []
             error = colmap_error = float("nan")
@@ -99,7 +105,7 @@ def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
                 cpus.append(cpu)
                 error = centre_error_mm(Path(tmp) / "result.json", folder / "truth.json")
                 if k < colmap_repeats:
-                    c_seconds, colmap_error, iterations, c_cpu = colmap_cauchy(cameras, frames)
+                    c_seconds, colmap_error, iterations, c_cpu = colmap_cauchy(cameras, frames, shape)
                     cm.append(c_seconds)
                     cm_cpu.append(c_cpu)
                 print(f"{rig}: process {seconds:.2f} s, {peak:.0f} MB" + (f"; COLMAP-Cauchy {cm[-1]:.2f} s" if cm else ""),
@@ -111,7 +117,9 @@ def part_peers(rigs: list[str], repeats: int, colmap_repeats: int) -> str:
         rows.append(f"| {rig} | {OUTLIERS:.0%} | {np.median(times):.2f} / {np.median(cpus):.2f} | {user:.2f} + {system:.2f} | "
                     f"{cm_s} | {solves} | {ratio} | {error:.3f} / {colmap_error:.3f} | {max(peaks):.0f} |")
         print(rows[-1], flush=True)
-    return ("The whole command (Python start-up included) on a simulated capture folder (0.3 px, 2% outliers, "
+    shapes = ("Rigs SHAPE:CAMSxFRAMES are `wandcal simulate --shape SHAPE` at its default size (seed 1; each frame in 2-4 "
+              "cameras, |k1| to 0.1), COLMAP's scene the same rig without its L-frame. " if any(":" in r for r in rigs) else "")
+    return (shapes + "The whole command (Python start-up included) on a simulated capture folder (0.3 px, 2% outliers, "
             "L-frame), and COLMAP-Cauchy's solve of the same rig labelled at the truth and started 1 deg / 3 cm off "
             "(bench_peers.py's scene, its gauge on the camera farthest from the first: decision 0019; its steps: "
             f"successful+unsuccessful), alternated in one run; medians of {repeats} processes and {colmap_repeats} COLMAP "
@@ -141,12 +149,12 @@ def part_points(repeats: int) -> str:
             "\n\nGoal (issue 22): <= 10 s and <= 1 GB.")
 
 
-def part_stages(cameras_list: list[int], repeats: int) -> str:
+def part_stages(cameras_list: list[int], repeats: int, shape: str | None = None) -> str:
     per = {}
     with tempfile.TemporaryDirectory() as tmp:
         for cameras in cameras_list:
             folder = Path(tmp) / f"c{cameras}"
-            simulate(folder, cameras, STAGE_FRAMES)
+            simulate(folder, cameras, STAGE_FRAMES, shape=shape)
             runs = []
             for _ in range(repeats):
                 run_process(folder, Path(tmp) / "result.json", Path(tmp) / "profile")
@@ -162,7 +170,8 @@ def part_stages(cameras_list: list[int], repeats: int) -> str:
         slope = np.polyfit(x, np.log(y), 1)[0]
         last = np.log(y[-1] / y[-2]) / np.log(cameras_list[-1] / cameras_list[-2])
         rows.append(f"| {name} | " + " | ".join(f"{v:.2f}" for v in y) + f" | {slope:.2f} | {last:.2f} |")
-    return (f"`wandcal calibrate` under cProfile at {STAGE_FRAMES} frames (0.3 px, 2% outliers, L-frame), in CPU "
+    rigs = f"`wandcal simulate --shape {shape}` rigs" if shape else "`wandcal simulate` rigs"
+    return (f"`wandcal calibrate` under cProfile on {rigs} at {STAGE_FRAMES} frames (0.3 px, 2% outliers, L-frame), in CPU "
             f"seconds (the machine is shared), the median of {repeats} runs per rig and stage; each stage's cumulative "
             "time attributed by caller (the profiler's overhead included; imports not counted, \"other\" is the "
             "reports and the verdict). Growth exponent: the least-squares slope of "
@@ -257,23 +266,83 @@ def part_regression(base: Path, repeats: int, rigs: str) -> str:
                "\n\nGoal (issue 22): accuracy within 1.05x of before."))
 
 
+def part_costs(rig: str, repeats: int) -> str:
+    """The commands that follow or accompany a calibration, each a whole process beside `wandcal
+    calibrate` of the same capture, alternated run by run, CPU seconds (the machine is shared):
+    `wandcal check` of the result against the capture, `wandcal guidance`, `calibrate --sync auto`
+    (its cost: the difference), and the judgement inside calibrate (cProfile, the `judge` call)."""
+    import os
+    import resource
+
+    shape, size = rig.split(":") if ":" in rig else (None, rig)
+    cameras, frames = (int(v) for v in size.split("x"))
+    runs: dict[str, list] = {name: [] for name in ("calibrate", "judgement", "check", "guidance", "sync auto")}
+    load = [os.getloadavg()[0]]
+    failed: dict[str, str] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder, out = Path(tmp) / "capture", Path(tmp) / "result.json"
+        simulate(folder, cameras, frames, shape=shape)
+        warm_bytecode()
+
+        def cpu(*argv: str) -> float:
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            done = subprocess.run([sys.executable, "-m", "wandcal.service.cli", *argv], capture_output=True, text=True, cwd=REPO,
+                                  env=child_env(), check=False)
+            if done.returncode == 2:  # refused: the run measured nothing, and the row says why
+                failed[" ".join(argv[:1] + argv[-2:])] = done.stderr.strip().splitlines()[-1]
+                return float("nan")
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+        for _ in range(repeats):
+            runs["calibrate"].append(cpu("calibrate", str(folder), "--quiet", "--out", str(out)))
+            runs["check"].append(cpu("check", str(out), str(folder)))
+            runs["guidance"].append(cpu("guidance", str(folder)))
+            runs["sync auto"].append(cpu("calibrate", str(folder), "--quiet", "--out", str(Path(tmp) / "sync.json"),
+                                         "--sync", "auto") - runs["calibrate"][-1])
+            run_process(folder, Path(tmp) / "profiled.json", Path(tmp) / "profile")
+            stats = pstats.Stats(str(Path(tmp) / "profile")).stats  # type: ignore[attr-defined]
+            whole = max(ct for (_, _, _, ct, _) in stats.values())
+            judged = sum(ct for func, (_, _, _, ct, _) in stats.items() if func[2] == "judge" and "judgement" in func[0])
+            runs["judgement"].append(judged / whole * runs["calibrate"][-1])
+            load.append(os.getloadavg()[0])
+            print({k: round(v[-1], 2) for k, v in runs.items()}, flush=True)
+    calibrate_s = float(np.median(runs["calibrate"]))
+    rows = ["| command or part | CPU seconds (median) | share of calibrate's | runs (CPU s) |", "|---|---|---|---|"]
+    for name, values in runs.items():
+        med = float(np.median(values))
+        rows.append(f"| {name} | {med:.2f} | {med / calibrate_s:.0%} | {', '.join(f'{v:.2f}' for v in values)} |")
+    what = f"`wandcal simulate --shape {shape}`" if shape else "`wandcal simulate`"
+    return (f"A {what} capture of {cameras} x {frames} (0.3 px, 2% outliers, L-frame, seed 1); each command a whole process "
+            f"(Python start-up included), alternated run by run, {repeats} rounds; CPU seconds, user + system, because the "
+            f"machine is shared (1-minute load average {min(load):.1f}-{max(load):.1f} on its {os.cpu_count()} cores). "
+            "check: the result against the capture it came from; sync auto: `calibrate --sync auto` less plain "
+            "`calibrate` of the same round; judgement: the `judge` call's share of a cProfiled calibrate, times that "
+            "round's calibrate.\n\n" + "\n".join(rows) + "\n\nGoal (issue 33): each at most 20% of the calibrate time."
+            + "".join(f"\n\n`wandcal {k}` refused the capture: {v}" for k, v in failed.items()))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--parts", default="peers,points,stages,guidance")
     ap.add_argument("--rigs", default="64x3000,128x3000")
     ap.add_argument("--stage-cameras", default="16,32,64,128")
+    ap.add_argument("--stage-shape", default=None, help="rigs of calib/sim/shapes.py (ring, dome, tiers, hallway) for --parts stages")
     ap.add_argument("--colmap-repeats", type=int, default=1, help="COLMAP solves per rig (0: none)")
     ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression")
     ap.add_argument("--regression-rigs", default=REGRESSION_RIGS,
                     help="CAMSxFRAMES:OUTLIERS,... for --parts regression")
     ap.add_argument("--method-cameras", default="64,128", help="rigs (cameras x 3000 frames) for --parts methods")
+    ap.add_argument("--cost-rig", default="ring:128x3000", help="[SHAPE:]CAMSxFRAMES for --parts costs")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     parts = args.parts.split(",")
     sections = []
     if "peers" in parts:
-        sections.append(("Scale: the whole command beside COLMAP", part_peers(args.rigs.split(","), args.repeats, args.colmap_repeats)))
+        # rigs given as SHAPE:CAMSxFRAMES (calib/sim/shapes.py) get their own section
+        title = "Scale: every shape beside COLMAP" if ":" in args.rigs else "Scale: the whole command beside COLMAP"
+        sections.append((title, part_peers(args.rigs.split(","), args.repeats, args.colmap_repeats)))
     if "points" in parts:
         sections.append(("Scale: point-heavy rig", part_points(args.repeats)))
     if "regression" in parts:
@@ -286,8 +355,11 @@ def main() -> int:
         sections.append(("Scale: lp beside ba", part_methods([int(c) for c in args.method_cameras.split(",")], args.repeats)))
     if "guidance" in parts:
         sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
+    if "costs" in parts:
+        sections.append((f"Scale: judgement, guidance, check and sync ({args.cost_rig})", part_costs(args.cost_rig, args.repeats)))
     if "stages" in parts:
-        sections.append(("Scale: stages", part_stages([int(c) for c in args.stage_cameras.split(",")], args.repeats)))
+        title = f"Scale: stages ({args.stage_shape})" if args.stage_shape else "Scale: stages"
+        sections.append((title, part_stages([int(c) for c in args.stage_cameras.split(",")], args.repeats, args.stage_shape)))
     for title, body in sections:
         print(f"\n## {title}\n\n{body}")
         if not args.no_write:

@@ -28,6 +28,7 @@ execution docs/reliability.md describes, never a second result.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import json
 import os

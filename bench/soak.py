@@ -146,8 +146,8 @@ def main() -> None:
     parser.add_argument("--no-write", action="store_true", help="print only; leave docs/benchmarks.md alone")
     args = parser.parse_args()
     load = os.getloadavg()[0]
-    with tempfile.TemporaryDirectory() as folder:
-        tmp = Path(folder)
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = Path(scratch)
         (tmp / "replay").mkdir()
         server = Server(port=free_port(), env=server_env(tmp, workers=args.workers), log=tmp / "server.log").start()
         try:

@@ -75,9 +75,20 @@ SIMULATE = ("import json, sys; from pathlib import Path; from wandcal.calib.sim.
             "(out / 'truth.json').write_text(json.dumps(sim.truth.to_json(sim.rig)))")
 
 
-def simulate(folder: Path, cameras: int, frames: int, outliers: float = OUTLIERS) -> None:
-    """A capture folder and its truth.json: `wandcal simulate`'s rig (0.3 px, L-frame, seed 1)."""
-    subprocess.run([sys.executable, "-c", SIMULATE, str(folder), str(cameras), str(frames), str(outliers)],
+# a rig of calib/sim/shapes.py instead (each frame in 2-4 cameras, |k1| to 0.1), as `wandcal simulate --shape`
+SIMULATE_SHAPE = ("import json, sys; from pathlib import Path; from wandcal.calib.sim.shapes import RigShape, default_size, "
+                  "simulate_shape; from wandcal.capture.folder import write_capture; out = Path(sys.argv[1]); "
+                  "kind = sys.argv[5]; shape = RigShape(kind, int(sys.argv[2]), default_size(kind)); "
+                  "sim = simulate_shape(shape, int(sys.argv[3]), 0.3, float(sys.argv[4]), 1); "
+                  "write_capture(out, sim.rig, sim.wand, sim.static); "
+                  "(out / 'truth.json').write_text(json.dumps(sim.truth.to_json(sim.rig)))")
+
+
+def simulate(folder: Path, cameras: int, frames: int, outliers: float = OUTLIERS, shape: str | None = None) -> None:
+    """A capture folder and its truth.json: `wandcal simulate`'s rig (0.3 px, L-frame, seed 1), or
+    with ``shape`` ("ring", "dome", "tiers", "hallway") `wandcal simulate --shape`'s at its default size."""
+    code, extra = (SIMULATE, []) if shape is None else (SIMULATE_SHAPE, [shape])
+    subprocess.run([sys.executable, "-c", code, str(folder), str(cameras), str(frames), str(outliers), *extra],
                    check=True, capture_output=True, cwd=REPO)
 
 

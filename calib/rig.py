@@ -48,6 +48,9 @@ class Camera:
         K: (3, 3) intrinsic matrix in pixels.
         dist: (5,) OpenCV ``[k1, k2, p1, p2, k3]``, or (4,) ``[k1, k2, k3, k4]`` for fisheye.
         model: ``"pinhole"`` or ``"fisheye"``.
+        focal_std_px: the focal length's 1-sigma, pixels, where it is known (an OpenCV calibration's
+            standard error, a lens's stated tolerance); None: the judgement assumes
+            :data:`wandcal.calib.judge.intrinsic_limits.DEFAULT_FOCAL_REL_STD` of the focal length.
     """
 
     id: str
@@ -56,6 +59,7 @@ class Camera:
     K: np.ndarray
     dist: np.ndarray
     model: str = PINHOLE
+    focal_std_px: float | None = None
 
     def __post_init__(self) -> None:
         where = f"camera {self.id!r}"
@@ -89,6 +93,12 @@ class Camera:
         if np.abs(dist).max(initial=0.0) > MAX_DIST_COEFF:
             raise CalibrationError(f"{where}: 'dist' holds {np.abs(dist).max():.4g}, past {MAX_DIST_COEFF:g}; give the "
                                    "OpenCV distortion coefficients of the lens")
+        if self.focal_std_px is not None:
+            std = float(self.focal_std_px)
+            if not (np.isfinite(std) and 0 < std < K[0, 0]):
+                raise CalibrationError(f"{where}: 'focal_std_px' must be a positive number of pixels under the focal "
+                                       f"length, got {self.focal_std_px!r}; leave it out where it is not known")
+            object.__setattr__(self, "focal_std_px", std)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist)
         object.__setattr__(self, "width", int(self.width))

@@ -28,7 +28,7 @@ from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.run.result import RESULT_FORMAT, CalibrationResult
 from wandcal.calib.run.result import result_from_json as typed_result
 from wandcal.capture.folder import MAX_FRAME, CaptureFormatError
-from wandcal.capture.rig_file import MAX_IMAGE_SIDE_PX, positive_number
+from wandcal.capture.rig_file import MAX_IMAGE_SIDE_PX, check_format, positive_number
 
 __all__ = ["CAMERA_FIELDS", "RESULT_FIELDS", "RESULT_FORMAT", "ResultFile", "check_result", "read_result",
            "result_from_json"]
@@ -252,10 +252,7 @@ def check_result(doc: object, source: str = "result", rig: Rig | None = None) ->
     by_id = {c.id: c for c in rig.cameras} if rig is not None else {}
     if not isinstance(doc, dict):
         raise CaptureFormatError(f"{source}: the top level must be a JSON object")
-    if doc.get("format") != RESULT_FORMAT:
-        from wandcal.capture.rig_file import check_format  # the capture and result formats' one version check
-
-        check_format(doc.get("format"), RESULT_FORMAT, source, hint="give a file written by 'wandcal calibrate'")
+    check_format(doc.get("format"), RESULT_FORMAT, source, hint="give a file written by 'wandcal calibrate'")
     entries = doc.get("cameras")
     if not isinstance(entries, list) or not entries:
         raise CaptureFormatError(f"{source}: 'cameras' must be a non-empty list")

@@ -99,6 +99,7 @@ def _camera_from_json(c: object, where: str) -> Camera:
             K=_matrix(c["K"], (3, 3), f"{where}.K"),
             dist=_matrix(c["dist"], None, f"{where}.dist"),
             model=c.get("model", "pinhole"),
+            focal_std_px=_focal_std(c.get("focal_std_px"), f"{where}.focal_std_px"),
         )
     except CaptureFormatError:
         raise
@@ -139,6 +140,7 @@ def rig_to_json(rig: Rig) -> dict:
         "cameras": [
             {"id": c.id, "width": c.width, "height": c.height, "K": c.K.tolist(), "dist": c.dist.tolist()}
             | ({"model": c.model} if c.model != "pinhole" else {})
+            | ({"focal_std_px": c.focal_std_px} if c.focal_std_px is not None else {})
             for c in rig.cameras
         ],
     }
@@ -171,6 +173,16 @@ def load_json(data: bytes | str, source: str, what: str = "the rig description (
         raise CaptureFormatError(f"{source}: not valid JSON (nested too deeply); give {what}") from None
     except ValueError as exc:  # JSONDecodeError, and integers past Python's digit limit
         raise CaptureFormatError(f"{source}: not valid JSON ({exc}); give {what}") from None
+
+
+def _focal_std(value: object, where: str) -> float | None:
+    """A camera's optional focal_std_px: None, or a positive number of pixels."""
+    if value is None:
+        return None
+    if not positive_number(value):
+        raise CaptureFormatError(f"{where} must be a positive number of pixels (the focal length's 1-sigma), got "
+                                 f"{str(value)[:40]!r}; leave it out where it is not known")
+    return float(value)
 
 
 def _positive_int(value: object, where: str) -> int:

@@ -23,6 +23,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.faults import Lens, TimingFault, analyse_camera, classify, lens_screen
+from wandcal.calib.judge.intrinsic_limits import intrinsic_limit_entries
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.judge.residuals import (
     Residuals,
@@ -41,7 +42,14 @@ from wandcal.calib.judge.verdict import (
 )
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig, camera_list
-from wandcal.calib.run.result import CameraFigures, JudgedFigures, SolverReport, WandReport, WorldFrame
+from wandcal.calib.run.result import (
+    CameraFigures,
+    FocalLimitFigures,
+    JudgedFigures,
+    SolverReport,
+    WandReport,
+    WorldFrame,
+)
 from wandcal.calib.solve.uncertainty import chi2_quantile
 
 SUSPECT_NOISE_RATIO = 1.5  # a camera this much noisier than the median camera is looked into
@@ -171,12 +179,18 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
 
 def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                       figures: list[dict], res: Residuals) -> list[dict]:
-    """The cameras at fault: in a rig of few cameras first by comparing every camera against the
+    """The cameras at fault: in a rig of few cameras first a camera out of time, from every pair
+    of cameras (:func:`wandcal.calib.judge.timing_pairs.timing_faults`), then by comparing every camera against the
     points the others triangulate (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`),
     else by the suspect screen (:func:`camera_faults`)."""
-    from wandcal.calib.judge.leave_one_out import leave_one_out_faults
+    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS, leave_one_out_faults
+    from wandcal.calib.judge.timing_pairs import timing_faults
 
-    return leave_one_out_faults(list(rig.ids), R, t, labelled, tracks) or camera_faults(rig, labelled, R, t, figures, res)
+    timing = []
+    if 3 <= len(rig.cameras) <= MAX_CAMERAS:
+        timing = timing_faults(list(rig.ids), R, t, labelled, tracks, np.array([c.focal.mean() for c in rig.cameras]),
+                               [f["noise_px"] for f in figures])
+    return timing or leave_one_out_faults(list(rig.ids), R, t, labelled, tracks) or camera_faults(rig, labelled, R, t, figures, res)
 
 
 def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> list[dict]:
@@ -244,7 +258,13 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     # the verdict's rules read the result's entries as the document has them
     wand_doc, world_doc, solver_doc = (wand_report.to_json() if wand_report is not None else None, world.to_json(),
                                        solver.to_json())
-    warnings = sanity_check(method, rig, [c.to_json() for c in cameras], wand_doc, world_doc, camera_centers(R, t))
+    try:
+        warnings = sanity_check(method, rig, [c.to_json() for c in cameras], wand_doc, world_doc, camera_centers(R, t))
+    except CalibrationError as exc:  # a camera out of time, named, may be why
+        from wandcal.calib.judge.timing_pairs import timing_refusal
+
+        raise timing_refusal(exc, list(rig.ids), R, t, labelled, tracks,
+                             np.array([c.focal.mean() for c in rig.cameras])) from None
     scaled = wand_report is not None
     focal = np.array([c.focal for c in rig.cameras], float)
     res = observation_residuals(R, t, labelled, tracks, focal, known)
@@ -274,8 +294,20 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
                                   f"{'it' if len(at_fault) == 1 else 'them'} and calibrate again before judging the others")
     verdict["placement"] = placement_verdict(world_doc, extent if scaled else None, faults)
     verdict["faults"] = faults
+    out, verdict["limits"] = _focal_limits(rig, out, R, t, res, scaled, solver.refined_intrinsics)
     verdict["volume_m" if scaled else "volume"] = extent
     return out, verdict, warnings
+
+
+def _focal_limits(rig: Rig, cameras: list[CameraFigures], R: np.ndarray, t: np.ndarray, res: Residuals, scaled: bool,
+                  refined: tuple[str, ...]) -> tuple[list[CameraFigures], list[dict]]:
+    """The cameras' figures with how far each position hinges on a focal length that was given
+    (:func:`wandcal.calib.judge.intrinsic_limits.intrinsic_limit_entries`), and the verdict's ``limits``."""
+    geometry = [c.uncertainty.geometry.std if c.uncertainty is not None and c.uncertainty.geometry is not None else None
+                for c in cameras]
+    entries, limits = intrinsic_limit_entries(rig, geometry, R, t, res, scaled, refined)
+    return [replace(cam, focal_limit=FocalLimitFigures.from_json(e)) if e is not None else cam
+            for cam, e in zip(cameras, entries)], limits
 
 
 def _judged(cam: CameraFigures, fig: dict, cov: dict, extent: float | None) -> JudgedFigures:

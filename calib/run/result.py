@@ -123,6 +123,30 @@ class JudgedFigures:
 
 
 @dataclass(frozen=True)
+class FocalLimitFigures:
+    """How far a camera's position hinges on a focal length that was given, not refined
+    (:mod:`wandcal.calib.judge.intrinsic_limits`): ``focal_limit`` its figures (mm per 1%, the
+    sigma assumed and its source, the data's own), ``honest_std_mm`` the geometry sigma with the
+    focal length's (``honest_std`` in the result's units without a scale)."""
+
+    focal_limit: Mapping[str, Any]
+    honest_std_mm: float | None = None
+    honest_std: float | None = None
+
+    def to_json(self) -> Json:
+        out: Json = {"focal_limit": dict(self.focal_limit)}
+        if self.honest_std_mm is not None:
+            out["geometry_std_honest_mm"] = self.honest_std_mm
+        if self.honest_std is not None:
+            out["geometry_std_honest"] = self.honest_std
+        return out
+
+    @classmethod
+    def from_json(cls, doc: Mapping[str, Any]) -> FocalLimitFigures:
+        return cls(doc["focal_limit"], doc.get("geometry_std_honest_mm"), doc.get("geometry_std_honest"))
+
+
+@dataclass(frozen=True)
 class CameraFigures:
     """One camera's figures in a result, beside its pose and intrinsics.
 
@@ -146,6 +170,7 @@ class CameraFigures:
     warnings: tuple[str, ...] | None = None
     judged: JudgedFigures | None = None
     verdict: Mapping[str, Any] | None = None
+    focal_limit: FocalLimitFigures | None = None
 
     def to_json(self) -> Json:
         out: Json = {"reprojection_rms_px": self.reprojection_rms_px, "observations": self.observations,
@@ -169,6 +194,8 @@ class CameraFigures:
             out["uncovered"] = list(self.judged.uncovered) if self.judged.uncovered is not None else None
         if self.verdict is not None:
             out["verdict"] = dict(self.verdict)
+        if self.focal_limit is not None:
+            out |= self.focal_limit.to_json()
         return out
 
     @classmethod
@@ -194,6 +221,7 @@ class CameraFigures:
             tuple(WorstFrame(w.get("frame"), w.get("error_px")) for w in doc.get("worst_frames") or ()), doc.get("initial_pose"),
             points, uncertainty, RefinedIntrinsics.from_json(intrinsics) if isinstance(intrinsics, Mapping) else None,
             tuple(warnings) if isinstance(warnings, list) else None, judged, doc.get("verdict"),
+            FocalLimitFigures.from_json(doc) if isinstance(doc.get("focal_limit"), Mapping) else None,
         )
 
 

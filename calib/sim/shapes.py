@@ -11,6 +11,9 @@ makes them look like real sessions (STYLE.md habit 13):
 - gross outliers (one blob of a camera-frame moved 20-60 px) on a share of the kept camera-frames;
 - the L-frame's blobs only where they fall inside a camera's image, so a camera that does not see
   it whole is placed from the wand, and a far one sees it as a small, possibly ambiguous, pose.
+- a point is seen only inside the lens's one-to-one range (:func:`unfolded_radius`): beyond it
+  the polynomial lens model folds points from far outside the field of view back into the image,
+  blobs no real lens would make (a hallway's end camera "saw" the wand 30 m down the corridor).
 
 Seeded: the same :class:`RigShape`, frames and seed give the same capture.
 """
@@ -31,7 +34,6 @@ from wandcal.calib.sim.simulate import (
     SimulatedCapture,
     Truth,
     look_at,
-    observe_static,
     observe_wand,
     wand_path,
 )
@@ -41,8 +43,13 @@ MIN_CAMERAS, MAX_CAMERAS = 8, 256
 SIZE_RANGE_M = {"ring": (3.0, 15.0), "dome": (3.0, 15.0), "tiers": (3.0, 15.0), "hallway": (10.0, 120.0)}
 MAX_K1 = 0.1  # the strongest radial distortion of the mocap lenses the simulator stands in for
 HALLWAY_WIDTH_M = 4.0  # a corridor's width: the cameras on one wall look across it at the other
-HALLWAY_CAMERAS_SHARE = 0.42  # the cameras stand along this share of the length each side of its middle,
-# within the wand's (0.45): a camera at the very end would look past the last of the wand
+HALLWAY_CAMERAS_SHARE = 0.42  # the cameras stand along this share of the length each side of its middle
+HALLWAY_WALK_PAST_M = 2.0  # the wand is walked this far past the last camera at each end: a camera looks
+# across at a stretch of about 4 m of the far wall, so the end ones see the wand on both sides of their aim
+HALLWAY_SWAY_M = 1.0  # the wand's midpoint sways this far along the corridor about the walk
+HALLWAY_SWEEP_M = 1.0  # the wand is swept once per metre walked, as a person waves it while walking: with
+# wand_path's sweeps (150 frames) the 3000 frames' two walks moved it in near-straight lines across
+# several cameras' views, and two cameras sharing 10 such frames were placed 48 degrees off
 VOLUME_SHARE = 0.4  # the wand's volume reaches this share of a round rig's radius from its centre
 VOLUME_HEIGHT_M = (0.45, 1.55)  # the wand's midpoint between these heights: a person waving it
 # wand_path's own volume: midpoints within +/-0.9 m of the centre in x and y (its normalised path
@@ -92,7 +99,7 @@ class RigShape:
     def half_volume(self) -> np.ndarray:
         """(2,) the wand midpoints' half extent in x and y, metres."""
         if self.kind == "hallway":
-            return np.array([0.45 * self.size_m, HALLWAY_WIDTH_M / 2 - 0.8])
+            return np.array([HALLWAY_CAMERAS_SHARE * self.size_m + HALLWAY_WALK_PAST_M, HALLWAY_WIDTH_M / 2 - 0.8])
         return np.full(2, VOLUME_SHARE * self.size_m)
 
 
@@ -116,7 +123,7 @@ def simulate_shape(shape: RigShape, frames: int = 3000, noise_px: float = 0.3, o
     obs = _observe_kept(cams, R, t, wand, keep, noise_px, outliers, occlusion, rng)
     static_obs = None
     if static:
-        static_obs = _inside(cams, observe_static(cams, R, t, L_FRAME_M, noise_px / np.sqrt(STATIC_FRAMES_AVERAGED), rng))
+        static_obs = _observe_static_in_view(cams, R, t, noise_px / np.sqrt(STATIC_FRAMES_AVERAGED), rng)
     rig = Rig(cameras=tuple(cams), wand_length=wand_length, static_markers=L_FRAME_M.copy() if static else None)
     return SimulatedCapture(rig=rig, wand=obs, static=static_obs, truth=Truth(R=R, t=t, wand=wand))
 
@@ -192,15 +199,19 @@ _PLACES = {"ring": _ring, "dome": _dome, "tiers": _tiers, "hallway": _hallway}
 
 def shaped_wand_path(shape: RigShape, frames: int, length: float, rng: np.random.Generator) -> np.ndarray:
     """(F, 2, 3) wand ends, metres: :func:`wandcal.calib.sim.simulate.wand_path`'s smooth path with
-    its midpoints stretched over the shape's volume (a hallway's walked from end to end twice),
-    the wand's direction and length as they were."""
-    ends = wand_path(frames, length, rng)
+    its midpoints stretched over the shape's volume (a hallway's walked from end to end twice, past
+    its last cameras), the wand's direction and length as they were."""
+    sweep = 150.0  # wand_path's default
+    if shape.kind == "hallway":  # the frames of a metre walked (the walk's 4 lengths of 2 reaches)
+        sweep = HALLWAY_SWEEP_M * frames / (8 * shape.half_volume[0])
+    ends = wand_path(frames, length, rng, sweep_frames=sweep)
     mid, half = ends.mean(axis=1), 0.5 * (ends[:, 1] - ends[:, 0])
     mid[:, :2] *= shape.half_volume / PATH_HALF_M
     if shape.kind == "hallway":
         s = np.arange(frames) / max(frames - 1, 1)
         walk = 2 / np.pi * np.arcsin(np.sin(2 * np.pi * 2 * s - np.pi / 2))  # a triangle wave, -1 to 1
-        mid[:, 0] = shape.half_volume[0] * (0.85 * walk + 0.15 * mid[:, 0] / shape.half_volume[0])
+        reach = shape.half_volume[0]
+        mid[:, 0] = (reach - HALLWAY_SWAY_M) * walk + HALLWAY_SWAY_M * np.clip(mid[:, 0] / reach, -1, 1)
     return np.stack([mid - half, mid + half], axis=1)
 
 
@@ -212,11 +223,7 @@ def sparse_views(cams: list[Camera], R: np.ndarray, t: np.ndarray, wand: np.ndar
     F, N = len(wand), len(cams)
     seen = np.ones((F, N), bool)
     for c, cam in enumerate(cams):
-        pts = wand.reshape(-1, 3)
-        uv = distort_points(cam, project_normalized(R[c], t[c], pts))
-        inside = ((depth(R[c], t[c], pts) > 0.1) & (uv[:, 0] > BORDER_PX) & (uv[:, 0] < cam.width - BORDER_PX)
-                  & (uv[:, 1] > BORDER_PX) & (uv[:, 1] < cam.height - BORDER_PX))
-        seen[:, c] = inside.reshape(F, 2).all(1)
+        seen[:, c] = in_view(cam, R[c], t[c], wand.reshape(-1, 3)).reshape(F, 2).all(1)
     distance = np.linalg.norm(camera_centers(R, t)[None] - wand.mean(axis=1)[:, None], axis=2)
     # the Gumbel top-k trick: the k largest of log(weight) + Gumbel noise are a weighted draw of k
     # without replacement
@@ -226,6 +233,29 @@ def sparse_views(cams: list[Camera], R: np.ndarray, t: np.ndarray, wand: np.ndar
     keep = (rank < k[:, None]) & seen
     keep[seen.sum(1) < 2] = False
     return keep
+
+
+def unfolded_radius(camera: Camera) -> float:
+    """The normalised radius (tan of the angle off the optical axis) up to which ``camera``'s radial
+    model r (1 + k1 r^2 + k2 r^4 + k3 r^6) still grows with r, inf if it always does. Past it the
+    model turns back and images points from outside the field of view inside it."""
+    k1, k2 = camera.dist[0], camera.dist[1]
+    k3 = camera.dist[4] if len(camera.dist) > 4 else 0.0
+    # d/dr of the model, in s = r^2: 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3
+    roots = np.roots(np.trim_zeros([7 * k3, 5 * k2, 3 * k1, 1.0], "f"))
+    s = roots[(np.abs(roots.imag) < 1e-12) & (roots.real > 0)].real
+    return float(np.sqrt(s.min())) if len(s) else np.inf
+
+
+def in_view(camera: Camera, R: np.ndarray, t: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(M,) bool: which world points (M, 3), metres, ``camera`` at pose R (3, 3), t (3,) images:
+    in front of it, inside its lens's one-to-one range (:func:`unfolded_radius`) and inside the
+    image, ``BORDER_PX`` from its edge."""
+    xy = project_normalized(R, t, points)
+    uv = distort_points(camera, xy)
+    return ((depth(R, t, points) > 0.1) & (np.linalg.norm(xy, axis=1) < unfolded_radius(camera))
+            & (uv[:, 0] > BORDER_PX) & (uv[:, 0] < camera.width - BORDER_PX)
+            & (uv[:, 1] > BORDER_PX) & (uv[:, 1] < camera.height - BORDER_PX))
 
 
 def _observe_kept(cams, R, t, wand, keep, noise_px, outliers, occlusion, rng) -> WandObservations:
@@ -245,8 +275,14 @@ def _observe_kept(cams, R, t, wand, keep, noise_px, outliers, occlusion, rng) ->
     return WandObservations(np.concatenate(frame)[order], np.concatenate(camera)[order], np.concatenate(uv)[order])
 
 
-def _inside(cams: list[Camera], static: StaticObservations) -> StaticObservations:
-    """The static blobs that fall inside their camera's image."""
-    size = np.array([[c.width, c.height] for c in cams], float)[static.camera]
-    ok = np.all((static.uv > BORDER_PX) & (static.uv < size - BORDER_PX), axis=1)
-    return StaticObservations(camera=static.camera[ok], uv=static.uv[ok])
+def _observe_static_in_view(cams, R, t, sigma_px, rng) -> StaticObservations:
+    """:func:`wandcal.calib.sim.simulate.observe_static` of the L-frame (the same draws), keeping
+    only the blobs of markers each camera has in view (:func:`in_view`)."""
+    cameras, uvs = [], []
+    for c, cam in enumerate(cams):
+        uv = distort_points(cam, project_normalized(R[c], t[c], L_FRAME_M)) + rng.normal(0, sigma_px, (len(L_FRAME_M), 2))
+        order = rng.permutation(len(uv))
+        seen = in_view(cam, R[c], t[c], L_FRAME_M)[order]
+        uvs.append(uv[order][seen])
+        cameras += [c] * int(seen.sum())
+    return StaticObservations(camera=np.array(cameras, dtype=np.int64), uv=np.concatenate(uvs).reshape(-1, 2))

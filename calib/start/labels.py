@@ -8,6 +8,8 @@ settles the cases where both ends lie near one epipolar line.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from wandcal.calib.observations import WandPairs
@@ -57,7 +59,10 @@ def label_ends(
     if len(sub) == 0:
         return sub, np.zeros(0)
     ranked = _Ranked(sub)  # swapping a pair's ends leaves its rank: one sort serves both passes
-    E_table = _essential_table(R, t)  # and one table of the N^2 essential matrices
+    # and one table of the essential matrices of the cameras these pairs come from: the start's
+    # resections label a few cameras' frames at a time (at 256 cameras, the 65,536 pairs' table
+    # built for each of them was the start's largest cost)
+    E_table = _essential_table(R, t, np.unique(sub.camera))
     sub = sub.swapped(_epipolar_order(R, t, sub, ranked, E_table))
     sub = sub.swapped(_pairwise_consensus(R, t, sub, ranked, E_table))
     margin = np.zeros(len(sub))
@@ -112,7 +117,7 @@ def _project(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 
 def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None,
-                    E_table: np.ndarray | None = None) -> np.ndarray:
+                    E_table: _Essentials | None = None) -> np.ndarray:
     """(P,) bool: swap each pair so it agrees with its frame's reference pair (the one whose
     blobs are furthest apart, which is the least ambiguous)."""
     ranked = ranked or _Ranked(pairs)
@@ -124,7 +129,7 @@ def _epipolar_order(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ran
 
 
 def _pairwise_consensus(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None,
-                        E_table: np.ndarray | None = None, max_passes: int = 8) -> np.ndarray:
+                        E_table: _Essentials | None = None, max_passes: int = 8) -> np.ndarray:
     """(P,) bool flips that lower each frame's epipolar cost summed over its voting camera pairs.
 
     The reference-based order trusts one camera per frame; when the wand lies near an epipolar
@@ -195,7 +200,7 @@ def _ranges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 
 def _votes(R: np.ndarray, t: np.ndarray, pairs: WandPairs, ranked: _Ranked | None = None,
-           E_table: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           E_table: _Essentials | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The unordered pairs of pairs (a (K,), b (K,)) in the same frame that vote in
     :func:`_pairwise_consensus` (each pair with each of its frame's :data:`VOTERS` voters, the pairs
     whose blobs are furthest apart, each unordered pair once), with what each vote gains when one
@@ -267,7 +272,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def _epipolar_costs(R: np.ndarray, t: np.ndarray, pairs: WandPairs, a: np.ndarray, b: np.ndarray,
-                    E_table: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    E_table: _Essentials | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Epipolar costs of the pairs ``a`` (K,) against the pairs ``b`` (K,) of other cameras in the
     same frames: (same, cross), each (K,), the Sampson distances summed over both ends matched in
     their present order and crossed; :data:`COST_CHUNK` at a time so the temporaries stay in cache."""
@@ -278,24 +283,38 @@ def _epipolar_costs(R: np.ndarray, t: np.ndarray, pairs: WandPairs, a: np.ndarra
     return same, cross
 
 
-def _essential_table(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(9, N*N): column b * N + a holds E[a, b]'s nine entries (:func:`_essential_matrices`)."""
+class _Essentials(NamedTuple):
+    """The essential matrices of some cameras' pairs: ``table`` (9, U*U), column b * U + a holds
+    E[a, b]'s nine entries (:func:`_essential_matrices`) for a, b the cameras' places in the table,
+    ``index`` (N,) each camera's place (-1: not in it)."""
+
+    table: np.ndarray
+    index: np.ndarray
+    n: int
+
+
+def _essential_table(R: np.ndarray, t: np.ndarray, cameras: np.ndarray | None = None) -> _Essentials:
+    """The essential matrices of the pairs of ``cameras`` (U,) (default every camera)."""
     # b-major: a frame's votes pair every camera a of the frame with a few voters b, whose columns
     # then lie side by side (at 128 cameras the table is 1.2 MB, and a-major columns had each vote
     # read nine cache lines of its own)
-    n = len(R)
-    return np.ascontiguousarray(np.swapaxes(_essential_matrices(R, t), 0, 1).reshape(n * n, 9).T)
+    cameras = np.arange(len(R)) if cameras is None else cameras
+    n = len(cameras)
+    index = np.full(len(R), -1)
+    index[cameras] = np.arange(n)
+    table = np.ascontiguousarray(np.swapaxes(_essential_matrices(R[cameras], t[cameras]), 0, 1).reshape(n * n, 9).T)
+    return _Essentials(table, index, n)
 
 
 class _EpipolarCosts:
     """The tables :func:`_epipolar_costs` reads: every camera pair's essential matrix (E's nine
     entries as nine rows, the pair's column b-major), and the blobs' x, y (four rows)."""
 
-    def __init__(self, R: np.ndarray, t: np.ndarray, pairs: WandPairs, E_table: np.ndarray | None = None) -> None:
-        self.n = len(R)
-        self.E_table = _essential_table(R, t) if E_table is None else E_table
+    def __init__(self, R: np.ndarray, t: np.ndarray, pairs: WandPairs, E_table: _Essentials | None = None) -> None:
+        essentials = _essential_table(R, t) if E_table is None else E_table
+        self.n, self.E_table = essentials.n, essentials.table
         self.xy_table = np.ascontiguousarray(pairs.xy.reshape(-1, 4).T)  # (4, P): x0, y0, x1, y1
-        self.camera = pairs.camera
+        self.camera = essentials.index[pairs.camera]  # each pair's camera's place in the table
 
     def __call__(self, ca: np.ndarray, cb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(same, cross) of the pairs ``ca`` (K,) against ``cb`` (K,); worked on flat rows (E's

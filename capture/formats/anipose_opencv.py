@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import tomllib
 
-import cv2
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import matrix_to_rotvec, rotvec_to_matrix
 from wandcal.calib.rig import FISHEYE, PINHOLE, Camera, Rig
 from wandcal.capture.formats.cameras import PosedCameras, check_unit, posed_cameras, read_cameras
+from wandcal.capture.formats.opencv_yaml import parse_number, parse_opencv_yaml
 
 OPENCV_SHORT_DIST = 4  # OpenCV's shortest pinhole distortion vector, [k1, k2, p1, p2]
 
@@ -90,8 +90,6 @@ def read_anipose_toml(text: str, unit: str = "m", source: str = "calibration.tom
     return read_cameras(cams, R, t, source)
 
 
-
-
 def _yaml_matrix(name: str, m: np.ndarray, indent: str) -> list[str]:
     m = np.atleast_2d(m)
     data = ", ".join(repr(float(v)) for v in m.ravel())
@@ -138,43 +136,73 @@ def to_opencv_yaml(result: dict, rig: Rig | None = None, unit: str = "m") -> str
     return "\n".join(lines) + "\n"
 
 
+MAX_YAML_CAMERAS = 1024  # four times the largest rig wandcal simulates (calib.sim.shapes.MAX_CAMERAS)
+
+
 def read_opencv_yaml(text: str, source: str = "calibration.yaml") -> PosedCameras:
-    """YAML written by :func:`to_opencv_yaml` back as cameras, read with ``cv2.FileStorage``."""
-    if not text.strip():  # OpenCV fails on an empty buffer with a SystemError, not its own error
+    """YAML written by :func:`to_opencv_yaml` (or by ``cv2.FileStorage`` in its layout) back as cameras.
+
+    Parsed in Python (:mod:`wandcal.capture.formats.opencv_yaml`), never by ``cv2.FileStorage``,
+    whose parser can corrupt the heap and abort the process on a damaged file. ``t`` is in the
+    file's ``unit`` (default m) and returned in metres.
+    """
+    if not text.strip():
         raise CalibrationError(f"{source}: empty; give the YAML 'wandcal export --format opencv-yaml' writes")
+    doc = parse_opencv_yaml(text, source)
+    unit = _yaml_text(doc.get("unit"), "m")
     try:
-        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY | cv2.FILE_STORAGE_FORMAT_YAML)
-    except (cv2.error, SystemError) as exc:  # OpenCV's parse errors reach Python as either
-        raise CalibrationError(f"{source}: not OpenCV YAML ({str(exc).strip().splitlines()[-1]})") from None
-    try:
-        unit = fs.getNode("unit").string() or "m"
         scale = check_unit(unit)
-        node = fs.getNode("cameras")
-        if not node.isSeq():
-            raise CalibrationError(f"{source}: no 'cameras' sequence")
-        cams, R, t, rms = [], [], [], []
-        for i in range(node.size()):
-            cam = node.at(i)
-            where = f"{source}: cameras[{i}]"
+    except CalibrationError as exc:
+        raise CalibrationError(f"{source}: {exc}") from None
+    cameras = doc.get("cameras")
+    if not isinstance(cameras, list):
+        raise CalibrationError(f"{source}: no 'cameras' sequence; docs/formats.md, opencv-yaml")
+    if len(cameras) > MAX_YAML_CAMERAS:
+        raise CalibrationError(f"{source}: {len(cameras)} cameras, more than the {MAX_YAML_CAMERAS} a file may hold")
+    cams, R, t, rms = [], [], [], []
+    for i, cam in enumerate(cameras):
+        where = f"{source}: cameras[{i}]"
+        if not isinstance(cam, dict):
+            raise CalibrationError(f"{where} is not a map of id, model, image_width, image_height, camera_matrix, ...")
+        fields = (_yaml_text(cam.get("id"), f"cam{i + 1}"), _yaml_whole(cam, "image_width", where),
+                  _yaml_whole(cam, "image_height", where), _yaml_matrix_field(cam, "camera_matrix", where),
+                  _yaml_matrix_field(cam, "distortion_coefficients", where).ravel(), _yaml_text(cam.get("model"), PINHOLE))
+        try:
+            cams.append(Camera(*fields))
+        except CalibrationError as exc:  # Camera's checks name the camera, not the file
+            raise CalibrationError(f"{where}: {exc}") from None
+        R.append(_yaml_matrix_field(cam, "R", where))
+        t.append(_yaml_matrix_field(cam, "t", where).ravel() / scale)
+        rms.append(_yaml_real(cam, "reprojection_rms_px", where) if "reprojection_rms_px" in cam else np.nan)
+    return read_cameras(cams, R, t, source, rms)
 
-            def mat(key, cam=cam, where=where):
-                m = cam.getNode(key).mat()
-                if m is None:
-                    raise CalibrationError(f"{where} has no matrix {key!r}")
-                return m
 
-            cams.append(Camera(cam.getNode("id").string() or f"cam{i + 1}", int(cam.getNode("image_width").real()),
-                               int(cam.getNode("image_height").real()), mat("camera_matrix"),
-                               mat("distortion_coefficients").ravel(), cam.getNode("model").string() or PINHOLE))
-            R.append(mat("R"))
-            t.append(mat("t").ravel() / scale)
-            r = cam.getNode("reprojection_rms_px")
-            rms.append(r.real() if not r.empty() else np.nan)
-        return read_cameras(cams, R, t, source, rms)
-    except cv2.error as exc:  # a node of another kind than the one asked for (a map where a sequence was)
-        raise CalibrationError(f"{source}: not the OpenCV YAML wandcal writes ({str(exc).strip().splitlines()[-1]}); "
-                               "docs/formats.md, opencv-yaml") from None
-    except (ValueError, OverflowError) as exc:  # an image size of NaN or infinity
-        raise CalibrationError(f"{source}: a camera's image_width or image_height is not a whole number ({exc})") from None
-    finally:
-        fs.release()
+def _yaml_text(value, default: str) -> str:
+    """A scalar as text; ``default`` for a missing or empty one (as ``FileNode.string()`` gave)."""
+    return value if isinstance(value, str) and value else default
+
+
+def _yaml_real(cam: dict, key: str, where: str) -> float:
+    value = cam[key]
+    try:
+        if not isinstance(value, str):
+            raise ValueError(f"a {type(value).__name__}")
+        return parse_number(value)
+    except ValueError as exc:
+        raise CalibrationError(f"{where}: {key!r} must be a number ({exc})") from None
+
+
+def _yaml_whole(cam: dict, key: str, where: str) -> int:
+    if key not in cam:
+        raise CalibrationError(f"{where} has no {key!r}")
+    value = _yaml_real(cam, key, where)
+    if not (np.isfinite(value) and value == int(value)):
+        raise CalibrationError(f"{where}: {key!r} must be a whole number of pixels, not {cam[key]!r}")
+    return int(value)
+
+
+def _yaml_matrix_field(cam: dict, key: str, where: str) -> np.ndarray:
+    m = cam.get(key)
+    if not isinstance(m, np.ndarray):
+        raise CalibrationError(f"{where} has no matrix {key!r} (a !!opencv-matrix map of rows, cols, dt, data)")
+    return m

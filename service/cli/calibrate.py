@@ -10,6 +10,8 @@ from pathlib import Path
 from wandcal.service.cli.support.args import arg_number, arg_whole
 
 RESULT_FILE = "result.json"  # the default method's result; the others get their own (result_path)
+BELOW_REQUIRED = 1  # exit status when the rig's verdict is below --require (the result is written all the same)
+REQUIRE_LEVELS = ("excellent", "good")  # wandcal.calib.judge.verdict.LEVELS but the worst
 
 
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
@@ -47,6 +49,9 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                    help="auto: find each camera's time offset from the wand, for cameras without a trigger (docs/sync.md)")
     p.add_argument("--sync-max-offset", type=arg_whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
     p.add_argument("--sync-drift", action="store_true", help="with --sync auto: also each camera's rate difference")
+    p.add_argument("--require", choices=REQUIRE_LEVELS, default=None, metavar="LEVEL",
+                   help=f"for scripts: exit {BELOW_REQUIRED} when the rig's verdict is below LEVEL "
+                        f"({' or '.join(REQUIRE_LEVELS)}); the result is written all the same (exit 0 without it)")
     p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
                    help="start from this result: with --solve-only, every other camera keeps its pose exactly")
@@ -146,7 +151,19 @@ def _write_result(args, doc: dict) -> int:
     out.write_text(json.dumps(doc, indent=2) + "\n")
     print(format_summary(doc))
     print(f"wrote {out}" + (f" (replacing the earlier {replaced})" if replaced else ""))
-    return 0
+    return _required(getattr(args, "require", None), (doc.get("verdict") or {}).get("level"))
+
+
+def _required(require: str | None, level: str | None) -> int:
+    """0, or :data:`BELOW_REQUIRED` (said on stderr) when ``level`` is below ``require``."""
+    import sys
+
+    from wandcal.calib.judge.verdict import LEVELS
+
+    if require is None or level in LEVELS[: LEVELS.index(require) + 1]:
+        return 0
+    print(f"the rig's verdict is {level or 'missing'}, below --require {require}: exit {BELOW_REQUIRED}", file=sys.stderr)
+    return BELOW_REQUIRED
 
 
 def _replaced(out: Path) -> str | None:

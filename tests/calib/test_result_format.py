@@ -4,6 +4,7 @@ from the same inputs and compared byte for byte, and each reads back into typed 
 the same bytes again."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -40,3 +41,15 @@ def test_a_result_of_older_code_lacking_the_newer_fields_reads_them_as_absent():
     assert WorldFrame.from_json({"frame": "axis"}).to_json() == {"frame": "axis", "description": None}
     solver = SolverReport.from_json({"method": "lp", "status": "converged", "iterations": 4})
     assert (solver.status, solver.iterations, solver.refined_intrinsics, solver.total_seconds) == ("converged", 4, (), None)
+
+
+BEFORE = sorted((Path(__file__).resolve().parents[1] / "fixtures" / "results" / "before").glob("*.json"))
+
+
+@pytest.mark.parametrize("path", BEFORE, ids=lambda p: p.stem)
+def test_a_result_written_before_the_honest_sigma_reads_and_writes_the_same_bytes(path: Path):
+    """tests/fixtures/results/before/: the same cases as written before each camera carried its
+    focal-length limit (focal_limit, geometry_std_honest_mm) and the verdict its limits."""
+    got = read_result(path)
+    assert written(got.result.to_json()) == path.read_bytes()
+    assert all(cam.focal_limit is None for cam in got.result.cameras)

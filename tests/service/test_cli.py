@@ -57,3 +57,25 @@ def test_calibrate_an_image_level_capture_detects_first(tmp_path):
     truth = json.loads((out / "truth.json").read_text())
     err = np.linalg.norm(np.array([c["center"] for c in doc["cameras"]]) - np.array([c["center"] for c in truth["cameras"]]), axis=1)
     assert err.max() < 0.002  # the capture issue's acceptance figure for simulated rigs
+
+
+def test_require_exits_1_below_the_level_asked_and_writes_the_result(tmp_path):
+    out = tmp_path / "cap"
+    wandcal("simulate", str(out), "--cameras", "4", "--frames", "200", "--seed", "3")
+    doc = json.loads((out / "rig.json").read_text())
+    for row in doc["cameras"][1]["K"][:2]:  # cam2's focal length 8% off in rig.json: a fault the verdict names
+        row[0], row[1] = row[0] * 1.08, row[1] * 1.08
+    (out / "rig.json").write_text(json.dumps(doc))
+    r = wandcal("calibrate", str(out), "--out", str(tmp_path / "res.json"), "--quiet", "--require", "good")
+    level = json.loads((tmp_path / "res.json").read_text())["verdict"]["level"]
+    assert level == "poor"
+    assert r.returncode == 1, r.stderr
+    assert "below --require good" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_require_compares_the_verdicts_level():
+    from wandcal.service.cli.calibrate import BELOW_REQUIRED, _required
+
+    assert _required(None, "poor") == 0
+    assert [_required("good", level) for level in ("excellent", "good", "poor")] == [0, 0, BELOW_REQUIRED]
+    assert [_required("excellent", level) for level in ("excellent", "good", "poor")] == [0, BELOW_REQUIRED, BELOW_REQUIRED]

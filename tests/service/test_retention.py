@@ -1,4 +1,4 @@
-"""Retention (service/retention.py): nothing is deleted unless a setting allows it; then exactly
+"""Retention (service/jobs/retention.py): nothing is deleted unless a setting allows it; then exactly
 the finished jobs and idle captures older than the setting, never a queued or running job's."""
 
 from __future__ import annotations

@@ -47,3 +47,17 @@ def test_a_small_rigs_summary_is_as_before():
         "  good but not excellent for coverage in cam1, cam2, cam3, cam4 (each camera's verdict says why)",
         *(f"  {reason}" for cam in doc["cameras"][:2] for reason in cam["verdict"]["reasons"]),
     ]
+
+
+def test_the_cameras_a_focal_length_limits_are_said_on_one_line():
+    from wandcal.service.cli.support.summary import _limit_lines
+
+    def limit(cam: str, per: float, sigma: float) -> dict:
+        return {"camera": cam, "parameter": "focal length", "message": f"{cam}'s ... run with --refine-intrinsics focal, ...",
+                "evidence": {"along_axis_mm_per_percent": per, "focal_sigma_mm": sigma, "focal_std_percent": 2.0}}
+
+    one = _limit_lines([limit("cam4", 3.1, 6.2)], 4)
+    assert one == ["  limit (cam4): cam4's ... run with --refine-intrinsics focal, ..."]
+    (line,) = _limit_lines([limit("cam1", 4.4, 9.1), limit("cam2", 5.6, 11.5)], 4)
+    assert "cam1, cam2 move 4.4-5.6 mm" in line and "+-9.1-11.5 mm" in line and "--refine-intrinsics focal" in line
+    assert _limit_lines([], 4) == []

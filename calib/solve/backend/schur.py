@@ -22,6 +22,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 CHUNK_ENTRIES = 2_000_000  # doubles per dense chunk of the reduction (16 MB): bounds memory at any rig size
+# the Gram by each block's camera pairs when the sum over blocks of their cameras squared is below
+# this share of cameras^2 x blocks, the dense product's work. Each frame in 2-4 cameras
+# (calib/sim/shapes.py, 3000 frames, random W, CPU s on the loaded machine): at 64 cameras (share
+# 0.0024) 0.07 s against the dense 0.29; at 256 (0.00015) 0.07 against 1.28; every camera seeing
+# every frame (the default 8-camera ring, share 1) 0.20 against 0.007. Dense BLAS gets cheaper per
+# entry as the rig grows: the share where the two cost the same fell from 0.01 (64) to 0.003 (256)
+SPARSE_GRAM_FILL = 0.005
+SPARSE_GRAM_PRODUCTS = 65_536  # block-pair products (c x c each) at a time: ~20 MB of temporaries at c = 6
 CHUNK_GROUPS = 16_384  # observation groups linearised and summed at once: ~30 MB of temporaries
 MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagonal: a parameter no
 # residual touches would otherwise make the damped system singular
@@ -290,9 +298,14 @@ def _subtract_gram(S: np.ndarray, W: np.ndarray, LinvT: np.ndarray, s: TermStruc
 
     The pairs (sorted by block) are laid out as a dense (cameras * c) x (blocks * p) matrix, a
     chunk of blocks at a time, so the sum is one symmetric matrix product per chunk; Z is formed
-    a chunk at a time too."""
+    a chunk at a time too. When few cameras see each block (:data:`SPARSE_GRAM_FILL`), the
+    products of each block's own camera pairs instead (:func:`_subtract_gram_sparse`)."""
     n, c, p = s.n_cams, W.shape[1], W.shape[2]
     if n == 0 or len(W) == 0:
+        return
+    per_block = np.bincount(s.pair_pt, minlength=s.n_pts)
+    if np.sum(per_block.astype(float) ** 2) < SPARSE_GRAM_FILL * n * n * s.n_pts:
+        _subtract_gram_sparse(S, W, LinvT, s, per_block)
         return
     chunk = max(1, CHUNK_ENTRIES // (n * c * p))
     bounds = np.searchsorted(s.pair_pt, np.arange(0, s.n_pts + chunk, chunk))
@@ -305,3 +318,26 @@ def _subtract_gram(S: np.ndarray, W: np.ndarray, LinvT: np.ndarray, s: TermStruc
         Zd[s.pair_cam[a:b], :, s.pair_pt[a:b] - first] = W[a:b] @ LinvT[s.pair_pt[a:b]]
         Zm = Zd.reshape(n * c, -1)
         S -= Zm @ Zm.T
+
+
+def _subtract_gram_sparse(S: np.ndarray, W: np.ndarray, LinvT: np.ndarray, s: TermStructure, per_block: np.ndarray) -> None:
+    """:func:`_subtract_gram` block by block: for every two pairs (i, j) of the same block (its
+    cameras a, b), Z_i Z_j^T (c x c) summed into S's (a, b) block. The work is the sum over blocks
+    of their cameras squared, not cameras^2 x blocks: 2-4 cameras a frame in a 256-camera rig
+    (calib/sim/shapes.py) leave the dense product 99.9% zeros. A chunk of pairs at a time."""
+    n, c = s.n_cams, W.shape[1]
+    starts = np.r_[0, np.cumsum(per_block)[:-1]]
+    flat = S.reshape(-1)
+    within = np.arange(c)[:, None] * (n * c) + np.arange(c)[None, :]  # a c x c block's offsets in S
+    per_pair = per_block[s.pair_pt]  # (K,) the pairs j each pair i is multiplied with
+    total = np.cumsum(per_pair)
+    edges = np.unique(np.r_[0, np.searchsorted(total, np.arange(SPARSE_GRAM_PRODUCTS, total[-1], SPARSE_GRAM_PRODUCTS),
+                                                side="right"), len(per_pair)])
+    Z = W @ LinvT[s.pair_pt]  # (K, c, p)
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        i = np.repeat(np.arange(lo, hi), per_pair[lo:hi])
+        # j runs over the block's pairs: its first pair plus 0, 1, ..., count - 1
+        j = starts[s.pair_pt[i]] + np.arange(len(i)) - np.repeat(np.cumsum(per_pair[lo:hi]) - per_pair[lo:hi], per_pair[lo:hi])
+        G = np.einsum("kcp,kdp->kcd", Z[i], Z[j])
+        at = (s.pair_cam[i] * c * n * c + s.pair_cam[j] * c)[:, None, None] + within
+        flat -= np.bincount(at.ravel(), G.ravel(), minlength=flat.size)

@@ -70,6 +70,7 @@ def _verdict_lines(doc: dict) -> list[str]:
     if more:
         lines.append(f"  {camera_list(more, len(doc['cameras']))} {'is' if len(more) == 1 else 'are'} poor too (each "
                      "camera's verdict in the result says why)")
+    lines += _limit_lines(verdict.get("limits") or [], len(doc["cameras"]))
     placement = verdict.get("placement")
     if placement:
         where = doc["world"].get("placement") or {}
@@ -82,6 +83,23 @@ def _verdict_lines(doc: dict) -> list[str]:
     advice = list(dict.fromkeys([*verdict.get("advice", []), *(placement or {}).get("advice", [])]))
     lines += [f"to do: {text}" for text in advice]
     return lines
+
+
+def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
+    """The cameras whose position hinges on a focal length that was given (the verdict's
+    ``limits``, wandcal.calib.judge.intrinsic_limits): one's message in full, several on one line."""
+    if len(limits) <= 1:
+        return [f"  limit ({limit['camera']}): {limit['message']}" for limit in limits]
+    per = [limit["evidence"].get("along_axis_mm_per_percent") for limit in limits]
+    sigma = [limit["evidence"].get("focal_sigma_mm") for limit in limits]
+    if None in per or None in sigma:
+        return [f"  limit ({limit['camera']}): {limit['message']}" for limit in limits]
+    refine = all("--refine-intrinsics" in limit["message"] for limit in limits)
+    return [f"  limit: {camera_list([limit['camera'] for limit in limits], n_cameras)} move {min(per):.1f}-{max(per):.1f} mm "
+            f"along their axes for each 1% of focal length, +-{min(sigma):.1f}-{max(sigma):.1f} mm with the focal lengths "
+            f"known to {limits[0]['evidence'].get('focal_std_percent', 2):g}%: "
+            + ("refine them (--refine-intrinsics focal) or give them from a lens calibration" if refine
+               else "give them from a lens calibration (the result's verdict.limits has each camera's figures)")]
 
 
 def _number(value, fmt: str, width: int) -> str:

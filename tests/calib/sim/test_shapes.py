@@ -3,10 +3,13 @@ convergence in few iterations with an error the injected noise accounts for (dec
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from bench.common import aligned_rms_mm
+from wandcal.calib.geometry import project_pixels
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.shapes import RigShape, simulate_shape
 
@@ -54,3 +57,35 @@ def test_views_are_sparse_and_seeded():
 def test_a_shape_out_of_range_says_what_to_give(kwargs, words):
     with pytest.raises(ValueError, match=words):
         RigShape(**kwargs)
+
+
+def test_a_lens_images_nothing_past_its_one_to_one_radius():
+    """The polynomial lens model turns back past its one-to-one radius and would image a point
+    far outside the field of view inside it; such a point is not seen."""
+    from wandcal.calib.sim.shapes import in_view, unfolded_radius
+
+    sim = simulate_shape(RigShape("ring", 8, 4.0), frames=50, seed=2)
+    cam = replace(sim.rig.cameras[0], dist=np.array([0.094, -0.022, 0.0, 0.0, 0.0]))
+    r = unfolded_radius(cam)
+    # d/dr r (1 + k1 r^2 + k2 r^4) = 1 + 3 k1 r^2 + 5 k2 r^4 vanishes there
+    assert 1 + 3 * 0.094 * r**2 + 5 * -0.022 * r**4 == pytest.approx(0, abs=1e-9)
+    assert unfolded_radius(replace(cam, dist=np.zeros(5))) == np.inf
+    R, t = np.eye(3), np.zeros(3)
+    folded = np.array([[3.0, 0.0, 1.0]])  # tan = 3, 72 degrees off the axis: past r, yet imaged inside
+    uv = project_pixels(cam, R, t, folded)[0]
+    assert 0 < uv[0] < cam.width and 0 < uv[1] < cam.height
+    assert not in_view(cam, R, t, folded)[0]
+    assert in_view(cam, R, t, np.array([[0.1, 0.1, 3.0]]))[0]
+
+
+def test_a_hallways_wand_reaches_every_camera():
+    """The wand is walked past the last cameras at both ends: every camera of a long hallway has
+    frames in which it and another camera see both wand ends (decision 0032: at 40 m, 64 cameras,
+    the last camera had none)."""
+    sim = simulate_shape(RigShape("hallway", 64, 40.0), frames=3000, seed=1)
+    w = sim.wand
+    ends = np.zeros((3000, 64), int)
+    np.add.at(ends, (w.frame, w.camera), 1)
+    both = ends == 2
+    shared = both[both.sum(1) >= 2].sum(0)
+    assert shared.min() >= 20

@@ -152,3 +152,25 @@ def test_solve_again_with_the_same_gradient_is_the_same_step():
     again = schur.solve_again(normal, step)
     assert np.allclose(again.dc, step.dc, rtol=1e-9, atol=1e-12 * np.abs(step.dc).max())
     assert np.allclose(again.dp[0], step.dp[0], rtol=1e-9, atol=1e-12 * np.abs(step.dp[0]).max())
+
+
+@pytest.mark.parametrize("cameras", [12, 64])
+def test_the_reduction_by_each_frames_own_cameras_is_the_dense_one(cameras):
+    """A rig whose frames each 2-4 of its cameras see (calib/sim/shapes.py) is reduced by each
+    frame's own camera pairs: the same reduced camera system as the dense product, to rounding."""
+    rng = np.random.default_rng(7)
+    frames, c, p = 400, 6, 5
+    seen = [np.sort(rng.choice(cameras, rng.integers(2, 5), replace=False)) for _ in range(frames)]
+    cam = np.concatenate(seen)
+    pt = np.repeat(np.arange(frames), [len(s) for s in seen])
+    structure = schur.TermStructure(cam, cam, pt, cameras, frames, p)
+    W = rng.normal(size=(len(structure.pair_cam), c, p))
+    LinvT = np.triu(rng.normal(size=(frames, p, p)))
+    per_block = np.bincount(structure.pair_pt, minlength=frames)
+    sparse, dense = np.zeros((cameras * c, cameras * c)), np.zeros((cameras * c, cameras * c))
+    schur._subtract_gram_sparse(sparse, W, LinvT, structure, per_block)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(schur, "SPARSE_GRAM_FILL", 0.0)  # the dense product whatever the rig
+        schur._subtract_gram(dense, W, LinvT, structure)
+    assert np.abs(dense).max() > 0
+    assert np.allclose(sparse, dense, rtol=0, atol=1e-12 * np.abs(dense).max())

@@ -1,0 +1,197 @@
+"""How far a camera's position hinges on a focal length that was given, not refined: the honest sigma.
+
+The geometry sigma of a solve (:mod:`wandcal.calib.solve.gauge_free`) treats the intrinsics in
+rig.json as exact. Real ones are not: a nominal lens focal length, or one from a calibration of
+another day, is off by one or a few per cent (the published eWand session's refined focal lengths
+lie 1.2-2.6% above its own yaml files), and a camera given a focal length off by ``d`` moves along
+its axis by about ``d`` times its distance from the points, to keep its image's scale: on the Brown
+wind-tunnel sessions 3-4 mm for each 1%, ten to twenty times their geometry sigma.
+
+Each camera's pose is refitted, to first order, to the points it sees (with the final poses) with a
+focal length ``1 + d`` times its own: the observations' normalised coordinates scale by ``1 / (1 + d)``,
+so the pose must take up ``-d x`` (x: (K, 2) the projected points). Least squares of that column on
+the pose's six (:func:`wandcal.calib.judge.faults._pose_columns`) gives the pose's change, hence the
+centre's, per unit of ``d``. The honest sigma adds that change, times the focal length's own
+relative sigma, to the geometry sigma in quadrature. The focal length's sigma is rig.json's
+``focal_std_px`` where the camera gives one, else :data:`DEFAULT_FOCAL_REL_STD`.
+
+The judgement's lens screens do not shrink that sigma: on Brown 1 and 2 a focal length 3% off went
+unseen (the pose and the points took it up) although the camera's own residuals would give its
+focal length to 0.1-0.2%.
+
+The same fit with the focal column beside the pose's says whether the data could determine the
+focal length (its standard error from the residual's scatter): then ``--refine-intrinsics focal``
+is the advice, else a lens calibration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.judge.faults import _pose_columns
+
+# a focal length given, not refined, is taken as known to 2% (1 sigma) unless rig.json gives its
+# own sigma: a lens's nominal focal length is marked to 5% and the sensor's pixel pitch is exact,
+# a calibration of another day with the focus touched keeps it to 1-3% (the eWand session's yaml
+# focal lengths sit 1.2-2.6% below those its own wand data give); docs/verdict.md
+DEFAULT_FOCAL_REL_STD = 0.02
+# a camera's position hinges on its focal length when the focal part of its honest sigma passes
+# its geometry sigma this many times: it is then named, with the millimetres per 1%
+LIMIT_RATIO = 2.0
+# the data determine the focal length when its standard error from the camera's own residuals is
+# under this share: refining it (--refine-intrinsics focal) is then the advice (the refined focal
+# length's own warning, wandcal.calib.run.camera_reports.FOCAL_REL_STD_WARN, is 0.5%)
+DETERMINED_REL_STD = 0.005
+MAX_ROWS = 1000  # observations per camera the fit uses: a first-order fit of seven columns needs no more
+MIN_ROWS = 12
+
+
+@dataclass(frozen=True)
+class FocalLimit:
+    """One camera's centre against its focal length. shift_m_per_unit: (3,) the centre's change,
+    metres (or the rig's units), per unit relative focal error (0.01 is 1%); along_axis_m_per_unit:
+    its component along the camera's optical axis; focal_rel_std: the focal length's assumed
+    relative sigma, and ``source`` where it comes from (``rig.json`` or ``default``);
+    data_rel_std: the focal length's relative standard error the camera's own data would give."""
+
+    shift_m_per_unit: np.ndarray
+    along_axis_m_per_unit: float
+    focal_rel_std: float
+    source: str
+    data_rel_std: float
+
+    @property
+    def std(self) -> float:
+        """The centre's sigma from the focal length alone (3D RMS), metres."""
+        return float(np.linalg.norm(self.shift_m_per_unit) * self.focal_rel_std)
+
+
+def _centre(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    return -R.T @ t
+
+
+def focal_limit(R: np.ndarray, t: np.ndarray, xy_projected: np.ndarray, depth: np.ndarray, residual: np.ndarray,
+                views: np.ndarray, focal_rel_std: float, source: str) -> FocalLimit | None:
+    """The centre's first-order change per unit focal error of one camera (pose R (3, 3), t (3,)),
+    from its observations: xy_projected (K, 2) normalised projections of its points, depth (K,)
+    their depths, residual (K, 2) normalised residuals (their scatter gives the data's own focal
+    standard error), views (K,) how many cameras see each one's point. None with fewer than
+    :data:`MIN_ROWS` observations.
+
+    A point seen by n cameras moves to share its error among them, so the pose takes up about
+    ``1 - 1/n`` of it (a point of two views, half): the focal column is weighted so. On Brown 1 and
+    2 with a focal length 3% off the cameras moved 3.3-4.5 mm per 1%; the fit with the points held
+    gave 6-9, with this weighting about 4."""
+    ok = np.isfinite(depth) & (depth > 0) & np.all(np.isfinite(xy_projected), axis=1)
+    if ok.sum() < MIN_ROWS:
+        return None
+    idx = np.flatnonzero(ok)
+    idx = idx[:: max(1, len(idx) // MAX_ROWS)]
+    x, d = xy_projected[idx], depth[idx]
+    X_cam = np.concatenate([x * d[:, None], d[:, None]], axis=1)
+    X = (X_cam - t) @ R  # world points: R^T (X_cam - t)
+    pose = _pose_columns(R, t, X)
+    share = 1.0 - 1.0 / np.maximum(views[idx], 2)
+    focal_col = -(x * share[:, None]).ravel()
+    both = np.concatenate([pose, focal_col[:, None]], axis=1)
+    scale = np.linalg.norm(both, axis=0)
+    scale[scale == 0] = 1.0
+    A = both / scale
+    G = A.T @ A  # the normal equations of the scaled columns: a 7 x 7 system (lstsq on the rows is slow)
+    try:
+        step = np.linalg.solve(G[:6, :6], A[:, :6].T @ A[:, 6]) * scale[6] / scale[:6]
+        cov = np.linalg.inv(G)
+    except np.linalg.LinAlgError:
+        return None
+    C0 = _centre(R, t)
+    C1 = _centre(rotvec_to_matrix(step[:3]) @ R, t + step[3:])
+    shift = C1 - C0  # linear in the step: the step is per unit d, small enough for the rotation's first order
+    r = residual[idx].ravel()
+    sigma = float(np.sqrt(np.mean(r[np.isfinite(r)] ** 2))) if np.isfinite(r).any() else 0.0
+    # the fit used every k-th observation: all of them would give sqrt(k) times less
+    data_std = sigma * float(np.sqrt(max(cov[6, 6], 0.0) * len(idx) / ok.sum())) / scale[6]
+    return FocalLimit(shift, float(shift @ R[2]), focal_rel_std, source, data_std)
+
+
+def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> list[FocalLimit | None]:
+    """Every camera's :class:`FocalLimit` (None where its focal length was refined, or it has too
+    few observations). res: the judgement's :class:`wandcal.calib.judge.residuals.Residuals`;
+    refined: the intrinsics the solve refined (``focal`` among them: none is given)."""
+    out: list[FocalLimit | None] = []
+    key = res.point - res.point.min() if len(res.point) else res.point
+    views = np.bincount(key)[key]
+    for c, cam in enumerate(rig.cameras):
+        if "focal" in refined:
+            out.append(None)
+            continue
+        rows = res.rows_of(c)
+        rows = rows[~res.outlier[rows]]
+        given = getattr(cam, "focal_std_px", None)
+        rel, source = (float(given) / float(cam.K[0, 0]), "rig.json") if given else (DEFAULT_FOCAL_REL_STD, "default")
+        proj = res.xy[rows] + res.residual[rows]
+        out.append(focal_limit(R[c], t[c], proj, res.depth[rows], res.residual[rows], views[rows], rel, source))
+    return out
+
+
+def limit_entry(limit: FocalLimit, geometry_std: float | None, scaled: bool) -> dict:
+    """A camera's report entries: ``geometry_std_honest_mm`` (the geometry sigma with the focal
+    length's, in quadrature; None without a scale) and ``focal_limit`` (mm per 1% along the axis
+    and in all, the sigma assumed and its source, the data's own)."""
+    unit = 1000.0 if scaled else 1.0
+    honest = None
+    if geometry_std is not None:
+        honest = float(np.hypot(geometry_std, limit.std))
+    entry = {"focal_limit": {
+        "mm_per_percent" if scaled else "per_percent": round(unit * 0.01 * float(np.linalg.norm(limit.shift_m_per_unit)), 4),
+        "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": round(unit * 0.01 * limit.along_axis_m_per_unit, 4),
+        "focal_std_percent": round(100 * limit.focal_rel_std, 3), "source": limit.source,
+        "data_focal_std_percent": round(100 * float(limit.data_rel_std), 3) if np.isfinite(limit.data_rel_std) else None}}
+    entry["geometry_std_honest_mm" if scaled else "geometry_std_honest"] = \
+        (round(unit * honest, 4) if honest is not None else None)
+    return entry
+
+
+def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_std: list[float | None],
+                    scaled: bool) -> list[dict]:
+    """The cameras whose position hinges on their focal length (its part of the honest sigma
+    :data:`LIMIT_RATIO` times the geometry sigma or more), each ``{"camera", "parameter",
+    "message", "evidence"}``: how many millimetres along its axis each 1% moves it, and what to do."""
+    out = []
+    for cam, limit, geo in zip(ids, limits, geometry_std):
+        if limit is None or geo is None or limit.std < LIMIT_RATIO * geo:
+            continue
+        per = 0.01 * abs(limit.along_axis_m_per_unit) * (1000.0 if scaled else 1.0)
+        unit = "mm" if scaled else "units"
+        if limit.data_rel_std < DETERMINED_REL_STD:
+            todo = (f"the data determine it to +-{100 * limit.data_rel_std:.2f}%: run with --refine-intrinsics focal, "
+                    "or give it from a lens calibration")
+        else:
+            todo = "the data cannot determine it: give it from a lens calibration"
+        if limit.source == "rig.json":
+            why = "rig.json's focal_std_px"
+        else:
+            why = f"assumed, rig.json giving no focal_std_px for {cam}"
+        k = 1000.0 if scaled else 1.0
+        out.append({"camera": cam, "parameter": "focal length", "evidence": {
+            "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": round(per, 3),
+            "focal_std_percent": round(100 * limit.focal_rel_std, 3),
+            "focal_sigma_mm" if scaled else "focal_sigma": round(limit.std * k, 3),
+            "geometry_sigma_mm" if scaled else "geometry_sigma": round(geo * k, 3)},
+            "message": f"{cam}'s distance along its axis moves {per:.1f} {unit} for each 1% of its focal length: with "
+                       f"the focal length known to {100 * limit.focal_rel_std:.2g}% ({why}) its position is known "
+                       f"to +-{limit.std * k:.1f} {unit}, not the +-{geo * k:.2f} {unit} of the geometry alone; {todo}"})
+    return out
+
+
+def intrinsic_limit_entries(rig, geometry_std: list[float | None], R: np.ndarray, t: np.ndarray, res, scaled: bool,
+                            refined: tuple[str, ...]) -> tuple[list[dict | None], list[dict]]:
+    """Each camera's :func:`limit_entry` (None where its focal length was refined or it has too
+    few observations) and the cameras whose position hinges on their focal length
+    (:func:`limited_cameras`). geometry_std: (N,) each camera's geometry sigma, world units;
+    refined: the intrinsics the solve refined."""
+    limits = focal_limits(rig, R, t, res, set(refined))
+    entries = [limit_entry(limit, geo, scaled) if limit is not None else None for limit, geo in zip(limits, geometry_std)]
+    return entries, limited_cameras(list(rig.ids), limits, geometry_std, scaled)

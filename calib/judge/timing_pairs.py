@@ -1,0 +1,339 @@
+"""Which camera is out of time, from every pair of cameras that sees the moving wand at once.
+
+The suspect screen's timing analysis (:func:`wandcal.calib.judge.faults.analyse_camera`) needs a
+camera's wand ends triangulated by two other cameras in many frames. Sparse, hand-digitised
+sessions do not have them: Brown's cameras share 2-8 such frames, while every frame a camera shares
+with *one* other still holds the timing. Two cameras that see a point at the same time see it on
+each other's epipolar lines (``x_c^T E x_d = 0``, ``E = [t_cd]x R_cd`` from the final poses, which
+the static background points pin where there are any); a camera ``delta`` frames late records at
+frame k where the point was at time ``k - delta``.
+
+- **Whole frames**: each camera's samples shifted by ``s`` frames against all the others',
+  ``|s| <=`` :data:`MAX_SHIFT`; the median Sampson distance of its pairs at each shift. A camera
+  whose pairs agree far better at a shift (:data:`WHOLE_GAIN`) than unshifted, by far more than
+  any other camera's, is ``s`` frames off.
+- **A fraction of a frame** (after the whole shift): to first order the epipolar product of a
+  pair moves by ``-delta_c v_c^T E x_d - delta_d x_c^T E v_d``, with ``v`` each camera's own
+  image velocity (its samples at the frames before and after). Least squares of every pair's
+  Sampson-normalised product on every camera's offset (the rig's common offset is a null
+  direction: the cameras on time are the median). A camera is named when its offset is
+  :data:`MIN_T` standard errors from the others', explains :data:`MIN_SHARE` of its pairs'
+  residual, and moves its blobs by :data:`MIN_EFFECT` of its own residual's scatter at the wand's
+  speed: timing is judged by its effect in pixels, whatever the frame rate.
+
+Only samples with a time take part: the wand's ends, or the point tracks where there is no wand
+(a moving marker); static background points are the same at every time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.observations import PointTracks, WandPairs
+
+MAX_SHIFT = 3  # whole frames searched either way
+MIN_PAIRS = 10  # pair samples of a camera before its timing is judged
+# a camera's pairs agree at a whole-frame shift when their median Sampson distance falls to this
+# share of the unshifted one; and no other camera's improves nearly as much (COMPARE_MARGIN)
+WHOLE_GAIN = 0.5
+COMPARE_MARGIN = 1.5
+# a fractional offset is named at this many standard errors from the other cameras' ...
+MIN_T = 8.0
+# ... explaining this share of the camera's pairs' residual ...
+MIN_SHARE = 0.3
+# ... and moving its blobs, at the median speed, by this share of its pairs' residual scatter
+MIN_EFFECT = 0.5
+TRIM = 5.0  # rows beyond this many robust sigmas are left out of the fit (a mislabelled end)
+
+
+@dataclass(frozen=True)
+class CameraTiming:
+    """A camera's offset against the others, frames (positive: late, it records at frame k what
+    the others saw at k - offset): ``whole`` the whole-frame part, ``offset`` in all, ``std`` its
+    standard error; ``explained`` the share of its pairs' residual the offset explains;
+    ``effect_px`` how far the offset moves its blobs at the median speed; ``pairs`` samples."""
+
+    camera: int
+    whole: int
+    offset: float
+    std: float
+    explained: float
+    effect_px: float
+    pairs: int
+
+
+@dataclass(frozen=True, eq=False)
+class Samples:
+    """Every timed sample: camera (S,), frame (S,) capture frame numbers, xy (S, 2) normalised."""
+
+    camera: np.ndarray
+    frame: np.ndarray
+    xy: np.ndarray
+
+
+def timed_samples(labelled: WandPairs, tracks: PointTracks | None) -> Samples:
+    """The wand's ends, or the point tracks where there is no wand."""
+    if len(labelled):
+        frame = labelled.frames[labelled.frame]
+        return Samples(np.repeat(labelled.camera, 2), np.repeat(frame, 2), labelled.xy.reshape(-1, 2))
+    if tracks is not None and len(tracks):
+        return Samples(tracks.camera, tracks.frames[tracks.track], tracks.xy)
+    return Samples(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)))
+
+
+def _essential(R: np.ndarray, t: np.ndarray, c: int, d: int) -> np.ndarray:
+    """E with ``x_c^T E x_d = 0`` for normalised homogeneous x of one point in cameras c and d."""
+    Rcd = R[c] @ R[d].T
+    tcd = t[c] - Rcd @ t[d]
+    skew = np.array([[0, -tcd[2], tcd[1]], [tcd[2], 0, -tcd[0]], [-tcd[1], tcd[0], 0]])
+    return skew @ Rcd
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """One camera's timed samples by frame: frames (F,) ascending capture frame numbers; count (F,)
+    blobs at each (1 or 2; frames with more are left out); xy (F, 2, 2) the blobs (the second a
+    copy of the first where there is one); v (F, 2, 2) each blob's image velocity per frame (its
+    nearest blobs at the frames before and after), NaN where it has no neighbour."""
+
+    frames: np.ndarray
+    count: np.ndarray
+    xy: np.ndarray
+    v: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+
+def camera_track(s: Samples, c: int) -> Track:
+    """Camera c's samples as a :class:`Track`."""
+    mine = s.camera == c
+    frames, xy = s.frame[mine], s.xy[mine]
+    order = np.argsort(frames, kind="stable")
+    frames, xy = frames[order], xy[order]
+    uf, first, count = np.unique(frames, return_index=True, return_counts=True)
+    ok = count <= 2
+    uf, first, count = uf[ok], first[ok], count[ok]
+    pad = np.stack([xy[first], xy[first + count - 1]], axis=1)
+    pos = {"before": np.searchsorted(uf, uf - 1), "after": np.searchsorted(uf, uf + 1)}
+    near = {}
+    for side, found in pos.items():
+        at = np.clip(found, 0, len(uf) - 1)
+        has = uf[at] == uf + (1 if side == "after" else -1)
+        cand = pad[at]  # (F, 2, 2): the neighbour's blobs
+        dist = np.linalg.norm(pad[:, :, None, :] - cand[:, None, :, :], axis=3)  # (F, blob, neighbour blob)
+        pick = np.argmin(dist, axis=2)
+        blob = np.take_along_axis(cand, pick[:, :, None], axis=1)
+        near[side] = np.where(has[:, None, None], blob, np.nan)
+    both = (near["after"] - near["before"]) / 2
+    one_after, one_before = near["after"] - pad, pad - near["before"]
+    v = np.where(np.isfinite(both), both, np.where(np.isfinite(one_after), one_after, one_before))
+    return Track(uf, count, pad, v)
+
+
+def _essential_rows(E: np.ndarray, xc: np.ndarray, xd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For (J, 2) blobs of c and d: the epipolar products x_c^T E x_d, E x_d and E^T x_c (J, 3)."""
+    pc, pd = _hom(xc), _hom(xd)
+    Ex, Etx = pd @ E.T, pc @ E
+    return np.einsum("ji,ji->j", pc, Ex), Ex, Etx
+
+
+@dataclass(frozen=True, eq=False)
+class PairRows:
+    """Pair samples: first, second (J,) cameras; value (J,) the Sampson-normalised epipolar
+    product; a, b (J,) its derivatives in the first's and the second's offsets (normalised the
+    same; NaN where a camera's blob has no velocity)."""
+
+    first: np.ndarray
+    second: np.ndarray
+    value: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+
+
+def _hom(x: np.ndarray) -> np.ndarray:
+    return np.concatenate([x, np.ones((len(x), 1))], axis=1)
+
+
+def pair_rows(R: np.ndarray, t: np.ndarray, tracks: list[Track], shifts: np.ndarray,
+              only: int | None = None) -> PairRows:
+    """Every pair of cameras' samples at the same time (of pairs with camera ``only`` where it is
+    given), camera c's frames shifted by shifts[c] (its sample at frame k + shifts[c] taken as time
+    k). Two blobs a frame (the wand's ends) are matched the way that agrees best."""
+    out: list[list[np.ndarray]] = [[], [], [], [], []]
+    n = len(tracks)
+    for c in range(n):
+        for d in range(c + 1, n):
+            if only is not None and only not in (c, d):
+                continue
+            tc, td = tracks[c], tracks[d]
+            _, ic, id_ = np.intersect1d(tc.frames - int(shifts[c]), td.frames - int(shifts[d]), assume_unique=True,
+                                        return_indices=True)
+            same = tc.count[ic] == td.count[id_]
+            ic, id_ = ic[same], id_[same]
+            if not len(ic):
+                continue
+            E = _essential(R, t, c, d)
+            xc, xd, vc, vd = tc.xy[ic], td.xy[id_].copy(), tc.v[ic], td.v[id_].copy()
+            straight = np.abs(_essential_rows(E, xc[:, 0], xd[:, 0])[0]) + np.abs(_essential_rows(E, xc[:, 1], xd[:, 1])[0])
+            crossed = np.abs(_essential_rows(E, xc[:, 0], xd[:, 1])[0]) + np.abs(_essential_rows(E, xc[:, 1], xd[:, 0])[0])
+            swap = (crossed < straight) & (tc.count[ic] == 2)
+            xd[swap], vd[swap] = xd[swap][:, ::-1], vd[swap][:, ::-1]
+            two = tc.count[ic] == 2
+            for i in (0, 1):
+                sel = np.ones(len(ic), bool) if i == 0 else two
+                prod, Ex, Etx = _essential_rows(E, xc[sel, i], xd[sel, i])
+                norm = np.sqrt(Ex[:, 0] ** 2 + Ex[:, 1] ** 2 + Etx[:, 0] ** 2 + Etx[:, 1] ** 2)
+                good = norm > 0
+                out[0].append(np.full(int(good.sum()), c))
+                out[1].append(np.full(int(good.sum()), d))
+                out[2].append(prod[good] / norm[good])
+                out[3].append(-np.einsum("ji,ji->j", vc[sel, i], Ex[:, :2])[good] / norm[good])
+                out[4].append(-np.einsum("ji,ji->j", vd[sel, i], Etx[:, :2])[good] / norm[good])
+    if not out[0]:
+        z = np.zeros(0)
+        return PairRows(z.astype(np.int64), z.astype(np.int64), z, z, z)
+    first, second, value, a, b = (np.concatenate(v) for v in out)
+    return PairRows(first.astype(np.int64), second.astype(np.int64), value, a, b)
+
+
+def _median_abs(rows: PairRows, c: int) -> tuple[float, int]:
+    mine = (rows.first == c) | (rows.second == c)
+    return (float(np.median(np.abs(rows.value[mine]))) if mine.any() else np.inf), int(mine.sum())
+
+
+def whole_shifts(R: np.ndarray, t: np.ndarray, tracks: list[Track]) -> np.ndarray:
+    """(N,) each camera's whole-frame shift: 0, or the one camera whose pairs agree far better
+    shifted (:data:`WHOLE_GAIN`), standing out of every other camera's gain (:data:`COMPARE_MARGIN`)."""
+    n = len(tracks)
+    gains, best = np.ones(n), np.zeros(n, int)
+    for c in range(n):
+        at0, count = _median_abs(pair_rows(R, t, tracks, np.zeros(n, int), only=c), c)
+        if count < MIN_PAIRS or not np.isfinite(at0) or at0 <= 0:
+            continue
+        for s in (s for s in range(-MAX_SHIFT, MAX_SHIFT + 1) if s):
+            shifts = np.zeros(n, int)
+            shifts[c] = s
+            med, count_s = _median_abs(pair_rows(R, t, tracks, shifts, only=c), c)
+            if count_s >= MIN_PAIRS and med / at0 < gains[c]:
+                gains[c], best[c] = med / at0, s
+    out = np.zeros(n, int)
+    c = int(np.argmin(gains))
+    others = np.delete(gains, c)
+    if gains[c] <= WHOLE_GAIN and (not len(others) or gains[c] * COMPARE_MARGIN <= others.min()):
+        out[c] = best[c]
+    return out
+
+
+def _speed(track: Track) -> float:
+    """A camera's median image speed, normalised units per frame."""
+    speed = np.linalg.norm(track.v, axis=2)[:, 0]
+    speed = speed[np.isfinite(speed)]
+    return float(np.median(speed)) if len(speed) else 0.0
+
+
+def _fit(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares of y (J,) on A (J, N), twice, rows beyond :data:`TRIM` robust sigmas of the
+    first fit's residual left out of the second (a mislabelled end, a blob on the wrong marker).
+    Returns (offsets (N,), the rows kept (J,))."""
+    keep = np.ones(len(y), bool)
+    delta = np.zeros(A.shape[1])
+    for _ in range(3):
+        delta, *_ = np.linalg.lstsq(A[keep], y[keep], rcond=None)  # minimum norm: the common offset is free
+        r = y - A @ delta
+        mad = 1.4826 * np.median(np.abs(r[keep]))
+        keep = np.abs(r) <= TRIM * max(mad, 1e-15)
+    return delta, keep
+
+
+def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None,
+                   focal: np.ndarray) -> list[CameraTiming]:
+    """Every camera's offset against the others (whole frames, then the fraction by the velocity
+    fit). R, t: (N, 3, 3), (N, 3) poses; focal: (N,) focal lengths, pixels. Empty where the
+    samples are too few to judge."""
+    n = len(R)
+    s = timed_samples(labelled, tracks)
+    if not len(s.camera):
+        return []
+    by_camera = [camera_track(s, c) for c in range(n)]
+    shifts = whole_shifts(R, t, by_camera)
+    rows = pair_rows(R, t, by_camera, shifts)
+    usable = np.isfinite(rows.a) & np.isfinite(rows.b)
+    if usable.sum() < MIN_PAIRS:
+        return []
+    first, second, y = rows.first[usable], rows.second[usable], rows.value[usable]
+    A = np.zeros((len(y), n))
+    A[np.arange(len(y)), first] = rows.a[usable]
+    A[np.arange(len(y)), second] = rows.b[usable]
+    delta, keep = _fit(A, y)
+    A, y, first, second = A[keep], y[keep], first[keep], second[keep]
+    sigma = float(np.sqrt(np.mean((y - A @ delta) ** 2)))
+    reference = float(np.median(delta))  # the cameras on time are the majority
+    out = []
+    for c in range(n):
+        mine = (first == c) | (second == c)
+        if mine.sum() < MIN_PAIRS:
+            continue
+        col = A[mine, c]
+        # c's offset against the others held at theirs (from the reference): its own column's least squares
+        other = y[mine] - A[mine] @ np.where(np.arange(n) == c, 0.0, delta - reference)
+        gram = float(col @ col)
+        if gram <= 0:
+            continue
+        own = float(col @ other) / gram
+        before, after = float(other @ other), float(((other - col * own) ** 2).sum())
+        offset = float(shifts[c] + own)
+        out.append(CameraTiming(c, int(shifts[c]), offset, float(sigma / np.sqrt(gram)),
+                                1 - after / before if before > 0 else 0.0,
+                                abs(offset) * _speed(by_camera[c]) * float(focal[c]), int(mine.sum())))
+    return out
+
+
+def _t(timing: CameraTiming) -> float:
+    """How many standard errors the fractional part is from zero; a whole shift counts as certain."""
+    return np.inf if timing.whole else abs(timing.offset) / max(timing.std, 1e-12)
+
+
+def timing_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None,
+                  focal: np.ndarray, noise_px: list[float | None]) -> list[dict]:
+    """The camera out of time, as a fault (``{"kind": "timing", "camera", "message", "evidence"}``;
+    at most one), or nothing. A whole-frame shift found by :func:`whole_shifts` names its camera;
+    a fraction of a frame is named at :data:`MIN_T` standard errors, :data:`MIN_SHARE` of the
+    camera's pairs' residual explained and an effect of :data:`MIN_EFFECT` times its noise_px
+    (pixels) or more, its t :data:`COMPARE_MARGIN` times every other camera's."""
+    timings = camera_timings(R, t, labelled, tracks, focal)
+    if not timings:
+        return []
+    best = max(timings, key=_t)
+    runner_up = max((_t(o) for o in timings if o.camera != best.camera), default=0.0)
+    noise = noise_px[best.camera] or 0.0
+    if not best.whole and not (_t(best) >= MIN_T and best.explained >= MIN_SHARE and best.effect_px >= MIN_EFFECT * noise
+                               and _t(best) >= COMPARE_MARGIN * runner_up):
+        return []
+    cam, d = ids[best.camera], best.offset
+    whole = f" ({best.whole:+d} whole frames and the rest by the wand's speed)" if best.whole and abs(d - best.whole) > 3 * best.std else ""
+    return [{"kind": "timing", "camera": cam, "evidence": {"timing": {
+        "offset_frames": round(d, 4), "offset_std_frames": round(best.std, 4), "whole_frames": best.whole,
+        "explained_share": round(best.explained, 3), "effect_px": round(best.effect_px, 2), "pairs": best.pairs}},
+        "message": f"{cam} is out of time: its samples match the other cameras' {abs(d):.2f} +- {best.std:.2f} frames "
+                   f"{'late' if d > 0 else 'early'}{whole} (offset {d:+.2f}: positive is late), which moves its blobs "
+                   f"{best.effect_px:.1f} px at the wand's median speed; check its trigger cable and settings, or "
+                   f"calibrate with its offset (--sync auto)"}]
+
+
+def timing_refusal(error: Exception, ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPairs,
+                   tracks: PointTracks | None, focal: np.ndarray) -> Exception:
+    """A refusal (the cameras do not agree on the wand) with the camera out of time named first
+    where the pairs find one: its shift, not the wand's length, is then what to fix. ``error``
+    itself where no camera is out of time or the rig is not of 3-5 cameras."""
+    from wandcal.calib.errors import CalibrationError
+    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS
+
+    if not 3 <= len(ids) <= MAX_CAMERAS:
+        return error
+    found = timing_faults(ids, R, t, labelled, tracks, focal, [None] * len(ids))
+    if not found:
+        return error
+    return CalibrationError(f"{found[0]['message']}. It makes the calibration fail: {error}")

@@ -1,0 +1,65 @@
+"""A camera out of time, from every pair of cameras (calib/judge/timing_pairs.py), on a made-up
+rig of four cameras following one marker along a smooth path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wandcal.calib.geometry import project_normalized
+from wandcal.calib.judge.timing_pairs import camera_timings, timing_faults
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.sim.simulate import look_at
+
+FOCAL_PX = 1000.0
+NOISE_PX = 0.1
+FRAMES = 300
+
+
+def _path(time: np.ndarray) -> np.ndarray:
+    """(T, 3) the marker at (fractional) frame times: a slow loop in a 1 m volume, ~7 px a frame."""
+    w = 2 * np.pi * time / 150
+    return np.stack([0.4 * np.cos(w), 0.3 * np.sin(2 * w), 0.2 * np.sin(w)], axis=1)
+
+
+def _rig_and_tracks(late: dict[int, float], seed: int = 0):
+    """Four cameras 3 m out; camera c records at frame k the marker of time k - late[c]."""
+    centres = [[3, 0, 1], [0, 3, 1.2], [-3, 0, 0.8], [0, -3, 1.1]]
+    poses = [look_at(np.array(c, float), np.zeros(3)) for c in centres]
+    R, t = np.array([p[0] for p in poses]), np.array([p[1] for p in poses])
+    rng = np.random.default_rng(seed)
+    frames = np.arange(FRAMES)
+    track, camera, xy = [], [], []
+    for c in range(4):
+        X = _path(frames - late.get(c, 0.0))
+        x = project_normalized(R[c], t[c], X)
+        track.append(frames)
+        camera.append(np.full(FRAMES, c))
+        xy.append(x + rng.normal(0, NOISE_PX / FOCAL_PX, x.shape))
+    track, camera, xy = (np.concatenate(v) for v in (track, camera, xy))
+    order = np.lexsort((camera, track))
+    tracks = PointTracks(track[order], camera[order], xy[order], xy[order] * FOCAL_PX, frames.astype(np.int64))
+    return R, t, tracks
+
+
+@pytest.mark.parametrize("late", [0.4, -0.25, 2.0, -1.0, 1.3])
+def test_the_late_camera_is_found_with_its_offset(late):
+    R, t, tracks = _rig_and_tracks({2: late})
+    timings = {o.camera: o for o in camera_timings(R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX))}
+    found = timings[2]
+    # first order in the offset's fraction: a central-difference velocity on a loop of 150 frames
+    # errs by about (2 pi / 150) * fraction / 2 of it, under 0.01 frame; the noise adds its std
+    assert abs(found.offset - late) < 0.01 + 5 * found.std
+    if float(late).is_integer():
+        assert found.whole == late  # found by the whole-frame search, not the velocity fit
+    for c in (0, 1, 3):
+        assert abs(timings[c].offset) < 0.01 + 5 * timings[c].std
+    faults = timing_faults(["a", "b", "c", "d"], R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX), [NOISE_PX] * 4)
+    assert [(f["kind"], f["camera"]) for f in faults] == [("timing", "c")]
+    assert np.sign(faults[0]["evidence"]["timing"]["offset_frames"]) == np.sign(late)  # positive: late
+    assert ("late" if late > 0 else "early") in faults[0]["message"] and "--sync auto" in faults[0]["message"]
+
+
+def test_cameras_in_time_are_not_named():
+    R, t, tracks = _rig_and_tracks({})
+    assert timing_faults(["a", "b", "c", "d"], R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX), [NOISE_PX] * 4) == []
