@@ -48,7 +48,6 @@ from pathlib import Path
 import httpx
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import contextlib
 
 from bench.common import write_section
 from tests.service.conftest import REPO, Server, capture_files, free_port, server_env, simulated_capture
