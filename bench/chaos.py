@@ -48,6 +48,7 @@ from pathlib import Path
 import httpx
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 from bench.common import write_section
 from tests.service.conftest import REPO, Server, capture_files, free_port, server_env, simulated_capture
 
@@ -60,6 +61,7 @@ REDIS_START_S = 20.0  # a fresh redis-server answers PING within milliseconds; a
 # interval, 30 s, plus 60 s) and the server's next poll cleans up (10 s): after the chaos, a job
 # still unfinished when no job has finished for this long is stuck.
 STALL_S = 150.0
+HEARTBEAT_LAPSE_S = 30 + 60 + 30  # rq's job-monitoring interval, its 60 s to spare, and a margin
 SETTLE_S = 1800.0  # and the run ends this long after the chaos whatever happens (a backlog on a slow machine)
 POLL_S = 0.2  # the client's pause between rounds of polls of the unfinished jobs
 LOG_WAIT_S = 10.0  # at the end, how long a solve still running is given to log its end
@@ -80,6 +82,9 @@ class Plan:
     submit_s: float = 150.0  # the jobs are submitted over this long (the chaos happens meanwhile)
     settle_s: float = SETTLE_S
     stall_s: float = STALL_S
+    # tests only: once the queue has stalled this long, rq's abandoned-job cleanup is run as if the
+    # heartbeats had lapsed (90 s), as tests/service/test_redis.py does; None waits for the lapse
+    lapse_after_s: float | None = None
     captures: int = 3
     seed: int = 34
 
@@ -404,6 +409,14 @@ def upload_captures(server: Server, folder: Path, count: int) -> list[str]:
     return ids
 
 
+def _lapse_heartbeats(url: str) -> None:
+    """rq's abandoned-job cleanup as a worker's maintenance runs it once the heartbeats have lapsed."""
+    from redis import Redis
+    from rq.registry import StartedJobRegistry
+
+    StartedJobRegistry(QUEUE, connection=Redis.from_url(url)).cleanup(timestamp=time.time() + HEARTBEAT_LAPSE_S)
+
+
 def _audit(db: Path, report: Report) -> None:
     with sqlite3.connect(db) as conn:
         conn.row_factory = sqlite3.Row
@@ -450,14 +463,17 @@ def run(plan: Plan, folder: Path) -> Report:
         with client._lock:
             client.unfinished |= unanswered - set(report.accepted)
         deadline = time.monotonic() + plan.settle_s
-        last, progress = -1, time.monotonic()
+        last, progress, lapsed = -1, time.monotonic(), False
         while time.monotonic() < min(deadline, progress + plan.stall_s):
             with client._lock:
                 left = len(client.unfinished)
             if not left:
                 break
             if left != last:
-                last, progress = left, time.monotonic()
+                last, progress, lapsed = left, time.monotonic(), False
+            if plan.lapse_after_s is not None and not lapsed and time.monotonic() - progress > plan.lapse_after_s:
+                _lapse_heartbeats(redis.url)
+                lapsed = True
             time.sleep(POLL_S)
         halt.set()
         for t in threads:

@@ -154,8 +154,8 @@ def main() -> None:
             with server.client() as c:
                 ids = []
                 for k in range(3):
-                    folder, _ = simulated_capture(tmp / f"capture{k}", cameras=3, frames=120, noise_px=0.3, seed=100 + k)
-                    ids.append(c.post("/captures", files=capture_files(folder)).json()["id"])
+                    capture, _ = simulated_capture(tmp / f"capture{k}", cameras=3, frames=120, noise_px=0.3, seed=100 + k)
+                    ids.append(c.post("/captures", files=capture_files(capture)).json()["id"])
             samples = soak(server, tmp / "data", ids, args.jobs, max(1, args.jobs // args.samples))
         finally:
             server.stop()

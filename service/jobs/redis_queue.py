@@ -175,10 +175,13 @@ class RedisQueue:
         accepted) and :class:`QueueUnavailable` raised."""
         try:
             self._check_reachable()
-            self._enqueue(job)
-        except (QueueUnavailable, *_unreachable()) as exc:
+            try:
+                self._enqueue(job)
+            except _unreachable() as exc:
+                raise self._went_away(exc) from None
+        except QueueUnavailable:
             self.store.withdraw(job.id)
-            raise exc if isinstance(exc, QueueUnavailable) else self._went_away(exc) from None
+            raise
 
     def _enqueue(self, job: JobRecord) -> None:
         from rq import Callback, Retry

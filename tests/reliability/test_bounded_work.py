@@ -106,8 +106,8 @@ def test_a_rig_past_the_camera_limit_is_a_422(client, small_capture):
 
 
 def test_sync_max_offset_past_its_limit_exits_2_and_is_a_422(client, small_capture, tmp_path, capsys):
+    from wandcal.calib.run.options import MAX_SYNC_OFFSET
     from wandcal.service.cli import main
-    from wandcal.service.cli.support.args import MAX_SYNC_OFFSET
 
     folder, _ = small_capture
     with pytest.raises(SystemExit) as exited:  # argparse's own refusal: exit 2, naming the option
