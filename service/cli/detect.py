@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from wandcal.drivers.capture_files import WAND_FILE
 from wandcal.service.cli.support.args import arg_number, arg_whole
 
 if TYPE_CHECKING:
@@ -37,6 +36,7 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 def run_detect(args) -> int:
     from wandcal.capture.folder import read_rig
     from wandcal.capture.images import detect_capture
+    from wandcal.drivers.capture_files import WAND_FILE
     from wandcal.service.cli.support.progress import ProgressLine, bar
 
     config = config_from_args(args)
