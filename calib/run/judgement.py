@@ -103,6 +103,7 @@ def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list
 def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, out: list[int]):
     """Every other camera's pose refined without the observations of the cameras ``out`` (theirs
     as given)."""
+    from wandcal.calib.run.options import CalibrationOptions
     from wandcal.calib.run.refine import build_problem, refine, up_direction
 
     others = ~np.isin(labelled.camera, out)
@@ -113,7 +114,7 @@ def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, 
     sub = WandPairs(sub.frame, index[sub.camera], sub.xy, sub.uv, sub.frames, sub.dropped)
     sub_rig = replace(rig, cameras=tuple(rig.cameras[k] for k in keep))
     setup = build_problem(sub_rig, sub, R[keep], t[keep], 0)
-    r = refine(sub_rig, sub, setup, None, None, "ba", {}, lambda event: None, up_direction(sub_rig, R[keep], t[keep], setup),
+    r = refine(sub_rig, sub, setup, None, None, "ba", CalibrationOptions(), lambda event: None, up_direction(sub_rig, R[keep], t[keep], setup),
                final=False)
     R2, t2 = R.copy(), t.copy()
     R2[keep], t2[keep] = r.R, r.t

@@ -3,9 +3,8 @@ chosen method on it, the outlier cleanup, and back to poses (and refined intrins
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 
@@ -14,7 +13,7 @@ from wandcal.calib.geometry import camera_centers, undistort_by_camera
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import PointTracks, WandPairs, robust_sigma
 from wandcal.calib.rig import PINHOLE, Camera, Rig
-from wandcal.calib.run.options import CalibrationOptions, options_from
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.solve.ba import DEFAULT_LOSS, STOP_SE, IntrinsicsFit, bundle_adjust_points
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.sync import TimeColumns
@@ -145,11 +144,10 @@ def check_intrinsics_request(rig: Rig, refine: tuple[str, ...]) -> None:
 
 
 def refine(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | None, X: np.ndarray | None, method: str,
-           options: CalibrationOptions | Mapping[str, Any], tell: Progress, up: np.ndarray, final: bool = True,
+           options: CalibrationOptions, tell: Progress, up: np.ndarray, final: bool = True,
            warm: bool = False, *, columns: TimeColumns | None = None) -> Refined:
-    """Run ``method`` on the problem with ``options`` (:class:`CalibrationOptions`; a mapping,
-    such as the fast solves' ``{}``, is read by :func:`options_from`; ``options.method`` is the
-    calibration's, ``method`` this solve's). Not ``final`` (an outlier pass follows): a robust
+    """Run ``method`` on the problem with ``options`` (``options.method`` is the calibration's,
+    ``method`` this solve's). Not ``final`` (an outlier pass follows): a robust
     ``ba`` stops at ``ROBUST_STAGE_SE``, and ``lp`` and ``paper`` run that robust ``ba`` in their
     place (their passes then start from it, ``warm``); ``paper``'s passes leave out the pose
     covariance (:func:`finished` completes such an outcome). ``warm``: the start is the solution
@@ -157,7 +155,6 @@ def refine(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | No
     frames and linearises its phase once. A final ``ba`` refines the time offsets too when
     ``columns`` (a :class:`wandcal.calib.solve.sync.joint.TimeColumns`) gives their columns for
     the setup."""
-    options = options if isinstance(options, CalibrationOptions) else options_from(options)
     tell({"stage": "refine", "message": f"refining with method {method!r}"})
     if method in ("lp", "paper") and not final and not warm:
         # the solve before the outlier pass only tells the outliers and starts the method's passes,
@@ -291,7 +288,7 @@ def triangulated(R, t, tracks: PointTracks):
     return tracks.subset(ok[tracks.track]), X[ok]
 
 
-def reject_outliers(r: Refined, method: str, options: CalibrationOptions | Mapping[str, Any], tell: Progress, *,
+def reject_outliers(r: Refined, method: str, options: CalibrationOptions, tell: Progress, *,
                     columns: TimeColumns | None = None) -> Refined:
     """Drop the camera-frames and point observations that are gross outliers and refine again,
     until the kept set settles.
@@ -306,7 +303,6 @@ def reject_outliers(r: Refined, method: str, options: CalibrationOptions | Mappi
     outliers are judged as ``ba``'s, in one pass, and each then solves its own problem on the rest
     (``lp`` to its certified optimum). ``paper``'s pass leaves out the pose covariance, which
     :func:`finished` adds after it. ``options`` and ``columns`` as :func:`refine`'s."""
-    options = options if isinstance(options, CalibrationOptions) else options_from(options)
     robust_ba = method == "ba" and options.loss != "linear"
     if robust_ba:
         options = replace(options, loss="linear")

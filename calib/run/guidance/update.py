@@ -211,6 +211,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     """The fast solve over the cameras of ``solve_set`` and their predicted sigmas (N,), metres
     and radians (NaN for the others)."""
     # the solver loads when a solve runs: the command line reads this module's defaults at start-up
+    from wandcal.calib.run.options import CalibrationOptions
     from wandcal.calib.run.refine import GAUGE_CAMERA, build_problem, refine, up_direction
     from wandcal.calib.start.initial import initial_poses
     from wandcal.calib.start.labels import label_ends
@@ -241,7 +242,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
         R, t = init.R, init.t
     labelled = label_ends(R, t, kept, np.ones(len(cams), bool), sub.wand_length)[0]
     setup = build_problem(sub, labelled, R, t, GAUGE_CAMERA)
-    r = refine(sub, labelled, setup, None, None, "ba", {}, lambda event: None, up_direction(sub, R, t, setup))
+    r = refine(sub, labelled, setup, None, None, "ba", CalibrationOptions(), lambda event: None, up_direction(sub, R, t, setup))
     if not (np.all(np.isfinite(r.R)) and np.all(np.isfinite(r.t))):
         raise CalibrationError(f"the fast solve diverged ({r.info.get('status')}); keep waving where several "
                                "cameras see the wand")
