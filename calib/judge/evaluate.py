@@ -13,9 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS, outlier_mask
-from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
+from wandcal.calib.observations import WandPairs, point_tracks
 from wandcal.calib.rig import AxisObservations, PointObservations, Rig, WandObservations
 from wandcal.calib.start.labels import flatten, label_ends
+from wandcal.calib.start.markerlabels import end_pairs
 from wandcal.calib.start.world import axis_points
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 
@@ -80,8 +81,10 @@ def rig_mismatches(calibrated: Rig, capture: Rig) -> list[str]:
 
 
 def labelled_pairs(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations) -> WandPairs:
-    """The capture's two-blob camera-frames with their ends ordered consistently, by the given poses."""
-    pairs = wand_pairs(rig, wand)
+    """The capture's wand ends (:func:`wandcal.calib.start.markerlabels.end_pairs`: a two-marker
+    wand's two-blob camera-frames, a multi-marker wand's end markers) ordered consistently, by the
+    given poses."""
+    pairs = end_pairs(rig, wand)
     return label_ends(R, t, pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0]
 
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError, Failure
 from wandcal.calib.judge import quality
-from wandcal.calib.observations import WandPairs, wand_pairs
+from wandcal.calib.observations import WandPairs
 from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.run.camera_reports import camera_reports, summary_warnings, with_warnings
 from wandcal.calib.run.judgement import judge
@@ -32,6 +32,7 @@ from wandcal.calib.run.result import (
 from wandcal.calib.solve.uncertainty import world_uncertainty
 from wandcal.calib.start.initial import Initial
 from wandcal.calib.start.labels import flatten, label_ends
+from wandcal.calib.start.markerlabels import end_pairs
 from wandcal.calib.start.resection import resect_camera
 from wandcal.calib.triangulate import triangulate_points
 
@@ -70,7 +71,7 @@ def solve_only(rig: Rig, wand: WandObservations, R0: np.ndarray, t0: np.ndarray,
         raise CalibrationError(f"--solve-only must leave at least {MIN_HELD} cameras held to keep the world frame; "
                                "to re-solve more, calibrate the whole rig")
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs"})
-    pairs = wand_pairs(rig, wand)
+    pairs = end_pairs(rig, wand)  # every kind of wand: its end markers
     tell({"stage": "initial", "message": "placing the re-solved cameras against the held ones"})
     init = _placed_against_held(rig, pairs, R0, t0, moving)
     R, t = init.R, init.t

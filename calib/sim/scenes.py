@@ -112,5 +112,12 @@ def knocked_capture(sim: SimulatedCapture, camera: int, degrees: float, metres: 
     R[camera] = rotvec_to_matrix(np.radians(degrees) * axis / np.linalg.norm(axis)) @ R[camera]
     t[camera] = -R[camera] @ C
     wand = wand_path(frames, sim.rig.wand_length, rng)
+    if sim.rig.wand_markers is not None:  # every marker of a multi-marker wand, rolling about its axis
+        from wandcal.calib.sim.simulate import ROLL_STREAM, place_markers, wand_roll
+        from wandcal.calib.wandlayout import plane_offsets
+
+        roll = wand_roll(np.random.default_rng([seed, ROLL_STREAM]))
+        wand = place_markers(wand, plane_offsets(sim.rig.wand_markers), roll(np.arange(frames, dtype=float)),
+                             sim.rig.wand_length)
     noise = 0.3
     return observe_wand(sim.rig.cameras, R, t, wand, noise, 0.0, 0.03, rng), R, t

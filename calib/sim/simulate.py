@@ -197,6 +197,20 @@ def observe_static(cams, R, t, markers, sigma_px, rng) -> StaticObservations:
     return StaticObservations(camera=np.array(sc), uv=np.concatenate(suv))
 
 
+def place_markers(ends: np.ndarray, offsets_2d: np.ndarray, phi: np.ndarray, length: float) -> np.ndarray:
+    """(..., K, 3) every marker of a wand of ``length`` metres whose end markers are ``ends``
+    (..., 2, 3), metres, from its layout's (along, across) offsets (K, 2)
+    (wandcal.calib.wandlayout.plane_offsets), the plane rolled by ``phi`` (...,) radians about
+    the axis (a collinear wand's roll is moot)."""
+    d = (ends[..., 1, :] - ends[..., 0, :]) / length
+    helper = np.where(np.abs(d[..., :1]) < 0.9, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
+    u1 = np.cross(d, helper)
+    u1 /= np.linalg.norm(u1, axis=-1, keepdims=True)
+    phi = np.asarray(phi)[..., None]
+    e = np.cos(phi) * u1 + np.sin(phi) * np.cross(d, u1)
+    return ends.mean(axis=-2)[..., None, :] + offsets_2d[:, :1] * d[..., None, :] + offsets_2d[:, 1:] * e[..., None, :]
+
+
 def simulate_capture(
     cameras: int = 8,
     frames: int = 1500,
@@ -255,14 +269,7 @@ def simulate_capture(
             [np.arange(frames, dtype=float)[None], times])
 
         def markers(ends: np.ndarray, tau: np.ndarray) -> np.ndarray:  # (..., 2, 3) ends -> (..., K, 3) every marker
-            d = (ends[..., 1, :] - ends[..., 0, :]) / wand_length
-            helper = np.where(np.abs(d[..., :1]) < 0.9, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
-            u1 = np.cross(d, helper)
-            u1 /= np.linalg.norm(u1, axis=-1, keepdims=True)
-            phi = roll(tau)[..., None]
-            e = np.cos(phi) * u1 + np.sin(phi) * np.cross(d, u1)
-            return (ends.mean(axis=-2)[..., None, :] + offsets_2d[:, :1] * d[..., None, :]
-                    + offsets_2d[:, 1:] * e[..., None, :])
+            return place_markers(ends, offsets_2d, roll(tau), wand_length)
 
         if offsets is None and drift_ppm is None:
             wand = seen = markers(wand, instants)

@@ -31,7 +31,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import undistort_by_camera
-from wandcal.calib.observations import WandPairs
+from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.start.planarlabels import label_planar
 from wandcal.calib.triangulate import triangulate_points
@@ -89,6 +89,17 @@ class MarkerLabels:
             return self
         cols = np.flatnonzero(np.all(self.across == 0, axis=0))
         return MarkerLabels(self.marker[:, cols], self.xy[:, cols], self.uv[:, cols], self.along[:, cols], self.reversed)
+
+
+def end_pairs(rig: Rig, wand: WandObservations) -> WandPairs:
+    """Each camera-frame's two wand ends, undistorted, for a wand of any kind: a two-marker wand's
+    two-blob camera-frames (:func:`wandcal.calib.observations.wand_pairs`), or the end markers of
+    the camera-frames that show every marker of a multi-marker wand (:meth:`MarkerBlobs.ends`;
+    a planar wand's come labelled by its layout). What the whole-frame sync, ``wandcal check`` and
+    ``--solve-only`` read, so that they take every wand ``calibrate`` takes."""
+    if rig.wand_markers is None or len(rig.wand_markers) == 2:
+        return wand_pairs(rig, wand)
+    return order_markers(rig, wand).ends()
 
 
 def order_markers(rig: Rig, wand: WandObservations) -> MarkerBlobs:
