@@ -1,9 +1,9 @@
-"""Judge fixed cameras against a wand capture: residuals, wand lengths and leave-one-out errors.
+"""Judge fixed cameras against a capture: residuals, wand lengths, point tracks.
 
 The report draws these for the capture a result was made from (:func:`evaluate_capture`: what a
-report needs that a result does not hold, computed once); ``wandcal check`` runs them on a
-fresh capture to find a camera that was knocked since (bump detection, as commercial mocap has
-it). Nothing here moves a camera: the poses are taken as given.
+report needs that a result does not hold, computed once); ``wandcal check`` judges each camera
+against a fresh capture with :mod:`wandcal.calib.judge.bumps`. Nothing here moves a camera: the
+poses are taken as given.
 """
 
 from __future__ import annotations
@@ -20,11 +20,6 @@ from wandcal.calib.start.markerlabels import end_pairs
 from wandcal.calib.start.world import axis_points
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 
-MOVED_FACTOR = 4.0  # a camera whose leave-one-out error is 4x the agreeing cameras' has moved
-# ... and never below this: on clean data every leave-one-out error is a fraction of a pixel,
-# and a few tenths more are noise, not a knock (1 px at 3 m is ~2 mm or 0.02 degrees at f = 1400)
-MOVED_MIN_PX = 1.0
-MIN_JUDGED_FRAMES = 10  # frames with two other cameras that a camera needs before it is judged
 # A capture's rig.json and a result's cameras are one rig when every shared camera has the same
 # image size and its focal length and principal point agree within these: a refined focal
 # length moves by a few per cent at most (docs/verdict.md), another camera's by far more
@@ -202,98 +197,3 @@ def evaluate_points(rig: Rig, R: np.ndarray, t: np.ndarray, points: PointObserva
     ok = np.all(np.isfinite(res), axis=1)
     cloud = X[np.all(np.isfinite(X), axis=1)]
     return PointEvaluation(cloud, tracks.camera[ok], tracks.uv[ok], res[ok], outlier_mask(np.linalg.norm(res[ok], axis=1)))
-
-
-@dataclass(frozen=True, eq=False)
-class CameraCheck:
-    """One camera against the others: ``rms_px`` and ``median_px`` of its leave-one-out errors
-    over ``frames`` frames, and whether it ``moved`` (None: too few frames to judge)."""
-
-    id: str
-    moved: bool | None
-    rms_px: float | None
-    median_px: float | None
-    frames: int
-    reason: str
-
-
-def leave_one_out_errors(R: np.ndarray, t: np.ndarray, pairs: WandPairs, focal: np.ndarray, c: int,
-                         others: np.ndarray) -> np.ndarray:
-    """(K,) camera c's errors, pixels, against wand ends triangulated by the ``others`` (N,) bool
-    cameras alone, over the frames c and at least two of them saw (both ends of each frame)."""
-    use = others[pairs.camera]
-    mine = pairs.camera == c
-    views = np.bincount(pairs.frame[use], minlength=len(pairs.frames))
-    # only c's own frames are triangulated: every camera's check triangulating the whole capture
-    # made `wandcal check` grow as cameras x frames (128 x 3000 of 2-4 cameras a frame: 1.3x calibrate)
-    in_c = np.zeros(len(pairs.frames), bool)
-    in_c[pairs.frame[mine]] = True
-    frames_ok = (views >= 2) & in_c
-    sub = pairs.subset(use & frames_ok[pairs.frame])
-    point, camera, xy = flatten(sub)
-    X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames))
-    own = pairs.subset(mine & frames_ok[pairs.frame])
-    p_own, c_own, xy_own = flatten(own)
-    r = reprojection_errors(R, t, p_own, c_own, xy_own, X) * focal[c]
-    e = np.linalg.norm(r, axis=1)
-    return e[np.isfinite(e)]
-
-
-def check_cameras(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations,
-                  expected_rms_px: np.ndarray | None = None) -> list[CameraCheck]:
-    """Find the cameras that moved since ``R, t`` were calibrated.
-
-    Each camera is judged by its errors against wand ends that the *other* cameras triangulate, so
-    a knocked camera cannot hide by pulling the points towards itself. A knocked camera still
-    spoils the others' triangulations (at 6 cameras a 1 degree knock lifts the others' errors
-    six-fold), so only the worst camera is taken out at a time, and the rest are judged again
-    without it, until every remaining one agrees.
-
-    Args:
-        expected_rms_px: (N,) each camera's reprojection RMS when it was calibrated (the result's
-            ``reprojection_rms_px``); None to judge against the median camera instead.
-
-    A camera has moved when its median leave-one-out error exceeds :data:`MOVED_FACTOR` times its
-    expected RMS (or the agreeing cameras' median error) and :data:`MOVED_MIN_PX`.
-    """
-    pairs = labelled_pairs(rig, R, t, wand)
-    focal = np.array([c.focal for c in rig.cameras])
-    n = len(rig.cameras)
-    trusted = np.ones(n, bool)
-
-    def limits(errors: dict, agreeing: list[int]) -> np.ndarray:
-        if expected_rms_px is not None:
-            ref = np.asarray(expected_rms_px, float)
-        else:
-            ref = np.full(n, float(np.median(np.concatenate([errors[c] for c in agreeing]))))
-        return np.maximum(MOVED_FACTOR * ref, MOVED_MIN_PX)
-
-    while True:
-        errors = {c: leave_one_out_errors(R, t, pairs, focal, c, trusted & (np.arange(n) != c)) for c in range(n)}
-        agreeing = [c for c in range(n) if trusted[c] and len(errors[c]) >= 2 * MIN_JUDGED_FRAMES]
-        if len(agreeing) < 3:
-            break
-        limit = limits(errors, agreeing)
-        excess = {c: np.median(errors[c]) / limit[c] for c in agreeing}
-        worst = max(agreeing, key=lambda c: excess[c])
-        if excess[worst] <= 1.0:
-            break
-        trusted[worst] = False
-    agreeing = [c for c in range(n) if trusted[c] and len(errors[c])]
-    limit = limits(errors, agreeing) if agreeing else np.full(n, MOVED_MIN_PX)
-    out = []
-    for c, cam in enumerate(rig.cameras):
-        e = errors[c]
-        frames = len(e) // 2
-        if frames < MIN_JUDGED_FRAMES:
-            out.append(CameraCheck(cam.id, None, None, None, frames,
-                                   f"{cam.id} saw the wand with two other cameras in only {frames} frames; "
-                                   f"wave the wand where {cam.id} and two others see it"))
-            continue
-        rms, med = float(np.sqrt(np.mean(e**2))), float(np.median(e))
-        is_moved = bool(not trusted[c] or med > limit[c])
-        reason = (f"{cam.id} disagrees with the others by {med:.2f} px (median; limit {limit[c]:.2f} px): it has moved "
-                  "or its lens was touched; recalibrate it with --solve-only" if is_moved else
-                  f"{cam.id} agrees with the others ({med:.2f} px median, limit {limit[c]:.2f} px)")
-        out.append(CameraCheck(cam.id, is_moved, rms, med, frames, reason))
-    return out

@@ -6,7 +6,7 @@ import pytest
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import camera_centers, rotation_angle
-from wandcal.calib.judge.evaluate import check_cameras
+from wandcal.calib.judge.bumps import check_cameras
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.resolve import solve_only
 from wandcal.calib.sim.scenes import knocked_capture
