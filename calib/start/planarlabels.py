@@ -124,6 +124,8 @@ def label_planar(xy: np.ndarray, plane: np.ndarray, focal: np.ndarray) -> tuple[
     for c in range(C):
         fresh = (c == 0) | (cand[:, c] != cand[:, 0])
         rows = np.flatnonzero(fresh)
+        if not len(rows):  # every row's candidate c is its first: nothing new to fit
+            continue
         err[rows, c] = pose_errors(xy[rows], plane, perms[cand[rows, c]], focal[rows])
     best = np.argmin(err, axis=1)
     return perms[cand[np.arange(P), best]], err[np.arange(P), best]

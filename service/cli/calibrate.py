@@ -126,10 +126,12 @@ def _solve_only(args, cap, options, progress):
         raise CalibrationError("--from RESULT and --solve-only CAM[,CAM] go together: name the result to start from "
                                "and the cameras to re-solve")
     prev, rig, R, t, entries = result_for(args.from_result, cap)
-    if cap.wand is None or not len(cap.wand):
-        raise CalibrationError(f"{args.capture}: has no wand blobs; --solve-only needs a fresh wand capture")
-    return solve_only(rig, cap.wand, R, t, list(args.solve_only), prev.result.world, entries,
-                      progress=progress, options=options)
+    has_wand = cap.wand is not None and len(cap.wand) > 0
+    if not has_wand and (cap.points is None or not len(cap.points)):
+        raise CalibrationError(f"{args.capture}: has no wand blobs and no point tracks; --solve-only needs a fresh capture "
+                               "of the wand or of points seen by several cameras at once (points.csv)")
+    return solve_only(rig, cap.wand if has_wand else None, R, t, list(args.solve_only), prev.result.world, entries,
+                      progress=progress, options=options, points=cap.points)
 
 
 def result_path(capture: Path, method: str) -> Path:

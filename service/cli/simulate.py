@@ -15,6 +15,14 @@ MAX_SIM_CAMERAS = 64
 MAX_SHAPE_CAMERAS = 256  # simulate --shape: stadium rings have 200+ cameras (each frame kept in only 2-4)
 MAX_SIM_FRAMES = 100_000
 MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
+# the wands simulate --wand films (rig.json wand.markers_m, metres): an asymmetric split tells a
+# collinear wand's ends apart (OptiTrack CW-500-like), an asymmetric bar a planar T's (Vicon-like)
+WANDS = {
+    "two": None,
+    "three": [[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.5, 0.0, 0.0]],
+    "five": [[0.0, 0.0, 0.0], [0.08, 0.0, 0.0], [0.2, 0.0, 0.0], [0.35, 0.0, 0.0], [0.6, 0.0, 0.0]],
+    "tee": [[0.0, 0.0, 0.0], [0.18, 0.0, 0.0], [0.42, 0.0, 0.0], [0.18, 0.12, 0.0], [0.18, 0.30, 0.0]],
+}
 
 
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
@@ -32,6 +40,9 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
                        "length (10-120 m, default 40)")
         p.add_argument("--max-k1", type=arg_number(0, 0.1), default=0.1, metavar="K",
                        help="with --shape: largest |k1| (default 0.1)")
+        p.add_argument("--wand", choices=tuple(WANDS), default="two",
+                       help="the wand: two markers 0.5 m apart (default), three or five collinear markers, or a planar "
+                       "T of five (rig.json wand.markers_m); not with --shape")
 
 
 def sim_args(p: argparse.ArgumentParser, cameras: int, frames: int, shapes: bool = False) -> None:
@@ -57,12 +68,18 @@ def simulated(args):
     from wandcal.calib.errors import CalibrationError
     from wandcal.calib.sim.simulate import simulate_capture  # simulate and demo only: calibrate does not pay for it
 
-    if getattr(args, "shape", None) is not None:
+    if getattr(args, "shape", None) is not None and getattr(args, "wand", "two") == "two":
         return _simulate_shape(args)
     if args.cameras > MAX_SIM_CAMERAS:
         raise CalibrationError(f"--cameras {args.cameras}: the default ring holds 2 to {MAX_SIM_CAMERAS} cameras; "
                                f"give --shape ring for up to {MAX_SHAPE_CAMERAS}")
-    return simulate_capture(args.cameras, args.frames, args.noise, args.outliers, not args.no_static, args.seed)
+    layout = WANDS[getattr(args, "wand", "two")]
+    if layout is not None and getattr(args, "shape", None) is not None:
+        raise CalibrationError("simulate --wand: the --shape rigs film a two-marker wand; leave out --shape or --wand")
+    import numpy as np
+
+    return simulate_capture(args.cameras, args.frames, args.noise, args.outliers, not args.no_static, args.seed,
+                            wand_markers=None if layout is None else np.array(layout))
 
 
 def _simulate_shape(args):

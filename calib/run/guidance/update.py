@@ -83,7 +83,13 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
     started = time.perf_counter()
     settings = settings or GuidanceSettings()
     # the pairs' normalised coordinates are taken in _solve, for the frames it keeps only
-    pairs = wand_pairs(rig, wand, undistort=False) if len(wand) else WandPairs.empty()
+    pairs = WandPairs.empty()
+    if len(wand) and (rig.wand_markers is None or len(rig.wand_markers) == 2):
+        pairs = wand_pairs(rig, wand, undistort=False)
+    elif len(wand):  # a multi-marker or planar wand: its end markers (grouped and undistorted together)
+        from wandcal.calib.start.markerlabels import end_pairs
+
+        pairs = end_pairs(rig, wand)
     offsets = None
     if settings.sync == "auto":  # cameras without a trigger: their frames realigned as calibrate's
         found = _whole_frames(rig, pairs, DEFAULT_MAX_OFFSET)
