@@ -13,6 +13,7 @@ one, and the answer is to calibrate afresh, not to re-solve a camera (docs/input
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,6 +41,8 @@ BUMP_MAX_M = 0.2
 # ... and a knocked camera placed again fits its points as it did before the knock: its median
 # error then within this many times its limit (a touched lens leaves some error a pose cannot take)
 BUMP_FIT_FACTOR = 3.0
+KNOCK_ADVICE = "it has moved or its lens was touched; recalibrate it with --solve-only"
+ANOTHER_RIG = "no knock explains it: the rig was rebuilt or this is another one"
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,6 +165,8 @@ def check_rig(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations | N
     for c in moved:
         out[c], reason = _placed_again(out[c], R, t, seen, focal, c, trusted, limit[c])
         why += [reason] if reason else []
+    if why:  # no camera to re-solve: say so where each one's reason would name --solve-only
+        out = [dataclasses.replace(chk, reason=chk.reason.replace(KNOCK_ADVICE, ANOTHER_RIG)) for chk in out]
     return RigCheck(out, bool(why), why)
 
 
@@ -201,8 +206,8 @@ def _camera_check(cid: str, e: np.ndarray, distrusted: bool, limit: float, has_p
         return CameraCheck(cid, None, None, None, frames, f"{cid} saw {seen}; wave the wand where {cid} and two others see it")
     rms, med = float(np.sqrt(np.mean(e**2))), float(np.median(e))
     is_moved = bool(distrusted or med > limit)
-    reason = (f"{cid} disagrees with the others by {med:.2f} px (median; limit {limit:.2f} px): it has moved "
-              "or its lens was touched; recalibrate it with --solve-only" if is_moved else
+    reason = (f"{cid} disagrees with the others by {med:.2f} px (median; limit {limit:.2f} px): {KNOCK_ADVICE}"
+              if is_moved else
               f"{cid} agrees with the others ({med:.2f} px median, limit {limit:.2f} px)")
     return CameraCheck(cid, is_moved, rms, med, frames, reason)
 

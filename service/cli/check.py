@@ -60,7 +60,7 @@ def _print(args, checks, found, moved: list[str], unjudged: list[str]) -> None:
     from wandcal.calib.rig import camera_list
 
     for c in checks:
-        mark = "MOVED" if c.moved else ("?" if c.moved is None else "ok")
+        mark = ("OFF" if found.rebuilt else "MOVED") if c.moved else ("?" if c.moved is None else "ok")
         print(f"{c.id:<16} {mark:<6} {c.reason}")
     if found.rebuilt:
         print(f"no knock explains this ({'; '.join(found.why)}): this is not a bumped camera but a rebuilt rig or a "
@@ -68,8 +68,8 @@ def _print(args, checks, found, moved: list[str], unjudged: list[str]) -> None:
     elif moved:
         print(f"moved: {camera_list(moved, len(checks))}; recalibrate with: wandcal calibrate {args.capture} --from {args.result} "
               f"--solve-only {','.join(moved)}")
-    if unjudged:
+    if unjudged and not found.rebuilt:
         print(f"could not judge {camera_list(unjudged, len(checks))}: too few frames shared with two other cameras; record a longer "
               "wand capture where every camera sees the wand with two others")
-    elif not moved:
+    elif not moved and not unjudged:
         print("every camera agrees with the others")

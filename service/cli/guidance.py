@@ -55,13 +55,15 @@ def run_guidance(args) -> int:
     from wandcal.capture.folder import read_capture
 
     capture = read_capture(args.capture)
-    if capture.rig.wand_length is None or capture.wand is None or not len(capture.wand):
+    points_only = capture.rig.wand_length is None and capture.points is not None and len(capture.points) > 0
+    if not points_only and (capture.rig.wand_length is None or capture.wand is None or not len(capture.wand)):
         from wandcal.calib.errors import CalibrationError
 
         raise CalibrationError(f"{args.capture}: has no wand (rig.json gives no wand, or wand.csv has no blobs), "
-                               "and the guidance counts wand samples; calibrate a point-track session directly "
-                               f"with 'wandcal calibrate {args.capture}'")
-    document = wanding_guidance(capture.rig, capture.wand, capture.static, settings_from(args)).document
+                               "and the guidance counts wand samples (or, on a rig without a wand, points.csv's points); "
+                               f"calibrate a point-track session directly with 'wandcal calibrate {args.capture}'")
+    document = wanding_guidance(capture.rig, capture.wand, capture.static, settings_from(args),
+                                points=capture.points if points_only else None).document
     if args.json:
         print(json.dumps(document, indent=2))
         return 0

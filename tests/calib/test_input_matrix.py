@@ -28,7 +28,6 @@ COMMANDS = ("ba", "lp", "paper", "sync_auto", "check", "solve_only", "guidance",
 # the cells that refuse, and the words their message must hold: what the method or command cannot take
 REFUSALS = {
     ("points_only", "paper"): "without a wand calibrates with --method ba or lp",
-    ("points_only", "guidance"): "guidance needs the wand",
 }
 
 
@@ -98,10 +97,10 @@ def _run(command: str, k: Kind, result, tmp_path):
             assert moved <= 1e-3 * np.linalg.norm(result.centers - result.centers.mean(axis=0), axis=1).max()
         return out
     if command == "guidance":
-        if k.wand is None:
-            return wanding_guidance(k.rig, k.wand, k.static)
-        doc = wanding_guidance(k.rig, k.wand, k.static).document
-        assert all(c["frames"] > 0 for c in doc["cameras"]), doc["cameras"]
+        doc = wanding_guidance(k.rig, k.wand, k.static, points=k.points if k.wand is None else None).document
+        assert all(c["frames"] > 0 and c["coverage"] > 0 for c in doc["cameras"]), doc["cameras"]
+        if k.wand is None:  # no scale: no sigma in mm, the coverage from the points
+            assert all(c["center_std_mm"] is None for c in doc["cameras"]) and doc["solve"]["points_only"]
         return doc
     from wandcal.capture.formats.cameras_in import read_camera_file
     from wandcal.capture.formats.export import export

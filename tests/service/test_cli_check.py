@@ -90,3 +90,55 @@ def test_check_refuses_a_capture_of_another_rig_naming_the_mismatch(folders, tmp
     r = wandcal("check", folders / "base" / "result.json", folder)
     assert r.returncode == 2 and "not of this result's rig" in r.stderr and "640x512 px in the capture" in r.stderr
     assert "moved" not in r.stdout and "Traceback" not in r.stderr
+
+
+def test_check_and_solve_only_take_a_three_marker_wand_and_tell_another_rig(tmp_path):
+    """A 3-marker capture against its own result: exit 0; a camera knocked 0.5 degrees: exit 1 naming
+    it, and --solve-only re-solves it; a capture of another rig with the same ids and sizes: exit 3."""
+    import dataclasses
+
+    import numpy as np
+
+    layout = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.5, 0.0, 0.0]])
+    sim = simulate_capture(4, 400, 0.3, 0.0, False, 4, wand_markers=layout)
+    write_capture(tmp_path / "base", sim.rig, sim.wand, None)
+    assert wandcal("calibrate", tmp_path / "base", "--quiet").returncode == 0
+    result = tmp_path / "base" / "result.json"
+    r = wandcal("check", result, tmp_path / "base")
+    assert r.returncode == 0 and "every camera agrees" in r.stdout, r.stdout + r.stderr
+    wand, _, _ = knocked_capture(sim, 2, 0.5, 0.0, 400, 8)
+    write_capture(tmp_path / "knocked", sim.rig, wand, None)
+    r = wandcal("check", result, tmp_path / "knocked", "--json")
+    assert r.returncode == 1 and json.loads(r.stdout)["moved"] == ["cam3"], r.stdout + r.stderr
+    r = wandcal("calibrate", tmp_path / "knocked", "--from", result, "--solve-only", "cam3", "--out", tmp_path / "new.json",
+                "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert wandcal("check", tmp_path / "new.json", tmp_path / "knocked").returncode == 0
+    other = simulate_capture(4, 400, 0.3, 0.0, False, 11, wand_markers=layout)
+    cams = tuple(dataclasses.replace(c, K=c.K * [[1.03], [1.03], [1.0]]) for c in sim.rig.cameras)
+    write_capture(tmp_path / "other", dataclasses.replace(sim.rig, cameras=cams), other.wand, None)
+    r = wandcal("check", result, tmp_path / "other")
+    assert r.returncode == 3 and "another one; calibrate afresh" in r.stdout and "--solve-only" not in r.stdout, r.stdout
+
+
+def test_check_and_solve_only_take_a_points_only_capture(tmp_path):
+    import dataclasses
+
+    import numpy as np
+
+    from wandcal.calib.sim.scenes import pairwise_points
+
+    sim = simulate_capture(4, 300, 0.3, 0.0, False, 1)
+    rig = dataclasses.replace(sim.rig, wand_length=None)
+    points = pairwise_points(sim, 400, np.random.default_rng(5), third=0.8)
+    empty = type(sim.wand)(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)))
+    write_capture(tmp_path / "pts", rig, empty, None, points)
+    r = wandcal("calibrate", tmp_path / "pts", "--quiet")
+    assert r.returncode == 0, r.stderr
+    result = tmp_path / "pts" / "result.json"
+    r = wandcal("check", result, tmp_path / "pts")
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = wandcal("calibrate", tmp_path / "pts", "--from", result, "--solve-only", "cam2", "--out", tmp_path / "n.json", "--quiet")
+    assert r.returncode == 0, r.stderr
+    r = wandcal("guidance", tmp_path / "pts", "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["solve"]["points_only"], r.stderr

@@ -11,8 +11,8 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import undistort_by_camera
-from wandcal.calib.observations import WandPairs, wand_pairs
-from wandcal.calib.rig import Rig, StaticObservations, WandObservations
+from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
+from wandcal.calib.rig import PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.run.guidance.document import Seen, guidance_document
 from wandcal.calib.run.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
 from wandcal.calib.start.frame_offsets import (
@@ -58,8 +58,9 @@ class Guidance:
         return bool(self.document["enough"])
 
 
-def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservations | None = None,
-                     settings: GuidanceSettings | None = None, start: Solution | None = None) -> Guidance:
+def wanding_guidance(rig: Rig, wand: WandObservations | None, static: StaticObservations | None = None,
+                     settings: GuidanceSettings | None = None, start: Solution | None = None,
+                     points: PointObservations | None = None) -> Guidance:
     """The guidance for the wand blobs recorded so far.
 
     Args:
@@ -69,6 +70,8 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
         settings: target, coverage goal and solve size (None: the defaults).
         start: the previous update's :class:`Solution`; the solve starts from it when it covers
             the same cameras.
+        points: a points-only rig's point tracks (rig.json without a wand): each camera's points,
+            links and coverage are judged (:func:`points_guidance`), with no predicted sigma.
 
     Returns:
         :class:`Guidance`. A solve that fails is not an error: the document says why, its cameras
@@ -77,9 +80,11 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
     Raises:
         CalibrationError: the rig has no wand length, or the blobs name unknown cameras.
     """
-    if rig.wand_length is None:
+    if rig.wand_length is None and points is not None and len(points):
+        return points_guidance(rig, points, settings or GuidanceSettings())
+    if rig.wand_length is None or wand is None:
         raise CalibrationError("guidance needs the wand: rig.json gives no 'wand.length_m'; give the wand's marker "
-                               "distance in metres")
+                               "distance in metres (or, for a points-only rig, its points.csv)")
     started = time.perf_counter()
     settings = settings or GuidanceSettings()
     # the pairs' normalised coordinates are taken in _solve, for the frames it keeps only
@@ -132,6 +137,29 @@ def wanding_guidance(rig: Rig, wand: WandObservations, static: StaticObservation
              "seconds": round(time.perf_counter() - started, 4)}
     document = guidance_document(rig, seen, center, rotation, solve_set, settings, info)
     return Guidance(document, solution)
+
+
+def points_guidance(rig: Rig, points: PointObservations, settings: GuidanceSettings) -> Guidance:
+    """The guidance of a points-only rig: each camera's points seen with another camera (its
+    ``frames``: one a point), its links and its image's coverage by them, judged as a wand's
+    camera-frames are. A rig without a wand has no scale, so no sigma in millimetres is predicted
+    (``center_std_mm`` null): ``enough`` rests on the links and the coverage."""
+    started = time.perf_counter()
+    tracks = point_tracks(rig, points)
+    both = np.stack([tracks.uv, tracks.uv], axis=1)  # one point as a 'pair' of itself: frames, links, coverage
+    pairs = WandPairs(tracks.track, tracks.camera, np.stack([tracks.xy, tracks.xy], axis=1), both,
+                      np.arange(tracks.n_tracks), dict(tracks.dropped))
+    seen = _seen(len(rig.cameras), pairs)
+    solve_set = _solve_set(seen)
+    n = len(rig.cameras)
+    linked = int(solve_set.sum()) >= 2
+    info: dict[str, Any] = {
+        "frames_used": 0, "cameras": 0, "warm_start": False, "ok": linked, "left_out": {}, "out_of_time": {},
+        "offsets": None, "points_only": True,
+        "message": None if linked else "no two cameras share enough points yet; show points where several cameras see them",
+        "seconds": round(time.perf_counter() - started, 4)}
+    document = guidance_document(rig, seen, np.full(n, np.nan), np.full(n, np.nan), solve_set, settings, info)
+    return Guidance(document, None)
 
 
 def _whole_frames(rig: Rig, pairs: WandPairs, window: int) -> FrameOffsets | None:
