@@ -57,7 +57,7 @@ class GuidanceBoard:
     def get(self, capture_id: str, sync: str = "none") -> dict:
         """The capture's guidance document (``sync`` as calibrate's: "auto" for cameras without a
         trigger). Raises CaptureNotFound, or CalibrationError for a capture the guidance cannot
-        judge (no wand)."""
+        judge (no wand, and no points on a rig without one)."""
         row = self.store.get(capture_id)
         key = (row.frames, row.framesets, row.has_static, tuple(sorted((c, v["pairs"]) for c, v in row.counts.items())))
         entry = self._entry((capture_id, sync))
@@ -66,8 +66,9 @@ class GuidanceBoard:
                                                self.clock() - entry.when < self.config.update_interval_s):
                 return entry.document
             capture = self.store.load(capture_id)
+            points = capture.points if capture.rig.wand_length is None else None  # a points-only rig's guidance
             guidance = wanding_guidance(capture.rig, capture.wand, capture.static, replace(self.settings, sync=sync),
-                                        entry.solution)
+                                        entry.solution, points=points)
             entry.key, entry.when = key, self.clock()
             entry.document = guidance.document | {"updated": time.time(), "live": False}
             entry.solution = guidance.solution or entry.solution
