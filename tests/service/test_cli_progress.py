@@ -5,6 +5,7 @@ version; its words."""
 from __future__ import annotations
 
 import io
+import json
 import os
 import pty
 import select
@@ -164,9 +165,12 @@ def test_wandless_demo_prints_no_nan():
     assert "nan" not in r.stdout and "aligned (mm)" in r.stdout
 
 
-def test_guidance_on_a_session_without_a_wand_does_not_ask_for_its_length(shared_data, tmp_path):
+def test_guidance_on_a_session_without_a_wand_judges_its_points_and_does_not_ask_for_a_length(shared_data, tmp_path):
+    """A points-only session (issue 32): each camera's points, links and coverage, no sigma without a scale."""
     session = shared_data / "multicamselfcal_strawlab_testdata" / "DATA20090709_111010"
     r = wandcal("import", "svoboda", str(session), "--focal-px", "600", "--out", str(tmp_path / "cap"))
     assert r.returncode == 0, r.stderr
-    r = wandcal("guidance", str(tmp_path / "cap"))
-    assert r.returncode == 2 and "has no wand" in r.stderr and "length" not in r.stderr
+    r = wandcal("guidance", str(tmp_path / "cap"), "--json")
+    assert r.returncode == 0 and "length" not in r.stderr, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["solve"]["points_only"] and all(c["frames"] > 0 and c["center_std_mm"] is None for c in doc["cameras"])
