@@ -1,7 +1,7 @@
 """The world's vertical from the floor or from a dropped ball (issue 32: every world reference).
 
 The simulator's world has z up and the floor at z = 0, so the calibrated world can be compared with
-the truth's: the goal is a vertical within 0.3 degrees from a 30-frame drop, with a sigma that
+the truth's (the service's upload of both: tests/service/test_capture_parts.py): the goal is a vertical within 0.3 degrees from a 30-frame drop, with a sigma that
 covers the error, and a floor of 20 points placed within its sigma. "Covers" is tested at three
 sigma: a Gaussian error passes it 99.7% of the time, so the few seeds here do not flake.
 """
@@ -10,17 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim import references
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import read_capture, write_capture
 from wandcal.capture.rig_file import CaptureFormatError
-from wandcal.drivers.capture_files import DROP_FILE, FLOOR_FILE, RIG_FILE, WAND_FILE
+from wandcal.drivers.capture_files import DROP_FILE, FLOOR_FILE
 from wandcal.service.cli import main
-from wandcal.service.main import create_app
-from wandcal.service.settings import Settings
 
 NOISE_PX = 0.3
 COVERED = 3.0  # sigmas
@@ -112,19 +109,3 @@ def test_simulate_and_calibrate_with_a_floor_on_the_command_line(tmp_path, capsy
     assert (out / FLOOR_FILE).is_file()
     assert main(["calibrate", str(out)]) == 0
     assert "world placement (floor)" in capsys.readouterr().out
-
-
-def test_the_service_takes_a_drop_and_refuses_it_beside_a_floor(tmp_path):
-    sim, drop = _scene(5, "drop", 20)
-    folder = tmp_path / "cap"
-    write_capture(folder, sim.rig, sim.wand, None, vertical=drop)
-    files = {n: (n, (folder / n).read_bytes(), "text/csv") for n in (RIG_FILE, WAND_FILE, DROP_FILE)}
-    app = create_app(Settings(data_dir=tmp_path / "data", workers=0))
-    with TestClient(app, base_url="http://127.0.0.1/api/v1", raise_server_exceptions=False) as c:
-        r = c.post("/captures", files=files)
-        assert r.status_code == 201, r.text
-        stored = read_capture(app.state.wandcal.captures.folder(r.json()["id"]))
-        assert stored.vertical is not None and stored.vertical.kind == "drop"
-        both = files | {FLOOR_FILE: (FLOOR_FILE, b"point,camera,u,v\n", "text/csv")}
-        r = c.post("/captures", files=both)
-        assert r.status_code == 422 and "not both" in r.text
