@@ -5,8 +5,9 @@ camera's wand ends triangulated by two other cameras in many frames. Sparse, han
 sessions do not have them: Brown's cameras share 2-8 such frames, while every frame a camera shares
 with *one* other still holds the timing. Two cameras that see a point at the same time see it on
 each other's epipolar lines (``x_c^T E x_d = 0``, ``E = [t_cd]x R_cd`` from the final poses, which
-the static background points pin where there are any); a camera ``delta`` frames late records at
-frame k where the point was at time ``k - delta``.
+the static background points pin where there are any). Offsets follow docs/result-format.md's
+convention, as ``--sync auto`` reports them: a camera ``delta`` frames late (positive) exposes its
+frame k at the others' time ``k + delta``, so it records there where the point was at ``k + delta``.
 
 - **Whole frames**: each camera's samples shifted by ``s`` frames against all the others',
   ``|s| <=`` :data:`MAX_SHIFT`; the median Sampson distance of its pairs at each shift. A camera
@@ -50,9 +51,9 @@ TRIM = 5.0  # rows beyond this many robust sigmas are left out of the fit (a mis
 
 @dataclass(frozen=True)
 class CameraTiming:
-    """A camera's offset against the others, frames (positive: late, it records at frame k what
-    the others saw at k - offset): ``whole`` the whole-frame part, ``offset`` in all, ``std`` its
-    standard error; ``explained`` the share of its pairs' residual the offset explains;
+    """A camera's offset against the others, frames (docs/result-format.md: positive is late, its
+    frame k exposed at the others' frame k + offset, as ``--sync auto`` reports it): ``whole`` the
+    whole-frame part, ``offset`` in all, ``std`` its standard error; ``explained`` the share of its pairs' residual the offset explains;
     ``effect_px`` how far the offset moves its blobs at the median speed; ``pairs`` samples."""
 
     camera: int
@@ -271,7 +272,7 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
     A, y, first, second = A[keep], y[keep], first[keep], second[keep]
     sigma = float(np.sqrt(np.mean((y - A @ delta) ** 2)))
     reference = float(np.median(delta))  # the cameras on time are the majority
-    out = []
+    found = {}
     for c in range(n):
         mine = (first == c) | (second == c)
         if mine.sum() < MIN_PAIRS:
@@ -284,10 +285,17 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
             continue
         own = float(col @ other) / gram
         before, after = float(other @ other), float(((other - col * own) ** 2).sum())
-        offset = float(shifts[c] + own)
-        out.append(CameraTiming(c, int(shifts[c]), offset, float(sigma / np.sqrt(gram)),
-                                1 - after / before if before > 0 else 0.0,
-                                abs(offset) * _speed(by_camera[c]) * float(focal[c]), int(mine.sum())))
+        found[c] = (own, sigma / np.sqrt(gram), 1 - after / before if before > 0 else 0.0, int(mine.sum()))
+    out = []
+    for c, (own, std, explained, pairs) in found.items():
+        # against the reference (the others' median), whose own error adds: the variance of a mean of the others
+        others = [v[1] ** 2 for d, v in found.items() if d != c]
+        std = float(np.sqrt(std**2 + (np.mean(others) / len(others) if others else 0.0)))
+        # docs/result-format.md's sign: the pairs matched c's frame k + shift with the others' k, so
+        # c's frame k was exposed at the others' k - shift - own
+        offset = -float(shifts[c] + own)
+        out.append(CameraTiming(c, -int(shifts[c]), offset, std, explained,
+                                abs(offset) * _speed(by_camera[c]) * float(focal[c]), pairs))
     return out
 
 

@@ -75,16 +75,17 @@ def _track_session(n_frames: int = 20) -> rf.Session:
 
 
 @pytest.mark.parametrize("offset", [1.0, -2.0, 0.3, -0.5])
-def test_a_late_camera_shows_the_track_of_time_k_minus_its_offset(offset):
+def test_a_late_camera_shows_the_track_of_time_k_plus_its_offset(offset):
     session = _track_session()
     late = rf.late(session, 0, offset).wand
     mine = late.camera == 0
     frame, uv = late.frame[mine], late.uv[mine]
     assert len(frame) >= 2 * 16  # only the frames at the recording's ends are lost
     ends = uv[:, 1] == 100.0
-    # a linear track interpolates exactly: the blob of end 0 at frame k sits where it was at k - offset
-    np.testing.assert_allclose(uv[ends, 0], 100 + 3.0 * (frame[ends] - offset), atol=1e-9)
-    np.testing.assert_allclose(uv[~ends, 1], 200 + 2.0 * (frame[~ends] - offset), atol=1e-9)
+    # a linear track interpolates exactly: the blob of end 0 at frame k sits where it was at k +
+    # offset (docs/result-format.md: a late camera's frame k is exposed at the others' k + offset)
+    np.testing.assert_allclose(uv[ends, 0], 100 + 3.0 * (frame[ends] + offset), atol=1e-9)
+    np.testing.assert_allclose(uv[~ends, 1], 200 + 2.0 * (frame[~ends] + offset), atol=1e-9)
     other = late.camera == 1
     np.testing.assert_array_equal(late.uv[other], session.wand.uv[session.wand.camera == 1])
 

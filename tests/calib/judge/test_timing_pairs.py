@@ -23,7 +23,8 @@ def _path(time: np.ndarray) -> np.ndarray:
 
 
 def _rig_and_tracks(late: dict[int, float], seed: int = 0):
-    """Four cameras 3 m out; camera c records at frame k the marker of time k - late[c]."""
+    """Four cameras 3 m out; camera c late[c] frames late (docs/result-format.md): its frame k
+    exposed at time k + late[c], and the marker where it was then."""
     centres = [[3, 0, 1], [0, 3, 1.2], [-3, 0, 0.8], [0, -3, 1.1]]
     poses = [look_at(np.array(c, float), np.zeros(3)) for c in centres]
     R, t = np.array([p[0] for p in poses]), np.array([p[1] for p in poses])
@@ -31,7 +32,7 @@ def _rig_and_tracks(late: dict[int, float], seed: int = 0):
     frames = np.arange(FRAMES)
     track, camera, xy = [], [], []
     for c in range(4):
-        X = _path(frames - late.get(c, 0.0))
+        X = _path(frames + late.get(c, 0.0))
         x = project_normalized(R[c], t[c], X)
         track.append(frames)
         camera.append(np.full(FRAMES, c))
