@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wandcal.calib.judge.faults import MIN_T_STAT
 from wandcal.calib.observations import PointTracks, WandPairs
 
 MAX_SHIFT = 3  # whole frames searched either way
@@ -40,12 +41,16 @@ MIN_PAIRS = 10  # pair samples of a camera before its timing is judged
 # share of the unshifted one; and no other camera's improves nearly as much (COMPARE_MARGIN)
 WHOLE_GAIN = 0.5
 COMPARE_MARGIN = 1.5
-# a fractional offset is named at this many standard errors from the other cameras' ...
-MIN_T = 8.0
+# a fractional offset is named at this many standard errors from the other cameras' (the
+# reference's own error included), the significance the suspect screen asks of a pattern
+# (faults.MIN_T_STAT); on a solve the late camera bent, the pairs' residual holds the bend too,
+# so its standard error is already on the large side ...
+MIN_T = MIN_T_STAT
 # ... explaining this share of the camera's pairs' residual ...
 MIN_SHARE = 0.3
 # ... and moving its blobs, at the median speed, by this share of its pairs' residual scatter
 MIN_EFFECT = 0.5
+MIN_PAIR_ROWS = 8  # rows of a pair of cameras before its own scatter weighs them (_pair_scales)
 TRIM = 5.0  # rows beyond this many robust sigmas are left out of the fit (a mislabelled end)
 
 
@@ -249,6 +254,26 @@ def _fit(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return delta, keep
 
 
+def _pair_scales(first: np.ndarray, second: np.ndarray, A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(J,) each row's noise scale: the robust scatter of its pair of cameras' rows about their own
+    fit (the pair's two offsets free). A camera out of time bends the solve, and the pairs it is
+    in scatter several times more than the others; weighted alike, a pair of two cameras in time
+    that holds fewer rows could not outvote them, and the offset could go to the wrong camera of
+    a pair. Pairs of under :data:`MIN_PAIR_ROWS` rows take the median pair's scale."""
+    out = np.full(len(y), np.nan)
+    pair = first * A.shape[1] + second
+    for p in np.unique(pair):
+        rows = pair == p
+        if rows.sum() < MIN_PAIR_ROWS:
+            continue
+        cols = A[rows][:, [first[rows][0], second[rows][0]]]
+        r = y[rows] - cols @ np.linalg.lstsq(cols, y[rows], rcond=None)[0]
+        out[rows] = 1.4826 * np.median(np.abs(r))
+    fallback = float(np.nanmedian(out)) if np.isfinite(out).any() else 1.0
+    out = np.where(np.isfinite(out) & (out > 0), out, fallback)
+    return np.maximum(out, 1e-12)
+
+
 def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None,
                    focal: np.ndarray) -> list[CameraTiming]:
     """Every camera's offset against the others (whole frames, then the fraction by the velocity
@@ -268,6 +293,8 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
     A = np.zeros((len(y), n))
     A[np.arange(len(y)), first] = rows.a[usable]
     A[np.arange(len(y)), second] = rows.b[usable]
+    scale = _pair_scales(first, second, A, y)
+    A, y = A / scale[:, None], y / scale
     delta, keep = _fit(A, y)
     A, y, first, second = A[keep], y[keep], first[keep], second[keep]
     sigma = float(np.sqrt(np.mean((y - A @ delta) ** 2)))
@@ -287,10 +314,10 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         before, after = float(other @ other), float(((other - col * own) ** 2).sum())
         found[c] = (own, sigma / np.sqrt(gram), 1 - after / before if before > 0 else 0.0, int(mine.sum()))
     out = []
-    for c, (own, std, explained, pairs) in found.items():
+    for c, (own, own_std, explained, pairs) in found.items():
         # against the reference (the others' median), whose own error adds: the variance of a mean of the others
         others = [v[1] ** 2 for d, v in found.items() if d != c]
-        std = float(np.sqrt(std**2 + (np.mean(others) / len(others) if others else 0.0)))
+        std = float(np.sqrt(own_std**2 + (np.mean(others) / len(others) if others else 0.0)))
         # docs/result-format.md's sign: the pairs matched c's frame k + shift with the others' k, so
         # c's frame k was exposed at the others' k - shift - own
         offset = -float(shifts[c] + own)
