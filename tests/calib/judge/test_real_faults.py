@@ -45,7 +45,10 @@ CASES = [
     pytest.param("brown2", "noise 3x cam3", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     ("brown1", "late 1 frame cam1"),  # whole frames, from every pair of cameras (timing_pairs)
     ("svoboda", "late 0.3 frame Basler_21275577"),  # a fraction, by the marker's speed
-    pytest.param("brown1", "early 0.5 frame cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
+    ("brown1", "early 0.5 frame cam1"),  # a fraction, each pair of cameras weighted by its own scatter
+    ("brown1", "early 0.3 frame cam3"),
+    ("cpp", "late 1 frame cam3"),  # digitised: the start refused; named by --sync auto's whole-frame search
+    ("cpp", "early 0.3 frame cam3"),  # ... or by the refused camera resampled by a fraction of a frame
     pytest.param("brown2", "knocked 0.82 deg cam4", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
 ]
 
@@ -100,3 +103,15 @@ def test_a_knock_turns_only_the_later_half_of_the_cameras_samples():
     # order: 9.5 px at f = 1000 px, r <= 300 px, 0.5 degree
     r = np.linalg.norm(session.wand.uv[later] - [320, 240], axis=1)
     assert np.all(moved[later] > 0) and np.all(moved[later] <= 1.01 * (1000 + r**2 / 1000) * np.radians(0.5))
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("label, offset", [("early 2 frame cam1", "-2"), ("late 1 frame cam3", "+1")])
+def test_a_digitised_camera_whole_frames_out_of_time_is_named_with_its_shift_not_the_wand(sessions, label, offset):
+    session, clean = sessions["cpp"]
+    out = rf.run_case(session, clean, _case(session, label))
+    cam = label.split()[-1]
+    assert out.level == "refused" and out.message.startswith(f"{cam} is out of time"), out.message
+    # docs/result-format.md's sign, as --sync auto reports it; the start's own reason after
+    assert f"(offset {offset}: positive is late)" in out.message and "--sync auto" in out.message
+    assert out.message.index("--sync auto") < out.message.index("cannot be placed")
