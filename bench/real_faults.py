@@ -410,8 +410,8 @@ def calibrated(session: Session):
 class Clean:
     """A session's clean run: centres (N, 3), each camera's noise_px, the rig's level, and the
     faults (kind, camera) its published data really have (the easyWand C++ sample's cam2 runs
-    0.018 frame late: taking it out lowers every camera's noise_px by 10-24%), which a case's
-    verdict may name again without being wrong."""
+    0.018 frame early, docs/result-format.md's sign: taking it out lowers every camera's noise_px
+    by 10-24%), which a case's verdict may name again without being wrong."""
 
     centres: np.ndarray
     noise_px: list[float]

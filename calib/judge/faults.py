@@ -80,6 +80,13 @@ class Lens:
     f_stat: float
 
 
+def offset_text(offset: float, std: float) -> str:
+    """"0.0185 +- 0.0018 frames early": an offset (frames, positive: late) and its standard error,
+    to the decimals that show the error's first two digits (two at least)."""
+    decimals = 2 if not np.isfinite(std) or std <= 0 else int(np.clip(1 - np.floor(np.log10(std)), 2, 6))
+    return f"{abs(offset):.{decimals}f} +- {std:.{decimals}f} frames {'late' if offset > 0 else 'early'}"
+
+
 def _project(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
     Xc = X @ R.T + t
     return Xc[:, :2] / Xc[:, 2:]

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.judge.faults import MIN_T_STAT
+from wandcal.calib.judge.faults import MIN_T_STAT, offset_text
 from wandcal.calib.observations import PointTracks, WandPairs
 
 MAX_SHIFT = 3  # whole frames searched either way
@@ -352,8 +352,8 @@ def timing_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPa
     return [{"kind": "timing", "camera": cam, "evidence": {"timing": {
         "offset_frames": round(d, 4), "offset_std_frames": round(best.std, 4), "whole_frames": best.whole,
         "explained_share": round(best.explained, 3), "effect_px": round(best.effect_px, 2), "pairs": best.pairs}},
-        "message": f"{cam} is out of time: its samples match the other cameras' {abs(d):.2f} +- {best.std:.2f} frames "
-                   f"{'late' if d > 0 else 'early'}{whole} (offset {d:+.2f}: positive is late), which moves its blobs "
+        "message": f"{cam} is out of time: its samples match the other cameras' {offset_text(d, best.std)}{whole} "
+                   f"(offset {d:+.2f}: positive is late), which moves its blobs "
                    f"{best.effect_px:.1f} px at the wand's median speed; check its trigger cable and settings, or "
                    f"calibrate with its offset (--sync auto)"}]
 
