@@ -177,7 +177,7 @@ def calibrate(
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
     wand, sync = _whole_frame_sync(rig, wand if has_wand else None, options, tell, warnings)
     obs = _observations(rig, wand, points, sync, has_wand, options.method)
-    start = _start(rig, obs, static, tell, warnings)
+    start = _start(rig, obs, static, tell, warnings, synced=sync is not None)
     start, sync = _subframe_sync(rig, start, sync, options)
     solved = _refine(rig, obs, start, sync, options, tell, warnings)
     reference = axis if axis is not None and len(axis) else vertical
@@ -252,12 +252,21 @@ def _observations(rig: Rig, wand: WandObservations | None, points: PointObservat
 
 
 def _start(rig: Rig, obs: Observations, static: StaticObservations | None, tell: Progress,
-           warnings: list[str]) -> Start:
-    """The static object's poses, the capture's checks, the first poses and the wand ends labelled."""
+           warnings: list[str], *, synced: bool = False) -> Start:
+    """The static object's poses, the capture's checks, the first poses and the wand ends labelled.
+    A start refused without ``--sync auto`` (``synced`` false) names a camera whose shift in time
+    would let it place every camera (:func:`wandcal.calib.judge.start_timing.out_of_time_refusal`)."""
     static_poses = _static_poses(rig, static, tell, warnings)
     warnings += check_capture(rig, obs.pairs, obs.tracks, static_poses)  # degenerate captures: calib/start/degenerate.py
     tell({"stage": "initial", "message": "initial poses"})
-    init = initial_poses(rig, obs.pairs, static_poses, points=obs.tracks)
+    try:
+        init = initial_poses(rig, obs.pairs, static_poses, points=obs.tracks)
+    except CalibrationError as exc:
+        if synced or obs.blobs is not None:
+            raise
+        from wandcal.calib.judge.start_timing import out_of_time_refusal
+
+        raise out_of_time_refusal(exc, rig, obs.pairs, static_poses, obs.tracks) from None
     warnings += init.notes
     tell({"stage": "labels", "message": "telling the wand ends apart"})
     planar = obs.blobs is not None and obs.blobs.fit_px is not None  # a planar wand's rows come labelled from the layout
