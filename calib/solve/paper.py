@@ -21,9 +21,11 @@ camera keeps its pose, and one linearised wand-length equality anchors the scale
 ``sum_f d_f . (x_f1 - x_f0) = F L`` with d_f the wand direction of the previous iterate.
 ``formulation="literal"`` solves the paper's LP unchanged, to show the collapse.
 
-Each round's LP has the previous round's shape, so it is warm-started from that round's optimal
-simplex basis: tens of times faster than a cold solve, which lets the rounds run to convergence
-(docs/decisions/0005-paper-warm-start.md).
+Each round's LP is solved by an interior point that eliminates the points (each row touches one
+point and one camera), warm-started from the last round's; the rotation step is Newton's method
+on each camera's quadratic E_phi_n; and where the rounds creep along one slow direction, the
+next round starts the estimated rest of the way along it (docs/decisions/0005-paper-warm-start.md,
+0033-paper-at-speed.md).
 """
 
 from __future__ import annotations
@@ -36,14 +38,12 @@ import numpy as np
 from wandcal.calib.geometry import camera_centers
 from wandcal.calib.solve.wandmodel import WandProblem
 
-# scipy.optimize, scipy.sparse and HiGHS are imported where they are used: the command line
-# imports this module for its defaults, and they cost 0.3 s of start-up
+# SciPy, threadpoolctl and HiGHS are imported where they are used: the command line imports this
+# module for its defaults, and they cost 0.3 s of start-up
 
 BOUND_M = 10.0  # the paper's box on every translation and point coordinate
 HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
-MAX_ROUNDS = 300  # warm-started rounds take ~0.25 s at 8 x 1500, where the scheme converges in ~170
-# interior point solves the first, cold (Li) LP 1.7x faster than dual simplex at 2300 observations (0.65 s
-# against 1.1 s, HiGHS 1.15) and the gap grows with size
+MAX_ROUNDS = 300  # a round takes ~0.5 s of CPU at 8 x 1500 (decision 0033)
 # Convergence. The rounds approach their fixed point linearly and slowly (each moves the cameras
 # ~2% of the way at 8 x 1500), so one round's move says little about the distance left, and the
 # LP's jumps between vertices make single moves noisy. The distance left is estimated from the
@@ -178,32 +178,25 @@ def lp_step(
         fixed: (N,) cameras whose translation is held (the gauge; ignored when literal).
         up: (3,) the world's up direction for eq. (extra).
         formulation: "anchored" or "literal".
+        solver: "arrow" (the anchored LP by the block-arrow interior point,
+            calib/solve/backend/arrowlp.py; HiGHS's interior point where that stalls, and for the
+            other formulations), or HiGHS's "ipm" or "simplex".
         heights: (points, cameras) index pairs of the eq. (extra) rows to impose; by default
             those of :func:`height_pairs` at the given state.
-        basis: the basis of the previous round's LP (same shape), to warm-start from.
+        basis: the previous round's result's ``basis`` (an LP of the same shape), to warm-start from.
 
     Returns:
-        (t (N, 3), X (P, 3), LpResult).
+        (t (N, 3), X (P, 3), ArrowResult or LpResult): its status, seconds, objective, iterations
+        and ``basis`` for the next round.
     """
     jj, nn = height_pairs(R, t, X, up) if heights is None else heights
     if formulation == "anchored" and solver == "arrow":
-        from wandcal.calib.solve.backend.arrowlp import solve
-
-        deadline = None if time_limit is None else time.perf_counter() + time_limit
-        from wandcal.calib.solve.backend.arrowlp import WarmStart
-
-        res = solve(arrow_lp(R, t, X, problem, fixed, up, (jj, nn)), basis if isinstance(basis, WarmStart) else None,
-                    deadline)
-        if not res and res.status != "time_limit":
-            # the interior point stalled short of the optimum (rounding in a degenerate LP): HiGHS
-            # solves the same LP, slower
-            return lp_step(R, t, X, problem, fixed, up, formulation, time_limit, "ipm", (jj, nn))
-        if not res:
-            return t, X, res
-        t_new = t.copy()
-        t_new[~fixed] = res.v[: 3 * int((~fixed).sum())].reshape(-1, 3)
-        X_new = res.v[3 * int((~fixed).sum()) :].reshape(-1, 3)
-        return t_new, X_new, replace(res, objective=float(np.abs(algebraic_residuals(R, t_new, X_new, problem)).sum()))
+        solved = _arrow_step(R, t, X, problem, fixed, up, time_limit, (jj, nn), basis)
+        if solved is not None:
+            return solved
+        # the interior point stalled short of the optimum (rounding in a degenerate LP): HiGHS
+        # solves the same LP, slower
+        solver, basis = "ipm", None
     from wandcal.calib.solve.backend.highs import INF, solve_lp
 
     p = problem
@@ -235,9 +228,27 @@ def lp_step(
     res = solve_lp(cost, A, np.concatenate(row_lo), np.concatenate(row_hi), col_lo, col_hi, time_limit,
                    "ipm" if solver == "arrow" else solver,
                    basis=basis)
-    if not res:
+    if not res or res.x is None:
         return t, X, res
     return res.x[:nt].reshape(N, 3), res.x[nt : nt + nx].reshape(P, 3), res
+
+
+def _arrow_step(R, t, X, problem: WandProblem, fixed, up, time_limit, heights, warm):
+    """:func:`lp_step`'s anchored LP by the block-arrow interior point, from ``warm`` (the last
+    round's :class:`wandcal.calib.solve.backend.arrowlp.WarmStart`): (t, X, ArrowResult), or None
+    where it stalled short of the optimum."""
+    from wandcal.calib.solve.backend.arrowlp import WarmStart, solve
+
+    deadline = None if time_limit is None else time.perf_counter() + time_limit
+    res = solve(arrow_lp(R, t, X, problem, fixed, up, heights), warm if isinstance(warm, WarmStart) else None,
+                deadline)
+    if not res:
+        return (t, X, res) if res.status == "time_limit" else None
+    G = int((~fixed).sum())
+    t_new = t.copy()
+    t_new[~fixed] = res.v[: 3 * G].reshape(-1, 3)
+    X_new = res.v[3 * G :].reshape(-1, 3)
+    return t_new, X_new, replace(res, objective=float(np.abs(algebraic_residuals(R, t_new, X_new, problem)).sum()))
 
 
 def arrow_lp(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProblem, fixed: np.ndarray, up: np.ndarray,
@@ -384,17 +395,7 @@ def _turned_on(R: np.ndarray, R_before: np.ndarray, factor: float) -> np.ndarray
     return _exp_turn(factor * turn) @ R
 
 
-def refine_paper(*args, **kwargs):
-    """:func:`_refine_paper` with one BLAS thread: its products are vectors of a few 10k entries
-    and 3 x 3 blocks, where a second thread costs more in hand-offs than it gains (a 65k dot
-    product took 0.7 ms of CPU with two threads on a loaded machine, 0.016 ms with one)."""
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _refine_paper(*args, **kwargs)
-
-
-def _refine_paper(
+def refine_paper(
     R: np.ndarray,
     t: np.ndarray,
     wand: np.ndarray,
@@ -418,6 +419,17 @@ def _refine_paper(
         "time_limit", "lp_<status>" or "degenerate" (an LP shrank a wand to a point; the state
         before that round is returned).
     """
+    from threadpoolctl import threadpool_limits
+
+    # one BLAS thread: the products are vectors of a few 10k entries and 3 x 3 blocks, where a
+    # second thread costs more in hand-offs than it gains (a 65k dot product took 0.68 ms of CPU
+    # with two threads on a loaded machine, 0.016 ms with one; decision 0033)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _rounds(R, t, wand, problem, fixed, up, formulation, max_rounds, time_limit, progress)
+
+
+def _rounds(R, t, wand, problem: WandProblem, fixed, up, formulation: str, max_rounds: int, time_limit, progress):
+    """:func:`refine_paper`'s rounds."""
     start = time.perf_counter()
     X = wand.reshape(-1, 3).copy()
     lp_seconds = 0.0
