@@ -261,7 +261,8 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
 NO_REFERENCE = ("no world reference (no static.csv with an L-frame, no axis points): the world is the wand volume's "
                 "own frame, so the poses are exported in an arbitrary frame; add static.csv (an L-frame seen by several "
                 "cameras) where a floor and axes are needed")
-NO_SCALE = "no world frame: a capture of point tracks only is calibrated up to scale, in an arbitrary frame"
+NO_SCALE = ("no world reference and no scale: a capture of point tracks only (no wand) is calibrated up to scale, in "
+            "an arbitrary frame")
 
 
 def placement_verdict(world: dict, extent_m: float | None, faults: list[dict]) -> dict:

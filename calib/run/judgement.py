@@ -313,6 +313,28 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     return out, verdict, warnings
 
 
+# warnings of calib/run/camera_reports.py in fixed pixels or frames that the verdict judges in the
+# volume's terms: each is kept only for a camera that verdict calls poor on one of these criteria
+# (Brown's published sessions gave eight "check its intrinsics" warnings beside a good rig)
+JUDGED_WARNINGS = (("saw both wand ends in only", ("observations", "geometry")),
+                   ("reprojection RMS of", ("ray angle", "residual")))
+
+
+def acted_warnings(cameras: list[CameraFigures], warnings: list[str], ids: tuple[str, ...] | list[str]
+                   ) -> tuple[list[CameraFigures], list[str]]:
+    """The judged cameras and the result's warnings without the warnings of :data:`JUDGED_WARNINGS`
+    whose camera's verdict is not poor on their criteria: a warning is for something to do."""
+    def wanted(text: str) -> bool:
+        for c, cam_id in enumerate(ids):
+            if text.startswith(cam_id + " "):
+                poor = {name for name, got in ((cameras[c].verdict or {}).get("short_of_excellent") or {}).items()
+                        if got == "poor"}
+                return all(pattern not in text or poor & set(criteria) for pattern, criteria in JUDGED_WARNINGS)
+        return True
+    return ([replace(cam, warnings=tuple(w for w in cam.warnings if wanted(w))) if cam.warnings else cam for cam in cameras],
+            [w for w in warnings if wanted(w)])
+
+
 def _focal_limits(rig: Rig, cameras: list[CameraFigures], R: np.ndarray, t: np.ndarray, res: Residuals, scaled: bool,
                   refined: tuple[str, ...]) -> tuple[list[CameraFigures], list[dict]]:
     """The cameras' figures with how far each position hinges on a focal length that was given

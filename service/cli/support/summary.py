@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.geometry import kabsch, rotation_angle
+from wandcal.calib.judge.verdict import NO_REFERENCE, NO_SCALE, at_limit_text
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list
 
 
@@ -57,6 +58,7 @@ def _verdict_lines(doc: dict) -> list[str]:
     if not verdict:
         return []
     lines = [f"rig geometry: {verdict['level']}"]
+    lines += _at_limit_lines(verdict.get("at_limit") or [])
     faults = verdict.get("faults") or []
     lines += [f"  fault ({fault['kind']}{', ' + fault['camera'] if fault.get('camera') else ''}): {fault['message']}"
               for fault in faults]
@@ -72,17 +74,37 @@ def _verdict_lines(doc: dict) -> list[str]:
                      "camera's verdict in the result says why)")
     lines += _limit_lines(verdict.get("limits") or [], len(doc["cameras"]))
     placement = verdict.get("placement")
-    if placement:
-        where = doc["world"].get("placement") or {}
+    world = doc["world"]
+    if world.get("scale") == "arbitrary" or world.get("frame") == "wand_volume":
+        # no object placed the world (older results graded it all the same): nothing to grade
+        lines.append(f"world frame: {NO_SCALE if world.get('scale') == 'arbitrary' else NO_REFERENCE}")
+        placement = None
+    elif placement:
+        where = world.get("placement") or {}
         figures = ""
         if where.get("axes_std_deg") is not None:
             origin = where.get("origin_std_mm")
             figures = (f" (origin +-{origin:.2f} mm, " if origin is not None else " (") + f"axes +-{where['axes_std_deg']:.3f} deg)"
-        lines.append(f"world placement ({doc['world'].get('frame')}): {placement['level']}{figures}")
+        lines.append(f"world placement ({world.get('frame')}): {placement['level']}{figures}")
         lines += [f"  {reason}" for reason in placement["reasons"] if reason not in shown]
     advice = list(dict.fromkeys([*verdict.get("advice", []), *(placement or {}).get("advice", [])]))
     lines += [f"to do: {text}" for text in advice]
     return lines
+
+
+def _at_limit_lines(entries: list[dict]) -> list[str]:
+    """The criteria within their standard error of the limit of poor (the verdict's ``at_limit``):
+    each holds the better level, and could go either way on another take; those at the limit of
+    good are counted."""
+    poor = [e for e in entries if e["levels"][1] == "poor"]
+    rest = len(entries) - len(poor)
+    said = [f"{e['camera'] + ' ' if e.get('camera') else ''}{e['criterion']} {at_limit_text(e)}" for e in poor]
+    more = [f"{len(said) - LISTED_CAMERAS} more"] if len(said) > LISTED_CAMERAS else []
+    more += [f"{rest} at the limit of good or excellent"] if rest else []
+    if not said:
+        return [f"  {rest} criteria at the limit of good or excellent (the result's verdict.at_limit)"] if rest else []
+    return [f"  within one standard error (the better level holds): {'; '.join(said[:LISTED_CAMERAS])}"
+            + (f"; and {', '.join(more)} (the result's verdict.at_limit)" if more else "")]
 
 
 def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
