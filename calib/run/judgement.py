@@ -359,12 +359,11 @@ def _judged(cam: CameraFigures, fig: dict, cov: dict, extent: float | None) -> J
 
 
 def _camera_verdict(doc: dict, cam_id: str, faults: list[dict], extent: float | None, rig_noise: float | None) -> dict:
-    """A camera's verdict (:func:`camera_verdict`); a camera at fault is poor, whatever its figures say."""
+    """A camera's verdict (:func:`camera_verdict`); a camera at fault, or in a rig whose scale is at
+    fault, is poor, whatever its figures say."""
     verdict = camera_verdict(doc, cam_id, extent, rig_noise)
     for fault in faults:
-        if fault["camera"] == cam_id:
+        # a scale fault puts every length off, the camera's place and its sigma with it
+        if fault["camera"] == cam_id or fault["kind"] in SCALE_FAULTS:
             verdict = verdict | {"level": "poor", "reasons": [fault["message"], *verdict["reasons"]]}
-        elif fault["kind"] in SCALE_FAULTS:  # every length is off, the camera's place and its sigma with it
-            verdict = verdict | {"level": "poor", "reasons": [f"{cam_id}: its place is in the rig's doubtful scale: "
-                                                              f"{fault['message']}", *verdict["reasons"]]}
     return verdict

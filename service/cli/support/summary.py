@@ -64,8 +64,10 @@ def _verdict_lines(doc: dict) -> list[str]:
               for fault in faults]
     shown = {fault["message"] for fault in faults}
     lines += [f"  {reason}" for reason in verdict["reasons"] if reason not in shown]
+    rig_wide = {fault["message"] for fault in faults if not fault.get("camera")}  # a wrong scale makes every camera poor
     poor = [cam for cam in doc["cameras"] if cam.get("verdict", {}).get("level") == "poor"
-            and any(reason not in shown for reason in cam["verdict"].get("reasons", []))]
+            and any(reason not in shown for reason in cam["verdict"].get("reasons", []))
+            and not rig_wide & set(cam["verdict"].get("reasons", [])[:1])]
     for cam in poor[:LISTED_CAMERAS]:  # the first few poor cameras' reasons; a big rig's others by name
         lines += [f"  {reason}" for reason in cam["verdict"]["reasons"] if reason not in shown]
     more = [cam["id"] for cam in poor[LISTED_CAMERAS:]]
@@ -93,18 +95,15 @@ def _verdict_lines(doc: dict) -> list[str]:
 
 
 def _at_limit_lines(entries: list[dict]) -> list[str]:
-    """The criteria within their standard error of the limit of poor (the verdict's ``at_limit``):
-    each holds the better level, and could go either way on another take; those at the limit of
-    good are counted."""
-    poor = [e for e in entries if e["levels"][1] == "poor"]
-    rest = len(entries) - len(poor)
-    said = [f"{e['camera'] + ' ' if e.get('camera') else ''}{e['criterion']} {at_limit_text(e)}" for e in poor]
-    more = [f"{len(said) - LISTED_CAMERAS} more"] if len(said) > LISTED_CAMERAS else []
-    more += [f"{rest} at the limit of good or excellent"] if rest else []
+    """The criteria within their standard error of the limit of poor (the verdict's ``at_limit``,
+    which has those at the limit of good too): each holds the better level, and could go either
+    way on another take."""
+    said = [f"{e['camera'] + ' ' if e.get('camera') else ''}{e['criterion']} {at_limit_text(e)}"
+            for e in entries if e["levels"][1] == "poor"]
     if not said:
-        return [f"  {rest} criteria at the limit of good or excellent (the result's verdict.at_limit)"] if rest else []
-    return [f"  within one standard error (the better level holds): {'; '.join(said[:LISTED_CAMERAS])}"
-            + (f"; and {', '.join(more)} (the result's verdict.at_limit)" if more else "")]
+        return []
+    more = f"; and {len(said) - LISTED_CAMERAS} more (the result's verdict.at_limit)" if len(said) > LISTED_CAMERAS else ""
+    return [f"  within one standard error (the better level holds): {'; '.join(said[:LISTED_CAMERAS])}{more}"]
 
 
 def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
