@@ -86,7 +86,7 @@ def _grade(value: float | None, limits: tuple[float, float], higher_is_better: b
     if value is None or not np.isfinite(value):
         return 0
     sign = -1.0 if higher_is_better else 1.0
-    return sum(sign * (value - limit) > std for limit in limits)
+    return int(sum(sign * (value - limit) > std for limit in limits))
 
 
 def _at_limit(value: float | None, limits: tuple[float, float], std: float) -> int | None:
@@ -184,7 +184,6 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
     rig_noise_px: the median camera's noise.
     """
     checks = _Checks(cam_id)
-    coverage_advice = None
     obs = report.get("observations", 0) + report.get("point_observations", 0)
     rel = report.get("residual_of_volume")
     if rel is not None:
@@ -217,6 +216,20 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
                    f"(excellent <= {100 * OUTLIER_SHARE[0]:g}%, good <= {100 * OUTLIER_SHARE[1]:g}%)",
                    f"look for reflections or a second bright marker in {cam_id}'s view and mask them",
                    std=share_std(share, obs), shown=(100.0, "%"))
+    coverage_advice = _place_checks(checks, report, cam_id, extent_m, obs)
+    rows = checks.rows
+    level = max(grade for _, grade, _, _ in rows)
+    return {"level": LEVELS[level],
+            "reasons": [text.format(level=LEVELS[grade]) for _, grade, text, _ in rows if grade > 0],
+            "advice": [advice for _, grade, _, advice in rows if grade == 2] + ([coverage_advice] if coverage_advice else []),
+            "short_of_excellent": {name: LEVELS[grade] for name, grade, _, _ in rows if grade > 0},
+            "at_limit": checks.at_limit}
+
+
+def _place_checks(checks: _Checks, report: dict, cam_id: str, extent_m: float | None, obs: int) -> str | None:
+    """:func:`camera_verdict`'s observations, coverage and geometry criteria, added to ``checks``;
+    returns the coverage advice a camera under the good coverage gets (not poor on its own)."""
+    coverage_advice = None
     geo_rel = report.get("geometry_of_volume")
     geo_std = SIGMA_REL_SE * geo_rel if geo_rel is not None else 0.0
     # few observations that place the camera well are good: its geometry sigma below says so
@@ -249,13 +262,7 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
             shown = (1000.0, "per mille")
         checks.add("geometry", geo_rel, GEOMETRY_OF_VOLUME, text,
                    f"wave the wand longer across {cam_id}'s view, where it and other cameras see it", std=geo_std, shown=shown)
-    rows = checks.rows
-    level = max(grade for _, grade, _, _ in rows)
-    return {"level": LEVELS[level],
-            "reasons": [text.format(level=LEVELS[grade]) for _, grade, text, _ in rows if grade > 0],
-            "advice": [advice for _, grade, _, advice in rows if grade == 2] + ([coverage_advice] if coverage_advice else []),
-            "short_of_excellent": {name: LEVELS[grade] for name, grade, _, _ in rows if grade > 0},
-            "at_limit": checks.at_limit}
+    return coverage_advice
 
 
 NO_REFERENCE = ("no world reference (no static.csv with an L-frame, no axis points): the world is the wand volume's "
