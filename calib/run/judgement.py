@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.faults import Lens, TimingFault, analyse_camera, classify, lens_screen
+from wandcal.calib.judge.faults import Lens, TimingFault, analyse_camera, classify, lens_screen, offset_text
 from wandcal.calib.judge.intrinsic_limits import intrinsic_limit_entries
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.judge.residuals import (
@@ -165,8 +165,8 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
                      "outlier_share": round(fig["outlier_share"], 4)}
         if kind == "timing" and timing is not None:
             d = timing.offset_frames
-            message = (f"{cam} is out of time: its frames show the wand {abs(d):.2f} +- {timing.offset_std_frames:.3f} "
-                       f"frames {'late' if d > 0 else 'early'} against the other cameras; check its trigger cable and "
+            message = (f"{cam} is out of time: its frames show the wand {offset_text(d, timing.offset_std_frames)} "
+                       f"against the other cameras (offset {d:+.2f}: positive is late); check its trigger cable and "
                        f"settings (or calibrate with its offset, --sync auto)")
         elif kind == "intrinsics" and lens is not None:
             message = (f"{cam}'s intrinsics do not fit its images: its residuals are {'scaled' if abs(lens.focal_error) > abs(lens.k1_error) / 4 else 'radial'} about the "

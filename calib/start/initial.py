@@ -54,6 +54,15 @@ from wandcal.calib.start.static import StaticPose
 WEAK_LINK = 40  # correspondences below which a chained camera's start is worth a note
 
 
+class UnplacedCamera(CalibrationError):
+    """The start placed some cameras and could not place ``camera`` (its index) from them: the
+    best-linked cameras that agree were placed first, so it is the one that disagrees."""
+
+    def __init__(self, message: str, camera: int) -> None:
+        super().__init__(message)
+        self.camera = camera
+
+
 @dataclass(frozen=True, eq=False)
 class Initial:
     """Starting poses R (N, 3, 3), t (N, 3) and how each camera was placed."""
@@ -233,7 +242,7 @@ def _place_next(st: _State) -> None:
                 return
             reasons.append(str(done))
         failures.append((c, reasons))
-    raise CalibrationError(_cannot_place(st, failures[0][0], failures[0][1]))
+    raise UnplacedCamera(_cannot_place(st, failures[0][0], failures[0][1]), failures[0][0])
 
 
 def _by_chain(st: _State, c: int) -> bool | Failure:
