@@ -353,11 +353,12 @@ LISTED_CAMERAS = 6
 
 def camera_list(ids: list[str], rig_cameras: int) -> str:
     """Cameras named in a message, readable at any rig size: every id when there are at most
-    :data:`LISTED_CAMERAS` ("cam1, cam2"); "all 64 cameras" when they are the whole rig; else the
-    first few and "and N more" ("cam1, ..., cam6 and 12 more"). ids: in rig order;
-    rig_cameras: how many cameras the rig has."""
+    :data:`LISTED_CAMERAS` ("cam1 and cam2"); "all 64 cameras" when they are the whole rig; else the
+    first few and "and N more" ("cam1, ..., cam6 and 12 more"); the last two of a short list joined
+    by "and" ("cam1 and cam3", "cam1, cam2 and cam3"). ids: in rig order; rig_cameras: how many
+    cameras the rig has."""
     if len(ids) <= LISTED_CAMERAS:
-        return ", ".join(ids)
+        return " and ".join([", ".join(ids[:-1]), ids[-1]]) if len(ids) > 1 else ", ".join(ids)
     if len(ids) == rig_cameras:
         return f"all {rig_cameras} cameras"
     return f"{', '.join(ids[:LISTED_CAMERAS])} and {len(ids) - LISTED_CAMERAS} more"

@@ -34,7 +34,7 @@ from wandcal.calib.run.camera_reports import (
     uncertainty_reports,
     with_warnings,
 )
-from wandcal.calib.run.judgement import judge
+from wandcal.calib.run.judgement import acted_warnings, judge
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import (
     GAUGE_CAMERA,
@@ -435,6 +435,7 @@ def _judgement(solved: Solved, obs: Observations, placed: Placed, cameras: list[
     cameras, verdict, checks = judge(method, rig, cameras, wand_report, placed.world, placed.R, placed.t, r.labelled,
                                      every_track, solver, (seen_cam, seen_uv),
                                      (setup.frames, placed.wand) if obs.has_wand else None)
+    cameras, warnings[:] = acted_warnings(cameras, warnings, rig.ids)
     warnings += checks
     return cameras, verdict, solver
 

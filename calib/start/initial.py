@@ -148,8 +148,8 @@ def initial_poses(
                 st.R[c], st.t[c] = pose.R, pose.t
                 st.mark(c)
                 st.source[c] = "static PnP"
-            elif isinstance(pose, StaticPose):
-                st.notes.append(f"{rig.cameras[c].id}: static-object pose is ambiguous (planar flip); placed from the wand")
+            # an ambiguous pose (the planar flip) is left to the wand or the points, which place the
+            # camera below or refuse the capture, naming it: nothing is left for the user to do
     st.scaled = st.placed.sum() >= 2
     if st.placed.any():
         _refuse_split(st)
