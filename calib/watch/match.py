@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.rig import Rig
-from wandcal.calib.triangulate import reprojection_errors, triangulate_points
+from wandcal.calib.triangulate import refine_points, reprojection_errors
 from wandcal.calib.watch.take import PaddedFrames
 
 EPIPOLAR_PX = 2.0  # a blob's distance from the epipolar line: 0.3 px noise in two images and a standing
@@ -86,6 +86,8 @@ def match_frames(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames) -
 def _candidates(R, t, focal, padded: PaddedFrames, free, a: int, b: int):
     """Pairs of free blobs of cameras a and b near each other's epipolar line, confirmed by a third
     camera: (frame index (P,), each camera's slot (P, C) or -1, points (P, 3), residual rms px (P,))."""
+    # the points start at the two-ray midpoint and are refined by Gauss-Newton (no DLT: its 4x4
+    # eigen-decompositions were half the matcher's time)
     xa = np.where(free[:, a, :, None], padded.xy[:, a], np.nan)  # (F, K, 2)
     xb = np.where(free[:, b, :, None], padded.xy[:, b], np.nan)
     R_ab = R[b] @ R[a].T
@@ -106,7 +108,7 @@ def _candidates(R, t, focal, padded: PaddedFrames, free, a: int, b: int):
     if not keep.any():
         return None
     f_idx, slots = f_idx[keep], slots[keep]
-    X, _ = _triangulate(R, t, focal, padded, f_idx, slots)
+    X, _ = _triangulate(R, t, focal, padded, f_idx, slots, X[keep])
     # again from the point of every view: each camera's nearest free blob within the gate, unless
     # a second blob is nearly as near (that view is ambiguous and left out, not the marker)
     slots = _associate(R, t, focal, padded, free, f_idx, X, GATE_PX)
@@ -116,9 +118,9 @@ def _candidates(R, t, focal, padded: PaddedFrames, free, a: int, b: int):
         return None
     key = np.concatenate([f_idx[:, None], slots], axis=1)
     _, first = np.unique(key, axis=0, return_index=True)  # candidates that found the same views are one
-    f_idx, slots = f_idx[first], slots[first]
-    _, rms = _triangulate(R, t, focal, padded, f_idx, slots)
-    return f_idx, slots, rms
+    f_idx, slots, X = f_idx[first], slots[first], X[keep][first]
+    X, rms = _triangulate(R, t, focal, padded, f_idx, slots, X)
+    return f_idx, slots, X, rms
 
 
 def _associate(R, t, focal, padded: PaddedFrames, free, f_idx, X, radius: float) -> np.ndarray:
@@ -144,18 +146,19 @@ def _associate(R, t, focal, padded: PaddedFrames, free, f_idx, X, radius: float)
     return out
 
 
-def _triangulate(R, t, focal, padded: PaddedFrames, f_idx, slots) -> tuple[np.ndarray, np.ndarray]:
-    """Each candidate triangulated from all its views: points (P, 3), rms residual px (P,)."""
+def _triangulate(R, t, focal, padded: PaddedFrames, f_idx, slots, X0) -> tuple[np.ndarray, np.ndarray]:
+    """Each candidate triangulated from all its views by Gauss-Newton from X0 (P, 3), a close start:
+    points (P, 3), rms residual px (P,)."""
     p, c = np.nonzero(slots >= 0)
     xy = padded.xy[f_idx[p], c, slots[p, c]]
-    X = triangulate_points(R, t, p, c, xy, len(slots))
+    X = refine_points(R, t, p, c, xy, X0)
     res = reprojection_errors(R, t, p, c, xy, X) * focal[c][:, None]
     sq = np.bincount(p, (res ** 2).sum(1), minlength=len(slots))
     n = np.bincount(p, minlength=len(slots))
     return X, np.sqrt(sq / np.maximum(n, 1))
 
 
-def _resolve(R, t, focal, padded: PaddedFrames, f_idx, slots, rms):
+def _resolve(R, t, focal, padded: PaddedFrames, f_idx, slots, X, rms):
     """Candidates taken greedily, most cameras first, then the smaller residual: each keeps the
     views no stronger candidate took, and is taken while it keeps :data:`MIN_VIEWS`; the taken ones
     are triangulated again from the views they kept. Returns (frame index, slots, points) or None."""
@@ -177,7 +180,7 @@ def _resolve(R, t, focal, padded: PaddedFrames, f_idx, slots, rms):
     if not taken:
         return None
     f_idx, slots = f_idx[taken], kept[taken]
-    X, _ = _triangulate(R, t, focal, padded, f_idx, slots)
+    X, _ = _triangulate(R, t, focal, padded, f_idx, slots, X[taken])
     return f_idx, slots, X
 
 

@@ -4,6 +4,7 @@ docs/capture-format.md), and the padded per-frame layout the matcher works on.""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -65,6 +66,19 @@ class PaddedFrames:
     frames: np.ndarray
     xy: np.ndarray
     row: np.ndarray
+
+    def xy_of(self, rows: np.ndarray) -> np.ndarray:
+        """(..., 2) the normalised coordinates of blob ``rows`` (any shape) of this batch."""
+        first, table = self._by_row
+        return table[np.asarray(rows) - first]
+
+    @cached_property
+    def _by_row(self) -> tuple[int, np.ndarray]:
+        valid = self.row >= 0
+        first = int(self.row[valid].min()) if valid.any() else 0
+        table = np.full((int(self.row.max()) + 1 - first if valid.any() else 1, 2), np.nan)
+        table[self.row[valid] - first] = self.xy[valid]
+        return first, table
 
 
 def pad_frames(rig: Rig, blobs: TakeBlobs, rows: np.ndarray | None = None) -> PaddedFrames:
