@@ -103,7 +103,7 @@ def body_markers(frames: int, markers: int, bodies: int, rng: np.random.Generato
     """(F, M, 3) markers on ``bodies`` rigid bodies that walk and turn through a 1.8 x 1.8 x 1.6 m
     volume, ``markers`` spread over them (metres), frames ``first`` .. ``first + frames - 1``."""
     tau = (first + np.arange(frames, dtype=float))[:, None] / BODY_PERIOD_FRAMES
-    per_body = np.array_split(np.arange(markers), bodies)
+    per_body = np.array_split(np.arange(markers), min(bodies, markers))
     out = np.empty((frames, markers, 3))
     for idx in per_body:
         local = _body_layout(len(idx), rng)
@@ -163,12 +163,12 @@ def observe_take(rig: Rig, R: np.ndarray, t: np.ndarray, markers: np.ndarray, *,
                       np.concatenate([uv[keep], s_uv]), np.concatenate([m_idx, np.full(len(s_f), -1)]),
                       np.concatenate([other[keep], np.full(len(s_f), -1)])))
     f = np.concatenate([p[0] for p in parts])
-    c = np.concatenate([p[1] for p in parts])
+    cams = np.concatenate([p[1] for p in parts])
     uv = np.concatenate([p[2] for p in parts])
     marker = np.concatenate([p[3] for p in parts])
     merged = np.concatenate([p[4] for p in parts])
-    order = np.lexsort((uv[:, 0], np.floor(uv[:, 1]), c, f))  # raster order: no trace of the marker's index
-    return TakeBlobs(frame_no[f[order]], c[order], uv[order]), marker[order], merged[order]
+    order = np.lexsort((uv[:, 0], np.floor(uv[:, 1]), cams, f))  # raster order: no trace of the marker's index
+    return TakeBlobs(frame_no[f[order]], cams[order], uv[order]), marker[order], merged[order]
 
 
 def _merge_close(uv: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -193,15 +193,19 @@ def _merge_close(uv: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return uv.reshape(-1, 2), keep.reshape(-1), other.reshape(-1)
 
 
+def take_rig(cameras: int, seed: int) -> tuple[Rig, np.ndarray, np.ndarray]:
+    """The rig of ``simulate_capture(cameras, seed=seed)`` and its poses R (N, 3, 3), t (N, 3)."""
+    cams, R, t = ring_cameras(cameras, np.random.default_rng(seed))
+    return Rig(cameras=tuple(cams), wand_length=0.5, static_markers=L_FRAME_M.copy()), R, t
+
+
 def simulate_take(cameras: int = 12, frames: int = 1000, *, markers: int = 40, bodies: int = 5, noise_px: float = 0.3,
                   dropped: float = 0.03, spurious: float = 0.5, moves: tuple[CameraMove, ...] = (), seed: int = 1,
                   first: int = 0) -> SimulatedTake:
     """A take of ``simulate_capture(cameras, seed=seed)``'s rig: ``markers`` markers on ``bodies``
     rigid bodies, frames ``first`` .. ``first + frames - 1`` (a long take can be made in pieces that
     continue one another: the bodies' paths are a function of the frame number)."""
-    rng = np.random.default_rng(seed)
-    cams, R, t = ring_cameras(cameras, rng)
-    rig = Rig(cameras=tuple(cams), wand_length=0.5, static_markers=L_FRAME_M.copy())
+    rig, R, t = take_rig(cameras, seed)
     scene = np.random.default_rng([seed, TAKE_STREAM])
     pts = body_markers(frames, markers, bodies, scene, first)
     noise_rng = np.random.default_rng([seed, TAKE_STREAM, first])

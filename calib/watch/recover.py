@@ -19,7 +19,7 @@ OUTLIER_PX = 1.5  # as health's: 5 sigma of 0.3 px
 @dataclass(frozen=True, eq=False)
 class Resolved:
     """A camera's pose re-solved from a take. R (3, 3), t (3,) world->camera; points: markers
-    used; rms_px: their residual; center_std_mm, rotation_std_deg: 1-sigma of the centre and the
+    used; rms_px: their residual, pixels per axis (as health's); center_std_mm, rotation_std_deg: 1-sigma of the centre and the
     orientation from the fit's covariance (sigma^2 H^-1); moved_mm, turned_deg: from the standing pose."""
 
     R: np.ndarray
@@ -54,6 +54,6 @@ def resolve_camera(R0: np.ndarray, t0: np.ndarray, focal: float, X: np.ndarray, 
     cov = s2 * np.linalg.pinv(H, rcond=1e-10, hermitian=True)
     t = -R @ C
     turned = np.degrees(np.arccos(np.clip((np.trace(R @ R0.T) - 1) / 2, -1, 1)))
-    return Resolved(R, t, int(keep.sum()), float(np.sqrt((r ** 2).sum() / max(len(r), 1))),
+    return Resolved(R, t, int(keep.sum()), float(np.sqrt((r ** 2).sum() / max(2 * len(r), 1))),
                     float(np.sqrt(np.trace(cov[3:, 3:])) * 1000), float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
                     float(np.linalg.norm(C - camera_centers(R0[None], t0[None])[0]) * 1000), float(turned))
