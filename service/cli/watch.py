@@ -7,6 +7,10 @@ import argparse
 from pathlib import Path
 
 EXIT_MOVED = 1  # a camera moved or drifts (named)
+# Markers triangulated by two cameras that the others see: ~95% on a healthy rig (blobs dropped, views
+# beside another marker's image left out); under half for most cameras is not a bumped camera but a
+# result of another rig, or a rig rebuilt
+MIN_MATCHED = 0.5
 
 
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
@@ -41,6 +45,7 @@ def run_watch(args) -> int:
     with ProgressLine(quiet=args.json) as progress:
         report = watch_take(rig, R, t, take.blobs,
                             progress=lambda done, total: progress.update(f"watch: frame {done} of {total}"))
+    _check_fit(report, args)
     doc = _report_json(report)
     if args.json:
         print(json.dumps(doc, indent=2))
@@ -49,6 +54,19 @@ def run_watch(args) -> int:
     if args.write is not None:
         _write(args, standing, take, report)
     return EXIT_MOVED if report.moved else 0
+
+
+def _check_fit(report, args) -> None:
+    """Refuse a take that most cameras do not fit (another rig's, or a rebuilt one) as bad input."""
+    import numpy as np
+
+    from wandcal.calib.errors import CalibrationError
+
+    matched = np.array([h.matched for h in report.cameras])
+    if np.median(matched) < MIN_MATCHED:
+        raise CalibrationError(f"{args.take}: the take does not fit {args.result}: its cameras find only "
+                               f"{np.median(matched):.0%} of the markers the others triangulate (a healthy rig finds "
+                               "~95%); the take is of another rig, or the rig was rebuilt: calibrate afresh")
 
 
 def _report_json(report) -> dict:
