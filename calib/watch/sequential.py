@@ -68,6 +68,7 @@ class CameraTest:
     n: list[float] = field(default_factory=list)
     start: list[int] = field(default_factory=list)  # every window's first frame
     alarm: Alarm | None = None
+    peak: float = 0.0  # the largest max_k S_k seen (a clean take's margin below the threshold)
 
     def add(self, g: np.ndarray, H: np.ndarray, sse: float, n: float, start: int) -> None:
         self.g.append(g)
@@ -112,6 +113,7 @@ class CameraTest:
         shift = np.sqrt(np.einsum("ki,kij,kj->k", d, Ik, d) / np.maximum(count, 1))  # rms image move, px
         S = np.where(shift >= MIN_SHIFT_PX, S, 0.0)
         k = int(np.argmax(S))
+        self.peak = max(self.peak, float(S[k]))
         return float(S[k]), first + k, d[k]
 
 

@@ -35,6 +35,7 @@ class CameraHealth:
     drift_frames: int = 0
     change: np.ndarray | None = None
     resolved: Resolved | None = None
+    peak: float = 0.0  # the test's largest statistic over the take
 
     @property
     def status(self) -> str:
@@ -87,6 +88,7 @@ def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, reso
         health.residual_px = float(np.sqrt(sums[c, 0] / max(2 * sums[c, 1], 1)))
         health.matched = float(sums[c, 1] / max(sums[c, 2], 1))
         health.alarm = tests[c].alarm
+        health.peak = tests[c].peak
         if health.alarm is not None:
             health.kind, health.moved_at, health.drift_frames, health.change = classify(tests[c], health.alarm)
             if resolve:
