@@ -7,4 +7,5 @@
 | :mod:`~wandcal.calib.sim.render` | marker spots rendered as a camera records them |
 | :mod:`~wandcal.calib.sim.scenes` | scenes taken part-way through the pipeline, for tests and benchmarks |
 | :mod:`~wandcal.calib.sim.faults` | simulated captures with one thing wrong, the cases the judgement is tested on |
+| :mod:`~wandcal.calib.sim.takes` | ordinary takes: markers on moving bodies, unlabelled blobs, a camera knocked or drifting (``simulate --take``) |
 """

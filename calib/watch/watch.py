@@ -9,14 +9,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wandcal.calib.rig import Rig
-from wandcal.calib.watch.health import WINDOW_FRAMES, CameraWindows, camera_windows
+from wandcal.calib.watch.health import PARAMS, WINDOW_FRAMES, CameraWindows, camera_windows, solve_pose_change
 from wandcal.calib.watch.match import Tracks, match_frames
 from wandcal.calib.watch.recover import Resolved, resolve_camera
-from wandcal.calib.watch.sequential import GLR_THRESHOLD, Alarm, CameraTest, classify
+from wandcal.calib.watch.sequential import BASELINE_WINDOWS, GLR_THRESHOLD, Alarm, CameraTest, classify
 from wandcal.calib.watch.take import TakeBlobs, pad_frames
 
 BATCH_FRAMES = 100  # a second at 100 fps: the unit a live take is processed in (whole windows)
 SETTLE_FRAMES = 5 * WINDOW_FRAMES  # the re-solve waits this long after a knock completes (and uses the rest)
+# A camera whose images are this far (rms) from the standing pose over the take's first windows moved
+# before the take: a standing result's own pose error moves them ~0.1 px; a 0.05 deg turn at f = 1100 px, 1 px
+START_SHIFT_PX = 1.0
 
 
 @dataclass
@@ -35,6 +38,7 @@ class CameraHealth:
     drift_frames: int = 0
     change: np.ndarray | None = None
     resolved: Resolved | None = None
+    before_take: bool = False  # it had moved already when the take began
     peak: float = 0.0  # the test's largest statistic over the take
 
     @property
@@ -68,6 +72,10 @@ def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, reso
     first, last = int(blobs.frame.min()), int(blobs.frame.max())
     report.first_frame, report.last_frame = first, last
     excluded: set[int] = set()
+    for alarm in _off_from_start(rig, R, t, blobs, first):
+        tests[alarm.camera].alarm = alarm
+        report.cameras[alarm.camera].before_take = True
+        excluded.add(alarm.camera)
     sums = np.zeros((n_c, 3))  # sse, residuals, markers seen
     bounds = np.searchsorted(blobs.frame, np.arange(first, last + BATCH_FRAMES + 1, BATCH_FRAMES))
     for b in range(len(bounds) - 1):
@@ -89,11 +97,43 @@ def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, reso
         health.matched = float(sums[c, 1] / max(sums[c, 2], 1))
         health.alarm = tests[c].alarm
         health.peak = tests[c].peak
-        if health.alarm is not None:
+        if health.before_take and health.alarm is not None:
+            health.kind, health.moved_at, health.change = "knock", first, health.alarm.change
+        elif health.alarm is not None:
             health.kind, health.moved_at, health.drift_frames, health.change = classify(tests[c], health.alarm)
-            if resolve:
-                health.resolved = _resolve(rig, R, t, report, c, health)
+        if health.alarm is not None and resolve:
+            health.resolved = _resolve(rig, R, t, report, c, health)
     return report
+
+
+def _off_from_start(rig: Rig, R, t, blobs: TakeBlobs, first: int) -> list[Alarm]:
+    """Cameras that disagree with the standing result from the take's start: over the first
+    :data:`BASELINE_WINDOWS` windows, a pose change whose statistic passes the test's threshold and
+    that moves the camera's images :data:`START_SHIFT_PX` or more. Named one at a time, the largest
+    first, each left out of the others' markers before the next is looked for (its blobs pull them)."""
+    stop = first + BASELINE_WINDOWS * WINDOW_FRAMES
+    rows = np.arange(0, int(np.searchsorted(blobs.frame, stop)))
+    if not len(rows):
+        return []
+    padded = pad_frames(rig, blobs, rows)
+    tracks = match_frames(rig, R, t, padded)
+    alarms: list[Alarm] = []
+    while len(alarms) < len(R) - 3:  # three cameras held at least: a marker is two views and a third
+        views = tracks.views.copy()
+        views[:, [a.camera for a in alarms]] = -1
+        w = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X))
+        I0, g0, n0 = w.H.sum(0), w.g.sum(0), w.n.sum(0)
+        p0 = solve_pose_change(I0, g0)
+        fit = np.einsum("ci,cij,cj->c", p0, I0, p0)  # px^2 the change explains
+        s2 = w.sse.sum(0) / np.maximum(2 * n0 - PARAMS * BASELINE_WINDOWS, 1)
+        S = fit / np.maximum(s2, 1e-12)
+        shift = np.sqrt(fit / np.maximum(n0, 1))
+        S[[a.camera for a in alarms]] = 0
+        c = int(np.argmax(np.where(shift >= START_SHIFT_PX, S, 0)))
+        if S[c] <= GLR_THRESHOLD or shift[c] < START_SHIFT_PX:
+            break
+        alarms.append(Alarm(c, first, int(padded.frames[-1]), float(S[c]), p0[c]))
+    return alarms
 
 
 def _test_batch(rig, R, t, padded, tracks: Tracks, tests: list[CameraTest], excluded: set[int], first: int,

@@ -75,7 +75,8 @@ def _report_json(report) -> dict:
         entry = {"id": h.id, "status": h.status, "residual_px": round(h.residual_px, 4), "matched": round(h.matched, 4)}
         if h.alarm is not None:
             entry |= {"moved_at_frame": h.moved_at, "detected_at_frame": h.alarm.detected_frame, "kind": h.kind,
-                      "drift_frames": h.drift_frames, "statistic": round(h.alarm.statistic, 1)}
+                      "drift_frames": h.drift_frames, "before_take": h.before_take,
+                      "statistic": round(h.alarm.statistic, 1)}
         if h.resolved is not None:
             entry |= {"rotation_deg": round(h.resolved.turned_deg, 4), "translation_mm": round(h.resolved.moved_mm, 3),
                       "center_std_mm": round(h.resolved.center_std_mm, 3),
@@ -94,7 +95,8 @@ def _print_report(report, args) -> None:
         print(f"{h.id:<16} {h.status:<9} {h.residual_px:>11.3f} {h.matched:>8.1%}")
     for h in report.moved:
         how = (f"drifting over {h.drift_frames} frames from frame {h.moved_at}" if h.kind == "drift"
-               else f"knocked at frame {h.moved_at}")
+               else f"moved before the take began (it disagrees with {args.result} from frame {h.moved_at})"
+               if h.before_take else f"knocked at frame {h.moved_at}")
         print(f"{h.id}: {how}, named at frame {h.alarm.detected_frame}", end="")
         if h.resolved is not None:
             r = h.resolved

@@ -58,6 +58,19 @@ def test_a_knock_is_named_with_its_frame(deg, mm):
     assert abs(solved.rms_px - NOISE_PX) < 0.1  # the markers fit it as well as the noise allows
 
 
+def test_a_camera_moved_before_the_take_is_named():
+    move = CameraMove(9, 0, 0.2, 1.0)
+    sim = simulate_take(12, 500, noise_px=NOISE_PX, moves=(move,), seed=6)
+    report = watch_take(sim.rig, sim.truth.R, sim.truth.t, sim.blobs)
+    assert [h.id for h in report.moved] == ["cam10"]
+    health = report.cameras[9]
+    assert health.before_take and health.moved_at == 0 and health.kind == "knock"
+    R, t = _truth_pose(sim, move)
+    solved = health.resolved
+    err_mm = np.linalg.norm(camera_centers(solved.R[None], solved.t[None]) - camera_centers(R[None], t[None])) * 1000
+    assert err_mm < 4 * solved.center_std_mm, (err_mm, solved.center_std_mm)
+
+
 def test_a_drift_is_told_from_a_knock():
     move = CameraMove(7, 300, 0.3, 0.0, drift_frames=400)
     sim = simulate_take(12, 1200, noise_px=NOISE_PX, moves=(move,), seed=3)
