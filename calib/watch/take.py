@@ -10,32 +10,14 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import undistort_by_camera
-from wandcal.calib.rig import Rig
+from wandcal.calib.rig import Rig, WandObservations
 
 
 @dataclass(frozen=True, eq=False)
-class TakeBlobs:
-    """Unlabelled blobs of a take.
-
-    Args:
-        frame: (B,) int, synchronised frame-set index.
-        camera: (B,) int, index into ``Rig.cameras``.
-        uv: (B, 2) raw (distorted) pixels, origin top-left, y down.
-    """
-
-    frame: np.ndarray
-    camera: np.ndarray
-    uv: np.ndarray
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "frame", np.asarray(self.frame, dtype=np.int64).ravel())
-        object.__setattr__(self, "camera", np.asarray(self.camera, dtype=np.int64).ravel())
-        object.__setattr__(self, "uv", np.asarray(self.uv, dtype=float).reshape(-1, 2))
-        if not (len(self.frame) == len(self.camera) == len(self.uv)):
-            raise CalibrationError("take blobs: frame, camera and uv must have the same length")
-
-    def __len__(self) -> int:
-        return len(self.frame)
+class TakeBlobs(WandObservations):
+    """Unlabelled blobs of a take: any number a camera-frame, of any markers (the fields and their
+    checks are :class:`wandcal.calib.rig.WandObservations`': frame (B,), camera (B,) index into
+    ``Rig.cameras``, uv (B, 2) raw pixels, origin top-left, y down)."""
 
     def frames(self, first: int, stop: int) -> TakeBlobs:
         """The blobs of frames ``first <= frame < stop``."""
