@@ -140,6 +140,7 @@ def main() -> int:
              "dropped, 0.5 spurious blobs a camera-frame, markers' images nearer than 4 px merged; the standing poses "
              "are the truth except in the recovery rows. One BLAS thread; CPU seconds (process time).", ""]
     rates = [match_rate(s) for s in seeds]
+    print(f"  match rates {rates}", flush=True)
     lines += ["| measure | result | goal |", "|---|---|---|",
               f"| tracks that are one marker's blobs ({len(rates)} takes x 300 frames) | "
               f"{min(r[0] for r in rates):.2%} worst, {np.mean([r[0] for r in rates]):.2%} mean | >= 99% |",
@@ -148,6 +149,7 @@ def main() -> int:
     cpu = []
     for kind in ("0.2 deg", "2 mm", "drift"):
         runs = [detection(kind, s) for s in seeds]
+        print(f"  {kind}: {runs}", flush=True)
         cpu += [r["cpu"] for r in runs]
         delays = [r["delay"] for r in runs if r["delay"] is not None]
         lines.append(f"| {kind} {'over 400 frames' if kind == 'drift' else 'knock'} at frame {KNOCK_FRAME}: named "
@@ -167,6 +169,7 @@ def main() -> int:
             folder = Path(tmp) / f"s{s}"
             folder.mkdir()
             rec.append(recovery(s, folder))
+            print(f"  recovery {rec[-1]}", flush=True)
     rec_a = np.array(rec)
     lines.append(f"| re-solve of a 0.2 deg + 2 mm knock from a 1000-frame take, beside `--solve-only` with a 600-frame "
                  f"wand capture ({len(rec)} seeds; standing result calibrated from 1500 wand frames) | centre "
