@@ -63,6 +63,8 @@ SCALE_FAULTS = ("wand_scale",)  # ... of which these put the whole rig's scale i
 PLACEMENT_ADVICE = {
     "static_object": "record more static frames with the L-frame seen by more cameras, or use a larger L-frame",
     "axis": "digitise the axis points in more cameras and frames, or space them further apart",
+    "floor": "digitise more floor points in more cameras, spread wider over the floor",
+    "gravity": "record a longer drop seen by two or more cameras (more frames, a higher start), or drop it again",
     "wand_volume": "place an L-frame (static object) in the volume, seen by several cameras, to fix the world frame",
 }
 

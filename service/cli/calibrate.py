@@ -112,7 +112,8 @@ def _calibrated(args, progress):
     if options.sync == "auto":
         start = timestamp_start(folder, cap.rig, rate)
         options = replace(options, sync_start=tuple(int(s) for s in start) if start is not None else None)
-    return calibrate(cap.rig, cap.wand, cap.static, options=options, progress=progress, points=cap.points, axis=cap.axis)
+    return calibrate(cap.rig, cap.wand, cap.static, options=options, progress=progress, points=cap.points, axis=cap.axis,
+                     vertical=cap.vertical)
 
 
 def _solve_only(args, cap, options, progress):

@@ -16,6 +16,7 @@ MAX_SHAPE_CAMERAS = 256  # simulate --shape: stadium rings have 200+ cameras (ea
 MAX_SIM_FRAMES = 100_000
 MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
 MAX_TAKE_MARKERS = 200  # a full marker suit has ~50; a few people and props stay under this
+MAX_REFERENCE_POINTS = 10_000  # floor points or drop frames: far more than any lab digitises
 
 
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
@@ -33,6 +34,13 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
                        "length (10-120 m, default 40)")
         p.add_argument("--max-k1", type=arg_number(0, 0.1), default=0.1, metavar="K",
                        help="with --shape: largest |k1| (default 0.1)")
+        vertical = p.add_mutually_exclusive_group()
+        vertical.add_argument("--floor", type=arg_whole(3, MAX_REFERENCE_POINTS), default=None, metavar="N",
+                              help="also write floor.csv: N points on the floor, the world's vertical without an "
+                              "L-frame (use with --no-static)")
+        vertical.add_argument("--drop", type=arg_whole(5, MAX_REFERENCE_POINTS), default=None, metavar="N",
+                              help="also write drop.csv: a ball dropped through the volume, N frames at 100 fps, "
+                              "gravity as the world's vertical (use with --no-static)")
         take_args(p)
 
 
@@ -97,21 +105,39 @@ def _simulate_shape(args):
     return simulate_shape(shape, args.frames, args.noise, args.outliers, args.seed, static=not args.no_static)
 
 
-def write_simulated(folder: Path, sim) -> None:
-    """The capture folder and its truth.json."""
+def write_simulated(folder: Path, sim, vertical=None) -> None:
+    """The capture folder (with ``vertical``'s floor.csv or drop.csv when given) and its truth.json."""
     import json
 
     from wandcal.capture.folder import write_capture
 
-    write_capture(folder, sim.rig, sim.wand, sim.static)
+    write_capture(folder, sim.rig, sim.wand, sim.static, vertical=vertical)
     (folder / TRUTH_FILE).write_text(json.dumps(sim.truth.to_json(sim.rig)) + "\n")
+
+
+def simulated_vertical(args, sim):
+    """floor.csv's or drop.csv's observations that ``--floor`` or ``--drop`` ask for, or None."""
+    from wandcal.calib.errors import CalibrationError
+
+    if args.floor is None and args.drop is None:
+        return None
+    if sim.static is not None:
+        raise CalibrationError(f"--{'floor' if args.floor else 'drop'} sets the world's vertical, which the L-frame "
+                               "already sets; add --no-static")
+    import numpy as np
+
+    from wandcal.calib.sim import references
+
+    rng = np.random.default_rng([args.seed, 7])
+    X = references.floor_points(args.floor, rng) if args.floor else references.drop_track(args.drop, rng)
+    return references.observe(sim.rig, sim.truth.R, sim.truth.t, "floor" if args.floor else "drop", X, args.noise, rng)
 
 
 def run_simulate(args) -> int:
     if getattr(args, "take", False):
         return _run_take(args)
     sim = simulated(args)
-    write_simulated(args.out, sim)
+    write_simulated(args.out, sim, simulated_vertical(args, sim))
     print(f"wrote {args.out}: {len(sim.rig.cameras)} cameras, {args.frames} frames, {len(sim.wand)} wand blobs")
     return 0
 
