@@ -12,6 +12,7 @@ from here. ``calib/`` reads no files, so its core is no home for file names.
     floor.csv               points on the floor that set the world's vertical
     drop.csv                a dropped object's track that sets the world's vertical (gravity)
     blobs.csv               every blob of a live recording, before the wand filter
+    take.csv                every blob of an ordinary take, unlabelled (wandcal watch)
     sync.csv                frame, trigger count and time, each camera's timestamp
     capture.json            the recording's log (rate, cameras' figures, messages)
     frames/<camera_id>/     the wand run's images (the image level)
@@ -28,6 +29,7 @@ AXIS_FILE = "axis.csv"
 FLOOR_FILE = "floor.csv"
 DROP_FILE = "drop.csv"
 BLOBS_FILE = "blobs.csv"
+TAKE_FILE = "take.csv"
 SYNC_FILE = "sync.csv"
 LOG_FILE = "capture.json"
 FRAMES_DIR = "frames"
