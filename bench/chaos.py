@@ -99,7 +99,7 @@ class Report:
     api_restarts: int = 0
     away: dict = field(default_factory=dict)
     first_end: dict[str, tuple[str, str]] = field(default_factory=dict)  # job id: (state, result digest)
-    final: dict[str, tuple[str, str]] = field(default_factory=dict)
+    final: dict[str, tuple[str, str]] = field(default_factory=dict)  # every row at the end, as the API answers it
     unaccepted_rows: int = 0  # rows of POSTs whose answer was lost (the API killed meanwhile)
     unaccepted_unfinished: int = 0
     errors: Counter = field(default_factory=Counter)
@@ -112,15 +112,17 @@ class Report:
 
     @property
     def stuck(self) -> list[str]:
-        return [j for j, (state, _) in self.final.items() if state not in FINISHED]
+        return [j for j in self.accepted if j in self.final and self.final[j][0] not in FINISHED]
 
     @property
     def changed(self) -> list[str]:
-        """Jobs whose outcome changed after it was first seen finished: a duplicate result."""
+        """Jobs whose outcome changed after it was first seen finished: a duplicate result. Every
+        job polled counts, the rows of unanswered POSTs too (their end is compared with their own
+        row's, not taken for a lost one)."""
         return [j for j, end in self.first_end.items() if self.final.get(j) != end]
 
     def states(self) -> Counter:
-        return Counter(state for state, _ in self.final.values())
+        return Counter(self.final[j][0] for j in self.accepted if j in self.final)
 
     @property
     def ok(self) -> bool:
@@ -417,17 +419,21 @@ def _lapse_heartbeats(url: str) -> None:
     StartedJobRegistry(QUEUE, connection=Redis.from_url(url)).cleanup(timestamp=time.time() + HEARTBEAT_LAPSE_S)
 
 
-def _audit(db: Path, report: Report) -> None:
+def _audit(db: Path, server: Server, report: Report) -> None:
+    """Every row of the database at the end, read as a client reads it (GET /jobs/{id}: the digest
+    then covers the same text as the polls', the error's paths made relative to the data folder)."""
     with sqlite3.connect(db) as conn:
-        conn.row_factory = sqlite3.Row
-        rows = {r["id"]: r for r in conn.execute("SELECT id, state, result, error FROM jobs")}
-    for job_id, row in rows.items():
-        job = {"result": json.loads(row["result"]) if row["result"] else None, "error": row["error"]}
-        if job_id in set(report.accepted):
-            report.final[job_id] = (row["state"], _digest(job))
-        else:
-            report.unaccepted_rows += 1
-            report.unaccepted_unfinished += row["state"] not in FINISHED
+        rows = dict(conn.execute("SELECT id, state FROM jobs").fetchall())
+    accepted = set(report.accepted)
+    with server.client() as c:
+        for job_id, stored in rows.items():
+            job = c.get(f"/jobs/{job_id}").json()
+            if job["state"] != stored:
+                report.errors[f"GET /jobs/{{id}} answered {job['state']}, the database holds {stored}"] += 1
+            report.final[job_id] = (job["state"], _digest(job))
+            if job_id not in accepted:
+                report.unaccepted_rows += 1
+                report.unaccepted_unfinished += job["state"] not in FINISHED
 
 
 def run(plan: Plan, folder: Path) -> Report:
@@ -479,7 +485,7 @@ def run(plan: Plan, folder: Path) -> Report:
         for t in threads:
             t.join(30)
         workers.wait_idle(LOG_WAIT_S)  # a solve still running (a re-run): its end goes into the logs
-        _audit(Path(env["WANDCAL_DATA_DIR"]) / "wandcal.sqlite3", report)
+        _audit(Path(env["WANDCAL_DATA_DIR"]) / "wandcal.sqlite3", server, report)
     finally:
         halt.set()
         workers.stop()

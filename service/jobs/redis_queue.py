@@ -234,7 +234,7 @@ class RedisQueue:
         ended = job.ended_at.timestamp() if job.ended_at else time.time()
         attempts = _attempts(job, running=status != JobStatus.QUEUED)
         if status == JobStatus.FINISHED:
-            self.store.set_outcome(
+            self._mirror(
                 job_id, JobState.done, result=job.return_value(), started=started, finished=ended, attempts=attempts,
                 solve_seconds=meta.get("solve_seconds"), progress=meta.get("progress"),
             )
@@ -245,19 +245,26 @@ class RedisQueue:
             if error is None and status == JobStatus.FAILED:  # the task raised nothing: its process died
                 error = not_retried(f"{DIED} (rq: {rq_reason or 'no reason recorded'})", attempts,
                                     "the rq worker's log (and the kernel's, for the OOM killer)")
-            self.store.set_outcome(
+            self._mirror(
                 job_id, JobState.cancelled if cancelled else JobState.failed,
                 error=error or rq_reason or f"the rq job ended as {status.value}", started=started, finished=ended,
                 attempts=meta.get("attempt", attempts),
             )
         elif status == JobStatus.STARTED:
-            self.store.set_outcome(job_id, JobState.running, started=started, attempts=attempts,
+            self._mirror(job_id, JobState.running, started=started, attempts=attempts,
                                    progress=meta.get("progress"))
             self._retry_abandoned()
         elif status == JobStatus.QUEUED and attempts > 0:  # re-queued by rq after its worker died
-            self.store.set_outcome(job_id, JobState.queued, attempts=attempts,
+            self._mirror(job_id, JobState.queued, attempts=attempts,
                                    progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
         return self.store.get(job_id)
+
+    def _mirror(self, job_id: str, state: JobState, **fields) -> None:
+        """Write rq's view into the record unless the record has finished meanwhile (another poll
+        recorded the end first; a job solved twice): the first outcome is kept, this one logged."""
+        if not self.store.set_outcome(job_id, state, **fields) and state.finished:
+            log.info("job %s: a later outcome (%s) is not recorded: the record had finished first (a second "
+                     "run, or a second poll) and keeps its first outcome", job_id, state.value)
 
     def _vanished(self, record: JobRecord, grace_s: float | None = None) -> JobRecord | None:
         """A job the API accepted that Redis does not know: enqueued again from its capture (its
@@ -266,16 +273,16 @@ class RedisQueue:
         if time.time() - record.created < (VANISHED_AFTER_S if grace_s is None else grace_s):
             return record  # its enqueue may still be under way
         if record.cancel_requested:
-            self.store.set_outcome(record.id, JobState.cancelled, finished=time.time(), error=f"cancelled; {VANISHED}")
+            self._mirror(record.id, JobState.cancelled, finished=time.time(), error=f"cancelled; {VANISHED}")
             return self.store.get(record.id)
         try:
             self._enqueue(record)
         except (OSError, CalibrationError) as exc:  # the capture was deleted meanwhile
-            self.store.set_outcome(record.id, JobState.failed, finished=time.time(),
+            self._mirror(record.id, JobState.failed, finished=time.time(),
                                    error=f"{VANISHED}, and its capture cannot be read again ({exc}); submit a new job")
             return self.store.get(record.id)
         log.warning("job %s: %s; enqueued again from its capture", record.id, VANISHED)
-        self.store.set_outcome(record.id, JobState.queued, progress={"stage": "requeued", "message": f"re-queued: {VANISHED}"})
+        self._mirror(record.id, JobState.queued, progress={"stage": "requeued", "message": f"re-queued: {VANISHED}"})
         return self.store.get(record.id)
 
     def _retry_abandoned(self) -> None:

@@ -259,3 +259,44 @@ def test_a_job_that_redis_lost_is_enqueued_again_and_run_once(small_capture, sto
         (done,) = app.state.wandcal.queue.drain()
         assert done.state.value == "done" and done.result["cameras"]
         assert c.get(f"/jobs/{job_id}").json()["result"] == done.result
+
+
+@pytest.mark.parametrize("later", ["failed", "started"])
+def test_a_finished_record_keeps_its_first_outcome(small_capture, stoppable_redis, tmp_path, later, caplog):
+    """Issue 34: a poll that read the record before another poll recorded the job's end (or a job
+    solved twice, whose second run ends otherwise) must not replace the outcome recorded first."""
+    from rq.job import Job, JobStatus
+
+    from wandcal.service.jobs.records import JobState
+
+    folder, _ = small_capture
+    url, _ = stoppable_redis
+    app, c = _in_process(tmp_path, url)
+    with c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+        queue = app.state.wandcal.queue
+        stale = queue.store.get(job_id)  # what a slower poll read before the end was recorded
+        (first,) = queue.drain()
+        assert first.state.value == "done" and first.result["cameras"]
+
+        # a second run of the same rq job (re-enqueued after Redis lost it) ends otherwise or runs again
+        rq_job = Job.fetch(job_id, connection=queue.redis)
+        rq_job.meta["error"] = "a second run that failed"
+        rq_job.save_meta()
+        rq_job.set_status(JobStatus.FAILED if later == "failed" else JobStatus.STARTED)
+        reads = iter([stale])
+        real_get = queue.store.get
+        queue.store.get = lambda i: next(reads, None) or real_get(i)  # the slower poll's read, then the truth
+        with caplog.at_level("INFO", logger="wandcal.service"):
+            mirrored = queue.refresh(job_id)
+        queue.store.get = real_get
+        assert mirrored is not None and mirrored.state.value == "done" and mirrored.result == first.result
+        job = c.get(f"/jobs/{job_id}").json()
+        assert job["state"] == "done" and job["error"] is None and job["result"] == first.result
+        assert job["finished"] == first.finished and job["attempts"] == first.attempts
+        if later == "failed":
+            assert "keeps its first outcome" in caplog.text
+        # and the store refuses any mirror into a finished row
+        assert not queue.store.set_outcome(job_id, JobState.failed, error="late")
+        assert queue.store.get(job_id).state.value == "done"
