@@ -21,6 +21,7 @@ from wandcal.capture.formats.anipose_opencv import read_anipose_toml
 from wandcal.capture.formats.cameras import PosedCameras
 from wandcal.capture.formats.cameras_in import POSES_FILE
 from wandcal.capture.formats.deeplabcut import DEFAULT_MIN_LIKELIHOOD, Keypoints, read_dlc_csv, read_points_npy
+from wandcal.capture.formats.dltdv import check_size
 from wandcal.capture.formats.summary import Imported
 
 DLC_SCORER = "DLC_"  # DeepLabCut names its output <video>DLC_<network>...: the camera is in <video>
@@ -42,6 +43,7 @@ def read_anipose(toml: str | Path, points: list[str] | None = None, unit: str = 
         the import, and the TOML's cameras with their poses (metres).
     """
     toml = Path(toml)
+    check_size(toml, "calibration.toml")
     try:
         text = toml.read_text()
     except (OSError, UnicodeDecodeError) as exc:

@@ -17,6 +17,7 @@ from wandcal.capture.folder import CaptureFormatError, rig_to_json
 from wandcal.capture.formats import dlt, qualisys_vicon
 from wandcal.capture.formats.anipose_opencv import read_anipose_toml, read_opencv_yaml
 from wandcal.capture.formats.cameras import BOTTOM_LEFT, PosedCameras
+from wandcal.capture.formats.dltdv import check_size
 from wandcal.drivers.capture_files import RIG_FILE
 
 POSES_FILE = "poses.json"
@@ -47,6 +48,7 @@ def read_camera_file(path: str | Path, fmt: str | None = None, unit: str | None 
     if fmt not in CAMERA_FORMATS:
         raise CaptureFormatError(f"{path}: cannot tell its format from the extension; give --format, one of "
                                  f"{', '.join(CAMERA_FORMATS)}")
+    check_size(path, "camera file")
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:

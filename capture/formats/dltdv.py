@@ -31,8 +31,11 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import AxisObservations, Camera, PointObservations, WandObservations
-from wandcal.capture.folder import CaptureFormatError
+from wandcal.capture.folder import MAX_CSV_BYTES, CaptureFormatError
 
+# Every imported file is read whole: past this size it is refused before it is read. The capture
+# CSVs' own bound (about 2 million rows); a camera file or a keypoint table larger is not one.
+MAX_IMPORT_BYTES = MAX_CSV_BYTES
 PROFILE_MIN_COLUMNS = 7  # camera#, f, width, height, cx, cy, AR: no distortion columns
 PROFILE_COLUMNS = 12  # ... and k1, k2, t1, t2, k3
 FRAME_COLUMN_NAMES = ("source_row", "frame")
@@ -57,11 +60,24 @@ class XyTable:
     source: str
 
 
+def check_size(path: Path, what: str) -> None:
+    """Refuse ``path`` before it is read when it is larger than :data:`MAX_IMPORT_BYTES` (a read
+    of any size would allocate as much). A file that cannot be examined is left to its read."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return
+    if size > MAX_IMPORT_BYTES:
+        raise CaptureFormatError(f"{path}: {size} bytes, more than the {MAX_IMPORT_BYTES} an imported {what} may "
+                                 "hold; give a shorter recording, or keep every n-th frame")
+
+
 def read_text(path: str | Path, what: str) -> str:
-    """The text of ``path``; a missing, unreadable or binary file raises CaptureFormatError."""
+    """The text of ``path``; a missing, unreadable, binary or oversized file raises CaptureFormatError."""
     path = Path(path)
     if not path.is_file():
         raise CaptureFormatError(f"{path}: not found; give the path of the {what}")
+    check_size(path, what)
     try:
         text = path.read_bytes().decode("utf-8-sig")
     except UnicodeDecodeError:
