@@ -65,6 +65,9 @@ HEARTBEAT_LAPSE_S = 30 + 60 + 30  # rq's job-monitoring interval, its 60 s to sp
 SETTLE_S = 1800.0  # and the run ends this long after the chaos whatever happens (a backlog on a slow machine)
 POLL_S = 0.2  # the client's pause between rounds of polls of the unfinished jobs
 LOG_WAIT_S = 10.0  # at the end, how long a solve still running is given to log its end
+# The API's restart is waited for this long: a start imports the service and pings Redis, over a
+# minute on 2 cores at a load average of 30 (seen: the restart outlived the tests' 60 s, and the run hung)
+API_START_S = 600.0
 
 
 @dataclass(frozen=True)
@@ -358,7 +361,8 @@ def _outage_probe(server: Server, report: Report, job_id: str | None) -> None:
 
 def _chaos(plan: Plan, rng: random.Random, redis: RedisServer, workers: Workers, server: Server, report: Report,
            client: Client, done: threading.Event) -> None:
-    """The faults, spread over the submission: kills throughout, the rest at fixed fractions."""
+    """The faults, spread over the submission: kills throughout, the rest at fixed fractions.
+    ``done`` is set whatever happens; a fault that could not be made is counted in ``report.errors``."""
     events: list[tuple[float, str]] = [(plan.submit_s * (k + 0.5) / plan.worker_kills, "kill")
                                        for k in range(plan.worker_kills)]
     events += [(plan.submit_s * (k + 1) / (len(plan.redis_restarts) + 2), f"redis:{how}")
@@ -367,36 +371,45 @@ def _chaos(plan: Plan, rng: random.Random, redis: RedisServer, workers: Workers,
     events += [(plan.submit_s * (k + 0.3) / max(plan.api_restarts, 1), "api") for k in range(plan.api_restarts)]
     start = time.monotonic()
     kills = 0
-    for at, what in sorted(events):
-        time.sleep(max(0.0, start + at - time.monotonic()))
-        if what == "kill":
-            kills += 1
-            whole = plan.whole_worker_every > 0 and kills % plan.whole_worker_every == 0
-            deadline = time.monotonic() + 10
-            while (busy := workers.busy_horse(rng)) is None and time.monotonic() < deadline:
-                time.sleep(0.02)
-            if busy is None:
-                continue
-            time.sleep(rng.uniform(0.0, 0.3))  # somewhere in the solve or the write of its result
-            worker, horse = busy
-            if whole:
-                worker.kill()  # first, so that it cannot see its horse die and handle that itself
-                report.worker_kills += 1
-            else:
-                report.horse_kills += 1
-            _kill(horse)
-        elif what.startswith("redis:"):
-            redis.restart(what.partition(":")[2])
-            report.redis_restarts.append(what.partition(":")[2])
-        elif what == "away":
-            with client._lock:
-                some = next(iter(client.unfinished), None) or (report.accepted[0] if report.accepted else None)
-            redis.pause(plan.away_s, during=lambda: _outage_probe(server, report, some))
-        elif what == "api":
-            server.kill()
-            server.start()
-            report.api_restarts += 1
-    done.set()
+    try:
+        for at, what in sorted(events):
+            time.sleep(max(0.0, start + at - time.monotonic()))
+            if what == "kill":
+                kills += 1
+                _kill_a_worker(rng, workers, report, whole=plan.whole_worker_every > 0
+                               and kills % plan.whole_worker_every == 0)
+            elif what.startswith("redis:"):
+                redis.restart(what.partition(":")[2])
+                report.redis_restarts.append(what.partition(":")[2])
+            elif what == "away":
+                with client._lock:
+                    some = next(iter(client.unfinished), None) or (report.accepted[0] if report.accepted else None)
+                redis.pause(plan.away_s, during=lambda: _outage_probe(server, report, some))
+            elif what == "api":
+                server.kill()
+                server.start(timeout_s=API_START_S)
+                report.api_restarts += 1
+    except Exception as exc:  # the run goes on to its audit, which then fails on this
+        report.errors[f"chaos: {type(exc).__name__}: {str(exc).splitlines()[0]}"] += 1
+    finally:
+        done.set()
+
+
+def _kill_a_worker(rng: random.Random, workers: Workers, report: Report, whole: bool) -> None:
+    """SIGKILL a busy work horse (and with ``whole`` its worker first) at a random moment of its job."""
+    deadline = time.monotonic() + 10
+    while (busy := workers.busy_horse(rng)) is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    if busy is None:
+        return
+    time.sleep(rng.uniform(0.0, 0.3))  # somewhere in the solve or the write of its result
+    worker, horse = busy
+    if whole:
+        worker.kill()  # first, so that it cannot see its horse die and handle that itself
+        report.worker_kills += 1
+    else:
+        report.horse_kills += 1
+    _kill(horse)
 
 
 def upload_captures(server: Server, folder: Path, count: int) -> list[str]:
