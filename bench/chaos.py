@@ -425,11 +425,16 @@ def upload_captures(server: Server, folder: Path, count: int) -> list[str]:
 
 
 def _lapse_heartbeats(url: str) -> None:
-    """rq's abandoned-job cleanup as a worker's maintenance runs it once the heartbeats have lapsed."""
+    """rq's abandoned-job cleanup as a worker's maintenance runs it once the heartbeats have lapsed,
+    and the server's return of jobs a worker took and never started as it runs after a minute."""
     from redis import Redis
+    from rq import Queue
     from rq.registry import StartedJobRegistry
 
+    from wandcal.service.jobs.redis_queue import requeue_untaken
+
     StartedJobRegistry(QUEUE, connection=Redis.from_url(url)).cleanup(timestamp=time.time() + HEARTBEAT_LAPSE_S)
+    requeue_untaken(Queue(QUEUE, connection=Redis.from_url(url)), lapsed=True)  # and a job taken, never started
 
 
 def _audit(db: Path, server: Server, report: Report) -> None:

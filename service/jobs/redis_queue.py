@@ -254,9 +254,11 @@ class RedisQueue:
             self._mirror(job_id, JobState.running, started=started, attempts=attempts,
                                    progress=meta.get("progress"))
             self._retry_abandoned()
-        elif status == JobStatus.QUEUED and attempts > 0:  # re-queued by rq after its worker died
-            self._mirror(job_id, JobState.queued, attempts=attempts,
-                                   progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
+        elif status == JobStatus.QUEUED:
+            if attempts > 0:  # re-queued by rq after its worker died
+                self._mirror(job_id, JobState.queued, attempts=attempts,
+                             progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
+            self._retry_abandoned()  # it may be one a worker took and never started
         return self.store.get(job_id)
 
     def _mirror(self, job_id: str, state: JobState, **fields) -> None:
@@ -301,6 +303,7 @@ class RedisQueue:
         try:
             # the request thread is not the main thread: time the callback with a timer, not SIGALRM
             StartedJobRegistry(queue=self.queue, death_penalty_class=TimerDeathPenalty).cleanup()
+            requeue_untaken(self.queue)
         finally:
             self.queue.release_maintenance_lock()
 
@@ -311,6 +314,33 @@ class RedisQueue:
         SimpleWorker([self.queue], connection=self.redis).work(burst=True)
         records = [self.refresh(i) for i in ids]
         return [r for r in records if r is not None]  # all: a job has its row (JobStore.create) before it is submitted
+
+
+def requeue_untaken(queue, lapsed: bool = False) -> list[str]:
+    """Put back on ``queue`` the jobs a worker took and never started; returns their ids.
+
+    rq moves a job from the queue to an intermediate list, then into its started registry; a
+    worker that dies or loses Redis in between (its reply lost in a Redis restart) leaves the job
+    in neither: ``queued`` for ever to the record. rq's workers hand it on only at their
+    maintenance, every 10 minutes. Here it goes back once it has stayed a minute (rq's own rule;
+    ``lapsed``: at once, as if the minute had passed), within :data:`CLEANUP_EVERY_S`. It never
+    started, so no attempt is counted."""
+    intermediate = queue.intermediate_queue
+    moved = []
+    for job_id in intermediate.get_job_ids():
+        if job_id in queue.started_job_registry:
+            continue
+        first_seen_now = intermediate.set_first_seen(job_id)
+        if not lapsed and (first_seen_now or not intermediate.should_be_cleaned_up(job_id)):
+            continue
+        job = queue.fetch_job(job_id)
+        intermediate.remove(job_id)
+        if job is not None:
+            queue.enqueue_job(job)
+            log.warning("job %s: a worker took it off the queue and never started it (it died, or lost Redis); "
+                        "put back on the queue", job_id)
+            moved.append(job_id)
+    return moved
 
 
 def _last_line(text: str | None) -> str | None:

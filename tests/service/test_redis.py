@@ -300,3 +300,27 @@ def test_a_finished_record_keeps_its_first_outcome(small_capture, stoppable_redi
         # and the store refuses any mirror into a finished row
         assert not queue.store.set_outcome(job_id, JobState.failed, error="late")
         assert queue.store.get(job_id).state.value == "done"
+
+
+def test_a_job_a_worker_took_and_never_started_is_put_back(small_capture, stoppable_redis, tmp_path):
+    """rq moves a job to an intermediate list before its started registry; a worker that dies (or
+    loses Redis) in between left it in neither, queued to the record until some worker's
+    maintenance, up to 20 minutes later. The server's cleanup puts it back after rq's minute."""
+    from wandcal.service.jobs.redis_queue import requeue_untaken
+
+    folder, _ = small_capture
+    url, _ = stoppable_redis
+    app, c = _in_process(tmp_path, url)
+    with c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+        rq_queue = app.state.wandcal.queue.queue
+        redis = app.state.wandcal.queue.redis
+        redis.lmove(rq_queue.key, rq_queue.intermediate_queue_key)  # a worker's dequeue; the worker then died
+        assert rq_queue.get_job_ids() == []
+        assert requeue_untaken(rq_queue) == [] and requeue_untaken(rq_queue) == []  # seen now; not a minute yet
+        redis.set(rq_queue.intermediate_queue.get_first_seen_key(job_id), time.time() - 61)
+        assert requeue_untaken(rq_queue) == [job_id]
+        assert rq_queue.get_job_ids() == [job_id] and rq_queue.intermediate_queue.get_job_ids() == []
+        (done,) = app.state.wandcal.queue.drain()
+        assert done.id == job_id and done.state.value == "done" and done.attempts == 1
