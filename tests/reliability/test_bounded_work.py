@@ -138,10 +138,10 @@ def test_an_imported_file_over_the_limit_is_refused_before_it_is_read(tmp_path, 
     """Issue 34: the importers read a file whole, so a file of any size was an allocation of any
     size; each is now refused from its size, naming the file, as the capture CSVs are."""
     from wandcal.calib.errors import CalibrationError
-    from wandcal.capture.formats.anipose import read_anipose
-    from wandcal.capture.formats.cameras_in import read_camera_file
-    from wandcal.capture.formats.deeplabcut import read_dlc_csv, read_points_npy
-    from wandcal.capture.formats.dltdv import MAX_IMPORT_BYTES, read_text
+    from wandcal.capture.formats.cameras_in import MAX_IMPORT_BYTES, read_camera_file
+    from wandcal.capture.importers.anipose import read_anipose
+    from wandcal.capture.importers.deeplabcut import read_dlc_csv, read_points_npy
+    from wandcal.capture.importers.dltdv import read_text
 
     path = _oversized(tmp_path / name)
     read = {"cam1DLC.csv": lambda: read_dlc_csv(path), "points.npy": lambda: read_points_npy(path, 3, "calibration.toml"),

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from wandcal.capture.folder import MAX_FRAME, CaptureFormatError
-from wandcal.capture.formats.dltdv import check_size
+from wandcal.capture.formats.cameras_in import check_size
 
 # DeepLabCut's own default ``pcutoff`` (config.yaml): below it DeepLabCut's plots and videos hide
 # a keypoint as not found

@@ -31,11 +31,9 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import AxisObservations, Camera, PointObservations, WandObservations
-from wandcal.capture.folder import MAX_CSV_BYTES, CaptureFormatError
+from wandcal.capture.folder import CaptureFormatError
+from wandcal.capture.formats.cameras_in import check_size
 
-# Every imported file is read whole: past this size it is refused before it is read. The capture
-# CSVs' own bound (about 2 million rows); a camera file or a keypoint table larger is not one.
-MAX_IMPORT_BYTES = MAX_CSV_BYTES
 PROFILE_MIN_COLUMNS = 7  # camera#, f, width, height, cx, cy, AR: no distortion columns
 PROFILE_COLUMNS = 12  # ... and k1, k2, t1, t2, k3
 FRAME_COLUMN_NAMES = ("source_row", "frame")
@@ -58,18 +56,6 @@ class XyTable:
     frames: np.ndarray
     values: np.ndarray
     source: str
-
-
-def check_size(path: Path, what: str) -> None:
-    """Refuse ``path`` before it is read when it is larger than :data:`MAX_IMPORT_BYTES` (a read
-    of any size would allocate as much). A file that cannot be examined is left to its read."""
-    try:
-        size = path.stat().st_size
-    except OSError:
-        return
-    if size > MAX_IMPORT_BYTES:
-        raise CaptureFormatError(f"{path}: {size} bytes, more than the {MAX_IMPORT_BYTES} an imported {what} may "
-                                 "hold; give a shorter recording, or keep every n-th frame")
 
 
 def read_text(path: str | Path, what: str) -> str:
