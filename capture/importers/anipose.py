@@ -19,7 +19,7 @@ from wandcal.calib.rig import PointObservations, Rig, WandObservations
 from wandcal.capture.folder import Capture, CaptureFormatError
 from wandcal.capture.formats.anipose_opencv import read_anipose_toml
 from wandcal.capture.formats.cameras import PosedCameras
-from wandcal.capture.formats.cameras_in import POSES_FILE
+from wandcal.capture.formats.cameras_in import POSES_FILE, check_size
 from wandcal.capture.importers.deeplabcut import DEFAULT_MIN_LIKELIHOOD, Keypoints, read_dlc_csv, read_points_npy
 from wandcal.capture.importers.summary import Imported
 
@@ -42,6 +42,7 @@ def read_anipose(toml: str | Path, points: list[str] | None = None, unit: str = 
         the import, and the TOML's cameras with their poses (metres).
     """
     toml = Path(toml)
+    check_size(toml, "calibration.toml")
     try:
         text = toml.read_text()
     except (OSError, UnicodeDecodeError) as exc:

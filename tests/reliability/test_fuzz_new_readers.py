@@ -261,3 +261,15 @@ def test_deeplabcut_frames_out_of_range_are_refused_naming_the_line(tmp_path):
         refused_cleanly(lambda: read_dlc_csv(path), "DeepLabCut CSV: known nasty", f"{path} line 4")
         with pytest.raises(ValueError, match="out of range"):
             read_dlc_csv(path)
+
+
+def test_a_toml_number_too_long_for_python_is_refused_naming_the_file(tmp_path):
+    """Found by WANDCAL_FUZZ_SCALE=5: an integer of more than 4300 digits made tomllib raise a bare
+    ValueError (Python's limit on int-from-text), a traceback from `wandcal import`."""
+    from wandcal.calib.errors import CalibrationError
+
+    path = tmp_path / "calibration.toml"
+    path.write_text("[cam_0]\nname = \"cam1\"\nsize = [" + "7" * 5000 + ", 1024]\n")
+    for read in (lambda: read_camera_file(path), lambda: read_anipose(path, [])):
+        with pytest.raises(CalibrationError, match=r"calibration.toml: a number too long to read"):
+            read()
