@@ -65,6 +65,9 @@ HEARTBEAT_LAPSE_S = 30 + 60 + 30  # rq's job-monitoring interval, its 60 s to sp
 SETTLE_S = 1800.0  # and the run ends this long after the chaos whatever happens (a backlog on a slow machine)
 POLL_S = 0.2  # the client's pause between rounds of polls of the unfinished jobs
 LOG_WAIT_S = 10.0  # at the end, how long a solve still running is given to log its end
+# The API's restart is waited for this long: a start imports the service and pings Redis, over a
+# minute on 2 cores at a load average of 30 (seen: the restart outlived the tests' 60 s, and the run hung)
+API_START_S = 600.0
 
 
 @dataclass(frozen=True)
@@ -99,7 +102,7 @@ class Report:
     api_restarts: int = 0
     away: dict = field(default_factory=dict)
     first_end: dict[str, tuple[str, str]] = field(default_factory=dict)  # job id: (state, result digest)
-    final: dict[str, tuple[str, str]] = field(default_factory=dict)
+    final: dict[str, tuple[str, str]] = field(default_factory=dict)  # every row at the end, as the API answers it
     unaccepted_rows: int = 0  # rows of POSTs whose answer was lost (the API killed meanwhile)
     unaccepted_unfinished: int = 0
     errors: Counter = field(default_factory=Counter)
@@ -112,15 +115,17 @@ class Report:
 
     @property
     def stuck(self) -> list[str]:
-        return [j for j, (state, _) in self.final.items() if state not in FINISHED]
+        return [j for j in self.accepted if j in self.final and self.final[j][0] not in FINISHED]
 
     @property
     def changed(self) -> list[str]:
-        """Jobs whose outcome changed after it was first seen finished: a duplicate result."""
+        """Jobs whose outcome changed after it was first seen finished: a duplicate result. Every
+        job polled counts, the rows of unanswered POSTs too (their end is compared with their own
+        row's, not taken for a lost one)."""
         return [j for j, end in self.first_end.items() if self.final.get(j) != end]
 
     def states(self) -> Counter:
-        return Counter(state for state, _ in self.final.values())
+        return Counter(self.final[j][0] for j in self.accepted if j in self.final)
 
     @property
     def ok(self) -> bool:
@@ -356,7 +361,8 @@ def _outage_probe(server: Server, report: Report, job_id: str | None) -> None:
 
 def _chaos(plan: Plan, rng: random.Random, redis: RedisServer, workers: Workers, server: Server, report: Report,
            client: Client, done: threading.Event) -> None:
-    """The faults, spread over the submission: kills throughout, the rest at fixed fractions."""
+    """The faults, spread over the submission: kills throughout, the rest at fixed fractions.
+    ``done`` is set whatever happens; a fault that could not be made is counted in ``report.errors``."""
     events: list[tuple[float, str]] = [(plan.submit_s * (k + 0.5) / plan.worker_kills, "kill")
                                        for k in range(plan.worker_kills)]
     events += [(plan.submit_s * (k + 1) / (len(plan.redis_restarts) + 2), f"redis:{how}")
@@ -365,36 +371,45 @@ def _chaos(plan: Plan, rng: random.Random, redis: RedisServer, workers: Workers,
     events += [(plan.submit_s * (k + 0.3) / max(plan.api_restarts, 1), "api") for k in range(plan.api_restarts)]
     start = time.monotonic()
     kills = 0
-    for at, what in sorted(events):
-        time.sleep(max(0.0, start + at - time.monotonic()))
-        if what == "kill":
-            kills += 1
-            whole = plan.whole_worker_every > 0 and kills % plan.whole_worker_every == 0
-            deadline = time.monotonic() + 10
-            while (busy := workers.busy_horse(rng)) is None and time.monotonic() < deadline:
-                time.sleep(0.02)
-            if busy is None:
-                continue
-            time.sleep(rng.uniform(0.0, 0.3))  # somewhere in the solve or the write of its result
-            worker, horse = busy
-            if whole:
-                worker.kill()  # first, so that it cannot see its horse die and handle that itself
-                report.worker_kills += 1
-            else:
-                report.horse_kills += 1
-            _kill(horse)
-        elif what.startswith("redis:"):
-            redis.restart(what.partition(":")[2])
-            report.redis_restarts.append(what.partition(":")[2])
-        elif what == "away":
-            with client._lock:
-                some = next(iter(client.unfinished), None) or (report.accepted[0] if report.accepted else None)
-            redis.pause(plan.away_s, during=lambda: _outage_probe(server, report, some))
-        elif what == "api":
-            server.kill()
-            server.start()
-            report.api_restarts += 1
-    done.set()
+    try:
+        for at, what in sorted(events):
+            time.sleep(max(0.0, start + at - time.monotonic()))
+            if what == "kill":
+                kills += 1
+                _kill_a_worker(rng, workers, report, whole=plan.whole_worker_every > 0
+                               and kills % plan.whole_worker_every == 0)
+            elif what.startswith("redis:"):
+                redis.restart(what.partition(":")[2])
+                report.redis_restarts.append(what.partition(":")[2])
+            elif what == "away":
+                with client._lock:
+                    some = next(iter(client.unfinished), None) or (report.accepted[0] if report.accepted else None)
+                redis.pause(plan.away_s, during=lambda: _outage_probe(server, report, some))
+            elif what == "api":
+                server.kill()
+                server.start(timeout_s=API_START_S)
+                report.api_restarts += 1
+    except Exception as exc:  # the run goes on to its audit, which then fails on this
+        report.errors[f"chaos: {type(exc).__name__}: {str(exc).splitlines()[0]}"] += 1
+    finally:
+        done.set()
+
+
+def _kill_a_worker(rng: random.Random, workers: Workers, report: Report, whole: bool) -> None:
+    """SIGKILL a busy work horse (and with ``whole`` its worker first) at a random moment of its job."""
+    deadline = time.monotonic() + 10
+    while (busy := workers.busy_horse(rng)) is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    if busy is None:
+        return
+    time.sleep(rng.uniform(0.0, 0.3))  # somewhere in the solve or the write of its result
+    worker, horse = busy
+    if whole:
+        worker.kill()  # first, so that it cannot see its horse die and handle that itself
+        report.worker_kills += 1
+    else:
+        report.horse_kills += 1
+    _kill(horse)
 
 
 def upload_captures(server: Server, folder: Path, count: int) -> list[str]:
@@ -410,24 +425,33 @@ def upload_captures(server: Server, folder: Path, count: int) -> list[str]:
 
 
 def _lapse_heartbeats(url: str) -> None:
-    """rq's abandoned-job cleanup as a worker's maintenance runs it once the heartbeats have lapsed."""
+    """rq's abandoned-job cleanup as a worker's maintenance runs it once the heartbeats have lapsed,
+    and the server's return of jobs a worker took and never started as it runs after a minute."""
     from redis import Redis
+    from rq import Queue
     from rq.registry import StartedJobRegistry
 
+    from wandcal.service.jobs.redis_queue import requeue_untaken
+
     StartedJobRegistry(QUEUE, connection=Redis.from_url(url)).cleanup(timestamp=time.time() + HEARTBEAT_LAPSE_S)
+    requeue_untaken(Queue(QUEUE, connection=Redis.from_url(url)), lapsed=True)  # and a job taken, never started
 
 
-def _audit(db: Path, report: Report) -> None:
+def _audit(db: Path, server: Server, report: Report) -> None:
+    """Every row of the database at the end, read as a client reads it (GET /jobs/{id}: the digest
+    then covers the same text as the polls', the error's paths made relative to the data folder)."""
     with sqlite3.connect(db) as conn:
-        conn.row_factory = sqlite3.Row
-        rows = {r["id"]: r for r in conn.execute("SELECT id, state, result, error FROM jobs")}
-    for job_id, row in rows.items():
-        job = {"result": json.loads(row["result"]) if row["result"] else None, "error": row["error"]}
-        if job_id in set(report.accepted):
-            report.final[job_id] = (row["state"], _digest(job))
-        else:
-            report.unaccepted_rows += 1
-            report.unaccepted_unfinished += row["state"] not in FINISHED
+        rows = dict(conn.execute("SELECT id, state FROM jobs").fetchall())
+    accepted = set(report.accepted)
+    with server.client() as c:
+        for job_id, stored in rows.items():
+            job = c.get(f"/jobs/{job_id}").json()
+            if job["state"] != stored:
+                report.errors[f"GET /jobs/{{id}} answered {job['state']}, the database holds {stored}"] += 1
+            report.final[job_id] = (job["state"], _digest(job))
+            if job_id not in accepted:
+                report.unaccepted_rows += 1
+                report.unaccepted_unfinished += job["state"] not in FINISHED
 
 
 def run(plan: Plan, folder: Path) -> Report:
@@ -479,7 +503,7 @@ def run(plan: Plan, folder: Path) -> Report:
         for t in threads:
             t.join(30)
         workers.wait_idle(LOG_WAIT_S)  # a solve still running (a re-run): its end goes into the logs
-        _audit(Path(env["WANDCAL_DATA_DIR"]) / "wandcal.sqlite3", report)
+        _audit(Path(env["WANDCAL_DATA_DIR"]) / "wandcal.sqlite3", server, report)
     finally:
         halt.set()
         workers.stop()

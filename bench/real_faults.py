@@ -121,7 +121,7 @@ class Outcome:
 # -- sessions --------------------------------------------------------------------------------
 
 def _brown(session: int) -> Session:
-    from wandcal.capture.formats.easywand import read_easywand_mat
+    from wandcal.capture.importers.easywand import read_easywand_mat
 
     cap = read_easywand_mat(SHARED_DATA / BROWN / f"calibration{session}" / BROWN_MAT).capture
     targets = (0, 2) if session == 1 else (2, 3)
@@ -129,21 +129,21 @@ def _brown(session: int) -> Session:
 
 
 def _ushichka() -> Session:
-    from wandcal.capture.formats.easywand import read_easywand_mat
+    from wandcal.capture.importers.easywand import read_easywand_mat
 
     cap = read_easywand_mat(SHARED_DATA / USHICHKA / "round3_2018-07-28_easyWandData.mat", height=USHICHKA_HEIGHT).capture
     return Session("Ushichka", cap.rig, cap.wand, cap.points, cap.axis, (0, 2))
 
 
 def _svoboda() -> Session:
-    from wandcal.capture.formats.svoboda import read_svoboda
+    from wandcal.capture.importers.svoboda import read_svoboda
 
     cap = read_svoboda(SHARED_DATA / SVOBODA).capture
     return Session("MultiCamSelfCal", cap.rig, cap.wand, cap.points, cap.axis, (1, 3), moving_points=True)
 
 
 def _cpp() -> Session:
-    from wandcal.capture.formats.easywand import read_easywand_files
+    from wandcal.capture.importers.easywand import read_easywand_files
 
     d = SHARED_DATA / CPP_SAMPLE
     cap = read_easywand_files(d / "wandpts.csv", d / "RGBsetup_profile.txt", CPP_WAND_M, d / "bkgdPts.csv").capture
@@ -204,15 +204,16 @@ def with_principal(session: Session, c: int, share: float = PRINCIPAL_SHIFT) -> 
 
 def _shift_rows(frame: np.ndarray, uv: np.ndarray, offset: float) -> tuple[np.ndarray, np.ndarray]:
     """One camera's samples (frame (B,), uv (B, 2); one or two blobs a frame) as a camera
-    ``offset`` frames late would record them: at frame k the blobs of time k - offset, linear
-    between its own samples at the frames around it (each blob paired with the nearer one of the
-    next frame); frames without both neighbours are left out."""
+    ``offset`` frames late would record them (docs/result-format.md's sign: its frame k exposed
+    at the others' k + offset): at frame k the blobs of time k + offset, linear between its own
+    samples at the frames around it (each blob paired with the nearer one of the next frame);
+    frames without both neighbours are left out."""
     by_frame: dict[int, np.ndarray] = defaultdict(list)
     for f, p in zip(frame.tolist(), uv):
         by_frame[f].append(p)
     frames_out, uv_out = [], []
-    lo_shift = int(np.floor(offset))
-    w = offset - lo_shift  # time k - offset lies between frames k - lo_shift - 1 and k - lo_shift
+    lo_shift = int(np.floor(-offset))
+    w = -offset - lo_shift  # time k + offset lies between frames k - lo_shift - 1 and k - lo_shift
     for k in sorted(by_frame):
         a, b = by_frame.get(k - lo_shift - 1), by_frame.get(k - lo_shift)
         if w == 0:
@@ -241,8 +242,8 @@ def _replace_rows(obs, c: int, frame: np.ndarray, uv: np.ndarray):
 
 
 def late(session: Session, c: int, offset: float) -> Session:
-    """Camera c ``offset`` frames late (negative: early): its wand (and a moving point's) samples
-    at frame k are those of time k - offset (:func:`_shift_rows`). Only frames the shifted camera
+    """Camera c ``offset`` frames late (negative: early; docs/result-format.md): its wand (and a
+    moving point's) samples at frame k are those of time k + offset (:func:`_shift_rows`). Only frames the shifted camera
     still has in the original's range are kept."""
     out = session
     if len(session.wand):
@@ -409,8 +410,8 @@ def calibrated(session: Session):
 class Clean:
     """A session's clean run: centres (N, 3), each camera's noise_px, the rig's level, and the
     faults (kind, camera) its published data really have (the easyWand C++ sample's cam2 runs
-    0.018 frame late: taking it out lowers every camera's noise_px by 10-24%), which a case's
-    verdict may name again without being wrong."""
+    0.018 frame early, docs/result-format.md's sign: taking it out lowers every camera's noise_px
+    by 10-24%), which a case's verdict may name again without being wrong."""
 
     centres: np.ndarray
     noise_px: list[float]

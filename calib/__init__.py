@@ -10,6 +10,7 @@ for the stages and which package may import which, ``docs/architecture.md``.
 | :mod:`~wandcal.calib.start` | first poses, wand labels, the world frame |
 | :mod:`~wandcal.calib.solve` | the refinement methods (``ba``, ``lp``, ``paper``) and their back-ends |
 | :mod:`~wandcal.calib.judge` | quality, verdicts, checks against fresh captures |
+| :mod:`~wandcal.calib.watch` | ordinary takes watched with a standing calibration: matches, each camera's health, a moved camera named and re-solved (``wandcal watch``) |
 | :mod:`~wandcal.calib.run` | the stages run in order: :mod:`~wandcal.calib.run.calibrate`, :mod:`~wandcal.calib.run.refine`, :mod:`~wandcal.calib.run.resolve`, :mod:`~wandcal.calib.run.guidance`, ... |
 | :mod:`~wandcal.calib.sim` | simulated rigs and scenes |
 """

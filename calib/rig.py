@@ -311,6 +311,41 @@ class AxisObservations:
         return len(self.role)
 
 
+VERTICAL_KINDS = ("floor", "drop")
+
+
+@dataclass(frozen=True, eq=False)
+class VerticalObservations:
+    """Observations that set the world's vertical without an L-frame or axis points (as easyWand
+    and Argus offer): points on the floor (``floor.csv``), or an object dropped or thrown through
+    the volume (``drop.csv``), whose track's acceleration is gravity's.
+
+    Args:
+        kind: "floor" or "drop".
+        key: (A,) int: the floor point each row sees (floor.csv's names, numbered in order of first
+            appearance), or the frame of the dropped object (drop.csv's ``frame``).
+        camera: (A,) int, index into ``Rig.cameras``.
+        uv: (A, 2) raw pixel coordinates.
+    """
+
+    kind: str
+    key: np.ndarray
+    camera: np.ndarray
+    uv: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.kind not in VERTICAL_KINDS:
+            raise CalibrationError(f"vertical reference kind {self.kind!r} is not one of {', '.join(VERTICAL_KINDS)}")
+        object.__setattr__(self, "key", np.asarray(self.key, dtype=np.int64).ravel())
+        object.__setattr__(self, "camera", np.asarray(self.camera, dtype=np.int64).ravel())
+        object.__setattr__(self, "uv", np.asarray(self.uv, dtype=float).reshape(-1, 2))
+        if not (len(self.key) == len(self.camera) == len(self.uv)):
+            raise CalibrationError(f"{self.kind} observations: key, camera and uv must have the same length")
+
+    def __len__(self) -> int:
+        return len(self.key)
+
+
 # a message names at most this many cameras, then "and N more": six ids still read at a glance on
 # one line (a 64-camera ring's 64 ids do not); the full list stays in each camera's own entry
 LISTED_CAMERAS = 6
@@ -318,11 +353,12 @@ LISTED_CAMERAS = 6
 
 def camera_list(ids: list[str], rig_cameras: int) -> str:
     """Cameras named in a message, readable at any rig size: every id when there are at most
-    :data:`LISTED_CAMERAS` ("cam1, cam2"); "all 64 cameras" when they are the whole rig; else the
-    first few and "and N more" ("cam1, ..., cam6 and 12 more"). ids: in rig order;
-    rig_cameras: how many cameras the rig has."""
+    :data:`LISTED_CAMERAS` ("cam1 and cam2"); "all 64 cameras" when they are the whole rig; else the
+    first few and "and N more" ("cam1, ..., cam6 and 12 more"); the last two of a short list joined
+    by "and" ("cam1 and cam3", "cam1, cam2 and cam3"). ids: in rig order; rig_cameras: how many
+    cameras the rig has."""
     if len(ids) <= LISTED_CAMERAS:
-        return ", ".join(ids)
+        return " and ".join([", ".join(ids[:-1]), ids[-1]]) if len(ids) > 1 else ", ".join(ids)
     if len(ids) == rig_cameras:
         return f"all {rig_cameras} cameras"
     return f"{', '.join(ids[:LISTED_CAMERAS])} and {len(ids) - LISTED_CAMERAS} more"

@@ -20,16 +20,27 @@ from wandcal.calib.rig import (
     PointObservations,
     Rig,
     StaticObservations,
+    VerticalObservations,
     WandObservations,
 )
 from wandcal.capture.rig_file import CaptureFormatError, read_rig, rig_to_json
-from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.drivers.capture_files import (
+    AXIS_FILE,
+    DROP_FILE,
+    FLOOR_FILE,
+    POINTS_FILE,
+    RIG_FILE,
+    STATIC_FILE,
+    WAND_FILE,
+)
 
 WAND_COLUMNS = ("frame", "camera", "u", "v")
 STATIC_COLUMNS = ("camera", "u", "v")
 POINTS_COLUMNS = ("frame", "camera", "u", "v")
 POINT_COLUMN = "point"  # points.csv's optional last column: the point's name (labelled points)
 AXIS_COLUMNS = ("role", "camera", "u", "v")
+FLOOR_COLUMNS = ("point", "camera", "u", "v")
+DROP_COLUMNS = ("frame", "camera", "u", "v")
 
 
 MAX_FRAME = 2**53  # frame numbers beyond this lose precision wherever they become floats (JSON, plots)
@@ -49,6 +60,7 @@ class Capture:
     static: StaticObservations | None
     points: PointObservations | None = None
     axis: AxisObservations | None = None
+    vertical: VerticalObservations | None = None
 
 
 def parse_wand_csv(text: str, rig: Rig, source: str = WAND_FILE) -> WandObservations:
@@ -187,6 +199,53 @@ def parse_axis_csv(text: str, rig: Rig, source: str = AXIS_FILE) -> AxisObservat
     return AxisObservations(role=np.array(role, dtype=str), camera=camera, uv=uv)
 
 
+def parse_floor_csv(text: str, rig: Rig, source: str = FLOOR_FILE) -> VerticalObservations:
+    """Parse floor.csv text (``point,camera,u,v``: each floor point by name, once per camera that sees it)."""
+    rows = _rows(text, FLOOR_COLUMNS, source)
+    lookup = {cid: i for i, cid in enumerate(rig.ids)}
+    names: dict[str, int] = {}
+    seen: dict[tuple[int, int], int] = {}
+    key, camera, uv = np.empty(len(rows), dtype=np.int64), np.empty(len(rows), dtype=np.int64), np.empty((len(rows), 2))
+    for k, (line, row) in enumerate(rows):
+        name = (row["point"] or "").strip()
+        if not name:
+            raise CaptureFormatError(f"{source} line {line}, column 'point': empty; name each floor point")
+        key[k] = names.setdefault(name, len(names))
+        camera[k] = _camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
+        uv[k] = _float_cell(row["u"], f"{source} line {line}, column 'u'"), _float_cell(
+            row["v"], f"{source} line {line}, column 'v'")
+        first = seen.setdefault((int(key[k]), int(camera[k])), line)
+        if first != line:
+            raise CaptureFormatError(f"{source} line {line}: camera {rig.ids[camera[k]]!r} already has floor point "
+                                     f"{name!r} (line {first}); give each floor point once per camera")
+    return VerticalObservations("floor", key, camera, uv)
+
+
+def parse_drop_csv(text: str, rig: Rig, source: str = DROP_FILE) -> VerticalObservations:
+    """Parse drop.csv text (``frame,camera,u,v``: the dropped object, one blob per camera and frame)."""
+    frame, camera, uv = _frame_table(text, rig, DROP_COLUMNS, source)
+    pairs = frame.astype(np.int64) * len(rig.cameras) + camera
+    unique, counts = np.unique(pairs, return_counts=True)
+    if len(unique) < len(pairs):
+        twice = int(unique[np.argmax(counts > 1)])
+        raise CaptureFormatError(f"{source}: camera {rig.ids[twice % len(rig.cameras)]!r} has two blobs in frame "
+                                 f"{twice // len(rig.cameras)}; give the dropped object once per camera and frame")
+    return VerticalObservations("drop", frame, camera, uv)
+
+
+def _read_vertical(folder: Path, rig: Rig) -> VerticalObservations | None:
+    """floor.csv or drop.csv, or None; both at once are refused (keep the one that sets the vertical)."""
+    floor_path, drop_path = folder / FLOOR_FILE, folder / DROP_FILE
+    if floor_path.is_file() and drop_path.is_file():
+        raise CaptureFormatError(f"{drop_path}: the world's vertical is set by {FLOOR_FILE} and by {DROP_FILE} in "
+                                 "this capture; keep one of them (the other would be ignored)")
+    if floor_path.is_file():
+        return parse_floor_csv(_read_text(floor_path), rig, str(floor_path))
+    if drop_path.is_file():
+        return parse_drop_csv(_read_text(drop_path), rig, str(drop_path))
+    return None
+
+
 def read_capture(folder: str | Path) -> Capture:
     """Read a points-level capture folder: rig.json, wand.csv, and the optional static.csv,
     points.csv and axis.csv. A capture with points.csv may have no wand (no ``wand.length_m``,
@@ -224,7 +283,13 @@ def read_capture(folder: str | Path) -> Capture:
             f"{axis_path}: the world frame is set by {STATIC_FILE} (the static object) and by {AXIS_FILE} (axis "
             f"points) in this capture; keep one of them (the other would be ignored)"
         )
-    return Capture(rig=rig, wand=wand, static=static, points=points, axis=axis)
+    vertical = _read_vertical(folder, rig)
+    if vertical is not None and len(vertical) and ((static is not None and len(static.camera))
+                                                   or (axis is not None and len(axis.camera))):
+        given = STATIC_FILE if static is not None and len(static.camera) else AXIS_FILE
+        raise CaptureFormatError(f"{folder / (vertical.kind + '.csv')}: the world frame is set by {given} in this "
+                                 f"capture; keep one of them (the other would be ignored)")
+    return Capture(rig=rig, wand=wand, static=static, points=points, axis=axis, vertical=vertical)
 
 
 def check_capture(capture: Capture, source: str) -> None:
@@ -267,9 +332,11 @@ def write_capture(
     static: StaticObservations | None,
     points: PointObservations | None = None,
     axis: AxisObservations | None = None,
+    vertical: VerticalObservations | None = None,
 ) -> None:
     """Write the points level of a capture folder, creating it if needed. wand.csv is always
-    written (header only for a capture without a wand); points.csv and axis.csv when given."""
+    written (header only for a capture without a wand); points.csv, axis.csv and floor.csv or
+    drop.csv when given."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / RIG_FILE).write_text(json.dumps(rig_to_json(rig), indent=2) + "\n")
@@ -287,6 +354,11 @@ def write_capture(
                    ([int(f), ids[c], *px(uv)] for f, c, uv in zip(points.frame, points.camera, points.uv)))
     if axis is not None:
         _write_csv(folder / AXIS_FILE, AXIS_COLUMNS, ([str(r), ids[c], *px(uv)] for r, c, uv in zip(axis.role, axis.camera, axis.uv)))
+    if vertical is not None:
+        name, columns = (FLOOR_FILE, FLOOR_COLUMNS) if vertical.kind == "floor" else (DROP_FILE, DROP_COLUMNS)
+        key = (lambda k: f"p{k + 1}") if vertical.kind == "floor" else int
+        _write_csv(folder / name, columns,
+                   ([key(k), ids[c], *px(uv)] for k, c, uv in zip(vertical.key, vertical.camera, vertical.uv)))
 
 
 def csv_records(data: bytes) -> list[bytes]:
@@ -307,7 +379,7 @@ def _write_csv(path: Path, columns: tuple[str, ...], rows) -> None:
 
 def save_capture(folder: str | Path, capture: Capture) -> None:
     """Write every part of ``capture`` (see :func:`write_capture`)."""
-    write_capture(folder, capture.rig, capture.wand, capture.static, capture.points, capture.axis)
+    write_capture(folder, capture.rig, capture.wand, capture.static, capture.points, capture.axis, capture.vertical)
 
 
 def _read_text(path: Path) -> str:

@@ -194,7 +194,8 @@ RESULT_FIELDS: dict[str, Check] = {
                   "placement": obj({"origin_std_mm": NON_NEGATIVE, "axes_std_deg": NON_NEGATIVE})}),
     "dropped": counts,
     "verdict": obj(VERDICT_FIELDS | {"faults": items(obj(FAULT_FIELDS, nullable=False)),
-                                     "placement": either(obj(VERDICT_FIELDS), text())}),
+                                     # a world no object placed has no grade (null level, calib/judge/verdict.py)
+                                     "placement": either(obj(VERDICT_FIELDS | {"level": text()}), text())}),
     "warnings": TEXTS,
 }
 

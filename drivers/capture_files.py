@@ -9,7 +9,10 @@ from here. ``calib/`` reads no files, so its core is no home for file names.
     static.csv              the static object's blobs per camera
     points.csv              labelled or unlabelled points (a capture without a wand)
     axis.csv                axis points that set the world frame
+    floor.csv               points on the floor that set the world's vertical
+    drop.csv                a dropped object's track that sets the world's vertical (gravity)
     blobs.csv               every blob of a live recording, before the wand filter
+    take.csv                every blob of an ordinary take, unlabelled (wandcal watch)
     sync.csv                frame, trigger count and time, each camera's timestamp
     capture.json            the recording's log (rate, cameras' figures, messages)
     frames/<camera_id>/     the wand run's images (the image level)
@@ -23,7 +26,10 @@ WAND_FILE = "wand.csv"
 STATIC_FILE = "static.csv"
 POINTS_FILE = "points.csv"
 AXIS_FILE = "axis.csv"
+FLOOR_FILE = "floor.csv"
+DROP_FILE = "drop.csv"
 BLOBS_FILE = "blobs.csv"
+TAKE_FILE = "take.csv"
 SYNC_FILE = "sync.csv"
 LOG_FILE = "capture.json"
 FRAMES_DIR = "frames"

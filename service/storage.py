@@ -25,6 +25,8 @@ from wandcal.capture.folder import (
     CaptureFormatError,
     check_wandless,
     parse_axis_csv,
+    parse_drop_csv,
+    parse_floor_csv,
     parse_points_csv,
     parse_static_csv,
     parse_wand_csv,
@@ -33,11 +35,19 @@ from wandcal.capture.folder import (
     save_capture,
 )
 from wandcal.capture.rig_file import load_json, rig_from_json
-from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.drivers.capture_files import (
+    AXIS_FILE,
+    DROP_FILE,
+    FLOOR_FILE,
+    POINTS_FILE,
+    RIG_FILE,
+    STATIC_FILE,
+    WAND_FILE,
+)
 from wandcal.service.db import connect, transaction
 
 CAPTURE_ID = re.compile(r"^[0-9a-f]{32}$")
-CAPTURE_FILES = (RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE)  # what read_capture opens
+CAPTURE_FILES = (RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE, FLOOR_FILE, DROP_FILE)  # what read_capture opens
 WAND_PAIR = 2  # a camera image showing exactly the wand's two markers contributes a wand observation
 
 
@@ -117,9 +127,10 @@ class CaptureStore:
     # -- creating -----------------------------------------------------------------------------
     def create_from_texts(
         self, rig_text: str, wand_text: str | None, static_text: str | None, name: str = "upload",
-        points_text: str | None = None, axis_text: str | None = None,
+        points_text: str | None = None, axis_text: str | None = None, vertical: tuple[str, str] | None = None,
     ) -> CaptureRow:
-        """Validate uploaded rig.json / wand.csv / static.csv / points.csv / axis.csv texts and store them."""
+        """Validate uploaded rig.json / wand.csv / static.csv / points.csv / axis.csv texts and store them;
+        ``vertical``: (file name, text) of floor.csv or drop.csv."""
         rig = rig_from_json(load_json(rig_text, RIG_FILE), allow_no_wand=points_text is not None)
         wand = parse_wand_csv(wand_text, rig) if wand_text is not None else _no_wand()
         points = parse_points_csv(points_text, rig) if points_text is not None else None
@@ -134,7 +145,8 @@ class CaptureStore:
                     "static.csv: static blobs are given but rig.json has no 'static_object.markers_m'; "
                     "add the static object's marker coordinates or leave static.csv out"
                 )
-        return self._store(Capture(rig=rig, wand=wand, static=static, points=points, axis=axis),
+        up = _vertical(rig, vertical, static is not None, axis is not None)
+        return self._store(Capture(rig=rig, wand=wand, static=static, points=points, axis=axis, vertical=up),
                            "upload" if wand_text or points_text else "stream", name)
 
     def create_from_replay(self, path: str) -> CaptureRow:
@@ -333,3 +345,15 @@ class CaptureStore:
         if not self.root.is_dir():
             return []
         return sorted(p.name for p in self.root.iterdir() if p.is_dir() and CAPTURE_ID.match(p.name))
+
+
+def _vertical(rig, given: tuple[str, str] | None, has_static: bool, has_axis: bool):
+    """An uploaded floor.csv or drop.csv, parsed; refused beside static.csv or axis.csv, which set the frame."""
+    if given is None:
+        return None
+    name, text = given
+    if has_static or has_axis:
+        other = STATIC_FILE if has_static else AXIS_FILE
+        raise CaptureFormatError(f"{name}: the world frame is set by {other} in this upload; leave one of them out "
+                                 "(the other would be ignored)")
+    return (parse_floor_csv if name == FLOOR_FILE else parse_drop_csv)(text, rig)

@@ -12,5 +12,6 @@
 | :mod:`~wandcal.calib.judge.leave_one_out` | rigs of 3-5 cameras: each camera against the points the others triangulate (lens, moved) |
 | :mod:`~wandcal.calib.judge.intrinsic_limits` | the honest sigma: each camera's centre per 1% of a focal length given, not refined |
 | :mod:`~wandcal.calib.judge.timing_pairs` | a camera out of time, found from every pair of cameras (whole-frame shift, then its fraction) |
+| :mod:`~wandcal.calib.judge.start_timing` | a start refused because a camera is out of time: the shift that places it, named with ``--sync auto`` |
 | :mod:`~wandcal.calib.judge.crb` | the Cramér-Rao bound of the poses, for tests and benchmarks |
 """

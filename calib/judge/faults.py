@@ -5,10 +5,12 @@ A camera is judged against wand ends the *other* cameras triangulate
 points towards itself. Two patterns of its residuals ``r = projected - observed`` (normalised
 image coordinates) name a cause:
 
-- **timing**: a camera ``d`` frames late shows at frame k the wand of frame k - d, so
-  ``r ~ d v`` with ``v`` the wand's image velocity per frame. A whole-frame search finds the best
-  shift, and least squares on ``v`` the fraction: ``d = sum(r . v) / sum(v . v)`` with standard error
-  ``sigma / sqrt(sum |v|^2)``;
+- **timing**: a camera ``d`` frames late (docs/result-format.md's sign, as ``--sync auto``
+  reports it) exposes its frame k at the others' time k + d and shows the wand of then, so
+  ``r ~ -d v`` with ``v`` the wand's image velocity per frame. A whole-frame search finds the best
+  shift, and least squares on ``v`` the fraction: ``d = -sum(r . v) / sum(v . v)`` with standard
+  error ``sigma / sqrt(sum |v|^2)``. It is named by its effect in pixels, not by a fraction of a
+  frame: at 10 Hz a twelfth of a frame moves the blobs 3 px, at 200 Hz a third of one may not;
 - **intrinsics**: with its focal length off by a factor ``1 + a`` the observations are scaled
   about the principal point, ``r ~ a x``; a radial-distortion error gives ``r ~ dk1 |x|^2 x``; a
   principal point error a constant. Least squares of ``r`` on these columns beside the camera's
@@ -41,7 +43,10 @@ MIN_T_STAT = 5.0  # and its coefficient is this many standard errors from zero
 # sessions). Beyond this F a smaller share names the lens too.
 LENS_STRONG_F = 100.0
 LENS_HIDDEN_SHARE = 0.05
-MIN_OFFSET_FRAMES = 0.1  # an offset under a tenth of a frame is within what a trigger's jitter gives
+# an offset is named when, at the wand's median image speed, it moves the camera's blobs by at
+# least this many of its residual's sigmas (left after the fit): whatever the frame rate, an
+# offset that moves the blobs less than the noise cannot be told from it (as timing_pairs.MIN_EFFECT)
+MIN_EFFECT_SIGMAS = 0.5
 POSE_STEP = 1e-6  # finite-difference step of the pose columns, radians and metres
 # observations a camera's lens screen looks at (evenly spaced in the capture): a pattern that
 # holds 20% of the variance has an F statistic in the hundreds at 1,500 already
@@ -50,13 +55,16 @@ SCREEN_ROWS = 1500
 
 @dataclass(frozen=True)
 class TimingFault:
-    """offset_frames: the camera shows at frame k the wand of frame k - offset (positive: late);
-    offset_std_frames its standard error; explained: the share of the residual variance it explains."""
+    """offset_frames: the camera's frame k was exposed at the others' frame k + offset (positive:
+    late, docs/result-format.md); offset_std_frames its standard error; explained: the share of
+    the residual variance it explains; effect_sigmas: how far the offset moves the camera's blobs
+    at the wand's median image speed, in sigmas of the residual left after the fit."""
 
     offset_frames: float
     offset_std_frames: float
     explained: float
     observations: int
+    effect_sigmas: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -70,6 +78,13 @@ class Lens:
     principal_error: tuple[float, float]
     explained: float
     f_stat: float
+
+
+def offset_text(offset: float, std: float) -> str:
+    """"0.0185 +- 0.0018 frames early": an offset (frames, positive: late) and its standard error,
+    to the decimals that show the error's first two digits (two at least)."""
+    decimals = 2 if not np.isfinite(std) or std <= 0 else int(np.clip(1 - np.floor(np.log10(std)), 2, 6))
+    return f"{abs(offset):.{decimals}f} +- {std:.{decimals}f} frames {'late' if offset > 0 else 'early'}"
 
 
 def _project(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -205,8 +220,12 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
         np.concatenate([pose, v[keep].reshape(-1, 1)], axis=1), y, rcond=None)[0]
     sigma = np.sqrt(np.sum(left**2) / max(len(y) - 7, 1))
     vv = np.einsum("ki,ki->", v[keep], v[keep])
-    timing = TimingFault(offset_frames=best + frac, offset_std_frames=float(sigma / np.sqrt(vv)) if vv > 0 else np.inf,
-                    explained=float(max(share, whole)) if rss_best > 0 else 0.0, observations=int(keep.sum()))
+    speed = float(np.median(np.linalg.norm(v[keep], axis=1)))
+    # c's frame k matched the others' k - best - frac: exposed then (docs/result-format.md's sign)
+    offset = -(best + frac)
+    timing = TimingFault(offset_frames=offset, offset_std_frames=float(sigma / np.sqrt(vv)) if vv > 0 else np.inf,
+                         explained=float(max(share, whole)) if rss_best > 0 else 0.0, observations=int(keep.sum()),
+                         effect_sigmas=abs(offset) * speed / sigma if sigma > 0 else np.inf)
     return timing, _lens_fit(y, pose, xy[keep])
 
 
@@ -228,8 +247,9 @@ def classify(timing: TimingFault | None, lens: Lens | None) -> tuple[str, dict]:
     if timing is not None:
         evidence["timing"] = {"offset_frames": round(timing.offset_frames, 3),
                               "offset_std_frames": round(timing.offset_std_frames, 4),
-                              "explained_share": round(timing.explained, 3)}
-        if (abs(timing.offset_frames) >= MIN_OFFSET_FRAMES
+                              "explained_share": round(timing.explained, 3),
+                              "effect_sigmas": round(timing.effect_sigmas, 2)}
+        if (timing.effect_sigmas >= MIN_EFFECT_SIGMAS
                 and abs(timing.offset_frames) >= MIN_T_STAT * timing.offset_std_frames):
             timing_share = timing.explained
     if lens is not None:

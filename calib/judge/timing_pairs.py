@@ -5,8 +5,9 @@ camera's wand ends triangulated by two other cameras in many frames. Sparse, han
 sessions do not have them: Brown's cameras share 2-8 such frames, while every frame a camera shares
 with *one* other still holds the timing. Two cameras that see a point at the same time see it on
 each other's epipolar lines (``x_c^T E x_d = 0``, ``E = [t_cd]x R_cd`` from the final poses, which
-the static background points pin where there are any); a camera ``delta`` frames late records at
-frame k where the point was at time ``k - delta``.
+the static background points pin where there are any). Offsets follow docs/result-format.md's
+convention, as ``--sync auto`` reports them: a camera ``delta`` frames late (positive) exposes its
+frame k at the others' time ``k + delta``, so it records there where the point was at ``k + delta``.
 
 - **Whole frames**: each camera's samples shifted by ``s`` frames against all the others',
   ``|s| <=`` :data:`MAX_SHIFT`; the median Sampson distance of its pairs at each shift. A camera
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wandcal.calib.judge.faults import MIN_T_STAT, offset_text
 from wandcal.calib.observations import PointTracks, WandPairs
 
 MAX_SHIFT = 3  # whole frames searched either way
@@ -39,20 +41,24 @@ MIN_PAIRS = 10  # pair samples of a camera before its timing is judged
 # share of the unshifted one; and no other camera's improves nearly as much (COMPARE_MARGIN)
 WHOLE_GAIN = 0.5
 COMPARE_MARGIN = 1.5
-# a fractional offset is named at this many standard errors from the other cameras' ...
-MIN_T = 8.0
+# a fractional offset is named at this many standard errors from the other cameras' (the
+# reference's own error included), the significance the suspect screen asks of a pattern
+# (faults.MIN_T_STAT); on a solve the late camera bent, the pairs' residual holds the bend too,
+# so its standard error is already on the large side ...
+MIN_T = MIN_T_STAT
 # ... explaining this share of the camera's pairs' residual ...
 MIN_SHARE = 0.3
 # ... and moving its blobs, at the median speed, by this share of its pairs' residual scatter
 MIN_EFFECT = 0.5
+MIN_PAIR_ROWS = 8  # rows of a pair of cameras before its own scatter weighs them (_pair_scales)
 TRIM = 5.0  # rows beyond this many robust sigmas are left out of the fit (a mislabelled end)
 
 
 @dataclass(frozen=True)
 class CameraTiming:
-    """A camera's offset against the others, frames (positive: late, it records at frame k what
-    the others saw at k - offset): ``whole`` the whole-frame part, ``offset`` in all, ``std`` its
-    standard error; ``explained`` the share of its pairs' residual the offset explains;
+    """A camera's offset against the others, frames (docs/result-format.md: positive is late, its
+    frame k exposed at the others' frame k + offset, as ``--sync auto`` reports it): ``whole`` the
+    whole-frame part, ``offset`` in all, ``std`` its standard error; ``explained`` the share of its pairs' residual the offset explains;
     ``effect_px`` how far the offset moves its blobs at the median speed; ``pairs`` samples."""
 
     camera: int
@@ -248,6 +254,26 @@ def _fit(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return delta, keep
 
 
+def _pair_scales(first: np.ndarray, second: np.ndarray, A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(J,) each row's noise scale: the robust scatter of its pair of cameras' rows about their own
+    fit (the pair's two offsets free). A camera out of time bends the solve, and the pairs it is
+    in scatter several times more than the others; weighted alike, a pair of two cameras in time
+    that holds fewer rows could not outvote them, and the offset could go to the wrong camera of
+    a pair. Pairs of under :data:`MIN_PAIR_ROWS` rows take the median pair's scale."""
+    out = np.full(len(y), np.nan)
+    pair = first * A.shape[1] + second
+    for p in np.unique(pair):
+        rows = pair == p
+        if rows.sum() < MIN_PAIR_ROWS:
+            continue
+        cols = A[rows][:, [first[rows][0], second[rows][0]]]
+        r = y[rows] - cols @ np.linalg.lstsq(cols, y[rows], rcond=None)[0]
+        out[rows] = 1.4826 * np.median(np.abs(r))
+    fallback = float(np.nanmedian(out)) if np.isfinite(out).any() else 1.0
+    out = np.where(np.isfinite(out) & (out > 0), out, fallback)
+    return np.maximum(out, 1e-12)
+
+
 def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None,
                    focal: np.ndarray) -> list[CameraTiming]:
     """Every camera's offset against the others (whole frames, then the fraction by the velocity
@@ -267,11 +293,13 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
     A = np.zeros((len(y), n))
     A[np.arange(len(y)), first] = rows.a[usable]
     A[np.arange(len(y)), second] = rows.b[usable]
+    scale = _pair_scales(first, second, A, y)
+    A, y = A / scale[:, None], y / scale
     delta, keep = _fit(A, y)
     A, y, first, second = A[keep], y[keep], first[keep], second[keep]
     sigma = float(np.sqrt(np.mean((y - A @ delta) ** 2)))
     reference = float(np.median(delta))  # the cameras on time are the majority
-    out = []
+    found = {}
     for c in range(n):
         mine = (first == c) | (second == c)
         if mine.sum() < MIN_PAIRS:
@@ -284,10 +312,17 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
             continue
         own = float(col @ other) / gram
         before, after = float(other @ other), float(((other - col * own) ** 2).sum())
-        offset = float(shifts[c] + own)
-        out.append(CameraTiming(c, int(shifts[c]), offset, float(sigma / np.sqrt(gram)),
-                                1 - after / before if before > 0 else 0.0,
-                                abs(offset) * _speed(by_camera[c]) * float(focal[c]), int(mine.sum())))
+        found[c] = (own, sigma / np.sqrt(gram), 1 - after / before if before > 0 else 0.0, int(mine.sum()))
+    out = []
+    for c, (own, own_std, explained, pairs) in found.items():
+        # against the reference (the others' median), whose own error adds: the variance of a mean of the others
+        others = [v[1] ** 2 for d, v in found.items() if d != c]
+        std = float(np.sqrt(own_std**2 + (np.mean(others) / len(others) if others else 0.0)))
+        # docs/result-format.md's sign: the pairs matched c's frame k + shift with the others' k, so
+        # c's frame k was exposed at the others' k - shift - own
+        offset = -float(shifts[c] + own)
+        out.append(CameraTiming(c, -int(shifts[c]), offset, std, explained,
+                                abs(offset) * _speed(by_camera[c]) * float(focal[c]), pairs))
     return out
 
 
@@ -317,8 +352,8 @@ def timing_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPa
     return [{"kind": "timing", "camera": cam, "evidence": {"timing": {
         "offset_frames": round(d, 4), "offset_std_frames": round(best.std, 4), "whole_frames": best.whole,
         "explained_share": round(best.explained, 3), "effect_px": round(best.effect_px, 2), "pairs": best.pairs}},
-        "message": f"{cam} is out of time: its samples match the other cameras' {abs(d):.2f} +- {best.std:.2f} frames "
-                   f"{'late' if d > 0 else 'early'}{whole} (offset {d:+.2f}: positive is late), which moves its blobs "
+        "message": f"{cam} is out of time: its samples match the other cameras' {offset_text(d, best.std)}{whole} "
+                   f"(offset {d:+.2f}: positive is late), which moves its blobs "
                    f"{best.effect_px:.1f} px at the wand's median speed; check its trigger cable and settings, or "
                    f"calibrate with its offset (--sync auto)"}]
 

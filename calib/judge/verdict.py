@@ -55,24 +55,81 @@ WAND_STD_PERCENT = (0.5, 1.0)
 # wand-length spread over the volume's size: Qualisys asks for an SD of 1-2 mm or better on a
 # full-body volume (3-5 m across): 3e-4 is 1 mm at 3.3 m, 1e-3 is 2 mm at 2 m
 WAND_STD_OF_VOLUME = (3e-4, 1e-3)
+# a criterion's standard error (docs/verdict.md, "At the limit"): a sigma from the solver's
+# covariance (a camera's geometry, the world's placement) varies by 4-14% of itself (median 11%)
+# between random halves of Brown 1, Brown 2 and Ushichka, scaled to the whole session; the
+# noise-level estimate alone would say 1-5%: a camera's sigma hinges on its few best-placed frames
+SIGMA_REL_SE = 0.11
+MAD_SIGMA_REL_SE = 1.166  # over sqrt(n): the MAD-based sigma's asymptotic standard error (Gaussian)
 # sanity checks every method's result must pass
 WAND_LENGTH_TOLERANCE = 0.05  # the free wand's mean length within 5% of the given length
 BELOW_FLOOR_M = 0.0  # a camera centre under the floor (z < 0 in a static object's or axis frame)
 PLACEMENT_FAULTS = ("wand_scale", "static_markers")  # faults of the object that places the world
 SCALE_FAULTS = ("wand_scale",)  # ... of which these put the whole rig's scale in doubt too
+WAND_SPREAD_ADVICE = "look for a bent wand or loose markers, and check the cameras' intrinsics"
+# the first instruction for a fault of the inputs, which its message explains
+FAULT_ADVICE = {
+    "wand_scale": "measure the wand's length (wand.length_m) and the L-frame's marker spacing (static_object.markers_m) "
+                  "again and correct rig.json; then calibrate again",
+    "static_markers": "check static_object.markers_m in rig.json against the L-frame, and that it is flat and not bent",
+}
 PLACEMENT_ADVICE = {
     "static_object": "record more static frames with the L-frame seen by more cameras, or use a larger L-frame",
     "axis": "digitise the axis points in more cameras and frames, or space them further apart",
+    "floor": "digitise more floor points in more cameras, spread wider over the floor",
+    "gravity": "record a longer drop seen by two or more cameras (more frames, a higher start), or drop it again",
     "wand_volume": "place an L-frame (static object) in the volume, seen by several cameras, to fix the world frame",
 }
 
 
-def _grade(value: float | None, limits: tuple[float, float], higher_is_better: bool = False) -> int:
+def _grade(value: float | None, limits: tuple[float, float], higher_is_better: bool = False, std: float = 0.0) -> int:
+    """0, 1 or 2 (excellent, good, poor): how many of ``limits`` the value passes by more than
+    ``std``, its own standard error (0: by any margin)."""
     if value is None or not np.isfinite(value):
         return 0
-    if higher_is_better:
-        return 0 if value >= limits[0] else 1 if value >= limits[1] else 2
-    return 0 if value <= limits[0] else 1 if value <= limits[1] else 2
+    sign = -1.0 if higher_is_better else 1.0
+    return int(sum(sign * (value - limit) > std for limit in limits))
+
+
+def _at_limit(value: float | None, limits: tuple[float, float], std: float) -> int | None:
+    """The index of the limit that ``value`` is within its standard error ``std`` of (the level
+    there is the better one, :func:`_grade`), or None."""
+    if value is None or not np.isfinite(value) or not std > 0:
+        return None
+    return next((k for k, limit in enumerate(limits) if abs(value - limit) <= std), None)
+
+
+def rms_std(value: float | None, n: int) -> float:
+    """Standard error of an RMS or a standard deviation of ``n`` Gaussian samples: value / sqrt(2 (n - 1))."""
+    return 0.0 if value is None or n < 2 else float(value) / np.sqrt(2.0 * (n - 1))
+
+
+def share_std(share: float | None, n: int) -> float:
+    """Binomial standard error of a share of ``n``."""
+    return 0.0 if share is None or n < 1 else float(np.sqrt(share * (1.0 - share) / n))
+
+
+def stability_entry(criterion: str, camera: str | None, value: float, limits: tuple[float, float], std: float,
+                    unit: str, higher_is_better: bool = False) -> dict | None:
+    """A criterion within its standard error of a limit, for the verdict's ``at_limit``: {"criterion",
+    "camera", "value", "limit", "std", "unit", "levels"}, ``levels`` the two it lies between (it
+    takes the better one); None when it is clear of both limits."""
+    k = _at_limit(value, limits, std)
+    if k is None:
+        return None
+    return {"criterion": criterion, "camera": camera, "value": _round(value), "limit": _round(limits[k]),
+            "std": _round(std), "unit": unit, "levels": [LEVELS[k], LEVELS[k + 1]]}
+
+
+def _round(x: float) -> float:
+    return float(f"{float(x):.4g}")
+
+
+def at_limit_text(entry: dict) -> str:
+    """'at the limit of poor (0.84 +- 0.09 mm against 0.83 mm)'."""
+    unit = entry["unit"]
+    return (f"at the limit of {entry['levels'][1]} ({entry['value']:.3g} +- {entry['std']:.2g} {unit} against "
+            f"{entry['limit']:.3g} {unit})").replace(" % ", "% ").replace(" %)", "%)")
 
 
 def coverage_reports(rig: Rig, camera: np.ndarray, uv: np.ndarray) -> list[dict]:
@@ -90,8 +147,37 @@ def _limits(limits: tuple[float, ...], fmt: str, higher: bool = False) -> str:
     return f"excellent {op} {format(limits[0], fmt)}, good {op} {format(limits[1], fmt)}"
 
 
+class _Checks:
+    """A verdict's criteria as they are graded: (criterion, grade, reason with ``{level}``, advice)
+    and the ones within their standard error of a limit (:func:`stability_entry`)."""
+
+    def __init__(self, camera: str | None) -> None:
+        self.camera = camera
+        self.rows: list[tuple[str, int, str, str]] = []
+        self.at_limit: list[dict] = []
+
+    def add(self, name: str, value: float | None, limits: tuple[float, float], text: str, advice: str, *,
+            std: float = 0.0, shown: tuple[float, str] = (1.0, ""), higher: bool = False, cap: int = 2) -> int:
+        """Grade ``value`` against ``limits`` with its standard error ``std``; ``shown``: (factor, unit)
+        that put the value, limits and error in the reason's units. Returns the grade."""
+        grade = min(_grade(value, limits, higher, std), cap)
+        factor, unit = shown
+        entry = None if value is None else stability_entry(name, self.camera, factor * value,
+                                                           (factor * limits[0], factor * limits[1]), factor * std, unit, higher)
+        if entry is not None:
+            self.at_limit.append(entry)
+            text = text.replace("{level}", "{level}, " + at_limit_text(entry))
+        self.rows.append((name, grade, text, advice))
+        return grade
+
+
 def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_px: float | None) -> dict:
-    """One camera's verdict from its result entry: {"level", "reasons", "advice"}.
+    """One camera's verdict from its result entry: {"level", "reasons", "advice",
+    "short_of_excellent", "at_limit"}.
+
+    A criterion changes level only where it passes its limit by more than its own standard error
+    (docs/verdict.md, "At the limit"); within that the better level holds and its reason says "at
+    the limit", and ``at_limit`` lists it with its value, limit and standard error.
 
     report: ``observations``, ``point_observations``, ``coverage``, ``uncovered``,
     ``geometry_std_mm``, and the judged figures ``noise_px``, ``outlier_share``, ``residual_mm``,
@@ -99,43 +185,61 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
     (None without a scale);
     rig_noise_px: the median camera's noise.
     """
-    checks = []  # (criterion, grade, reason, advice)
-    coverage_advice = None
+    checks = _Checks(cam_id)
+    obs = report.get("observations", 0) + report.get("point_observations", 0)
     rel = report.get("residual_of_volume")
     if rel is not None:
         mm = report.get("residual_mm")
         size = f" ({mm:.2f} mm in a {extent_m:.2f} m volume)" if mm is not None and extent_m else ""
-        checks.append(("residual", _grade(rel, RESIDUAL_OF_VOLUME),
-                       f"{cam_id}: its rays pass the points at {1000 * rel:.2f} per mille of the volume's size{size}, "
-                       f"{{level}} ({_limits(tuple(1000 * x for x in RESIDUAL_OF_VOLUME), '.1f')} per mille)",
-                       f"check {cam_id}'s intrinsics and focus; its residuals are large for the volume"))
+        checks.add("residual", rel, RESIDUAL_OF_VOLUME,
+                   f"{cam_id}: its rays pass the points at {1000 * rel:.2f} per mille of the volume's size{size}, "
+                   f"{{level}} ({_limits(tuple(1000 * x for x in RESIDUAL_OF_VOLUME), '.1f')} per mille)",
+                   f"check {cam_id}'s intrinsics and focus; its residuals are large for the volume",
+                   std=rms_std(rel, obs), shown=(1000.0, "per mille"))
     mrad = report.get("ray_mrad")
     if mrad is not None:
-        checks.append(("ray angle", _grade(mrad, RAY_MRAD),
-                       f"{cam_id}: its rays miss the points by {mrad:.2f} mrad RMS ({mrad:.2f} mm at a metre), "
-                       f"{{level}} ({_limits(RAY_MRAD, '.1f')} mrad)",
-                       f"check {cam_id}'s intrinsics (focal length, distortion) and focus; its residuals are large for "
-                       "its lens"))
+        checks.add("ray angle", mrad, RAY_MRAD,
+                   f"{cam_id}: its rays miss the points by {mrad:.2f} mrad RMS ({mrad:.2f} mm at a metre), "
+                   f"{{level}} ({_limits(RAY_MRAD, '.1f')} mrad)",
+                   f"check {cam_id}'s intrinsics (focal length, distortion) and focus; its residuals are large for "
+                   "its lens", std=rms_std(mrad, obs), shown=(1.0, "mrad"))
     noise = report.get("noise_px")
     if noise is not None and rig_noise_px:
         ratio = noise / rig_noise_px
-        checks.append(("noise", _grade(ratio, NOISE_RATIO),
-                       f"{cam_id}: its blob noise {noise:.2f} px is {ratio:.1f} times the median camera's "
-                       f"{rig_noise_px:.2f} px, {{level}} ({_limits(NOISE_RATIO, '.1f')} times)",
-                       f"check {cam_id}'s focus, exposure and blob detection"))
+        checks.add("noise", ratio, NOISE_RATIO,
+                   f"{cam_id}: its blob noise {noise:.2f} px is {ratio:.1f} times the median camera's "
+                   f"{rig_noise_px:.2f} px, {{level}} ({_limits(NOISE_RATIO, '.1f')} times)",
+                   f"check {cam_id}'s focus, exposure and blob detection",
+                   std=ratio * MAD_SIGMA_REL_SE / np.sqrt(max(obs, 1)), shown=(1.0, "times"))
     share = report.get("outlier_share")
     if share is not None:
-        checks.append(("outliers", _grade(share, OUTLIER_SHARE),
-                       f"{cam_id}: {100 * share:.1f}% of its camera-frames are gross outliers, {{level}} "
-                       f"(excellent <= {100 * OUTLIER_SHARE[0]:g}%, good <= {100 * OUTLIER_SHARE[1]:g}%)",
-                       f"look for reflections or a second bright marker in {cam_id}'s view and mask them"))
-    obs = report.get("observations", 0) + report.get("point_observations", 0)
+        checks.add("outliers", share, OUTLIER_SHARE,
+                   f"{cam_id}: {100 * share:.1f}% of its camera-frames are gross outliers, {{level}} "
+                   f"(excellent <= {100 * OUTLIER_SHARE[0]:g}%, good <= {100 * OUTLIER_SHARE[1]:g}%)",
+                   f"look for reflections or a second bright marker in {cam_id}'s view and mask them",
+                   std=share_std(share, obs), shown=(100.0, "%"))
+    coverage_advice = _place_checks(checks, report, cam_id, extent_m, obs)
+    rows = checks.rows
+    level = max(grade for _, grade, _, _ in rows)
+    return {"level": LEVELS[level],
+            "reasons": [text.format(level=LEVELS[grade]) for _, grade, text, _ in rows if grade > 0],
+            "advice": [advice for _, grade, _, advice in rows if grade == 2] + ([coverage_advice] if coverage_advice else []),
+            "short_of_excellent": {name: LEVELS[grade] for name, grade, _, _ in rows if grade > 0},
+            "at_limit": checks.at_limit}
+
+
+def _place_checks(checks: _Checks, report: dict, cam_id: str, extent_m: float | None, obs: int) -> str | None:
+    """:func:`camera_verdict`'s observations, coverage and geometry criteria, added to ``checks``;
+    returns the coverage advice a camera under the good coverage gets (not poor on its own)."""
+    coverage_advice = None
     geo_rel = report.get("geometry_of_volume")
-    grade = _grade(obs, MIN_OBSERVATIONS, True)
-    if grade == 2 and geo_rel is not None and _grade(geo_rel, GEOMETRY_OF_VOLUME) < 2:
-        grade = 1  # few, but they place the camera well: its geometry sigma below says so
-    checks.append(("observations", grade, f"{cam_id}: {obs} observations, {{level}} ({_limits(MIN_OBSERVATIONS, 'd', True)}; Qualisys "
-                   f"asks for {MIN_OBSERVATIONS[1]} per camera)", f"record longer, or wave nearer {cam_id}"))
+    geo_std = SIGMA_REL_SE * geo_rel if geo_rel is not None else 0.0
+    # few observations that place the camera well are good: its geometry sigma below says so
+    few = _grade(obs, MIN_OBSERVATIONS, True) == 2 and (geo_rel is None or _grade(geo_rel, GEOMETRY_OF_VOLUME, std=geo_std) == 2)
+    checks.add("observations", obs, MIN_OBSERVATIONS,
+               f"{cam_id}: {obs} observations, {{level}} ({_limits(MIN_OBSERVATIONS, 'd', True)}; Qualisys "
+               f"asks for {MIN_OBSERVATIONS[1]} per camera)", f"record longer, or wave nearer {cam_id}",
+               higher=True, cap=2 if few else 1)
     cov = report.get("coverage")
     if cov is not None:
         where = ", ".join(report.get("uncovered") or []) or "the gaps of its view"
@@ -144,7 +248,7 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
         # sigma already counts, and risks a lens error where no sample tested it: advice, not poor
         text = (f"{cam_id}: samples cover {cov:.0%} of its image, {'short of good' if grade == 2 else '{level}'} "
                 f"(excellent >= {COVERAGE[0]:.0%}, good >= {COVERAGE[1]:.0%})")
-        checks.append(("coverage", min(grade, 1), text, f"wave the wand in {where} of {cam_id}'s image"))
+        checks.add("coverage", cov, COVERAGE, text, f"wave the wand in {where} of {cam_id}'s image", higher=True, cap=1)
         if grade == 2:
             coverage_advice = f"wave the wand in {where} of {cam_id}'s image"
     if geo_rel is not None:
@@ -153,67 +257,91 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
             text = (f"{cam_id}: its place among the other cameras is known to {geo:.2f} mm (1 sigma), {{level}} "
                     f"(excellent <= {GEOMETRY_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
                     f"{GEOMETRY_OF_VOLUME[1] * 1000 * extent_m:.2f} mm in this volume)")
+            shown = (1000.0 * extent_m, "mm")
         else:
             text = (f"{cam_id}: its place among the other cameras is known to {1000 * geo_rel:.2f} per mille of the "
                     f"volume (1 sigma), {{level}} ({_limits(tuple(1000 * x for x in GEOMETRY_OF_VOLUME), '.2f')} per mille)")
-        checks.append(("geometry", _grade(geo_rel, GEOMETRY_OF_VOLUME), text,
-                       f"wave the wand longer across {cam_id}'s view, where it and other cameras see it"))
-    level = max(grade for _, grade, _, _ in checks)
-    return {"level": LEVELS[level],
-            "reasons": [text.format(level=LEVELS[grade]) for _, grade, text, _ in checks if grade > 0],
-            "advice": [advice for _, grade, _, advice in checks if grade == 2] + ([coverage_advice] if coverage_advice else []),
-            "short_of_excellent": {name: LEVELS[grade] for name, grade, _, _ in checks if grade > 0}}
+            shown = (1000.0, "per mille")
+        checks.add("geometry", geo_rel, GEOMETRY_OF_VOLUME, text,
+                   f"wave the wand longer across {cam_id}'s view, where it and other cameras see it", std=geo_std, shown=shown)
+    return coverage_advice
+
+
+NO_REFERENCE = ("no world reference (no static.csv with an L-frame, no axis points): the world is the wand volume's "
+                "own frame, so the poses are exported in an arbitrary frame; add static.csv (an L-frame seen by several "
+                "cameras) where a floor and axes are needed")
+NO_SCALE = ("no world reference and no scale: a capture of point tracks only (no wand) is calibrated up to scale, in "
+            "an arbitrary frame")
 
 
 def placement_verdict(world: dict, extent_m: float | None, faults: list[dict]) -> dict:
     """The world frame's placement: its origin's and axes' 1-sigma against the volume, and any
-    fault of the object that set it."""
+    fault of the object that set it. A frame no object set (the wand volume's own, or a capture
+    without a scale) has no placement to grade: ``level`` None, and the reason says so."""
+    if world.get("scale") == "arbitrary":
+        return {"level": None, "reasons": [NO_SCALE], "advice": []}
+    if world.get("frame") == "wand_volume":
+        return {"level": None, "reasons": [NO_REFERENCE], "advice": []}
     placement = world.get("placement") or {}
     origin, axes = placement.get("origin_std_mm"), placement.get("axes_std_deg")
-    reasons, advice, level = [], [], 0
+    reasons, advice, level, at_limit = [], [], 0, []
     if extent_m and origin is not None and axes is not None:
         rel = max(origin / (1000 * extent_m), np.radians(axes) / 2)
-        level = _grade(rel, PLACEMENT_OF_VOLUME)
+        checks = _Checks(None)
+        level = checks.add("placement", rel, PLACEMENT_OF_VOLUME, "", "", std=SIGMA_REL_SE * rel,
+                           shown=(1000.0 * extent_m, "mm"))
+        at_limit = checks.at_limit
+        near = f", {at_limit_text(at_limit[0])}" if at_limit else ""
         if level:
             reasons.append(f"the world frame ({world.get('frame')}) is placed to {origin:.2f} mm and {axes:.3f} degrees "
-                           f"(1 sigma), {LEVELS[level]} for a {extent_m:.2f} m volume (excellent <= "
+                           f"(1 sigma), {LEVELS[level]}{near} for a {extent_m:.2f} m volume (excellent <= "
                            f"{PLACEMENT_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
                            f"{PLACEMENT_OF_VOLUME[1] * 1000 * extent_m:.2f} mm at its edge)")
         if level == 2:
             advice.append(PLACEMENT_ADVICE.get(str(world.get("frame")), PLACEMENT_ADVICE["static_object"]))
-    for fault in faults:
-        if fault["kind"] in PLACEMENT_FAULTS:
-            level = 2
-            reasons.append(fault["message"])
-    return {"level": LEVELS[level], "reasons": reasons, "advice": advice}
+    placement_faults = [fault for fault in faults if fault["kind"] in PLACEMENT_FAULTS]
+    for fault in placement_faults:
+        level = 2
+        reasons.append(fault["message"])
+    if placement_faults:  # the sigma is the fault's, not the static frames': what fixes it is the fault's
+        advice = [FAULT_ADVICE[fault["kind"]] for fault in placement_faults]
+    return {"level": LEVELS[level], "reasons": reasons, "advice": advice, "at_limit": at_limit}
 
 
 def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict], extent_m: float | None) -> dict:
     """The rig's geometry verdict: its worst camera's, the wand-length spread's, and any fault's
-    (every fault but the world's placement makes the rig poor)."""
+    (every fault but the world's placement makes the rig poor); ``at_limit``: every criterion of
+    the rig and its cameras within its standard error of a limit (:func:`stability_entry`)."""
     level = max((LEVELS.index(c["verdict"]["level"]) for c in cameras), default=0)
     reasons, advice = [], []
+    at_limit = [entry for c in cameras for entry in c["verdict"].get("at_limit", [])]
     rig_faults = [f for f in faults if f["kind"] not in PLACEMENT_FAULTS or f["kind"] in SCALE_FAULTS]
     for fault in rig_faults:
         level = 2
         reasons.append(fault["message"])
+        if fault["kind"] in FAULT_ADVICE:  # the first instruction addresses the first fault
+            advice.append(FAULT_ADVICE[fault["kind"]])
     if wand_report is not None and wand_report.get("length_mean_m"):
         std_mm = 1000 * wand_report["length_std_m"]
         pct = 100 * wand_report["length_std_m"] / wand_report["length_mean_m"]
-        checks = [(pct, WAND_STD_PERCENT, f"{pct:.2f}% of its length (easyWand's wand score; open tools call <= "
-                   f"{WAND_STD_PERCENT[1]:g}% good)")]
+        n = int(wand_report.get("frames_used") or 0)
+        checks = _Checks(None)
+        checks.add("wand spread", pct, WAND_STD_PERCENT,
+                   f"{pct:.2f}% of its length (easyWand's wand score; open tools call <= "
+                   f"{WAND_STD_PERCENT[1]:g}% good): {{level}}", "", std=rms_std(pct, n), shown=(1.0, "%"))
         if extent_m:
-            checks.append((std_mm / (1000 * extent_m), WAND_STD_OF_VOLUME,
-                           f"{std_mm:.2f} mm in a {extent_m:.2f} m volume (excellent <= "
-                           f"{WAND_STD_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
-                           f"{WAND_STD_OF_VOLUME[1] * 1000 * extent_m:.2f} mm, from Qualisys's 1-2 mm on a full-body volume)"))
-        for value, limits, text in checks:
-            grade = _grade(value, limits)
+            checks.add("wand spread", std_mm / (1000 * extent_m), WAND_STD_OF_VOLUME,
+                       f"{std_mm:.2f} mm in a {extent_m:.2f} m volume (excellent <= "
+                       f"{WAND_STD_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
+                       f"{WAND_STD_OF_VOLUME[1] * 1000 * extent_m:.2f} mm, from Qualisys's 1-2 mm on a full-body volume): "
+                       "{level}", "", std=rms_std(std_mm / (1000 * extent_m), n), shown=(1000.0 * extent_m, "mm"))
+        at_limit += checks.at_limit
+        for _, grade, text, _ in checks.rows:
             if grade:
-                reasons.append(f"the wand's length spreads by {text}: {LEVELS[grade]}")
+                reasons.append(f"the wand's length spreads by {text.format(level=LEVELS[grade])}")
                 level = max(level, grade)
                 if grade == 2:
-                    advice.append("look for a bent wand or loose markers, and check the cameras' intrinsics")
+                    advice.append(WAND_SPREAD_ADVICE)
     named = {f["camera"] for f in rig_faults}
     for word in ("poor", "good"):
         by_criterion: dict[str, list[str]] = {}
@@ -228,7 +356,7 @@ def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict
                            + "; ".join(f"{name} in {camera_list(ids, len(cameras))}" for name, ids in by_criterion.items())
                            + " (each camera's verdict says why)")
     advice += fold_advice([(c["id"], text) for c in cameras for text in c["verdict"].get("advice", [])], len(cameras))
-    return {"level": LEVELS[level], "reasons": reasons, "advice": advice}
+    return {"level": LEVELS[level], "reasons": reasons, "advice": list(dict.fromkeys(advice)), "at_limit": at_limit}
 
 
 def fold_advice(advice: list[tuple[str, str]], rig_cameras: int) -> list[str]:

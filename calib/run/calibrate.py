@@ -19,7 +19,14 @@ from wandcal.calib.errors import CalibrationError, Failure
 from wandcal.calib.geometry import undistort_by_camera
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import PointTracks, WandPairs, point_tracks, robust_sigma, wand_pairs
-from wandcal.calib.rig import AxisObservations, PointObservations, Rig, StaticObservations, WandObservations
+from wandcal.calib.rig import (
+    AxisObservations,
+    PointObservations,
+    Rig,
+    StaticObservations,
+    VerticalObservations,
+    WandObservations,
+)
 from wandcal.calib.run.camera_reports import (
     camera_reports,
     intrinsics_reports,
@@ -27,7 +34,7 @@ from wandcal.calib.run.camera_reports import (
     uncertainty_reports,
     with_warnings,
 )
-from wandcal.calib.run.judgement import judge
+from wandcal.calib.run.judgement import acted_warnings, judge
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import (
     GAUGE_CAMERA,
@@ -55,7 +62,8 @@ from wandcal.calib.start.frame_offsets import FrameOffsets, frame_offsets, shift
 from wandcal.calib.start.initial import Initial, initial_poses
 from wandcal.calib.start.labels import label_ends
 from wandcal.calib.start.static import StaticPose, solve_static
-from wandcal.calib.start.world import apply, world_frame
+from wandcal.calib.start.vertical import unused_warning as vertical_unused
+from wandcal.calib.start.world import Reference, apply, world_frame
 
 if TYPE_CHECKING:
     from wandcal.calib.start.markerlabels import MarkerBlobs
@@ -138,6 +146,7 @@ def calibrate(
     progress: Progress | None = None,
     points: PointObservations | None = None,
     axis: AxisObservations | None = None,
+    vertical: VerticalObservations | None = None,
 ) -> CalibrationResult:
     """Calibrate the rig's extrinsics from wand blobs, single-point tracks and an optional static
     object or axis points.
@@ -153,6 +162,8 @@ def calibrate(
         points: single-point tracks (points.csv), or None. ``ba`` refines them as free 3D
             points; the other methods use them for the start only.
         axis: axis points (axis.csv) that set the world frame when there is no static object.
+        vertical: floor points (floor.csv) or a dropped object's track (drop.csv) that set the
+            world's vertical when there is neither a static object nor axis points.
 
     Raises:
         CalibrationError: the input cannot give a calibration; the message says why and what to do.
@@ -166,11 +177,13 @@ def calibrate(
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
     wand, sync = _whole_frame_sync(rig, wand if has_wand else None, options, tell, warnings)
     obs = _observations(rig, wand, points, sync, has_wand, options.method)
-    start = _start(rig, obs, static, tell, warnings)
+    start = _start(rig, obs, static, tell, warnings, synced=sync is not None)
     start, sync = _subframe_sync(rig, start, sync, options)
     solved = _refine(rig, obs, start, sync, options, tell, warnings)
-    placed = _world(solved, obs, start, (static, axis), tell, warnings)
-    cameras, wand_report, world = _figures(solved, obs, start, placed, (static, axis), options.method, tell, warnings)
+    reference = axis if axis is not None and len(axis) else vertical
+    placed = _world(solved, obs, start, (static, reference), tell, warnings)
+    cameras, wand_report, world = _figures(solved, obs, start, placed, (static, reference), options.method, tell,
+                                           warnings)
     placed = replace(placed, world=world)
     cameras, verdict, solver = _judgement(solved, obs, placed, cameras, wand_report, options.method, tell, warnings)
     solver = replace(solver, total_seconds=time.perf_counter() - started)
@@ -241,12 +254,21 @@ def _observations(rig: Rig, wand: WandObservations | None, points: PointObservat
 
 
 def _start(rig: Rig, obs: Observations, static: StaticObservations | None, tell: Progress,
-           warnings: list[str]) -> Start:
-    """The static object's poses, the capture's checks, the first poses and the wand ends labelled."""
+           warnings: list[str], *, synced: bool = False) -> Start:
+    """The static object's poses, the capture's checks, the first poses and the wand ends labelled.
+    A start refused without ``--sync auto`` (``synced`` false) names a camera whose shift in time
+    would let it place every camera (:func:`wandcal.calib.judge.start_timing.out_of_time_refusal`)."""
     static_poses = _static_poses(rig, static, tell, warnings)
     warnings += check_capture(rig, obs.pairs, obs.tracks, static_poses)  # degenerate captures: calib/start/degenerate.py
     tell({"stage": "initial", "message": "initial poses"})
-    init = initial_poses(rig, obs.pairs, static_poses, points=obs.tracks)
+    try:
+        init = initial_poses(rig, obs.pairs, static_poses, points=obs.tracks)
+    except CalibrationError as exc:
+        if synced or obs.blobs is not None:
+            raise
+        from wandcal.calib.judge.start_timing import out_of_time_refusal
+
+        raise out_of_time_refusal(exc, rig, obs.pairs, static_poses, obs.tracks) from None
     warnings += init.notes
     tell({"stage": "labels", "message": "telling the wand ends apart"})
     planar = obs.blobs is not None and obs.blobs.fit_px is not None  # a planar wand's rows come labelled from the layout
@@ -354,14 +376,15 @@ def _sync_report(rig: Rig, r: Refined, sync: SyncState | None, options: Calibrat
     return doc
 
 
-def _world(solved: Solved, obs: Observations, start: Start,
-           frame_data: tuple[StaticObservations | None, AxisObservations | None], tell: Progress,
-           warnings: list[str]) -> Placed:
+def _world(solved: Solved, obs: Observations, start: Start, frame_data: tuple[StaticObservations | None, Reference],
+           tell: Progress, warnings: list[str]) -> Placed:
     """The refined rig expressed in the world frame (the static object's, the axis points', or the
     gauge camera's); ``world.scale`` says whether the wand gave the scale."""
     r, (static, axis) = solved.r, frame_data
     tell({"stage": "world", "message": "expressing the rig in the world frame"})
     Rw, tw, world = world_frame(r.rig, r.R, r.t, GAUGE_CAMERA, static, start.static_poses, axis, wand=r.wand, points=r.X)
+    if isinstance(axis, VerticalObservations) and world["frame"] not in ("floor", "gravity"):
+        warnings.append(vertical_unused(r.rig, axis, r.R, r.t, world["frame"]))
     R, t, wand_pts = apply(Rw, tw, r.R, r.t, r.wand)
     X = r.X @ Rw.T + tw if r.X is not None else None
     placed_world = WorldFrame.from_json(world | {"scale": "wand" if obs.has_wand else "arbitrary"})
@@ -371,7 +394,7 @@ def _world(solved: Solved, obs: Observations, start: Start,
 
 
 def _figures(solved: Solved, obs: Observations, start: Start, placed: Placed,
-             frame_data: tuple[StaticObservations | None, AxisObservations | None], method: str, tell: Progress,
+             frame_data: tuple[StaticObservations | None, Reference], method: str, tell: Progress,
              warnings: list[str]) -> tuple[list[CameraFigures], WandReport | None, WorldFrame]:
     """Each camera's figures (errors, uncertainty in the world frame, refined intrinsics, its
     warnings), the summary warnings (``warnings`` folded in place), the wand's report (None
@@ -419,6 +442,7 @@ def _judgement(solved: Solved, obs: Observations, placed: Placed, cameras: list[
     cameras, verdict, checks = judge(method, rig, cameras, wand_report, placed.world, placed.R, placed.t, r.labelled,
                                      every_track, solver, (seen_cam, seen_uv),
                                      (setup.frames, placed.wand) if obs.has_wand else None)
+    cameras, warnings[:] = acted_warnings(cameras, warnings, rig.ids)
     warnings += checks
     return cameras, verdict, solver
 

@@ -14,7 +14,15 @@ import numpy as np
 
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import PointTracks, camera_rows
-from wandcal.calib.rig import AxisObservations, Rig, StaticObservations, camera_list, folded, names_camera
+from wandcal.calib.rig import (
+    AxisObservations,
+    Rig,
+    StaticObservations,
+    VerticalObservations,
+    camera_list,
+    folded,
+    names_camera,
+)
 from wandcal.calib.run.refine import GAUGE_CAMERA, Refined, Setup
 from wandcal.calib.run.result import (
     CameraFigures,
@@ -30,6 +38,7 @@ from wandcal.calib.run.result import (
 from wandcal.calib.solve.gauge_free import split_uncertainty
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty
+from wandcal.calib.start import vertical
 from wandcal.calib.start.initial import Initial
 from wandcal.calib.start.static import static_frame_jacobian
 from wandcal.calib.start.world import _static_views, apply, axis_points, static_fit_expectation, world_frame
@@ -40,7 +49,7 @@ FOCAL_REL_STD_WARN = 0.005  # 0.5% of the focal length
 PRINCIPAL_STD_WARN_PX = 5.0
 K1_STD_WARN = 0.01
 OUTLIER_WARN_SHARE = 0.001  # warn about dropped outliers from this share of the camera-frames on
-FrameData = tuple[StaticObservations | None, list | None, AxisObservations | None]  # what sets the world frame
+FrameData = tuple[StaticObservations | None, list | None, AxisObservations | VerticalObservations | None]  # what sets the world frame
 
 
 def camera_reports(rig: Rig, setup: Setup, R: np.ndarray, t: np.ndarray, wand_pts: np.ndarray, init: Initial,
@@ -110,9 +119,14 @@ def uncertainty_reports(rig: Rig, r: Refined, world: WorldFrame, frame_data: Fra
         point, camera, xy = _static_views(rig, static, static_poses, [rig.index(c) for c in cameras_used])
         frame.jacobian = lambda Rp, tp: static_frame_jacobian(Rp, tp, point, camera, xy, markers)  # type: ignore[attr-defined]
     elif world.frame == "axis":
-        assert axis is not None  # what set this frame
+        assert isinstance(axis, AxisObservations)  # what set this frame
         points = np.array(list(axis_points(rig, axis, r.R, r.t).values())) @ Rw.T + tw
     frame_cov, origin = frame_noise(world.to_json(), rig, points, r.covariance)
+    if world.frame in ("floor", "gravity"):
+        assert isinstance(axis, VerticalObservations)  # what set this frame
+        found = vertical.vertical_fit(rig, axis, r.R, r.t)
+        if found is not None:
+            frame_cov, origin = vertical.frame_noise(found, Rw)
     center, rotation, cov = world_uncertainty(r.R, r.t, r.covariance, frame, frame_cov, origin, full=True)
     Rworld, tworld, _ = apply(Rw, tw, r.R, r.t, np.zeros((0, 3)))
     split = split_uncertainty(Rworld, tworld, cov, scale_free=not has_wand)

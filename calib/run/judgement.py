@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.faults import Lens, TimingFault, analyse_camera, classify, lens_screen
+from wandcal.calib.judge.faults import Lens, TimingFault, analyse_camera, classify, lens_screen, offset_text
 from wandcal.calib.judge.intrinsic_limits import intrinsic_limit_entries
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.judge.residuals import (
@@ -34,11 +34,13 @@ from wandcal.calib.judge.residuals import (
 )
 from wandcal.calib.judge.verdict import (
     NOISE_RATIO,
+    SCALE_FAULTS,
     camera_verdict,
     coverage_reports,
     placement_verdict,
     rig_verdict,
     sanity_check,
+    share_std,
 )
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig, camera_list
@@ -71,6 +73,13 @@ MIN_CAMERAS_TO_ISOLATE = 3  # two cameras left cannot say which of them is wrong
 # scale explains (the scaled fit within the noise's 99th percentile), is a wand length that
 # disagrees with the markers
 SCALE_FIT_SHARE = 0.5
+# what an unconverged solve asks for, by method: each names only options of its own method
+UNCONVERGED_ADVICE = {
+    "paper": "raise --max-rounds or --lp-time-limit, or use --method ba",
+    "lp": "raise --lp-time-limit, or use --method ba",
+    "ba": "ba has no option to run longer: fix what keeps it from converging (the faults and warnings: a camera "
+          "out of time, wrong intrinsics), or try --method paper",
+}
 
 
 def _median_share(figures: list[dict]) -> float:
@@ -78,10 +87,13 @@ def _median_share(figures: list[dict]) -> float:
     return float(np.median(shares)) if shares else 0.0
 
 
-def _concentrated(figures: list[dict], c: int) -> bool:
-    """Camera c holds far more of the gross outliers than the median camera."""
+def _concentrated(figures: list[dict], c: int, sure: bool = False) -> bool:
+    """Camera c holds far more of the gross outliers than the median camera; ``sure``: by more than
+    its share's standard error (binomial, over its observations), as a fault is named
+    (docs/verdict.md, "At the limit")."""
     share = figures[c]["outlier_share"] or 0.0
-    return share > SUSPECT_OUTLIER_SHARE and share > SUSPECT_OUTLIER_FACTOR * _median_share(figures)
+    std = share_std(share, figures[c].get("observations") or 0) if sure else 0.0
+    return share - std > SUSPECT_OUTLIER_SHARE and share - std > SUSPECT_OUTLIER_FACTOR * _median_share(figures)
 
 
 def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list[int]:
@@ -153,8 +165,8 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
                      "outlier_share": round(fig["outlier_share"], 4)}
         if kind == "timing" and timing is not None:
             d = timing.offset_frames
-            message = (f"{cam} is out of time: its frames show the wand {abs(d):.2f} +- {timing.offset_std_frames:.3f} "
-                       f"frames {'late' if d > 0 else 'early'} against the other cameras; check its trigger cable and "
+            message = (f"{cam} is out of time: its frames show the wand {offset_text(d, timing.offset_std_frames)} "
+                       f"against the other cameras (offset {d:+.2f}: positive is late); check its trigger cable and "
                        f"settings (or calibrate with its offset, --sync auto)")
         elif kind == "intrinsics" and lens is not None:
             message = (f"{cam}'s intrinsics do not fit its images: its residuals are {'scaled' if abs(lens.focal_error) > abs(lens.k1_error) / 4 else 'radial'} about the "
@@ -166,7 +178,7 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
             message = (f"{cam}'s blob centres are {ratio:.1f} times as noisy as the other cameras' "
                        f"({fig['noise_px']:.2f} px against {median:.2f} px) with no timing or lens pattern: check "
                        "its focus, exposure and the blob detection settings")
-        elif _concentrated(figures, c):
+        elif _concentrated(figures, c, sure=True):
             kind = "outliers"
             message = (f"{cam} has {100 * fig['outlier_share']:.1f}% of its camera-frames off by more than "
                        f"{OUTLIER_SIGMAS:g} times the rig's noise while its other frames fit, against "
@@ -222,9 +234,10 @@ def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> li
                                "and that the L-frame is flat and not bent"})
     status = solver.get("status")
     if status and status != "converged":
+        method = solver.get("method")
         faults.append({"kind": "unconverged", "camera": None, "evidence": {"status": status},
-                       "message": f"the {solver.get('method')} refinement stopped before converging ({status}): the "
-                                  "poses are not a solution; raise --max-rounds or --lp-time-limit, or use --method ba"})
+                       "message": f"the {method} refinement stopped before converging ({status}): the "
+                                  f"poses are not a solution; {UNCONVERGED_ADVICE.get(str(method), UNCONVERGED_ADVICE['ba'])}"})
     for cam, entry in zip(rig.cameras, cameras):
         intr = entry.get("intrinsics") or {}
         for name, value, std in (("focal length", intr.get("focal_px"), intr.get("focal_std_px")),
@@ -291,13 +304,35 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     dragged = [c["id"] for c in named if c["id"] not in at_fault and c["verdict"]["level"] == "poor"]
     if at_fault and dragged:  # one camera at fault bends the whole solve: the others are judged again after
         verdict["reasons"].insert(len(faults), f"{camera_list(dragged, len(named))} {'is' if len(dragged) == 1 else 'are'} poor in "
-                                  f"this solve because {', '.join(sorted(at_fault))} bent it: fix "
+                                  f"this solve because {camera_list([i for i in rig.ids if i in at_fault], len(named))} bent it: fix "
                                   f"{'it' if len(at_fault) == 1 else 'them'} and calibrate again before judging the others")
     verdict["placement"] = placement_verdict(world_doc, extent if scaled else None, faults)
     verdict["faults"] = faults
     out, verdict["limits"] = _focal_limits(rig, out, R, t, res, scaled, solver.refined_intrinsics)
     verdict["volume_m" if scaled else "volume"] = extent
     return out, verdict, warnings
+
+
+# warnings of calib/run/camera_reports.py in fixed pixels or frames that the verdict judges in the
+# volume's terms: each is kept only for a camera that verdict calls poor on one of these criteria
+# (Brown's published sessions gave eight "check its intrinsics" warnings beside a good rig)
+JUDGED_WARNINGS = (("saw both wand ends in only", ("observations", "geometry")),
+                   ("reprojection RMS of", ("ray angle", "residual")))
+
+
+def acted_warnings(cameras: list[CameraFigures], warnings: list[str], ids: tuple[str, ...] | list[str]
+                   ) -> tuple[list[CameraFigures], list[str]]:
+    """The judged cameras and the result's warnings without the warnings of :data:`JUDGED_WARNINGS`
+    whose camera's verdict is not poor on their criteria: a warning is for something to do."""
+    def wanted(text: str) -> bool:
+        for c, cam_id in enumerate(ids):
+            if text.startswith(cam_id + " "):
+                poor = {name for name, got in ((cameras[c].verdict or {}).get("short_of_excellent") or {}).items()
+                        if got == "poor"}
+                return all(pattern not in text or poor & set(criteria) for pattern, criteria in JUDGED_WARNINGS)
+        return True
+    return ([replace(cam, warnings=tuple(w for w in cam.warnings if wanted(w))) if cam.warnings else cam for cam in cameras],
+            [w for w in warnings if wanted(w)])
 
 
 def _focal_limits(rig: Rig, cameras: list[CameraFigures], R: np.ndarray, t: np.ndarray, res: Residuals, scaled: bool,
@@ -324,9 +359,11 @@ def _judged(cam: CameraFigures, fig: dict, cov: dict, extent: float | None) -> J
 
 
 def _camera_verdict(doc: dict, cam_id: str, faults: list[dict], extent: float | None, rig_noise: float | None) -> dict:
-    """A camera's verdict (:func:`camera_verdict`); a camera at fault is poor, whatever its figures say."""
+    """A camera's verdict (:func:`camera_verdict`); a camera at fault, or in a rig whose scale is at
+    fault, is poor, whatever its figures say."""
     verdict = camera_verdict(doc, cam_id, extent, rig_noise)
     for fault in faults:
-        if fault["camera"] == cam_id:
-            verdict = {"level": "poor", "reasons": [fault["message"], *verdict["reasons"]], "advice": verdict["advice"]}
+        # a scale fault puts every length off, the camera's place and its sigma with it
+        if fault["camera"] == cam_id or fault["kind"] in SCALE_FAULTS:
+            verdict = verdict | {"level": "poor", "reasons": [fault["message"], *verdict["reasons"]]}
     return verdict

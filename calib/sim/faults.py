@@ -49,12 +49,13 @@ def wrong_wand_length(sim: SimulatedCapture, factor: float) -> SimulatedCapture:
 
 
 def late_camera(sim: SimulatedCapture, c: int, frames: float, noise_px: float, seed: int) -> SimulatedCapture:
-    """Camera c's frame k shows the wand of frame k - ``frames`` (fractions interpolated along the
-    true path), with ``noise_px`` blob noise; frames it has no wand for are left out."""
+    """Camera c ``frames`` late (docs/result-format.md's sign: negative is early): its frame k was
+    exposed at the others' frame k + ``frames`` and shows the wand of then (fractions interpolated
+    along the true path), with ``noise_px`` blob noise; frames it has no wand for are left out."""
     rng = np.random.default_rng(seed)
     wand = sim.truth.wand
     F = len(wand)
-    at = np.arange(F) - frames
+    at = np.arange(F) + frames
     ok = (at >= 0) & (at <= F - 1)
     lo = np.clip(np.floor(at).astype(int), 0, F - 1)
     hi = np.clip(lo + 1, 0, F - 1)

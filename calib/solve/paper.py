@@ -21,34 +21,36 @@ camera keeps its pose, and one linearised wand-length equality anchors the scale
 ``sum_f d_f . (x_f1 - x_f0) = F L`` with d_f the wand direction of the previous iterate.
 ``formulation="literal"`` solves the paper's LP unchanged, to show the collapse.
 
-Each round's LP has the previous round's shape, so it is warm-started from that round's optimal
-simplex basis: tens of times faster than a cold solve, which lets the rounds run to convergence
-(docs/decisions/0005-paper-warm-start.md).
+Each round's LP is solved by an interior point that eliminates the points (each row touches one
+point and one camera), warm-started from the last round's; the rotation step is Newton's method
+on each camera's quadratic E_phi_n; and where the rounds creep along one slow direction, the
+next round starts the estimated rest of the way along it (docs/decisions/0005-paper-warm-start.md,
+0033-paper-at-speed.md).
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
-from wandcal.calib.geometry import camera_centers, euler_to_matrix
+from wandcal.calib.geometry import camera_centers
 from wandcal.calib.solve.wandmodel import WandProblem
 
-# scipy.optimize, scipy.sparse and HiGHS are imported where they are used: the command line
-# imports this module for its defaults, and they cost 0.3 s of start-up
+# SciPy, threadpoolctl and HiGHS are imported where they are used: the command line imports this
+# module for its defaults, and they cost 0.3 s of start-up
 
 BOUND_M = 10.0  # the paper's box on every translation and point coordinate
 HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
-MAX_ROUNDS = 300  # warm-started rounds take ~0.25 s at 8 x 1500, where the scheme converges in ~170
-# interior point solves the first, cold (Li) LP 1.7x faster than dual simplex at 2300 observations (0.65 s
-# against 1.1 s, HiGHS 1.15) and the gap grows with size
+MAX_ROUNDS = 300  # a round takes ~0.5 s of CPU at 8 x 1500 (decision 0033)
 # Convergence. The rounds approach their fixed point linearly and slowly (each moves the cameras
 # ~2% of the way at 8 x 1500), so one round's move says little about the distance left, and the
 # LP's jumps between vertices make single moves noisy. The distance left is estimated from the
 # moves over two successive windows of rounds, as the tail of a geometric series.
 ROUND_TOL = 5e-6  # stop when the cameras are estimated this close (metres) to the fixed point
 WINDOW = 10  # rounds per window
+JUMP_CAP = 10.0  # the longest jump along the tail, in windows' moves (0: no jumps, the paper's plain rounds)
 DEGENERATE_M = 1e-6  # a wand shorter than this after an LP means the LP collapsed it
 
 
@@ -62,25 +64,87 @@ def algebraic_residuals(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: Wa
 
 
 def rotation_step(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProblem, fixed: np.ndarray) -> np.ndarray:
-    """Update every free camera's rotation by LM on E_phi_n (its algebraic squared error)."""
-    from scipy.optimize import least_squares
+    """Update every free camera's rotation to the minimiser of E_phi_n (its algebraic squared
+    error) with the points and translations fixed, nearest the current rotation.
 
+    The paper takes it by LM on 3 Euler angles per camera. E_phi_n is a quadratic in the 9 entries
+    of R_n, ``r^T H r + 2 g^T r + const`` (U and V are linear in them), so its minimiser on the
+    rotations is found here by Newton's method on the rotation's tangent space, every camera at
+    once (:func:`_newton_rotations`): the same minimiser (5e-11 from scipy's LM with the paper's
+    1e-12 tolerances at 8 x 1500, decision 0033), in 5 ms against 0.43 s of CPU.
+    """
     R = R.copy()
-    for n in np.flatnonzero(~fixed):
-        sel = problem.camera == n
-        if 2 * sel.sum() < 3:
-            continue  # too few observations to turn it: held; the result's checks refuse such a camera
-        xy = problem.xy[sel]
-        Xp = X[problem.point[sel]]
-        R0, tn = R[n], t[n]
-
-        def fun(delta, xy=xy, Xp=Xp, R0=R0, tn=tn):
-            xc = Xp @ (euler_to_matrix(delta) @ R0).T + tn
-            return (xy * xc[:, 2:3] - xc[:, :2]).ravel()
-
-        res = least_squares(fun, np.zeros(3), method="lm", xtol=1e-12, ftol=1e-12)
-        R[n] = euler_to_matrix(res.x) @ R0
+    cams = [n for n in np.flatnonzero(~fixed) if 2 * np.count_nonzero(problem.camera == n) >= 3]
+    # a camera with too few observations to turn it is held; the result's checks refuse such a camera
+    if cams:
+        H, g = _quadratic_forms(t, X, problem, cams)
+        R[cams] = _newton_rotations(R[cams], H, g)
     return R
+
+
+_SKEW = np.zeros((3, 3, 3))  # _SKEW[k] = [e_k]_x, the generator of a turn about axis k
+_SKEW[0, 2, 1], _SKEW[0, 1, 2] = 1.0, -1.0
+_SKEW[1, 0, 2], _SKEW[1, 2, 0] = 1.0, -1.0
+_SKEW[2, 1, 0], _SKEW[2, 0, 1] = 1.0, -1.0
+NEWTON_STEPS = 50  # Newton converges quadratically from the last round's rotation: 3-5 steps are taken
+NEWTON_DONE = 1e-14  # radians: a step this small ends it (scipy's LM stopped at xtol 1e-12)
+
+
+def _quadratic_forms(t: np.ndarray, X: np.ndarray, problem: WandProblem, cams: list) -> tuple[np.ndarray, np.ndarray]:
+    """E_phi_n = r^T H r + 2 g^T r + const for each camera n of ``cams``, r the rows of R_n
+    stacked (9,): (H (C, 9, 9), g (C, 9)). U = -x . r1 + u x . r3 + u t_z - t_x, V alike."""
+    p = problem
+    H, g = np.empty((len(cams), 9, 9)), np.empty((len(cams), 9))
+    for i, n in enumerate(cams):
+        sel = p.camera == n
+        xy, Xp, tn = p.xy[sel], X[p.point[sel]], t[n]
+        m = len(xy)
+        A = np.zeros((2 * m, 9))
+        A[:m, 0:3], A[:m, 6:9] = -Xp, xy[:, :1] * Xp
+        A[m:, 3:6], A[m:, 6:9] = -Xp, xy[:, 1:] * Xp
+        c = np.r_[xy[:, 0] * tn[2] - tn[0], xy[:, 1] * tn[2] - tn[1]]
+        H[i], g[i] = A.T @ A, A.T @ c
+    return H, g
+
+
+def _newton_rotations(R: np.ndarray, H: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """The rotations (C, 3, 3) minimising ``r^T H r + 2 g^T r`` each, by Newton's method on
+    R <- exp([d]_x) R from ``R``: the gradient 2 J^T (H r + g) and the Hessian
+    2 J^T H J + 2 (H r + g) . d2r, with J (9, 3) the columns vec([e_k]_x R)."""
+    second = 0.5 * (np.einsum("kab,lbc->klac", _SKEW, _SKEW) + np.einsum("lab,kbc->klac", _SKEW, _SKEW))
+    for _ in range(NEWTON_STEPS):
+        r = R.reshape(-1, 9)
+        J = np.einsum("kab,nbc->nkac", _SKEW, R).reshape(len(R), 3, 9).transpose(0, 2, 1)
+        Hr = np.einsum("nij,nj->ni", H, r) + g
+        grad = 2 * np.einsum("nik,ni->nk", J, Hr)
+        hess = 2 * np.einsum("nik,nij,njl->nkl", J, H, J) + 2 * np.einsum("klac,ncd,nad->nkl", second, R,
+                                                                            Hr.reshape(-1, 3, 3))
+        d = -_solve_descent(hess, grad)
+        R = _exp_turn(d) @ R
+        if np.abs(d).max() < NEWTON_DONE:
+            break
+    return R
+
+
+def _solve_descent(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """hess^-1 grad (C, 3) per camera, with hess (C, 3, 3) shifted to positive definite where it is
+    not (far from the minimum, or a camera whose points and translation collapsed: a zero
+    quadratic, whose step is zero)."""
+    low = np.linalg.eigvalsh(hess)[:, 0]
+    scale = np.abs(hess).max(axis=(1, 2))
+    shift = np.where(low <= 1e-12 * scale, 1e-12 * scale - low + 1e-300, 0.0)
+    return np.linalg.solve(hess + shift[:, None, None] * np.eye(3), grad[..., None])[..., 0]
+
+
+def _exp_turn(d: np.ndarray) -> np.ndarray:
+    """exp([d]_x) (C, 3, 3) for turns d (C, 3), radians (Rodrigues' formula)."""
+    th = np.linalg.norm(d, axis=-1)[:, None, None]
+    K = np.einsum("nk,kij->nij", d, _SKEW)
+    small = th < 1e-8
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th**2 / 6, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th**2 / 24, (1 - np.cos(ths)) / ths**2)
+    return np.eye(3) + a * K + b * (K @ K)
 
 
 def height_pairs(R: np.ndarray, t: np.ndarray, X: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -101,7 +165,7 @@ def lp_step(
     up: np.ndarray,
     formulation: str = "anchored",
     time_limit: float | None = None,
-    solver: str = "ipm",
+    solver: str = "arrow",
     heights: tuple[np.ndarray, np.ndarray] | None = None,
     basis=None,
 ):
@@ -114,13 +178,25 @@ def lp_step(
         fixed: (N,) cameras whose translation is held (the gauge; ignored when literal).
         up: (3,) the world's up direction for eq. (extra).
         formulation: "anchored" or "literal".
+        solver: "arrow" (the anchored LP by the block-arrow interior point,
+            calib/solve/backend/arrowlp.py; HiGHS's interior point where that stalls, and for the
+            other formulations), or HiGHS's "ipm" or "simplex".
         heights: (points, cameras) index pairs of the eq. (extra) rows to impose; by default
             those of :func:`height_pairs` at the given state.
-        basis: the basis of the previous round's LP (same shape), to warm-start from.
+        basis: the previous round's result's ``basis`` (an LP of the same shape), to warm-start from.
 
     Returns:
-        (t (N, 3), X (P, 3), LpResult).
+        (t (N, 3), X (P, 3), ArrowResult or LpResult): its status, seconds, objective, iterations
+        and ``basis`` for the next round.
     """
+    jj, nn = height_pairs(R, t, X, up) if heights is None else heights
+    if formulation == "anchored" and solver == "arrow":
+        solved = _arrow_step(R, t, X, problem, fixed, up, time_limit, (jj, nn), basis)
+        if solved is not None:
+            return solved
+        # the interior point stalled short of the optimum (rounding in a degenerate LP): HiGHS
+        # solves the same LP, slower
+        solver, basis = "ipm", None
     from wandcal.calib.solve.backend.highs import INF, solve_lp
 
     p = problem
@@ -132,7 +208,6 @@ def lp_step(
     n_rows = 2 * M
     row_lo = [np.zeros(2 * M)]
     row_hi = [np.zeros(2 * M)]
-    jj, nn = height_pairs(R, t, X, up) if heights is None else heights
     _height_rows(entries, R, up, jj, nn, n_rows, nt)
     n_rows += len(jj)
     row_lo.append(np.full(len(jj), -INF))
@@ -150,11 +225,72 @@ def lp_step(
         raise ValueError(f"formulation must be 'anchored', 'per_frame' or 'literal', not {formulation!r}")
     A = entries.matrix((n_rows, cols))
     cost = np.r_[np.zeros(nt + nx), np.ones(n_slack)]
-    res = solve_lp(cost, A, np.concatenate(row_lo), np.concatenate(row_hi), col_lo, col_hi, time_limit, solver,
+    res = solve_lp(cost, A, np.concatenate(row_lo), np.concatenate(row_hi), col_lo, col_hi, time_limit,
+                   "ipm" if solver == "arrow" else solver,
                    basis=basis)
-    if not res:
+    if not res or res.x is None:
         return t, X, res
     return res.x[:nt].reshape(N, 3), res.x[nt : nt + nx].reshape(P, 3), res
+
+
+def _arrow_step(R, t, X, problem: WandProblem, fixed, up, time_limit, heights, warm):
+    """:func:`lp_step`'s anchored LP by the block-arrow interior point, from ``warm`` (the last
+    round's :class:`wandcal.calib.solve.backend.arrowlp.WarmStart`): (t, X, ArrowResult), or None
+    where it stalled short of the optimum."""
+    from wandcal.calib.solve.backend.arrowlp import WarmStart, solve
+
+    deadline = None if time_limit is None else time.perf_counter() + time_limit
+    res = solve(arrow_lp(R, t, X, problem, fixed, up, heights), warm if isinstance(warm, WarmStart) else None,
+                deadline)
+    if not res:
+        return (t, X, res) if res.status == "time_limit" else None
+    G = int((~fixed).sum())
+    t_new = t.copy()
+    t_new[~fixed] = res.v[: 3 * G].reshape(-1, 3)
+    X_new = res.v[3 * G :].reshape(-1, 3)
+    return t_new, X_new, replace(res, objective=float(np.abs(algebraic_residuals(R, t_new, X_new, problem)).sum()))
+
+
+def arrow_lp(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProblem, fixed: np.ndarray, up: np.ndarray,
+             heights: tuple[np.ndarray, np.ndarray]):
+    """Eq. (Li) in its anchored formulation as the dual-form LP of
+    :class:`wandcal.calib.solve.backend.arrowlp.ArrowLp`: its unknowns are the free cameras'
+    translations, then the points; a fixed camera's translation moves into the rows' costs.
+
+    Args: as :func:`lp_step`; ``heights`` the (points, cameras) pairs of eq. (extra)."""
+    from wandcal.calib.solve.backend.arrowlp import ArrowLp
+
+    p = problem
+    M = len(p.camera)
+    slot = np.where(fixed, -1, np.cumsum(~fixed) - 1)  # each camera's place among the free ones
+    Rc = R[p.camera]
+    u, v = p.xy[:, 0], p.xy[:, 1]
+    ax = np.concatenate([u[:, None] * Rc[:, 2] - Rc[:, 0], v[:, None] * Rc[:, 2] - Rc[:, 1]])  # U rows, then V
+    at = np.zeros((2 * M, 3))
+    at[:M, 0], at[:M, 2] = -1.0, u
+    at[M:, 1], at[M:, 2] = -1.0, v
+    jj, nn = heights
+    Ru = np.einsum("nij,j->ni", R, up)  # up . C_n = -(R_n up) . t_n
+    ax = np.concatenate([ax, np.tile(up, (len(jj), 1))])
+    at = np.concatenate([at, Ru[nn]])
+    camera = np.concatenate([p.camera, p.camera, nn])
+    # a fixed camera's translation is a constant: (Li)'s residual a . x + b . t_n moves b . t_n to the
+    # row's right-hand side (the observation rows' costs), and (extra)'s bound likewise
+    const = np.einsum("kj,kj->k", at, t[camera])
+    held = fixed[camera]
+    cost = np.where(held, -const, 0.0)
+    obs = np.arange(len(camera)) < 2 * M
+    lp = ArrowLp(point=np.concatenate([p.point, p.point, jj]), ax=ax, camera=slot[camera],
+                 at=np.where(held[:, None], 0.0, at), cost=cost, upper=np.where(obs, 2.0, np.inf),
+                 r=np.zeros(3 * (int((~fixed).sum()) + len(X))), box=BOUND_M, link=None, link_cost=0.0,
+                 n_cameras=int((~fixed).sum()), n_points=len(X))
+    ends = X.reshape(-1, 2, 3)
+    d = ends[:, 1] - ends[:, 0]
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    link = np.zeros((lp.n_cameras + len(X), 3))
+    link[lp.n_cameras :] = np.stack([-d, d], axis=1).reshape(-1, 3)
+    # the observation rows' y = y' - 1 with y' in [0, 2]: A^T 1 moves to the right-hand side
+    return replace(lp, r=lp.times(np.where(obs, 1.0, 0.0)), link=link.ravel(), link_cost=p.length * len(d))
 
 
 class _Entries:
@@ -233,16 +369,30 @@ def _distance_left(centers: list[np.ndarray]) -> float:
     with the last window's move ``a`` and the one before ``b``, the rate per window is a / b
     and the rest of the way a r / (1 - r). Infinite until two windows have run, and while the
     moves do not shrink."""
+    return _tail(centers)[0]
+
+
+def _tail(centers: list[np.ndarray]) -> tuple[float, float]:
+    """(:func:`_distance_left`, the rate per window r, or nan where there is none)."""
     if len(centers) <= 2 * WINDOW:
-        return np.inf
+        return np.inf, np.nan
     a = np.linalg.norm(centers[-1] - centers[-1 - WINDOW], axis=1).max()
     b = np.linalg.norm(centers[-1 - WINDOW] - centers[-1 - 2 * WINDOW], axis=1).max()
     if a < ROUND_TOL:  # settled: what is left is the LP's jitter between neighbouring vertices
-        return a
+        return a, np.nan
     if a >= b:
-        return np.inf
+        return np.inf, np.nan
     r = a / b
-    return a * r / (1 - r)
+    return a * r / (1 - r), r
+
+
+def _turned_on(R: np.ndarray, R_before: np.ndarray, factor: float) -> np.ndarray:
+    """(N, 3, 3) the rotations ``R`` turned on by ``factor`` times the turn that brought them
+    from ``R_before``: exp(factor log(R R_before^T)) R."""
+    from scipy.spatial.transform import Rotation
+
+    turn = Rotation.from_matrix(R @ np.swapaxes(R_before, -1, -2)).as_rotvec()
+    return _exp_turn(factor * turn) @ R
 
 
 def refine_paper(
@@ -269,6 +419,17 @@ def refine_paper(
         "time_limit", "lp_<status>" or "degenerate" (an LP shrank a wand to a point; the state
         before that round is returned).
     """
+    from threadpoolctl import threadpool_limits
+
+    # one BLAS thread: the products are vectors of a few 10k entries and 3 x 3 blocks, where a
+    # second thread costs more in hand-offs than it gains (a 65k dot product took 0.68 ms of CPU
+    # with two threads on a loaded machine, 0.016 ms with one; decision 0033)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _rounds(R, t, wand, problem, fixed, up, formulation, max_rounds, time_limit, progress)
+
+
+def _rounds(R, t, wand, problem: WandProblem, fixed, up, formulation: str, max_rounds: int, time_limit, progress):
+    """:func:`refine_paper`'s rounds."""
     start = time.perf_counter()
     X = wand.reshape(-1, 3).copy()
     lp_seconds = 0.0
@@ -278,13 +439,14 @@ def refine_paper(
     # start), so each round starts the simplex method from the last round's optimal basis.
     heights = height_pairs(R, t, X, up)
     basis = None
-    centers = [camera_centers(R, t)]
+    centers, turns = [camera_centers(R, t)], [R]
+    ahead, jumps = None, 0  # the rotations of a jump along the tail, for the next round's LP
     for rounds in range(1, max_rounds + 1):
-        R_new = rotation_step(R, t, X, problem, fixed)
+        R_new = rotation_step(R, t, X, problem, fixed) if ahead is None else ahead
+        ahead = None
         C_old = camera_centers(R_new, t)
-        if progress is not None:  # the LP is most of a round, and the first, cold one takes minutes at 8 x 1500
-            progress({"stage": "refine", "message": f"paper round {rounds}: rotations done, solving the LP"
-                      + (" (from the last round's basis)" if basis is not None else " (cold start: the longest)")})
+        if progress is not None:  # the LP is most of a round
+            progress({"stage": "refine", "message": f"paper round {rounds}: rotations done, solving the LP"})
         t_new, X_new, res = lp_step(R_new, t, X, problem, fixed, up, formulation, time_limit, heights=heights,
                                     basis=basis)
         lp_seconds += res.seconds
@@ -306,13 +468,21 @@ def refine_paper(
             status = "time_limit"
             break
         centers.append(camera_centers(R, t))
-        if move == 0.0 or _distance_left(centers) < ROUND_TOL:
+        turns.append(R)
+        left, rate = _tail(centers)
+        if move == 0.0 or left < ROUND_TOL:
             status = "converged"
             break
+        if JUMP_CAP > 0 and np.isfinite(rate):
+            # the rounds creep along one slow direction (moves a window apart point the same way):
+            # go the estimated rest of the way at once, then judge the rounds from there afresh
+            ahead = _turned_on(R, turns[-1 - WINDOW], min(rate / (1 - rate), JUMP_CAP))
+            centers, turns, jumps = [], [], jumps + 1
     return R, t, X.reshape(-1, 2, 3), {
         "iterations": rounds,
         "seconds": time.perf_counter() - start,
         "lp_seconds": lp_seconds,
         "status": status,
         "formulation": formulation,
+        "jumps": jumps,
     }

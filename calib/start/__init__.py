@@ -11,6 +11,7 @@
 | :mod:`~wandcal.calib.start.resection` | one camera placed against the points the placed cameras triangulate |
 | :mod:`~wandcal.calib.start.initial` | every camera's first pose, from the static object or the wand alone |
 | :mod:`~wandcal.calib.start.labels` | the wand's two ends told apart across cameras |
-| :mod:`~wandcal.calib.start.world` | the result's world frame: static object, axis points or wand volume |
+| :mod:`~wandcal.calib.start.world` | the result's world frame: static object, axis points, floor, gravity or wand volume |
+| :mod:`~wandcal.calib.start.vertical` | the world's vertical from floor points (a plane) or a dropped object (gravity), with its own sigma |
 | :mod:`~wandcal.calib.start.degenerate` | captures that cannot calibrate, told apart before the solve |
 """

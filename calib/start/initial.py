@@ -54,6 +54,15 @@ from wandcal.calib.start.static import StaticPose
 WEAK_LINK = 40  # correspondences below which a chained camera's start is worth a note
 
 
+class UnplacedCamera(CalibrationError):
+    """The start placed some cameras and could not place ``camera`` (its index) from them: the
+    best-linked cameras that agree were placed first, so it is the one that disagrees."""
+
+    def __init__(self, message: str, camera: int) -> None:
+        super().__init__(message)
+        self.camera = camera
+
+
 @dataclass(frozen=True, eq=False)
 class Initial:
     """Starting poses R (N, 3, 3), t (N, 3) and how each camera was placed."""
@@ -139,8 +148,8 @@ def initial_poses(
                 st.R[c], st.t[c] = pose.R, pose.t
                 st.mark(c)
                 st.source[c] = "static PnP"
-            elif isinstance(pose, StaticPose):
-                st.notes.append(f"{rig.cameras[c].id}: static-object pose is ambiguous (planar flip); placed from the wand")
+            # an ambiguous pose (the planar flip) is left to the wand or the points, which place the
+            # camera below or refuse the capture, naming it: nothing is left for the user to do
     st.scaled = st.placed.sum() >= 2
     if st.placed.any():
         _refuse_split(st)
@@ -233,7 +242,7 @@ def _place_next(st: _State) -> None:
                 return
             reasons.append(str(done))
         failures.append((c, reasons))
-    raise CalibrationError(_cannot_place(st, failures[0][0], failures[0][1]))
+    raise UnplacedCamera(_cannot_place(st, failures[0][0], failures[0][1]), failures[0][0])
 
 
 def _by_chain(st: _State, c: int) -> bool | Failure:

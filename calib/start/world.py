@@ -7,6 +7,8 @@ this order (docs/conventions.md):
   ``+y``; with two axes given the first of z, x, y is exact and the other is made orthogonal);
   with one axis only, the next axis (x after z, y after x, z after y) is the first camera's
   image-right direction made orthogonal to it;
+- the floor's plane (``floor.csv``) or gravity from a dropped object (``drop.csv``): z up, and
+  the floor's centroid or the wand volume's as the origin (:mod:`wandcal.calib.start.vertical`);
 - otherwise the wand volume's frame (:func:`volume_frame`): origin at the centroid of the wand
   midpoints (without a wand, of the single-point tracks' points), z up against the cameras'
   mean image-down direction, x along the gauge camera's image-right made level. Its origin
@@ -19,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.geometry import camera_centers, kabsch, undistort_by_camera, undistort_points
-from wandcal.calib.rig import AxisObservations, Rig, StaticObservations
+from wandcal.calib.rig import AxisObservations, Rig, StaticObservations, VerticalObservations
+from wandcal.calib.start import vertical
 from wandcal.calib.start.static import StaticPose
 from wandcal.calib.triangulate import triangulate_points
 
@@ -32,14 +35,17 @@ MIN_UP_AGREEMENT = 0.25
 MIN_LEVEL_RIGHT = 0.1
 
 
-def world_frame(rig: Rig, R: np.ndarray, t: np.ndarray, gauge: int, static=None, static_poses=None, axis=None,
-                wand: np.ndarray | None = None, points: np.ndarray | None = None):
+Reference = AxisObservations | VerticalObservations | None  # what sets the frame besides a static object
+
+
+def world_frame(rig: Rig, R: np.ndarray, t: np.ndarray, gauge: int, static=None, static_poses=None,
+                axis: Reference = None, wand: np.ndarray | None = None, points: np.ndarray | None = None):
     """The map into the user's world frame.
 
     Args:
         R, t: (N, 3, 3), (N, 3) refined poses in the gauge frame.
         static, static_poses: the static object's blobs and PnP poses, or None.
-        axis: :class:`AxisObservations`, or None.
+        axis: :class:`AxisObservations`, or :class:`VerticalObservations` (a floor or a drop), or None.
         points: (T, 3) the single-point tracks' refined points in the gauge frame, or None: the
             wand-only frame's origin when there is no wand.
         wand: (F, 2, 3) the refined wand ends in the gauge frame, or None. The frame must depend
@@ -62,11 +68,16 @@ def world_frame(rig: Rig, R: np.ndarray, t: np.ndarray, gauge: int, static=None,
                 "marker_scale": scale,
                 "scaled_fit_rms_m": rms_scaled,
             }
-    if axis is not None and len(axis):
+    if isinstance(axis, AxisObservations) and len(axis):
         fit = _axis_fit(rig, axis, R, t)
         if fit is not None:
             return fit
     Rw, tw, origin = volume_frame(R, t, gauge, wand, points)
+    if isinstance(axis, VerticalObservations) and len(axis):
+        found = vertical.vertical_fit(rig, axis, R, t)
+        if found is not None:
+            Rv, tv = vertical.vertical_frame(found, R, gauge, -Rw.T @ tw)
+            return Rv, tv, vertical.details(found)
     cam = rig.cameras[gauge].id
     return Rw, tw, {
         "frame": "wand_volume",

@@ -66,6 +66,9 @@ def read_anipose_toml(text: str, unit: str = "m", source: str = "calibration.tom
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CalibrationError(f"{source}: not TOML ({exc})") from None
+    except ValueError as exc:  # an integer of more than 4300 digits (Python's int-from-text limit; fuzzing found it)
+        raise CalibrationError(f"{source}: a number too long to read ({str(exc)[:120]}); give anipose's "
+                               "calibration.toml") from None
     cams, R, t = [], [], []
     for key, entry in doc.items():
         if key == "metadata":

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Rig
-from wandcal.capture.folder import CaptureFormatError, rig_to_json
+from wandcal.capture.folder import MAX_CSV_BYTES, CaptureFormatError, rig_to_json
 from wandcal.capture.formats import dlt, qualisys_vicon
 from wandcal.capture.formats.anipose_opencv import read_anipose_toml, read_opencv_yaml
 from wandcal.capture.formats.cameras import BOTTOM_LEFT, PosedCameras
@@ -28,6 +28,24 @@ BY_SUFFIX = {".toml": "anipose-toml", ".yaml": "opencv-yaml", ".yml": "opencv-ya
 def guess_format(path: Path) -> str | None:
     """The camera format a file's extension names, or None."""
     return BY_SUFFIX.get(Path(path).suffix.lower())
+
+
+# Every imported file (a camera file here, a session's files in capture/importers/) is read whole:
+# past this size it is refused before it is read. The capture CSVs' own bound (about 2 million
+# rows); a camera file or a keypoint table larger is not one.
+MAX_IMPORT_BYTES = MAX_CSV_BYTES
+
+
+def check_size(path: Path, what: str) -> None:
+    """Refuse ``path`` before it is read when it is larger than :data:`MAX_IMPORT_BYTES` (a read
+    of any size would allocate as much). A file that cannot be examined is left to its read."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return
+    if size > MAX_IMPORT_BYTES:
+        raise CaptureFormatError(f"{path}: {size} bytes, more than the {MAX_IMPORT_BYTES} an imported {what} may "
+                                 "hold; give a shorter recording, or keep every n-th frame")
 
 
 def read_camera_file(path: str | Path, fmt: str | None = None, unit: str | None = None, origin: str = BOTTOM_LEFT,
@@ -47,6 +65,7 @@ def read_camera_file(path: str | Path, fmt: str | None = None, unit: str | None 
     if fmt not in CAMERA_FORMATS:
         raise CaptureFormatError(f"{path}: cannot tell its format from the extension; give --format, one of "
                                  f"{', '.join(CAMERA_FORMATS)}")
+    check_size(path, "camera file")
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:

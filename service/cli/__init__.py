@@ -20,6 +20,7 @@ COMMANDS = {
     "simulate": "wandcal.service.cli.simulate",
     "calibrate": "wandcal.service.cli.calibrate",
     "check": "wandcal.service.cli.check",
+    "watch": "wandcal.service.cli.watch",
     "demo": "wandcal.service.cli.demo",
     "capture": "wandcal.service.cli.capture",
     "detect": "wandcal.service.cli.detect",
@@ -31,7 +32,7 @@ COMMANDS = {
     "report": "wandcal.service.cli.report",
 }
 # commands that compute once and exit: their process keeps the memory it frees (service/cli/support/batch_memory.py)
-BATCH_COMMANDS = frozenset({"simulate", "calibrate", "demo", "check", "detect", "import", "export", "report"})
+BATCH_COMMANDS = frozenset({"simulate", "calibrate", "demo", "check", "watch", "detect", "import", "export", "report"})
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:

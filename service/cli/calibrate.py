@@ -51,7 +51,8 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sync-drift", action="store_true", help="with --sync auto: also each camera's rate difference")
     p.add_argument("--require", choices=REQUIRE_LEVELS, default=None, metavar="LEVEL",
                    help=f"for scripts: exit {BELOW_REQUIRED} when the rig's verdict is below LEVEL "
-                        f"({' or '.join(REQUIRE_LEVELS)}); the result is written all the same (exit 0 without it)")
+                        f"({' or '.join(REQUIRE_LEVELS)}); the result is written all the same. Exit status: 0 "
+                        f"written (and at LEVEL or above), {BELOW_REQUIRED} below LEVEL, 2 bad input (nothing written)")
     p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
                    help="start from this result: with --solve-only, every other camera keeps its pose exactly")
@@ -112,7 +113,8 @@ def _calibrated(args, progress):
     if options.sync == "auto":
         start = timestamp_start(folder, cap.rig, rate)
         options = replace(options, sync_start=tuple(int(s) for s in start) if start is not None else None)
-    return calibrate(cap.rig, cap.wand, cap.static, options=options, progress=progress, points=cap.points, axis=cap.axis)
+    return calibrate(cap.rig, cap.wand, cap.static, options=options, progress=progress, points=cap.points, axis=cap.axis,
+                     vertical=cap.vertical)
 
 
 def _solve_only(args, cap, options, progress):

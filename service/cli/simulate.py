@@ -15,6 +15,8 @@ MAX_SIM_CAMERAS = 64
 MAX_SHAPE_CAMERAS = 256  # simulate --shape: stadium rings have 200+ cameras (each frame kept in only 2-4)
 MAX_SIM_FRAMES = 100_000
 MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
+MAX_TAKE_MARKERS = 200  # a full marker suit has ~50; a few people and props stay under this
+MAX_REFERENCE_POINTS = 10_000  # floor points or drop frames: far more than any lab digitises
 # the wands simulate --wand films (rig.json wand.markers_m, metres): an asymmetric split tells a
 # collinear wand's ends apart (OptiTrack CW-500-like), an asymmetric bar a planar T's (Vicon-like)
 WANDS = {
@@ -43,6 +45,33 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
         p.add_argument("--wand", choices=tuple(WANDS), default="two",
                        help="the wand: two markers 0.5 m apart (default), three or five collinear markers, or a planar "
                        "T of five (rig.json wand.markers_m); not with --shape")
+        vertical = p.add_mutually_exclusive_group()
+        vertical.add_argument("--floor", type=arg_whole(3, MAX_REFERENCE_POINTS), default=None, metavar="N",
+                              help="also write floor.csv: N points on the floor, the world's vertical without an "
+                              "L-frame (use with --no-static)")
+        vertical.add_argument("--drop", type=arg_whole(5, MAX_REFERENCE_POINTS), default=None, metavar="N",
+                              help="also write drop.csv: a ball dropped through the volume, N frames at 100 fps, "
+                              "gravity as the world's vertical (use with --no-static)")
+        take_args(p)
+
+
+def take_args(p: argparse.ArgumentParser) -> None:
+    """``--take``: an ordinary take of the same rig (the ring of the same --cameras and --seed) instead
+    of a wand capture, for ``wandcal watch``."""
+    p.add_argument("--take", action="store_true",
+                   help="write a take (rig.json, take.csv: unlabelled blobs of markers on moving bodies) of the rig "
+                   "that the same --cameras and --seed give, for 'wandcal watch'; --frames is its length")
+    p.add_argument("--markers", type=arg_whole(1, MAX_TAKE_MARKERS), default=40, metavar="N",
+                   help="with --take: markers on the moving bodies (default 40)")
+    p.add_argument("--spurious", type=arg_number(0, 50), default=0.5, metavar="N",
+                   help="with --take: spurious blobs a camera-frame on average (default 0.5)")
+    p.add_argument("--dropped", type=arg_number(0, 1, high_open=True), default=0.03, metavar="SHARE",
+                   help="with --take: share of marker blobs a camera misses (default 0.03)")
+    p.add_argument("--move", default=None, metavar="CAM:FRAME:DEG:MM",
+                   help="with --take: camera CAM (its id) turned DEG degrees and its centre moved MM mm at frame FRAME "
+                   "(a knock), e.g. cam4:500:0.2:2")
+    p.add_argument("--drift", type=arg_whole(0, MAX_SIM_FRAMES), default=0, metavar="FRAMES",
+                   help="with --move: the move grows evenly over this many frames (a warming mount; default 0, a knock)")
 
 
 def sim_args(p: argparse.ArgumentParser, cameras: int, frames: int, shapes: bool = False) -> None:
@@ -93,18 +122,76 @@ def _simulate_shape(args):
     return simulate_shape(shape, args.frames, args.noise, args.outliers, args.seed, static=not args.no_static)
 
 
-def write_simulated(folder: Path, sim) -> None:
-    """The capture folder and its truth.json."""
+def write_simulated(folder: Path, sim, vertical=None) -> None:
+    """The capture folder (with ``vertical``'s floor.csv or drop.csv when given) and its truth.json."""
     import json
 
     from wandcal.capture.folder import write_capture
 
-    write_capture(folder, sim.rig, sim.wand, sim.static)
+    write_capture(folder, sim.rig, sim.wand, sim.static, vertical=vertical)
     (folder / TRUTH_FILE).write_text(json.dumps(sim.truth.to_json(sim.rig)) + "\n")
 
 
+def simulated_vertical(args, sim):
+    """floor.csv's or drop.csv's observations that ``--floor`` or ``--drop`` ask for, or None."""
+    from wandcal.calib.errors import CalibrationError
+
+    if args.floor is None and args.drop is None:
+        return None
+    if sim.static is not None:
+        raise CalibrationError(f"--{'floor' if args.floor else 'drop'} sets the world's vertical, which the L-frame "
+                               "already sets; add --no-static")
+    import numpy as np
+
+    from wandcal.calib.sim import references
+
+    rng = np.random.default_rng([args.seed, 7])
+    X = references.floor_points(args.floor, rng) if args.floor else references.drop_track(args.drop, rng)
+    return references.observe(sim.rig, sim.truth.R, sim.truth.t, "floor" if args.floor else "drop", X, args.noise, rng)
+
+
 def run_simulate(args) -> int:
+    if getattr(args, "take", False):
+        return _run_take(args)
     sim = simulated(args)
-    write_simulated(args.out, sim)
+    write_simulated(args.out, sim, simulated_vertical(args, sim))
     print(f"wrote {args.out}: {len(sim.rig.cameras)} cameras, {args.frames} frames, {len(sim.wand)} wand blobs")
     return 0
+
+
+def _run_take(args) -> int:
+    """``simulate --take``: a take folder and its truth.json (the standing poses and the move)."""
+    import json
+
+    from wandcal.calib.errors import CalibrationError
+    from wandcal.calib.sim.takes import simulate_take, take_rig
+    from wandcal.capture.take_file import write_take
+
+    if args.shape is not None or args.cameras > MAX_SIM_CAMERAS:
+        raise CalibrationError(f"--take: takes are of the default ring of 3 to {MAX_SIM_CAMERAS} cameras; leave out --shape")
+    rig = take_rig(args.cameras, args.seed)[0]
+    moves = () if args.move is None else (_parse_move(args.move, args.drift, rig),)
+    sim = simulate_take(args.cameras, args.frames, markers=args.markers, noise_px=args.noise, dropped=args.dropped,
+                        spurious=args.spurious, moves=moves, seed=args.seed)
+    write_take(args.out, sim.rig, sim.blobs)
+    (args.out / TRUTH_FILE).write_text(json.dumps(sim.truth.to_json(sim.rig)) + "\n")
+    print(f"wrote {args.out}: a take of {len(sim.rig.cameras)} cameras, {args.frames} frames, {args.markers} markers, "
+          f"{len(sim.blobs)} blobs" + (f"; {args.move}" if moves else ""))
+    return 0
+
+
+def _parse_move(text: str, drift: int, rig):
+    """CAM:FRAME:DEG:MM (the id may hold colons: the last three fields are numbers) as a
+    :class:`wandcal.calib.sim.takes.CameraMove` over ``drift`` frames."""
+    from wandcal.calib.errors import CalibrationError
+    from wandcal.calib.sim.takes import CameraMove
+
+    try:
+        cam, frame, deg, mm = text.rsplit(":", 3)
+        move = CameraMove(rig.index(cam), int(frame), float(deg), float(mm), drift)
+    except (ValueError, TypeError):
+        raise CalibrationError(f"--move {text!r}: give CAM:FRAME:DEG:MM, e.g. cam4:500:0.2:2 (cameras "
+                               f"{', '.join(rig.ids[:4])}, ...)") from None
+    if move.frame < 0 or not (0 <= move.rotation_deg <= 90 and 0 <= move.translation_mm <= 1000):
+        raise CalibrationError(f"--move {text!r}: FRAME is a frame from 0, DEG 0-90 and MM 0-1000")
+    return move

@@ -3,7 +3,9 @@
 A job moves ``queued -> running -> done | failed | cancelled``. A job whose worker died (the
 server was killed, or the process crashed) goes back to ``queued`` once, then ``failed`` with the
 reason. Every write of an outcome carries the claim's ``run_token``, so a stale worker of an
-earlier attempt can never overwrite the outcome of a later one.
+earlier attempt can never overwrite the outcome of a later one; an outcome mirrored from Redis
+is written only to an unfinished row (:meth:`JobStore.set_outcome`). A finished row is never
+written again: every job ends exactly once.
 """
 
 from __future__ import annotations
@@ -38,6 +40,9 @@ class JobState(str, enum.Enum):
     @property
     def finished(self) -> bool:
         return self in (JobState.done, JobState.failed, JobState.cancelled)
+
+
+UNFINISHED = (JobState.queued.value, JobState.running.value)  # the states a record may still leave
 
 
 @dataclass(frozen=True)
@@ -191,8 +196,11 @@ class JobStore:
             )
         return cur.rowcount == 1
 
-    def set_outcome(self, job_id: str, state: JobState, **fields) -> None:
-        """Mirror an outcome reported by an external queue (Redis) into the record."""
+    def set_outcome(self, job_id: str, state: JobState, **fields) -> bool:
+        """Mirror a state reported by an external queue (Redis) into the record, unless the record
+        is finished: a compare-and-set on the row's state, so the first outcome recorded is kept and
+        neither a second finisher (a job solved twice) nor a stale mirror (a poll that read rq before
+        another poll recorded the end) can replace it. False when the row was finished (or gone)."""
         cols = {"state": state.value}
         for key in ("attempts", "started", "finished", "error", "solve_seconds"):
             if fields.get(key) is not None:
@@ -202,13 +210,14 @@ class JobStore:
                 cols[key] = json.dumps(fields[key])
         assignments = ", ".join(f"{k} = ?" for k in cols)
         with connect(self.db_path) as conn:
-            conn.execute(f"UPDATE jobs SET {assignments} WHERE id = ?", (*cols.values(), job_id))
+            cur = conn.execute(f"UPDATE jobs SET {assignments} WHERE id = ? AND state IN (?, ?)",
+                               (*cols.values(), job_id, *UNFINISHED))
+        return cur.rowcount == 1
 
     def unfinished(self) -> list[JobRecord]:
         """The queued and running jobs, oldest first."""
         with connect(self.db_path) as conn:
-            rows = conn.execute("SELECT * FROM jobs WHERE state IN (?, ?) ORDER BY created",
-                                (JobState.queued.value, JobState.running.value)).fetchall()
+            rows = conn.execute("SELECT * FROM jobs WHERE state IN (?, ?) ORDER BY created", UNFINISHED).fetchall()
         return [JobRecord.from_row(r) for r in rows]
 
     def withdraw(self, job_id: str) -> None:

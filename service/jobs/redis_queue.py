@@ -234,7 +234,7 @@ class RedisQueue:
         ended = job.ended_at.timestamp() if job.ended_at else time.time()
         attempts = _attempts(job, running=status != JobStatus.QUEUED)
         if status == JobStatus.FINISHED:
-            self.store.set_outcome(
+            self._mirror(
                 job_id, JobState.done, result=job.return_value(), started=started, finished=ended, attempts=attempts,
                 solve_seconds=meta.get("solve_seconds"), progress=meta.get("progress"),
             )
@@ -245,19 +245,28 @@ class RedisQueue:
             if error is None and status == JobStatus.FAILED:  # the task raised nothing: its process died
                 error = not_retried(f"{DIED} (rq: {rq_reason or 'no reason recorded'})", attempts,
                                     "the rq worker's log (and the kernel's, for the OOM killer)")
-            self.store.set_outcome(
+            self._mirror(
                 job_id, JobState.cancelled if cancelled else JobState.failed,
                 error=error or rq_reason or f"the rq job ended as {status.value}", started=started, finished=ended,
                 attempts=meta.get("attempt", attempts),
             )
         elif status == JobStatus.STARTED:
-            self.store.set_outcome(job_id, JobState.running, started=started, attempts=attempts,
+            self._mirror(job_id, JobState.running, started=started, attempts=attempts,
                                    progress=meta.get("progress"))
             self._retry_abandoned()
-        elif status == JobStatus.QUEUED and attempts > 0:  # re-queued by rq after its worker died
-            self.store.set_outcome(job_id, JobState.queued, attempts=attempts,
-                                   progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
+        elif status == JobStatus.QUEUED:
+            if attempts > 0:  # re-queued by rq after its worker died
+                self._mirror(job_id, JobState.queued, attempts=attempts,
+                             progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
+            self._retry_abandoned()  # it may be one a worker took and never started
         return self.store.get(job_id)
+
+    def _mirror(self, job_id: str, state: JobState, **fields) -> None:
+        """Write rq's view into the record unless the record has finished meanwhile (another poll
+        recorded the end first; a job solved twice): the first outcome is kept, this one logged."""
+        if not self.store.set_outcome(job_id, state, **fields) and state.finished:
+            log.info("job %s: a later outcome (%s) is not recorded: the record had finished first (a second "
+                     "run, or a second poll) and keeps its first outcome", job_id, state.value)
 
     def _vanished(self, record: JobRecord, grace_s: float | None = None) -> JobRecord | None:
         """A job the API accepted that Redis does not know: enqueued again from its capture (its
@@ -266,16 +275,16 @@ class RedisQueue:
         if time.time() - record.created < (VANISHED_AFTER_S if grace_s is None else grace_s):
             return record  # its enqueue may still be under way
         if record.cancel_requested:
-            self.store.set_outcome(record.id, JobState.cancelled, finished=time.time(), error=f"cancelled; {VANISHED}")
+            self._mirror(record.id, JobState.cancelled, finished=time.time(), error=f"cancelled; {VANISHED}")
             return self.store.get(record.id)
         try:
             self._enqueue(record)
         except (OSError, CalibrationError) as exc:  # the capture was deleted meanwhile
-            self.store.set_outcome(record.id, JobState.failed, finished=time.time(),
+            self._mirror(record.id, JobState.failed, finished=time.time(),
                                    error=f"{VANISHED}, and its capture cannot be read again ({exc}); submit a new job")
             return self.store.get(record.id)
         log.warning("job %s: %s; enqueued again from its capture", record.id, VANISHED)
-        self.store.set_outcome(record.id, JobState.queued, progress={"stage": "requeued", "message": f"re-queued: {VANISHED}"})
+        self._mirror(record.id, JobState.queued, progress={"stage": "requeued", "message": f"re-queued: {VANISHED}"})
         return self.store.get(record.id)
 
     def _retry_abandoned(self) -> None:
@@ -294,6 +303,7 @@ class RedisQueue:
         try:
             # the request thread is not the main thread: time the callback with a timer, not SIGALRM
             StartedJobRegistry(queue=self.queue, death_penalty_class=TimerDeathPenalty).cleanup()
+            requeue_untaken(self.queue)
         finally:
             self.queue.release_maintenance_lock()
 
@@ -304,6 +314,33 @@ class RedisQueue:
         SimpleWorker([self.queue], connection=self.redis).work(burst=True)
         records = [self.refresh(i) for i in ids]
         return [r for r in records if r is not None]  # all: a job has its row (JobStore.create) before it is submitted
+
+
+def requeue_untaken(queue, lapsed: bool = False) -> list[str]:
+    """Put back on ``queue`` the jobs a worker took and never started; returns their ids.
+
+    rq moves a job from the queue to an intermediate list, then into its started registry; a
+    worker that dies or loses Redis in between (its reply lost in a Redis restart) leaves the job
+    in neither: ``queued`` for ever to the record. rq's workers hand it on only at their
+    maintenance, every 10 minutes. Here it goes back once it has stayed a minute (rq's own rule;
+    ``lapsed``: at once, as if the minute had passed), within :data:`CLEANUP_EVERY_S`. It never
+    started, so no attempt is counted."""
+    intermediate = queue.intermediate_queue
+    moved = []
+    for job_id in intermediate.get_job_ids():
+        if job_id in queue.started_job_registry:
+            continue
+        first_seen_now = intermediate.set_first_seen(job_id)
+        if not lapsed and (first_seen_now or not intermediate.should_be_cleaned_up(job_id)):
+            continue
+        job = queue.fetch_job(job_id)
+        intermediate.remove(job_id)
+        if job is not None:
+            queue.enqueue_job(job)
+            log.warning("job %s: a worker took it off the queue and never started it (it died, or lost Redis); "
+                        "put back on the queue", job_id)
+            moved.append(job_id)
+    return moved
 
 
 def _last_line(text: str | None) -> str | None:

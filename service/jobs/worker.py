@@ -58,7 +58,7 @@ def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict
     job = JobOptions.model_validate(options)
     static = capture.static if job.use_static else None
     result = calibrate(capture.rig, capture.wand, static=static, options=job.calibration(method), progress=progress,
-                       points=capture.points, axis=capture.axis)
+                       points=capture.points, axis=capture.axis, vertical=capture.vertical)
     return result.to_json()
 
 

@@ -6,6 +6,7 @@ import html
 import math
 from typing import TypeGuard
 
+from wandcal.calib.judge.verdict import NO_REFERENCE, NO_SCALE, at_limit_text
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list, names_camera
 from wandcal.service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
 from wandcal.service.report.figures import AXIS_POINTS, FRAME_DOTS, OUTLIER_CROSSES, POINT_DOTS, WAND_DOTS
@@ -86,6 +87,11 @@ def _summary(data: ReportData) -> list[str]:
                + (f" \u2014 {_e('; '.join(reasons))}" if reasons else "") + "</p>")
     verdict_doc = doc.get("verdict")
     v = verdict_doc if isinstance(verdict_doc, dict) else {}
+    near = [e for e in v.get("at_limit") or [] if isinstance(e, dict) and e.get("levels", [None, None])[1] == "poor"]
+    if near:  # within one standard error of the limit of poor: the better level holds
+        out.append('<p id="at-limit">At the limit, within one standard error (the better level holds):'
+                   + _items([f"{e['camera'] + ' ' if e.get('camera') else ''}{e['criterion']} {at_limit_text(e)}"
+                             for e in near]) + "</p>")
     faults = v.get("faults")
     words = [f"{_e(FAULT_WORDS.get(str(f.get('kind')), f.get('kind')))}{_e(' (' + f['camera'] + ')') if f.get('camera') else ''}: "
              f"{_e(f.get('message', ''))}" for f in faults or [] if isinstance(f, dict)]
@@ -96,6 +102,9 @@ def _summary(data: ReportData) -> list[str]:
     placement = world.get("placement")
     place = placement if isinstance(placement, dict) else {}
     p_word, p_reasons = verdict(v.get("placement"))
+    if world.get("scale") == "arbitrary" or world.get("frame") == "wand_volume":  # older results graded it all the same
+        out.append(f'<p id="placement">World frame: {_e(NO_SCALE if world.get("scale") == "arbitrary" else NO_REFERENCE)}</p>')
+        return out
     out.append(f'<p id="placement">World frame placement: origin \u00b1 {_num(place.get("origin_std_mm"), ".2f", " mm")}'
                f', axes \u00b1 {_num(place.get("axes_std_deg"), ".3f", " deg")}'
                + (f" \u2014 {_verdict_html(p_word)}" + (f" ({_e('; '.join(p_reasons))})" if p_reasons else "")

@@ -44,6 +44,10 @@ export function rigJudgement(result) {
   const v = result.verdict, lv = level(v);
   const out = [el("p", { id: "verdict" }, ...(lv ? [el("strong", { class: `verdict-${lv}` }, `verdict: ${lv}`),
     ...(v.reasons && v.reasons.length ? [` (${v.reasons.join("; ")})`] : [])] : [`verdict: ${DASH}`]))];
+  // criteria within one standard error of the limit of poor: the better level holds (docs/verdict.md)
+  const near = ((v && Array.isArray(v.at_limit)) ? v.at_limit : []).filter((e) => e && e.levels && e.levels[1] === "poor");
+  if (near.length) out.push(el("p", { id: "at-limit" }, "at the limit, within one standard error (the better level holds): ",
+    near.map((e) => `${e.camera ? `${e.camera} ` : ""}${e.criterion} ${e.value} ± ${e.std} ${e.unit} against ${e.limit} ${e.unit}`).join("; ")));
   const faults = (v && Array.isArray(v.faults)) ? v.faults : [];
   out.push(el("h3", {}, "Faults"), faults.length
     ? el("ul", { id: "faults" }, ...faults.map((f) => el("li", { "data-kind": f.kind, "data-camera": f.camera || "" },
@@ -51,7 +55,13 @@ export function rigJudgement(result) {
     : el("p", { id: "faults", class: "muted" }, v && Array.isArray(v.faults) ? "none found" : DASH));
   const advice = (v && v.advice) || [];
   if (advice.length) out.push(el("h3", {}, "What to do"), el("ol", { id: "rig-advice" }, ...advice.map((a) => el("li", {}, a))));
-  const placement = (result.world || {}).placement, pv = v && v.placement, plv = level(pv);
+  const world = result.world || {}, placement = world.placement, pv = v && v.placement, plv = level(pv);
+  if (world.scale === "arbitrary" || world.frame === "wand_volume") {  // no object placed the world: nothing to grade
+    out.push(el("p", { id: "placement" }, el("strong", {}, "world frame: "), world.scale === "arbitrary"
+      ? "no world reference and no scale (point tracks only): an arbitrary frame, up to scale"
+      : "no world reference (no static.csv, no axis points): the wand volume's own frame, an arbitrary one"));
+    return out;
+  }
   out.push(el("p", { id: "placement" }, el("strong", {}, "world frame placement: "),
     `origin ± ${num(placement && placement.origin_std_mm, 2)} mm, axes ± ${num(placement && placement.axes_std_deg, 3)} deg`,
     ...(plv ? [" · ", el("span", { class: `verdict-${plv}` }, plv), ...(pv.reasons && pv.reasons.length ? [` (${pv.reasons.join("; ")})`] : [])] : [])));

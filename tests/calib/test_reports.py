@@ -37,7 +37,7 @@ def test_a_small_rig_and_warnings_that_differ_are_kept_as_they_are():
                 "cam1: its frames are late against 'cam2'", "cam3: its frames are late against 'cam2'"]
     assert fold_camera_warnings(warnings, ids) == warnings  # each figure, or another camera named
     assert camera_warnings(warnings, ids)[1] == (warnings[0], *warnings[3:])  # cam2's own, and those quoting it
-    assert fold_camera_warnings(["cam2" + AMBIGUOUS, "cam4" + AMBIGUOUS], ids) == ["cam2, cam4" + AMBIGUOUS]
+    assert fold_camera_warnings(["cam2" + AMBIGUOUS, "cam4" + AMBIGUOUS], ids) == ["cam2 and cam4" + AMBIGUOUS]
 
 
 def test_the_summary_warnings_follow_what_came_before_them_and_all_fold_together():

@@ -125,3 +125,28 @@ def test_guidance_frames_past_their_limit_are_a_settings_error(tmp_path):
     assert Settings.load(data_dir=tmp_path, guidance={"frames_per_camera": MAX_GUIDANCE_FRAMES})
     with pytest.raises(SettingsError, match="guidance.frames_per_camera"):
         Settings.load(data_dir=tmp_path, guidance={"frames_per_camera": MAX_GUIDANCE_FRAMES + 1})
+
+
+def _oversized(path):
+    with open(path, "ab") as fh:  # sparse: the size is checked, never the content
+        fh.truncate(MAX_CSV_BYTES + 1)
+    return path
+
+
+@pytest.mark.parametrize("name", ["cam1DLC.csv", "points.npy", "calibration.toml", "cameras.yaml", "profile.txt"])
+def test_an_imported_file_over_the_limit_is_refused_before_it_is_read(tmp_path, name):
+    """Issue 34: the importers read a file whole, so a file of any size was an allocation of any
+    size; each is now refused from its size, naming the file, as the capture CSVs are."""
+    from wandcal.calib.errors import CalibrationError
+    from wandcal.capture.formats.cameras_in import MAX_IMPORT_BYTES, read_camera_file
+    from wandcal.capture.importers.anipose import read_anipose
+    from wandcal.capture.importers.deeplabcut import read_dlc_csv, read_points_npy
+    from wandcal.capture.importers.dltdv import read_text
+
+    path = _oversized(tmp_path / name)
+    read = {"cam1DLC.csv": lambda: read_dlc_csv(path), "points.npy": lambda: read_points_npy(path, 3, "calibration.toml"),
+            "calibration.toml": lambda: read_anipose(path, [str(path.with_name("cam1DLC.csv"))]),
+            "cameras.yaml": lambda: read_camera_file(path), "profile.txt": lambda: read_text(path, "camera profile")}
+    with pytest.raises(CalibrationError, match="more than the") as refused:
+        read[name]()
+    assert f"{path}: {MAX_CSV_BYTES + 1} bytes, more than the {MAX_IMPORT_BYTES}" in str(refused.value)

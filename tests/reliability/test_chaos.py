@@ -26,11 +26,14 @@ SHORT = Plan(jobs=20, workers=3, worker_kills=3, whole_worker_every=0, redis_res
              away_s=3.0, api_restarts=1, submit_s=12.0, settle_s=120.0, stall_s=40.0, lapse_after_s=10.0, captures=2)
 
 
-
-# Known defect (issue 34, 2026-11-28): in 2 of 6 short runs one job's recorded outcome changed after
-# it was first seen (report.changed), a job solved twice whose second outcome replaced the first.
-# Quarantined, not hidden: the test runs every time and reports; the defect is open in issue 34.
-@pytest.mark.xfail(strict=False, reason="issue 34: a job solved twice can change its recorded outcome (2 of 6 runs)")
+# Once quarantined (2 of 6 runs reported an outcome changed, issue 34): the run's check compared the
+# end first polled of a job whose POST answer an API kill cut off with nothing (its row was not an
+# accepted job's), and a poll that had read a job's record before another poll recorded its end
+# could write rq's older state over it. Both fixed (bench/chaos.py reads every row's end; the
+# record is a compare-and-set, JobStore.set_outcome). Since then 21 of 22 runs at a load of 17-36
+# passed; the one failure's output was lost, so it stays quarantined (it runs every time) until a
+# failure is caught and explained (issue 34).
+@pytest.mark.xfail(strict=False, reason="issue 34: 1 of 22 runs under a load of 17-36 failed, cause not yet found")
 def test_every_accepted_job_ends_exactly_once_under_chaos(tmp_path):
     report = run(SHORT, tmp_path)
     assert len(report.accepted) == SHORT.jobs
@@ -38,8 +41,24 @@ def test_every_accepted_job_ends_exactly_once_under_chaos(tmp_path):
     assert report.horse_kills >= 1, "no work horse was caught running a job; the captures solve too fast"
     # while Redis was stopped: reads from SQLite, a 503 with Retry-After for a new job
     assert report.away["ok"], report.away
-    assert report.lost == [] and report.stuck == [] and report.changed == []
+    assert report.lost == [] and report.stuck == [] and report.changed == [], (
+        report.lost, report.stuck, {j: (report.first_end[j], report.final.get(j)) for j in report.changed})
     assert report.unaccepted_unfinished == 0
     states = report.states()
     assert sum(states.values()) == SHORT.jobs and states["done"] >= SHORT.jobs - SHORT.worker_kills // 2
     assert not report.errors, report.errors
+
+
+def test_the_check_compares_each_polled_end_with_its_own_row():
+    """The cause of the quarantine's 2 in 6: a job whose POST answer an API kill cut off is polled
+    too (a page lists it), and its end was compared with nothing, reported as changed."""
+    from bench.chaos import Report
+
+    report = Report(accepted=["a"])
+    report.first_end = {"a": ("done", "x"), "cut": ("done", "y")}
+    report.final = {"a": ("done", "x"), "cut": ("done", "y")}
+    assert report.changed == [] and report.lost == [] and report.stuck == []
+    report.final["cut"] = ("failed", "z")  # a later outcome written over the first: reported
+    assert report.changed == ["cut"]
+    del report.final["a"]
+    assert report.lost == ["a"] and report.changed == ["a", "cut"]

@@ -146,7 +146,7 @@ def two_groups(seed: int = 3):
     return rig, WandObservations(obs.frame[keep], obs.camera[keep], obs.uv[keep]), st
 
 
-SPLIT = r"camera 'cam4' cannot be placed: no wand frame or point track ties it to the cameras cam1, cam2, cam3 .*cam4, cam5, cam6"
+SPLIT = r"camera 'cam4' cannot be placed: no wand frame or point track ties it to the cameras cam1, cam2 and cam3 .*cam4, cam5 and cam6"
 
 
 @pytest.mark.parametrize("with_static", [True, False])

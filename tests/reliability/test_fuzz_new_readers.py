@@ -32,11 +32,11 @@ from tests.reliability.test_fuzz_readers import _kind
 from wandcal.calib.rig import AxisObservations, PointObservations
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, read_capture, write_capture
-from wandcal.capture.formats.anipose import read_anipose
 from wandcal.capture.formats.cameras import PosedCameras
 from wandcal.capture.formats.cameras_in import read_camera_file
-from wandcal.capture.formats.deeplabcut import read_dlc_csv
 from wandcal.capture.formats.export import FORMAT_NAMES, export
+from wandcal.capture.importers.anipose import read_anipose
+from wandcal.capture.importers.deeplabcut import read_dlc_csv
 
 SIM = simulate_capture(3, 40, 0.3, seed=1)
 SUFFIX = {"anipose-toml": ".toml", "opencv-yaml": ".yaml", "dlt-csv": ".csv", "qca": ".qca.txt", "xcp": ".xcp"}
@@ -261,3 +261,15 @@ def test_deeplabcut_frames_out_of_range_are_refused_naming_the_line(tmp_path):
         refused_cleanly(lambda: read_dlc_csv(path), "DeepLabCut CSV: known nasty", f"{path} line 4")
         with pytest.raises(ValueError, match="out of range"):
             read_dlc_csv(path)
+
+
+def test_a_toml_number_too_long_for_python_is_refused_naming_the_file(tmp_path):
+    """Found by WANDCAL_FUZZ_SCALE=5: an integer of more than 4300 digits made tomllib raise a bare
+    ValueError (Python's limit on int-from-text), a traceback from `wandcal import`."""
+    from wandcal.calib.errors import CalibrationError
+
+    path = tmp_path / "calibration.toml"
+    path.write_text("[cam_0]\nname = \"cam1\"\nsize = [" + "7" * 5000 + ", 1024]\n")
+    for read in (lambda: read_camera_file(path), lambda: read_anipose(path, [])):
+        with pytest.raises(CalibrationError, match=r"calibration.toml: a number too long to read"):
+            read()

@@ -57,13 +57,13 @@ class Server:
         headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
         return httpx.Client(base_url=self.url + "/api/v1", headers=headers, timeout=30.0, **kwargs)
 
-    def start(self) -> Server:
+    def start(self, timeout_s: float = STARTUP_TIMEOUT_S) -> Server:
         with open(self.log, "ab") as log:  # the server writes through its own copy of the descriptor
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "wandcal.service.cli", "serve", "--port", str(self.port), "--log-level", "warning"],
                 cwd=REPO, env=self.env, stdout=log, stderr=subprocess.STDOUT,
             )
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited with {self.proc.returncode}:\n{self.log.read_text()}")
@@ -73,7 +73,7 @@ class Server:
             except httpx.TransportError:
                 pass
             time.sleep(0.1)
-        raise RuntimeError(f"server did not answer within {STARTUP_TIMEOUT_S} s:\n{self.log.read_text()}")
+        raise RuntimeError(f"server did not answer within {timeout_s:g} s:\n{self.log.read_text()}")
 
     def kill(self) -> None:
         """SIGKILL: no shutdown code runs, as when the machine loses power."""

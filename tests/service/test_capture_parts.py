@@ -1,4 +1,4 @@
-"""``POST /captures`` keeps every part it takes (points.csv with labelled points, axis.csv) and
+"""``POST /captures`` keeps every part it takes (points.csv with labelled points, axis.csv, floor.csv or drop.csv) and
 refuses any other part with 422, storing nothing: an imported session uploaded to the service
 loses nothing."""
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.capture.formats.test_import_anipose import _session
+from tests.capture.importers.test_import_anipose import _session
 from wandcal.calib.geometry import project_pixels
 from wandcal.capture.folder import read_capture, save_capture
-from wandcal.capture.formats.anipose import read_anipose
+from wandcal.capture.importers.anipose import read_anipose
 from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings
@@ -93,3 +93,23 @@ def test_a_multi_marker_wand_layout_is_taken_and_a_bad_one_refused(client, tmp_p
     bad = {RIG_FILE: (RIG_FILE, json.dumps(doc).encode(), "application/json")}
     r = c.post("/captures", files=bad)
     assert r.status_code == 422 and "wand.markers_m: markers 1 and 2 coincide" in r.text
+
+
+def test_the_service_takes_a_drop_and_refuses_it_beside_a_floor(tmp_path):
+    from tests.calib.start.test_vertical import _scene
+    from wandcal.capture.folder import write_capture
+    from wandcal.drivers.capture_files import DROP_FILE, FLOOR_FILE, WAND_FILE
+
+    sim, drop = _scene(5, "drop", 20)
+    folder = tmp_path / "cap"
+    write_capture(folder, sim.rig, sim.wand, None, vertical=drop)
+    files = {n: (n, (folder / n).read_bytes(), "text/csv") for n in (RIG_FILE, WAND_FILE, DROP_FILE)}
+    app = create_app(Settings(data_dir=tmp_path / "data", workers=0))
+    with TestClient(app, base_url="http://127.0.0.1/api/v1", raise_server_exceptions=False) as c:
+        r = c.post("/captures", files=files)
+        assert r.status_code == 201, r.text
+        stored = read_capture(app.state.wandcal.captures.folder(r.json()["id"]))
+        assert stored.vertical is not None and stored.vertical.kind == "drop"
+        both = files | {FLOOR_FILE: (FLOOR_FILE, b"point,camera,u,v\n", "text/csv")}
+        r = c.post("/captures", files=both)
+        assert r.status_code == 422 and "not both" in r.text

@@ -73,3 +73,26 @@ def test_serve_still_registers_and_help_lists_every_command():
     assert done.returncode == 0, done.stderr
     for command in COMMANDS:
         assert command in done.stdout
+
+
+def _loaded_modules(*args: str) -> set[str]:
+    """Every module (full dotted name) a fresh ``wandcal ARGS`` process has loaded at its exit."""
+    probe = PROBE.replace("'.'.join(m.split('.')[:2]) if m.startswith('wandcal.') else m.split('.')[0]", "m")
+    done = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True, text=True, timeout=300, check=False)
+    assert done.returncode == 0, done.stderr
+    return set(json.loads(done.stderr.strip().splitlines()[-1]))
+
+
+def test_version_builds_no_command_and_help_registers_without_options():
+    """--version imports no command's module at all; --help imports each command's module to list
+    it, and none of what their options quote or their runs use (issue 33)."""
+    from wandcal.service.cli import COMMANDS
+
+    version = _loaded_modules("--version")
+    assert not {m for m in version if m.startswith("wandcal.service.cli.")}, sorted(version)
+    assert not {m.split(".")[0] for m in version} & set(NOT_FOR_STARTUP)
+    help_ = _loaded_modules("--help")
+    assert set(COMMANDS.values()) <= help_
+    ours = {m for m in help_ if m.startswith("wandcal.") and not m.startswith("wandcal.service.cli")}
+    assert ours <= {"wandcal.service"}, sorted(ours)
+    assert not {m.split(".")[0] for m in help_} & set(NOT_FOR_STARTUP)

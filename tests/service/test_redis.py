@@ -259,3 +259,68 @@ def test_a_job_that_redis_lost_is_enqueued_again_and_run_once(small_capture, sto
         (done,) = app.state.wandcal.queue.drain()
         assert done.state.value == "done" and done.result["cameras"]
         assert c.get(f"/jobs/{job_id}").json()["result"] == done.result
+
+
+@pytest.mark.parametrize("later", ["failed", "started"])
+def test_a_finished_record_keeps_its_first_outcome(small_capture, stoppable_redis, tmp_path, later, caplog):
+    """Issue 34: a poll that read the record before another poll recorded the job's end (or a job
+    solved twice, whose second run ends otherwise) must not replace the outcome recorded first."""
+    from rq.job import Job, JobStatus
+
+    from wandcal.service.jobs.records import JobState
+
+    folder, _ = small_capture
+    url, _ = stoppable_redis
+    app, c = _in_process(tmp_path, url)
+    with c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+        queue = app.state.wandcal.queue
+        stale = queue.store.get(job_id)  # what a slower poll read before the end was recorded
+        (first,) = queue.drain()
+        assert first.state.value == "done" and first.result["cameras"]
+
+        # a second run of the same rq job (re-enqueued after Redis lost it) ends otherwise or runs again
+        rq_job = Job.fetch(job_id, connection=queue.redis)
+        rq_job.meta["error"] = "a second run that failed"
+        rq_job.save_meta()
+        rq_job.set_status(JobStatus.FAILED if later == "failed" else JobStatus.STARTED)
+        reads = iter([stale])
+        real_get = queue.store.get
+        queue.store.get = lambda i: next(reads, None) or real_get(i)  # the slower poll's read, then the truth
+        with caplog.at_level("INFO", logger="wandcal.service"):
+            mirrored = queue.refresh(job_id)
+        queue.store.get = real_get
+        assert mirrored is not None and mirrored.state.value == "done" and mirrored.result == first.result
+        job = c.get(f"/jobs/{job_id}").json()
+        assert job["state"] == "done" and job["error"] is None and job["result"] == first.result
+        assert job["finished"] == first.finished and job["attempts"] == first.attempts
+        if later == "failed":
+            assert "keeps its first outcome" in caplog.text
+        # and the store refuses any mirror into a finished row
+        assert not queue.store.set_outcome(job_id, JobState.failed, error="late")
+        assert queue.store.get(job_id).state.value == "done"
+
+
+def test_a_job_a_worker_took_and_never_started_is_put_back(small_capture, stoppable_redis, tmp_path):
+    """rq moves a job to an intermediate list before its started registry; a worker that dies (or
+    loses Redis) in between left it in neither, queued to the record until some worker's
+    maintenance, up to 20 minutes later. The server's cleanup puts it back after rq's minute."""
+    from wandcal.service.jobs.redis_queue import requeue_untaken
+
+    folder, _ = small_capture
+    url, _ = stoppable_redis
+    app, c = _in_process(tmp_path, url)
+    with c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+        rq_queue = app.state.wandcal.queue.queue
+        redis = app.state.wandcal.queue.redis
+        redis.lmove(rq_queue.key, rq_queue.intermediate_queue_key)  # a worker's dequeue; the worker then died
+        assert rq_queue.get_job_ids() == []
+        assert requeue_untaken(rq_queue) == [] and requeue_untaken(rq_queue) == []  # seen now; not a minute yet
+        redis.set(rq_queue.intermediate_queue.get_first_seen_key(job_id), time.time() - 61)
+        assert requeue_untaken(rq_queue) == [job_id]
+        assert rq_queue.get_job_ids() == [job_id] and rq_queue.intermediate_queue.get_job_ids() == []
+        (done,) = app.state.wandcal.queue.drain()
+        assert done.id == job_id and done.state.value == "done" and done.attempts == 1

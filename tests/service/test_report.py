@@ -380,3 +380,21 @@ def test_each_camera_section_shows_its_own_warning_when_the_result_folds_them(si
         section = html[html.index(f'<section class="camera" id="camera-{cam_id}"'):]
         assert escape(cam_id + said) in section[: section.index("</section>")], cam_id
     assert escape("all 64 cameras" + said) in html  # and the result's own list
+
+
+def test_the_report_says_the_criteria_at_the_limit_and_no_placement_without_a_reference(sim_report, tmp_path):
+    """A criterion within one standard error of the limit of poor is said beside the rig's verdict;
+    a world the wand volume set (no L-frame, no axis points) is said to have no reference, ungraded."""
+    from wandcal.calib.judge.verdict import NO_REFERENCE
+    from wandcal.service.report.analysis import analyse
+    from wandcal.service.report.page import render_page
+
+    tmp, _, _ = sim_report
+    doc = json.loads((tmp / "result.json").read_text())
+    doc["verdict"]["at_limit"] = [{"criterion": "geometry", "camera": doc["cameras"][0]["id"], "value": 0.75,
+                                   "limit": 0.805, "std": 0.082, "unit": "mm", "levels": ["good", "poor"]}]
+    doc["world"]["frame"] = "wand_volume"
+    (tmp_path / "result.json").write_text(json.dumps(doc))
+    text = " ".join(Page(render_page(analyse(read_result(tmp_path / "result.json"), None), {})).text)
+    assert f"{doc['cameras'][0]['id']} geometry at the limit of poor (0.75 +- 0.082 mm against 0.805 mm)" in text
+    assert f"World frame: {NO_REFERENCE}" in text and "World frame placement" not in text

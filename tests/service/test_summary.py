@@ -1,7 +1,12 @@
 """``wandcal calibrate``'s summary on a big rig: a row a camera, but the verdict's lists and the poor
 cameras' reasons compact (the first few, then the others by name), a small rig's as before."""
 
-from wandcal.calib.judge.verdict import rig_verdict
+import json
+from pathlib import Path
+
+import pytest
+
+from wandcal.calib.judge.verdict import NO_REFERENCE, NO_SCALE, rig_verdict
 from wandcal.calib.rig import LISTED_CAMERAS
 from wandcal.service.cli.support.summary import format_summary
 
@@ -23,8 +28,9 @@ def result(n: int, poor: int) -> dict:
 
 
 def verdict_lines(doc: dict) -> list[str]:
+    """The rig verdict's indented lines (the world frame's line, unindented, after them)."""
     lines = format_summary(doc).splitlines()
-    return lines[lines.index(f"rig geometry: {doc['verdict']['level']}") + 1:]
+    return [line for line in lines[lines.index(f"rig geometry: {doc['verdict']['level']}") + 1:] if line.startswith("  ")]
 
 
 def test_a_64_camera_summary_names_the_cameras_compactly():
@@ -36,15 +42,15 @@ def test_a_64_camera_summary_names_the_cameras_compactly():
         f"  poor for noise in {', '.join(first)} and {10 - LISTED_CAMERAS} more (each camera's verdict says why)",
         "  good but not excellent for coverage in all 64 cameras (each camera's verdict says why)",
         *(f"  {reason}" for cam in doc["cameras"][:LISTED_CAMERAS] for reason in cam["verdict"]["reasons"]),
-        "  cam7, cam8, cam9, cam10 are poor too (each camera's verdict in the result says why)",
+        "  cam7, cam8, cam9 and cam10 are poor too (each camera's verdict in the result says why)",
     ]
 
 
 def test_a_small_rigs_summary_is_as_before():
     doc = result(4, 2)
     assert verdict_lines(doc) == [
-        "  poor for noise in cam1, cam2 (each camera's verdict says why)",
-        "  good but not excellent for coverage in cam1, cam2, cam3, cam4 (each camera's verdict says why)",
+        "  poor for noise in cam1 and cam2 (each camera's verdict says why)",
+        "  good but not excellent for coverage in cam1, cam2, cam3 and cam4 (each camera's verdict says why)",
         *(f"  {reason}" for cam in doc["cameras"][:2] for reason in cam["verdict"]["reasons"]),
     ]
 
@@ -59,5 +65,39 @@ def test_the_cameras_a_focal_length_limits_are_said_on_one_line():
     one = _limit_lines([limit("cam4", 3.1, 6.2)], 4)
     assert one == ["  limit (cam4): cam4's ... run with --refine-intrinsics focal, ..."]
     (line,) = _limit_lines([limit("cam1", 4.4, 9.1), limit("cam2", 5.6, 11.5)], 4)
-    assert "cam1, cam2 move 4.4-5.6 mm" in line and "+-9.1-11.5 mm" in line and "--refine-intrinsics focal" in line
+    assert "cam1 and cam2 move 4.4-5.6 mm" in line and "+-9.1-11.5 mm" in line and "--refine-intrinsics focal" in line
     assert _limit_lines([], 4) == []
+
+
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "results"
+
+
+@pytest.mark.parametrize("name", ["points_only.json", "before/points_only.json"])
+def test_a_points_only_capture_prints_no_world_placement_grade(name):
+    """Their stored verdicts graded the placement "excellent"; there was no world to place."""
+    lines = format_summary(json.loads((FIXTURES / name).read_text())).splitlines()
+    assert not any(line.startswith("world placement") for line in lines)
+    assert f"world frame: {NO_SCALE}" in lines
+
+
+@pytest.mark.parametrize("name", ["sync_auto.json", "before/sync_auto.json"])
+def test_a_capture_without_a_world_reference_says_so(name):
+    doc = json.loads((FIXTURES / name).read_text())
+    assert doc["world"]["frame"] == "wand_volume" and doc["world"].get("scale") != "arbitrary"
+    lines = format_summary(doc).splitlines()
+    assert not any(line.startswith("world placement") for line in lines)
+    assert f"world frame: {NO_REFERENCE}" in lines
+    assert not any("place an L-frame" in line for line in lines if line.startswith("to do"))
+
+
+def test_the_criteria_at_the_limit_of_poor_are_said_beside_the_rig_level():
+    doc = result(4, 0)
+    doc["verdict"]["at_limit"] = [
+        {"criterion": "geometry", "camera": "cam1", "value": 0.75, "limit": 0.805, "std": 0.082, "unit": "mm",
+         "levels": ["good", "poor"]},
+        {"criterion": "outliers", "camera": "cam2", "value": 5.2, "limit": 5.0, "std": 1.2, "unit": "%",
+         "levels": ["excellent", "good"]}]
+    lines = verdict_lines(doc)
+    assert lines[0] == ("  within one standard error (the better level holds): cam1 geometry at the limit of poor "
+                        "(0.75 +- 0.082 mm against 0.805 mm)")
+    assert not any("cam2 outliers" in line for line in lines)  # at the limit of good: in the result only

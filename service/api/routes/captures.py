@@ -13,7 +13,15 @@ from starlette.datastructures import FormData, UploadFile
 from wandcal.calib.rig import StaticObservations
 from wandcal.calib.start.static import solve_static
 from wandcal.capture.folder import decode_text
-from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.drivers.capture_files import (
+    AXIS_FILE,
+    DROP_FILE,
+    FLOOR_FILE,
+    POINTS_FILE,
+    RIG_FILE,
+    STATIC_FILE,
+    WAND_FILE,
+)
 from wandcal.service.api.deps import CaptureDep, State, require_content_type
 from wandcal.service.schemas import (
     CameraCoverage,
@@ -30,7 +38,7 @@ router = APIRouter(prefix="/captures", tags=["captures"])
 
 WHOLE = re.compile(r"^[0-9]{1,12}$")  # ASCII digits only; 12 digits outlast any real frame counter
 FORM = ("multipart/form-data", "application/x-www-form-urlencoded")
-UPLOAD_PARTS = (RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE, "path")  # POST /captures' form fields
+UPLOAD_PARTS = (RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE, FLOOR_FILE, DROP_FILE, "path")  # POST /captures' form fields
 MAX_STATIC_IMAGES_PER_CAMERA = 100  # averaging beyond ~100 frames gains nothing (noise falls as 1/sqrt(N))
 ERRORS: dict[int | str, dict[str, Any]] = {
     400: {"model": ErrorPublic, "description": "malformed request"},
@@ -97,6 +105,8 @@ async def _form(request: Request, state) -> FormData:
                 POINTS_FILE: _file_schema("point tracks: frame,camera,u,v[,point]; a capture without a wand "
                                           "needs them (rig.json without wand.length_m)"),
                 AXIS_FILE: _file_schema("axis points: role,camera,u,v"),
+                FLOOR_FILE: _file_schema("floor points that set the vertical: point,camera,u,v"),
+                DROP_FILE: _file_schema("a dropped object's track that sets the vertical (gravity): frame,camera,u,v"),
                 "path": {"type": "string", "description": "a capture folder under the replay root"},
             },
         },
@@ -105,7 +115,7 @@ async def _form(request: Request, state) -> FormData:
 )
 async def create_capture(request: Request, state: State) -> CapturePublic:
     """Give either the files (``rig.json``, optional ``wand.csv``, ``static.csv``, ``points.csv`` and
-    ``axis.csv``) or ``path``; any other part is refused (422), never dropped.
+    ``axis.csv``, and ``floor.csv`` or ``drop.csv``) or ``path``; any other part is refused (422), never dropped.
 
     A capture from ``rig.json`` alone starts empty and fills from ``POST /captures/{id}/framesets``.
     """
@@ -133,8 +143,13 @@ async def create_capture(request: Request, state: State) -> CapturePublic:
     static_text = await _text(form.get(STATIC_FILE), STATIC_FILE, limit)
     points_text = await _text(form.get(POINTS_FILE), POINTS_FILE, limit)
     axis_text = await _text(form.get(AXIS_FILE), AXIS_FILE, limit)
+    floor_text = await _text(form.get(FLOOR_FILE), FLOOR_FILE, limit)
+    drop_text = await _text(form.get(DROP_FILE), DROP_FILE, limit)
+    if floor_text is not None and drop_text is not None:
+        raise HTTPException(422, f"give {FLOOR_FILE} or {DROP_FILE}, not both: each sets the world's vertical")
+    vertical = (FLOOR_FILE, floor_text) if floor_text is not None else (DROP_FILE, drop_text) if drop_text is not None else None
     row = await run_in_threadpool(state.captures.create_from_texts, rig_text, wand_text, static_text, "upload",
-                                  points_text, axis_text)
+                                  points_text, axis_text, vertical)
     return to_public(row)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.geometry import kabsch, rotation_angle
+from wandcal.calib.judge.verdict import NO_REFERENCE, NO_SCALE, at_limit_text
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list
 
 
@@ -57,13 +58,16 @@ def _verdict_lines(doc: dict) -> list[str]:
     if not verdict:
         return []
     lines = [f"rig geometry: {verdict['level']}"]
+    lines += _at_limit_lines(verdict.get("at_limit") or [])
     faults = verdict.get("faults") or []
     lines += [f"  fault ({fault['kind']}{', ' + fault['camera'] if fault.get('camera') else ''}): {fault['message']}"
               for fault in faults]
     shown = {fault["message"] for fault in faults}
     lines += [f"  {reason}" for reason in verdict["reasons"] if reason not in shown]
+    rig_wide = {fault["message"] for fault in faults if not fault.get("camera")}  # a wrong scale makes every camera poor
     poor = [cam for cam in doc["cameras"] if cam.get("verdict", {}).get("level") == "poor"
-            and any(reason not in shown for reason in cam["verdict"].get("reasons", []))]
+            and any(reason not in shown for reason in cam["verdict"].get("reasons", []))
+            and not rig_wide & set(cam["verdict"].get("reasons", [])[:1])]
     for cam in poor[:LISTED_CAMERAS]:  # the first few poor cameras' reasons; a big rig's others by name
         lines += [f"  {reason}" for reason in cam["verdict"]["reasons"] if reason not in shown]
     more = [cam["id"] for cam in poor[LISTED_CAMERAS:]]
@@ -72,17 +76,34 @@ def _verdict_lines(doc: dict) -> list[str]:
                      "camera's verdict in the result says why)")
     lines += _limit_lines(verdict.get("limits") or [], len(doc["cameras"]))
     placement = verdict.get("placement")
-    if placement:
-        where = doc["world"].get("placement") or {}
+    world = doc["world"]
+    if world.get("scale") == "arbitrary" or world.get("frame") == "wand_volume":
+        # no object placed the world (older results graded it all the same): nothing to grade
+        lines.append(f"world frame: {NO_SCALE if world.get('scale') == 'arbitrary' else NO_REFERENCE}")
+        placement = None
+    elif placement:
+        where = world.get("placement") or {}
         figures = ""
         if where.get("axes_std_deg") is not None:
             origin = where.get("origin_std_mm")
             figures = (f" (origin +-{origin:.2f} mm, " if origin is not None else " (") + f"axes +-{where['axes_std_deg']:.3f} deg)"
-        lines.append(f"world placement ({doc['world'].get('frame')}): {placement['level']}{figures}")
+        lines.append(f"world placement ({world.get('frame')}): {placement['level']}{figures}")
         lines += [f"  {reason}" for reason in placement["reasons"] if reason not in shown]
     advice = list(dict.fromkeys([*verdict.get("advice", []), *(placement or {}).get("advice", [])]))
     lines += [f"to do: {text}" for text in advice]
     return lines
+
+
+def _at_limit_lines(entries: list[dict]) -> list[str]:
+    """The criteria within their standard error of the limit of poor (the verdict's ``at_limit``,
+    which has those at the limit of good too): each holds the better level, and could go either
+    way on another take."""
+    said = [f"{e['camera'] + ' ' if e.get('camera') else ''}{e['criterion']} {at_limit_text(e)}"
+            for e in entries if e["levels"][1] == "poor"]
+    if not said:
+        return []
+    more = f"; and {len(said) - LISTED_CAMERAS} more (the result's verdict.at_limit)" if len(said) > LISTED_CAMERAS else ""
+    return [f"  within one standard error (the better level holds): {'; '.join(said[:LISTED_CAMERAS])}{more}"]
 
 
 def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:

@@ -29,6 +29,11 @@ def test_a_good_rig_is_not_called_poor_and_names_no_fault(case):
     assert doc["verdict"]["level"] != "poor", doc["verdict"]["reasons"]
     assert doc["verdict"]["faults"] == []
     assert all(cam["verdict"]["level"] != "poor" for cam in doc["cameras"])
+    # a flip the wand resolved leaves nothing to do: no warning (it was on two cameras in eight)
+    assert not any("planar flip" in w for w in doc["warnings"])
+    if case == "good_no_static":  # no world reference: said, and no grade for a placement nobody made
+        assert doc["verdict"]["placement"]["level"] is None
+        assert doc["verdict"]["placement"]["reasons"][0].startswith("no world reference")
 
 
 @pytest.mark.parametrize("case", ["focal", "k1", "late", "early", "reflections", "noisy", "wand_length"])
@@ -49,6 +54,11 @@ def test_a_broken_rig_is_poor_and_names_the_fault_and_only_it(case):
     if case == "wand_length":
         assert abs(1 / fault["evidence"]["marker_scale"] - size) < 0.005  # the ratio the user is told
         assert verdict["placement"]["level"] == "poor"
+        # no camera is good beside the world sigma the wrong scale makes; the first to-do is the
+        # fault's (which two numbers to measure), not more static frames
+        assert all(cam["verdict"]["level"] == "poor" for cam in doc["cameras"])
+        assert "wand.length_m" in verdict["advice"][0] and "markers_m" in verdict["advice"][0]
+        assert verdict["placement"]["advice"] == [verdict["advice"][0]]
 
 
 def test_every_method_is_judged_on_the_same_observations():

@@ -45,7 +45,10 @@ CASES = [
     pytest.param("brown2", "noise 3x cam3", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     ("brown1", "late 1 frame cam1"),  # whole frames, from every pair of cameras (timing_pairs)
     ("svoboda", "late 0.3 frame Basler_21275577"),  # a fraction, by the marker's speed
-    pytest.param("brown1", "early 0.5 frame cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
+    ("brown1", "early 0.5 frame cam1"),  # a fraction, each pair of cameras weighted by its own scatter
+    ("brown1", "early 0.3 frame cam3"),
+    ("cpp", "late 1 frame cam3"),  # digitised: the start refused; named by --sync auto's whole-frame search
+    ("cpp", "early 0.3 frame cam3"),  # ... or by the refused camera resampled by a fraction of a frame
     pytest.param("brown2", "knocked 0.82 deg cam4", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
 ]
 
@@ -75,16 +78,17 @@ def _track_session(n_frames: int = 20) -> rf.Session:
 
 
 @pytest.mark.parametrize("offset", [1.0, -2.0, 0.3, -0.5])
-def test_a_late_camera_shows_the_track_of_time_k_minus_its_offset(offset):
+def test_a_late_camera_shows_the_track_of_time_k_plus_its_offset(offset):
     session = _track_session()
     late = rf.late(session, 0, offset).wand
     mine = late.camera == 0
     frame, uv = late.frame[mine], late.uv[mine]
     assert len(frame) >= 2 * 16  # only the frames at the recording's ends are lost
     ends = uv[:, 1] == 100.0
-    # a linear track interpolates exactly: the blob of end 0 at frame k sits where it was at k - offset
-    np.testing.assert_allclose(uv[ends, 0], 100 + 3.0 * (frame[ends] - offset), atol=1e-9)
-    np.testing.assert_allclose(uv[~ends, 1], 200 + 2.0 * (frame[~ends] - offset), atol=1e-9)
+    # a linear track interpolates exactly: the blob of end 0 at frame k sits where it was at k +
+    # offset (docs/result-format.md: a late camera's frame k is exposed at the others' k + offset)
+    np.testing.assert_allclose(uv[ends, 0], 100 + 3.0 * (frame[ends] + offset), atol=1e-9)
+    np.testing.assert_allclose(uv[~ends, 1], 200 + 2.0 * (frame[~ends] + offset), atol=1e-9)
     other = late.camera == 1
     np.testing.assert_array_equal(late.uv[other], session.wand.uv[session.wand.camera == 1])
 
@@ -99,3 +103,15 @@ def test_a_knock_turns_only_the_later_half_of_the_cameras_samples():
     # order: 9.5 px at f = 1000 px, r <= 300 px, 0.5 degree
     r = np.linalg.norm(session.wand.uv[later] - [320, 240], axis=1)
     assert np.all(moved[later] > 0) and np.all(moved[later] <= 1.01 * (1000 + r**2 / 1000) * np.radians(0.5))
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("label, offset", [("early 2 frame cam1", "-2"), ("late 1 frame cam3", "+1")])
+def test_a_digitised_camera_whole_frames_out_of_time_is_named_with_its_shift_not_the_wand(sessions, label, offset):
+    session, clean = sessions["cpp"]
+    out = rf.run_case(session, clean, _case(session, label))
+    cam = label.split()[-1]
+    assert out.level == "refused" and out.message.startswith(f"{cam} is out of time"), out.message
+    # docs/result-format.md's sign, as --sync auto reports it; the start's own reason after
+    assert f"(offset {offset}: positive is late)" in out.message and "--sync auto" in out.message
+    assert out.message.index("--sync auto") < out.message.index("cannot be placed")

@@ -16,14 +16,16 @@ NOISE_PX = 0.1
 FRAMES = 300
 
 
-def _path(time: np.ndarray) -> np.ndarray:
-    """(T, 3) the marker at (fractional) frame times: a slow loop in a 1 m volume, ~7 px a frame."""
-    w = 2 * np.pi * time / 150
+def _path(time: np.ndarray, period: float = 150.0) -> np.ndarray:
+    """(T, 3) the marker at (fractional) frame times: a loop in a 1 m volume, once every ``period``
+    frames (150: ~7 px a frame)."""
+    w = 2 * np.pi * time / period
     return np.stack([0.4 * np.cos(w), 0.3 * np.sin(2 * w), 0.2 * np.sin(w)], axis=1)
 
 
-def _rig_and_tracks(late: dict[int, float], seed: int = 0):
-    """Four cameras 3 m out; camera c records at frame k the marker of time k - late[c]."""
+def _rig_and_tracks(late: dict[int, float], seed: int = 0, period: float = 150.0, noise_px: float = NOISE_PX):
+    """Four cameras 3 m out; camera c late[c] frames late (docs/result-format.md): its frame k
+    exposed at time k + late[c], and the marker where it was then."""
     centres = [[3, 0, 1], [0, 3, 1.2], [-3, 0, 0.8], [0, -3, 1.1]]
     poses = [look_at(np.array(c, float), np.zeros(3)) for c in centres]
     R, t = np.array([p[0] for p in poses]), np.array([p[1] for p in poses])
@@ -31,11 +33,11 @@ def _rig_and_tracks(late: dict[int, float], seed: int = 0):
     frames = np.arange(FRAMES)
     track, camera, xy = [], [], []
     for c in range(4):
-        X = _path(frames - late.get(c, 0.0))
+        X = _path(frames + late.get(c, 0.0), period)
         x = project_normalized(R[c], t[c], X)
         track.append(frames)
         camera.append(np.full(FRAMES, c))
-        xy.append(x + rng.normal(0, NOISE_PX / FOCAL_PX, x.shape))
+        xy.append(x + rng.normal(0, noise_px / FOCAL_PX, x.shape))
     track, camera, xy = (np.concatenate(v) for v in (track, camera, xy))
     order = np.lexsort((camera, track))
     tracks = PointTracks(track[order], camera[order], xy[order], xy[order] * FOCAL_PX, frames.astype(np.int64))
@@ -63,3 +65,30 @@ def test_the_late_camera_is_found_with_its_offset(late):
 def test_cameras_in_time_are_not_named():
     R, t, tracks = _rig_and_tracks({})
     assert timing_faults(["a", "b", "c", "d"], R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX), [NOISE_PX] * 4) == []
+
+
+# A twelfth of a frame at 10 Hz (the wand ~40 px a frame) moves the blobs 3 px, ten times 0.3 px of
+# noise: named (issue 31's eWand session, cam0 0.08 frame late). The same offset where the marker
+# moves 0.5 px a frame moves them 0.04 px, within the noise: not named. Timing is judged by its
+# effect in pixels, not by a fraction of a frame.
+FAST_PERIOD = 26.0  # frames a loop: ~40 px a frame at 3 m and f = 1000 px
+SLOW_PERIOD = 2000.0  # ~0.5 px a frame
+FAST_NOISE_PX = 0.3
+
+
+def test_a_twelfth_of_a_frame_is_named_where_it_moves_the_blobs_by_pixels():
+    R, t, tracks = _rig_and_tracks({0: 0.08}, seed=2, period=FAST_PERIOD, noise_px=FAST_NOISE_PX)
+    faults = timing_faults(["a", "b", "c", "d"], R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX),
+                           [FAST_NOISE_PX] * 4)
+    assert [(f["kind"], f["camera"]) for f in faults] == [("timing", "a")]
+    found = faults[0]["evidence"]["timing"]
+    # the central-difference velocity on a loop of 26 frames is (1 - sin(w)/w) ~ 1% short: a
+    # 0.001-frame bias; the noise adds its standard error
+    assert abs(found["offset_frames"] - 0.08) < 0.002 + 5 * found["offset_std_frames"]
+    assert "late" in faults[0]["message"] and "+0.08" in faults[0]["message"]
+
+
+def test_the_same_fraction_is_not_named_where_it_moves_the_blobs_less_than_the_noise():
+    R, t, tracks = _rig_and_tracks({0: 0.08}, seed=2, period=SLOW_PERIOD, noise_px=FAST_NOISE_PX)
+    assert timing_faults(["a", "b", "c", "d"], R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX),
+                         [FAST_NOISE_PX] * 4) == []

@@ -118,8 +118,8 @@ def judged_camera(k: int, short: dict[str, str]) -> dict:
 
 
 @pytest.mark.parametrize("named, rig_cameras, text", [
-    (3, 3, "cam1, cam2, cam3"),  # a small rig's lists stay as they were
-    (LISTED_CAMERAS, 64, ", ".join(f"cam{k}" for k in range(1, LISTED_CAMERAS + 1))),
+    (3, 3, "cam1, cam2 and cam3"),  # a small rig's lists name every camera
+    (LISTED_CAMERAS, 64, ", ".join(f"cam{k}" for k in range(1, LISTED_CAMERAS)) + f" and cam{LISTED_CAMERAS}"),
     (64, 64, "all 64 cameras"),
     (10, 64, ", ".join(f"cam{k}" for k in range(1, LISTED_CAMERAS + 1)) + f" and {10 - LISTED_CAMERAS} more"),
 ])
@@ -141,7 +141,7 @@ def test_a_64_camera_rigs_verdict_names_all_cameras_in_a_few_words():
 def test_a_small_rigs_verdict_lists_its_cameras_as_before():
     cams = [judged_camera(k, {"coverage": "good"}) for k in range(1, 4)] + [judged_camera(4, {})]
     v = rig_verdict(cams, None, [], None)
-    assert v["reasons"] == ["good but not excellent for coverage in cam1, cam2, cam3 (each camera's verdict says why)"]
+    assert v["reasons"] == ["good but not excellent for coverage in cam1, cam2 and cam3 (each camera's verdict says why)"]
 
 
 def test_advice_many_cameras_share_is_one_line_and_a_small_rigs_is_as_before():

@@ -6,6 +6,7 @@ from wandcal.calib.geometry import camera_centers
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
 from wandcal.calib.sim.scenes import prepared_scene as prepared
 from wandcal.calib.solve.ba import bundle_adjust
+from wandcal.calib.solve.backend.arrowlp import ACCEPT_TOL
 from wandcal.calib.solve.paper import (
     MAX_ROUNDS,
     ROUND_TOL,
@@ -89,10 +90,15 @@ def test_paper_lp_warm_start_reaches_the_cold_optimum():
     # the next round: new rotations change the LP's coefficients, not its shape
     R2 = rotation_step(R1, t1, X1, setup.problem, m.fixed)
     _, _, cold = lp_step(R2, t1, X1, setup.problem, m.fixed, up, heights=heights, solver="simplex")
+    _, _, cold_ipm = lp_step(R2, t1, X1, setup.problem, m.fixed, up, heights=heights)
     t_w, X_w, warm = lp_step(R2, t1, X1, setup.problem, m.fixed, up, heights=heights, basis=first.basis)
-    assert warm.status == cold.status == "optimal"
-    assert abs(warm.objective - cold.objective) <= 1e-9 * cold.objective
-    assert warm.iterations < cold.iterations / 5
+    assert warm.status == cold.status == cold_ipm.status == "optimal"
+    # the block-arrow interior point reaches HiGHS's simplex optimum, to the relative residuals
+    # and gap it stops at (TOL, or ACCEPT_TOL where rounding stalls it first)
+    assert abs(cold_ipm.objective - cold.objective) <= ACCEPT_TOL * cold.objective
+    assert abs(warm.objective - cold.objective) <= ACCEPT_TOL * cold.objective
+    # from the last round's basis where it is still optimal, else from its centred iterate
+    assert warm.iterations < cold_ipm.iterations
     # the warm solve's point attains that optimum
     assert np.isclose(np.abs(algebraic_residuals(R2, t_w, X_w, setup.problem)).sum(), cold.objective, rtol=1e-6)
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from wandcal.capture.folder import MAX_FRAME, CaptureFormatError
+from wandcal.capture.formats.cameras_in import check_size
 
 # DeepLabCut's own default ``pcutoff`` (config.yaml): below it DeepLabCut's plots and videos hide
 # a keypoint as not found
@@ -51,6 +52,7 @@ def read_dlc_csv(path: Path, min_likelihood: float = DEFAULT_MIN_LIKELIHOOD) -> 
     if path.suffix.lower() in (".h5", ".hdf5"):
         raise CaptureFormatError(f"{path}: DeepLabCut's HDF5 needs pandas and PyTables, which wandcal does not use; "
                                  "save the keypoints as CSV (analyze_videos(..., save_as_csv=True)) and give that")
+    check_size(path, "DeepLabCut CSV")
     try:
         rows = list(csv.reader(io.StringIO(path.read_text())))
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
@@ -119,6 +121,7 @@ def _dlc_columns(rows: list[list[str]], path: Path) -> tuple[dict[str, int], int
 def read_points_npy(path: Path, n_cams: int, toml: str) -> list[Keypoints]:
     """Every camera's keypoints from an aniposelib points array (module docstring); joint j is
     named ``joint<j>`` (a (C, N, 2) array has the one joint ``joint0``)."""
+    check_size(path, "points array")
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:

@@ -32,6 +32,7 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import AxisObservations, Camera, PointObservations, WandObservations
 from wandcal.capture.folder import CaptureFormatError
+from wandcal.capture.formats.cameras_in import check_size
 
 PROFILE_MIN_COLUMNS = 7  # camera#, f, width, height, cx, cy, AR: no distortion columns
 PROFILE_COLUMNS = 12  # ... and k1, k2, t1, t2, k3
@@ -58,10 +59,11 @@ class XyTable:
 
 
 def read_text(path: str | Path, what: str) -> str:
-    """The text of ``path``; a missing, unreadable or binary file raises CaptureFormatError."""
+    """The text of ``path``; a missing, unreadable, binary or oversized file raises CaptureFormatError."""
     path = Path(path)
     if not path.is_file():
         raise CaptureFormatError(f"{path}: not found; give the path of the {what}")
+    check_size(path, what)
     try:
         text = path.read_bytes().decode("utf-8-sig")
     except UnicodeDecodeError:

@@ -1,0 +1,136 @@
+"""A start that fails because one camera is out of time, named with its shift.
+
+On a hand-digitised session a camera a frame or two out of time sees the wand where the others
+saw it a frame or two before or after: no relative pose fits its wand ends, and the start
+(:func:`wandcal.calib.start.initial.initial_poses`) refuses it as a camera that "cannot be
+placed". What helps the user then is the camera and its shift, not the wand's length. When the
+start has refused, :func:`out_of_time_refusal` looks for a shift that makes the data agree:
+
+- **whole frames**: each camera's whole-frame offset by ``--sync auto``'s own search
+  (:func:`wandcal.calib.start.frame_offsets.frame_offsets`, +-:data:`MAX_SHIFT` frames). The
+  cameras whose offset differs from the majority's are out of time by that difference;
+- **a fraction of a frame** (no whole shift found): each camera's wand samples resampled, linear
+  between its consecutive frames, at :data:`FRACTIONS` of a frame either way (a few starts of a
+  small rig, :data:`MAX_FRACTION_CAMERAS` cameras at most).
+
+A shift is only named when the start, refused without it, places every camera with it, and (for a
+fraction) no other camera's shift does too. Offsets take docs/result-format.md's sign: positive is
+late, the camera's frame k exposed at the others' frame k + offset.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.rig import Rig
+from wandcal.calib.start.initial import UnplacedCamera, initial_poses
+
+MAX_SHIFT = 8  # whole frames searched either way (--sync auto's default search)
+# fractions of a frame tried either way: a camera off by 0.3 frame agrees at 0.25, one off by 0.5
+# at 0.5; the start tolerates the quarter frame left over (its RANSAC threshold is 2 px)
+FRACTIONS = (0.25, 0.5)
+MAX_FRACTION_CAMERAS = 5  # a start per camera and fraction: 4 per camera, ~0.3 s each on a digitised session
+
+
+def resampled(pairs: WandPairs, c: int, shift: float) -> WandPairs:
+    """The pairs with camera c's samples at frame k taken from its own time k + ``shift`` (frames;
+    linear between its samples at the two frames around it, each end paired with the nearer one);
+    its frames without both neighbours are left out. As if c were ``-shift`` frames late."""
+    mine = np.flatnonzero(pairs.camera == c)
+    number = pairs.frames[pairs.frame]
+    row_of = {int(f): int(i) for f, i in zip(number[mine], mine)}
+    lo = int(np.floor(shift))
+    w = shift - lo
+    kept, xy, uv = [], [], []
+    for i in mine:
+        a, b = row_of.get(int(number[i]) + lo), row_of.get(int(number[i]) + lo + 1)
+        if a is None or (w > 0 and b is None):
+            continue
+        xa, ua = pairs.xy[a], pairs.uv[a]
+        if w > 0:
+            xb, ub = pairs.xy[b], pairs.uv[b]
+            if np.linalg.norm(xa - xb) > np.linalg.norm(xa - xb[::-1]):  # the ends in the same order
+                xb, ub = xb[::-1], ub[::-1]
+            xa, ua = (1 - w) * xa + w * xb, (1 - w) * ua + w * ub
+        kept.append(int(number[i]))
+        xy.append(xa)
+        uv.append(ua)
+    other = pairs.camera != c
+    num = np.concatenate([number[other], np.array(kept, np.int64)])
+    cam = np.concatenate([pairs.camera[other], np.full(len(kept), c)])
+    all_xy = np.concatenate([pairs.xy[other], np.reshape(xy, (-1, 2, 2))])
+    all_uv = np.concatenate([pairs.uv[other], np.reshape(uv, (-1, 2, 2))])
+    order = np.lexsort((cam, num))
+    frames, frame = np.unique(num[order], return_inverse=True)
+    return WandPairs(frame, cam[order], all_xy[order], all_uv[order], frames, pairs.dropped)
+
+
+def _places(rig: Rig, pairs: WandPairs, static_poses: list | None, tracks: PointTracks | None) -> bool:
+    try:
+        initial_poses(rig, pairs, static_poses, points=tracks)
+    except CalibrationError:
+        return False
+    return True
+
+
+def whole_frame_shifts(rig: Rig, pairs: WandPairs, static_poses: list | None,
+                       tracks: PointTracks | None) -> dict[int, int]:
+    """{camera: offset in whole frames (positive: late)} of the cameras out of time against the
+    majority, when shifting them lets the start place every camera; empty otherwise."""
+    from wandcal.calib.start.frame_offsets import frame_offsets, shift_pairs
+
+    try:
+        found = frame_offsets(rig, pairs, MAX_SHIFT)
+    except CalibrationError:
+        return {}
+    values, counts = np.unique(found.offsets, return_counts=True)
+    majority = int(values[np.argmax(counts)])
+    relative = found.offsets - majority
+    odd = np.flatnonzero(relative)
+    if not len(odd) or len(odd) >= len(rig.cameras) / 2:
+        return {}
+    if not _places(rig, shift_pairs(pairs, found.offsets), static_poses, tracks):
+        return {}
+    return {int(c): int(relative[c]) for c in odd}
+
+
+def fractional_shift(rig: Rig, pairs: WandPairs, static_poses: list | None, tracks: PointTracks | None,
+                     suspect: int | None = None) -> tuple[int, float] | None:
+    """(camera, offset in frames, positive: late) of the one camera whose samples, resampled by a
+    fraction of a frame (:data:`FRACTIONS`), let the start place every camera; None where none
+    does, or more than one camera does. ``suspect``: the camera the start could not place, the
+    only one tried (the cameras that agree were placed before it)."""
+    if len(rig.cameras) > MAX_FRACTION_CAMERAS:
+        return None
+    found = []
+    for c in range(len(rig.cameras)) if suspect is None else (suspect,):
+        for shift in (s * sign for s in FRACTIONS for sign in (1, -1)):
+            if _places(rig, resampled(pairs, c, shift), static_poses, tracks):
+                found.append((c, -shift))  # taken from its time k + shift: it was -shift late
+                break
+    return found[0] if len(found) == 1 else None
+
+
+def out_of_time_refusal(error: CalibrationError, rig: Rig, pairs: WandPairs, static_poses: list | None,
+                        tracks: PointTracks | None) -> CalibrationError:
+    """The start's refusal ``error`` with the camera out of time named first, where a shift of its
+    frames lets every camera be placed (module docstring); ``error`` itself where none does."""
+    if len(rig.cameras) < 3 or not len(pairs):
+        return error  # two cameras cannot say which of them is out of time
+    ids = rig.ids
+    whole = whole_frame_shifts(rig, pairs, static_poses, tracks)
+    if whole:
+        named = "; ".join(f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its frames "
+                          f"shifted, {abs(d)} frame{'s' if abs(d) != 1 else ''} {'late' if d > 0 else 'early'} "
+                          f"(offset {d:+d}: positive is late)" for c, d in whole.items())
+    else:
+        fraction = fractional_shift(rig, pairs, static_poses, tracks, error.camera if isinstance(error, UnplacedCamera) else None)
+        if fraction is None:
+            return error
+        c, d = fraction
+        named = (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved in "
+                 f"time, about {abs(d):g} frame {'late' if d > 0 else 'early'} (offset {d:+g}: positive is late)")
+    return CalibrationError(f"{named}; calibrate with --sync auto, which finds and corrects each camera's offset, "
+                            f"or check its trigger cable and settings. Without the shift the start failed: {error}")

@@ -1,0 +1,11 @@
+"""Watching ordinary takes with a standing calibration (issue 36, decision 0034).
+
+| module | holds |
+|---|---|
+| :mod:`~wandcal.calib.watch.take` | a take's unlabelled blobs, and the padded per-frame layout the matcher works on |
+| :mod:`~wandcal.calib.watch.match` | blobs matched across cameras along epipolar lines, verified in a third, triangulated |
+| :mod:`~wandcal.calib.watch.health` | each camera's residual against the markers the others triangulate, window by window |
+| :mod:`~wandcal.calib.watch.sequential` | the window-limited GLR test that names a moved camera; drift or knock |
+| :mod:`~wandcal.calib.watch.recover` | a moved camera re-solved from the take's markers, the others held |
+| :mod:`~wandcal.calib.watch.watch` | all of it over a take (``wandcal watch``) |
+"""

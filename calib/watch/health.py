@@ -1,0 +1,163 @@
+"""Each camera's residual against the markers the other cameras triangulate, window by window.
+
+For camera c, a track seen by two cameras or more besides c is triangulated without c, projected
+into c at its standing pose, and c's nearest blob within :data:`HEALTH_PX` (and :data:`CLEAR_RATIO`
+times nearer than any other) is its view. The residual r (pixels) is linearised in a small change of
+c's pose, ``r ~ J p`` with p = (omega (3,) radians: a turn about the camera's centre, camera frame;
+dC (3,) metres: the centre's move, world frame): with ``x_c = R (X - C)``,
+``dx_c = -[x_c]x omega - R dC`` and J = f P dx_c, P the Jacobian of (x/z, y/z). Each window of
+:data:`WINDOW_FRAMES` frames fits p by least squares, drops residuals past :data:`OUTLIER_PX` from
+the fit (a blob taken for another marker) and fits again; it keeps the normal equations (g = J^T r,
+H = J^T J) of every frame's kept residuals, and the window's residual sum of squares about its fit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.rig import Rig
+from wandcal.calib.triangulate import refine_points
+from wandcal.calib.watch.match import CLEAR_RATIO, FRAME_GAP_PX, Tracks
+from wandcal.calib.watch.take import PaddedFrames
+
+HEALTH_PX = 12.0  # a camera turned by 0.5 deg (f = 1100 px) still finds its blobs; past it the camera is lost
+OUTLIER_PX = 1.5  # 5 sigma of 0.3 px blob noise about the window's own fit
+WINDOW_FRAMES = 10  # 0.1 s at 100 fps: ~400 residuals of a 40-marker take, the test's time step
+PARAMS = 6  # omega (3) and dC (3)
+
+
+@dataclass(frozen=True, eq=False)
+class CameraWindows:
+    """Per-frame and per-window normal equations of every camera's residuals.
+
+    frames: (F,) frame numbers; g: (F, C, 6) J^T r (px^2 per rad and per m); H: (F, C, 6, 6)
+    J^T J; n: (F, C) residuals kept (each a 2-vector); seen: (F, C) markers projected into the
+    camera (whether or not a blob was found); sse: (F, C) squared residuals about their window's
+    fit, px^2. obs: per camera (frame (k,), X (k, 3) the marker triangulated without it, metres,
+    xy (k, 2) its blob, normalised) of the kept residuals, when asked for (the re-solve's data).
+    """
+
+    frames: np.ndarray
+    g: np.ndarray
+    H: np.ndarray
+    n: np.ndarray
+    seen: np.ndarray
+    sse: np.ndarray
+    obs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+
+
+def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames, tracks: Tracks, *,
+                   keep_obs: bool = False) -> CameraWindows:
+    """The residuals of every camera of a batch of frames against ``tracks`` (from
+    :func:`wandcal.calib.watch.match.match_frames` over the same frames), at poses R (C, 3, 3), t (C, 3)."""
+    n_f, n_c = len(padded.frames), len(R)
+    g = np.zeros((n_f, n_c, PARAMS))
+    H = np.zeros((n_f, n_c, PARAMS, PARAMS))
+    n = np.zeros((n_f, n_c))
+    seen = np.zeros((n_f, n_c))
+    sse = np.zeros((n_f, n_c))
+    obs = []
+    f_of = np.searchsorted(padded.frames, tracks.frame)
+    for c in range(n_c):
+        fi, X, xy = _leave_one_out(rig, R, t, padded, tracks, f_of, c)
+        seen[:, c] = np.bincount(f_of[(tracks.views >= 0).sum(1) - (tracks.views[:, c] >= 0) >= 2], minlength=n_f)
+        J, r = linearised(R[c], t[c], rig.cameras[c].focal.mean(), X, xy)
+        keep, dev = _inliers(fi // WINDOW_FRAMES, J, r)
+        fi, J, r, dev = fi[keep], J[keep], r[keep], dev[keep]
+        g[:, c] = sum_by(fi, np.einsum("kpi,kp->ki", J, r), n_f)
+        H[:, c] = sum_by(fi, np.einsum("kpi,kpj->kij", J, J), n_f)
+        n[:, c] = np.bincount(fi, minlength=n_f)
+        sse[:, c] = np.bincount(fi, (dev ** 2).sum(1), minlength=n_f)
+        obs.append((padded.frames[fi], X[keep], xy[keep]))
+    return CameraWindows(padded.frames, g, H, n, seen, sse, obs if keep_obs else None)
+
+
+def _leave_one_out(rig: Rig, R, t, padded: PaddedFrames, tracks: Tracks, f_of, c: int):
+    """(frame index (k,), X (k, 3), c's blob xy (k, 2)) of the tracks two other cameras saw,
+    triangulated without c, and c's blob found near their projection."""
+    others = tracks.views.copy()
+    others[:, c] = -1
+    ok = (others >= 0).sum(1) >= 2
+    p, cam = np.nonzero(others[ok] >= 0)
+    f_ok = f_of[ok]
+    xy_obs = padded.xy_of(others[ok][p, cam])
+    X = refine_points(R, t, p, cam, xy_obs, tracks.X[ok])  # from the point all cameras gave: close, so no DLT
+    fi, xy, found = _nearest_blob(R[c], t[c], rig.cameras[c].focal.mean(), padded, c, f_ok, X)
+    return fi[found], X[found], xy[found]
+
+
+def _nearest_blob(Rc, tc, focal: float, padded: PaddedFrames, c: int, f_idx, X):
+    """c's blob nearest each point's projection within :data:`HEALTH_PX`, clearly the nearest:
+    (frame index (P,), blob xy (P, 2), found (P,) bool)."""
+    from scipy.spatial import cKDTree
+
+    Xc = X @ Rc.T + tc
+    found = np.zeros(len(X), bool)
+    xy = np.full((len(X), 2), np.nan)
+    fi, k = np.nonzero(np.isfinite(padded.xy[:, c, :, 0]))
+    ahead = np.isfinite(Xc[:, 2]) & (Xc[:, 2] > 0)
+    if not len(fi) or not ahead.any():
+        return f_idx, xy, found
+    tree = cKDTree(np.column_stack([padded.xy[fi, c, k] * focal, fi * FRAME_GAP_PX]))
+    q = np.flatnonzero(ahead)
+    proj = Xc[q, :2] / Xc[q, 2:3] * focal
+    d, j = tree.query(np.column_stack([proj, f_idx[q] * FRAME_GAP_PX]), k=2, distance_upper_bound=CLEAR_RATIO * HEALTH_PX)
+    near = (d[:, 0] < HEALTH_PX) & (d[:, 1] >= CLEAR_RATIO * d[:, 0])
+    found[q[near]] = True
+    xy[q[near]] = padded.xy[fi[j[near, 0]], c, k[j[near, 0]]]
+    return f_idx, xy, found
+
+
+def linearised(Rc, tc, focal: float, X, xy) -> tuple[np.ndarray, np.ndarray]:
+    """(k, 2, 6) J and (k, 2) residuals r = blob - projection, pixels (the module's note)."""
+    Xc = X @ Rc.T + tc
+    iz = 1.0 / Xc[:, 2]
+    u, v = Xc[:, 0] * iz, Xc[:, 1] * iz
+    P = np.zeros((len(X), 2, 3))
+    P[:, 0, 0] = P[:, 1, 1] = iz
+    P[:, 0, 2], P[:, 1, 2] = -u * iz, -v * iz
+    skew = np.zeros((len(X), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Xc[:, 2], Xc[:, 1], -Xc[:, 0]
+    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = Xc[:, 2], -Xc[:, 1], Xc[:, 0]
+    dx = np.concatenate([-skew, np.broadcast_to(-Rc, (len(X), 3, 3))], axis=2)  # (k, 3, 6)
+    J = focal * np.einsum("kab,kbp->kap", P, dx)
+    r = focal * (xy - np.column_stack([u, v]))
+    return J, r
+
+
+def _inliers(window: np.ndarray, J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k,) residuals within :data:`OUTLIER_PX` of their window's least-squares pose change (fitted
+    twice: the second time without the first fit's outliers), and (k, 2) each residual about the fit."""
+    keep = np.ones(len(r), bool)
+    dev = r
+    if not len(r):
+        return keep, dev
+    wins, w_of = np.unique(window, return_inverse=True)
+    for _ in range(2):
+        Hs = sum_by(w_of[keep], np.einsum("kpi,kpj->kij", J[keep], J[keep]), len(wins))
+        gs = sum_by(w_of[keep], np.einsum("kpi,kp->ki", J[keep], r[keep]), len(wins))
+        p = solve_pose_change(Hs, gs)
+        dev = r - np.einsum("kpi,ki->kp", J, p[w_of])
+        keep = np.hypot(dev[:, 0], dev[:, 1]) < OUTLIER_PX
+    return keep, dev
+
+
+def sum_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
+    """(size, ...) the sums of ``values`` (k, ...) by ``index`` (k,) in 0..size-1 (ufunc.at's result,
+    by one sort and ``np.add.reduceat``: several times faster)."""
+    out = np.zeros((size, *values.shape[1:]))
+    if not len(index):
+        return out
+    order = np.argsort(index, kind="stable")
+    idx = index[order]
+    starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
+    out[idx[starts]] = np.add.reduceat(values[order], starts, axis=0)
+    return out
+
+
+def solve_pose_change(H: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """(..., 6) least-squares pose changes of normal equations H (..., 6, 6), g (..., 6); a
+    direction the markers do not fix (too few of them) gets no change (pseudo-inverse)."""
+    return np.einsum("...ij,...j->...i", np.linalg.pinv(H, rcond=1e-10, hermitian=True), g)

@@ -1,0 +1,150 @@
+"""A sequential test that names a camera that moved: a window-limited generalised likelihood ratio
+(GLR) on each camera's pose change, and a fit that tells a slow drift from a knock.
+
+Each window w of a camera gives the normal equations (g_w, H_w) of its residuals in a small change
+p of its pose (:mod:`wandcal.calib.watch.health`). The first :data:`BASELINE_WINDOWS` windows fix the
+camera's reference p_0 (its standing pose's own small error shows there) and the residual noise
+sigma^2 (pooled about each window's fit). After that, for every start k among the last
+:data:`GLR_WINDOWS` windows, the change since k is ``d_k = I_k^+ G_k - p_0`` (I_k, G_k: H and g summed
+from k on), with covariance ``sigma^2 (I_k^+ + I_0^+)``; with no change ``S_k = d_k^T cov^+ d_k`` is
+chi-square with 6 degrees of freedom, and the test alarms when ``max_k S_k`` passes
+:data:`GLR_THRESHOLD` and the change moves the camera's images by :data:`MIN_SHIFT_PX` or more (a
+change too small to matter, however sure, is no alarm). The k of the largest S_k is when it moved.
+
+The threshold: 100,000 frames of 12 cameras are 120,000 camera-windows, each testing 30 starts;
+P(chi2_6 > 50) = 3e-9 leaves ~0.01 false alarms in all of them were the tests independent (they are
+not: neighbouring starts share data, so fewer). bench/bench_watch.py counts them in 100,000 clean frames.
+
+Drift or knock: after an alarm the change's windows are fitted by a ramp from s to e and constant
+after it, ``d_w = a clip((w - s) / (e - s), 0, 1)`` over a grid of s and e (e = s is a step); a
+best fit longer than :data:`KNOCK_FRAMES` whose step fits worse by :data:`DRIFT_MARGIN` is a drift.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wandcal.calib.watch.health import PARAMS, WINDOW_FRAMES, solve_pose_change
+
+BASELINE_WINDOWS = 20  # 200 frames: the reference pose change and sigma, ~8000 residuals
+GLR_WINDOWS = 30  # starts tested: a change up to 300 frames old (the issue's detection goal)
+GLR_THRESHOLD = 50.0  # chi2_6 tail 3e-9: see the module's note
+MIN_SHIFT_PX = 0.05  # a change that moves the camera's images less than this (rms) is not reported
+KNOCK_FRAMES = 2 * WINDOW_FRAMES  # a move completed within this is a knock
+DRIFT_MARGIN = 25.0  # chi2 units: the ramp must fit this much better than the best step to be a drift
+RCOND = 1e-10
+
+
+@dataclass
+class Alarm:
+    """A camera found moved. camera: its index; window: the test's window index of the alarm;
+    frame: the first frame of the window it moved in; statistic: max_k S_k; change: (6,) the pose
+    change since it moved (omega radians, dC metres); detected_frame: the last frame of the alarm's window."""
+
+    camera: int
+    frame: int
+    detected_frame: int
+    statistic: float
+    change: np.ndarray
+
+    @property
+    def rotation_deg(self) -> float:
+        return float(np.degrees(np.linalg.norm(self.change[:3])))
+
+    @property
+    def translation_mm(self) -> float:
+        return float(np.linalg.norm(self.change[3:]) * 1000)
+
+
+@dataclass
+class CameraTest:
+    """The running test of one camera: its baseline and its windows' normal equations."""
+
+    g: list[np.ndarray] = field(default_factory=list)  # every window's (6,) g
+    H: list[np.ndarray] = field(default_factory=list)  # every window's (6, 6) H
+    sse: list[float] = field(default_factory=list)
+    n: list[float] = field(default_factory=list)
+    start: list[int] = field(default_factory=list)  # every window's first frame
+    alarm: Alarm | None = None
+    peak: float = 0.0  # the largest max_k S_k seen (a clean take's margin below the threshold)
+
+    def add(self, g: np.ndarray, H: np.ndarray, sse: float, n: float, start: int) -> None:
+        self.g.append(g)
+        self.H.append(H)
+        self.sse.append(sse)
+        self.n.append(n)
+        self.start.append(start)
+
+    def mark(self) -> int:
+        """How many windows the test holds (for :meth:`rewind`)."""
+        return len(self.g)
+
+    def rewind(self, windows: int) -> None:
+        """Forget every window after the first ``windows`` (the caller raises no alarm in between)."""
+        for values in (self.g, self.H, self.sse, self.n, self.start):
+            del values[windows:]
+
+    def baseline(self) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """(p_0 (6,), I_0 (6, 6), sigma^2 px^2) once :data:`BASELINE_WINDOWS` windows are in."""
+        if len(self.g) < BASELINE_WINDOWS:
+            return None
+        I0 = np.sum(self.H[:BASELINE_WINDOWS], axis=0)
+        p0 = solve_pose_change(I0, np.sum(self.g[:BASELINE_WINDOWS], axis=0))
+        n = np.array(self.n[:BASELINE_WINDOWS])
+        dof = max(float((2 * n - PARAMS * (n > 0)).sum()), 1.0)
+        return p0, I0, float(np.sum(self.sse[:BASELINE_WINDOWS]) / dof)
+
+    def glr(self, last: int | None = None) -> tuple[float, int, np.ndarray]:
+        """(max_k S_k, the k of it, d_k (6,)) over the starts before window ``last`` (all windows by default)."""
+        base = self.baseline()
+        end = len(self.g) if last is None else last
+        first = max(BASELINE_WINDOWS, end - GLR_WINDOWS)
+        if base is None or end <= first:
+            return 0.0, end, np.zeros(PARAMS)
+        p0, I0, s2 = base
+        G = np.cumsum(np.array(self.g[first:end])[::-1], axis=0)[::-1]  # G[k]: windows k.. summed
+        Ik = np.cumsum(np.array(self.H[first:end])[::-1], axis=0)[::-1]
+        d = solve_pose_change(Ik, G) - p0
+        cov = s2 * (np.linalg.pinv(Ik, rcond=RCOND, hermitian=True) + np.linalg.pinv(I0, rcond=RCOND, hermitian=True))
+        S = np.einsum("ki,kij,kj->k", d, np.linalg.pinv(cov, rcond=RCOND, hermitian=True), d)
+        count = np.cumsum(np.array(self.n[first:end])[::-1])[::-1]  # residuals from each start on
+        shift = np.sqrt(np.einsum("ki,kij,kj->k", d, Ik, d) / np.maximum(count, 1))  # rms image move, px
+        S = np.where(shift >= MIN_SHIFT_PX, S, 0.0)
+        k = int(np.argmax(S))
+        self.peak = max(self.peak, float(S[k]))
+        return float(S[k]), first + k, d[k]
+
+
+def classify(test: CameraTest, alarm: Alarm) -> tuple[str, int, int, np.ndarray]:
+    """("knock" or "drift", first frame, frames the move took, (6,) the full change) of an alarmed
+    camera, from every window it has (the module's note)."""
+    base = test.baseline()
+    assert base is not None
+    p0 = base[0]
+    n_w = len(test.g)
+    g = np.array(test.g[BASELINE_WINDOWS:])
+    H = np.array(test.H[BASELINE_WINDOWS:])
+    k_alarm = test.start.index(alarm.frame) - BASELINE_WINDOWS
+    w = np.arange(n_w - BASELINE_WINDOWS, dtype=float)
+    gd = g - np.einsum("wij,j->wi", H, p0)  # normal equations of the change since the baseline
+    durations = np.unique(np.r_[0, np.round(np.geomspace(1, max(2 * len(w), 2), 16))]).astype(int)
+    best: tuple[float, int, int, np.ndarray] = (-np.inf, 0, 0, np.zeros(PARAMS))
+    best_step: float = -np.inf
+    for s in range(max(0, k_alarm - GLR_WINDOWS), k_alarm + 1):
+        for dur in durations:
+            rho = np.clip((w - s + 1) / max(dur, 1), 0, 1) if dur else (w >= s).astype(float)
+            A = np.einsum("w,wij->ij", rho ** 2, H)
+            b = np.einsum("w,wi->i", rho, gd)
+            a = solve_pose_change(A, b)
+            gain = float(a @ b)  # the fit's reduction of the residual sum of squares, px^2
+            if gain > best[0]:
+                best = (gain, s, int(dur), a)
+            if dur == 0:
+                best_step = max(best_step, gain)
+    s2 = base[2]
+    gain, s, dur, a = best
+    frames = dur * WINDOW_FRAMES
+    drift = frames > KNOCK_FRAMES and (gain - best_step) / s2 > DRIFT_MARGIN
+    return ("drift" if drift else "knock"), test.start[BASELINE_WINDOWS + s], frames if drift else 0, a

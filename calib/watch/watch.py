@@ -1,0 +1,188 @@
+"""A take watched with a standing calibration: batches of frames matched, each camera's health
+window by window, the sequential test, and a moved camera's re-solve (issue 36)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wandcal.calib.rig import Rig
+from wandcal.calib.watch.health import PARAMS, WINDOW_FRAMES, CameraWindows, camera_windows, solve_pose_change
+from wandcal.calib.watch.match import Tracks, match_frames
+from wandcal.calib.watch.recover import Resolved, resolve_camera
+from wandcal.calib.watch.sequential import BASELINE_WINDOWS, GLR_THRESHOLD, Alarm, CameraTest, classify
+from wandcal.calib.watch.take import TakeBlobs, pad_frames
+
+BATCH_FRAMES = 100  # a second at 100 fps: the unit a live take is processed in (whole windows)
+SETTLE_FRAMES = 5 * WINDOW_FRAMES  # the re-solve waits this long after a knock completes (and uses the rest)
+# A camera whose images are this far (rms) from the standing pose over the take's first windows moved
+# before the take: a standing result's own pose error moves them ~0.1 px; a 0.05 deg turn at f = 1100 px, 1 px
+START_SHIFT_PX = 1.0
+
+
+@dataclass
+class CameraHealth:
+    """One camera over the take. residual_px: rms of its residuals about each window's fit;
+    matched: its share of the markers two others triangulated that it was found to see;
+    alarm: the test's alarm, if any; kind: "knock" or "drift"; moved_at: the first frame of the
+    move; drift_frames: how long a drift took (0 for a knock); change: (6,) the full pose change."""
+
+    id: str
+    residual_px: float = float("nan")
+    matched: float = float("nan")
+    alarm: Alarm | None = None
+    kind: str | None = None
+    moved_at: int | None = None
+    drift_frames: int = 0
+    change: np.ndarray | None = None
+    resolved: Resolved | None = None
+    before_take: bool = False  # it had moved already when the take began
+    peak: float = 0.0  # the test's largest statistic over the take
+
+    @property
+    def status(self) -> str:
+        return "ok" if self.alarm is None else ("drifting" if self.kind == "drift" else "moved")
+
+
+@dataclass
+class WatchReport:
+    """A take's watch: every camera's health, frames and markers matched."""
+
+    cameras: list[CameraHealth]
+    frames: int = 0
+    tracks: int = 0
+    first_frame: int = 0
+    last_frame: int = 0
+    obs: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = field(default_factory=list)
+
+    @property
+    def moved(self) -> list[CameraHealth]:
+        return [c for c in self.cameras if c.alarm is not None]
+
+
+def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, resolve: bool = True,
+               progress: Callable[[int, int], None] | None = None) -> WatchReport:
+    """Watch a take (blobs sorted by frame) at standing poses R (C, 3, 3), t (C, 3): each camera's
+    health, the moved ones named (when, how much, knock or drift) and, with ``resolve``, re-solved."""
+    n_c = len(rig.cameras)
+    tests = [CameraTest() for _ in range(n_c)]
+    report = WatchReport([CameraHealth(cam.id) for cam in rig.cameras])
+    first, last = int(blobs.frame.min()), int(blobs.frame.max())
+    report.first_frame, report.last_frame = first, last
+    excluded: set[int] = set()
+    for alarm in _off_from_start(rig, R, t, blobs, first):
+        tests[alarm.camera].alarm = alarm
+        report.cameras[alarm.camera].before_take = True
+        excluded.add(alarm.camera)
+    sums = np.zeros((n_c, 3))  # sse, residuals, markers seen
+    bounds = np.searchsorted(blobs.frame, np.arange(first, last + BATCH_FRAMES + 1, BATCH_FRAMES))
+    for b in range(len(bounds) - 1):
+        if bounds[b] == bounds[b + 1]:
+            continue
+        rows = np.arange(bounds[b], bounds[b + 1])
+        padded = pad_frames(rig, blobs, rows)
+        tracks = match_frames(rig, R, t, padded)
+        report.frames += len(padded.frames)
+        report.tracks += len(tracks)
+        windows = _test_batch(rig, R, t, padded, tracks, tests, excluded, first, keep_obs=resolve)
+        sums += np.stack([windows.sse.sum(0), windows.n.sum(0), windows.seen.sum(0)], 1)
+        if resolve:
+            report.obs.append(windows.obs or [])
+        if progress:
+            progress(int(padded.frames[-1]) - first + 1, last - first + 1)
+    for c, health in enumerate(report.cameras):
+        health.residual_px = float(np.sqrt(sums[c, 0] / max(2 * sums[c, 1], 1)))
+        health.matched = float(sums[c, 1] / max(sums[c, 2], 1))
+        health.alarm = tests[c].alarm
+        health.peak = tests[c].peak
+        if health.before_take and health.alarm is not None:
+            health.kind, health.moved_at, health.change = "knock", first, health.alarm.change
+        elif health.alarm is not None:
+            health.kind, health.moved_at, health.drift_frames, health.change = classify(tests[c], health.alarm)
+        if health.alarm is not None and resolve:
+            health.resolved = _resolve(rig, R, t, report, c, health)
+    return report
+
+
+def _off_from_start(rig: Rig, R, t, blobs: TakeBlobs, first: int) -> list[Alarm]:
+    """Cameras that disagree with the standing result from the take's start: over the first
+    :data:`BASELINE_WINDOWS` windows, a pose change whose statistic passes the test's threshold and
+    that moves the camera's images :data:`START_SHIFT_PX` or more. Named one at a time, the largest
+    first, each left out of the others' markers before the next is looked for (its blobs pull them)."""
+    stop = first + BASELINE_WINDOWS * WINDOW_FRAMES
+    rows = np.arange(0, int(np.searchsorted(blobs.frame, stop)))
+    if not len(rows):
+        return []
+    padded = pad_frames(rig, blobs, rows)
+    tracks = match_frames(rig, R, t, padded)
+    alarms: list[Alarm] = []
+    while len(alarms) < len(R) - 3:  # three cameras held at least: a marker is two views and a third
+        views = tracks.views.copy()
+        views[:, [a.camera for a in alarms]] = -1
+        w = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X))
+        I0, g0, n0 = w.H.sum(0), w.g.sum(0), w.n.sum(0)
+        p0 = solve_pose_change(I0, g0)
+        fit = np.einsum("ci,cij,cj->c", p0, I0, p0)  # px^2 the change explains
+        s2 = w.sse.sum(0) / np.maximum(2 * n0 - PARAMS * BASELINE_WINDOWS, 1)
+        S = fit / np.maximum(s2, 1e-12)
+        shift = np.sqrt(fit / np.maximum(n0, 1))
+        S[[a.camera for a in alarms]] = 0
+        c = int(np.argmax(np.where(shift >= START_SHIFT_PX, S, 0)))
+        if S[c] <= GLR_THRESHOLD or shift[c] < START_SHIFT_PX:
+            break
+        alarms.append(Alarm(c, first, int(padded.frames[-1]), float(S[c]), p0[c]))
+    return alarms
+
+
+def _test_batch(rig, R, t, padded, tracks: Tracks, tests: list[CameraTest], excluded: set[int], first: int,
+                keep_obs: bool) -> CameraWindows:
+    """Add a batch's windows to every camera's test, window by window; when cameras alarm, the one
+    with the largest statistic is named, left out of every other camera's markers, and the batch is
+    tested again without it (a moved camera's blobs pull the markers it shares)."""
+    while True:
+        views = tracks.views.copy()
+        views[:, sorted(excluded)] = -1
+        windows = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X), keep_obs=keep_obs)
+        marks = [test.mark() for test in tests]
+        named = _add_windows(windows, tests, first)
+        if named is None:
+            return windows
+        excluded.add(named)
+        for c, test in enumerate(tests):
+            if c != named:
+                test.rewind(marks[c])
+
+
+def _add_windows(windows: CameraWindows, tests: list[CameraTest], first: int) -> int | None:
+    """Add each window in turn; at the first window where cameras alarm, name the largest and return
+    it (the others' tests are then run again by the caller); None when none alarms."""
+    w_of = (windows.frames - first) // WINDOW_FRAMES
+    for w in np.unique(w_of):
+        sel = w_of == w
+        found = []
+        for c, test in enumerate(tests):
+            test.add(windows.g[sel, c].sum(0), windows.H[sel, c].sum(0), float(windows.sse[sel, c].sum()),
+                     float(windows.n[sel, c].sum()), first + int(w) * WINDOW_FRAMES)
+            if test.alarm is None:
+                S, k, d = test.glr()
+                if S > GLR_THRESHOLD:
+                    found.append((S, c, k, d))
+        if found:
+            S, c, k, d = max(found, key=lambda x: x[0])
+            tests[c].alarm = Alarm(c, tests[c].start[k], int(windows.frames[sel].max()), S, d)
+            return c
+    return None
+
+
+def _resolve(rig: Rig, R, t, report: WatchReport, c: int, health: CameraHealth) -> Resolved | None:
+    """Camera c re-solved from the markers it saw once its move was complete."""
+    assert health.moved_at is not None
+    since = health.moved_at + health.drift_frames + SETTLE_FRAMES
+    parts = [batch[c] for batch in report.obs if batch]
+    frame = np.concatenate([p[0] for p in parts])
+    X = np.concatenate([p[1] for p in parts])
+    xy = np.concatenate([p[2] for p in parts])
+    after = frame >= since
+    return resolve_camera(R[c], t[c], rig.cameras[c].focal.mean(), X[after], xy[after])
