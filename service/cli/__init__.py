@@ -15,6 +15,8 @@ import argparse
 import importlib
 import sys
 
+from wandcal.service.cli.support import exits
+
 # command -> its module, in the order ``wandcal --help`` lists them
 COMMANDS = {
     "simulate": "wandcal.service.cli.simulate",
@@ -80,15 +82,15 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return int(args.run(args) or 0)
-    except CalibrationError as exc:
+    except (CalibrationError, exits.InputError) as exc:
         print(f"wandcal {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return exits.BAD_INPUT
     except OSError as exc:
         from wandcal.drivers.registry import CameraUrlError  # bad input, not a device fault
 
         print(f"wandcal {args.command}: error: {exc}", file=sys.stderr)
-        return 2 if isinstance(exc, CameraUrlError) else 3
+        return exits.BAD_INPUT if isinstance(exc, CameraUrlError) else exits.NO_ANSWER
     except KeyboardInterrupt:
         print(f"wandcal {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return exits.INTERRUPTED
 
