@@ -52,8 +52,8 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                         "(default 0)")
     p.add_argument("--rate", type=arg_number(MIN_RATE_HZ, MAX_RATE_HZ), default=100.0, metavar="HZ",
                    help=f"trigger / frame rate in Hz, {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} (default 100)")
-    p.add_argument("--rig", type=Path, help="rig.json with the cameras' intrinsics (simulated and replayed "
-                   "cameras bring their own)")
+    p.add_argument("--rig", type=Path, help="rig.json with the cameras' intrinsics (default: none; simulated and "
+                   "replayed cameras bring their own)")
     p.add_argument("--wand-length", type=arg_number(0, MAX_WAND_LENGTH_M, low_open=True), default=None, metavar="M",
                    help="wand marker distance in metres, for cameras that do not bring a rig.json (default "
                         f"{DEFAULT_WAND_LENGTH_M:g})")
