@@ -103,7 +103,10 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser = build_parser(sys.argv[1:] if argv is None else argv)
     args, extra = parser.parse_known_args(argv)
     if extra:
-        own = parser.commands.get(args.command, parser)
+        own: argparse.ArgumentParser = parser.commands.get(args.command, parser)
+        for action in own._actions:  # a command with commands of its own (import FORMAT): the one chosen
+            if isinstance(action, argparse._SubParsersAction) and getattr(args, action.dest, None) in action.choices:
+                own = action.choices[getattr(args, action.dest)]
         own.error(f"unrecognized arguments: {' '.join(extra)}")
     return args
 
@@ -143,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         from wandcal.drivers.registry import CameraUrlError  # bad input, not a device fault
 
         print(f"wandcal {args.command}: error: {exc}", file=sys.stderr)
-        return exits.BAD_INPUT if isinstance(exc, CameraUrlError) else exits.NO_ANSWER
+        return exits.BAD_INPUT if isinstance(exc, (CameraUrlError, *exits.PATH_ERRORS)) else exits.NO_ANSWER
     except KeyboardInterrupt:
         print(f"wandcal {args.command}: interrupted", file=sys.stderr)
         return exits.INTERRUPTED

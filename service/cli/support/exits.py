@@ -16,6 +16,10 @@ TABLE = (
 )
 
 
+# a path the user named that is not there, or is of the wrong kind: bad input, not a device's silence
+PATH_ERRORS = (FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError)
+
+
 class InputError(ValueError):
     """Input a command refuses before it starts (a folder that holds a capture, a trigger port
     that is not there, a taken port): exit :data:`BAD_INPUT` with the message."""
