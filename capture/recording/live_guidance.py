@@ -35,9 +35,6 @@ def _ignore_capture_signals() -> None:
         signal.signal(signum, signal.SIG_IGN)
 
 
-def _noop() -> None:
-    """Submitted at start so the solver process is spawned at once, with the signals blocked."""
-
 
 class LiveGuidance:
     """Collects wand pairs and keeps the guidance up to date.
@@ -125,7 +122,14 @@ class LiveGuidance:
                 if version == self._solved_version:
                     return self._document
             if self._pool is not None:
-                guidance = self._pool.submit(wanding_guidance, self.rig, wand, static, self.settings, start).result()
+                # the first submit spawns the process, which inherits this thread's signal mask
+                # until its initializer ignores them: blocked here, a Ctrl-C then cannot kill it
+                blocked = signal.pthread_sigmask(signal.SIG_BLOCK, _CAPTURE_SIGNALS)
+                try:
+                    future = self._pool.submit(wanding_guidance, self.rig, wand, static, self.settings, start)
+                finally:
+                    signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+                guidance = future.result()
             else:
                 guidance = wanding_guidance(self.rig, wand, static, self.settings, start)
             document = self._stamp(guidance.document, time.time())
@@ -148,12 +152,6 @@ class LiveGuidance:
                 # spawn: a fork would copy the capture's reader threads' locks in whatever state they are
                 self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
                                                  initializer=_ignore_capture_signals)
-                # the child inherits this thread's signal mask until its initializer ignores them
-                blocked = signal.pthread_sigmask(signal.SIG_BLOCK, _CAPTURE_SIGNALS)
-                try:
-                    self._pool.submit(_noop)
-                finally:
-                    signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
             self._thread = threading.Thread(target=self._run, name="wandcal-guidance", daemon=True)
             self._thread.start()
         return self
