@@ -255,6 +255,8 @@ class RedisQueue:
                                    progress=meta.get("progress"))
             self._retry_abandoned()
         elif status == JobStatus.QUEUED and attempts > 0:  # re-queued by rq after its worker died
+            if (record.progress or {}).get("stage") != "requeued":  # said once, when the record first sees it
+                log.warning("job %s: %s; re-queued by rq (attempt %d of %d)", job_id, DIED, attempts, MAX_ATTEMPTS)
             self.store.set_outcome(job_id, JobState.queued, attempts=attempts,
                                    progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
         return self.store.get(job_id)
