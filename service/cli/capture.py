@@ -134,9 +134,7 @@ def _record(args) -> int:
                         events=lambda m: print(f"\n{m}", file=sys.stderr), images=args.images, guidance=guidance,
                         until=until, detect=detect)
         interrupted = result.error == STOPPED_BY_USER
-        final = None
-        if guidance is not None:  # an interrupted capture shows the last guidance instead of solving again
-            final = guidance.latest() if interrupted else guidance.update()
+        final = _final_guidance(guidance) if guidance is not None else None
         scene = simulated_scene(cameras)
         if scene is not None and rig is scene.rig:
             # a simulated rig: keep its truth beside the capture, as 'wandcal simulate' does
@@ -145,6 +143,18 @@ def _record(args) -> int:
         status.done(f"recorded {result.frame_sets} wand sets and {result.static_sets} static sets into "
                     f"{result.folder}; {result.complete_sets} of {total} have every camera's frame")
     return _print_recorded(result, final, interrupted=interrupted)
+
+
+def _final_guidance(guidance) -> dict:
+    """The guidance on every recorded set (the same sets the summary counts), also after Ctrl-C:
+    its solver process ignores the terminal's signals. A solver that died all the same leaves the
+    last document it made, which says when it was made (``updated``)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        return guidance.update()
+    except BrokenProcessPool:
+        return guidance.latest()
 
 
 def _check_pause(args) -> None:
@@ -272,7 +282,8 @@ def _print_recorded(result, final: dict | None, *, interrupted: bool = False) ->
     from wandcal.service.cli.guidance import guidance_lines
 
     for cid, s in result.per_camera.items():
-        print(f"{cid}: {s['delivered']} frame{'s' * (s['delivered'] != 1)}, {s['missed']} missed, "
+        # frames delivered, whatever they show; the guidance's table counts those with both wand ends
+        print(f"{cid}: {s['delivered']} frame{'s' * (s['delivered'] != 1)} delivered, {s['missed']} missed, "
               f"{s['unreadable']} unreadable"
               + (f", clock drift {s['clock_drift_ppm']:+.1f} ppm" if s["clock_drift_ppm"] is not None else ""))
     if final is not None:
