@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from collections.abc import Mapping
+from typing import NoReturn
 
 from wandcal.service.cli.support import exits
 
@@ -49,13 +51,13 @@ class _Parser(argparse.ArgumentParser):
     Python 3.11's argparse does not. The command parsers are made of this class too; the top
     one keeps them in ``commands`` (name -> parser)."""
 
-    commands: dict[str, argparse.ArgumentParser]
+    commands: Mapping[str, argparse.ArgumentParser]
 
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", _Formatter)
         super().__init__(*args, **kwargs)
 
-    def error(self, message: str):  # type: ignore[override]  # argparse declares NoReturn; this exits too
+    def error(self, message: str) -> NoReturn:
         super().error(message + suggestion(self, message))
 
 
