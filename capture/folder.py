@@ -404,6 +404,9 @@ def _rows(text: str, columns: tuple[str, ...], source: str) -> list[tuple[int, d
     if "\0" in text:
         raise CaptureFormatError(f"{source}: holds binary data (NUL bytes), not CSV text; the header must be "
                                  f"{','.join(columns)}")
+    if not text.strip():  # not a bad header: no header at all (a recording that never started, a failed copy)
+        raise CaptureFormatError(f"{source}: the file is empty; it needs the header {','.join(columns)} and a row a "
+                                 "blob (record or detect the capture again, or copy the file again)")
     # newline="": the csv module itself finds each record's end, as it does when writing; str.splitlines
     # would also split at \x1c-\x1e, \x85 and \u2028, inside a cell
     reader = csv.DictReader(io.StringIO(text, newline=""))

@@ -86,6 +86,12 @@ def create_app(settings: Settings) -> FastAPI:
     init_db(settings.db_path)  # a corrupt database is moved aside; recover() registers the captures again
     capture_store = CaptureStore(data_dir, settings.db_path, settings.replay_root)
     recover(capture_store, data_dir)
+    log.info("data folder %s (database %s; captures, results and reports in it)", data_dir, settings.db_path.name)
+    if settings.replay_root is None:
+        log.info("no replay root: POST /captures takes uploads only (set WANDCAL_REPLAY_ROOT to name folders)")
+    else:
+        log.info("replay root %s: POST /captures and replay:// cameras may name capture folders under it",
+                 settings.replay_root.resolve())
     queue = _queue(settings, JobStore(settings.db_path), capture_store)
     pruner = Pruner(data_dir, settings.db_path, Retention(settings.keep_results_days, settings.keep_captures_days))
 

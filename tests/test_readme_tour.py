@@ -81,8 +81,9 @@ def snapshot(root: Path) -> dict[Path, object]:
 
 def run(argv: list[str], cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
     assert argv[0] == "wandcal", argv
+    # the operator's Enter at capture's pause after the L-frame (stdin is no terminal here: it reads a line)
     return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *argv[1:]], cwd=cwd, capture_output=True,
-                          text=True, timeout=PROCESS_TIMEOUT_S, env=env, check=False)
+                          text=True, timeout=PROCESS_TIMEOUT_S, env=env, check=False, input="\n")
 
 
 def wait_for(predicate, timeout_s: float, what: str):

@@ -89,11 +89,14 @@ def free_wand_lengths(R: np.ndarray, t: np.ndarray, problem: WandProblem) -> np.
 
 
 def camera_report(errors_px: np.ndarray, problem: WandProblem, frames: np.ndarray, camera: int) -> dict:
-    """Residual RMS, observation count and worst frames of one camera."""
+    """Residual RMS, observation count and worst frames of one camera: each frame once, by the
+    larger error of its two wand ends, worst first."""
     sel = problem.camera == camera
     e = errors_px[sel]
     fr = frames[problem.frame[sel]]
-    worst = np.argsort(-e)[:WORST_FRAMES]
+    order = np.argsort(-e, kind="stable")
+    _, first = np.unique(fr[order], return_index=True)  # each frame's worst end, as a place in ``order``
+    worst = order[np.sort(first)][:WORST_FRAMES]
     return {
         "reprojection_rms_px": float(np.sqrt(np.mean(e**2))) if len(e) else None,
         "observations": int(sel.sum()),

@@ -408,6 +408,13 @@ class CalibrationResult:
         } | ({"sync": self.sync} if self.sync is not None else {})
 
 
+def camera_observations(camera: Mapping[str, Any]) -> int:
+    """A camera's observations in a result document's camera entry: its wand ends and its single
+    points together (``observations`` + ``point_observations``). The one count the verdict, the
+    command line's table and the report give as a camera's observations."""
+    return int(camera.get("observations") or 0) + int(camera.get("point_observations") or 0)
+
+
 def result_from_json(doc: Mapping[str, Any], rig: Rig, R: np.ndarray, t: np.ndarray) -> CalibrationResult:
     """The typed result of a ``wandcal-result/1`` document whose cameras, poses and fields have been
     checked (:func:`wandcal.capture.result_file.check_result`).

@@ -47,7 +47,9 @@ def summary_lines(imported: Imported) -> list[str]:
             f"wand: {rig.wand_length:g} m, {len(frames)} frames with both ends seen by some camera, "
             f"{_multi_view(cap.wand.frame, cap.wand.camera)} of them by 2 or more cameras"
         )
-        lines.append("  frames with both ends per camera: " + _per_camera(rig.ids, per_cam))
+        # the capture's count; a result's "frames with both ends" counts those its solve kept (shared
+        # with another camera, outliers left out), so the label says which
+        lines.append("  frames with both ends per camera, as imported: " + _per_camera(rig.ids, per_cam))
     if cap.points is not None and len(cap.points):
         frames, per_cam = _frames_per_camera(cap.points.frame, cap.points.camera, len(rig.cameras))
         lines.append(

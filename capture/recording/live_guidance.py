@@ -8,6 +8,7 @@ solve; readers (the HTTP API, the command line's status line) take the latest do
 from __future__ import annotations
 
 import multiprocessing
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -22,6 +23,17 @@ from wandcal.calib.run.guidance import GuidanceSettings, Solution, wanding_guida
 # "Guidance"), so once a second leaves the capture loop most of the time.
 UPDATE_INTERVAL_S = 1.0
 _INITIAL_ROWS = 4096  # the buffer's first size, in blob rows; it doubles as needed
+# Ctrl-C and a closed terminal signal the whole foreground process group, the solver process too:
+# it ignores them, so only the capture decides how to stop (a killed solver would end the capture's
+# guidance with BrokenProcessPool)
+_CAPTURE_SIGNALS = frozenset({signal.SIGINT, signal.SIGHUP})
+
+
+def _ignore_capture_signals() -> None:
+    """The solver process's initializer: Ctrl-C and hang-up are the capture's to handle."""
+    for signum in _CAPTURE_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
+
 
 
 class LiveGuidance:
@@ -110,7 +122,14 @@ class LiveGuidance:
                 if version == self._solved_version:
                     return self._document
             if self._pool is not None:
-                guidance = self._pool.submit(wanding_guidance, self.rig, wand, static, self.settings, start).result()
+                # the first submit spawns the process, which inherits this thread's signal mask
+                # until its initializer ignores them: blocked here, a Ctrl-C then cannot kill it
+                blocked = signal.pthread_sigmask(signal.SIG_BLOCK, _CAPTURE_SIGNALS)
+                try:
+                    future = self._pool.submit(wanding_guidance, self.rig, wand, static, self.settings, start)
+                finally:
+                    signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+                guidance = future.result()
             else:
                 guidance = wanding_guidance(self.rig, wand, static, self.settings, start)
             document = self._stamp(guidance.document, time.time())
@@ -131,7 +150,8 @@ class LiveGuidance:
         if self._thread is None:
             if self.process:
                 # spawn: a fork would copy the capture's reader threads' locks in whatever state they are
-                self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+                self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                                 initializer=_ignore_capture_signals)
             self._thread = threading.Thread(target=self._run, name="wandcal-guidance", daemon=True)
             self._thread.start()
         return self

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,10 +20,72 @@ from wandcal.capture.recording.centroids import CentroidRecorder
 from wandcal.capture.recording.framesets import DetectedFrame, FrameSet
 from wandcal.capture.recording.writer import ImageWriter
 from wandcal.drivers.camera import Frame
-from wandcal.drivers.capture_files import FRAMES_DIR, LOG_FILE, RIG_FILE, STATIC_DIR, SYNC_FILE, WAND_FILE
+from wandcal.drivers.capture_files import (
+    BLOBS_FILE,
+    FRAMES_DIR,
+    LOG_FILE,
+    RIG_FILE,
+    STATIC_DIR,
+    STATIC_FILE,
+    SYNC_FILE,
+    WAND_FILE,
+)
 from wandcal.drivers.imagefolder import image_path, sync_header
 
 LOG_FORMAT = "wandcal-capture-log/1"
+HELD = (SYNC_FILE, FRAMES_DIR, WAND_FILE)  # any of these: the folder holds a capture, which a recording does not mix into
+# what a recording writes, removed before recording again into its folder (masks/ and background/
+# are the operator's detection inputs, and results are files of their own: they stay)
+RECORDING = (RIG_FILE, WAND_FILE, STATIC_FILE, BLOBS_FILE, SYNC_FILE, LOG_FILE, "truth.json", FRAMES_DIR, STATIC_DIR)
+
+
+@dataclass(frozen=True)
+class HeldCapture:
+    """What a folder already holds, before a recording into it.
+
+    wand_sets: wand sets recorded (rows of ``sync.csv``; None when it has none, e.g. an import);
+    partial: ``capture.json`` says the recording stopped early (Ctrl-C, a fault).
+    """
+
+    wand_sets: int | None
+    partial: bool
+
+    @property
+    def replaceable(self) -> bool:
+        """An interrupted recording with no wand sets: nothing in it can be calibrated, so the
+        same ``--out`` records again into it without being asked."""
+        return self.partial and self.wand_sets == 0
+
+    def describe(self) -> str:
+        state = "partial" if self.partial else "complete"
+        return f"a {state} capture" + ("" if self.wand_sets is None else f" of {self.wand_sets} wand sets")
+
+
+def held_capture(folder: Path) -> HeldCapture | None:
+    """What ``folder`` holds (None: no capture, a recording may go there)."""
+    folder = Path(folder)
+    if not any((folder / name).exists() for name in HELD):
+        return None
+    wand_sets = None
+    if (folder / SYNC_FILE).is_file():
+        with open(folder / SYNC_FILE, newline="") as fh:
+            wand_sets = max(sum(1 for row in csv.reader(fh) if row) - 1, 0)  # less the header
+    try:
+        log = json.loads((folder / LOG_FILE).read_text())
+        partial = log.get("state") == "partial" or bool(log.get("error"))
+    except (OSError, ValueError, AttributeError):
+        partial = (folder / SYNC_FILE).is_file() and not (folder / LOG_FILE).exists()  # killed: no log written
+    return HeldCapture(wand_sets, partial)
+
+
+def clear_recording(folder: Path) -> None:
+    """Remove the files a recording writes from ``folder`` (:data:`RECORDING`), to record again."""
+    for name in RECORDING:
+        path = Path(folder) / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            path.unlink()
 
 
 @dataclass(frozen=True)
@@ -84,7 +147,7 @@ class Recorder:
     def __init__(self, folder: Path, rig: Rig, writer: ImageWriter, triggered: bool = True,
                  images: ImagePolicy | None = None, listener=None):
         self.folder = Path(folder)
-        if any((self.folder / name).exists() for name in (SYNC_FILE, FRAMES_DIR, WAND_FILE)):
+        if any((self.folder / name).exists() for name in HELD):
             writer.close()
             raise FileExistsError(f"{self.folder} already holds a capture; choose a new --out folder")
         self.folder.mkdir(parents=True, exist_ok=True)

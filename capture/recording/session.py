@@ -45,6 +45,7 @@ BYTES_PER_PIXEL = 2  # sized for 16-bit frames, so 8-bit ones stay well inside t
 # Camera and trigger crystals are within +-50 ppm of nominal, so two of them differ by <= 100 ppm.
 DRIFT_WARN_PPM = 100.0
 READ_TIMEOUT_S = 0.2  # how soon a reader thread notices the stop flag while its camera waits for a pulse
+INTERRUPTED = "interrupted by the user"  # CaptureResult.error after Ctrl-C, end of input or a closed terminal
 _END = object()
 
 
@@ -60,7 +61,8 @@ def buffer_frames(rate_hz: float, cameras: int, seconds: float, frame_bytes: int
 
 @dataclass
 class CaptureResult:
-    """What a capture recorded. ``error`` is the fault that ended it early (None when complete)."""
+    """What a capture recorded. ``error`` is the fault that ended it early (None when complete;
+    :data:`INTERRUPTED` after Ctrl-C); ``capture.json`` says ``"state": "complete"`` or ``"partial"``."""
 
     folder: Path
     static_sets: int
@@ -205,7 +207,7 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
                 trigger.start(static_frames or frames)
             error = loop.run(progress, between, frames)
         except KeyboardInterrupt:
-            error = "interrupted by the user"
+            error = INTERRUPTED
             loop.flush()
         except DriverError as exc:  # e.g. the trigger refusing START: keep what exists, say why
             error = str(exc)
@@ -214,8 +216,8 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
             per_camera = _per_camera(assembler, ids, say)
             result = CaptureResult(out, recorder.static_sets, recorder.frame_sets, loop.complete, per_camera,
                                    messages, error, writer.high_water, writer.max_queued)
-            recorder.close({"static_sets": result.static_sets, "frame_sets": result.frame_sets,
-                            "complete_sets": result.complete_sets, "cameras": per_camera,
+            recorder.close({"state": "partial" if error else "complete", "static_sets": result.static_sets,
+                            "frame_sets": result.frame_sets, "complete_sets": result.complete_sets, "cameras": per_camera,
                             "messages": messages, "error": error, "rate_hz": rate_hz,
                             "writer_queue": {"bound": writer.max_queued, "high_water": writer.high_water}})
     return result

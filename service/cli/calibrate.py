@@ -23,7 +23,14 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 
 def _arguments(p: argparse.ArgumentParser) -> None:
     # the bounds (exit 2 outside them) are the ones CalibrationOptions.check holds
-    from wandcal.calib.run.options import DEFAULT_METHOD, MAX_LP_SECONDS, MAX_PAPER_ROUNDS, MAX_SYNC_OFFSET, METHODS
+    from wandcal.calib.run.options import (
+        DEFAULT_METHOD,
+        MAX_LP_SECONDS,
+        MAX_PAPER_ROUNDS,
+        MAX_SYNC_OFFSET,
+        METHODS,
+        CalibrationOptions,
+    )
     from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
     from wandcal.calib.solve.paper import MAX_ROUNDS
     from wandcal.calib.solve.reprojection import INTRINSICS
@@ -46,18 +53,23 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refine-intrinsics", type=_intrinsics_list, default=(), metavar="LIST",
                    help=f"ba: also refine these per camera, comma-separated from {','.join(INTRINSICS)} (default: none)")
     p.add_argument("--sync", choices=SYNC_MODES, default=DEFAULT_SYNC,
-                   help="auto: find each camera's time offset from the wand, for cameras without a trigger (docs/sync.md)")
-    p.add_argument("--sync-max-offset", type=arg_whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES", help="with --sync auto: frames searched")
+                   help="auto: find each camera's time offset from the wand, for cameras without a trigger "
+                        f"(docs/sync.md); none: the frames as recorded (default {DEFAULT_SYNC})")
+    p.add_argument("--sync-max-offset", type=arg_whole(1, MAX_SYNC_OFFSET), default=None, metavar="FRAMES",
+                   help=f"with --sync auto: frames searched either side, 1 to {MAX_SYNC_OFFSET} "
+                        f"(default {CalibrationOptions.sync_max_offset})")
     p.add_argument("--sync-drift", action="store_true", help="with --sync auto: also each camera's rate difference")
     p.add_argument("--require", choices=REQUIRE_LEVELS, default=None, metavar="LEVEL",
                    help=f"for scripts: exit {BELOW_REQUIRED} when the rig's verdict is below LEVEL "
-                        f"({' or '.join(REQUIRE_LEVELS)}); the result is written all the same. Exit status: 0 "
-                        f"written (and at LEVEL or above), {BELOW_REQUIRED} below LEVEL, 2 bad input (nothing written)")
+                        f"({' or '.join(REQUIRE_LEVELS)}); the result is written all the same (default: none, exit 0 "
+                        f"whatever the verdict). Exit status: 0 written (and at LEVEL or above), {BELOW_REQUIRED} below "
+                        "LEVEL, 2 bad input (nothing written)")
     p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
     p.add_argument("--from", dest="from_result", type=Path, metavar="RESULT",
-                   help="start from this result: with --solve-only, every other camera keeps its pose exactly")
+                   help="start from this result: with --solve-only, every other camera keeps its pose exactly "
+                        "(default: none, a fresh solve)")
     p.add_argument("--solve-only", type=_id_list, metavar="CAM[,CAM]",
-                   help="with --from: re-solve only these cameras (e.g. the ones 'wandcal check' names)")
+                   help="with --from: re-solve only these cameras (e.g. the ones 'wandcal check' names; default: all)")
 
 
 def _intrinsics_list(text: str) -> tuple[str, ...]:

@@ -4,6 +4,9 @@ guidance on the progress line."""
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import signal
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -11,6 +14,7 @@ from typing import TYPE_CHECKING
 from wandcal.service.cli.detect import add_detect_options, config_from_args, mask_from_args
 from wandcal.service.cli.guidance import add_guidance_options
 from wandcal.service.cli.support.args import arg_number, arg_whole
+from wandcal.service.cli.support.exits import INTERRUPTED, NO_ANSWER, InputError
 
 if TYPE_CHECKING:
     from wandcal.calib.rig import Rig
@@ -48,12 +52,18 @@ def _arguments(p: argparse.ArgumentParser) -> None:
                         "(default 0)")
     p.add_argument("--rate", type=arg_number(MIN_RATE_HZ, MAX_RATE_HZ), default=100.0, metavar="HZ",
                    help=f"trigger / frame rate in Hz, {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} (default 100)")
-    p.add_argument("--rig", type=Path, help="rig.json with the cameras' intrinsics (simulated and replayed "
-                   "cameras bring their own)")
+    p.add_argument("--rig", type=Path, help="rig.json with the cameras' intrinsics (default: none; simulated and "
+                   "replayed cameras bring their own)")
     p.add_argument("--wand-length", type=arg_number(0, MAX_WAND_LENGTH_M, low_open=True), default=None, metavar="M",
                    help="wand marker distance in metres, for cameras that do not bring a rig.json (default "
                         f"{DEFAULT_WAND_LENGTH_M:g})")
-    p.add_argument("--out", type=Path, required=True, help="new capture folder")
+    p.add_argument("--out", type=Path, required=True,
+                   help="new capture folder (one that holds a capture is refused, unless --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="record again into an --out that holds a capture, replacing its recording's files")
+    p.add_argument("--no-pause", action="store_true",
+                   help="record the wand right after the static sets, without waiting for Enter (needed with "
+                        "--static-frames and no trigger: free-running cameras cannot pause)")
     p.add_argument("--images", type=_image_policy, default="all", metavar="WHICH",
                    help="images written beside the centroids: all (default), none, static (the static recording "
                         "only) or N (every N-th wand set); 'none' keeps up with 8 cameras at 100 fps")
@@ -82,33 +92,49 @@ def _live_detectors(args, rig: Rig, config):
 
 
 def run_capture(args) -> int:
-    import contextlib
-    import json
-
     from wandcal.calib.errors import CalibrationError
-    from wandcal.capture.recording.camera_rig import camera_rig, simulated_scene
-    from wandcal.capture.recording.live_guidance import LiveGuidance
-    from wandcal.capture.recording.session import record
-    from wandcal.drivers.registry import open_cameras
-    from wandcal.drivers.trigger import open_trigger
-    from wandcal.service.cli.guidance import settings_from
-    from wandcal.service.cli.support.progress import ProgressLine
 
     if args.stop_when_enough and not args.guidance:
         raise CalibrationError("--stop-when-enough needs the guidance; drop --no-guidance")
+    _check_pause(args)
+    with _interruptible():
+        try:
+            _make_room(args.out, overwrite=args.overwrite)
+            return _record(args)
+        except KeyboardInterrupt:  # before the recording began (or after it ended): say what is there
+            held = _held(args.out)
+            print(f"\nwandcal capture: interrupted; {held}", file=sys.stderr)
+            return INTERRUPTED
+
+
+def _record(args) -> int:
+    """Open the devices and record, with the guidance and the progress line."""
+    import contextlib
+    import json
+
+    from wandcal.capture.recording.camera_rig import camera_rig, simulated_scene
+    from wandcal.capture.recording.live_guidance import LiveGuidance
+    from wandcal.capture.recording.session import INTERRUPTED as STOPPED_BY_USER
+    from wandcal.capture.recording.session import record
+    from wandcal.drivers.registry import open_cameras
+    from wandcal.service.cli.guidance import settings_from
+    from wandcal.service.cli.support.progress import ProgressLine
+
     config = config_from_args(args, live=True)
     cameras: list[CameraDriver] = [cam for url in args.camera for cam in open_cameras(url)]
     rig = camera_rig(cameras, args.rig, args.wand_length)
     detect = _live_detectors(args, rig, config)
-    trigger = open_trigger(args.trigger)
+    trigger = _open_trigger(args.trigger)
     guidance = LiveGuidance(rig, settings_from(args)) if args.guidance and rig.wand_length is not None else None
     until = (lambda: guidance.enough) if guidance is not None and args.stop_when_enough else None
+    between = None if args.no_pause or not args.static_frames else _between
     with ProgressLine(quiet=args.quiet) as status, guidance or contextlib.nullcontext():
         result = record(cameras, trigger, args.out, rig, frames=args.frames, static_frames=args.static_frames,
-                        rate_hz=args.rate, progress=_shown_on(status), between=_between,
+                        rate_hz=args.rate, progress=_shown_on(status), between=between,
                         events=lambda m: print(f"\n{m}", file=sys.stderr), images=args.images, guidance=guidance,
                         until=until, detect=detect)
-        final = guidance.update() if guidance is not None else None
+        interrupted = result.error == STOPPED_BY_USER
+        final = _final_guidance(guidance) if guidance is not None else None
         scene = simulated_scene(cameras)
         if scene is not None and rig is scene.rig:
             # a simulated rig: keep its truth beside the capture, as 'wandcal simulate' does
@@ -116,7 +142,100 @@ def run_capture(args) -> int:
         total = result.frame_sets + result.static_sets
         status.done(f"recorded {result.frame_sets} wand sets and {result.static_sets} static sets into "
                     f"{result.folder}; {result.complete_sets} of {total} have every camera's frame")
-    return _print_recorded(result, final)
+    return _print_recorded(result, final, interrupted=interrupted)
+
+
+def _final_guidance(guidance) -> dict:
+    """The guidance on every recorded set (the same sets the summary counts), also after Ctrl-C:
+    its solver process ignores the terminal's signals. A solver that died all the same leaves the
+    last document it made, which says when it was made (``updated``)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        return guidance.update()
+    except BrokenProcessPool:
+        return guidance.latest()
+
+
+def _check_pause(args) -> None:
+    """A static recording needs a pause for the L-frame to leave the volume: free-running cameras
+    cannot pause (they keep streaming), so without a trigger it takes --no-pause."""
+    if args.static_frames and not args.no_pause and args.trigger.strip().lower() in ("", "none"):
+        raise InputError(f"--static-frames {args.static_frames} without a trigger: free-running cameras keep "
+                         "streaming, so the capture cannot pause for the L-frame to leave the volume before the "
+                         "wand; give --trigger (it then waits for Enter), or --no-pause to record the wand right "
+                         "after the L-frame (a static object that may stay in view, or a simulated rig)")
+
+
+def _open_trigger(url: str):
+    """The trigger ``url`` names (None for 'none'); a device path that is not there is bad input."""
+    from wandcal.drivers.trigger import open_trigger
+
+    path = url[len("serial://"):] if url.startswith("serial://") else url
+    if path.startswith("/") and not Path(path).exists():
+        raise InputError(f"--trigger {url}: no such device; plug in the trigger board (ls /dev/ttyACM* /dev/ttyUSB*), "
+                         "or run 'wandcal trigger-emulator' in another terminal and give the path it prints, or "
+                         "give --trigger none for free-running cameras")
+    return open_trigger(url)
+
+
+def _make_room(out: Path, *, overwrite: bool) -> None:
+    """Refuse an ``--out`` that holds a capture, unless --overwrite or it holds an interrupted
+    recording with no wand sets (which nothing can calibrate): those are cleared first."""
+    from wandcal.capture.recording.record import clear_recording, held_capture
+
+    held = held_capture(out)
+    if held is None:
+        return
+    if not (overwrite or held.replaceable):
+        raise InputError(f"{out} already holds {held.describe()}; calibrate it (wandcal calibrate {out}), choose a "
+                         "new --out folder, or give --overwrite to record again into this one (its recording's "
+                         "files are replaced; masks/, background/ and results stay)")
+    print(f"wandcal capture: replacing {held.describe()} in {out}", file=sys.stderr)
+    clear_recording(out)
+
+
+def _held(out: Path) -> str:
+    """What an interrupted capture left in ``out``, and how to go on."""
+    from wandcal.capture.recording.record import held_capture
+
+    held = held_capture(out)
+    if held is None:
+        return f"nothing was recorded into {out}"
+    return f"{out} holds {held.describe()}; {_next_steps(out, held.wand_sets or 0)}"
+
+
+def _next_steps(out: Path, wand_sets: int) -> str:
+    again = f"record again into it with --out {out} --overwrite"
+    if wand_sets:
+        return f"calibrate it (wandcal calibrate {out}), or {again}"
+    return f"no wand sets to calibrate: record again with the same --out {out} (it is replaced)"
+
+
+@contextlib.contextmanager
+def _interruptible():
+    """Ctrl-C, a closed terminal (SIGHUP) and SIGTERM stop the capture as KeyboardInterrupt, once:
+    a second Ctrl-C while the capture finishes its files is ignored. After a hang-up the terminal
+    is gone, so what is left to say goes to /dev/null instead of failing on a dead descriptor."""
+    stopping = [False]
+
+    def stop(signum, frame) -> None:
+        if signum == signal.SIGHUP:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            for fd in (1, 2):
+                os.dup2(devnull, fd)
+            os.close(devnull)
+        if not stopping[0]:
+            stopping[0] = True
+            raise KeyboardInterrupt
+
+    signals = (signal.SIGINT, signal.SIGHUP, signal.SIGTERM)
+    previous = {s: signal.signal(s, stop) for s in signals}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def _shown_on(status):
@@ -142,26 +261,44 @@ def _shown_on(status):
 
 
 def _between() -> None:
-    if sys.stdin.isatty():
-        input("\nstatic object recorded; remove it, then press Enter to record the wand... ")
+    """The pause after the static recording: Enter goes on; end of input stops the capture as
+    Ctrl-C does (the static sets are kept). Without a terminal a line on stdin goes on."""
+    prompt = "\nstatic object recorded; remove it from the volume, then press Enter to record the wand... "
+    try:
+        if sys.stdin.isatty():
+            input(prompt)
+            return
+        print(prompt, file=sys.stderr, flush=True)
+        line = sys.stdin.readline()
+    except EOFError:
+        line = ""
+    if not line:
+        raise KeyboardInterrupt  # end of input: nobody will press Enter
 
 
-def _print_recorded(result, final: dict | None) -> int:
-    """Each camera's frames, the guidance on what was recorded; exit 3 when the recording stopped early."""
+def _print_recorded(result, final: dict | None, *, interrupted: bool = False) -> int:
+    """Each camera's frames, the guidance on what was recorded; exit 3 when the recording stopped
+    early, 130 when it was interrupted (saying what is kept and how to go on)."""
     from wandcal.service.cli.guidance import guidance_lines
 
     for cid, s in result.per_camera.items():
-        print(f"{cid}: {s['delivered']} frame{'s' * (s['delivered'] != 1)}, {s['missed']} missed, "
+        # frames delivered, whatever they show; the guidance's table counts those with both wand ends
+        print(f"{cid}: {s['delivered']} frame{'s' * (s['delivered'] != 1)} delivered, {s['missed']} missed, "
               f"{s['unreadable']} unreadable"
               + (f", clock drift {s['clock_drift_ppm']:+.1f} ppm" if s["clock_drift_ppm"] is not None else ""))
     if final is not None:
         print("guidance on the recorded wand sets:")
         for line in guidance_lines(final):
             print(line)
+    if interrupted:
+        print(f"wandcal capture: interrupted; kept {result.frame_sets} wand sets and {result.static_sets} static sets "
+              f"in {result.folder} (capture.json: partial); {_next_steps(result.folder, result.frame_sets)}",
+              file=sys.stderr)
+        return INTERRUPTED
     if result.error:
         print(f"wandcal capture: stopped early: {result.error}\nkept everything recorded until then in "
               f"{result.folder}", file=sys.stderr)
-        return 3
+        return NO_ANSWER
     return 0
 
 

@@ -15,8 +15,10 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
         from wandcal.calib.run.options import DEFAULT_METHOD, METHODS
 
         sim_args(p, cameras=6, frames=800)
-        p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD)
-        p.add_argument("--keep", type=Path, help="also keep the simulated capture and result in this folder")
+        p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
+                       help=f"the calibration method (default {DEFAULT_METHOD})")
+        p.add_argument("--keep", type=Path,
+                       help="also keep the simulated capture and result in this folder (default: a temporary one)")
         p.add_argument("--quiet", action="store_true", help="no progress line (there is none when stderr is not a terminal)")
 
 

@@ -83,18 +83,25 @@ def summary(document: dict) -> str:
     worst = max(solved) if solved else None
     sigma = f"worst σ {worst[0]:.2f} mm ({worst[1]})" if worst else "σ: not solved yet"
     cov, cid = min((c["coverage"], c["id"]) for c in cams)
-    verdict = "ENOUGH: you can stop" if document["enough"] else f"{len(document['advice'])} camera(s) need more"
+    needing = sum(1 for c in cams if c.get("advice"))  # a camera's own advice; the rig-wide kind is no camera's
+    if document["enough"]:
+        verdict = "ENOUGH: you can stop"
+    elif needing:
+        verdict = f"{needing} of {len(cams)} camera(s) need more"
+    else:
+        verdict = "not enough yet (the rig's advice is above)"
     return f"{sigma} · least covered {cov:.0%} ({cid}) · {verdict}"
 
 
 def guidance_lines(document: dict, grids: bool = False) -> list[str]:
     """The per-camera table, the verdict and the advice, worst first."""
     target = document["target"]
-    lines = [f"{'camera':<10} {'frames':>7} {'shared':>7} {'coverage':>9} {'centre σ mm':>12}  linked most with"]
+    # frames: in which the camera saw both wand ends (a capture's "frames delivered" counts every frame)
+    lines = [f"{'camera':<10} {'both ends':>9} {'shared':>7} {'coverage':>9} {'centre σ mm':>12}  linked most with"]
     for c in document["cameras"]:
         best = sorted(c["linked"].items(), key=lambda kv: -kv[1])[:2]
         links = ", ".join(f"{d} {n}" for d, n in best)
-        lines.append(f"{c['id']:<10} {c['frames']:>7} {c['shared_frames']:>7} {c['coverage']:>9.0%} "
+        lines.append(f"{c['id']:<10} {c['frames']:>9} {c['shared_frames']:>7} {c['coverage']:>9.0%} "
                      f"{_sigma(c['center_std_mm']):>12}  {links}")
         if grids:
             lines += [f"{'':<10} {''.join(COVERED if n else EMPTY for n in row)}" for row in c["grid"]]

@@ -12,7 +12,8 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
     p.set_defaults(run=run_report)
     if arguments:
         p.add_argument("result", type=Path, help="a wandcal-result/1 file written by 'wandcal calibrate'")
-        p.add_argument("--capture", type=Path, help="the capture folder the result came from (residuals, coverage, wand)")
+        p.add_argument("--capture", type=Path, help="the capture folder the result came from (residuals, coverage, wand; default: "
+                       "none, the result's own figures only)")
         p.add_argument("--out", type=Path, required=True, help="folder to write index.html and the figures into")
 
 

@@ -31,6 +31,23 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
     p.set_defaults(run=run)
     if arguments:
         _arguments(p)
+        p.epilog = environment()
+
+
+def environment() -> str:
+    """The environment ``serve`` reads, one variable a line: every setting as ``WANDCAL_<NAME>``
+    (service/settings.py; an option given here wins over it), and ``WANDCAL_CONFIG``."""
+    from wandcal.service.settings import Settings
+
+    lines = ["environment (each also a key of the settings file; an option above wins over both):",
+             "  WANDCAL_CONFIG: the settings TOML file (deploy/wandcal.toml shows every key)"]
+    for name, field in Settings.model_fields.items():
+        default = field.get_default(call_default_factory=False)
+        shown = "" if field.description is None else f": {field.description}"
+        if field.default_factory is None and name != "token":
+            shown += f" (default {'unset' if default is None else default})"
+        lines.append(f"  WANDCAL_{name.upper()}{shown}")
+    return "\n".join(lines) + "\n"
 
 
 def _arguments(p: argparse.ArgumentParser) -> None:
@@ -40,12 +57,34 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data-dir", type=Path, help="data directory (default $WANDCAL_DATA_DIR or ./wandcal-data)")
     p.add_argument("--workers", type=arg_whole(0, MAX_WORKERS), metavar="N",
                    help=f"solver processes, 0 to {MAX_WORKERS} (0: jobs stay queued; default 1)")
-    p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
+    p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"),
+                   help="the service's and uvicorn's log level (default info)")
 
 
 def check_bind(settings: Settings) -> None:
+    """A non-loopback bind without a token is refused: bad input (exit 2), like a taken port."""
+    from wandcal.service.cli.support.exits import InputError
+
     if not settings.loopback and not settings.token:
-        raise PermissionError(NO_TOKEN.format(host=settings.host))
+        raise InputError(NO_TOKEN.format(host=settings.host))
+
+
+def check_port(host: str, port: int) -> None:
+    """Bind ``host:port`` once and let it go, so a taken port or an address this machine does not
+    have is bad input (exit 2) with the option to change, before the service starts anything."""
+    import socket
+
+    from wandcal.service.cli.support.exits import InputError
+
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+        with socket.socket(family, kind, proto) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds: TIME_WAIT is no clash
+            probe.bind(address)
+    except OSError as exc:
+        raise InputError(f"cannot listen on {host}:{port} ({exc.strerror or exc}): another program (another "
+                         "'wandcal serve'?) holds the port, or the address is not this machine's; stop it, or give "
+                         "--port N / --host (or WANDCAL_PORT / WANDCAL_HOST)") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
     }
     settings = Settings.load(args.config, **overrides)
     check_bind(settings)
+    check_port(settings.host, settings.port)
     # uploads larger than 1 MB spool to temporary files: keep those inside the data directory too
     spool = settings.data_dir.resolve() / "tmp"
     spool.mkdir(parents=True, exist_ok=True)

@@ -86,6 +86,30 @@ def prune(data_dir: Path, db_path: Path, retention: Retention, now: float | None
     return jobs, captures
 
 
+KEPT_RESULTS_DIR = "results"  # <data_dir>/results/<job id>.json: results kept when their job is deleted
+
+
+def delete_finished_job(data_dir: Path, db_path: Path, job_id: str, keep_result: bool = False) -> Path | None:
+    """Delete a finished job as retention does (its record, result and drawn report), on request
+    (``DELETE /jobs/{id}``). ``keep_result``: its result document is first written to
+    ``results/<job_id>.json`` in the data folder; that path is returned (None when nothing was kept).
+    A job that is not finished (or has no row) is left alone: LookupError."""
+    marks = ",".join("?" * len(FINISHED))
+    with transaction(db_path) as conn:
+        row = conn.execute(f"SELECT result FROM jobs WHERE id = ? AND state IN ({marks})", (job_id, *FINISHED)).fetchone()
+        if row is None:
+            raise LookupError(f"job {job_id} is not a finished job of {db_path}")
+        kept = None
+        if keep_result and row[0]:
+            kept = Path(data_dir) / KEPT_RESULTS_DIR / f"{job_id}.json"
+            kept.parent.mkdir(parents=True, exist_ok=True)
+            kept.write_text(row[0] + "\n")  # before the row goes: a crash in between keeps both
+        conn.execute("DELETE FROM jobs WHERE id = ?", (job_id,))
+    shutil.rmtree(report_folder(data_dir, job_id), ignore_errors=True)
+    log.info("deleted finished job %s on request%s", job_id, f"; its result is kept in {kept}" if kept else "")
+    return kept
+
+
 class Pruner:
     """Runs :func:`prune` at start and every ``every_s`` in a daemon thread, while the app lives."""
 

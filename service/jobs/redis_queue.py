@@ -256,6 +256,8 @@ class RedisQueue:
             self._retry_abandoned()
         elif status == JobStatus.QUEUED:
             if attempts > 0:  # re-queued by rq after its worker died
+                if (record.progress or {}).get("stage") != "requeued":  # said once, when the record first sees it
+                    log.warning("job %s: %s; re-queued by rq (attempt %d of %d)", job_id, DIED, attempts, MAX_ATTEMPTS)
                 self._mirror(job_id, JobState.queued, attempts=attempts,
                              progress={"stage": "requeued", "message": f"re-queued: {DIED}"})
             self._retry_abandoned()  # it may be one a worker took and never started

@@ -30,7 +30,7 @@ from pathlib import Path
 from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import Capture
 from wandcal.service.db import disk_full
-from wandcal.service.jobs.records import Claim, JobState, JobStore
+from wandcal.service.jobs.records import MAX_ATTEMPTS, Claim, JobRecord, JobState, JobStore
 from wandcal.service.schemas import JobOptions
 
 log = logging.getLogger("wandcal.worker")
@@ -206,7 +206,8 @@ class WorkerPool:
             for i, proc in enumerate(self.procs):
                 if proc.is_alive() or self._halt.is_set():
                     continue
-                self.store.recover(f"its worker process exited unexpectedly (exit code {proc.exitcode})", [proc.pid])
+                why = f"its worker process exited unexpectedly (exit code {proc.exitcode})"
+                log_recovered(self.store.recover(why, [proc.pid]), why)
                 self.procs[i] = self._spawn()
 
     def _enforce_cancellations(self) -> None:
@@ -238,4 +239,14 @@ class WorkerPool:
             proc.join(1.0)
         pids = [p.pid for p in self.procs]
         if pids:
-            self.store.recover("the server stopped while the job was running", pids)
+            why = "the server stopped while the job was running"
+            log_recovered(self.store.recover(why, pids), why)
+
+
+def log_recovered(jobs: list[JobRecord], why: str) -> None:
+    """Every job a recovery queued again (or failed, past its attempts), in the service's log:
+    "job ID: WHY: now queued (attempt 1 of 2)"."""
+    for job in jobs:
+        logging.getLogger("wandcal.service").warning(
+            "job %s: %s: now %s (attempt %d of %d)%s", job.id, why, job.state.value, job.attempts, MAX_ATTEMPTS,
+            f": {job.error}" if job.error else "")

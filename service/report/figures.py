@@ -311,6 +311,17 @@ def _residual_map_panel(fig: Figure, ax, cam: CameraSummary) -> None:
     ax.set_title("residuals", fontsize=11, loc="left")
 
 
+def histogram_rms(cam: CameraSummary, inliers: np.ndarray) -> tuple[float, str]:
+    """The histogram's dashed line and its label: the camera's reprojection RMS as the result
+    gives it (the page's table, the command line's ``rms px``: its wand ends the solve kept); a
+    result without one (points only) shows the RMS of the histogram's own inliers, so labelled."""
+    rms = cam.doc.get("reprojection_rms_px")
+    if rms is not None:
+        return float(rms), f"reprojection RMS {rms:.2f} px (wand ends the solve kept)"
+    own = float(np.sqrt(np.mean(inliers**2))) if len(inliers) else float("nan")
+    return own, f"RMS of the residuals without outliers {own:.2f} px"
+
+
 def _histogram_panel(ax, cam: CameraSummary) -> None:
     wand = np.linalg.norm(cam.residual_px, axis=1)
     pts = np.linalg.norm(cam.point_residual_px, axis=1)
@@ -334,8 +345,8 @@ def _histogram_panel(ax, cam: CameraSummary) -> None:
     rayleigh = r / sigma**2 * np.exp(-(r**2) / (2 * sigma**2))  # the error radius of 2D Gaussian noise
     ax.plot(r, len(inliers) * (bins[1] - bins[0]) * rayleigh, color="black", linewidth=1.2,
             label=f"Gaussian noise, \u03c3 = {sigma:.2f} px")
-    rms = float(np.sqrt(np.mean(inliers**2))) if len(inliers) else float("nan")
-    ax.axvline(rms, color="#555555", linestyle="--", linewidth=1, label=f"RMS without outliers {rms:.2f} px")
+    rms, label = histogram_rms(cam, inliers)
+    ax.axvline(rms, color="#555555", linestyle="--", linewidth=1, label=label)
     ax.set_xlim(0, top)
     ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.legend(fontsize=8)

@@ -207,7 +207,7 @@ def _camera_section(data: ReportData, cam: CameraSummary, figure: str | None) ->
         ("centre x, y, z", f"{', '.join(f'{v:.4f}' for v in d['center'])} {data.unit}"),
         ("reprojection RMS", _num(d.get("reprojection_rms_px"), ".3f", " px")),
         ("observations (wand ends)", _num(d.get("observations"), "d")),
-        ("frames with both ends", _num(d.get("frames_with_both_ends"), "d")),
+        ("frames with both ends in the solve", _num(d.get("frames_with_both_ends"), "d")),
         ("point-track RMS", _num(d.get("point_rms_px"), ".3f", " px")),
         ("point observations", _num(d.get("point_observations"), "d")),
         ("centre standard deviation (center_std_mm)", _num(d.get("center_std_mm"), ".2f", " mm")),
@@ -264,7 +264,8 @@ def camera_caption(cam: CameraSummary) -> str:
     return (f"Left: how many samples it saw in each cell of its image (pale red: none), {seen}. Middle: the RMS "
             "residual per cell, with arrows of the mean residual (a pattern of arrows means a systematic error, "
             f"not noise){outliers}. Right: the residuals' histogram, stacked by kind, against what Gaussian noise "
-            "would give (black line); the dashed line is their RMS without outliers.")
+            "would give (black line); the dashed line is the camera's reprojection RMS, the result's figure (its wand "
+            "ends the solve kept), as in the table above.")
 
 
 def wand_caption(data: ReportData) -> str:

@@ -34,7 +34,7 @@ def test_pty_capture_detect_and_calibrate_recover_the_rig(tmp_path, capsys):
     out = tmp_path / "cap"
     with EmulatorProcess() as emu:
         code = main(["capture", "--camera", SIM, "--trigger", emu.url, "--frames", str(FRAMES),
-                     "--static-frames", str(STATIC), "--rate", str(RATE_HZ), "--out", str(out)])
+                     "--static-frames", str(STATIC), "--no-pause", "--rate", str(RATE_HZ), "--out", str(out)])
     assert code == 0, capsys.readouterr().err
     rows = sync_rows(out)
     assert len(rows) == FRAMES

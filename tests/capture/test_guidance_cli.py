@@ -21,7 +21,7 @@ def recorded(tmp_path_factory):
     out = tmp_path_factory.mktemp("guidance") / "cap"
     with EmulatorProcess() as emu:
         code = main(["capture", "--camera", SIM, "--trigger", emu.url, "--frames", str(WAND_SETS), "--static-frames",
-                     str(STATIC), "--rate", "200", "--images", "none", "--stop-when-enough", *LOOSE, "--out", str(out)])
+                     str(STATIC), "--no-pause", "--rate", "200", "--images", "none", "--stop-when-enough", *LOOSE, "--out", str(out)])
     return out, code
 
 

@@ -105,7 +105,10 @@ def test_job_lifecycle_drain_cancel_and_exports(app_client, small_capture):
     assert first["state"] == "queued" and first["attempts"] == 0
     cancelled = c.delete(f"/jobs/{second['id']}").json()
     assert cancelled["state"] == "cancelled"
-    assert c.delete(f"/jobs/{second['id']}").status_code == 409
+    removed = c.delete(f"/jobs/{second['id']}")  # finished (cancelled): a second DELETE removes it
+    assert removed.status_code == 200 and removed.json()["state"] == "cancelled"
+    assert "Wandcal-Kept-Result" not in removed.headers
+    assert c.get(f"/jobs/{second['id']}").status_code == 404 and c.delete(f"/jobs/{second['id']}").status_code == 404
     ran = app.state.wandcal.queue.drain()
     assert [j.id for j in ran] == [first["id"]]
     job = c.get(f"/jobs/{first['id']}").json()
@@ -123,6 +126,26 @@ def test_job_lifecycle_drain_cancel_and_exports(app_client, small_capture):
     assert yaml.status_code == 200 and yaml.text.startswith("%YAML:1.0")
     assert len(c.get(f"/jobs/{first['id']}/result", params={"format": "dlt-csv"}).text.splitlines()) == 11
     assert c.get("/health").json()["jobs_queued"] == 0
+
+
+def test_a_finished_job_is_deleted_with_or_without_its_result(app_client, small_capture):
+    folder, _ = small_capture
+    app, c = app_client()
+    capture = upload(c, folder)
+    kept_id, gone_id = (c.post("/jobs", json={"capture_id": capture["id"]}).json()["id"] for _ in range(2))
+    app.state.wandcal.queue.drain()
+    data_dir = app.state.wandcal.settings.data_dir
+    result = c.get(f"/jobs/{kept_id}").json()["result"]
+    assert c.get(f"/jobs/{kept_id}/report").status_code == 200  # drawn, so its folder exists
+    answer = c.delete(f"/jobs/{kept_id}", params={"keep_result": True})
+    assert answer.status_code == 200 and answer.json()["state"] == "done"
+    kept = data_dir / answer.headers["Wandcal-Kept-Result"]
+    assert kept == data_dir / "results" / f"{kept_id}.json" and json.loads(kept.read_text()) == result
+    assert not (data_dir / "reports" / kept_id).exists()
+    assert c.delete(f"/jobs/{gone_id}").status_code == 200 and not (data_dir / "results" / f"{gone_id}.json").exists()
+    listed = [j["id"] for j in c.get("/jobs").json()["jobs"]]
+    assert kept_id not in listed and gone_id not in listed
+    assert c.get(f"/jobs/{kept_id}").status_code == 404
 
 
 def test_running_job_is_requeued_once_then_failed(app_client, small_capture):

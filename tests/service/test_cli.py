@@ -46,7 +46,7 @@ def test_bad_input_exits_2_with_a_message(tmp_path):
 def test_calibrate_an_image_level_capture_detects_first(tmp_path):
     out = tmp_path / "cap"
     r = wandcal("capture", "--camera", "sim://?cameras=3&seed=4&frames=120&static=10", "--frames", "120",
-                "--static-frames", "10", "--out", str(out))
+                "--static-frames", "10", "--no-pause", "--out", str(out))
     assert r.returncode == 0, r.stderr
     for name in ("wand.csv", "static.csv", "blobs.csv"):  # the capture's own points level: keep the images only
         (out / name).unlink()

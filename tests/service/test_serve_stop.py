@@ -162,3 +162,37 @@ def test_the_pool_stops_after_a_worker_was_killed_while_idle(tmp_path):
     stopper.start()
     stopper.join(STOP_LIMIT_S)
     assert not stopper.is_alive(), "the wake-up or WorkerPool.stop hung after a worker died while waiting"
+
+
+@pytest.mark.parametrize("replay", [False, True])
+def test_the_service_says_where_its_data_lives_and_whether_a_replay_root_is_set(tmp_path, caplog, replay):
+    from wandcal.service.main import create_app
+    from wandcal.service.settings import Settings
+
+    root = tmp_path / "replays" if replay else None
+    with caplog.at_level("INFO", logger="wandcal.service"):
+        create_app(Settings(data_dir=tmp_path / "data", workers=0, replay_root=root))
+    if not replay:  # the log's repeat filter lets the same line through once a minute: the first case says it
+        assert f"data folder {(tmp_path / 'data').resolve()}" in caplog.text
+    assert (f"replay root {root}" if replay else "no replay root") in caplog.text
+    if not replay:
+        assert "WANDCAL_REPLAY_ROOT" in caplog.text
+
+
+def test_every_job_a_worker_recovery_queues_again_is_logged(tmp_path, caplog):
+    from wandcal.service.db import init_db
+    from wandcal.service.jobs.records import JobStore
+    from wandcal.service.jobs.worker import log_recovered
+    from wandcal.service.storage import CaptureStore
+
+    db = tmp_path / "wandcal.sqlite"
+    init_db(db)
+    store = JobStore(db)
+    folder, _ = simulated_capture(tmp_path / "sim", cameras=2, frames=20, seed=1)
+    capture = CaptureStore(tmp_path, db, None).create_from_texts((folder / "rig.json").read_text(), None, None)
+    job = store.create(capture.id, "ba", {})
+    assert store.claim(worker_pid=4242) is not None
+    why = "its worker process exited unexpectedly (exit code -9)"
+    with caplog.at_level("WARNING", logger="wandcal.service"):
+        log_recovered(store.recover(why, [4242]), why)
+    assert f"job {job.id}: {why}: now queued (attempt 1 of 2)" in caplog.text

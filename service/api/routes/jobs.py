@@ -10,6 +10,7 @@ from fastapi.responses import FileResponse, RedirectResponse
 
 from wandcal.service.api.deps import State, require_content_type
 from wandcal.service.api.security import relative_paths
+from wandcal.service.datafolder.retention import delete_finished_job
 from wandcal.service.jobs.records import JobRecord, JobState
 from wandcal.service.schemas import (
     ErrorPublic,
@@ -114,15 +115,27 @@ def get_job(job_id: str, state: State) -> JobPublic:
 
 @router.delete(
     "/{job_id}", response_model=JobPublic,
-    responses={401: UNAUTHORISED, 404: UNKNOWN_JOB, 409: {"model": ErrorPublic, "description": "already finished"},
-               503: QUEUE_AWAY},
-    summary="Cancel a job (at once if queued; at its next progress report if running)",
+    responses={401: UNAUTHORISED, 404: UNKNOWN_JOB, 503: QUEUE_AWAY},
+    summary="Cancel a job (at once if queued; at its next progress report if running), or delete a finished one",
 )
-def cancel_job(job_id: str, state: State) -> JobPublic:
+def cancel_job(job_id: str, state: State, response: Response,
+               keep_result: Annotated[bool, Query(description="deleting a finished job: keep its result document "
+                                                  "in the data folder as results/<id>.json")] = False) -> JobPublic:
+    """An unfinished job is cancelled (its record stays, ``cancelled``); a finished one is removed
+    from the list with its result and report, or with ``keep_result`` its result is kept in
+    ``results/<id>.json`` (the answer's ``Wandcal-Kept-Result`` header names it). The answer is
+    the job's record as it was."""
     record = _job(state, job_id)
-    if record.state.finished:
-        raise HTTPException(409, f"job {job_id} is already {record.state.value}; there is nothing to cancel")
-    return to_public(state.queue.cancel(job_id) or record, state)  # None only if its row went (rows stay)
+    if not record.state.finished:
+        return to_public(state.queue.cancel(job_id) or record, state)  # None only if its row went meanwhile
+    data_dir = state.settings.data_dir
+    try:
+        kept = delete_finished_job(data_dir, state.settings.db_path, job_id, keep_result)
+    except LookupError:
+        raise HTTPException(404, f"job {job_id} was deleted meanwhile; list jobs with GET /api/v1/jobs") from None
+    if kept is not None:
+        response.headers["Wandcal-Kept-Result"] = str(kept.relative_to(data_dir))
+    return to_public(record, state)
 
 
 @router.get(

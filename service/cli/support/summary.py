@@ -8,11 +8,14 @@ import numpy as np
 from wandcal.calib.geometry import kabsch, rotation_angle
 from wandcal.calib.judge.verdict import NO_REFERENCE, NO_SCALE, at_limit_text
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list
+from wandcal.calib.run.result import camera_observations
 
 
 def format_summary(doc: dict) -> str:
     """The result as a person reads it: a row a camera, the wand, the rig's verdict with the camera
-    or input at fault, the world's placement, what to do, and the warnings."""
+    or input at fault, the world's placement, what to do, and the warnings. ``obs`` counts all of a
+    camera's observations (wand ends and single points, as the verdict counts them); ``pts`` the
+    single points among them."""
     points = any("point_observations" in cam for cam in doc["cameras"])
     intrinsics = any("intrinsics" in cam for cam in doc["cameras"])
     scaled = doc["world"].get("scale", "wand") != "arbitrary"
@@ -29,7 +32,7 @@ def format_summary(doc: dict) -> str:
         row = (f"{cam['id']:<{width}} {c[0]:10.4f} {c[1]:10.4f} {c[2]:10.4f}  "
                f"{_number(cam.get('geometry_std_mm'), '.2f', 9)} {_number(cam.get('center_std_mm'), '.2f', 10)} "
                f"{_number(cam.get('reprojection_rms_px'), '.3f', 7)} {_number(cam.get('residual_mm'), '.2f', 8)} "
-               f"{_number(None if share is None else 100 * share, '.1f', 6)} {cam['observations']:6d} "
+               f"{_number(None if share is None else 100 * share, '.1f', 6)} {camera_observations(cam):6d} "
                f"{cam.get('verdict', {}).get('level', '-'):>9}")
         if points:
             row += f" {_number(cam.get('point_rms_px'), '.3f', 7)} {cam.get('point_observations', 0):6d}"
