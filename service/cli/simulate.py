@@ -48,10 +48,10 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
         vertical = p.add_mutually_exclusive_group()
         vertical.add_argument("--floor", type=arg_whole(3, MAX_REFERENCE_POINTS), default=None, metavar="N",
                               help="also write floor.csv: N points on the floor, the world's vertical without an "
-                              "L-frame (use with --no-static)")
+                              "L-frame (use with --no-static; default: none)")
         vertical.add_argument("--drop", type=arg_whole(5, MAX_REFERENCE_POINTS), default=None, metavar="N",
                               help="also write drop.csv: a ball dropped through the volume, N frames at 100 fps, "
-                              "gravity as the world's vertical (use with --no-static)")
+                              "gravity as the world's vertical (use with --no-static; default: none)")
         take_args(p)
 
 
@@ -69,7 +69,7 @@ def take_args(p: argparse.ArgumentParser) -> None:
                    help="with --take: share of marker blobs a camera misses (default 0.03)")
     p.add_argument("--move", default=None, metavar="CAM:FRAME:DEG:MM",
                    help="with --take: camera CAM (its id) turned DEG degrees and its centre moved MM mm at frame FRAME "
-                   "(a knock), e.g. cam4:500:0.2:2")
+                   "(a knock), e.g. cam4:500:0.2:2 (default: none, no camera moves)")
     p.add_argument("--drift", type=arg_whole(0, MAX_SIM_FRAMES), default=0, metavar="FRAMES",
                    help="with --move: the move grows evenly over this many frames (a warming mount; default 0, a knock)")
 

@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
         p.add_argument("result", type=Path, help="the standing wandcal-result/1 file")
         p.add_argument("take", type=Path, help="a take folder: rig.json and take.csv (docs/capture-format.md)")
         p.add_argument("--write", type=Path, default=None, metavar="OUT",
-                       help="write the result with the moved cameras re-solved from the take")
+                       help="write the result with the moved cameras re-solved from the take (default: none, nothing written)")
         p.add_argument("--json", action="store_true", help="print the cameras' health as JSON")
 
 

@@ -32,13 +32,15 @@ MISSING = {
     "serve": ["serve", "--config", "{tmp}/nope.toml", "--data-dir", "{tmp}/data"],
     "export": ["export", "{tmp}/nope.json", "--format", "dlt-csv", "--out", "{tmp}/e.csv"],
     "report": ["report", "{tmp}/nope.json", "--out", "{tmp}/rep"],
+    "watch": ["watch", "{tmp}/nope.json", "{tmp}/nope"],
 }
 
 
 # command -> what it requires, so the parse reaches the mistyped option
 REQUIRED = {"simulate": ["o"], "calibrate": ["c"], "check": ["r.json", "c"], "detect": ["c"], "guidance": ["c"],
             "capture": ["--camera", "sim://", "--frames", "1", "--out", "o"], "import": ["easywand", "s.mat", "--out", "o"],
-            "export": ["r.json", "--format", "dlt-csv", "--out", "o"], "report": ["r.json", "--out", "o"]}
+            "export": ["r.json", "--format", "dlt-csv", "--out", "o"], "report": ["r.json", "--out", "o"],
+            "watch": ["r.json", "t"]}
 
 
 def test_every_command_has_a_bad_input_case():
