@@ -221,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m wandcal.drivers.trigger_emulator [--vanish-after N] [--start-us US]``: the child of
     :class:`EmulatorProcess`. Here, not in the command line, because drivers import nothing of the
     layers above them; ``wandcal trigger-emulator`` is the same emulator with its options checked
-    for a person (service/cli/trigger.py)."""
+    for a person (service/cli/recording/trigger.py)."""
     import argparse
 
     parser = argparse.ArgumentParser(prog="python -m wandcal.drivers.trigger_emulator")

@@ -1,4 +1,5 @@
-"""The ``wandcal`` command line: one module a command in this package, listed in :data:`COMMANDS`;
+"""The ``wandcal`` command line: one module a command in this package (the commands used at the rig
+while recording in :mod:`wandcal.service.cli.recording`), listed in :data:`COMMANDS`;
 what several commands share (argparse types, the progress line, the summary, what they read beside
 a capture, the batch memory policy) is in :mod:`wandcal.service.cli.support`.
 
@@ -26,11 +27,11 @@ COMMANDS = {
     "check": "wandcal.service.cli.check",
     "watch": "wandcal.service.cli.watch",
     "demo": "wandcal.service.cli.demo",
-    "capture": "wandcal.service.cli.capture",
-    "detect": "wandcal.service.cli.detect",
-    "trigger-emulator": "wandcal.service.cli.trigger",
+    "capture": "wandcal.service.cli.recording.capture",
+    "detect": "wandcal.service.cli.recording.detect",
+    "trigger-emulator": "wandcal.service.cli.recording.trigger",
     "import": "wandcal.service.cli.import_",
-    "guidance": "wandcal.service.cli.guidance",
+    "guidance": "wandcal.service.cli.recording.guidance",
     "serve": "wandcal.service.cli.serve",
     "export": "wandcal.service.cli.export",
     "report": "wandcal.service.cli.report",

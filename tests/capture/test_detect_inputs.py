@@ -113,7 +113,7 @@ def test_min_roundness_auto_leaves_the_choice_to_the_detector():
     import argparse
 
     from wandcal.calib.detect.config import DetectConfig
-    from wandcal.service.cli.detect import add_detect_options, config_from_args
+    from wandcal.service.cli.recording.detect import add_detect_options, config_from_args
 
     parser = argparse.ArgumentParser()
     add_detect_options(parser)

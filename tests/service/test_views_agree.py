@@ -76,7 +76,7 @@ def test_the_histogram_line_is_the_rms_the_page_and_the_table_give(calibrated):
 
 def test_the_live_status_line_counts_cameras_not_advice(calibrated):
     from wandcal.calib.run.guidance import wanding_guidance
-    from wandcal.service.cli.guidance import summary
+    from wandcal.service.cli.recording.guidance import summary
 
     out, _ = calibrated
     capture = read_capture(out)

@@ -11,8 +11,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from wandcal.service.cli.detect import add_detect_options, config_from_args, mask_from_args
-from wandcal.service.cli.guidance import add_guidance_options
+from wandcal.service.cli.recording.detect import add_detect_options, config_from_args, mask_from_args
+from wandcal.service.cli.recording.guidance import add_guidance_options
 from wandcal.service.cli.support.args import arg_number, arg_whole
 from wandcal.service.cli.support.exits import INTERRUPTED, NO_ANSWER, InputError
 
@@ -117,7 +117,7 @@ def _record(args) -> int:
     from wandcal.capture.recording.session import INTERRUPTED as STOPPED_BY_USER
     from wandcal.capture.recording.session import record
     from wandcal.drivers.registry import open_cameras
-    from wandcal.service.cli.guidance import settings_from
+    from wandcal.service.cli.recording.guidance import settings_from
     from wandcal.service.cli.support.progress import ProgressLine
 
     config = config_from_args(args, live=True)
@@ -241,7 +241,7 @@ def _interruptible():
 def _shown_on(status):
     """The recording's progress callback: the phase, its bar, the rate, the drops and the guidance
     on the progress line; a new first piece of advice on a line of its own."""
-    from wandcal.service.cli.guidance import summary
+    from wandcal.service.cli.recording.guidance import summary
     from wandcal.service.cli.support.progress import bar
 
     told = [None]  # the advice last printed
@@ -279,7 +279,7 @@ def _between() -> None:
 def _print_recorded(result, final: dict | None, *, interrupted: bool = False) -> int:
     """Each camera's frames, the guidance on what was recorded; exit 3 when the recording stopped
     early, 130 when it was interrupted (saying what is kept and how to go on)."""
-    from wandcal.service.cli.guidance import guidance_lines
+    from wandcal.service.cli.recording.guidance import guidance_lines
 
     for cid, s in result.per_camera.items():
         # frames delivered, whatever they show; the guidance's table counts those with both wand ends
