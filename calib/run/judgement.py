@@ -181,9 +181,10 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
 def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                       figures: list[dict], res: Residuals) -> list[dict]:
     """The cameras at fault: in a rig of few cameras first a camera out of time, from every pair
-    of cameras (:func:`wandcal.calib.judge.timing_pairs.timing_faults`), then by comparing every camera against the
-    points the others triangulate (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`),
-    else by the suspect screen (:func:`camera_faults`)."""
+    of cameras (:func:`wandcal.calib.judge.timing_pairs.timing_faults`), then a camera that moved
+    (:func:`own_faults`), then by comparing every camera against the points the others triangulate
+    (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`), then a camera whose own noise
+    stands out (:func:`own_faults`), else by the suspect screen (:func:`camera_faults`)."""
     from wandcal.calib.judge.leave_one_out import MAX_CAMERAS, leave_one_out_faults
     from wandcal.calib.judge.timing_pairs import timing_faults
 
@@ -191,7 +192,24 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     if 3 <= len(rig.cameras) <= MAX_CAMERAS:
         timing = timing_faults(list(rig.ids), R, t, labelled, tracks, np.array([c.focal.mean() for c in rig.cameras]),
                                [f["noise_px"] for f in figures])
-    return timing or leave_one_out_faults(list(rig.ids), R, t, labelled, tracks) or camera_faults(rig, labelled, R, t, figures, res)
+    if timing:
+        return timing
+    moved, noisy = own_faults(rig, labelled, tracks, R, t)
+    return moved or leave_one_out_faults(list(rig.ids), R, t, labelled, tracks) or noisy \
+        or camera_faults(rig, labelled, R, t, figures, res)
+
+
+def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray
+               ) -> tuple[list[dict], list[dict]]:
+    """In a rig of few cameras, (a camera that moved, cameras whose own noise stands out), each
+    camera judged with the points eliminated (:mod:`wandcal.calib.judge.own_errors`); larger rigs,
+    where every point has views enough for the suspect screen, give none."""
+    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS
+    from wandcal.calib.judge.own_errors import own_error_faults
+
+    if not 3 <= len(rig.cameras) <= MAX_CAMERAS:
+        return [], []
+    return own_error_faults(list(rig.ids), R, t, labelled, tracks, np.array([c.focal.mean() for c in rig.cameras]))
 
 
 def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> list[dict]:
