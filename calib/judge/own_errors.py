@@ -83,7 +83,7 @@ class Eliminated:
     camera's noise, normalised units (NaN for a camera without views); r: (M, 2) residuals over
     their camera's sigma; J: (M, 2, 3) the point's columns, likewise; Ainv: (P, 3, 3) each point's
     inverse normal matrix; rho: (M,) each observation's redundancy; Xc: (M, 3) the point in the
-    observation's camera frame, metres."""
+    observation's camera frame, metres; kept: (M0,) bool over the views given, those kept."""
 
     views: Views
     sigma: np.ndarray
@@ -92,6 +92,7 @@ class Eliminated:
     Ainv: np.ndarray
     rho: np.ndarray
     Xc: np.ndarray
+    kept: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -176,7 +177,9 @@ def _fit(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray, sigma: np.nd
         J = np.einsum("mij,mjk->mik", D, R[views.camera]) * w[:, None, None]
         r = r * w[:, None]
         A, b = _normal(J, r, views.point, views.n_points)
-        Ainv = np.linalg.pinv(A)
+        # a point's normal matrix is well conditioned where two rays meet at an angle; the ridge
+        # keeps a nearly parallel pair finite (it is then hardly tested, as it should be)
+        Ainv = np.linalg.inv(A + 1e-9 * np.trace(A, axis1=1, axis2=2)[:, None, None] * np.eye(3))
         if k == rounds:
             return X, Xc, r, J, Ainv
         X = X - np.einsum("pij,pj->pi", Ainv, b)
@@ -184,17 +187,22 @@ def _fit(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray, sigma: np.nd
 
 
 def eliminate(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray | None = None,
-              spared: int | None = None) -> Eliminated:
+              trim: bool = True) -> Eliminated:
     """The views' points fitted to all cameras with the poses R, t ((N, 3, 3), (N, 3)) held, each
-    camera's noise by variance components, outliers (beyond :data:`TRIM_SIGMAS`) dropped, but for
-    camera ``spared``'s: a knocked camera's views after the knock are far off, and its step test
-    keeps them (:func:`pose_step` trims under the step's model)."""
+    camera's noise by variance components, outliers (beyond :data:`TRIM_SIGMAS`) dropped. With
+    ``trim`` False and ``sigma`` given, every view is kept and the sigmas are as given: a knocked
+    camera's views after the knock are far off, and its step test keeps them
+    (:func:`pose_step` trims under the step's model)."""
     n_cams = len(R)
+    rounds = VARIANCE_ROUNDS if trim or sigma is None else 0
     sigma = np.full(n_cams, 1e-3) if sigma is None else np.where(np.isfinite(sigma), sigma, 1e-3)
     X = triangulate_points(R, t, views.point, views.camera, views.xy, views.n_points)
-    for _ in range(VARIANCE_ROUNDS):
+    origin = np.arange(len(views.point))
+    kept = np.zeros(len(views.point), bool)
+    for _ in range(rounds):
         ok = np.all(np.isfinite(X), axis=1)
         if not ok.all():
+            origin = origin[ok[views.point]]
             views = views.without(~ok[views.point])
             X = X[ok]
         X, Xc, r, J, Ainv = _fit(R, t, views, X, sigma)
@@ -203,17 +211,23 @@ def eliminate(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray | No
         count = np.bincount(views.camera, minlength=n_cams)
         scale = _robust_scale(e2, rho, views.camera, n_cams)
         sigma = np.where(count > 0, sigma * np.sqrt(scale), np.nan)
-        bad = (e2 > TRIM_SIGMAS**2 * np.maximum(rho, 1e-3) * np.where(count > 0, scale, 1.0)[views.camera]) \
-            & (views.camera != spared)
+        bad = e2 > TRIM_SIGMAS**2 * np.maximum(rho, 1e-3) * np.where(count > 0, scale, 1.0)[views.camera]
         seen = np.bincount(views.point[~bad], minlength=views.n_points)
         drop = bad | (seen[views.point] < 2)
         if drop.any():
             keep_points = seen >= 2
+            origin = origin[~drop]
             views = views.without(drop)
             X = X[keep_points]
+    ok = np.all(np.isfinite(X), axis=1)
+    if not ok.all():
+        origin = origin[ok[views.point]]
+        views = views.without(~ok[views.point])
+        X = X[ok]
     X, Xc, r, J, Ainv = _fit(R, t, views, X, sigma)
     rho = 2 - np.einsum("mki,mij,mkj->m", J, Ainv[views.point], J)
-    return Eliminated(views, sigma, r, J, Ainv, rho, Xc)
+    kept[origin] = True
+    return Eliminated(views, sigma, r, J, Ainv, rho, Xc, kept)
 
 
 def _unit(e2: np.ndarray, rho: np.ndarray) -> np.ndarray:
@@ -393,8 +407,7 @@ def _best_split(base: np.ndarray, step: np.ndarray, y: np.ndarray, time: np.ndar
 
 def _kept(A: np.ndarray, y: np.ndarray, rho: np.ndarray, point: np.ndarray) -> np.ndarray:
     """(K,) the views whose points have no view beyond :data:`TRIM_SIGMAS` of the fit of y (2K,) on A (2K, n)."""
-    coef = np.linalg.lstsq(A, y, rcond=None)[0]
-    e2 = np.sum((y - A @ coef).reshape(-1, 2) ** 2, axis=1)
+    e2 = np.sum((y - A @ _solve(A, y)).reshape(-1, 2) ** 2, axis=1)
     u = _unit(e2, rho)
     scale = float(np.nanmedian(u)) if np.isfinite(u).any() else 1.0
     bad = e2 > TRIM_SIGMAS**2 * np.maximum(rho, 1e-3) * scale
@@ -403,8 +416,16 @@ def _kept(A: np.ndarray, y: np.ndarray, rho: np.ndarray, point: np.ndarray) -> n
 
 def _coef_full(base: np.ndarray, step: np.ndarray, y: np.ndarray, k2: np.ndarray) -> np.ndarray:
     """The coefficients of y on [base | step] fitted on the rows k2 (2K,)."""
-    A = np.concatenate([base, step], axis=1)
-    return np.linalg.lstsq(A[k2], y[k2], rcond=None)[0]
+    return _solve(np.concatenate([base, step], axis=1)[k2], y[k2])
+
+
+def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least squares of y (K,) on A (K, n) by the scaled normal equations (n x n, n <= 20: a tall
+    lstsq costs a hundred times more)."""
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    As = A / scale
+    return np.linalg.lstsq(As.T @ As, As.T @ y, rcond=None)[0] / scale
 
 
 def _inflation(e: np.ndarray, own: np.ndarray, time: np.ndarray, point: np.ndarray) -> tuple[float, float]:
@@ -447,25 +468,35 @@ def _coef(A: np.ndarray, y: np.ndarray, dof: float) -> tuple[np.ndarray, np.ndar
     return x / scale, s2 * Ginv / np.outer(scale, scale)
 
 
-def _steps(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray) -> list[Step | None]:
-    """Every camera's best step, each with its own views spared from the outlier trim."""
-    return [pose_step(eliminate(R, t, views, sigma, spared=c), c) if (views.camera == c).any() else None
-            for c in range(len(R))]
+def _steps(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated) -> list[Step | None]:
+    """Every camera's best step: its own views all kept (a knocked camera's later views are far
+    off; each step test trims under its own model), the other cameras' outliers as ``trimmed``
+    (:func:`eliminate` of ``views``) dropped them."""
+    out: list[Step | None] = []
+    for c in range(len(R)):
+        mine = views.camera == c
+        if not mine.any():
+            out.append(None)
+            continue
+        el = eliminate(R, t, views.without(~(trimmed.kept | mine)), trimmed.sigma, trim=False)
+        out.append(pose_step(el, c) if (el.views.camera == c).any() else None)
+    return out
 
 
 def _found(step: Step | None) -> bool:
     return step is not None and step.p_value < STEP_ALPHA
 
 
-def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray) -> tuple[int, Step] | None:
+def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated) -> tuple[int, Step] | None:
     """The camera that moved during the capture, and its step; None when no camera's step is
-    significant, or none explains the others' (with its views left out, another still steps)."""
-    steps = _steps(R, t, views, sigma)
+    significant, or none explains the others' (with its views left out, another still steps).
+    trimmed: :func:`eliminate` of ``views``."""
+    steps = _steps(R, t, views, trimmed)
     for c in sorted((c for c in range(len(R)) if _found(steps[c])), key=lambda c: steps[c].p_value):
         rest = views.without(views.camera == c)
         seen = np.bincount(rest.point, minlength=rest.n_points)
         rest = rest.without(seen[rest.point] < 2)
-        if not any(_found(s) for k, s in enumerate(_steps(R, t, rest, sigma)) if k != c):
+        if not any(_found(s) for k, s in enumerate(_steps(R, t, rest, eliminate(R, t, rest, trimmed.sigma))) if k != c):
             return c, steps[c]
     return None
 
@@ -479,7 +510,7 @@ def own_error_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled: Wan
     if not len(views.point):
         return [], []
     el = eliminate(R, t, views)
-    moved = moved_camera(R, t, views, el.sigma)
+    moved = moved_camera(R, t, views, el)
     out_moved = [] if moved is None else [_moved_fault(ids[moved[0]], moved[1])]
     noisy = []
     for c, n in enumerate(camera_noise(el, focal)):
