@@ -40,7 +40,7 @@ from wandcal.calib.triangulate import triangulate_points
 TRIM_SIGMAS = 5.0  # an observation this many of its camera's sigmas off (for its redundancy) is an outlier
 MIN_BLOCKS = 4  # batch means of the residuals in time: fewer blocks say nothing of their correlation
 TRIM_ROUNDS = 2  # outliers trimmed under the step's model, then the split searched again
-VARIANCE_ROUNDS = 4  # variance components converge to within 1% in three or four rounds
+VARIANCE_ROUNDS = 6  # variance components: the sigmas settle to within 2% by the sixth round on the real sessions
 MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone
 MAX_SPLITS = 60  # candidate splits, evenly spaced in the camera's timed observations
 # a step is named at this family-wise false-alarm rate per camera (Bonferroni over the splits): a

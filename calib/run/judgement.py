@@ -46,6 +46,7 @@ from wandcal.calib.run.result import (
     CameraFigures,
     FocalLimitFigures,
     JudgedFigures,
+    Movement,
     SolverReport,
     WandReport,
     WorldFrame,
@@ -314,8 +315,20 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     verdict["placement"] = placement_verdict(world_doc, extent if scaled else None, faults)
     verdict["faults"] = faults
     out, verdict["limits"] = _focal_limits(rig, out, R, t, res, scaled, solver.refined_intrinsics)
+    out = _movements(rig, out, faults)
     verdict["volume_m" if scaled else "volume"] = extent
     return out, verdict, warnings
+
+
+def _movements(rig: Rig, cameras: list[CameraFigures], faults: list[dict]) -> list[CameraFigures]:
+    """The cameras with a ``moved`` fault carry its figures (the result's ``moved`` entry)."""
+    for fault in faults:
+        if fault["kind"] == "moved" and fault["camera"] is not None and "degrees_std" in fault["evidence"]:
+            c = rig.index(fault["camera"])
+            e = fault["evidence"]
+            cameras[c] = replace(cameras[c], moved=Movement(e["frame"], e["degrees"], e["degrees_std"], e.get("centre_mm"),
+                                                            e.get("centre_std_mm")))
+    return cameras
 
 
 def _focal_limits(rig: Rig, cameras: list[CameraFigures], R: np.ndarray, t: np.ndarray, res: Residuals, scaled: bool,

@@ -61,3 +61,12 @@ def test_the_cameras_a_focal_length_limits_are_said_on_one_line():
     (line,) = _limit_lines([limit("cam1", 4.4, 9.1), limit("cam2", 5.6, 11.5)], 4)
     assert "cam1, cam2 move 4.4-5.6 mm" in line and "+-9.1-11.5 mm" in line and "--refine-intrinsics focal" in line
     assert _limit_lines([], 4) == []
+
+
+def test_a_moved_camera_is_named_under_the_verdict_with_its_frame_and_turn():
+    doc = result(4, 0)
+    doc["cameras"][2]["moved"] = {"frame": 51, "degrees": 0.82, "degrees_std": 0.2, "centre_mm": 9.0, "centre_std_mm": 5.0}
+    assert verdict_lines(doc)[0] == ("  MOVED cam3: after frame 51, turned 0.82 +- 0.20 degrees, its centre 9 +- 5 mm; its "
+                                     "pose is neither: re-solve it from the frames after (--from RESULT --solve-only cam3) "
+                                     "or calibrate again")
+

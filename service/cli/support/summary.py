@@ -57,6 +57,7 @@ def _verdict_lines(doc: dict) -> list[str]:
     if not verdict:
         return []
     lines = [f"rig geometry: {verdict['level']}"]
+    lines += _moved_lines(doc["cameras"])
     faults = verdict.get("faults") or []
     lines += [f"  fault ({fault['kind']}{', ' + fault['camera'] if fault.get('camera') else ''}): {fault['message']}"
               for fault in faults]
@@ -83,6 +84,22 @@ def _verdict_lines(doc: dict) -> list[str]:
     advice = list(dict.fromkeys([*verdict.get("advice", []), *(placement or {}).get("advice", [])]))
     lines += [f"to do: {text}" for text in advice]
     return lines
+
+
+def _moved_lines(cameras: list[dict]) -> list[str]:
+    """A line a camera that moved during the capture (its result entry's ``moved``): its pose is a
+    compromise of the two, and what to do."""
+    out = []
+    for cam in cameras:
+        m = cam.get("moved")
+        if not m:
+            continue
+        centre = (f", its centre {m['centre_mm']:.0f} +- {m['centre_std_mm']:.0f} mm"
+                  if m.get("centre_mm") is not None and m.get("centre_std_mm") is not None else "")
+        out.append(f"  MOVED {cam['id']}: after frame {m['frame']}, turned {m['degrees']:.2f} +- {m['degrees_std']:.2f} "
+                   f"degrees{centre}; its pose is neither: re-solve it from the frames after (--from RESULT "
+                   f"--solve-only {cam['id']}) or calibrate again")
+    return out
 
 
 def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
