@@ -135,8 +135,8 @@ def views_of(labelled: WandPairs, tracks: PointTracks | None) -> Views:
         parts.append((tracks.track, tracks.camera, tracks.xy, tracks.frames[tracks.track], not len(labelled),
                       tracks.n_tracks))
     offset, cols = 0, []
-    for point, camera, xy, time, timed, n in parts:
-        cols.append((point + offset, camera, xy, time, np.full(len(point), timed)))
+    for point, camera, xy, time, has_time, n in parts:
+        cols.append((point + offset, camera, xy, time, np.full(len(point), has_time)))
         offset += n
     if not cols:
         z = np.zeros(0, np.int64)
@@ -492,12 +492,13 @@ def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated
     significant, or none explains the others' (with its views left out, another still steps).
     trimmed: :func:`eliminate` of ``views``."""
     steps = _steps(R, t, views, trimmed)
-    for c in sorted((c for c in range(len(R)) if _found(steps[c])), key=lambda c: steps[c].p_value):
+    found = sorted((s.p_value, c, s) for c, s in enumerate(steps) if s is not None and s.p_value < STEP_ALPHA)
+    for _, c, step in found:
         rest = views.without(views.camera == c)
         seen = np.bincount(rest.point, minlength=rest.n_points)
         rest = rest.without(seen[rest.point] < 2)
         if not any(_found(s) for k, s in enumerate(_steps(R, t, rest, eliminate(R, t, rest, trimmed.sigma))) if k != c):
-            return c, steps[c]
+            return c, step
     return None
 
 
