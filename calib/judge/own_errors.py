@@ -513,13 +513,31 @@ def own_error_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled: Wan
     el = eliminate(R, t, views)
     moved = moved_camera(R, t, views, el)
     out_moved = [] if moved is None else [_moved_fault(ids[moved[0]], moved[1])]
-    noisy = []
-    for c, n in enumerate(camera_noise(el, focal)):
-        if n is None or (moved is not None and moved[0] == c):
-            continue
-        if n.ratio - NOISE_LIMIT > NOISE_Z * n.ratio_std:
-            noisy.append(_noise_fault(ids[c], n))
-    return out_moved, noisy
+    return out_moved, [_noise_fault(ids[c], n) for c, n in noisy_cameras(R, t, views, el, focal,
+                                                                           [] if moved is None else [moved[0]])]
+
+
+def noisy_cameras(R: np.ndarray, t: np.ndarray, views: Views, el: Eliminated, focal: np.ndarray,
+                  out: list[int]) -> list[tuple[int, Noise]]:
+    """The cameras whose own noise stands out, worst first, each named only while the noise of
+    those named before it is left out (a point seen by two cameras shares its one degree of freedom
+    between them: a noisy camera's partner looks noisy too, until it is left out); ``out``: cameras
+    not to name (found at fault otherwise). el: :func:`eliminate` of ``views``."""
+    found: list[tuple[int, Noise]] = []
+    while True:
+        standing = [(c, n) for c, n in enumerate(camera_noise(el, focal)) if n is not None and c not in out
+                    and n.ratio - NOISE_LIMIT > NOISE_Z * n.ratio_std]
+        if not standing:
+            return found
+        c, n = max(standing, key=lambda cn: (cn[1].ratio - NOISE_LIMIT) / cn[1].ratio_std)
+        found.append((c, n))
+        out = [*out, c]
+        rest = views.without(np.isin(views.camera, [k for k, _ in found]))
+        seen = np.bincount(rest.point, minlength=rest.n_points)
+        rest = rest.without(seen[rest.point] < 2)
+        if len(R) - len(found) < 3 or not len(rest.point):
+            return found
+        el = eliminate(R, t, rest, el.sigma)
 
 
 def _moved_fault(cam: str, s: Step) -> dict:

@@ -182,10 +182,11 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
 def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                       figures: list[dict], res: Residuals) -> list[dict]:
     """The cameras at fault: in a rig of few cameras first a camera out of time, from every pair
-    of cameras (:func:`wandcal.calib.judge.timing_pairs.timing_faults`), then a camera that moved
-    (:func:`own_faults`), then by comparing every camera against the points the others triangulate
-    (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`), then a camera whose own noise
-    stands out (:func:`own_faults`), else by the suspect screen (:func:`camera_faults`)."""
+    of cameras (:func:`wandcal.calib.judge.timing_pairs.timing_faults`), then a lens by comparing
+    every camera against the points the others triangulate
+    (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`), then a camera that moved, then
+    cameras whose own noise stands out (:func:`own_faults`), else by the suspect screen
+    (:func:`camera_faults`)."""
     from wandcal.calib.judge.leave_one_out import MAX_CAMERAS, leave_one_out_faults
     from wandcal.calib.judge.timing_pairs import timing_faults
 
@@ -195,9 +196,11 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
                                [f["noise_px"] for f in figures])
     if timing:
         return timing
+    lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks)
+    if lens:  # a lens error bends a tracked marker's path: a step or noise there is its effect
+        return lens
     moved, noisy = own_faults(rig, labelled, tracks, R, t)
-    return moved or leave_one_out_faults(list(rig.ids), R, t, labelled, tracks) or noisy \
-        or camera_faults(rig, labelled, R, t, figures, res)
+    return moved or noisy or camera_faults(rig, labelled, R, t, figures, res)
 
 
 def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray
