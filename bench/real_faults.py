@@ -121,7 +121,7 @@ class Outcome:
 # -- sessions --------------------------------------------------------------------------------
 
 def _brown(session: int) -> Session:
-    from wandcal.capture.formats.easywand import read_easywand_mat
+    from wandcal.capture.importers.easywand import read_easywand_mat
 
     cap = read_easywand_mat(SHARED_DATA / BROWN / f"calibration{session}" / BROWN_MAT).capture
     targets = (0, 2) if session == 1 else (2, 3)
@@ -129,21 +129,21 @@ def _brown(session: int) -> Session:
 
 
 def _ushichka() -> Session:
-    from wandcal.capture.formats.easywand import read_easywand_mat
+    from wandcal.capture.importers.easywand import read_easywand_mat
 
     cap = read_easywand_mat(SHARED_DATA / USHICHKA / "round3_2018-07-28_easyWandData.mat", height=USHICHKA_HEIGHT).capture
     return Session("Ushichka", cap.rig, cap.wand, cap.points, cap.axis, (0, 2))
 
 
 def _svoboda() -> Session:
-    from wandcal.capture.formats.svoboda import read_svoboda
+    from wandcal.capture.importers.svoboda import read_svoboda
 
     cap = read_svoboda(SHARED_DATA / SVOBODA).capture
     return Session("MultiCamSelfCal", cap.rig, cap.wand, cap.points, cap.axis, (1, 3), moving_points=True)
 
 
 def _cpp() -> Session:
-    from wandcal.capture.formats.easywand import read_easywand_files
+    from wandcal.capture.importers.easywand import read_easywand_files
 
     d = SHARED_DATA / CPP_SAMPLE
     cap = read_easywand_files(d / "wandpts.csv", d / "RGBsetup_profile.txt", CPP_WAND_M, d / "bkgdPts.csv").capture

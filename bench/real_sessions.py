@@ -23,8 +23,8 @@ from wandcal.calib.observations import point_tracks, robust_sigma
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
-from wandcal.capture.formats.easywand import read_easywand_mat
-from wandcal.capture.formats.svoboda import read_svoboda
+from wandcal.capture.importers.easywand import read_easywand_mat
+from wandcal.capture.importers.svoboda import read_svoboda
 
 SHARED_DATA = Path(os.environ.get("WANDCAL_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 BROWN = "easywand_brown_windtunnel_4cam"
@@ -210,7 +210,7 @@ def svoboda() -> dict:
 def svoboda_guessed_focal(focal_px: float = 700.0):
     """MultiCamSelfCal's DATA20100906 (no intrinsics given) as a user without them would run it:
     an assumed focal length, refined, and no distortion. Returns the CalibrationResult."""
-    from wandcal.capture.formats.svoboda import read_svoboda as read
+    from wandcal.capture.importers.svoboda import read_svoboda as read
 
     cap = read(SHARED_DATA / SVOBODA_NO_INTRINSICS, focal_px=focal_px).capture
     return calibrate(cap.rig, cap.wand, None, points=cap.points, options=CalibrationOptions(refine_intrinsics=("focal",)))

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import closing
 from dataclasses import dataclass, field
@@ -108,7 +108,7 @@ def _detect_file(path: Path, detector: CameraDetector) -> Blobs | np.ndarray | N
     return _detect_image(path, image, detector)
 
 
-def _detect_files(paths: list[Path], detectors: list[CameraDetector], workers: int) -> Iterator[Blobs | None]:
+def _detect_files(paths: list[Path], detectors: list[CameraDetector], workers: int) -> Generator[Blobs | None, None, None]:
     """Blobs per file, in the order given (None for a file that cannot be decoded).
 
     With ``workers`` > 1 each file is decoded (and, without a running background, detected) by

@@ -85,7 +85,7 @@ class LiveCapture:
         with self._lock:
             live = self._status.capture_id == capture_id and self._busy() and self._guidance is not None
             guidance = self._guidance
-        return guidance.latest() | {"live": True} if live else None
+        return guidance.latest() | {"live": True} if live and guidance is not None else None
 
     def _update(self, **fields) -> None:
         with self._lock:
@@ -137,7 +137,7 @@ class LiveCapture:
         pause = body.static_frames and body.pause_after_static
         between = functools.partial(self._wait_for_wand, body.static_frames) if pause else None
         threading.Thread(target=self._run, args=(body, stack, cameras, trigger, rig, run, between, images, guidance),
-                         name=f"live-capture-{run.id[:8]}", daemon=True).start()
+                         name=f"live-capture-{(run.id or '')[:8]}", daemon=True).start()
         return run
 
     def stop(self) -> LiveCapturePublic:
@@ -214,7 +214,9 @@ class LiveCapture:
 
     def _run(self, body: LiveCaptureCreate, stack: contextlib.ExitStack, cameras, trigger, rig,
              run: LiveCapturePublic, between, images: ImagePolicy, guidance: LiveGuidance | None) -> None:
-        staging = self.store.root / f".{run.capture_id}.partial"
+        capture_id = run.capture_id
+        assert capture_id is not None  # start() announces it before the thread runs
+        staging = self.store.root / f".{capture_id}.partial"
         registered = False
         # read at every batch of sets, so PATCH /capture can switch it on or off while recording
         until = (lambda: self._status.stop_when_enough and guidance.enough) if guidance is not None else None
@@ -232,7 +234,7 @@ class LiveCapture:
                 raise CaptureFormatError("no frame sets were recorded" + (" before the stop" if stopped else "")
                                          + "; nothing was stored")
             self._update(phase="register")
-            _register(self.store, run.capture_id, staging, "live: " + " ".join(body.cameras))
+            _register(self.store, capture_id, staging, "live: " + " ".join(body.cameras))
             registered = True
             error = None if stopped else result.error
             if not result.frame_sets:
@@ -248,9 +250,9 @@ class LiveCapture:
         except Exception as exc:  # the thread's end: the status is where the failure is reported
             error = str(exc) or type(exc).__name__
             if not registered:
-                kept = _keep(self.store, staging, run.capture_id)
-                if kept is not None:
-                    error += (f"; the recorded sets are kept in {kept}: run 'wandcal detect {kept}' (with other "
+                recovered = _keep(self.store, staging, capture_id)
+                if recovered is not None:
+                    error += (f"; the recorded sets are kept in {recovered}: run 'wandcal detect {recovered}' (with other "
                               "detection settings if no wand was found) and upload its points level")
             self._update(state=LiveCaptureState.failed, error=error, phase=None,
                          finished=time.time(), capture_id=run.capture_id if registered else None)

@@ -13,7 +13,6 @@ from wandcal.calib.run.options import (
     MAX_LP_SECONDS,
     MAX_PAPER_ROUNDS,
     MAX_SYNC_OFFSET,
-    METHODS,
     CalibrationOptions,
     options_from,
 )
@@ -108,7 +107,14 @@ class BlobSetsPublic(BaseModel):
     framesets: int = Field(description="frame sets the capture now holds")
 
 
-Method = enum.Enum("Method", {m: m for m in METHODS}, type=str)  # one list: wandcal.calib.run.options.METHODS
+class Method(str, enum.Enum):
+    """The methods, as wandcal.calib.run.options.METHODS (tests/service/test_options_drift.py)."""
+
+    ba = "ba"
+    lp = "lp"
+    paper = "paper"
+
+
 # the choices as JSON Schema enums; the same as the lists calibrate checks against, and the
 # defaults as CalibrationOptions' (LOSSES, SYNC_MODES, INTRINSICS: tests/service/test_options_drift.py)
 Loss = Literal["cauchy", "linear"]

@@ -9,7 +9,7 @@ from __future__ import annotations
 import ipaddress
 import os
 from pathlib import Path
-from typing import Literal
+from typing import Literal, cast
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, TomlConfigSettingsSource
@@ -82,7 +82,7 @@ def _per_frame(background: Background) -> Literal["auto", "none", "highpass"]:
     per-camera models, "empty" and "running", are not a detect group's to choose)."""
     if background in {"empty", "running"}:
         raise ValueError(f"DetectConfig's default background is {background!r}, which needs a camera's history")
-    return background
+    return cast(Literal["auto", "none", "highpass"], background)
 
 
 class DetectGroup(BaseModel):

@@ -84,7 +84,7 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     kept = state.kept.ravel()
     if se is None and guard_se is not None:
         se = state.standard_errors()
-    guard = rho * 2 if guard_se is None else guard_se * se
+    guard = rho * 2 if guard_se is None or se is None else guard_se * se
     if d_pred is None:
         d_ref = np.zeros_like(rho)
         d_pred = np.clip(state.gauss_newton_step(), -rho, rho)

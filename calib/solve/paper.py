@@ -152,7 +152,7 @@ def lp_step(
     cost = np.r_[np.zeros(nt + nx), np.ones(n_slack)]
     res = solve_lp(cost, A, np.concatenate(row_lo), np.concatenate(row_hi), col_lo, col_hi, time_limit, solver,
                    basis=basis)
-    if not res:
+    if not res or res.x is None:
         return t, X, res
     return res.x[:nt].reshape(N, 3), res.x[nt : nt + nx].reshape(P, 3), res
 

@@ -286,10 +286,10 @@ def _epipolar_costs(R: np.ndarray, t: np.ndarray, pairs: WandPairs, a: np.ndarra
 class _Essentials(NamedTuple):
     """The essential matrices of some cameras' pairs: ``table`` (9, U*U), column b * U + a holds
     E[a, b]'s nine entries (:func:`_essential_matrices`) for a, b the cameras' places in the table,
-    ``index`` (N,) each camera's place (-1: not in it)."""
+    ``place`` (N,) each camera's place (-1: not in it)."""
 
     table: np.ndarray
-    index: np.ndarray
+    place: np.ndarray
     n: int
 
 
@@ -314,7 +314,7 @@ class _EpipolarCosts:
         essentials = _essential_table(R, t) if E_table is None else E_table
         self.n, self.E_table = essentials.n, essentials.table
         self.xy_table = np.ascontiguousarray(pairs.xy.reshape(-1, 4).T)  # (4, P): x0, y0, x1, y1
-        self.camera = essentials.index[pairs.camera]  # each pair's camera's place in the table
+        self.camera = essentials.place[pairs.camera]  # each pair's camera's place in the table
 
     def __call__(self, ca: np.ndarray, cb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(same, cross) of the pairs ``ca`` (K,) against ``cb`` (K,); worked on flat rows (E's

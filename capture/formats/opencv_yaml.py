@@ -15,6 +15,7 @@ Anchors, aliases, block scalars (``|``, ``>``) and other tags are refused.
 from __future__ import annotations
 
 import re
+from typing import Any
 
 import numpy as np
 
@@ -62,7 +63,7 @@ class _Parser:
         return self.mapping(indent, depth, path)
 
     def sequence(self, indent: int, depth: int, path: str) -> list:
-        items = []
+        items: list = []
         while self.k < len(self.lines) and self.lines[self.k][1] == indent and _is_item(self.lines[self.k][2]):
             line, _, content = self.lines[self.k]
             rest = content[1:].lstrip()
@@ -145,7 +146,7 @@ class _Flow:
         return self.s[i:j].strip(), j
 
     def collection(self, i: int, close: str, depth: int):
-        items: list | dict = [] if close == "]" else {}
+        items: Any = [] if close == "]" else {}  # a list for "]", a dict for "}"
         i = self.skip(i)
         if self.s[i:i + 1] == close:
             return items, i + 1

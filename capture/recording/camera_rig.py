@@ -24,14 +24,15 @@ def camera_rig(cameras: list[CameraDriver], rig_file: Path | None = None, wand_l
     scene = simulated_scene(cameras)
     if scene is not None:
         return scene.rig
-    missing = [c.camera_id for c in cameras if c.intrinsics is None]
+    intrinsics = [c.intrinsics for c in cameras]
+    missing = [c.camera_id for c, k in zip(cameras, intrinsics) if k is None]
     if missing:
         raise DriverError(f"no intrinsics for camera(s) {', '.join(missing)}; give --rig rig.json "
                           "(docs/capture-format.md) with every camera's K and dist")
-    folders = {getattr(c, "folder", None) for c in cameras} - {None}
+    folders: set[Path] = {f for c in cameras if (f := getattr(c, "folder", None)) is not None}
     if len(folders) == 1 and wand_length is None:
         return read_rig(next(iter(folders)))
-    return Rig(cameras=tuple(c.intrinsics for c in cameras), wand_length=wand_length or DEFAULT_WAND_LENGTH_M)
+    return Rig(cameras=tuple(k for k in intrinsics if k is not None), wand_length=wand_length or DEFAULT_WAND_LENGTH_M)
 
 
 def simulated_scene(cameras: list[CameraDriver]):

@@ -11,12 +11,12 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 from wandcal.service.cli.support.args import arg_number, arg_whole
 
 if TYPE_CHECKING:
-    from wandcal.calib.detect.config import DetectConfig
+    from wandcal.calib.detect.config import Background, DetectConfig
 
 MAX_WORKERS = 256
 
@@ -163,14 +163,15 @@ def config_from_args(args, live: bool = False) -> DetectConfig:
     if live and args.mask == "auto":
         raise CalibrationError("--mask auto: a live capture has no empty-volume recording of its own; record one, run "
                                "'wandcal detect EMPTY --mask auto' on it, then capture with --mask EMPTY/masks")
-    extra = {}
+    extra: dict[str, Any] = {}
     if choice.model == "highpass" and choice.value is not None:
         extra["highpass_px"] = int(choice.value)
     if choice.model == "running" and choice.value is not None:
         extra["running_frames"] = choice.value
     return DetectConfig(threshold=args.threshold, seed_ratio=args.seed_ratio, min_area_px=args.min_area,
                         max_area_px=args.max_area, min_roundness=args.min_roundness,
-                        connectivity=args.connectivity, weights=args.weights, background=choice.model, **extra)
+                        connectivity=args.connectivity, weights=args.weights, background=cast("Background", choice.model),
+                        **extra)
 
 
 def mask_from_args(args) -> str | Path:

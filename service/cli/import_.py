@@ -99,7 +99,7 @@ def _common(p) -> None:
 
 def run_import_easywand(args) -> int:
     from wandcal.capture.folder import CaptureFormatError
-    from wandcal.capture.formats.easywand import read_easywand_files, read_easywand_mat
+    from wandcal.capture.importers.easywand import read_easywand_files, read_easywand_mat
 
     files = {"--wand": args.wand, "--profile": args.profile, "--wand-length": args.wand_length,
              "--background": args.background, "--axis": args.axis}
@@ -125,16 +125,16 @@ def run_import_easywand(args) -> int:
 
 
 def run_import_argus(args) -> int:
-    from wandcal.capture.formats.argus import read_argus
+    from wandcal.capture.importers.argus import read_argus
 
     return _write_import(read_argus(args.source, args.profile, args.wand_length, args.unpaired, args.reference,
                                     args.height), args.out)
 
 
 def run_import_anipose(args) -> int:
-    from wandcal.capture.formats.anipose import read_anipose
     from wandcal.capture.formats.cameras_in import write_poses
-    from wandcal.capture.formats.deeplabcut import DEFAULT_MIN_LIKELIHOOD
+    from wandcal.capture.importers.anipose import read_anipose
+    from wandcal.capture.importers.deeplabcut import DEFAULT_MIN_LIKELIHOOD
 
     likelihood = DEFAULT_MIN_LIKELIHOOD if args.min_likelihood is None else args.min_likelihood
     imported, posed = read_anipose(args.source, args.points, args.unit, likelihood)
@@ -179,14 +179,14 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def run_import_svoboda(args) -> int:
-    from wandcal.capture.formats.svoboda import read_svoboda
+    from wandcal.capture.importers.svoboda import read_svoboda
 
     return _write_import(read_svoboda(args.source, args.focal_px), args.out)
 
 
 def _write_import(imported, out: Path) -> int:
     from wandcal.capture.folder import CaptureFormatError, save_capture
-    from wandcal.capture.formats import summary_lines
+    from wandcal.capture.importers import summary_lines
     from wandcal.capture.rig_file import CAPTURE_FORMAT
 
     if out.exists() and (not out.is_dir() or any(out.iterdir())):

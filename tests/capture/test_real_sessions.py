@@ -132,7 +132,7 @@ def test_brown_sessions_show_the_rig_moved_between_the_two_dates():
 
 
 def test_ushichka_through_its_mat_file():
-    """The existing acceptance figures (tests/capture/formats/test_easywand_real.py) hold through the import."""
+    """The existing acceptance figures (tests/capture/importers/test_easywand_real.py) hold through the import."""
     got = rs.ushichka()
     print(f"\nushichka: wand {got['wand_mean_m'] * 1000:.1f} +- {got['wand_std_m'] * 1000:.2f} mm "
           f"({got['wand_score_percent']:.2f}%, easyWand {got['easywand_wand_score_percent']:.2f}%); per-axis rms "

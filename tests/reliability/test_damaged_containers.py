@@ -16,7 +16,7 @@ from tests.reliability.fuzzing import TRIED
 from tests.service.conftest import REPO, free_port
 from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import CaptureFormatError
-from wandcal.capture.formats.easywand import read_easywand_mat
+from wandcal.capture.importers.easywand import read_easywand_mat
 from wandcal.service.db import DataDirectoryError
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings

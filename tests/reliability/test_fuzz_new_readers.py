@@ -32,11 +32,11 @@ from tests.reliability.test_fuzz_readers import _kind
 from wandcal.calib.rig import AxisObservations, PointObservations
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import AXIS_FILE, POINTS_FILE, RIG_FILE, STATIC_FILE, read_capture, write_capture
-from wandcal.capture.formats.anipose import read_anipose
 from wandcal.capture.formats.cameras import PosedCameras
 from wandcal.capture.formats.cameras_in import read_camera_file
-from wandcal.capture.formats.deeplabcut import read_dlc_csv
 from wandcal.capture.formats.export import FORMAT_NAMES, export
+from wandcal.capture.importers.anipose import read_anipose
+from wandcal.capture.importers.deeplabcut import read_dlc_csv
 
 SIM = simulate_capture(3, 40, 0.3, seed=1)
 SUFFIX = {"anipose-toml": ".toml", "opencv-yaml": ".yaml", "dlt-csv": ".csv", "qca": ".qca.txt", "xcp": ".xcp"}

@@ -41,9 +41,9 @@ from wandcal.capture.folder import (
     read_capture,
     write_capture,
 )
-from wandcal.capture.formats.argus import read_argus
-from wandcal.capture.formats.easywand import read_easywand_files, read_easywand_mat
-from wandcal.capture.formats.svoboda import read_svoboda
+from wandcal.capture.importers.argus import read_argus
+from wandcal.capture.importers.easywand import read_easywand_files, read_easywand_mat
+from wandcal.capture.importers.svoboda import read_svoboda
 from wandcal.capture.result_file import read_result
 from wandcal.drivers.errors import DriverError
 

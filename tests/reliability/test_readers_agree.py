@@ -22,7 +22,7 @@ from wandcal.capture.folder import (
     read_capture,
     write_capture,
 )
-from wandcal.capture.formats.summary import Imported
+from wandcal.capture.importers.summary import Imported
 from wandcal.drivers.capture_files import AXIS_FILE, RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings

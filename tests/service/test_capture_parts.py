@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.capture.formats.test_import_anipose import _session
+from tests.capture.importers.test_import_anipose import _session
 from wandcal.calib.geometry import project_pixels
 from wandcal.capture.folder import read_capture, save_capture
-from wandcal.capture.formats.anipose import read_anipose
+from wandcal.capture.importers.anipose import read_anipose
 from wandcal.drivers.capture_files import AXIS_FILE, POINTS_FILE, RIG_FILE
 from wandcal.service.main import create_app
 from wandcal.service.settings import Settings

@@ -17,7 +17,7 @@ from wandcal.calib.solve.ba import LOSSES
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.sync import SYNC_MODES
 from wandcal.service.cli import build_parser
-from wandcal.service.schemas import JobCreate, JobOptions
+from wandcal.service.schemas import JobCreate, JobOptions, Method
 
 FIELDS = [f.name for f in dataclasses.fields(CalibrationOptions)]
 # the fields that cannot be a flag: the command line reads them from the capture folder
@@ -66,6 +66,7 @@ def test_flag_defaults_and_job_defaults_are_the_options_defaults():
 def test_the_choices_are_calibrates():
     flags = _calibrate_flags()
     assert tuple(flags["method"].choices) == METHODS
+    assert tuple(m.value for m in Method) == METHODS
     assert tuple(flags["loss"].choices) == LOSSES
     assert tuple(flags["sync"].choices) == SYNC_MODES
     fields = JobOptions.model_fields

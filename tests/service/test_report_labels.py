@@ -9,7 +9,7 @@ import pytest
 from matplotlib.collections import PathCollection
 from matplotlib.colors import to_hex
 
-from tests.capture.formats.test_import_easywand import USHICHKA_HEIGHT
+from tests.capture.importers.test_import_easywand import USHICHKA_HEIGHT
 from tests.conftest import SHARED_DATA
 from tests.service.conftest import wandcal
 from wandcal.capture.folder import read_capture
@@ -34,7 +34,7 @@ REAL_SESSIONS = {
                 ()),
     "brown-2": (SHARED_DATA / "easywand_brown_windtunnel_4cam" / "calibration2" / "extrinsicCalib_20230228_easyWandData.mat",
                 ()),
-    # its cameras' height is not in the file (tests/capture/formats/test_import_easywand.py)
+    # its cameras' height is not in the file (tests/capture/importers/test_import_easywand.py)
     "ushichka": (SHARED_DATA / "easywand_ushichka_thermal_3cam" / "round3_2018-07-28_easyWandData.mat",
                  ("--height", str(USHICHKA_HEIGHT))),
 }

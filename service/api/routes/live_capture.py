@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
@@ -14,7 +14,7 @@ from wandcal.service.schemas import ErrorPublic, LiveCaptureCreate, LiveCaptureP
 
 router = APIRouter(prefix="/capture", tags=["live capture"])
 
-ERRORS = {
+ERRORS: dict[int | str, dict[str, Any]] = {
     401: {"model": ErrorPublic, "description": "missing or wrong bearer token"},
     409: {"model": ErrorPublic, "description": "a live capture is already running, or none is"},
 }

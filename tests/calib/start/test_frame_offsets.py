@@ -108,7 +108,7 @@ def test_the_service_takes_the_sync_option():
 def test_a_real_session_with_one_camera_shifted_by_whole_frames(shared_data, session):
     """Brown wind tunnel (easyWand, 4 cameras, ~100 digitised frames): cam3 shifted by 2 frames
     is found, and the calibration matches the unshifted one within its sigma."""
-    from wandcal.capture.formats.easywand import read_easywand_mat
+    from wandcal.capture.importers.easywand import read_easywand_mat
 
     cap = read_easywand_mat(shared_data / BROWN.format(session)).capture
     plain = calibrate(cap.rig, cap.wand, points=cap.points, axis=cap.axis)

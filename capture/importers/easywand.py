@@ -5,7 +5,7 @@ from the profile fields (``--intrinsics optimised``, the default, takes ``focalL
 ``principalPoints`` and ``nlin``, which easyWand's final result used; ``profile`` takes the
 starting estimates ``estFocalLengths``, ``pp_est`` and ``nlin_est``), ``wandPts`` rows as wand
 frames (row index = frame), ``backgroundPts`` rows as single-point frames from
-:func:`wandcal.capture.formats.dltdv.first_free_frame` on, and ``axisPts`` as axis points when they are
+:func:`wandcal.capture.importers.dltdv.first_free_frame` on, and ``axisPts`` as axis points when they are
 1-4 static points (roles from their count, checked against easyWand's own ``axisXYZ5``); a
 gravity recording (``gravityFreq`` set) is not an axis and is left out.
 """
@@ -18,7 +18,7 @@ import numpy as np
 
 from wandcal.calib.rig import AXIS_ROLES, Camera, Rig, WandObservations
 from wandcal.capture.folder import Capture, CaptureFormatError
-from wandcal.capture.formats.dltdv import (
+from wandcal.capture.importers.dltdv import (
     AXIS_ROLES_BY_COUNT,
     XyTable,
     axis_from_points,
@@ -31,7 +31,7 @@ from wandcal.capture.formats.dltdv import (
     read_text,
     wand_from_table,
 )
-from wandcal.capture.formats.summary import Imported
+from wandcal.capture.importers.summary import Imported
 
 STRUCT = "easyWandData"
 INTRINSICS = {  # --intrinsics: (focal lengths, principal points y up, distortion) fields
@@ -93,7 +93,7 @@ def read_easywand_files(wand_csv: str | Path | None, profile: str | Path, wand_l
                         height: int | None = None) -> Imported:
     """Import easyWand's input files: wand points (two tracks), a camera profile, and the
     optional background (unpaired) and axis points, all in DLTdv's y-up layout
-    (:mod:`wandcal.capture.formats.dltdv`). Without ``wand_csv`` (a background-only session)
+    (:mod:`wandcal.capture.importers.dltdv`). Without ``wand_csv`` (a background-only session)
     the capture has no wand and no metric scale."""
     cameras = parse_profile(read_text(profile, "camera profile"), str(profile), height)
     n = len(cameras)

@@ -11,7 +11,7 @@ import pytest
 import scipy.io as sio
 
 from wandcal.capture.folder import CaptureFormatError, read_capture
-from wandcal.capture.formats.easywand import read_easywand_files, read_easywand_mat
+from wandcal.capture.importers.easywand import read_easywand_files, read_easywand_mat
 from wandcal.service.cli import main
 
 BROWN1 = "easywand_brown_windtunnel_4cam/calibration1"

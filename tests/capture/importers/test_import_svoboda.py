@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from wandcal.capture.folder import CaptureFormatError, read_capture
-from wandcal.capture.formats.svoboda import read_svoboda
+from wandcal.capture.importers.svoboda import read_svoboda
 from wandcal.service.cli import main
 
 CALDATA = "multicamselfcal_strawlab_testdata/caldata20130726_122220"

@@ -12,7 +12,7 @@ from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.triangulate import triangulate_points
-from wandcal.capture.formats.easywand import read_easywand
+from wandcal.capture.importers.easywand import read_easywand
 
 SESSION = "easywand_ushichka_thermal_3cam"
 HEIGHT = 512  # the profile says 320, a typo: the principal point is (320, 256) (SOURCE.md)

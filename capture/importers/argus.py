@@ -1,7 +1,7 @@
 """Argus Wand's inputs as a capture: paired (wand) points, optional unpaired and reference points,
 all ``*-xypts.csv`` tables saved by Argus Clicker, and a camera profile.
 
-Argus writes DLTdv's layout (:mod:`wandcal.capture.formats.dltdv`): one row per frame (dense .csv; the
+Argus writes DLTdv's layout (:mod:`wandcal.capture.importers.dltdv`): one row per frame (dense .csv; the
 first row of the file after the header is frame 0), columns ``{track}_cam_{n}_x``,
 ``{track}_cam_{n}_y`` for each track, then camera; y-up pixels with the origin at the lower left;
 NaN where not digitised. The paired file holds two tracks, the wand's two ends. The profile has
@@ -19,7 +19,7 @@ import numpy as np
 
 from wandcal.calib.rig import AxisObservations, Rig
 from wandcal.capture.folder import Capture, CaptureFormatError
-from wandcal.capture.formats.dltdv import (
+from wandcal.capture.importers.dltdv import (
     AXIS_ROLES_BY_COUNT,
     XyTable,
     axis_from_points,
@@ -31,7 +31,7 @@ from wandcal.capture.formats.dltdv import (
     read_text,
     wand_from_table,
 )
-from wandcal.capture.formats.summary import Imported
+from wandcal.capture.importers.summary import Imported
 
 
 def read_argus(paired: str | Path, profile: str | Path, wand_length_m: float, unpaired: str | Path | None = None,

@@ -1,7 +1,7 @@
 """anipose / aniposelib / Pose2Sim sessions as captures: ``calibration.toml`` and 2D keypoints.
 
 The cameras come from the TOML (:func:`wandcal.capture.formats.anipose_opencv.read_anipose_toml`);
-the points from the 2D files anipose users keep (:mod:`wandcal.capture.formats.deeplabcut`):
+the points from the 2D files anipose users keep (:mod:`wandcal.capture.importers.deeplabcut`):
 DeepLabCut CSVs, one per camera, or aniposelib's points array (``.npy``, every camera). Every
 keypoint becomes a labelled row of ``points.csv`` (its ``point`` column): a (keypoint, frame)
 pair is one 3D point. There is no wand: the calibration has no metric scale. docs/import.md.
@@ -20,8 +20,8 @@ from wandcal.capture.folder import Capture, CaptureFormatError
 from wandcal.capture.formats.anipose_opencv import read_anipose_toml
 from wandcal.capture.formats.cameras import PosedCameras
 from wandcal.capture.formats.cameras_in import POSES_FILE
-from wandcal.capture.formats.deeplabcut import DEFAULT_MIN_LIKELIHOOD, Keypoints, read_dlc_csv, read_points_npy
-from wandcal.capture.formats.summary import Imported
+from wandcal.capture.importers.deeplabcut import DEFAULT_MIN_LIKELIHOOD, Keypoints, read_dlc_csv, read_points_npy
+from wandcal.capture.importers.summary import Imported
 
 DLC_SCORER = "DLC_"  # DeepLabCut names its output <video>DLC_<network>...: the camera is in <video>
 

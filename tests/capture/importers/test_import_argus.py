@@ -8,7 +8,7 @@ from wandcal.calib.geometry import distort_points, project_normalized, project_p
 from wandcal.calib.rig import Camera
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import CaptureFormatError, read_capture
-from wandcal.capture.formats.argus import read_argus
+from wandcal.capture.importers.argus import read_argus
 from wandcal.service.cli import main
 
 N_CAMS = 3

@@ -27,8 +27,8 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Camera, PointObservations, Rig, WandObservations
 from wandcal.capture.folder import Capture, CaptureFormatError
-from wandcal.capture.formats.dltdv import read_text
-from wandcal.capture.formats.summary import Imported
+from wandcal.capture.importers.dltdv import read_text
+from wandcal.capture.importers.summary import Imported
 
 CONFIG_FILE = "multicamselfcal.cfg"
 DEFAULT_BASENAME = "basename"

@@ -6,7 +6,7 @@ import pytest
 
 from wandcal.calib.geometry import undistort_points
 from wandcal.capture.folder import CaptureFormatError, read_capture
-from wandcal.capture.formats.easywand import read_easywand_files, read_easywand_mat
+from wandcal.capture.importers.easywand import read_easywand_files, read_easywand_mat
 from wandcal.service.cli import main
 
 BROWN = "easywand_brown_windtunnel_4cam/calibration{}/extrinsicCalib_20230228_easyWandData.mat"

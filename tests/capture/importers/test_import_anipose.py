@@ -10,10 +10,10 @@ import pytest
 from wandcal.calib.geometry import project_pixels
 from wandcal.calib.sim.simulate import ring_cameras
 from wandcal.capture.folder import CaptureFormatError, parse_points_csv, read_capture
-from wandcal.capture.formats.anipose import read_anipose
 from wandcal.capture.formats.anipose_opencv import to_anipose_toml
 from wandcal.capture.formats.cameras_in import read_camera_file
-from wandcal.capture.formats.deeplabcut import read_dlc_csv
+from wandcal.capture.importers.anipose import read_anipose
+from wandcal.capture.importers.deeplabcut import read_dlc_csv
 from wandcal.service.cli import main
 
 NOISE_PX = 0.5  # DeepLabCut keypoints are good to a pixel or so; the test's injected noise
