@@ -170,7 +170,7 @@ def _normal(J: np.ndarray, r: np.ndarray, point: np.ndarray, n: int) -> tuple[np
 
 def _fit(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray, sigma: np.ndarray, rounds: int = 3):
     """The points X (P, 3) refitted to all their views, weighted by 1/sigma: Gauss-Newton. Returns
-    (X, Xc, whitened r, whitened J, Ainv)."""
+    (X, Xc, whitened r, whitened J, Ainv, rho: (M,) each view's redundancy)."""
     w = 1 / sigma[views.camera]
     for k in range(rounds + 1):
         Xc, r, D = _project(R, t, views, X)
@@ -181,9 +181,18 @@ def _fit(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray, sigma: np.nd
         # keeps a nearly parallel pair finite (it is then hardly tested, as it should be)
         Ainv = np.linalg.inv(A + 1e-9 * np.trace(A, axis1=1, axis2=2)[:, None, None] * np.eye(3))
         if k == rounds:
-            return X, Xc, r, J, Ainv
+            return X, Xc, r, J, Ainv, 2 - np.einsum("mki,mij,mkj->m", J, Ainv[views.point], J)
         X = X - np.einsum("pij,pj->pi", Ainv, b)
     raise AssertionError("unreachable")
+
+
+def _finite(views: Views, X: np.ndarray, origin: np.ndarray) -> tuple[Views, np.ndarray, np.ndarray]:
+    """The views of the points X (P, 3) that are finite (a point triangulation left NaN is dropped
+    with its views), and their ``origin`` (M,) indices."""
+    ok = np.all(np.isfinite(X), axis=1)
+    if ok.all():
+        return views, X, origin
+    return views.without(~ok[views.point]), X[ok], origin[ok[views.point]]
 
 
 def eliminate(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray | None = None,
@@ -200,14 +209,9 @@ def eliminate(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray | No
     origin = np.arange(len(views.point))
     kept = np.zeros(len(views.point), bool)
     for _ in range(rounds):
-        ok = np.all(np.isfinite(X), axis=1)
-        if not ok.all():
-            origin = origin[ok[views.point]]
-            views = views.without(~ok[views.point])
-            X = X[ok]
-        X, Xc, r, J, Ainv = _fit(R, t, views, X, sigma)
+        views, X, origin = _finite(views, X, origin)
+        X, Xc, r, J, Ainv, rho = _fit(R, t, views, X, sigma)
         e2 = np.sum(r**2, axis=1)
-        rho = 2 - np.einsum("mki,mij,mkj->m", J, Ainv[views.point], J)
         count = np.bincount(views.camera, minlength=n_cams)
         scale = _robust_scale(e2, rho, views.camera, n_cams)
         sigma = np.where(count > 0, sigma * np.sqrt(scale), np.nan)
@@ -219,13 +223,8 @@ def eliminate(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray | No
             origin = origin[~drop]
             views = views.without(drop)
             X = X[keep_points]
-    ok = np.all(np.isfinite(X), axis=1)
-    if not ok.all():
-        origin = origin[ok[views.point]]
-        views = views.without(~ok[views.point])
-        X = X[ok]
-    X, Xc, r, J, Ainv = _fit(R, t, views, X, sigma)
-    rho = 2 - np.einsum("mki,mij,mkj->m", J, Ainv[views.point], J)
+    views, X, origin = _finite(views, X, origin)
+    X, Xc, r, J, Ainv, rho = _fit(R, t, views, X, sigma)
     kept[origin] = True
     return Eliminated(views, sigma, r, J, Ainv, rho, Xc, kept)
 
