@@ -22,7 +22,7 @@ from bench.common import write_section
 TITLE = "Judgement on real sessions with injected faults"
 # the table at 2830bc3 (the honest sigma and the timing from camera pairs, before each camera's own
 # errors with the points eliminated: wandcal.calib.judge.own_errors), kept beside the current one
-BEFORE = """Before each camera's own errors with the points eliminated (at 2830bc3; calib/judge/own_errors.py: the moved camera and each camera's own noise):
+BEFORE = """Before each camera's own errors with the points eliminated (at 2830bc3; calib/judge/own_errors.py and pose_steps.py: the moved camera and each camera's own noise):
 
 | fault | runs | right | absorbed | limited | missed | wrong kind | wrong camera | called poor | refused | displacement / sigma (median) | note |
 |---|---|---|---|---|---|---|---|---|---|---|---|

@@ -9,7 +9,8 @@
 | :mod:`~wandcal.calib.judge.verdict` | the verdict per camera and for the rig, with reasons and advice |
 | :mod:`~wandcal.calib.judge.evaluate` | fixed cameras judged against a fresh capture (``wandcal check``) |
 | :mod:`~wandcal.calib.judge.leave_one_out` | rigs of 3-5 cameras: each camera against the points the others triangulate (lens) |
-| :mod:`~wandcal.calib.judge.own_errors` | rigs of 3-5 cameras, the points eliminated: each camera's own noise, and a step in its pose (moved) |
+| :mod:`~wandcal.calib.judge.own_errors` | rigs of 3-5 cameras, the points eliminated: each camera's own noise |
+| :mod:`~wandcal.calib.judge.pose_steps` | rigs of 3-5 cameras, the points eliminated: a step in a camera's pose (moved) |
 | :mod:`~wandcal.calib.judge.intrinsic_limits` | the honest sigma: each camera's centre per 1% of a focal length given, not refined |
 | :mod:`~wandcal.calib.judge.timing_pairs` | a camera out of time, found from every pair of cameras (whole-frame shift, then its fraction) |
 | :mod:`~wandcal.calib.judge.crb` | the Cramér-Rao bound of the poses, for tests and benchmarks |

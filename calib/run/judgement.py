@@ -206,14 +206,23 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
 def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray
                ) -> tuple[list[dict], list[dict]]:
     """In a rig of few cameras, (a camera that moved, cameras whose own noise stands out), each
-    camera judged with the points eliminated (:mod:`wandcal.calib.judge.own_errors`); larger rigs,
+    camera judged with the points eliminated (:mod:`wandcal.calib.judge.own_errors`,
+    :mod:`wandcal.calib.judge.pose_steps`); the moved camera is not also called noisy. Larger rigs,
     where every point has views enough for the suspect screen, give none."""
     from wandcal.calib.judge.leave_one_out import MAX_CAMERAS
-    from wandcal.calib.judge.own_errors import own_error_faults
+    from wandcal.calib.judge.own_errors import eliminate, noise_fault, noisy_cameras, views_of
+    from wandcal.calib.judge.pose_steps import moved_camera, moved_fault
 
     if not 3 <= len(rig.cameras) <= MAX_CAMERAS:
         return [], []
-    return own_error_faults(list(rig.ids), R, t, labelled, tracks, np.array([c.focal.mean() for c in rig.cameras]))
+    views = views_of(labelled, tracks)
+    if not len(views.point):
+        return [], []
+    ids, focal = list(rig.ids), np.array([c.focal.mean() for c in rig.cameras])
+    el = eliminate(R, t, views)
+    moved = moved_camera(R, t, views, el)
+    noisy = noisy_cameras(R, t, views, el, focal, [] if moved is None else [moved[0]])
+    return ([] if moved is None else [moved_fault(ids[moved[0]], moved[1])]), [noise_fault(ids[c], n) for c, n in noisy]
 
 
 def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> list[dict]:

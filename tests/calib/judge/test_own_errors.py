@@ -1,4 +1,5 @@
-"""Each camera's own errors with the points eliminated (wandcal.calib.judge.own_errors), on a
+"""Each camera's own errors with the points eliminated (wandcal.calib.judge.own_errors and
+pose_steps, composed by wandcal.calib.run.judgement.own_faults), on a
 seeded four-camera rig tracking one marker (timed point tracks, as MultiCamSelfCal's): noise put
 on one camera stays with it, a knocked camera is named with its frame and angle, a clean rig names
 nothing. Tolerances come from the injected noise: the estimates' own standard errors."""
@@ -10,7 +11,10 @@ import pytest
 
 from wandcal.calib.geometry import rotvec_to_matrix
 from wandcal.calib.judge import own_errors as oe
+from wandcal.calib.judge.pose_steps import MAX_SPLITS
 from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.rig import Camera, Rig
+from wandcal.calib.run.judgement import own_faults
 
 FOCAL_PX = 1000.0
 NOISE_PX = 0.5
@@ -54,8 +58,9 @@ def _tracks(R, t, rng, noise_px=None, knock=None) -> PointTracks:
 
 
 def _faults(tracks: PointTracks, R, t):
-    ids = [f"cam{k}" for k in range(len(R))]
-    return oe.own_error_faults(ids, R, t, WandPairs.empty(), tracks, np.full(len(R), FOCAL_PX))
+    K = np.array([[FOCAL_PX, 0, 640], [0, FOCAL_PX, 480], [0, 0, 1]])
+    rig = Rig(tuple(Camera(f"cam{k}", 1280, 960, K, np.zeros(5)) for k in range(len(R))), None)
+    return own_faults(rig, WandPairs.empty(), tracks, R, t)
 
 
 def test_a_clean_rig_names_nothing_and_measures_its_noise():
@@ -91,5 +96,5 @@ def test_a_knocked_camera_is_named_with_its_frame_and_angle(camera, degrees):
     assert [f["camera"] for f in moved] == [f"cam{camera}"] and noisy == []
     ev = moved[0]["evidence"]
     # the split is searched among MAX_SPLITS candidates: the frame within one candidate's spacing
-    assert abs(ev["frame"] - 250) <= FRAMES / oe.MAX_SPLITS + 1
+    assert abs(ev["frame"] - 250) <= FRAMES / MAX_SPLITS + 1
     assert abs(ev["degrees"] - degrees) < 4 * ev["degrees_std"] + 0.02 * degrees
