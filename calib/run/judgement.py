@@ -48,6 +48,7 @@ from wandcal.calib.run.result import (
     CameraFigures,
     FocalLimitFigures,
     JudgedFigures,
+    Movement,
     SolverReport,
     WandReport,
     WorldFrame,
@@ -193,9 +194,11 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
 def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                       figures: list[dict], res: Residuals) -> list[dict]:
     """The cameras at fault: in a rig of few cameras first a camera out of time, from every pair
-    of cameras (:func:`wandcal.calib.judge.timing_pairs.timing_faults`), then by comparing every camera against the
-    points the others triangulate (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`),
-    else by the suspect screen (:func:`camera_faults`)."""
+    of cameras (:func:`wandcal.calib.judge.timing_pairs.timing_faults`), then a lens by comparing
+    every camera against the points the others triangulate
+    (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`), then a camera that moved, then
+    cameras whose own noise stands out (:func:`own_faults`), else by the suspect screen
+    (:func:`camera_faults`)."""
     from wandcal.calib.judge.leave_one_out import MAX_CAMERAS, leave_one_out_faults
     from wandcal.calib.judge.timing_pairs import timing_faults
 
@@ -203,7 +206,35 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     if 3 <= len(rig.cameras) <= MAX_CAMERAS:
         timing = timing_faults(list(rig.ids), R, t, labelled, tracks, np.array([c.focal.mean() for c in rig.cameras]),
                                [f["noise_px"] for f in figures])
-    return timing or leave_one_out_faults(list(rig.ids), R, t, labelled, tracks) or camera_faults(rig, labelled, R, t, figures, res)
+    if timing:
+        return timing
+    lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks)
+    if lens:  # a lens error bends a tracked marker's path: a step or noise there is its effect
+        return lens
+    moved, noisy = own_faults(rig, labelled, tracks, R, t)
+    return moved or noisy or camera_faults(rig, labelled, R, t, figures, res)
+
+
+def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray
+               ) -> tuple[list[dict], list[dict]]:
+    """In a rig of few cameras, (a camera that moved, cameras whose own noise stands out), each
+    camera judged with the points eliminated (:mod:`wandcal.calib.judge.own_errors`,
+    :mod:`wandcal.calib.judge.pose_steps`); the moved camera is not also called noisy. Larger rigs,
+    where every point has views enough for the suspect screen, give none."""
+    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS
+    from wandcal.calib.judge.own_errors import eliminate, noise_fault, noisy_cameras, views_of
+    from wandcal.calib.judge.pose_steps import moved_camera, moved_fault
+
+    if not 3 <= len(rig.cameras) <= MAX_CAMERAS:
+        return [], []
+    views = views_of(labelled, tracks)
+    if not len(views.point):
+        return [], []
+    ids, focal = list(rig.ids), np.array([c.focal.mean() for c in rig.cameras])
+    el = eliminate(R, t, views)
+    moved = moved_camera(R, t, views, el)
+    noisy = noisy_cameras(R, t, views, el, focal, [] if moved is None else [moved[0]])
+    return ([] if moved is None else [moved_fault(ids[moved[0]], moved[1])]), [noise_fault(ids[c], n) for c, n in noisy]
 
 
 def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> list[dict]:
@@ -309,6 +340,7 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     verdict["placement"] = placement_verdict(world_doc, extent if scaled else None, faults)
     verdict["faults"] = faults
     out, verdict["limits"] = _focal_limits(rig, out, R, t, res, scaled, solver.refined_intrinsics)
+    out = _movements(rig, out, faults)
     verdict["volume_m" if scaled else "volume"] = extent
     return out, verdict, warnings
 
@@ -333,6 +365,17 @@ def acted_warnings(cameras: list[CameraFigures], warnings: list[str], ids: tuple
         return True
     return ([replace(cam, warnings=tuple(w for w in cam.warnings if wanted(w))) if cam.warnings else cam for cam in cameras],
             [w for w in warnings if wanted(w)])
+
+
+def _movements(rig: Rig, cameras: list[CameraFigures], faults: list[dict]) -> list[CameraFigures]:
+    """The cameras with a ``moved`` fault carry its figures (the result's ``moved`` entry)."""
+    for fault in faults:
+        if fault["kind"] == "moved" and fault["camera"] is not None and "degrees_std" in fault["evidence"]:
+            c = rig.index(fault["camera"])
+            e = fault["evidence"]
+            cameras[c] = replace(cameras[c], moved=Movement(e["frame"], e["degrees"], e["degrees_std"], e.get("centre_mm"),
+                                                            e.get("centre_std_mm")))
+    return cameras
 
 
 def _focal_limits(rig: Rig, cameras: list[CameraFigures], R: np.ndarray, t: np.ndarray, res: Residuals, scaled: bool,

@@ -147,6 +147,30 @@ class FocalLimitFigures:
 
 
 @dataclass(frozen=True)
+class Movement:
+    """A camera that moved during the capture (:mod:`wandcal.calib.judge.own_errors`): after
+    capture frame ``frame`` it is turned by ``degrees`` (+- ``degrees_std``) against its pose
+    before, its centre ``centre_mm`` (+- ``centre_std_mm``) away. The pose in the result is a
+    compromise of the two: re-solve the camera from the frames after, or calibrate again."""
+
+    frame: int
+    degrees: float
+    degrees_std: float
+    centre_mm: float | None = None
+    centre_std_mm: float | None = None
+
+    KEYS = ("frame", "degrees", "degrees_std", "centre_mm", "centre_std_mm")
+
+    def to_json(self) -> Json:
+        return {key: getattr(self, key) for key in self.KEYS}
+
+    @classmethod
+    def from_json(cls, doc: Mapping[str, Any]) -> Movement:
+        return cls(int(doc["frame"]), float(doc["degrees"]), float(doc["degrees_std"]), doc.get("centre_mm"),
+                   doc.get("centre_std_mm"))
+
+
+@dataclass(frozen=True)
 class CameraFigures:
     """One camera's figures in a result, beside its pose and intrinsics.
 
@@ -156,7 +180,8 @@ class CameraFigures:
     None where the calibration did not make them: ``points`` (point tracks), ``uncertainty`` (a
     covariance), ``intrinsics`` (--refine-intrinsics), ``warnings`` (every warning about it in
     full), ``judged`` and ``verdict`` (the judgement: {"level", "reasons", "advice"},
-    :func:`wandcal.calib.judge.verdict.camera_verdict`).
+    :func:`wandcal.calib.judge.verdict.camera_verdict`), ``moved`` (the judgement found it moved
+    during the capture; results written before it have none).
     """
 
     reprojection_rms_px: float | None
@@ -171,6 +196,7 @@ class CameraFigures:
     judged: JudgedFigures | None = None
     verdict: Mapping[str, Any] | None = None
     focal_limit: FocalLimitFigures | None = None
+    moved: Movement | None = None
 
     def to_json(self) -> Json:
         out: Json = {"reprojection_rms_px": self.reprojection_rms_px, "observations": self.observations,
@@ -196,6 +222,8 @@ class CameraFigures:
             out["verdict"] = dict(self.verdict)
         if self.focal_limit is not None:
             out |= self.focal_limit.to_json()
+        if self.moved is not None:
+            out["moved"] = self.moved.to_json()
         return out
 
     @classmethod
@@ -222,6 +250,7 @@ class CameraFigures:
             points, uncertainty, RefinedIntrinsics.from_json(intrinsics) if isinstance(intrinsics, Mapping) else None,
             tuple(warnings) if isinstance(warnings, list) else None, judged, doc.get("verdict"),
             FocalLimitFigures.from_json(doc) if isinstance(doc.get("focal_limit"), Mapping) else None,
+            Movement.from_json(doc["moved"]) if isinstance(doc.get("moved"), Mapping) else None,
         )
 
 

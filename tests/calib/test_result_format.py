@@ -53,3 +53,15 @@ def test_a_result_written_before_the_honest_sigma_reads_and_writes_the_same_byte
     got = read_result(path)
     assert written(got.result.to_json()) == path.read_bytes()
     assert all(cam.focal_limit is None for cam in got.result.cameras)
+
+
+def test_a_moved_entry_reads_back_typed_and_writes_the_same():
+    from wandcal.calib.run.result import CameraFigures, Movement
+
+    entry = {"reprojection_rms_px": 1.0, "observations": 10, "frames_with_both_ends": 5, "worst_frames": [],
+             "initial_pose": "chain", "moved": {"frame": 51, "degrees": 0.82, "degrees_std": 0.2, "centre_mm": 9.0,
+                                                 "centre_std_mm": 5.0}}
+    cam = CameraFigures.from_json(entry)
+    assert cam.moved == Movement(51, 0.82, 0.2, 9.0, 5.0)
+    assert cam.to_json() == entry
+    assert CameraFigures.from_json({k: v for k, v in entry.items() if k != "moved"}).moved is None

@@ -101,3 +101,12 @@ def test_the_criteria_at_the_limit_of_poor_are_said_beside_the_rig_level():
     assert lines[0] == ("  within one standard error (the better level holds): cam1 geometry at the limit of poor "
                         "(0.75 +- 0.082 mm against 0.805 mm)")
     assert not any("cam2 outliers" in line for line in lines)  # at the limit of good: in the result only
+
+
+def test_a_moved_camera_is_named_under_the_verdict_with_its_frame_and_turn():
+    doc = result(4, 0)
+    doc["cameras"][2]["moved"] = {"frame": 51, "degrees": 0.82, "degrees_std": 0.2, "centre_mm": 9.0, "centre_std_mm": 5.0}
+    assert verdict_lines(doc)[0] == ("  MOVED cam3: after frame 51, turned 0.82 +- 0.20 degrees, its centre 9 +- 5 mm; its "
+                                     "pose is neither: re-solve it from the frames after (--from RESULT --solve-only cam3) "
+                                     "or calibrate again")
+

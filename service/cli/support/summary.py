@@ -62,6 +62,7 @@ def _verdict_lines(doc: dict) -> list[str]:
         return []
     lines = [f"rig geometry: {verdict['level']}"]
     lines += _at_limit_lines(verdict.get("at_limit") or [])
+    lines += _moved_lines(doc["cameras"])
     faults = verdict.get("faults") or []
     lines += [f"  fault ({fault['kind']}{', ' + fault['camera'] if fault.get('camera') else ''}): {fault['message']}"
               for fault in faults]
@@ -107,6 +108,22 @@ def _at_limit_lines(entries: list[dict]) -> list[str]:
         return []
     more = f"; and {len(said) - LISTED_CAMERAS} more (the result's verdict.at_limit)" if len(said) > LISTED_CAMERAS else ""
     return [f"  within one standard error (the better level holds): {'; '.join(said[:LISTED_CAMERAS])}{more}"]
+
+
+def _moved_lines(cameras: list[dict]) -> list[str]:
+    """A line a camera that moved during the capture (its result entry's ``moved``): its pose is a
+    compromise of the two, and what to do."""
+    out = []
+    for cam in cameras:
+        m = cam.get("moved")
+        if not m:
+            continue
+        centre = (f", its centre {m['centre_mm']:.0f} +- {m['centre_std_mm']:.0f} mm"
+                  if m.get("centre_mm") is not None and m.get("centre_std_mm") is not None else "")
+        out.append(f"  MOVED {cam['id']}: after frame {m['frame']}, turned {m['degrees']:.2f} +- {m['degrees_std']:.2f} "
+                   f"degrees{centre}; its pose is neither: re-solve it from the frames after (--from RESULT "
+                   f"--solve-only {cam['id']}) or calibrate again")
+    return out
 
 
 def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:

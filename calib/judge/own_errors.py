@@ -1,0 +1,279 @@
+"""Each camera's own errors, with the points eliminated: its noise (and, in
+:mod:`wandcal.calib.judge.pose_steps`, a step in its pose).
+
+A camera's residual in the solve holds the other cameras' errors too: each point is triangulated
+from two to four views, so one camera's noise is spread over the points and shows in its
+neighbours' residuals. Here the points are *eliminated* instead: with every pose held, each point
+is fitted to all its views (weighted by each camera's noise), and what remains is tested with the
+point's three columns projected out of the model (the Schur complement of bundle adjustment).
+Every observation takes part: the wand's ends, every marker, and the point tracks, in frames seen by
+only two cameras too (one epipolar degree of freedom each, where "triangulated by two others"
+would need three views).
+
+**Noise** (:func:`camera_noise`): each camera's variance of unit weight by variance components
+(Förstner): ``sigma_c^2`` from its views' squared residuals over their redundancy ``rho_i`` (2 less
+the hat matrix's trace), by the median (hand-digitised sessions carry gross outliers), iterated
+with the weights; its standard error from the order statistics about the median. A camera is
+noisy when its sigma stands above the other cameras' median by more than :data:`NOISE_LIMIT`, by
+:data:`NOISE_Z` standard errors; cameras are named one at a time (:func:`noisy_cameras`).
+docs/verdict.md gives the limits, docs/decisions/0035 how they were measured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.start.labels import flatten
+from wandcal.calib.triangulate import triangulate_points
+
+TRIM_SIGMAS = 5.0  # an observation this many of its camera's sigmas off (for its redundancy) is an outlier
+VARIANCE_ROUNDS = 6  # variance components: the sigmas settle to within 2% by the sixth round on the real sessions
+# a camera's noise against the other cameras' median: 1.5 is where the verdict's noise criterion
+# leaves "excellent" (wandcal.calib.judge.verdict.NOISE_RATIO); a camera is named noisy only when
+# its ratio stands above it by NOISE_Z standard errors (one-sided 2%)
+NOISE_LIMIT = 1.5
+NOISE_Z = 2.0
+MIN_NOISE_OBSERVATIONS = 30  # of a camera, for its sigma to be compared
+MIN_REDUNDANCY = 0.5  # a view whose point hangs mostly on it says little of its camera's noise
+
+
+@dataclass(frozen=True, eq=False)
+class Views:
+    """Every observation of the points: point (M,) in [0, P), camera (M,), xy (M, 2) normalised;
+    time (M,) capture frame; timed (M,) bool: the observation has a time (the wand's ends; point
+    tracks only where there is no wand: a moving marker, not background points digitised once)."""
+
+    point: np.ndarray
+    camera: np.ndarray
+    xy: np.ndarray
+    time: np.ndarray
+    timed: np.ndarray
+    n_points: int
+
+    def without(self, drop: np.ndarray) -> Views:
+        """The views where ``drop`` (M,) is false, points renumbered."""
+        keep = ~drop
+        used, point = np.unique(self.point[keep], return_inverse=True)
+        return Views(point, self.camera[keep], self.xy[keep], self.time[keep], self.timed[keep], len(used))
+
+
+@dataclass(frozen=True, eq=False)
+class Eliminated:
+    """The views with their points fitted to all cameras (poses held) and then projected out.
+
+    views: the observations kept (outliers dropped, points of two views or more); sigma: (N,) each
+    camera's noise, normalised units (NaN for a camera without views); r: (M, 2) residuals over
+    their camera's sigma; J: (M, 2, 3) the point's columns, likewise; Ainv: (P, 3, 3) each point's
+    inverse normal matrix; rho: (M,) each observation's redundancy; Xc: (M, 3) the point in the
+    observation's camera frame, metres; kept: (M0,) bool over the views given, those kept."""
+
+    views: Views
+    sigma: np.ndarray
+    r: np.ndarray
+    J: np.ndarray
+    Ainv: np.ndarray
+    rho: np.ndarray
+    Xc: np.ndarray
+    kept: np.ndarray
+
+
+@dataclass(frozen=True)
+class Noise:
+    """A camera's own noise: sigma_px, against ``others_px`` (the other cameras' median); ratio
+    and its standard error; observations: how many."""
+
+    sigma_px: float
+    others_px: float
+    ratio: float
+    ratio_std: float
+    observations: int
+
+
+def views_of(labelled: WandPairs, tracks: PointTracks | None) -> Views:
+    """Every wand end (both ends of every labelled pair) and every point-track observation."""
+    parts = []
+    if len(labelled):
+        point, camera, xy = flatten(labelled)
+        parts.append((point, camera, xy, labelled.frames[point // 2], True, 2 * len(labelled.frames)))
+    if tracks is not None and len(tracks):
+        parts.append((tracks.track, tracks.camera, tracks.xy, tracks.frames[tracks.track], not len(labelled),
+                      tracks.n_tracks))
+    offset, cols = 0, []
+    for point, camera, xy, time, has_time, n in parts:
+        cols.append((point + offset, camera, xy, time, np.full(len(point), has_time)))
+        offset += n
+    if not cols:
+        z = np.zeros(0, np.int64)
+        return Views(z, z, np.zeros((0, 2)), z, np.zeros(0, bool), 0)
+    point, camera, xy, time, timed = (np.concatenate(c) for c in zip(*cols))
+    views = Views(point, camera, xy, time.astype(np.int64), timed, offset)
+    seen = np.bincount(point, minlength=offset)
+    return views.without(seen[point] < 2)
+
+
+def _project(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray):
+    """(Xc (M, 3), residual (M, 2) projected minus observed, D (M, 2, 3) the projection's derivative
+    in the camera-frame point)."""
+    Xc = np.einsum("mij,mj->mi", R[views.camera], X[views.point]) + t[views.camera]
+    z = Xc[:, 2]
+    proj = Xc[:, :2] / z[:, None]
+    D = np.zeros((len(z), 2, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1 / z
+    D[:, :, 2] = -proj / z[:, None]
+    return Xc, proj - views.xy, D
+
+
+def _normal(J: np.ndarray, r: np.ndarray, point: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's normal matrix (P, 3, 3) and gradient (P, 3) from whitened J (M, 2, 3), r (M, 2)."""
+    JtJ = np.einsum("mki,mkj->mij", J, J).reshape(len(J), 9)
+    Jtr = np.einsum("mki,mk->mi", J, r)
+    A = np.stack([np.bincount(point, JtJ[:, k], n) for k in range(9)], axis=1).reshape(n, 3, 3)
+    b = np.stack([np.bincount(point, Jtr[:, k], n) for k in range(3)], axis=1)
+    return A, b
+
+
+def _fit(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray, sigma: np.ndarray, rounds: int = 3):
+    """The points X (P, 3) refitted to all their views, weighted by 1/sigma: Gauss-Newton. Returns
+    (X, Xc, whitened r, whitened J, Ainv, rho: (M,) each view's redundancy)."""
+    w = 1 / sigma[views.camera]
+    for k in range(rounds + 1):
+        Xc, r, D = _project(R, t, views, X)
+        J = np.einsum("mij,mjk->mik", D, R[views.camera]) * w[:, None, None]
+        r = r * w[:, None]
+        A, b = _normal(J, r, views.point, views.n_points)
+        # a point's normal matrix is well conditioned where two rays meet at an angle; the ridge
+        # keeps a nearly parallel pair finite (it is then hardly tested, as it should be)
+        Ainv = np.linalg.inv(A + 1e-9 * np.trace(A, axis1=1, axis2=2)[:, None, None] * np.eye(3))
+        if k == rounds:
+            return X, Xc, r, J, Ainv, 2 - np.einsum("mki,mij,mkj->m", J, Ainv[views.point], J)
+        X = X - np.einsum("pij,pj->pi", Ainv, b)
+    raise AssertionError("unreachable")
+
+
+def _finite(views: Views, X: np.ndarray, origin: np.ndarray) -> tuple[Views, np.ndarray, np.ndarray]:
+    """The views of the points X (P, 3) that are finite (a point triangulation left NaN is dropped
+    with its views), and their ``origin`` (M,) indices."""
+    ok = np.all(np.isfinite(X), axis=1)
+    if ok.all():
+        return views, X, origin
+    return views.without(~ok[views.point]), X[ok], origin[ok[views.point]]
+
+
+def eliminate(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray | None = None,
+              trim: bool = True) -> Eliminated:
+    """The views' points fitted to all cameras with the poses R, t ((N, 3, 3), (N, 3)) held, each
+    camera's noise by variance components, outliers (beyond :data:`TRIM_SIGMAS`) dropped. With
+    ``trim`` False and ``sigma`` given, every view is kept and the sigmas are as given: a knocked
+    camera's views after the knock are far off, and its step test keeps them
+    (:func:`pose_step` trims under the step's model)."""
+    n_cams = len(R)
+    rounds = VARIANCE_ROUNDS if trim or sigma is None else 0
+    sigma = np.full(n_cams, 1e-3) if sigma is None else np.where(np.isfinite(sigma), sigma, 1e-3)
+    X = triangulate_points(R, t, views.point, views.camera, views.xy, views.n_points)
+    origin = np.arange(len(views.point))
+    kept = np.zeros(len(views.point), bool)
+    for _ in range(rounds):
+        views, X, origin = _finite(views, X, origin)
+        X, Xc, r, J, Ainv, rho = _fit(R, t, views, X, sigma)
+        e2 = np.sum(r**2, axis=1)
+        count = np.bincount(views.camera, minlength=n_cams)
+        scale = _robust_scale(e2, rho, views.camera, n_cams)
+        sigma = np.where(count > 0, sigma * np.sqrt(scale), np.nan)
+        bad = e2 > TRIM_SIGMAS**2 * np.maximum(rho, 1e-3) * np.where(count > 0, scale, 1.0)[views.camera]
+        seen = np.bincount(views.point[~bad], minlength=views.n_points)
+        drop = bad | (seen[views.point] < 2)
+        if drop.any():
+            keep_points = seen >= 2
+            origin = origin[~drop]
+            views = views.without(drop)
+            X = X[keep_points]
+    views, X, origin = _finite(views, X, origin)
+    X, Xc, r, J, Ainv, rho = _fit(R, t, views, X, sigma)
+    kept[origin] = True
+    return Eliminated(views, sigma, r, J, Ainv, rho, Xc, kept)
+
+
+def unit_squares(e2: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """(M,) each view's squared residual over its redundancy and over the median of chi-square
+    with that many degrees of freedom (Wilson-Hilferty, within 3% at one and two): 1 in the median
+    at the right sigma, whatever the view's redundancy; NaN where the redundancy is too small to say."""
+    k = np.where(rho >= MIN_REDUNDANCY, rho, np.nan)
+    return e2 / (k * (1 - 2 / (9 * k)) ** 3)
+
+
+def _robust_scale(e2: np.ndarray, rho: np.ndarray, camera: np.ndarray, n_cams: int) -> np.ndarray:
+    """(N,) each camera's variance over its current sigma^2: the median of :func:`unit_squares` (a
+    minority of gross outliers, which hand-digitised sessions carry, leaves it alone); 1 without views."""
+    u = unit_squares(e2, rho)
+    out = np.ones(n_cams)
+    for c in range(n_cams):
+        mine = u[(camera == c) & np.isfinite(u)]
+        if len(mine):
+            out[c] = max(float(np.median(mine)), 1e-12)
+    return out
+
+
+def camera_noise(el: Eliminated, focal: np.ndarray) -> list[Noise | None]:
+    """Each camera's own noise against the other cameras' median (None with too few views).
+    focal: (N,) mean focal lengths, pixels."""
+    v = el.views
+    n = len(el.sigma)
+    u = unit_squares(np.sum(el.r**2, axis=1), el.rho)
+    rel = np.full(n, np.nan)  # each camera's sigma^2's relative standard error
+    for c in range(n):
+        mine = np.sort(u[(v.camera == c) & np.isfinite(u)])
+        m = len(mine)
+        if m < MIN_NOISE_OBSERVATIONS:
+            continue
+        # the median's standard error from the order statistics a standard error either side of it
+        lo, hi = int(np.floor(m / 2 - np.sqrt(m) / 2)), int(np.ceil(m / 2 + np.sqrt(m) / 2))
+        rel[c] = (mine[min(hi, m - 1)] - mine[max(lo, 0)]) / 2 / max(float(np.median(mine)), 1e-12)
+    px = el.sigma * focal
+    out: list[Noise | None] = []
+    for c in range(n):
+        others = [k for k in range(n) if k != c and np.isfinite(rel[k])]
+        if not np.isfinite(rel[c]) or len(others) < 2:
+            out.append(None)
+            continue
+        ref = float(np.median(px[others]))
+        ratio = float(px[c] / ref)
+        # sigma's relative error is half sigma^2's; the others' median about that of their mean, times pi/2
+        var = 0.25 * rel[c] ** 2 + 0.25 * float(np.mean(rel[others] ** 2)) / len(others) * np.pi / 2
+        out.append(Noise(float(px[c]), ref, ratio, ratio * float(np.sqrt(var)), int((v.camera == c).sum())))
+    return out
+
+
+def noisy_cameras(R: np.ndarray, t: np.ndarray, views: Views, el: Eliminated, focal: np.ndarray,
+                  out: list[int]) -> list[tuple[int, Noise]]:
+    """The cameras whose own noise stands out, worst first, each named only while the noise of
+    those named before it is left out (a point seen by two cameras shares its one degree of freedom
+    between them: a noisy camera's partner looks noisy too, until it is left out); ``out``: cameras
+    not to name (found at fault otherwise). el: :func:`eliminate` of ``views``."""
+    found: list[tuple[int, Noise]] = []
+    while True:
+        standing = [(c, n) for c, n in enumerate(camera_noise(el, focal)) if n is not None and c not in out
+                    and n.ratio - NOISE_LIMIT > NOISE_Z * n.ratio_std]
+        if not standing:
+            return found
+        c, n = max(standing, key=lambda cn: (cn[1].ratio - NOISE_LIMIT) / cn[1].ratio_std)
+        found.append((c, n))
+        out = [*out, c]
+        rest = views.without(np.isin(views.camera, [k for k, _ in found]))
+        seen = np.bincount(rest.point, minlength=rest.n_points)
+        rest = rest.without(seen[rest.point] < 2)
+        if len(R) - len(found) < 3 or not len(rest.point):
+            return found
+        el = eliminate(R, t, rest, el.sigma)
+
+
+def noise_fault(cam: str, n: Noise) -> dict:
+    return {"kind": "noise", "camera": cam, "evidence": {
+        "own_noise_px": round(n.sigma_px, 3), "others_noise_px": round(n.others_px, 3), "ratio": round(n.ratio, 3),
+        "ratio_std": round(n.ratio_std, 3)},
+        "message": f"{cam}'s blob centres are {n.ratio:.1f} +- {n.ratio_std:.1f} times as noisy as the other cameras' "
+                   f"({n.sigma_px:.2f} px against {n.others_px:.2f} px, each against points fitted to every camera "
+                   "and weighted by its own noise) with no timing, lens or movement found: check its focus, exposure "
+                   "and the blob detection settings"}

@@ -1,0 +1,307 @@
+"""A camera that moved during the capture: a step in its pose, with the points eliminated
+(:mod:`wandcal.calib.judge.own_errors`).
+
+The camera's views with a time (the wand's ends; point tracks where there is no wand: a moving
+marker) are split at frame k, and its turn after k (three columns: a rotation about its centre) is
+fitted beside its pose (six columns) and its lens (four), all with the points projected out; views
+without a time (background points digitised once) have a turn of their own. An F test of one pose
+against two at the best k (:func:`pose_step`), outliers trimmed under the two-pose model, the F
+divided by the residuals' long-run variance in time (batch means), its p-value multiplied by the
+number of splits tried (Bonferroni, the search's multiple testing). A camera is named only when
+leaving it out leaves no other camera stepping (:func:`moved_camera`): else its step is another
+camera's spread through the points. docs/verdict.md gives the limits, docs/decisions/0035 how they
+were measured.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.judge.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
+
+MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone
+MAX_SPLITS = 60  # candidate splits, evenly spaced in the camera's timed observations
+TRIM_ROUNDS = 2  # outliers trimmed under the step's model, then the split searched again
+MIN_BLOCKS = 4  # batch means of the residuals in time: fewer blocks say nothing of their correlation
+# a step is named at this family-wise false-alarm rate per camera (Bonferroni over the splits): a
+# clean camera is called moved once in 10,000 (the clean real sessions: p >= 0.002; the knocks found: p <= 5e-5)
+STEP_ALPHA = 1e-4
+
+
+@dataclass(frozen=True)
+class Step:
+    """A step in a camera's pose: after capture frame ``frame`` it
+    turned by ``degrees`` (+- degrees_std) and its centre moved ``mm`` (+- mm_std, with the turn
+    fitted beside it); f_stat at the best split, p_value with the split search accounted for;
+    explained: the share of the camera's residual beyond its pose the step explains."""
+
+    frame: int
+    degrees: float
+    degrees_std: float
+    mm: float
+    mm_std: float
+    f_stat: float
+    p_value: float
+    explained: float
+
+
+def _rows_of(el: Eliminated, c: int):
+    """Every view of the points camera c sees: (rows (K,) view indices, own (K,) c's view of each
+    row's point, proj) where proj(G) takes c's columns G (K, 2, n) (whitened, zero where the row is
+    not c's) to the same with the points projected out: ``G_i [i is c's] - J_i Ainv J_c^T G_c``,
+    what fitting each point again takes away."""
+    v = el.views
+    mine = np.flatnonzero(v.camera == c)
+    at = np.full(v.n_points, -1)
+    at[v.point[mine]] = mine
+    rows = np.flatnonzero(at[v.point] >= 0)
+    own = at[v.point[rows]]
+    is_own = rows == own
+
+    def proj(G: np.ndarray) -> np.ndarray:
+        u = np.einsum("kmi,kmj->kij", el.J[own], G)
+        out = -np.einsum("kmi,kij,kjl->kml", el.J[rows], el.Ainv[v.point[rows]], u)
+        out[is_own] += G[is_own]
+        return out
+    return rows, own, proj
+
+
+def _pose_columns(el: Eliminated, c: int, rows: np.ndarray, own: np.ndarray, proj) -> tuple[np.ndarray, np.ndarray]:
+    """Camera c's pose columns over ``rows`` (:func:`_rows_of`), whitened, the points projected out:
+    (turn (K, 2, 3) about its centre, shift (K, 2, 3) of its position in its own frame)."""
+    Xc = el.Xc[own]
+    cross = np.zeros((len(own), 3, 3))  # d(exp(w) Xc)/dw = -[Xc]x
+    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 0] = Xc[:, 2], -Xc[:, 1], -Xc[:, 2]
+    cross[:, 1, 2], cross[:, 2, 0], cross[:, 2, 1] = Xc[:, 0], Xc[:, 1], -Xc[:, 0]
+    D = _derivative(Xc) / el.sigma[c]
+    return proj(np.einsum("kij,kjl->kil", D, cross)), proj(D)
+
+
+def _derivative(Xc: np.ndarray) -> np.ndarray:
+    """(K, 2, 3) the normalised projection's derivative in the camera-frame point Xc (K, 3)."""
+    z = Xc[:, 2]
+    D = np.zeros((len(z), 2, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1 / z
+    D[:, 0, 2] = -Xc[:, 0] / z**2
+    D[:, 1, 2] = -Xc[:, 1] / z**2
+    return D
+
+
+def _fdtrc(q: int, dof: float, f: float) -> float:
+    """P(F(q, dof) > f): the regularised incomplete beta I_x(dof/2, q/2), x = dof / (dof + q f), by
+    its continued fraction (Numerical Recipes' betacf); scipy is not loaded by calibrate."""
+    if f <= 0:
+        return 1.0
+    a, b, x = dof / 2, q / 2, dof / (dof + q * f)
+    if x <= 0:
+        return 0.0
+    front = math.exp(math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x))
+    if x > (a + 1) / (a + b + 2):  # the fraction converges fast on this side only: I_x(a, b) = 1 - I_{1-x}(b, a)
+        return 1.0 - front * _betacf(b, a, 1 - x) / b
+    return front * _betacf(a, b, x) / a
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    tiny = 1e-300
+    c, d = 1.0, 1 - (a + b) * x / (a + 1)
+    d = 1 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 300):
+        for num in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)), -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):
+            d = 1 + num * d
+            d = 1 / (d if abs(d) > tiny else tiny)
+            c = 1 + num / c
+            c = c if abs(c) > tiny else tiny
+            h *= d * c
+        if abs(d * c - 1) < 1e-14:
+            break
+    return h
+
+
+def _lens_columns(el: Eliminated, c: int, rows: np.ndarray, own: np.ndarray, proj) -> np.ndarray:
+    """(K, 2, 4) camera c's lens columns (focal length, k1, principal point) with the points projected out."""
+    xy = el.Xc[own][:, :2] / el.Xc[own][:, 2:]
+    r2 = np.sum(xy**2, axis=1, keepdims=True)
+    G = np.stack([xy, xy * r2, np.broadcast_to([1.0, 0.0], xy.shape), np.broadcast_to([0.0, 1.0], xy.shape)],
+                 axis=2) / el.sigma[c]
+    return proj(G)
+
+
+def pose_step(el: Eliminated, c: int) -> Step | None:
+    """Camera c's best step in its pose (see the module's docstring); None with too few timed views."""
+    v = el.views
+    rows, own, proj = _rows_of(el, c)
+    turn, shift = _pose_columns(el, c, rows, own, proj)
+    lens = _lens_columns(el, c, rows, own, proj)
+    y = el.r[rows]
+    mine = v.camera[rows] == c
+    time, timed = v.time[rows], v.timed[rows]
+    times = np.sort(time[mine & timed])
+    if len(times) < 2 * MIN_SIDE:
+        return None
+    n_rows = 2 * len(rows)
+    base = [turn.reshape(n_rows, 3), shift.reshape(n_rows, 3), lens.reshape(n_rows, 4)]
+    if (~timed[mine]).sum() >= MIN_SIDE:  # a pose of their own for the views without a time (see above)
+        base.append(turn.reshape(n_rows, 3) * np.repeat(~timed, 2)[:, None])
+    base_cols = np.concatenate(base, axis=1)
+    step = turn.reshape(n_rows, 3)
+    yv = y.ravel()
+    candidates = np.unique(times[MIN_SIDE - 1 : len(times) - MIN_SIDE])
+    if len(candidates) > MAX_SPLITS:
+        candidates = candidates[np.linspace(0, len(candidates) - 1, MAX_SPLITS).astype(int)]
+    keep = np.ones(len(rows), bool)
+    for _ in range(TRIM_ROUNDS):
+        best = _best_split(base_cols, step, yv, time, timed, candidates, keep, el.rho[rows])
+        if best is None:
+            return None
+        keep = _kept(np.concatenate([base_cols, step * best[3]], axis=1), yv, el.rho[rows], v.point[rows])
+    best = _best_split(base_cols, step, yv, time, timed, candidates, keep, el.rho[rows])
+    if best is None:
+        return None
+    f, k, rss1, mask, rss0, dof = best
+    nb = base_cols.shape[1]
+    k2 = np.repeat(keep, 2)
+    coef, cov = _coef(np.concatenate([base_cols, step * mask], axis=1)[k2], yv[k2], dof)
+    inflation = _inflation((yv - np.concatenate([base_cols, step * mask], axis=1) @ _coef_full(base_cols, step * mask, yv, k2))
+                           .reshape(-1, 2), mine & timed & keep, time, v.point[rows])
+    f /= inflation[0]
+    cov = cov * inflation[0]
+    p = min(1.0, len(candidates) * _fdtrc(3, min(dof, inflation[1]), f))
+    deg, deg_std = np.degrees(np.linalg.norm(coef[nb:])), np.degrees(np.sqrt(np.trace(cov[nb:, nb:]) / 3))
+    coef, cov = _coef(np.concatenate([base_cols, step * mask, shift.reshape(n_rows, 3) * mask], axis=1)[k2], yv[k2],
+                      dof - 3)
+    mm, mm_std = 1000 * np.linalg.norm(coef[nb + 3:]), 1000 * np.sqrt(np.trace(cov[nb + 3:, nb + 3:]) / 3)
+    return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
+                float(1 - rss1 / rss0) if rss0 > 0 else 0.0)
+
+
+def _best_split(base: np.ndarray, step: np.ndarray, y: np.ndarray, time: np.ndarray, timed: np.ndarray,
+                candidates: np.ndarray, keep: np.ndarray, rho: np.ndarray):
+    """The split of the largest F over ``candidates`` on the views ``keep`` (K,): (F, frame, rss
+    with the step, the step's row mask (2K, 1), rss without, the residual's degrees of freedom), or
+    None when too few degrees of freedom are left. base (2K, b), step (2K, 3), y (2K,)."""
+    k2 = np.repeat(keep, 2)
+    dof = float(rho[keep].sum()) - base.shape[1] - 3  # 2 per view, less 3 per point, less the columns
+    if dof < 10:
+        return None
+    rss0 = _rss(base[k2], y[k2])
+    best = None
+    for k in candidates:
+        mask = np.repeat(timed & (time > k), 2)[:, None]
+        rss1 = _rss(np.concatenate([base, step * mask], axis=1)[k2], y[k2])
+        f = ((rss0 - rss1) / 3) / max(rss1 / dof, 1e-300)
+        if best is None or f > best[0]:
+            best = (f, int(k), rss1, mask, rss0, dof)
+    return best
+
+
+def _kept(A: np.ndarray, y: np.ndarray, rho: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """(K,) the views whose points have no view beyond :data:`TRIM_SIGMAS` of the fit of y (2K,) on A (2K, n)."""
+    e2 = np.sum((y - A @ _solve(A, y)).reshape(-1, 2) ** 2, axis=1)
+    u = unit_squares(e2, rho)
+    scale = float(np.nanmedian(u)) if np.isfinite(u).any() else 1.0
+    bad = e2 > TRIM_SIGMAS**2 * np.maximum(rho, 1e-3) * scale
+    return ~np.isin(point, point[bad])
+
+
+def _coef_full(base: np.ndarray, step: np.ndarray, y: np.ndarray, k2: np.ndarray) -> np.ndarray:
+    """The coefficients of y on [base | step] fitted on the rows k2 (2K,)."""
+    return _solve(np.concatenate([base, step], axis=1)[k2], y[k2])
+
+
+def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least squares of y (K,) on A (K, n) by the scaled normal equations (n x n, n <= 20: a tall
+    lstsq costs a hundred times more)."""
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    As = A / scale
+    return np.linalg.lstsq(As.T @ As, As.T @ y, rcond=None)[0] / scale
+
+
+def _inflation(e: np.ndarray, own: np.ndarray, time: np.ndarray, point: np.ndarray) -> tuple[float, float]:
+    """How much a step's variance grows because residuals run on in time, and the degrees of
+    freedom that estimate has: (inflation, dof). A tracked marker's misfit (the lens model's, where
+    it crosses the image) is alike from one frame to the next, so an F test that takes views as
+    independent would see steps in a clean camera. Batch means: camera c's timed views ``own`` (K,)
+    in time order, in blocks of about sqrt(K); a level's long-run variance is the block length
+    times the block means' variance, over the views' own (1 for independent views; never taken
+    below 1). e: (K, 2) residuals; the dof is the number of blocks less one."""
+    idx = np.flatnonzero(own)
+    idx = idx[np.lexsort((point[idx], time[idx]))]
+    n = len(idx)
+    blocks = n // max(int(np.ceil(np.sqrt(n))), 1)
+    if blocks < MIN_BLOCKS:
+        return 1.0, np.inf
+    size = n // blocks
+    a = e[idx[: blocks * size]].reshape(blocks, size, 2)
+    long_run = size * float(np.mean(np.sum(a.mean(axis=1) ** 2, axis=1)))
+    return max(long_run / max(float(np.mean(np.sum(a**2, axis=2))), 1e-300), 1.0), float(blocks - 1)
+
+
+def _rss(A: np.ndarray, y: np.ndarray) -> float:
+    """The residual sum of squares of y (K,) on the columns A (K, n), by the scaled normal equations."""
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    As = A / scale
+    x = np.linalg.lstsq(As.T @ As, As.T @ y, rcond=None)[0]
+    return max(float(y @ y - (As.T @ y) @ x), 0.0)
+
+
+def _coef(A: np.ndarray, y: np.ndarray, dof: float) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares of y (K,) on A (K, n): the coefficients and their covariance (residual variance over dof)."""
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    As = A / scale
+    Ginv = np.linalg.pinv(As.T @ As)
+    x = Ginv @ (As.T @ y)
+    s2 = float(np.sum((y - As @ x) ** 2)) / max(dof, 1.0)
+    return x / scale, s2 * Ginv / np.outer(scale, scale)
+
+
+def _steps(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated) -> list[Step | None]:
+    """Every camera's best step: its own views all kept (a knocked camera's later views are far
+    off; each step test trims under its own model), the other cameras' outliers as ``trimmed``
+    (:func:`eliminate` of ``views``) dropped them."""
+    out: list[Step | None] = []
+    for c in range(len(R)):
+        mine = views.camera == c
+        if not mine.any():
+            out.append(None)
+            continue
+        el = eliminate(R, t, views.without(~(trimmed.kept | mine)), trimmed.sigma, trim=False)
+        out.append(pose_step(el, c) if (el.views.camera == c).any() else None)
+    return out
+
+
+def _found(step: Step | None) -> bool:
+    return step is not None and step.p_value < STEP_ALPHA
+
+
+def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated) -> tuple[int, Step] | None:
+    """The camera that moved during the capture, and its step; None when no camera's step is
+    significant, or none explains the others' (with its views left out, another still steps).
+    trimmed: :func:`eliminate` of ``views``."""
+    steps = _steps(R, t, views, trimmed)
+    found = sorted((s.p_value, c, s) for c, s in enumerate(steps) if s is not None and s.p_value < STEP_ALPHA)
+    for _, c, step in found:
+        rest = views.without(views.camera == c)
+        seen = np.bincount(rest.point, minlength=rest.n_points)
+        rest = rest.without(seen[rest.point] < 2)
+        if not any(_found(s) for k, s in enumerate(_steps(R, t, rest, eliminate(R, t, rest, trimmed.sigma))) if k != c):
+            return c, step
+    return None
+
+
+def moved_fault(cam: str, s: Step) -> dict:
+    return {"kind": "moved", "camera": cam, "evidence": {
+        "frame": s.frame, "degrees": round(s.degrees, 3), "degrees_std": round(s.degrees_std, 3),
+        "centre_mm": round(s.mm, 2), "centre_std_mm": round(s.mm_std, 2), "f_stat": round(s.f_stat, 1),
+        "p_value": float(f"{s.p_value:.3g}"), "explained_share": round(s.explained, 3)},
+        "message": f"{cam} moved during the capture: after frame {s.frame} it is turned by {s.degrees:.2f} +- "
+                   f"{s.degrees_std:.2f} degrees against its pose before (its centre {s.mm:.0f} +- {s.mm_std:.0f} mm), "
+                   f"where the other cameras agree; fix its mount and calibrate again, or re-solve it from the frames "
+                   f"after {s.frame} alone (keep only those of {cam}'s rows and run calibrate --from RESULT "
+                   f"--solve-only {cam})"}

@@ -1,0 +1,100 @@
+"""Each camera's own errors with the points eliminated (wandcal.calib.judge.own_errors and
+pose_steps, composed by wandcal.calib.run.judgement.own_faults), on a
+seeded four-camera rig tracking one marker (timed point tracks, as MultiCamSelfCal's): noise put
+on one camera stays with it, a knocked camera is named with its frame and angle, a clean rig names
+nothing. Tolerances come from the injected noise: the estimates' own standard errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.judge import own_errors as oe
+from wandcal.calib.judge.pose_steps import MAX_SPLITS
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.rig import Camera, Rig
+from wandcal.calib.run.judgement import own_faults
+
+FOCAL_PX = 1000.0
+NOISE_PX = 0.5
+FRAMES = 400
+
+
+def _look_at(centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    z = -centre / np.linalg.norm(centre)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])
+    return R, -R @ centre
+
+
+def _rig(n: int = 4):
+    poses = [_look_at(np.array([3 * np.cos(a), 3 * np.sin(a), 1.0])) for a in np.linspace(0, 2 * np.pi, n, endpoint=False)]
+    return np.stack([p[0] for p in poses]), np.stack([p[1] for p in poses])
+
+
+def _tracks(R, t, rng, noise_px=None, knock=None) -> PointTracks:
+    """A marker wandering through a 1.5 m volume, one position a frame, seen by every camera;
+    noise_px: (N,) each camera's noise; knock: (camera, frame, rotation vector) turns that camera
+    after that frame."""
+    n = len(R)
+    noise_px = np.full(n, NOISE_PX) if noise_px is None else np.asarray(noise_px)
+    X = np.cumsum(rng.normal(0, 0.05, (FRAMES, 3)), axis=0)
+    X = 0.75 * np.tanh(X / 0.75)  # kept inside the volume
+    track, camera, xy = [], [], []
+    for c in range(n):
+        Xc = X @ R[c].T + t[c]
+        if knock is not None and knock[0] == c:
+            after = np.arange(FRAMES) > knock[1]
+            Xc[after] = Xc[after] @ rotvec_to_matrix(knock[2]).T
+        p = Xc[:, :2] / Xc[:, 2:] + rng.normal(0, noise_px[c] / FOCAL_PX, (FRAMES, 2))
+        track.append(np.arange(FRAMES))
+        camera.append(np.full(FRAMES, c))
+        xy.append(p)
+    track, camera, xy = np.concatenate(track), np.concatenate(camera), np.concatenate(xy)
+    order = np.lexsort((camera, track))
+    return PointTracks(track[order], camera[order], xy[order], xy[order] * FOCAL_PX, np.arange(FRAMES))
+
+
+def _faults(tracks: PointTracks, R, t):
+    K = np.array([[FOCAL_PX, 0, 640], [0, FOCAL_PX, 480], [0, 0, 1]])
+    rig = Rig(tuple(Camera(f"cam{k}", 1280, 960, K, np.zeros(5)) for k in range(len(R))), None)
+    return own_faults(rig, WandPairs.empty(), tracks, R, t)
+
+
+def test_a_clean_rig_names_nothing_and_measures_its_noise():
+    R, t = _rig()
+    tracks = _tracks(R, t, np.random.default_rng(1))
+    el = oe.eliminate(R, t, oe.views_of(WandPairs.empty(), tracks))
+    noise = oe.camera_noise(el, np.full(len(R), FOCAL_PX))
+    for n in noise:
+        assert abs(n.sigma_px - NOISE_PX) < 4 * NOISE_PX / np.sqrt(FRAMES)  # sigma's standard error ~ sigma / sqrt(2 dof)
+        assert abs(n.ratio - 1) < 4 * n.ratio_std
+    assert _faults(tracks, R, t) == ([], [])
+
+
+def test_noise_on_one_camera_stays_with_it():
+    R, t = _rig()
+    tracks = _tracks(R, t, np.random.default_rng(2), noise_px=[NOISE_PX, NOISE_PX, 3 * NOISE_PX, NOISE_PX])
+    el = oe.eliminate(R, t, oe.views_of(WandPairs.empty(), tracks))
+    noise = oe.camera_noise(el, np.full(len(R), FOCAL_PX))
+    assert abs(noise[2].ratio - 3) < 4 * noise[2].ratio_std
+    assert all(abs(n.ratio - 1) < 4 * n.ratio_std for c, n in enumerate(noise) if c != 2)
+    moved, noisy = _faults(tracks, R, t)
+    assert moved == [] and [f["camera"] for f in noisy] == ["cam2"]
+
+
+@pytest.mark.parametrize("camera, degrees", [(1, 0.3), (3, 0.8)])
+def test_a_knocked_camera_is_named_with_its_frame_and_angle(camera, degrees):
+    R, t = _rig()
+    rng = np.random.default_rng(3 + camera)
+    axis = rng.normal(size=3)
+    w = np.radians(degrees) * axis / np.linalg.norm(axis)
+    tracks = _tracks(R, t, rng, knock=(camera, 250, w))
+    moved, noisy = _faults(tracks, R, t)
+    assert [f["camera"] for f in moved] == [f"cam{camera}"] and noisy == []
+    ev = moved[0]["evidence"]
+    # the split is searched among MAX_SPLITS candidates: the frame within one candidate's spacing
+    assert abs(ev["frame"] - 250) <= FRAMES / MAX_SPLITS + 1
+    assert abs(ev["degrees"] - degrees) < 4 * ev["degrees_std"] + 0.02 * degrees
