@@ -47,7 +47,7 @@ def _kind(name: str) -> Kind:
         mat = SHARED_DATA / BROWN / "calibration1" / BROWN_MAT
         if not mat.is_file():
             pytest.skip(f"{mat} is absent")
-        from wandcal.capture.formats.easywand import read_easywand_mat
+        from wandcal.capture.importers.easywand import read_easywand_mat
 
         cap = read_easywand_mat(mat).capture
         return Kind(cap.rig, cap.wand, None, cap.points, cap.axis)
