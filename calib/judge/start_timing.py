@@ -120,13 +120,20 @@ def out_of_time_refusal(error: CalibrationError, rig: Rig, pairs: WandPairs, sta
     if len(rig.cameras) < 3 or not len(pairs):
         return error  # two cameras cannot say which of them is out of time
     ids = rig.ids
-    whole = whole_frame_shifts(rig, pairs, static_poses, tracks)
+    try:
+        whole = whole_frame_shifts(rig, pairs, static_poses, tracks)
+    except (np.linalg.LinAlgError, FloatingPointError, ValueError):
+        return error  # numbers too extreme for the search (a damaged rig.json): the start's own refusal stands
     if whole:
         named = "; ".join(f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its frames "
                           f"shifted, {abs(d)} frame{'s' if abs(d) != 1 else ''} {'late' if d > 0 else 'early'} "
                           f"(offset {d:+d}: positive is late)" for c, d in whole.items())
     else:
-        fraction = fractional_shift(rig, pairs, static_poses, tracks, error.camera if isinstance(error, UnplacedCamera) else None)
+        try:
+            fraction = fractional_shift(rig, pairs, static_poses, tracks,
+                                        error.camera if isinstance(error, UnplacedCamera) else None)
+        except (np.linalg.LinAlgError, FloatingPointError, ValueError):
+            fraction = None
         if fraction is None:
             return error
         c, d = fraction

@@ -125,6 +125,7 @@ ALLOWED = {
     # server set one thread at its start, so concurrent solves cannot leave the count changed
     ("calib/solve/ba/adjust.py", "threadpool_limits("),
     ("calib/solve/lp.py", "threadpool_limits("),
+    ("calib/solve/paper.py", "threadpool_limits("),
     # the memory policy of a command that computes once and exits, taken by the CLI's own process
     # only (service/cli/__init__.py: never by the server, a worker or an in-process caller)
     ("service/cli/support/batch_memory.py", "mallopt("),
