@@ -290,7 +290,7 @@ def arrow_lp(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProblem, 
     link = np.zeros((lp.n_cameras + len(X), 3))
     link[lp.n_cameras :] = np.stack([-d, d], axis=1).reshape(-1, 3)
     # the observation rows' y = y' - 1 with y' in [0, 2]: A^T 1 moves to the right-hand side
-    return replace(lp, r=lp.times(np.where(obs, 1.0, 0.0)), link=link.ravel(), link_cost=p.length * len(d))
+    return lp.with_rhs(lp.times(np.where(obs, 1.0, 0.0)), link.ravel(), p.length * len(d))
 
 
 class _Entries:
