@@ -12,6 +12,7 @@ from wandcal.calib.solve.paper import (
     ROUND_TOL,
     WINDOW,
     algebraic_residuals,
+    arrow_lp,
     height_pairs,
     lp_step,
     refine_paper,
@@ -101,6 +102,34 @@ def test_paper_lp_warm_start_reaches_the_cold_optimum():
     assert warm.iterations < cold_ipm.iterations
     # the warm solve's point attains that optimum
     assert np.isclose(np.abs(algebraic_residuals(R2, t_w, X_w, setup.problem)).sum(), cold.objective, rtol=1e-6)
+
+
+def test_paper_lp_carries_its_structure_from_round_to_round_without_changing_the_answer():
+    """A round's warm start carries the sparse sums the last solve built (they depend only on which
+    point and camera each row touches); the next round's answer is the one a fresh build gives,
+    and the carried sums are refused for an LP whose rows touch other points."""
+    from dataclasses import replace
+
+    from wandcal.calib.solve.backend.arrowlp import solve
+
+    sc = prepared(cameras=4, frames=120, noise_px=NOISE, seed=2)
+    setup, m = sc.setup, sc.setup.model
+    up = np.array([0.0, 0.0, 1.0])
+    X = m.wand(m.x0()).reshape(-1, 3)
+    heights = height_pairs(m.R0, m.t0, X, up)
+    R1 = rotation_step(m.R0, m.t0, X, setup.problem, m.fixed)
+    t1, X1, first = lp_step(R1, m.t0, X, setup.problem, m.fixed, up, heights=heights)
+    assert first.basis.sums is not None and first.basis.sums.fits(arrow_lp(R1, m.t0, X, setup.problem, m.fixed, up,
+                                                                          heights))
+    R2 = rotation_step(R1, t1, X1, setup.problem, m.fixed)
+    lp2 = arrow_lp(R2, t1, X1, setup.problem, m.fixed, up, heights)
+    carried = solve(lp2, first.basis)
+    fresh = solve(arrow_lp(R2, t1, X1, setup.problem, m.fixed, up, heights), replace(first.basis, sums=None))
+    assert carried.status == fresh.status == "optimal"
+    assert carried.iterations == fresh.iterations and np.array_equal(carried.v, fresh.v)
+    # with the rows' points permuted, the carried sums do not fit and are built afresh
+    other = replace(lp2, point=lp2.point[::-1].copy())
+    assert not first.basis.sums.fits(other)
 
 
 def test_paper_method_runs_to_a_fixed_point():
