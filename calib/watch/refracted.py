@@ -89,13 +89,19 @@ class Refracted:
             X = self._gauss_newton_step(p, c, xy, X)
         return X
 
-    def _gauss_newton_step(self, p, c, xy, X):
-        r = self.residuals(p, c, xy, X)
+    def jacobians(self, p: np.ndarray, c: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """(M, 2, 3) d(normalised projection of view m)/d(its point X[p[m]]), per metre (central
+        differences of :data:`STEP_M`)."""
         J = np.empty((len(p), 2, 3))
         for k in range(3):
             dX = np.zeros(3)
             dX[k] = STEP_M
-            J[:, :, k] = (self._project_views(p, c, X + dX) - self._project_views(p, c, X - dX)) / (2 * STEP_M)
+            J[:, :, k] = (self.project_views(p, c, X + dX) - self.project_views(p, c, X - dX)) / (2 * STEP_M)
+        return J
+
+    def _gauss_newton_step(self, p, c, xy, X):
+        r = self.residuals(p, c, xy, X)
+        J = self.jacobians(p, c, X)
         good = np.isfinite(r).all(1) & np.isfinite(J).all((1, 2))
         A = np.zeros((len(X), 3, 3))
         g = np.zeros((len(X), 3))
@@ -106,7 +112,8 @@ class Refracted:
         step[solvable] = np.linalg.solve(A[solvable], g[solvable][..., None])[..., 0]
         return X - step
 
-    def _project_views(self, p, c, X):
+    def project_views(self, p: np.ndarray, c: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """(M, 2) normalised projection of view m's point X[p[m]] (X (P, 3)) in its camera c[m]."""
         out = np.full((len(p), 2), np.nan)
         for cam in np.unique(c):
             sel = c == cam
@@ -114,7 +121,7 @@ class Refracted:
         return out
 
     def residuals(self, p, c, xy, X):
-        return self._project_views(p, c, X) - xy
+        return self.project_views(p, c, X) - xy
 
 
 def _segment_distance(x: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:

@@ -102,7 +102,8 @@ def read_camera(ori: Path, addpar: Path, control: ControlPar, camera_id: str) ->
     f = np.array([cc / control.pix_x, cc / control.pix_y])
     K = np.array([[f[0], 0.0, control.imx / 2 + xh / control.pix_x - PIXEL_CORNER],
                   [0.0, f[1], control.imy / 2 - yh / control.pix_y - PIXEL_CORNER], [0.0, 0.0, 1.0]])
-    R = FLIP @ dm.T
+    u, _, vt = np.linalg.svd(dm)  # the nearest rotation: the file prints dm to 7 digits, orthonormal to ~1e-7
+    R = FLIP @ (u @ vt).T
     t = -R @ (centre * MM)
     distance = float(np.linalg.norm(glass))
     window = FlatWindow(glass / distance, distance * MM, control.thickness_mm * MM,
