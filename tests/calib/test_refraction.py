@@ -11,8 +11,9 @@ from wandcal.calib.refraction import FlatWindow, nearest_to_rays, project_throug
 ROUNDING_M = 1e-12  # float64 on paths of ~0.6 m: ~1e-16 relative, a thousandfold margin for the iterations
 
 
-def look_at(C, target=np.zeros(3)):
-    """(R, t) of a camera at C (3,) looking at target, image y along world -y where it can."""
+def look_at(C, target=None):
+    """(R, t) of a camera at C (3,) looking at target (the origin if None), image y along world -y."""
+    target = np.zeros(3) if target is None else target
     z = (target - C) / np.linalg.norm(target - C)
     x = np.cross([0.0, -1.0, 0.0], z)
     x /= np.linalg.norm(x)
@@ -95,12 +96,12 @@ def test_nearest_to_rays_meets_the_rays():
 
 
 @pytest.mark.parametrize("kwargs, words", [
-    (dict(normal=[0, 0, 0]), "normal"),
-    (dict(n_air=1.5, n_glass=1.49), "least dense"),
-    (dict(thickness=-0.001), "thickness"),
+    ({"normal": [0, 0, 0]}, "normal"),
+    ({"n_air": 1.5, "n_glass": 1.49}, "least dense"),
+    ({"thickness": -0.001}, "thickness"),
 ])
 def test_bad_windows_are_refused(kwargs, words):
-    args = dict(normal=[0, 0, 1], distance=0.1, thickness=0.006, n_air=1.0, n_glass=1.49, n_water=1.33) | kwargs
+    args = {"normal": [0, 0, 1], "distance": 0.1, "thickness": 0.006, "n_air": 1.0, "n_glass": 1.49, "n_water": 1.33} | kwargs
     with pytest.raises(CalibrationError, match=words):
         FlatWindow(**args)
 

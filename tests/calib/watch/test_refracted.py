@@ -4,7 +4,7 @@ OpenPTV's (calib/sim/cavity.py: two cameras on each side of a water-filled glass
 import numpy as np
 
 from wandcal.calib.refraction import project_through_window, trace_into_medium
-from wandcal.calib.sim.cavity import FOCAL_PX, simulate_cavity, one_particle
+from wandcal.calib.sim.cavity import FOCAL_PX, one_particle, simulate_cavity
 from wandcal.calib.watch.match import MatchCounts, match_frames
 from wandcal.calib.watch.refracted import CURVE_SAMPLES, Refracted
 from wandcal.calib.watch.take import pad_frames
