@@ -18,6 +18,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -43,6 +44,9 @@ DOT_GATE_PX = 5.0  # a calibration dot's own detection: the target this near its
 # cameras' error on the calibration dots is ~1 px, so they are widened by this factor (its epipolar
 # band, 4 px, is then OpenPTV's own eps0 = 0.05 mm = 4.2 px of criteria.par)
 REAL_SCALE = 2.0
+# a simulated target's pixel count, extent and grey sum: the real frame's typical (the correspondence's size and
+# brightness criteria then pass alike for every candidate)
+TARGET_N, TARGET_EXTENT, TARGET_SUMG = 13, 4, 200
 AGREE_TAIL = 0.9973  # two 3D points of one particle agree inside the point's 3-sigma (99.73%) ellipsoid
 
 
@@ -248,21 +252,76 @@ def _mahalanobis(mine: dict, rows: np.ndarray, d: np.ndarray, sigma_px: float) -
 
 
 def simulated_lines(particles: int, sigma: float) -> list[str]:
-    """The matcher against the truth on simulated cavities (calib/sim/cavity.py) at the real frame's
+    """Both matchers against the truth on simulated cavities (calib/sim/cavity.py) at the real frame's
     density: 0.3 px (the simulated takes' noise) and the calibration dots' rms."""
     lines = [f"Simulated cavity (calib/sim/cavity.py: the same shape, {particles} particles a frame as the real frame's "
-             "largest camera holds, every particle seen by all four cameras, seed 1):", "",
-             "| noise | gates | tracks that are one particle's | particles found | 3D error, median |", "|---|---|---|---|---|"]
+             "largest camera holds, every particle seen by all four cameras, seed 1; OpenPTV given the same cameras "
+             "and targets as its own project files, criteria.par as the real one's):", "",
+             "| noise | matcher | in 4 / 3 / 2 cameras | matches that are one particle's | particles found in 3-4 | "
+             "3D error, median |", "|---|---|---|---|---|---|"]
     for noise, scale in ((0.3, 1.0), (sigma, 1.0), (sigma, REAL_SCALE)):
         frame = simulate_cavity(particles, noise_px=noise, seed=1)
         model = Refracted(frame.R, frame.t, frame.windows, frame.depth, np.full(len(frame.R), FOCAL_PX))
         tol = Tolerances(*(scale * np.array(dataclasses.astuple(Tolerances()))))
         tr = match_frames(frame.rig, frame.R, frame.t, pad_frames(frame.rig, frame.blobs), model=model, tolerances=tol)
-        who = one_particle(frame, tr.views)
-        err = np.linalg.norm(tr.X[who >= 0] - frame.X[who[who >= 0]], axis=1) * 1e3
-        lines.append(f"| {noise:.2f} px | x{scale:g} | {(who >= 0).mean():.2%} of {len(tr)} | "
-                     f"{len(np.unique(who[who >= 0])) / particles:.1%} | {np.median(err):.3f} mm |")
+        n = (tr.views >= 0).sum(1)
+        lines.append(_truth_row(f"{noise:.2f} px", f"wandcal, gates x{scale:g}", frame, tr.views, tr.X, n, particles))
+        if scale != 1.0:
+            continue
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = write_openptv_project(frame, Path(tmp))
+            opt = openptv(Path(tmp))
+        if opt is None:
+            continue
+        views = np.where(opt["views"] >= 0, rows[np.arange(len(frame.R))[None], np.maximum(opt["views"], 0)], -1)
+        lines.append(_truth_row(f"{noise:.2f} px", "OpenPTV (optv)", frame, views, opt["X"], (views >= 0).sum(1), particles))
     return lines
+
+
+def _truth_row(noise: str, label: str, frame, views: np.ndarray, X: np.ndarray, n: np.ndarray, particles: int) -> str:
+    who = one_particle(frame, views)
+    big = n >= 3
+    err = np.linalg.norm(X[who >= 0] - frame.X[who[who >= 0]], axis=1) * 1e3
+    pairs = f"{(who[n == 2] >= 0).mean():.1%} of pairs" if (n == 2).any() else "no pairs"
+    return (f"| {noise} | {label} | {(n == 4).sum()} / {(n == 3).sum()} / {(n == 2).sum()} | "
+            f"{(who[big] >= 0).mean():.2%} of those in 3-4; {pairs} | "
+            f"{len(np.unique(who[big & (who >= 0)])) / particles:.1%} | {np.median(err):.3f} mm |")
+
+
+def write_openptv_project(frame, folder: Path) -> np.ndarray:
+    """A simulated cavity frame as OpenPTV's project files in ``folder`` (ptv.par, criteria.par as
+    the real one's, camN.tif.ori / .addpar, img/camN.10000_targets sorted by y as OpenPTV sorts
+    them). Returns (C, K) each camera's target number -> the frame's blob row (-1 past its count)."""
+    (folder / "parameters").mkdir()
+    (folder / "cal").mkdir()
+    (folder / "img").mkdir()
+    cam0, w0 = frame.rig.cameras[0], frame.windows[0]
+    pix = 0.012  # the cavity's pixel pitch, mm
+    names = "\n".join(f"img/cam{i}.\ncal/cam{i}.tif" for i in range(1, 5))
+    (folder / "parameters" / "ptv.par").write_text(
+        f"{len(frame.R)}\n{names}\n1\n0\n1\n{cam0.width}\n{cam0.height}\n{pix}\n{pix}\n0\n{w0.n_air}\n"
+        f"{w0.n_glass}\n{w0.n_water}\n{w0.thickness / MM}\n")
+    (folder / "parameters" / "criteria.par").write_text((ROOT / "parameters" / "criteria.par").read_text())
+    table = np.full((len(frame.R), np.bincount(frame.blobs.camera).max()), -1)
+    for c, cam in enumerate(frame.rig.cameras):
+        dm = frame.R[c].T @ np.diag([1.0, -1.0, -1.0])  # capture/formats/openptv.py's conversion, inverted
+        angles = (np.arctan2(-dm[1, 2], dm[2, 2]), np.arcsin(dm[0, 2]), np.arctan2(-dm[0, 1], dm[0, 0]))
+        centre = -frame.R[c].T @ frame.t[c] / MM
+        glass = frame.windows[c].normal * frame.windows[c].distance / MM
+        rows = "\n".join(" ".join(f"{v:.12f}" for v in r) for r in dm)
+        (folder / "cal" / f"cam{c + 1}.tif.ori").write_text(
+            f"{' '.join(f'{v:.12f}' for v in centre)}\n{' '.join(f'{v:.15f}' for v in angles)}\n\n{rows}\n\n"
+            f"{(cam.K[0, 2] + PIXEL_CORNER - cam.width / 2) * pix:.8f} {(cam.height / 2 - cam.K[1, 2] - PIXEL_CORNER) * pix:.8f}\n"
+            f"{cam.K[0, 0] * pix:.8f}\n\n{' '.join(f'{v:.12f}' for v in glass)}\n")
+        (folder / "cal" / f"cam{c + 1}.tif.addpar").write_text("0 0 0 0 0 1 0\n")
+        mine = np.flatnonzero(frame.blobs.camera == c)
+        mine = mine[np.argsort(frame.blobs.uv[mine, 1], kind="stable")]
+        table[c, :len(mine)] = mine
+        uv = frame.blobs.uv[mine] + PIXEL_CORNER
+        body = "\n".join(f"{k:4d} {x:9.4f} {y:9.4f} {TARGET_N} {TARGET_EXTENT} {TARGET_EXTENT} {TARGET_SUMG} -1"
+                         for k, (x, y) in enumerate(uv))
+        (folder / "img" / f"cam{c + 1}.{FRAME}_targets").write_text(f"{len(mine)}\n{body}\n")
+    return table
 
 
 def model_lines(cams: OpenPTVCameras) -> list[str]:
