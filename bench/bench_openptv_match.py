@@ -184,8 +184,8 @@ def table(cams, blobs, first, tnr) -> list[str]:
         xy = mine["padded"].xy_of((opt["views"] + first[None])[p, c])
         res = mine["model"].residuals(p, c, xy, opt["X"]) * mine["focal"][c][:, None]
         lines.append(f"| OpenPTV 0.3.2 (optv), its criteria.par (eps0 0.05 mm) | {opt['sizes'][0]} | {opt['sizes'][1]} | "
-                     f"{opt['sizes'][2]} | {n.sum() / n_targets.sum():.1%} ({(n >= 3).sum() and n[n >= 3].sum() / n_targets.sum():.1%} "
-                     f"in 3-4) | {np.sqrt((res[n[p] >= 3] ** 2).sum(1).mean()):.2f} px (3-4 cameras) | {opt['cpu']:.2f} s |")
+                     f"{opt['sizes'][2]} | {n.sum() / n_targets.sum():.1%} ({n[n >= 3].sum() / n_targets.sum():.1%} in 3-4) | "
+                     f"{np.sqrt((res[n[p] >= 3] ** 2).sum(1).mean()):.2f} px (3-4 cameras, its points) | {opt['cpu']:.2f} s |")
     data = _data_tnr(blobs, tnr)
     lines.append(f"| the data's own (`tnr` of img/camN.10000_targets, an earlier OpenPTV calibration) | {data[4]} | "
                  f"{data[3]} | {data[2]} | {sum(k * v for k, v in data.items()) / n_targets.sum():.1%} | | |")
