@@ -83,18 +83,59 @@ def create_job(body: JobCreate, state: State) -> JobPublic:
             404, f"no capture with id {body.capture_id!r}; create one with POST /api/v1/captures"
         ) from None
     seeing = capture.cameras_seeing_wand()
-    if len(seeing) < MIN_CAMERAS:
+    if len(seeing) < MIN_CAMERAS and len(_cameras_seeing_points(state, capture.id)) < MIN_CAMERAS:
         if not seeing:
-            why = "no camera has wand observations yet; upload wand.csv or stream frame sets first"
+            why = ("no camera has wand observations yet, nor do two cameras share point tracks; upload wand.csv "
+                   "(or points.csv) or stream frame sets first")
         else:
             why = (
                 f"only camera {seeing[0]!r} saw the wand; calibration needs at least {MIN_CAMERAS} cameras "
                 "that see it, so wave the wand where the other cameras see it too"
             )
         raise HTTPException(422, f"capture {capture.id} cannot be calibrated: {why}")
+    if body.options.from_job:
+        _check_standing(state, body, capture.id)
     record = state.queue.store.create(capture.id, body.method.value, body.options.model_dump())
     state.queue.submit(record)
     return to_public(record, state)
+
+
+def _cameras_seeing_points(state, capture_id: str) -> list[str]:
+    """The cameras with point tracks (points.csv): a capture without a wand calibrates from them."""
+    import numpy as np
+
+    from wandcal.calib.errors import CalibrationError
+
+    try:
+        points = state.captures.load(capture_id).points
+    except CalibrationError:  # an empty streamed capture reads as none: the caller says what to send
+        return []
+    if points is None or not len(points):
+        return []
+    rig = state.captures.rig(capture_id)
+    return [rig.ids[k] for k in np.unique(points.camera)]
+
+
+def _check_standing(state, body: JobCreate, capture_id: str) -> None:
+    """A ``solve_only`` job's ``from_job``: a done job whose result is of this capture's rig, and
+    ``solve_only`` ids of its cameras; else a 4xx naming the field."""
+    from wandcal.capture.result_file import result_from_json
+    from wandcal.service.standing_result import in_capture_order
+
+    standing = state.queue.refresh(body.options.from_job) if len(body.options.from_job or "") <= 64 else None
+    if standing is None:
+        raise HTTPException(422, f"options.from_job: no job with id {body.options.from_job!r}; give the id of a done "
+                                 "job whose result stands (GET /api/v1/jobs)")
+    if standing.state is not JobState.done or standing.result is None:
+        raise HTTPException(409, f"options.from_job: job {standing.id} is {standing.state.value}, it has no result "
+                                 "to re-solve from; wait until it is done")
+    source = f"options.from_job: the result of job {standing.id}"
+    rig = state.captures.rig(capture_id)
+    in_capture_order(result_from_json(standing.result, source), rig, source)  # CalibrationError: 422
+    unknown = [cid for cid in body.options.solve_only if cid not in rig.ids]
+    if unknown:
+        raise HTTPException(422, f"options.solve_only: unknown camera id {unknown[0]!r}; capture {capture_id} has "
+                                 f"{', '.join(rig.ids)}")
 
 
 @router.get("", response_model=JobList, responses={401: UNAUTHORISED}, summary="List jobs, newest first")
