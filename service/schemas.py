@@ -421,6 +421,8 @@ class GuidanceSolve(BaseModel):
     offsets: dict[str, int] | None = Field(None, description="under sync auto: each camera's whole-frame offset found "
                                            "from the wand (cameras at 0 left out); null under none or while the "
                                            "frames cannot tell yet")
+    points_only: bool = Field(False, description="a rig without a wand: coverage and links from its point tracks "
+                              "(points.csv), and no centre sigma in mm (no scale)")
 
 
 class GuidancePublic(BaseModel):

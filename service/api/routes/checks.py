@@ -1,6 +1,6 @@
 """``wandcal check`` over HTTP: judge a standing result's cameras against a stored capture. Answered
 at once, not queued: the check is bounded (leave-one-out errors and at most one resection per moved
-camera, 0.03 s at 16 cameras and 0.4 s at 128; docs/decisions/0043-check-over-http.md)."""
+camera: 0.3 CPU s a request at 16 cameras and 0.6 at 128; docs/decisions/0043-check-over-http.md)."""
 
 from __future__ import annotations
 

@@ -107,13 +107,12 @@ def _cameras_seeing_points(state, capture_id: str) -> list[str]:
     from wandcal.calib.errors import CalibrationError
 
     try:
-        points = state.captures.load(capture_id).points
+        capture = state.captures.load(capture_id)
     except CalibrationError:  # an empty streamed capture reads as none: the caller says what to send
         return []
-    if points is None or not len(points):
+    if capture.points is None or not len(capture.points):
         return []
-    rig = state.captures.rig(capture_id)
-    return [rig.ids[k] for k in np.unique(points.camera)]
+    return [capture.rig.ids[k] for k in np.unique(capture.points.camera)]
 
 
 def _check_standing(state, body: JobCreate, capture_id: str) -> None:
@@ -130,7 +129,7 @@ def _check_standing(state, body: JobCreate, capture_id: str) -> None:
         raise HTTPException(409, f"options.from_job: job {standing.id} is {standing.state.value}, it has no result "
                                  "to re-solve from; wait until it is done")
     source = f"options.from_job: the result of job {standing.id}"
-    rig = state.captures.rig(capture_id)
+    rig = state.captures.load(capture_id).rig  # (CaptureStore.rig reads no rig without a wand)
     in_capture_order(result_from_json(standing.result, source), rig, source)  # CalibrationError: 422
     unknown = [cid for cid in body.options.solve_only if cid not in rig.ids]
     if unknown:
