@@ -8,6 +8,7 @@ Small rigs (4 cameras, 300 frames, 0.3 px) keep it fast."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -43,8 +44,6 @@ def _write_kind(name: str, folder: Path) -> None:
     if name in ("wand_points", "points_only"):
         points = pairwise_points(sim, 400, np.random.default_rng(5), third=0.8)
     if name == "points_only":
-        import dataclasses
-
         no_wand = WandObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)))
         write_capture(folder, dataclasses.replace(sim.rig, wand_length=None), no_wand, None, points)
         return
@@ -107,6 +106,13 @@ def test_check_over_http_answers_as_the_command_line(kind, kinds, app_client):  
                                atol=1e-9)  # the same solve in another process: rounding only
     again = c.post(f"/captures/{capture_id}/check", json={"job_id": job["id"]}).json()
     assert again["exit_code"] == 0 and again["job_id"] == job["id"]
+    # and its export is the command line's export of the same result
+    standing = folder.parent / f"{kind}-job.json"
+    standing.write_text(json.dumps(job["result"]))
+    r = wandcal("export", standing, "--format", "anipose-toml")
+    assert r.returncode == 0, r.stderr
+    exported = c.get(f"/jobs/{job['id']}/result", params={"format": "anipose-toml"})
+    assert exported.status_code == 200 and exported.text == r.stdout, exported.text
 
 
 @pytest.mark.parametrize("kind", ["lframe", "three_marker", "planar"])
@@ -157,10 +163,14 @@ def test_guidance_over_http_is_the_command_lines(kind, kinds, app_client):  # no
     assert http["solve"]["ok"] and http["solve"].get("points_only", False) == cli["solve"].get("points_only", False)
 
 
-def test_bad_check_and_solve_only_requests_are_4xx_naming_the_field(kinds, app_client):  # noqa: F811
+def test_bad_check_and_solve_only_requests_are_4xx_naming_the_field(kinds, app_client, tmp_path):  # noqa: F811
     app, c = app_client()
     capture_id = upload(c, kinds["lframe"])
-    other = upload(c, kinds["points_only"])
+    sim = simulate_capture(3, 60, 0.3, 0.0, False, 2)  # another rig: other camera ids
+    rig = dataclasses.replace(sim.rig, cameras=tuple(dataclasses.replace(cam, id=f"wall{k}")
+                                                     for k, cam in enumerate(sim.rig.cameras)))
+    write_capture(tmp_path / "other", rig, sim.wand, None)
+    other = upload(c, tmp_path / "other")
     base = solved(app, c, capture_id)
     cases = [
         (c.post(f"/captures/{capture_id}/check", json={}), 422, "give one of job_id"),

@@ -217,12 +217,23 @@ async def get_result(
     else:
         from wandcal.capture.formats import export
 
-        rig = await run_in_threadpool(state.captures.rig, record.capture_id)
+        rig = await run_in_threadpool(_capture_rig, state, record.capture_id)
         text = export.export(record.result, format.value, rig, unit=unit, origin=origin)
     return Response(
         text, media_type=media,
         headers={"Content-Disposition": f'attachment; filename="wandcal-{job_id[:8]}.{ext}"'},
     )
+
+
+def _capture_rig(state, capture_id: str):
+    """The job's capture's rig; a rig without a wand (a points-only capture), which
+    ``CaptureStore.rig`` does not read, from the capture itself."""
+    from wandcal.capture.rig_file import CaptureFormatError
+
+    try:
+        return state.captures.rig(capture_id)
+    except CaptureFormatError:
+        return state.captures.load(capture_id).rig
 
 
 # -- the illustrated report (service/report) --------------------------------------------------
