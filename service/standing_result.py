@@ -9,9 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
-from wandcal.calib.errors import CalibrationError
+from wandcal.service.cli.support.exits import FAULT, NO_ANSWER, OK  # the command line's one table (constants only)
 
-if TYPE_CHECKING:  # the command line imports this module to register 'check': nothing heavy at import
+if TYPE_CHECKING:  # the types only: each function imports the solver parts it runs
     from wandcal.calib.judge.bumps import RigCheck
     from wandcal.calib.rig import Rig
     from wandcal.calib.run.options import CalibrationOptions
@@ -19,9 +19,9 @@ if TYPE_CHECKING:  # the command line imports this module to register 'check': n
     from wandcal.capture.folder import Capture
     from wandcal.capture.result_file import ResultFile
 
-EXIT_AGREES = 0  # wandcal check: every camera agrees with the others
-EXIT_MOVED = 1  # wandcal check: a camera moved (named)
-EXIT_UNJUDGED = 3  # wandcal check: some camera could not be judged, or no knock explains the disagreement
+EXIT_AGREES = OK  # wandcal check: every camera agrees with the others
+EXIT_MOVED = FAULT  # wandcal check: a camera moved (named)
+EXIT_UNJUDGED = NO_ANSWER  # wandcal check: some camera could not be judged, or no knock explains the disagreement
 VERDICTS = {EXIT_AGREES: "agrees", EXIT_MOVED: "moved", EXIT_UNJUDGED: "unjudged"}  # "rebuilt" is also exit 3
 
 
@@ -29,6 +29,7 @@ def in_capture_order(prev: ResultFile, capture_rig: Rig, source: str):
     """The result's cameras (calibrated intrinsics, poses and figures) in the capture's camera order:
     (rig, R (N, 3, 3), t (N, 3) world->camera metres, [CameraFigures]). Raises CalibrationError,
     naming ``source``, when the capture is not of the result's rig."""
+    from wandcal.calib.errors import CalibrationError
     from wandcal.calib.judge.evaluate import rig_mismatches
 
     mismatch = rig_mismatches(prev.rig, capture_rig)
@@ -46,6 +47,8 @@ def _has_wand(cap: Capture) -> bool:
 
 def checkable(cap: Capture, capture_name: str) -> None:
     """Raise CalibrationError, naming the capture, when it has neither a wand nor point tracks."""
+    from wandcal.calib.errors import CalibrationError
+
     if not _has_wand(cap) and (cap.points is None or not len(cap.points)):
         raise CalibrationError(f"{capture_name}: has no wand blobs and no point tracks (points.csv); 'wandcal check' "
                                "needs a fresh capture of the wand or of points seen by several cameras at once")
@@ -105,6 +108,7 @@ def solve_only_capture(prev: ResultFile, cap: Capture, cameras: list[str], optio
     """Re-solve ``cameras`` of the standing result ``prev`` from the fresh capture ``cap``; every
     other camera keeps its pose exactly, and the world frame is the result's
     (:func:`wandcal.calib.run.resolve.solve_only`, which refuses a method other than ba)."""
+    from wandcal.calib.errors import CalibrationError
     from wandcal.calib.run.resolve import solve_only
 
     rig, R, t, entries = in_capture_order(prev, cap.rig, source)

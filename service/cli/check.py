@@ -6,7 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wandcal.service.standing_result import EXIT_MOVED, EXIT_UNJUDGED  # noqa: F401  (named here before)
+# the exit statuses (0 agrees, 1 moved, 3 no answer) are wandcal.service.standing_result's, which the
+# HTTP check answers with too; imported when the command runs (--help loads no numerical package)
 
 
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:

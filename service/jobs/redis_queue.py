@@ -29,18 +29,10 @@ from collections.abc import Callable
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import Capture
-from wandcal.drivers.capture_files import (
-    AXIS_FILE,
-    DROP_FILE,
-    FLOOR_FILE,
-    POINTS_FILE,
-    RIG_FILE,
-    STATIC_FILE,
-    WAND_FILE,
-)
 from wandcal.service.jobs.queue import QueueUnavailable
 from wandcal.service.jobs.records import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
 from wandcal.service.jobs.worker import JobStopped, ThrottledProgress, solve, standing_result
+from wandcal.service.storage import CAPTURE_FILES
 
 JOB_TIMEOUT_S = 3600  # a large rig with the LP method stays well under an hour on a small PC
 RESULT_TTL_S = 7 * 24 * 3600  # results are copied into SQLite on the first poll; a week is ample
@@ -79,8 +71,7 @@ def _unreachable() -> tuple[type[Exception], ...]:
     return ConnectionError, TimeoutError
 
 
-# the files of a points-level capture a solve reads (capture/folder.py read_capture), sent in the payload
-PAYLOAD_FILES = (RIG_FILE, WAND_FILE, STATIC_FILE, POINTS_FILE, AXIS_FILE, FLOOR_FILE, DROP_FILE)
+PAYLOAD_FILES = CAPTURE_FILES  # the files of a points-level capture a solve reads, sent in the payload
 
 
 def capture_payload(folder_texts: dict[str, str | None], method: str, options: dict,
