@@ -43,7 +43,7 @@ from wandcal.calib.solve.wandmodel import WandProblem
 
 BOUND_M = 10.0  # the paper's box on every translation and point coordinate
 HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
-MAX_ROUNDS = 300  # a round takes ~0.5 s of CPU at 8 x 1500 (decision 0033)
+MAX_ROUNDS = 300  # a round takes ~0.35 s of CPU at 8 x 1500 (decisions 0033, 0045)
 # Convergence. The rounds approach their fixed point linearly and slowly (each moves the cameras
 # ~2% of the way at 8 x 1500), so one round's move says little about the distance left, and the
 # LP's jumps between vertices make single moves noisy. The distance left is estimated from the
