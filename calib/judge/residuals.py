@@ -209,3 +209,60 @@ def median_ray_angle(R: np.ndarray, res: Residuals) -> float | None:
     lead = np.maximum.accumulate(np.where(first, np.arange(len(k)), 0))
     cos = np.einsum("mi,mi->m", r, r[lead])[~first]
     return float(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))) if len(cos) else None
+
+
+def _place_information(R: np.ndarray, res: Residuals, rows: np.ndarray, views: np.ndarray) -> np.ndarray:
+    """(K, 6, 6) each of ``rows``' information on its camera's turn about its own centre and its
+    centre (per unit noise): J^T J of the projection at the point (from its depth along the
+    projected ray), times 1 - 1/n for a point of n views (the point takes up 1/n of the error)."""
+    c = res.camera[rows]
+    ray = np.concatenate([res.xy[rows] + res.residual[rows], np.ones((len(rows), 1))], axis=1)
+    Xc = ray * res.depth[rows][:, None]
+    z = Xc[:, 2]
+    D = np.zeros((len(rows), 2, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1 / z
+    D[:, :, 2] = -Xc[:, :2] / z[:, None] ** 2
+    skew = np.zeros((len(rows), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -Xc[:, 2], Xc[:, 1], -Xc[:, 0]
+    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = Xc[:, 2], -Xc[:, 1], Xc[:, 0]
+    J = np.concatenate([-D @ skew, -D @ R[c]], axis=2)  # (K, 2, 6): d projection / d (turn, centre)
+    return np.einsum("kai,kaj->kij", J, J) * (1.0 - 1.0 / np.maximum(views, 2))[:, None, None]
+
+
+def place_sigma_errors(R: np.ndarray, res: Residuals, n_cameras: int) -> list[float | None]:
+    """Per camera: the relative standard error of its place's sigma from how the information that
+    places it is spread over its points (a wand frame, a point track), the bootstrap's over them.
+
+    A sigma from the solver's covariance is sum-of-information driven: ``sigma^2 = tr(P I^-1)``,
+    ``I = sum_f I_f`` over the camera's points f. Resampling the points changes it, to first order,
+    by ``g_f = tr(P I^-1 I_f I^-1)`` each (their sum is sigma^2), so sigma^2's standard error is
+    ``sqrt(n/(n-1) sum (g_f - mean g)^2)`` and sigma's half of it, relative. A camera placed by many
+    alike points gets a few per cent; one that hinges on its few best-placed frames (a point far
+    off its axis, seen from afar) gets 20% and more: its sigma would change that much with the
+    frames a capture happened to catch. Gross outliers (``res.outlier``) are left out. None for a
+    camera with fewer than two points or a singular information matrix. R: (N, 3, 3) poses."""
+    inl = np.flatnonzero(~res.outlier & np.isfinite(res.depth) & (res.depth > 0))
+    _, where, counts = np.unique(res.point[inl], return_inverse=True, return_counts=True)
+    views = counts[where]
+    out: list[float | None] = []
+    for c in range(n_cameras):
+        mine = res.camera[inl] == c
+        rows = inl[mine]
+        unit = np.where(res.point[rows] >= 0, res.point[rows] // 2, res.point[rows])  # a frame's two ends together
+        _, group = np.unique(unit, return_inverse=True)
+        n = int(group.max()) + 1 if len(group) else 0
+        if n < 2:
+            out.append(None)
+            continue
+        per_point = np.zeros((n, 6, 6))
+        np.add.at(per_point, group, _place_information(R, res, rows, views[mine]))
+        try:
+            cov = np.linalg.inv(per_point.sum(axis=0))
+        except np.linalg.LinAlgError:
+            out.append(None)
+            continue
+        P = cov[:, 3:]  # the centre's columns
+        g = np.einsum("ia,fij,ja->f", P, per_point, P)
+        total = float(g.sum())
+        out.append(0.5 * float(np.sqrt(n / (n - 1) * np.sum((g - g.mean()) ** 2))) / total if total > 0 else None)
+    return out

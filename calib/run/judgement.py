@@ -31,6 +31,7 @@ from wandcal.calib.judge.residuals import (
     held_out,
     median_ray_angle,
     observation_residuals,
+    place_sigma_errors,
 )
 from wandcal.calib.judge.verdict import (
     NOISE_RATIO,
@@ -319,7 +320,8 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     extent = res.extent if res.extent > 0 else None
     judged = [replace(cam, judged=_judged(cam, fig, cov, extent))
               for cam, fig, cov in zip(cameras, figures, coverage_reports(rig, *seen))]
-    docs = [c.to_json() for c in judged]
+    # each camera's sigma's own standard error, for the verdict's "at the limit" (not written)
+    docs = [c.to_json() | {"geometry_std_rel_se": se} for c, se in zip(judged, place_sigma_errors(R, res, len(rig.cameras)))]
     faults = few_camera_faults(rig, labelled, tracks, R, t, figures, res) + input_faults(rig, world_doc, solver_doc, docs)
     angle = median_ray_angle(R, res)
     if angle is not None and angle < np.radians(MIN_RAY_ANGLE_DEG):
