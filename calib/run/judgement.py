@@ -230,6 +230,22 @@ def in_time(labelled: WandPairs, n_cameras: int, c: int, offset: float) -> WandP
     return resample(labelled, timing)[0]
 
 
+def _solved_again(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Every camera's pose refined again (``ba``, robust, from R, t) on these wand pairs and the
+    point tracks: a sparse session's background points place its cameras as much as its wand."""
+    from wandcal.calib.run.options import CalibrationOptions
+    from wandcal.calib.run.refine import build_problem, refine, triangulated, up_direction
+
+    setup = build_problem(rig, labelled, R, t, 0)
+    X = None
+    if tracks is not None and len(tracks):
+        tracks, X = triangulated(R, t, tracks)
+    r = refine(rig, labelled, setup, tracks, X, "ba", CalibrationOptions(), lambda event: None,
+               up_direction(rig, R, t, setup), final=False)
+    return r.R, r.t
+
+
 def beside_timing(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                   timing: dict) -> list[dict]:
     """The faults of the other cameras beside one out of time (``timing``, its fault): its samples
@@ -246,7 +262,7 @@ def beside_timing(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: 
     if len(synced) < len(labelled) // 2:  # too few of its frames interpolate: the others stay unjudged
         return []
     try:
-        R2, t2 = _others_solved(rig, synced, R, t, [])
+        R2, t2 = _solved_again(rig, synced, tracks, R, t)
     except (CalibrationError, np.linalg.LinAlgError):
         return []
     from wandcal.calib.judge.leave_one_out import camera_patterns, leave_one_out_faults
