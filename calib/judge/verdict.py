@@ -137,7 +137,7 @@ def coverage_reports(rig: Rig, camera: np.ndarray, uv: np.ndarray) -> list[dict]
     empty parts in words). camera: (M,) index; uv: (M, 2) raw pixels of the observations used."""
     out = []
     for cam, rows in zip(rig.cameras, camera_rows(camera, len(rig.cameras))):
-        counts = coverage_grid(uv[rows], cam.width, cam.height)
+        counts = coverage_grid(np.take(uv, rows, axis=0), cam.width, cam.height)  # take: tA, a cheaper 2-D gather
         out.append({"coverage": covered_fraction(counts), "uncovered": empty_regions(counts)})
     return out
 
