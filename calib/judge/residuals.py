@@ -258,7 +258,7 @@ def place_sigma_errors(R: np.ndarray, res: Residuals, n_cameras: int) -> list[fl
     J = _place_rows(R, res, inl, counts[where])
     _, unit_index = np.unique(unit[inl], return_inverse=True)
     out: list[float | None] = []
-    for c, mine in enumerate(camera_rows(res.camera[inl], n_cameras)):
+    for mine in camera_rows(res.camera[inl], n_cameras):
         _, group = np.unique(unit_index[mine], return_inverse=True)
         n = int(group.max()) + 1 if len(group) else 0
         rows = J[mine].reshape(-1, 6)
