@@ -204,7 +204,7 @@ def median_ray_angle(R: np.ndarray, res: Residuals) -> float | None:
         return None
     # a median over every point's rays is a median over a few thousand as well: keep the points
     # whose index falls on a stride (all their rays, so each point's first ray is among them)
-    stride = max(1, (int(res.point.max()) - int(res.point.min()) + 1) // RAY_ANGLE_POINTS)
+    stride = max(1, -(-(int(res.point.max()) - int(res.point.min()) + 1) // RAY_ANGLE_POINTS))  # at most that many
     sample = np.flatnonzero(res.point % stride == 0)
     ray = np.concatenate([res.xy[sample] - res.residual[sample], np.ones((len(sample), 1))], axis=1)  # the projected point's ray
     ray = np.einsum("mji,mj->mi", np.take(R, res.camera[sample], axis=0), ray)  # camera -> world directions
