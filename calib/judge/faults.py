@@ -119,11 +119,21 @@ def _trimmed(r: np.ndarray) -> np.ndarray:
     return np.isfinite(e) & (e <= TRIM_SIGMAS * max(robust_sigma(e[np.isfinite(e)]), 1e-12))
 
 
-def _pose_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+def _pose_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray, differences: bool = False) -> np.ndarray:
     """(2K, 6) the projection's derivative with respect to the camera's rotation increment
     (``R -> exp(w) R``) and translation, at points X (K, 3); rows x0, y0, x1, y1, ...
     tA (issue 31): analytic, ``dXc/dw_j = e_j x (R X)``, ``dXc/dt_j = e_j``, through ``d(x/z, y/z)/dXc``
-    (one pass where the finite differences took seven projections)."""
+    (one pass where the finite differences took seven projections). ``differences``: by forward
+    differences of :data:`POSE_STEP` as before, for figures a result writes (the focal limit's, to
+    its last digit; the two differ by ~1e-6 of a column)."""
+    if differences:
+        base = _project(R, t, X)
+        cols_fd = []
+        for j in range(6):
+            step = np.zeros(6)
+            step[j] = POSE_STEP
+            cols_fd.append(((_project(rotvec_to_matrix(step[:3]) @ R, t + step[3:], X) - base) / POSE_STEP).ravel())
+        return np.stack(cols_fd, axis=1)
     RX = X @ R.T
     Xc = RX + t
     z = Xc[:, 2]

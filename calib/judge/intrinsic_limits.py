@@ -95,7 +95,7 @@ def focal_limit(R: np.ndarray, t: np.ndarray, xy_projected: np.ndarray, depth: n
     x, d = np.take(xy_projected, idx, axis=0), depth[idx]  # take: a 2-D gather at a tenth of indexing's cost
     X_cam = np.concatenate([x * d[:, None], d[:, None]], axis=1)
     X = (X_cam - t) @ R  # world points: R^T (X_cam - t)
-    pose = _pose_columns(R, t, X)
+    pose = _pose_columns(R, t, X, differences=True)  # the figures a result writes, as before
     share = 1.0 - 1.0 / np.maximum(views[idx], 2)
     focal_col = -(x * share[:, None]).ravel()
     both = np.concatenate([pose, focal_col[:, None]], axis=1)
