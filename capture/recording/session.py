@@ -106,11 +106,24 @@ class _Detector:
 
 
 class _Readers:
-    """One thread per camera feeding ``(camera, DetectedFrame | FrameError | _END)`` into the inbox."""
+    """One thread per camera feeding ``(camera, DetectedFrame | FrameError | _END)`` into the inbox.
+
+    With ``pause_after`` K (a free-running capture that pauses after its K static sets), a reader
+    whose camera has taken frame K - 1 no longer reads but drains (grabs and discards,
+    :meth:`CameraDriver.discard`) until :meth:`resume`: the driver's buffers do not fill, and no
+    frame shot while the L-frame leaves the volume reaches a set.
+    """
 
     def __init__(self, cameras: list[CameraDriver], inbox: queue.Queue, assembler: Assembler, max_lead: int,
-                 detectors: list[_Detector]):
+                 detectors: list[_Detector], pause_after: int = 0):
         self.stop = threading.Event()
+        self.holding = threading.Event()
+        if pause_after:
+            self.holding.set()
+        self.pause_after = pause_after
+        self.taken = [-1] * len(cameras)  # each camera's last sequence number taken (read or discarded)
+        self.resumed = [threading.Event() for _ in cameras]
+        self.resumed_after = [-1] * len(cameras)  # each camera's last frame taken before the pause ended
         self.threads = [threading.Thread(target=self._run, args=(i, cam, inbox, assembler, max_lead, detectors[i]),
                                          name=f"read-{cam.camera_id}", daemon=True) for i, cam in enumerate(cameras)]
         for t in self.threads:
@@ -118,7 +131,21 @@ class _Readers:
 
     def _run(self, i: int, cam: CameraDriver, inbox: queue.Queue, assembler: Assembler, max_lead: int,
              detect: _Detector) -> None:
+        try:
+            self._read_all(i, cam, inbox, assembler, max_lead, detect)
+        finally:
+            self.resumed[i].set()  # an ended camera does not hold the pause's end back
+
+    def _read_all(self, i: int, cam: CameraDriver, inbox: queue.Queue, assembler: Assembler, max_lead: int,
+                  detect: _Detector) -> None:
         while not self.stop.is_set():
+            if self.holding.is_set() and self.taken[i] >= self.pause_after - 1:
+                if not self._drain(i, cam, inbox):
+                    return
+                continue
+            if not self.resumed[i].is_set() and not self.holding.is_set():
+                self.resumed_after[i] = self.taken[i]
+                self.resumed[i].set()
             if assembler.lead(i) > max_lead:
                 time.sleep(0.002)  # the others are behind: wait instead of piling frames up
                 continue
@@ -126,14 +153,44 @@ class _Readers:
             try:
                 item = cam.read(timeout=READ_TIMEOUT_S)
                 if item is not None:
+                    self.taken[i] = max(self.taken[i], item.sequence)
                     item = detect(item)
             except FrameTimeout:
                 continue
             except DriverError as exc:
                 item = exc
+                if isinstance(exc, FrameError):
+                    self.taken[i] = max(self.taken[i], exc.sequence)
             self._put(inbox, (i, _END if item is None else item))
             if item is None or (isinstance(item, DriverError) and not isinstance(item, FrameError)):
                 return
+
+    def _drain(self, i: int, cam: CameraDriver, inbox: queue.Queue) -> bool:
+        """One grab thrown away during the pause; False when the camera ended or failed (said
+        in the inbox, as a read would)."""
+        try:
+            taken = cam.discard(timeout=READ_TIMEOUT_S)
+        except FrameTimeout:
+            return True
+        except FrameError as exc:
+            taken = exc.sequence
+        except DriverError as exc:
+            self._put(inbox, (i, exc))
+            return False
+        if taken is None:
+            self._put(inbox, (i, _END))
+            return False
+        self.taken[i] = max(self.taken[i], taken)
+        return True
+
+    def resume(self) -> int:
+        """End the pause; the first set every camera can fill after it (frames up to the last one
+        a camera discarded were shot during the pause, or past the static run before it)."""
+        self.holding.clear()
+        for done in self.resumed:
+            while not done.wait(0.05) and not self.stop.is_set():
+                pass
+        return max(self.pause_after, max(self.resumed_after) + 1)
 
     def _put(self, inbox: queue.Queue, item) -> None:
         while not self.stop.is_set():
@@ -163,7 +220,10 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         rate_hz: trigger rate; also the free-run rate asked of the cameras.
         progress: called a few times a second with a :class:`Progress`.
         between: called after the static recording, before the wand run (e.g. "remove the
-            L-frame, then press Enter").
+            L-frame, then press Enter"); it may raise KeyboardInterrupt or DriverError to end
+            the capture there. With a trigger the pulses stop meanwhile; free-running cameras
+            are drained (grab and discard), and the wand run starts with their first frames
+            after it.
         events: receives drift / realignment / fault messages as they happen.
         images: which images to write beside the centroids (None: all).
         detect: the blob detector's settings (None: its defaults), or one
@@ -198,10 +258,12 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         recorder = Recorder(out, rig, ImageWriter(buffer_frames(rate_hz, n, WRITE_SECONDS, frame_bytes)),
                             triggered=trigger is not None, images=images, listener=guidance)
         writer = recorder.writer
+        # free-running cameras pause by draining: their readers stop keeping frames after the static run
+        pause_after = static_frames if between is not None and trigger is None else 0
         readers = _Readers(cameras, inbox, assembler, buffer_frames(rate_hz, n, LEAD_SECONDS, frame_bytes) // n,
-                           [_Detector(d, images or ImagePolicy(), static_frames) for d in detectors])
+                           [_Detector(d, images or ImagePolicy(), static_frames) for d in detectors], pause_after)
         loop = _Loop(assembler, recorder, trigger, cameras, inbox, static_frames, static_frames + frames, say, clock)
-        loop.guidance, loop.until = guidance, until
+        loop.guidance, loop.until, loop.readers = guidance, until, readers
         try:
             if trigger is not None:
                 trigger.start(static_frames or frames)
@@ -283,6 +345,8 @@ class _Loop:
         self.failed: list[str] = []
         self.guidance = None
         self.until: Callable[[], bool] | None = None
+        self.readers: _Readers | None = None
+        self.paused = False  # in ``between``: nothing pending is a set (free-running frames past the static run)
 
     def run(self, progress, between, frames: int) -> str | None:
         started, base = self.clock(), 0  # the rate counts from the start of the current phase
@@ -293,10 +357,7 @@ class _Loop:
             self._take_frames()
             before = self.done
             self._emit(self.asm.ready())
-            if before < self.static_frames <= self.done and self.trigger is not None and error is None:
-                if between:
-                    between()
-                self.trigger.start(frames)
+            if before < self.static_frames <= self.done and error is None and self._pause(between, frames):
                 started, base = self.clock(), self.done
             if all(c.ended for c in self.asm.cameras):
                 self.flush()
@@ -318,6 +379,24 @@ class _Loop:
         if self.failed:
             error = error or "; ".join(self.failed)
         return error
+
+    def _pause(self, between, frames: int) -> bool:
+        """Between the static run and the wand: with a trigger, ``between`` while the pulses stop,
+        then the wand's pulses; free-running, ``between`` while the readers drain the cameras,
+        then the sets from the first frame every camera takes after it. False: no pause."""
+        if self.trigger is not None:
+            if between:
+                between()
+                self.asm.resume_at(self.asm.next_key)  # a long pause is not a stalled camera
+            self.trigger.start(frames)
+            return True
+        if between is None or self.readers is None or not self.readers.pause_after:
+            return False
+        self.paused = True
+        between()
+        self.asm.resume_at(self.readers.resume())
+        self.paused = False
+        return True
 
     def _take_pulses(self, trigger: SerialTrigger) -> str | None:
         try:
@@ -355,6 +434,8 @@ class _Loop:
                 return
 
     def flush(self) -> None:
+        if self.paused:
+            return  # interrupted in the pause: the static run is whole, and nothing since is a set
         self._take_frames()
         self._emit(self.asm.ready(flush=True))
 
