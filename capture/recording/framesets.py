@@ -180,10 +180,16 @@ class Assembler:
         for k in [k for k in self._slots if k < key]:
             del self._slots[k]
         self.next_key = max(self.next_key, key)
+        self.seen_now()
+        for cam in self.cameras:
+            cam.last_key = max(cam.last_key, self.next_key - 1)
+
+    def seen_now(self) -> None:
+        """Every camera counts as just seen: a wait that was no camera's fault (opening the
+        devices, a pause) does not make the next sets look stalled (:data:`STALL_S`)."""
         now = self.clock()
         for cam in self.cameras:
             cam.last_seen = now
-            cam.last_key = max(cam.last_key, self.next_key - 1)
 
     # -- output
     def ready(self, flush: bool = False) -> list[FrameSet]:

@@ -30,7 +30,7 @@ from wandcal.capture.recording.framesets import Assembler, DetectedFrame, FrameS
 from wandcal.capture.recording.record import ImagePolicy, Recorder
 from wandcal.capture.recording.writer import ImageWriter
 from wandcal.drivers.camera import CameraDriver, Frame, TriggerMode
-from wandcal.drivers.errors import DriverError, FrameError, FrameTimeout
+from wandcal.drivers.errors import CameraUrlError, DriverError, FrameError, FrameTimeout
 from wandcal.drivers.trigger import SerialTrigger, TriggerLost
 
 INBOX_SECONDS = 0.25
@@ -255,6 +255,7 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
     with contextlib.ExitStack() as stack:
         # devices first: a camera or trigger that cannot be set up leaves no half-made folder
         _open_devices(stack, cameras, trigger, rate_hz)
+        assembler.seen_now()  # opening took a while (a simulated camera renders its noise): no camera stalled
         recorder = Recorder(out, rig, ImageWriter(buffer_frames(rate_hz, n, WRITE_SECONDS, frame_bytes)),
                             triggered=trigger is not None, images=images, listener=guidance)
         writer = recorder.writer
@@ -289,8 +290,10 @@ def _matching_ids(cameras: list[CameraDriver], rig: Rig, static_frames: int, fra
     """The cameras' ids, checked against the rig's; a simulated camera is given the capture's script."""
     ids = [c.camera_id for c in cameras]
     if ids != rig.ids:
-        raise DriverError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give one "
-                          "--camera per rig camera, in the same order, with matching ids (?id=...)")
+        # bad input, not a device's fault (CameraUrlError: the command line exits 2)
+        raise CameraUrlError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give the "
+                             "rig.json of these cameras (--rig), or one --camera per rig camera, in the same order, "
+                             "with matching ids (?id=...)")
     for cam in cameras:
         # a simulated camera plays the capture's script (the L-frame for the static sets, then the
         # wand), as the operator does for a real rig; a count it cannot play stops here

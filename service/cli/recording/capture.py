@@ -175,6 +175,8 @@ def _make_room(out: Path, *, overwrite: bool) -> None:
     recording with no wand sets (which nothing can calibrate): those are cleared first."""
     from wandcal.capture.recording.record import clear_recording, held_capture
 
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is a file, not a folder; give a new folder for the capture")
     held = held_capture(out)
     if held is None:
         return
@@ -190,6 +192,8 @@ def _held(out: Path) -> str:
     """What an interrupted capture left in ``out``, and how to go on."""
     from wandcal.capture.recording.record import held_capture
 
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is a file, not a folder; give a new folder for the capture")
     held = held_capture(out)
     if held is None:
         return f"nothing was recorded into {out}"
@@ -255,8 +259,12 @@ def _between() -> None:
     """The pause after the static recording: Enter goes on; end of input stops the capture as
     Ctrl-C does (the static sets are kept). Without a terminal a line on stdin goes on."""
     prompt = "\nstatic object recorded; remove it from the volume, then press Enter to record the wand... "
-    print(prompt, end="" if sys.stdin.isatty() else "\n", file=sys.stderr, flush=True)
+    terminal = sys.stdin.isatty()
+    print(prompt, end="" if terminal else "\n", file=sys.stderr, flush=True)
     if not _line_from_stdin():
+        if not terminal:
+            print("wandcal capture: end of input at the pause (stdin is no terminal): give --no-pause to record the "
+                  "wand without waiting, or send a line on stdin when the L-frame is out", file=sys.stderr)
         raise KeyboardInterrupt  # end of input: nobody will press Enter
 
 
