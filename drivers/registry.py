@@ -56,7 +56,9 @@ def _check_options(url: str, scheme: str, query: dict[str, str]) -> None:
     import difflib
 
     known = OPTIONS.get(scheme)
-    for key in query if known is not None else ():
+    if known is None:
+        return  # an unknown scheme: open_cameras says which there are
+    for key in query:
         if key not in known:
             close = difflib.get_close_matches(key, known, n=1)
             raise CameraUrlError(f"{url}: unknown option {key!r}" + (f"; did you mean {close[0]}?" if close else "")
