@@ -17,20 +17,19 @@ from __future__ import annotations
 
 import contextlib
 import queue
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from wandcal.calib.detect import CameraDetector, DetectConfig
-from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Rig
-from wandcal.capture.recording.framesets import Assembler, DetectedFrame, FrameSet
+from wandcal.capture.recording.framesets import Assembler, FrameSet
+from wandcal.capture.recording.readers import END, FrameDetector, Readers
 from wandcal.capture.recording.record import ImagePolicy, Recorder
 from wandcal.capture.recording.writer import ImageWriter
-from wandcal.drivers.camera import CameraDriver, Frame, TriggerMode
-from wandcal.drivers.errors import CameraUrlError, DriverError, FrameError, FrameTimeout
+from wandcal.drivers.camera import CameraDriver, TriggerMode
+from wandcal.drivers.errors import CameraUrlError, DriverError, FrameError
 from wandcal.drivers.trigger import SerialTrigger, TriggerLost
 
 INBOX_SECONDS = 0.25
@@ -44,9 +43,7 @@ MIN_BUFFER_FRAMES = 2  # per camera: a slow rate still buffers a frame while the
 BYTES_PER_PIXEL = 2  # sized for 16-bit frames, so 8-bit ones stay well inside the budget
 # Camera and trigger crystals are within +-50 ppm of nominal, so two of them differ by <= 100 ppm.
 DRIFT_WARN_PPM = 100.0
-READ_TIMEOUT_S = 0.2  # how soon a reader thread notices the stop flag while its camera waits for a pulse
 INTERRUPTED = "interrupted by the user"  # CaptureResult.error after Ctrl-C, end of input or a closed terminal
-_END = object()
 
 
 def buffer_frames(rate_hz: float, cameras: int, seconds: float, frame_bytes: int = 0) -> int:
@@ -86,124 +83,6 @@ class Progress:
     fps: float
     missed: dict[str, int]
     guidance: dict | None = None  # the latest live guidance document, when the capture has one
-
-
-class _Detector:
-    """Turns one camera's frames into :class:`DetectedFrame` s, in the reader thread that read
-    them (in time order, as a running background needs)."""
-
-    def __init__(self, detector: CameraDetector, images: ImagePolicy, static_frames: int):
-        self.detector, self.images, self.static_frames = detector, images, static_frames
-
-    def __call__(self, frame: Frame) -> DetectedFrame:
-        try:
-            uv = self.detector.detect(frame.image).uv
-        except CalibrationError as exc:  # the camera delivers frames the detector cannot read
-            raise DriverError(f"camera {frame.camera_id}: cannot detect blobs in frame {frame.sequence} ({exc}); "
-                              "set the camera to 8- or 16-bit grey output") from None
-        keep = self.images.keeps(frame.sequence, self.static_frames)
-        return DetectedFrame(frame.sequence, frame.timestamp_us, frame.camera_id, uv, frame.image if keep else None)
-
-
-class _Readers:
-    """One thread per camera feeding ``(camera, DetectedFrame | FrameError | _END)`` into the inbox.
-
-    With ``pause_after`` K (a free-running capture that pauses after its K static sets), a reader
-    whose camera has taken frame K - 1 no longer reads but drains (grabs and discards,
-    :meth:`CameraDriver.discard`) until :meth:`resume`: the driver's buffers do not fill, and no
-    frame shot while the L-frame leaves the volume reaches a set.
-    """
-
-    def __init__(self, cameras: list[CameraDriver], inbox: queue.Queue, assembler: Assembler, max_lead: int,
-                 detectors: list[_Detector], pause_after: int = 0):
-        self.stop = threading.Event()
-        self.holding = threading.Event()
-        if pause_after:
-            self.holding.set()
-        self.pause_after = pause_after
-        self.taken = [-1] * len(cameras)  # each camera's last sequence number taken (read or discarded)
-        self.resumed = [threading.Event() for _ in cameras]
-        self.resumed_after = [-1] * len(cameras)  # each camera's last frame taken before the pause ended
-        self.threads = [threading.Thread(target=self._run, args=(i, cam, inbox, assembler, max_lead, detectors[i]),
-                                         name=f"read-{cam.camera_id}", daemon=True) for i, cam in enumerate(cameras)]
-        for t in self.threads:
-            t.start()
-
-    def _run(self, i: int, cam: CameraDriver, inbox: queue.Queue, assembler: Assembler, max_lead: int,
-             detect: _Detector) -> None:
-        try:
-            self._read_all(i, cam, inbox, assembler, max_lead, detect)
-        finally:
-            self.resumed[i].set()  # an ended camera does not hold the pause's end back
-
-    def _read_all(self, i: int, cam: CameraDriver, inbox: queue.Queue, assembler: Assembler, max_lead: int,
-                  detect: _Detector) -> None:
-        while not self.stop.is_set():
-            if self.holding.is_set() and self.taken[i] >= self.pause_after - 1:
-                if not self._drain(i, cam, inbox):
-                    return
-                continue
-            if not self.resumed[i].is_set() and not self.holding.is_set():
-                self.resumed_after[i] = self.taken[i]
-                self.resumed[i].set()
-            if assembler.lead(i) > max_lead:
-                time.sleep(0.002)  # the others are behind: wait instead of piling frames up
-                continue
-            item: Frame | DetectedFrame | DriverError | None
-            try:
-                item = cam.read(timeout=READ_TIMEOUT_S)
-                if item is not None:
-                    self.taken[i] = max(self.taken[i], item.sequence)
-                    item = detect(item)
-            except FrameTimeout:
-                continue
-            except DriverError as exc:
-                item = exc
-                if isinstance(exc, FrameError):
-                    self.taken[i] = max(self.taken[i], exc.sequence)
-            self._put(inbox, (i, _END if item is None else item))
-            if item is None or (isinstance(item, DriverError) and not isinstance(item, FrameError)):
-                return
-
-    def _drain(self, i: int, cam: CameraDriver, inbox: queue.Queue) -> bool:
-        """One grab thrown away during the pause; False when the camera ended or failed (said
-        in the inbox, as a read would)."""
-        try:
-            taken = cam.discard(timeout=READ_TIMEOUT_S)
-        except FrameTimeout:
-            return True
-        except FrameError as exc:
-            taken = exc.sequence
-        except DriverError as exc:
-            self._put(inbox, (i, exc))
-            return False
-        if taken is None:
-            self._put(inbox, (i, _END))
-            return False
-        self.taken[i] = max(self.taken[i], taken)
-        return True
-
-    def resume(self) -> int:
-        """End the pause; the first set every camera can fill after it (frames up to the last one
-        a camera discarded were shot during the pause, or past the static run before it)."""
-        self.holding.clear()
-        for done in self.resumed:
-            while not done.wait(0.05) and not self.stop.is_set():
-                pass
-        return max(self.pause_after, max(self.resumed_after) + 1)
-
-    def _put(self, inbox: queue.Queue, item) -> None:
-        while not self.stop.is_set():
-            try:
-                inbox.put(item, timeout=0.1)
-                return
-            except queue.Full:
-                continue
-
-    def join(self) -> None:
-        self.stop.set()
-        for t in self.threads:
-            t.join(timeout=2.0)
 
 
 def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path, rig: Rig, *, frames: int,
@@ -261,8 +140,8 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         writer = recorder.writer
         # free-running cameras pause by draining: their readers stop keeping frames after the static run
         pause_after = static_frames if between is not None and trigger is None else 0
-        readers = _Readers(cameras, inbox, assembler, buffer_frames(rate_hz, n, LEAD_SECONDS, frame_bytes) // n,
-                           [_Detector(d, images or ImagePolicy(), static_frames) for d in detectors], pause_after)
+        readers = Readers(cameras, inbox, assembler, buffer_frames(rate_hz, n, LEAD_SECONDS, frame_bytes) // n,
+                           [FrameDetector(d, images or ImagePolicy(), static_frames) for d in detectors], pause_after)
         loop = _Loop(assembler, recorder, trigger, cameras, inbox, static_frames, static_frames + frames, say, clock)
         loop.guidance, loop.until, loop.readers = guidance, until, readers
         try:
@@ -348,7 +227,7 @@ class _Loop:
         self.failed: list[str] = []
         self.guidance = None
         self.until: Callable[[], bool] | None = None
-        self.readers: _Readers | None = None
+        self.readers: Readers | None = None
         self.paused = False  # in ``between``: nothing pending is a set (free-running frames past the static run)
 
     def run(self, progress, between, frames: int) -> str | None:
@@ -420,7 +299,7 @@ class _Loop:
             return
         while True:
             i, payload = item
-            if payload is _END:
+            if payload is END:
                 self.asm.end_camera(i)
             elif isinstance(payload, FrameError):
                 self.asm.add_lost(i, payload.sequence)
