@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.coverage import POINTS
 from wandcal.calib.geometry import undistort_by_camera
+from wandcal.calib.judge.coverage import POINTS
 from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
 from wandcal.calib.rig import PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.run.guidance.document import Seen, guidance_document
