@@ -35,6 +35,10 @@ COMMANDS = ("ba", "lp", "paper", "sync_auto", "refine_intrinsics", "guidance", "
             "export")
 QCA = SHARED_DATA / "qualisys_pose2sim_demo" / "Calib.qca.txt"
 REFUSED = (CalibrationError, CaptureFormatError)
+# paper's solve took 95 s (L-frame) to 784 s (3-marker wand) a simulated cell on this machine
+# (2 cores, load 15-25): it runs on the real sessions and the points-only refusal here, and on
+# simulated rigs in bench/bench_methods.py and tests/calib/solve (as the test matrix does)
+PAPER_KINDS = ("points_only", *REAL)
 
 
 def figure(k: Kind, result, truth) -> str:
@@ -43,6 +47,8 @@ def figure(k: Kind, result, truth) -> str:
     if truth is not None:
         return f"{aligned_rms_mm(result.centers, truth):.2f} mm"
     rms = [c.reprojection_rms_px for c in result.cameras if c.reprojection_rms_px is not None]
+    if not rms:  # no wand: the point tracks' RMS
+        rms = [c.points.rms_px for c in result.cameras if c.points is not None and c.points.rms_px is not None]
     return f"{np.median(rms):.2f} px" if rms else "ok"
 
 
@@ -129,9 +135,12 @@ def _exports(result_json: dict, rig, R: np.ndarray, t: np.ndarray, tmp: Path) ->
     return ", ".join(good) + ("; " + "; ".join(said) if said else "")
 
 
-def run_cell(command: str, k: Kind, base, truth, tmp: Path) -> str:
-    """One command on one input kind: its figure, or 'refused: ...' with the message."""
+def run_cell(command: str, k: Kind, base, truth, tmp: Path, everything: bool = False) -> str:
+    """One command on one input kind: its figure, or 'refused: ...' with the message; ``paper``
+    on the kinds of ``PAPER_KINDS`` only unless ``everything``."""
     try:
+        if command == "paper" and k.name not in PAPER_KINDS and not everything:
+            return "not run here (bench/bench_methods.py)"
         if command in ("ba", "lp", "paper"):
             return figure(k, base if command == "ba" else _calibrate(k, method=command), truth)
         if command == "sync_auto":
@@ -153,7 +162,7 @@ def run_cell(command: str, k: Kind, base, truth, tmp: Path) -> str:
         return f"**gap** {type(exc).__name__}: {exc}"
 
 
-def row(name: str, commands: tuple[str, ...]) -> list[str] | None:
+def row(name: str, commands: tuple[str, ...], everything: bool = False) -> list[str] | None:
     """The cells of input kind ``name``; None when its data are absent."""
     k = build(name)
     if k is None:
@@ -162,12 +171,12 @@ def row(name: str, commands: tuple[str, ...]) -> list[str] | None:
     with tempfile.TemporaryDirectory(prefix="wandcal-matrix-") as tmp:
         try:
             base = _calibrate(k)
-        except REFUSED as exc:
-            return [f"refused: {exc}"] * len(commands)
+        except REFUSED as exc:  # every command needs the calibration: its refusal once
+            return [f"refused (calibrate, every method): {exc}"] + ["as calibrate"] * (len(commands) - 1)
         cells = []
         for command in commands:
             started = time.perf_counter()
-            cells.append(run_cell(command, k, base, truth, Path(tmp)))
+            cells.append(run_cell(command, k, base, truth, Path(tmp), everything))
             print(f"  {name} x {command}: {cells[-1][:160]} ({time.perf_counter() - started:.0f} s)", file=sys.stderr,
                   flush=True)
         return cells
@@ -206,13 +215,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kinds", default=",".join(SIMULATED + REAL + ("qca",)))
     ap.add_argument("--commands", default=",".join(COMMANDS))
     ap.add_argument("--no-write", action="store_true", help="print the table only")
+    ap.add_argument("--paper-everywhere", action="store_true", help="paper on the simulated rigs too (minutes a cell)")
     args = ap.parse_args(argv)
     commands = tuple(args.commands.split(","))
     lines = ["| input | " + " | ".join(commands) + " |", "|---|" + "---|" * len(commands)]
     absent = []
     for name in args.kinds.split(","):
         print(f"{name}:", file=sys.stderr, flush=True)
-        cells = qca_row(commands) if name == "qca" else row(name, commands)
+        cells = qca_row(commands) if name == "qca" else row(name, commands, args.paper_everywhere)
         if cells is None:
             absent.append(name)
             continue
