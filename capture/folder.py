@@ -260,7 +260,8 @@ def read_capture(folder: str | Path) -> Capture:
     wand.csv absent or empty)."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise CaptureFormatError(f"{folder}: not a folder; give the path of a wandcal-capture/1 folder")
+        hint = f" (the folder that holds it: {Path(folder).parent})" if Path(folder).is_file() else ""
+        raise CaptureFormatError(f"{folder}: not a folder; give the path of a wandcal-capture/1 folder{hint}")
     points_path = folder / POINTS_FILE
     has_points = points_path.is_file()
     rig = read_rig(folder, allow_no_wand=has_points)
@@ -437,7 +438,9 @@ def _dict_rows(reader: csv.DictReader, columns: tuple[str, ...], source: str) ->
 def _camera_cell(value: str | None, lookup: dict[str, int], rig: Rig, where: str) -> int:
     key = (value or "").strip()
     if key not in lookup:
-        raise CaptureFormatError(f"{where}: unknown camera id {key!r}; rig.json lists {', '.join(rig.ids)}")
+        raise CaptureFormatError(f"{where}: unknown camera id {key!r}; rig.json lists {', '.join(rig.ids)}: if "
+                                 "rig.json is of another capture, put the rig.json of the cameras that recorded this "
+                                 f"one beside it, else add {key!r} to rig.json")
     return lookup[key]
 
 

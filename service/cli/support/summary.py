@@ -48,7 +48,7 @@ def format_summary(doc: dict) -> str:
         frames = w["frames_used"]
         lines.append(
             f"wand {w['length_mean_m'] * 1000:.2f} +- {w['length_std_m'] * 1000:.2f} mm "
-            f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {frames} frame{'' if frames == 1 else 's'}; {solved}"
+            f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {frames} frame{'' if frames == 1 else 's'} in the solve (both ends in 2+ cameras); {solved}"
         )
     lines += _verdict_lines(doc)
     lines += [f"warning: {text}" for text in doc["warnings"]]
