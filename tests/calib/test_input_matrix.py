@@ -19,7 +19,7 @@ from wandcal.calib.run.guidance import wanding_guidance
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.resolve import solve_only
 
-KINDS = ("lframe", "wand_only", "three_marker", "wand_points", "sparse_digitised", "points_only")
+KINDS = ("lframe", "wand_only", "three_marker", "planar_wand", "wand_points", "sparse_digitised", "points_only")
 COMMANDS = ("ba", "lp", "paper", "sync_auto", "check", "solve_only", "guidance", "export")
 # the cells that refuse, and the words their message must hold: what the method or command cannot take
 REFUSALS = {
