@@ -218,7 +218,42 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     if lens:  # a lens error bends a tracked marker's path: a step or noise there is its effect
         return lens
     moved, noisy = own_faults(rig, labelled, tracks, R, t)
-    return moved or noisy or camera_faults(rig, labelled, R, t, figures, res)
+    return moved or noisy or _outliers_or_noise(rig, labelled, tracks, R, t, figures, res,
+                                                camera_faults(rig, labelled, R, t, figures, res))
+
+
+def _outliers_or_noise(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                       figures: list[dict], res: Residuals, faults: list[dict]) -> list[dict]:
+    """``faults`` with an ``outliers`` fault turned into ``noise`` where the camera's own noise
+    (the points eliminated, :func:`wandcal.calib.judge.own_errors.camera_noise`) is above the
+    others' and its Gaussian tail explains its share of camera-frames beyond the rig's outlier
+    limit (``res.limit_px``) within two of that share's standard errors: in a rig of few cameras a
+    camera three times as noisy puts a fifth of its frames past a limit set by the others' noise,
+    all of them its own noise, not reflections."""
+    from wandcal.calib.judge.own_errors import camera_noise, eliminate, noise_fault, views_of
+
+    if not any(f["kind"] == "outliers" for f in faults):
+        return faults
+    views = views_of(labelled, tracks)
+    if not len(views.point):
+        return faults
+    focal = np.array([c.focal.mean() for c in rig.cameras])
+    noise = camera_noise(eliminate(R, t, views), focal)
+    out = []
+    for fault in faults:
+        c = rig.index(fault["camera"]) if fault["kind"] == "outliers" else -1
+        n = noise[c] if c >= 0 else None
+        if n is not None and n.ratio > 1:
+            end = float(np.exp(-res.limit_px**2 / (2 * n.sigma_px**2)))  # a 2D Gaussian's radius beyond the limit
+            expected = 1 - (1 - end) ** 2  # a camera-frame is an outlier by its worse end
+            share = figures[c]["outlier_share"] or 0.0
+            if share <= expected + 2 * share_std(share, figures[c].get("observations") or 0):
+                noisy = noise_fault(fault["camera"], n)
+                out.append(noisy | {"evidence": fault["evidence"] | noisy["evidence"]
+                                    | {"expected_outlier_share": round(expected, 4)}})
+                continue
+        out.append(fault)
+    return out
 
 
 def many_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
