@@ -204,20 +204,22 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     cameras whose own noise stands out (:func:`own_faults`), else by the suspect screen
     (:func:`camera_faults`). A larger rig: :func:`many_camera_faults`."""
     from wandcal.calib.judge.leave_one_out import MAX_CAMERAS, leave_one_out_faults
-    from wandcal.calib.judge.timing_pairs import timing_faults
+    from wandcal.calib.judge.timing_pairs import camera_timings, timing_faults, timing_instead
 
     if len(rig.cameras) > MAX_CAMERAS:
         return many_camera_faults(rig, labelled, tracks, R, t, figures, res)
-    timing = []
-    if len(rig.cameras) >= 3:
-        timing = timing_faults(list(rig.ids), R, t, labelled, tracks, np.array([c.focal.mean() for c in rig.cameras]),
-                               [f["noise_px"] for f in figures])
+    noise_px, focal = [f["noise_px"] for f in figures], np.array([c.focal.mean() for c in rig.cameras])
+    timings = camera_timings(R, t, labelled, tracks, focal) if len(rig.cameras) >= 3 else []
+    timing = timing_faults(list(rig.ids), R, t, labelled, tracks, focal, noise_px, timings) if timings else []
     if timing:
         return timing
     lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks)
     if lens:  # a lens error bends a tracked marker's path: a step or noise there is its effect
         return lens
     moved, noisy = own_faults(rig, labelled, tracks, R, t)
+    # a camera out of time is noisy in its own residuals too: its offset, where it explains them, names the kind
+    noisy = [timing_instead(list(rig.ids), timings, rig.index(f["camera"]), noise_px[rig.index(f["camera"])]) or f
+             for f in noisy]
     return moved or noisy or _outliers_or_noise(rig, labelled, tracks, R, t, figures, res,
                                                 camera_faults(rig, labelled, R, t, figures, res))
 
