@@ -22,13 +22,11 @@ import numpy as np
 
 from wandcal.calib.judge.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
 from wandcal.calib.judge.residuals import Residuals
-from wandcal.calib.solve.uncertainty import chi2_quantile
 
 MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone
 MAX_SPLITS = 60  # candidate splits, evenly spaced in the camera's timed observations
 TRIM_ROUNDS = 2  # outliers trimmed under the step's model, then the split searched again
 MIN_BLOCKS = 4  # batch means of the residuals in time: fewer blocks say nothing of their correlation
-INDEPENDENT_Z = 1.645  # the block means' scatter is tested against independent views' at its 95th percentile
 # a step is named at this family-wise false-alarm rate per camera (Bonferroni over the splits): a
 # clean camera is called moved once in 10,000 (the clean real sessions: p >= 0.002; the knocks found: p <= 5e-5)
 STEP_ALPHA = 1e-4
@@ -273,14 +271,7 @@ def _inflation(e: np.ndarray, own: np.ndarray, time: np.ndarray, point: np.ndarr
     independent would see steps in a clean camera. Batch means: camera c's timed views ``own`` (K,)
     in time order, in blocks of about sqrt(K); a level's long-run variance is the block length
     times the block means' variance, over the views' own (1 for independent views; never taken
-    below 1). e: (K, 2) residuals; the dof is the number of blocks less one.
-
-    Where the block means scatter no more than independent views' would (their sum of squares
-    under the 95th percentile of chi-square with 2 x blocks degrees of freedom, 2 for each block's
-    two coordinates), the views are taken as independent: (1, inf), the F's own denominator
-    degrees of freedom. An inflation estimated from ten blocks has ten degrees of freedom, and
-    taken as the denominator's it made a 0.47 degree knock of Ushichka's cam1 (F = 24 at the
-    knock's frame, inflation 1.05) p = 0.007 instead of 10^-12."""
+    below 1). e: (K, 2) residuals; the dof is the number of blocks less one."""
     idx = np.flatnonzero(own)
     idx = idx[np.lexsort((point[idx], time[idx]))]
     n = len(idx)
@@ -290,10 +281,7 @@ def _inflation(e: np.ndarray, own: np.ndarray, time: np.ndarray, point: np.ndarr
     size = n // blocks
     a = e[idx[: blocks * size]].reshape(blocks, size, 2)
     long_run = size * float(np.mean(np.sum(a.mean(axis=1) ** 2, axis=1)))
-    ratio = long_run / max(float(np.mean(np.sum(a**2, axis=2))), 1e-300)
-    if 2 * blocks * ratio <= chi2_quantile(2 * blocks, INDEPENDENT_Z):
-        return 1.0, np.inf
-    return max(ratio, 1.0), float(blocks - 1)
+    return max(long_run / max(float(np.mean(np.sum(a**2, axis=2))), 1e-300), 1.0), float(blocks - 1)
 
 
 def _rss(A: np.ndarray, y: np.ndarray) -> float:
