@@ -77,11 +77,6 @@ def create_app(settings: Settings) -> FastAPI:
     data_dir = settings.data_dir.resolve()
     settings = settings.model_copy(update={"data_dir": data_dir})
     folder_lock = hold_data_folder(settings)  # before anything reads or writes the folder: one owner recovers it
-    # BLAS on one thread in the server's own process, set once here and never by a request: the
-    # request threads already share the cores, and the solvers' `threadpool_limits(1)` (guidance
-    # runs one in a request thread) then have nothing to change, so concurrent ones cannot leave
-    # the process-wide count altered (tests/reliability/test_global_state.py)
-    threadpool_limits(limits=1, user_api="blas")
     install_repeat_filter()
     init_db(settings.db_path)  # a corrupt database is moved aside; recover() registers the captures again
     capture_store = CaptureStore(data_dir, settings.db_path, settings.replay_root)
@@ -102,6 +97,12 @@ def create_app(settings: Settings) -> FastAPI:
         # on a full disk and would turn every read into an I/O error (tests/reliability, full disk)
         keeper = sqlite3.connect(settings.db_path)
         keeper.execute("SELECT COUNT(*) FROM captures").fetchall()  # maps the -shm file now
+        # BLAS on one thread while the app serves, set here and never by a request: the request
+        # threads already share the cores, and the solvers' `threadpool_limits(1)` (guidance runs
+        # one in a request thread) then have nothing to change, so concurrent ones cannot leave the
+        # process-wide count altered (tests/reliability/test_global_state.py). Restored when the
+        # app stops, so a process that builds an app (a test) keeps its own BLAS afterwards.
+        one_blas_thread = threadpool_limits(limits=1, user_api="blas")
         queue.start()
         pruner.start()
         try:
@@ -110,6 +111,7 @@ def create_app(settings: Settings) -> FastAPI:
             pruner.stop()
             _stop_live_capture(app.state.live_capture)
             queue.stop()
+            one_blas_thread.restore_original_limits()
             keeper.close()
 
     app = FastAPI(
