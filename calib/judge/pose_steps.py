@@ -374,15 +374,17 @@ def step_screen(xy: np.ndarray, r: np.ndarray, time: np.ndarray) -> float:
     N += 1e-12 * np.trace(N, axis1=1, axis2=2)[:, None, None] * np.eye(3)
     w = np.linalg.solve(N, Gt @ rb.reshape(n_blocks, -1, 1))[..., 0]
     nu = n_blocks - 2
-    best = 1.0
-    for j in range(2, n_blocks - 1):
-        before, after = w[:j].mean(axis=0), w[j:].mean(axis=0)
-        e = np.concatenate([w[:j] - before, w[j:] - after])
-        S = e.T @ e / nu
-        d = after - before
-        t2 = float(d @ np.linalg.solve(S + 1e-12 * np.trace(S) * np.eye(3), d)) / (1 / j + 1 / (n_blocks - j))
-        best = min(best, _fdtrc(3, nu - 2, t2 * (nu - 2) / (3 * nu)))
-    return min(1.0, best * (n_blocks - 3))
+    j = np.arange(2, n_blocks - 1)  # boundaries: at least two blocks either side
+    total, outer = np.cumsum(w, axis=0), np.cumsum(np.einsum("bi,bj->bij", w, w), axis=0)
+    before, after = total[j - 1] / j[:, None], (total[-1] - total[j - 1]) / (n_blocks - j)[:, None]
+    # the blocks' scatter about their two levels: sum w w^T less each side's n m m^T
+    S = (outer[-1] - j[:, None, None] * np.einsum("ji,jk->jik", before, before)
+         - (n_blocks - j)[:, None, None] * np.einsum("ji,jk->jik", after, after)) / nu
+    S += 1e-12 * np.trace(S, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    d = after - before
+    t2 = np.einsum("ji,ji->j", d, np.linalg.solve(S, d[..., None])[..., 0]) / (1 / j + 1 / (n_blocks - j))
+    # the p-value falls as T^2 grows: the largest T^2 gives the smallest
+    return min(1.0, _fdtrc(3, nu - 2, float(t2.max()) * (nu - 2) / (3 * nu)) * len(j))
 
 
 def step_suspects(res: Residuals, track_frames: np.ndarray | None) -> list[int]:

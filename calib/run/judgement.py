@@ -317,8 +317,10 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
 
 def _median_views(res: Residuals) -> float:
     """The median point's number of views in the judgement's residuals."""
-    _, counts = np.unique(res.point, return_counts=True)
-    return float(np.median(counts)) if len(counts) else 0.0
+    if not len(res.point):
+        return 0.0
+    counts = np.bincount(res.point - res.point.min())
+    return float(np.median(counts[counts > 0]))
 
 
 def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> list[dict]:
