@@ -19,9 +19,8 @@ from fastapi.staticfiles import StaticFiles
 from threadpoolctl import threadpool_limits
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.api.deps import AppState, require_token
-from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
+from wandcal.service.api.routes import blobsets, captures, checks, guidance, health, jobs, live_capture
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
 from wandcal.service.connection_limits import install_repeat_filter
 from wandcal.service.datafolder.lock import hold_data_folder
@@ -46,16 +45,11 @@ LIVE_STOP_S = 1.5
 
 def _queue(settings: Settings, store: JobStore, capture_store: CaptureStore) -> JobQueue:
     if settings.queue == "redis":
-        from wandcal.service.jobs.redis_queue import RedisQueue
+        from wandcal.service.jobs.redis_queue import PAYLOAD_FILES, RedisQueue
 
         def read_files(capture_id: str) -> dict[str, str | None]:
             folder = capture_store.folder(capture_id)
-            static = folder / STATIC_FILE
-            return {
-                RIG_FILE: (folder / RIG_FILE).read_text(),
-                WAND_FILE: (folder / WAND_FILE).read_text(),
-                STATIC_FILE: static.read_text() if static.is_file() else None,
-            }
+            return {name: (folder / name).read_text() if (folder / name).is_file() else None for name in PAYLOAD_FILES}
 
         return RedisQueue(store, read_files, settings.redis_url, settings.redis_queue_name)
     return SQLiteQueue(store, capture_store.load, settings.data_dir, settings.workers)
@@ -133,6 +127,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.live_capture = LiveCapture(capture_store, settings.capture_continue_timeout_s)
     app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(guidance.router, prefix=API_PREFIX, dependencies=secured)
+    app.include_router(checks.router, prefix=API_PREFIX, dependencies=secured)
     _add_error_handlers(app, data_dir)
 
     @app.get("/", include_in_schema=False)
