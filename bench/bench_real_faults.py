@@ -21,7 +21,7 @@ from bench.common import write_section
 
 TITLE = "Judgement on real sessions with injected faults"
 # the table at 2830bc3 (the honest sigma and the timing from camera pairs, before each camera's own
-# errors with the points eliminated: wandcal.calib.judge.own_errors), kept beside the current one
+# errors with the points eliminated: wandcal.calib.judge.faults.own_errors), kept beside the current one
 BEFORE = """Before this release's judgement work (at 2830bc3: before each camera's own errors with the points eliminated, the moved camera, the timing by its effect in pixels and the verdicts at the limit; decisions 0035, 0036, 0038):
 
 | fault | runs | right | absorbed | limited | missed | wrong kind | wrong camera | called poor | refused | displacement / sigma (median) | note |

@@ -10,7 +10,7 @@ wind-tunnel sessions 3-4 mm for each 1%, ten to twenty times their geometry sigm
 Each camera's pose is refitted, to first order, to the points it sees (with the final poses) with a
 focal length ``1 + d`` times its own: the observations' normalised coordinates scale by ``1 / (1 + d)``,
 so the pose must take up ``-d x`` (x: (K, 2) the projected points). Least squares of that column on
-the pose's six (:func:`wandcal.calib.judge.faults._pose_columns`) gives the pose's change, hence the
+the pose's six (:func:`wandcal.calib.judge.faults.screen._pose_columns`) gives the pose's change, hence the
 centre's, per unit of ``d``. The honest sigma adds that change, times the focal length's own
 relative sigma, to the geometry sigma in quadrature. The focal length's sigma is rig.json's
 ``focal_std_px`` where the camera gives one, else :data:`DEFAULT_FOCAL_REL_STD`.
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.geometry import rotvec_to_matrix
-from wandcal.calib.judge.faults import _pose_columns
+from wandcal.calib.judge.faults.screen import _pose_columns
 
 GIVEN_IN_RIG = "given"  # the source of a focal sigma the rig gives (the camera's focal_std_px); else "default"
 

@@ -5,7 +5,7 @@ Verdicts are ``excellent``, ``good`` or ``poor``: the worst of the criteria belo
 that is not excellent gives a reason with the number that fell short; each poor one also gives
 advice, an instruction. Criteria are in the volume's own terms (millimetres and shares of the
 volume's size), or relative to what the data show their noise to be (camera against camera), never
-in fixed pixels. A fault found by :mod:`wandcal.calib.judge.faults` makes the rig poor and names the
+in fixed pixels. A fault found by :mod:`wandcal.calib.judge.faults.screen` makes the rig poor and names the
 camera or input. docs/verdict.md gives every threshold's source or derivation.
 """
 

@@ -259,7 +259,7 @@ def _start(rig: Rig, obs: Observations, static: StaticObservations | None, tell:
            warnings: list[str], *, synced: bool = False) -> Start:
     """The static object's poses, the capture's checks, the first poses and the wand ends labelled.
     A start refused without ``--sync auto`` (``synced`` false) names a camera whose shift in time
-    would let it place every camera (:func:`wandcal.calib.judge.start_timing.out_of_time_refusal`)."""
+    would let it place every camera (:func:`wandcal.calib.judge.faults.start_timing.out_of_time_refusal`)."""
     static_poses = _static_poses(rig, static, tell, warnings)
     warnings += check_capture(rig, obs.pairs, obs.tracks, static_poses)  # degenerate captures: calib/start/degenerate.py
     tell({"stage": "initial", "message": "initial poses"})
@@ -268,7 +268,7 @@ def _start(rig: Rig, obs: Observations, static: StaticObservations | None, tell:
     except CalibrationError as exc:
         if synced or obs.blobs is not None:
             raise
-        from wandcal.calib.judge.start_timing import out_of_time_refusal
+        from wandcal.calib.judge.faults.start_timing import out_of_time_refusal
 
         raise out_of_time_refusal(exc, rig, obs.pairs, static_poses, obs.tracks) from None
     warnings += init.notes

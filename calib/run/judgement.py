@@ -7,7 +7,7 @@ the rig's (its noise :data:`SUSPECT_NOISE_RATIO` times the median camera's, or a
 outliers well above the others') is a suspect. A camera at fault also bends every other camera's
 pose, so each suspect is judged against the rig solved without it: the others are refined
 without its observations, and its own pose is refitted against the wand ends they triangulate, at
-every whole-frame shift (:func:`wandcal.calib.judge.faults.analyse_camera`). Its residual's
+every whole-frame shift (:func:`wandcal.calib.judge.faults.screen.analyse_camera`). Its residual's
 pattern then names the cause: timing, intrinsics, noise (focus, exposure, detection) or
 reflections. Inputs are judged too: the wand's length against the static object's markers, the
 solver's convergence, and refined intrinsics the data do not determine. docs/verdict.md has the
@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.faults import Lens, TimingFault, analyse_camera, classify, lens_screen, offset_text
+from wandcal.calib.judge.faults.screen import Lens, TimingFault, analyse_camera, classify, lens_screen, offset_text
 from wandcal.calib.judge.intrinsic_limits import intrinsic_limit_entries
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.judge.residuals import (
@@ -104,7 +104,7 @@ def _concentrated(figures: list[dict], c: int, sure: bool = False) -> bool:
 
 def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list[int]:
     """Cameras whose residuals stand out of the rig's, or hold a lens pattern (``lens``, from
-    :func:`wandcal.calib.judge.faults.lens_screen`), worst first."""
+    :func:`wandcal.calib.judge.faults.screen.lens_screen`), worst first."""
     noise = np.array([f["noise_px"] if f["noise_px"] else np.nan for f in figures], float)
     share = np.array([f["outlier_share"] if f["outlier_share"] is not None else np.nan for f in figures], float)
     if np.isfinite(noise).sum() < MIN_CAMERAS_TO_ISOLATE:
@@ -199,13 +199,13 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
 def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                       figures: list[dict], res: Residuals) -> list[dict]:
     """The cameras at fault: in a rig of few cameras first a camera out of time, from every pair
-    of cameras (:func:`wandcal.calib.judge.timing_pairs.timing_faults`), then a lens by comparing
+    of cameras (:func:`wandcal.calib.judge.faults.timing_pairs.timing_faults`), then a lens by comparing
     every camera against the points the others triangulate
-    (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`), then a camera that moved, then
+    (:func:`wandcal.calib.judge.faults.leave_one_out.leave_one_out_faults`), then a camera that moved, then
     cameras whose own noise stands out (:func:`own_faults`), else by the suspect screen
     (:func:`camera_faults`). A larger rig: :func:`many_camera_faults`."""
-    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS, leave_one_out_faults
-    from wandcal.calib.judge.timing_pairs import camera_timings, timing_faults, timing_instead
+    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS, leave_one_out_faults
+    from wandcal.calib.judge.faults.timing_pairs import camera_timings, timing_faults, timing_instead
 
     if len(rig.cameras) > MAX_CAMERAS:
         return many_camera_faults(rig, labelled, tracks, R, t, figures, res)
@@ -274,7 +274,7 @@ def beside_timing(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: 
         R2, t2 = _solved_again(rig, synced, tracks, R, t)
     except (CalibrationError, np.linalg.LinAlgError):
         return []
-    from wandcal.calib.judge.leave_one_out import camera_patterns, leave_one_out_faults
+    from wandcal.calib.judge.faults.leave_one_out import camera_patterns, leave_one_out_faults
 
     found = leave_one_out_faults(list(rig.ids), R2, t2, synced, tracks, at_fault=(c,))
     if found and found[0]["kind"] == "intrinsics":
@@ -293,12 +293,12 @@ def beside_timing(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: 
 def _outliers_or_noise(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                        figures: list[dict], res: Residuals, faults: list[dict]) -> list[dict]:
     """``faults`` with an ``outliers`` fault turned into ``noise`` where the camera's own noise
-    (the points eliminated, :func:`wandcal.calib.judge.own_errors.camera_noise`) is above the
+    (the points eliminated, :func:`wandcal.calib.judge.faults.own_errors.camera_noise`) is above the
     others' and its Gaussian tail explains its share of camera-frames beyond the rig's outlier
     limit (``res.limit_px``) within two of that share's standard errors: in a rig of few cameras a
     camera three times as noisy puts a fifth of its frames past a limit set by the others' noise,
     all of them its own noise, not reflections."""
-    from wandcal.calib.judge.own_errors import camera_noise, eliminate, noise_fault, views_of
+    from wandcal.calib.judge.faults.own_errors import camera_noise, eliminate, noise_fault, views_of
 
     if not any(f["kind"] == "outliers" for f in faults):
         return faults
@@ -342,20 +342,27 @@ def many_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None
 def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                named: list[int] | None = None, res: Residuals | None = None) -> tuple[list[dict], list[dict]]:
     """(a camera that moved, cameras whose own noise stands out), each camera judged with the
-    points eliminated (:mod:`wandcal.calib.judge.own_errors`, :mod:`wandcal.calib.judge.pose_steps`);
+    points eliminated (:mod:`wandcal.calib.judge.faults.own_errors`, :mod:`wandcal.calib.judge.faults.pose_steps`);
     the moved camera is not also called noisy, nor are the cameras ``named`` at fault already.
 
-    A rig of more than a few cameras (:data:`wandcal.calib.judge.leave_one_out.MAX_CAMERAS`;
+    A rig of more than a few cameras (:data:`wandcal.calib.judge.faults.leave_one_out.MAX_CAMERAS`;
     ``res`` the judgement's residuals, needed then) is judged at a bounded cost: the step is tested
     in full only on the cameras a screen of ``res`` suspects
-    (:func:`wandcal.calib.judge.pose_steps.step_suspects`), the noise with the points eliminated
+    (:func:`wandcal.calib.judge.faults.pose_steps.step_suspects`), the noise with the points eliminated
     only where the median point has fewer than :data:`SPREAD_VIEWS` views (with more, a camera's
     noise stays with it in ``res`` and the suspect screen names it), each on
-    :data:`wandcal.calib.judge.own_errors.VIEWS_PER_CAMERA` views a camera. Fewer than three
+    :data:`wandcal.calib.judge.faults.own_errors.VIEWS_PER_CAMERA` views a camera. Fewer than three
     cameras give none."""
-    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS
-    from wandcal.calib.judge.own_errors import VIEWS_PER_CAMERA, capped, eliminate, noise_fault, noisy_cameras, views_of
-    from wandcal.calib.judge.pose_steps import moved_camera, moved_fault, step_suspects
+    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
+    from wandcal.calib.judge.faults.own_errors import (
+        VIEWS_PER_CAMERA,
+        capped,
+        eliminate,
+        noise_fault,
+        noisy_cameras,
+        views_of,
+    )
+    from wandcal.calib.judge.faults.pose_steps import moved_camera, moved_fault, step_suspects
 
     if len(rig.cameras) < 3:
         return [], []
@@ -458,7 +465,7 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     try:
         warnings = sanity_check(method, rig, [c.to_json() for c in cameras], wand_doc, world_doc, camera_centers(R, t))
     except CalibrationError as exc:  # a camera out of time, named, may be why
-        from wandcal.calib.judge.timing_pairs import timing_refusal
+        from wandcal.calib.judge.faults.timing_pairs import timing_refusal
 
         raise timing_refusal(exc, list(rig.ids), R, t, labelled, tracks,
                              np.array([c.focal.mean() for c in rig.cameras])) from None

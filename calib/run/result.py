@@ -148,7 +148,7 @@ class FocalLimitFigures:
 
 @dataclass(frozen=True)
 class Movement:
-    """A camera that moved during the capture (:mod:`wandcal.calib.judge.own_errors`): after
+    """A camera that moved during the capture (:mod:`wandcal.calib.judge.faults.own_errors`): after
     capture frame ``frame`` it is turned by ``degrees`` (+- ``degrees_std``) against its pose
     before, its centre ``centre_mm`` (+- ``centre_std_mm``) away. The pose in the result is a
     compromise of the two: re-solve the camera from the frames after, or calibrate again."""

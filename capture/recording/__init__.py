@@ -3,7 +3,8 @@ as they arrive, and the live guidance computed while it runs.
 
 | module | holds |
 |---|---|
-| :mod:`~wandcal.capture.recording.session` | ``record``: reader threads, the trigger, assembly and the recorder |
+| :mod:`~wandcal.capture.recording.session` | ``record``: the trigger, assembly and the recorder |
+| :mod:`~wandcal.capture.recording.readers` | one reader thread per camera, detecting its frames' blobs (draining the camera during a free-running pause) |
 | :mod:`~wandcal.capture.recording.framesets` | synchronised frame sets from trigger pulses and camera frames |
 | :mod:`~wandcal.capture.recording.record` | the ``wandcal-capture/1`` folder written as frame sets arrive |
 | :mod:`~wandcal.capture.recording.writer` | bounded-memory image writing |

@@ -1,10 +1,10 @@
-"""Each camera of a small rig against the points the others triangulate (calib/judge/leave_one_out.py)."""
+"""Each camera of a small rig against the points the others triangulate (calib/judge/faults/leave_one_out.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from wandcal.calib.judge.leave_one_out import camera_patterns, leave_one_out_faults
+from wandcal.calib.judge.faults.leave_one_out import camera_patterns, leave_one_out_faults
 from wandcal.calib.observations import wand_pairs
 from wandcal.calib.sim.faults import wrong_focal
 from wandcal.calib.sim.simulate import simulate_capture

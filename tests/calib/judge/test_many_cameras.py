@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from wandcal.calib.geometry import distort_points, rotvec_to_matrix, undistort_points
-from wandcal.calib.judge import pose_steps
+from wandcal.calib.judge.faults import pose_steps
 from wandcal.calib.rig import WandObservations
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture

@@ -1,4 +1,4 @@
-"""Each camera's own errors with the points eliminated (wandcal.calib.judge.own_errors and
+"""Each camera's own errors with the points eliminated (wandcal.calib.judge.faults.own_errors and
 pose_steps, composed by wandcal.calib.run.judgement.own_faults), on a
 seeded four-camera rig tracking one marker (timed point tracks, as MultiCamSelfCal's): noise put
 on one camera stays with it, a knocked camera is named with its frame and angle, a clean rig names
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from wandcal.calib.geometry import rotvec_to_matrix
-from wandcal.calib.judge import own_errors as oe
-from wandcal.calib.judge.pose_steps import MAX_SPLITS
+from wandcal.calib.judge.faults import own_errors as oe
+from wandcal.calib.judge.faults.pose_steps import MAX_SPLITS
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.run.judgement import own_faults

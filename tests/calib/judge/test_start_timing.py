@@ -1,5 +1,5 @@
 """A start refused because a camera is out of time names the camera and its shift
-(calib/judge/start_timing.py), on simulated captures whose offsets are known."""
+(calib/judge/faults/start_timing.py), on simulated captures whose offsets are known."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.start_timing import out_of_time_refusal, resampled
+from wandcal.calib.judge.faults.start_timing import out_of_time_refusal, resampled
 from wandcal.calib.observations import WandPairs, wand_pairs
 from wandcal.calib.sim.simulate import simulate_capture
 

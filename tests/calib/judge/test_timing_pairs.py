@@ -1,4 +1,4 @@
-"""A camera out of time, from every pair of cameras (calib/judge/timing_pairs.py), on a made-up
+"""A camera out of time, from every pair of cameras (calib/judge/faults/timing_pairs.py), on a made-up
 rig of four cameras following one marker along a smooth path."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from wandcal.calib.geometry import project_normalized
-from wandcal.calib.judge.timing_pairs import camera_timings, timing_faults
+from wandcal.calib.judge.faults.timing_pairs import camera_timings, timing_faults
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.sim.simulate import look_at
 
@@ -95,7 +95,7 @@ def test_the_same_fraction_is_not_named_where_it_moves_the_blobs_less_than_the_n
 
 
 def test_a_camera_at_fault_is_named_out_of_time_at_three_standard_errors_not_noise():
-    from wandcal.calib.judge.timing_pairs import KIND_T, MIN_T, CameraTiming, timing_faults, timing_instead
+    from wandcal.calib.judge.faults.timing_pairs import KIND_T, MIN_T, CameraTiming, timing_faults, timing_instead
 
     ids = ["cam0", "cam1", "cam2", "cam3"]
     # camera 3 at 4 standard errors: under what names a camera from scratch, enough for the kind of one at fault

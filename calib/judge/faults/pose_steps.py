@@ -1,5 +1,5 @@
 """A camera that moved during the capture: a step in its pose, with the points eliminated
-(:mod:`wandcal.calib.judge.own_errors`).
+(:mod:`wandcal.calib.judge.faults.own_errors`).
 
 The camera's views with a time (the wand's ends; point tracks where there is no wand: a moving
 marker) are split at frame k, and its turn after k (three columns: a rotation about its centre) is
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.judge.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
+from wandcal.calib.judge.faults.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
 from wandcal.calib.judge.residuals import Residuals
 
 MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone

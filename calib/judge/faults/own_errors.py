@@ -1,5 +1,5 @@
 """Each camera's own errors, with the points eliminated: its noise (and, in
-:mod:`wandcal.calib.judge.pose_steps`, a step in its pose).
+:mod:`wandcal.calib.judge.faults.pose_steps`, a step in its pose).
 
 A camera's residual in the solve holds the other cameras' errors too: each point is triangulated
 from two to four views, so one camera's noise is spread over the points and shows in its

@@ -5,10 +5,10 @@ In a rig of three or four cameras a fault bends every pose, and each point is se
 cameras, so a camera's residual in the solve holds the others' errors too: the weakest camera
 (the most outliers, the fewest views) takes the blame. Here each camera ``c`` is judged on its own
 observations of every point the *other* cameras triangulate (wand ends and point tracks, two or
-more other views), with its pose refitted to them (:func:`wandcal.calib.judge.faults.resect`), so
+more other views), with its pose refitted to them (:func:`wandcal.calib.judge.faults.screen.resect`), so
 what remains is c's own. Two patterns of what remains name a fault:
 
-- **the lens** (:func:`wandcal.calib.judge.faults._lens_fit`): a focal length, k1 or principal
+- **the lens** (:func:`wandcal.calib.judge.faults.screen._lens_fit`): a focal length, k1 or principal
   point that the pose cannot take up;
 - **a knock**: the camera turned by a rotation ``w`` after frame k, ``r ~ J_rot w`` on its
   observations after k and 0 before, with ``J_rot`` its projection's derivative in its own rotation:
@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from wandcal.calib.geometry import rotvec_to_matrix
-from wandcal.calib.judge.faults import POSE_STEP, Lens, _lens_fit, _pose_columns, _share, resect
+from wandcal.calib.judge.faults.screen import POSE_STEP, Lens, _lens_fit, _pose_columns, _share, resect
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.start.labels import flatten
 from wandcal.calib.triangulate import triangulate_points
@@ -255,7 +255,7 @@ def leave_one_out_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled:
         best = patterns[compared]
     cam = ids[best.camera]
     if _knock_found(best) >= _lens_found(best):
-        # a camera moved: named by wandcal.calib.judge.own_errors (every view, the split search's
+        # a camera moved: named by wandcal.calib.judge.faults.own_errors (every view, the split search's
         # multiple testing, and only where leaving the camera out explains the others' steps)
         return []
     lens = best.lens

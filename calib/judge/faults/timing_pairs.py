@@ -1,6 +1,6 @@
 """Which camera is out of time, from every pair of cameras that sees the moving wand at once.
 
-The suspect screen's timing analysis (:func:`wandcal.calib.judge.faults.analyse_camera`) needs a
+The suspect screen's timing analysis (:func:`wandcal.calib.judge.faults.screen.analyse_camera`) needs a
 camera's wand ends triangulated by two other cameras in many frames. Sparse, hand-digitised
 sessions do not have them: Brown's cameras share 2-8 such frames, while every frame a camera shares
 with *one* other still holds the timing. Two cameras that see a point at the same time see it on
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.judge.faults import MIN_T_STAT, offset_text
+from wandcal.calib.judge.faults.screen import MIN_T_STAT, offset_text
 from wandcal.calib.observations import PointTracks, WandPairs
 
 MAX_SHIFT = 3  # whole frames searched either way
@@ -394,7 +394,7 @@ def timing_refusal(error: Exception, ids: list[str], R: np.ndarray, t: np.ndarra
     where the pairs find one: its shift, not the wand's length, is then what to fix. ``error``
     itself where no camera is out of time or the rig is not of 3-5 cameras."""
     from wandcal.calib.errors import CalibrationError
-    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS
+    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
 
     if not 3 <= len(ids) <= MAX_CAMERAS:
         return error
