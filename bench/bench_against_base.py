@@ -8,7 +8,7 @@ on both alike); BLAS is pinned to one thread as the solvers pin it. Reported: me
 rounds of wall and CPU seconds of the process, and the solver's own seconds from result.json.
 
 Usage: python bench/bench_against_base.py --base /tmp/h23base=LABEL [--base ...] [--rigs 8x1500,16x2500]
-[--outliers 0,0.08] [--rounds 5] [--no-write]
+[--outliers 0,0.08] [--rounds 5] [--command calibrate|check|guidance] [--no-write]
 (the base: ``git archive <commit> | tar -x -C /tmp/h23base``).
 """
 
@@ -46,29 +46,38 @@ def namespace(tree: Path, into: Path) -> Path:
     return into
 
 
-def run(env: dict, folder: Path, out: Path) -> tuple[float, float, float]:
-    """(wall s, CPU s, solver s) of one `wandcal calibrate` process."""
+def run(env: dict, folder: Path, out: Path, command: str = "calibrate") -> tuple[float, float, float]:
+    """(wall s, CPU s, solver s) of one `wandcal COMMAND` process on ``folder``: calibrate writes
+    ``out``; check judges ``folder`` against the standing result beside ``out`` (standing.json);
+    guidance prints the folder's wanding guidance (their solver column is 0)."""
+    argv = {"calibrate": ["calibrate", str(folder), "--quiet", "--out", str(out)],
+            "check": ["check", str(out.parent / "standing.json"), str(folder)],
+            "guidance": ["guidance", str(folder)]}[command]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "wandcal.service.cli", "calibrate", str(folder), "--quiet", "--out", str(out)],
-                   check=True, capture_output=True, env=env, cwd=REPO)
+    done = subprocess.run([sys.executable, "-m", "wandcal.service.cli", *argv], check=False, capture_output=True,
+                          env=env, cwd=REPO)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode not in ((0,) if command == "calibrate" else (0, 1)):
+        raise SystemExit(f"{command} exited {done.returncode}: {done.stderr.decode()[-500:]}")
     cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
-    return wall, cpu, float(json.loads(out.read_text())["solver"]["seconds"])
+    return wall, cpu, float(json.loads(out.read_text())["solver"]["seconds"]) if command == "calibrate" else 0.0
 
 
-def compare(rig: str, outliers: float, envs: dict, tmp: Path, rounds: int) -> list[str]:
+def compare(rig: str, outliers: float, envs: dict, tmp: Path, rounds: int, command: str = "calibrate") -> list[str]:
     """The table rows of one rig (``CxF``) at one outlier fraction: base and head, interleaved."""
     cameras, frames = rig.split("x")
     folder = tmp / f"{rig}-{outliers}"
     subprocess.run([sys.executable, "-m", "wandcal.service.cli", "simulate", str(folder), "--cameras", cameras,
                     "--frames", frames, "--outliers", str(outliers)], check=True, capture_output=True, env=envs["base"],
                    cwd=REPO)
+    if command == "check":  # the standing result: the base's calibration of the same capture
+        run(envs["base"], folder, tmp / "standing.json")
     got: dict[str, list] = {"base": [], "head": []}
     for r in range(rounds):
         for name in ("base", "head") if r % 2 == 0 else ("head", "base"):
-            got[name].append(run(envs[name], folder, tmp / f"{name}.json"))
+            got[name].append(run(envs[name], folder, tmp / f"{name}.json", command))
             print(rig, outliers, name, r, " ".join(f"{v:.3f}" for v in got[name][-1]), flush=True)
     med = {name: np.median(np.array(v), axis=0) for name, v in got.items()}
     ratio = med["head"] / med["base"]
@@ -83,6 +92,8 @@ def main() -> int:
     ap.add_argument("--rigs", default="8x1500,16x2500")
     ap.add_argument("--outliers", default="0", help="outlier fractions, each simulated on every rig (the Peers bench: 0 and 0.08)")
     ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--command", choices=("calibrate", "check", "guidance"), default="calibrate",
+                    help="the command timed (check: against the base's calibration of the same capture)")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     pinned = dict.fromkeys(("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"), "1")
@@ -95,7 +106,12 @@ def main() -> int:
             envs = {name: dict(os.environ, PYTHONPATH=str(path), **pinned) for name, path in trees.items()}
             for rig in args.rigs.split(","):
                 for outliers in map(float, args.outliers.split(",")):
-                    rows += [f"| {label or tree} " + row for row in compare(rig, outliers, envs, Path(tmp), args.rounds)]
+                    rows += [f"| {label or tree} " + row for row in compare(rig, outliers, envs, Path(tmp), args.rounds, args.command)]
+    if args.command != "calibrate":
+        body = (f"The whole `wandcal {args.command}` process on the Peers bench's simulated synchronised two-marker "
+                f"captures (with an L-frame; check: against the base's calibration of the same capture), this tree "
+                f"against each base, {args.rounds} rounds interleaved, medians; BLAS on one thread.\n\n" + "\n".join(rows))
+        return publish(f"Issue 32: `{args.command}` before and after", body, not args.no_write)
     body = (f"The whole `wandcal calibrate` process on the Peers bench's simulated synchronised two-marker captures "
             f"(with an L-frame), this tree against each base, {args.rounds} rounds interleaved (base first in even "
             f"rounds), medians; BLAS on one thread. Goal (issue 23): head no more than {GOAL:.0%} slower. A base of "
