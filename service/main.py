@@ -21,7 +21,7 @@ from threadpoolctl import threadpool_limits
 from wandcal.calib.errors import CalibrationError
 from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.api.deps import AppState, require_token
-from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture
+from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture, watch
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
 from wandcal.service.connection_limits import install_repeat_filter
 from wandcal.service.datafolder.lock import hold_data_folder
@@ -131,6 +131,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.live_capture = LiveCapture(capture_store, settings.capture_continue_timeout_s)
     app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(guidance.router, prefix=API_PREFIX, dependencies=secured)
+    app.include_router(watch.router, prefix=API_PREFIX, dependencies=secured)
     _add_error_handlers(app, data_dir)
 
     @app.get("/", include_in_schema=False)

@@ -33,6 +33,7 @@ from wandcal.capture.rig_file import rig_from_json
 from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.jobs.queue import QueueUnavailable
 from wandcal.service.jobs.records import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
+from wandcal.service.jobs.watch_job import WATCH_METHOD, run_watch, watch_files
 from wandcal.service.jobs.worker import JobStopped, ThrottledProgress, solve
 
 JOB_TIMEOUT_S = 3600  # a large rig with the LP method stays well under an hour on a small PC
@@ -82,24 +83,28 @@ def run_payload(payload: dict) -> dict:
 
     job = get_current_job()
     files = payload["files"]
+    if payload["method"] == WATCH_METHOD:  # issue 36: the take's texts (service/jobs/watch_job.py)
+        return run_watch(files, payload["options"], ThrottledProgress(lambda p: _report_meta(job, p)))
     rig = rig_from_json(json.loads(files[RIG_FILE]))
     wand = parse_wand_csv(files[WAND_FILE], rig)
     static = parse_static_csv(files[STATIC_FILE], rig) if files.get(STATIC_FILE) else None
     capture = Capture(rig=rig, wand=wand, static=static)
 
-    def report(progress: dict) -> bool:
-        if job is None:
-            return False
-        job.meta["progress"] = progress
-        job.save_meta()
-        return bool(job.connection.exists(CANCEL_KEY.format(job.id)))
-
     started = time.perf_counter()
-    result = solve(capture, payload["method"], payload["options"], ThrottledProgress(report))
+    result = solve(capture, payload["method"], payload["options"], ThrottledProgress(lambda p: _report_meta(job, p)))
     if job is not None:
         job.meta["solve_seconds"] = time.perf_counter() - started
         job.save_meta()
     return result
+
+
+def _report_meta(job, progress: dict) -> bool:
+    """Progress into the rq job's meta; True when the job was asked to stop."""
+    if job is None:
+        return False
+    job.meta["progress"] = progress
+    job.save_meta()
+    return bool(job.connection.exists(CANCEL_KEY.format(job.id)))
 
 
 def on_failure(job, connection, exc_type, exc_value, traceback) -> None:
@@ -186,7 +191,9 @@ class RedisQueue:
     def _enqueue(self, job: JobRecord) -> None:
         from rq import Callback, Retry
 
-        payload = capture_payload(self.read_files(job.capture_id), job.method, job.options)
+        files = (watch_files(job.options["folder"]) if job.method == WATCH_METHOD  # issue 36: a take watched
+                 else self.read_files(job.capture_id))
+        payload = capture_payload(files, job.method, job.options)
         self.queue.enqueue_call(
             run_payload, args=(payload,), job_id=job.id, timeout=JOB_TIMEOUT_S, result_ttl=RESULT_TTL_S,
             failure_ttl=RESULT_TTL_S, retry=Retry(max=RETRIES), on_failure=Callback(on_failure),
