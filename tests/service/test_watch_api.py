@@ -4,12 +4,14 @@ job, gives the figures ``wandcal watch`` gives on the same files; bad input is a
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import time
 
 import numpy as np
 import pytest
 
-from tests.service.conftest import capture_files, wandcal
+from tests.service.conftest import REPO, capture_files, free_port, wandcal
 from wandcal.drivers.capture_files import RIG_FILE, TAKE_FILE
 
 WATCH_TIMEOUT_S = 300.0  # a 600-frame take of 6 cameras is seconds of CPU; the machine is shared
@@ -103,3 +105,39 @@ def test_bad_input_is_a_4xx_naming_the_part(make_server, root, tmp_path):
         assert watch["state"] == "failed" and "does not fit" in watch["error"], watch
         assert c.get(f"/watch/{watch['id']}/result").status_code == 409
     assert len(list((tmp_path / "data" / "takes").iterdir())) == 1  # a refused take leaves nothing behind
+
+
+def test_watch_on_an_rq_worker(make_server, root, tmp_path):
+    """The same take watched by an rq worker that never sees the data folder: the same report."""
+    pytest.importorskip("rq", reason="pip install 'wandcal[redis]' to test the Redis queue")
+    from tests.service.test_redis import REDIS_SERVER, _wait_for_redis
+
+    if REDIS_SERVER is None:
+        pytest.skip("redis-server is not installed")
+    standing = tmp_path / "standing.json"
+    assert wandcal("calibrate", str(root / "wand"), "--out", str(standing), "--quiet").returncode == 0
+    port = free_port()
+    redis = subprocess.Popen([REDIS_SERVER, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
+                              "--dir", str(tmp_path)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    url = f"redis://127.0.0.1:{port}/0"
+    try:
+        _wait_for_redis(url, redis)
+        server = make_server(queue="redis", redis_url=url, workers=0).start()
+        with server.client() as c:
+            capture_id = c.post("/captures", files=capture_files(root / "wand")).json()["id"]
+            r = c.post("/watch", files=take_part(root / "knock")
+                       | {"result.json": ("result.json", standing.read_bytes(), "application/json")},
+                       data={"capture_id": capture_id})
+            assert r.status_code == 202, r.text
+            worker = subprocess.run([sys.executable, "-m", "rq.cli", "worker", "--burst", "--url", url, "wandcal"],
+                                    cwd=tmp_path, env=dict(server.env, PYTHONPATH=str(REPO)), capture_output=True,
+                                    text=True, timeout=600, check=False)
+            assert worker.returncode == 0, worker.stderr
+            watch = wait_watch(c, r.json()["id"])
+    finally:
+        redis.terminate()
+        redis.wait(10)
+    assert watch["state"] == "done", watch["error"]
+    cli = wandcal("watch", str(standing), str(root / "knock"), "--json")
+    assert cli.returncode == 1, cli.stderr
+    assert watch["report"] == json.loads(cli.stdout)
