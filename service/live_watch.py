@@ -142,7 +142,11 @@ class LiveWatch:
                 fed = True
             self._next = stop
         if fed or ended:
-            self._set(report=report_json(stream.report(min(last, self._next - 1))), frames=stream.frames)
+            report = stream.report(min(last, self._next - 1))
+            doc = report_json(report)
+            for entry, health in zip(doc["cameras"], report.cameras):
+                entry["peak"] = round(health.peak, 1)  # the test's largest statistic so far, for the page's bar
+            self._set(report=doc, frames=stream.frames)
         return stream
 
     def _batch(self, rows: _Rows, stop: int) -> tuple[TakeBlobs, np.ndarray]:

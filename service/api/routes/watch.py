@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import threading
+import time
 import uuid
 from pathlib import Path
 from typing import Any
@@ -15,6 +17,7 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, Field
 
 from wandcal.calib.errors import CalibrationError
+from wandcal.calib.watch.sequential import GLR_THRESHOLD
 from wandcal.drivers.capture_files import RIG_FILE, TAKE_FILE
 from wandcal.service.api.deps import State, require_content_type
 from wandcal.service.api.routes.captures import _file_schema, _form, _form_body, _text
@@ -26,6 +29,7 @@ from wandcal.service.storage import CaptureNotFound
 router = APIRouter(prefix="/watch", tags=["watch"])
 
 PARTS = (TAKE_FILE, RIG_FILE, STANDING_FILE, "job_id", "capture_id", "write")
+LIVE_RIG_WAIT_S = 5.0  # a live capture writes rig.json as its recording starts
 TRUE, FALSE = ("1", "true", "yes", "on"), ("", "0", "false", "no", "off")
 ERRORS: dict[int | str, dict[str, Any]] = {
     401: {"model": ErrorPublic, "description": "missing or wrong bearer token"},
@@ -148,13 +152,117 @@ async def create_watch(request: Request, state: State) -> WatchPublic:
         raise HTTPException(404, f"capture_id: no capture with id {capture_id!r}; list captures with GET /api/v1/captures") from None
     rig = await _text(form.get(RIG_FILE), RIG_FILE, limit) or (state.captures.folder(capture.id) / RIG_FILE).read_text()
     write = _flag(form.get("write", ""), "write")
-    folder = await run_in_threadpool(_store_take, state, {RIG_FILE: rig, TAKE_FILE: take_text, STANDING_FILE: standing},
-                                  source)
+    texts = {RIG_FILE: rig, TAKE_FILE: take_text, STANDING_FILE: standing}
+    return await run_in_threadpool(_queue_watch, state, capture.id, texts, source, write)
+
+
+def _queue_watch(state, capture_id: str, texts: dict[str, str], source: str, write: bool) -> WatchPublic:
+    """The take folder stored and checked (:func:`_store_take`), and its watch job queued."""
+    folder = _store_take(state, texts, source)
     options = {"folder": str(folder), "write": write, "take_name": f"{TAKES_DIR}/{folder.name}/{TAKE_FILE}",
                "standing_name": source}
-    record = state.queue.store.create(capture.id, WATCH_METHOD, options)
+    record = state.queue.store.create(capture_id, WATCH_METHOD, options)
     state.queue.submit(record)
     return _public(record)
+
+
+# -- the live capture watched as it records (service/live_watch.py) ------------------------------
+class LiveWatchCreate(BaseModel):
+    """The standing result to watch the live capture with: a done calibration job's (``job_id``)
+    or a wandcal-result/1 document (``result``), one of them."""
+
+    job_id: str | None = Field(None, max_length=64)
+    result: dict[str, Any] | None = None
+
+
+_live_lock = threading.Lock()
+
+
+def _live_watch(request: Request):
+    return getattr(request.app.state, "live_watch", None)
+
+
+def _start_live(request: Request, state, body: LiveWatchCreate) -> dict:
+    from types import SimpleNamespace
+
+    from wandcal.capture.rig_file import read_rig
+    from wandcal.drivers.capture_files import BLOBS_FILE
+    from wandcal.service.cli.support.inputs import result_for
+    from wandcal.service.live_capture import BUSY
+    from wandcal.service.live_watch import LiveWatch
+
+    live = request.app.state.live_capture
+    status = live.status()
+    if status.state not in BUSY or status.capture_id is None:
+        raise HTTPException(409, f"no live capture is recording (it is {status.state.value}); start one with POST "
+                                 "/api/v1/capture/start, then watch it")
+    if (body.job_id is None) == (body.result is None):
+        raise HTTPException(422, "give the standing result: job_id (a done calibration job) or result, one of them")
+    if body.job_id is not None:
+        standing, source, _ = _standing(state, {"job_id": body.job_id}, None)
+    else:
+        standing, source = json.dumps(body.result, indent=2) + "\n", "result"
+    staging = state.captures.root / f".{status.capture_id}.partial"
+    deadline = time.monotonic() + LIVE_RIG_WAIT_S
+    while not (staging / RIG_FILE).is_file():  # the recording writes it as it starts
+        if time.monotonic() > deadline:
+            raise HTTPException(409, f"live capture {status.capture_id} has not started recording yet; try again")
+        time.sleep(0.05)
+    folder = state.settings.data_dir / TAKES_DIR / f"live-{status.capture_id}"
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / STANDING_FILE).write_text(standing)
+    rig = read_rig(staging, allow_no_wand=True)
+    try:
+        _, ordered, R, t, _ = result_for(folder / STANDING_FILE, SimpleNamespace(rig=rig))
+    except CalibrationError as exc:
+        raise CalibrationError(str(exc).replace(str(folder / STANDING_FILE), source)) from None
+    with _live_lock:
+        previous = _live_watch(request)
+        if previous is not None:
+            previous.stop()
+        request.app.state.live_watch = LiveWatch(
+            status.capture_id, staging / BLOBS_FILE, ordered, R, t, standing=source, folder=folder,
+            busy=lambda: live.status().state in BUSY).start()
+    return request.app.state.live_watch.status()
+
+
+@router.post("/live", status_code=202, responses=ERRORS, summary="Watch the live capture as it records: each "
+             "camera's health at GET /watch/live, updated every half second")
+async def start_live_watch(body: LiveWatchCreate, request: Request, state: State) -> dict:
+    return await run_in_threadpool(_start_live, request, state, body)
+
+
+@router.get("/live", responses=ERRORS, summary="The live capture's health: state (idle, watching, done, failed), the "
+            "report so far (as GET /watch/{id}'s) and when it was updated")
+async def get_live_watch(request: Request) -> dict:
+    watch = _live_watch(request)
+    return {"state": "idle"} if watch is None else watch.status() | {"threshold": GLR_THRESHOLD}
+
+
+def _resolve_live(request: Request, state) -> WatchPublic:
+    watch = _live_watch(request)
+    if watch is None:
+        raise HTTPException(409, "no live capture was watched; start one with POST /api/v1/watch/live")
+    if watch.status()["state"] != "done":
+        raise HTTPException(409, f"live capture {watch.capture_id} is still recording: the re-solve uses the whole take, "
+                                 "so stop the capture (POST /api/v1/capture/stop) first")
+    try:
+        folder = state.captures.folder(state.captures.get(watch.capture_id).id)
+    except CaptureNotFound:
+        raise HTTPException(409, f"live capture {watch.capture_id} was not stored (its recording failed); "
+                                 "nothing to re-solve from") from None
+    from wandcal.drivers.capture_files import BLOBS_FILE
+
+    texts = {RIG_FILE: (folder / RIG_FILE).read_text(), TAKE_FILE: (folder / BLOBS_FILE).read_text(),
+             STANDING_FILE: (watch.folder / STANDING_FILE).read_text()}
+    return _queue_watch(state, watch.capture_id, texts, watch.standing, True)
+
+
+@router.post("/live/resolve", status_code=202, response_model=WatchPublic, responses=ERRORS,
+             summary="Re-solve the moved cameras of the live capture just recorded: a watch job (write=true) on its "
+                     "blobs, read as GET /watch/{id}")
+async def resolve_live(request: Request, state: State) -> WatchPublic:
+    return await run_in_threadpool(_resolve_live, request, state)
 
 
 @router.get("/{job_id}", response_model=WatchPublic, responses=ERRORS,
@@ -182,3 +290,6 @@ async def get_watch_result(job_id: str, state: State) -> dict:
     if "result" not in record.result:
         raise HTTPException(409, f"watch {job_id} was not asked to write the updated result; start it with write=true")
     return record.result["result"]
+
+
+
