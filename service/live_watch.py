@@ -95,7 +95,6 @@ class LiveWatch:
                 raise FileNotFoundError(f"the recording wrote no blobs within {WAIT_FOR_FILE_S:g} s")
         rows, stream, last = _Rows(), None, -1
         with open(self.blobs_path) as fh:
-            fh.readline()  # the header
             partial = ""
             while True:
                 ended = not self.busy()  # read before the file: every set of an ended capture is in it
@@ -113,6 +112,8 @@ class LiveWatch:
 
     def _parse(self, lines: list[str], rows: _Rows) -> None:
         for line in lines:
+            if not line or line.startswith("frame,"):  # the header (the file may be read before it is written)
+                continue
             frame, cid, u, v = line.split(",")
             rows.frame.append(int(frame))
             rows.camera.append(self.ids[cid])

@@ -8,7 +8,7 @@ is the report of ``wandcal watch --json`` and, when asked (``write``), the updat
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from wandcal.drivers.capture_files import RIG_FILE, TAKE_FILE
@@ -19,12 +19,12 @@ STANDING_FILE = "result.json"  # the standing result, as uploaded or as the cali
 WATCH_FILES = (RIG_FILE, TAKE_FILE, STANDING_FILE)
 
 
-def watch_files(folder: str | Path) -> dict[str, str]:
+def watch_files(folder: str | Path) -> dict[str, str | None]:
     """The texts of a watch job's take folder: rig.json, take.csv, result.json."""
     return {name: (Path(folder) / name).read_text() for name in WATCH_FILES}
 
 
-def run_watch(files: dict[str, str], options: dict, progress: Callable[[dict], None]) -> dict:
+def run_watch(files: Mapping[str, str | None], options: dict, progress: Callable[[dict], None]) -> dict:
     """Watch the take of ``files`` (:data:`WATCH_FILES` texts) with its standing result, exactly as
     ``wandcal watch RESULT TAKE --json [--write]``. ``options``: ``write`` (bool: add the updated result),
     ``take_name`` and ``standing_name`` (how the report and the updated result name them).
@@ -38,7 +38,7 @@ def run_watch(files: dict[str, str], options: dict, progress: Callable[[dict], N
     take_name, standing_name = options.get("take_name", TAKE_FILE), options.get("standing_name", STANDING_FILE)
     with tempfile.TemporaryDirectory(prefix="wandcal-watch-") as tmp:
         for name, text in files.items():
-            (Path(tmp) / name).write_text(text)
+            (Path(tmp) / name).write_text(text or "")
         try:
             take = read_take(tmp)
             standing, rig, R, t, _ = result_for(Path(tmp) / STANDING_FILE, take)

@@ -275,8 +275,12 @@ async def get_watch(job_id: str, state: State) -> WatchPublic:
 async def cancel_watch(job_id: str, state: State) -> WatchPublic:
     record = await run_in_threadpool(_record, state, job_id)
     if not record.state.finished:
-        record = await run_in_threadpool(state.queue.cancel, job_id) or record
+        record = await run_in_threadpool(_cancel, state, record)
     return _public(record)
+
+
+def _cancel(state, record: JobRecord) -> JobRecord:
+    return state.queue.cancel(record.id) or record  # None only if its row went meanwhile
 
 
 @router.get("/{job_id}/result", responses=ERRORS,
