@@ -6,6 +6,7 @@ for the stages and which package may import which, ``docs/architecture.md``.
 | module or package | holds |
 |---|---|
 | :mod:`~wandcal.calib.errors`, :mod:`~wandcal.calib.rig`, :mod:`~wandcal.calib.geometry`, :mod:`~wandcal.calib.observations`, :mod:`~wandcal.calib.triangulate`, :mod:`~wandcal.calib.wandlayout` | the core every stage shares |
+| :mod:`~wandcal.calib.refraction` | cameras that look through a flat window into water (OpenPTV's multimedia model) |
 | :mod:`~wandcal.calib.detect` | marker blobs in images |
 | :mod:`~wandcal.calib.start` | first poses, wand labels, the world frame |
 | :mod:`~wandcal.calib.solve` | the refinement methods (``ba``, ``lp``, ``paper``) and their back-ends |

@@ -19,9 +19,8 @@ from fastapi.staticfiles import StaticFiles
 from threadpoolctl import threadpool_limits
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
 from wandcal.service.api.deps import AppState, require_token
-from wandcal.service.api.routes import blobsets, captures, guidance, health, jobs, live_capture, watch
+from wandcal.service.api.routes import blobsets, captures, checks, guidance, health, jobs, live_capture, watch
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
 from wandcal.service.connection_limits import install_repeat_filter
 from wandcal.service.datafolder.lock import hold_data_folder
@@ -46,16 +45,11 @@ LIVE_STOP_S = 1.5
 
 def _queue(settings: Settings, store: JobStore, capture_store: CaptureStore) -> JobQueue:
     if settings.queue == "redis":
-        from wandcal.service.jobs.redis_queue import RedisQueue
+        from wandcal.service.jobs.redis_queue import PAYLOAD_FILES, RedisQueue
 
         def read_files(capture_id: str) -> dict[str, str | None]:
             folder = capture_store.folder(capture_id)
-            static = folder / STATIC_FILE
-            return {
-                RIG_FILE: (folder / RIG_FILE).read_text(),
-                WAND_FILE: (folder / WAND_FILE).read_text(),
-                STATIC_FILE: static.read_text() if static.is_file() else None,
-            }
+            return {name: (folder / name).read_text() if (folder / name).is_file() else None for name in PAYLOAD_FILES}
 
         return RedisQueue(store, read_files, settings.redis_url, settings.redis_queue_name)
     return SQLiteQueue(store, capture_store.load, settings.data_dir, settings.workers)
@@ -77,11 +71,6 @@ def create_app(settings: Settings) -> FastAPI:
     data_dir = settings.data_dir.resolve()
     settings = settings.model_copy(update={"data_dir": data_dir})
     folder_lock = hold_data_folder(settings)  # before anything reads or writes the folder: one owner recovers it
-    # BLAS on one thread in the server's own process, set once here and never by a request: the
-    # request threads already share the cores, and the solvers' `threadpool_limits(1)` (guidance
-    # runs one in a request thread) then have nothing to change, so concurrent ones cannot leave
-    # the process-wide count altered (tests/reliability/test_global_state.py)
-    threadpool_limits(limits=1, user_api="blas")
     install_repeat_filter()
     init_db(settings.db_path)  # a corrupt database is moved aside; recover() registers the captures again
     capture_store = CaptureStore(data_dir, settings.db_path, settings.replay_root)
@@ -102,6 +91,12 @@ def create_app(settings: Settings) -> FastAPI:
         # on a full disk and would turn every read into an I/O error (tests/reliability, full disk)
         keeper = sqlite3.connect(settings.db_path)
         keeper.execute("SELECT COUNT(*) FROM captures").fetchall()  # maps the -shm file now
+        # BLAS on one thread while the app serves, set here and never by a request: the request
+        # threads already share the cores, and the solvers' `threadpool_limits(1)` (guidance runs
+        # one in a request thread) then have nothing to change, so concurrent ones cannot leave the
+        # process-wide count altered (tests/reliability/test_global_state.py). Restored when the
+        # app stops, so a process that builds an app (a test) keeps its own BLAS afterwards.
+        one_blas_thread = threadpool_limits(limits=1, user_api="blas")
         queue.start()
         pruner.start()
         try:
@@ -110,6 +105,7 @@ def create_app(settings: Settings) -> FastAPI:
             pruner.stop()
             _stop_live_capture(app.state.live_capture)
             queue.stop()
+            one_blas_thread.restore_original_limits()
             keeper.close()
 
     app = FastAPI(
@@ -131,6 +127,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.live_capture = LiveCapture(capture_store, settings.capture_continue_timeout_s)
     app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(guidance.router, prefix=API_PREFIX, dependencies=secured)
+    app.include_router(checks.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(watch.router, prefix=API_PREFIX, dependencies=secured)
     _add_error_handlers(app, data_dir)
 

@@ -16,12 +16,17 @@ MAX_BLOBSETS_BODY_BYTES = 8 * 1024 * 1024
 MAX_JSON_BODY_BYTES = 1024 * 1024  # a job, a live capture's start with an inline rig.json: kilobytes
 JSON_ROUTE = re.compile(r"/api/v1/(jobs|capture(/[a-z]+)?)/?$")
 BLOBSETS_ROUTE = re.compile(r"/api/v1/captures/[^/]+/blobsets/?$")
+# a check posts a whole wandcal-result/1 document: 40 KiB at 16 cameras, about 0.3 MiB at 128
+MAX_CHECK_BODY_BYTES = 4 * 1024 * 1024
+CHECK_ROUTE = re.compile(r"/api/v1/captures/[^/]+/check/?$")
 
 
 def body_limit(path: str, max_upload_bytes: int) -> tuple[int, str]:
     """The largest body a route takes, and the setting or limit that says so."""
     if BLOBSETS_ROUTE.match(path):
         return min(MAX_BLOBSETS_BODY_BYTES, max_upload_bytes), "the blob-set limit; send fewer sets a request"
+    if CHECK_ROUTE.match(path):
+        return min(MAX_CHECK_BODY_BYTES, max_upload_bytes), "the check's limit (a result document of 1,000 cameras)"
     if JSON_ROUTE.match(path):
         return min(MAX_JSON_BODY_BYTES, max_upload_bytes), "the JSON request limit"
     return max_upload_bytes, "upload smaller files or raise WANDCAL_MAX_UPLOAD_BYTES"

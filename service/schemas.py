@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import enum
+import math
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from wandcal.calib.errors import CalibrationError
 from wandcal.calib.run.options import (
     DEFAULT_METHOD,
     MAX_FRAME_RATE_HZ,
@@ -115,6 +117,14 @@ class Method(str, enum.Enum):
     paper = "paper"
 
 
+MAX_CAMERAS = 1024  # solve_only names at most this many ids (a rig of 128 cameras is the largest measured)
+# the job options that are not CalibrationOptions fields, with why (tests/service/test_options_drift.py)
+NOT_CALIBRATION_OPTIONS = {
+    "use_static": "the service's choice to fix the world by the capture's static object (the command line always does)",
+    "from_job": "the command line's --from RESULT: a result on the server is a done job",
+    "solve_only": "the command line's --solve-only: which cameras a re-solve places again, not how a calibration solves",
+}
+
 # the choices as JSON Schema enums; the same as the lists calibrate checks against, and the
 # defaults as CalibrationOptions' (LOSSES, SYNC_MODES, INTRINSICS: tests/service/test_options_drift.py)
 Loss = Literal["cauchy", "linear"]
@@ -125,8 +135,8 @@ Intrinsic = Literal["focal", "principal", "k1"]
 class JobOptions(BaseModel):
     """A job's calibration options: every field of :class:`CalibrationOptions` but ``method`` (the
     job's own field) and ``sync_start`` (from timestamps the service's captures do not keep), the
-    command line's flags by the same names (tests/service/test_options_drift.py), and
-    ``use_static``. Every field has a default, so a job stored before a field was added still reads."""
+    command line's flags by the same names (tests/service/test_options_drift.py), ``use_static``,
+    and ``from_job`` with ``solve_only`` (``--from RESULT --solve-only CAM``). Every field has a default, so a job stored before a field was added still reads."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -146,10 +156,25 @@ class JobOptions(BaseModel):
     sync_drift: bool = Field(False, description="with sync auto: also each camera's clock rate difference (ppm)")
     frame_rate_hz: float | None = Field(None, gt=0, le=MAX_FRAME_RATE_HZ,
                                         description="the cameras' frame rate: offsets are then also given in ms")
+    from_job: str | None = Field(None, max_length=64, description="with solve_only: the done job whose result "
+                                 "stands; every camera not named keeps its pose exactly (the command line's --from)")
+    solve_only: list[str] = Field(default_factory=list, max_length=MAX_CAMERAS,
+                                  description="with from_job: re-solve only these camera ids, e.g. the ones "
+                                  "POST /captures/{id}/check names (--solve-only; method ba, intrinsics held)")
 
     def calibration(self, method: str) -> CalibrationOptions:
         """The options ``calibrate`` takes for a job of ``method`` (not checked)."""
-        return options_from(self.model_dump(exclude={"use_static"}) | {"method": method})
+        return options_from(self.model_dump(exclude=set(NOT_CALIBRATION_OPTIONS)) | {"method": method})
+
+    def check_solve_only(self, method: str) -> None:
+        """Refuse (CalibrationError naming the field) a re-solve the command line refuses."""
+        if bool(self.from_job) != bool(self.solve_only):
+            raise CalibrationError("from_job and solve_only go together (--from RESULT --solve-only CAM): name the "
+                                   "done job whose result stands and the camera ids to re-solve")
+        if self.solve_only and (method != "ba" or self.refine_intrinsics):
+            raise CalibrationError("solve_only (--solve-only) re-solves poses with method ba only, intrinsics held: "
+                                   "drop refine_intrinsics, or calibrate afresh")
+
 
 
 class JobCreate(BaseModel):
@@ -164,7 +189,59 @@ class JobCreate(BaseModel):
         """Refuse (422) options the method cannot run (e.g. max_rounds without paper), as the
         command line refuses its flags: CalibrationOptions.check's message names the field."""
         self.options.calibration(self.method.value).check()
+        self.options.check_solve_only(self.method.value)
         return self
+
+
+class CheckCreate(BaseModel):
+    """``POST /captures/{id}/check``: the standing result to judge the capture against, as a done
+    job's id or as a posted wandcal-result/1 document (what ``wandcal check RESULT CAPTURE`` reads)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    job_id: str | None = Field(None, max_length=64, description="a done job whose result stands")
+    result: dict[str, Any] | None = Field(None, description="a wandcal-result/1 document (docs/result-format.md)")
+
+    @model_validator(mode="after")
+    def _one_result(self) -> CheckCreate:
+        if (self.job_id is None) == (self.result is None):
+            raise ValueError("give one of job_id (a done job's id) and result (a wandcal-result/1 document)")
+        return self
+
+
+class CameraCheckPublic(BaseModel):
+    """One camera against the others (wandcal.calib.judge.bumps.CameraCheck)."""
+
+    id: str
+    moved: bool | None = Field(description="true: it moved; null: too few frames to judge")
+    rms_px: float | None = Field(description="RMS of its leave-one-out errors, pixels")
+    median_px: float | None = Field(description="their median, pixels")
+    frames: int = Field(description="frames it was judged on (a point seen with two others counts half)")
+    reason: str
+    turned_deg: float | None = Field(None, description="a moved camera placed again: how far it turned, degrees")
+    shifted_m: float | None = Field(None, description="and how far it shifted, metres")
+
+    @field_validator("rms_px", "median_px", "turned_deg", "shifted_m", mode="before")
+    @classmethod
+    def _finite(cls, value):
+        return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+class CheckPublic(BaseModel):
+    """``wandcal check --json``'s document with the exit status it means."""
+
+    capture_id: str
+    job_id: str | None = Field(None, description="the job whose result was judged (null: a posted result)")
+    exit_code: int = Field(description="wandcal check's exit status: 0 every camera agrees, 1 a camera moved, 3 some "
+                           "camera could not be judged, or no knock explains the disagreement (another rig)")
+    verdict: Literal["agrees", "moved", "unjudged", "rebuilt"] = Field(
+        description="rebuilt: another rig or a rebuilt one, calibrate afresh (exit_code 3)")
+    cameras: list[CameraCheckPublic]
+    moved: list[str]
+    unjudged: list[str]
+    rebuilt: bool
+    rebuilt_why: list[str]
+    advice: str = Field(description="what to do next, in words")
 
 
 class JobProgress(BaseModel):
@@ -344,6 +421,8 @@ class GuidanceSolve(BaseModel):
     offsets: dict[str, int] | None = Field(None, description="under sync auto: each camera's whole-frame offset found "
                                            "from the wand (cameras at 0 left out); null under none or while the "
                                            "frames cannot tell yet")
+    points_only: bool = Field(False, description="a rig without a wand: coverage and links from its point tracks "
+                              "(points.csv), and no centre sigma in mm (no scale)")
 
 
 class GuidancePublic(BaseModel):

@@ -9,4 +9,5 @@
 | :mod:`~wandcal.calib.sim.references` | world references besides the L-frame: floor points and a dropped ball (``simulate --floor``, ``--drop``) |
 | :mod:`~wandcal.calib.sim.faults` | simulated captures with one thing wrong, the cases the judgement is tested on |
 | :mod:`~wandcal.calib.sim.takes` | ordinary takes: markers on moving bodies, unlabelled blobs, a camera knocked or drifting (``simulate --take``) |
+| :mod:`~wandcal.calib.sim.cavity` | particles in a water-filled cavity seen through a flat window, as OpenPTV's test cavity (the refraction matcher's truth) |
 """

@@ -8,4 +8,5 @@
 | :mod:`~wandcal.calib.watch.sequential` | the window-limited GLR test that names a moved camera; drift or knock |
 | :mod:`~wandcal.calib.watch.recover` | a moved camera re-solved from the take's markers, the others held |
 | :mod:`~wandcal.calib.watch.watch` | all of it over a take (``wandcal watch``) |
+| :mod:`~wandcal.calib.watch.refracted` | the matcher's camera model for cameras behind a flat window into water (decision 0048) |
 """

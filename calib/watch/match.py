@@ -12,11 +12,16 @@ most cameras first, then the smallest residual, each keeping the views no strong
 of two wrong rays keeps fewer than three and is dropped). Seed pairs run in turn over the blobs still
 free, so a marker that camera a or b missed is found from another pair. The geometry is vectorised
 over a batch of frames; only the greedy choice loops, over the candidates' blob numbers.
+
+The cameras' geometry is a hook (:class:`Pinhole`, the default; a camera behind a flat window into
+water, :class:`wandcal.calib.watch.refracted.Refracted`): pairs near the epipolar line (a curve
+through a window), the two-ray point, projection, and triangulation from a candidate's views.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -35,6 +40,30 @@ CLEAR_RATIO = 2.0  # a camera's nearest blob must be this much nearer than its s
 SEED_ANGLE_DEG = 60.0  # a seed pair's optical axes this far apart: wide enough to triangulate, close enough to share markers
 
 
+@dataclass(frozen=True)
+class Tolerances:
+    """The matcher's pixel gates (the constants above by default; a real rig whose calibration or
+    detection is coarser than a simulated take's widens them, in proportion)."""
+
+    epipolar_px: float = EPIPOLAR_PX
+    associate_px: float = ASSOCIATE_PX
+    gate_px: float = GATE_PX
+
+
+@dataclass
+class MatchCounts:
+    """What a :func:`match_frames` call weighed and let go, summed over its seed pairs (for reports):
+    pairs: blob pairs near an epipolar line; candidates: those a third camera confirmed, distinct,
+    after the gate; ambiguous_views: views left out at the gate because a second blob lay within
+    :data:`CLEAR_RATIO` of the nearest; dropped: candidates rejected in the greedy choice (stronger
+    ones took their blobs and left them fewer than :data:`MIN_VIEWS`)."""
+
+    pairs: int = 0
+    candidates: int = 0
+    ambiguous_views: int = 0
+    dropped: int = 0
+
+
 @dataclass(frozen=True, eq=False)
 class Tracks:
     """Matched markers of a batch of frames.
@@ -51,6 +80,68 @@ class Tracks:
         return len(self.frame)
 
 
+class CameraModel(Protocol):
+    """What the matcher asks of the cameras' geometry. xy are normalised image coordinates."""
+
+    def epipolar_pairs(self, a: int, b: int, xa: np.ndarray, xb: np.ndarray,
+                       tol_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(frame index, a's slot, b's slot), each (P,): blob pairs of a frame's xa (F, K, 2) in camera a
+        and xb (F, K, 2) in b (NaN where none) within tol_px of each other's epipolar line (or curve)."""
+        ...
+
+    def two_ray_points(self, a: int, b: int, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
+        """(P, 3) the point nearest both rays of xa (P, 2) in camera a and xb (P, 2) in b, metres."""
+        ...
+
+    def project(self, X: np.ndarray) -> np.ndarray:
+        """(P, C, 2) points X (P, 3) in every camera, NaN where a camera cannot see the point."""
+        ...
+
+    def triangulate(self, p: np.ndarray, c: np.ndarray, xy: np.ndarray, X0: np.ndarray) -> np.ndarray:
+        """(P, 3) points from views (point p (M,), camera c (M,), xy (M, 2)), started at X0 (P, 3)."""
+        ...
+
+    def residuals(self, p: np.ndarray, c: np.ndarray, xy: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """(M, 2) each view's projection of its point minus xy, normalised units."""
+        ...
+
+
+class Pinhole:
+    """Pinhole cameras at poses R (C, 3, 3), t (C, 3): epipolar lines, two-ray midpoints,
+    Gauss-Newton triangulation (the matcher's default :class:`CameraModel`)."""
+
+    def __init__(self, R: np.ndarray, t: np.ndarray, focal: np.ndarray):
+        self.R, self.t, self.focal = R, t, focal
+
+    def epipolar_pairs(self, a, b, xa, xb, tol_px):
+        R, t = self.R, self.t
+        R_ab = R[b] @ R[a].T
+        t_ab = t[b] - R_ab @ t[a]
+        E = _skew(t_ab) @ R_ab
+        ha = np.concatenate([xa, np.ones(xa.shape[:2] + (1,))], axis=-1)
+        hb = np.concatenate([xb, np.ones(xb.shape[:2] + (1,))], axis=-1)
+        lines = ha @ E.T  # (F, K, 3) each a-blob's epipolar line in b
+        with np.errstate(invalid="ignore"):
+            dist = np.abs(np.einsum("fkd,fjd->fkj", lines, hb)) / np.linalg.norm(lines[..., :2], axis=-1)[..., None]
+        return np.nonzero(dist * self.focal[b] < tol_px)
+
+    def two_ray_points(self, a, b, xa, xb):
+        return _two_ray_points(self.R[a], self.t[a], self.R[b], self.t[b], xa, xb)
+
+    def project(self, X):
+        Xc = np.einsum("cij,pj->pci", self.R, X) + self.t[None]  # (P, C, 3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            xy = Xc[..., :2] / Xc[..., 2:3]
+        xy[~(Xc[..., 2] > 0)] = np.nan
+        return xy
+
+    def triangulate(self, p, c, xy, X0):
+        return refine_points(self.R, self.t, p, c, xy, X0)
+
+    def residuals(self, p, c, xy, X):
+        return reprojection_errors(self.R, self.t, p, c, xy, X)
+
+
 def seed_pairs(R: np.ndarray, t: np.ndarray) -> list[tuple[int, int]]:
     """(a, b) pairs, one for each camera a: the camera b whose optical axis is nearest
     :data:`SEED_ANGLE_DEG` from a's, so every camera seeds once."""
@@ -60,16 +151,22 @@ def seed_pairs(R: np.ndarray, t: np.ndarray) -> list[tuple[int, int]]:
     return [(a, int(np.argmin(np.abs(angle[a] - SEED_ANGLE_DEG)))) for a in range(len(R))]
 
 
-def match_frames(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames) -> Tracks:
-    """Match and triangulate a batch of frames' blobs (R (C, 3, 3), t (C, 3) the standing poses)."""
+def match_frames(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames, *,
+                 model: CameraModel | None = None, tolerances: Tolerances | None = None,
+                 counts: MatchCounts | None = None) -> Tracks:
+    """Match and triangulate a batch of frames' blobs (R (C, 3, 3), t (C, 3) the standing poses;
+    ``model`` the cameras' geometry, pinhole at R, t by default; ``tolerances`` the matcher's
+    pixel gates, :class:`Tolerances` () by default; ``counts``, if given, is added to)."""
     focal = np.array([c.focal.mean() for c in rig.cameras])
+    model = Pinhole(R, t, focal) if model is None else model
+    tol = Tolerances() if tolerances is None else tolerances
     free = np.isfinite(padded.xy[..., 0])  # (F, C, K) blobs not yet in a track
     found: list[Tracks] = []
     for a, b in seed_pairs(R, t):
-        cand = _candidates(R, t, focal, padded, free, a, b)
+        cand = _candidates(model, tol, focal, padded, free, a, b, counts)
         if cand is None:
             continue
-        taken = _resolve(R, t, focal, padded, *cand)
+        taken = _resolve(model, focal, padded, *cand, counts=counts)
         if taken is None:
             continue
         f_idx, slots, X = taken
@@ -83,35 +180,30 @@ def match_frames(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames) -
                   np.concatenate([f.X for f in found]))
 
 
-def _candidates(R, t, focal, padded: PaddedFrames, free, a: int, b: int):
+def _candidates(model: CameraModel, tol: Tolerances, focal, padded: PaddedFrames, free, a: int, b: int,
+                counts: MatchCounts | None = None):
     """Pairs of free blobs of cameras a and b near each other's epipolar line, confirmed by a third
     camera: (frame index (P,), each camera's slot (P, C) or -1, points (P, 3), residual rms px (P,))."""
     # the points start at the two-ray midpoint and are refined by Gauss-Newton (no DLT: its 4x4
     # eigen-decompositions were half the matcher's time)
     xa = np.where(free[:, a, :, None], padded.xy[:, a], np.nan)  # (F, K, 2)
     xb = np.where(free[:, b, :, None], padded.xy[:, b], np.nan)
-    R_ab = R[b] @ R[a].T
-    t_ab = t[b] - R_ab @ t[a]
-    E = _skew(t_ab) @ R_ab
-    ha = np.concatenate([xa, np.ones(xa.shape[:2] + (1,))], axis=-1)
-    hb = np.concatenate([xb, np.ones(xb.shape[:2] + (1,))], axis=-1)
-    lines = ha @ E.T  # (F, K, 3) each a-blob's epipolar line in b
-    with np.errstate(invalid="ignore"):
-        dist = np.abs(np.einsum("fkd,fjd->fkj", lines, hb)) / np.linalg.norm(lines[..., :2], axis=-1)[..., None]
-    f_idx, i, j = np.nonzero(dist * focal[b] < EPIPOLAR_PX)
+    f_idx, i, j = model.epipolar_pairs(a, b, xa, xb, tol.epipolar_px)
+    if counts is not None:
+        counts.pairs += len(f_idx)
     if not len(f_idx):
         return None
-    X = _two_ray_points(R[a], t[a], R[b], t[b], xa[f_idx, i], xb[f_idx, j])
-    slots = _associate(R, t, focal, padded, free, f_idx, X, ASSOCIATE_PX)
+    X = model.two_ray_points(a, b, xa[f_idx, i], xb[f_idx, j])
+    slots = _associate(model, focal, padded, free, f_idx, X, tol.associate_px)
     slots[:, a], slots[:, b] = i, j
     keep = (slots >= 0).sum(1) >= MIN_VIEWS
     if not keep.any():
         return None
     f_idx, slots = f_idx[keep], slots[keep]
-    X, _ = _triangulate(R, t, focal, padded, f_idx, slots, X[keep])
+    X, _ = _triangulate(model, focal, padded, f_idx, slots, X[keep])
     # again from the point of every view: each camera's nearest free blob within the gate, unless
     # a second blob is nearly as near (that view is ambiguous and left out, not the marker)
-    slots = _associate(R, t, focal, padded, free, f_idx, X, GATE_PX)
+    slots = _associate(model, focal, padded, free, f_idx, X, tol.gate_px, counts)
     keep = (slots >= 0).sum(1) >= MIN_VIEWS
     f_idx, slots = f_idx[keep], slots[keep]
     if not len(f_idx):
@@ -119,46 +211,52 @@ def _candidates(R, t, focal, padded: PaddedFrames, free, a: int, b: int):
     key = np.concatenate([f_idx[:, None], slots], axis=1)
     _, first = np.unique(key, axis=0, return_index=True)  # candidates that found the same views are one
     f_idx, slots, X = f_idx[first], slots[first], X[keep][first]
-    X, rms = _triangulate(R, t, focal, padded, f_idx, slots, X)
+    X, rms = _triangulate(model, focal, padded, f_idx, slots, X)
+    if counts is not None:
+        counts.candidates += len(f_idx)
     return f_idx, slots, X, rms
 
 
-def _associate(R, t, focal, padded: PaddedFrames, free, f_idx, X, radius: float) -> np.ndarray:
+def _associate(model: CameraModel, focal, padded: PaddedFrames, free, f_idx, X, radius: float,
+               counts: MatchCounts | None = None) -> np.ndarray:
     """(P, C) each camera's free blob nearest the point's projection within ``radius`` px and
     :data:`CLEAR_RATIO` times nearer than any other, -1 if none (a k-d tree a camera, frames kept
     apart by :data:`FRAME_GAP_PX`)."""
     from scipy.spatial import cKDTree
 
-    Xc = np.einsum("cij,pj->pci", R, X) + t[None]  # (P, C, 3)
-    out = np.full((len(X), len(R)), -1)
-    for c in range(len(R)):
+    xy = model.project(X)  # (P, C, 2)
+    out = np.full(xy.shape[:2], -1)
+    for c in range(xy.shape[1]):
         fi, k = np.nonzero(free[:, c])
-        ahead = Xc[:, c, 2] > 0
+        ahead = np.isfinite(xy[:, c, 0])
         if not len(fi) or not ahead.any():
             continue
         tree = cKDTree(np.column_stack([padded.xy[fi, c, k] * focal[c], fi * FRAME_GAP_PX]))
         q = np.flatnonzero(ahead)
-        proj = Xc[q, c, :2] / Xc[q, c, 2:3] * focal[c]
+        proj = xy[q, c] * focal[c]
         d, j = tree.query(np.column_stack([proj, f_idx[q] * FRAME_GAP_PX]), k=2,
                           distance_upper_bound=CLEAR_RATIO * radius)
         near = (d[:, 0] < radius) & (d[:, 1] >= CLEAR_RATIO * d[:, 0])
         out[q[near], c] = k[j[near, 0]]
+        if counts is not None:
+            counts.ambiguous_views += int(((d[:, 0] < radius) & ~near).sum())
     return out
 
 
-def _triangulate(R, t, focal, padded: PaddedFrames, f_idx, slots, X0) -> tuple[np.ndarray, np.ndarray]:
+def _triangulate(model: CameraModel, focal, padded: PaddedFrames, f_idx, slots, X0) -> tuple[np.ndarray, np.ndarray]:
     """Each candidate triangulated from all its views by Gauss-Newton from X0 (P, 3), a close start:
     points (P, 3), rms residual px (P,)."""
     p, c = np.nonzero(slots >= 0)
     xy = padded.xy[f_idx[p], c, slots[p, c]]
-    X = refine_points(R, t, p, c, xy, X0)
-    res = reprojection_errors(R, t, p, c, xy, X) * focal[c][:, None]
+    X = model.triangulate(p, c, xy, X0)
+    res = model.residuals(p, c, xy, X) * focal[c][:, None]
     sq = np.bincount(p, (res ** 2).sum(1), minlength=len(slots))
     n = np.bincount(p, minlength=len(slots))
     return X, np.sqrt(sq / np.maximum(n, 1))
 
 
-def _resolve(R, t, focal, padded: PaddedFrames, f_idx, slots, X, rms):
+def _resolve(model: CameraModel, focal, padded: PaddedFrames, f_idx, slots, X, rms, *,
+             counts: MatchCounts | None = None):
     """Candidates taken greedily, most cameras first, then the smaller residual: each keeps the
     views no stronger candidate took, and is taken while it keeps :data:`MIN_VIEWS`; the taken ones
     are triangulated again from the views they kept. Returns (frame index, slots, points) or None."""
@@ -177,10 +275,12 @@ def _resolve(R, t, focal, padded: PaddedFrames, f_idx, slots, X, rms):
         for c, b in mine:
             used.add(b)
             kept[k, c] = slots[k, c]
+    if counts is not None:
+        counts.dropped += len(order) - len(taken)
     if not taken:
         return None
     f_idx, slots = f_idx[taken], kept[taken]
-    X, _ = _triangulate(R, t, focal, padded, f_idx, slots, X[taken])
+    X, _ = _triangulate(model, focal, padded, f_idx, slots, X[taken])
     return f_idx, slots, X
 
 

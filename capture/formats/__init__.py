@@ -10,6 +10,7 @@ and those formats read back as a rig (``wandcal import cameras``).
 | :mod:`wandcal.capture.formats.opencv_yaml` | OpenCV's YAML read without OpenCV (whose parser aborts on damaged files) |
 | :mod:`wandcal.capture.formats.dlt` | DLT coefficients (DLTdv, easyWand, Argus) |
 | :mod:`wandcal.capture.formats.qualisys_vicon` | Qualisys ``.qca`` and Vicon ``.xcp`` |
+| :mod:`wandcal.capture.formats.openptv` | OpenPTV's ptv.par, ``.ori``, ``.addpar`` and ``_targets`` (read only): cameras behind a flat window |
 
 Other tools' whole sessions (cameras and wand or point tracks) are imported as captures by
 :mod:`wandcal.capture.importers`. Bad input raises :class:`wandcal.capture.folder.CaptureFormatError`

@@ -133,19 +133,14 @@ def _solve_only(args, cap, options, progress):
     """``--from RESULT --solve-only CAM[,CAM]`` with the checked ``options`` (a CalibrationOptions;
     :func:`wandcal.calib.run.resolve.solve_only` refuses a method other than ba)."""
     from wandcal.calib.errors import CalibrationError
-    from wandcal.calib.run.resolve import solve_only
-    from wandcal.service.cli.support.inputs import result_for
+    from wandcal.capture.result_file import read_result
+    from wandcal.service.standing_result import solve_only_capture
 
     if args.from_result is None or not args.solve_only:
         raise CalibrationError("--from RESULT and --solve-only CAM[,CAM] go together: name the result to start from "
                                "and the cameras to re-solve")
-    prev, rig, R, t, entries = result_for(args.from_result, cap)
-    has_wand = cap.wand is not None and len(cap.wand) > 0
-    if not has_wand and (cap.points is None or not len(cap.points)):
-        raise CalibrationError(f"{args.capture}: has no wand blobs and no point tracks; --solve-only needs a fresh capture "
-                               "of the wand or of points seen by several cameras at once (points.csv)")
-    return solve_only(rig, cap.wand if has_wand else None, R, t, list(args.solve_only), prev.result.world, entries,
-                      progress=progress, options=options, points=cap.points)
+    return solve_only_capture(read_result(args.from_result), cap, list(args.solve_only), options,
+                              source=str(args.from_result), capture_name=str(args.capture), progress=progress)
 
 
 def result_path(capture: Path, method: str) -> Path:

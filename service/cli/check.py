@@ -6,8 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-EXIT_MOVED = 1  # wandcal check: a camera moved (named)
-EXIT_UNJUDGED = 3  # wandcal check: some camera could not be judged, and none was seen to move
+# the exit statuses (0 agrees, 1 moved, 3 no answer) are wandcal.service.standing_result's, which the
+# HTTP check answers with too; imported when the command runs (--help loads no numerical package)
 
 
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
@@ -26,33 +26,21 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
 def run_check(args) -> int:
     import json
 
-    import numpy as np
-
-    from wandcal.calib.errors import CalibrationError
-    from wandcal.calib.judge.bumps import check_rig
     from wandcal.capture.folder import read_capture
-    from wandcal.service.cli.support.inputs import points_level, result_for
+    from wandcal.capture.result_file import read_result
+    from wandcal.service.cli.support.inputs import points_level
     from wandcal.service.cli.support.progress import ProgressLine
+    from wandcal.service.standing_result import check_capture, checkable
 
     folder = points_level(args.capture, ProgressLine(quiet=True))
     cap = read_capture(folder)
-    has_wand = cap.wand is not None and len(cap.wand) > 0 and cap.rig.wand_length is not None
-    if not has_wand and (cap.points is None or not len(cap.points)):
-        raise CalibrationError(f"{args.capture}: has no wand blobs and no point tracks (points.csv); 'wandcal check' needs "
-                               "a fresh capture of the wand or of points seen by several cameras at once")
-    _, rig, R, t, entries = result_for(args.result, cap)
-    expected = np.array([e.reprojection_rms_px or np.nan for e in entries], float)
-    found = check_rig(rig, R, t, cap.wand if has_wand else None, None if np.isnan(expected).any() else expected,
-                      cap.points)
-    checks = found.cameras
-    moved = [c.id for c in checks if c.moved]
-    unjudged = [c.id for c in checks if c.moved is None]
+    checkable(cap, str(args.capture))  # before the result is read, as always
+    answer = check_capture(read_result(args.result), cap, str(args.result), str(args.capture))
     if args.json:
-        print(json.dumps({"cameras": [vars(c) for c in checks], "moved": moved, "unjudged": unjudged,
-                          "rebuilt": found.rebuilt, "rebuilt_why": found.why}, indent=2))
+        print(json.dumps(answer.document(), indent=2))
     else:
-        _print(args, checks, found, moved, unjudged)
-    return EXIT_UNJUDGED if found.rebuilt else EXIT_MOVED if moved else EXIT_UNJUDGED if unjudged else 0
+        _print(args, answer.found.cameras, answer.found, answer.moved, answer.unjudged)
+    return answer.exit_code
 
 
 def _print(args, checks, found, moved: list[str], unjudged: list[str]) -> None:

@@ -1,7 +1,8 @@
 """Run jobs on workers elsewhere through Redis and rq (``pip install 'wandcal[redis]'``).
 
-The API side enqueues the whole points-level capture (rig.json, wand.csv and static.csv as
-text, a few MB at most), so a worker needs no access to the server's data directory: any
+The API side enqueues the whole points-level capture (rig.json, wand.csv, static.csv, points.csv,
+axis.csv and floor.csv or drop.csv as text, a few MB at most; a ``solve_only`` job also its
+standing result), so a worker needs no access to the server's data directory: any
 machine with wandcal installed runs ``rq worker --url redis://HOST:6379/0 wandcal``. Job
 records stay in the server's SQLite database; :meth:`RedisQueue.refresh` mirrors the rq job's
 state, progress and result into them, so a finished result outlives Redis' result TTL.
@@ -22,19 +23,17 @@ crash: the failure callback :func:`on_failure` takes its retry away.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.capture.folder import Capture, parse_static_csv, parse_wand_csv
-from wandcal.capture.rig_file import rig_from_json
-from wandcal.drivers.capture_files import RIG_FILE, STATIC_FILE, WAND_FILE
+from wandcal.capture.folder import Capture
 from wandcal.service.jobs.queue import QueueUnavailable
 from wandcal.service.jobs.records import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
 from wandcal.service.jobs.watch_job import WATCH_METHOD, run_watch, watch_files
-from wandcal.service.jobs.worker import JobStopped, ThrottledProgress, solve
+from wandcal.service.jobs.worker import JobStopped, ThrottledProgress, solve, standing_result
+from wandcal.service.storage import CAPTURE_FILES
 
 JOB_TIMEOUT_S = 3600  # a large rig with the LP method stays well under an hour on a small PC
 RESULT_TTL_S = 7 * 24 * 3600  # results are copied into SQLite on the first poll; a week is ample
@@ -73,8 +72,29 @@ def _unreachable() -> tuple[type[Exception], ...]:
     return ConnectionError, TimeoutError
 
 
-def capture_payload(folder_texts: dict[str, str | None], method: str, options: dict) -> dict:
-    return {"files": folder_texts, "method": method, "options": options}
+PAYLOAD_FILES = CAPTURE_FILES  # the files of a points-level capture a solve reads, sent in the payload
+
+
+def capture_payload(folder_texts: dict[str, str | None], method: str, options: dict,
+                    standing: dict | None = None) -> dict:
+    """What an rq worker needs: the capture's files as texts, the job, and for a ``solve_only`` job
+    the result document it starts from."""
+    return {"files": folder_texts, "method": method, "options": options, "standing": standing}
+
+
+def payload_capture(files: dict[str, str | None]) -> Capture:
+    """The capture rebuilt from its files' texts, read as the server reads its folder (every input
+    kind: wand, static object, point tracks, axis points, floor or drop)."""
+    import tempfile
+    from pathlib import Path
+
+    from wandcal.capture.folder import read_capture
+
+    with tempfile.TemporaryDirectory(prefix="wandcal-rq-") as tmp:
+        for name, text in files.items():
+            if text is not None and name in PAYLOAD_FILES:
+                (Path(tmp) / name).write_text(text)
+        return read_capture(tmp)
 
 
 def run_payload(payload: dict) -> dict:
@@ -82,29 +102,23 @@ def run_payload(payload: dict) -> dict:
     from rq import get_current_job
 
     job = get_current_job()
-    files = payload["files"]
-    if payload["method"] == WATCH_METHOD:  # issue 36: the take's texts (service/jobs/watch_job.py)
-        return run_watch(files, payload["options"], ThrottledProgress(lambda p: _report_meta(job, p)))
-    rig = rig_from_json(json.loads(files[RIG_FILE]))
-    wand = parse_wand_csv(files[WAND_FILE], rig)
-    static = parse_static_csv(files[STATIC_FILE], rig) if files.get(STATIC_FILE) else None
-    capture = Capture(rig=rig, wand=wand, static=static)
 
+    def report(progress: dict) -> bool:
+        if job is None:
+            return False
+        job.meta["progress"] = progress
+        job.save_meta()
+        return bool(job.connection.exists(CANCEL_KEY.format(job.id)))
+
+    if payload["method"] == WATCH_METHOD:  # issue 36: the take's texts (service/jobs/watch_job.py)
+        return run_watch(payload["files"], payload["options"], ThrottledProgress(report))
+    capture = payload_capture(payload["files"])
     started = time.perf_counter()
-    result = solve(capture, payload["method"], payload["options"], ThrottledProgress(lambda p: _report_meta(job, p)))
+    result = solve(capture, payload["method"], payload["options"], ThrottledProgress(report), payload.get("standing"))
     if job is not None:
         job.meta["solve_seconds"] = time.perf_counter() - started
         job.save_meta()
     return result
-
-
-def _report_meta(job, progress: dict) -> bool:
-    """Progress into the rq job's meta; True when the job was asked to stop."""
-    if job is None:
-        return False
-    job.meta["progress"] = progress
-    job.save_meta()
-    return bool(job.connection.exists(CANCEL_KEY.format(job.id)))
 
 
 def on_failure(job, connection, exc_type, exc_value, traceback) -> None:
@@ -191,9 +205,11 @@ class RedisQueue:
     def _enqueue(self, job: JobRecord) -> None:
         from rq import Callback, Retry
 
-        files = (watch_files(job.options["folder"]) if job.method == WATCH_METHOD  # issue 36: a take watched
-                 else self.read_files(job.capture_id))
-        payload = capture_payload(files, job.method, job.options)
+        if job.method == WATCH_METHOD:  # issue 36: a take watched, its folder's texts
+            payload = capture_payload(watch_files(job.options["folder"]), job.method, job.options)
+        else:
+            payload = capture_payload(self.read_files(job.capture_id), job.method, job.options,
+                                      standing_result(self.store, job))
         self.queue.enqueue_call(
             run_payload, args=(payload,), job_id=job.id, timeout=JOB_TIMEOUT_S, result_ttl=RESULT_TTL_S,
             failure_ttl=RESULT_TTL_S, retry=Retry(max=RETRIES), on_failure=Callback(on_failure),

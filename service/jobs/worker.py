@@ -51,16 +51,43 @@ class JobStopped(Exception):
     """Raised from the progress callback to abort ``calibrate`` (cancelled, or the job was lost)."""
 
 
-def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict], None]) -> dict:
+def solve(capture: Capture, method: str, options: dict, progress: Callable[[dict], None],
+          standing: dict | None = None) -> dict:
     """Calibrate a capture with a job's ``options`` (as stored: ``JobOptions``'s JSON, any field
-    left out taking its default); returns the ``wandcal-result/1`` document."""
+    left out taking its default); returns the ``wandcal-result/1`` document. With ``solve_only``,
+    ``standing`` is the result document of the job ``from_job`` and only the named cameras are
+    re-solved, as ``wandcal calibrate --from RESULT --solve-only CAM`` does."""
+    job = JobOptions.model_validate(options)
+    if job.solve_only:
+        return _solve_only(capture, job, method, progress, standing)
     from wandcal.calib.run.calibrate import calibrate  # the solver; imported here so the API process never loads it
 
-    job = JobOptions.model_validate(options)
     static = capture.static if job.use_static else None
     result = calibrate(capture.rig, capture.wand, static=static, options=job.calibration(method), progress=progress,
                        points=capture.points, axis=capture.axis, vertical=capture.vertical)
     return result.to_json()
+
+
+def _solve_only(capture: Capture, job: JobOptions, method: str, progress: Callable[[dict], None],
+                standing: dict | None) -> dict:
+    from wandcal.capture.result_file import result_from_json
+    from wandcal.service.standing_result import solve_only_capture
+
+    if standing is None:
+        raise CalibrationError(f"job {job.from_job} (from_job) has no result any more: it was deleted; re-solve from "
+                               "another done job, or calibrate afresh")
+    source = f"the result of job {job.from_job}"
+    options = job.calibration(method)
+    options.check()
+    return solve_only_capture(result_from_json(standing, source), capture, job.solve_only, options, source=source,
+                              capture_name="the job's capture", progress=progress).to_json()
+
+
+def standing_result(store: JobStore, job: JobRecord) -> dict | None:
+    """The result document a ``solve_only`` job starts from (its ``from_job``'s), or None."""
+    from_job = (job.options or {}).get("from_job")
+    record = store.get(from_job) if from_job else None
+    return record.result if record is not None else None
 
 
 class ThrottledProgress:
@@ -96,7 +123,8 @@ def run_claim(store: JobStore, load_capture: Callable[[str], Capture], claim: Cl
         if job.method == WATCH_METHOD:  # issue 36: a take watched (service/jobs/watch_job.py)
             result = run_watch(watch_files(job.options["folder"]), job.options, progress)
         else:
-            result = solve(load_capture(job.capture_id), job.method, job.options, progress)
+            capture = load_capture(job.capture_id)
+            result = solve(capture, job.method, job.options, progress, standing_result(store, job))
     except JobStopped:
         current = store.get(job.id)
         if current is not None and current.cancel_requested:

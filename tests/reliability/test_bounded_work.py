@@ -16,11 +16,17 @@ from tests.reliability.fuzzing import TRIED
 from wandcal.capture.folder import MAX_CSV_BYTES, rig_to_json, write_capture
 from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.main import create_app
-from wandcal.service.request_limits import MAX_BLOBSETS_BODY_BYTES, MAX_JSON_BODY_BYTES, body_limit
+from wandcal.service.request_limits import (
+    MAX_BLOBSETS_BODY_BYTES,
+    MAX_CHECK_BODY_BYTES,
+    MAX_JSON_BODY_BYTES,
+    body_limit,
+)
 from wandcal.service.settings import Settings
 
 ROUTES = ["/api/v1/captures/0123/blobsets", "/api/v1/jobs", "/api/v1/capture/start", "/api/v1/capture",
-          "/api/v1/captures", "/api/v1/captures/0123/framesets", "/api/v1/captures/0123/static"]
+          "/api/v1/captures", "/api/v1/captures/0123/framesets", "/api/v1/captures/0123/static",
+          "/api/v1/captures/0123/check"]
 
 
 @settings(max_examples=100, deadline=None, derandomize=True)
@@ -32,6 +38,8 @@ def test_every_route_has_a_limit_no_larger_than_the_upload_limit(path, upload):
         assert limit == min(upload, MAX_BLOBSETS_BODY_BYTES)
     elif path.endswith(("/jobs", "/capture/start", "/capture")):
         assert limit == min(upload, MAX_JSON_BODY_BYTES)
+    elif path.endswith("/check"):
+        assert limit == min(upload, MAX_CHECK_BODY_BYTES)
 
 
 @pytest.fixture

@@ -117,7 +117,7 @@ GLOBAL_CALLS = ("warnings.simplefilter", "warnings.filterwarnings", "warnings.ca
                 "os.environ[", "os.putenv", "locale.setlocale", "np.seterr(", "numpy.seterr(", "setNumThreads",
                 "threadpool_limits(", "mallopt(", "_set_madvise_hugepage(")
 ALLOWED = {
-    # once at the server's start: one BLAS thread in the server process (see its comment)
+    # at the app's start, restored at its stop: one BLAS thread while the server serves (see its comment)
     ("service/main.py", "threadpool_limits("),
     # around a `wandcal calibrate` command, which serves no requests, restored after it (see its comment)
     ("service/cli/calibrate.py", "threadpool_limits("),
@@ -144,3 +144,17 @@ def test_no_product_code_changes_process_wide_state_on_a_request_path():
             rel = path.relative_to(repo).as_posix()
             found += [(rel, call) for call in GLOBAL_CALLS if call in text and (rel, call) not in ALLOWED]
     assert not found, f"process-wide state changed in product code: {found}"
+
+
+def test_an_app_holds_blas_to_one_thread_while_it_serves_and_gives_it_back(tmp_path):
+    """The server's one BLAS thread is the app's while it runs, not the process's for ever: a
+    calibration in the same process after an app stopped (a test) uses BLAS as it found it."""
+    def blas() -> list:
+        return sorted((i["internal_api"], i["num_threads"]) for i in threadpool_info() if i["user_api"] == "blas")
+
+    before = blas()
+    app = create_app(Settings(data_dir=tmp_path / "data", workers=0))
+    with TestClient(app, base_url="http://127.0.0.1/api/v1") as client:
+        assert client.get("/health").status_code == 200
+        assert all(threads == 1 for _, threads in blas())
+    assert blas() == before

@@ -17,7 +17,7 @@ from wandcal.calib.solve.ba import LOSSES
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.sync import SYNC_MODES
 from wandcal.service.cli import build_parser
-from wandcal.service.schemas import JobCreate, JobOptions, Method
+from wandcal.service.schemas import NOT_CALIBRATION_OPTIONS, JobCreate, JobOptions, Method
 
 FIELDS = [f.name for f in dataclasses.fields(CalibrationOptions)]
 # the fields that cannot be a flag: the command line reads them from the capture folder
@@ -29,6 +29,19 @@ NOT_FLAGS = {
 NOT_JOB_OPTIONS = {
     "method": "JobCreate.method, beside the options (the job lists and the page show it)",
     "sync_start": "the service's captures keep no sync.csv timestamps",
+}
+# the flags of calibrate that are no CalibrationOptions field, and the job's field that gives each
+FLAGS_AS_JOB_FIELDS = {
+    "capture": "JobCreate.capture_id",
+    "from_result": "JobOptions.from_job",  # a result on the server is a done job's
+    "solve_only": "JobOptions.solve_only",
+}
+# the flags a job has no field for, deliberately, with why (issue 32: every other flag is a job's)
+CLI_ONLY = {
+    "help": "argparse's own",
+    "out": "a file on the client's disk: a job's result is GET /jobs/{id}/result, in any export format",
+    "quiet": "the terminal's progress line: a job reports its progress in its record (GET /jobs/{id})",
+    "require": "an exit status for scripts: a job's result carries verdict.level, which the client compares",
 }
 
 
@@ -50,8 +63,20 @@ def test_every_option_is_a_job_option():
     missing = [name for name in FIELDS if name not in job and name not in NOT_JOB_OPTIONS]
     assert missing == []
     assert "method" in JobCreate.model_fields
-    # and the job has no option calibrate does not take, but the job's own
-    assert job - set(FIELDS) == {"use_static"}
+    # and the job has no option calibrate does not take, but the job's own (with why)
+    assert job - set(FIELDS) == set(NOT_CALIBRATION_OPTIONS) == {"use_static", "from_job", "solve_only"}
+
+
+def test_every_flag_of_calibrate_is_a_job_field_or_cli_only_with_a_reason():
+    """Issue 32: the service does what the command line does; a flag with no job field is listed with why."""
+    flags = set(_calibrate_flags())
+    models = {"JobCreate": JobCreate.model_fields, "JobOptions": JobOptions.model_fields}
+    for flag, where in FLAGS_AS_JOB_FIELDS.items():
+        model, field = where.split(".")
+        assert flag in flags and field in models[model], (flag, where)
+    unmapped = flags - set(FIELDS) - set(FLAGS_AS_JOB_FIELDS) - set(CLI_ONLY)
+    assert unmapped == set(), f"give these calibrate flags a job field or a CLI_ONLY reason: {sorted(unmapped)}"
+    assert set(CLI_ONLY) <= flags  # no stale entry
 
 
 def test_flag_defaults_and_job_defaults_are_the_options_defaults():
@@ -108,6 +133,12 @@ def test_a_job_the_method_cannot_run_is_refused():
         JobCreate(capture_id="c", method="lp", options={"refine_intrinsics": ["focal"]})
     job = JobCreate(capture_id="c", method="paper", options={"max_rounds": 5, "time_limit": 2.5})
     assert job.options.calibration(job.method.value) == CalibrationOptions(method="paper", max_rounds=5, time_limit=2.5)
+    with pytest.raises(ValidationError, match="from_job and solve_only go together"):
+        JobCreate(capture_id="c", options={"solve_only": ["cam1"]})
+    with pytest.raises(ValidationError, match="method ba only, intrinsics held"):
+        JobCreate(capture_id="c", options={"from_job": "j", "solve_only": ["cam1"], "refine_intrinsics": ["focal"]})
+    resolve = JobCreate(capture_id="c", options={"from_job": "j", "solve_only": ["cam1"], "loss": "linear"})
+    assert resolve.options.calibration("ba") == CalibrationOptions(loss="linear")  # the re-solve's own fields aside
 
 
 def test_a_job_stored_before_the_options_were_typed_still_reads():

@@ -88,6 +88,44 @@ def test_jobs_run_on_an_rq_worker(make_server, small_capture, redis_url, tmp_pat
     assert np.linalg.norm(centers - sim.truth.centers, axis=1).max() < 0.010
 
 
+def test_a_points_only_capture_and_a_re_solve_run_on_an_rq_worker(make_server, redis_url, tmp_path):
+    """Issue 32: every input kind and --solve-only on the Redis queue too: the payload carries
+    points.csv (a capture without a wand) and a re-solve's standing result."""
+    from tests.service.test_http_parity import _write_kind, upload
+    from wandcal.calib.geometry import rotation_angle
+
+    for kind in ("points_only", "lframe"):
+        _write_kind(kind, tmp_path / kind)
+    server = make_server(queue="redis", redis_url=redis_url, workers=0).start()
+
+    def burst():
+        worker = subprocess.run(
+            [sys.executable, "-m", "rq.cli", "worker", "--burst", "--url", redis_url, QUEUE],
+            cwd=tmp_path, env=dict(server.env, PYTHONPATH=str(REPO)), capture_output=True, text=True, timeout=600,
+            check=False,
+        )
+        assert worker.returncode == 0, worker.stderr
+
+    with server.client() as c:
+        points_job = c.post("/jobs", json={"capture_id": upload(c, tmp_path / "points_only")}).json()["id"]
+        base_id = c.post("/jobs", json={"capture_id": upload(c, tmp_path / "lframe")}).json()["id"]
+        burst()
+        points, base = wait_job(c, points_job, timeout_s=30), wait_job(c, base_id, timeout_s=30)
+        assert points["state"] == "done" and base["state"] == "done", (points["error"], base["error"])
+        assert len(points["result"]["cameras"]) == 4
+        fresh = upload(c, tmp_path / "lframe-knocked")
+        resolve_id = c.post("/jobs", json={"capture_id": fresh, "options": {"from_job": base_id,
+                                                                             "solve_only": ["cam2"]}}).json()["id"]
+        burst()
+        resolved = wait_job(c, resolve_id, timeout_s=30)
+    assert resolved["state"] == "done", resolved["error"]
+    for a, b in zip(base["result"]["cameras"], resolved["result"]["cameras"]):
+        if a["id"] != "cam2":
+            assert a["R"] == b["R"] and a["t"] == b["t"]  # held exactly
+        else:  # knocked by 1 degree (_write_kind): placed again near it (0.3 px noise: within 0.1 degree)
+            assert np.degrees(rotation_angle(np.array(b["R"]), np.array(a["R"]))) == pytest.approx(1.0, abs=0.1)
+
+
 class RqWorker:
     """An ``rq worker`` process on the test's Redis; the job it runs is in a child, its work horse."""
 

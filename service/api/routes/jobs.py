@@ -86,18 +86,58 @@ def create_job(body: JobCreate, state: State) -> JobPublic:
             404, f"no capture with id {body.capture_id!r}; create one with POST /api/v1/captures"
         ) from None
     seeing = capture.cameras_seeing_wand()
-    if len(seeing) < MIN_CAMERAS:
+    if len(seeing) < MIN_CAMERAS and len(_cameras_seeing_points(state, capture.id)) < MIN_CAMERAS:
         if not seeing:
-            why = "no camera has wand observations yet; upload wand.csv or stream frame sets first"
+            why = ("no camera has wand observations yet, nor do two cameras share point tracks; upload wand.csv "
+                   "(or points.csv) or stream frame sets first")
         else:
             why = (
                 f"only camera {seeing[0]!r} saw the wand; calibration needs at least {MIN_CAMERAS} cameras "
                 "that see it, so wave the wand where the other cameras see it too"
             )
         raise HTTPException(422, f"capture {capture.id} cannot be calibrated: {why}")
+    if body.options.from_job:
+        _check_standing(state, body, capture.id)
     record = state.queue.store.create(capture.id, body.method.value, body.options.model_dump())
     state.queue.submit(record)
     return to_public(record, state)
+
+
+def _cameras_seeing_points(state, capture_id: str) -> list[str]:
+    """The cameras with point tracks (points.csv): a capture without a wand calibrates from them."""
+    import numpy as np
+
+    from wandcal.calib.errors import CalibrationError
+
+    try:
+        capture = state.captures.load(capture_id)
+    except CalibrationError:  # an empty streamed capture reads as none: the caller says what to send
+        return []
+    if capture.points is None or not len(capture.points):
+        return []
+    return [capture.rig.ids[k] for k in np.unique(capture.points.camera)]
+
+
+def _check_standing(state, body: JobCreate, capture_id: str) -> None:
+    """A ``solve_only`` job's ``from_job``: a done job whose result is of this capture's rig, and
+    ``solve_only`` ids of its cameras; else a 4xx naming the field."""
+    from wandcal.capture.result_file import result_from_json
+    from wandcal.service.standing_result import in_capture_order
+
+    standing = state.queue.refresh(body.options.from_job) if len(body.options.from_job or "") <= 64 else None
+    if standing is None:
+        raise HTTPException(422, f"options.from_job: no job with id {body.options.from_job!r}; give the id of a done "
+                                 "job whose result stands (GET /api/v1/jobs)")
+    if standing.state is not JobState.done or standing.result is None:
+        raise HTTPException(409, f"options.from_job: job {standing.id} is {standing.state.value}, it has no result "
+                                 "to re-solve from; wait until it is done")
+    source = f"options.from_job: the result of job {standing.id}"
+    rig = state.captures.load(capture_id).rig  # (CaptureStore.rig reads no rig without a wand)
+    in_capture_order(result_from_json(standing.result, source), rig, source)  # CalibrationError: 422
+    unknown = [cid for cid in body.options.solve_only if cid not in rig.ids]
+    if unknown:
+        raise HTTPException(422, f"options.solve_only: unknown camera id {unknown[0]!r}; capture {capture_id} has "
+                                 f"{', '.join(rig.ids)}")
 
 
 @router.get("", response_model=JobList, responses={401: UNAUTHORISED}, summary="List jobs, newest first")
@@ -181,12 +221,23 @@ async def get_result(
     else:
         from wandcal.capture.formats import export
 
-        rig = await run_in_threadpool(state.captures.rig, record.capture_id)
+        rig = await run_in_threadpool(_capture_rig, state, record.capture_id)
         text = export.export(record.result, format.value, rig, unit=unit, origin=origin)
     return Response(
         text, media_type=media,
         headers={"Content-Disposition": f'attachment; filename="wandcal-{job_id[:8]}.{ext}"'},
     )
+
+
+def _capture_rig(state, capture_id: str):
+    """The job's capture's rig; a rig without a wand (a points-only capture), which
+    ``CaptureStore.rig`` does not read, from the capture itself."""
+    from wandcal.capture.rig_file import CaptureFormatError
+
+    try:
+        return state.captures.rig(capture_id)
+    except CaptureFormatError:
+        return state.captures.load(capture_id).rig
 
 
 # -- the illustrated report (service/report) --------------------------------------------------

@@ -4,10 +4,8 @@ previous result's cameras in the capture's order."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
-from wandcal.calib.errors import CalibrationError
 from wandcal.capture.recording.stamps import capture_rate, timestamp_start  # noqa: F401  (read here before)
 from wandcal.drivers.capture_files import WAND_FILE
 
@@ -22,16 +20,10 @@ def points_level(folder: Path, progress) -> Path:
 
 
 def result_for(result_path: Path, cap):
-    """The result's cameras (calibrated intrinsics, poses and figures) in the capture's camera order."""
-    from wandcal.calib.judge.evaluate import rig_mismatches
+    """The result's cameras (calibrated intrinsics, poses and figures) in the capture's camera order:
+    (the ResultFile, rig, R, t, [CameraFigures]) (:func:`wandcal.service.standing_result.in_capture_order`)."""
     from wandcal.capture.result_file import read_result
+    from wandcal.service.standing_result import in_capture_order
 
     prev = read_result(result_path)
-    mismatch = rig_mismatches(prev.rig, cap.rig)
-    if mismatch:
-        raise CalibrationError(f"{result_path}: the capture is not of this result's rig: {'; '.join(mismatch[:3])}; check "
-                               "that the capture and the result are of one rig, or calibrate the capture afresh")
-    order = [prev.rig.index(cid) for cid in cap.rig.ids]
-    rig = replace(cap.rig, cameras=tuple(prev.rig.cameras[k] for k in order))
-    entries = [prev.result.cameras[k] for k in order]
-    return prev, rig, prev.R[order], prev.t[order], entries
+    return (prev, *in_capture_order(prev, cap.rig, str(result_path)))
