@@ -39,10 +39,7 @@ def test_the_live_panel_shows_each_cameras_health_and_offers_the_resolve(make_se
         assert r.status_code == 202, r.text
         assert c.post("/watch/live", json={"result": standing}).status_code == 202
         browser.open(server.url + "/")
-        try:
-            browser.wait_for("document.querySelectorAll('#watch-table tbody tr').length === 6", WATCH_TIMEOUT_S)
-        finally:
-            print(browser.js("document.querySelector('#live').outerHTML"), c.get("/watch/live").json())
+        browser.wait_for("document.querySelectorAll('#watch-table tbody tr').length === 6", WATCH_TIMEOUT_S)
         # updated as the take runs: the page's frame count grows while the capture records
         seen, deadline = [], time.monotonic() + WATCH_TIMEOUT_S
         while time.monotonic() < deadline and c.get("/capture").json()["state"] == "running":
