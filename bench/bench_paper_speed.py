@@ -1,32 +1,30 @@
-"""`--method paper`'s rounds on the acceptance rig (8 x 1500), with and without jumps along the tail.
+"""`--method paper`'s rounds on the acceptance rig (8 x 1500): this tree's code against an earlier
+revision's, side by side, with and without jumps along the tail.
 
 The problem is the one `--method paper` solves in bench_acceptance.py: the pipeline runs to the
-outlier pass (its robust `ba`), and `refine_paper` is then timed alone, once per jump cap (0: the
-paper's plain rounds; decision 0033). Reports rounds, jumps, CPU and wall seconds, the LP's share,
-and the largest camera-centre distance between the runs' answers (the same fixed point, to the
-stop's 5 um).
+outlier pass (its robust `ba`), and `refine_paper` is then timed alone, in a fresh process per run
+(one per code, jump cap and repeat, the codes alternating so the machine's load falls on both
+alike; decisions 0033, 0045). Reports rounds, jumps, CPU seconds (medians over the repeats; the
+machine is shared, so wall seconds are listed but say little), CPU and interior-point iterations a
+round, and each answer's largest camera-centre distance from the first row's.
 
-Usage: python bench/bench_paper_speed.py [--caps 10,0] [--seed 11] [--no-write]
+Usage: python bench/bench_paper_speed.py [--caps 10,0] [--before REV] [--repeats 1] [--seed 11] [--no-write]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import pickle
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import publish
-from wandcal.calib.geometry import camera_centers
-from wandcal.calib.run.calibrate import calibrate
-from wandcal.calib.run.options import CalibrationOptions
-from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.calib.solve import paper
+ROOT = Path(__file__).resolve().parents[1]
 
 
 class _Caught(Exception):
@@ -35,6 +33,11 @@ class _Caught(Exception):
 
 def paper_problem(seed: int) -> tuple:
     """refine_paper's arguments in the acceptance run of ``--method paper``."""
+    from wandcal.calib.run.calibrate import calibrate
+    from wandcal.calib.run.options import CalibrationOptions
+    from wandcal.calib.sim.simulate import simulate_capture
+    from wandcal.calib.solve import paper
+
     sim = simulate_capture(8, 1500, noise_px=0.3, seed=seed)
     real = paper.refine_paper
 
@@ -51,31 +54,84 @@ def paper_problem(seed: int) -> tuple:
     raise SystemExit("--method paper did not reach refine_paper")
 
 
+def child(tree: str, problem_file: str, cap: float, out: str) -> int:
+    """One timed ``refine_paper`` with the code of ``tree`` (a checkout whose ``wandcal`` package
+    is imported): (R, t, info, CPU s, wall s, LP iterations) pickled to ``out``."""
+    sys.path.insert(0, tree)
+    from wandcal.calib.geometry import camera_centers
+    from wandcal.calib.solve import paper
+
+    R, t, wand, problem, fixed, up = pickle.loads(Path(problem_file).read_bytes())
+    paper.JUMP_CAP = cap
+    iterations = []
+    real_lp_step = paper.lp_step
+
+    def counted(*args, **kwargs):
+        solved = real_lp_step(*args, **kwargs)
+        iterations.append(solved[2].iterations)
+        return solved
+
+    paper.lp_step = counted
+    cpu, wall = time.process_time(), time.perf_counter()
+    R1, t1, _, info = paper.refine_paper(R, t, wand, problem, fixed, up)
+    cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    Path(out).write_bytes(pickle.dumps((camera_centers(R1, t1), info, cpu, wall, sum(iterations))))
+    return 0
+
+
+def _export(rev: str, into: Path) -> str:
+    """``rev``'s tree extracted under ``into`` (git archive), for its ``wandcal`` package."""
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
+    return str(into)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--caps", default="10,0", help="jump caps to run (0: no jumps)")
+    ap.add_argument("--before", default=None, help="a git revision to run side by side with this tree")
+    ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--child", nargs=4, metavar=("TREE", "PROBLEM", "CAP", "OUT"), help=argparse.SUPPRESS)
     args = ap.parse_args()
-    R, t, wand, problem, fixed, up = paper_problem(args.seed)[:6]
-    rows, centres = [], {}
-    for cap in (float(c) for c in args.caps.split(",")):
-        paper.JUMP_CAP = cap
-        cpu, wall = time.process_time(), time.perf_counter()
-        R1, t1, _, info = paper.refine_paper(R, t, wand, problem, fixed, up)
-        cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
-        centres[cap] = camera_centers(R1, t1)
-        rows.append(f"| {cap:g} | {info['status']} | {info['iterations']} | {info['jumps']} | {cpu:.1f} | {wall:.1f} | "
-                    f"{info['lp_seconds'] / info['seconds']:.0%} |")
-        print(rows[-1], flush=True)
-    caps = list(centres)
-    apart = max(float(np.linalg.norm(centres[c] - centres[caps[0]], axis=1).max()) for c in caps) * 1e6
+    if args.child:
+        return child(args.child[0], args.child[1], float(args.child[2]), args.child[3])
+    sys.path.insert(0, str(ROOT))
+    from bench.common import publish
+
+    with tempfile.TemporaryDirectory() as tmp:
+        problem_file = Path(tmp) / "problem.pkl"
+        problem_file.write_bytes(pickle.dumps(paper_problem(args.seed)[:6]))
+        codes = {"this tree": str(ROOT)}
+        if args.before:
+            (Path(tmp) / "before").mkdir()
+            codes = {args.before: _export(args.before, Path(tmp) / "before"), **codes}
+        runs: dict = {}
+        for repeat in range(args.repeats):
+            for cap in (float(c) for c in args.caps.split(",")):
+                for name, tree in codes.items():
+                    out = Path(tmp) / "run.pkl"
+                    subprocess.run([sys.executable, __file__, "--child", tree, str(problem_file), str(cap), str(out)],
+                                   check=True)
+                    runs.setdefault((name, cap), []).append(pickle.loads(out.read_bytes()))
+                    print(name, cap, repeat, runs[(name, cap)][-1][1:], flush=True)
+    rows, first = [], None
+    for (name, cap), done in runs.items():
+        centres, info, _, _, lp_iterations = done[-1]
+        first = centres if first is None else first
+        cpu, wall = np.median([d[2] for d in done]), np.median([d[3] for d in done])
+        rounds = info["iterations"]
+        apart = float(np.linalg.norm(centres - first, axis=1).max()) * 1e6
+        rows.append(f"| {name} | {cap:g} | {info['status']} | {rounds} | {info['jumps']} | {cpu:.1f} | "
+                    f"{cpu / rounds:.3f} | {lp_iterations / rounds:.1f} | {wall:.0f} | {apart:.1f} |")
     body = "\n".join([
-        f"`refine_paper` alone on the acceptance rig's problem (seed {args.seed}, after the outlier pass); load "
-        f"average {os.getloadavg()[0]:.1f} at the end. Answers at most {apart:.1f} um apart (camera centres).",
+        f"`refine_paper` alone on the acceptance rig's problem (seed {args.seed}, after the outlier pass), a fresh "
+        f"process a run, medians of {args.repeats} repeat(s); load average {os.getloadavg()[0]:.1f} at the end. "
+        "`apart`: the largest camera-centre distance from the first row's answer.",
         "",
-        "| jump cap | status | rounds | jumps | CPU s | wall s | LP share |",
-        "|---|---|---|---|---|---|---|",
+        "| code | jump cap | status | rounds | jumps | CPU s | CPU s a round | LP iterations a round | wall s | apart (um) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
         *rows,
     ])
     return publish("Seed paper's method: rounds at 8 x 1500", body, not args.no_write)

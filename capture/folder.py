@@ -24,6 +24,7 @@ from wandcal.calib.rig import (
     WandObservations,
 )
 from wandcal.capture.rig_file import CaptureFormatError, read_rig, rig_to_json
+from wandcal.capture.world_references import reference_clash
 from wandcal.drivers.capture_files import (
     AXIS_FILE,
     DROP_FILE,
@@ -234,16 +235,23 @@ def parse_drop_csv(text: str, rig: Rig, source: str = DROP_FILE) -> VerticalObse
 
 
 def _read_vertical(folder: Path, rig: Rig) -> VerticalObservations | None:
-    """floor.csv or drop.csv, or None; both at once are refused (keep the one that sets the vertical)."""
+    """floor.csv or drop.csv, or None; both at once are refused (:func:`_refuse_clash`) before
+    either is read."""
     floor_path, drop_path = folder / FLOOR_FILE, folder / DROP_FILE
-    if floor_path.is_file() and drop_path.is_file():
-        raise CaptureFormatError(f"{drop_path}: the world's vertical is set by {FLOOR_FILE} and by {DROP_FILE} in "
-                                 "this capture; keep one of them (the other would be ignored)")
+    _refuse_clash(folder, [path.name for path in (floor_path, drop_path) if path.is_file()])
     if floor_path.is_file():
         return parse_floor_csv(_read_text(floor_path), rig, str(floor_path))
     if drop_path.is_file():
         return parse_drop_csv(_read_text(drop_path), rig, str(drop_path))
     return None
+
+
+def _refuse_clash(folder: Path, given: list[str]) -> None:
+    """The world-reference rule (:mod:`wandcal.capture.world_references`) on the reference files
+    of ``folder`` that have rows, ``given``."""
+    clash = reference_clash(given)
+    if clash is not None:
+        raise CaptureFormatError(f"{folder / clash.at_fault}: {clash.message()}")
 
 
 def read_capture(folder: str | Path) -> Capture:
@@ -252,7 +260,8 @@ def read_capture(folder: str | Path) -> Capture:
     wand.csv absent or empty)."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise CaptureFormatError(f"{folder}: not a folder; give the path of a wandcal-capture/1 folder")
+        hint = f" (the folder that holds it: {Path(folder).parent})" if Path(folder).is_file() else ""
+        raise CaptureFormatError(f"{folder}: not a folder; give the path of a wandcal-capture/1 folder{hint}")
     points_path = folder / POINTS_FILE
     has_points = points_path.is_file()
     rig = read_rig(folder, allow_no_wand=has_points)
@@ -278,17 +287,10 @@ def read_capture(folder: str | Path) -> Capture:
     check_wandless(rig, wand, points, str(folder / RIG_FILE), str(wand_path), str(points_path))
     axis_path = folder / AXIS_FILE
     axis = parse_axis_csv(_read_text(axis_path), rig, str(axis_path)) if axis_path.is_file() else None
-    if static is not None and axis is not None and len(static.camera) and len(axis.camera):
-        raise CaptureFormatError(
-            f"{axis_path}: the world frame is set by {STATIC_FILE} (the static object) and by {AXIS_FILE} (axis "
-            f"points) in this capture; keep one of them (the other would be ignored)"
-        )
     vertical = _read_vertical(folder, rig)
-    if vertical is not None and len(vertical) and ((static is not None and len(static.camera))
-                                                   or (axis is not None and len(axis.camera))):
-        given = STATIC_FILE if static is not None and len(static.camera) else AXIS_FILE
-        raise CaptureFormatError(f"{folder / (vertical.kind + '.csv')}: the world frame is set by {given} in this "
-                                 f"capture; keep one of them (the other would be ignored)")
+    held = ((STATIC_FILE, static.camera if static is not None else ()), (AXIS_FILE, axis.camera if axis is not None else ()),
+            (f"{vertical.kind}.csv" if vertical is not None else FLOOR_FILE, vertical.camera if vertical is not None else ()))
+    _refuse_clash(folder, [name for name, rows in held if len(rows)])
     return Capture(rig=rig, wand=wand, static=static, points=points, axis=axis, vertical=vertical)
 
 
@@ -436,7 +438,9 @@ def _dict_rows(reader: csv.DictReader, columns: tuple[str, ...], source: str) ->
 def _camera_cell(value: str | None, lookup: dict[str, int], rig: Rig, where: str) -> int:
     key = (value or "").strip()
     if key not in lookup:
-        raise CaptureFormatError(f"{where}: unknown camera id {key!r}; rig.json lists {', '.join(rig.ids)}")
+        raise CaptureFormatError(f"{where}: unknown camera id {key!r}; rig.json lists {', '.join(rig.ids)}: if "
+                                 "rig.json is of another capture, put the rig.json of the cameras that recorded this "
+                                 f"one beside it, else add {key!r} to rig.json")
     return lookup[key]
 
 

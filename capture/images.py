@@ -70,6 +70,9 @@ class CameraDetection:
     def line(self, expected_static: int | None) -> str:
         text = (f"{self.camera_id}: {self.wand_frames} wand frames of {self.images} images; dropped "
                 f"{self.too_few} with 0-1 blobs, {self.too_many} with more than 2")
+        if not self.images:
+            text += (f"; no images: {FRAMES_DIR}/{self.camera_id}/ is missing or empty (copy that camera's images "
+                     "there and detect again, or remove the camera from rig.json)")
         if self.highpass_images:
             text += f"; glare or an uneven background in {self.highpass_images} image(s): high-pass applied"
         if self.still_markers:

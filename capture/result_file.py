@@ -228,7 +228,8 @@ def read_result(path: str | Path) -> ResultFile:
     try:
         doc = json.loads(path.read_bytes().decode("utf-8-sig"), parse_constant=_no_constant)
     except (ValueError, RecursionError) as exc:  # JSONDecodeError, UnicodeDecodeError, NaN, digit limit
-        raise CaptureFormatError(f"{path}: not a JSON result file ({type(exc).__name__}: {str(exc)[:200]})") from None
+        raise CaptureFormatError(f"{path}: not a JSON result file ({type(exc).__name__}: {str(exc)[:200]}); give the "
+                                 "result.json that 'wandcal calibrate' wrote into the capture folder") from None
     return result_from_json(doc, str(path), path)
 
 

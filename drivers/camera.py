@@ -138,6 +138,16 @@ class CameraDriver:
             raise DriverError(f"camera {self.camera_id} ({self.url}) is not open; use it inside 'with camera:'")
         return self._read(timeout)
 
+    def discard(self, timeout: float | None = None) -> int | None:
+        """Grab a frame and throw it away: a free-running capture's pause drains its cameras so
+        their buffers do not fill while nothing is recorded. Returns the sequence number of the
+        last frame the camera has taken (-1: none yet), or None when a finite source has ended;
+        raises as :meth:`read` does. A scripted source (the simulator) holds its script instead
+        of spending it on a frame nobody keeps."""
+        if not self._depth:
+            raise DriverError(f"camera {self.camera_id} ({self.url}) is not open; use it inside 'with camera:'")
+        return self._discard(timeout)
+
     # -- for subclasses
     def _open(self) -> None:
         raise NotImplementedError
@@ -150,6 +160,10 @@ class CameraDriver:
 
     def _read(self, timeout: float | None) -> Frame | None:
         raise NotImplementedError
+
+    def _discard(self, timeout: float | None) -> int | None:
+        frame = self._read(timeout)
+        return None if frame is None else frame.sequence
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.camera_id} {self.url} {self.state.value}>"

@@ -18,6 +18,13 @@ from wandcal.drivers.camera import CameraDriver
 from wandcal.drivers.errors import CameraUrlError
 
 SCHEMES = ("v4l2", "opencv", "replay", "sim")
+# the query options each driver reads: any other is a typo, refused rather than silently ignored
+OPTIONS = {
+    "sim": ("cameras", "seed", "frames", "static", "drop", "noise", "lframe", "bits"),
+    "replay": ("rate", "phase", "cameras"),
+    "v4l2": ("id", "trigger"),
+    "opencv": ("id", "trigger"),
+}
 __all__ = ["SCHEMES", "CameraUrlError", "open_cameras"]  # CameraUrlError lives in errors (sim.py raises it too)
 
 
@@ -27,6 +34,7 @@ def open_cameras(url: str) -> list[CameraDriver]:
     scheme = parts.scheme.lower()
     query = dict(parse_qsl(parts.query, keep_blank_values=True))
     path = parts.path  # not unquoted: an image-sequence pattern holds printf "%06d"
+    _check_options(url, scheme, query)
     if scheme == "sim":
         from wandcal.drivers.sim import open_sim
 
@@ -41,6 +49,20 @@ def open_cameras(url: str) -> list[CameraDriver]:
         f"unknown camera URL {url!r}: the scheme must be one of {', '.join(s + ':' for s in SCHEMES)} "
         "(e.g. v4l2:///dev/video0, opencv:0, replay:///path/to/capture, sim://?cameras=4)"
     )
+
+
+def _check_options(url: str, scheme: str, query: dict[str, str]) -> None:
+    """Refuse a query option the driver does not read (``sim://?sed=2`` would record seed 0)."""
+    import difflib
+
+    known = OPTIONS.get(scheme)
+    if known is None:
+        return  # an unknown scheme: open_cameras says which there are
+    for key in query:
+        if key not in known:
+            close = difflib.get_close_matches(key, known, n=1)
+            raise CameraUrlError(f"{url}: unknown option {key!r}" + (f"; did you mean {close[0]}?" if close else "")
+                                 + f" ({scheme}: reads {', '.join(known)})")
 
 
 def _open_cv(url: str, scheme: str, path: str, query: dict[str, str]) -> CameraDriver:

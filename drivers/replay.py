@@ -77,6 +77,17 @@ class ReplayCamera(CameraDriver):
             image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         return Frame(image=image, sequence=index, timestamp_us=ts, camera_id=self.camera_id)
 
+    def _discard(self, timeout: float | None) -> int | None:
+        """A grab the capture throws away (its pause after the static sets): a recording holds, as
+        the simulator's script does, so none of its frames is spent on the pause; a nominal frame
+        period passes."""
+        if self._next >= len(self.frames):
+            return None
+        self._sleep(1.0 / NOMINAL_FPS)
+        if self._start is not None:
+            self._start = (self._start[0] + 1.0 / NOMINAL_FPS, self._start[1])
+        return self.frames[self._next - 1][0] if self._next else -1
+
     def _wait_until(self, ts: int) -> None:
         if self._start is None:
             self._start = (self._clock(), ts)

@@ -9,7 +9,10 @@ drawn with :func:`wandcal.calib.sim.render.render_blobs`. Sequence numbers count
 Like a rig with its operator, the scene plays what the capture asks for: a capture of K static
 sets and F wand sets (:func:`wandcal.capture.recording.session.record` calls :meth:`SimCamera.script`)
 shows the L-frame for K frames and then the wand for F. ``frames`` and ``static`` in the URL fix
-the script instead (a run that ends early, for tests of a camera that runs out).
+the script instead (a run that ends early, for tests of a camera that runs out). While a
+free-running capture pauses for the L-frame to leave, it grabs and discards frames
+(:meth:`SimCamera.discard`): the scene holds, as the operator waits, so the wand's F frames all
+come after the pause.
 
 Query options, with their limits (a value outside them is refused, naming the option):
 ``cameras`` (4; 2 to :data:`MAX_CAMERAS`), ``seed`` (0; 0 to 2**32 - 1), ``frames`` (what the
@@ -161,6 +164,7 @@ class SimCamera(CameraDriver):
         self._clock_scale = 1.0 + rng.uniform(-CLOCK_PPM, CLOCK_PPM) * 1e-6
         self._next = 0
         self._start: float | None = None
+        self._held = 0
         self._backgrounds: list[np.ndarray] = []
         self._line: queue.Queue[tuple[int, int]] = queue.Queue()
 
@@ -175,6 +179,7 @@ class SimCamera(CameraDriver):
     def _open(self) -> None:
         self._next = 0
         self._start = None
+        self._held = 0  # frame periods the camera ran while its scene held (discarded grabs)
         self._line = queue.Queue()
         cam = self.intrinsics
         scale = (1 << (self.scene.bits - 8))
@@ -209,10 +214,26 @@ class SimCamera(CameraDriver):
         if seq >= self.scene.total_frames:
             return None
         if stamp is None:
-            self._pace(seq)
-        at_us = seq * self._period_us() if stamp is None else stamp
+            self._pace(seq + self._held)
+        at_us = (seq + self._held) * self._period_us() if stamp is None else stamp
         return Frame(image=self.render(seq), sequence=seq, timestamp_us=self._clock_us(at_us),
                      camera_id=self.camera_id)
+
+    def _discard(self, timeout: float | None) -> int | None:
+        """A grab the capture throws away (its pause for the L-frame to leave): free-running, the
+        camera's clock runs on by a frame period but its scene does not, so the script keeps every
+        wand frame for after the pause; its sequence numbers then show no gap, its timestamps do.
+        Triggered, the camera exposes on each pulse as a real one does."""
+        if self.settings.trigger_mode is TriggerMode.EXTERNAL:
+            return super()._discard(timeout)
+        if self._next >= self.scene.total_frames:
+            return None
+        if self.settings.fps:
+            self._pace(self._next + self._held)  # the camera's frame clock runs on at its rate
+        else:
+            self._sleep(DEFAULT_PERIOD_US / 1e6)
+        self._held += 1
+        return self._next - 1
 
     def _wait_pulse(self, timeout: float | None) -> tuple[int, int]:
         try:

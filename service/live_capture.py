@@ -8,10 +8,11 @@ level as it goes (images as the start request asks); then the folder becomes the
 ``<capture id>``, ready for ``POST /jobs``. While it records, its wanding guidance is kept up to
 date (``GET /captures/<capture id>/guidance``), and it may stop itself once that says enough.
 
-With static frames and a trigger, the capture pauses after the static recording in state
-``waiting_for_wand`` (the lab's "remove the L-frame, take the wand" step) until
-``POST /capture/continue``; ``POST /capture/stop`` or the settings' timeout end it there, keeping
-the static recording as a capture of its own.
+With static frames, the capture pauses after the static recording in state ``waiting_for_wand``
+(the lab's "remove the L-frame, take the wand" step) until ``POST /capture/continue``: a trigger
+stops its pulses meanwhile, free-running cameras are drained (grab and discard), so nothing shot
+during the pause is recorded. ``POST /capture/stop`` or the settings' timeout end it there,
+keeping the static recording as a capture of its own.
 """
 
 from __future__ import annotations
@@ -169,7 +170,8 @@ class LiveCapture:
             if self._status.state != LiveCaptureState.waiting_for_wand:
                 raise HTTPException(409, f"no live capture is waiting for the wand (the live capture is "
                                          f"{self._status.state.value}); continue applies after the static "
-                                         "recording of a capture started with static_frames and a trigger")
+                                         "recording of a capture started with static_frames (and "
+                                         "pause_after_static: true, the default)")
             self._status = self._status.model_copy(update={"state": LiveCaptureState.running, "phase": "wand",
                                                            "prompt": None, "wait_deadline": None})
             self._resume.set()
@@ -183,7 +185,8 @@ class LiveCapture:
         self._update(phase=p.phase, frames_recorded=p.sets, fps=round(p.fps, 2), dropped=dict(p.missed))
 
     def _wait_for_wand(self, static_sets: int) -> None:
-        """``record``'s ``between``: wait for continue, stop or the timeout, with the trigger idle."""
+        """``record``'s ``between``: wait for continue, stop or the timeout, with the trigger idle
+        (free-running cameras are drained meanwhile by ``record``)."""
         timeout = self.continue_timeout_s
         with self._lock:
             if self._stop.is_set():  # stopped during the static recording
@@ -273,10 +276,6 @@ def _open_devices(body: LiveCaptureCreate, stack: contextlib.ExitStack, store: C
     from wandcal.drivers.trigger import open_trigger
 
     port = _local_port(body.trigger)
-    if port is None and body.static_frames and body.pause_after_static:
-        raise ValueError("pause_after_static: free-running cameras (no trigger) keep streaming, so the capture "
-                         "cannot pause between the static object and the wand; give a trigger, or send "
-                         "pause_after_static: false to record both back to back")
     cameras = [cam for url in body.cameras for cam in open_cameras(_allowed_camera_url(url, store))]
     if body.rig is not None:
         rig = rig_from_json(body.rig, "rig")

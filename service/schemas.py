@@ -328,7 +328,8 @@ class LiveCaptureCreate(BaseModel):
     static_frames: int = Field(0, ge=0, le=100_000, description="first record this many sets of the static object")
     pause_after_static: bool = Field(
         True, description="after the static recording, wait in state waiting_for_wand (remove the L-frame, take the "
-        "wand) until POST /capture/continue; needs a trigger. false: record the wand run at once (scripted use)",
+        "wand) until POST /capture/continue (free-running cameras are drained meanwhile). false: record the wand run "
+        "at once (scripted use)",
     )
     rate_hz: float = Field(100.0, gt=0, le=10_000, description="trigger / frame rate, Hz")
     wand_length_m: float | None = Field(None, gt=0, le=100, description="wand marker distance, metres")

@@ -35,6 +35,7 @@ from wandcal.capture.folder import (
     save_capture,
 )
 from wandcal.capture.rig_file import load_json, rig_from_json
+from wandcal.capture.world_references import reference_clash
 from wandcal.drivers.capture_files import (
     AXIS_FILE,
     DROP_FILE,
@@ -145,7 +146,7 @@ class CaptureStore:
                     "static.csv: static blobs are given but rig.json has no 'static_object.markers_m'; "
                     "add the static object's marker coordinates or leave static.csv out"
                 )
-        up = _vertical(rig, vertical, static is not None, axis is not None)
+        up = _vertical(rig, vertical, static, axis)
         return self._store(Capture(rig=rig, wand=wand, static=static, points=points, axis=axis, vertical=up),
                            "upload" if wand_text or points_text else "stream", name)
 
@@ -347,13 +348,16 @@ class CaptureStore:
         return sorted(p.name for p in self.root.iterdir() if p.is_dir() and CAPTURE_ID.match(p.name))
 
 
-def _vertical(rig, given: tuple[str, str] | None, has_static: bool, has_axis: bool):
-    """An uploaded floor.csv or drop.csv, parsed; refused beside static.csv or axis.csv, which set the frame."""
-    if given is None:
-        return None
-    name, text = given
-    if has_static or has_axis:
-        other = STATIC_FILE if has_static else AXIS_FILE
-        raise CaptureFormatError(f"{name}: the world frame is set by {other} in this upload; leave one of them out "
-                                 "(the other would be ignored)")
-    return (parse_floor_csv if name == FLOOR_FILE else parse_drop_csv)(text, rig)
+def _vertical(rig, given: tuple[str, str] | None, static, axis):
+    """An uploaded floor.csv or drop.csv, parsed; refused by the world-reference rule
+    (:mod:`wandcal.capture.world_references`) beside static.csv or axis.csv with rows, as is
+    axis.csv beside static.csv."""
+    vertical = None
+    if given is not None:
+        name, text = given
+        vertical = (parse_floor_csv if name == FLOOR_FILE else parse_drop_csv)(text, rig)
+    held = ((STATIC_FILE, static), (AXIS_FILE, axis), (given[0] if given is not None else FLOOR_FILE, vertical))
+    clash = reference_clash([name for name, rows in held if rows is not None and len(rows.camera)])
+    if clash is not None:
+        raise CaptureFormatError(f"{clash.at_fault}: {clash.message('this upload')}")
+    return vertical

@@ -6,6 +6,8 @@ A camera calibrated from wand samples in one corner of its image has a poorly de
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 GRID = (8, 8)  # rows, columns: cells of 160 x 128 px on a 1280 x 1024 image, near Motive's painting
@@ -91,21 +93,41 @@ def _listed(words: list[str]) -> str:
     return ", ".join(words[:-1]) + (" and " if len(words) > 1 else "") + words[-1]
 
 
-def coverage_advice(counts: np.ndarray, camera_id: str, min_fraction: float) -> str | None:
+@dataclass(frozen=True)
+class Sampling:
+    """How the advice names what a camera samples its image with and what the operator does to
+    sample more: a wand's camera-frames, or a points-only rig's points (docs/inputs.md)."""
+
+    samples: str  # what the coverage counts, plural: "wand samples"
+    act: str  # what gives more of them: "wave the wand"
+    unit: str  # what a camera's count counts, plural: "frames"
+    seen: str  # what a camera has not seen when its count is 0: "both wand ends"
+    thing: str  # what is waited for: "the wand"
+    it: str  # the pronoun of ``thing`` after "see": "it"
+
+
+WAND = Sampling("wand samples", "wave the wand", "frames", "both wand ends", "the wand", "it")
+# a points-only rig (no wand): its samples are the points two cameras or more saw, and more come from
+# markers or features placed (or digitised) where those cameras see them
+POINTS = Sampling("points", "show points", "points", "a point with another camera", "points", "them")
+
+
+def coverage_advice(counts: np.ndarray, camera_id: str, min_fraction: float, words: Sampling = WAND) -> str | None:
     """Words for the operator when a camera's coverage is short of ``min_fraction``, else None,
     e.g. "cam2: no wand samples in the left third of its image; wave the wand there", or, when the
     samples sit in a few regions only, where they are: "cam5: wand samples only in the top-left of
-    its image; wave the wand across the rest of its view"."""
+    its image; wave the wand across the rest of its view". ``words``: what the samples are
+    (:data:`WAND`, or :data:`POINTS` for a points-only rig)."""
     fraction = covered_fraction(counts)
     if fraction >= min_fraction:
         return None
     tally = f"({fraction:.0%} covered, goal {min_fraction:.0%})"
     seen = _seen(_regions(counts))
     if seen:
-        return (f"{camera_id}: wand samples only in {seen} of its image {tally}; "
-                "wave the wand across the rest of its view")
+        return (f"{camera_id}: {words.samples} only in {seen} of its image {tally}; "
+                f"{words.act} across the rest of its view")
     empty = empty_regions(counts)
     if not empty:
-        return (f"{camera_id}: wand samples cover only {fraction:.0%} of its image (goal {min_fraction:.0%}); "
-                "wave the wand through the gaps of its view")
-    return f"{camera_id}: no wand samples in {_listed(empty)} of its image {tally}; wave the wand there"
+        return (f"{camera_id}: {words.samples} cover only {fraction:.0%} of its image (goal {min_fraction:.0%}); "
+                f"{words.act} through the gaps of its view")
+    return f"{camera_id}: no {words.samples} in {_listed(empty)} of its image {tally}; {words.act} there"

@@ -137,7 +137,7 @@ def coverage_reports(rig: Rig, camera: np.ndarray, uv: np.ndarray) -> list[dict]
     empty parts in words). camera: (M,) index; uv: (M, 2) raw pixels of the observations used."""
     out = []
     for cam, rows in zip(rig.cameras, camera_rows(camera, len(rig.cameras))):
-        counts = coverage_grid(uv[rows], cam.width, cam.height)
+        counts = coverage_grid(np.take(uv, rows, axis=0), cam.width, cam.height)  # take: tA, a cheaper 2-D gather
         out.append({"coverage": covered_fraction(counts), "uncovered": empty_regions(counts)})
     return out
 
@@ -181,7 +181,8 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
 
     report: ``observations``, ``point_observations``, ``coverage``, ``uncovered``,
     ``geometry_std_mm``, and the judged figures ``noise_px``, ``outlier_share``, ``residual_mm``,
-    ``residual_of_volume`` and ``geometry_of_volume``; extent_m: the volume's size in metres
+    ``residual_of_volume`` and ``geometry_of_volume``, and ``geometry_std_rel_se`` (the geometry
+    sigma's relative standard error, where known; else :data:`SIGMA_REL_SE`); extent_m: the volume's size in metres
     (None without a scale);
     rig_noise_px: the median camera's noise.
     """
@@ -233,7 +234,9 @@ def _place_checks(checks: _Checks, report: dict, cam_id: str, extent_m: float | 
     returns the coverage advice a camera under the good coverage gets (not poor on its own)."""
     coverage_advice = None
     geo_rel = report.get("geometry_of_volume")
-    geo_std = SIGMA_REL_SE * geo_rel if geo_rel is not None else 0.0
+    # tA (issue 31): the sigma's standard error from the spread of the information that places the
+    # camera (wandcal.calib.judge.residuals.place_sigma_errors), never below the measured 11%
+    geo_std = max(SIGMA_REL_SE, report.get("geometry_std_rel_se") or 0.0) * geo_rel if geo_rel is not None else 0.0
     # few observations that place the camera well are good: its geometry sigma below says so
     few = _grade(obs, MIN_OBSERVATIONS, True) == 2 and (geo_rel is None or _grade(geo_rel, GEOMETRY_OF_VOLUME, std=geo_std) == 2)
     checks.add("observations", obs, MIN_OBSERVATIONS,

@@ -89,12 +89,14 @@ class SyncState:
     (docs/sync.md). whole: the whole-frame offsets the frames were renumbered by; unshifted: the
     pairs on each camera's own frame numbers; columns: the sub-frame fit with the frames resampled
     to the reference camera's instants (None until the sub-frame step); refined: whether the final
-    ``ba`` refines the offsets again, over every frame (``columns`` then its columns)."""
+    ``ba`` refines the offsets again, over every frame (``columns`` then its columns); blobs: a
+    multi-marker wand's camera-frames with every marker resampled to those instants too."""
 
     whole: FrameOffsets
     unshifted: WandPairs
     columns: TimeColumns | None = None
     refined: bool = False
+    blobs: MarkerBlobs | None = None  # a multi-marker wand's every marker, resampled as the ends are
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,7 +180,7 @@ def calibrate(
     wand, sync = _whole_frame_sync(rig, wand if has_wand else None, options, tell, warnings)
     obs = _observations(rig, wand, points, sync, has_wand, options.method)
     start = _start(rig, obs, static, tell, warnings, synced=sync is not None)
-    start, sync = _subframe_sync(rig, start, sync, options)
+    start, sync = _subframe_sync(rig, start, sync, options, obs.blobs)
     solved = _refine(rig, obs, start, sync, options, tell, warnings)
     reference = axis if axis is not None and len(axis) else vertical
     placed = _world(solved, obs, start, (static, reference), tell, warnings)
@@ -298,21 +300,39 @@ def _static_poses(rig: Rig, static: StaticObservations | None, tell: Progress,
     return static_poses
 
 
-def _subframe_sync(rig: Rig, start: Start, sync: SyncState | None,
-                   options: CalibrationOptions) -> tuple[Start, SyncState | None]:
+def _subframe_sync(rig: Rig, start: Start, sync: SyncState | None, options: CalibrationOptions,
+                   blobs: MarkerBlobs | None = None) -> tuple[Start, SyncState | None]:
     """With sync: the sub-frame offsets with the start poses refined, and the frames resampled to
-    the reference camera's instants; ``ba`` refines the offsets again over every frame."""
+    the reference camera's instants; ``ba`` refines the offsets again over every frame. A
+    multi-marker wand's ``blobs`` (the rows of ``start.labelled``) are resampled alike, every marker."""
     if sync is None:
         return start, None
     focal = np.array([c.focal for c in rig.cameras])
     tracks_in_time = Tracks(start.labelled, len(rig.cameras))
+    markers = _aligned_markers(blobs, start.labelled) if blobs is not None else None
     timing = fit_timing(start.init.R, start.init.t, start.labelled, focal, sync.whole.reference, options.sync_drift,
                         max_frames=BA_FIT_FRAMES if options.method == "ba" else MAX_FIT_FRAMES, poses=True,
-                        tracks=tracks_in_time)
+                        tracks=tracks_in_time, markers=markers)
     columns = TimeColumns(start.labelled, tracks_in_time, timing, focal)
     assert timing.R is not None and timing.t is not None  # poses=True: the fit refined them
+    if blobs is not None and markers is not None:  # every marker resampled as the ends were; the rows kept as theirs
+        from wandcal.calib.start.markerlabels import MarkerBlobs
+
+        xy, uv = columns.markers(*markers)
+        keep = columns.keep
+        blobs = MarkerBlobs(blobs.frame[keep], blobs.camera[keep], xy, uv, blobs.frames, blobs.dropped,
+                            blobs.fit_px[keep] if blobs.fit_px is not None else None)
     start = replace(start, labelled=columns.resampled, init=replace(start.init, R=timing.R, t=timing.t))
-    return start, replace(sync, columns=columns, refined=options.method == "ba")
+    return start, replace(sync, columns=columns, refined=options.method == "ba", blobs=blobs)
+
+
+def _aligned_markers(blobs: MarkerBlobs, labelled: WandPairs) -> tuple[np.ndarray, np.ndarray]:
+    """(xy, uv) (P, K, 2) a multi-marker wand's rows with their end 0 first as the ends of
+    ``labelled`` (the same rows, their ends maybe swapped)."""
+    swapped = ~np.all(np.isclose(labelled.uv[:, 0], blobs.uv[:, 0]), axis=1)
+    xy, uv = blobs.xy.copy(), blobs.uv.copy()
+    xy[swapped], uv[swapped] = xy[swapped, ::-1], uv[swapped, ::-1]
+    return xy, uv
 
 
 def _refine(rig: Rig, obs: Observations, start: Start, sync: SyncState | None, options: CalibrationOptions,
@@ -325,13 +345,9 @@ def _refine(rig: Rig, obs: Observations, start: Start, sync: SyncState | None, o
         r = reject_outliers(r, method, options, tell, columns=columns)
     sync_doc = _sync_report(rig, r, sync, options, warnings)
     marker_pairs = None
-    if obs.blobs is not None and sync is not None:
-        # the ends were resampled to the reference camera's instants; the interior markers have no
-        # sub-frame track of their own (calib/solve/sync/joint.py), so they are left out
-        warnings.append("with --sync auto a multi-marker wand is refined by its end markers, brought to the reference "
-                        "camera's instants; its interior markers are not used (they have no sub-frame track)")
-    elif obs.blobs is not None:
-        r, marker_pairs = _with_markers(rig, obs.blobs, r, options, tell, warnings)
+    if obs.blobs is not None:  # under sync every marker resampled to the reference instants, as the ends
+        blobs = sync.blobs if sync is not None and sync.blobs is not None else obs.blobs
+        r, marker_pairs = _with_markers(rig, blobs, r, options, tell, warnings)
     dropped = dict(obs.pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
     dropped |= {"outliers": r.outliers} | ({"point_outliers": r.point_outliers} if tracks is not None else {})
     return Solved(r=r, every_track=obs.tracks, marker_pairs=marker_pairs, sync=sync_doc, dropped=dropped)

@@ -31,6 +31,7 @@ from wandcal.calib.judge.residuals import (
     held_out,
     median_ray_angle,
     observation_residuals,
+    place_sigma_errors,
 )
 from wandcal.calib.judge.verdict import (
     NOISE_RATIO,
@@ -207,12 +208,77 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
         timing = timing_faults(list(rig.ids), R, t, labelled, tracks, np.array([c.focal.mean() for c in rig.cameras]),
                                [f["noise_px"] for f in figures])
     if timing:
-        return timing
+        return timing + beside_timing(rig, labelled, tracks, R, t, timing[0])
     lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks)
     if lens:  # a lens error bends a tracked marker's path: a step or noise there is its effect
         return lens
     moved, noisy = own_faults(rig, labelled, tracks, R, t)
     return moved or noisy or camera_faults(rig, labelled, R, t, figures, res)
+
+
+def in_time(labelled: WandPairs, n_cameras: int, c: int, offset: float) -> WandPairs:
+    """The wand pairs with camera c's brought to the others' time: its frame f sampled at f -
+    ``offset`` (docs/result-format.md's sign: c ``offset`` frames late), interpolated along its own
+    track (:func:`wandcal.calib.solve.sync.fit.resample`); its rows without the frames around that
+    time are left out."""
+    from wandcal.calib.solve.sync.fit import Timing, resample
+
+    phase = np.zeros(n_cameras)
+    phase[c] = offset
+    z = np.zeros(n_cameras)
+    timing = Timing(phase, z, z, np.zeros((n_cameras, 2, 2)), 0.0, np.zeros(n_cameras, np.int64))
+    return resample(labelled, timing)[0]
+
+
+def _solved_again(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Every camera's pose refined again (``ba``, robust, from R, t) on these wand pairs and the
+    point tracks: a sparse session's background points place its cameras as much as its wand."""
+    from wandcal.calib.run.options import CalibrationOptions
+    from wandcal.calib.run.refine import build_problem, refine, triangulated, up_direction
+
+    setup = build_problem(rig, labelled, R, t, 0)
+    X = None
+    if tracks is not None and len(tracks):
+        tracks, X = triangulated(R, t, tracks)
+    r = refine(rig, labelled, setup, tracks, X, "ba", CalibrationOptions(), lambda event: None,
+               up_direction(rig, R, t, setup), final=False)
+    return r.R, r.t
+
+
+def beside_timing(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                  timing: dict) -> list[dict]:
+    """The faults of the other cameras beside one out of time (``timing``, its fault): its samples
+    brought to the others' time (:func:`in_time`) and the rig solved again with them, then each
+    other camera's lens against the points the others triangulate, a camera that moved, and each
+    camera's own noise, as :func:`few_camera_faults` judges a rig in time. A camera out of time
+    bends the solve, so judged on the solve as it stands every camera would show its error. The
+    timed camera is not named again. Only with a wand (whose samples have a time)."""
+    c = rig.index(timing["camera"])
+    offset = timing["evidence"]["timing"]["offset_frames"]
+    if not len(labelled):
+        return []
+    synced = in_time(labelled, len(rig.cameras), c, offset)
+    if len(synced) < len(labelled) // 2:  # too few of its frames interpolate: the others stay unjudged
+        return []
+    try:
+        R2, t2 = _solved_again(rig, synced, tracks, R, t)
+    except (CalibrationError, np.linalg.LinAlgError):
+        return []
+    from wandcal.calib.judge.leave_one_out import camera_patterns, leave_one_out_faults
+
+    found = leave_one_out_faults(list(rig.ids), R2, t2, synced, tracks, at_fault=(c,))
+    if found and found[0]["kind"] == "intrinsics":
+        # a lens error of its own stays when the timed camera is brought in time (it shows more
+        # clearly, the timing's spread gone); the timing's spread through the points shrinks: a
+        # pattern weaker now than on the solve as it stood is that spread, not a fault
+        before = camera_patterns(R, t, labelled, tracks, rig.index(found[0]["camera"])).lens
+        if before is not None and found[0]["evidence"]["intrinsics"]["f_stat"] < before.f_stat:
+            found = []
+    if not found:
+        moved, noisy = own_faults(rig, synced, tracks, R2, t2)
+        found = moved or noisy
+    return [f for f in found if f["camera"] != timing["camera"]]
 
 
 def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray
@@ -319,7 +385,8 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     extent = res.extent if res.extent > 0 else None
     judged = [replace(cam, judged=_judged(cam, fig, cov, extent))
               for cam, fig, cov in zip(cameras, figures, coverage_reports(rig, *seen))]
-    docs = [c.to_json() for c in judged]
+    # each camera's sigma's own standard error, for the verdict's "at the limit" (not written)
+    docs = [c.to_json() | {"geometry_std_rel_se": se} for c, se in zip(judged, place_sigma_errors(R, res, len(rig.cameras)))]
     faults = few_camera_faults(rig, labelled, tracks, R, t, figures, res) + input_faults(rig, world_doc, solver_doc, docs)
     angle = median_ray_angle(R, res)
     if angle is not None and angle < np.radians(MIN_RAY_ANGLE_DEG):

@@ -43,7 +43,7 @@ from wandcal.calib.solve.wandmodel import WandProblem
 
 BOUND_M = 10.0  # the paper's box on every translation and point coordinate
 HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
-MAX_ROUNDS = 300  # a round takes ~0.5 s of CPU at 8 x 1500 (decision 0033)
+MAX_ROUNDS = 300  # a round takes ~0.35 s of CPU at 8 x 1500 (decisions 0033, 0045)
 # Convergence. The rounds approach their fixed point linearly and slowly (each moves the cameras
 # ~2% of the way at 8 x 1500), so one round's move says little about the distance left, and the
 # LP's jumps between vertices make single moves noisy. The distance left is estimated from the
@@ -290,7 +290,7 @@ def arrow_lp(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: WandProblem, 
     link = np.zeros((lp.n_cameras + len(X), 3))
     link[lp.n_cameras :] = np.stack([-d, d], axis=1).reshape(-1, 3)
     # the observation rows' y = y' - 1 with y' in [0, 2]: A^T 1 moves to the right-hand side
-    return replace(lp, r=lp.times(np.where(obs, 1.0, 0.0)), link=link.ravel(), link_cost=p.length * len(d))
+    return lp.with_rhs(lp.times(np.where(obs, 1.0, 0.0)), link.ravel(), p.length * len(d))
 
 
 class _Entries:

@@ -259,11 +259,7 @@ def _best_shift(
     if counts.max() < MIN_TIMING_FRAMES:
         return None, 0.0
     if counts.max() < FEW_FRAMES:  # a sparse session: every shift can afford its own RANSAC
-        found = [_pose_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]
-        shares = np.array([_share(pairs, table, a, b, offset_a - s, rig, *f)[0] if f else 0.0 for s, f in zip(shifts, found)])
-        best = int(np.argmax(shares))
-        rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
-        return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0
+        return _sparse_best_shift(pairs, table, (a, offset_a), b, shifts, rig)
     # a narrow search is judged against shifts beyond it too: its own median is the best's neighbours'
     pad = max(CONTRAST_SPAN - len(shifts) // 2, 0)
     wide = np.arange(shifts[0] - pad, shifts[-1] + pad + 1)
@@ -273,8 +269,11 @@ def _best_shift(
     # mean put 12 of 99 cameras on 12 simulated rigs off the nearest whole frame, both synchronised
     # rigs' among them; this, 11, none of the synchronised ones; a camera that saw another motion
     # scores alike either way, 0.40-0.86)
+    usable = [e for e in each if np.isfinite(e).sum() > 2]
+    if not usable:  # no partner scored three shifts: wand frames far apart in time (Ushichka's, every ~100th)
+        return _sparse_best_shift(pairs, table, (a, offset_a), b, shifts, rig)
     with np.errstate(all="ignore"):
-        everywhere = np.exp(np.nanmean([np.log(e / np.nanmedian(e)) for e in each if np.isfinite(e).sum() > 2], axis=0))
+        everywhere = np.exp(np.nanmean([np.log(e / np.nanmedian(e)) for e in usable], axis=0))
     scores = everywhere[pad : len(wide) - pad]
     if not np.isfinite(scores).any():
         return None, 0.0
@@ -297,6 +296,19 @@ def _best_shift(
             break
         best = near[pick]
     return int(shifts[best]), float(share)
+
+
+def _sparse_best_shift(pairs: WandPairs, table: np.ndarray, partner: tuple[int, int], b: int, shifts: np.ndarray,
+                       rig: Rig) -> tuple[int, float]:
+    """(shift, share) of camera b against one timed camera ``partner`` (camera, offset) where its
+    frames are too few, or too far apart in time, for the midpoint scores: each shift's own RANSAC
+    pose, the best share kept when it beats every shift two or more away by ``SPARSE_MARGIN``."""
+    a, offset_a = partner
+    found = [_pose_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]
+    shares = np.array([_share(pairs, table, a, b, offset_a - s, rig, *f)[0] if f else 0.0 for s, f in zip(shifts, found)])
+    best = int(np.argmax(shares))
+    rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
+    return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0
 
 
 def _shared_counts(table: np.ndarray, a: int, b: int, lags: np.ndarray) -> np.ndarray:

@@ -324,27 +324,30 @@ def _describe(views: Views, a: int, b: int) -> str:
 
 
 def _cannot_place(st: _State, c: int, reasons: list[str]) -> str:
-    """The message for a camera that cannot be placed: what links it has and what it needs."""
+    """The message for a camera that cannot be placed: what links it has and what it needs (in
+    points, for a capture without a wand: a point gives one match, a wand frame two)."""
     rig, views = st.rig, st.views
     cam = rig.cameras[c].id
     linked = [int(a) for a in np.flatnonzero(st.placed) if sum(map(len, views.shared(int(a), c)))]
     links = st.links[:, c]
+    wandless = not len(st.pairs)
+    seen, per, act = ("points", 1, "Show points") if wandless else ("wand frames", 2, "Wave the wand")
     if linked:
         best = max(linked, key=lambda a: links[a])
         short = max(MIN_PAIR_MATCHES - int(links[best]), 0)
         need = (
-            f"it needs {(short + 1) // 2} more wand frames shared with {rig.cameras[best].id}"
+            f"it needs {(short + per - 1) // per} more {seen} shared with {rig.cameras[best].id}"
             if short else
             f"the frames it shares with {rig.cameras[best].id} do not fix its pose ({'; '.join(reasons)}); "
-            f"it needs more wand frames seen by {cam} and {rig.cameras[best].id} together, "
+            f"it needs more {seen} seen by {cam} and {rig.cameras[best].id} together, "
             "a few of them also by a third camera"
         )
         with_whom = ", ".join(f"{rig.cameras[a].id} ({_describe(views, a, c)})" for a in linked)
     else:
-        need = f"it needs at least {(MIN_PAIR_MATCHES + 1) // 2} wand frames shared with one of them"
+        need = f"it needs at least {(MIN_PAIR_MATCHES + per - 1) // per} {seen} shared with one of them"
         with_whom = "none of them"
     placed = ", ".join(rig.cameras[a].id for a in np.flatnonzero(st.placed))
     return (
         f"camera {cam!r} cannot be placed: of the placed cameras ({placed}) it is linked to {with_whom}; {need}. "
-        f"Wave the wand where {cam} and the others see it at the same time"
+        f"{act} where {cam} and the others see {'them' if wandless else 'it'} at the same time"
     )

@@ -172,6 +172,25 @@ class Assembler:
         """No more pulses will come (the run finished or the trigger port vanished)."""
         self.pulses_ended = True
 
+    def resume_at(self, key: int) -> None:
+        """Go on from set ``key`` after a free-running pause: sets before it are never made (their
+        frames were shot during the pause, or before it past the static run), frames for them are
+        ignored as late ones are, and every camera counts as just seen, so the pause's length
+        does not make the first sets after it look stalled."""
+        for k in [k for k in self._slots if k < key]:
+            del self._slots[k]
+        self.next_key = max(self.next_key, key)
+        self.seen_now()
+        for cam in self.cameras:
+            cam.last_key = max(cam.last_key, self.next_key - 1)
+
+    def seen_now(self) -> None:
+        """Every camera counts as just seen: a wait that was no camera's fault (opening the
+        devices, a pause) does not make the next sets look stalled (:data:`STALL_S`)."""
+        now = self.clock()
+        for cam in self.cameras:
+            cam.last_seen = now
+
     # -- output
     def ready(self, flush: bool = False) -> list[FrameSet]:
         """Sets that can no longer change, in order; ``flush`` hands out everything pending."""

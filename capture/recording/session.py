@@ -17,20 +17,19 @@ from __future__ import annotations
 
 import contextlib
 import queue
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from wandcal.calib.detect import CameraDetector, DetectConfig
-from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Rig
-from wandcal.capture.recording.framesets import Assembler, DetectedFrame, FrameSet
+from wandcal.capture.recording.framesets import Assembler, FrameSet
+from wandcal.capture.recording.readers import END, FrameDetector, Readers
 from wandcal.capture.recording.record import ImagePolicy, Recorder
 from wandcal.capture.recording.writer import ImageWriter
-from wandcal.drivers.camera import CameraDriver, Frame, TriggerMode
-from wandcal.drivers.errors import DriverError, FrameError, FrameTimeout
+from wandcal.drivers.camera import CameraDriver, TriggerMode
+from wandcal.drivers.errors import CameraUrlError, DriverError, FrameError
 from wandcal.drivers.trigger import SerialTrigger, TriggerLost
 
 INBOX_SECONDS = 0.25
@@ -44,9 +43,7 @@ MIN_BUFFER_FRAMES = 2  # per camera: a slow rate still buffers a frame while the
 BYTES_PER_PIXEL = 2  # sized for 16-bit frames, so 8-bit ones stay well inside the budget
 # Camera and trigger crystals are within +-50 ppm of nominal, so two of them differ by <= 100 ppm.
 DRIFT_WARN_PPM = 100.0
-READ_TIMEOUT_S = 0.2  # how soon a reader thread notices the stop flag while its camera waits for a pulse
 INTERRUPTED = "interrupted by the user"  # CaptureResult.error after Ctrl-C, end of input or a closed terminal
-_END = object()
 
 
 def buffer_frames(rate_hz: float, cameras: int, seconds: float, frame_bytes: int = 0) -> int:
@@ -88,67 +85,6 @@ class Progress:
     guidance: dict | None = None  # the latest live guidance document, when the capture has one
 
 
-class _Detector:
-    """Turns one camera's frames into :class:`DetectedFrame` s, in the reader thread that read
-    them (in time order, as a running background needs)."""
-
-    def __init__(self, detector: CameraDetector, images: ImagePolicy, static_frames: int):
-        self.detector, self.images, self.static_frames = detector, images, static_frames
-
-    def __call__(self, frame: Frame) -> DetectedFrame:
-        try:
-            uv = self.detector.detect(frame.image).uv
-        except CalibrationError as exc:  # the camera delivers frames the detector cannot read
-            raise DriverError(f"camera {frame.camera_id}: cannot detect blobs in frame {frame.sequence} ({exc}); "
-                              "set the camera to 8- or 16-bit grey output") from None
-        keep = self.images.keeps(frame.sequence, self.static_frames)
-        return DetectedFrame(frame.sequence, frame.timestamp_us, frame.camera_id, uv, frame.image if keep else None)
-
-
-class _Readers:
-    """One thread per camera feeding ``(camera, DetectedFrame | FrameError | _END)`` into the inbox."""
-
-    def __init__(self, cameras: list[CameraDriver], inbox: queue.Queue, assembler: Assembler, max_lead: int,
-                 detectors: list[_Detector]):
-        self.stop = threading.Event()
-        self.threads = [threading.Thread(target=self._run, args=(i, cam, inbox, assembler, max_lead, detectors[i]),
-                                         name=f"read-{cam.camera_id}", daemon=True) for i, cam in enumerate(cameras)]
-        for t in self.threads:
-            t.start()
-
-    def _run(self, i: int, cam: CameraDriver, inbox: queue.Queue, assembler: Assembler, max_lead: int,
-             detect: _Detector) -> None:
-        while not self.stop.is_set():
-            if assembler.lead(i) > max_lead:
-                time.sleep(0.002)  # the others are behind: wait instead of piling frames up
-                continue
-            item: Frame | DetectedFrame | DriverError | None
-            try:
-                item = cam.read(timeout=READ_TIMEOUT_S)
-                if item is not None:
-                    item = detect(item)
-            except FrameTimeout:
-                continue
-            except DriverError as exc:
-                item = exc
-            self._put(inbox, (i, _END if item is None else item))
-            if item is None or (isinstance(item, DriverError) and not isinstance(item, FrameError)):
-                return
-
-    def _put(self, inbox: queue.Queue, item) -> None:
-        while not self.stop.is_set():
-            try:
-                inbox.put(item, timeout=0.1)
-                return
-            except queue.Full:
-                continue
-
-    def join(self) -> None:
-        self.stop.set()
-        for t in self.threads:
-            t.join(timeout=2.0)
-
-
 def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path, rig: Rig, *, frames: int,
            static_frames: int = 0, rate_hz: float = 100.0, progress: Callable[[Progress], None] | None = None,
            between: Callable[[], None] | None = None, events: Callable[[str], None] | None = None,
@@ -163,7 +99,10 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         rate_hz: trigger rate; also the free-run rate asked of the cameras.
         progress: called a few times a second with a :class:`Progress`.
         between: called after the static recording, before the wand run (e.g. "remove the
-            L-frame, then press Enter").
+            L-frame, then press Enter"); it may raise KeyboardInterrupt or DriverError to end
+            the capture there. With a trigger the pulses stop meanwhile; free-running cameras
+            are drained (grab and discard), and the wand run starts with their first frames
+            after it.
         events: receives drift / realignment / fault messages as they happen.
         images: which images to write beside the centroids (None: all).
         detect: the blob detector's settings (None: its defaults), or one
@@ -195,13 +134,16 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
     with contextlib.ExitStack() as stack:
         # devices first: a camera or trigger that cannot be set up leaves no half-made folder
         _open_devices(stack, cameras, trigger, rate_hz)
+        assembler.seen_now()  # opening took a while (a simulated camera renders its noise): no camera stalled
         recorder = Recorder(out, rig, ImageWriter(buffer_frames(rate_hz, n, WRITE_SECONDS, frame_bytes)),
                             triggered=trigger is not None, images=images, listener=guidance)
         writer = recorder.writer
-        readers = _Readers(cameras, inbox, assembler, buffer_frames(rate_hz, n, LEAD_SECONDS, frame_bytes) // n,
-                           [_Detector(d, images or ImagePolicy(), static_frames) for d in detectors])
+        # free-running cameras pause by draining: their readers stop keeping frames after the static run
+        pause_after = static_frames if between is not None and trigger is None else 0
+        readers = Readers(cameras, inbox, assembler, buffer_frames(rate_hz, n, LEAD_SECONDS, frame_bytes) // n,
+                           [FrameDetector(d, images or ImagePolicy(), static_frames) for d in detectors], pause_after)
         loop = _Loop(assembler, recorder, trigger, cameras, inbox, static_frames, static_frames + frames, say, clock)
-        loop.guidance, loop.until = guidance, until
+        loop.guidance, loop.until, loop.readers = guidance, until, readers
         try:
             if trigger is not None:
                 trigger.start(static_frames or frames)
@@ -227,8 +169,10 @@ def _matching_ids(cameras: list[CameraDriver], rig: Rig, static_frames: int, fra
     """The cameras' ids, checked against the rig's; a simulated camera is given the capture's script."""
     ids = [c.camera_id for c in cameras]
     if ids != rig.ids:
-        raise DriverError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give one "
-                          "--camera per rig camera, in the same order, with matching ids (?id=...)")
+        # bad input, not a device's fault (CameraUrlError: the command line exits 2)
+        raise CameraUrlError(f"the cameras ({', '.join(ids)}) do not match rig.json ({', '.join(rig.ids)}); give the "
+                             "rig.json of these cameras (--rig), or one --camera per rig camera, in the same order, "
+                             "with matching ids (?id=...)")
     for cam in cameras:
         # a simulated camera plays the capture's script (the L-frame for the static sets, then the
         # wand), as the operator does for a real rig; a count it cannot play stops here
@@ -283,6 +227,8 @@ class _Loop:
         self.failed: list[str] = []
         self.guidance = None
         self.until: Callable[[], bool] | None = None
+        self.readers: Readers | None = None
+        self.paused = False  # in ``between``: nothing pending is a set (free-running frames past the static run)
 
     def run(self, progress, between, frames: int) -> str | None:
         started, base = self.clock(), 0  # the rate counts from the start of the current phase
@@ -293,10 +239,7 @@ class _Loop:
             self._take_frames()
             before = self.done
             self._emit(self.asm.ready())
-            if before < self.static_frames <= self.done and self.trigger is not None and error is None:
-                if between:
-                    between()
-                self.trigger.start(frames)
+            if before < self.static_frames <= self.done and error is None and self._pause(between, frames):
                 started, base = self.clock(), self.done
             if all(c.ended for c in self.asm.cameras):
                 self.flush()
@@ -319,6 +262,24 @@ class _Loop:
             error = error or "; ".join(self.failed)
         return error
 
+    def _pause(self, between, frames: int) -> bool:
+        """Between the static run and the wand: with a trigger, ``between`` while the pulses stop,
+        then the wand's pulses; free-running, ``between`` while the readers drain the cameras,
+        then the sets from the first frame every camera takes after it. False: no pause."""
+        if self.trigger is not None:
+            if between:
+                between()
+                self.asm.resume_at(self.asm.next_key)  # a long pause is not a stalled camera
+            self.trigger.start(frames)
+            return True
+        if between is None or self.readers is None or not self.readers.pause_after:
+            return False
+        self.paused = True
+        between()
+        self.asm.resume_at(self.readers.resume())
+        self.paused = False
+        return True
+
     def _take_pulses(self, trigger: SerialTrigger) -> str | None:
         try:
             while (pulse := trigger.next_pulse(timeout=0)) is not None:
@@ -338,7 +299,7 @@ class _Loop:
             return
         while True:
             i, payload = item
-            if payload is _END:
+            if payload is END:
                 self.asm.end_camera(i)
             elif isinstance(payload, FrameError):
                 self.asm.add_lost(i, payload.sequence)
@@ -355,6 +316,8 @@ class _Loop:
                 return
 
     def flush(self) -> None:
+        if self.paused:
+            return  # interrupted in the pause: the static run is whole, and nothing since is a set
         self._take_frames()
         self._emit(self.asm.ready(flush=True))
 

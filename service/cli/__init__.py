@@ -130,6 +130,13 @@ class _Version(argparse.Action):
         parser.exit()
 
 
+# what an interrupted command leaves, for the commands that write their files only at their end
+KEPT_WHEN_INTERRUPTED = {
+    "calibrate": "no result was written (an earlier one is as it was); run it again to calibrate",
+    "detect": "wand.csv and static.csv are as they were; run it again to detect",
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command. ``argv`` None: this is the ``wandcal`` process itself (its arguments are
     ``sys.argv``), so a batch command also takes the batch memory policy; a caller that passes
@@ -152,6 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wandcal {args.command}: error: {exc}", file=sys.stderr)
         return exits.BAD_INPUT if isinstance(exc, (CameraUrlError, *exits.PATH_ERRORS)) else exits.NO_ANSWER
     except KeyboardInterrupt:
-        print(f"wandcal {args.command}: interrupted", file=sys.stderr)
+        kept = KEPT_WHEN_INTERRUPTED.get(args.command)
+        print(f"wandcal {args.command}: interrupted" + (f"; {kept}" if kept else ""), file=sys.stderr)
         return exits.INTERRUPTED
 

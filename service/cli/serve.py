@@ -105,8 +105,7 @@ def run(args: argparse.Namespace) -> int:
     check_bind(settings)
     check_port(settings.host, settings.port)
     # uploads larger than 1 MB spool to temporary files: keep those inside the data directory too
-    spool = settings.data_dir.resolve() / "tmp"
-    spool.mkdir(parents=True, exist_ok=True)
+    spool = _spool(settings.data_dir)
     tempfile.tempdir = str(spool)
     # the service's own log lines (recovery after a crash, the folder's lock) beside uvicorn's, at its level
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -114,3 +113,17 @@ def run(args: argparse.Namespace) -> int:
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
                 timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S, **server_options(settings))
     return 0
+
+
+def _spool(data_dir: Path) -> Path:
+    """The data directory's ``tmp/``, made here: a data directory that cannot be made or written
+    (a typo, a read-only disk, a file of that name) is bad input, named."""
+    from wandcal.service.cli.support.exits import InputError
+
+    spool = data_dir.resolve() / "tmp"
+    try:
+        spool.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"data directory {data_dir}: cannot make {spool} ({exc.strerror or exc}); give --data-dir "
+                         "(or WANDCAL_DATA_DIR) a folder this user can write") from None
+    return spool

@@ -6,24 +6,20 @@ Small rigs (4 cameras, 300 frames) keep it fast; the sparse hand-digitised sessi
 
 from __future__ import annotations
 
-import dataclasses
 import re
 
 import numpy as np
 import pytest
 
+from bench.matrix_inputs import Kind, build
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.bumps import check_rig
-from wandcal.calib.rig import PointObservations
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.guidance import wanding_guidance
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.resolve import solve_only
-from wandcal.calib.sim.scenes import pairwise_points
-from wandcal.calib.sim.simulate import simulate_capture
 
-CW500_M = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.5, 0.0, 0.0]])
-KINDS = ("lframe", "wand_only", "three_marker", "wand_points", "sparse_digitised", "points_only")
+KINDS = ("lframe", "wand_only", "three_marker", "planar_wand", "wand_points", "sparse_digitised", "points_only")
 COMMANDS = ("ba", "lp", "paper", "sync_auto", "check", "solve_only", "guidance", "export")
 # the cells that refuse, and the words their message must hold: what the method or command cannot take
 REFUSALS = {
@@ -31,34 +27,12 @@ REFUSALS = {
 }
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class Kind:
-    rig: object
-    wand: object
-    static: object = None
-    points: PointObservations | None = None
-    axis: object = None
-
-
 def _kind(name: str) -> Kind:
-    if name == "sparse_digitised":
-        from bench.real_sessions import BROWN, BROWN_MAT, SHARED_DATA
-
-        mat = SHARED_DATA / BROWN / "calibration1" / BROWN_MAT
-        if not mat.is_file():
-            pytest.skip(f"{mat} is absent")
-        from wandcal.capture.importers.easywand import read_easywand_mat
-
-        cap = read_easywand_mat(mat).capture
-        return Kind(cap.rig, cap.wand, None, cap.points, cap.axis)
-    markers = CW500_M if name == "three_marker" else None
-    sim = simulate_capture(4, 300, 0.3, 0.0, name == "lframe", 1, wand_markers=markers)
-    if name in ("lframe", "wand_only", "three_marker"):
-        return Kind(sim.rig, sim.wand, sim.static)
-    points = pairwise_points(sim, 400, np.random.default_rng(5), third=0.8)
-    if name == "wand_points":
-        return Kind(sim.rig, sim.wand, None, points)
-    return Kind(dataclasses.replace(sim.rig, wand_length=None), None, None, points)
+    """The input kind, built as bench/bench_matrix.py builds it; skipped where ../shared/data lacks it."""
+    k = build(name)
+    if k is None:
+        pytest.skip(f"{name}: its data are absent from ../shared/data")
+    return k
 
 
 @pytest.fixture(scope="module")

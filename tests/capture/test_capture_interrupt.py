@@ -161,6 +161,38 @@ def test_ctrl_c_at_the_pause_leaves_a_folder_the_same_command_records_into(tmp_p
     assert log(out)["state"] == "complete" and wand_rows(out) == 40
 
 
+FREE_RUN_PAUSE = ["capture", "--camera", "sim://?cameras=3&seed=2", "--static-frames", "5", "--frames", "40",
+                  "--rate", "200", "--images", "none", "--no-guidance"]
+
+
+def test_free_running_cameras_pause_for_the_l_frame_until_enter(tmp_path, terminals):
+    out = tmp_path / "cap"
+    t = terminals(*FREE_RUN_PAUSE, "--out", str(out))  # no trigger, no --no-pause
+    t.wait_for(lambda: PROMPT in t.text, "the pause's prompt")
+    assert wand_rows(out) == 0  # the cameras stream on, but nothing reaches the wand run
+    t.send(b"\r")
+    assert t.finish() == 0, t.text[-3000:]
+    assert_clean(t)
+    doc = log(out)
+    assert doc["state"] == "complete" and doc["static_sets"] == 5 and doc["frame_sets"] == wand_rows(out) == 40
+    assert doc["complete_sets"] == 45  # the simulator's script held through the pause: every wand frame came
+    assert read_capture(out).static is not None
+
+
+def test_ctrl_c_in_a_free_running_pause_keeps_the_static_sets(tmp_path, terminals):
+    out = tmp_path / "cap"
+    t = terminals(*FREE_RUN_PAUSE, "--out", str(out))
+    t.wait_for(lambda: PROMPT in t.text, "the pause's prompt")
+    t.send(CTRL_C)
+    assert t.finish() == 130
+    assert_clean(t)
+    assert log(out)["state"] == "partial" and log(out)["static_sets"] == 5 and wand_rows(out) == 0
+    assert "kept 0 wand sets and 5 static sets" in t.text and f"same --out {out}" in t.text
+    again = terminals(*FREE_RUN_PAUSE, "--no-pause", "--out", str(out))  # usable: recorded into again
+    assert again.finish() == 0, again.text[-3000:]
+    assert log(out)["state"] == "complete" and wand_rows(out) == 40
+
+
 def test_end_of_input_at_the_pause_stops_as_ctrl_c_does(tmp_path, terminals):
     out = tmp_path / "cap"
     with EmulatorProcess() as emu:

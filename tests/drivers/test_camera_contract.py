@@ -60,3 +60,19 @@ def test_settings_are_validated_and_frozen(camera):
     with pytest.raises(ValidationError):
         CameraSettings(trigger_mode="sometimes")
     assert CameraSettings(trigger_mode="external").trigger_mode is TriggerMode.EXTERNAL
+
+
+def test_discard_takes_a_frame_or_holds_a_script_and_the_source_still_ends(camera):
+    """A free-running capture's pause drains with ``discard``: a streaming source spends the frame
+    (opencv), a scripted one (sim, replay) holds; either way it answers the last sequence number
+    taken, the frames after it come in order, and the source ends with None."""
+    with pytest.raises(DriverError, match="not open"):
+        camera.discard()
+    with camera:
+        first = camera.read(timeout=1.0)
+        taken = camera.discard(timeout=1.0)
+        assert taken is not None and taken >= first.sequence
+        rest = []
+        while (f := camera.read(timeout=1.0)) is not None:
+            rest.append(f.sequence)
+        assert rest == list(range(taken + 1, 5)) and camera.discard(timeout=1.0) is None

@@ -112,4 +112,4 @@ def test_the_service_takes_a_drop_and_refuses_it_beside_a_floor(tmp_path):
         assert stored.vertical is not None and stored.vertical.kind == "drop"
         both = files | {FLOOR_FILE: (FLOOR_FILE, b"point,camera,u,v\n", "text/csv")}
         r = c.post("/captures", files=both)
-        assert r.status_code == 422 and "not both" in r.text
+        assert r.status_code == 422 and "drop.csv: the world's vertical is set by floor.csv" in r.text, r.text

@@ -48,6 +48,17 @@ def test_the_table_the_verdict_and_the_result_count_the_same_observations(calibr
             assert int(said) == count
 
 
+def test_the_wand_line_says_which_frames_it_counts(calibrated):
+    # import counts frames with both ends per camera; the summary counts the solve's frames (both
+    # ends in 2+ cameras): the label says which, so the two are not read as one figure
+    _, doc = calibrated
+    summary = format_summary(doc)
+    assert f"over {doc['wand']['frames_used']} frames in the solve (both ends in 2+ cameras" in summary
+    # and why it can be fewer than import's count of the same frames: outliers cost frames their second camera
+    dropped = doc["dropped"]["outliers"]
+    assert (f"once the {dropped} gross-outlier camera-frame" in summary) == (dropped > 0)
+
+
 def test_worst_frames_name_each_frame_once_worst_first(calibrated):
     _, doc = calibrated
     for cam in doc["cameras"]:

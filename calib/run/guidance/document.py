@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, covered_fraction
+from wandcal.calib.judge.coverage import GRID, WAND, Sampling, coverage_advice, coverage_grid, covered_fraction
 from wandcal.calib.observations import WandPairs
 from wandcal.calib.rig import Rig
 from wandcal.calib.run.guidance.settings import GuidanceSettings
@@ -34,10 +34,11 @@ class Seen:
 
 
 def guidance_document(rig: Rig, seen: Seen, center: np.ndarray, rotation: np.ndarray, solve_set: np.ndarray,
-                      settings: GuidanceSettings, info: dict) -> dict:
+                      settings: GuidanceSettings, info: dict, *, words: Sampling = WAND) -> dict:
     """The ``wandcal-guidance/1`` document of one update: each camera's frames, links, coverage
     grid and predicted sigmas (``center`` (N,) metres, ``rotation`` (N,) radians, NaN outside the
-    solve), the advice worst first, and whether it is ``enough``; ``info`` is the solve's."""
+    solve), the advice worst first, and whether it is ``enough``; ``info`` is the solve's.
+    ``words``: what the advice calls the samples (a wand's frames, or a points-only rig's points)."""
     ids = rig.ids
     target, goal = settings.target_std_mm, settings.min_coverage
     cameras, worst = [], []
@@ -61,7 +62,7 @@ def guidance_document(rig: Rig, seen: Seen, center: np.ndarray, rotation: np.nda
             "center_std_mm": sigma_mm,
             "rotation_std_deg": None if np.isnan(rotation[c]) else float(np.degrees(rotation[c])),
         }
-        advice, severity = _camera_advice(entry, grid, bool(solve_set[c]), settings, rig_frames)
+        advice, severity = _camera_advice(entry, grid, bool(solve_set[c]), settings, rig_frames, words)
         entry["advice"] = advice
         cameras.append(entry)
         if advice is not None:
@@ -86,33 +87,33 @@ def guidance_document(rig: Rig, seen: Seen, center: np.ndarray, rotation: np.nda
 
 
 def _camera_advice(entry: dict, grid: np.ndarray, solved: bool, settings: GuidanceSettings,
-                   rig_frames: int) -> tuple[str | None, float]:
+                   rig_frames: int, words: Sampling = WAND) -> tuple[str | None, float]:
     """Words for one camera, or None when it needs nothing, and how badly it needs them (for the
     worst-first order): a camera without frames or outside the solve first, then by the larger
     of its sigma over the target and the coverage goal over its coverage. ``rig_frames``: the
     frames in which any camera saw both wand ends (a camera is only suspect when the others saw
-    the wand and it did not)."""
+    the wand and it did not); for a points-only rig (``words`` :data:`POINTS`) the points."""
     cid, frames, shared = entry["id"], entry["frames"], entry["shared_frames"]
     sigma, fraction = entry["center_std_mm"], entry["coverage"]
     target, goal = settings.target_std_mm, settings.min_coverage
     if frames == 0:
         if rig_frames == 0:
-            return f"{cid}: waiting for the wand", float("inf")
+            return f"{cid}: waiting for {words.thing}", float("inf")
         if rig_frames < SILENT_CAMERA_FRAMES:
-            return f"{cid} has not seen both wand ends yet; wave the wand in its view", float("inf")
-        return (f"{cid} has not seen both wand ends in any of the {rig_frames} frames the other cameras saw; check "
-                "that it is on and aimed at the volume, then wave the wand in its view"), float("inf")
+            return f"{cid} has not seen {words.seen} yet; {words.act} in its view", float("inf")
+        return (f"{cid} has not seen {words.seen} in any of the {rig_frames} {words.unit} the other cameras saw; "
+                f"check that it is on and aimed at the volume, then {words.act} in its view"), float("inf")
     neighbours = sorted(entry["linked"], key=lambda d: -entry["linked"][d])[:2]
     near = f" and {' or '.join(neighbours)}" if neighbours else ""
-    linking = (f"{cid} shares only {shared} frames with the others; wave the wand where {cid}{near} see it "
+    linking = (f"{cid} shares only {shared} {words.unit} with the others; {words.act} where {cid}{near} see {words.it} "
                "together")
     if not solved:
         if shared >= FEW_SHARED_FRAMES:  # enough frames, but they did not place it (left out of the solve)
-            return (f"{cid} could not be placed from the {shared} frames it shares with the others; wave the wand "
-                    f"where {cid}{near} see it together, near and far"), 1e6 - shared
+            return (f"{cid} could not be placed from the {shared} {words.unit} it shares with the others; "
+                    f"{words.act} where {cid}{near} see {words.it} together, near and far"), 1e6 - shared
         return linking, 1e6 - shared
     parts, severity = [], 0.0
-    coverage_words = coverage_advice(grid, cid, goal)
+    coverage_words = coverage_advice(grid, cid, goal, words)
     if coverage_words is not None:
         parts.append(coverage_words.removeprefix(f"{cid}: "))
         severity = max(severity, goal / max(fraction, 1e-3))

@@ -11,6 +11,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import undistort_by_camera
+from wandcal.calib.judge.coverage import POINTS
 from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
 from wandcal.calib.rig import PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.run.guidance.document import Seen, guidance_document
@@ -158,7 +159,8 @@ def points_guidance(rig: Rig, points: PointObservations, settings: GuidanceSetti
         "offsets": None, "points_only": True,
         "message": None if linked else "no two cameras share enough points yet; show points where several cameras see them",
         "seconds": round(time.perf_counter() - started, 4)}
-    document = guidance_document(rig, seen, np.full(n, np.nan), np.full(n, np.nan), solve_set, settings, info)
+    document = guidance_document(rig, seen, np.full(n, np.nan), np.full(n, np.nan), solve_set, settings, info,
+                                 words=POINTS)
     return Guidance(document, None)
 
 

@@ -107,7 +107,7 @@ def zero_timing(n: int, pairs: WandPairs) -> Timing:
 def fit_timing(
     R: np.ndarray, t: np.ndarray, pairs: WandPairs, focal: np.ndarray, reference: int, drift: bool = False,
     start: Timing | None = None, max_frames: int = MAX_FIT_FRAMES, max_iterations: int = MAX_ITERATIONS,
-    poses: bool = False, tracks: Tracks | None = None,
+    poses: bool = False, tracks: Tracks | None = None, markers: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Timing:
     """Estimate each camera's sub-frame offset (and drift), with the poses held or refined too.
 
@@ -127,6 +127,9 @@ def fit_timing(
             fitted with them held; the result's ``R``, ``t`` are the refined poses. The offsets'
             covariance then allows for the poses' uncertainty.
         tracks: ``Tracks(pairs, N)`` when the caller has it already.
+        markers: a multi-marker wand's every marker (xy, uv), each (P, K, 2), the pairs' rows
+            with end 0 first and end 1 last: each marker a free point of the fit (the ends'
+            tracks still order the frames), so the interior markers' motion tells the offsets too.
     """
     n = len(R)
     model = start or zero_timing(n, pairs)
@@ -145,7 +148,8 @@ def fit_timing(
     sub = pairs.subset(rows)
     X = cut = frozen = None
     for iteration in range(1, max_iterations + 1):
-        xy, vel, keep, _, spread = tracks.resample(model.phase, model.drift, model.centre, rows, pixels=False)
+        xy, vel, keep, _, spread = tracks.resample(model.phase, model.drift, model.centre, rows, pixels=False,
+                                                   markers=markers)
         S, rhs, sigma, used, X, cut = _normal_equations(R, t, sub, xy, vel, keep, focal, model.centre, k, poses, X,
                                                         frozen, spread)
         Sf = S[np.ix_(cols, cols)]
@@ -229,24 +233,24 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     """The reduced normal equations of each camera's [pose,] phase[, drift] columns, the wand ends
     eliminated point by point: S (N w, N w), rhs (N w,), the residuals' sigma (pixels), the
     observations each camera gave, the wand ends (2F, 3) triangulated (from ``X_last`` when given)
-    and the outliers (P, 2) bool, each pair row's ends left out (``cut``, when given, instead of
+    and the outliers (P, K) bool, each pair row's markers left out (``cut``, when given, instead of
     judging them again). A residual r (observed - projected, pixels) changes by
     G d(theta) - A dX: G = -v f [1, f - centre] for the offsets (v the track's velocity), and for
     a pose (R <- exp([w]x) R, t <- t + dt) -f P [-[R X]x, I], P the projection's derivative."""
-    n = len(R)
+    n, K = len(R), xy.shape[1]  # K: the wand's markers (its two ends, or every marker of a longer wand)
     F = len(pairs.frames)
     rows = np.flatnonzero(keep)
-    point = np.concatenate([pairs.frame[rows] * 2, pairs.frame[rows] * 2 + 1])
-    cam = np.concatenate([pairs.camera[rows], pairs.camera[rows]])
-    obs = np.concatenate([xy[rows, 0], xy[rows, 1]])
-    v = np.concatenate([vel[rows, 0], vel[rows, 1]])
-    fr = np.concatenate([pairs.frames[pairs.frame[rows]]] * 2).astype(float)
+    point = np.concatenate([pairs.frame[rows] * K + k for k in range(K)])
+    cam = np.concatenate([pairs.camera[rows]] * K)
+    obs = np.concatenate([xy[rows, k] for k in range(K)])
+    v = np.concatenate([vel[rows, k] for k in range(K)])
+    fr = np.concatenate([pairs.frames[pairs.frame[rows]]] * K).astype(float)
     # from the last step's wand ends a few Gauss-Newton steps suffice; the linear start only once
-    needed = np.bincount(point, minlength=2 * F) >= 2
+    needed = np.bincount(point, minlength=K * F) >= 2
     if X_last is not None and np.all(np.isfinite(X_last[needed])):
         X = refine_points(R, t, point, cam, obs, np.where(needed[:, None], X_last, np.nan))
     else:
-        X = triangulate_points(R, t, point, cam, obs, 2 * F)
+        X = triangulate_points(R, t, point, cam, obs, K * F)
     ok = np.isfinite(X[point]).all(1)
     RX = np.einsum("mij,mj->mi", R[cam], np.where(ok[:, None], X[point], 0.0))
     Xc = RX + t[cam]
@@ -259,9 +263,9 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     # each camera's own robust sigma: a camera still out of time has larger residuals, and they
     # are the signal, not outliers
     if cut is None:
-        cut = _outliers(e, ok, cam, rows, n, len(pairs))
-    ok &= ~cut[np.concatenate([rows, rows]), np.repeat([0, 1], len(rows))]
-    views = np.bincount(point[ok], minlength=2 * F)
+        cut = _outliers(e, ok, cam, rows, n, (len(pairs), K))
+    ok &= ~cut[np.concatenate([rows] * K), np.repeat(np.arange(K), len(rows))]
+    views = np.bincount(point[ok], minlength=K * F)
     ok &= views[point] >= 2
     Pj = np.zeros((len(z), 2, 3))  # d proj / d x_cam, pixels, times z
     Pj[:, 0, 0], Pj[:, 1, 1] = fc[:, 0], fc[:, 1]
@@ -275,23 +279,25 @@ def _normal_equations(R, t, pairs: WandPairs, xy, vel, keep, focal, centre, k, p
     width = G.shape[2]
     A, G, r, point, cam = A[ok], G[ok], r[ok], point[ok], cam[ok]
     used = np.bincount(cam, minlength=n)
-    share = np.concatenate([spread[rows]] * 2)[ok] if spread is not None else None
+    share = np.concatenate([spread[rows]] * K)[ok] if spread is not None else None
     pooled, weight = _camera_weights(r, point, cam, used, width, share)
     A, G, r = A * weight[:, :, None], G * weight[:, :, None], r * weight
-    S, rhs = _eliminated(A, G, r, point, cam, n, 2 * F)
+    S, rhs = _eliminated(A, G, r, point, cam, n, K * F)
     return S, rhs, float(np.sqrt(pooled)), used, X, cut
 
 
-def _outliers(e: np.ndarray, ok: np.ndarray, cam: np.ndarray, rows: np.ndarray, n: int, n_pairs: int) -> np.ndarray:
-    """(n_pairs, 2) bool: each pair row's ends whose residual length ``e`` (2R,) pixels passes
-    ``OUTLIER_LIMIT`` of its camera's own robust sigma (at least ``MIN_OUTLIER_PX``)."""
+def _outliers(e: np.ndarray, ok: np.ndarray, cam: np.ndarray, rows: np.ndarray, n: int,
+              shape: tuple[int, int]) -> np.ndarray:
+    """(P, K) bool, ``shape``: each pair row's markers (its ends, K = 2) whose residual length
+    ``e`` (K R,) pixels passes ``OUTLIER_LIMIT`` of its camera's own robust sigma (at least
+    ``MIN_OUTLIER_PX``)."""
     limit = np.full(n, MIN_OUTLIER_PX)
     for c in range(n):
         mine = ok & (cam == c)
         if mine.any():
             limit[c] = max(OUTLIER_LIMIT * np.sqrt(np.median(e[mine] ** 2) / (2 * np.log(2))), MIN_OUTLIER_PX)
-    cut = np.zeros((n_pairs, 2), bool)
-    cut[np.concatenate([rows, rows]), np.repeat([0, 1], len(rows))] = e > limit[cam]
+    cut = np.zeros(shape, bool)
+    cut[np.concatenate([rows] * shape[1]), np.repeat(np.arange(shape[1]), len(rows))] = e > limit[cam]
     return cut
 
 

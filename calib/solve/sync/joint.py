@@ -48,6 +48,7 @@ class TimeColumns:
         self.resampled = WandPairs(pairs.frame, pairs.camera, xy, uv, pairs.frames, pairs.dropped).subset(keep)
         self.keep = keep
         self.timing = timing
+        self.tracks = tracks
         p = self.resampled
         # (P, 2, 2) each end's image velocity in pixels a frame (the secant over the outer two of
         # the cubic's samples: :func:`~wandcal.calib.solve.sync.tracks.interpolate`)
@@ -59,6 +60,15 @@ class TimeColumns:
         self.table[f - self.first, p.camera] = np.arange(len(p))
         self.held = timing.held.copy() if timing.held is not None else np.zeros(len(focal), bool)
         self.share = 1.0
+
+    def markers(self, xy: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every marker of a multi-marker wand's rows brought to the reference instants as the
+        ends are: ``xy`` (P, K, 2) normalised and ``uv`` (P, K, 2) pixels, the pairs' rows with
+        their end 0 first and end 1 last; returns (xy, uv) (Q, K, 2) of the rows ``resampled``
+        holds (``keep``)."""
+        t = self.timing
+        out_xy, _, _, out_uv, _ = self.tracks.resample(t.phase, t.drift, t.centre, markers=(xy, uv))
+        return out_xy[self.keep], out_uv[self.keep]
 
     def rows(self, setup) -> tuple[np.ndarray, np.ndarray]:
         """(row (M,), end (M,)) of each observation of ``setup`` (a refinement's problem, any subset

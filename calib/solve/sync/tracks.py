@@ -101,14 +101,17 @@ class Tracks:
         self.parity[order] = ((parity - start_parity[run]) % 2).astype(bool)
 
     def resample(self, phase: np.ndarray, drift: np.ndarray, centre: np.ndarray, rows: np.ndarray | None = None,
-                 pixels: bool = True, velocity: bool = False):
+                 pixels: bool = True, velocity: bool = False, markers: tuple[np.ndarray, np.ndarray] | None = None):
         """(xy (Q, 2, 2), velocity (Q, 2, 2) normalised units a frame, keep (Q,), uv (Q, 2, 2),
         spread (Q,)) of the pair rows ``rows`` (Q,) (default all), each camera c's frame f sampled
         at f - phi_c(f), phi_c(f) = phase[c] + drift[c] (f - centre[c]) (all (N,), frames);
         spread is the resampled blobs' share of a blob's noise variance (:func:`interpolate`).
         ``pixels=False`` leaves uv at zero and keeps only the cubic's values (a fit's; the
         calibration keeps the lines through gaps too); ``pixels=True`` leaves the velocity at zero
-        unless ``velocity`` (the offsets refined in the bundle adjustment, :mod:`.joint`)."""
+        unless ``velocity`` (the offsets refined in the bundle adjustment, :mod:`.joint`).
+        ``markers``: (xy, uv), each (P, K, 2), every marker of a multi-marker wand's rows, end 0
+        first and end K-1 last as the pairs' ends: resampled instead of the ends (the shapes then
+        (Q, K, 2)); a neighbouring frame whose ends are the other way round is read backwards."""
         p = self.pairs if rows is None else self.pairs.subset(rows)
         parity = self.parity if rows is None else self.parity[rows]
         f = p.frames[p.frame].astype(float)
@@ -128,13 +131,17 @@ class Tracks:
         ok_row = window >= 0
         r = np.where(ok_row, window, 0)
         e0 = parity[:, None] ^ self.parity[r]
-        parts = [self.pairs.xy[r, e0.astype(np.int64)], self.pairs.xy[r, (~e0).astype(np.int64)]]
+        every_xy, every_uv = markers if markers is not None else (self.pairs.xy, self.pairs.uv)
+        k = every_xy.shape[1]
+        # marker j of row q is the neighbour's marker j, or K-1-j where their end order differs
+        column = np.where(e0[..., None], k - 1 - np.arange(k), np.arange(k))  # (Q, 4, K)
+        parts = [every_xy[r, column[..., j]] for j in range(k)]
         if pixels:
-            parts += [self.pairs.uv[r, e0.astype(np.int64)], self.pairs.uv[r, (~e0).astype(np.int64)]]
+            parts += [every_uv[r, column[..., j]] for j in range(k)]
         pts = np.where(ok_row[..., None], np.concatenate(parts, axis=2), np.nan)
         value, slope, keep, spread = interpolate(pts, u, strict=not pixels, slopes=velocity or not pixels)
-        xy, vel = value[:, :4].reshape(-1, 2, 2), slope[:, :4].reshape(-1, 2, 2)
-        uv = value[:, 4:].reshape(-1, 2, 2) if pixels else np.zeros((len(p), 2, 2))
+        xy, vel = value[:, : 2 * k].reshape(-1, k, 2), slope[:, : 2 * k].reshape(-1, k, 2)
+        uv = value[:, 2 * k :].reshape(-1, k, 2) if pixels else np.zeros((len(p), k, 2))
         return xy, vel, keep, uv, spread
 
     def track(self, rows: np.ndarray, end: np.ndarray, what: np.ndarray) -> np.ndarray:

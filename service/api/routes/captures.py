@@ -13,6 +13,7 @@ from starlette.datastructures import FormData, UploadFile
 from wandcal.calib.rig import StaticObservations
 from wandcal.calib.start.static import solve_static
 from wandcal.capture.folder import decode_text
+from wandcal.capture.world_references import reference_clash
 from wandcal.drivers.capture_files import (
     AXIS_FILE,
     DROP_FILE,
@@ -145,8 +146,10 @@ async def create_capture(request: Request, state: State) -> CapturePublic:
     axis_text = await _text(form.get(AXIS_FILE), AXIS_FILE, limit)
     floor_text = await _text(form.get(FLOOR_FILE), FLOOR_FILE, limit)
     drop_text = await _text(form.get(DROP_FILE), DROP_FILE, limit)
-    if floor_text is not None and drop_text is not None:
-        raise HTTPException(422, f"give {FLOOR_FILE} or {DROP_FILE}, not both: each sets the world's vertical")
+    # the world-reference rule on the parts given (the store applies it again to the parts with rows)
+    clash = reference_clash([name for name, text in ((FLOOR_FILE, floor_text), (DROP_FILE, drop_text)) if text is not None])
+    if clash is not None:
+        raise HTTPException(422, f"{clash.at_fault}: {clash.message('this upload')}")
     vertical = (FLOOR_FILE, floor_text) if floor_text is not None else (DROP_FILE, drop_text) if drop_text is not None else None
     row = await run_in_threadpool(state.captures.create_from_texts, rig_text, wand_text, static_text, "upload",
                                   points_text, axis_text, vertical)

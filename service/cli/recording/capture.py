@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 MAX_FRAMES = 10_000_000
 MAX_STATIC_FRAMES = 100_000
 MAX_WAND_LENGTH_M = 10.0
+STDIN_POLL_S = 0.2  # how long a Ctrl-C at the pause may wait to be acted on, at most
 
 
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
@@ -62,8 +63,9 @@ def _arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="record again into an --out that holds a capture, replacing its recording's files")
     p.add_argument("--no-pause", action="store_true",
-                   help="record the wand right after the static sets, without waiting for Enter (needed with "
-                        "--static-frames and no trigger: free-running cameras cannot pause)")
+                   help="record the wand right after the static sets, without waiting for Enter (default: pause "
+                        "for the L-frame to leave the volume; free-running cameras are drained meanwhile, so "
+                        "nothing shot during the pause is recorded)")
     p.add_argument("--images", type=_image_policy, default="all", metavar="WHICH",
                    help="images written beside the centroids: all (default), none, static (the static recording "
                         "only) or N (every N-th wand set); 'none' keeps up with 8 cameras at 100 fps")
@@ -96,7 +98,6 @@ def run_capture(args) -> int:
 
     if args.stop_when_enough and not args.guidance:
         raise CalibrationError("--stop-when-enough needs the guidance; drop --no-guidance")
-    _check_pause(args)
     with _interruptible():
         try:
             _make_room(args.out, overwrite=args.overwrite)
@@ -157,16 +158,6 @@ def _final_guidance(guidance) -> dict:
         return guidance.latest()
 
 
-def _check_pause(args) -> None:
-    """A static recording needs a pause for the L-frame to leave the volume: free-running cameras
-    cannot pause (they keep streaming), so without a trigger it takes --no-pause."""
-    if args.static_frames and not args.no_pause and args.trigger.strip().lower() in ("", "none"):
-        raise InputError(f"--static-frames {args.static_frames} without a trigger: free-running cameras keep "
-                         "streaming, so the capture cannot pause for the L-frame to leave the volume before the "
-                         "wand; give --trigger (it then waits for Enter), or --no-pause to record the wand right "
-                         "after the L-frame (a static object that may stay in view, or a simulated rig)")
-
-
 def _open_trigger(url: str):
     """The trigger ``url`` names (None for 'none'); a device path that is not there is bad input."""
     from wandcal.drivers.trigger import open_trigger
@@ -184,6 +175,8 @@ def _make_room(out: Path, *, overwrite: bool) -> None:
     recording with no wand sets (which nothing can calibrate): those are cleared first."""
     from wandcal.capture.recording.record import clear_recording, held_capture
 
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is a file, not a folder; give a new folder for the capture")
     held = held_capture(out)
     if held is None:
         return
@@ -199,6 +192,8 @@ def _held(out: Path) -> str:
     """What an interrupted capture left in ``out``, and how to go on."""
     from wandcal.capture.recording.record import held_capture
 
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is a file, not a folder; give a new folder for the capture")
     held = held_capture(out)
     if held is None:
         return f"nothing was recorded into {out}"
@@ -264,16 +259,27 @@ def _between() -> None:
     """The pause after the static recording: Enter goes on; end of input stops the capture as
     Ctrl-C does (the static sets are kept). Without a terminal a line on stdin goes on."""
     prompt = "\nstatic object recorded; remove it from the volume, then press Enter to record the wand... "
-    try:
-        if sys.stdin.isatty():
-            input(prompt)
-            return
-        print(prompt, file=sys.stderr, flush=True)
-        line = sys.stdin.readline()
-    except EOFError:
-        line = ""
-    if not line:
+    terminal = sys.stdin.isatty()
+    print(prompt, end="" if terminal else "\n", file=sys.stderr, flush=True)
+    if not _line_from_stdin():
+        if not terminal:
+            print("wandcal capture: end of input at the pause (stdin is no terminal): give --no-pause to record the "
+                  "wand without waiting, or send a line on stdin when the L-frame is out", file=sys.stderr)
         raise KeyboardInterrupt  # end of input: nobody will press Enter
+
+
+def _line_from_stdin() -> str:
+    """A line from stdin ('' at its end). The wait polls, so that Ctrl-C is acted on however
+    it falls: a signal that lands just before a blocking read (``input()`` under GNU readline
+    included) is only seen when the read returns, which at a pause is never."""
+    import select
+
+    try:
+        while not select.select([sys.stdin], [], [], STDIN_POLL_S)[0]:
+            pass
+        return sys.stdin.readline()
+    except (OSError, ValueError):  # stdin closed or not selectable: as end of input
+        return ""
 
 
 def _print_recorded(result, final: dict | None, *, interrupted: bool = False) -> int:

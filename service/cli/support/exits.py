@@ -12,7 +12,8 @@ INTERRUPTED = 130  # Ctrl-C, end of input or a closed terminal (128 + SIGINT, as
 TABLE = (
     "exit status: 0 done; 1 a judged fault (check: a camera moved; calibrate --require: the verdict is below it); "
     "2 bad input (the message says what to fix); 3 no answer (a camera or the trigger stopped mid-way, or check "
-    "could not judge); 130 interrupted (Ctrl-C, end of input, closed terminal: what was done is kept and named)"
+    "could not judge); 130 interrupted (Ctrl-C, end of input, closed terminal: what was done is kept and named; "
+    "serve stops on Ctrl-C or SIGTERM as its normal end, with 0)"
 )
 
 

@@ -48,11 +48,21 @@ def format_summary(doc: dict) -> str:
         frames = w["frames_used"]
         lines.append(
             f"wand {w['length_mean_m'] * 1000:.2f} +- {w['length_std_m'] * 1000:.2f} mm "
-            f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {frames} frame{'' if frames == 1 else 's'}; {solved}"
+            f"({100 * w['length_std_m'] / w['length_mean_m']:.3f}%) over {frames} frame{'' if frames == 1 else 's'} "
+            f"in the solve (both ends in 2+ cameras{_after_outliers(doc)}); {solved}"
         )
     lines += _verdict_lines(doc)
     lines += [f"warning: {text}" for text in doc["warnings"]]
     return "\n".join(lines)
+
+
+def _after_outliers(doc: dict) -> str:
+    """Why the solve's frames can be fewer than import's count of frames with both ends in 2+
+    cameras: a frame whose second camera was a gross outlier is no longer seen by two."""
+    dropped = (doc.get("dropped") or {}).get("outliers", 0)
+    if not dropped:
+        return ""
+    return f" once the {dropped} gross-outlier camera-frame{'' if dropped == 1 else 's'} below were dropped"
 
 
 def _verdict_lines(doc: dict) -> list[str]:

@@ -232,3 +232,29 @@ def test_bad_settings_and_a_rig_without_wand_are_refused(covered):
         GuidanceSettings(min_coverage=1.5)
     with pytest.raises(CalibrationError, match="wand.length_m"):
         wanding_guidance(Rig(rig.cameras, None), wand)
+
+
+def test_a_points_only_rig_is_advised_in_its_points_not_the_wand():
+    """Guidance on a rig without a wand judges each camera by its points and says so: a camera whose
+    points are all in the left half of its image is told to show points elsewhere, never to wave a wand."""
+    import dataclasses
+
+    from wandcal.calib.rig import PointObservations
+    from wandcal.calib.sim.scenes import pairwise_points
+    from wandcal.calib.sim.simulate import simulate_capture
+
+    sim = simulate_capture(4, 50, NOISE_PX, 0.0, False, 1)
+    points = pairwise_points(sim, 400, np.random.default_rng(5), third=0.8)
+    width = sim.rig.cameras[2].width
+    keep = (points.camera != 2) | (points.uv[:, 0] < width / 2)  # cam2's points only in its left half
+    points = PointObservations(points.frame[keep], points.camera[keep], points.uv[keep])
+    rig = dataclasses.replace(sim.rig, wand_length=None)
+    doc = wanding_guidance(rig, None, points=points).document
+    advice = " ".join(doc["advice"])
+    assert "wand" not in advice, doc["advice"]
+    said = {c["id"]: c["advice"] for c in doc["cameras"]}
+    assert said[rig.ids[2]] is not None and "show points" in said[rig.ids[2]] and "right" in said[rig.ids[2]], said
+    silent = PointObservations(points.frame[points.camera != 3], points.camera[points.camera != 3],
+                               points.uv[points.camera != 3])  # cam3 saw none of the points the others saw
+    words = next(c["advice"] for c in wanding_guidance(rig, None, points=silent).document["cameras"] if c["id"] == rig.ids[3])
+    assert "points" in words and "wand" not in words, words

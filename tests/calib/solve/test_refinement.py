@@ -1,6 +1,7 @@
 """Refinement against seeded rigs; tolerances come from the Cramér-Rao bound of the injected noise."""
 
 import numpy as np
+import pytest
 
 from wandcal.calib.geometry import camera_centers
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
@@ -12,6 +13,7 @@ from wandcal.calib.solve.paper import (
     ROUND_TOL,
     WINDOW,
     algebraic_residuals,
+    arrow_lp,
     height_pairs,
     lp_step,
     refine_paper,
@@ -103,6 +105,34 @@ def test_paper_lp_warm_start_reaches_the_cold_optimum():
     assert np.isclose(np.abs(algebraic_residuals(R2, t_w, X_w, setup.problem)).sum(), cold.objective, rtol=1e-6)
 
 
+def test_paper_lp_carries_its_structure_from_round_to_round_without_changing_the_answer():
+    """A round's warm start carries the sparse sums the last solve built (they depend only on which
+    point and camera each row touches); the next round's answer is the one a fresh build gives,
+    and the carried sums are refused for an LP whose rows touch other points."""
+    from dataclasses import replace
+
+    from wandcal.calib.solve.backend.arrowlp import solve
+
+    sc = prepared(cameras=4, frames=120, noise_px=NOISE, seed=2)
+    setup, m = sc.setup, sc.setup.model
+    up = np.array([0.0, 0.0, 1.0])
+    X = m.wand(m.x0()).reshape(-1, 3)
+    heights = height_pairs(m.R0, m.t0, X, up)
+    R1 = rotation_step(m.R0, m.t0, X, setup.problem, m.fixed)
+    t1, X1, first = lp_step(R1, m.t0, X, setup.problem, m.fixed, up, heights=heights)
+    assert first.basis.sums is not None and first.basis.sums.fits(arrow_lp(R1, m.t0, X, setup.problem, m.fixed, up,
+                                                                          heights))
+    R2 = rotation_step(R1, t1, X1, setup.problem, m.fixed)
+    lp2 = arrow_lp(R2, t1, X1, setup.problem, m.fixed, up, heights)
+    carried = solve(lp2, first.basis)
+    fresh = solve(arrow_lp(R2, t1, X1, setup.problem, m.fixed, up, heights), replace(first.basis, sums=None))
+    assert carried.status == fresh.status == "optimal"
+    assert carried.iterations == fresh.iterations and np.array_equal(carried.v, fresh.v)
+    # with the rows' points permuted, the carried sums do not fit and are built afresh
+    other = replace(lp2, point=lp2.point[::-1].copy())
+    assert not first.basis.sums.fits(other)
+
+
 def test_paper_method_runs_to_a_fixed_point():
     sc = prepared(cameras=4, frames=300, noise_px=NOISE, seed=1)
     setup, m = sc.setup, sc.setup.model
@@ -119,3 +149,22 @@ def test_paper_method_runs_to_a_fixed_point():
     # rounds settle where the two balance, not at a minimum of either: 2-6x the bound on rigs
     # this small, further from the truth than the start on some (decision 0005).
     # bench/bench_acceptance.py measures it at 8 x 1500.
+
+
+@pytest.mark.xfail(strict=True, reason="decision 0045: the window stop ends the jumping and the plain rounds "
+                                       "367 um apart on this rig; a stop that finds the fixed point is still to come")
+def test_paper_jumps_reach_the_plain_rounds_fixed_point(monkeypatch):
+    """Jumps along the tail (decision 0033) change only where a round starts, so they should stop at
+    the plain rounds' fixed point, within the stop's tolerance of it each."""
+    from wandcal.calib.solve import paper
+
+    sc = prepared(cameras=4, frames=300, noise_px=NOISE, seed=1)
+    setup, m = sc.setup, sc.setup.model
+    up = np.array([0.0, 0.0, 1.0])
+    centres = []
+    for cap in (10.0, 0.0):
+        monkeypatch.setattr(paper, "JUMP_CAP", cap)
+        R, t, _, info = refine_paper(m.R0, m.t0, m.wand(m.x0()), setup.problem, m.fixed, up)
+        assert info["status"] == "converged", info
+        centres.append(camera_centers(R, t))
+    assert np.linalg.norm(centres[0] - centres[1], axis=1).max() < 2 * ROUND_TOL
