@@ -38,10 +38,11 @@ BEFORE = """Before this release's judgement work (at 2830bc3: before each camera
 | **all** | 135 | 84 (62%) | | | | | | | | | |
 | **all determinable** | 127 | 84 (66%) |  | | | | | | | |
 
-Before the judgement kept looking beside a camera out of time, compared the lens candidates and gave each geometry
-sigma its own standard error (at 8b20034; decision 0041): 105 of 127 determinable (83%). Before the honest sigma and the
-timing from camera pairs (at d9e0685, after the leave-one-out judgement): 52 of 127 determinable (41%). At the suite's
-first commit (72bd14b, the suspect screen alone): 15 of 127 determinable (12%)."""
+Before this session's judgement branches (at 8b20034; the judgement kept looking beside a camera out of time,
+compared the lens candidates and gave each geometry sigma its own standard error, decision 0041; each camera's own
+errors on rigs of any size, outliers told from noise and noise from timing, decision 0042): 105 of 127 determinable
+(83%). Before the honest sigma and the timing from camera pairs (at d9e0685, after the leave-one-out judgement): 52 of
+127 determinable (41%). At the suite's first commit (72bd14b, the suspect screen alone): 15 of 127 determinable (12%)."""
 
 
 def main() -> int:

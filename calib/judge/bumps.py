@@ -27,7 +27,7 @@ from wandcal.calib.start.markerlabels import end_pairs
 from wandcal.calib.start.resection import resect_camera
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 
-MOVED_FACTOR = 4.0  # a camera whose leave-one-out error is 4x the agreeing cameras' has moved
+MOVED_FACTOR = 3.0  # a camera whose leave-one-out error is 3x what is expected of it has moved
 # ... and never below this: on clean data every leave-one-out error is a fraction of a pixel,
 # and a few tenths more are noise, not a knock (1 px at 3 m is ~2 mm or 0.02 degrees at f = 1400)
 MOVED_MIN_PX = 1.0
@@ -110,6 +110,13 @@ def leave_one_out_errors(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: n
                          others: np.ndarray) -> np.ndarray:
     """(K,) camera c's errors, pixels, against points triangulated by the ``others`` (N,) bool
     cameras alone, over the points c and at least two of them saw."""
+    return _leave_one_out(R, t, seen, focal, c, others)[0]
+
+
+def _leave_one_out(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, c: int, others: np.ndarray,
+                   rms_px: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """:func:`leave_one_out_errors`, and with ``rms_px`` :func:`expected_loo_scale` from the same
+    triangulation (1.0 without)."""
     use = others[seen.camera]
     mine = seen.camera == c
     views = np.bincount(seen.point[use], minlength=seen.n_points)
@@ -122,7 +129,47 @@ def leave_one_out_errors(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: n
     X = triangulate_points(R, t, seen.point[sel], seen.camera[sel], seen.xy[sel], seen.n_points)
     r = reprojection_errors(R, t, seen.point[own], seen.camera[own], seen.xy[own], X) * focal[c]
     e = np.linalg.norm(r, axis=1)
-    return e[np.isfinite(e)]
+    scale = 1.0 if rms_px is None else expected_loo_scale(R, t, seen, focal, c, X, sel, own, rms_px)
+    return e[np.isfinite(e)], scale
+
+
+def expected_loo_scale(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, c: int, X: np.ndarray,
+                       sel: np.ndarray, own: np.ndarray, rms_px: np.ndarray) -> float:
+    """How much larger than its own RMS camera c's leave-one-out errors are expected to be: the
+    median over its points of sqrt(1 + the triangulation's own error, projected into c / rms_c^2).
+
+    A point ``X`` triangulated by the other cameras' sightings ``sel`` alone carries their noise
+    (each camera's per-axis variance rms_j^2 / 2 px^2, ``rms_px`` (N,) the result's reprojection
+    RMS); projected into c's image (its sightings ``own``) it adds tr(J_c cov(X) J_c^T) to c's own
+    rms_c^2. Two other cameras at a narrow angle (a 3-camera rig) make it several times c's own:
+    1.0 when the others pin the point exactly.
+    """
+    if not own.any() or rms_px[c] <= 0:
+        return 1.0
+    focal = np.asarray(focal, float).reshape(len(R), -1).mean(axis=1)  # (N,) px; fx and fy alike here
+    J = _projection_jacobians(R, t, seen.point[sel], seen.camera[sel], X)  # (K, 2, 3) normalised per metre
+    weight = (focal[seen.camera[sel]] ** 2) / np.maximum(rms_px[seen.camera[sel]] ** 2 / 2, 1e-12)
+    info = np.zeros((seen.n_points, 3, 3))
+    np.add.at(info, seen.point[sel], weight[:, None, None] * np.einsum("kai,kaj->kij", J, J))
+    pts = seen.point[own]
+    Jc = _projection_jacobians(R, t, pts, seen.camera[own], X) * focal[c]
+    with np.errstate(all="ignore"):
+        cov = np.linalg.pinv(info[pts])
+    extra = np.einsum("kai,kij,kaj->k", Jc, cov, Jc)
+    ratio = np.sqrt(1.0 + extra[np.isfinite(extra)] / rms_px[c] ** 2)
+    return float(np.median(ratio)) if len(ratio) else 1.0
+
+
+def _projection_jacobians(R: np.ndarray, t: np.ndarray, point: np.ndarray, camera: np.ndarray,
+                          X: np.ndarray) -> np.ndarray:
+    """(K, 2, 3) derivatives of each sighting's normalised image point by its 3D point."""
+    P = np.einsum("kij,kj->ki", R[camera], X[point]) + t[camera]
+    z = P[:, 2]
+    d = np.zeros((len(P), 2, 3))
+    d[:, 0, 0] = d[:, 1, 1] = 1 / z
+    d[:, 0, 2] = -P[:, 0] / z**2
+    d[:, 1, 2] = -P[:, 1] / z**2
+    return d @ R[camera]
 
 
 def check_cameras(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations | None,
@@ -174,16 +221,21 @@ def _judged(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, ex
     """({camera: (K,) leave-one-out errors px}, (N,) bool cameras still trusted, (N,) each one's limit px)."""
     n = len(R)
     trusted = np.ones(n, bool)
+    # the result's RMS is each camera's error against points it helped place; against points the
+    # others place alone it is larger by the triangulation's own error (from the first pass)
+    rms = None if expected_rms_px is None else np.asarray(expected_rms_px, float)
+    first = [_leave_one_out(R, t, seen, focal, c, np.arange(n) != c, rms) for c in range(n)]
+    expected = None if rms is None else rms * np.array([scale for _, scale in first])
 
     def limits(errors: dict, agreeing: list[int]) -> np.ndarray:
-        if expected_rms_px is not None:
-            ref = np.asarray(expected_rms_px, float)
+        if expected is not None:
+            ref = expected
         else:
             ref = np.full(n, float(np.median(np.concatenate([errors[c] for c in agreeing]))))
         return np.maximum(MOVED_FACTOR * ref, MOVED_MIN_PX)
 
+    errors = {c: e for c, (e, _) in enumerate(first)}
     while True:
-        errors = {c: leave_one_out_errors(R, t, seen, focal, c, trusted & (np.arange(n) != c)) for c in range(n)}
         agreeing = [c for c in range(n) if trusted[c] and len(errors[c]) >= 2 * MIN_JUDGED_FRAMES]
         if len(agreeing) < 3:
             break
@@ -193,6 +245,7 @@ def _judged(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, ex
         if excess[worst] <= 1.0:
             break
         trusted[worst] = False
+        errors = {c: leave_one_out_errors(R, t, seen, focal, c, trusted & (np.arange(n) != c)) for c in range(n)}
     agreeing = [c for c in range(n) if trusted[c] and len(errors[c])]
     return errors, trusted, limits(errors, agreeing) if agreeing else np.full(n, MOVED_MIN_PX)
 

@@ -38,6 +38,11 @@ NOISE_LIMIT = 1.5
 NOISE_Z = 2.0
 MIN_NOISE_OBSERVATIONS = 30  # of a camera, for its sigma to be compared
 MIN_REDUNDANCY = 0.5  # a view whose point hangs mostly on it says little of its camera's noise
+# a large rig's views judged, per camera (whole points evenly spaced in the capture): 16 cameras of
+# 2,500 frames hold 75,000 views, whose elimination takes a second; at 400 a camera's sigma is
+# known to ~5% (far inside NOISE_LIMIT's margin) and a 0.3 degree knock moves 200 of them by 15
+# of a 0.3 px noise's standard errors
+VIEWS_PER_CAMERA = 400
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,6 +119,18 @@ def views_of(labelled: WandPairs, tracks: PointTracks | None) -> Views:
     return views.without(seen[point] < 2)
 
 
+def capped(views: Views, max_views: int) -> Views:
+    """At most about ``max_views`` of the views: whole points, evenly spaced in their numbering
+    (the wand's frames and the tracks come in capture order, so every part of the capture keeps
+    its share). ``views`` itself when it holds no more."""
+    if len(views.point) <= max_views or views.n_points == 0:
+        return views
+    n_keep = max(int(max_views * views.n_points / len(views.point)), 1)
+    keep = np.zeros(views.n_points, bool)
+    keep[np.linspace(0, views.n_points - 1, n_keep).astype(np.int64)] = True
+    return views.without(~keep[views.point])
+
+
 def _project(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray):
     """(Xc (M, 3), residual (M, 2) projected minus observed, D (M, 2, 3) the projection's derivative
     in the camera-frame point)."""
@@ -163,12 +180,13 @@ def _finite(views: Views, X: np.ndarray, origin: np.ndarray) -> tuple[Views, np.
 
 
 def eliminate(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray | None = None,
-              trim: bool = True) -> Eliminated:
+              trim: bool = True, steps: int = 3) -> Eliminated:
     """The views' points fitted to all cameras with the poses R, t ((N, 3, 3), (N, 3)) held, each
     camera's noise by variance components, outliers (beyond :data:`TRIM_SIGMAS`) dropped. With
     ``trim`` False and ``sigma`` given, every view is kept and the sigmas are as given: a knocked
     camera's views after the knock are far off, and its step test keeps them
-    (:func:`pose_step` trims under the step's model)."""
+    (:func:`pose_step` trims under the step's model). steps: Gauss-Newton steps of each refit
+    (a large rig's screen takes one: each point is seen by many cameras and starts near its fit)."""
     n_cams = len(R)
     rounds = VARIANCE_ROUNDS if trim or sigma is None else 0
     sigma = np.full(n_cams, 1e-3) if sigma is None else np.where(np.isfinite(sigma), sigma, 1e-3)
@@ -177,7 +195,7 @@ def eliminate(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray | No
     kept = np.zeros(len(views.point), bool)
     for _ in range(rounds):
         views, X, origin = _finite(views, X, origin)
-        X, Xc, r, J, Ainv, rho = _fit(R, t, views, X, sigma)
+        X, Xc, r, J, Ainv, rho = _fit(R, t, views, X, sigma, steps)
         e2 = np.sum(r**2, axis=1)
         count = np.bincount(views.camera, minlength=n_cams)
         scale = _robust_scale(e2, rho, views.camera, n_cams)
@@ -191,7 +209,7 @@ def eliminate(R: np.ndarray, t: np.ndarray, views: Views, sigma: np.ndarray | No
             views = views.without(drop)
             X = X[keep_points]
     views, X, origin = _finite(views, X, origin)
-    X, Xc, r, J, Ainv, rho = _fit(R, t, views, X, sigma)
+    X, Xc, r, J, Ainv, rho = _fit(R, t, views, X, sigma, steps)
     kept[origin] = True
     return Eliminated(views, sigma, r, J, Ainv, rho, Xc, kept)
 

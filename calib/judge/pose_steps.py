@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.judge.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
+from wandcal.calib.judge.residuals import Residuals
 
 MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone
 MAX_SPLITS = 60  # candidate splits, evenly spaced in the camera's timed observations
@@ -29,6 +30,15 @@ MIN_BLOCKS = 4  # batch means of the residuals in time: fewer blocks say nothing
 # a step is named at this family-wise false-alarm rate per camera (Bonferroni over the splits): a
 # clean camera is called moved once in 10,000 (the clean real sessions: p >= 0.002; the knocks found: p <= 5e-5)
 STEP_ALPHA = 1e-4
+# a large rig (over leave_one_out.MAX_CAMERAS) screens every camera cheaply first (step_screen):
+# its own views' turn in SCREEN_BLOCKS blocks of time, a Hotelling test of one level against two;
+# the MAX_STEP_SUSPECTS cameras below SCREEN_ALPHA (a pre-filter: the full test decides) are tested
+# in full. Simulated 16-camera rigs: clean cameras down to p = 7e-4 (one in 16 under 0.01), a
+# camera knocked by 0.1 degree 3e-7, by 0.3 degree 4e-11
+SCREEN_BLOCKS = 16
+SCREEN_VIEWS = 2000  # of a camera, evenly spaced in time: 125 a block
+SCREEN_ALPHA = 1e-3
+MAX_STEP_SUSPECTS = 3
 
 
 @dataclass(frozen=True)
@@ -182,20 +192,53 @@ def _best_split(base: np.ndarray, step: np.ndarray, y: np.ndarray, time: np.ndar
                 candidates: np.ndarray, keep: np.ndarray, rho: np.ndarray):
     """The split of the largest F over ``candidates`` on the views ``keep`` (K,): (F, frame, rss
     with the step, the step's row mask (2K, 1), rss without, the residual's degrees of freedom), or
-    None when too few degrees of freedom are left. base (2K, b), step (2K, 3), y (2K,)."""
+    None when too few degrees of freedom are left. base (2K, b), step (2K, 3), y (2K,).
+
+    Every split's normal equations from one pass (suffix sums over the views in time order of the
+    step columns' products with the base, themselves and y), then solved as :func:`_rss` solves
+    them: a split costs a (b + 3)^2 system, not a pass over the 2K rows (a 16-camera rig's camera
+    has 40,000 rows of the points it sees, 60 splits and three trims)."""
     k2 = np.repeat(keep, 2)
     dof = float(rho[keep].sum()) - base.shape[1] - 3  # 2 per view, less 3 per point, less the columns
     if dof < 10:
         return None
-    rss0 = _rss(base[k2], y[k2])
+    B, yk = base[k2], y[k2]
+    nb = B.shape[1]
+    G00, b0, yy = B.T @ B, B.T @ yk, float(yk @ yk)
+    rss0 = _rss(B, yk)
+    at = np.flatnonzero(keep & timed)
+    at = at[np.argsort(time[at], kind="stable")]
+    rows = np.stack([2 * at, 2 * at + 1], axis=1).ravel()
+    Sr = step[rows]
+    # per view (summed over its two rows): step^T [base | step | y], then suffix sums in time order
+    prod = np.einsum("ri,rj->rij", Sr, np.concatenate([base[rows], Sr, y[rows, None]], axis=1))
+    prod = prod.reshape(len(at), 2, 3, nb + 4).sum(axis=1)
+    suffix = np.concatenate([np.cumsum(prod[::-1], axis=0)[::-1], np.zeros((1, 3, nb + 4))])
+    first = np.searchsorted(time[at], candidates, side="right")
     best = None
-    for k in candidates:
-        mask = np.repeat(timed & (time > k), 2)[:, None]
-        rss1 = _rss(np.concatenate([base, step * mask], axis=1)[k2], y[k2])
+    G, b = np.zeros((nb + 3, nb + 3)), np.zeros(nb + 3)
+    G[:nb, :nb], b[:nb] = G00, b0
+    for k, i in zip(candidates, first):
+        G[nb:, :nb] = suffix[i][:, :nb]
+        G[:nb, nb:] = suffix[i][:, :nb].T
+        G[nb:, nb:], b[nb:] = suffix[i][:, nb:nb + 3], suffix[i][:, nb + 3]
+        rss1 = _rss_normal(G, b, yy)
         f = ((rss0 - rss1) / 3) / max(rss1 / dof, 1e-300)
         if best is None or f > best[0]:
-            best = (f, int(k), rss1, mask, rss0, dof)
-    return best
+            best = (f, int(k), rss1, None, rss0, dof)
+    if best is None:
+        return None
+    mask = np.repeat(timed & (time > best[1]), 2)[:, None]
+    return (best[0], best[1], best[2], mask, best[4], best[5])
+
+
+def _rss_normal(G: np.ndarray, b: np.ndarray, yy: float) -> float:
+    """:func:`_rss` from the normal equations A^T A = G (n, n), A^T y = b (n,) and y^T y = yy."""
+    scale = np.sqrt(np.maximum(np.diag(G), 0.0))
+    scale[scale == 0] = 1.0
+    Gs, bs = G / np.outer(scale, scale), b / scale
+    x = np.linalg.lstsq(Gs, bs, rcond=None)[0]
+    return max(yy - float(bs @ x), 0.0)
 
 
 def _kept(A: np.ndarray, y: np.ndarray, rho: np.ndarray, point: np.ndarray) -> np.ndarray:
@@ -261,14 +304,15 @@ def _coef(A: np.ndarray, y: np.ndarray, dof: float) -> tuple[np.ndarray, np.ndar
     return x / scale, s2 * Ginv / np.outer(scale, scale)
 
 
-def _steps(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated) -> list[Step | None]:
-    """Every camera's best step: its own views all kept (a knocked camera's later views are far
-    off; each step test trims under its own model), the other cameras' outliers as ``trimmed``
-    (:func:`eliminate` of ``views``) dropped them."""
+def _steps(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated,
+           cameras: list[int] | None = None) -> list[Step | None]:
+    """Every camera's best step (of ``cameras`` only where given, None for the others): its own
+    views all kept (a knocked camera's later views are far off; each step test trims under its own
+    model), the other cameras' outliers as ``trimmed`` (:func:`eliminate` of ``views``) dropped them."""
     out: list[Step | None] = []
     for c in range(len(R)):
         mine = views.camera == c
-        if not mine.any():
+        if not mine.any() or (cameras is not None and c not in cameras):
             out.append(None)
             continue
         el = eliminate(R, t, views.without(~(trimmed.kept | mine)), trimmed.sigma, trim=False)
@@ -280,19 +324,89 @@ def _found(step: Step | None) -> bool:
     return step is not None and step.p_value < STEP_ALPHA
 
 
-def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated) -> tuple[int, Step] | None:
+def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated,
+                 cameras: list[int] | None = None) -> tuple[int, Step] | None:
     """The camera that moved during the capture, and its step; None when no camera's step is
     significant, or none explains the others' (with its views left out, another still steps).
-    trimmed: :func:`eliminate` of ``views``."""
-    steps = _steps(R, t, views, trimmed)
+    trimmed: :func:`eliminate` of ``views``; cameras: those to test (every camera when None; in a
+    large rig :func:`step_suspects`, and only those of them that step are tested again without
+    the one named)."""
+    steps = _steps(R, t, views, trimmed, cameras)
     found = sorted((s.p_value, c, s) for c, s in enumerate(steps) if s is not None and s.p_value < STEP_ALPHA)
     for _, c, step in found:
+        again = None if cameras is None else [k for k in cameras if k != c and _found(steps[k])]
+        if again == []:
+            return c, step
         rest = views.without(views.camera == c)
         seen = np.bincount(rest.point, minlength=rest.n_points)
         rest = rest.without(seen[rest.point] < 2)
-        if not any(_found(s) for k, s in enumerate(_steps(R, t, rest, eliminate(R, t, rest, trimmed.sigma))) if k != c):
+        if not any(_found(s) for k, s in enumerate(_steps(R, t, rest, eliminate(R, t, rest, trimmed.sigma), again))
+                   if k != c):
             return c, step
     return None
+
+
+def step_screen(xy: np.ndarray, r: np.ndarray, time: np.ndarray) -> float:
+    """A cheap look for a step in one camera's pose: p-value (Bonferroni over the block
+    boundaries; 1 with too few views). Its timed views xy (K, 2) (normalised), their residuals
+    r (K, 2) against points every camera triangulated (in a large rig a point hangs little on any
+    one view) and their capture frames time (K,): in :data:`SCREEN_BLOCKS` blocks of time, a turn
+    about the camera's centre (three columns; a turn moves an image point by what its direction
+    alone decides) fitted in each after dropping the block's views beyond :data:`TRIM_SIGMAS` of
+    its median; Hotelling's T^2 of the blocks' mean turn before a boundary against after, the
+    blocks' own scatter about their two levels as the covariance (so a misfit that runs on in time
+    counts, and the residuals' scale does not matter)."""
+    n_blocks = SCREEN_BLOCKS
+    if len(xy) < n_blocks * MIN_SIDE:
+        return 1.0
+    order = np.argsort(time, kind="stable")
+    order = order[np.linspace(0, len(order) - 1, min(len(order), SCREEN_VIEWS)).astype(np.int64)]
+    size = len(order) // n_blocks
+    at = order[: n_blocks * size].reshape(n_blocks, size)  # the last views of the remainder left out
+    x, y = xy[at, 0], xy[at, 1]
+    # the image motion of a turn about the centre, d(projection of exp(w) (x, y, 1))/dw: (B, S, 2, 3)
+    G = np.stack([np.stack([-x * y, 1 + x**2, -y], axis=-1), np.stack([-1 - y**2, x * y, x], axis=-1)], axis=2)
+    rb = r[at]
+    e2 = np.sum(rb**2, axis=2)
+    ok = e2 <= TRIM_SIGMAS**2 * np.maximum(np.median(e2, axis=1, keepdims=True), 1e-30)
+    Gt = (G * ok[..., None, None]).reshape(n_blocks, -1, 3).transpose(0, 2, 1)
+    N = Gt @ G.reshape(n_blocks, -1, 3)
+    N += 1e-12 * np.trace(N, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    w = np.linalg.solve(N, Gt @ rb.reshape(n_blocks, -1, 1))[..., 0]
+    nu = n_blocks - 2
+    j = np.arange(2, n_blocks - 1)  # boundaries: at least two blocks either side
+    total, outer = np.cumsum(w, axis=0), np.cumsum(np.einsum("bi,bj->bij", w, w), axis=0)
+    before, after = total[j - 1] / j[:, None], (total[-1] - total[j - 1]) / (n_blocks - j)[:, None]
+    # the blocks' scatter about their two levels: sum w w^T less each side's n m m^T
+    S = (outer[-1] - j[:, None, None] * np.einsum("ji,jk->jik", before, before)
+         - (n_blocks - j)[:, None, None] * np.einsum("ji,jk->jik", after, after)) / nu
+    S += 1e-12 * np.trace(S, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    d = after - before
+    t2 = np.einsum("ji,ji->j", d, np.linalg.solve(S, d[..., None])[..., 0]) / (1 / j + 1 / (n_blocks - j))
+    # the p-value falls as T^2 grows: the largest T^2 gives the smallest
+    return min(1.0, _fdtrc(3, nu - 2, float(t2.max()) * (nu - 2) / (3 * nu)) * len(j))
+
+
+def step_suspects(res: Residuals, track_frames: np.ndarray | None) -> list[int]:
+    """The cameras of a large rig whose :func:`step_screen` on the judgement's residuals
+    (:class:`wandcal.calib.judge.residuals.Residuals`: every camera's views against points all
+    cameras triangulated, a knocked camera's later views left out of them as outliers) is below
+    :data:`SCREEN_ALPHA`, at most :data:`MAX_STEP_SUSPECTS`, the smallest p first. Timed views:
+    the wand's, or the point tracks' (track_frames (T,): each track's capture frame) where there
+    is no wand."""
+    wand = res.point >= 0
+    if wand.any():
+        timed, time = wand, res.frames[np.maximum(res.point, 0) // 2]
+    elif track_frames is not None and len(track_frames):
+        timed, time = np.ones(len(res.point), bool), track_frames[-1 - res.point]
+    else:
+        return []
+    p = []
+    for c in range(int(res.camera.max()) + 1 if len(res.camera) else 0):
+        rows = res.rows_of(c)
+        rows = rows[timed[rows]]
+        p.append((step_screen(res.xy[rows], res.residual[rows], time[rows]), c))
+    return [c for pc, c in sorted(p) if pc < SCREEN_ALPHA][:MAX_STEP_SUSPECTS]
 
 
 def moved_fault(cam: str, s: Step) -> dict:

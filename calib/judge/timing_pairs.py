@@ -46,6 +46,11 @@ COMPARE_MARGIN = 1.5
 # (faults.MIN_T_STAT); on a solve the late camera bent, the pairs' residual holds the bend too,
 # so its standard error is already on the large side ...
 MIN_T = MIN_T_STAT
+# ... or at this many for a camera already found at fault by its own noise: the offset then only
+# says which kind of fault it is (Brown 2's cam4 0.5 frame late: t = 4.0, 30% explained, 143 px;
+# 3x noise on a camera of Brown's: t <= 1.4, 5%; by chance a noisy camera's offset passes 3
+# standard errors once in 370)
+KIND_T = 3.0
 # ... explaining this share of the camera's pairs' residual ...
 MIN_SHARE = 0.3
 # ... and moving its blobs, at the median speed, by this share of its pairs' residual scatter
@@ -332,30 +337,55 @@ def _t(timing: CameraTiming) -> float:
 
 
 def timing_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None,
-                  focal: np.ndarray, noise_px: list[float | None]) -> list[dict]:
+                  focal: np.ndarray, noise_px: list[float | None], timings: list[CameraTiming] | None = None) -> list[dict]:
     """The camera out of time, as a fault (``{"kind": "timing", "camera", "message", "evidence"}``;
     at most one), or nothing. A whole-frame shift found by :func:`whole_shifts` names its camera;
     a fraction of a frame is named at :data:`MIN_T` standard errors, :data:`MIN_SHARE` of the
     camera's pairs' residual explained and an effect of :data:`MIN_EFFECT` times its noise_px
-    (pixels) or more, its t :data:`COMPARE_MARGIN` times every other camera's."""
-    timings = camera_timings(R, t, labelled, tracks, focal)
+    (pixels) or more, its t :data:`COMPARE_MARGIN` times every other camera's. timings:
+    :func:`camera_timings` where the caller has them."""
+    timings = camera_timings(R, t, labelled, tracks, focal) if timings is None else timings
     if not timings:
         return []
     best = max(timings, key=_t)
-    runner_up = max((_t(o) for o in timings if o.camera != best.camera), default=0.0)
-    noise = noise_px[best.camera] or 0.0
-    if not best.whole and not (_t(best) >= MIN_T and best.explained >= MIN_SHARE and best.effect_px >= MIN_EFFECT * noise
-                               and _t(best) >= COMPARE_MARGIN * runner_up):
+    if not best.whole and not _explains(best, timings, noise_px[best.camera] or 0.0, MIN_T):
         return []
+    return [timing_fault(ids, best)]
+
+
+def _explains(timing: CameraTiming, timings: list[CameraTiming], noise_px: float, min_t: float,
+              min_share: float = MIN_SHARE) -> bool:
+    """The fractional offset stands at ``min_t`` standard errors, explains ``min_share`` of its
+    pairs' residual, moves the blobs :data:`MIN_EFFECT` of ``noise_px`` and its t is
+    :data:`COMPARE_MARGIN` times every other camera's."""
+    runner_up = max((_t(o) for o in timings if o.camera != timing.camera), default=0.0)
+    return (_t(timing) >= min_t and timing.explained >= min_share and timing.effect_px >= MIN_EFFECT * noise_px
+            and _t(timing) >= COMPARE_MARGIN * runner_up)
+
+
+def timing_instead(ids: list[str], timings: list[CameraTiming], c: int, noise_px: float | None) -> dict | None:
+    """A camera already found at fault (its own noise stands out) named out of time instead, as
+    a fault, where its offset stands out as :func:`timing_faults` asks, at :data:`KIND_T` standard
+    errors rather than :data:`MIN_T` and with no share of the pairs' residual asked of it: the
+    fault is certain, and the offset only has to say which kind it is better than noise does (noise
+    explains none of it: the share follows from t and the pairs' number). None otherwise."""
+    mine = [o for o in timings if o.camera == c]
+    if not mine or not (mine[0].whole or _explains(mine[0], timings, noise_px or 0.0, KIND_T, 0.0)):
+        return None
+    return timing_fault(ids, mine[0])
+
+
+def timing_fault(ids: list[str], best: CameraTiming) -> dict:
+    """A camera's offset as a fault: ``{"kind": "timing", "camera", "message", "evidence"}``."""
     cam, d = ids[best.camera], best.offset
     whole = f" ({best.whole:+d} whole frames and the rest by the wand's speed)" if best.whole and abs(d - best.whole) > 3 * best.std else ""
-    return [{"kind": "timing", "camera": cam, "evidence": {"timing": {
+    return {"kind": "timing", "camera": cam, "evidence": {"timing": {
         "offset_frames": round(d, 4), "offset_std_frames": round(best.std, 4), "whole_frames": best.whole,
         "explained_share": round(best.explained, 3), "effect_px": round(best.effect_px, 2), "pairs": best.pairs}},
         "message": f"{cam} is out of time: its samples match the other cameras' {offset_text(d, best.std)}{whole} "
                    f"(offset {d:+.2f}: positive is late), which moves its blobs "
                    f"{best.effect_px:.1f} px at the wand's median speed; check its trigger cable and settings, or "
-                   f"calibrate with its offset (--sync auto)"}]
+                   f"calibrate with its offset (--sync auto)"}
 
 
 def timing_refusal(error: Exception, ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPairs,

@@ -70,6 +70,10 @@ MIN_RAY_ANGLE_DEG = 2.0
 SCREEN_LENS_SHARE = 0.05
 SCREEN_F_STAT = 100.0
 MAX_SUSPECTS = 2  # the worst cameras looked into; more at fault at once is a rig-wide problem
+# a large rig's points seen by this many cameras or more keep a camera's noise with it in the
+# residuals (3x one camera's noise shows as 2x the others' at four views, 2.8x at sixteen): the
+# suspect screen names it, and the noise with the points eliminated is needed below only
+SPREAD_VIEWS = 4
 MIN_CAMERAS_TO_ISOLATE = 3  # two cameras left cannot say which of them is wrong
 # a static fit whose scale is off by more than its markers' noise explains, and whose residual a
 # scale explains (the scaled fit within the noise's 99th percentile), is a wand length that
@@ -199,21 +203,26 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     every camera against the points the others triangulate
     (:func:`wandcal.calib.judge.leave_one_out.leave_one_out_faults`), then a camera that moved, then
     cameras whose own noise stands out (:func:`own_faults`), else by the suspect screen
-    (:func:`camera_faults`)."""
+    (:func:`camera_faults`). A larger rig: :func:`many_camera_faults`."""
     from wandcal.calib.judge.leave_one_out import MAX_CAMERAS, leave_one_out_faults
-    from wandcal.calib.judge.timing_pairs import timing_faults
+    from wandcal.calib.judge.timing_pairs import camera_timings, timing_faults, timing_instead
 
-    timing = []
-    if 3 <= len(rig.cameras) <= MAX_CAMERAS:
-        timing = timing_faults(list(rig.ids), R, t, labelled, tracks, np.array([c.focal.mean() for c in rig.cameras]),
-                               [f["noise_px"] for f in figures])
+    if len(rig.cameras) > MAX_CAMERAS:
+        return many_camera_faults(rig, labelled, tracks, R, t, figures, res)
+    noise_px, focal = [f["noise_px"] for f in figures], np.array([c.focal.mean() for c in rig.cameras])
+    timings = camera_timings(R, t, labelled, tracks, focal) if len(rig.cameras) >= 3 else []
+    timing = timing_faults(list(rig.ids), R, t, labelled, tracks, focal, noise_px, timings) if timings else []
     if timing:
         return timing + beside_timing(rig, labelled, tracks, R, t, timing[0])
     lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks)
     if lens:  # a lens error bends a tracked marker's path: a step or noise there is its effect
         return lens
     moved, noisy = own_faults(rig, labelled, tracks, R, t)
-    return moved or noisy or camera_faults(rig, labelled, R, t, figures, res)
+    # a camera out of time is noisy in its own residuals too: its offset, where it explains them, names the kind
+    noisy = [timing_instead(list(rig.ids), timings, rig.index(f["camera"]), noise_px[rig.index(f["camera"])]) or f
+             for f in noisy]
+    return moved or noisy or _outliers_or_noise(rig, labelled, tracks, R, t, figures, res,
+                                                camera_faults(rig, labelled, R, t, figures, res))
 
 
 def in_time(labelled: WandPairs, n_cameras: int, c: int, offset: float) -> WandPairs:
@@ -281,26 +290,103 @@ def beside_timing(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: 
     return [f for f in found if f["camera"] != timing["camera"]]
 
 
-def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray
-               ) -> tuple[list[dict], list[dict]]:
-    """In a rig of few cameras, (a camera that moved, cameras whose own noise stands out), each
-    camera judged with the points eliminated (:mod:`wandcal.calib.judge.own_errors`,
-    :mod:`wandcal.calib.judge.pose_steps`); the moved camera is not also called noisy. Larger rigs,
-    where every point has views enough for the suspect screen, give none."""
-    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS
-    from wandcal.calib.judge.own_errors import eliminate, noise_fault, noisy_cameras, views_of
-    from wandcal.calib.judge.pose_steps import moved_camera, moved_fault
+def _outliers_or_noise(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                       figures: list[dict], res: Residuals, faults: list[dict]) -> list[dict]:
+    """``faults`` with an ``outliers`` fault turned into ``noise`` where the camera's own noise
+    (the points eliminated, :func:`wandcal.calib.judge.own_errors.camera_noise`) is above the
+    others' and its Gaussian tail explains its share of camera-frames beyond the rig's outlier
+    limit (``res.limit_px``) within two of that share's standard errors: in a rig of few cameras a
+    camera three times as noisy puts a fifth of its frames past a limit set by the others' noise,
+    all of them its own noise, not reflections."""
+    from wandcal.calib.judge.own_errors import camera_noise, eliminate, noise_fault, views_of
 
-    if not 3 <= len(rig.cameras) <= MAX_CAMERAS:
-        return [], []
+    if not any(f["kind"] == "outliers" for f in faults):
+        return faults
     views = views_of(labelled, tracks)
+    if not len(views.point):
+        return faults
+    focal = np.array([c.focal.mean() for c in rig.cameras])
+    noise = camera_noise(eliminate(R, t, views), focal)
+    out = []
+    for fault in faults:
+        c = rig.index(fault["camera"]) if fault["kind"] == "outliers" else -1
+        n = noise[c] if c >= 0 else None
+        if n is not None and n.ratio > 1:
+            end = float(np.exp(-res.limit_px**2 / (2 * n.sigma_px**2)))  # a 2D Gaussian's radius beyond the limit
+            expected = 1 - (1 - end) ** 2  # a camera-frame is an outlier by its worse end
+            share = figures[c]["outlier_share"] or 0.0
+            if share <= expected + 2 * share_std(share, figures[c].get("observations") or 0):
+                noisy = noise_fault(fault["camera"], n)
+                out.append(noisy | {"evidence": fault["evidence"] | noisy["evidence"]
+                                    | {"expected_outlier_share": round(expected, 4)}})
+                continue
+        out.append(fault)
+    return out
+
+
+def many_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                       figures: list[dict], res: Residuals) -> list[dict]:
+    """The cameras at fault in a rig of more than a few cameras: the suspect screen
+    (:func:`camera_faults`: timing and a lens by isolating each suspect), then each camera's own
+    errors (:func:`own_faults`): a camera that moved replaces what the screen named on it (a
+    knock's later views look like a lens pattern), and a camera whose own noise stands out is
+    named where the screen named nothing on it."""
+    screened = camera_faults(rig, labelled, R, t, figures, res)
+    named = [rig.index(f["camera"]) for f in screened if f["camera"] is not None]
+    moved, noisy = own_faults(rig, labelled, tracks, R, t, named, res)
+    gone = {f["camera"] for f in moved}
+    kept = [f for f in screened if f["camera"] not in gone]
+    return moved + kept + [f for f in noisy if f["camera"] not in {g["camera"] for g in kept}]
+
+
+def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+               named: list[int] | None = None, res: Residuals | None = None) -> tuple[list[dict], list[dict]]:
+    """(a camera that moved, cameras whose own noise stands out), each camera judged with the
+    points eliminated (:mod:`wandcal.calib.judge.own_errors`, :mod:`wandcal.calib.judge.pose_steps`);
+    the moved camera is not also called noisy, nor are the cameras ``named`` at fault already.
+
+    A rig of more than a few cameras (:data:`wandcal.calib.judge.leave_one_out.MAX_CAMERAS`;
+    ``res`` the judgement's residuals, needed then) is judged at a bounded cost: the step is tested
+    in full only on the cameras a screen of ``res`` suspects
+    (:func:`wandcal.calib.judge.pose_steps.step_suspects`), the noise with the points eliminated
+    only where the median point has fewer than :data:`SPREAD_VIEWS` views (with more, a camera's
+    noise stays with it in ``res`` and the suspect screen names it), each on
+    :data:`wandcal.calib.judge.own_errors.VIEWS_PER_CAMERA` views a camera. Fewer than three
+    cameras give none."""
+    from wandcal.calib.judge.leave_one_out import MAX_CAMERAS
+    from wandcal.calib.judge.own_errors import VIEWS_PER_CAMERA, capped, eliminate, noise_fault, noisy_cameras, views_of
+    from wandcal.calib.judge.pose_steps import moved_camera, moved_fault, step_suspects
+
+    if len(rig.cameras) < 3:
+        return [], []
+    large = len(rig.cameras) > MAX_CAMERAS
+    suspected, sparse = None, True
+    if large:
+        if res is None:
+            return [], []
+        suspected = step_suspects(res, tracks.frames if tracks is not None else None)
+        sparse = _median_views(res) < SPREAD_VIEWS
+        if not suspected and not sparse:
+            return [], []
+    views = views_of(labelled, tracks)
+    if large:
+        views = capped(views, VIEWS_PER_CAMERA * len(rig.cameras))
     if not len(views.point):
         return [], []
     ids, focal = list(rig.ids), np.array([c.focal.mean() for c in rig.cameras])
-    el = eliminate(R, t, views)
-    moved = moved_camera(R, t, views, el)
-    noisy = noisy_cameras(R, t, views, el, focal, [] if moved is None else [moved[0]])
+    el = eliminate(R, t, views, steps=1 if large else 3)
+    moved = moved_camera(R, t, views, el, suspected) if suspected is None or suspected else None
+    out = [*(named or []), *([] if moved is None else [moved[0]])]
+    noisy = noisy_cameras(R, t, views, el, focal, out) if sparse else []
     return ([] if moved is None else [moved_fault(ids[moved[0]], moved[1])]), [noise_fault(ids[c], n) for c, n in noisy]
+
+
+def _median_views(res: Residuals) -> float:
+    """The median point's number of views in the judgement's residuals."""
+    if not len(res.point):
+        return 0.0
+    counts = np.bincount(res.point - res.point.min())
+    return float(np.median(counts[counts > 0]))
 
 
 def input_faults(rig: Rig, world: dict, solver: dict, cameras: list[dict]) -> list[dict]:

@@ -55,6 +55,8 @@ CASES = [
     ("brown1", "early 0.3 frame cam3"),
     ("cpp", "late 1 frame cam3"),  # digitised: the start refused; named by --sync auto's whole-frame search
     ("cpp", "early 0.3 frame cam3"),  # ... or by the refused camera resampled by a fraction of a frame
+    ("cpp", "noise 3x cam1"),  # its "outliers" are its own Gaussian tail: noise (decision 0042)
+    ("brown2", "late 0.5 frame cam4"),  # noisy by its own errors, its pairs' offset at 4 standard errors: timing
     pytest.param("brown2", "knocked 0.82 deg cam4", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
 ]
 

@@ -92,3 +92,20 @@ def test_the_same_fraction_is_not_named_where_it_moves_the_blobs_less_than_the_n
     R, t, tracks = _rig_and_tracks({0: 0.08}, seed=2, period=SLOW_PERIOD, noise_px=FAST_NOISE_PX)
     assert timing_faults(["a", "b", "c", "d"], R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX),
                          [FAST_NOISE_PX] * 4) == []
+
+
+def test_a_camera_at_fault_is_named_out_of_time_at_three_standard_errors_not_noise():
+    from wandcal.calib.judge.timing_pairs import KIND_T, MIN_T, CameraTiming, timing_faults, timing_instead
+
+    ids = ["cam0", "cam1", "cam2", "cam3"]
+    # camera 3 at 4 standard errors: under what names a camera from scratch, enough for the kind of one at fault
+    late = [CameraTiming(c, 0, 0.0, 0.05, 0.0, 0.0, 30) for c in range(3)] + [CameraTiming(3, 0, 0.6, 0.15, 0.2, 140.0, 20)]
+    assert KIND_T <= 0.6 / 0.15 < MIN_T
+    assert timing_faults(ids, None, None, None, None, None, [2.0] * 4, late) == []
+    fault = timing_instead(ids, late, 3, 4.5)
+    assert fault is not None and fault["kind"] == "timing" and fault["camera"] == "cam3"
+    assert fault["evidence"]["timing"]["offset_frames"] == 0.6
+    # a noisy camera's offset within its noise (t = 1.4) leaves it noise; so does another camera's offset
+    noisy = late[:3] + [CameraTiming(3, 0, -0.007, 0.005, 0.05, 2.5, 24)]
+    assert timing_instead(ids, noisy, 3, 3.0) is None
+    assert timing_instead(ids, late, 2, 2.0) is None
