@@ -20,7 +20,7 @@ from wandcal.drivers.errors import CameraUrlError
 SCHEMES = ("v4l2", "opencv", "replay", "sim")
 # the query options each driver reads: any other is a typo, refused rather than silently ignored
 OPTIONS = {
-    "sim": ("cameras", "seed", "frames", "static", "drop", "noise", "lframe", "bits"),
+    "sim": ("cameras", "seed", "frames", "static", "drop", "noise", "lframe", "bits", "take", "move"),
     "replay": ("rate", "phase", "cameras"),
     "v4l2": ("id", "trigger"),
     "opencv": ("id", "trigger"),

@@ -19,7 +19,10 @@ Query options, with their limits (a value outside them is refused, naming the op
 capture asks; 300 outside a capture; 1 to :data:`MAX_WAND_FRAMES`), ``static`` (what the capture
 asks, else 0; 0 to :data:`MAX_STATIC_FRAMES`), ``drop`` (lost frames, ``cam2:17,cam3:40-45`` by
 sequence number, below ``MAX_STATIC_FRAMES + MAX_WAND_FRAMES``), ``noise`` (read noise, grey levels
-of 8 bits; 2; 0 to :data:`MAX_NOISE`), ``lframe`` (``remove`` or ``keep``), ``bits`` (8 or 16).
+of 8 bits; 2; 0 to :data:`MAX_NOISE`), ``lframe`` (``remove`` or ``keep``), ``bits`` (8 or 16),
+``take`` (N markers on moving bodies in place of the wand, an ordinary take as ``wandcal simulate
+--take`` draws it; 0, the wand; up to :data:`MAX_TAKE_MARKERS`) and ``move`` (with a take:
+``CAM:FRAME:DEG:MM``, camera CAM turned DEG degrees and moved MM mm at wand frame FRAME, a knock).
 """
 
 from __future__ import annotations
@@ -31,10 +34,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import depth, distort_points, project_normalized
 from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.sim.render import RENDER_HALF_WIDTH_SIGMAS, render_blobs
 from wandcal.calib.sim.simulate import L_FRAME_M, Truth, ring_cameras, wand_path
+from wandcal.calib.sim.takes import TAKE_STREAM, CameraMove, body_markers
 from wandcal.drivers.camera import CameraDriver, CameraSettings, Frame, TriggerMode
 from wandcal.drivers.errors import CameraUrlError, DriverError, FrameTimeout
 
@@ -57,6 +62,8 @@ MAX_CAMERAS = 32
 MAX_WAND_FRAMES = 360_000
 MAX_STATIC_FRAMES = 100_000  # the service's own limit for static_frames
 MAX_SEED = 2**32 - 1
+MAX_TAKE_MARKERS = 200  # take=: as wandcal simulate --take's --markers
+TAKE_BODIES = 5  # the take's rigid bodies, as wandcal simulate --take's
 MAX_NOISE = 1000.0  # grey levels: far past any sensor's read noise, still a finite image
 
 
@@ -81,6 +88,10 @@ class SimScene:
     # (numbered from its own first pulse, it showed the scene one frame behind: an out-of-time
     # camera in a trigger-synchronised recording, which the wanding guidance caught)
     first_counter: int | None = None
+    # a take instead of the wand (``take=N``, issue 36): (F, N, 3) markers on moving bodies, and
+    # cameras that move during it (``move=cam2:300:0.3:2``: turned 0.3 deg, moved 2 mm at wand frame 300)
+    take: np.ndarray | None = None
+    moves: tuple[CameraMove, ...] = ()
 
     @property
     def total_frames(self) -> int:
@@ -97,6 +108,8 @@ class SimScene:
                                  "ask for fewer --frames / --static-frames")
         if wand != self.wand_frames:
             self.truth = _truth(len(self.rig.cameras), self.seed, wand)[1]
+            if self.take is not None:
+                self.take = _take_markers(self.seed, wand, self.take.shape[1])
         self.static_frames, self.wand_frames = static, wand
         self.first_counter = None  # a new capture numbers its frames from its own first pulse
 
@@ -107,6 +120,8 @@ class SimScene:
         """(P, 3) marker positions in the world at frame ``sequence``, metres."""
         if sequence < self.static_frames:
             return L_FRAME_M
+        if self.take is not None:
+            return self.take[sequence - self.static_frames]
         wand = self.truth.wand[sequence - self.static_frames]
         return np.vstack([wand, L_FRAME_M]) if self.keep_lframe else wand
 
@@ -114,6 +129,10 @@ class SimScene:
         """Pixel centres (K, 2) and Gaussian sigmas (K,) of the markers camera ``index`` sees."""
         cam = self.rig.cameras[index]
         R, t = self.truth.R[index], self.truth.t[index]
+        for move in self.moves:
+            if move.camera == index and sequence >= self.static_frames:
+                Rm, tm = move.poses(R, t, np.array([sequence - self.static_frames]))
+                R, t = Rm[0], tm[0]
         pts = self.points(sequence)
         z = depth(R, t, pts)
         front = z > 0.1
@@ -293,6 +312,21 @@ def _truth(cameras: int, seed: int, wand_frames: int) -> tuple[Rig, Truth]:
     return rig, Truth(R=R, t=t, wand=wand)
 
 
+def _take_markers(seed: int, frames: int, markers: int) -> np.ndarray:
+    """(F, M, 3) the markers of ``wandcal simulate --take``'s bodies (its draws), metres."""
+    return body_markers(frames, markers, TAKE_BODIES, np.random.default_rng([seed, TAKE_STREAM]))
+
+
+def _parse_move(text: str, rig: Rig, seed: int, url: str) -> CameraMove:
+    """``CAM:FRAME:DEG:MM`` (as ``wandcal simulate --move``): a knock at wand frame FRAME."""
+    try:
+        cam, frame, deg, mm = text.split(":")
+        return CameraMove(rig.index(cam), int(frame), float(deg), float(mm), seed=seed)
+    except (ValueError, CalibrationError):
+        raise CameraUrlError(f"{url}: move={text!r} is not CAM:FRAME:DEG:MM with CAM one of {', '.join(rig.ids)}, "
+                             "e.g. move=cam2:300:0.3:2") from None
+
+
 def open_sim(url: str, query: dict[str, str]) -> list[SimCamera]:
     def number(key: str, default, kind=int, low=0, high=None):
         try:
@@ -313,9 +347,14 @@ def open_sim(url: str, query: dict[str, str]) -> list[SimCamera]:
     bits = number("bits", 8)
     if lframe not in ("remove", "keep") or bits not in (8, 16):
         raise CameraUrlError(f"{url}: lframe must be 'remove' or 'keep' and bits 8 or 16")
+    markers = number("take", 0, high=MAX_TAKE_MARKERS)
     rig, truth = _truth(n, seed, frames)
+    if "move" in query and not markers:
+        raise CameraUrlError(f"{url}: move= needs a take (take=N markers on moving bodies)")
     scene = SimScene(rig=rig, truth=truth, static_frames=static, wand_frames=frames,
                      keep_lframe=lframe == "keep", noise=noise, bits=bits,
                      drops=parse_drops(query.get("drop", ""), rig.ids, url), seed=seed, url=url,
-                     fixed_static="static" in query, fixed_wand="frames" in query)
+                     fixed_static="static" in query, fixed_wand="frames" in query,
+                     take=_take_markers(seed, frames, markers) if markers else None,
+                     moves=(_parse_move(query["move"], rig, seed, url),) if "move" in query else ())
     return [SimCamera(cid, url, scene, i) for i, cid in enumerate(rig.ids)]

@@ -20,7 +20,7 @@ from threadpoolctl import threadpool_limits
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.service.api.deps import AppState, require_token
-from wandcal.service.api.routes import blobsets, captures, checks, guidance, health, jobs, live_capture
+from wandcal.service.api.routes import blobsets, captures, checks, guidance, health, jobs, live_capture, watch
 from wandcal.service.api.security import CrossSiteGuard, HostGuard, RelativePaths
 from wandcal.service.connection_limits import install_repeat_filter
 from wandcal.service.datafolder.lock import hold_data_folder
@@ -128,6 +128,7 @@ def create_app(settings: Settings) -> FastAPI:
     app.include_router(live_capture.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(guidance.router, prefix=API_PREFIX, dependencies=secured)
     app.include_router(checks.router, prefix=API_PREFIX, dependencies=secured)
+    app.include_router(watch.router, prefix=API_PREFIX, dependencies=secured)
     _add_error_handlers(app, data_dir)
 
     @app.get("/", include_in_schema=False)

@@ -66,53 +66,87 @@ def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, reso
                progress: Callable[[int, int], None] | None = None) -> WatchReport:
     """Watch a take (blobs sorted by frame) at standing poses R (C, 3, 3), t (C, 3): each camera's
     health, the moved ones named (when, how much, knock or drift) and, with ``resolve``, re-solved."""
-    n_c = len(rig.cameras)
-    tests = [CameraTest() for _ in range(n_c)]
-    report = WatchReport([CameraHealth(cam.id) for cam in rig.cameras])
     first, last = int(blobs.frame.min()), int(blobs.frame.max())
-    report.first_frame, report.last_frame = first, last
-    excluded: set[int] = set()
-    for alarm in _off_from_start(rig, R, t, blobs, first):
-        tests[alarm.camera].alarm = alarm
-        report.cameras[alarm.camera].before_take = True
-        excluded.add(alarm.camera)
-    sums = np.zeros((n_c, 3))  # sse, residuals, markers seen
+    stream = WatchStream(rig, R, t, first, keep_obs=resolve)
+    stream.begin(blobs, np.arange(0, int(np.searchsorted(blobs.frame, stream.baseline_stop))))
     bounds = np.searchsorted(blobs.frame, np.arange(first, last + BATCH_FRAMES + 1, BATCH_FRAMES))
     for b in range(len(bounds) - 1):
         if bounds[b] == bounds[b + 1]:
             continue
-        rows = np.arange(bounds[b], bounds[b + 1])
-        padded = pad_frames(rig, blobs, rows)
-        tracks = match_frames(rig, R, t, padded)
-        report.frames += len(padded.frames)
-        report.tracks += len(tracks)
-        windows = _test_batch(rig, R, t, padded, tracks, tests, excluded, first, keep_obs=resolve)
-        sums += np.stack([windows.sse.sum(0), windows.n.sum(0), windows.seen.sum(0)], 1)
-        if resolve:
-            report.obs.append(windows.obs or [])
+        done = stream.add(blobs, np.arange(bounds[b], bounds[b + 1]))
         if progress:
-            progress(int(padded.frames[-1]) - first + 1, last - first + 1)
-    for c, health in enumerate(report.cameras):
-        health.residual_px = float(np.sqrt(sums[c, 0] / max(2 * sums[c, 1], 1)))
-        health.matched = float(sums[c, 1] / max(sums[c, 2], 1))
-        health.alarm = tests[c].alarm
-        health.peak = tests[c].peak
-        if health.before_take and health.alarm is not None:
-            health.kind, health.moved_at, health.change = "knock", first, health.alarm.change
-        elif health.alarm is not None:
-            health.kind, health.moved_at, health.drift_frames, health.change = classify(tests[c], health.alarm)
-        if health.alarm is not None and resolve:
-            health.resolved = _resolve(rig, R, t, report, c, health)
-    return report
+            progress(done - first + 1, last - first + 1)
+    return stream.report(last, resolve=resolve)
 
 
-def _off_from_start(rig: Rig, R, t, blobs: TakeBlobs, first: int) -> list[Alarm]:
+class WatchStream:
+    """A take watched a batch of :data:`BATCH_FRAMES` frames at a time, as it arrives (a live take;
+    :func:`watch_take` feeds a whole one): :meth:`begin` with the first :data:`BASELINE_WINDOWS`
+    windows' blobs (cameras off the standing result from the start), then :meth:`add` each batch
+    in frame order; :meth:`report` any time. ``first``: the take's first frame (windows count from it)."""
+
+    def __init__(self, rig: Rig, R: np.ndarray, t: np.ndarray, first: int, *, keep_obs: bool = True):
+        self.rig, self.R, self.t, self.first, self.keep_obs = rig, R, t, first, keep_obs
+        self.tests = [CameraTest() for _ in rig.cameras]
+        self.before_take: set[int] = set()
+        self.excluded: set[int] = set()
+        self.sums = np.zeros((len(rig.cameras), 3))  # sse, residuals, markers seen
+        self.frames = self.tracks = 0
+        self.obs: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
+
+    @property
+    def baseline_stop(self) -> int:
+        """The first frame past the windows :meth:`begin` needs."""
+        return self.first + BASELINE_WINDOWS * WINDOW_FRAMES
+
+    def begin(self, blobs: TakeBlobs, rows: np.ndarray) -> None:
+        """Name the cameras that disagree with the standing result from the take's start (``rows``:
+        the blobs of the frames before :attr:`baseline_stop`)."""
+        for alarm in _off_from_start(self.rig, self.R, self.t, blobs, rows, self.first):
+            self.tests[alarm.camera].alarm = alarm
+            self.before_take.add(alarm.camera)
+            self.excluded.add(alarm.camera)
+
+    def add(self, blobs: TakeBlobs, rows: np.ndarray) -> int:
+        """Match one batch (``rows`` of ``blobs``: whole windows, later than any added) and add its
+        windows to every camera's test. Returns its last frame."""
+        padded = pad_frames(self.rig, blobs, rows)
+        tracks = match_frames(self.rig, self.R, self.t, padded)
+        self.frames += len(padded.frames)
+        self.tracks += len(tracks)
+        windows = _test_batch(self.rig, self.R, self.t, padded, tracks, self.tests, self.excluded, self.first,
+                              keep_obs=self.keep_obs)
+        self.sums += np.stack([windows.sse.sum(0), windows.n.sum(0), windows.seen.sum(0)], 1)
+        if self.keep_obs:
+            self.obs.append(windows.obs or [])
+        return int(padded.frames[-1])
+
+    def report(self, last: int, *, resolve: bool = False) -> WatchReport:
+        """Every camera's health so far (``last``: the last frame seen); with ``resolve``, the moved
+        cameras re-solved (needs ``keep_obs``)."""
+        report = WatchReport([CameraHealth(cam.id) for cam in self.rig.cameras], frames=self.frames,
+                             tracks=self.tracks, first_frame=self.first, last_frame=last, obs=self.obs)
+        sums = self.sums
+        for c, health in enumerate(report.cameras):
+            health.before_take = c in self.before_take
+            health.residual_px = float(np.sqrt(sums[c, 0] / max(2 * sums[c, 1], 1)))
+            health.matched = float(sums[c, 1] / max(sums[c, 2], 1))
+            health.alarm = self.tests[c].alarm
+            health.peak = self.tests[c].peak
+            if health.before_take and health.alarm is not None:
+                health.kind, health.moved_at, health.change = "knock", self.first, health.alarm.change
+            elif health.alarm is not None:
+                health.kind, health.moved_at, health.drift_frames, health.change = classify(self.tests[c], health.alarm)
+            if health.alarm is not None and resolve:
+                health.resolved = _resolve(self.rig, self.R, self.t, report, c, health)
+        return report
+
+
+def _off_from_start(rig: Rig, R, t, blobs: TakeBlobs, rows: np.ndarray, first: int) -> list[Alarm]:
     """Cameras that disagree with the standing result from the take's start: over the first
     :data:`BASELINE_WINDOWS` windows, a pose change whose statistic passes the test's threshold and
     that moves the camera's images :data:`START_SHIFT_PX` or more. Named one at a time, the largest
     first, each left out of the others' markers before the next is looked for (its blobs pull them)."""
-    stop = first + BASELINE_WINDOWS * WINDOW_FRAMES
-    rows = np.arange(0, int(np.searchsorted(blobs.frame, stop)))
     if not len(rows):
         return []
     padded = pad_frames(rig, blobs, rows)

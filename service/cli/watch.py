@@ -7,10 +7,6 @@ import argparse
 from pathlib import Path
 
 EXIT_MOVED = 1  # a camera moved or drifts (named)
-# Markers triangulated by two cameras that the others see: ~95% on a healthy rig (blobs dropped, views
-# beside another marker's image left out); under half for most cameras is not a bumped camera but a
-# result of another rig, or a rig rebuilt
-MIN_MATCHED = 0.5
 
 
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
@@ -45,8 +41,10 @@ def run_watch(args) -> int:
     with ProgressLine(quiet=args.json) as progress:
         report = watch_take(rig, R, t, take.blobs,
                             progress=lambda done, total: progress.update(f"watch: frame {done} of {total}"))
-    _check_fit(report, args)
-    doc = _report_json(report)
+    from wandcal.capture.watch_report import check_fit, report_json
+
+    check_fit(report, str(args.take), str(args.result))
+    doc = report_json(report)
     if args.json:
         print(json.dumps(doc, indent=2))
     else:
@@ -54,37 +52,6 @@ def run_watch(args) -> int:
     if args.write is not None:
         _write(args, standing, take, report)
     return EXIT_MOVED if report.moved else 0
-
-
-def _check_fit(report, args) -> None:
-    """Refuse a take that most cameras do not fit (another rig's, or a rebuilt one) as bad input."""
-    import numpy as np
-
-    from wandcal.calib.errors import CalibrationError
-
-    matched = np.array([h.matched for h in report.cameras])
-    if np.median(matched) < MIN_MATCHED:
-        raise CalibrationError(f"{args.take}: the take does not fit {args.result}: its cameras find only "
-                               f"{np.median(matched):.0%} of the markers the others triangulate (a healthy rig finds "
-                               "~95%); the take is of another rig, or the rig was rebuilt: calibrate afresh")
-
-
-def _report_json(report) -> dict:
-    cameras = []
-    for h in report.cameras:
-        entry = {"id": h.id, "status": h.status, "residual_px": round(h.residual_px, 4), "matched": round(h.matched, 4)}
-        if h.alarm is not None:
-            entry |= {"moved_at_frame": h.moved_at, "detected_at_frame": h.alarm.detected_frame, "kind": h.kind,
-                      "drift_frames": h.drift_frames, "before_take": h.before_take,
-                      "statistic": round(h.alarm.statistic, 1)}
-        if h.resolved is not None:
-            entry |= {"rotation_deg": round(h.resolved.turned_deg, 4), "translation_mm": round(h.resolved.moved_mm, 3),
-                      "center_std_mm": round(h.resolved.center_std_mm, 3),
-                      "rotation_std_deg": round(h.resolved.rotation_std_deg, 4), "resolved_rms_px": round(h.resolved.rms_px, 4),
-                      "resolved_points": h.resolved.points}
-        cameras.append(entry)
-    return {"frames": report.frames, "markers": report.tracks, "first_frame": report.first_frame,
-            "last_frame": report.last_frame, "cameras": cameras, "moved": [h.id for h in report.moved]}
 
 
 def _print_report(report, args) -> None:
@@ -114,17 +81,9 @@ def _write(args, standing, take, report) -> None:
     import json
 
     from wandcal.capture.take_file import updated_result
+    from wandcal.capture.watch_report import resolved_cameras
 
-    cameras = {}
-    for h in report.moved:
-        r = h.resolved
-        if r is None:
-            continue
-        level = "good" if r.rms_px < 2 * max(h.residual_px, 0.1) else "poor"
-        cameras[h.id] = {"R": r.R, "t": r.t, "center_std_mm": r.center_std_mm, "rotation_std_deg": r.rotation_std_deg,
-                         "reprojection_rms_px": r.rms_px,
-                         "verdict": {"level": level, "reasons": [f"re-solved from {r.points} markers of the take "
-                                                                 f"{take.path} at {r.rms_px:.2f} px"]}}
+    cameras = resolved_cameras(report, str(take.path))
     doc = updated_result(standing, take.path, cameras)
     args.write.write_text(json.dumps(doc, indent=2) + "\n")
     print(f"wrote {args.write}: {', '.join(cameras) or 'no camera'} re-solved from the take")

@@ -31,6 +31,7 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import Capture
 from wandcal.service.jobs.queue import QueueUnavailable
 from wandcal.service.jobs.records import MAX_ATTEMPTS, JobRecord, JobState, JobStore, not_retried
+from wandcal.service.jobs.watch_job import WATCH_METHOD, run_watch, watch_files
 from wandcal.service.jobs.worker import JobStopped, ThrottledProgress, solve, standing_result
 from wandcal.service.storage import CAPTURE_FILES
 
@@ -101,7 +102,6 @@ def run_payload(payload: dict) -> dict:
     from rq import get_current_job
 
     job = get_current_job()
-    capture = payload_capture(payload["files"])
 
     def report(progress: dict) -> bool:
         if job is None:
@@ -110,6 +110,9 @@ def run_payload(payload: dict) -> dict:
         job.save_meta()
         return bool(job.connection.exists(CANCEL_KEY.format(job.id)))
 
+    if payload["method"] == WATCH_METHOD:  # issue 36: the take's texts (service/jobs/watch_job.py)
+        return run_watch(payload["files"], payload["options"], ThrottledProgress(report))
+    capture = payload_capture(payload["files"])
     started = time.perf_counter()
     result = solve(capture, payload["method"], payload["options"], ThrottledProgress(report), payload.get("standing"))
     if job is not None:
@@ -202,8 +205,11 @@ class RedisQueue:
     def _enqueue(self, job: JobRecord) -> None:
         from rq import Callback, Retry
 
-        payload = capture_payload(self.read_files(job.capture_id), job.method, job.options,
-                                  standing_result(self.store, job))
+        if job.method == WATCH_METHOD:  # issue 36: a take watched, its folder's texts
+            payload = capture_payload(watch_files(job.options["folder"]), job.method, job.options)
+        else:
+            payload = capture_payload(self.read_files(job.capture_id), job.method, job.options,
+                                      standing_result(self.store, job))
         self.queue.enqueue_call(
             run_payload, args=(payload,), job_id=job.id, timeout=JOB_TIMEOUT_S, result_ttl=RESULT_TTL_S,
             failure_ttl=RESULT_TTL_S, retry=Retry(max=RETRIES), on_failure=Callback(on_failure),

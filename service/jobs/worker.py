@@ -31,6 +31,7 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.capture.folder import Capture
 from wandcal.service.db import disk_full
 from wandcal.service.jobs.records import MAX_ATTEMPTS, Claim, JobRecord, JobState, JobStore
+from wandcal.service.jobs.watch_job import WATCH_METHOD, run_watch, watch_files
 from wandcal.service.schemas import JobOptions
 
 log = logging.getLogger("wandcal.worker")
@@ -119,8 +120,11 @@ def run_claim(store: JobStore, load_capture: Callable[[str], Capture], claim: Cl
     progress = ThrottledProgress(lambda p: store.report_progress(job.id, token, p))
     started = time.perf_counter()
     try:
-        capture = load_capture(job.capture_id)
-        result = solve(capture, job.method, job.options, progress, standing_result(store, job))
+        if job.method == WATCH_METHOD:  # issue 36: a take watched (service/jobs/watch_job.py)
+            result = run_watch(watch_files(job.options["folder"]), job.options, progress)
+        else:
+            capture = load_capture(job.capture_id)
+            result = solve(capture, job.method, job.options, progress, standing_result(store, job))
     except JobStopped:
         current = store.get(job.id)
         if current is not None and current.cancel_requested:

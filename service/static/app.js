@@ -3,6 +3,7 @@
 import { $, el } from "./dom.js";
 import { cameraTable, offsetsTable, rigJudgement } from "./results.js";
 import { RigView } from "./rigview.js";
+import { renderWatch } from "./watch.js";
 
 const API = "/api/v1";
 const POLL_MS = 1000;  // progress is written every 0.2 s; once a second is enough for people
@@ -23,6 +24,7 @@ const SIGMA_HISTORY = 120;  // guidance updates kept per camera for its sparklin
 const sigmaHistory = new Map();  // "capture/camera" -> the predicted centre sigmas seen so far (mm)
 const SVG = "http://www.w3.org/2000/svg";
 const SOURCE_WORDS = { upload: "uploaded", replay: "recorded folder", stream: "streamed", live: "live capture" };
+let resolveWatch = null;  // the re-solve's watch id (POST /watch/live/resolve), shown under the health table
 let rigView = null;  // made when the first result is shown: the section is hidden until then
 
 const short = (id) => id.slice(0, 8);
@@ -225,6 +227,25 @@ async function liveAction(button, path, question) {
   poll();
 }
 
+async function pollWatch(live) {
+  try {
+    const doc = await api("/watch/live");
+    const resolve = resolveWatch && doc.state !== "watching" ? await api(`/watch/${resolveWatch}`) : null;
+    renderWatch(doc, live.state, shownJob, resolve);
+  } catch (err) { $("#watch-error").hidden = false; $("#watch-error").textContent = err.message; }
+}
+
+async function watchAction(button, path, body) {
+  button.disabled = true;
+  try {
+    const answer = await api(path, { method: "POST", headers: { "Content-Type": "application/json" },
+      body: JSON.stringify(body) });
+    if (path.endsWith("/resolve")) resolveWatch = answer.id;
+  } catch (err) { alert(err.message); }
+  button.disabled = false;
+  poll();
+}
+
 async function showResult(jobId) {
   loadingJob = jobId;
   try {
@@ -265,6 +286,7 @@ async function poll() {
     const [live, captures, jobs] = await Promise.all([api("/capture"), api("/captures"), api("/jobs")]);
     renderLive(live);
     await pollGuidance(live);
+    await pollWatch(live);
     renderCaptures(captures.captures);
     renderJobs(jobs.jobs);
   } catch (err) {
@@ -275,6 +297,8 @@ async function poll() {
 $("#live-continue").addEventListener("click", (e) => liveAction(e.currentTarget, "/capture/continue"));
 $("#live-stop").addEventListener("click", (e) => liveAction(e.currentTarget, "/capture/stop",
   "Stop the live capture? What was recorded so far is kept and stored."));
+$("#watch-start").addEventListener("click", (e) => { resolveWatch = null; watchAction(e.currentTarget, "/watch/live", { job_id: shownJob }); });
+$("#watch-resolve").addEventListener("click", (e) => watchAction(e.currentTarget, "/watch/live/resolve", {}));
 $("#live-autostop").addEventListener("change", (e) => setAutostop(e.currentTarget));
 $("#token").addEventListener("change", (e) => {
   token = e.target.value; localStorage.setItem("wandcal-token", token); setTokenCookie(); poll();

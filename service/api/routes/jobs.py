@@ -12,6 +12,7 @@ from wandcal.service.api.deps import State, require_content_type
 from wandcal.service.api.security import relative_paths
 from wandcal.service.datafolder.retention import delete_finished_job
 from wandcal.service.jobs.records import JobRecord, JobState
+from wandcal.service.jobs.watch_job import WATCH_METHOD
 from wandcal.service.schemas import (
     ErrorPublic,
     JobCreate,
@@ -43,6 +44,8 @@ def _job(state, job_id: str) -> JobRecord:
     record = state.queue.refresh(job_id) if len(job_id) <= 64 else None
     if record is None:
         raise HTTPException(404, f"no job with id {job_id!r}; list jobs with GET /api/v1/jobs")
+    if record.method == WATCH_METHOD:  # issue 36: a watch is read at /watch (service/api/routes/watch.py)
+        raise HTTPException(404, f"job {job_id} is a watch; read it with GET /api/v1/watch/{job_id}")
     return record
 
 
@@ -142,7 +145,8 @@ def list_jobs(
     state: State, capture_id: Annotated[str | None, Query(max_length=64)] = None
 ) -> JobList:
     records = [state.queue.refresh(r.id) if not r.state.finished else r for r in state.queue.store.newest(capture_id)]
-    return JobList(jobs=[JobSummary(**to_public(r, state).model_dump(exclude={"result"})) for r in records if r])
+    return JobList(jobs=[JobSummary(**to_public(r, state).model_dump(exclude={"result"})) for r in records
+                         if r and r.method != WATCH_METHOD])  # issue 36: watches are listed nowhere yet
 
 
 @router.get(
