@@ -4,6 +4,7 @@ calibration; a moved or drifting camera named (when, how much) and re-solved fro
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 EXIT_MOVED = 1  # a camera moved or drifts (named)
@@ -86,4 +87,6 @@ def _write(args, standing, take, report) -> None:
     cameras = resolved_cameras(report, str(take.path))
     doc = updated_result(standing, take.path, cameras)
     args.write.write_text(json.dumps(doc, indent=2) + "\n")
-    print(f"wrote {args.write}: {', '.join(cameras) or 'no camera'} re-solved from the take")
+    # with --json the standard output is the report alone (a script parses it): the note goes to stderr
+    print(f"wrote {args.write}: {', '.join(cameras) or 'no camera'} re-solved from the take",
+          file=sys.stderr if args.json else sys.stdout)

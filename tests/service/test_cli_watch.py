@@ -41,6 +41,9 @@ def test_a_knocked_camera_is_named_and_resolved(root):
     r = wandcal("watch", root / "updated.json", root / "after", "--json")  # it reads back, and explains the moved rig
     assert r.returncode == 0, r.stdout + r.stderr
     assert json.loads(r.stdout)["moved"] == []
+    r = wandcal("watch", root / "result.json", root / "knock", "--json", "--write", root / "again.json")
+    assert r.returncode == 1 and json.loads(r.stdout)["moved"], r.stderr  # stdout stays the JSON report alone
+    assert f"wrote {root / 'again.json'}" in r.stderr
 
 
 def test_a_clean_take_exits_0(root):
