@@ -81,6 +81,10 @@ def read_control_par(path: Path) -> ControlPar:
     except (OSError, ValueError, IndexError) as exc:
         raise CaptureFormatError(f"{path}: not an OpenPTV ptv.par ({exc}); it lists the camera count, two image names a "
                                  "camera, then flags, image size, pixel size, n1, n2, n3 and the glass thickness") from None
+    if not all(np.isfinite((pix_x, pix_y, n1, n2, n3, d))) or min(n1, n2, n3) < 1:
+        raise CaptureFormatError(f"{path}: the pixel size, the refractive indices (each at least 1) and the glass "
+                                 f"thickness must be finite numbers (got {pix_x}, {pix_y} mm; n = {n1}, {n2}, {n3}; "
+                                 f"d = {d} mm)")
     if not (cameras > 0 and imx > 0 and imy > 0 and pix_x > 0 and pix_y > 0 and d >= 0):
         raise CaptureFormatError(f"{path}: camera count, image size and pixel size must be positive and the glass "
                                  f"thickness not negative (got {cameras}, {imx}x{imy}, {pix_x}x{pix_y} mm, d = {d} mm)")
@@ -91,6 +95,8 @@ def read_camera(ori: Path, addpar: Path, control: ControlPar, camera_id: str) ->
                                                                                        FlatWindow]:
     """One camera from its .ori and .addpar: (intrinsics, R (3, 3), t (3,) metres, window)."""
     v = np.array(_numbers(ori, ORI_NUMBERS))
+    if not np.isfinite(v).all():
+        raise CaptureFormatError(f"{ori}: holds a number that is not finite; give the file OpenPTV wrote")
     centre, dm, (xh, yh), cc, glass = v[0:3], v[6:15].reshape(3, 3), v[15:17], v[17], v[18:21]
     k1, k2, k3, p1, p2, scx, she = _numbers(addpar, ADDPAR_NUMBERS)
     if any((k1, k2, k3, p1, p2, she)) or scx != 1:
@@ -136,4 +142,7 @@ def read_targets(path: Path) -> tuple[np.ndarray, np.ndarray]:
     if rows.shape != (count, TARGET_COLUMNS):
         raise CaptureFormatError(f"{path}: announces {count} targets of {TARGET_COLUMNS} columns but holds "
                                  f"{rows.shape[0]} rows of {rows.shape[1] if rows.ndim == 2 else 0}")
+    if not np.isfinite(rows).all() or (len(rows) and np.abs(rows[:, 7]).max() > 2**53):
+        raise CaptureFormatError(f"{path}: holds a number that is not finite, or a correspondence number out of range; "
+                                 "give the file OpenPTV wrote")
     return rows[:, 1:3] - PIXEL_CORNER, rows[:, 7].astype(np.int64)
