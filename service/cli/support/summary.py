@@ -62,7 +62,7 @@ def _after_outliers(doc: dict) -> str:
     dropped = (doc.get("dropped") or {}).get("outliers", 0)
     if not dropped:
         return ""
-    return f" once the {dropped} gross-outlier camera-frame{'' if dropped == 1 else 's'} below were dropped"
+    return f" once {'its one gross-outlier camera-frame was' if dropped == 1 else f'the {dropped} gross-outlier camera-frames were'} dropped"
 
 
 def _verdict_lines(doc: dict) -> list[str]:
