@@ -150,6 +150,16 @@ def depth(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
     return np.einsum("...j,...j->...", R[..., 2, :], X) + t[..., 2]
 
 
+def projection_derivative(Xc: np.ndarray) -> np.ndarray:
+    """(K, 2, 3) the derivative of the normalised projection (x/z, y/z) in the camera-frame point Xc (K, 3)."""
+    z = Xc[:, 2]
+    D = np.zeros((len(z), 2, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1 / z
+    D[:, 0, 2] = -Xc[:, 0] / z**2
+    D[:, 1, 2] = -Xc[:, 1] / z**2
+    return D
+
+
 def undistort_points(camera: Camera, uv: np.ndarray) -> np.ndarray:
     """Raw pixels -> normalised, undistorted image coordinates.
 

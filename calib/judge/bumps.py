@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wandcal.calib.errors import Failure
-from wandcal.calib.geometry import camera_centers, rotation_angle
+from wandcal.calib.geometry import camera_centers, projection_derivative, rotation_angle
 from wandcal.calib.observations import PointTracks, WandPairs, point_tracks
 from wandcal.calib.rig import PointObservations, Rig, WandObservations
 from wandcal.calib.start.labels import flatten, label_ends
@@ -163,13 +163,7 @@ def expected_loo_scale(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.
 def _projection_jacobians(R: np.ndarray, t: np.ndarray, point: np.ndarray, camera: np.ndarray,
                           X: np.ndarray) -> np.ndarray:
     """(K, 2, 3) derivatives of each sighting's normalised image point by its 3D point."""
-    P = np.einsum("kij,kj->ki", R[camera], X[point]) + t[camera]
-    z = P[:, 2]
-    d = np.zeros((len(P), 2, 3))
-    d[:, 0, 0] = d[:, 1, 1] = 1 / z
-    d[:, 0, 2] = -P[:, 0] / z**2
-    d[:, 1, 2] = -P[:, 1] / z**2
-    return d @ R[camera]
+    return projection_derivative(np.einsum("kij,kj->ki", R[camera], X[point]) + t[camera]) @ R[camera]
 
 
 def check_cameras(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations | None,

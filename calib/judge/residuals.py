@@ -15,6 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
+from wandcal.calib.geometry import projection_derivative
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS, reject_worst_per_frame
 from wandcal.calib.observations import PointTracks, WandPairs, camera_rows, robust_sigma
 from wandcal.calib.start.labels import flatten
@@ -227,9 +228,7 @@ def _place_rows(R: np.ndarray, res: Residuals, rows: np.ndarray, views: np.ndarr
     Xc = np.concatenate([projected, np.ones((len(rows), 1))], axis=1) * res.depth[rows][:, None]
     x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
     # d (x/z, y/z) / d Xc, and d Xc / d turn = -[Xc]x, d Xc / d centre = -R
-    D = np.zeros((len(rows), 2, 3))
-    D[:, 0, 0] = D[:, 1, 1] = 1 / z
-    D[:, 0, 2], D[:, 1, 2] = -x / z**2, -y / z**2
+    D = projection_derivative(Xc)
     turn = np.stack([np.stack([D[:, a, 2] * y - D[:, a, 1] * z, D[:, a, 0] * z - D[:, a, 2] * x,
                                D[:, a, 1] * x - D[:, a, 0] * y], axis=1) for a in (0, 1)], axis=1)
     centre = -np.einsum("kab,kbj->kaj", D, R[c])

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wandcal.calib.geometry import projection_derivative
 from wandcal.calib.judge.faults.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
 from wandcal.calib.judge.residuals import Residuals
 
@@ -86,18 +87,8 @@ def _pose_columns(el: Eliminated, c: int, rows: np.ndarray, own: np.ndarray, pro
     cross = np.zeros((len(own), 3, 3))  # d(exp(w) Xc)/dw = -[Xc]x
     cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 0] = Xc[:, 2], -Xc[:, 1], -Xc[:, 2]
     cross[:, 1, 2], cross[:, 2, 0], cross[:, 2, 1] = Xc[:, 0], Xc[:, 1], -Xc[:, 0]
-    D = _derivative(Xc) / el.sigma[c]
+    D = projection_derivative(Xc) / el.sigma[c]
     return proj(np.einsum("kij,kjl->kil", D, cross)), proj(D)
-
-
-def _derivative(Xc: np.ndarray) -> np.ndarray:
-    """(K, 2, 3) the normalised projection's derivative in the camera-frame point Xc (K, 3)."""
-    z = Xc[:, 2]
-    D = np.zeros((len(z), 2, 3))
-    D[:, 0, 0] = D[:, 1, 1] = 1 / z
-    D[:, 0, 2] = -Xc[:, 0] / z**2
-    D[:, 1, 2] = -Xc[:, 1] / z**2
-    return D
 
 
 def _fdtrc(q: int, dof: float, f: float) -> float:
