@@ -140,6 +140,16 @@ def test_ctrl_c_during_the_wand_keeps_a_partial_capture_that_calibrates(tmp_path
     assert read_capture(out).wand.frame.max() < doc["frame_sets"]  # the points level reads, up to the last set
 
 
+def _ctrl_c_at_the_pause(t, out) -> None:
+    """^C at the pause's prompt: exit 130, no traceback, the 5 static sets kept as a partial capture
+    and the message saying how to go on."""
+    t.send(CTRL_C)
+    assert t.finish() == 130
+    assert_clean(t)
+    assert log(out)["state"] == "partial" and log(out)["static_sets"] == 5 and wand_rows(out) == 0
+    assert "kept 0 wand sets and 5 static sets" in t.text and f"same --out {out}" in t.text
+
+
 def test_ctrl_c_at_the_pause_leaves_a_folder_the_same_command_records_into(tmp_path, terminals):
     out = tmp_path / "cap"
     with EmulatorProcess() as emu:
@@ -147,11 +157,7 @@ def test_ctrl_c_at_the_pause_leaves_a_folder_the_same_command_records_into(tmp_p
                 "--frames", "40", "--rate", "200", "--images", "none", "--no-guidance", "--out", str(out)]
         t = terminals(*args)
         t.wait_for(lambda: PROMPT in t.text, "the pause's prompt")
-        t.send(CTRL_C)
-        assert t.finish() == 130
-        assert_clean(t)
-        assert log(out)["state"] == "partial" and log(out)["static_sets"] == 5 and wand_rows(out) == 0
-        assert "kept 0 wand sets and 5 static sets" in t.text and f"same --out {out}" in t.text
+        _ctrl_c_at_the_pause(t, out)
 
         again = terminals(*args)  # the same command, the same --out: accepted, and this time Enter
         again.wait_for(lambda: PROMPT in again.text, "the second run's prompt")
@@ -183,11 +189,7 @@ def test_ctrl_c_in_a_free_running_pause_keeps_the_static_sets(tmp_path, terminal
     out = tmp_path / "cap"
     t = terminals(*FREE_RUN_PAUSE, "--out", str(out))
     t.wait_for(lambda: PROMPT in t.text, "the pause's prompt")
-    t.send(CTRL_C)
-    assert t.finish() == 130
-    assert_clean(t)
-    assert log(out)["state"] == "partial" and log(out)["static_sets"] == 5 and wand_rows(out) == 0
-    assert "kept 0 wand sets and 5 static sets" in t.text and f"same --out {out}" in t.text
+    _ctrl_c_at_the_pause(t, out)
     again = terminals(*FREE_RUN_PAUSE, "--no-pause", "--out", str(out))  # usable: recorded into again
     assert again.finish() == 0, again.text[-3000:]
     assert log(out)["state"] == "complete" and wand_rows(out) == 40

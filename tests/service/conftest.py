@@ -149,9 +149,10 @@ def wait_job(client: httpx.Client, job_id: str, timeout_s: float = JOB_TIMEOUT_S
 EMPTY_CAMERA = 1  # cam2: the camera whose left third of the image the wand never reaches
 
 
-def wandcal(*args):
-    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *args], capture_output=True, text=True, cwd=REPO,
-                          timeout=600, check=False)
+def wandcal(*args, timeout: float = 600) -> subprocess.CompletedProcess:
+    """``wandcal ARGS...`` as a user runs it (arguments may be paths or numbers), from the repository."""
+    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=REPO, timeout=timeout, check=False)
 
 
 def left_third_px(width: int) -> float:

@@ -1,19 +1,13 @@
 """``wandcal check`` and ``wandcal calibrate --from --solve-only`` as a user runs them."""
 
 import json
-import subprocess
-import sys
 
 import pytest
 
+from tests.service.conftest import wandcal
 from wandcal.calib.sim.scenes import knocked_capture
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import write_capture
-
-
-def wandcal(*args):
-    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=600, check=False)
 
 
 @pytest.fixture(scope="module")

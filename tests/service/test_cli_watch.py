@@ -1,18 +1,15 @@
 """``wandcal simulate --take`` and ``wandcal watch RESULT TAKE`` as a user runs them: exit 1 and the
 moved camera named, 0 for a clean take, 2 with a clear message for a take that cannot be watched."""
 
+import functools
 import json
-import subprocess
-import sys
 
 import pytest
 
+from tests.service.conftest import wandcal as run_wandcal
 from wandcal.drivers.capture_files import TAKE_FILE
 
-
-def wandcal(*args):
-    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=900, check=False)
+wandcal = functools.partial(run_wandcal, timeout=900)  # a take's watch: the slowest command these tests run
 
 
 @pytest.fixture(scope="module")

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from tests.service.conftest import wandcal
 from tests.service.test_cli_imports import NOT_FOR_CALIBRATE, loaded_packages
 from wandcal.capture.formats.dlt import read_dlt_csv
 from wandcal.capture.formats.export import FORMAT_NAMES, read_anipose_toml, read_opencv_yaml
@@ -22,9 +21,6 @@ READERS = {
     "xcp": lambda text, doc: read_xcp(text),
 }
 
-
-def wandcal(*args):
-    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *args], capture_output=True, text=True, timeout=600, check=False)
 
 
 @pytest.fixture(scope="module")

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.service.conftest import wandcal
 from tests.service.test_api import app_client  # noqa: F401 (a fixture)
 from wandcal.calib.rig import WandObservations
 from wandcal.calib.sim.scenes import knocked_capture, pairwise_points
@@ -31,10 +30,6 @@ KINDS = ("lframe", "three_marker", "planar", "wand_points", "points_only", "spar
 # guidance fields that say when and how long, not what: they differ between any two runs
 TIMING = {"seconds", "updated", "live"}
 
-
-def wandcal(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=600, check=False)
 
 
 def _write_kind(name: str, folder: Path) -> bool:

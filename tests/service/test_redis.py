@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -245,6 +246,17 @@ def _in_process(tmp_path, url):
     return app, TestClient(app, base_url="http://127.0.0.1/api/v1", raise_server_exceptions=False)
 
 
+@contextlib.contextmanager
+def _one_job(small_capture, url: str, tmp_path):
+    """The in-process app against ``url``, with the small capture stored and one ba job queued:
+    (app, client, job id), the client open."""
+    folder, _ = small_capture
+    app, c = _in_process(tmp_path, url)
+    with c:
+        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
+        yield app, c, c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+
+
 def test_while_redis_is_stopped_reads_answer_from_sqlite_and_the_queue_answers_503(small_capture, stoppable_redis,
                                                                                   tmp_path):
     from wandcal.service.jobs.redis_queue import REDIS_TIMEOUT_S
@@ -285,12 +297,8 @@ def test_a_job_that_redis_lost_is_enqueued_again_and_run_once(small_capture, sto
     from wandcal.service.jobs import redis_queue
 
     monkeypatch.setattr(redis_queue, "VANISHED_AFTER_S", 0.0)  # no enqueue is under way in this test
-    folder, _ = small_capture
     url, _ = stoppable_redis
-    app, c = _in_process(tmp_path, url)
-    with c:
-        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
-        job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+    with _one_job(small_capture, url, tmp_path) as (app, c, job_id):
         Redis.from_url(url).flushall()  # as a Redis without persistence restarts
         job = c.get(f"/jobs/{job_id}").json()
         assert job["state"] == "queued" and "vanished from Redis" in job["progress"]["message"]
@@ -307,12 +315,8 @@ def test_a_finished_record_keeps_its_first_outcome(small_capture, stoppable_redi
 
     from wandcal.service.jobs.records import JobState
 
-    folder, _ = small_capture
     url, _ = stoppable_redis
-    app, c = _in_process(tmp_path, url)
-    with c:
-        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
-        job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+    with _one_job(small_capture, url, tmp_path) as (app, c, job_id):
         queue = app.state.wandcal.queue
         stale = queue.store.get(job_id)  # what a slower poll read before the end was recorded
         (first,) = queue.drain()
@@ -346,12 +350,8 @@ def test_a_job_a_worker_took_and_never_started_is_put_back(small_capture, stoppa
     maintenance, up to 20 minutes later. The server's cleanup puts it back after rq's minute."""
     from wandcal.service.jobs.redis_queue import requeue_untaken
 
-    folder, _ = small_capture
     url, _ = stoppable_redis
-    app, c = _in_process(tmp_path, url)
-    with c:
-        capture_id = c.post("/captures", files=capture_files(folder)).json()["id"]
-        job_id = c.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+    with _one_job(small_capture, url, tmp_path) as (app, c, job_id):
         rq_queue = app.state.wandcal.queue.queue
         redis = app.state.wandcal.queue.redis
         redis.lmove(rq_queue.key, rq_queue.intermediate_queue_key)  # a worker's dequeue; the worker then died

@@ -80,14 +80,20 @@ def test_literal_paper_lp_collapses_and_anchored_does_not():
     assert np.all(err[1:] < 4 * bound[1:])
 
 
-def test_paper_lp_warm_start_reaches_the_cold_optimum():
+def _first_paper_round():
+    """A 4 x 120 rig's paper scheme after its first round: (setup, model, up, X (P, 3) the start's
+    wand points, the height pairs, R1 the first rotation step, (t1, X1, the first LP's solve))."""
     sc = prepared(cameras=4, frames=120, noise_px=NOISE, seed=2)
     setup, m = sc.setup, sc.setup.model
     up = np.array([0.0, 0.0, 1.0])
     X = m.wand(m.x0()).reshape(-1, 3)
     heights = height_pairs(m.R0, m.t0, X, up)
     R1 = rotation_step(m.R0, m.t0, X, setup.problem, m.fixed)
-    t1, X1, first = lp_step(R1, m.t0, X, setup.problem, m.fixed, up, heights=heights)
+    return setup, m, up, X, heights, R1, lp_step(R1, m.t0, X, setup.problem, m.fixed, up, heights=heights)
+
+
+def test_paper_lp_warm_start_reaches_the_cold_optimum():
+    setup, m, up, X, heights, R1, (t1, X1, first) = _first_paper_round()
     assert first.status == "optimal" and first.basis is not None
     # the next round: new rotations change the LP's coefficients, not its shape
     R2 = rotation_step(R1, t1, X1, setup.problem, m.fixed)
@@ -113,13 +119,7 @@ def test_paper_lp_carries_its_structure_from_round_to_round_without_changing_the
 
     from wandcal.calib.solve.backend.arrowlp import solve
 
-    sc = prepared(cameras=4, frames=120, noise_px=NOISE, seed=2)
-    setup, m = sc.setup, sc.setup.model
-    up = np.array([0.0, 0.0, 1.0])
-    X = m.wand(m.x0()).reshape(-1, 3)
-    heights = height_pairs(m.R0, m.t0, X, up)
-    R1 = rotation_step(m.R0, m.t0, X, setup.problem, m.fixed)
-    t1, X1, first = lp_step(R1, m.t0, X, setup.problem, m.fixed, up, heights=heights)
+    setup, m, up, X, heights, R1, (t1, X1, first) = _first_paper_round()
     assert first.basis.sums is not None and first.basis.sums.fits(arrow_lp(R1, m.t0, X, setup.problem, m.fixed, up,
                                                                           heights))
     R2 = rotation_step(R1, t1, X1, setup.problem, m.fixed)
