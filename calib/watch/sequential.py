@@ -159,8 +159,8 @@ class CameraTest:
         shift = np.sqrt(np.einsum("ki,kij,kj->k", d, Hk, d) / np.maximum(count, 1))  # rms image move, px
         S = np.where(shift >= MIN_SHIFT_PX, S, 0.0)
         k = int(np.argmax(S))
-        tested = [i for i in np.flatnonzero(S > GLR_THRESHOLD) if self._persists(first + int(i), end, base)]
-        alarm = float(max(S[tested])) if tested else float(S[S <= GLR_THRESHOLD].max(initial=0.0))
+        lasting = [i for i in np.flatnonzero(S > HALF_THRESHOLD) if self._persists(first + int(i), end, base)]
+        alarm = float(S[lasting].max(initial=0.0))  # a clean take's margin: persistent changes only
         self.peak = max(self.peak, alarm)
         return alarm, first + k, d[k]
 
