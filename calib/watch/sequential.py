@@ -82,7 +82,8 @@ class CameraTest:
     n: list[float] = field(default_factory=list)
     start: list[int] = field(default_factory=list)  # every window's first frame
     alarm: Alarm | None = None
-    peak: float = 0.0  # the largest max_k S_k seen (a clean take's margin below the threshold)
+    peak: float = 0.0  # the largest S_k of a persistent change seen (a clean take's margin below the threshold)
+    raw: float = 0.0  # the last :meth:`glr`'s largest S_k, persistent or not (which camera moved, when several alarm)
 
     def add(self, g: np.ndarray, H: np.ndarray, sse: float, n: float, start: int) -> None:
         self.g.append(g)
@@ -159,6 +160,7 @@ class CameraTest:
         shift = np.sqrt(np.einsum("ki,kij,kj->k", d, Hk, d) / np.maximum(count, 1))  # rms image move, px
         S = np.where(shift >= MIN_SHIFT_PX, S, 0.0)
         k = int(np.argmax(S))
+        self.raw = float(S[k])
         lasting = [i for i in np.flatnonzero(S > HALF_THRESHOLD) if self._persists(first + int(i), end, base)]
         alarm = float(S[lasting].max(initial=0.0))  # a clean take's margin: persistent changes only
         self.peak = max(self.peak, alarm)

@@ -190,22 +190,23 @@ def _test_batch(rig, R, t, padded, tracks: Tracks, tests: list[CameraTest], excl
 
 
 def _add_windows(windows: CameraWindows, tests: list[CameraTest], first: int) -> int | None:
-    """Add each window in turn; at the first window where cameras alarm, name the largest and return
-    it (the others' tests are then run again by the caller); None when none alarms."""
+    """Add each window in turn; at the first window where cameras alarm, name the one with the largest
+    statistic, persistent or not (a moved camera's blobs pull the markers another is tested against,
+    and the other's change may persist first), and return it (the others' tests are then run again
+    by the caller); None when none alarms."""
     w_of = (windows.frames - first) // WINDOW_FRAMES
     for w in np.unique(w_of):
         sel = w_of == w
-        found = []
+        tested = []
         for c, test in enumerate(tests):
             test.add(windows.g[sel, c].sum(0), windows.H[sel, c].sum(0), float(windows.sse[sel, c].sum()),
                      float(windows.n[sel, c].sum()), first + int(w) * WINDOW_FRAMES)
             if test.alarm is None:
                 S, k, d = test.glr()
-                if S > GLR_THRESHOLD:
-                    found.append((S, c, k, d))
-        if found:
-            S, c, k, d = max(found, key=lambda x: x[0])
-            tests[c].alarm = Alarm(c, tests[c].start[k], int(windows.frames[sel].max()), S, d)
+                tested.append((S, test.raw, c, k, d))
+        if any(S > GLR_THRESHOLD for S, *_ in tested):
+            _, raw, c, k, d = max(tested, key=lambda x: x[1])
+            tests[c].alarm = Alarm(c, tests[c].start[k], int(windows.frames[sel].max()), raw, d)
             return c
     return None
 
