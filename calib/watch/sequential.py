@@ -43,7 +43,7 @@ GLR_THRESHOLD = 50.0  # chi2_6 tail 3e-9: see the module's note
 MIN_SHIFT_PX = 0.05  # a change that moves the camera's images less than this (rms) is not reported
 PERSIST_WINDOWS = 3  # each half of an alarm's change spans this many windows or more: longer than the 1-3 window
 #                      bursts of clean takes; a 0.2 deg knock is named ~35 frames after it, inside the goal's 300
-HALF_THRESHOLD = 20.0  # chi2_6 tail 1.4e-3: each half must show the change on its own
+HALF_THRESHOLD = GLR_THRESHOLD  # each half must pass the test on its own
 PRIOR_DOF = 50  # a window's residual variance is shrunk toward the baseline's as if by this many residuals
 #                 (~750 in a window of 40 markers: barely; a window of few markers: its variance not trusted alone)
 KNOCK_FRAMES = 2 * WINDOW_FRAMES  # a move completed within this is a knock
