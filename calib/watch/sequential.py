@@ -13,7 +13,8 @@ is chi-square with 6 degrees of freedom. The test alarms when some ``S_k`` passe
 :data:`GLR_THRESHOLD`, the change moves the camera's images by :data:`MIN_SHIFT_PX` or more (a
 change too small to matter, however sure, is no alarm), and the change **persists**: its windows'
 first half and last half, each of :data:`PERSIST_WINDOWS` windows or more, each show a change past
-:data:`HALF_THRESHOLD` on their own. The k of the largest S_k (persistent or not) is when it moved.
+the same threshold on their own: the alarm's statistic is
+``min(S_k, S of the first half, S of the last half)``. The k of the largest S_k (persistent or not) is when it moved.
 
 Why the persistence: in clean simulated takes the alarms were not a slow creep but bursts of one to
 three windows (10-30 frames) in which a few residuals of high leverage (merged or near-merged
@@ -43,7 +44,7 @@ GLR_THRESHOLD = 50.0  # chi2_6 tail 3e-9: see the module's note
 MIN_SHIFT_PX = 0.05  # a change that moves the camera's images less than this (rms) is not reported
 PERSIST_WINDOWS = 3  # each half of an alarm's change spans this many windows or more: longer than the 1-3 window
 #                      bursts of clean takes; a 0.2 deg knock is named ~35 frames after it, inside the goal's 300
-HALF_THRESHOLD = GLR_THRESHOLD  # each half must pass the test on its own
+PEAK_FLOOR = 20.0  # starts with S_k past this (chi2_6 tail 3e-3) are checked for persistence: the margin's floor
 PRIOR_DOF = 50  # a window's residual variance is shrunk toward the baseline's as if by this many residuals
 #                 (~750 in a window of 40 markers: barely; a window of few markers: its variance not trusted alone)
 KNOCK_FRAMES = 2 * WINDOW_FRAMES  # a move completed within this is a knock
@@ -133,12 +134,13 @@ class CameraTest:
         cov = np.linalg.pinv(Iw, rcond=RCOND, hermitian=True) + np.linalg.pinv(I0, rcond=RCOND, hermitian=True)
         return float(d @ np.linalg.pinv(cov, rcond=RCOND, hermitian=True) @ d)
 
-    def _persists(self, k: int, end: int, base: tuple[np.ndarray, np.ndarray, float]) -> bool:
-        """Whether the change since window k shows in its first half and its last half apart."""
+    def _persistent(self, k: int, end: int, base: tuple[np.ndarray, np.ndarray, float]) -> float:
+        """The smaller S of the change since window k over its first half and its last half apart
+        (each :data:`PERSIST_WINDOWS` windows or more; 0 when the windows are too few)."""
         if end - k < 2 * PERSIST_WINDOWS:
-            return False
+            return 0.0
         mid = k + (end - k) // 2
-        return self._change(k, mid, base) > HALF_THRESHOLD and self._change(mid, end, base) > HALF_THRESHOLD
+        return min(self._change(k, mid, base), self._change(mid, end, base))
 
     def glr(self, last: int | None = None) -> tuple[float, int, np.ndarray]:
         """(the largest S_k of a persistent change, the k of the largest S_k, d_k (6,)) over the
@@ -161,8 +163,9 @@ class CameraTest:
         S = np.where(shift >= MIN_SHIFT_PX, S, 0.0)
         k = int(np.argmax(S))
         self.raw = float(S[k])
-        lasting = [i for i in np.flatnonzero(S > HALF_THRESHOLD) if self._persists(first + int(i), end, base)]
-        alarm = float(S[lasting].max(initial=0.0))  # a clean take's margin: persistent changes only
+        # min(S_k, its halves' S): past GLR_THRESHOLD is an alarm; below it, a clean take's margin
+        alarm = max((min(float(S[i]), self._persistent(first + int(i), end, base)) for i in np.flatnonzero(S > PEAK_FLOOR)),
+                    default=0.0)
         self.peak = max(self.peak, alarm)
         return alarm, first + k, d[k]
 
