@@ -337,6 +337,14 @@ def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated
     return None
 
 
+def screen_views(time: np.ndarray) -> np.ndarray:
+    """(min(K, :data:`SCREEN_VIEWS`),) the views :func:`step_screen` looks at, of K timed ones
+    (time (K,) their capture frames): evenly spaced in time order. Views already so chosen (in
+    time order, at most that many) are all chosen again, in their order."""
+    order = np.argsort(time, kind="stable")
+    return order[np.linspace(0, len(order) - 1, min(len(order), SCREEN_VIEWS)).astype(np.int64)]
+
+
 def step_screen(xy: np.ndarray, r: np.ndarray, time: np.ndarray) -> float:
     """A cheap look for a step in one camera's pose: p-value (Bonferroni over the block
     boundaries; 1 with too few views). Its timed views xy (K, 2) (normalised), their residuals
@@ -350,8 +358,7 @@ def step_screen(xy: np.ndarray, r: np.ndarray, time: np.ndarray) -> float:
     n_blocks = SCREEN_BLOCKS
     if len(xy) < n_blocks * MIN_SIDE:
         return 1.0
-    order = np.argsort(time, kind="stable")
-    order = order[np.linspace(0, len(order) - 1, min(len(order), SCREEN_VIEWS)).astype(np.int64)]
+    order = screen_views(time)
     size = len(order) // n_blocks
     at = order[: n_blocks * size].reshape(n_blocks, size)  # the last views of the remainder left out
     x, y = xy[at, 0], xy[at, 1]
@@ -385,18 +392,22 @@ def step_suspects(res: Residuals, track_frames: np.ndarray | None) -> list[int]:
     :data:`SCREEN_ALPHA`, at most :data:`MAX_STEP_SUSPECTS`, the smallest p first. Timed views:
     the wand's, or the point tracks' (track_frames (T,): each track's capture frame) where there
     is no wand."""
-    wand = res.point >= 0
-    if wand.any():
-        timed, time = wand, res.frames[np.maximum(res.point, 0) // 2]
-    elif track_frames is not None and len(track_frames):
-        timed, time = np.ones(len(res.point), bool), track_frames[-1 - res.point]
-    else:
+    wand = bool((res.point >= 0).any())
+    if not wand and (track_frames is None or not len(track_frames)):
         return []
     p = []
     for c in range(int(res.camera.max()) + 1 if len(res.camera) else 0):
         rows = res.rows_of(c)
-        rows = rows[timed[rows]]
-        p.append((step_screen(res.xy[rows], res.residual[rows], time[rows]), c))
+        point = res.point[rows]
+        if wand:
+            rows, point = rows[point >= 0], point[point >= 0]
+            time = res.frames[point // 2]
+        else:
+            time = track_frames[-1 - point]
+        # the screen's views chosen first, then only theirs gathered (step_screen chooses the same again)
+        pick = screen_views(time) if len(rows) >= SCREEN_BLOCKS * MIN_SIDE else slice(None)
+        rows, time = rows[pick], time[pick]
+        p.append((step_screen(np.take(res.xy, rows, axis=0), np.take(res.residual, rows, axis=0), time), c))
     return [c for pc, c in sorted(p) if pc < SCREEN_ALPHA][:MAX_STEP_SUSPECTS]
 
 
