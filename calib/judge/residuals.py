@@ -77,10 +77,11 @@ def _depths(R: np.ndarray, t: np.ndarray, camera: np.ndarray, X: np.ndarray) -> 
     return np.einsum("mj,mj->m", np.take(R[:, 2, :], camera, axis=0), X) + t[camera, 2]
 
 
-def _wand_points(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known) -> np.ndarray:
+def _wand_points(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known, flat) -> np.ndarray:
     """(2F, 3) every labelled frame's ends: the solver's where it holds them (``known``: capture
-    frame numbers (F2,) and ends (F2, 2, 3), world frame), triangulated with all cameras elsewhere."""
-    point, camera, xy = flatten(pairs)
+    frame numbers (F2,) and ends (F2, 2, 3), world frame), triangulated with all cameras elsewhere.
+    flat: ``flatten(pairs)``."""
+    point, camera, xy = flat
     n = 2 * len(pairs.frames)
     if known is None or not len(known[0]) or np.shape(known[1])[1:] != (2, 3):
         return triangulate_points(R, t, point, camera, xy, n)
@@ -105,8 +106,8 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
     of its frame's triangulation (worst first, as the refinement does), so that its error stays with
     its own camera instead of spreading over the frame's others. R, t: (N, 3, 3), (N, 3) final
     poses; focal: (N, 2) fx, fy."""
-    point, camera, xy = flatten(pairs)
-    X = _wand_points(R, t, pairs, known)
+    point, camera, xy = flat = flatten(pairs)
+    X = _wand_points(R, t, pairs, known, flat)
     residual = reprojection_errors(R, t, point, camera, xy, X)  # kept where the points stay as they are
     first = np.linalg.norm(residual * np.take(focal, camera, axis=0), axis=1)
     first_camera = camera
@@ -116,8 +117,8 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
         first = np.concatenate([first, np.linalg.norm(track_res * focal[tracks.camera], axis=1)])
         first_camera = np.concatenate([camera, tracks.camera])
     finite = np.isfinite(first)
-    sigmas = [robust_sigma(first[rows[finite[rows]]])
-              for rows in camera_rows(first_camera, int(first_camera.max()) + 1 if len(first_camera) else 0) if len(rows)]
+    by_camera = camera_rows(first_camera, int(first_camera.max()) + 1 if len(first_camera) else 0)
+    sigmas = [robust_sigma(first[rows[finite[rows]]]) for rows in by_camera if len(rows)]
     limit = max(OUTLIER_SIGMAS * float(np.median(sigmas)) if sigmas else 0.0, MIN_OUTLIER_PX)
     P = len(pairs)
     worst = np.fmax(first[:P], first[P:len(point)]) if P else np.zeros(0)
@@ -144,6 +145,13 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
     ok = np.all(np.isfinite(residual), axis=1)
     pts = np.concatenate(cloud)
     lo, hi = np.percentile(pts, EXTENT_QUANTILES, axis=0) if len(pts) else (np.zeros(3), np.zeros(3))
+    if ok.all():  # every row kept (a clean rig): no copies, and the rows by camera as sorted above
+        out = Residuals(camera=camera, point=point, xy=xy, residual=residual,
+                        focal=np.linalg.norm(np.take(focal, camera, axis=0), axis=1) / np.sqrt(2), depth=depth,
+                        outlier=outlier, X=X, frames=pairs.frames, extent=float(np.linalg.norm(hi - lo)) / EXTENT_SHARE,
+                        limit_px=limit)
+        out.__dict__["_rows"] = by_camera  # Residuals._rows, the same camera_rows of the same cameras
+        return out
     return Residuals(camera=camera[ok], point=point[ok], xy=xy[ok], residual=residual[ok],
                      focal=np.linalg.norm(np.take(focal, camera[ok], axis=0), axis=1) / np.sqrt(2), depth=depth[ok], outlier=outlier[ok],
                      X=X, frames=pairs.frames, extent=float(np.linalg.norm(hi - lo)) / EXTENT_SHARE, limit_px=limit)
@@ -155,7 +163,8 @@ def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
     outliers against the rig's limit), ``ray_mrad`` (the inliers' RMS ray angle) and
     ``ray_distance`` (their RMS ray distance from the points, in the capture's units: metres with a
     wand) and ``residual_mm`` (the same in millimetres; None when ``scaled`` is False)."""
-    err = res.error_px
+    angles = np.linalg.norm(res.residual, axis=1)  # every row's ray angle once (error_px's norm)
+    err = angles * res.focal
     out: list[dict] = []
     for c in range(n_cameras):
         sel = res.rows_of(c)
@@ -165,7 +174,7 @@ def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
                         "outlier_share": None, "ray_mrad": None, "ray_distance": None, "residual_mm": None})
             continue
         inl = ~res.outlier[sel]
-        angle = np.linalg.norm(np.take(res.residual, sel, axis=0), axis=1)[inl]  # take: a 2-D gather, cheaper
+        angle = angles[sel][inl]
         # the ray's distance at the camera's typical depth: a point triangulated from nearly
         # parallel rays lies far off, and its depth would weigh more than all the others
         ray = angle * float(np.median(np.abs(res.depth[sel][inl]))) if inl.any() else angle
