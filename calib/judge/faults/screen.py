@@ -138,17 +138,17 @@ def _pose_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray, differences: bool
     Xc = RX + t
     z = Xc[:, 2]
     x, y = Xc[:, 0] / z, Xc[:, 1] / z
-    zero = np.zeros(len(X))
-    # e_j x RX for j = 0, 1, 2, then the translations' e_j: (6, K, 3) the camera-frame motions
-    moves = np.stack([np.stack([zero, -RX[:, 2], RX[:, 1]], axis=1), np.stack([RX[:, 2], zero, -RX[:, 0]], axis=1),
-                      np.stack([-RX[:, 1], RX[:, 0], zero], axis=1)])
-    cols = np.empty((2 * len(X), 6))
-    for j in range(6):
-        v = moves[j] if j < 3 else np.eye(3)[j - 3][None, :]
-        v = np.broadcast_to(v, (len(X), 3))
-        cols[0::2, j] = (v[:, 0] - x * v[:, 2]) / z
-        cols[1::2, j] = (v[:, 1] - y * v[:, 2]) / z
-    return cols
+    # e_j x RX for j = 0, 1, 2, then the translations' e_j: (6, K, 3) the camera-frame motions,
+    # each column (v_x - x v_z) / z, (v_y - y v_z) / z, all six in one pass
+    moves = np.zeros((6, len(X), 3))
+    moves[0, :, 1], moves[0, :, 2] = -RX[:, 2], RX[:, 1]
+    moves[1, :, 0], moves[1, :, 2] = RX[:, 2], -RX[:, 0]
+    moves[2, :, 0], moves[2, :, 1] = -RX[:, 1], RX[:, 0]
+    moves[3:, :, :] = np.eye(3)[:, None, :]
+    cols = np.empty((len(X), 2, 6))
+    cols[:, 0, :] = ((moves[:, :, 0] - x * moves[:, :, 2]) / z).T
+    cols[:, 1, :] = ((moves[:, :, 1] - y * moves[:, :, 2]) / z).T
+    return cols.reshape(2 * len(X), 6)
 
 
 def resect(R: np.ndarray, t: np.ndarray, X: np.ndarray, xy: np.ndarray, iterations: int = 6):
