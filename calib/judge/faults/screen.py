@@ -24,6 +24,7 @@ limits.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -119,6 +120,35 @@ def _trimmed(r: np.ndarray) -> np.ndarray:
     return np.isfinite(e) & (e <= TRIM_SIGMAS * max(robust_sigma(e[np.isfinite(e)]), 1e-12))
 
 
+@lru_cache(maxsize=None)
+def _step_turn(j: int) -> np.ndarray:
+    """(3, 3) the turn of pose parameter j's finite-difference step (the identity for a translation's)."""
+    step = np.zeros(3)
+    if j < 3:
+        step[j] = POSE_STEP
+    return rotvec_to_matrix(step)
+
+
+def _pose_differences(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """:func:`_pose_columns` by forward differences of :data:`POSE_STEP`: each step's projection
+    ``X (exp(w) R)^T + t + dt`` over the base's. A translation's step leaves the turned rotation
+    R itself (bit for bit): its points' rotation is the base's, not multiplied again."""
+    RX = X @ R.T
+    base = _divided(RX + t)
+    cols = np.empty((2 * len(X), 6))
+    for j in range(6):
+        step = np.zeros(6)
+        step[j] = POSE_STEP
+        turned = _step_turn(j) @ R
+        same = R.flags.c_contiguous and turned.tobytes() == R.tobytes()
+        cols[:, j] = ((_divided((RX if same else X @ turned.T) + (t + step[3:])) - base) / POSE_STEP).ravel()
+    return cols
+
+
+def _divided(Xc: np.ndarray) -> np.ndarray:
+    return Xc[:, :2] / Xc[:, 2:]
+
+
 def _pose_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray, differences: bool = False) -> np.ndarray:
     """(2K, 6) the projection's derivative with respect to the camera's rotation increment
     (``R -> exp(w) R``) and translation, at points X (K, 3); rows x0, y0, x1, y1, ...
@@ -127,13 +157,7 @@ def _pose_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray, differences: bool
     differences of :data:`POSE_STEP` as before, for figures a result writes (the focal limit's, to
     its last digit; the two differ by ~1e-6 of a column)."""
     if differences:
-        base = _project(R, t, X)
-        cols_fd = []
-        for j in range(6):
-            step = np.zeros(6)
-            step[j] = POSE_STEP
-            cols_fd.append(((_project(rotvec_to_matrix(step[:3]) @ R, t + step[3:], X) - base) / POSE_STEP).ravel())
-        return np.stack(cols_fd, axis=1)
+        return _pose_differences(R, t, X)
     RX = X @ R.T
     Xc = RX + t
     z = Xc[:, 2]
