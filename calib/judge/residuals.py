@@ -15,7 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
-from wandcal.calib.geometry import projection_derivative
+from wandcal.calib.geometry import finite_rows, projection_derivative, row_norms
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS, reject_worst_per_frame
 from wandcal.calib.observations import PointTracks, WandPairs, camera_rows, robust_sigma
 from wandcal.calib.start.labels import flatten
@@ -61,7 +61,7 @@ class Residuals:
     @property
     def error_px(self) -> np.ndarray:
         """(M,) residual magnitudes, pixels (normalised residuals times the mean focal length)."""
-        return np.linalg.norm(self.residual, axis=1) * self.focal
+        return row_norms(self.residual) * self.focal
 
     @cached_property
     def _rows(self) -> list[np.ndarray]:
@@ -109,12 +109,12 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
     point, camera, xy = flat = flatten(pairs)
     X = _wand_points(R, t, pairs, known, flat)
     residual = reprojection_errors(R, t, point, camera, xy, X)  # kept where the points stay as they are
-    first = np.linalg.norm(residual * np.take(focal, camera, axis=0), axis=1)
+    first = row_norms(residual * np.take(focal, camera, axis=0))
     first_camera = camera
     if tracks is not None and len(tracks):
         points = triangulate_points(R, t, tracks.track, tracks.camera, tracks.xy, int(tracks.track.max()) + 1)
         track_res = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, points)
-        first = np.concatenate([first, np.linalg.norm(track_res * focal[tracks.camera], axis=1)])
+        first = np.concatenate([first, row_norms(track_res * focal[tracks.camera])])
         first_camera = np.concatenate([camera, tracks.camera])
     finite = np.isfinite(first)
     by_camera = camera_rows(first_camera, int(first_camera.max()) + 1 if len(first_camera) else 0)
@@ -133,27 +133,27 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
         residual = reprojection_errors(R, t, point, camera, xy, X)
     depth = _depths(R, t, camera, np.take(X, point, axis=0))
     outlier = ~np.concatenate([keep, keep])
-    cloud = [X[np.all(np.isfinite(X), axis=1)]]
+    cloud = [X[finite_rows(X)]]
     if tracks is not None and len(tracks):
         camera = np.concatenate([camera, tracks.camera])
         point = np.concatenate([point, -1 - tracks.track])
         xy = np.concatenate([xy, tracks.xy])
         residual = np.concatenate([residual, track_res])
         depth = np.concatenate([depth, _depths(R, t, tracks.camera, points[tracks.track])])
-        outlier = np.concatenate([outlier, np.linalg.norm(track_res * focal[tracks.camera], axis=1) > limit])
-        cloud.append(points[np.all(np.isfinite(points), axis=1)])
-    ok = np.all(np.isfinite(residual), axis=1)
+        outlier = np.concatenate([outlier, row_norms(track_res * focal[tracks.camera]) > limit])
+        cloud.append(points[finite_rows(points)])
+    ok = finite_rows(residual)
     pts = np.concatenate(cloud)
     lo, hi = np.percentile(pts, EXTENT_QUANTILES, axis=0) if len(pts) else (np.zeros(3), np.zeros(3))
     if ok.all():  # every row kept (a clean rig): no copies, and the rows by camera as sorted above
         out = Residuals(camera=camera, point=point, xy=xy, residual=residual,
-                        focal=np.linalg.norm(np.take(focal, camera, axis=0), axis=1) / np.sqrt(2), depth=depth,
+                        focal=np.take(row_norms(focal) / np.sqrt(2), camera), depth=depth,
                         outlier=outlier, X=X, frames=pairs.frames, extent=float(np.linalg.norm(hi - lo)) / EXTENT_SHARE,
                         limit_px=limit)
         out.__dict__["_rows"] = by_camera  # Residuals._rows, the same camera_rows of the same cameras
         return out
     return Residuals(camera=camera[ok], point=point[ok], xy=xy[ok], residual=residual[ok],
-                     focal=np.linalg.norm(np.take(focal, camera[ok], axis=0), axis=1) / np.sqrt(2), depth=depth[ok], outlier=outlier[ok],
+                     focal=np.take(row_norms(focal) / np.sqrt(2), camera[ok]), depth=depth[ok], outlier=outlier[ok],
                      X=X, frames=pairs.frames, extent=float(np.linalg.norm(hi - lo)) / EXTENT_SHARE, limit_px=limit)
 
 
@@ -163,7 +163,7 @@ def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
     outliers against the rig's limit), ``ray_mrad`` (the inliers' RMS ray angle) and
     ``ray_distance`` (their RMS ray distance from the points, in the capture's units: metres with a
     wand) and ``residual_mm`` (the same in millimetres; None when ``scaled`` is False)."""
-    angles = np.linalg.norm(res.residual, axis=1)  # every row's ray angle once (error_px's norm)
+    angles = row_norms(res.residual)  # every row's ray angle once (error_px's norm)
     err = angles * res.focal
     out: list[dict] = []
     for c in range(n_cameras):
@@ -202,7 +202,7 @@ def held_out(R: np.ndarray, t: np.ndarray, pairs: WandPairs, c: int) -> tuple[np
     point, camera, xy = flatten(sub)
     X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames))
     p_own, _, xy_own = flatten(pairs.subset(~others))
-    seen = np.all(np.isfinite(X[p_own]), axis=1)
+    seen = finite_rows(X[p_own])
     return p_own[seen], xy_own[seen], X
 
 
@@ -218,7 +218,7 @@ def median_ray_angle(R: np.ndarray, res: Residuals) -> float | None:
     sample = np.flatnonzero(res.point % stride == 0)
     ray = np.concatenate([res.xy[sample] - res.residual[sample], np.ones((len(sample), 1))], axis=1)  # the projected point's ray
     ray = np.einsum("mji,mj->mi", np.take(R, res.camera[sample], axis=0), ray)  # camera -> world directions
-    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    ray /= row_norms(ray)[:, None]
     order = np.argsort(res.point[sample], kind="stable")
     k, r = res.point[sample][order], ray[order]
     first = np.r_[True, k[1:] != k[:-1]]

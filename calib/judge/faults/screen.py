@@ -28,7 +28,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.geometry import finite_rows, rotvec_to_matrix, row_norms
 from wandcal.calib.observations import robust_sigma
 
 MAX_SHIFT_FRAMES = 10  # the whole-frame search; a larger offset is a recording of another take
@@ -116,7 +116,7 @@ def _shifted(table: np.ndarray, at: np.ndarray, near: np.ndarray) -> np.ndarray:
 
 def _trimmed(r: np.ndarray) -> np.ndarray:
     """(K,) bool: residual rows (K, 2) within :data:`TRIM_SIGMAS` robust sigmas."""
-    e = np.linalg.norm(r, axis=1)
+    e = row_norms(r)
     return np.isfinite(e) & (e <= TRIM_SIGMAS * max(robust_sigma(e[np.isfinite(e)]), 1e-12))
 
 
@@ -178,7 +178,7 @@ def _pose_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray, differences: bool
 def resect(R: np.ndarray, t: np.ndarray, X: np.ndarray, xy: np.ndarray, iterations: int = 6):
     """The camera's pose refitted to points X (K, 3) seen at xy (K, 2) by Gauss-Newton from (R, t),
     leaving out residuals beyond :data:`TRIM_SIGMAS`. Returns (R, t, residual (K, 2), kept (K,))."""
-    ok = np.all(np.isfinite(X), axis=1)
+    ok = finite_rows(X)
     for _ in range(iterations):
         r = _project(R, t, X) - xy
         keep = ok & _trimmed(np.where(ok[:, None], r, np.nan))
@@ -236,7 +236,7 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
         if np.isfinite(ends).all(axis=1).sum() < len(point) // 2:
             continue
         Rd, td, r, keep = resect(R, t, ends, xy)
-        fits[d] = (np.median(np.linalg.norm(r[keep], axis=1)) if keep.any() else np.inf, Rd, td, ends)
+        fits[d] = (np.median(row_norms(r[keep])) if keep.any() else np.inf, Rd, td, ends)
     if not fits:
         return None, None
     best = min(fits, key=lambda d: fits[d][0])
@@ -244,7 +244,7 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
     v = (_project(Rb, tb, _shifted(table, row - best + 1, here))
          - _project(Rb, tb, _shifted(table, row - best - 1, here))) / 2  # image velocity per frame
     r = _project(Rb, tb, here) - xy
-    keep = _trimmed(r) & np.all(np.isfinite(v), axis=1) & np.all(np.isfinite(here), axis=1)
+    keep = _trimmed(r) & finite_rows(v) & finite_rows(here)
     if keep.sum() < 20:
         return None, None
     pose = _pose_columns(Rb, tb, here[keep])
@@ -259,7 +259,7 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
         np.concatenate([pose, v[keep].reshape(-1, 1)], axis=1), y, rcond=None)[0]
     sigma = np.sqrt(np.sum(left**2) / max(len(y) - 7, 1))
     vv = np.einsum("ki,ki->", v[keep], v[keep])
-    speed = float(np.median(np.linalg.norm(v[keep], axis=1)))
+    speed = float(np.median(row_norms(v[keep])))
     # c's frame k matched the others' k - best - frac: exposed then (docs/result-format.md's sign)
     offset = -(best + frac)
     timing = TimingFault(offset_frames=offset, offset_std_frames=float(sigma / np.sqrt(vv)) if vv > 0 else np.inf,
@@ -314,6 +314,6 @@ def lens_screen(R: np.ndarray, t: np.ndarray, res, c: int) -> Lens | None:
     sel = sel[:: max(1, len(sel) // SCREEN_ROWS)]
     X = np.take(res.X, res.point[sel], axis=0)  # take: a 2-D gather at a tenth of indexing's cost
     xy, r = np.take(res.xy, sel, axis=0), np.take(res.residual, sel, axis=0)
-    ok = np.all(np.isfinite(X), axis=1)
+    ok = finite_rows(X)
     X, xy, r = X[ok], xy[ok], r[ok]
     return _lens_fit(r.ravel(), _pose_columns(R[c], t[c], X), xy)
