@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.geometry import finite_rows, rotvec_to_matrix
 from wandcal.calib.judge.faults.screen import _pose_columns
 
 GIVEN_IN_RIG = "given"  # the source of a focal sigma the rig gives (the camera's focal_std_px); else "default"
@@ -87,7 +87,7 @@ def focal_limit(R: np.ndarray, t: np.ndarray, xy_projected: np.ndarray, depth: n
     ``1 - 1/n`` of it (a point of two views, half): the focal column is weighted so. On Brown 1 and
     2 with a focal length 3% off the cameras moved 3.3-4.5 mm per 1%; the fit with the points held
     gave 6-9, with this weighting about 4."""
-    ok = np.isfinite(depth) & (depth > 0) & np.all(np.isfinite(xy_projected), axis=1)
+    ok = np.isfinite(depth) & (depth > 0) & finite_rows(xy_projected)
     if ok.sum() < MIN_ROWS:
         return None
     idx = np.flatnonzero(ok)

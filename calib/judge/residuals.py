@@ -216,14 +216,15 @@ def median_ray_angle(R: np.ndarray, res: Residuals) -> float | None:
     # whose index falls on a stride (all their rays, so each point's first ray is among them)
     stride = max(1, -(-(int(res.point.max()) - int(res.point.min()) + 1) // RAY_ANGLE_POINTS))  # at most that many
     sample = np.flatnonzero(res.point % stride == 0)
-    ray = np.concatenate([res.xy[sample] - res.residual[sample], np.ones((len(sample), 1))], axis=1)  # the projected point's ray
+    ray = np.concatenate([np.take(res.xy, sample, axis=0) - np.take(res.residual, sample, axis=0), np.ones((len(sample), 1))],
+                         axis=1)  # the projected point's ray
     ray = np.einsum("mji,mj->mi", np.take(R, res.camera[sample], axis=0), ray)  # camera -> world directions
     ray /= row_norms(ray)[:, None]
     order = np.argsort(res.point[sample], kind="stable")
-    k, r = res.point[sample][order], ray[order]
+    k, r = np.take(res.point[sample], order), np.take(ray, order, axis=0)
     first = np.r_[True, k[1:] != k[:-1]]
     lead = np.maximum.accumulate(np.where(first, np.arange(len(k)), 0))
-    cos = np.einsum("mi,mi->m", r, r[lead])[~first]
+    cos = np.einsum("mi,mi->m", r, np.take(r, lead, axis=0))[~first]
     return float(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))) if len(cos) else None
 
 
@@ -240,7 +241,7 @@ def _place_rows(R: np.ndarray, res: Residuals, rows: np.ndarray, views: np.ndarr
     D = projection_derivative(Xc)
     turn = np.stack([np.stack([D[:, a, 2] * y - D[:, a, 1] * z, D[:, a, 0] * z - D[:, a, 2] * x,
                                D[:, a, 1] * x - D[:, a, 0] * y], axis=1) for a in (0, 1)], axis=1)
-    centre = -np.einsum("kab,kbj->kaj", D, R[c])
+    centre = -np.einsum("kab,kbj->kaj", D, np.take(R, c, axis=0))
     weight = np.sqrt(1.0 - 1.0 / np.maximum(views, 2))[:, None, None]
     return np.concatenate([turn, centre], axis=2) * weight
 

@@ -363,7 +363,9 @@ def step_screen(xy: np.ndarray, r: np.ndarray, time: np.ndarray) -> float:
     at = order[: n_blocks * size].reshape(n_blocks, size)  # the last views of the remainder left out
     x, y = xy[at, 0], xy[at, 1]
     # the image motion of a turn about the centre, d(projection of exp(w) (x, y, 1))/dw: (B, S, 2, 3)
-    G = np.stack([np.stack([-x * y, 1 + x**2, -y], axis=-1), np.stack([-1 - y**2, x * y, x], axis=-1)], axis=2)
+    G = np.empty(x.shape + (2, 3))
+    G[..., 0, 0], G[..., 0, 1], G[..., 0, 2] = -x * y, 1 + x**2, -y
+    G[..., 1, 0], G[..., 1, 1], G[..., 1, 2] = -1 - y**2, x * y, x
     rb = r[at]
     e2 = rb[..., 0] ** 2 + rb[..., 1] ** 2  # np.sum(rb**2, axis=2) bit for bit, without its per-row reduction
     ok = e2 <= TRIM_SIGMAS**2 * np.maximum(np.median(e2, axis=1, keepdims=True), 1e-30)
