@@ -24,7 +24,7 @@ limits.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -120,7 +120,7 @@ def _trimmed(r: np.ndarray) -> np.ndarray:
     return np.isfinite(e) & (e <= TRIM_SIGMAS * max(robust_sigma(e[np.isfinite(e)]), 1e-12))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _step_turn(j: int) -> np.ndarray:
     """(3, 3) the turn of pose parameter j's finite-difference step (the identity for a translation's)."""
     step = np.zeros(3)
