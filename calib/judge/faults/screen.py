@@ -315,5 +315,6 @@ def lens_screen(R: np.ndarray, t: np.ndarray, res, c: int) -> Lens | None:
     X = np.take(res.X, res.point[sel], axis=0)  # take: a 2-D gather at a tenth of indexing's cost
     xy, r = np.take(res.xy, sel, axis=0), np.take(res.residual, sel, axis=0)
     ok = finite_rows(X)
-    X, xy, r = X[ok], xy[ok], r[ok]
+    if not ok.all():
+        X, xy, r = X[ok], xy[ok], r[ok]
     return _lens_fit(r.ravel(), _pose_columns(R[c], t[c], X), xy)
