@@ -16,8 +16,7 @@ import re
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.judge.coverage import coverage_grid, covered_fraction, empty_regions
-from wandcal.calib.observations import camera_rows
+from wandcal.calib.judge.coverage import coverage_grids, covered_fraction, empty_regions
 from wandcal.calib.rig import LISTED_CAMERAS, Rig, camera_list, folded
 
 LEVELS = ("excellent", "good", "poor")
@@ -135,11 +134,8 @@ def at_limit_text(entry: dict) -> str:
 def coverage_reports(rig: Rig, camera: np.ndarray, uv: np.ndarray) -> list[dict]:
     """Per camera: ``coverage`` (share of the grid holding wand samples) and ``uncovered`` (the
     empty parts in words). camera: (M,) index; uv: (M, 2) raw pixels of the observations used."""
-    out = []
-    for cam, rows in zip(rig.cameras, camera_rows(camera, len(rig.cameras))):
-        counts = coverage_grid(np.take(uv, rows, axis=0), cam.width, cam.height)  # take: tA, a cheaper 2-D gather
-        out.append({"coverage": covered_fraction(counts), "uncovered": empty_regions(counts)})
-    return out
+    grids = coverage_grids(camera, uv, [(cam.width, cam.height) for cam in rig.cameras])  # all cameras in one pass
+    return [{"coverage": covered_fraction(counts), "uncovered": empty_regions(counts)} for counts in grids]
 
 
 def _limits(limits: tuple[float, ...], fmt: str, higher: bool = False) -> str:
