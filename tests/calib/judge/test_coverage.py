@@ -1,6 +1,13 @@
 import numpy as np
 
-from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, coverage_grids, covered_fraction, empty_regions
+from wandcal.calib.judge.coverage import (
+    GRID,
+    coverage_advice,
+    coverage_grid,
+    coverage_grids,
+    covered_fraction,
+    empty_regions,
+)
 
 W, H = 1280, 1024
 
