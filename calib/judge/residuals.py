@@ -98,6 +98,17 @@ def _wand_points(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known, flat) ->
     return X
 
 
+def _rows_by_camera(pair_camera: np.ndarray, track_camera: np.ndarray | None, n: int) -> list[np.ndarray]:
+    """:func:`camera_rows` of the observations :func:`observation_residuals` lays out (every pair's
+    first end, every pair's second end, then the point tracks: pair_camera (P,), track_camera (T,)
+    or None), each camera's rows ascending, from a sort of the P pairs and the T tracks alone."""
+    P = len(pair_camera)
+    pieces = [camera_rows(pair_camera, n)]
+    tracked = camera_rows(track_camera, n) if track_camera is not None else None
+    return [np.concatenate([rows, rows + P] + ([tracked[c] + 2 * P] if tracked is not None else []))
+            for c, rows in enumerate(pieces[0])]
+
+
 def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks: PointTracks | None,
                           focal: np.ndarray, known: tuple[np.ndarray, np.ndarray] | None = None) -> Residuals:
     """Measure every labelled wand observation and point track against its point: the solver's
@@ -117,7 +128,8 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
         first = np.concatenate([first, row_norms(track_res * focal[tracks.camera])])
         first_camera = np.concatenate([camera, tracks.camera])
     finite = np.isfinite(first)
-    by_camera = camera_rows(first_camera, int(first_camera.max()) + 1 if len(first_camera) else 0)
+    by_camera = _rows_by_camera(pairs.camera, tracks.camera if tracks is not None and len(tracks) else None,
+                                int(first_camera.max()) + 1 if len(first_camera) else 0)
     sigmas = [robust_sigma(first[rows[finite[rows]]]) for rows in by_camera if len(rows)]
     limit = max(OUTLIER_SIGMAS * float(np.median(sigmas)) if sigmas else 0.0, MIN_OUTLIER_PX)
     P = len(pairs)
