@@ -251,11 +251,14 @@ def _place_rows(R: np.ndarray, res: Residuals, rows: np.ndarray, views: np.ndarr
     x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
     # d (x/z, y/z) / d Xc, and d Xc / d turn = -[Xc]x, d Xc / d centre = -R
     D = projection_derivative(Xc)
-    turn = np.stack([np.stack([D[:, a, 2] * y - D[:, a, 1] * z, D[:, a, 0] * z - D[:, a, 2] * x,
-                               D[:, a, 1] * x - D[:, a, 0] * y], axis=1) for a in (0, 1)], axis=1)
-    centre = -np.einsum("kab,kbj->kaj", D, np.take(R, c, axis=0))
-    weight = np.sqrt(1.0 - 1.0 / np.maximum(views, 2))[:, None, None]
-    return np.concatenate([turn, centre], axis=2) * weight
+    J = np.empty((len(rows), 2, 6))  # the turn's three columns, then the centre's, written in place
+    for a in (0, 1):
+        J[:, a, 0] = D[:, a, 2] * y - D[:, a, 1] * z
+        J[:, a, 1] = D[:, a, 0] * z - D[:, a, 2] * x
+        J[:, a, 2] = D[:, a, 1] * x - D[:, a, 0] * y
+    J[:, :, 3:] = -np.einsum("kab,kbj->kaj", D, np.take(R, c, axis=0))
+    J *= np.sqrt(1.0 - 1.0 / np.maximum(views, 2))[:, None, None]
+    return J
 
 
 def place_sigma_errors(R: np.ndarray, res: Residuals, n_cameras: int) -> list[float | None]:
@@ -282,7 +285,7 @@ def place_sigma_errors(R: np.ndarray, res: Residuals, n_cameras: int) -> list[fl
     for mine in camera_rows(res.camera[inl], n_cameras):
         _, group = np.unique(unit_index[mine], return_inverse=True)
         n = int(group.max()) + 1 if len(group) else 0
-        rows = J[mine].reshape(-1, 6)
+        rows = np.take(J, mine, axis=0).reshape(-1, 6)
         try:
             cov = np.linalg.inv(rows.T @ rows) if n >= 2 else None
         except np.linalg.LinAlgError:
