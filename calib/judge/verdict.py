@@ -145,12 +145,11 @@ def geometry_limits(report: dict, obs: int) -> tuple[tuple[float, float], float,
     session (rays 1.0-1.4e-3 of its volume off) turned poor on 60% of its frames. The residual's
     standard error (an RMS's, of ``obs`` observations) counts with the sigma's where it is the limit.
     """
-    good = GEOMETRY_OF_VOLUME[1]
-    rel = report.get("residual_of_volume")
-    own = rel is not None and np.isfinite(rel) and rel > good
-    if not own:
+    got = report.get("residual_of_volume")
+    rel = float(got) if got is not None else float("nan")
+    if not rel > GEOMETRY_OF_VOLUME[1]:  # NaN too
         return GEOMETRY_OF_VOLUME, 0.0, False
-    limit = min(float(rel), RESIDUAL_OF_VOLUME[1])
+    limit = min(rel, RESIDUAL_OF_VOLUME[1])
     return (GEOMETRY_OF_VOLUME[0], limit), (rms_std(limit, obs) if limit == rel else 0.0), True
 
 
