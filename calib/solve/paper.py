@@ -424,7 +424,7 @@ def fixed_point_on_basis(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: W
         here = _on_basis(R, t, X, problem, fixed, up, heights, basis)
         if here is None:
             return None
-        F0 = _round_turn(R, *here, problem, fixed)
+        F0 = _round_turn(R, here[0], here[1], problem, fixed)
         if np.abs(F0).max() < FIXED_POINT_TOL and np.abs(here[1] - X).max() < FIXED_POINT_TOL:
             return R, here[0], here[1]
         J = np.empty((len(F0), len(F0)))
@@ -433,7 +433,7 @@ def fixed_point_on_basis(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: W
             near = _on_basis(Rj, t, X, problem, fixed, up, heights, basis)
             if near is None:
                 return None
-            J[:, j] = (_round_turn(Rj, *near, problem, fixed) - F0) / FIXED_POINT_EPS
+            J[:, j] = (_round_turn(Rj, near[0], near[1], problem, fixed) - F0) / FIXED_POINT_EPS
         R, (t, X) = _turn_free(R, np.linalg.solve(J, -F0), free), here
     return None
 
@@ -451,7 +451,7 @@ def _basis_named(lp, v: np.ndarray):
     return Basis(basic, ~basic[:K] & (reduced < 0))
 
 
-def _on_basis(R, t, X, problem: WandProblem, fixed, up, heights, basis):
+def _on_basis(R, t, X, problem: WandProblem, fixed, up, heights, basis) -> tuple[np.ndarray, np.ndarray] | None:
     """(t, X (P, 3)) at the vertex of ``basis`` in the anchored LP at rotations ``R`` (its wand
     row linearised about ``X``), or None where that basis is not optimal there."""
     from wandcal.calib.solve.backend.arrowlp import vertex
