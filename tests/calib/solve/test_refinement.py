@@ -152,8 +152,8 @@ def test_paper_method_runs_to_a_fixed_point():
     # bench/bench_acceptance.py measures it at 8 x 1500.
 
 
-@pytest.mark.xfail(strict=True, reason="decision 0045: the window stop ends the jumping and the plain rounds "
-                                       "367 um apart on this rig; a stop that finds the fixed point is still to come")
+@pytest.mark.xfail(strict=True, reason="decisions 0045, 0049d: the jumping rounds stop 365 um from the fixed point "
+                                       "that fixed_point_on_basis certifies on this rig, the plain rounds 2.2 um")
 def test_paper_jumps_reach_the_plain_rounds_fixed_point(monkeypatch):
     """Jumps along the tail (decision 0033) change only where a round starts, so they should stop at
     the plain rounds' fixed point, within the stop's tolerance of it each."""
