@@ -397,6 +397,7 @@ def step_suspects(res: Residuals, track_frames: np.ndarray | None) -> list[int]:
     wand = bool((res.point >= 0).any())
     if not wand and (track_frames is None or not len(track_frames)):
         return []
+    track_time = track_frames if track_frames is not None else np.zeros(0, np.int64)
     p = []
     for c in range(int(res.camera.max()) + 1 if len(res.camera) else 0):
         rows = res.rows_of(c)
@@ -405,7 +406,7 @@ def step_suspects(res: Residuals, track_frames: np.ndarray | None) -> list[int]:
             rows, point = rows[point >= 0], point[point >= 0]
             time = res.frames[point // 2]
         else:
-            time = track_frames[-1 - point]
+            time = track_time[-1 - point]
         # the screen's views chosen first, then only theirs gathered (step_screen chooses the same again)
         pick = screen_views(time) if len(rows) >= SCREEN_BLOCKS * MIN_SIDE else slice(None)
         rows, time = rows[pick], time[pick]
