@@ -11,9 +11,9 @@ code's):
   ``--repeats`` times, the judgement (``calib.run.calibrate.judge``) timed inside each run; the
   share is judge / calibrate per run, its median per process, then the median over the rounds.
   Goal (issue 31): judging adds at most 10% to `calibrate`.
-- broken real sessions of four cameras (bench/real_faults.py's sessions and injectors: a knock, a
-  focal length 8% long, or one frame late, on the first target camera of Brown 1 and Brown 2), `calibrate` and its judgement. Goal: a broken
-  4-camera real session is judged in at most 3 s.
+- broken real sessions of four cameras (bench/real_faults.py's sessions and injectors: a knock,
+  a focal length 8% long, or one frame late, on the first target camera of Brown 1 and Brown 2),
+  `calibrate` and its judgement. Goal: a broken 4-camera real session is judged in at most 3 s.
 
 Usage: python bench/bench_judging_cost.py --base /tmp/base=LABEL [--rounds 5] [--repeats 5] [--no-write]
 (the base: ``git archive <commit> | tar -x -C /tmp/base``).
