@@ -166,3 +166,24 @@ def test_a_camera_knocked_under_a_sparse_wand_is_named_from_its_point_tracks_in_
     ev = moved[0]["evidence"]
     assert abs(ev["frame"] - 250) <= FRAMES / MAX_SPLITS + 1
     assert abs(ev["degrees"] - degrees) < 4 * ev["degrees_std"] + 0.02 * degrees
+
+
+def test_a_large_rigs_screen_times_the_tracks_in_the_wands_time():
+    """More than five cameras: the step screen (pose_steps.step_suspects) reads the point tracks
+    in the wand's time as timed views, and the knocked camera is suspected and named."""
+    from wandcal.calib.judge.faults.pose_steps import step_suspects
+    from wandcal.calib.judge.residuals import observation_residuals
+
+    R, t = _rig(6)
+    rng = np.random.default_rng(31)
+    axis = rng.normal(size=3)
+    knock = (4, 250, np.radians(0.5) * axis / np.linalg.norm(axis))
+    labelled, tracks = _sparse_wand(R, t, rng, knock), _tracks(R, t, rng, knock=knock)
+    res = observation_residuals(R, t, labelled, tracks, np.full((6, 2), FOCAL_PX))
+    assert step_suspects(res, tracks.frames)[:1] == [4]
+    # the same tracks from another recording (numbered above every wand frame) are not timed
+    assert 4 not in step_suspects(res, tracks.frames + 1000)
+    K = np.array([[FOCAL_PX, 0, 640], [0, FOCAL_PX, 480], [0, 0, 1]])
+    rig = Rig(tuple(Camera(f"cam{k}", 1280, 960, K, np.zeros(5)) for k in range(6)), 0.5)
+    moved, _ = own_faults(rig, labelled, tracks, R, t, [], res)
+    assert [f["camera"] for f in moved] == ["cam4"]
