@@ -38,7 +38,7 @@ ROBUST_STAGE_SE = 0.5
 # converges at 0.93 a step and kept the robust stage (25-90 iterations) or the polish (61) going
 # long after the cameras had settled (decision 0032). True: the stop waits for every frame too,
 # the rule before decision 0032 (bench_shapes' reference).
-WAND_FRAMES_IN_STOP = True
+WAND_FRAMES_IN_STOP = False
 
 Progress = Callable[[dict], None]
 

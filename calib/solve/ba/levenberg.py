@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.observations import robust_sigma
+from wandcal.calib.solve.ba.frames import frames_at_optimum
 from wandcal.calib.solve.backend import schur
 from wandcal.calib.solve.reprojection import (
     CAM_PARAMS,
@@ -190,6 +191,8 @@ class LevenbergMarquardt:
             if remaining < self.stop_se or relative_gain < MIN_RELATIVE_GAIN:
                 status, message = "converged", f"the estimated distance to the optimum is under {self.stop_se} standard errors"
                 break
+        if not all(self.judged):
+            state, z, cost = self._frames_at_optimum(state, z)
         info = {
             "iterations": iterations,
             "evaluations": evaluations,
@@ -201,6 +204,25 @@ class LevenbergMarquardt:
         }
         self.last = (state, z)  # the final state's squared errors, for standard_errors
         return state, info
+
+    def _frames_at_optimum(self, state: BundleState, z: np.ndarray):
+        """(state, z, cost) with the blocks the stop did not judge (the wand frames) brought to
+        within ``STOP_SE`` of their optimum, the cameras held, under the stage's loss and scale
+        (:mod:`wandcal.calib.solve.ba.frames`): relabelling and the outlier pass judge each
+        frame by its residuals, and the result reports the frames."""
+        sigma = max(_robust_sigma(z), 1e-12)
+        for term, judged in zip(self.terms, self.judged):
+            if not judged:
+                state, _ = frames_at_optimum(term, state, self._rho, self._weights, sigma, self.stop_se)
+        z = self._squared_errors(state)
+        return state, z, self._cost(z)
+
+    def _rho(self, z: np.ndarray) -> np.ndarray:
+        """Each observation's share of :meth:`_cost` (K,) from its squared pixel error z (K,)."""
+        if self.loss == "linear":
+            return 0.5 * z
+        s2 = self.scale**2
+        return 0.5 * s2 * np.log1p(z / s2)
 
     def _damped_step(self, normal: schur.Normal, state: BundleState, cost: float, lam: float, nu: float):
         """Levenberg–Marquardt's step at ``normal``, raising the damping until the cost falls
