@@ -30,7 +30,8 @@ MAX_RATE = 0.9  # as the stage's: the ratio of successive steps is taken as at m
 
 
 def frames_at_optimum(term, state: BundleState, rho: Callable[[np.ndarray], np.ndarray],
-                      weights: Callable[[np.ndarray], np.ndarray], sigma: float, stop_se: float) -> tuple[BundleState, int]:
+                      weights: Callable[[np.ndarray], np.ndarray], sigma: float, stop_se: float, *,
+                      active: np.ndarray | None = None) -> tuple[BundleState, int]:
     """The state with ``term``'s frames (its blocks: a wand term's midpoint and direction, a
     planar wand's axes too) at their optimum with everything else held.
 
@@ -42,6 +43,7 @@ def frames_at_optimum(term, state: BundleState, rho: Callable[[np.ndarray], np.n
             squares, as the stage).
         sigma: the noise's robust sigma, pixels (the standard errors' scale).
         stop_se: stop a frame when it is estimated within this many standard errors of its optimum.
+        active: (P,) bool, the frames to polish (the stage's stop leaves them moving); None: every one.
 
     Returns:
         (state, steps): the polished state and the number of vectorised steps taken.
@@ -52,7 +54,7 @@ def frames_at_optimum(term, state: BundleState, rho: Callable[[np.ndarray], np.n
     lam = np.zeros(F)  # Gauss-Newton's undamped step first, as the least-squares polish
     nu = np.full(F, 2.0)
     last_ratio = np.full(F, np.inf)
-    active = np.bincount(frame, minlength=F) > 0
+    active = (np.bincount(frame, minlength=F) > 0) & (True if active is None else active)
     steps = 0
     for steps in range(1, MAX_FRAME_STEPS + 1):
         rows = np.flatnonzero(active[frame])

@@ -154,6 +154,7 @@ class LevenbergMarquardt:
         last_ratio = np.inf
         chord: tuple[schur.Normal, schur.Step] | None = None
         self.undamped = None
+        unsettled = _Unsettled(self.judged)
         for it in range(max_iter):
             accepted = None
             if chord is not None:
@@ -182,6 +183,7 @@ class LevenbergMarquardt:
             if progress is not None:
                 progress({"stage": "refine", "iteration": iterations, "cost": cost, "message": "bundle adjustment"})
             ratio = _step_in_standard_errors(step, z, self.judged)
+            unsettled.update(step, z, rate_known=bool(np.isfinite(last_ratio)))
             # steps shrink at least geometrically near the optimum (quadratically for least
             # squares, linearly for the reweighted loss): the distance left is about
             # step * q / (1 - q), with q the last ratio of successive steps
@@ -192,7 +194,7 @@ class LevenbergMarquardt:
                 status, message = "converged", f"the estimated distance to the optimum is under {self.stop_se} standard errors"
                 break
         if not all(self.judged):
-            state, z, cost = self._frames_at_optimum(state, z)
+            state, z, cost = self._frames_at_optimum(state, z, unsettled)
         info = {
             "iterations": iterations,
             "evaluations": evaluations,
@@ -205,15 +207,20 @@ class LevenbergMarquardt:
         self.last = (state, z)  # the final state's squared errors, for standard_errors
         return state, info
 
-    def _frames_at_optimum(self, state: BundleState, z: np.ndarray):
-        """(state, z, cost) with the blocks the stop did not judge (the wand frames) brought to
-        within ``STOP_SE`` of their optimum, the cameras held, under the stage's loss and scale
-        (:mod:`wandcal.calib.solve.ba.frames`): relabelling and the outlier pass judge each
-        frame by its residuals, and the result reports the frames."""
+    def _frames_at_optimum(self, state: BundleState, z: np.ndarray, unsettled: _Unsettled):
+        """(state, z, cost) with the blocks the stop did not judge (the wand frames) that its rule
+        leaves over ``stop_se`` from their optimum (``unsettled``) brought within it, the cameras
+        held, under the stage's loss and scale (:mod:`wandcal.calib.solve.ba.frames`): relabelling
+        and the outlier pass judge each frame by its residuals, and the result reports the frames.
+        The frames the stage's rule already counts as settled are left as they are, so where the
+        stop on every parameter would have stopped at the same step the state is the same."""
+        moving = [unsettled.moving(k, self.stop_se) for k in range(len(self.terms))]
+        if not any(m is not None and m.any() for m in moving):
+            return state, z, self._cost(z)
         sigma = max(_robust_sigma(z), 1e-12)
-        for term, judged in zip(self.terms, self.judged):
-            if not judged:
-                state, _ = frames_at_optimum(term, state, self._rho, self._weights, sigma, self.stop_se)
+        for term, active in zip(self.terms, moving):
+            if active is not None and active.any():
+                state, _ = frames_at_optimum(term, state, self._rho, self._weights, sigma, self.stop_se, active=active)
         z = self._squared_errors(state)
         return state, z, self._cost(z)
 
@@ -290,6 +297,41 @@ class LevenbergMarquardt:
         for k, j in self.frozen:
             std[k, j] = 0.0
         return std
+
+
+class _Unsettled:
+    """Which blocks of the terms the stop does not judge (the wand frames) its rule would still
+    count as moving: each block's last step in standard errors and the rate of its last two, the
+    rule of :meth:`LevenbergMarquardt.run` applied block by block."""
+
+    def __init__(self, judged: list[bool]):
+        self.judged = judged
+        self.last: list[np.ndarray | None] = [None] * len(judged)
+        self.remaining: list[np.ndarray | None] = [None] * len(judged)
+
+    def update(self, step: schur.Step, z: np.ndarray, *, rate_known: bool) -> None:
+        """Take an accepted step (``rate_known``: the step before it was solved from its own
+        linearisation, not a chord step); ``z`` the squared errors after it, for the noise."""
+        sigma = max(_robust_sigma(z), 1e-12)
+        for k, judged in enumerate(self.judged):
+            d, var = step.dp[k], step.pt_var[k]
+            if judged or not d.size:
+                continue
+            ratio = np.max(np.abs(d) / (sigma * np.sqrt(np.maximum(var, 1e-300))), axis=1)
+            previous = self.last[k]
+            q = np.full(len(ratio), MAX_RATE)
+            if rate_known and previous is not None:
+                q = np.where(previous > 0, np.minimum(ratio / np.maximum(previous, 1e-300), MAX_RATE), MAX_RATE)
+            self.remaining[k] = ratio * q / (1 - q)
+            self.last[k] = ratio
+
+    def moving(self, k: int, stop_se: float) -> np.ndarray | None:
+        """(P,) bool: term ``k``'s blocks estimated ``stop_se`` or more from their optimum; None
+        for a judged term, and when no step was taken (the stage's start is then its end)."""
+        if self.judged[k]:
+            return None
+        remaining = self.remaining[k]
+        return None if remaining is None else remaining >= stop_se
 
 
 def _robust_sigma(z: np.ndarray) -> float:
