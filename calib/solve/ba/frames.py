@@ -8,8 +8,9 @@ their optimum given the cameras. With the cameras held the frames are independen
 few parameters each (5 for a wand, 6 for a planar wand's frame): a Gauss–Newton step per frame
 on its own normal block, vectorised over the frames, each frame damped and accepted on its own
 cost under the stage's loss and weights, and each stopped on its own when it is estimated to lie
-within ``stop_se`` of its standard error of its optimum (the stage's rule, per frame). A step
-costs a linearisation of the frames still moving only: after the first few steps, a handful.
+within ``stop_se`` of its standard error of its optimum (the stage's rule, per frame). Only the
+frames the stage's rule leaves moving are settled (``active``). A step costs a linearisation of the frames still moving
+only: after the first few steps, a handful.
 """
 
 from __future__ import annotations
@@ -120,6 +121,6 @@ def _with_frames(state: BundleState, moved: BundleState, take: np.ndarray) -> Bu
     """``state`` with the frames ``take`` (F,) bool of ``moved``: the midpoints, directions and a
     planar wand's axes."""
     Q = state.Q
-    if Q is not None:
+    if Q is not None and moved.Q is not None:
         Q = np.where(take[:, None, None], moved.Q, Q)
     return replace(state, m=np.where(take[:, None], moved.m, state.m), d=np.where(take[:, None], moved.d, state.d), Q=Q)

@@ -16,7 +16,11 @@ count, not the wand frames': a frame two cameras see, with its wand nearly acros
 held along one direction by the wand's foreshortening alone, a curvature that Gauss-Newton's
 normal equations leave out, so it converges linearly (0.93 a step) for tens of iterations after
 the cameras have settled; the cameras' own steps carry what its remaining motion still does to
-them (decision 0032).
+them (decision 0032). Such a stage ends by settling, the cameras held, the frames that its rule,
+applied frame by frame, still counts as moving (:mod:`wandcal.calib.solve.ba.frames`): relabelling
+and the outlier pass judge frames by their residuals. The frames it counts as settled are left as
+they are (on the 8-camera acceptance rig none is left moving: the digits of the stop on every
+parameter, which ends there at the same step).
 
 Least squares (the polish of a robust solution) tries Gauss-Newton's undamped step first, and
 follows an accepted undamped step with the chord method's: the new point's gradient through the
@@ -212,8 +216,7 @@ class LevenbergMarquardt:
         leaves over ``stop_se`` from their optimum (``unsettled``) brought within it, the cameras
         held, under the stage's loss and scale (:mod:`wandcal.calib.solve.ba.frames`): relabelling
         and the outlier pass judge each frame by its residuals, and the result reports the frames.
-        The frames the stage's rule already counts as settled are left as they are, so where the
-        stop on every parameter would have stopped at the same step the state is the same."""
+        The frames the stage's rule already counts as settled are left as they are."""
         moving = [unsettled.moving(k, self.stop_se) for k in range(len(self.terms))]
         if not any(m is not None and m.any() for m in moving):
             return state, z, self._cost(z)
