@@ -77,9 +77,13 @@ def child(tree: str, problem_file: str, cap: float, out: str) -> int:
     R1, t1, W1, info = paper.refine_paper(R, t, wand, problem, fixed, up)
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     apart = None  # um from the fixed point on the basis the last LP named (decision 0049d), untimed
-    if hasattr(paper, "fixed_point_on_basis"):
-        found = paper.fixed_point_on_basis(R1, t1, W1.reshape(-1, 3), problem, fixed, up,
-                                           paper.height_pairs(R, t, wand.reshape(-1, 3), up))
+    try:  # a tree before decision 0049d has none
+        from wandcal.calib.solve.paper_fixed_point import fixed_point_on_basis
+    except ImportError:
+        fixed_point_on_basis = None
+    if fixed_point_on_basis is not None:
+        found = fixed_point_on_basis(R1, t1, W1.reshape(-1, 3), problem, fixed, up,
+                                     paper.height_pairs(R, t, wand.reshape(-1, 3), up))
         if found is not None:
             apart = float(np.linalg.norm(camera_centers(found[0], found[1]) - camera_centers(R1, t1), axis=1).max()) * 1e6
     Path(out).write_bytes(pickle.dumps((camera_centers(R1, t1), info, cpu, wall, sum(iterations), apart)))
@@ -137,7 +141,7 @@ def main() -> int:
         f"`refine_paper` alone on the acceptance rig's problem (seed {args.seed}, after the outlier pass), a fresh "
         f"process a run, medians of {args.repeats} repeat(s); load average {os.getloadavg()[0]:.1f} at the end. "
         "`apart`: the largest camera-centre distance from the first row's answer; `fixed point`: from the "
-        "answer to the fixed point on the basis its last LP named (paper.fixed_point_on_basis), none where "
+        "answer to the fixed point on the basis its last LP named (paper_fixed_point.fixed_point_on_basis), none where "
         "that basis does not hold there (the rounds still creep from basis to basis).",
         "",
         "| code | jump cap | status | rounds | jumps | CPU s | CPU s a round | LP iterations a round | wall s | apart (um) "

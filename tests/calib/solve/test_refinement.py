@@ -14,12 +14,12 @@ from wandcal.calib.solve.paper import (
     WINDOW,
     algebraic_residuals,
     arrow_lp,
-    fixed_point_on_basis,
     height_pairs,
     lp_step,
     refine_paper,
     rotation_step,
 )
+from wandcal.calib.solve.paper_fixed_point import fixed_point_on_basis
 from wandcal.calib.solve.wandmodel import WandModel
 
 NOISE = 0.5
