@@ -130,7 +130,8 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
     finite = np.isfinite(first)
     by_camera = _rows_by_camera(pairs.camera, tracks.camera if tracks is not None and len(tracks) else None,
                                 int(first_camera.max()) + 1 if len(first_camera) else 0)
-    sigmas = [robust_sigma(first[rows[finite[rows]]]) for rows in by_camera if len(rows)]
+    every = bool(finite.all())  # a clean rig's: no masking
+    sigmas = [robust_sigma(first[rows] if every else first[rows[finite[rows]]]) for rows in by_camera if len(rows)]
     limit = max(OUTLIER_SIGMAS * float(np.median(sigmas)) if sigmas else 0.0, MIN_OUTLIER_PX)
     P = len(pairs)
     worst = np.fmax(first[:P], first[P:len(point)]) if P else np.zeros(0)
@@ -186,19 +187,23 @@ def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
                         "outlier_share": None, "ray_mrad": None, "ray_distance": None, "residual_mm": None})
             continue
         inl = ~res.outlier[sel]
-        angle = angles[sel][inl]
+        every = bool(inl.all())  # no outlier: the inliers' figures are the camera's, not copied again
+        some = every or bool(inl.any())
+        angle = angles[sel] if every else angles[sel][inl]
         # the ray's distance at the camera's typical depth: a point triangulated from nearly
         # parallel rays lies far off, and its depth would weigh more than all the others
-        ray = angle * float(np.median(np.abs(res.depth[sel][inl]))) if inl.any() else angle
+        ray = angle * float(np.median(np.abs(res.depth[sel] if every else res.depth[sel][inl]))) if some else angle
+        ms = np.mean(e**2)
+        ray_ms = np.mean(ray**2) if some else None
         out.append({
             "observations": int(len(e)),
-            "rms_px": float(np.sqrt(np.mean(e**2))),
-            "inlier_rms_px": float(np.sqrt(np.mean(e[inl] ** 2))) if inl.any() else None,
+            "rms_px": float(np.sqrt(ms)),
+            "inlier_rms_px": float(np.sqrt(ms if every else np.mean(e[inl] ** 2))) if some else None,
             "noise_px": robust_sigma(e),
             "outlier_share": float(1.0 - inl.mean()),
-            "ray_mrad": float(1000 * np.sqrt(np.mean(angle**2))) if inl.any() else None,
-            "ray_distance": float(np.sqrt(np.mean(ray**2))) if inl.any() else None,
-            "residual_mm": float(1000 * np.sqrt(np.mean(ray**2))) if scaled and inl.any() else None,
+            "ray_mrad": float(1000 * np.sqrt(np.mean(angle**2))) if some else None,
+            "ray_distance": float(np.sqrt(ray_ms)) if ray_ms is not None else None,
+            "residual_mm": float(1000 * np.sqrt(ray_ms)) if scaled and ray_ms is not None else None,
         })
     return out
 

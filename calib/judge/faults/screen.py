@@ -198,7 +198,7 @@ def _share(y: np.ndarray, base: np.ndarray, extra: np.ndarray) -> tuple[float, n
     ``extra`` explains, extra's coefficients, its F statistic). By the normal equations of the
     scaled columns (a 10 x 10 system at most): a camera's thousands of rows cost one pass."""
     both = np.concatenate([base, extra], axis=1)
-    scale = np.linalg.norm(both, axis=0)
+    scale = np.sqrt(np.add.reduce(both * both, axis=0))  # np.linalg.norm(both, axis=0) without its copy
     scale[scale == 0] = 1.0
     A = both / scale
     G, b, yy = A.T @ A, A.T @ y, float(y @ y)
