@@ -343,7 +343,9 @@ def screen_views(time: np.ndarray) -> np.ndarray:
     (time (K,) their capture frames): evenly spaced in time order. Views already so chosen (in
     time order, at most that many) are all chosen again, in their order."""
     order = np.argsort(time, kind="stable")
-    return order[np.linspace(0, len(order) - 1, min(len(order), SCREEN_VIEWS)).astype(np.int64)]
+    if len(order) <= SCREEN_VIEWS:  # np.linspace(0, K - 1, K) is 0 .. K - 1 exactly: every view
+        return order
+    return order[np.linspace(0, len(order) - 1, SCREEN_VIEWS).astype(np.int64)]
 
 
 def step_screen(xy: np.ndarray, r: np.ndarray, time: np.ndarray) -> float:

@@ -82,3 +82,7 @@ def test_the_step_screens_views_chosen_first_are_chosen_again():
         pick = pose_steps.screen_views(time)
         assert np.array_equal(pose_steps.screen_views(time[pick]), np.arange(len(pick)))
         assert pose_steps.step_screen(xy[pick], r[pick], time[pick]) == pose_steps.step_screen(xy, r, time)
+    for k in range(0, 2 * pose_steps.SCREEN_VIEWS, 7):  # the views as np.linspace spaced them, every k
+        order = np.argsort(time := rng.integers(0, 500, k), kind="stable")
+        want = order[np.linspace(0, k - 1, min(k, pose_steps.SCREEN_VIEWS)).astype(np.int64)]
+        assert np.array_equal(pose_steps.screen_views(time), want)
