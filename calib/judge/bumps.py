@@ -68,6 +68,16 @@ class Sightings:
         return cls(np.concatenate([point, tracks.track + n]), np.concatenate([camera, tracks.camera]),
                    np.concatenate([xy, tracks.xy]), n + tracks.n_tracks, n)
 
+    def around(self, c: int) -> Sightings:
+        """The sightings (by every camera) of the points camera ``c`` saw, those points numbered
+        0..K-1 in their order here; the rows keep their order."""
+        in_c = np.zeros(self.n_points, bool)
+        in_c[self.point[self.camera == c]] = True
+        rows = in_c[self.point]
+        number = np.cumsum(in_c) - 1
+        return Sightings(number[self.point[rows]], self.camera[rows], self.xy[rows], int(number[-1]) + 1 if len(number) else 0,
+                         int(in_c[: self.wand_points].sum()))
+
 
 @dataclass(frozen=True)
 class CameraCheck:
@@ -117,14 +127,14 @@ def _leave_one_out(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndar
                    rms_px: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """:func:`leave_one_out_errors`, and with ``rms_px`` :func:`expected_loo_scale` from the same
     triangulation (1.0 without)."""
+    # only c's own points are triangulated, numbered 0..K-1 (every camera's check triangulating the
+    # whole capture made `wandcal check` grow as cameras x frames; so did every per-point sum
+    # sized to the whole capture's points, at 128 x 3000 of 2-4 cameras a frame)
+    seen = seen.around(c)
     use = others[seen.camera]
     mine = seen.camera == c
     views = np.bincount(seen.point[use], minlength=seen.n_points)
-    # only c's own points are triangulated: every camera's check triangulating the whole capture
-    # made `wandcal check` grow as cameras x frames (128 x 3000 of 2-4 cameras a frame: 1.3x calibrate)
-    in_c = np.zeros(seen.n_points, bool)
-    in_c[seen.point[mine]] = True
-    ok = ((views >= 2) & in_c)[seen.point]
+    ok = (views >= 2)[seen.point]
     sel, own = use & ok, mine & ok
     X = triangulate_points(R, t, seen.point[sel], seen.camera[sel], seen.xy[sel], seen.n_points)
     r = reprojection_errors(R, t, seen.point[own], seen.camera[own], seen.xy[own], X) * focal[c]
