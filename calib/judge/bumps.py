@@ -41,8 +41,34 @@ BUMP_MAX_M = 0.2
 # ... and a knocked camera placed again fits its points as it did before the knock: its median
 # error then within this many times its limit (a touched lens leaves some error a pose cannot take)
 BUMP_FIT_FACTOR = 3.0
+
+# A capture's rig.json and a result's cameras are one rig when every shared camera has the same
+# image size and its focal length and principal point agree within these: a refined focal
+# length moves by a few per cent at most (docs/verdict.md), another camera's by far more
+SAME_RIG_FOCAL = 0.1
+SAME_RIG_PRINCIPAL = 0.1  # of the image's size
 KNOCK_ADVICE = "it has moved or its lens was touched; recalibrate it with --solve-only"
 ANOTHER_RIG = "no knock explains it: the rig was rebuilt or this is another one"
+
+
+def rig_mismatches(calibrated: Rig, capture: Rig) -> list[str]:
+    """Why ``capture``'s cameras are not the ``calibrated`` ones (empty when they are one rig):
+    a camera the result does not have, another image size, or other intrinsics."""
+    out = []
+    for cam in capture.cameras:
+        if cam.id not in calibrated.ids:
+            out.append(f"the result has no camera {cam.id!r} (it has {', '.join(calibrated.ids)})")
+            continue
+        ref = calibrated.cameras[calibrated.index(cam.id)]
+        if (cam.width, cam.height) != (ref.width, ref.height):
+            out.append(f"{cam.id} is {cam.width}x{cam.height} px in the capture and {ref.width}x{ref.height} px in the result")
+            continue
+        focal = abs(cam.K[0, 0] / ref.K[0, 0] - 1)
+        shift = np.hypot(cam.K[0, 2] - ref.K[0, 2], cam.K[1, 2] - ref.K[1, 2]) / max(cam.width, cam.height)
+        if focal > SAME_RIG_FOCAL or shift > SAME_RIG_PRINCIPAL:
+            out.append(f"{cam.id}'s intrinsics differ: focal {cam.K[0, 0]:.1f} against {ref.K[0, 0]:.1f} px, principal "
+                       f"point ({cam.K[0, 2]:.0f}, {cam.K[1, 2]:.0f}) against ({ref.K[0, 2]:.0f}, {ref.K[1, 2]:.0f}) px")
+    return out
 
 
 @dataclass(frozen=True, eq=False)
