@@ -25,7 +25,7 @@ from wandcal.calib.rig import PointObservations, Rig, WandObservations
 from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.start.markerlabels import end_pairs
 from wandcal.calib.start.resection import resect_camera
-from wandcal.calib.triangulate import reprojection_errors, triangulate_points
+from wandcal.calib.triangulate import reprojection_errors, triangulate_left_out, triangulate_points
 
 MOVED_FACTOR = 3.0  # a camera whose leave-one-out error is 3x what is expected of it has moved
 # ... and never below this: on clean data every leave-one-out error is a fraction of a pixel,
@@ -163,16 +163,8 @@ def everyone_left_out(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.n
     n = len(R)
     if not len(seen.point):
         return [np.zeros(0) for _ in range(n)], np.ones(n)
-    by_point = np.argsort(seen.point, kind="stable")  # each point's sightings, in their order here
-    start = np.searchsorted(seen.point[by_point], np.arange(seen.n_points + 1))
-    lo, hi = start[seen.point], start[seen.point + 1]
-    width = hi - lo
-    mate = by_point[np.repeat(lo - np.cumsum(width) + width, width) + np.arange(int(width.sum()))]  # (L,) same-point rows
-    of = np.repeat(np.arange(len(seen.point)), width)  # (L,) the sighting each mate is an other camera's view for
-    keep = trusted[seen.camera[mate]] & (seen.camera[mate] != seen.camera[of])
-    mate, of = mate[keep], of[keep]
+    X, of, mate = triangulate_left_out(R, t, seen.point, seen.camera, seen.xy, seen.n_points, trusted)
     views = np.bincount(of, minlength=len(seen.point))
-    X = triangulate_points(R, t, of, seen.camera[mate], seen.xy[mate], len(seen.point))
     own = np.flatnonzero(views >= 2)
     cams = seen.camera[own]
     r = reprojection_errors(R, t, own, cams, seen.xy[own], X) * np.asarray(focal, float).reshape(n, -1)[cams]
