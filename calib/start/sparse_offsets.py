@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import rotvec_to_matrix
 from wandcal.calib.observations import WandPairs, camera_rows
 from wandcal.calib.rig import Rig
 from wandcal.calib.start.frame_offsets import MAX_CONTRAST, MIN_TIMING_FRAMES, FrameOffsets, shift_pairs
@@ -37,6 +38,8 @@ from wandcal.calib.start.initial import Initial, UnplacedCamera, initial_poses
 from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.triangulate import triangulate_left_out, triangulate_points
 
+FIT_STEPS = 3  # Gauss-Newton steps of each camera's pose at each shift, from the start's
+FIT_SCALE_PX = 2.0  # the Cauchy loss's scale there: the noise and the wand's motion left in a frame
 ROUNDS = 4  # poses found again with the offsets found, until none moves: cameras out of time spoil the first poses
 
 
@@ -151,12 +154,53 @@ def shift_scores(R: np.ndarray, t: np.ndarray, labelled: WandPairs, shifts: np.n
         # a frame the camera saw itself: the others' ends alone, never its own sighting's
         mine = row_of[at, labelled.camera]
         ends = np.where((exists & (mine >= 0))[:, None, None], X_own[np.maximum(mine, 0)], ends)
-        e = _pair_errors(R[labelled.camera], t[labelled.camera], ends, labelled.xy) * focal_px[labelled.camera]
+        # each camera's pose fitted again to the others' ends at this shift: the start fitted it at
+        # the offsets so far, and a camera out of time kept a pose that fits them best there
+        Rs, ts = refit_poses(R, t, labelled.camera, ends, labelled.xy, FIT_SCALE_PX / focal_px)
+        e = _pair_errors(Rs[labelled.camera], ts[labelled.camera], ends, labelled.xy) * focal_px[labelled.camera]
         for c, rows in enumerate(by_camera):
             v = e[rows][np.isfinite(e[rows])]
             if len(v) >= MIN_TIMING_FRAMES:
                 scores[c, j] = float(np.median(v))
     return scores
+
+
+def refit_poses(R: np.ndarray, t: np.ndarray, camera: np.ndarray, ends: np.ndarray, xy: np.ndarray,
+                scale: np.ndarray, steps: int = FIT_STEPS) -> tuple[np.ndarray, np.ndarray]:
+    """Every camera's pose R (N, 3, 3), t (N, 3) moved by ``steps`` Gauss-Newton steps (a Cauchy
+    loss of ``scale`` (N,), normalised) towards its pairs' blobs xy (P, 2, 2) seen from the points
+    ``ends`` (P, 2, 3) (NaN: none), the nearer matching each step; ``camera`` (P,) each pair's.
+    The update is x_cam -> rot(w) x_cam + d, so d(x_cam) = -[x_cam]x w + d."""
+    n = len(R)
+    R, t = R.copy(), t.copy()
+    ok = np.isfinite(ends).all(axis=(1, 2))
+    cam, ends, xy = camera[ok], ends[ok], xy[ok]
+    cam2 = np.repeat(cam, 2)
+    for _ in range(steps):
+        xc = np.einsum("pij,pej->pei", R[cam], ends) + t[cam][:, None, :]  # (P, 2, 3)
+        proj = xc[..., :2] / xc[..., 2:3]
+        cross = np.linalg.norm(proj[:, ::-1] - xy, axis=2).sum(1) < np.linalg.norm(proj - xy, axis=2).sum(1)
+        target = np.where(cross[:, None, None], xy[:, ::-1], xy)
+        x, r = xc.reshape(-1, 3), (proj - target).reshape(-1, 2)  # (2P, 3), (2P, 2)
+        iz = 1.0 / x[:, 2]
+        dp = np.zeros((len(x), 2, 3))
+        dp[:, 0, 0] = dp[:, 1, 1] = iz
+        dp[:, 0, 2], dp[:, 1, 2] = -x[:, 0] * iz**2, -x[:, 1] * iz**2
+        skew = np.zeros((len(x), 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -x[:, 2], x[:, 1], -x[:, 0]
+        skew -= np.swapaxes(skew, 1, 2)
+        J = np.concatenate([-dp @ skew, dp], axis=2)  # (2P, 2, 6)
+        w = 1.0 / (1.0 + (r**2).sum(1) / scale[cam2] ** 2)
+        H = np.zeros((n, 6, 6))
+        g = np.zeros((n, 6))
+        np.add.at(H, cam2, w[:, None, None] * np.einsum("kai,kaj->kij", J, J))
+        np.add.at(g, cam2, w[:, None] * np.einsum("kai,ka->ki", J, r))
+        damp = 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(6) + 1e-12 * np.eye(6)
+        step = -np.linalg.solve(H + damp, g[..., None])[..., 0]
+        for c in np.flatnonzero(np.isfinite(step).all(1) & (np.abs(step).sum(1) > 0)):
+            rot = rotvec_to_matrix(step[c, :3])
+            R[c], t[c] = rot @ R[c], rot @ t[c] + step[c, 3:]
+    return R, t
 
 
 def _pair_errors(R: np.ndarray, t: np.ndarray, ends: np.ndarray, xy: np.ndarray) -> np.ndarray:
