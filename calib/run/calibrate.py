@@ -66,8 +66,8 @@ from wandcal.calib.start.vertical import unused_warning as vertical_unused
 from wandcal.calib.start.world import Reference, apply, world_frame
 
 if TYPE_CHECKING:
+    from wandcal.calib.run.sparse_offsets import SparseStart
     from wandcal.calib.start.markerlabels import MarkerBlobs
-    from wandcal.calib.start.sparse_offsets import SparseStart
 
 
 
@@ -228,7 +228,7 @@ def _whole_frame_sync(rig: Rig, wand: WandObservations | None, options: Calibrat
     try:
         timed = frame_offsets(rig, unshifted, options.sync_max_offset, start)
     except TooFewShared:  # a sparse rig: no two cameras share enough frames, all of them together do
-        from wandcal.calib.start.sparse_offsets import offsets_by_triangulation
+        from wandcal.calib.run.sparse_offsets import offsets_by_triangulation
 
         static_poses = solve_static(rig, static) if static is not None and rig.static_markers is not None else None
         timed, found_at = offsets_by_triangulation(rig, unshifted, options.sync_max_offset, start, static_poses=static_poses)

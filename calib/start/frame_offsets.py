@@ -66,7 +66,7 @@ TRIM_KEEP = 0.8  # drops digitising slips and reflections (a few %) with room to
 
 class TooFewShared(CalibrationError):
     """A camera could not be timed and shares fewer than :data:`FEW_FRAMES` frames with its best
-    partner at every shift: a sparse rig, whose cameras :mod:`wandcal.calib.start.sparse_offsets`
+    partner at every shift: a sparse rig, whose cameras :mod:`wandcal.calib.run.sparse_offsets`
     times against all the others together instead."""
 
 

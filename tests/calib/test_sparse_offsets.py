@@ -1,4 +1,4 @@
-"""Whole-frame offsets on a sparse rig (calib/start/sparse_offsets.py): each frame seen by 2-4 of 64
+"""Whole-frame offsets on a sparse rig (calib/run/sparse_offsets.py): each frame seen by 2-4 of 64
 cameras, so no two share enough frames to time one against the other; all of them together do."""
 
 import numpy as np
@@ -6,10 +6,10 @@ import pytest
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import WandObservations
+from wandcal.calib.run.sparse_offsets import offsets_by_triangulation
 from wandcal.calib.sim.shapes import RigShape, default_size, simulate_shape
 from wandcal.calib.start.frame_offsets import TooFewShared, frame_offsets
 from wandcal.calib.start.markerlabels import end_pairs
-from wandcal.calib.start.sparse_offsets import offsets_by_triangulation
 from wandcal.calib.start.static import solve_static
 
 
