@@ -304,7 +304,8 @@ def _static_poses(rig: Rig, static: StaticObservations | None, tell: Progress,
     if static is None or rig.static_markers is None:
         return None
     tell({"stage": "static", "message": "identifying static-object markers and solving PnP"})
-    static_poses = found_at.static_poses if found_at is not None else solve_static(rig, static)
+    found = found_at.static_poses if found_at is not None else None
+    static_poses = found if found is not None else solve_static(rig, static)
     if not any(static_poses):
         seen_static = [str(p) for c, p in enumerate(static_poses) if len(static.for_camera(c))]
         raise CalibrationError(
