@@ -13,13 +13,15 @@ shift of camera c is scored against the wand as the *other* cameras triangulate 
    cameras alone (:func:`wandcal.calib.triangulate.triangulate_left_out`),
 3. for each camera and each shift s within the search, the median over its frames k of the
    distance, in pixels, between its ends and the others' ends of frame k + s projected into it
-   (the nearer of the two matchings). A camera in time fits at its noise at one shift and by the
-   wand's motion (several pixels a frame) at every other; the best shift is taken when it stands
-   out (``MAX_CONTRAST`` of the median shift's), else the camera is refused: it did not see the
-   others' wand (another session, another wand).
+   (the nearer of the two matchings), its pose first fitted again to those ends
+   (:func:`refit_poses`: the start fitted it at the offsets so far, which it would favour). A
+   camera in time fits at its noise at one shift and by the wand's motion (several pixels a
+   frame) at every other; the best shift is taken when it stands out (``MAX_CONTRAST`` of the
+   median shift's).
 
 The offsets found renumber the frames and the poses are found again, until no offset changes
-(``ROUNDS`` at most). The sub-frame part is fitted afterwards, as after the pairwise search
+(``ROUNDS`` at most); a camera whose best shift never stands out is refused: it did not see the
+others' wand (another session, another wand). Decision 0049f. The sub-frame part is fitted afterwards, as after the pairwise search
 (:mod:`wandcal.calib.solve.sync`).
 """
 
