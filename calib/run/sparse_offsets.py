@@ -41,6 +41,7 @@ from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.triangulate import triangulate_left_out, triangulate_points
 
 FIT_STEPS = 3  # Gauss-Newton steps of each camera's pose at each shift, from the start's
+REFIT_SHIFTS = 3  # shifts a camera's pose is fitted again at: its best ones with the start's pose
 FIT_SCALE_PX = 2.0  # the Cauchy loss's scale there: the noise and the wand's motion left in a frame
 ROUNDS = 4  # poses found again with the offsets found, until none moves: cameras out of time spoil the first poses
 
@@ -147,24 +148,43 @@ def shift_scores(R: np.ndarray, t: np.ndarray, labelled: WandPairs, shifts: np.n
     number = labelled.frames[labelled.frame]  # (P,) each pair's frame number
     focal_px = np.asarray(focal, float).reshape(n, -1).mean(axis=1)
     by_camera = camera_rows(labelled.camera, n)
-    scores = np.full((n, len(shifts)), np.nan)
-    for j, s in enumerate(shifts):
+    each = []  # (P, 2, 3) the others' ends each pair meets at each shift
+    for s in shifts:
         at = np.searchsorted(labelled.frames, number + s)
         exists = (at < F) & (labelled.frames[np.minimum(at, F - 1)] == number + s)
         at = np.where(exists, at, 0)
         ends = np.where(exists[:, None, None], X_all[at], np.nan)
         # a frame the camera saw itself: the others' ends alone, never its own sighting's
         mine = row_of[at, labelled.camera]
-        ends = np.where((exists & (mine >= 0))[:, None, None], X_own[np.maximum(mine, 0)], ends)
-        # each camera's pose fitted again to the others' ends at this shift: the start fitted it at
-        # the offsets so far, and a camera out of time kept a pose that fits them best there
-        Rs, ts = refit_poses(R, t, labelled.camera, ends, labelled.xy, FIT_SCALE_PX / focal_px)
-        e = _pair_errors(Rs[labelled.camera], ts[labelled.camera], ends, labelled.xy) * focal_px[labelled.camera]
+        each.append(np.where((exists & (mine >= 0))[:, None, None], X_own[np.maximum(mine, 0)], ends))
+    scale = FIT_SCALE_PX / focal_px
+    scores = _medians(by_camera, [_pair_errors(R[labelled.camera], t[labelled.camera], ends, labelled.xy) for ends in each])
+    # each camera's pose fitted again to the others' ends at its best few shifts: the start fitted
+    # it at the offsets so far, and a camera out of time kept the pose that fits it best there
+    with np.errstate(invalid="ignore"):
+        rank = np.argsort(np.argsort(np.where(np.isfinite(scores), scores, np.inf), axis=1), axis=1)
+    refitted = []
+    for j, ends in enumerate(each):
+        rows = (rank[:, j] < REFIT_SHIFTS)[labelled.camera]
+        Rs, ts = refit_poses(R, t, labelled.camera[rows], ends[rows], labelled.xy[rows], scale)
+        e = np.full(len(labelled), np.nan)
+        e[rows] = _pair_errors(Rs[labelled.camera[rows]], ts[labelled.camera[rows]], ends[rows], labelled.xy[rows])
+        refitted.append(e)
+    again = _medians(by_camera, refitted)
+    scores = np.where(np.isfinite(again), again, scores) * focal_px[:, None]
+    return scores
+
+
+def _medians(by_camera: list[np.ndarray], errors: list[np.ndarray]) -> np.ndarray:
+    """(N, S) each camera's median of each shift's errors (S lists of (P,)), NaN where it has
+    fewer than :data:`MIN_TIMING_FRAMES` finite ones."""
+    out = np.full((len(by_camera), len(errors)), np.nan)
+    for j, e in enumerate(errors):
         for c, rows in enumerate(by_camera):
             v = e[rows][np.isfinite(e[rows])]
             if len(v) >= MIN_TIMING_FRAMES:
-                scores[c, j] = float(np.median(v))
-    return scores
+                out[c, j] = float(np.median(v))
+    return out
 
 
 def refit_poses(R: np.ndarray, t: np.ndarray, camera: np.ndarray, ends: np.ndarray, xy: np.ndarray,
@@ -193,16 +213,22 @@ def refit_poses(R: np.ndarray, t: np.ndarray, camera: np.ndarray, ends: np.ndarr
         skew -= np.swapaxes(skew, 1, 2)
         J = np.concatenate([-dp @ skew, dp], axis=2)  # (2P, 2, 6)
         w = 1.0 / (1.0 + (r**2).sum(1) / scale[cam2] ** 2)
-        H = np.zeros((n, 6, 6))
-        g = np.zeros((n, 6))
-        np.add.at(H, cam2, w[:, None, None] * np.einsum("kai,kaj->kij", J, J))
-        np.add.at(g, cam2, w[:, None] * np.einsum("kai,ka->ki", J, r))
+        # each camera's normal equations, every entry summed by one bincount (np.add.at was most of it)
+        H = _sum_by(cam2, w[:, None, None] * np.einsum("kai,kaj->kij", J, J), n)
+        g = _sum_by(cam2, w[:, None] * np.einsum("kai,ka->ki", J, r), n)
         damp = 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(6) + 1e-12 * np.eye(6)
         step = -np.linalg.solve(H + damp, g[..., None])[..., 0]
         for c in np.flatnonzero(np.isfinite(step).all(1) & (np.abs(step).sum(1) > 0)):
             rot = rotvec_to_matrix(step[c, :3])
             R[c], t[c] = rot @ R[c], rot @ t[c] + step[c, 3:]
     return R, t
+
+
+def _sum_by(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(n, ...) the sums of ``values`` (K, ...) over the rows of each ``group`` (K,) in [0, n)."""
+    width = int(np.prod(values.shape[1:]))
+    index = (group[:, None] * width + np.arange(width)).ravel()
+    return np.bincount(index, values.reshape(-1), minlength=n * width).reshape((n, *values.shape[1:]))
 
 
 def _pair_errors(R: np.ndarray, t: np.ndarray, ends: np.ndarray, xy: np.ndarray) -> np.ndarray:
