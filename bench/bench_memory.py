@@ -1,5 +1,5 @@
 """Peak memory against the size of the data (issue 20, class 3): the largest wand.csv a capture
-may hold (wandcal.capture.folder.MAX_CSV_BYTES) read by the folder reader and calibrated, and the
+may hold (wandcal.capture.csv_tables.MAX_CSV_BYTES) read by the folder reader and calibrated, and the
 largest blob-set request body (wandcal.service.request_limits.MAX_BLOBSETS_BODY_BYTES) posted to a real
 server. Each figure is the peak resident set (VmHWM) above the process's own before the work,
 divided by the data's size: the multiple docs/reliability.md publishes.
@@ -77,7 +77,7 @@ def big_capture(folder: Path, target_bytes: int) -> int:
 
 
 def measure_csv(calibrate: bool) -> list[str]:
-    from wandcal.capture.folder import MAX_CSV_BYTES
+    from wandcal.capture.csv_tables import MAX_CSV_BYTES
 
     with tempfile.TemporaryDirectory() as tmp:
         size = big_capture(Path(tmp), MAX_CSV_BYTES)

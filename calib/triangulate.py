@@ -67,6 +67,33 @@ def triangulate_points(
     return refine_points(R, t, point, camera, xy, X)
 
 
+def triangulate_left_out(
+    R: np.ndarray, t: np.ndarray, point: np.ndarray, camera: np.ndarray, xy: np.ndarray, n_points: int,
+    cameras: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each observation's point triangulated from the *other* cameras' observations of it alone
+    (shapes as :func:`triangulate_points`; ``cameras`` (N,) bool: the cameras whose observations
+    may be used, default all), in one call: each observation's point is a point of its own.
+
+    Returns:
+        X (M, 3) metres, NaN where fewer than two other cameras saw the point; ``of`` (L,) and
+        ``mate`` (L,): the observations used, ``mate`` for the point of observation ``of``. Each
+        point's sums run over its observations in their order here, so X is what triangulating
+        one camera's points at a time, without it, gives, to the last digit.
+    """
+    by_point = np.argsort(point, kind="stable")  # each point's observations, in their order here
+    start = np.searchsorted(point[by_point], np.arange(n_points + 1))
+    lo, hi = start[point], start[point + 1]
+    width = hi - lo
+    mate = by_point[np.repeat(lo - np.cumsum(width) + width, width) + np.arange(int(width.sum()))]  # same-point rows
+    of = np.repeat(np.arange(len(point)), width)
+    keep = camera[mate] != camera[of]
+    if cameras is not None:
+        keep &= cameras[camera[mate]]
+    mate, of = mate[keep], of[keep]
+    return triangulate_points(R, t, of, camera[mate], xy[mate], len(point)), of, mate
+
+
 def refine_points(
     R: np.ndarray, t: np.ndarray, point: np.ndarray, camera: np.ndarray, xy: np.ndarray, X: np.ndarray
 ) -> np.ndarray:

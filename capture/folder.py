@@ -5,10 +5,7 @@ Every error names the file, the field or row, and says what to fix.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +19,15 @@ from wandcal.calib.rig import (
     StaticObservations,
     VerticalObservations,
     WandObservations,
+)
+from wandcal.capture.csv_tables import (
+    camera_cell,
+    csv_rows,
+    float_cell,
+    frame_rows,
+    frame_table,
+    read_csv_text,
+    write_csv,
 )
 from wandcal.capture.rig_file import CaptureFormatError, read_rig, rig_to_json
 from wandcal.capture.world_references import reference_clash
@@ -44,13 +50,6 @@ FLOOR_COLUMNS = ("point", "camera", "u", "v")
 DROP_COLUMNS = ("frame", "camera", "u", "v")
 
 
-MAX_FRAME = 2**53  # frame numbers beyond this lose precision wherever they become floats (JSON, plots)
-# The largest capture CSV read (wand.csv, static.csv, points.csv, axis.csv), checked before reading:
-# the server's upload limit, ~2 million rows (8 cameras waving at 100 fps for 20 minutes, ten times
-# a thorough wanding). Reading and calibrating take a bounded multiple of it (docs/reliability.md).
-MAX_CSV_BYTES = 64 * 1024 * 1024
-
-
 @dataclass(frozen=True, eq=False)
 class Capture:
     """A points-level capture: the rig, its wand blobs, its optional static-object blobs, and the
@@ -66,17 +65,17 @@ class Capture:
 
 def parse_wand_csv(text: str, rig: Rig, source: str = WAND_FILE) -> WandObservations:
     """Parse wand.csv text; errors name the line and the column."""
-    return WandObservations(*_frame_table(text, rig, WAND_COLUMNS, source))
+    return WandObservations(*frame_table(text, rig, WAND_COLUMNS, source))
 
 
 def parse_static_csv(text: str, rig: Rig, source: str = STATIC_FILE) -> StaticObservations:
-    rows = _rows(text, STATIC_COLUMNS, source)
+    rows = csv_rows(text, STATIC_COLUMNS, source)
     camera = np.empty(len(rows), dtype=np.int64)
     uv = np.empty((len(rows), 2))
     lookup = {cid: i for i, cid in enumerate(rig.ids)}
     for k, (line, row) in enumerate(rows):
-        camera[k] = _camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
-        uv[k] = _float_cell(row["u"], f"{source} line {line}, column 'u'"), _float_cell(
+        camera[k] = camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
+        uv[k] = float_cell(row["u"], f"{source} line {line}, column 'u'"), float_cell(
             row["v"], f"{source} line {line}, column 'v'"
         )
     return StaticObservations(camera=camera, uv=uv)
@@ -93,9 +92,9 @@ def parse_points_csv(text: str, rig: Rig, source: str = POINTS_FILE) -> PointObs
     # dropped and counted by the pipeline (wandcal.calib.observations.point_tracks), not refused here
     first = text.lstrip("\ufeff").partition("\n")[0]
     if POINT_COLUMN not in (h.strip() for h in first.split(",")):
-        return PointObservations(*_frame_table(text, rig, POINTS_COLUMNS, source))
-    rows = _rows(text, (*POINTS_COLUMNS, POINT_COLUMN), source)
-    frame, camera, uv = _frame_rows(rows, rig, source)
+        return PointObservations(*frame_table(text, rig, POINTS_COLUMNS, source))
+    rows = csv_rows(text, (*POINTS_COLUMNS, POINT_COLUMN), source)
+    frame, camera, uv = frame_rows(rows, rig, source)
     names = [(row[POINT_COLUMN] or "").strip() for _, row in rows]
     named = [k for k, n in enumerate(names) if n]
     if named and len(named) < len(names):
@@ -107,74 +106,9 @@ def parse_points_csv(text: str, rig: Rig, source: str = POINTS_FILE) -> PointObs
     return PointObservations(frame, camera, uv, np.array(names, dtype=str) if named else None)
 
 
-def _frame_table(text: str, rig: Rig, columns: tuple[str, ...], source: str):
-    """(frame (B,), camera (B,), uv (B, 2)) of a ``frame,camera,u,v`` table. Well-formed files
-    (every capture wandcal writes) are converted column by column; anything else goes through
-    the row-by-row reader, whose errors name the line and the column."""
-    fast = _frame_table_fast(text, rig, columns)
-    if fast is not None:
-        return fast
-    return _frame_rows(_rows(text, columns, source), rig, source)
-
-
-def _frame_rows(rows: list[tuple[int, dict]], rig: Rig, source: str):
-    """(frame (B,), camera (B,), uv (B, 2)) of parsed ``frame,camera,u,v`` rows, row by row."""
-    frame = np.empty(len(rows), dtype=np.int64)
-    camera = np.empty(len(rows), dtype=np.int64)
-    uv = np.empty((len(rows), 2))
-    lookup = {cid: i for i, cid in enumerate(rig.ids)}
-    for k, (line, row) in enumerate(rows):
-        frame[k] = _int_cell(row["frame"], f"{source} line {line}, column 'frame'")
-        camera[k] = _camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
-        where = f"{source} line {line} (frame {frame[k]})"
-        uv[k] = _float_cell(row["u"], f"{where}, column 'u'"), _float_cell(row["v"], f"{where}, column 'v'")
-    return frame, camera, uv
-
-
-def _frame_table_fast(text: str, rig: Rig, columns: tuple[str, ...]):
-    """The table parsed by numpy's C reader, or None when any cell would need a message."""
-    if "\0" in text or '"' in text:
-        return None
-    first, _, rest = text.partition("\n")
-    header = [h.strip() for h in first.split(",")]
-    if any(c not in header for c in columns) or len(set(header)) != len(header):
-        return None
-    frame_c, cam_c, u_c, v_c = (header.index(c) for c in columns)
-    # an empty table makes loadtxt warn; it is checked here instead of turning warnings into
-    # errors, whose filter is process-wide and not thread-safe (the server reads in many threads)
-    if not rest.strip():
-        return None
-    # from bytes, not io.StringIO: a StringIO holds its text as 4 bytes a character, which made
-    # reading a 64 MB wand.csv peak at 8 times its size (bench/bench_memory.py)
-    # the rows after the header, so no skiprows: NumPy notes (warns) how a skipped count meets a blank
-    # line, and silencing that would change the process-wide warnings filter, which is not thread-safe
-    raw = rest.encode()
-    # one pass over the text, not one for the numbers and one for the camera ids (0.29 -> 0.22 s at 64
-    # cameras x 3000 frames); a cell longer than the longest id is cut to one character more than
-    # it, which matches no id and sends the table to the row-by-row reader
-    width = max(map(len, rig.ids), default=0) + 1
-    dtype = np.dtype([("frame", "f8"), ("camera", f"U{width}"), ("u", "f8"), ("v", "f8")])
-    try:
-        table = np.loadtxt(io.BytesIO(raw), delimiter=",", usecols=(frame_c, cam_c, u_c, v_c), dtype=dtype, ndmin=1,
-                           encoding="utf-8")
-    except ValueError:
-        return None
-    del raw
-    if len(table) == 0:
-        return None
-    frame, uv, cams = table["frame"], np.stack([table["u"], table["v"]], axis=1), table["camera"]
-    if not (np.all(np.isfinite(frame)) and np.all(np.isfinite(uv)) and np.all(frame == np.round(frame)) and frame.min() >= 0 and frame.max() <= MAX_FRAME):
-        return None
-    ids, index = np.unique(np.char.strip(cams), return_inverse=True)
-    lookup = {cid: i for i, cid in enumerate(rig.ids)}
-    if any(cid not in lookup for cid in ids):
-        return None
-    return frame.astype(np.int64), np.array([lookup[cid] for cid in ids], dtype=np.int64)[index], uv
-
-
 def parse_axis_csv(text: str, rig: Rig, source: str = AXIS_FILE) -> AxisObservations:
     """Parse axis.csv text (``role,camera,u,v``, role one of ``AXIS_ROLES``)."""
-    rows = _rows(text, AXIS_COLUMNS, source)
+    rows = csv_rows(text, AXIS_COLUMNS, source)
     role, camera, uv = [], np.empty(len(rows), dtype=np.int64), np.empty((len(rows), 2))
     lookup = {cid: i for i, cid in enumerate(rig.ids)}
     seen: dict[tuple[str, int], int] = {}
@@ -185,8 +119,8 @@ def parse_axis_csv(text: str, rig: Rig, source: str = AXIS_FILE) -> AxisObservat
                 f"{source} line {line}, column 'role': {row['role']!r} is not one of {', '.join(AXIS_ROLES)}"
             )
         role.append(name)
-        camera[k] = _camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
-        uv[k] = _float_cell(row["u"], f"{source} line {line}, column 'u'"), _float_cell(
+        camera[k] = camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
+        uv[k] = float_cell(row["u"], f"{source} line {line}, column 'u'"), float_cell(
             row["v"], f"{source} line {line}, column 'v'"
         )
         first = seen.setdefault((name, int(camera[k])), line)
@@ -202,7 +136,7 @@ def parse_axis_csv(text: str, rig: Rig, source: str = AXIS_FILE) -> AxisObservat
 
 def parse_floor_csv(text: str, rig: Rig, source: str = FLOOR_FILE) -> VerticalObservations:
     """Parse floor.csv text (``point,camera,u,v``: each floor point by name, once per camera that sees it)."""
-    rows = _rows(text, FLOOR_COLUMNS, source)
+    rows = csv_rows(text, FLOOR_COLUMNS, source)
     lookup = {cid: i for i, cid in enumerate(rig.ids)}
     names: dict[str, int] = {}
     seen: dict[tuple[int, int], int] = {}
@@ -212,8 +146,8 @@ def parse_floor_csv(text: str, rig: Rig, source: str = FLOOR_FILE) -> VerticalOb
         if not name:
             raise CaptureFormatError(f"{source} line {line}, column 'point': empty; name each floor point")
         key[k] = names.setdefault(name, len(names))
-        camera[k] = _camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
-        uv[k] = _float_cell(row["u"], f"{source} line {line}, column 'u'"), _float_cell(
+        camera[k] = camera_cell(row["camera"], lookup, rig, f"{source} line {line}")
+        uv[k] = float_cell(row["u"], f"{source} line {line}, column 'u'"), float_cell(
             row["v"], f"{source} line {line}, column 'v'")
         first = seen.setdefault((int(key[k]), int(camera[k])), line)
         if first != line:
@@ -224,7 +158,7 @@ def parse_floor_csv(text: str, rig: Rig, source: str = FLOOR_FILE) -> VerticalOb
 
 def parse_drop_csv(text: str, rig: Rig, source: str = DROP_FILE) -> VerticalObservations:
     """Parse drop.csv text (``frame,camera,u,v``: the dropped object, one blob per camera and frame)."""
-    frame, camera, uv = _frame_table(text, rig, DROP_COLUMNS, source)
+    frame, camera, uv = frame_table(text, rig, DROP_COLUMNS, source)
     pairs = frame.astype(np.int64) * len(rig.cameras) + camera
     unique, counts = np.unique(pairs, return_counts=True)
     if len(unique) < len(pairs):
@@ -240,9 +174,9 @@ def _read_vertical(folder: Path, rig: Rig) -> VerticalObservations | None:
     floor_path, drop_path = folder / FLOOR_FILE, folder / DROP_FILE
     _refuse_clash(folder, [path.name for path in (floor_path, drop_path) if path.is_file()])
     if floor_path.is_file():
-        return parse_floor_csv(_read_text(floor_path), rig, str(floor_path))
+        return parse_floor_csv(read_csv_text(floor_path), rig, str(floor_path))
     if drop_path.is_file():
-        return parse_drop_csv(_read_text(drop_path), rig, str(drop_path))
+        return parse_drop_csv(read_csv_text(drop_path), rig, str(drop_path))
     return None
 
 
@@ -267,7 +201,7 @@ def read_capture(folder: str | Path) -> Capture:
     rig = read_rig(folder, allow_no_wand=has_points)
     wand_path = folder / WAND_FILE
     if wand_path.is_file():
-        wand = parse_wand_csv(_read_text(wand_path), rig, str(wand_path))
+        wand = parse_wand_csv(read_csv_text(wand_path), rig, str(wand_path))
     elif has_points:
         wand = WandObservations(np.zeros(0), np.zeros(0), np.zeros((0, 2)))
     else:
@@ -277,16 +211,16 @@ def read_capture(folder: str | Path) -> Capture:
     static = None
     static_path = folder / STATIC_FILE
     if static_path.is_file():
-        static = parse_static_csv(_read_text(static_path), rig, str(static_path))
+        static = parse_static_csv(read_csv_text(static_path), rig, str(static_path))
         if rig.static_markers is None:
             raise CaptureFormatError(
                 f"{static_path}: static blobs are given but rig.json has no 'static_object.markers_m'; "
                 "add the static object's marker coordinates or remove static.csv"
             )
-    points = parse_points_csv(_read_text(points_path), rig, str(points_path)) if has_points else None
+    points = parse_points_csv(read_csv_text(points_path), rig, str(points_path)) if has_points else None
     check_wandless(rig, wand, points, str(folder / RIG_FILE), str(wand_path), str(points_path))
     axis_path = folder / AXIS_FILE
-    axis = parse_axis_csv(_read_text(axis_path), rig, str(axis_path)) if axis_path.is_file() else None
+    axis = parse_axis_csv(read_csv_text(axis_path), rig, str(axis_path)) if axis_path.is_file() else None
     vertical = _read_vertical(folder, rig)
     held = ((STATIC_FILE, static.camera if static is not None else ()), (AXIS_FILE, axis.camera if axis is not None else ()),
             (f"{vertical.kind}.csv" if vertical is not None else FLOOR_FILE, vertical.camera if vertical is not None else ()))
@@ -344,124 +278,27 @@ def write_capture(
     (folder / RIG_FILE).write_text(json.dumps(rig_to_json(rig), indent=2) + "\n")
     ids = rig.ids
     px = lambda uv: (f"{uv[0]:.4f}", f"{uv[1]:.4f}")  # noqa: E731
-    _write_csv(folder / WAND_FILE, WAND_COLUMNS, ([int(f), ids[c], *px(uv)] for f, c, uv in zip(wand.frame, wand.camera, wand.uv)))
+    write_csv(folder / WAND_FILE, WAND_COLUMNS, ([int(f), ids[c], *px(uv)] for f, c, uv in zip(wand.frame, wand.camera, wand.uv)))
     if static is not None:
-        _write_csv(folder / STATIC_FILE, STATIC_COLUMNS, ([ids[c], *px(uv)] for c, uv in zip(static.camera, static.uv)))
+        write_csv(folder / STATIC_FILE, STATIC_COLUMNS, ([ids[c], *px(uv)] for c, uv in zip(static.camera, static.uv)))
     if points is not None and points.point is not None:
-        _write_csv(folder / POINTS_FILE, (*POINTS_COLUMNS, POINT_COLUMN),
+        write_csv(folder / POINTS_FILE, (*POINTS_COLUMNS, POINT_COLUMN),
                    ([int(f), ids[c], *px(uv), str(n)]
                     for f, c, uv, n in zip(points.frame, points.camera, points.uv, points.point)))
     elif points is not None:
-        _write_csv(folder / POINTS_FILE, POINTS_COLUMNS,
+        write_csv(folder / POINTS_FILE, POINTS_COLUMNS,
                    ([int(f), ids[c], *px(uv)] for f, c, uv in zip(points.frame, points.camera, points.uv)))
     if axis is not None:
-        _write_csv(folder / AXIS_FILE, AXIS_COLUMNS, ([str(r), ids[c], *px(uv)] for r, c, uv in zip(axis.role, axis.camera, axis.uv)))
+        write_csv(folder / AXIS_FILE, AXIS_COLUMNS, ([str(r), ids[c], *px(uv)] for r, c, uv in zip(axis.role, axis.camera, axis.uv)))
     if vertical is not None:
         name, columns = (FLOOR_FILE, FLOOR_COLUMNS) if vertical.kind == "floor" else (DROP_FILE, DROP_COLUMNS)
         key = (lambda k: f"p{k + 1}") if vertical.kind == "floor" else int
-        _write_csv(folder / name, columns,
+        write_csv(folder / name, columns,
                    ([key(k), ids[c], *px(uv)] for k, c, uv in zip(vertical.key, vertical.camera, vertical.uv)))
-
-
-def csv_records(data: bytes) -> list[bytes]:
-    """The records of a CSV file as wandcal writes them (every writer: :func:`write_capture`, the
-    stream's appends, the recorder): each ends in ``\n`` (``\r\n`` from the csv module), and no
-    cell holds a line end, as camera ids cannot (wandcal.calib.rig.CAMERA_ID). A last piece
-    without its ``\n`` was cut by a crash and is not a record. Crash recovery counts with this."""
-    pieces = data.split(b"\n")
-    return [p + b"\n" for p in pieces[:-1]]
-
-
-def _write_csv(path: Path, columns: tuple[str, ...], rows) -> None:
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(columns)
-        w.writerows(rows)
 
 
 def save_capture(folder: str | Path, capture: Capture) -> None:
     """Write every part of ``capture`` (see :func:`write_capture`)."""
     write_capture(folder, capture.rig, capture.wand, capture.static, capture.points, capture.axis, capture.vertical)
-
-
-def _read_text(path: Path) -> str:
-    size = path.stat().st_size
-    if size > MAX_CSV_BYTES:
-        raise CaptureFormatError(f"{path}: {size} bytes, more than the {MAX_CSV_BYTES} a capture file may hold "
-                                 "(about 2 million rows); split the recording into shorter captures, or keep every "
-                                 "n-th frame")
-    return decode_text(path.read_bytes(), str(path))
-
-
-def decode_text(data: bytes, source: str) -> str:
-    """A CSV file's bytes as text: UTF-8, with or without a byte-order mark (spreadsheets write
-    one). The one decoder of every capture CSV, read from a folder (the CLI, replay) or uploaded."""
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        raise CaptureFormatError(f"{source}: not a text file (it does not decode as UTF-8); give a CSV file") from None
-
-
-def _rows(text: str, columns: tuple[str, ...], source: str) -> list[tuple[int, dict]]:
-    if "\0" in text:
-        raise CaptureFormatError(f"{source}: holds binary data (NUL bytes), not CSV text; the header must be "
-                                 f"{','.join(columns)}")
-    if not text.strip():  # not a bad header: no header at all (a recording that never started, a failed copy)
-        raise CaptureFormatError(f"{source}: the file is empty; it needs the header {','.join(columns)} and a row a "
-                                 "blob (record or detect the capture again, or copy the file again)")
-    # newline="": the csv module itself finds each record's end, as it does when writing; str.splitlines
-    # would also split at \x1c-\x1e, \x85 and \u2028, inside a cell
-    reader = csv.DictReader(io.StringIO(text, newline=""))
-    try:
-        return _dict_rows(reader, columns, source)
-    except csv.Error as exc:  # a field past the csv module's size limit, a quote left open
-        raise CaptureFormatError(f"{source} line {reader.line_num}: not CSV ({exc}); the header must be "
-                                 f"{','.join(columns)}") from None
-
-
-def _dict_rows(reader: csv.DictReader, columns: tuple[str, ...], source: str) -> list[tuple[int, dict]]:
-    header = [h.strip() for h in (reader.fieldnames or [])]
-    missing = [c for c in columns if c not in header]
-    if missing:
-        raise CaptureFormatError(
-            f"{source}: missing column(s) {', '.join(missing)}; the header must be {','.join(columns)}"
-        )
-    reader.fieldnames = header
-    out = []
-    for line, row in enumerate(reader, start=2):
-        if not any((v or "").strip() for v in row.values() if isinstance(v, str)):
-            continue
-        out.append((line, row))
-    return out
-
-
-def _camera_cell(value: str | None, lookup: dict[str, int], rig: Rig, where: str) -> int:
-    key = (value or "").strip()
-    if key not in lookup:
-        raise CaptureFormatError(f"{where}: unknown camera id {key!r}; rig.json lists {', '.join(rig.ids)}: if "
-                                 "rig.json is of another capture, put the rig.json of the cameras that recorded this "
-                                 f"one beside it, else add {key!r} to rig.json")
-    return lookup[key]
-
-
-def _float_cell(value: str | None, where: str) -> float:
-    try:
-        x = float((value or "").strip())
-    except ValueError:
-        raise CaptureFormatError(f"{where}: {value!r} is not a number") from None
-    if not math.isfinite(x):
-        raise CaptureFormatError(f"{where}: {value!r} is not finite; drop rows of undetected blobs instead of NaN")
-    return x
-
-
-def _int_cell(value: str | None, where: str) -> int:
-    try:
-        number = int((value or "").strip())
-    except ValueError:
-        raise CaptureFormatError(f"{where}: {value!r} is not a whole frame number") from None
-    if not 0 <= number <= MAX_FRAME:
-        raise CaptureFormatError(f"{where}: frame {value!r} is out of range; frame numbers are whole numbers from 0 "
-                                 f"to {MAX_FRAME}")
-    return number
 
 

@@ -27,7 +27,8 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Camera, Rig
 from wandcal.calib.run.result import RESULT_FORMAT, CalibrationResult
 from wandcal.calib.run.result import result_from_json as typed_result
-from wandcal.capture.folder import MAX_FRAME, CaptureFormatError
+from wandcal.capture.csv_tables import MAX_FRAME
+from wandcal.capture.folder import CaptureFormatError
 from wandcal.capture.rig_file import MAX_IMAGE_SIDE_PX, check_format, positive_number
 
 __all__ = ["CAMERA_FIELDS", "RESULT_FIELDS", "RESULT_FORMAT", "ResultFile", "check_result", "read_result",

@@ -13,7 +13,8 @@ import numpy as np
 
 from wandcal.calib.rig import Rig
 from wandcal.calib.watch.take import TakeBlobs, check_take
-from wandcal.capture.folder import WAND_COLUMNS, CaptureFormatError, decode_text, parse_wand_csv
+from wandcal.capture.csv_tables import decode_text
+from wandcal.capture.folder import WAND_COLUMNS, CaptureFormatError, parse_wand_csv
 from wandcal.capture.result_file import ResultFile
 from wandcal.capture.rig_file import read_rig, rig_to_json
 from wandcal.drivers.capture_files import RIG_FILE, TAKE_FILE

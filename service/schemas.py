@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import enum
-import math
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.run.options import (
@@ -191,57 +190,6 @@ class JobCreate(BaseModel):
         self.options.calibration(self.method.value).check()
         self.options.check_solve_only(self.method.value)
         return self
-
-
-class CheckCreate(BaseModel):
-    """``POST /captures/{id}/check``: the standing result to judge the capture against, as a done
-    job's id or as a posted wandcal-result/1 document (what ``wandcal check RESULT CAPTURE`` reads)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    job_id: str | None = Field(None, max_length=64, description="a done job whose result stands")
-    result: dict[str, Any] | None = Field(None, description="a wandcal-result/1 document (docs/result-format.md)")
-
-    @model_validator(mode="after")
-    def _one_result(self) -> CheckCreate:
-        if (self.job_id is None) == (self.result is None):
-            raise ValueError("give one of job_id (a done job's id) and result (a wandcal-result/1 document)")
-        return self
-
-
-class CameraCheckPublic(BaseModel):
-    """One camera against the others (wandcal.calib.judge.bumps.CameraCheck)."""
-
-    id: str
-    moved: bool | None = Field(description="true: it moved; null: too few frames to judge")
-    rms_px: float | None = Field(description="RMS of its leave-one-out errors, pixels")
-    median_px: float | None = Field(description="their median, pixels")
-    frames: int = Field(description="frames it was judged on (a point seen with two others counts half)")
-    reason: str
-    turned_deg: float | None = Field(None, description="a moved camera placed again: how far it turned, degrees")
-    shifted_m: float | None = Field(None, description="and how far it shifted, metres")
-
-    @field_validator("rms_px", "median_px", "turned_deg", "shifted_m", mode="before")
-    @classmethod
-    def _finite(cls, value):
-        return None if isinstance(value, float) and not math.isfinite(value) else value
-
-
-class CheckPublic(BaseModel):
-    """``wandcal check --json``'s document with the exit status it means."""
-
-    capture_id: str
-    job_id: str | None = Field(None, description="the job whose result was judged (null: a posted result)")
-    exit_code: int = Field(description="wandcal check's exit status: 0 every camera agrees, 1 a camera moved, 3 some "
-                           "camera could not be judged, or no knock explains the disagreement (another rig)")
-    verdict: Literal["agrees", "moved", "unjudged", "rebuilt"] = Field(
-        description="rebuilt: another rig or a rebuilt one, calibrate afresh (exit_code 3)")
-    cameras: list[CameraCheckPublic]
-    moved: list[str]
-    unjudged: list[str]
-    rebuilt: bool
-    rebuilt_why: list[str]
-    advice: str = Field(description="what to do next, in words")
 
 
 class JobProgress(BaseModel):

@@ -30,7 +30,7 @@ def in_capture_order(prev: ResultFile, capture_rig: Rig, source: str):
     (rig, R (N, 3, 3), t (N, 3) world->camera metres, [CameraFigures]). Raises CalibrationError,
     naming ``source``, when the capture is not of the result's rig."""
     from wandcal.calib.errors import CalibrationError
-    from wandcal.calib.judge.evaluate import rig_mismatches
+    from wandcal.calib.judge.bumps import rig_mismatches
 
     mismatch = rig_mismatches(prev.rig, capture_rig)
     if mismatch:

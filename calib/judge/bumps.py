@@ -25,7 +25,7 @@ from wandcal.calib.rig import PointObservations, Rig, WandObservations
 from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.start.markerlabels import end_pairs
 from wandcal.calib.start.resection import resect_camera
-from wandcal.calib.triangulate import reprojection_errors, triangulate_points
+from wandcal.calib.triangulate import reprojection_errors, triangulate_left_out, triangulate_points
 
 MOVED_FACTOR = 3.0  # a camera whose leave-one-out error is 3x what is expected of it has moved
 # ... and never below this: on clean data every leave-one-out error is a fraction of a pixel,
@@ -41,8 +41,34 @@ BUMP_MAX_M = 0.2
 # ... and a knocked camera placed again fits its points as it did before the knock: its median
 # error then within this many times its limit (a touched lens leaves some error a pose cannot take)
 BUMP_FIT_FACTOR = 3.0
+
+# A capture's rig.json and a result's cameras are one rig when every shared camera has the same
+# image size and its focal length and principal point agree within these: a refined focal
+# length moves by a few per cent at most (docs/verdict.md), another camera's by far more
+SAME_RIG_FOCAL = 0.1
+SAME_RIG_PRINCIPAL = 0.1  # of the image's size
 KNOCK_ADVICE = "it has moved or its lens was touched; recalibrate it with --solve-only"
 ANOTHER_RIG = "no knock explains it: the rig was rebuilt or this is another one"
+
+
+def rig_mismatches(calibrated: Rig, capture: Rig) -> list[str]:
+    """Why ``capture``'s cameras are not the ``calibrated`` ones (empty when they are one rig):
+    a camera the result does not have, another image size, or other intrinsics."""
+    out = []
+    for cam in capture.cameras:
+        if cam.id not in calibrated.ids:
+            out.append(f"the result has no camera {cam.id!r} (it has {', '.join(calibrated.ids)})")
+            continue
+        ref = calibrated.cameras[calibrated.index(cam.id)]
+        if (cam.width, cam.height) != (ref.width, ref.height):
+            out.append(f"{cam.id} is {cam.width}x{cam.height} px in the capture and {ref.width}x{ref.height} px in the result")
+            continue
+        focal = abs(cam.K[0, 0] / ref.K[0, 0] - 1)
+        shift = np.hypot(cam.K[0, 2] - ref.K[0, 2], cam.K[1, 2] - ref.K[1, 2]) / max(cam.width, cam.height)
+        if focal > SAME_RIG_FOCAL or shift > SAME_RIG_PRINCIPAL:
+            out.append(f"{cam.id}'s intrinsics differ: focal {cam.K[0, 0]:.1f} against {ref.K[0, 0]:.1f} px, principal "
+                       f"point ({cam.K[0, 2]:.0f}, {cam.K[1, 2]:.0f}) against ({ref.K[0, 2]:.0f}, {ref.K[1, 2]:.0f}) px")
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,60 +136,71 @@ def leave_one_out_errors(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: n
                          others: np.ndarray) -> np.ndarray:
     """(K,) camera c's errors, pixels, against points triangulated by the ``others`` (N,) bool
     cameras alone, over the points c and at least two of them saw."""
-    return _leave_one_out(R, t, seen, focal, c, others)[0]
-
-
-def _leave_one_out(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, c: int, others: np.ndarray,
-                   rms_px: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """:func:`leave_one_out_errors`, and with ``rms_px`` :func:`expected_loo_scale` from the same
-    triangulation (1.0 without)."""
-    use = others[seen.camera]
-    mine = seen.camera == c
-    views = np.bincount(seen.point[use], minlength=seen.n_points)
-    # only c's own points are triangulated: every camera's check triangulating the whole capture
-    # made `wandcal check` grow as cameras x frames (128 x 3000 of 2-4 cameras a frame: 1.3x calibrate)
-    in_c = np.zeros(seen.n_points, bool)
-    in_c[seen.point[mine]] = True
-    ok = ((views >= 2) & in_c)[seen.point]
-    sel, own = use & ok, mine & ok
-    X = triangulate_points(R, t, seen.point[sel], seen.camera[sel], seen.xy[sel], seen.n_points)
-    r = reprojection_errors(R, t, seen.point[own], seen.camera[own], seen.xy[own], X) * focal[c]
-    e = np.linalg.norm(r, axis=1)
-    scale = 1.0 if rms_px is None else expected_loo_scale(R, t, seen, focal, c, X, sel, own, rms_px)
-    return e[np.isfinite(e)], scale
-
-
-def expected_loo_scale(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, c: int, X: np.ndarray,
-                       sel: np.ndarray, own: np.ndarray, rms_px: np.ndarray) -> float:
-    """How much larger than its own RMS camera c's leave-one-out errors are expected to be: the
-    median over its points of sqrt(1 + the triangulation's own error, projected into c / rms_c^2).
-
-    A point ``X`` triangulated by the other cameras' sightings ``sel`` alone carries their noise
-    (each camera's per-axis variance rms_j^2 / 2 px^2, ``rms_px`` (N,) the result's reprojection
-    RMS); projected into c's image (its sightings ``own``) it adds tr(J_c cov(X) J_c^T) to c's own
-    rms_c^2. Two other cameras at a narrow angle (a 3-camera rig) make it several times c's own:
-    1.0 when the others pin the point exactly.
-    """
-    if not own.any() or rms_px[c] <= 0:
-        return 1.0
-    focal = np.asarray(focal, float).reshape(len(R), -1).mean(axis=1)  # (N,) px; fx and fy alike here
-    J = _projection_jacobians(R, t, seen.point[sel], seen.camera[sel], X)  # (K, 2, 3) normalised per metre
-    weight = (focal[seen.camera[sel]] ** 2) / np.maximum(rms_px[seen.camera[sel]] ** 2 / 2, 1e-12)
-    info = np.zeros((seen.n_points, 3, 3))
-    np.add.at(info, seen.point[sel], weight[:, None, None] * np.einsum("kai,kaj->kij", J, J))
-    pts = seen.point[own]
-    Jc = _projection_jacobians(R, t, pts, seen.camera[own], X) * focal[c]
-    with np.errstate(all="ignore"):
-        cov = np.linalg.pinv(info[pts])
-    extra = np.einsum("kai,kij,kaj->k", Jc, cov, Jc)
-    ratio = np.sqrt(1.0 + extra[np.isfinite(extra)] / rms_px[c] ** 2)
-    return float(np.median(ratio)) if len(ratio) else 1.0
+    return everyone_left_out(R, t, seen, focal, others)[0][c]
 
 
 def _projection_jacobians(R: np.ndarray, t: np.ndarray, point: np.ndarray, camera: np.ndarray,
                           X: np.ndarray) -> np.ndarray:
     """(K, 2, 3) derivatives of each sighting's normalised image point by its 3D point."""
     return projection_derivative(np.einsum("kij,kj->ki", R[camera], X[point]) + t[camera]) @ R[camera]
+
+
+def everyone_left_out(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, trusted: np.ndarray,
+                      rms_px: np.ndarray | None = None) -> tuple[list[np.ndarray], np.ndarray]:
+    """Each camera c's leave-one-out errors: [(K_c,) px] against points triangulated by the
+    ``trusted`` (N,) bool cameras but c alone, over the points c and at least two of them saw; and
+    with ``rms_px`` (N,) (the result's reprojection RMS) how much larger than its own RMS each
+    camera's errors are expected to be, (N,) (ones without): the median over its points of
+    sqrt(1 + the triangulation's own error, projected into c / rms_c^2) (:func:`_extra_errors`).
+    Two other cameras at a narrow angle (a 3-camera rig) make it several times c's own: 1.0 when
+    the others pin the point exactly.
+
+    One triangulation serves every camera: each sighting's point is triangulated, as a point of
+    its own, from the other trusted cameras' sightings of it. Each point's sums run over the same
+    sightings in the same order as one camera at a time did, so the numbers are the same to the
+    last digit; 128 calls of a few hundred points each were most of `wandcal check` at 128 cameras.
+    """
+    n = len(R)
+    if not len(seen.point):
+        return [np.zeros(0) for _ in range(n)], np.ones(n)
+    X, of, mate = triangulate_left_out(R, t, seen.point, seen.camera, seen.xy, seen.n_points, trusted)
+    views = np.bincount(of, minlength=len(seen.point))
+    own = np.flatnonzero(views >= 2)
+    cams = seen.camera[own]
+    r = reprojection_errors(R, t, own, cams, seen.xy[own], X) * np.asarray(focal, float).reshape(n, -1)[cams]
+    e = np.linalg.norm(r, axis=1)
+    by_camera = np.argsort(cams, kind="stable")
+    cuts = np.searchsorted(cams[by_camera], np.arange(n + 1))
+    errors = [e[by_camera[cuts[c]:cuts[c + 1]]] for c in range(n)]
+    errors = [v[np.isfinite(v)] for v in errors]
+    if rms_px is None:
+        return errors, np.ones(n)
+    sel = views[of] >= 2
+    extra = _extra_errors(R, t, seen, focal, X, of[sel], mate[sel], own, rms_px)
+    scales = np.ones(n)
+    for c in range(n):
+        ratio = extra[by_camera[cuts[c]:cuts[c + 1]]]
+        if len(ratio) and rms_px[c] > 0:
+            ratio = np.sqrt(1.0 + ratio[np.isfinite(ratio)] / rms_px[c] ** 2)
+            scales[c] = float(np.median(ratio)) if len(ratio) else 1.0
+    return errors, scales
+
+
+def _extra_errors(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, X: np.ndarray, of: np.ndarray,
+                  mate: np.ndarray, own: np.ndarray, rms_px: np.ndarray) -> np.ndarray:
+    """(K,) px^2: the triangulation's own error projected into each ``own`` (K,) sighting's camera c,
+    tr(J_c cov(X) J_c^T). Its point ``X[own]`` is triangulated from the sightings ``mate`` (L,) of
+    the other cameras (``of`` (L,): the own sighting each one serves), each carrying its camera's
+    noise, per-axis variance rms_j^2 / 2 px^2 (``rms_px`` (N,)); ``focal`` (N,) or (N, 2) px."""
+    focal = np.asarray(focal, float).reshape(len(R), -1).mean(axis=1)
+    J = _projection_jacobians(R, t, of, seen.camera[mate], X)
+    weight = (focal[seen.camera[mate]] ** 2) / np.maximum(rms_px[seen.camera[mate]] ** 2 / 2, 1e-12)
+    info = np.zeros((len(X), 3, 3))
+    np.add.at(info, of, weight[:, None, None] * np.einsum("kai,kaj->kij", J, J))
+    Jc = _projection_jacobians(R, t, own, seen.camera[own], X) * focal[seen.camera[own]][:, None, None]
+    with np.errstate(all="ignore"):
+        cov = np.linalg.pinv(info[own])
+    return np.einsum("kai,kij,kaj->k", Jc, cov, Jc)
 
 
 def check_cameras(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations | None,
@@ -218,8 +255,8 @@ def _judged(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, ex
     # the result's RMS is each camera's error against points it helped place; against points the
     # others place alone it is larger by the triangulation's own error (from the first pass)
     rms = None if expected_rms_px is None else np.asarray(expected_rms_px, float)
-    first = [_leave_one_out(R, t, seen, focal, c, np.arange(n) != c, rms) for c in range(n)]
-    expected = None if rms is None else rms * np.array([scale for _, scale in first])
+    first, scales = everyone_left_out(R, t, seen, focal, trusted, rms)
+    expected = None if rms is None else rms * scales
 
     def limits(errors: dict, agreeing: list[int]) -> np.ndarray:
         if expected is not None:
@@ -228,7 +265,7 @@ def _judged(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, ex
             ref = np.full(n, float(np.median(np.concatenate([errors[c] for c in agreeing]))))
         return np.maximum(MOVED_FACTOR * ref, MOVED_MIN_PX)
 
-    errors = {c: e for c, (e, _) in enumerate(first)}
+    errors = dict(enumerate(first))
     while True:
         agreeing = [c for c in range(n) if trusted[c] and len(errors[c]) >= 2 * MIN_JUDGED_FRAMES]
         if len(agreeing) < 3:
@@ -239,7 +276,7 @@ def _judged(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, ex
         if excess[worst] <= 1.0:
             break
         trusted[worst] = False
-        errors = {c: leave_one_out_errors(R, t, seen, focal, c, trusted & (np.arange(n) != c)) for c in range(n)}
+        errors = dict(enumerate(everyone_left_out(R, t, seen, focal, trusted)[0]))
     agreeing = [c for c in range(n) if trusted[c] and len(errors[c])]
     return errors, trusted, limits(errors, agreeing) if agreeing else np.full(n, MOVED_MIN_PX)
 

@@ -39,6 +39,24 @@ def coverage_grid(xy: np.ndarray, width: int, height: int, grid: tuple[int, int]
     return np.bincount(row * cols + col, minlength=rows * cols).reshape(rows, cols)
 
 
+def coverage_grids(camera: np.ndarray, xy: np.ndarray, sizes: list[tuple[int, int]],
+                   grid: tuple[int, int] = GRID) -> np.ndarray:
+    """(N, rows, columns) every camera's :func:`coverage_grid` in one pass (the same counts).
+
+    Args:
+        camera: (M,) camera index of each point; xy: (M, 2) pixel positions;
+        sizes: (N,) each camera's (width, height), pixels.
+    """
+    rows, cols = grid
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    width, height = (np.array([s[k] for s in sizes], dtype=float)[camera] for k in (0, 1))
+    inside = (xy[:, 0] >= 0) & (xy[:, 0] < width) & (xy[:, 1] >= 0) & (xy[:, 1] < height)
+    col = (xy[inside, 0] * cols / width[inside]).astype(int)
+    row = (xy[inside, 1] * rows / height[inside]).astype(int)
+    return np.bincount((camera[inside] * rows + row) * cols + col, minlength=len(sizes) * rows * cols).reshape(
+        len(sizes), rows, cols)
+
+
 def covered_fraction(counts: np.ndarray) -> float:
     """Share of the grid's cells that hold at least :data:`MIN_SAMPLES_PER_CELL` samples."""
     return float(np.mean(counts >= MIN_SAMPLES_PER_CELL))

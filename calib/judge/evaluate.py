@@ -20,11 +20,6 @@ from wandcal.calib.start.markerlabels import end_pairs
 from wandcal.calib.start.world import axis_points
 from wandcal.calib.triangulate import reprojection_errors, triangulate_points
 
-# A capture's rig.json and a result's cameras are one rig when every shared camera has the same
-# image size and its focal length and principal point agree within these: a refined focal
-# length moves by a few per cent at most (docs/verdict.md), another camera's by far more
-SAME_RIG_FOCAL = 0.1
-SAME_RIG_PRINCIPAL = 0.1  # of the image's size
 MAD_TO_SIGMA = 1.4826  # the MAD of Gaussian lengths times this is their standard deviation
 
 
@@ -53,26 +48,6 @@ class WandEvaluation:
     def error_px(self) -> np.ndarray:
         """(M,) residual magnitudes, pixels."""
         return np.linalg.norm(self.residual_px, axis=1)
-
-
-def rig_mismatches(calibrated: Rig, capture: Rig) -> list[str]:
-    """Why ``capture``'s cameras are not the ``calibrated`` ones (empty when they are one rig):
-    a camera the result does not have, another image size, or other intrinsics."""
-    out = []
-    for cam in capture.cameras:
-        if cam.id not in calibrated.ids:
-            out.append(f"the result has no camera {cam.id!r} (it has {', '.join(calibrated.ids)})")
-            continue
-        ref = calibrated.cameras[calibrated.index(cam.id)]
-        if (cam.width, cam.height) != (ref.width, ref.height):
-            out.append(f"{cam.id} is {cam.width}x{cam.height} px in the capture and {ref.width}x{ref.height} px in the result")
-            continue
-        focal = abs(cam.K[0, 0] / ref.K[0, 0] - 1)
-        shift = np.hypot(cam.K[0, 2] - ref.K[0, 2], cam.K[1, 2] - ref.K[1, 2]) / max(cam.width, cam.height)
-        if focal > SAME_RIG_FOCAL or shift > SAME_RIG_PRINCIPAL:
-            out.append(f"{cam.id}'s intrinsics differ: focal {cam.K[0, 0]:.1f} against {ref.K[0, 0]:.1f} px, principal "
-                       f"point ({cam.K[0, 2]:.0f}, {cam.K[1, 2]:.0f}) against ({ref.K[0, 2]:.0f}, {ref.K[1, 2]:.0f}) px")
-    return out
 
 
 def labelled_pairs(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations) -> WandPairs:

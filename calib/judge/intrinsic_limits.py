@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.geometry import finite_rows, rotvec_to_matrix
 from wandcal.calib.judge.faults.screen import _pose_columns
 
 GIVEN_IN_RIG = "given"  # the source of a focal sigma the rig gives (the camera's focal_std_px); else "default"
@@ -87,16 +87,28 @@ def focal_limit(R: np.ndarray, t: np.ndarray, xy_projected: np.ndarray, depth: n
     ``1 - 1/n`` of it (a point of two views, half): the focal column is weighted so. On Brown 1 and
     2 with a focal length 3% off the cameras moved 3.3-4.5 mm per 1%; the fit with the points held
     gave 6-9, with this weighting about 4."""
-    ok = np.isfinite(depth) & (depth > 0) & np.all(np.isfinite(xy_projected), axis=1)
+    ok = np.isfinite(depth) & (depth > 0) & finite_rows(xy_projected)
     if ok.sum() < MIN_ROWS:
         return None
-    idx = np.flatnonzero(ok)
-    idx = idx[:: max(1, len(idx) // MAX_ROWS)]
-    x, d = np.take(xy_projected, idx, axis=0), depth[idx]  # take: a 2-D gather at a tenth of indexing's cost
+    idx = _fit_rows(np.flatnonzero(ok))
+    # take: a 2-D gather at a tenth of indexing's cost
+    return _focal_fit(R, t, np.take(xy_projected, idx, axis=0), depth[idx], np.take(residual, idx, axis=0), views[idx],
+                      int(ok.sum()), focal_rel_std, source)
+
+
+def _fit_rows(usable: np.ndarray) -> np.ndarray:
+    """The rows the focal fit uses of a camera's ``usable`` ones: every k-th, :data:`MAX_ROWS` or so."""
+    return usable[:: max(1, len(usable) // MAX_ROWS)]
+
+
+def _focal_fit(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, residual: np.ndarray, views: np.ndarray,
+               usable: int, focal_rel_std: float, source: str) -> FocalLimit | None:
+    """:func:`focal_limit` on the rows its fit uses (:func:`_fit_rows`: x (K, 2) projections, d (K,)
+    depths, residual (K, 2), views (K,)) of the camera's ``usable`` ones."""
     X_cam = np.concatenate([x * d[:, None], d[:, None]], axis=1)
     X = (X_cam - t) @ R  # world points: R^T (X_cam - t)
     pose = _pose_columns(R, t, X, differences=True)  # the figures a result writes, as before
-    share = 1.0 - 1.0 / np.maximum(views[idx], 2)
+    share = 1.0 - 1.0 / np.maximum(views, 2)
     focal_col = -(x * share[:, None]).ravel()
     both = np.concatenate([pose, focal_col[:, None]], axis=1)
     scale = np.linalg.norm(both, axis=0)
@@ -111,10 +123,10 @@ def focal_limit(R: np.ndarray, t: np.ndarray, xy_projected: np.ndarray, depth: n
     C0 = _centre(R, t)
     C1 = _centre(rotvec_to_matrix(step[:3]) @ R, t + step[3:])
     shift = C1 - C0  # linear in the step: the step is per unit d, small enough for the rotation's first order
-    r = np.take(residual, idx, axis=0).ravel()
+    r = residual.ravel()
     sigma = float(np.sqrt(np.mean(r[np.isfinite(r)] ** 2))) if np.isfinite(r).any() else 0.0
     # the fit used every k-th observation: all of them would give sqrt(k) times less
-    data_std = sigma * float(np.sqrt(max(cov[6, 6], 0.0) * len(idx) / ok.sum())) / scale[6]
+    data_std = sigma * float(np.sqrt(max(cov[6, 6], 0.0) * len(x) / usable)) / scale[6]
     return FocalLimit(shift, float(shift @ R[2]), focal_rel_std, source, data_std)
 
 
@@ -125,17 +137,23 @@ def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> l
     out: list[FocalLimit | None] = []
     key = res.point - res.point.min() if len(res.point) else res.point
     views = np.bincount(key)[key]
+    # the rows focal_limit would keep, for every camera at once: only the rows its fit uses are gathered
+    usable = np.isfinite(res.depth) & (res.depth > 0) & finite_rows(res.xy + res.residual) & ~res.outlier
     for c, cam in enumerate(rig.cameras):
         if "focal" in refined:
             out.append(None)
             continue
         rows = res.rows_of(c)
-        rows = rows[~res.outlier[rows]]
+        rows = rows[usable[rows]]
+        if len(rows) < MIN_ROWS:
+            out.append(None)
+            continue
         given = getattr(cam, "focal_std_px", None)
         rel, source = (float(given) / float(cam.K[0, 0]), GIVEN_IN_RIG) if given else (DEFAULT_FOCAL_REL_STD, "default")
-        residual = np.take(res.residual, rows, axis=0)  # take: a 2-D gather at a tenth of indexing's cost
-        proj = np.take(res.xy, rows, axis=0) + residual
-        out.append(focal_limit(R[c], t[c], proj, res.depth[rows], residual, views[rows], rel, source))
+        idx = _fit_rows(rows)
+        residual = np.take(res.residual, idx, axis=0)  # take: a 2-D gather at a tenth of indexing's cost
+        out.append(_focal_fit(R[c], t[c], np.take(res.xy, idx, axis=0) + residual, res.depth[idx], residual, views[idx],
+                              len(rows), rel, source))
     return out
 
 

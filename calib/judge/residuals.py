@@ -15,7 +15,7 @@ from functools import cached_property
 
 import numpy as np
 
-from wandcal.calib.geometry import projection_derivative
+from wandcal.calib.geometry import finite_rows, projection_derivative, row_norms
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS, reject_worst_per_frame
 from wandcal.calib.observations import PointTracks, WandPairs, camera_rows, robust_sigma
 from wandcal.calib.start.labels import flatten
@@ -61,7 +61,7 @@ class Residuals:
     @property
     def error_px(self) -> np.ndarray:
         """(M,) residual magnitudes, pixels (normalised residuals times the mean focal length)."""
-        return np.linalg.norm(self.residual, axis=1) * self.focal
+        return row_norms(self.residual) * self.focal
 
     @cached_property
     def _rows(self) -> list[np.ndarray]:
@@ -77,10 +77,11 @@ def _depths(R: np.ndarray, t: np.ndarray, camera: np.ndarray, X: np.ndarray) -> 
     return np.einsum("mj,mj->m", np.take(R[:, 2, :], camera, axis=0), X) + t[camera, 2]
 
 
-def _wand_points(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known) -> np.ndarray:
+def _wand_points(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known, flat) -> np.ndarray:
     """(2F, 3) every labelled frame's ends: the solver's where it holds them (``known``: capture
-    frame numbers (F2,) and ends (F2, 2, 3), world frame), triangulated with all cameras elsewhere."""
-    point, camera, xy = flatten(pairs)
+    frame numbers (F2,) and ends (F2, 2, 3), world frame), triangulated with all cameras elsewhere.
+    flat: ``flatten(pairs)``."""
+    point, camera, xy = flat
     n = 2 * len(pairs.frames)
     if known is None or not len(known[0]) or np.shape(known[1])[1:] != (2, 3):
         return triangulate_points(R, t, point, camera, xy, n)
@@ -97,6 +98,17 @@ def _wand_points(R: np.ndarray, t: np.ndarray, pairs: WandPairs, known) -> np.nd
     return X
 
 
+def _rows_by_camera(pair_camera: np.ndarray, track_camera: np.ndarray | None, n: int) -> list[np.ndarray]:
+    """:func:`camera_rows` of the observations :func:`observation_residuals` lays out (every pair's
+    first end, every pair's second end, then the point tracks: pair_camera (P,), track_camera (T,)
+    or None), each camera's rows ascending, from a sort of the P pairs and the T tracks alone."""
+    P = len(pair_camera)
+    pieces = [camera_rows(pair_camera, n)]
+    tracked = camera_rows(track_camera, n) if track_camera is not None else None
+    return [np.concatenate([rows, rows + P] + ([tracked[c] + 2 * P] if tracked is not None else []))
+            for c, rows in enumerate(pieces[0])]
+
+
 def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks: PointTracks | None,
                           focal: np.ndarray, known: tuple[np.ndarray, np.ndarray] | None = None) -> Residuals:
     """Measure every labelled wand observation and point track against its point: the solver's
@@ -105,19 +117,21 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
     of its frame's triangulation (worst first, as the refinement does), so that its error stays with
     its own camera instead of spreading over the frame's others. R, t: (N, 3, 3), (N, 3) final
     poses; focal: (N, 2) fx, fy."""
-    point, camera, xy = flatten(pairs)
-    X = _wand_points(R, t, pairs, known)
+    point, camera, xy = flat = flatten(pairs)
+    X = _wand_points(R, t, pairs, known, flat)
     residual = reprojection_errors(R, t, point, camera, xy, X)  # kept where the points stay as they are
-    first = np.linalg.norm(residual * np.take(focal, camera, axis=0), axis=1)
+    first = row_norms(residual * np.take(focal, camera, axis=0))
     first_camera = camera
     if tracks is not None and len(tracks):
         points = triangulate_points(R, t, tracks.track, tracks.camera, tracks.xy, int(tracks.track.max()) + 1)
         track_res = reprojection_errors(R, t, tracks.track, tracks.camera, tracks.xy, points)
-        first = np.concatenate([first, np.linalg.norm(track_res * focal[tracks.camera], axis=1)])
+        first = np.concatenate([first, row_norms(track_res * focal[tracks.camera])])
         first_camera = np.concatenate([camera, tracks.camera])
     finite = np.isfinite(first)
-    sigmas = [robust_sigma(first[rows[finite[rows]]])
-              for rows in camera_rows(first_camera, int(first_camera.max()) + 1 if len(first_camera) else 0) if len(rows)]
+    by_camera = _rows_by_camera(pairs.camera, tracks.camera if tracks is not None and len(tracks) else None,
+                                int(first_camera.max()) + 1 if len(first_camera) else 0)
+    every = bool(finite.all())  # a clean rig's: no masking
+    sigmas = [robust_sigma(first[rows] if every else first[rows[finite[rows]]]) for rows in by_camera if len(rows)]
     limit = max(OUTLIER_SIGMAS * float(np.median(sigmas)) if sigmas else 0.0, MIN_OUTLIER_PX)
     P = len(pairs)
     worst = np.fmax(first[:P], first[P:len(point)]) if P else np.zeros(0)
@@ -132,20 +146,27 @@ def observation_residuals(R: np.ndarray, t: np.ndarray, pairs: WandPairs, tracks
         residual = reprojection_errors(R, t, point, camera, xy, X)
     depth = _depths(R, t, camera, np.take(X, point, axis=0))
     outlier = ~np.concatenate([keep, keep])
-    cloud = [X[np.all(np.isfinite(X), axis=1)]]
+    cloud = [X[finite_rows(X)]]
     if tracks is not None and len(tracks):
         camera = np.concatenate([camera, tracks.camera])
         point = np.concatenate([point, -1 - tracks.track])
         xy = np.concatenate([xy, tracks.xy])
         residual = np.concatenate([residual, track_res])
         depth = np.concatenate([depth, _depths(R, t, tracks.camera, points[tracks.track])])
-        outlier = np.concatenate([outlier, np.linalg.norm(track_res * focal[tracks.camera], axis=1) > limit])
-        cloud.append(points[np.all(np.isfinite(points), axis=1)])
-    ok = np.all(np.isfinite(residual), axis=1)
+        outlier = np.concatenate([outlier, row_norms(track_res * focal[tracks.camera]) > limit])
+        cloud.append(points[finite_rows(points)])
+    ok = finite_rows(residual)
     pts = np.concatenate(cloud)
     lo, hi = np.percentile(pts, EXTENT_QUANTILES, axis=0) if len(pts) else (np.zeros(3), np.zeros(3))
+    if ok.all():  # every row kept (a clean rig): no copies, and the rows by camera as sorted above
+        out = Residuals(camera=camera, point=point, xy=xy, residual=residual,
+                        focal=np.take(row_norms(focal) / np.sqrt(2), camera), depth=depth,
+                        outlier=outlier, X=X, frames=pairs.frames, extent=float(np.linalg.norm(hi - lo)) / EXTENT_SHARE,
+                        limit_px=limit)
+        out.__dict__["_rows"] = by_camera  # Residuals._rows, the same camera_rows of the same cameras
+        return out
     return Residuals(camera=camera[ok], point=point[ok], xy=xy[ok], residual=residual[ok],
-                     focal=np.linalg.norm(np.take(focal, camera[ok], axis=0), axis=1) / np.sqrt(2), depth=depth[ok], outlier=outlier[ok],
+                     focal=np.take(row_norms(focal) / np.sqrt(2), camera[ok]), depth=depth[ok], outlier=outlier[ok],
                      X=X, frames=pairs.frames, extent=float(np.linalg.norm(hi - lo)) / EXTENT_SHARE, limit_px=limit)
 
 
@@ -155,7 +176,8 @@ def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
     outliers against the rig's limit), ``ray_mrad`` (the inliers' RMS ray angle) and
     ``ray_distance`` (their RMS ray distance from the points, in the capture's units: metres with a
     wand) and ``residual_mm`` (the same in millimetres; None when ``scaled`` is False)."""
-    err = res.error_px
+    angles = row_norms(res.residual)  # every row's ray angle once (error_px's norm)
+    err = angles * res.focal
     out: list[dict] = []
     for c in range(n_cameras):
         sel = res.rows_of(c)
@@ -165,19 +187,23 @@ def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
                         "outlier_share": None, "ray_mrad": None, "ray_distance": None, "residual_mm": None})
             continue
         inl = ~res.outlier[sel]
-        angle = np.linalg.norm(np.take(res.residual, sel, axis=0), axis=1)[inl]  # take: a 2-D gather, cheaper
+        every = bool(inl.all())  # no outlier: the inliers' figures are the camera's, not copied again
+        some = every or bool(inl.any())
+        angle = angles[sel] if every else angles[sel][inl]
         # the ray's distance at the camera's typical depth: a point triangulated from nearly
         # parallel rays lies far off, and its depth would weigh more than all the others
-        ray = angle * float(np.median(np.abs(res.depth[sel][inl]))) if inl.any() else angle
+        ray = angle * float(np.median(np.abs(res.depth[sel] if every else res.depth[sel][inl]))) if some else angle
+        ms = np.mean(e**2)
+        ray_ms = np.mean(ray**2) if some else None
         out.append({
             "observations": int(len(e)),
-            "rms_px": float(np.sqrt(np.mean(e**2))),
-            "inlier_rms_px": float(np.sqrt(np.mean(e[inl] ** 2))) if inl.any() else None,
+            "rms_px": float(np.sqrt(ms)),
+            "inlier_rms_px": float(np.sqrt(ms if every else np.mean(e[inl] ** 2))) if some else None,
             "noise_px": robust_sigma(e),
             "outlier_share": float(1.0 - inl.mean()),
-            "ray_mrad": float(1000 * np.sqrt(np.mean(angle**2))) if inl.any() else None,
-            "ray_distance": float(np.sqrt(np.mean(ray**2))) if inl.any() else None,
-            "residual_mm": float(1000 * np.sqrt(np.mean(ray**2))) if scaled and inl.any() else None,
+            "ray_mrad": float(1000 * np.sqrt(np.mean(angle**2))) if some else None,
+            "ray_distance": float(np.sqrt(ray_ms)) if ray_ms is not None else None,
+            "residual_mm": float(1000 * np.sqrt(ray_ms)) if scaled and ray_ms is not None else None,
         })
     return out
 
@@ -193,7 +219,7 @@ def held_out(R: np.ndarray, t: np.ndarray, pairs: WandPairs, c: int) -> tuple[np
     point, camera, xy = flatten(sub)
     X = triangulate_points(R, t, point, camera, xy, 2 * len(pairs.frames))
     p_own, _, xy_own = flatten(pairs.subset(~others))
-    seen = np.all(np.isfinite(X[p_own]), axis=1)
+    seen = finite_rows(X[p_own])
     return p_own[seen], xy_own[seen], X
 
 
@@ -207,14 +233,15 @@ def median_ray_angle(R: np.ndarray, res: Residuals) -> float | None:
     # whose index falls on a stride (all their rays, so each point's first ray is among them)
     stride = max(1, -(-(int(res.point.max()) - int(res.point.min()) + 1) // RAY_ANGLE_POINTS))  # at most that many
     sample = np.flatnonzero(res.point % stride == 0)
-    ray = np.concatenate([res.xy[sample] - res.residual[sample], np.ones((len(sample), 1))], axis=1)  # the projected point's ray
+    ray = np.concatenate([np.take(res.xy, sample, axis=0) - np.take(res.residual, sample, axis=0), np.ones((len(sample), 1))],
+                         axis=1)  # the projected point's ray
     ray = np.einsum("mji,mj->mi", np.take(R, res.camera[sample], axis=0), ray)  # camera -> world directions
-    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    ray /= row_norms(ray)[:, None]
     order = np.argsort(res.point[sample], kind="stable")
-    k, r = res.point[sample][order], ray[order]
+    k, r = np.take(res.point[sample], order), np.take(ray, order, axis=0)
     first = np.r_[True, k[1:] != k[:-1]]
     lead = np.maximum.accumulate(np.where(first, np.arange(len(k)), 0))
-    cos = np.einsum("mi,mi->m", r, r[lead])[~first]
+    cos = np.einsum("mi,mi->m", r, np.take(r, lead, axis=0))[~first]
     return float(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))) if len(cos) else None
 
 
@@ -229,11 +256,14 @@ def _place_rows(R: np.ndarray, res: Residuals, rows: np.ndarray, views: np.ndarr
     x, y, z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
     # d (x/z, y/z) / d Xc, and d Xc / d turn = -[Xc]x, d Xc / d centre = -R
     D = projection_derivative(Xc)
-    turn = np.stack([np.stack([D[:, a, 2] * y - D[:, a, 1] * z, D[:, a, 0] * z - D[:, a, 2] * x,
-                               D[:, a, 1] * x - D[:, a, 0] * y], axis=1) for a in (0, 1)], axis=1)
-    centre = -np.einsum("kab,kbj->kaj", D, R[c])
-    weight = np.sqrt(1.0 - 1.0 / np.maximum(views, 2))[:, None, None]
-    return np.concatenate([turn, centre], axis=2) * weight
+    J = np.empty((len(rows), 2, 6))  # the turn's three columns, then the centre's, written in place
+    for a in (0, 1):
+        J[:, a, 0] = D[:, a, 2] * y - D[:, a, 1] * z
+        J[:, a, 1] = D[:, a, 0] * z - D[:, a, 2] * x
+        J[:, a, 2] = D[:, a, 1] * x - D[:, a, 0] * y
+    J[:, :, 3:] = -np.einsum("kab,kbj->kaj", D, np.take(R, c, axis=0))
+    J *= np.sqrt(1.0 - 1.0 / np.maximum(views, 2))[:, None, None]
+    return J
 
 
 def place_sigma_errors(R: np.ndarray, res: Residuals, n_cameras: int) -> list[float | None]:
@@ -260,7 +290,7 @@ def place_sigma_errors(R: np.ndarray, res: Residuals, n_cameras: int) -> list[fl
     for mine in camera_rows(res.camera[inl], n_cameras):
         _, group = np.unique(unit_index[mine], return_inverse=True)
         n = int(group.max()) + 1 if len(group) else 0
-        rows = J[mine].reshape(-1, 6)
+        rows = np.take(J, mine, axis=0).reshape(-1, 6)
         try:
             cov = np.linalg.inv(rows.T @ rows) if n >= 2 else None
         except np.linalg.LinAlgError:

@@ -58,7 +58,7 @@ from wandcal.calib.run.result import (
 from wandcal.calib.solve.sync import TimeColumns, Tracks, fit_timing, sync_report
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture
-from wandcal.calib.start.frame_offsets import FrameOffsets, frame_offsets, shift_frames, shift_pairs
+from wandcal.calib.start.frame_offsets import FrameOffsets, TooFewShared, frame_offsets, shift_frames, shift_pairs
 from wandcal.calib.start.initial import Initial, initial_poses
 from wandcal.calib.start.labels import label_ends
 from wandcal.calib.start.static import StaticPose, solve_static
@@ -66,6 +66,7 @@ from wandcal.calib.start.vertical import unused_warning as vertical_unused
 from wandcal.calib.start.world import Reference, apply, world_frame
 
 if TYPE_CHECKING:
+    from wandcal.calib.run.sparse_offsets import SparseStart
     from wandcal.calib.start.markerlabels import MarkerBlobs
 
 
@@ -90,10 +91,13 @@ class SyncState:
     pairs on each camera's own frame numbers; columns: the sub-frame fit with the frames resampled
     to the reference camera's instants (None until the sub-frame step); refined: whether the final
     ``ba`` refines the offsets again, over every frame (``columns`` then its columns); blobs: a
-    multi-marker wand's camera-frames with every marker resampled to those instants too."""
+    multi-marker wand's camera-frames with every marker resampled to those instants too; found_at:
+    on a sparse rig, the start the offsets were found with (the static object's poses and the
+    first poses at those offsets), which the start step takes as they are."""
 
     whole: FrameOffsets
     unshifted: WandPairs
+    found_at: SparseStart | None = None
     columns: TimeColumns | None = None
     refined: bool = False
     blobs: MarkerBlobs | None = None  # a multi-marker wand's every marker, resampled as the ends are
@@ -177,9 +181,9 @@ def calibrate(
     warnings: list[str] = []
     tell({"stage": "observations", "message": "undistorting and grouping wand blobs and point tracks"})
     has_wand = rig.wand_length is not None and wand is not None and len(wand) > 0
-    wand, sync = _whole_frame_sync(rig, wand if has_wand else None, options, tell, warnings)
+    wand, sync = _whole_frame_sync(rig, wand if has_wand else None, options, tell, warnings, static)
     obs = _observations(rig, wand, points, sync, has_wand, options.method)
-    start = _start(rig, obs, static, tell, warnings, synced=sync is not None)
+    start = _start(rig, obs, static, tell, warnings, synced=sync is not None, sync=sync)
     start, sync = _subframe_sync(rig, start, sync, options, obs.blobs)
     solved = _refine(rig, obs, start, sync, options, tell, warnings)
     reference = axis if axis is not None and len(axis) else vertical
@@ -203,10 +207,13 @@ def _silent(event: dict) -> None:
 
 
 def _whole_frame_sync(rig: Rig, wand: WandObservations | None, options: CalibrationOptions, tell: Progress,
-                      warnings: list[str]) -> tuple[WandObservations | None, SyncState | None]:
+                      warnings: list[str], static: StaticObservations | None = None,
+                      ) -> tuple[WandObservations | None, SyncState | None]:
     """With sync "auto": each camera's whole-frame offset from the wand, and the blobs renumbered
     onto the reference camera's frames (whole frames first: a camera out of time by frames cannot
-    be placed). ``wand``: None without a wand."""
+    be placed). ``wand``: None without a wand. On a sparse rig (no two cameras share enough
+    frames) the offsets are found against every camera's triangulations together, from start
+    poses placed with the static object's too when there is one."""
     if options.sync != "auto":
         return wand, None
     if wand is None:
@@ -218,7 +225,15 @@ def _whole_frame_sync(rig: Rig, wand: WandObservations | None, options: Calibrat
     tell({"stage": "sync", "message": "finding each camera's time offset from the wand"})
     unshifted = end_pairs(rig, wand)  # every kind of wand: its end markers
     start = np.asarray(options.sync_start) if options.sync_start is not None else None
-    timed = frame_offsets(rig, unshifted, options.sync_max_offset, start)
+    try:
+        timed = frame_offsets(rig, unshifted, options.sync_max_offset, start)
+    except TooFewShared:  # a sparse rig: no two cameras share enough frames, all of them together do
+        from wandcal.calib.run.sparse_offsets import offsets_by_triangulation
+
+        static_poses = solve_static(rig, static) if static is not None and rig.static_markers is not None else None
+        timed, found_at = offsets_by_triangulation(rig, unshifted, options.sync_max_offset, start, static_poses=static_poses)
+        warnings += timed.notes
+        return shift_frames(wand, timed.offsets), SyncState(whole=timed, unshifted=unshifted, found_at=found_at)
     warnings += timed.notes
     return shift_frames(wand, timed.offsets), SyncState(whole=timed, unshifted=unshifted)
 
@@ -256,15 +271,17 @@ def _observations(rig: Rig, wand: WandObservations | None, points: PointObservat
 
 
 def _start(rig: Rig, obs: Observations, static: StaticObservations | None, tell: Progress,
-           warnings: list[str], *, synced: bool = False) -> Start:
+           warnings: list[str], *, synced: bool = False, sync: SyncState | None = None) -> Start:
     """The static object's poses, the capture's checks, the first poses and the wand ends labelled.
     A start refused without ``--sync auto`` (``synced`` false) names a camera whose shift in time
     would let it place every camera (:func:`wandcal.calib.judge.faults.start_timing.out_of_time_refusal`)."""
-    static_poses = _static_poses(rig, static, tell, warnings)
+    # on a sparse rig the sync placed the cameras at the offsets it found, from these pairs alone
+    found_at = sync.found_at if sync is not None and obs.blobs is None and obs.tracks is None else None
+    static_poses = _static_poses(rig, static, tell, warnings, found_at)
     warnings += check_capture(rig, obs.pairs, obs.tracks, static_poses)  # degenerate captures: calib/start/degenerate.py
     tell({"stage": "initial", "message": "initial poses"})
     try:
-        init = initial_poses(rig, obs.pairs, static_poses, points=obs.tracks)
+        init = found_at.init if found_at is not None else initial_poses(rig, obs.pairs, static_poses, points=obs.tracks)
     except CalibrationError as exc:
         if synced or obs.blobs is not None:
             raise
@@ -281,13 +298,14 @@ def _start(rig: Rig, obs: Observations, static: StaticObservations | None, tell:
 
 
 def _static_poses(rig: Rig, static: StaticObservations | None, tell: Progress,
-                  warnings: list[str]) -> list[StaticPose | Failure] | None:
-    """Each camera's pose on the static object by PnP (None without one); a camera it cannot
-    place is placed from the wand, with a warning."""
+                  warnings: list[str], found_at: SparseStart | None = None) -> list[StaticPose | Failure] | None:
+    """Each camera's pose on the static object by PnP (None without one; ``found_at``'s when the
+    sync solved them already); a camera it cannot place is placed from the wand, with a warning."""
     if static is None or rig.static_markers is None:
         return None
     tell({"stage": "static", "message": "identifying static-object markers and solving PnP"})
-    static_poses = solve_static(rig, static)
+    found = found_at.static_poses if found_at is not None else None
+    static_poses = found if found is not None else solve_static(rig, static)
     if not any(static_poses):
         seen_static = [str(p) for c, p in enumerate(static_poses) if len(static.for_camera(c))]
         raise CalibrationError(

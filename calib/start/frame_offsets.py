@@ -64,6 +64,12 @@ TRIM_PASSES = 3  # linear fits of the midpoint score, each on the best TRIM_KEEP
 TRIM_KEEP = 0.8  # drops digitising slips and reflections (a few %) with room to spare
 
 
+class TooFewShared(CalibrationError):
+    """A camera could not be timed and shares fewer than :data:`FEW_FRAMES` frames with its best
+    partner at every shift: a sparse rig, whose cameras :mod:`wandcal.calib.run.sparse_offsets`
+    times against all the others together instead."""
+
+
 @dataclass(frozen=True, eq=False)
 class FrameOffsets:
     """Whole-frame offsets: camera c's frame k was exposed at the reference camera's frame
@@ -153,7 +159,8 @@ def frame_offsets(
         if best is None or score < MIN_FIT_SHARE:
             what = (f"at best {score:.0%} of the frames they share fit one relative pose" if best is not None
                     else f"they share fewer than {MIN_TIMING_FRAMES} frames at every shift")
-            raise CalibrationError(
+            thin = best is None or _shared_counts(table, a, b, int(offsets[a]) - shifts).max() < FEW_FRAMES
+            raise (TooFewShared if thin else CalibrationError)(
                 f"camera {rig.cameras[b].id!r} does not move with the others: at no offset within +-{max_offset} frames "
                 f"of {guess} does its wand agree with {rig.cameras[a].id}'s ({what}); check that it recorded the same "
                 "session and the same wand, or search wider (sync_max_offset)"
@@ -233,7 +240,8 @@ def _links(seen: np.ndarray, max_offset: int) -> np.ndarray:
     lo = np.clip(np.arange(len(seen)) - max_offset, 0, len(seen))
     hi = np.clip(np.arange(len(seen)) + max_offset + 1, 0, len(seen))
     near = (c[hi] - c[lo]) > 0
-    links = seen.astype(np.int64).T @ near.astype(np.int64)
+    # einsum: NumPy's integer matmul is a plain loop 5x slower (as calib/start/initial.shared_frames)
+    links = np.einsum("fa,fb->ab", seen.astype(np.int64), near.astype(np.int64))
     links = np.minimum(links, links.T)
     np.fill_diagonal(links, 0)
     return links

@@ -105,8 +105,15 @@ def _two_view_by_length(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: 
     sorted_frames = pairs.frame[order]
     second[order[1:]] = sorted_frames[1:] == sorted_frames[:-1]
     candidate = second & two
-    now = wand_lengths(R, t, pairs)
-    alt = wand_lengths(R, t, pairs.swapped(candidate))
+    # only the frames with a candidate can change: their wands alone are triangulated, both ways
+    # (a point's triangulation does not depend on the others triangulated with it; the whole
+    # capture twice was most of `wandcal check`'s labelling at 128 cameras of 2-4 a frame)
+    in_play = np.zeros(len(pairs.frames), bool)
+    in_play[pairs.frame[candidate]] = True
+    rows = in_play[pairs.frame]
+    part = pairs.subset(rows)
+    now = wand_lengths(R, t, part)
+    alt = wand_lengths(R, t, part.swapped(candidate[rows]))
     better = np.abs(alt - length) < np.abs(now - length)
     return pairs.swapped(candidate & better[pairs.frame])
 

@@ -13,7 +13,8 @@ from pathlib import Path
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import Rig
-from wandcal.capture.folder import MAX_CSV_BYTES, CaptureFormatError, rig_to_json
+from wandcal.capture.csv_tables import MAX_CSV_BYTES
+from wandcal.capture.folder import CaptureFormatError, rig_to_json
 from wandcal.capture.formats import dlt, qualisys_vicon
 from wandcal.capture.formats.anipose_opencv import read_anipose_toml, read_opencv_yaml
 from wandcal.capture.formats.cameras import BOTTOM_LEFT, PosedCameras

@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wandcal.capture.folder import MAX_FRAME, CaptureFormatError
+from wandcal.capture.csv_tables import MAX_FRAME
+from wandcal.capture.folder import CaptureFormatError
 from wandcal.capture.formats.cameras_in import check_size
 
 # DeepLabCut's own default ``pcutoff`` (config.yaml): below it DeepLabCut's plots and videos hide

@@ -24,7 +24,8 @@ import os
 import shutil
 from pathlib import Path
 
-from wandcal.capture.folder import csv_records, read_capture
+from wandcal.capture.csv_tables import csv_records
+from wandcal.capture.folder import read_capture
 from wandcal.drivers.capture_files import (
     BLOBS_FILE,
     FRAMES_DIR,

@@ -1,5 +1,6 @@
 // The rig page: polls the API once a second and draws what it finds. Nothing from elsewhere: the
 // 3D view's library is vendored (static/vendor/).
+import { checkPanel } from "./checks.js";
 import { $, el } from "./dom.js";
 import { cameraTable, offsetsTable, rigJudgement } from "./results.js";
 import { RigView } from "./rigview.js";
@@ -65,9 +66,12 @@ function renderCaptures(captures) {
   const body = $("#captures tbody");
   body.replaceChildren(...captures.map((c) => {
     const run = el("button", { onclick: () => startJob(c.id) }, "calibrate");
+    const check = el("button", { class: "check", disabled: shownJob === null, onclick: (e) => runCheck(c.id, e.currentTarget),
+      title: shownJob === null ? "a result is needed first: calibrate a capture"
+        : `did a camera move? this capture judged against the result in the Rig panel (job ${short(shownJob)})` }, "check");
     return el("tr", { "data-capture-id": c.id },
       el("td", { class: "id", title: c.id }, short(c.id)), el("td", {}, sourceText(c)),
-      el("td", {}, c.frames), el("td", {}, ...coverage(c)), el("td", {}, run));
+      el("td", {}, c.frames), el("td", {}, ...coverage(c)), el("td", {}, run, " ", check));
   }));
   $("#no-captures").hidden = captures.length > 0;
 }
@@ -106,6 +110,33 @@ async function startJob(captureId) {
   try {
     await api("/jobs", { method: "POST", headers: { "Content-Type": "application/json" },
       body: JSON.stringify({ capture_id: captureId }) });  // the server's default method
+    followNewest = true;
+    poll();
+  } catch (err) { alert(err.message); }
+}
+
+// the capture judged against the shown result; a moved camera's re-solve is offered under it
+async function runCheck(captureId, button) {
+  const jobId = shownJob;
+  button.disabled = true;
+  const section = $("#check-section");
+  try {
+    const answer = await api(`/captures/${captureId}/check`, { method: "POST",
+      headers: { "Content-Type": "application/json" }, body: JSON.stringify({ job_id: jobId }) });
+    $("#check-body").replaceChildren(...checkPanel(answer, `job ${short(jobId)}`, (moved) => resolveMoved(captureId, jobId, moved)));
+    section.dataset.captureId = captureId;
+  } catch (err) {
+    $("#check-body").replaceChildren(el("p", { class: "error" }, err.message));
+  }
+  section.hidden = false;
+  button.disabled = false;
+}
+
+async function resolveMoved(captureId, jobId, moved) {
+  try {
+    const job = await api("/jobs", { method: "POST", headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ capture_id: captureId, options: { from_job: jobId, solve_only: moved } }) });
+    $("#check-section").dataset.resolveJob = job.id;
     followNewest = true;
     poll();
   } catch (err) { alert(err.message); }

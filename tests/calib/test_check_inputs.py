@@ -102,7 +102,7 @@ def test_solve_only_re_solves_a_camera_of_the_sparse_session_within_two_sigma(br
 @pytest.mark.parametrize("cameras", [4, 5, 6])
 def test_check_of_another_rig_with_the_same_ids_and_sizes_never_says_moved(cameras):
     """Another rig (its own poses), the same ids and image sizes, intrinsics within 4%: exit 3, not 1."""
-    from wandcal.calib.judge.evaluate import rig_mismatches
+    from wandcal.calib.judge.bumps import rig_mismatches
 
     sim = simulate_capture(cameras, 400, 0.3, 0.0, False, 4)
     r = calibrate(sim.rig, sim.wand)

@@ -101,7 +101,8 @@ def test_missing_folder_and_wand(tmp_path):
 def test_fast_and_row_readers_agree(folder):
     """Well-formed files go through numpy's C reader; the row reader (used for anything that
     needs a message) must read them identically."""
-    from wandcal.capture.folder import WAND_COLUMNS, _frame_table, _frame_table_fast, _rows  # noqa: F401
+    from wandcal.capture.csv_tables import _frame_table_fast, frame_table
+    from wandcal.capture.folder import WAND_COLUMNS
 
     rig = read_capture(folder).rig
     text = (folder / "wand.csv").read_text()
@@ -109,7 +110,7 @@ def test_fast_and_row_readers_agree(folder):
     assert fast is not None
     quoted = text.replace("cam2", '"cam2"')  # quotes send it to the row reader
     assert _frame_table_fast(quoted, rig, WAND_COLUMNS) is None
-    slow = _frame_table(quoted, rig, WAND_COLUMNS, "wand.csv")
+    slow = frame_table(quoted, rig, WAND_COLUMNS, "wand.csv")
     for a, b in zip(fast, slow):
         assert np.array_equal(a, b)
 

@@ -13,7 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tests.reliability.fuzzing import TRIED
-from wandcal.capture.folder import MAX_CSV_BYTES, rig_to_json, write_capture
+from wandcal.capture.csv_tables import MAX_CSV_BYTES
+from wandcal.capture.folder import rig_to_json, write_capture
 from wandcal.drivers.capture_files import RIG_FILE, WAND_FILE
 from wandcal.service.main import create_app
 from wandcal.service.request_limits import (

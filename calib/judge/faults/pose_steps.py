@@ -1,10 +1,11 @@
 """A camera that moved during the capture: a step in its pose, with the points eliminated
 (:mod:`wandcal.calib.judge.faults.own_errors`).
 
-The camera's views with a time (the wand's ends; point tracks where there is no wand: a moving
-marker) are split at frame k, and its turn after k (three columns: a rotation about its centre) is
+The camera's views with a time (the wand's ends; point tracks in the wand's time,
+or all of them where there is no wand: :func:`wandcal.calib.judge.faults.own_errors.in_wand_time`)
+are split at frame k, and its turn after k (three columns: a rotation about its centre) is
 fitted beside its pose (six columns) and its lens (four), all with the points projected out; views
-without a time (background points digitised once) have a turn of their own. An F test of one pose
+without a time (background points from another recording) have a turn of their own. An F test of one pose
 against two at the best k (:func:`pose_step`), outliers trimmed under the two-pose model, the F
 divided by the residuals' long-run variance in time (batch means), its p-value multiplied by the
 number of splits tried (Bonferroni, the search's multiple testing). A camera is named only when
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.geometry import projection_derivative
-from wandcal.calib.judge.faults.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
+from wandcal.calib.judge.faults.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, in_wand_time, unit_squares
 from wandcal.calib.judge.residuals import Residuals
 
 MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone
@@ -337,6 +338,16 @@ def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated
     return None
 
 
+def screen_views(time: np.ndarray) -> np.ndarray:
+    """(min(K, :data:`SCREEN_VIEWS`),) the views :func:`step_screen` looks at, of K timed ones
+    (time (K,) their capture frames): evenly spaced in time order. Views already so chosen (in
+    time order, at most that many) are all chosen again, in their order."""
+    order = np.argsort(time, kind="stable")
+    if len(order) <= SCREEN_VIEWS:  # np.linspace(0, K - 1, K) is 0 .. K - 1 exactly: every view
+        return order
+    return order[np.linspace(0, len(order) - 1, SCREEN_VIEWS).astype(np.int64)]
+
+
 def step_screen(xy: np.ndarray, r: np.ndarray, time: np.ndarray) -> float:
     """A cheap look for a step in one camera's pose: p-value (Bonferroni over the block
     boundaries; 1 with too few views). Its timed views xy (K, 2) (normalised), their residuals
@@ -350,15 +361,16 @@ def step_screen(xy: np.ndarray, r: np.ndarray, time: np.ndarray) -> float:
     n_blocks = SCREEN_BLOCKS
     if len(xy) < n_blocks * MIN_SIDE:
         return 1.0
-    order = np.argsort(time, kind="stable")
-    order = order[np.linspace(0, len(order) - 1, min(len(order), SCREEN_VIEWS)).astype(np.int64)]
+    order = screen_views(time)
     size = len(order) // n_blocks
     at = order[: n_blocks * size].reshape(n_blocks, size)  # the last views of the remainder left out
     x, y = xy[at, 0], xy[at, 1]
     # the image motion of a turn about the centre, d(projection of exp(w) (x, y, 1))/dw: (B, S, 2, 3)
-    G = np.stack([np.stack([-x * y, 1 + x**2, -y], axis=-1), np.stack([-1 - y**2, x * y, x], axis=-1)], axis=2)
+    G = np.empty(x.shape + (2, 3))
+    G[..., 0, 0], G[..., 0, 1], G[..., 0, 2] = -x * y, 1 + x**2, -y
+    G[..., 1, 0], G[..., 1, 1], G[..., 1, 2] = -1 - y**2, x * y, x
     rb = r[at]
-    e2 = np.sum(rb**2, axis=2)
+    e2 = rb[..., 0] ** 2 + rb[..., 1] ** 2  # np.sum(rb**2, axis=2) bit for bit, without its per-row reduction
     ok = e2 <= TRIM_SIGMAS**2 * np.maximum(np.median(e2, axis=1, keepdims=True), 1e-30)
     Gt = (G * ok[..., None, None]).reshape(n_blocks, -1, 3).transpose(0, 2, 1)
     N = Gt @ G.reshape(n_blocks, -1, 3)
@@ -383,20 +395,27 @@ def step_suspects(res: Residuals, track_frames: np.ndarray | None) -> list[int]:
     (:class:`wandcal.calib.judge.residuals.Residuals`: every camera's views against points all
     cameras triangulated, a knocked camera's later views left out of them as outliers) is below
     :data:`SCREEN_ALPHA`, at most :data:`MAX_STEP_SUSPECTS`, the smallest p first. Timed views:
-    the wand's, or the point tracks' (track_frames (T,): each track's capture frame) where there
-    is no wand."""
+    the wand's and the point tracks' (track_frames (T,): each track's capture frame) in the wand's
+    time (:func:`wandcal.calib.judge.faults.own_errors.in_wand_time`; all of them without a wand)."""
     wand = res.point >= 0
-    if wand.any():
-        timed, time = wand, res.frames[np.maximum(res.point, 0) // 2]
-    elif track_frames is not None and len(track_frames):
-        timed, time = np.ones(len(res.point), bool), track_frames[-1 - res.point]
-    else:
+    time = res.frames[np.maximum(res.point, 0) // 2] if len(res.frames) else np.zeros(len(res.point), np.int64)
+    timed = wand.copy()
+    if track_frames is not None and len(track_frames):
+        track = np.maximum(-1 - res.point, 0)
+        time = np.where(wand, time, track_frames[track])
+        wand_frames = res.frames[np.unique(res.point[wand] // 2)]
+        timed |= ~wand & in_wand_time(track_frames, wand_frames)[track]
+    if not timed.any():
         return []
     p = []
     for c in range(int(res.camera.max()) + 1 if len(res.camera) else 0):
         rows = res.rows_of(c)
         rows = rows[timed[rows]]
-        p.append((step_screen(res.xy[rows], res.residual[rows], time[rows]), c))
+        mine = time[rows]
+        # the screen's views chosen first, then only theirs gathered (step_screen chooses the same again)
+        pick = screen_views(mine) if len(rows) >= SCREEN_BLOCKS * MIN_SIDE else slice(None)
+        rows, mine = rows[pick], mine[pick]
+        p.append((step_screen(np.take(res.xy, rows, axis=0), np.take(res.residual, rows, axis=0), mine), c))
     return [c for pc, c in sorted(p) if pc < SCREEN_ALPHA][:MAX_STEP_SUSPECTS]
 
 

@@ -24,10 +24,11 @@ limits.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
-from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.geometry import finite_rows, rotvec_to_matrix, row_norms
 from wandcal.calib.observations import robust_sigma
 
 MAX_SHIFT_FRAMES = 10  # the whole-frame search; a larger offset is a recording of another take
@@ -115,8 +116,37 @@ def _shifted(table: np.ndarray, at: np.ndarray, near: np.ndarray) -> np.ndarray:
 
 def _trimmed(r: np.ndarray) -> np.ndarray:
     """(K,) bool: residual rows (K, 2) within :data:`TRIM_SIGMAS` robust sigmas."""
-    e = np.linalg.norm(r, axis=1)
+    e = row_norms(r)
     return np.isfinite(e) & (e <= TRIM_SIGMAS * max(robust_sigma(e[np.isfinite(e)]), 1e-12))
+
+
+@cache
+def _step_turn(j: int) -> np.ndarray:
+    """(3, 3) the turn of pose parameter j's finite-difference step (the identity for a translation's)."""
+    step = np.zeros(3)
+    if j < 3:
+        step[j] = POSE_STEP
+    return rotvec_to_matrix(step)
+
+
+def _pose_differences(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """:func:`_pose_columns` by forward differences of :data:`POSE_STEP`: each step's projection
+    ``X (exp(w) R)^T + t + dt`` over the base's. A translation's step leaves the turned rotation
+    R itself (bit for bit): its points' rotation is the base's, not multiplied again."""
+    RX = X @ R.T
+    base = _divided(RX + t)
+    cols = np.empty((2 * len(X), 6))
+    for j in range(6):
+        step = np.zeros(6)
+        step[j] = POSE_STEP
+        turned = _step_turn(j) @ R
+        same = R.flags.c_contiguous and turned.tobytes() == R.tobytes()
+        cols[:, j] = ((_divided((RX if same else X @ turned.T) + (t + step[3:])) - base) / POSE_STEP).ravel()
+    return cols
+
+
+def _divided(Xc: np.ndarray) -> np.ndarray:
+    return Xc[:, :2] / Xc[:, 2:]
 
 
 def _pose_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray, differences: bool = False) -> np.ndarray:
@@ -127,34 +157,28 @@ def _pose_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray, differences: bool
     differences of :data:`POSE_STEP` as before, for figures a result writes (the focal limit's, to
     its last digit; the two differ by ~1e-6 of a column)."""
     if differences:
-        base = _project(R, t, X)
-        cols_fd = []
-        for j in range(6):
-            step = np.zeros(6)
-            step[j] = POSE_STEP
-            cols_fd.append(((_project(rotvec_to_matrix(step[:3]) @ R, t + step[3:], X) - base) / POSE_STEP).ravel())
-        return np.stack(cols_fd, axis=1)
+        return _pose_differences(R, t, X)
     RX = X @ R.T
     Xc = RX + t
     z = Xc[:, 2]
     x, y = Xc[:, 0] / z, Xc[:, 1] / z
-    zero = np.zeros(len(X))
-    # e_j x RX for j = 0, 1, 2, then the translations' e_j: (6, K, 3) the camera-frame motions
-    moves = np.stack([np.stack([zero, -RX[:, 2], RX[:, 1]], axis=1), np.stack([RX[:, 2], zero, -RX[:, 0]], axis=1),
-                      np.stack([-RX[:, 1], RX[:, 0], zero], axis=1)])
-    cols = np.empty((2 * len(X), 6))
-    for j in range(6):
-        v = moves[j] if j < 3 else np.eye(3)[j - 3][None, :]
-        v = np.broadcast_to(v, (len(X), 3))
-        cols[0::2, j] = (v[:, 0] - x * v[:, 2]) / z
-        cols[1::2, j] = (v[:, 1] - y * v[:, 2]) / z
-    return cols
+    # e_j x RX for j = 0, 1, 2, then the translations' e_j: (6, K, 3) the camera-frame motions,
+    # each column (v_x - x v_z) / z, (v_y - y v_z) / z, all six in one pass
+    moves = np.zeros((6, len(X), 3))
+    moves[0, :, 1], moves[0, :, 2] = -RX[:, 2], RX[:, 1]
+    moves[1, :, 0], moves[1, :, 2] = RX[:, 2], -RX[:, 0]
+    moves[2, :, 0], moves[2, :, 1] = -RX[:, 1], RX[:, 0]
+    moves[3:, :, :] = np.eye(3)[:, None, :]
+    cols = np.empty((len(X), 2, 6))
+    cols[:, 0, :] = ((moves[:, :, 0] - x * moves[:, :, 2]) / z).T
+    cols[:, 1, :] = ((moves[:, :, 1] - y * moves[:, :, 2]) / z).T
+    return cols.reshape(2 * len(X), 6)
 
 
 def resect(R: np.ndarray, t: np.ndarray, X: np.ndarray, xy: np.ndarray, iterations: int = 6):
     """The camera's pose refitted to points X (K, 3) seen at xy (K, 2) by Gauss-Newton from (R, t),
     leaving out residuals beyond :data:`TRIM_SIGMAS`. Returns (R, t, residual (K, 2), kept (K,))."""
-    ok = np.all(np.isfinite(X), axis=1)
+    ok = finite_rows(X)
     for _ in range(iterations):
         r = _project(R, t, X) - xy
         keep = ok & _trimmed(np.where(ok[:, None], r, np.nan))
@@ -174,7 +198,7 @@ def _share(y: np.ndarray, base: np.ndarray, extra: np.ndarray) -> tuple[float, n
     ``extra`` explains, extra's coefficients, its F statistic). By the normal equations of the
     scaled columns (a 10 x 10 system at most): a camera's thousands of rows cost one pass."""
     both = np.concatenate([base, extra], axis=1)
-    scale = np.linalg.norm(both, axis=0)
+    scale = np.sqrt(np.add.reduce(both * both, axis=0))  # np.linalg.norm(both, axis=0) without its copy
     scale[scale == 0] = 1.0
     A = both / scale
     G, b, yy = A.T @ A, A.T @ y, float(y @ y)
@@ -212,7 +236,7 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
         if np.isfinite(ends).all(axis=1).sum() < len(point) // 2:
             continue
         Rd, td, r, keep = resect(R, t, ends, xy)
-        fits[d] = (np.median(np.linalg.norm(r[keep], axis=1)) if keep.any() else np.inf, Rd, td, ends)
+        fits[d] = (np.median(row_norms(r[keep])) if keep.any() else np.inf, Rd, td, ends)
     if not fits:
         return None, None
     best = min(fits, key=lambda d: fits[d][0])
@@ -220,7 +244,7 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
     v = (_project(Rb, tb, _shifted(table, row - best + 1, here))
          - _project(Rb, tb, _shifted(table, row - best - 1, here))) / 2  # image velocity per frame
     r = _project(Rb, tb, here) - xy
-    keep = _trimmed(r) & np.all(np.isfinite(v), axis=1) & np.all(np.isfinite(here), axis=1)
+    keep = _trimmed(r) & finite_rows(v) & finite_rows(here)
     if keep.sum() < 20:
         return None, None
     pose = _pose_columns(Rb, tb, here[keep])
@@ -235,7 +259,7 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
         np.concatenate([pose, v[keep].reshape(-1, 1)], axis=1), y, rcond=None)[0]
     sigma = np.sqrt(np.sum(left**2) / max(len(y) - 7, 1))
     vv = np.einsum("ki,ki->", v[keep], v[keep])
-    speed = float(np.median(np.linalg.norm(v[keep], axis=1)))
+    speed = float(np.median(row_norms(v[keep])))
     # c's frame k matched the others' k - best - frac: exposed then (docs/result-format.md's sign)
     offset = -(best + frac)
     timing = TimingFault(offset_frames=offset, offset_std_frames=float(sigma / np.sqrt(vv)) if vv > 0 else np.inf,
@@ -290,6 +314,7 @@ def lens_screen(R: np.ndarray, t: np.ndarray, res, c: int) -> Lens | None:
     sel = sel[:: max(1, len(sel) // SCREEN_ROWS)]
     X = np.take(res.X, res.point[sel], axis=0)  # take: a 2-D gather at a tenth of indexing's cost
     xy, r = np.take(res.xy, sel, axis=0), np.take(res.residual, sel, axis=0)
-    ok = np.all(np.isfinite(X), axis=1)
-    X, xy, r = X[ok], xy[ok], r[ok]
+    ok = finite_rows(X)
+    if not ok.all():
+        X, xy, r = X[ok], xy[ok], r[ok]
     return _lens_fit(r.ravel(), _pose_columns(R[c], t[c], X), xy)

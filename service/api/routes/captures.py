@@ -12,7 +12,7 @@ from starlette.datastructures import FormData, UploadFile
 
 from wandcal.calib.rig import StaticObservations
 from wandcal.calib.start.static import solve_static
-from wandcal.capture.folder import decode_text
+from wandcal.capture.csv_tables import decode_text
 from wandcal.capture.world_references import reference_clash
 from wandcal.drivers.capture_files import (
     AXIS_FILE,

@@ -1,6 +1,13 @@
 import numpy as np
 
-from wandcal.calib.judge.coverage import GRID, coverage_advice, coverage_grid, covered_fraction, empty_regions
+from wandcal.calib.judge.coverage import (
+    GRID,
+    coverage_advice,
+    coverage_grid,
+    coverage_grids,
+    covered_fraction,
+    empty_regions,
+)
 
 W, H = 1280, 1024
 
@@ -42,3 +49,19 @@ def test_samples_confined_to_a_corner_or_a_third_are_named_where_they_are():
     assert "only in the top third" in coverage_advice(strip, "cam5", 0.5)
     two = coverage_grid(np.array([[10.0, 10.0], [W - 10.0, H - 10.0]]), W, H)
     assert "only in the top-left and the bottom-right of its image" in coverage_advice(two, "cam5", 0.5)
+
+
+def test_every_cameras_grid_at_once_is_each_cameras_own():
+    """coverage_grids (the verdict's one pass over every camera) counts what coverage_grid counts
+    camera by camera: points on the image's edges, outside it, NaN, and a camera with no points."""
+    rng = np.random.default_rng(31)
+    sizes = [(1280, 1024), (640, 480), (2560, 1600), (800, 600)]
+    camera = rng.integers(0, 3, 4000)  # the fourth camera has no points
+    xy = rng.uniform(-50, 2700, (4000, 2))
+    xy[:10] = [0, 0]
+    xy[10:20] = np.nan
+    xy[20:30, 0] = np.take([w for w, _ in sizes], camera[20:30])  # on the right edge: outside
+    grids = coverage_grids(camera, xy, sizes)
+    for c, (w, h) in enumerate(sizes):
+        assert np.array_equal(grids[c], coverage_grid(xy[camera == c], w, h))
+    assert grids[3].sum() == 0 and grids[:3].sum() > 1000
