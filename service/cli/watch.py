@@ -66,7 +66,10 @@ def _print_report(report, args) -> None:
                else f"moved before the take began (it disagrees with {args.result} from frame {h.moved_at})"
                if h.before_take else f"knocked at frame {h.moved_at}")
         print(f"{h.id}: {how}, named at frame {h.alarm.detected_frame}", end="")
-        if h.resolved is not None:
+        if h.lost:
+            print(f"; too far to follow: its blobs are no longer near the markers the others triangulate; re-solve it "
+                  f"from a wand capture: wandcal calibrate CAPTURE --from {args.result} --solve-only {h.id}")
+        elif h.resolved is not None:
             r = h.resolved
             print(f"; moved {r.moved_mm:.2f} mm (sigma {r.center_std_mm:.2f}) and turned {r.turned_deg:.3f} deg "
                   f"(sigma {r.rotation_std_deg:.3f}), re-solved from {r.points} markers at {r.rms_px:.2f} px")
