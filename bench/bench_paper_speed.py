@@ -6,7 +6,8 @@ outlier pass (its robust `ba`), and `refine_paper` is then timed alone, in a fre
 (one per code, jump cap and repeat, the codes alternating so the machine's load falls on both
 alike; decisions 0033, 0045). Reports rounds, jumps, CPU seconds (medians over the repeats; the
 machine is shared, so wall seconds are listed but say little), CPU and interior-point iterations a
-round, and each answer's largest camera-centre distance from the first row's.
+round, each answer's largest camera-centre distance from the first row's, and from the fixed point on
+the LP basis it ends on, where that basis holds (decision 0049d).
 
 Usage: python bench/bench_paper_speed.py [--caps 10,0] [--before REV] [--repeats 1] [--seed 11] [--no-write]
 """
@@ -73,9 +74,19 @@ def child(tree: str, problem_file: str, cap: float, out: str) -> int:
 
     paper.lp_step = counted
     cpu, wall = time.process_time(), time.perf_counter()
-    R1, t1, _, info = paper.refine_paper(R, t, wand, problem, fixed, up)
+    R1, t1, W1, info = paper.refine_paper(R, t, wand, problem, fixed, up)
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
-    Path(out).write_bytes(pickle.dumps((camera_centers(R1, t1), info, cpu, wall, sum(iterations))))
+    apart = None  # um from the fixed point on the basis the last LP named (decision 0049d), untimed
+    try:  # a tree before decision 0049d has none
+        from wandcal.calib.solve.paper_fixed_point import fixed_point_on_basis
+    except ImportError:
+        fixed_point_on_basis = None
+    if fixed_point_on_basis is not None:
+        found = fixed_point_on_basis(R1, t1, W1.reshape(-1, 3), problem, fixed, up,
+                                     paper.height_pairs(R, t, wand.reshape(-1, 3), up))
+        if found is not None:
+            apart = float(np.linalg.norm(camera_centers(found[0], found[1]) - camera_centers(R1, t1), axis=1).max()) * 1e6
+    Path(out).write_bytes(pickle.dumps((camera_centers(R1, t1), info, cpu, wall, sum(iterations), apart)))
     return 0
 
 
@@ -118,20 +129,24 @@ def main() -> int:
                     print(name, cap, repeat, runs[(name, cap)][-1][1:], flush=True)
     rows, first = [], None
     for (name, cap), done in runs.items():
-        centres, info, _, _, lp_iterations = done[-1]
+        centres, info, _, _, lp_iterations, fixed_apart = done[-1]
         first = centres if first is None else first
         cpu, wall = np.median([d[2] for d in done]), np.median([d[3] for d in done])
         rounds = info["iterations"]
         apart = float(np.linalg.norm(centres - first, axis=1).max()) * 1e6
         rows.append(f"| {name} | {cap:g} | {info['status']} | {rounds} | {info['jumps']} | {cpu:.1f} | "
-                    f"{cpu / rounds:.3f} | {lp_iterations / rounds:.1f} | {wall:.0f} | {apart:.1f} |")
+                    f"{cpu / rounds:.3f} | {lp_iterations / rounds:.1f} | {wall:.0f} | {apart:.1f} | "
+                    f"{'none' if fixed_apart is None else f'{fixed_apart:.3f}'} |")
     body = "\n".join([
         f"`refine_paper` alone on the acceptance rig's problem (seed {args.seed}, after the outlier pass), a fresh "
         f"process a run, medians of {args.repeats} repeat(s); load average {os.getloadavg()[0]:.1f} at the end. "
-        "`apart`: the largest camera-centre distance from the first row's answer.",
+        "`apart`: the largest camera-centre distance from the first row's answer; `fixed point`: from the "
+        "answer to the fixed point on the basis its last LP named (paper_fixed_point.fixed_point_on_basis), none where "
+        "that basis does not hold there (the rounds still creep from basis to basis).",
         "",
-        "| code | jump cap | status | rounds | jumps | CPU s | CPU s a round | LP iterations a round | wall s | apart (um) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| code | jump cap | status | rounds | jumps | CPU s | CPU s a round | LP iterations a round | wall s | apart (um) "
+        "| fixed point (um) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
     ])
     return publish("Seed paper's method: rounds at 8 x 1500", body, not args.no_write)

@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import aligned_rms_mm, machine, replace_section, timed
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.run.calibrate import calibrate
+from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.shapes import RigShape, default_size, simulate_shape
 
 TITLE = "Rigs of every shape: ba's iterations (issue 33, decision 0032)"
@@ -30,7 +31,7 @@ def one(shape: RigShape, frames: int, seed: int, reference: bool) -> tuple[int, 
     """(iterations, seconds, aligned centre RMS error in mm) of ba's whole pipeline on the shape."""
     sim = simulate_shape(shape, frames=frames, seed=seed)
     with mock.patch("wandcal.calib.run.refine.WAND_FRAMES_IN_STOP", reference):
-        result, seconds = timed(calibrate, sim.rig, sim.wand, sim.static, "ba")
+        result, seconds = timed(calibrate, sim.rig, sim.wand, sim.static, options=CalibrationOptions(method="ba"))
     return int(result.solver.iterations), seconds, aligned_rms_mm(result.centers, sim.truth.centers)
 
 

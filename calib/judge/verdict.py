@@ -45,7 +45,8 @@ MIN_OBSERVATIONS = (600, 300)
 # the wanding guidance's goal; under 15% the samples sit in one patch and the lens is untested
 COVERAGE = (0.5, 0.15)
 # a camera's geometry 1-sigma (relative to the other cameras) over the volume's size: 2.5e-4 is
-# 0.5 mm in a 2 m volume, sub-millimetre; 1e-3 is 2 mm there
+# 0.5 mm in a 2 m volume, sub-millimetre; 1e-3 is 2 mm there. The good limit is the camera's own
+# ray distance at the points instead where that is larger (:func:`geometry_limits`)
 GEOMETRY_OF_VOLUME = (2.5e-4, 1e-3)
 # the world's placement: its origin's 1-sigma, and half its axes' angle (the displacement they
 # cause at the volume's edge), over the volume's size; the same limits as the geometry
@@ -130,6 +131,26 @@ def at_limit_text(entry: dict) -> str:
     unit = entry["unit"]
     return (f"at the limit of {entry['levels'][1]} ({entry['value']:.3g} +- {entry['std']:.2g} {unit} against "
             f"{entry['limit']:.3g} {unit})").replace(" % ", "% ").replace(" %)", "%)")
+
+
+def geometry_limits(report: dict, obs: int) -> tuple[tuple[float, float], float, bool]:
+    """A camera's geometry sigma's (excellent, good) limits over the volume's size, the good
+    limit's own standard error, and whether that limit is the camera's own rays' (decision 0049a).
+
+    The good limit is :data:`GEOMETRY_OF_VOLUME`'s, or the camera's RMS ray distance at its points
+    (``residual_of_volume``) where that is larger, up to the residual's own good limit: a place
+    known to within the miss of the camera's own rays adds less to a reconstructed point than each
+    of its observations' noise does already, and more frames would shrink the sigma, not the miss.
+    A sigma grows as 1/sqrt(data), the miss does not: against a fixed 1e-3 a sparse, hand-digitised
+    session (rays 1.0-1.4e-3 of its volume off) turned poor on 60% of its frames. The residual's
+    standard error (an RMS's, of ``obs`` observations) counts with the sigma's where it is the limit.
+    """
+    got = report.get("residual_of_volume")
+    rel = float(got) if got is not None else float("nan")
+    if not rel > GEOMETRY_OF_VOLUME[1]:  # NaN too
+        return GEOMETRY_OF_VOLUME, 0.0, False
+    limit = min(rel, RESIDUAL_OF_VOLUME[1])
+    return (GEOMETRY_OF_VOLUME[0], limit), (rms_std(limit, obs) if limit == rel else 0.0), True
 
 
 def coverage_reports(rig: Rig, camera: np.ndarray, uv: np.ndarray) -> list[dict]:
@@ -237,8 +258,10 @@ def _place_checks(checks: _Checks, report: dict, cam_id: str, extent_m: float | 
     # tA (issue 31): the sigma's standard error from the spread of the information that places the
     # camera (wandcal.calib.judge.residuals.place_sigma_errors), never below the measured 11%
     geo_std = max(SIGMA_REL_SE, report.get("geometry_std_rel_se") or 0.0) * geo_rel if geo_rel is not None else 0.0
+    limits, limit_std, own = geometry_limits(report, obs)
+    geo_std = float(np.hypot(geo_std, limit_std))  # a limit of the camera's own rays is an estimate too
     # few observations that place the camera well are good: its geometry sigma below says so
-    few = _grade(obs, MIN_OBSERVATIONS, True) == 2 and (geo_rel is None or _grade(geo_rel, GEOMETRY_OF_VOLUME, std=geo_std) == 2)
+    few = _grade(obs, MIN_OBSERVATIONS, True) == 2 and (geo_rel is None or _grade(geo_rel, limits, std=geo_std) == 2)
     checks.add("observations", obs, MIN_OBSERVATIONS,
                f"{cam_id}: {obs} observations, {{level}} ({_limits(MIN_OBSERVATIONS, 'd', True)}; Qualisys "
                f"asks for {MIN_OBSERVATIONS[1]} per camera)", f"record longer, or wave nearer {cam_id}",
@@ -256,16 +279,17 @@ def _place_checks(checks: _Checks, report: dict, cam_id: str, extent_m: float | 
             coverage_advice = f"wave the wand in {where} of {cam_id}'s image"
     if geo_rel is not None:
         geo = report.get("geometry_std_mm")
+        rays = ", its rays' own miss at the points" if own else ""
         if geo is not None and extent_m:
             text = (f"{cam_id}: its place among the other cameras is known to {geo:.2f} mm (1 sigma), {{level}} "
-                    f"(excellent <= {GEOMETRY_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
-                    f"{GEOMETRY_OF_VOLUME[1] * 1000 * extent_m:.2f} mm in this volume)")
+                    f"(excellent <= {limits[0] * 1000 * extent_m:.2f} mm, good <= "
+                    f"{limits[1] * 1000 * extent_m:.2f} mm in this volume{rays})")
             shown = (1000.0 * extent_m, "mm")
         else:
             text = (f"{cam_id}: its place among the other cameras is known to {1000 * geo_rel:.2f} per mille of the "
-                    f"volume (1 sigma), {{level}} ({_limits(tuple(1000 * x for x in GEOMETRY_OF_VOLUME), '.2f')} per mille)")
+                    f"volume (1 sigma), {{level}} ({_limits(tuple(1000 * x for x in limits), '.2f')} per mille{rays})")
             shown = (1000.0, "per mille")
-        checks.add("geometry", geo_rel, GEOMETRY_OF_VOLUME, text,
+        checks.add("geometry", geo_rel, limits, text,
                    f"wave the wand longer across {cam_id}'s view, where it and other cameras see it", std=geo_std, shown=shown)
     return coverage_advice
 

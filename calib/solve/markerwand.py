@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from wandcal.calib.solve.backend import schur
-from wandcal.calib.solve.reprojection import BundleState, _linearised_projection, _Term, camera_index, exp_so3
+from wandcal.calib.solve.reprojection import BundleState, Rows, _linearised_projection, _Term, camera_index, exp_so3
 from wandcal.calib.solve.wandmodel import PLANAR_FRAME_PARAMS, WandModel, WandProblem
 
 
@@ -33,14 +33,14 @@ class PlanarWandTerm(_Term):
         self.structure = schur.TermStructure(camera_index(free, camera, n_cams), camera, frame, len(free), n_frames,
                                              PLANAR_FRAME_PARAMS)
 
-    def _offsets(self, s: BundleState, sl: slice) -> np.ndarray:
+    def _offsets(self, s: BundleState, sl: Rows) -> np.ndarray:
         assert s.Q is not None, "a planar wand's state carries its frames' axes"
         return np.einsum("mij,mj->mi", s.Q[self.frame[sl]], self.body[sl])
 
-    def _residuals(self, s: BundleState, sl: slice) -> np.ndarray:
+    def _residuals(self, s: BundleState, sl: Rows) -> np.ndarray:
         return self._project(s, s.m[self.frame[sl]] + self._offsets(s, sl), sl)
 
-    def _linearise(self, s: BundleState, sl: slice):
+    def _linearise(self, s: BundleState, sl: Rows):
         camera = self.camera[sl]
         Rc = s.R[camera]
         v = self._offsets(s, sl)

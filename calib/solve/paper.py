@@ -120,7 +120,7 @@ def _newton_rotations(R: np.ndarray, H: np.ndarray, g: np.ndarray) -> np.ndarray
         hess = 2 * np.einsum("nik,nij,njl->nkl", J, H, J) + 2 * np.einsum("klac,ncd,nad->nkl", second, R,
                                                                             Hr.reshape(-1, 3, 3))
         d = -_solve_descent(hess, grad)
-        R = _exp_turn(d) @ R
+        R = exp_turn(d) @ R
         if np.abs(d).max() < NEWTON_DONE:
             break
     return R
@@ -136,7 +136,7 @@ def _solve_descent(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
     return np.linalg.solve(hess + shift[:, None, None] * np.eye(3), grad[..., None])[..., 0]
 
 
-def _exp_turn(d: np.ndarray) -> np.ndarray:
+def exp_turn(d: np.ndarray) -> np.ndarray:
     """exp([d]_x) (C, 3, 3) for turns d (C, 3), radians (Rodrigues' formula)."""
     th = np.linalg.norm(d, axis=-1)[:, None, None]
     K = np.einsum("nk,kij->nij", d, _SKEW)
@@ -392,7 +392,7 @@ def _turned_on(R: np.ndarray, R_before: np.ndarray, factor: float) -> np.ndarray
     from scipy.spatial.transform import Rotation
 
     turn = Rotation.from_matrix(R @ np.swapaxes(R_before, -1, -2)).as_rotvec()
-    return _exp_turn(factor * turn) @ R
+    return exp_turn(factor * turn) @ R
 
 
 def refine_paper(

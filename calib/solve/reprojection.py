@@ -75,6 +75,7 @@ def camera_index(free: np.ndarray, camera: np.ndarray, n_cams: int) -> np.ndarra
 
 
 ROWS_PER_CHUNK = 32_768  # observations linearised at once: bounds the temporaries (~15 MB)
+Rows = slice | np.ndarray  # the observations a term works on: a chunk, or (K,) indices of some
 
 
 class _Term:
@@ -90,8 +91,10 @@ class _Term:
     # are refined: the observation at the camera's offset moved by dt is xy - dt v, so r moves by +dt v
     velocity: np.ndarray | None = None
 
-    def residuals(self, s: BundleState) -> np.ndarray:
-        """(M, 2) pixel residuals."""
+    def residuals(self, s: BundleState, rows: np.ndarray | None = None) -> np.ndarray:
+        """(M, 2) pixel residuals; given ``rows`` (K,) indices of observations, theirs (K, 2)."""
+        if rows is not None:
+            return self._residuals(s, rows)
         n = len(self.camera)
         out = np.empty((n, 2))
         for a in range(0, n, ROWS_PER_CHUNK):
@@ -99,20 +102,20 @@ class _Term:
             out[sl] = self._residuals(s, sl)
         return out
 
-    def linearise_rows(self, s: BundleState, sl: slice) -> tuple[np.ndarray, np.ndarray]:
-        """(r (K, 2), J (K, 2, c + p)) of the observations ``sl`` at ``s``: the camera's c
-        parameters (w, t, refined intrinsics) first, then the block's p."""
+    def linearise_rows(self, s: BundleState, sl: Rows) -> tuple[np.ndarray, np.ndarray]:
+        """(r (K, 2), J (K, 2, c + p)) of the observations ``sl`` (a slice, or (K,) indices) at
+        ``s``: the camera's c parameters (w, t, refined intrinsics) first, then the block's p."""
         return self._linearise(s, sl)
 
-    def _residuals(self, s: BundleState, sl: slice) -> np.ndarray:
+    def _residuals(self, s: BundleState, sl: Rows) -> np.ndarray:
         """(K, 2) pixel residuals of the observations ``sl``: each term's own model."""
         raise NotImplementedError
 
-    def _linearise(self, s: BundleState, sl: slice) -> tuple[np.ndarray, np.ndarray]:
+    def _linearise(self, s: BundleState, sl: Rows) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`linearise_rows`, each term's own."""
         raise NotImplementedError
 
-    def _project(self, s: BundleState, X: np.ndarray, sl: slice) -> np.ndarray:
+    def _project(self, s: BundleState, X: np.ndarray, sl: Rows) -> np.ndarray:
         xc = np.einsum("mij,mj->mi", s.R[self.camera[sl]], X) + s.t[self.camera[sl]]
         if self.raw is not None:
             r = distorted_pixels(xc, s.refined_intr()[self.camera[sl]])[0] - self.raw[0][sl]
@@ -142,13 +145,13 @@ class WandTerm(_Term):
         self.half = np.where(end == 1, 0.5, -0.5) * length if along is None else np.asarray(along, float)
         self.structure = schur.TermStructure(camera_index(free, camera, n_cams), camera, frame, len(free), n_frames, FRAME_PARAMS)
 
-    def _ends(self, s: BundleState, sl: slice) -> np.ndarray:
+    def _ends(self, s: BundleState, sl: Rows) -> np.ndarray:
         return s.m[self.frame[sl]] + self.half[sl, None] * s.d[self.frame[sl]]
 
-    def _residuals(self, s: BundleState, sl: slice) -> np.ndarray:
+    def _residuals(self, s: BundleState, sl: Rows) -> np.ndarray:
         return self._project(s, self._ends(s, sl), sl)
 
-    def _linearise(self, s: BundleState, sl: slice):
+    def _linearise(self, s: BundleState, sl: Rows):
         camera, frame = self.camera[sl], self.frame[sl]
         Rc = s.R[camera]
         Y = np.einsum("mij,mj->mi", Rc, self._ends(s, sl))
@@ -183,10 +186,10 @@ class PointTerm(_Term):
         self.velocity = np.zeros((len(camera), 2)) if timed else None
         self.structure = schur.TermStructure(camera_index(free, self.camera, n_cams), self.camera, self.track, len(free), n_tracks, POINT_PARAMS)
 
-    def _residuals(self, s: BundleState, sl: slice) -> np.ndarray:
+    def _residuals(self, s: BundleState, sl: Rows) -> np.ndarray:
         return self._project(s, s.X[self.track[sl]], sl)
 
-    def _linearise(self, s: BundleState, sl: slice):
+    def _linearise(self, s: BundleState, sl: Rows):
         camera = self.camera[sl]
         Rc = s.R[camera]
         Y = np.einsum("mij,mj->mi", Rc, s.X[self.track[sl]])

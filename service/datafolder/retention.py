@@ -7,15 +7,22 @@ Two settings, each off unless set (docs/reliability.md, "Retention"):
 | ``keep_results_days`` | a finished job (``done``, ``failed``, ``cancelled``): its record, its result and its drawn report |
 | ``keep_captures_days`` | a capture created that long ago whose jobs are all finished that long ago (or that has none), with those jobs, its frame-set rows and its folder |
 
+Watch takes (issue 36, ``takes/`` in the data folder) go with what they belong to: a watch job's
+take folder (``takes/<name>``, its ``options["folder"]``) with the job, a live watch's
+(``takes/live-<capture id>``: the standing result it was started with) with its capture. A take
+folder that nothing names (a live watch whose recording was never stored, an upload a crash cut
+off before its job was queued) goes once it is older than the setting its kind follows.
+
 A queued or running job, and its capture, are never deleted. The owner of the data folder prunes
 at its start and every :data:`PRUNE_EVERY_S` after. The order makes a crash keep rather than
 lose: the rows go first (one transaction), then the folder is renamed ``captures/.<id>.deleting``
-and removed; a folder a crash left at the rename is removed at the next prune, and one left before
+(``takes/.<name>.deleting``) and removed; a folder a crash left at the rename is removed at the next prune, and one left before
 it has no row and is registered again at the next start (recovery).
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import shutil
 import threading
@@ -25,6 +32,7 @@ from pathlib import Path
 
 from wandcal.service.db import transaction
 from wandcal.service.jobs.records import JobState
+from wandcal.service.jobs.watch_job import LIVE_TAKE_PREFIX, TAKES_DIR, WATCH_METHOD
 from wandcal.service.report.store import report_folder
 
 log = logging.getLogger("wandcal.service")
@@ -49,9 +57,10 @@ class Retention:
 def prune(data_dir: Path, db_path: Path, retention: Retention, now: float | None = None) -> tuple[list[str], list[str]]:
     """Delete what ``retention`` allows (module docstring); returns (job ids, capture ids) deleted."""
     now = time.time() if now is None else now
-    captures_root = Path(data_dir) / "captures"
+    data_dir = Path(data_dir)
     jobs: list[str] = []
     captures: list[str] = []
+    takes: list[str] = []  # take folders (names under takes/) that go with the jobs and captures
     marks = ",".join("?" * len(FINISHED))
     with transaction(db_path) as conn:
         if retention.captures_days is not None:
@@ -61,29 +70,70 @@ def prune(data_dir: Path, db_path: Path, retention: Retention, now: float | None
                 f"j.capture_id = c.id AND (j.state NOT IN ({marks}) OR COALESCE(j.finished, j.created) >= ?))",
                 (cutoff, *FINISHED, cutoff))]
             for capture_id in captures:
-                jobs += [r[0] for r in conn.execute("SELECT id FROM jobs WHERE capture_id = ?", (capture_id,))]
+                rows = conn.execute("SELECT id, method, options FROM jobs WHERE capture_id = ?", (capture_id,)).fetchall()
+                jobs += [r[0] for r in rows]
+                takes += _take_folders(rows) + [LIVE_TAKE_PREFIX + capture_id]
                 conn.execute("DELETE FROM jobs WHERE capture_id = ?", (capture_id,))
                 conn.execute("DELETE FROM framesets WHERE capture_id = ?", (capture_id,))
                 conn.execute("DELETE FROM captures WHERE id = ?", (capture_id,))
         if retention.results_days is not None:
             cutoff = now - retention.results_days * DAY_S
-            old = [r[0] for r in conn.execute(
-                f"SELECT id FROM jobs WHERE state IN ({marks}) AND COALESCE(finished, created) < ?", (*FINISHED, cutoff))]
-            conn.executemany("DELETE FROM jobs WHERE id = ?", [(j,) for j in old])
-            jobs += old
+            rows = conn.execute(f"SELECT id, method, options FROM jobs WHERE state IN ({marks}) AND "
+                                "COALESCE(finished, created) < ?", (*FINISHED, cutoff)).fetchall()
+            conn.executemany("DELETE FROM jobs WHERE id = ?", [(r[0],) for r in rows])
+            jobs += [r[0] for r in rows]
+            takes += _take_folders(rows)
+        takes += _unnamed_takes(conn, data_dir / TAKES_DIR, retention, now)
     for job_id in jobs:
         shutil.rmtree(report_folder(data_dir, job_id), ignore_errors=True)
-    for capture_id in captures:
-        folder = captures_root / capture_id
-        if folder.is_dir():
-            folder.rename(captures_root / DELETING.format(capture_id))
-    for leftover in captures_root.glob(DELETING.format("*")):  # this prune's, and a crash's
-        shutil.rmtree(leftover, ignore_errors=True)
+    _remove_folders(data_dir / "captures", captures)
+    _remove_folders(data_dir / TAKES_DIR, takes)
     if jobs or captures:
         log.info("retention: deleted %d finished job(s) and %d capture(s) (keep_results_days %s, "
                  "keep_captures_days %s): %s", len(jobs), len(captures), retention.results_days,
                  retention.captures_days, ", ".join(captures + jobs))
     return jobs, captures
+
+
+def _take_folders(rows) -> list[str]:
+    """The take folders' names (under takes/) of watch jobs among ``rows`` (id, method, options JSON)."""
+    names = []
+    for _, method, options in rows:
+        folder = json.loads(options or "{}").get("folder") if method == WATCH_METHOD else None
+        if isinstance(folder, str) and folder:
+            names.append(Path(folder).name)  # the name alone: only takes/ is ever pruned
+    return names
+
+
+def _unnamed_takes(conn, root: Path, retention: Retention, now: float) -> list[str]:
+    """Take folders no job or capture names, older than the setting their kind follows: a live
+    watch's (``live-<capture id>``) the captures' one, an uploaded take's the results' one."""
+    if not root.is_dir():
+        return []
+    named = set(_take_folders(conn.execute("SELECT id, method, options FROM jobs WHERE method = ?", (WATCH_METHOD,))))
+    captures = {r[0] for r in conn.execute("SELECT id FROM captures")}
+    old = []
+    for folder in root.iterdir():
+        live = folder.name.startswith(LIVE_TAKE_PREFIX)
+        days = retention.captures_days if live else retention.results_days
+        if folder.name.startswith(".") or days is None or folder.name in named:
+            continue
+        if live and folder.name.removeprefix(LIVE_TAKE_PREFIX) in captures:
+            continue  # goes with its capture
+        if folder.stat().st_mtime < now - days * DAY_S:
+            old.append(folder.name)
+    return old
+
+
+def _remove_folders(root: Path, names: list[str]) -> None:
+    """Each folder of ``names`` under ``root`` renamed ``.<name>.deleting`` and removed, with any a
+    crash left renamed (module docstring)."""
+    for name in names:
+        folder = root / name
+        if folder.is_dir():
+            folder.rename(root / DELETING.format(name))
+    for leftover in root.glob(DELETING.format("*")):  # this prune's, and a crash's
+        shutil.rmtree(leftover, ignore_errors=True)
 
 
 KEPT_RESULTS_DIR = "results"  # <data_dir>/results/<job id>.json: results kept when their job is deleted

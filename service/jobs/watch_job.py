@@ -15,6 +15,7 @@ from wandcal.drivers.capture_files import RIG_FILE, TAKE_FILE
 
 WATCH_METHOD = "watch"
 TAKES_DIR = "takes"  # in the data folder: one folder a watch job
+LIVE_TAKE_PREFIX = "live-"  # takes/live-<capture id>: the standing result a live capture is watched with
 STANDING_FILE = "result.json"  # the standing result, as uploaded or as the calibration job gave it
 WATCH_FILES = (RIG_FILE, TAKE_FILE, STANDING_FILE)
 

@@ -5,12 +5,15 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 from fastapi.testclient import TestClient
 
 from tests.service.conftest import capture_files
+from wandcal.drivers.capture_files import TAKE_FILE
 from wandcal.service.datafolder.retention import DAY_S, Pruner, Retention, prune
 from wandcal.service.db import init_db
+from wandcal.service.jobs.watch_job import LIVE_TAKE_PREFIX, TAKES_DIR
 from wandcal.service.main import create_app
 from wandcal.service.report.store import report_folder
 from wandcal.service.settings import Settings
@@ -82,3 +85,49 @@ def test_the_setting_starts_a_pruner_that_stops_with_the_app(tmp_path):
     assert pruner._thread is not None and pruner._thread.is_alive()
     pruner.stop()
     assert not pruner._thread.is_alive()
+
+
+def test_watch_takes_go_with_their_job_and_capture_and_unnamed_ones_once_old(tmp_path, small_capture):
+    """takes/ (issue 36): a watch job's take folder goes with the job, a live watch's with its capture,
+    one that nothing names once older than the setting; a queued watch's take stays."""
+    app, client, files = _service(tmp_path, small_capture)
+    data, db = tmp_path / "data", tmp_path / "data" / "wandcal.sqlite3"
+    take = "frame,camera,u,v\n" + "".join(f"{f},cam{c},{100 + f}.5,{200 + c}.5\n" for f in range(3) for c in (1, 2, 3))
+    with client:
+        capture_id = client.post("/captures", files=files).json()["id"]
+        job_id = client.post("/jobs", json={"capture_id": capture_id, "method": "ba"}).json()["id"]
+        app.state.wandcal.queue.drain()
+
+        def watch() -> tuple[str, Path]:
+            r = client.post("/watch", files={TAKE_FILE: (TAKE_FILE, take, "text/csv")}, data={"job_id": job_id})
+            assert r.status_code == 202, r.text
+            record = app.state.wandcal.queue.refresh(r.json()["id"])
+            return record.id, Path(record.options["folder"])
+
+        (done_watch, done_take), (queued_watch, queued_take) = watch(), watch()
+        assert client.delete(f"/watch/{done_watch}").json()["state"] == "cancelled"  # finished: retention may take it
+        live = data / TAKES_DIR / f"{LIVE_TAKE_PREFIX}{capture_id}"  # a live watch of this capture
+        unnamed_live = data / TAKES_DIR / f"{LIVE_TAKE_PREFIX}{'f' * 32}"  # its recording was never stored
+        unnamed_upload = data / TAKES_DIR / ("e" * 32)  # a crash between the folder and its job's row
+        for folder in (live, unnamed_live, unnamed_upload):
+            folder.mkdir(parents=True)
+            (folder / "result.json").write_text("{}\n")
+        assert done_take.parent == queued_take.parent == data / TAKES_DIR and done_take.is_dir()
+
+        assert prune(data, db, Retention(), now=time.time() + 1e4 * DAY_S) == ([], [])  # the default keeps all
+        assert all(f.is_dir() for f in (done_take, queued_take, live, unnamed_live, unnamed_upload))
+        # results kept 30 days: the finished watch's take and the unnamed upload go; the queued one stays
+        jobs, _ = prune(data, db, Retention(results_days=30), now=time.time() + 40 * DAY_S)
+        assert done_watch in jobs and queued_watch not in jobs
+        assert not done_take.exists() and not unnamed_upload.exists()
+        assert queued_take.is_dir() and live.is_dir() and unnamed_live.is_dir()
+        # not yet old: an unnamed live take stays
+        prune(data, db, Retention(captures_days=30), now=time.time() + 29 * DAY_S)
+        assert unnamed_live.is_dir() and live.is_dir()
+        # captures kept 30 days: the capture with a queued watch stays, with both its takes; the unnamed live one goes
+        _, captures = prune(data, db, Retention(captures_days=30), now=time.time() + 40 * DAY_S)
+        assert captures == [] and queued_take.is_dir() and live.is_dir() and not unnamed_live.exists()
+        client.delete(f"/watch/{queued_watch}")
+        _, captures = prune(data, db, Retention(captures_days=30), now=time.time() + 40 * DAY_S)
+        assert captures == [capture_id] and not queued_take.exists() and not live.exists()
+        assert sorted(p.name for p in (data / TAKES_DIR).iterdir()) == []  # nothing left mid-delete either

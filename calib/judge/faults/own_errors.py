@@ -48,8 +48,9 @@ VIEWS_PER_CAMERA = 400
 @dataclass(frozen=True, eq=False)
 class Views:
     """Every observation of the points: point (M,) in [0, P), camera (M,), xy (M, 2) normalised;
-    time (M,) capture frame; timed (M,) bool: the observation has a time (the wand's ends; point
-    tracks only where there is no wand: a moving marker, not background points digitised once)."""
+    time (M,) capture frame; timed (M,) bool: the observation has a time in the capture (the
+    wand's ends; point tracks where there is no wand, or where they are in the wand's time:
+    :func:`in_wand_time`)."""
 
     point: np.ndarray
     camera: np.ndarray
@@ -97,18 +98,31 @@ class Noise:
     observations: int
 
 
+def in_wand_time(track_frames: np.ndarray, wand_frames: np.ndarray) -> np.ndarray:
+    """(T,) bool: the point tracks at capture frames ``track_frames`` (T,) that share the wand's
+    time, those within the span of its frames ``wand_frames`` (F,) (every one without a wand).
+    points.csv numbers its frames on its own (docs/capture-format.md), and the importers number
+    points from other recordings (easyWand's and DLTdv's background points) from the first power
+    of ten above every wand frame: those have no time in the wand's capture, and a camera's pose
+    when they were taken is its own (:func:`wandcal.calib.judge.faults.pose_steps.pose_step`)."""
+    if not len(wand_frames):
+        return np.ones(len(track_frames), bool)
+    return (track_frames >= wand_frames.min()) & (track_frames <= wand_frames.max())
+
+
 def views_of(labelled: WandPairs, tracks: PointTracks | None) -> Views:
-    """Every wand end (both ends of every labelled pair) and every point-track observation."""
+    """Every wand end (both ends of every labelled pair) and every point-track observation, timed
+    where it has a time in the capture (the wand's ends; the tracks :func:`in_wand_time`)."""
     parts = []
     if len(labelled):
         point, camera, xy = flatten(labelled)
         parts.append((point, camera, xy, labelled.frames[point // 2], True, 2 * len(labelled.frames)))
     if tracks is not None and len(tracks):
-        parts.append((tracks.track, tracks.camera, tracks.xy, tracks.frames[tracks.track], not len(labelled),
-                      tracks.n_tracks))
+        timed = in_wand_time(tracks.frames, labelled.frames[labelled.frame])[tracks.track]
+        parts.append((tracks.track, tracks.camera, tracks.xy, tracks.frames[tracks.track], timed, tracks.n_tracks))
     offset, cols = 0, []
     for point, camera, xy, time, has_time, n in parts:
-        cols.append((point + offset, camera, xy, time, np.full(len(point), has_time)))
+        cols.append((point + offset, camera, xy, time, np.broadcast_to(has_time, len(point))))
         offset += n
     if not cols:
         z = np.zeros(0, np.int64)

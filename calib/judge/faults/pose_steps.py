@@ -1,10 +1,11 @@
 """A camera that moved during the capture: a step in its pose, with the points eliminated
 (:mod:`wandcal.calib.judge.faults.own_errors`).
 
-The camera's views with a time (the wand's ends; point tracks where there is no wand: a moving
-marker) are split at frame k, and its turn after k (three columns: a rotation about its centre) is
+The camera's views with a time (the wand's ends; point tracks in the wand's time,
+or all of them where there is no wand: :func:`wandcal.calib.judge.faults.own_errors.in_wand_time`)
+are split at frame k, and its turn after k (three columns: a rotation about its centre) is
 fitted beside its pose (six columns) and its lens (four), all with the points projected out; views
-without a time (background points digitised once) have a turn of their own. An F test of one pose
+without a time (background points from another recording) have a turn of their own. An F test of one pose
 against two at the best k (:func:`pose_step`), outliers trimmed under the two-pose model, the F
 divided by the residuals' long-run variance in time (batch means), its p-value multiplied by the
 number of splits tried (Bonferroni, the search's multiple testing). A camera is named only when
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.geometry import projection_derivative
-from wandcal.calib.judge.faults.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
+from wandcal.calib.judge.faults.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, in_wand_time, unit_squares
 from wandcal.calib.judge.residuals import Residuals
 
 MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone
@@ -383,14 +384,17 @@ def step_suspects(res: Residuals, track_frames: np.ndarray | None) -> list[int]:
     (:class:`wandcal.calib.judge.residuals.Residuals`: every camera's views against points all
     cameras triangulated, a knocked camera's later views left out of them as outliers) is below
     :data:`SCREEN_ALPHA`, at most :data:`MAX_STEP_SUSPECTS`, the smallest p first. Timed views:
-    the wand's, or the point tracks' (track_frames (T,): each track's capture frame) where there
-    is no wand."""
+    the wand's and the point tracks' (track_frames (T,): each track's capture frame) in the wand's
+    time (:func:`wandcal.calib.judge.faults.own_errors.in_wand_time`; all of them without a wand)."""
     wand = res.point >= 0
-    if wand.any():
-        timed, time = wand, res.frames[np.maximum(res.point, 0) // 2]
-    elif track_frames is not None and len(track_frames):
-        timed, time = np.ones(len(res.point), bool), track_frames[-1 - res.point]
-    else:
+    time = res.frames[np.maximum(res.point, 0) // 2] if len(res.frames) else np.zeros(len(res.point), np.int64)
+    timed = wand.copy()
+    if track_frames is not None and len(track_frames):
+        track = np.maximum(-1 - res.point, 0)
+        time = np.where(wand, time, track_frames[track])
+        wand_frames = res.frames[np.unique(res.point[wand] // 2)]
+        timed |= ~wand & in_wand_time(track_frames, wand_frames)[track]
+    if not timed.any():
         return []
     p = []
     for c in range(int(res.camera.max()) + 1 if len(res.camera) else 0):

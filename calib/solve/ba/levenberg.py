@@ -16,7 +16,11 @@ count, not the wand frames': a frame two cameras see, with its wand nearly acros
 held along one direction by the wand's foreshortening alone, a curvature that Gauss-Newton's
 normal equations leave out, so it converges linearly (0.93 a step) for tens of iterations after
 the cameras have settled; the cameras' own steps carry what its remaining motion still does to
-them (decision 0032).
+them (decision 0032). Such a stage ends by settling, the cameras held, the frames that its rule,
+applied frame by frame, still counts as moving (:mod:`wandcal.calib.solve.ba.frames`): relabelling
+and the outlier pass judge frames by their residuals. The frames it counts as settled are left as
+they are (on the 8-camera acceptance rig none is left moving: the digits of the stop on every
+parameter, which ends there at the same step).
 
 Least squares (the polish of a robust solution) tries Gauss-Newton's undamped step first, and
 follows an accepted undamped step with the chord method's: the new point's gradient through the
@@ -29,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.observations import robust_sigma
+from wandcal.calib.solve.ba.frames import frames_at_optimum
 from wandcal.calib.solve.backend import schur
 from wandcal.calib.solve.reprojection import (
     CAM_PARAMS,
@@ -153,6 +158,7 @@ class LevenbergMarquardt:
         last_ratio = np.inf
         chord: tuple[schur.Normal, schur.Step] | None = None
         self.undamped = None
+        unsettled = _Unsettled(self.judged)
         for it in range(max_iter):
             accepted = None
             if chord is not None:
@@ -181,6 +187,7 @@ class LevenbergMarquardt:
             if progress is not None:
                 progress({"stage": "refine", "iteration": iterations, "cost": cost, "message": "bundle adjustment"})
             ratio = _step_in_standard_errors(step, z, self.judged)
+            unsettled.update(step, z, rate_known=bool(np.isfinite(last_ratio)))
             # steps shrink at least geometrically near the optimum (quadratically for least
             # squares, linearly for the reweighted loss): the distance left is about
             # step * q / (1 - q), with q the last ratio of successive steps
@@ -190,6 +197,8 @@ class LevenbergMarquardt:
             if remaining < self.stop_se or relative_gain < MIN_RELATIVE_GAIN:
                 status, message = "converged", f"the estimated distance to the optimum is under {self.stop_se} standard errors"
                 break
+        if not all(self.judged):
+            state, z, cost = self._frames_at_optimum(state, z, unsettled)
         info = {
             "iterations": iterations,
             "evaluations": evaluations,
@@ -201,6 +210,29 @@ class LevenbergMarquardt:
         }
         self.last = (state, z)  # the final state's squared errors, for standard_errors
         return state, info
+
+    def _frames_at_optimum(self, state: BundleState, z: np.ndarray, unsettled: _Unsettled):
+        """(state, z, cost) with the blocks the stop did not judge (the wand frames) that its rule
+        leaves over ``stop_se`` from their optimum (``unsettled``) brought within it, the cameras
+        held, under the stage's loss and scale (:mod:`wandcal.calib.solve.ba.frames`): relabelling
+        and the outlier pass judge each frame by its residuals, and the result reports the frames.
+        The frames the stage's rule already counts as settled are left as they are."""
+        moving = [unsettled.moving(k, self.stop_se) for k in range(len(self.terms))]
+        if not any(m is not None and m.any() for m in moving):
+            return state, z, self._cost(z)
+        sigma = max(_robust_sigma(z), 1e-12)
+        for term, active in zip(self.terms, moving):
+            if active is not None and active.any():
+                state, _ = frames_at_optimum(term, state, self._rho, self._weights, sigma, self.stop_se, active=active)
+        z = self._squared_errors(state)
+        return state, z, self._cost(z)
+
+    def _rho(self, z: np.ndarray) -> np.ndarray:
+        """Each observation's share of :meth:`_cost` (K,) from its squared pixel error z (K,)."""
+        if self.loss == "linear":
+            return 0.5 * z
+        s2 = self.scale**2
+        return 0.5 * s2 * np.log1p(z / s2)
 
     def _damped_step(self, normal: schur.Normal, state: BundleState, cost: float, lam: float, nu: float):
         """Levenberg–Marquardt's step at ``normal``, raising the damping until the cost falls
@@ -268,6 +300,41 @@ class LevenbergMarquardt:
         for k, j in self.frozen:
             std[k, j] = 0.0
         return std
+
+
+class _Unsettled:
+    """Which blocks of the terms the stop does not judge (the wand frames) its rule would still
+    count as moving: each block's last step in standard errors and the rate of its last two, the
+    rule of :meth:`LevenbergMarquardt.run` applied block by block."""
+
+    def __init__(self, judged: list[bool]):
+        self.judged = judged
+        self.last: list[np.ndarray | None] = [None] * len(judged)
+        self.remaining: list[np.ndarray | None] = [None] * len(judged)
+
+    def update(self, step: schur.Step, z: np.ndarray, *, rate_known: bool) -> None:
+        """Take an accepted step (``rate_known``: the step before it was solved from its own
+        linearisation, not a chord step); ``z`` the squared errors after it, for the noise."""
+        sigma = max(_robust_sigma(z), 1e-12)
+        for k, judged in enumerate(self.judged):
+            d, var = step.dp[k], step.pt_var[k]
+            if judged or not d.size:
+                continue
+            ratio = np.max(np.abs(d) / (sigma * np.sqrt(np.maximum(var, 1e-300))), axis=1)
+            previous = self.last[k]
+            q = np.full(len(ratio), MAX_RATE)
+            if rate_known and previous is not None:
+                q = np.where(previous > 0, np.minimum(ratio / np.maximum(previous, 1e-300), MAX_RATE), MAX_RATE)
+            self.remaining[k] = ratio * q / (1 - q)
+            self.last[k] = ratio
+
+    def moving(self, k: int, stop_se: float) -> np.ndarray | None:
+        """(P,) bool: term ``k``'s blocks estimated ``stop_se`` or more from their optimum; None
+        for a judged term, and when no step was taken (the stage's start is then its end)."""
+        if self.judged[k]:
+            return None
+        remaining = self.remaining[k]
+        return None if remaining is None else remaining >= stop_se
 
 
 def _robust_sigma(z: np.ndarray) -> float:

@@ -22,7 +22,7 @@ from wandcal.drivers.capture_files import RIG_FILE, TAKE_FILE
 from wandcal.service.api.deps import State, require_content_type
 from wandcal.service.api.routes.captures import _file_schema, _form, _form_body, _text
 from wandcal.service.jobs.records import JobRecord, JobState
-from wandcal.service.jobs.watch_job import STANDING_FILE, TAKES_DIR, WATCH_METHOD
+from wandcal.service.jobs.watch_job import LIVE_TAKE_PREFIX, STANDING_FILE, TAKES_DIR, WATCH_METHOD
 from wandcal.service.schemas import ErrorPublic, JobProgress
 from wandcal.service.storage import CaptureNotFound
 
@@ -208,7 +208,7 @@ def _start_live(request: Request, state, body: LiveWatchCreate) -> dict:
         if time.monotonic() > deadline:
             raise HTTPException(409, f"live capture {status.capture_id} has not started recording yet; try again")
         time.sleep(0.05)
-    folder = state.settings.data_dir / TAKES_DIR / f"live-{status.capture_id}"
+    folder = state.settings.data_dir / TAKES_DIR / f"{LIVE_TAKE_PREFIX}{status.capture_id}"
     folder.mkdir(parents=True, exist_ok=True)
     (folder / STANDING_FILE).write_text(standing)
     rig = read_rig(staging, allow_no_wand=True)

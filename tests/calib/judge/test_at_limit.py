@@ -56,6 +56,32 @@ def test_a_criterion_past_its_limit_by_more_than_its_standard_error_changes_leve
     assert clear["at_limit"] == [] and not any("at the limit" in r for r in clear["reasons"])
 
 
+@pytest.mark.parametrize("residual_mm, geometry_mm, level, limit_mm", [
+    (1.2, 1.05, "good", 1.2),  # a sparse, hand-digitised camera: placed to within its own rays' miss
+    (1.2, 1.6, "poor", 1.2),  # ... but not when its place is known worse than that (past 1.2 by 2.1 standard errors)
+    (0.5, 1.3, "poor", LIMIT_MM),  # sharp rays keep the volume's limit: few frames of a marker system are poor
+    (4.0, 2.2, "good", 2.5),  # a miss beyond the residual's own good limit widens no further ...
+    (4.0, 3.3, "poor", 2.5),  # ... so a noisy camera's poorly known place stays poor
+])
+def test_the_geometry_sigmas_good_limit_is_the_cameras_own_rays_miss_where_that_is_larger(residual_mm, geometry_mm,
+                                                                                           level, limit_mm):
+    """A place known to within the miss of the camera's own rays at the points adds less to a
+    reconstructed point than each observation does (decision 0049a): Brown 2's cam1 on 60% of its
+    frames, 1.02 mm against rays 1.19 mm off, in a 0.77 m volume whose 1e-3 is 0.77 mm."""
+    entry = camera(geometry_mm, observations=120) | {"residual_of_volume": residual_mm / (1000 * EXTENT_M)}
+    v = camera_verdict(entry, "cam1", EXTENT_M, 0.3)
+    assert v["short_of_excellent"]["geometry"] == level
+    [text] = [r for r in v["reasons"] if "its place among" in r]
+    assert f"good <= {limit_mm:.2f} mm in this volume" in text
+    assert ("its rays' own miss" in text) == (limit_mm > LIMIT_MM)
+    # the limit's own standard error (an RMS of 120 observations) counts with the sigma's
+    near = camera_verdict(entry | {"geometry_of_volume": 1.001 * limit_mm / (1000 * EXTENT_M)}, "cam1", EXTENT_M, 0.3)
+    [held] = [e for e in near["at_limit"] if e["criterion"] == "geometry"]
+    sigma_se = SIGMA_REL_SE * 1.001 * limit_mm
+    own_se = rms_std(limit_mm, 120) if LIMIT_MM < limit_mm < 2.5 else 0.0
+    assert held["std"] == pytest.approx(np.hypot(sigma_se, own_se), rel=1e-3)
+
+
 def test_the_wand_spreads_standard_error_is_that_of_a_standard_deviation_of_its_frames():
     """rms_std against the scatter of the SD of n Gaussian lengths, 4000 draws: within 4 standard
     errors of that scatter's own estimate (sqrt(1 / (2 * draws)) relative)."""

@@ -98,3 +98,92 @@ def test_a_knocked_camera_is_named_with_its_frame_and_angle(camera, degrees):
     # the split is searched among MAX_SPLITS candidates: the frame within one candidate's spacing
     assert abs(ev["frame"] - 250) <= FRAMES / MAX_SPLITS + 1
     assert abs(ev["degrees"] - degrees) < 4 * ev["degrees_std"] + 0.02 * degrees
+
+
+# -- point tracks in the wand's time (issue 31: every observation a camera has in time) ----------
+
+WAND_FRAMES = 16  # a sparse wand, as Brown's: each frame seen by one ring pair of cameras
+
+
+def _sparse_wand(R, t, rng, knock=None) -> WandPairs:
+    """WAND_FRAMES frames of a 0.5 m wand spread through the tracks' FRAMES, each seen by one ring
+    pair of cameras (2 of 4), with NOISE_PX; knock as in :func:`_tracks`."""
+    n = len(R)
+    frames = np.linspace(5, FRAMES - 5, WAND_FRAMES).astype(np.int64)
+    mid = rng.uniform(-0.5, 0.5, (WAND_FRAMES, 3))
+    d = rng.normal(size=(WAND_FRAMES, 3))
+    ends = mid[:, None] + 0.25 * np.array([-1.0, 1.0])[None, :, None] * (d / np.linalg.norm(d, axis=1, keepdims=True))[:, None]
+    frame, camera, xy = [], [], []
+    for f in range(WAND_FRAMES):
+        for c in (f % n, (f + 1) % n):
+            Xc = ends[f] @ R[c].T + t[c]
+            if knock is not None and knock[0] == c and frames[f] > knock[1]:
+                Xc = Xc @ rotvec_to_matrix(knock[2]).T
+            frame.append(f)
+            camera.append(c)
+            xy.append(Xc[:, :2] / Xc[:, 2:] + rng.normal(0, NOISE_PX / FOCAL_PX, (2, 2)))
+    xy = np.array(xy)
+    return WandPairs(np.array(frame), np.array(camera), xy, xy * FOCAL_PX, frames)
+
+
+def _wand_faults(labelled: WandPairs, tracks: PointTracks, R, t):
+    K = np.array([[FOCAL_PX, 0, 640], [0, FOCAL_PX, 480], [0, 0, 1]])
+    rig = Rig(tuple(Camera(f"cam{k}", 1280, 960, K, np.zeros(5)) for k in range(len(R))), 0.5)
+    return own_faults(rig, labelled, tracks, R, t)
+
+
+def test_point_tracks_within_the_wands_frames_are_timed_and_those_of_another_recording_are_not():
+    R, t = _rig()
+    rng = np.random.default_rng(7)
+    labelled, tracks = _sparse_wand(R, t, rng), _tracks(R, t, rng)
+    views = oe.views_of(labelled, tracks)
+    wand = np.arange(len(views.point)) < 2 * len(labelled)  # views_of puts the wand's ends first
+    span = (views.time >= labelled.frames.min()) & (views.time <= labelled.frames.max())
+    np.testing.assert_array_equal(views.timed, wand | span)
+    assert (views.timed & ~wand).sum() > 0.9 * len(tracks)  # the tracks before the first and after the last wand frame are not
+    # an importer numbers another recording's points from the power of ten above every wand frame
+    other = PointTracks(tracks.track, tracks.camera, tracks.xy, tracks.uv, tracks.frames + 1000)
+    views = oe.views_of(labelled, other)
+    assert views.timed.sum() == 2 * len(labelled)  # the wand's ends only
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_a_sparse_wand_with_tracks_in_its_time_names_nothing_on_a_clean_rig(seed):
+    R, t = _rig()
+    rng = np.random.default_rng(seed)
+    assert _wand_faults(_sparse_wand(R, t, rng), _tracks(R, t, rng), R, t) == ([], [])
+
+
+@pytest.mark.parametrize("camera, degrees", [(0, 0.4), (2, 0.8)])
+def test_a_camera_knocked_under_a_sparse_wand_is_named_from_its_point_tracks_in_time(camera, degrees):
+    R, t = _rig()
+    rng = np.random.default_rng(20 + camera)
+    axis = rng.normal(size=3)
+    knock = (camera, 250, np.radians(degrees) * axis / np.linalg.norm(axis))
+    labelled, tracks = _sparse_wand(R, t, rng, knock), _tracks(R, t, rng, knock=knock)
+    moved, noisy = _wand_faults(labelled, tracks, R, t)
+    assert [f["camera"] for f in moved] == [f"cam{camera}"] and noisy == []
+    ev = moved[0]["evidence"]
+    assert abs(ev["frame"] - 250) <= FRAMES / MAX_SPLITS + 1
+    assert abs(ev["degrees"] - degrees) < 4 * ev["degrees_std"] + 0.02 * degrees
+
+
+def test_a_large_rigs_screen_times_the_tracks_in_the_wands_time():
+    """More than five cameras: the step screen (pose_steps.step_suspects) reads the point tracks
+    in the wand's time as timed views, and the knocked camera is suspected and named."""
+    from wandcal.calib.judge.faults.pose_steps import step_suspects
+    from wandcal.calib.judge.residuals import observation_residuals
+
+    R, t = _rig(6)
+    rng = np.random.default_rng(31)
+    axis = rng.normal(size=3)
+    knock = (4, 250, np.radians(0.5) * axis / np.linalg.norm(axis))
+    labelled, tracks = _sparse_wand(R, t, rng, knock), _tracks(R, t, rng, knock=knock)
+    res = observation_residuals(R, t, labelled, tracks, np.full((6, 2), FOCAL_PX))
+    assert step_suspects(res, tracks.frames)[:1] == [4]
+    # the same tracks from another recording (numbered above every wand frame) are not timed
+    assert 4 not in step_suspects(res, tracks.frames + 1000)
+    K = np.array([[FOCAL_PX, 0, 640], [0, FOCAL_PX, 480], [0, 0, 1]])
+    rig = Rig(tuple(Camera(f"cam{k}", 1280, 960, K, np.zeros(5)) for k in range(6)), 0.5)
+    moved, _ = own_faults(rig, labelled, tracks, R, t, [], res)
+    assert [f["camera"] for f in moved] == ["cam4"]

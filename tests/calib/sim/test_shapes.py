@@ -22,13 +22,7 @@ NOISE_MARGIN = 2.0
 SMALL = {"ring": (8, 4.0), "dome": (8, 4.0), "tiers": (8, 4.0), "hallway": (16, 12.0)}
 
 
-# With the stop that waits for every wand frame (WAND_FRAMES_IN_STOP, the default kept while the
-# cheaper stop of decision 0032 is finished) the dome and the hallway take 13-14 iterations: issue 33
-SLOW_SHAPES = {"dome", "hallway"}
-
-
-@pytest.mark.parametrize("kind", [pytest.param(k, marks=pytest.mark.xfail(
-    k in SLOW_SHAPES, strict=True, reason="issue 33: 13-14 iterations with the default stop")) for k in sorted(SMALL)])
+@pytest.mark.parametrize("kind", sorted(SMALL))
 def test_ba_converges_on_every_shape(kind):
     cameras, size = SMALL[kind]
     sim = simulate_shape(RigShape(kind, cameras, size), frames=800, noise_px=NOISE_PX, outliers=0.02, seed=3)
