@@ -5,6 +5,7 @@ frames a second on one core.
 
     python bench/bench_watch.py --write-docs            # everything (~40 min on a shared 2-core machine)
     python bench/bench_watch.py --clean-frames 20000    # a shorter false-alarm count
+    python bench/bench_watch.py --dispersion 1001       # one clean take's window scores against the iid prediction
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from common import machine, publish  # noqa: E402
 from wandcal.calib.geometry import camera_centers, rotation_angle  # noqa: E402
 from wandcal.calib.sim.simulate import observe_wand, simulate_capture, wand_path  # noqa: E402
 from wandcal.calib.sim.takes import CameraMove, simulate_take  # noqa: E402
+from wandcal.calib.watch.health import WINDOW_FRAMES, camera_windows, solve_pose_change  # noqa: E402
 from wandcal.calib.watch.match import match_frames  # noqa: E402
 from wandcal.calib.watch.sequential import GLR_THRESHOLD  # noqa: E402
 from wandcal.calib.watch.take import pad_frames  # noqa: E402
@@ -86,6 +88,37 @@ def false_alarms(frames: int) -> tuple[int, float, int]:
     return alarms, peak, done
 
 
+def dispersion(seed: int, frames: int = CLEAN_PIECE, blocks=(1, 2, 3, 5, 10, 20, 30)) -> None:
+    """Print each camera's dispersion of a clean take (the false alarms' cause, decision 0049g): its
+    windows' scores ``e^T H^+ e / sigma^2`` summed over blocks of m windows (e = g - H p, p and
+    sigma^2 from the whole take), against 6 (the iid chi-square's mean, after p's 6 degrees of
+    freedom); and the windows whose own rms passes 1.2 x the camera's (the bursts)."""
+    sim = simulate_take(CAMERAS, frames, noise_px=NOISE, seed=seed)
+    b = sim.blobs
+    parts = []
+    bounds = np.searchsorted(b.frame, np.arange(0, frames + 101, 100))
+    for i in range(len(bounds) - 1):
+        padded = pad_frames(sim.rig, b, np.arange(bounds[i], bounds[i + 1]))
+        w = camera_windows(sim.rig, sim.truth.R, sim.truth.t, padded, match_frames(sim.rig, sim.truth.R, sim.truth.t, padded))
+        win = w.frames // WINDOW_FRAMES
+        parts += [(w.g[win == u].sum(0), w.H[win == u].sum(0), w.n[win == u].sum(0), w.sse[win == u].sum(0))
+                  for u in np.unique(win)]
+    g, H, n, sse = (np.array([p[i] for p in parts]) for i in range(4))
+    for c in range(CAMERAS):
+        p = solve_pose_change(H[:, c].sum(0), g[:, c].sum(0))
+        s2 = sse[:, c].sum() / (2 * n[:, c].sum() - 6 * len(n))
+        e = g[:, c] - np.einsum("wij,j->wi", H[:, c], p)
+        phi = []
+        for m in blocks:
+            nb = len(n) // m
+            E, Ib = e[:nb * m].reshape(nb, m, 6).sum(1), H[:nb * m, c].reshape(nb, m, 6, 6).sum(1)
+            phi.append(np.einsum("bi,bi->b", E, solve_pose_change(Ib, E)).sum() / s2 / (6 * (nb - 1)))
+        rms = np.sqrt(sse[:, c] / np.maximum(2 * n[:, c] - 6, 1))
+        print(f"  {sim.rig.ids[c]}: dispersion at m = {', '.join(map(str, blocks))} windows: "
+              f"{' '.join(f'{v:.2f}' for v in phi)}; windows past 1.2 x its rms {np.sqrt(s2):.3f} px: "
+              f"{int((rms > 1.2 * np.sqrt(s2)).sum())} of {len(n)}", flush=True)
+
+
 def recovery(seed: int, folder: Path) -> tuple[float, float, float, float]:
     """(watch's centre error mm, its rotation error deg, --solve-only's, the same) for a 0.2 deg + 2 mm
     knock of one camera: the standing result calibrated from a wand capture of the rig, the knock
@@ -134,7 +167,11 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--clean-frames", type=int, default=100_000)
     ap.add_argument("--write-docs", action="store_true")
+    ap.add_argument("--dispersion", type=int, metavar="SEED", help="only print a clean take's dispersion per camera")
     args = ap.parse_args()
+    if args.dispersion is not None:
+        dispersion(args.dispersion)
+        return 0
     seeds = range(1, args.seeds + 1)
     lines = [f"Simulated takes: {CAMERAS} cameras, {MARKERS} markers on 5 moving rigid bodies, {NOISE} px, 3% of blobs "
              "dropped, 0.5 spurious blobs a camera-frame, markers' images nearer than 4 px merged; the standing poses "
