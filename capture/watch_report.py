@@ -41,7 +41,7 @@ def report_json(report: WatchReport) -> dict:
                       "rotation_std_deg": round(h.resolved.rotation_std_deg, 4), "resolved_rms_px": round(h.resolved.rms_px, 4),
                       "resolved_points": h.resolved.points}
         cameras.append(entry)
-    return {"frames": report.frames, "markers": report.tracks, "first_frame": report.first_frame,
+    return {"frames": report.frames, "judged": report.judged, "markers": report.tracks, "first_frame": report.first_frame,
             "last_frame": report.last_frame, "cameras": cameras, "moved": [h.id for h in report.moved]}
 
 

@@ -20,10 +20,20 @@ from wandcal.calib.watch.health import (
 from wandcal.calib.watch.lost import LOST_THRESHOLD, FoundTest
 from wandcal.calib.watch.match import Tracks, match_frames
 from wandcal.calib.watch.recover import Resolved, resolve_camera
-from wandcal.calib.watch.sequential import BASELINE_WINDOWS, GLR_THRESHOLD, Alarm, CameraTest, classify
+from wandcal.calib.watch.sequential import (
+    BASELINE_WINDOWS,
+    GLR_THRESHOLD,
+    PERSIST_WINDOWS,
+    Alarm,
+    CameraTest,
+    classify,
+)
 from wandcal.calib.watch.take import TakeBlobs, pad_frames
 
 BATCH_FRAMES = 100  # a second at 100 fps: the unit a live take is processed in (whole windows)
+# frames a take needs before any camera can be judged: the baseline, then a change's two halves
+BASELINE_FRAMES = BASELINE_WINDOWS * WINDOW_FRAMES
+MIN_JUDGED_FRAMES = BASELINE_FRAMES + 2 * PERSIST_WINDOWS * WINDOW_FRAMES
 SETTLE_FRAMES = 5 * WINDOW_FRAMES  # the re-solve waits this long after a knock completes (and uses the rest)
 # A camera whose images are this far (rms) from the standing pose over the take's first windows moved
 # before the take: a standing result's own pose error moves them ~0.1 px; a 0.05 deg turn at f = 1100 px, 1 px
@@ -76,6 +86,12 @@ class WatchReport:
     @property
     def moved(self) -> list[CameraHealth]:
         return [c for c in self.cameras if c.alarm is not None]
+
+    @property
+    def judged(self) -> bool:
+        """Whether the take outlasted the test's baseline by a change's shortest span: a shorter one
+        was matched and measured, but no camera's change over it could be tested."""
+        return self.frames >= MIN_JUDGED_FRAMES
 
 
 def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, resolve: bool = True,
