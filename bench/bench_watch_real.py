@@ -97,6 +97,8 @@ def knock_frame(take: RealTake) -> int:
 
 def verdict(report: WatchReport, camera: int | None, frame: int | None, turn_deg: float | None) -> dict:
     """Right when only ``camera`` is named (none for a clean take), as moved, within FRAME_SLACK of ``frame``."""
+    if not report.judged:  # too short: the watch says so (exit 3) and names nothing
+        return {"named": f"too short to judge ({report.frames} frames)", "false": 0, "right": None, "turned": None}
     named = [(i, h) for i, h in enumerate(report.cameras) if h.alarm is not None]
     wrong = [h.id for i, h in named if i != camera]
     row: dict = {"named": ", ".join(f"{h.id} ({h.status} at {h.moved_at})" for _, h in named) or "none",
@@ -132,10 +134,13 @@ def table(rows: list[dict]) -> str:
              "|---|---|---|---|---|---|"]
     for r in rows:
         turned = "" if r["turned"] is None else f"{r['turned'][0]:.3f} ({r['turned'][1]:.3f}; {r['turned'][2]:g})"
-        lines.append(f"| {r['take']} | {r['frames']} | {r['fault']} | {r['named']} | {'yes' if r['right'] else 'no'} | {turned} |")
-    clean = [r for r in rows if r["fault"] == "clean"]
-    knocks = [r for r in rows if r["fault"] != "clean"]
-    lines += ["", f"Clean takes named nothing: {sum(r['right'] for r in clean)} of {len(clean)}. "
+        right = "-" if r["right"] is None else "yes" if r["right"] else "no"
+        lines.append(f"| {r['take']} | {r['frames']} | {r['fault']} | {r['named']} | {right} | {turned} |")
+    judged = [r for r in rows if r["right"] is not None]
+    clean = [r for r in judged if r["fault"] == "clean"]
+    knocks = [r for r in judged if r["fault"] != "clean"]
+    lines += ["", f"Takes too short to judge (the watch says so, exit 3): {len(rows) - len(judged)} rows. "
+              f"Clean takes named nothing: {sum(r['right'] for r in clean)} of {len(clean)}. "
               f"Knocks named right (the camera alone, as moved, within {FRAME_SLACK} frames): "
               f"{sum(r['right'] for r in knocks)} of {len(knocks)}; other cameras named beside a knock: "
               f"{sum(r['false'] for r in knocks)}."]

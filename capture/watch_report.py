@@ -27,21 +27,21 @@ def check_fit(report: WatchReport, take: str, result: str) -> None:
 
 def report_json(report: WatchReport) -> dict:
     """Every camera's health: id, status (ok, moved, drifting), residual_px, matched (share); a moved
-    one's frames, kind and statistic, and once re-solved its turn (deg), move (mm), their sigmas and fit."""
+    one's frames, kind, statistic and whether it was lost (moved too far to follow), and once re-solved its turn (deg), move (mm), their sigmas and fit."""
     cameras = []
     for h in report.cameras:
         entry = {"id": h.id, "status": h.status, "residual_px": round(h.residual_px, 4), "matched": round(h.matched, 4)}
         if h.alarm is not None:
             entry |= {"moved_at_frame": h.moved_at, "detected_at_frame": h.alarm.detected_frame, "kind": h.kind,
                       "drift_frames": h.drift_frames, "before_take": h.before_take,
-                      "statistic": round(h.alarm.statistic, 1)}
+                      "statistic": round(h.alarm.statistic, 1), "lost": h.lost}
         if h.resolved is not None:
             entry |= {"rotation_deg": round(h.resolved.turned_deg, 4), "translation_mm": round(h.resolved.moved_mm, 3),
                       "center_std_mm": round(h.resolved.center_std_mm, 3),
                       "rotation_std_deg": round(h.resolved.rotation_std_deg, 4), "resolved_rms_px": round(h.resolved.rms_px, 4),
                       "resolved_points": h.resolved.points}
         cameras.append(entry)
-    return {"frames": report.frames, "markers": report.tracks, "first_frame": report.first_frame,
+    return {"frames": report.frames, "judged": report.judged, "markers": report.tracks, "first_frame": report.first_frame,
             "last_frame": report.last_frame, "cameras": cameras, "moved": [h.id for h in report.moved]}
 
 

@@ -9,6 +9,9 @@ dC (3,) metres: the centre's move, world frame): with ``x_c = R (X - C)``,
 :data:`WINDOW_FRAMES` frames fits p by least squares, drops residuals past :data:`OUTLIER_PX` from
 the fit (a blob taken for another marker) and fits again; it keeps the normal equations (g = J^T r,
 H = J^T J) of every frame's kept residuals, and the window's residual sum of squares about its fit.
+Each residual and its J are first whitened by the residual's covariance in units of one blob's
+variance, ``I + Jx A^-1 Jx^T`` (:func:`whitened`; A the other cameras' information on the point): where
+two cameras fix a marker loosely, its error in this camera is not taken for this camera's (decision 0049i).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wandcal.calib.geometry import projection_derivative
 from wandcal.calib.rig import Rig
 from wandcal.calib.triangulate import refine_points
 from wandcal.calib.watch.match import CLEAR_RATIO, FRAME_GAP_PX, Tracks
@@ -60,10 +64,11 @@ def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames,
     sse = np.zeros((n_f, n_c))
     obs = []
     f_of = np.searchsorted(padded.frames, tracks.frame)
+    focal = np.array([cam.focal.mean() for cam in rig.cameras])
     for c in range(n_c):
-        fi, X, xy = _leave_one_out(rig, R, t, padded, tracks, f_of, c)
+        fi, X, xy, info = _leave_one_out(rig, R, t, padded, tracks, f_of, c)
         seen[:, c] = np.bincount(f_of[(tracks.views >= 0).sum(1) - (tracks.views[:, c] >= 0) >= 2], minlength=n_f)
-        J, r = linearised(R[c], t[c], rig.cameras[c].focal.mean(), X, xy)
+        J, r = whitened(*linearised(R[c], t[c], focal[c], X, xy), point_jacobian(R[c], t[c], focal[c], X), info)
         keep, dev = _inliers(fi // WINDOW_FRAMES, J, r)
         fi, J, r, dev = fi[keep], J[keep], r[keep], dev[keep]
         g[:, c] = sum_by(fi, np.einsum("kpi,kp->ki", J, r), n_f)
@@ -85,7 +90,10 @@ def _leave_one_out(rig: Rig, R, t, padded: PaddedFrames, tracks: Tracks, f_of, c
     xy_obs = padded.xy_of(others[ok][p, cam])
     X = refine_points(R, t, p, cam, xy_obs, tracks.X[ok])  # from the point all cameras gave: close, so no DLT
     fi, xy, found = _nearest_blob(R[c], t[c], rig.cameras[c].focal.mean(), padded, c, f_ok, X)
-    return fi[found], X[found], xy[found]
+    focal = np.array([camera.focal.mean() for camera in rig.cameras])
+    Jv = point_jacobian(R[cam], t[cam], focal[cam], X[p])
+    info = sum_by(p, np.einsum("kai,kaj->kij", Jv, Jv), len(X))  # the others' information on each point, px^-2 m^2
+    return fi[found], X[found], xy[found], info[found]
 
 
 def _nearest_blob(Rc, tc, focal: float, padded: PaddedFrames, c: int, f_idx, X):
@@ -125,6 +133,27 @@ def linearised(Rc, tc, focal: float, X, xy) -> tuple[np.ndarray, np.ndarray]:
     J = focal * np.einsum("kab,kbp->kap", P, dx)
     r = focal * (xy - np.column_stack([u, v]))
     return J, r
+
+
+def point_jacobian(R, t, focal, X) -> np.ndarray:
+    """(k, 2, 3) pixels per metre: the projection's derivative in the points X (k, 3) for cameras R
+    (3, 3) or (k, 3, 3), t (3,) or (k, 3), focal a number or (k,)."""
+    R = np.broadcast_to(R, (len(X), 3, 3))
+    Xc = np.einsum("kij,kj->ki", R, X) + t
+    return np.asarray(focal).reshape(-1, 1, 1) * (projection_derivative(Xc) @ R)
+
+
+def whitened(J: np.ndarray, r: np.ndarray, Jx: np.ndarray, info: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """J (k, 2, 6) and r (k, 2) whitened by each residual's covariance in units of one blob's
+    variance: ``I + Jx info^-1 Jx^T``, its own blob's noise and the error of the point the other
+    cameras triangulated, projected into this camera (Jx (k, 2, 3), info (k, 3, 3): the others'
+    ``sum J_v^T J_v``). Where two other cameras see a marker from nearly the same side, its depth is
+    poorly fixed and its error projects into this camera as a large, slowly varying residual: the
+    weight takes it down to what it says about this camera's pose. With many cameras it is ~I."""
+    cov = np.eye(2) + Jx @ np.linalg.pinv(info, rcond=1e-12, hermitian=True) @ np.swapaxes(Jx, 1, 2)
+    vals, vecs = np.linalg.eigh(cov)
+    W = vecs @ (vecs.transpose(0, 2, 1) / np.sqrt(vals)[:, :, None])  # cov^-1/2, symmetric
+    return W @ J, np.einsum("kab,kb->ka", W, r)
 
 
 def _inliers(window: np.ndarray, J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -45,6 +45,7 @@ MIN_SHIFT_PX = 0.05  # a change that moves the camera's images less than this (r
 PERSIST_WINDOWS = 3  # each half of an alarm's change spans this many windows or more: longer than the 1-3 window
 #                      bursts of clean takes; a 0.2 deg knock is named ~35 frames after it, inside the goal's 300
 PEAK_FLOOR = 20.0  # starts with S_k past this (chi2_6 tail 3e-3) are checked for persistence: the margin's floor
+WANDER_BLOCK = 5  # windows a block: the baseline's 20 give 4 blocks, 50 frames each, to see the pose wander
 PRIOR_DOF = 50  # a window's residual variance is shrunk toward the baseline's as if by this many residuals
 #                 (~750 in a window of 40 markers: barely; a window of few markers: its variance not trusted alone)
 KNOCK_FRAMES = 2 * WINDOW_FRAMES  # a move completed within this is a knock
@@ -85,6 +86,7 @@ class CameraTest:
     alarm: Alarm | None = None
     peak: float = 0.0  # the largest S_k of a persistent change seen (a clean take's margin below the threshold)
     raw: float = 0.0  # the last :meth:`glr`'s largest S_k, persistent or not (which camera moved, when several alarm)
+    _wander: np.ndarray | None = field(default=None, repr=False)  # :meth:`wander`, once the baseline is in
 
     def add(self, g: np.ndarray, H: np.ndarray, sse: float, n: float, start: int) -> None:
         self.g.append(g)
@@ -101,6 +103,8 @@ class CameraTest:
         """Forget every window after the first ``windows`` (the caller raises no alarm in between)."""
         for values in (self.g, self.H, self.sse, self.n, self.start):
             del values[windows:]
+        if windows < BASELINE_WINDOWS:
+            self._wander = None
 
     def baseline(self) -> tuple[np.ndarray, np.ndarray, float] | None:
         """(p_0 (6,), I_0 (6, 6) (px^-2 weighted information), sigma^2 px^2 pooled) once
@@ -125,13 +129,36 @@ class CameraTest:
         dof = np.maximum(2 * n - PARAMS * (n > 0), 0.0)
         return (dof + PRIOR_DOF) / (np.array(self.sse[first:end]) + PRIOR_DOF * s2)
 
+    def wander(self, base: tuple[np.ndarray, np.ndarray, float]) -> np.ndarray:
+        """(6, 6) how far the camera's apparent pose wanders on a clean take beyond its noise, as a
+        covariance: lambda (I_0 / n_0)^+, lambda (px^2) the image shift of the baseline's blocks of
+        :data:`WANDER_BLOCK` windows about their mean that their own noise does not explain (0 when
+        it explains it all). Real takes need it: a camera model a little off (its lens, the others'
+        triangulation) shows as a pose that depends on where in the image the markers are, and a
+        test on noise alone names that as a move when the markers go elsewhere (bench_watch_real)."""
+        if self._wander is None:
+            p0, I0, _ = base
+            s2 = self._pooled_variance(BASELINE_WINDOWS)
+            wt = self._weights(0, BASELINE_WINDOWS, s2)
+            H, g = np.array(self.H[:BASELINE_WINDOWS]) * wt[:, None, None], np.array(self.g[:BASELINE_WINDOWS]) * wt[:, None]
+            blocks = np.arange(BASELINE_WINDOWS) // WANDER_BLOCK
+            Ib = np.array([H[blocks == b].sum(0) for b in np.unique(blocks)])
+            pb = solve_pose_change(Ib, np.array([g[blocks == b].sum(0) for b in np.unique(blocks)]))
+            n0 = max(float(np.sum(self.n[:BASELINE_WINDOWS])), 1.0)
+            per = I0 / n0  # information of one residual, px^-2 (weighted)
+            spread = np.einsum("bi,ij,bj->b", pb - p0, per, pb - p0)  # px^2 of image shift, each block
+            noise = np.einsum("ij,bji->b", per, np.linalg.pinv(Ib, rcond=RCOND, hermitian=True))  # what noise gives
+            lam = max(float(np.mean(spread - noise)) / PARAMS * len(pb) / max(len(pb) - 1, 1), 0.0)
+            self._wander = lam * np.linalg.pinv(per, rcond=RCOND, hermitian=True)
+        return self._wander
+
     def _change(self, first: int, end: int, base: tuple[np.ndarray, np.ndarray, float]) -> float:
         """S of the change since the baseline over windows first..end-1 alone."""
         p0, I0, s2 = base
         wt = self._weights(first, end, s2)
         Iw = np.einsum("w,wij->ij", wt, np.array(self.H[first:end]))
         d = solve_pose_change(Iw, np.einsum("w,wi->i", wt, np.array(self.g[first:end]))) - p0
-        cov = np.linalg.pinv(Iw, rcond=RCOND, hermitian=True) + np.linalg.pinv(I0, rcond=RCOND, hermitian=True)
+        cov = np.linalg.pinv(Iw, rcond=RCOND, hermitian=True) + np.linalg.pinv(I0, rcond=RCOND, hermitian=True) + self.wander(base)
         return float(d @ np.linalg.pinv(cov, rcond=RCOND, hermitian=True) @ d)
 
     def _persistent(self, k: int, end: int, base: tuple[np.ndarray, np.ndarray, float]) -> float:
@@ -155,7 +182,7 @@ class CameraTest:
         G = np.cumsum((np.array(self.g[first:end]) * wt[:, None])[::-1], axis=0)[::-1]  # G[k]: windows k.. summed
         Ik = np.cumsum((np.array(self.H[first:end]) * wt[:, None, None])[::-1], axis=0)[::-1]
         d = solve_pose_change(Ik, G) - p0
-        cov = np.linalg.pinv(Ik, rcond=RCOND, hermitian=True) + np.linalg.pinv(I0, rcond=RCOND, hermitian=True)
+        cov = np.linalg.pinv(Ik, rcond=RCOND, hermitian=True) + np.linalg.pinv(I0, rcond=RCOND, hermitian=True) + self.wander(base)
         S = np.einsum("ki,kij,kj->k", d, np.linalg.pinv(cov, rcond=RCOND, hermitian=True), d)
         Hk = np.cumsum(np.array(self.H[first:end])[::-1], axis=0)[::-1]
         count = np.cumsum(np.array(self.n[first:end])[::-1])[::-1]  # residuals from each start on

@@ -4,22 +4,43 @@ window by window, the sequential test, and a moved camera's re-solve (issue 36).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from wandcal.calib.rig import Rig
-from wandcal.calib.watch.health import PARAMS, WINDOW_FRAMES, CameraWindows, camera_windows, solve_pose_change
+from wandcal.calib.watch.health import (
+    PARAMS,
+    WINDOW_FRAMES,
+    CameraWindows,
+    camera_windows,
+    solve_pose_change,
+    sum_by,
+)
+from wandcal.calib.watch.lost import LOST_THRESHOLD, FoundTest
 from wandcal.calib.watch.match import Tracks, match_frames
 from wandcal.calib.watch.recover import Resolved, resolve_camera
-from wandcal.calib.watch.sequential import BASELINE_WINDOWS, GLR_THRESHOLD, Alarm, CameraTest, classify
+from wandcal.calib.watch.sequential import (
+    BASELINE_WINDOWS,
+    GLR_THRESHOLD,
+    PERSIST_WINDOWS,
+    Alarm,
+    CameraTest,
+    classify,
+)
 from wandcal.calib.watch.take import TakeBlobs, pad_frames
 
 BATCH_FRAMES = 100  # a second at 100 fps: the unit a live take is processed in (whole windows)
+# frames a take needs before any camera can be judged: the baseline, then a change's two halves
+BASELINE_FRAMES = BASELINE_WINDOWS * WINDOW_FRAMES
+MIN_JUDGED_FRAMES = BASELINE_FRAMES + 2 * PERSIST_WINDOWS * WINDOW_FRAMES
 SETTLE_FRAMES = 5 * WINDOW_FRAMES  # the re-solve waits this long after a knock completes (and uses the rest)
 # A camera whose images are this far (rms) from the standing pose over the take's first windows moved
 # before the take: a standing result's own pose error moves them ~0.1 px; a 0.05 deg turn at f = 1100 px, 1 px
 START_SHIFT_PX = 1.0
+# and is tested only on this many degrees of freedom about the windows' fits (a 40-marker take's first window
+# holds ~800): a sparse take's first windows (one marker a frame in three cameras) may hold a handful
+MIN_START_DOF = 60
 
 
 @dataclass
@@ -42,6 +63,11 @@ class CameraHealth:
     peak: float = 0.0  # the test's largest statistic over the take
 
     @property
+    def lost(self) -> bool:
+        """Moved too far to follow: its blobs left the markers (:mod:`wandcal.calib.watch.lost`), no change measured."""
+        return self.alarm is not None and not np.isfinite(self.alarm.change).all()
+
+    @property
     def status(self) -> str:
         return "ok" if self.alarm is None else ("drifting" if self.kind == "drift" else "moved")
 
@@ -61,22 +87,49 @@ class WatchReport:
     def moved(self) -> list[CameraHealth]:
         return [c for c in self.cameras if c.alarm is not None]
 
+    @property
+    def judged(self) -> bool:
+        """Whether the take outlasted the test's baseline by a change's shortest span: a shorter one
+        was matched and measured, but no camera's change over it could be tested."""
+        return self.frames >= MIN_JUDGED_FRAMES
+
 
 def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, resolve: bool = True,
                progress: Callable[[int, int], None] | None = None) -> WatchReport:
     """Watch a take (blobs sorted by frame) at standing poses R (C, 3, 3), t (C, 3): each camera's
     health, the moved ones named (when, how much, knock or drift) and, with ``resolve``, re-solved."""
-    first, last = int(blobs.frame.min()), int(blobs.frame.max())
-    stream = WatchStream(rig, R, t, first, keep_obs=resolve)
-    stream.begin(blobs, np.arange(0, int(np.searchsorted(blobs.frame, stream.baseline_stop))))
-    bounds = np.searchsorted(blobs.frame, np.arange(first, last + BATCH_FRAMES + 1, BATCH_FRAMES))
+    numbers, rank = np.unique(blobs.frame, return_inverse=True)
+    ranked = TakeBlobs(rank.astype(np.int64), blobs.camera, blobs.uv)  # windows of frames held, not frame numbers
+    last = len(numbers) - 1
+    stream = WatchStream(rig, R, t, 0, keep_obs=resolve)
+    stream.begin(ranked, np.arange(0, int(np.searchsorted(ranked.frame, stream.baseline_stop))))
+    bounds = np.searchsorted(ranked.frame, np.arange(0, last + BATCH_FRAMES + 1, BATCH_FRAMES))
     for b in range(len(bounds) - 1):
         if bounds[b] == bounds[b + 1]:
             continue
-        done = stream.add(blobs, np.arange(bounds[b], bounds[b + 1]))
+        done = stream.add(ranked, np.arange(bounds[b], bounds[b + 1]))
         if progress:
-            progress(done - first + 1, last - first + 1)
-    return stream.report(last, resolve=resolve)
+            progress(done + 1, last + 1)
+    return _numbered(stream.report(last, resolve=resolve), numbers)
+
+
+def _numbered(report: WatchReport, numbers: np.ndarray) -> WatchReport:
+    """The report of a take watched by frame rank, with the take's own frame numbers (``numbers``:
+    the frame number of each rank). A digitised take keeps every n-th frame, or only some: its test
+    windows are ten frames it holds, whatever their numbers."""
+    def number(rank: int) -> int:
+        return int(numbers[min(max(rank, 0), len(numbers) - 1)])
+
+    for h in report.cameras:
+        if h.alarm is not None:
+            h.alarm = replace(h.alarm, frame=number(h.alarm.frame), detected_frame=number(h.alarm.detected_frame))
+        if h.moved_at is not None:
+            end = number(h.moved_at + h.drift_frames)
+            h.moved_at = number(h.moved_at)
+            h.drift_frames = end - h.moved_at
+    report.first_frame, report.last_frame = number(report.first_frame), number(report.last_frame)
+    report.obs = [[(numbers[f], X, xy) for f, X, xy in batch] for batch in report.obs]
+    return report
 
 
 class WatchStream:
@@ -88,6 +141,7 @@ class WatchStream:
     def __init__(self, rig: Rig, R: np.ndarray, t: np.ndarray, first: int, *, keep_obs: bool = True):
         self.rig, self.R, self.t, self.first, self.keep_obs = rig, R, t, first, keep_obs
         self.tests = [CameraTest() for _ in rig.cameras]
+        self.found = [FoundTest() for _ in rig.cameras]
         self.before_take: set[int] = set()
         self.excluded: set[int] = set()
         self.sums = np.zeros((len(rig.cameras), 3))  # sse, residuals, markers seen
@@ -114,8 +168,8 @@ class WatchStream:
         tracks = match_frames(self.rig, self.R, self.t, padded)
         self.frames += len(padded.frames)
         self.tracks += len(tracks)
-        windows = _test_batch(self.rig, self.R, self.t, padded, tracks, self.tests, self.excluded, self.first,
-                              keep_obs=self.keep_obs)
+        windows = _test_batch(self.rig, self.R, self.t, padded, tracks, (self.tests, self.found), self.excluded,
+                              self.first, keep_obs=self.keep_obs)
         self.sums += np.stack([windows.sse.sum(0), windows.n.sum(0), windows.seen.sum(0)], 1)
         if self.keep_obs:
             self.obs.append(windows.obs or [])
@@ -135,6 +189,8 @@ class WatchStream:
             health.peak = self.tests[c].peak
             if health.before_take and health.alarm is not None:
                 health.kind, health.moved_at, health.change = "knock", self.first, health.alarm.change
+            elif health.lost:
+                health.kind, health.moved_at, health.change = "knock", health.alarm.frame, health.alarm.change
             elif health.alarm is not None:
                 health.kind, health.moved_at, health.drift_frames, health.change = classify(self.tests[c], health.alarm)
             if health.alarm is not None and resolve:
@@ -159,8 +215,9 @@ def _off_from_start(rig: Rig, R, t, blobs: TakeBlobs, rows: np.ndarray, first: i
         I0, g0, n0 = w.H.sum(0), w.g.sum(0), w.n.sum(0)
         p0 = solve_pose_change(I0, g0)
         fit = np.einsum("ci,cij,cj->c", p0, I0, p0)  # px^2 the change explains
-        s2 = w.sse.sum(0) / np.maximum(2 * n0 - PARAMS * BASELINE_WINDOWS, 1)
-        S = fit / np.maximum(s2, 1e-12)
+        dof = _fit_dof(w.n)
+        s2 = w.sse.sum(0) / np.maximum(dof, 1)
+        S = np.where(dof >= MIN_START_DOF, fit / np.maximum(s2, 1e-12), 0.0)  # too few residuals say nothing
         shift = np.sqrt(fit / np.maximum(n0, 1))
         S[[a.camera for a in alarms]] = 0
         c = int(np.argmax(np.where(shift >= START_SHIFT_PX, S, 0)))
@@ -170,8 +227,15 @@ def _off_from_start(rig: Rig, R, t, blobs: TakeBlobs, rows: np.ndarray, first: i
     return alarms
 
 
-def _test_batch(rig, R, t, padded, tracks: Tracks, tests: list[CameraTest], excluded: set[int], first: int,
-                keep_obs: bool) -> CameraWindows:
+def _fit_dof(n: np.ndarray) -> np.ndarray:
+    """(C,) degrees of freedom left about each window's pose fit, of residuals n (F, C) a frame: each
+    window's 2 n scalars less the :data:`PARAMS` its fit takes (all of them, when fewer)."""
+    per_window = sum_by(np.arange(len(n)) // WINDOW_FRAMES, n, (len(n) - 1) // WINDOW_FRAMES + 1)
+    return np.maximum(2 * per_window - PARAMS, 0).sum(0)
+
+
+def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest], list[FoundTest]], excluded: set[int],
+                first: int, keep_obs: bool) -> CameraWindows:
     """Add a batch's windows to every camera's test, window by window; when cameras alarm, the one
     with the largest statistic is named, left out of every other camera's markers, and the batch is
     tested again without it (a moved camera's blobs pull the markers it shares)."""
@@ -179,34 +243,46 @@ def _test_batch(rig, R, t, padded, tracks: Tracks, tests: list[CameraTest], excl
         views = tracks.views.copy()
         views[:, sorted(excluded)] = -1
         windows = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X), keep_obs=keep_obs)
-        marks = [test.mark() for test in tests]
-        named = _add_windows(windows, tests, first)
+        marks = [(pose.mark(), found.mark()) for pose, found in zip(*tests)]
+        blobs = np.isfinite(padded.xy[:, :, :, 0]).sum(2)
+        named = _add_windows(windows, blobs, tests, first)
         if named is None:
             return windows
         excluded.add(named)
-        for c, test in enumerate(tests):
+        for c, (pose, found) in enumerate(zip(*tests)):
             if c != named:
-                test.rewind(marks[c])
+                pose.rewind(marks[c][0])
+                found.rewind(marks[c][1])
 
 
-def _add_windows(windows: CameraWindows, tests: list[CameraTest], first: int) -> int | None:
-    """Add each window in turn; at the first window where cameras alarm, name the one with the largest
-    statistic, persistent or not (a moved camera's blobs pull the markers another is tested against,
-    and the other's change may persist first), and return it (the others' tests are then run again
-    by the caller); None when none alarms."""
+def _add_windows(windows: CameraWindows, blobs: np.ndarray, tests: tuple[list[CameraTest], list[FoundTest]],
+                 first: int) -> int | None:
+    """Add each window in turn; at the first window where cameras alarm, name one and return it (the
+    others' tests are then run again by the caller); None when none alarms. A camera whose blobs left
+    its markers (:mod:`wandcal.calib.watch.lost`) goes first: its pose test has lost its residuals.
+    Else the one with the largest statistic, persistent or not (a moved camera's blobs pull the
+    markers another is tested against, and the other's change may persist first). ``blobs`` (F, C):
+    each camera's blobs a frame."""
+    poses, founds = tests
     w_of = (windows.frames - first) // WINDOW_FRAMES
     for w in np.unique(w_of):
         sel = w_of == w
-        tested = []
-        for c, test in enumerate(tests):
+        tested, lost = [], []
+        for c, (test, found) in enumerate(zip(poses, founds)):
+            start = first + int(w) * WINDOW_FRAMES
             test.add(windows.g[sel, c].sum(0), windows.H[sel, c].sum(0), float(windows.sse[sel, c].sum()),
-                     float(windows.n[sel, c].sum()), first + int(w) * WINDOW_FRAMES)
+                     float(windows.n[sel, c].sum()), start)
+            found.add(float(windows.n[sel, c].sum()), float(windows.seen[sel, c].sum()), float(blobs[sel, c].sum()), start)
             if test.alarm is None:
                 S, k, d = test.glr()
                 tested.append((S, test.raw, c, k, d))
-        if any(S > GLR_THRESHOLD for S, *_ in tested):
-            _, raw, c, k, d = max(tested, key=lambda x: x[1])
-            tests[c].alarm = Alarm(c, tests[c].start[k], int(windows.frames[sel].max()), raw, d)
+                S_lost, frame = found.glr()
+                if S_lost > LOST_THRESHOLD:
+                    lost.append((S_lost, S_lost, c, frame, np.full(PARAMS, np.nan)))
+        if lost or any(S > GLR_THRESHOLD for S, *_ in tested):
+            _, raw, c, k, d = max(lost or tested, key=lambda x: x[1])
+            frame = k if lost else poses[c].start[k]  # a lost camera's is its frame already; a pose test's, its window
+            poses[c].alarm = Alarm(c, frame, int(windows.frames[sel].max()), raw, d)
             return c
     return None
 

@@ -8,12 +8,13 @@ import sys
 from pathlib import Path
 
 EXIT_MOVED = 1  # a camera moved or drifts (named)
+EXIT_UNJUDGED = 3  # the take is too short to judge any camera (as check's "could not judge")
 
 
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
     p = sub.add_parser("watch", help="watch a take with a standing result: each camera's health, any moved camera "
                        "named and re-solved without a wand",
-                       epilog="exit status: 0 every camera healthy; 1 a camera moved or drifts (named); 2 bad input (a take "
+                       epilog="exit status: 0 every camera healthy; 1 a camera moved or drifts (named); 3 the take is too short to judge; 2 bad input (a take "
                        "with no blobs, blobs in fewer than three cameras, a take of another rig)")
     p.set_defaults(run=run_watch)
     if arguments:
@@ -52,7 +53,7 @@ def run_watch(args) -> int:
         _print_report(report, args)
     if args.write is not None:
         _write(args, standing, take, report)
-    return EXIT_MOVED if report.moved else 0
+    return EXIT_MOVED if report.moved else 0 if report.judged else EXIT_UNJUDGED
 
 
 def _print_report(report, args) -> None:
@@ -66,13 +67,21 @@ def _print_report(report, args) -> None:
                else f"moved before the take began (it disagrees with {args.result} from frame {h.moved_at})"
                if h.before_take else f"knocked at frame {h.moved_at}")
         print(f"{h.id}: {how}, named at frame {h.alarm.detected_frame}", end="")
-        if h.resolved is not None:
+        if h.lost:
+            print(f"; too far to follow: its blobs are no longer near the markers the others triangulate; re-solve it "
+                  f"from a wand capture: wandcal calibrate CAPTURE --from {args.result} --solve-only {h.id}")
+        elif h.resolved is not None:
             r = h.resolved
             print(f"; moved {r.moved_mm:.2f} mm (sigma {r.center_std_mm:.2f}) and turned {r.turned_deg:.3f} deg "
                   f"(sigma {r.rotation_std_deg:.3f}), re-solved from {r.points} markers at {r.rms_px:.2f} px")
         else:
             print("; too few markers after the move to re-solve it: record a longer take")
-    if not report.moved:
+    if not report.judged:
+        from wandcal.calib.watch.watch import BASELINE_FRAMES, MIN_JUDGED_FRAMES
+
+        print(f"too short to judge: the take holds {report.frames} frames with markers, and the test needs "
+              f"{MIN_JUDGED_FRAMES} (its first {BASELINE_FRAMES} learn each camera's baseline); record a longer take")
+    elif not report.moved:
         print("every camera agrees with the standing result")
     elif args.write is None:
         print(f"write the re-solved result with: wandcal watch {args.result} {args.take} --write OUT")

@@ -54,7 +54,7 @@ class WatchPublic(BaseModel):
     progress: JobProgress | None = None
     error: str | None = None
     report: dict[str, Any] | None = Field(None, description="each camera's health and the moved ones, as "
-                                          "`wandcal watch --json` prints them (frames, markers, cameras, moved)")
+                                          "`wandcal watch --json` prints them (frames, judged, markers, cameras, moved)")
 
 
 def _public(r: JobRecord) -> WatchPublic:
