@@ -1,4 +1,4 @@
-"""The moved camera from point tracks in the wand's time (docs/decisions/0049c): simulated sparse
+"""The moved camera from point tracks in the wand's time (docs/decisions/0051): simulated sparse
 rigs, clean and with one camera knocked, judged with the tracks timed and as another recording.
 
 Each seed: a ring of CAMERAS (calib/sim, 0.3 px, L-frame), its wand kept in ring pairs of cameras
@@ -7,7 +7,7 @@ random frames within the wand's; the knocked case turns one camera, drawn from t
 degree about a random axis after the middle of its wand frames (its wand and its tracks after it).
 *in time*: the tracks as made; *another recording*: the same tracks numbered from the power of
 ten above every wand frame, as ``wandcal import`` numbers background points (the step test then
-gives them a turn of their own, as every track beside a wand had before 0049c).
+gives them a turn of their own, as every track beside a wand had before 0051).
 
 Usage: python bench/bench_moved_tracks.py [--cameras 3,4,8] [--seeds 8] [--frames 1000]
        [--points 400] [--wand-share 0.1]

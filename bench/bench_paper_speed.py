@@ -7,7 +7,7 @@ outlier pass (its robust `ba`), and `refine_paper` is then timed alone, in a fre
 alike; decisions 0033, 0045). Reports rounds, jumps, CPU seconds (medians over the repeats; the
 machine is shared, so wall seconds are listed but say little), CPU and interior-point iterations a
 round, each answer's largest camera-centre distance from the first row's, and from the fixed point on
-the LP basis it ends on, where that basis holds (decision 0049d).
+the LP basis it ends on, where that basis holds (decision 0052).
 
 Usage: python bench/bench_paper_speed.py [--caps 10,0] [--before REV] [--repeats 1] [--seed 11] [--no-write]
 """
@@ -76,8 +76,8 @@ def child(tree: str, problem_file: str, cap: float, out: str) -> int:
     cpu, wall = time.process_time(), time.perf_counter()
     R1, t1, W1, info = paper.refine_paper(R, t, wand, problem, fixed, up)
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
-    apart = None  # um from the fixed point on the basis the last LP named (decision 0049d), untimed
-    try:  # a tree before decision 0049d has none
+    apart = None  # um from the fixed point on the basis the last LP named (decision 0052), untimed
+    try:  # a tree before decision 0052 has none
         from wandcal.calib.solve.paper_fixed_point import fixed_point_on_basis
     except ImportError:
         fixed_point_on_basis = None

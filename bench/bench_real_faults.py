@@ -6,7 +6,7 @@ writes the table to docs/benchmarks.md ("Judgement on real sessions with injecte
 
 With ``--sigma-spread N`` it prints instead how each camera's geometry sigma varies over N more
 random 60% subsamples of each session (seeds from 100), beside what its own standard error predicts
-(decision 0049a), and writes nothing.
+(decision 0049), and writes nothing.
 
 Usage: python bench/bench_real_faults.py [--sessions brown1,brown2,ushichka,svoboda,cpp]
        [--families focal,k1,...] [--no-write] [--sigma-spread N]
@@ -47,7 +47,7 @@ BEFORE = """Before this release's judgement work (at 2830bc3: before each camera
 Before this session's judgement branches (at 8b20034; the judgement kept looking beside a camera out of time,
 compared the lens candidates and gave each geometry sigma its own standard error, decision 0041; each camera's own
 errors on rigs of any size, outliers told from noise and noise from timing, decision 0042): 105 of 127 determinable
-(83%). Before a camera's geometry sigma was judged against its own rays' miss (decision 0049a): 112 of 127, Brown 2's
+(83%). Before a camera's geometry sigma was judged against its own rays' miss (decision 0049): 112 of 127, Brown 2's
 third 60% subsample called poor (cam1 placed to 1.02 mm against 1e-3 of the volume, 0.77 mm; its rays miss by 1.19 mm).
 Before the honest sigma and the timing from camera pairs (at d9e0685, after the leave-one-out judgement): 52 of
 127 determinable (41%). At the suite's first commit (72bd14b, the suspect screen alone): 15 of 127 determinable (12%)."""

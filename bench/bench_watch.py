@@ -89,7 +89,7 @@ def false_alarms(frames: int) -> tuple[int, float, int]:
 
 
 def dispersion(seed: int, frames: int = CLEAN_PIECE, blocks=(1, 2, 3, 5, 10, 20, 30)) -> None:
-    """Print each camera's dispersion of a clean take (the false alarms' cause, decision 0049g): its
+    """Print each camera's dispersion of a clean take (the false alarms' cause, decision 0054): its
     windows' scores ``e^T H^+ e / sigma^2`` summed over blocks of m windows (e = g - H p, p and
     sigma^2 from the whole take), against 6 (the iid chi-square's mean, after p's 6 degrees of
     freedom); and the windows whose own rms passes 1.2 x the camera's (the bursts)."""

@@ -21,7 +21,7 @@ shift of camera c is scored against the wand as the *other* cameras triangulate 
 
 The offsets found renumber the frames and the poses are found again, until no offset changes
 (``ROUNDS`` at most); a camera whose best shift never stands out is refused: it did not see the
-others' wand (another session, another wand). Decision 0049f. The sub-frame part is fitted afterwards, as after the pairwise search
+others' wand (another session, another wand). Decision 0053. The sub-frame part is fitted afterwards, as after the pairwise search
 (:mod:`wandcal.calib.solve.sync`).
 """
 

@@ -1,5 +1,5 @@
 """The plain ``--method paper`` rounds' fixed point on one LP basis, found by Newton's method and
-certified (decision 0049d). Not used by :func:`wandcal.calib.solve.paper.refine_paper`: on small rigs it
+certified (decision 0052). Not used by :func:`wandcal.calib.solve.paper.refine_paper`: on small rigs it
 finds the point the plain rounds lock in at; at 8 x 1500 the rounds still creep from basis to basis and
 none is found. ``bench/bench_paper_speed.py`` measures each answer's distance to it."""
 
@@ -10,7 +10,7 @@ import numpy as np
 from wandcal.calib.solve.paper import arrow_lp, exp_turn, rotation_step
 from wandcal.calib.solve.wandmodel import WandProblem
 
-FIXED_POINT_STEPS = 8  # Newton steps on one basis: 1-2 are taken from a state on it (decision 0049d)
+FIXED_POINT_STEPS = 8  # Newton steps on one basis: 1-2 are taken from a state on it (decision 0052)
 FIXED_POINT_TOL = 1e-12  # radians (rotations) and metres (the points' change): a fixed point to rounding
 FIXED_POINT_EPS = 1e-7  # radians: the turn of each difference in the Jacobian
 
@@ -32,7 +32,7 @@ def fixed_point_on_basis(R: np.ndarray, t: np.ndarray, X: np.ndarray, problem: W
     optimal there (its vertex is the LP's optimum) and a round moves the rotations and points by
     under ``FIXED_POINT_TOL``: a fixed point of the plain rounds, to rounding. None where the
     basis stops being optimal on the way: the state is still creeping from basis to basis
-    (docs/decisions/0049d-paper-fixed-point-on-a-basis.md)."""
+    (docs/decisions/0052-paper-fixed-point-on-a-basis.md)."""
     free = ~fixed
     basis = _basis_named(arrow_lp(R, t, X, problem, fixed, up, heights), np.r_[t[free].ravel(), X.ravel()])
     for _ in range(FIXED_POINT_STEPS):

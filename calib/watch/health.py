@@ -11,7 +11,7 @@ the fit (a blob taken for another marker) and fits again; it keeps the normal eq
 H = J^T J) of every frame's kept residuals, and the window's residual sum of squares about its fit.
 Each residual and its J are first whitened by the residual's covariance in units of one blob's
 variance, ``I + Jx A^-1 Jx^T`` (:func:`whitened`; A the other cameras' information on the point): where
-two cameras fix a marker loosely, its error in this camera is not taken for this camera's (decision 0049i).
+two cameras fix a marker loosely, its error in this camera is not taken for this camera's (decision 0056).
 """
 
 from __future__ import annotations

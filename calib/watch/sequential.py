@@ -19,7 +19,7 @@ the same threshold on their own: the alarm's statistic is
 Why the persistence: in clean simulated takes the alarms were not a slow creep but bursts of one to
 three windows (10-30 frames) in which a few residuals of high leverage (merged or near-merged
 markers' images) are off together, often with the window's residual rms up from 0.33 to 0.40-0.43
-px: 24 alarms in 100,000 frames at chi2_6 > 50. A knock stays; a burst does not (decision 0049g).
+px: 24 alarms in 100,000 frames at chi2_6 > 50. A knock stays; a burst does not (decision 0054).
 
 The threshold: 100,000 frames of 12 cameras are 120,000 camera-windows, each testing 30 starts;
 P(chi2_6 > 50) = 3e-9 leaves ~0.01 false alarms in all of them were the tests independent (they are

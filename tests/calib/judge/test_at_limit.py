@@ -66,7 +66,7 @@ def test_a_criterion_past_its_limit_by_more_than_its_standard_error_changes_leve
 def test_the_geometry_sigmas_good_limit_is_the_cameras_own_rays_miss_where_that_is_larger(residual_mm, geometry_mm,
                                                                                            level, limit_mm):
     """A place known to within the miss of the camera's own rays at the points adds less to a
-    reconstructed point than each observation does (decision 0049a): Brown 2's cam1 on 60% of its
+    reconstructed point than each observation does (decision 0049): Brown 2's cam1 on 60% of its
     frames, 1.02 mm against rays 1.19 mm off, in a 0.77 m volume whose 1e-3 is 0.77 mm."""
     entry = camera(geometry_mm, observations=120) | {"residual_of_volume": residual_mm / (1000 * EXTENT_M)}
     v = camera_verdict(entry, "cam1", EXTENT_M, 0.3)

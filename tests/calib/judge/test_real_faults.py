@@ -42,7 +42,7 @@ CASES = [
     ("svoboda", "knocked 0.47 deg Basler_21275577"),
     ("brown2", "subsample 60% seed 0"),  # the geometry sigma at the limit within its own standard error
     ("brown2", "subsample 60% seed 1"),  # ... which its few best-placed frames make 21% here
-    ("brown2", "subsample 60% seed 2"),  # cam1 1.02 mm: past 1e-3 of the volume, within its own rays' 1.19 mm (0049a)
+    ("brown2", "subsample 60% seed 2"),  # cam1 1.02 mm: past 1e-3 of the volume, within its own rays' 1.19 mm (0049)
     ("cpp", "focal +8% cam1"),  # beside the session's own timing cam2: cam1 by comparison, its lens taken out
     ("cpp", "principal point +2% cam1"),  # ... after cam2 is brought in time and the rig solved again
     ("cpp", "noise 3x cam3"),  # ... and each camera's own noise, cam2 in time

@@ -152,7 +152,7 @@ def test_paper_method_runs_to_a_fixed_point():
     # bench/bench_acceptance.py measures it at 8 x 1500.
 
 
-@pytest.mark.xfail(strict=True, reason="decisions 0045, 0049d: the jumping rounds stop 365 um from the fixed point "
+@pytest.mark.xfail(strict=True, reason="decisions 0045, 0052: the jumping rounds stop 365 um from the fixed point "
                                        "that fixed_point_on_basis certifies on this rig, the plain rounds 2.2 um")
 def test_paper_jumps_reach_the_plain_rounds_fixed_point(monkeypatch):
     """Jumps along the tail (decision 0033) change only where a round starts, so they should stop at
