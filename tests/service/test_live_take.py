@@ -97,8 +97,6 @@ def standing(tmp_path_factory):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason="merged marker images pass the test's white-noise sigma: unmoved cameras "
-                                       "named at frames 200-229 (calib/watch/sequential.py, helper G)")
 @pytest.mark.parametrize("move", [f"&move=cam3:{PAGE_KNOCK}:0.3:2", ""], ids=["knock", "clean"])
 def test_the_live_take_names_only_the_knocked_camera_at_its_frame(standing, move):
     url = PAGE_TAKE + move
