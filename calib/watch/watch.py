@@ -187,12 +187,13 @@ class WatchStream:
             health.matched = float(sums[c, 1] / max(sums[c, 2], 1))
             health.alarm = self.tests[c].alarm
             health.peak = self.tests[c].peak
-            if health.before_take and health.alarm is not None:
-                health.kind, health.moved_at, health.change = "knock", self.first, health.alarm.change
-            elif health.lost:
-                health.kind, health.moved_at, health.change = "knock", health.alarm.frame, health.alarm.change
-            elif health.alarm is not None:
-                health.kind, health.moved_at, health.drift_frames, health.change = classify(self.tests[c], health.alarm)
+            alarm = health.alarm
+            if alarm is not None and health.before_take:
+                health.kind, health.moved_at, health.change = "knock", self.first, alarm.change
+            elif alarm is not None and health.lost:
+                health.kind, health.moved_at, health.change = "knock", alarm.frame, alarm.change
+            elif alarm is not None:
+                health.kind, health.moved_at, health.drift_frames, health.change = classify(self.tests[c], alarm)
             if health.alarm is not None and resolve:
                 health.resolved = _resolve(self.rig, self.R, self.t, report, c, health)
         return report
