@@ -164,8 +164,10 @@ def refine(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | No
         # ROBUST_STAGE_SE) does both at a third of the cost of lp's first phases (decision 0024),
         # and paper's own least-squares rotation step is not robust (decision 0028)
         # (its own loss, the intrinsics held, and the time offsets too: no ``columns``)
+        # It waits for every wand frame (the stop before decision 0032): the method's passes start from
+        # it and do not settle frames of their own (Brown 1's paper, from the cameras-only stop: a wand 10% short)
         robust = replace(options, loss=DEFAULT_LOSS, refine_intrinsics=())
-        first = refine(rig, labelled, setup, tracks, X, "ba", robust, tell, up, final=False)
+        first = _refine_ba(rig, labelled, setup, tracks, X, robust, tell, False, None, judge_frames=True)
         return replace(first, info={k: v for k, v in first.info.items() if k != "loss"})
     if method == "paper":
         return _refine_paper(rig, labelled, setup, tracks, X, options, tell, up, final)
@@ -206,7 +208,8 @@ def _refine_lp(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks 
 
 
 def _refine_ba(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | None, X: np.ndarray | None,
-               options: CalibrationOptions, tell: Progress, final: bool, columns: TimeColumns | None) -> Refined:
+               options: CalibrationOptions, tell: Progress, final: bool, columns: TimeColumns | None, *,
+               judge_frames: bool = WAND_FRAMES_IN_STOP) -> Refined:
     model = setup.model
     names = tuple(name for name in INTRINSICS if name in options.refine_intrinsics)
     fit = None
@@ -216,7 +219,7 @@ def _refine_ba(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks 
     # standard errors and the pose covariance cost one more linearisation and solve: final stage only
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.loss, intrinsics=fit,
                                stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final, timing=timing,
-                               judge_frames=WAND_FRAMES_IN_STOP)
+                               judge_frames=judge_frames)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
     R, t = model.poses(out.x)
     refined = Refined(rig, setup, labelled, tracks, R, t, model.wand(out.x), out.X, info, out.camera_std, out.covariance,
