@@ -67,7 +67,7 @@ def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames,
     f_of = np.searchsorted(padded.frames, tracks.frame)
     focal = np.array([cam.focal.mean() for cam in rig.cameras])
     for c in range(n_c):
-        fi, X, xy, info = _leave_one_out(rig, R, t, padded, tracks, f_of, c)
+        fi, X, xy, info = _leave_one_out(R, t, focal, padded, tracks, f_of, c)
         seen[:, c] = np.bincount(f_of[(tracks.views >= 0).sum(1) - (tracks.views[:, c] >= 0) >= 2], minlength=n_f)
         J, r = whitened(*linearised(R[c], t[c], focal[c], X, xy), point_jacobian(R[c], t[c], focal[c], X), info)
         keep, dev = _inliers(fi // WINDOW_FRAMES, J, r)
@@ -80,9 +80,10 @@ def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames,
     return CameraWindows(padded.frames, g, H, n, seen, sse, obs if keep_obs else None)
 
 
-def _leave_one_out(rig: Rig, R, t, padded: PaddedFrames, tracks: Tracks, f_of, c: int):
-    """(frame index (k,), X (k, 3), c's blob xy (k, 2)) of the tracks two other cameras saw,
-    triangulated without c, and c's blob found near their projection."""
+def _leave_one_out(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks, f_of, c: int):
+    """(frame index (k,), X (k, 3), c's blob xy (k, 2), the others' information on X (k, 3, 3)) of
+    the tracks two other cameras saw, triangulated without c, and c's blob found near their
+    projection; focal (C,): each camera's mean focal length, pixels."""
     others = tracks.views.copy()
     others[:, c] = -1
     ok = (others >= 0).sum(1) >= 2
@@ -90,8 +91,8 @@ def _leave_one_out(rig: Rig, R, t, padded: PaddedFrames, tracks: Tracks, f_of, c
     f_ok = f_of[ok]
     xy_obs = padded.xy_of(others[ok][p, cam])
     X = refine_points(R, t, p, cam, xy_obs, tracks.X[ok])  # from the point all cameras gave: close, so no DLT
-    fi, xy, found = _nearest_blob(R[c], t[c], rig.cameras[c].focal.mean(), padded, c, f_ok, X)
-    focal = np.array([camera.focal.mean() for camera in rig.cameras])
+    fi, xy, found = _nearest_blob(R[c], t[c], focal[c], padded, c, f_ok, X)
+    p, cam = p[found[p]], cam[found[p]]  # the points c's blob was found for
     Jv = point_jacobian(R[cam], t[cam], focal[cam], X[p])
     info = sum_by(p, np.einsum("kai,kaj->kij", Jv, Jv), len(X))  # the others' information on each point, px^-2 m^2
     return fi[found], X[found], xy[found], info[found]

@@ -239,21 +239,22 @@ def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest]
                 first: int, keep_obs: bool) -> CameraWindows:
     """Add a batch's windows to every camera's test, window by window; when cameras alarm, the one
     with the largest statistic is named, left out of every other camera's markers, and the batch is
-    tested again without it (a moved camera's blobs pull the markers it shares)."""
+    tested again without it (a moved camera's blobs pull the markers it shares). A camera's pose and
+    found-share tests take each window together, so one mark rewinds both."""
+    blobs = np.isfinite(padded.xy[:, :, :, 0]).sum(2)  # each camera's blobs a frame, whoever is left out
     while True:
         views = tracks.views.copy()
         views[:, sorted(excluded)] = -1
         windows = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X), keep_obs=keep_obs)
-        marks = [(pose.mark(), found.mark()) for pose, found in zip(*tests)]
-        blobs = np.isfinite(padded.xy[:, :, :, 0]).sum(2)
+        marks = [pose.mark() for pose in tests[0]]
         named = _add_windows(windows, blobs, tests, first)
         if named is None:
             return windows
         excluded.add(named)
         for c, (pose, found) in enumerate(zip(*tests)):
             if c != named:
-                pose.rewind(marks[c][0])
-                found.rewind(marks[c][1])
+                pose.rewind(marks[c])
+                found.rewind(marks[c])
 
 
 def _add_windows(windows: CameraWindows, blobs: np.ndarray, tests: tuple[list[CameraTest], list[FoundTest]],
