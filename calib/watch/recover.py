@@ -6,15 +6,20 @@ The markers are matched and triangulated again over the frames after the move wi
 cameras' blobs left out (they confirm no match), and the moved camera's views of them are found by
 a wide search (:mod:`wandcal.calib.watch.search`): a camera turned too far for the health test's
 12 px gate is re-solved as well as one that still finds its markers, and a view is not kept or
-dropped by how far the knock moved it (a gate at the standing pose keeps the views that moved least
-and takes a 1 deg turn for 0.5-0.8 deg, bench_watch_real).
+dropped by how far the knock moved it (the 12 px gate at the standing pose kept the views that moved
+least, and took a 1 deg turn for 0.5-0.8 deg, bench_watch_real). With the pose that fits them, the
+markers are matched again with the camera among the held ones (:func:`confirmed_markers`): those two
+held cameras see and it confirms are added, placed by the held cameras alone (on Brown's sessions,
+20-30 markers become 45-85).
 
 Its sigma (decision 0057b) is the fit's own, each residual weighted by its covariance in blobs'
 variances, ``I + Jx A^-1 Jx^T`` (its blob and the error of the point the held cameras triangulate,
-A their information on it), plus the pose's wander measured over the take's baseline
-(:meth:`wandcal.calib.watch.sequential.CameraTest.wander`): a camera model a little off shows as
-a pose that depends on where in the image the markers are, and the markers after a move are
-elsewhere than those the standing pose was fitted to.
+A their information on it), plus the pose's wander: the spread, beyond their own fits, of the same
+re-solve over spans of as many frames before the move, where the camera stood at its standing pose
+(:data:`WANDER_BLOCKS`). A camera model a little off shows as a pose that depends on where in the
+image the markers are, and the markers after a move are elsewhere than those the standing pose was
+fitted to: on the real takes that part is 1-6 times the fit's own. A camera moved before the take
+has no such span; its wander is the test's baseline's (:func:`wander_share`).
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import numpy as np
 
 from wandcal.calib.geometry import camera_centers, matrix_to_rotvec, rotation_angle, rotvec_to_matrix
 from wandcal.calib.rig import Rig
+from wandcal.calib.triangulate import refine_points
 from wandcal.calib.watch.health import PARAMS, WINDOW_FRAMES, linearised, point_jacobian, solve_pose_change
 from wandcal.calib.watch.match import match_frames
 from wandcal.calib.watch.search import SEARCH_DEG, rays, search_views
@@ -50,7 +56,8 @@ class Resolved:
     1-sigma (root of the covariance's trace) of the centre and the orientation: the fit's own
     (residuals weighted by their points' error) and the pose's wander, each also apart
     (fit_rotation_std_deg, wander_rotation_std_deg); moved_mm, turned_deg: from the standing pose;
-    searched: markers weighed by the wide search (candidate pairs)."""
+    searched: (marker, blob) pairs the wide search weighed; fit_cov: the fit's own covariance;
+    model_blocks: the re-solves before the move that measured the wander (0: the test's baseline's)."""
 
     R: np.ndarray
     t: np.ndarray
@@ -63,8 +70,8 @@ class Resolved:
     fit_rotation_std_deg: float = float("nan")
     wander_rotation_std_deg: float = 0.0
     searched: int = 0
-    fit_cov: np.ndarray | None = None  # (6, 6) the fit's own covariance (omega rad, camera frame; dC m)
-    model_blocks: int = 0  # re-solves before the move that measured the wander (0: the baseline's lambda)
+    fit_cov: np.ndarray | None = None  # (6, 6): omega rad (camera frame), dC m
+    model_blocks: int = 0
 
     def with_wander(self, wander: np.ndarray, blocks: int) -> Resolved:
         """The same re-solve, its covariance the fit's and ``wander`` (6, 6), measured over ``blocks``."""
@@ -102,8 +109,8 @@ def resolve_camera(R0: np.ndarray, t0: np.ndarray, focal: float, X: np.ndarray, 
     s2 = 1.0  # px^2: the blobs' variance, as the fit finds it
     for step in range(STEPS):
         J, r = _weighted(R, C, focal, X, xy, point_info)
-        if step == 1:  # drop markers the first fit does not explain (a blob taken for another)
-            keep = np.hypot(*linearised(R, -R @ C, focal, X, xy)[1].T) < OUTLIER_PX
+        if step == 1:  # drop markers the first fit does not explain (a blob taken for another), weighted
+            keep = np.hypot(r[:, 0], r[:, 1]) < OUTLIER_PX
         H, g = _prior(np.einsum("kpi,kpj->ij", J[keep], J[keep]), np.einsum("kpi,kp->i", J[keep], r[keep]), C - C0, s2)
         p = solve_pose_change(H, g)
         R = rotvec_to_matrix(p[:3]) @ R
@@ -156,12 +163,8 @@ def held_markers(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, rows:
     xy, row = padded.xy.copy(), padded.row.copy()
     xy[:, moved], row[:, moved] = np.nan, -1
     tracks = match_frames(rig, R, t, PaddedFrames(padded.frames, xy, row))
-    focal = np.array([cam.focal.mean() for cam in rig.cameras])
     p, cam = np.nonzero(tracks.views >= 0)
-    Jv = point_jacobian(R[cam], t[cam], focal[cam], tracks.X[p])
-    info = np.zeros((len(tracks), 3, 3))
-    np.add.at(info, p, np.einsum("kai,kaj->kij", Jv, Jv))
-    return padded, np.searchsorted(padded.frames, tracks.frame), tracks.X, info
+    return padded, np.searchsorted(padded.frames, tracks.frame), tracks.X, _information(rig, R, t, p, cam, tracks.X)
 
 
 def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: int, since: int, moved: list[int], *,
@@ -172,10 +175,9 @@ def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: i
     :data:`WANDER_BLOCKS` spans of as many frames before ``before`` (the frame it moved at), where
     it stood at its standing pose; with none (moved before the take), ``wander`` (:func:`wander_share`)
     is used. A :class:`NotResolved` says why not."""
-    cid = rig.cameras[c].id
     if len(rig.cameras) - len(set(moved)) < MIN_HELD:
-        return NotResolved(f"{len(rig.cameras) - len(set(moved))} cameras held still, and markers need "
-                           f"{MIN_HELD}: re-solve {cid} from a wand capture (calibrate --solve-only {cid})")
+        return NotResolved(f"only {len(rig.cameras) - len(set(moved))} cameras held still, and a marker the take "
+                           f"places needs {MIN_HELD}")
     span = int(blobs.frame[-1]) + 1 - since if len(blobs) else 0
     solved = _searched(rig, R, t, blobs, c, (since, since + span), moved, wander)
     if not isinstance(solved, Resolved) or before is None:
@@ -202,14 +204,48 @@ def _searched(rig: Rig, R, t, blobs: TakeBlobs, c: int, frames: tuple[int, int],
     views = search_views(rays(xy[ahead]), fi[ahead], padded.xy[b_frame, c, slot], b_frame, focal)
     views = replace(views, point=ahead[views.point])
     if len(views) < MIN_POINTS:
-        return NotResolved(f"{cid}: {len(views)} of the {len(X)} markers the others triangulated after its move were "
-                           f"found in its image (within {SEARCH_DEG:g} deg of where they were, {MIN_POINTS} needed): "
-                           f"record a longer take it sees, or re-solve it from a wand capture (--solve-only {cid})")
+        return NotResolved(f"{len(views)} of the {len(X)} markers the others triangulated after its move were found in "
+                           f"{cid}'s image (within {SEARCH_DEG:g} deg of where they were; {MIN_POINTS} needed): record "
+                           "a longer take it sees")
     solved = resolve_camera(R[c], t[c], focal, X[views.point], views.xy, start=views.turn,
                             point_info=info[views.point], wander=wander)
     if solved is None:
-        return NotResolved(f"{cid}: too few markers fit its re-solved pose: re-solve it from a wand capture")
+        return NotResolved(f"under {MIN_POINTS} markers fit {cid}'s re-solved pose")
+    X2, xy2, info2 = confirmed_markers(rig, R, t, padded, c, moved, (solved.R, solved.t))
+    again = resolve_camera(R[c], t[c], focal, X2, xy2, start=solved.R @ R[c].T, point_info=info2, wander=wander)
+    if again is not None and again.points > solved.points:
+        solved = again
     return replace(solved, searched=views.candidates)
+
+
+def confirmed_markers(rig: Rig, R, t, padded: PaddedFrames, c: int, moved: list[int],
+                      pose: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The markers matched with camera c at its re-solved ``pose`` (R (3, 3), t (3,)) among the
+    cameras that did not move and c: those c and two held cameras or more see, triangulated by the
+    held ones alone (c confirms the match, its view does not place the point). (X (k, 3) metres,
+    c's blob (k, 2) normalised, the held cameras' information on each (k, 3, 3), as :func:`held_markers`.)"""
+    others_moved = [m for m in moved if m != c]
+    xy, row = padded.xy.copy(), padded.row.copy()
+    xy[:, others_moved], row[:, others_moved] = np.nan, -1
+    R2, t2 = R.copy(), t.copy()
+    R2[c], t2[c] = pose
+    tracks = match_frames(rig, R2, t2, PaddedFrames(padded.frames, xy, row))
+    held = tracks.views.copy()
+    held[:, c] = -1
+    ok = (tracks.views[:, c] >= 0) & ((held >= 0).sum(1) >= 2)
+    p, cam = np.nonzero(held[ok] >= 0)
+    X = refine_points(R, t, p, cam, padded.xy_of(held[ok][p, cam]), tracks.X[ok])
+    return X, padded.xy_of(tracks.views[ok, c]), _information(rig, R, t, p, cam, X)
+
+
+def _information(rig: Rig, R, t, p: np.ndarray, cam: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(P, 3, 3) the cameras' information on points X (P, 3) from the views (point p (k,), camera cam (k,)),
+    ``sum J_v^T J_v``, px^-2 m^2 in blobs' variances."""
+    focal = np.array([camera.focal.mean() for camera in rig.cameras])
+    Jv = point_jacobian(R[cam], t[cam], focal[cam], X[p])
+    info = np.zeros((len(X), 3, 3))
+    np.add.at(info, p, np.einsum("kai,kaj->kij", Jv, Jv))
+    return info
 
 
 def camera_pose_vector(R0: np.ndarray, t0: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
