@@ -172,8 +172,8 @@ def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: i
     """Camera c re-solved from the take's frames ``since`` on (blobs sorted by frame, numbered by
     rank), the cameras ``moved`` (c among them) left out of the markers; R (C, 3, 3), t (C, 3) the
     standing poses. Its wander is measured by re-solving it the same way over up to
-    :data:`WANDER_BLOCKS` spans of as many frames before ``before`` (the frame it moved at), where
-    it stood at its standing pose; with none (moved before the take), ``wander`` (:func:`wander_share`)
+    :data:`WANDER_BLOCKS` spans of as many frames (or all there are) before ``before`` (the frame it
+    moved at), where it stood at its standing pose; with none (moved before the take), ``wander`` (:func:`wander_share`)
     is used. A :class:`NotResolved` says why not."""
     if len(rig.cameras) - len(set(moved)) < MIN_HELD:
         return NotResolved(f"only {len(rig.cameras) - len(set(moved))} cameras held still, and a marker the take "
@@ -182,11 +182,12 @@ def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: i
     solved = _searched(rig, R, t, blobs, c, (since, since + span), moved, wander)
     if not isinstance(solved, Resolved) or before is None:
         return solved
-    pose = camera_pose_vector(R[c], t[c], solved.R, solved.t)
-    blocks = [_searched(rig, R, t, blobs, c, (before - (b + 1) * span, before - b * span), moved, 0.0)
-              for b in range(WANDER_BLOCKS) if before - (b + 1) * span >= 0]
-    devs = [(camera_pose_vector(R[c], t[c], r.R, r.t), r.fit_cov) for r in blocks if isinstance(r, Resolved)]
-    if not devs or not np.isfinite(pose).all():
+    length = max(min(span, before), 1)  # a take short before its move: one span of all it has
+    blocks = [_searched(rig, R, t, blobs, c, (before - (b + 1) * length, before - b * length), moved, 0.0)
+              for b in range(WANDER_BLOCKS) if before - (b + 1) * length >= 0]
+    devs = [(camera_pose_vector(R[c], t[c], r.R, r.t), r.fit_cov) for r in blocks
+            if isinstance(r, Resolved) and r.fit_cov is not None]
+    if not devs:
         return solved
     return solved.with_wander(_wander_cov(devs), len(devs))
 
