@@ -7,7 +7,7 @@ from wandcal.calib.geometry import camera_centers
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
 from wandcal.calib.sim.scenes import prepared_scene as prepared
 from wandcal.calib.solve.ba import bundle_adjust
-from wandcal.calib.solve.backend.arrowlp import ACCEPT_TOL
+from wandcal.calib.solve.backend.arrowlp import ACCEPT_TOL, TOL
 from wandcal.calib.solve.paper import (
     MAX_ROUNDS,
     ROUND_TOL,
@@ -93,7 +93,11 @@ def _first_paper_round():
     return setup, m, up, X, heights, R1, lp_step(R1, m.t0, X, setup.problem, m.fixed, up, heights=heights)
 
 
-def test_paper_lp_warm_start_reaches_the_cold_optimum():
+def test_paper_lp_warm_start_reaches_the_cold_optimum(monkeypatch):
+    from wandcal.calib.solve import paper
+
+    # the interior point to its own tolerance (the paper's rounds stop it at LP_TOL, looser)
+    monkeypatch.setattr(paper, "LP_TOL", TOL)
     setup, m, up, X, heights, R1, (t1, X1, first) = _first_paper_round()
     assert first.status == "optimal" and first.basis is not None
     # the next round: new rotations change the LP's coefficients, not its shape
@@ -182,6 +186,8 @@ def test_the_fixed_point_on_a_basis_is_where_the_plain_rounds_stay(monkeypatch):
     up = np.array([0.0, 0.0, 1.0])
     monkeypatch.setattr(paper, "JUMP_CAP", 0.0)
     monkeypatch.setattr(paper, "ROUND_TOL", 0.0)  # the plain rounds, run on
+    monkeypatch.setattr(paper, "STOP_SIGMA", 0.0)
+    monkeypatch.setattr(paper, "LP_TOL", TOL)  # each LP to the interior point's own tolerance, as measured
     start = m.wand(m.x0())
     heights = height_pairs(m.R0, m.t0, start.reshape(-1, 3), up)
     R, t, W, _ = refine_paper(m.R0, m.t0, start, p, m.fixed, up, max_rounds=30)
