@@ -1,0 +1,129 @@
+"""Issue 31: a multi-marker wand's interior markers in the judgement, on sparse simulated rigs.
+
+Each case is a sparse simulated capture (few cameras, few frames, markers often hidden, as the real
+sessions are) of a 3- or a 5-marker wand with one fault on one camera drawn from the seed: its
+focal length 3% off in rig.json, a knock (0.5 degrees after the middle of its frames), its noise
+3x, or the camera late by 0.5-2.5 frames. Each is judged twice in one process, side by side: as
+before issue 31 (the judgement given the wand's two ends only) and with every interior marker
+as a point track (calib/start/markerlabels.interior_tracks). A case is right when the fault's
+kind and camera are named and no other; a good rig when no fault is named.
+
+Usage: python bench/bench_marker_judgement.py [--seeds 6] [--cameras 4] [--frames 40] [--occlusion 0.2] [--no-write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.common import publish
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.run import calibrate as pipeline
+from wandcal.calib.sim.faults import knocked_camera, noisy_camera, wrong_focal
+from wandcal.calib.sim.simulate import SimulatedCapture, simulate_capture
+from wandcal.service.cli.simulate import WANDS
+
+FIRST_SEED = 300  # held out: nothing in the judgement was set looking at these
+NOISE_PX = 0.3
+FOCAL_FACTOR = 0.03  # issue 31's focal length fault: 3% off, either way
+KNOCK_DEG = 0.5  # issue 31's knock: 0.5 degrees partway through
+NOISE_FACTOR = 3.0  # one camera's noise at 3x
+LATE_FRAMES = (0.5, 2.5)  # a camera late by this many frames, drawn
+CASES = {"good": None, "focal": "intrinsics", "knock": "moved", "noise": "noise", "late": "timing"}
+
+
+def broken(case: str, wand: str, seed: int, args) -> tuple[SimulatedCapture, int | None]:
+    """A sparse capture of ``wand`` with the fault ``case`` on a camera drawn from ``seed``."""
+    rng = np.random.default_rng(2000 + seed)
+    c, sign = int(rng.integers(0, args.cameras)), rng.choice([-1.0, 1.0])
+    late = np.zeros(args.cameras)
+    if case == "late":
+        late[c] = rng.uniform(*LATE_FRAMES)
+    sim = simulate_capture(args.cameras, args.frames, NOISE_PX, 0.0, True, seed, wand_markers=np.array(WANDS[wand]),
+                           occlusion=args.occlusion, offsets=late if case == "late" else None)
+    if case == "focal":
+        sim = wrong_focal(sim, c, 1 + sign * FOCAL_FACTOR)
+    elif case == "knock":
+        sim = knocked_camera(sim, c, KNOCK_DEG, seed)
+    elif case == "noise":
+        sim = noisy_camera(sim, c, NOISE_PX * np.sqrt(NOISE_FACTOR**2 - 1), seed)
+    return sim, None if case == "good" else c
+
+
+def shared_frames(sim: SimulatedCapture) -> float:
+    """The median camera's frames in which two other cameras see every wand marker too."""
+    k = len(sim.rig.wand_markers)
+    n = len(sim.rig.cameras)
+    full = np.zeros((int(sim.wand.frame.max()) + 1, n), int)
+    np.add.at(full, (sim.wand.frame, sim.wand.camera), 1)
+    full = full == k
+    return float(np.median([(full[:, c] & (full.sum(axis=1) - full[:, c] >= 2)).sum() for c in range(n)]))
+
+
+def judged(sim: SimulatedCapture, ends_only: bool) -> tuple[set, float]:
+    """(the faults named as (kind, camera), CPU seconds of the whole calibrate); ``ends_only``: the
+    judgement without the interior markers (the sessions here have no point tracks of their own).
+    A refusal counts as naming a timing fault where it names a camera out of time."""
+    judge = pipeline.judge
+
+    def without(*a, **k):
+        return judge(*a[:8], None, *a[9:], **k)
+
+    pipeline.judge = without if ends_only else judge
+    start = time.process_time()
+    try:
+        doc = pipeline.calibrate(sim.rig, sim.wand, sim.static).to_json()
+    except CalibrationError as exc:  # a refusal names a camera out of time, or not
+        text = str(exc)
+        return {("timing", text.split(maxsplit=1)[0]) if " is out of time" in text else ("refused", None)}, time.process_time() - start
+    finally:
+        pipeline.judge = judge
+    return {(f["kind"], f["camera"]) for f in doc["verdict"]["faults"]}, time.process_time() - start
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=6)
+    ap.add_argument("--first-seed", type=int, default=FIRST_SEED)
+    ap.add_argument("--cameras", type=int, default=4)
+    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--occlusion", type=float, default=0.2, help="chance a marker is hidden from a camera in a frame")
+    ap.add_argument("--wands", default="three,five")
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    rows: dict[tuple[str, str], list] = defaultdict(list)
+    for wand in args.wands.split(","):
+        for case, kind in CASES.items():
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
+                sim, c = broken(case, wand, seed, args)
+                want = set() if kind is None else {(kind, sim.rig.cameras[c].id)}
+                before, t0 = judged(sim, True)
+                after, t1 = judged(sim, False)
+                rows[wand, case].append((before == want, after == want, t0, t1, shared_frames(sim)))
+                print(f"{wand} {case} seed {seed}: want {sorted(want)}; ends only {sorted(before)}; "
+                      f"every marker {sorted(after)}", file=sys.stderr)
+    lines = ["| wand | case | runs | right, ends only | right, every marker | shared frames a camera (median) | "
+             "CPU s a calibrate, ends only / every marker (median) |", "|---|---|---|---|---|---|---|"]
+    total = np.zeros(3, int)
+    for (wand, case), rs in rows.items():
+        a = np.array(rs)
+        total += [len(rs), int(a[:, 0].sum()), int(a[:, 1].sum())]
+        lines.append(f"| {wand} | {case} | {len(rs)} | {int(a[:, 0].sum())} | {int(a[:, 1].sum())} | "
+                     f"{np.median(a[:, 4]):.0f} | {np.median(a[:, 2]):.2f} / {np.median(a[:, 3]):.2f} |")
+    text = "\n".join(lines) + (f"\n\nRight in {total[1]} of {total[0]} with the wand's ends only, {total[2]} of "
+                               f"{total[0]} with every marker ({args.cameras} cameras, {args.frames} frames, "
+                               f"markers hidden {100 * args.occlusion:.0f}% of the time, seeds {args.first_seed}-"
+                               f"{args.first_seed + args.seeds - 1}).")
+    return publish("Issue 31: every marker of a multi-marker wand in the judgement", __doc__.split("\n\n")[1] + "\n\n"
+                   + text, not args.no_write)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
