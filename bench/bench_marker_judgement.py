@@ -8,12 +8,13 @@ before issue 31 (the judgement given the wand's two ends only) and with every in
 as a point track (calib/start/markerlabels.interior_tracks). A case is right when the fault's
 kind and camera are named and no other; a good rig when no fault is named.
 
-Usage: python bench/bench_marker_judgement.py [--seeds 6] [--cameras 4] [--frames 40] [--occlusion 0.2] [--no-write]
+Usage: python bench/bench_marker_judgement.py [--seeds 8] [--cameras 4] [--rigs 40:0.2,80:0.15] [--no-write]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections import defaultdict
@@ -40,7 +41,8 @@ CASES = {"good": None, "focal": "intrinsics", "knock": "moved", "noise": "noise"
 
 
 def broken(case: str, wand: str, seed: int, args) -> tuple[SimulatedCapture, int | None]:
-    """A sparse capture of ``wand`` with the fault ``case`` on a camera drawn from ``seed``."""
+    """A sparse capture of ``wand`` (``args``: its cameras, frames and occlusion) with the fault
+    ``case`` on a camera drawn from ``seed``; the camera's index (None for a good rig)."""
     rng = np.random.default_rng(2000 + seed)
     c, sign = int(rng.integers(0, args.cameras)), rng.choice([-1.0, 1.0])
     late = np.zeros(args.cameras)
@@ -88,39 +90,54 @@ def judged(sim: SimulatedCapture, ends_only: bool) -> tuple[set, float]:
     return {(f["kind"], f["camera"]) for f in doc["verdict"]["faults"]}, time.process_time() - start
 
 
+def run(args) -> tuple[list[str], np.ndarray]:
+    """The table's rows for every rig (``--rigs``), wand and case, and the totals (runs, right with the
+    ends only, right with every marker)."""
+    rows: dict[tuple[str, str, str], list] = defaultdict(list)
+    for rig in args.rigs.split(","):
+        frames, occlusion = rig.split(":")
+        sparse = argparse.Namespace(cameras=args.cameras, frames=int(frames), occlusion=float(occlusion))
+        for wand in args.wands.split(","):
+            for case, kind in CASES.items():
+                for seed in range(args.first_seed, args.first_seed + args.seeds):
+                    sim, c = broken(case, wand, seed, sparse)
+                    want = set() if kind is None else {(kind, sim.rig.cameras[c].id)}
+                    before, t0 = judged(sim, True)
+                    after, t1 = judged(sim, False)
+                    rows[rig, wand, case].append((before == want, after == want, t0, t1, shared_frames(sim)))
+                    print(f"{rig} {wand} {case} seed {seed}: want {sorted(want)}; ends only {sorted(before)}; "
+                          f"every marker {sorted(after)}", file=sys.stderr)
+    lines, total = [], np.zeros(3, int)
+    for (rig, wand, case), rs in rows.items():
+        a = np.array(rs)
+        total += [len(rs), int(a[:, 0].sum()), int(a[:, 1].sum())]
+        frames, occlusion = rig.split(":")
+        lines.append(f"| {args.cameras} x {frames}, {100 * float(occlusion):.0f}% | {wand} | {case} | {len(rs)} | "
+                     f"{int(a[:, 0].sum())} | {int(a[:, 1].sum())} | {np.median(a[:, 4]):.0f} | "
+                     f"{np.median(a[:, 2]):.2f} / {np.median(a[:, 3]):.2f} |")
+    return lines, total
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=6)
+    ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--first-seed", type=int, default=FIRST_SEED)
     ap.add_argument("--cameras", type=int, default=4)
-    ap.add_argument("--frames", type=int, default=40)
-    ap.add_argument("--occlusion", type=float, default=0.2, help="chance a marker is hidden from a camera in a frame")
+    ap.add_argument("--rigs", default="40:0.2,80:0.15",
+                    help="FRAMES:SHARE,...: frames of each capture and the chance a marker is hidden from a camera")
     ap.add_argument("--wands", default="three,five")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
-    rows: dict[tuple[str, str], list] = defaultdict(list)
-    for wand in args.wands.split(","):
-        for case, kind in CASES.items():
-            for seed in range(args.first_seed, args.first_seed + args.seeds):
-                sim, c = broken(case, wand, seed, args)
-                want = set() if kind is None else {(kind, sim.rig.cameras[c].id)}
-                before, t0 = judged(sim, True)
-                after, t1 = judged(sim, False)
-                rows[wand, case].append((before == want, after == want, t0, t1, shared_frames(sim)))
-                print(f"{wand} {case} seed {seed}: want {sorted(want)}; ends only {sorted(before)}; "
-                      f"every marker {sorted(after)}", file=sys.stderr)
-    lines = ["| wand | case | runs | right, ends only | right, every marker | shared frames a camera (median) | "
-             "CPU s a calibrate, ends only / every marker (median) |", "|---|---|---|---|---|---|---|"]
-    total = np.zeros(3, int)
-    for (wand, case), rs in rows.items():
-        a = np.array(rs)
-        total += [len(rs), int(a[:, 0].sum()), int(a[:, 1].sum())]
-        lines.append(f"| {wand} | {case} | {len(rs)} | {int(a[:, 0].sum())} | {int(a[:, 1].sum())} | "
-                     f"{np.median(a[:, 4]):.0f} | {np.median(a[:, 2]):.2f} / {np.median(a[:, 3]):.2f} |")
-    text = "\n".join(lines) + (f"\n\nRight in {total[1]} of {total[0]} with the wand's ends only, {total[2]} of "
-                               f"{total[0]} with every marker ({args.cameras} cameras, {args.frames} frames, "
-                               f"markers hidden {100 * args.occlusion:.0f}% of the time, seeds {args.first_seed}-"
-                               f"{args.first_seed + args.seeds - 1}).")
+    started, load = time.strftime("%H:%M", time.gmtime()), os.getloadavg()[0]
+    lines, total = run(args)
+    head = ["| rig: cameras x frames, markers hidden | wand | case | runs | right, ends only | right, every marker | "
+            "frames a camera shares with two others (median) | CPU s a calibrate, ends only / every marker (median) |",
+            "|---|---|---|---|---|---|---|---|"]
+    text = "\n".join(head + lines) + (
+        f"\n\nRight in {total[1]} of {total[0]} with the wand's ends only, {total[2]} of {total[0]} with every marker "
+        f"(seeds {args.first_seed}-{args.first_seed + args.seeds - 1}). Run {started}-{time.strftime('%H:%M', time.gmtime())} "
+        f"UTC, load average {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (CPU seconds, so the "
+        "shared machine's load does not enter them).")
     return publish("Issue 31: every marker of a multi-marker wand in the judgement", __doc__.split("\n\n")[1] + "\n\n"
                    + text, not args.no_write)
 
