@@ -8,7 +8,8 @@ before issue 31 (the judgement given the wand's two ends only) and with every in
 as a point track (calib/start/markerlabels.interior_tracks). A case is right when the fault's
 kind and camera are named and no other; a good rig when no fault is named.
 
-Usage: python bench/bench_marker_judgement.py [--seeds 8] [--cameras 4] [--rigs 40:0.2,80:0.15] [--no-write]
+Usage: python bench/bench_marker_judgement.py [--seeds 8] [--cameras 4] [--rigs 40:0.2,80:0.15] [--cost-rig 8x1500]
+       [--cost-repeats 3] [--no-write]
 """
 
 from __future__ import annotations
@@ -118,6 +119,14 @@ def run(args) -> tuple[list[str], np.ndarray]:
     return lines, total
 
 
+def cost(wand: str, cameras: int, frames: int, repeats: int) -> tuple[float, float, float]:
+    """(median CPU s of ``calibrate`` judged on the ends only, on every marker, the median of the
+    runs' ratios) on a clean, dense simulated capture of ``wand``, the two alternated run by run."""
+    sim = simulate_capture(cameras, frames, NOISE_PX, 0.0, True, 1, wand_markers=np.array(WANDS[wand]))
+    runs = np.array([[judged(sim, ends_only)[1] for ends_only in (True, False)] for _ in range(repeats)])
+    return float(np.median(runs[:, 0])), float(np.median(runs[:, 1])), float(np.median(runs[:, 1] / runs[:, 0]))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=8)
@@ -126,6 +135,8 @@ def main() -> int:
     ap.add_argument("--rigs", default="40:0.2,80:0.15",
                     help="FRAMES:SHARE,...: frames of each capture and the chance a marker is hidden from a camera")
     ap.add_argument("--wands", default="three,five")
+    ap.add_argument("--cost-rig", default="8x1500", help="CAMERASxFRAMES of the clean capture timed both ways")
+    ap.add_argument("--cost-repeats", type=int, default=3)
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     started, load = time.strftime("%H:%M", time.gmtime()), os.getloadavg()[0]
@@ -135,9 +146,17 @@ def main() -> int:
             "|---|---|---|---|---|---|---|---|"]
     text = "\n".join(head + lines) + (
         f"\n\nRight in {total[1]} of {total[0]} with the wand's ends only, {total[2]} of {total[0]} with every marker "
-        f"(seeds {args.first_seed}-{args.first_seed + args.seeds - 1}). Run {started}-{time.strftime('%H:%M', time.gmtime())} "
-        f"UTC, load average {load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (CPU seconds, so the "
-        "shared machine's load does not enter them).")
+        f"(seeds {args.first_seed}-{args.first_seed + args.seeds - 1}).")
+    if args.cost_repeats:
+        n, f = map(int, args.cost_rig.split("x"))
+        text += (f"\n\nThe cost: the whole `calibrate` of a clean {args.cost_rig} capture, CPU seconds, medians of "
+                 f"{args.cost_repeats} runs alternated.\n\n| wand | ends only | every marker | every marker / ends only |"
+                 "\n|---|---|---|---|")
+        for wand in args.wands.split(","):
+            a, b, ratio = cost(wand, n, f, args.cost_repeats)
+            text += f"\n| {wand} | {a:.2f} | {b:.2f} | {ratio:.2f} |"
+    text += (f"\n\nRun {started}-{time.strftime('%H:%M', time.gmtime())} UTC, load average {load:.1f} at the start, "
+             f"{os.getloadavg()[0]:.1f} at the end (CPU seconds, so the shared machine's load does not enter them).")
     return publish("Issue 31: every marker of a multi-marker wand in the judgement", __doc__.split("\n\n")[1] + "\n\n"
                    + text, not args.no_write)
 
