@@ -9,7 +9,7 @@ as a point track (calib/start/markerlabels.interior_tracks). A case is right whe
 kind and camera are named and no other; a good rig when no fault is named.
 
 Usage: python bench/bench_marker_judgement.py [--seeds 8] [--cameras 4] [--rigs 40:0.2,80:0.15] [--cost-rig 8x1500]
-       [--cost-repeats 3] [--no-write]
+       [--cost-repeats 3] [--cli-seed 301] [--no-write]
 """
 
 from __future__ import annotations
@@ -127,6 +127,52 @@ def cost(wand: str, cameras: int, frames: int, repeats: int) -> tuple[float, flo
     return float(np.median(runs[:, 0])), float(np.median(runs[:, 1])), float(np.median(runs[:, 1] / runs[:, 0]))
 
 
+def cli_runs(rig: str, seed: int, late_by: float = 2.3) -> list[str]:
+    """Table rows of the commands a lab runs on a sparse 3-marker capture (``rig`` FRAMES:SHARE, 4
+    cameras): ``calibrate``, ``calibrate --sync auto`` with cam3 ``late_by`` frames late, ``check``
+    of a fresh capture with cam2 knocked 0.5 degrees, and ``--solve-only cam2`` from it. Each row:
+    the command's exit status and its last line (or the verdict's faults)."""
+    import json
+    import subprocess
+    import tempfile
+
+    from wandcal.calib.sim.scenes import knocked_capture
+    from wandcal.capture.folder import write_capture
+    from wandcal.service.cli.simulate import write_simulated
+
+    part = rig.split(":")
+    frames, occlusion = int(part[0]), float(part[1])
+    layout = np.array(WANDS["three"])
+    sim = simulate_capture(4, frames, NOISE_PX, 0.0, True, seed, wand_markers=layout, occlusion=occlusion)
+    late = simulate_capture(4, frames, NOISE_PX, 0.0, True, seed, wand_markers=layout, occlusion=occlusion,
+                            offsets=np.array([0, 0, late_by, 0]))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        write_simulated(root / "clean", sim)
+        write_simulated(root / "late", late)
+        write_capture(root / "knocked", sim.rig, knocked_capture(sim, 1, 0.5, 0.0, frames, seed + 1)[0], None)
+        for name, argv, out in (
+                ("calibrate", ["calibrate", "clean", "--quiet"], "clean/result.json"),
+                (f"calibrate --sync auto (cam3 {late_by} frames late)", ["calibrate", "late", "--sync", "auto", "--quiet"],
+                 "late/result.json"),
+                ("check (cam2 knocked 0.5 deg)", ["check", "clean/result.json", "knocked"], None),
+                ("calibrate --from --solve-only cam2", ["calibrate", "knocked", "--from", "clean/result.json",
+                                                        "--solve-only", "cam2", "--quiet"], "knocked/result.json")):
+            done = subprocess.run([sys.executable, "-m", "wandcal.service.cli", *argv], cwd=root, capture_output=True,
+                                  text=True, timeout=600, check=False)
+            said = (done.stdout.strip() or done.stderr.strip()).splitlines()[-1:] or [""]
+            if done.returncode == 0 and out is not None:
+                doc = json.loads((root / out).read_text())
+                offsets = [round(c["offset_frames"], 2) for c in (doc.get("sync") or {}).get("cameras", [])]
+                said = [f"verdict {doc['verdict']['level']}, faults "
+                        f"{[(f['kind'], f['camera']) for f in doc['verdict']['faults']] or 'none'}"
+                        + (f", offsets {offsets}" if offsets else "")]
+            rows.append(f"| 4 x {frames}, {100 * occlusion:.0f}% | `{name}` | {done.returncode} | "
+                        f"{said[0][:220].replace('|', '/')} |")
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=8)
@@ -137,6 +183,7 @@ def main() -> int:
     ap.add_argument("--wands", default="three,five")
     ap.add_argument("--cost-rig", default="8x1500", help="CAMERASxFRAMES of the clean capture timed both ways")
     ap.add_argument("--cost-repeats", type=int, default=3)
+    ap.add_argument("--cli-seed", type=int, default=FIRST_SEED + 1, help="the capture the commands run on")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     started, load = time.strftime("%H:%M", time.gmtime()), os.getloadavg()[0]
@@ -155,6 +202,10 @@ def main() -> int:
         for wand in args.wands.split(","):
             a, b, ratio = cost(wand, n, f, args.cost_repeats)
             text += f"\n| {wand} | {a:.2f} | {b:.2f} | {ratio:.2f} |"
+    if args.cli_seed is not None:
+        text += ("\n\nThe commands on a sparse 3-marker capture (seed "
+                 f"{args.cli_seed}):\n\n| rig | command | exit | said |\n|---|---|---|---|\n")
+        text += "\n".join(row for rig in args.rigs.split(",") for row in cli_runs(rig, args.cli_seed))
     text += (f"\n\nRun {started}-{time.strftime('%H:%M', time.gmtime())} UTC, load average {load:.1f} at the start, "
              f"{os.getloadavg()[0]:.1f} at the end (CPU seconds, so the shared machine's load does not enter them).")
     return publish("Issue 31: every marker of a multi-marker wand in the judgement", __doc__.split("\n\n")[1] + "\n\n"
