@@ -22,6 +22,7 @@ from threadpoolctl import threadpool_limits
 from wandcal.calib.geometry import camera_centers, matrix_to_euler
 from wandcal.calib.observations import PointTracks
 from wandcal.calib.solve.ba.levenberg import CAUCHY_SIGMAS, STOP_SE, LevenbergMarquardt
+from wandcal.calib.solve.backend import schur
 from wandcal.calib.solve.markerwand import PlanarWandTerm, planar_term
 from wandcal.calib.solve.reprojection import CAM_PARAMS, INTRINSICS, BundleState, PointTerm, TimeFit, WandTerm
 from wandcal.calib.solve.uncertainty import PoseCovariance
@@ -166,6 +167,11 @@ def bundle_adjust_points(
     solver = LevenbergMarquardt(terms, free, loss, frozen, refine, stop_se, timing is not None, judge_frames=judge_frames)
     # the dense products here are small: a second BLAS thread costs more in hand-offs than it
     # gains (0.26 s against 0.42 s at 8 x 1500 on 2 cores, and no gain at 32 x 2000)
+    if solver.n_free * solver.cam_size >= schur.LAPACK_INVERSE_WIDTH:
+        # the wide system's inverse is scipy's LAPACK (schur._spd_inverse): loaded before the limit,
+        # which holds only the BLAS libraries loaded when it starts (loaded inside, its BLAS ran on
+        # both cores: 256 x 3000, 11.2 -> 13.0 CPU s for the whole command)
+        import scipy.linalg.lapack  # noqa: F401
     with threadpool_limits(limits=1, user_api="blas"):
         state, info = solver.run(state, progress, max_iter)
         std = solver.standard_errors(state) if standard_errors else np.full((len(free), solver.cam_size), np.nan)
