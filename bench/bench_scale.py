@@ -25,7 +25,8 @@ in a whole process on --where-rigs, by timers around the stages' functions (benc
 
 How a whole process is run, timed and profiled, and the captures it reads: bench/whole_process.py.
 
-Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance,methods] [--rigs 64x3000,128x3000]
+Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance,methods,costs,where] [--rigs 64x3000,128x3000]
+    [--where-rigs ring:128x3000,tiers:128x3000]
     [--stage-cameras 16,32,64,128] [--stage-shape ring] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
     --rigs ring:64x3000,dome:128x3000 (SHAPE:CAMSxFRAMES): rigs of calib/sim/shapes.py, section "Scale: every shape beside COLMAP"
     e.g. git archive 3925791 | tar -x -C /tmp/base && python bench/bench_scale.py --parts regression --base /tmp/base
