@@ -122,7 +122,7 @@ def main() -> int:
 
     outcomes = rf.run_suite(sessions, tuple(args.families.split(",")), progress=lambda o: print(rf.case_line(o), flush=True),
                             on_clean=on_clean)
-    table = rf.confusion_table(outcomes)
+    table = rf.confusion_table(outcomes, rf.FAMILIES, rf.UNDETERMINABLE)
     print()
     print(table)
     coverage = rf.sigma_coverage(outcomes)
