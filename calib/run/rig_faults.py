@@ -170,12 +170,19 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     if timing:
         return timing + beside_timing(rig, labelled, tracks, R, t, timing[0])
     lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks)
-    if lens:  # a lens error bends a tracked marker's path: a step or noise there is its effect
+    # a lens error bends a tracked marker's path: a step or noise there is its effect. A lens
+    # pattern that needed fy's own column is weaker: a camera out of time spreads a stretch along
+    # the wand's motion through the points, which that column fits in another camera (Brown 2,
+    # cam4 0.5 frame late: F 124 on cam2's aspect); a camera's own errors that its offset explains
+    # name the timing instead (decision 0057e)
+    if lens and not lens[0]["evidence"]["intrinsics"].get("aspect_error"):
         return lens
     moved, noisy = own_faults(rig, labelled, tracks, R, t)
     # a camera out of time is noisy in its own residuals too: its offset, where it explains them, names the kind
     noisy = [timing_instead(list(rig.ids), timings, rig.index(f["camera"]), noise_px[rig.index(f["camera"])]) or f
              for f in noisy]
+    if lens:
+        return [f for f in noisy if f["kind"] == "timing"][:1] or lens
     return moved or noisy or _outliers_or_noise(rig, labelled, tracks, R, t, figures, res,
                                                 camera_faults(rig, labelled, R, t, figures, res))
 

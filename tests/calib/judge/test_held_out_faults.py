@@ -79,3 +79,34 @@ def test_every_held_out_case_is_made_and_labelled_once():
     assert {c.family for c in cases} == set(ho.HELD_OUT_FAMILIES)
     for case in cases:
         assert ho.inject_held_out(session, case, [0.5, 0.5]) is not session
+
+
+# -- a few held-out cases on the real sessions (the whole table: bench_real_faults.py --held-out) --
+
+@pytest.fixture(scope="module")
+def sessions():
+    if not rf.available():
+        pytest.skip(f"third-party data not found at {rf.SHARED_DATA}")
+    loaded = {}
+    for key in ("brown1", "brown2"):
+        session = rf.LOADERS[key]()
+        loaded[key] = (session, rf.clean_run(session))
+    return loaded
+
+
+HELD_OUT_CASES = [
+    ("brown2", "fy +3% cam3"),  # fy alone: the lens pattern's aspect column keeps it on its camera (not cam4)
+    ("brown2", "fy +3% cam4"),  # ... not "outliers, cam1", the session's weakest camera
+    ("brown1", "clock slow to 1 frame cam1"),  # an offset growing through the capture: timing
+    ("brown1", "middle 30% of frames dropped cam3"),  # frames lost are no fault: nothing named, not poorer
+    ("brown1", "cam1 and cam3 swapped"),  # mislabelled cameras of different intrinsics: named on one of them
+]
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("key, label", HELD_OUT_CASES)
+def test_the_verdict_on_a_held_out_fault(sessions, key, label):
+    session, clean = sessions[key]
+    case = next(c for c in ho.held_out_cases(session) if c.label == label)
+    out = ho.run_held_out_case(session, clean, case)
+    assert out.right, rf.case_line(out)
