@@ -20,8 +20,9 @@ stays comparable from release to release:
 A swap of two cameras whose intrinsics agree (:data:`SAME_INTRINSICS`) cannot be told from the
 data: the solve places each camera where the other was, a consistent rig with its names swapped.
 It is right there when nothing is named and the rig is not poorer (the "cannot tell" the data
-allow); its row says so. The slow clock is put only where a camera's samples are consecutive
-frames (:meth:`bench.real_faults.Session.consecutive`), as the listed timing faults are.
+allow: Ushichka's three cameras are alike). The slow clock is put only where a camera's samples
+are consecutive frames (:meth:`bench.real_faults.Session.consecutive`), as the listed timing
+faults are.
 """
 
 from __future__ import annotations
