@@ -109,6 +109,31 @@ def late(session: Session, c: int, offset: float) -> Session:
     return out
 
 
+def observations_of(session: Session) -> list[tuple[str, object]]:
+    """(name, observations) of the session's wand and points, those it has."""
+    return [(name, obs) for name in ("wand", "points") if (obs := getattr(session, name)) is not None and len(obs)]
+
+
+def timed_observations(session: Session) -> list[tuple[str, object]]:
+    """(name, observations) of the session's samples that have a time: its wand's, and its point
+    tracks' where they are one moving marker (static background points are digitised once)."""
+    timed: list[tuple[str, object]] = [("wand", session.wand)] if len(session.wand) else []
+    if session.moving_points and session.points is not None:
+        timed.append(("points", session.points))
+    return timed
+
+
+def rebuilt(obs, kept: np.ndarray | None = None, *, camera: np.ndarray | None = None):
+    """Observations of obs's own type (wand or points) with the rows ``kept`` (all by default) and
+    the cameras ``camera`` (obs's own by default; rows as obs's)."""
+    kept = np.ones(len(obs.frame), bool) if kept is None else kept
+    camera = obs.camera if camera is None else camera
+    if isinstance(obs, PointObservations):
+        return PointObservations(obs.frame[kept], camera[kept], obs.uv[kept],
+                                 point=None if obs.point is None else obs.point[kept])
+    return WandObservations(obs.frame[kept], camera[kept], obs.uv[kept])
+
+
 def _rotated(cam, uv: np.ndarray, Rk: np.ndarray) -> np.ndarray:
     """(B, 2) raw pixels uv of camera ``cam`` after it turned by Rk (camera frame): each ray
     undistorted, rotated, projected and distorted again."""
@@ -126,11 +151,8 @@ def knocked(session: Session, c: int, degrees: float, seed: int) -> Session:
     Rk = rotvec_to_matrix(np.radians(degrees) * axis / np.linalg.norm(axis))
     cam = session.rig.cameras[c]
     out = session
-    timed = [("wand", session.wand)] if len(session.wand) else []
-    if session.moving_points and session.points is not None:
-        timed.append(("points", session.points))
     at = None
-    for name, obs in timed:
+    for name, obs in timed_observations(session):
         mine = obs.camera == c
         if at is None:
             at = float(np.median(obs.frame[mine]))
@@ -149,10 +171,7 @@ def noisy(session: Session, c: int, noise_px: float, seed: int, factor: float = 
     rng = np.random.default_rng(seed)
     extra = noise_px * np.sqrt(factor**2 - 1)
     out = session
-    for name in ("wand", "points"):
-        obs = getattr(session, name)
-        if obs is None or not len(obs):
-            continue
+    for name, obs in observations_of(session):
         uv = obs.uv.copy()
         mine = obs.camera == c
         uv[mine] += rng.normal(0, extra, (int(mine.sum()), 2))
@@ -171,10 +190,7 @@ def subsample(session: Session, seed: int, share: float = SUBSAMPLE_SHARE) -> Se
     """A random ``share`` of the wand's frames and of the points' frames (each a track)."""
     rng = np.random.default_rng(seed)
     out = session
-    for name in ("wand", "points"):
-        obs = getattr(session, name)
-        if obs is None or not len(obs):
-            continue
+    for name, obs in observations_of(session):
         frames = np.unique(obs.frame)
         kept = np.isin(obs.frame, frames[rng.random(len(frames)) < share])
         changed = PointObservations(obs.frame[kept], obs.camera[kept], obs.uv[kept],

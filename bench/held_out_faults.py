@@ -32,8 +32,15 @@ from dataclasses import replace
 import numpy as np
 
 from bench import real_faults as rf
-from bench.fault_injectors import _replace_rows, noisy, subsample, with_focal
-from wandcal.calib.rig import PointObservations, WandObservations
+from bench.fault_injectors import (
+    _replace_rows,
+    noisy,
+    observations_of,
+    rebuilt,
+    subsample,
+    timed_observations,
+    with_focal,
+)
 
 K2_WHERE_NONE = 0.1  # "k2 off" where rig.json gives none: 9 px at the easyWand sample's corners
 TANGENTIAL = 0.002  # p1 = p2 added: 2-5 px at the image's edge, as OpenCV finds on decentred lenses
@@ -125,10 +132,7 @@ def slow_clock(session: rf.Session, c: int, drift: float = DRIFT_FRAMES) -> rf.S
     """Camera c's clock runs slow: its wand (and a moving point's) samples drift from in time at its
     first frame to ``drift`` frames late at its last (:func:`_drifted_rows`)."""
     out = session
-    timed = [("wand", session.wand)] if len(session.wand) else []
-    if session.moving_points and session.points is not None:
-        timed.append(("points", session.points))
-    for name, obs in timed:
+    for name, obs in timed_observations(session):
         mine = obs.camera == c
         f, uv = _drifted_rows(obs.frame[mine], obs.uv[mine], drift)
         out = replace(out, **{name: _replace_rows(obs, c, f, uv)})
@@ -139,37 +143,23 @@ def dropped_block(session: rf.Session, c: int, share: float = DROPPED_SHARE) -> 
     """Camera c's samples (wand, and moving points) in the middle ``share`` of its frames left out:
     a stretch its recording lost. Static background points (digitised once) are kept."""
     out = session
-    timed = [("wand", session.wand)] if len(session.wand) else []
-    if session.moving_points and session.points is not None:
-        timed.append(("points", session.points))
-    for name, obs in timed:
+    for name, obs in timed_observations(session):
         mine = obs.camera == c
         frames = np.unique(obs.frame[mine])
         lo = frames[int(len(frames) * (1 - share) / 2)]
         hi = frames[min(int(len(frames) * (1 + share) / 2), len(frames) - 1)]
         gone = mine & (obs.frame >= lo) & (obs.frame <= hi)
-        kept = ~gone
-        if name == "points":
-            changed = PointObservations(obs.frame[kept], obs.camera[kept], obs.uv[kept],
-                                           point=None if obs.point is None else obs.point[kept])
-        else:
-            changed = WandObservations(obs.frame[kept], obs.camera[kept], obs.uv[kept])
-        out = replace(out, **{name: changed})
+        out = replace(out, **{name: rebuilt(obs, ~gone)})
     return out
 
 
 def swapped(session: rf.Session, a: int, b: int) -> rf.Session:
     """Cameras a's and b's observations (wand and points) swapped: their columns mislabelled."""
     out = session
-    for name in ("wand", "points"):
-        obs = getattr(session, name)
-        if obs is None or not len(obs):
-            continue
+    for name, obs in observations_of(session):
         camera = obs.camera.copy()
         camera[obs.camera == a], camera[obs.camera == b] = b, a
-        changed = PointObservations(obs.frame, camera, obs.uv, point=obs.point) if name == "points" else \
-            WandObservations(obs.frame, camera, obs.uv)
-        out = replace(out, **{name: changed})
+        out = replace(out, **{name: rebuilt(obs, camera=camera)})
     return out
 
 
