@@ -269,13 +269,16 @@ def leave_one_out_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled:
     lens = best.lens
     assert lens is not None  # best was found, by its lens here (_lens_found > _knock_found >= 0)
     radial = abs(lens.k1_error) / 4 > abs(lens.focal_error)
+    stretched = abs(lens.aspect_error) >= MESSAGE_ASPECT and abs(lens.aspect_error) > max(abs(lens.focal_error),
+                                                                                         abs(lens.k1_error) / 4)
+    shape = "stretched along y" if stretched else "radial" if radial else "scaled"
     aspect = f", fy {100 * lens.aspect_error:+.1f}% beyond that" if abs(lens.aspect_error) >= MESSAGE_ASPECT else ""
+    check = "fy (its aspect ratio) and focal length" if stretched else "focal length and distortion"
     return [{"kind": "intrinsics", "camera": cam, "evidence": {
         "intrinsics": {"focal_error": round(lens.focal_error, 5), "k1_error": round(lens.k1_error, 5),
                        "aspect_error": round(lens.aspect_error, 5),
                        "explained_share": round(lens.explained, 3), "f_stat": round(lens.f_stat, 1)}},
         "message": f"{cam}'s intrinsics do not fit its images against the points the other cameras see: its residuals "
-                   f"are {'radial' if radial else 'scaled'} about the image centre (focal length "
+                   f"are {shape} about the image centre (focal length "
                    f"{100 * lens.focal_error:+.1f}% in rig.json against the data, k1 {lens.k1_error:+.3f}"
-                   f"{aspect}); check its "
-                   "focal length and distortion, or run with --refine-intrinsics focal,k1"}]
+                   f"{aspect}); check its {check}, or run with --refine-intrinsics focal,k1"}]
