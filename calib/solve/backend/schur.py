@@ -37,7 +37,7 @@ MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagon
 # routines (potrf, potri: n^3 flops) rather than NumPy's Cholesky test and LU inverse (3 n^3), whose
 # import of scipy.linalg (0.2 CPU s) it then pays for: one BLAS thread, CPU s a solve, 768 wide
 # (128 cameras) 0.052 against 0.024 (4-10 solves a calibration: about the import), 1536 wide (256
-# cameras) 0.43 against 0.18 (docs/decisions/0057g-wide-inverse.md). Narrower systems (every rig
+# cameras) 0.43 against 0.18 (docs/decisions/0059-wide-inverse.md). Narrower systems (every rig
 # up to 170 cameras, the acceptance rig's 48) keep NumPy's routines and their digits
 LAPACK_INVERSE_WIDTH = 1024
 
