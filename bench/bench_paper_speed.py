@@ -8,7 +8,7 @@ alike; decisions 0033, 0045). Reports rounds, jumps, CPU seconds (medians over t
 machine is shared, so wall seconds are listed but say little), CPU and interior-point iterations a
 round, each answer's largest camera-centre distance from the first row's of its seed, and from the fixed
 point on the LP basis it ends on, where that basis holds (decision 0052), and its cameras' error against
-the simulator's truth after the best rigid alignment (as bench_acceptance.py's "aligned"; decision 0057f).
+the simulator's truth after the best rigid alignment (as bench_acceptance.py's "aligned"; decision 0060).
 
 Usage: python bench/bench_paper_speed.py [--caps 10,0] [--before REV] [--repeats 1] [--seeds 11] [--no-write]
 """

@@ -43,7 +43,7 @@ from wandcal.calib.solve.wandmodel import WandModel, WandProblem
 
 BOUND_M = 10.0  # the paper's box on every translation and point coordinate
 HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
-MAX_ROUNDS = 300  # a round takes ~0.19 s of CPU at 8 x 1500 (decisions 0033, 0045, 0057f)
+MAX_ROUNDS = 300  # a round takes ~0.19 s of CPU at 8 x 1500 (decisions 0033, 0045, 0060)
 # Convergence. The rounds approach their fixed point linearly and slowly (each moves the cameras
 # ~2% of the way at 8 x 1500), so one round's move says little about the distance left, and the
 # LP's jumps between vertices make single moves noisy. The distance left is estimated from the
@@ -53,9 +53,9 @@ ROUND_TOL = 5e-6  # the least stop tolerance, metres: below it a window's move i
 # error (apart from the rig's placement, at the start) of the fixed point. At 8 x 1500 that sigma is
 # 200-240 um, and where the rounds stop on their creep already moves by ~75 um with the LP's
 # tolerance; the 5 um stop (ROUND_TOL alone) took 2-5x the rounds for a change in the cameras' errors
-# against the truth of 0.00-0.03 mm (decision 0057f, measured there with these values)
+# against the truth of 0.00-0.03 mm (decision 0060, measured there with these values)
 STOP_SIGMA = 0.1
-WINDOW = 5  # rounds per window (10 before decision 0057f: jumps half as often)
+WINDOW = 5  # rounds per window (10 before decision 0060: jumps half as often)
 JUMP_CAP = 10.0  # the longest jump along the tail, in windows' moves (0: no jumps, the paper's plain rounds)
 LP_TOL = 1e-6  # each round's LP to this relative residual and gap (arrowlp.TOL, 1e-9, takes ~14 iterations, not 10)
 DEGENERATE_M = 1e-6  # a wand shorter than this after an LP means the LP collapsed it

@@ -158,7 +158,7 @@ def solve(lp: ArrowLp, warm: WarmStart | None = None, deadline: float | None = N
     """The LP's optimum: the vertex of ``warm``'s basis if it is still optimal, else the
     interior-point method's answer (from ``warm``'s iterate), as the vertex of the basis it names
     where that is certified. ``tol``: the relative residuals and gap the interior point stops at
-    (``TOL``; ``--method paper`` passes a looser one, decision 0057f)."""
+    (``TOL``; ``--method paper`` passes a looser one, decision 0060)."""
     start = time.perf_counter()
     if warm is not None and warm.basis is not None:
         v = vertex(lp, warm.basis)

@@ -159,7 +159,7 @@ def test_paper_method_runs_to_a_fixed_point():
 
 def test_paper_stops_within_a_fraction_of_sigma_of_the_plain_rounds_fixed_point(monkeypatch):
     """The default rounds (jumps along the tail, each LP to LP_TOL) stop where they estimate the
-    cameras within STOP_SIGMA of their smallest standard error from the fixed point (decision 0057f).
+    cameras within STOP_SIGMA of their smallest standard error from the fixed point (decision 0060).
     The estimate is a geometric tail's, not a bound, and on a rig this small it falls short:
     measured, the stop lands 1.02 sigma (994 um) from the fixed point the exact plain rounds lock in
     at, found and certified on its LP basis (decision 0052), after 32 rounds (the 5 um stop before:
