@@ -12,7 +12,7 @@ markers are matched again with the camera among the held ones (:func:`confirmed_
 held cameras see and it confirms are added, placed by the held cameras alone (on Brown's sessions,
 20-30 markers become 45-85).
 
-Its sigma (decision 0057b) is the fit's own, each residual weighted by its covariance in blobs'
+Its sigma (decision 0061) is the fit's own, each residual weighted by its covariance in blobs'
 variances, ``I + Jx A^-1 Jx^T`` (its blob and the error of the point the held cameras triangulate,
 A their information on it), plus the pose's wander: the spread, beyond their own fits, of the same
 re-solve over spans of as many frames before the move, where the camera stood at its standing pose
@@ -44,7 +44,7 @@ SETTLE_FRAMES = 5 * WINDOW_FRAMES  # the re-solve waits this long after a knock 
 MIN_HELD = 3  # cameras that did not move: a marker is matched in two and confirmed in a third
 # A knock turns a camera about its mount far more than it moves its centre: the centre is held to the
 # standing one within this (1-sigma, each direction), and the turn fitted from few markers is not traded
-# for a move (bench_watch_real: 0.3-0.7 deg off on clean real takes with the centre free, decision 0057b)
+# for a move (bench_watch_real: 0.3-0.7 deg off on clean real takes with the centre free, decision 0061)
 CENTRE_PRIOR_MM = 2.0
 WANDER_BLOCKS = 2  # re-solves before the move, each over as many frames as the one after it, that measure its wander
 
