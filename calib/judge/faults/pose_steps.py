@@ -167,17 +167,44 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
     nb = base_cols.shape[1]
     k2 = np.repeat(keep, 2)
     coef, cov = _coef(np.concatenate([base_cols, step * mask], axis=1)[k2], yv[k2], dof)
-    inflation = _inflation((yv - np.concatenate([base_cols, step * mask], axis=1) @ _coef_full(base_cols, step * mask, yv, k2))
-                           .reshape(-1, 2), mine & timed & keep, time, v.point[rows])
+    e = (yv - np.concatenate([base_cols, step * mask], axis=1) @ _coef_full(base_cols, step * mask, yv, k2)).reshape(-1, 2)
+    inflation = _inflation(e, mine & timed & keep, time, v.point[rows])
+    dof_f = dof
+    if DISPERSION == "timed" and (keep & ~timed).any():
+        s2t, dof_t = _timed_dispersion(np.concatenate([base_cols, step * mask], axis=1), e, keep, timed, el.rho[rows])
+        ratio = s2t / max(rss1 / dof, 1e-300)
+        f /= ratio
+        cov = cov * ratio
+        dof_f = min(dof, dof_t)
     f /= inflation[0]
     cov = cov * inflation[0]
-    p = min(1.0, len(candidates) * _fdtrc(3, min(dof, inflation[1]), f))
+    p = min(1.0, len(candidates) * _fdtrc(3, min(dof_f, inflation[1]), f))
     deg, deg_std = np.degrees(np.linalg.norm(coef[nb:])), np.degrees(np.sqrt(np.trace(cov[nb:, nb:]) / 3))
     coef, cov = _coef(np.concatenate([base_cols, step * mask, shift.reshape(n_rows, 3) * mask], axis=1)[k2], yv[k2],
                       dof - 3)
     mm, mm_std = 1000 * np.linalg.norm(coef[nb + 3:]), 1000 * np.sqrt(np.trace(cov[nb + 3:, nb + 3:]) / 3)
     return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
                 float(1 - rss1 / rss0) if rss0 > 0 else 0.0)
+
+
+DISPERSION = "timed"
+
+
+def _timed_dispersion(A: np.ndarray, e: np.ndarray, keep: np.ndarray, timed: np.ndarray, rho: np.ndarray) -> tuple[float, float]:
+    """The residual variance of the timed views alone and its degrees of freedom: (s2, dof). A (2K, n)
+    the step model's columns, e (K, 2) its residuals, keep and timed (K,); rho (K,) each view's
+    redundancy with its point fitted. The dof: the timed views' redundancy less the columns'
+    leverage on their rows (each row's diag of A (A^T A)^-1 A^T over the kept rows)."""
+    k2 = np.repeat(keep, 2)
+    scale = np.linalg.norm(A[k2], axis=0)
+    scale[scale == 0] = 1.0
+    As = A / scale
+    Ginv = np.linalg.pinv(As[k2].T @ As[k2])
+    t = keep & timed
+    t2 = np.repeat(t, 2)
+    lev = float(np.einsum("ri,ij,rj->", As[t2], Ginv, As[t2]))
+    dof_t = max(float(rho[t].sum()) - lev, 1.0)
+    return float(np.sum(e[t] ** 2)) / dof_t, dof_t
 
 
 def _best_split(base: np.ndarray, step: np.ndarray, y: np.ndarray, time: np.ndarray, timed: np.ndarray,
