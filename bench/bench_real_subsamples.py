@@ -40,6 +40,12 @@ SESSIONS = ("brown1", "brown2", "ushichka", "svoboda")
 SHARES = (0.4, 0.6, 0.8)
 SEEDS = 20
 FIRST_SEED = 100  # the suite's own subsamples are seeds 0-2 (bench/real_faults.py); decision 0049 read 100-115
+# the table's last row at 2921c1b, before the step test measured a step against the timed views' own scatter (0057d)
+BEFORE = ("Before decision 0057d (at 2921c1b, the same command, 16:47 UTC, load 8.4): 240 runs, 15 poor, 3 refused, "
+          "8 naming a fault, **3 naming `moved`** (Brown 1 80% seed 110 cam1, p 6.3e-5; Brown 2 40% seed 101 cam2, "
+          "p 3.9e-5; Brown 2 60% seed 107 cam4, p 7.8e-5: each a turn fitted to three or four wand frames, tested "
+          "against the background points' scatter); the knock cases as now but Brown 1 cam3 at p 1.7e-29 and "
+          "Ushichka cam3 at 1.9e-5.")
 
 
 @dataclass
@@ -208,7 +214,7 @@ def main() -> int:
             f"{', '.join(s.name for s in sessions)} as published, each subsampled at random (seeds {seeds.start}-{seeds.stop - 1}; "
             "bench/real_faults.subsample: that share of the wand's frames and of the point tracks' frames) and calibrated "
             "with `ba`; the clean sessions are all good and name no fault, so every fault named here is false.\n\n"
-            + table + "\n\nThe runs called poor or naming a fault:\n\n```\n"
+            + table + "\n\n" + BEFORE + "\n\nThe runs called poor or naming a fault:\n\n```\n"
             + ("\n".join(run_line(r) for r in named) or "none") + "\n```")
     if knocks:
         body += "\n\nThe pose-step tests (`--knocks`: the real-faults suite's knock cases):\n\n" + step_summary(subs, knocks)
