@@ -7,10 +7,11 @@ are split at frame k, and its turn after k (three columns: a rotation about its 
 fitted beside its pose (six columns) and its lens (four), all with the points projected out; views
 without a time (background points from another recording) have a turn of their own. An F test of one pose
 against two at the best k (:func:`pose_step`), outliers trimmed under the two-pose model, the F
-divided by the residuals' long-run variance in time (batch means), its p-value multiplied by the
-number of splits tried (Bonferroni, the search's multiple testing). A camera is named only when
-leaving it out leaves no other camera stepping (:func:`moved_camera`): else its step is another
-camera's spread through the points. docs/verdict.md gives the limits, docs/decisions/0035 how they
+measured against the timed views' own scatter (:func:`_timed_dispersion`) and divided by the
+residuals' long-run variance in time (batch means), its p-value multiplied by the number of splits
+tried (Bonferroni, the search's multiple testing). A camera is named only when leaving it out
+leaves no other camera stepping (:func:`moved_camera`): else its step is another camera's spread
+through the points. docs/verdict.md gives the limits, docs/decisions/0035 and 0057d how they
 were measured.
 """
 
@@ -167,17 +168,45 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
     nb = base_cols.shape[1]
     k2 = np.repeat(keep, 2)
     coef, cov = _coef(np.concatenate([base_cols, step * mask], axis=1)[k2], yv[k2], dof)
-    inflation = _inflation((yv - np.concatenate([base_cols, step * mask], axis=1) @ _coef_full(base_cols, step * mask, yv, k2))
-                           .reshape(-1, 2), mine & timed & keep, time, v.point[rows])
-    f /= inflation[0]
-    cov = cov * inflation[0]
-    p = min(1.0, len(candidates) * _fdtrc(3, min(dof, inflation[1]), f))
+    e = (yv - np.concatenate([base_cols, step * mask], axis=1) @ _coef_full(base_cols, step * mask, yv, k2)).reshape(-1, 2)
+    inflation = _inflation(e, mine & timed & keep, time, v.point[rows])
+    ratio, dof_f = 1.0, dof
+    if (keep & ~timed).any():  # the step is measured against the timed views' own scatter
+        s2t, dof_f = _timed_dispersion(np.concatenate([base_cols, step * mask], axis=1), e, keep, timed, el.rho[rows])
+        ratio = s2t / max(rss1 / dof, 1e-300)
+    f /= ratio * inflation[0]
+    cov = cov * (ratio * inflation[0])
+    p = min(1.0, len(candidates) * _fdtrc(3, min(dof, dof_f, inflation[1]), f))
     deg, deg_std = np.degrees(np.linalg.norm(coef[nb:])), np.degrees(np.sqrt(np.trace(cov[nb:, nb:]) / 3))
     coef, cov = _coef(np.concatenate([base_cols, step * mask, shift.reshape(n_rows, 3) * mask], axis=1)[k2], yv[k2],
                       dof - 3)
     mm, mm_std = 1000 * np.linalg.norm(coef[nb + 3:]), 1000 * np.sqrt(np.trace(cov[nb + 3:, nb + 3:]) / 3)
     return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
                 float(1 - rss1 / rss0) if rss0 > 0 else 0.0)
+
+
+def _timed_dispersion(A: np.ndarray, e: np.ndarray, keep: np.ndarray, timed: np.ndarray, rho: np.ndarray) -> tuple[float, float]:
+    """The residual variance of the kept timed views alone, and its degrees of freedom: (s2, dof).
+    A (2K, n) the step model's columns (whitened, points projected out), e (K, 2) its residuals on
+    every view, keep and timed (K,) bool, rho (K,) each view's redundancy with its point fitted.
+    dof: the timed views' redundancy less the columns' leverage on their rows (the diagonal of
+    A (A^T A)^-1 A^T over the kept rows, summed over the timed ones).
+
+    Why: a step's columns live on the timed views only, so its F is their scatter's to judge. Where
+    a camera has a few wand frames beside hundreds of background points (Brown's hand-digitised
+    sessions: 12-18 timed views against 130-370 untimed), the pooled variance is the background's
+    and its degrees of freedom are the background's too: a turn fitted to three or four wand frames
+    was tested at F(3, 500-1000) (decision 0057d)."""
+    k2 = np.repeat(keep, 2)
+    scale = np.linalg.norm(A[k2], axis=0)
+    scale[scale == 0] = 1.0
+    As = A / scale
+    Ginv = np.linalg.pinv(As[k2].T @ As[k2])
+    t = keep & timed
+    t2 = np.repeat(t, 2)
+    lev = float(np.einsum("ri,ij,rj->", As[t2], Ginv, As[t2]))
+    dof_t = max(float(rho[t].sum()) - lev, 1.0)
+    return float(np.sum(e[t] ** 2)) / dof_t, dof_t
 
 
 def _best_split(base: np.ndarray, step: np.ndarray, y: np.ndarray, time: np.ndarray, timed: np.ndarray,
@@ -324,7 +353,7 @@ def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated
     large rig :func:`step_suspects`, and only those of them that step are tested again without
     the one named)."""
     steps = _steps(R, t, views, trimmed, cameras)
-    found = sorted((s.p_value, c, s) for c, s in enumerate(steps) if s is not None and s.p_value < STEP_ALPHA)
+    found = sorted((s.p_value, c, s) for c, s in enumerate(steps) if s is not None and _found(s))
     for _, c, step in found:
         again = None if cameras is None else [k for k in cameras if k != c and _found(steps[k])]
         if again == []:

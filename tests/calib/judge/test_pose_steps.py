@@ -1,0 +1,82 @@
+"""The moved camera's step test (calib/judge/faults/pose_steps.py): its dispersion from the timed
+views, and a clean real subsample that named a moved camera before (decision 0057d); the bench's
+table (bench/bench_real_subsamples.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench import bench_real_subsamples as brs
+from bench import real_faults as rf
+from wandcal.calib.judge.faults import pose_steps
+from wandcal.calib.judge.faults.pose_steps import Step, _timed_dispersion
+
+
+def _columns(rng: np.random.Generator, k: int, n: int) -> np.ndarray:
+    return rng.normal(size=(2 * k, n))
+
+
+def test_the_timed_views_dispersion_is_theirs_not_the_backgrounds():
+    """Timed views at 3x the noise of untimed ones: the variance is the timed views' (9), with
+    their redundancy less the columns' leverage on them as its degrees of freedom."""
+    rng = np.random.default_rng(1)
+    k_timed, k_untimed, n = 400, 4000, 6
+    A = _columns(rng, k_timed + k_untimed, n)
+    timed = np.r_[np.ones(k_timed, bool), np.zeros(k_untimed, bool)]
+    sigma = np.where(timed, 3.0, 1.0)
+    y = A @ rng.normal(size=n) + np.repeat(sigma, 2) * rng.normal(size=2 * len(timed))
+    coef = np.linalg.lstsq(A, y, rcond=None)[0]
+    e = (y - A @ coef).reshape(-1, 2)
+    rho = np.full(len(timed), 2.0)  # no points fitted here: two coordinates a view
+    s2, dof = _timed_dispersion(A, e, np.ones(len(timed), bool), timed, rho)
+    # 800 squares of variance 9: the estimate's relative standard error is sqrt(2/800) = 5%
+    assert abs(s2 / 9 - 1) < 4 * np.sqrt(2 / dof)
+    assert 2 * k_timed - n < dof < 2 * k_timed
+    # every view timed: the redundancy less all the columns, the pooled residual's own dof
+    s2_all, dof_all = _timed_dispersion(A, e, np.ones(len(timed), bool), np.ones(len(timed), bool), rho)
+    assert dof_all == pytest.approx(2 * len(timed) - n)
+    assert s2_all == pytest.approx(float(np.sum(e**2)) / (2 * len(timed) - n))
+
+
+@pytest.fixture(scope="module")
+def brown2():
+    if not rf.available():
+        pytest.skip(f"third-party data not found at {rf.SHARED_DATA}")
+    return rf.LOADERS["brown2"]()
+
+
+@pytest.fixture(scope="module")
+def brown1(brown2):
+    return rf.LOADERS["brown1"]()
+
+
+@pytest.mark.parametrize("share, seed", [(0.6, 107), (0.8, 110)])
+def test_a_clean_subsample_names_no_moved_camera(brown2, brown1, share, seed):
+    """Issue 31: these subsamples of Brown 2 and Brown 1 called cam4 (cam1) moved: a turn fitted to
+    three or four hand-digitised wand frames, tested against the background points' scatter
+    (p 7.8e-5 and 6.3e-5)."""
+    session = brown2 if seed == 107 else brown1
+    doc = rf.calibrated(rf.subsample(session, seed, share)).to_json()
+    assert [f for f in doc["verdict"]["faults"] if f["kind"] == "moved"] == []
+
+
+def test_the_bench_counts_each_share_and_every_fault_named():
+    runs = [brs.Run("S", "40% seed 1", None, "poor", [("moved", "cam1")]),
+            brs.Run("S", "40% seed 2", None, "good", []),
+            brs.Run("S", "60% seed 1", None, "refused", [("refused", "no two cameras")])]
+    table = brs.subsample_table(runs, [0.4, 0.6]).splitlines()
+    assert table[2] == "| S | 40% | 2 | 1 | 0 | 1 | 1 | moved cam1 (1) |"
+    assert table[3] == "| S | 60% | 1 | 0 | 1 | 0 | 0 | refused (1) |"
+    assert table[-1] == "| **all** | | **3** | **1** | **1** | **1** | **1** | |"
+
+
+def test_the_step_recorder_keeps_each_cameras_first_test_and_restores_the_function():
+    own = pose_steps.pose_step
+    with brs.StepRecorder() as rec:
+        assert pose_steps.pose_step is not own
+        a, b = Step(1, 0, 0, 0, 0, 1, 0.5, 0.1), Step(2, 0, 0, 0, 0, 1, 0.4, 0.1)
+        rec.calls = [(1, a), (0, b), (1, b)]
+        assert rec.take() == [(0, b), (1, a)]
+        assert rec.take() == []
+    assert pose_steps.pose_step is own
