@@ -13,7 +13,7 @@ Beside each run it records every camera's pose-step test as the judgement ran it
 the share of the residual the step explains, the turn over its standard error), and with
 ``--knocks`` the same on the real-faults suite's knock cases (:data:`bench.real_faults` family
 ``knock``: the camera knocked by 0.47 or 0.82 degree after the middle of its frames), so that a
-criterion for "moved" can be judged against both (decision 0057d).
+criterion for "moved" can be judged against both (decision 0062).
 
 Usage: python bench/bench_real_subsamples.py [--sessions brown1,brown2,ushichka,svoboda]
        [--shares 0.4,0.6,0.8] [--seeds 20] [--first-seed 100] [--knocks] [--steps] [--no-write]
@@ -40,8 +40,8 @@ SESSIONS = ("brown1", "brown2", "ushichka", "svoboda")
 SHARES = (0.4, 0.6, 0.8)
 SEEDS = 20
 FIRST_SEED = 100  # the suite's own subsamples are seeds 0-2 (bench/real_faults.py); decision 0049 read 100-115
-# the table's last row at 2921c1b, before the step test measured a step against the timed views' own scatter (0057d)
-BEFORE = ("Before decision 0057d (at 2921c1b, the same command, 16:47 UTC, load 8.4): 240 runs, 15 poor, 3 refused, "
+# the table's last row at 2921c1b, before the step test measured a step against the timed views' own scatter (0062)
+BEFORE = ("Before decision 0062 (at 2921c1b, the same command, 16:47 UTC, load 8.4): 240 runs, 15 poor, 3 refused, "
           "8 naming a fault, **3 naming `moved`** (Brown 1 80% seed 110 cam1, p 6.3e-5; Brown 2 40% seed 101 cam2, "
           "p 3.9e-5; Brown 2 60% seed 107 cam4, p 7.8e-5: each a turn fitted to three or four wand frames, tested "
           "against the background points' scatter); the knock cases as now but Brown 1 cam3 at p 1.7e-29 and "

@@ -11,7 +11,7 @@ measured against the timed views' own scatter (:func:`_timed_dispersion`) and di
 residuals' long-run variance in time (batch means), its p-value multiplied by the number of splits
 tried (Bonferroni, the search's multiple testing). A camera is named only when leaving it out
 leaves no other camera stepping (:func:`moved_camera`): else its step is another camera's spread
-through the points. docs/verdict.md gives the limits, docs/decisions/0035 and 0057d how they
+through the points. docs/verdict.md gives the limits, docs/decisions/0035 and 0062 how they
 were measured.
 """
 
@@ -196,7 +196,7 @@ def _timed_dispersion(A: np.ndarray, e: np.ndarray, keep: np.ndarray, timed: np.
     a camera has a few wand frames beside hundreds of background points (Brown's hand-digitised
     sessions: 12-18 timed views against 130-370 untimed), the pooled variance is the background's
     and its degrees of freedom are the background's too: a turn fitted to three or four wand frames
-    was tested at F(3, 500-1000) (decision 0057d)."""
+    was tested at F(3, 500-1000) (decision 0062)."""
     k2 = np.repeat(keep, 2)
     scale = np.linalg.norm(A[k2], axis=0)
     scale[scale == 0] = 1.0

@@ -1,5 +1,5 @@
 """The moved camera's step test (calib/judge/faults/pose_steps.py): its dispersion from the timed
-views, and a clean real subsample that named a moved camera before (decision 0057d); the bench's
+views, and a clean real subsample that named a moved camera before (decision 0062); the bench's
 table (bench/bench_real_subsamples.py)."""
 
 from __future__ import annotations
