@@ -94,9 +94,27 @@ def _leave_one_out(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks
     X = refine_points(R, t, p, cam, xy_obs, tracks.X[ok])  # from the point all cameras gave: close, so no DLT
     fi, xy, found = _nearest_blob(R[c], t[c], focal[c], padded, c, f_ok, X)
     p, cam = p[found[p]], cam[found[p]]  # the points c's blob was found for
-    Jv = point_jacobian(R[cam], t[cam], focal[cam], X[p])
-    info = sum_by(p, np.einsum("kai,kaj->kij", Jv, Jv), len(X))  # the others' information on each point, px^-2 m^2
-    return fi[found], X[found], xy[found], info[found]
+    X = X[found]
+    info = _information(R, t, focal, (np.cumsum(found) - 1)[p], cam, X)
+    return fi[found], X, xy[found], info
+
+
+def _information(R, t, focal: np.ndarray, p: np.ndarray, cam: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(P, 3, 3) ``sum J_v^T J_v`` over the views (point p (M,), camera cam (M,)) of points X (P, 3),
+    J_v (2, 3) the projection's derivative in the point, pixels a metre (:func:`point_jacobian`, by its
+    components: the six distinct entries summed a view at a time, as the triangulation's own)."""
+    table = np.concatenate([R.reshape(-1, 9), t, focal[:, None]], axis=1).T  # (13, C): R[3 i + j], t[i], focal
+    r, Xp = np.take(table, cam, axis=1), np.take(X.T, p, axis=1)
+    xc = [r[3 * i] * Xp[0] + r[3 * i + 1] * Xp[1] + r[3 * i + 2] * Xp[2] + r[9 + i] for i in range(3)]
+    fz = r[12] / xc[2]
+    u, v = xc[0] / xc[2], xc[1] / xc[2]
+    ax = [(r[j] - u * r[6 + j]) * fz for j in range(3)]  # d(f x/z)/dX
+    ay = [(r[3 + j] - v * r[6 + j]) * fz for j in range(3)]
+    info = np.empty((len(X), 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            info[:, i, j] = info[:, j, i] = np.bincount(p, ax[i] * ax[j] + ay[i] * ay[j], minlength=len(X))
+    return info
 
 
 def _nearest_blob(Rc, tc, focal: float, padded: PaddedFrames, c: int, f_idx, X):
