@@ -306,10 +306,9 @@ def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest]
             return windows
         excluded.add(named)
         windows = None
-        for c, (pose, found) in enumerate(zip(*tests)):
-            if c != named:
-                pose.rewind(marks[c])
-                found.rewind(marks[c])
+        for c, (pose, found) in enumerate(zip(*tests)):  # the named one too: it keeps its alarm, and the batch's
+            pose.rewind(marks[c])                          # windows come again (once, not twice: classify reads them)
+            found.rewind(marks[c])
 
 
 def _add_windows(windows: CameraWindows, blobs: np.ndarray, tests: tuple[list[CameraTest], list[FoundTest]],
