@@ -28,6 +28,10 @@ not: neighbouring starts share data, so fewer). bench/bench_watch.py counts them
 Drift or knock: after an alarm the change's windows are fitted by a ramp from s to e and constant
 after it, ``d_w = a clip((w - s) / (e - s), 0, 1)`` over a grid of s and e (e = s is a step); a
 best fit longer than :data:`KNOCK_FRAMES` whose step fits worse by :data:`DRIFT_MARGIN` is a drift.
+s runs from :data:`GLR_WINDOWS` before the GLR's k to the alarm's window: a knock late in a window
+shows little there (its moved residuals fall outside that window's fit), the GLR's k may be that
+window, and a step held to start there lost to a ramp over it (a real camera turned 1 deg named as
+drifting; decision 0057a).
 """
 
 from __future__ import annotations
@@ -221,12 +225,15 @@ def classify(test: CameraTest, alarm: Alarm) -> tuple[str, int, int, np.ndarray]
     g = np.array(test.g[BASELINE_WINDOWS:])
     H = np.array(test.H[BASELINE_WINDOWS:])
     k_alarm = test.start.index(alarm.frame) - BASELINE_WINDOWS
+    # the window the alarm was raised in: a move starts no later, but may start after the GLR's k (a
+    # window the move began in late shows it little: its moved residuals fall outside the window's fit)
+    k_det = int(np.flatnonzero(np.array(test.start[BASELINE_WINDOWS:]) <= alarm.detected_frame)[-1])
     w = np.arange(n_w - BASELINE_WINDOWS, dtype=float)
     gd = g - np.einsum("wij,j->wi", H, p0)  # normal equations of the change since the baseline
     durations = np.unique(np.r_[0, np.round(np.geomspace(1, max(2 * len(w), 2), 16))]).astype(int)
     best: tuple[float, int, int, np.ndarray] = (-np.inf, 0, 0, np.zeros(PARAMS))
     best_step: float = -np.inf
-    for s in range(max(0, k_alarm - GLR_WINDOWS), k_alarm + 1):
+    for s in range(max(0, k_alarm - GLR_WINDOWS), max(k_alarm, k_det) + 1):
         for dur in durations:
             rho = np.clip((w - s + 1) / max(dur, 1), 0, 1) if dur else (w >= s).astype(float)
             A = np.einsum("w,wij->ij", rho ** 2, H)
