@@ -43,26 +43,29 @@ def main() -> int:
         first = next(iter(pythons.values()))
         subprocess.run([first, "-m", "wandcal.service.cli", "simulate", "sim", "--cameras", "8", "--frames", "1500"],
                        cwd=work, check=True, stdout=subprocess.DEVNULL)
+        cli = ["-m", "wandcal.service.cli"]
         cases = {
-            "wandcal --version": ["--version"],
-            "wandcal --help": ["--help"],
-            "wandcal calibrate --help": ["calibrate", "--help"],
-            "wandcal calibrate (8 x 1500, ba, whole command)": ["calibrate", "sim", "--quiet", "--out", "r.json"],
+            "python -c pass (the interpreter alone)": ["-c", "pass"],
+            "wandcal --version": [*cli, "--version"],
+            "wandcal --help": [*cli, "--help"],
+            "wandcal calibrate --help": [*cli, "calibrate", "--help"],
+            "wandcal calibrate (8 x 1500, ba, whole command)": [*cli, "calibrate", "sim", "--quiet", "--out", "r.json"],
         }
         times = {case: {name: [] for name in pythons} for case in cases}
         for _ in range(args.runs):
             for case, cmd in cases.items():
                 for name, exe in pythons.items():
-                    times[case][name].append(_time([exe, "-m", "wandcal.service.cli", *cmd], work))
+                    times[case][name].append(_time([exe, *cmd], work))
     load = os.getloadavg()[0]
     names = list(pythons)
     print(f"runs={args.runs}, medians in seconds; load average {load:.1f} at the end")
-    print("| command | " + " | ".join(names) + " | " + " | ".join(f"{n} / {names[0]}" for n in names[1:]) + " |")
-    print("|---" * (2 * len(names)) + "|")
+    header = ["command", *names, *(f"{n} / {names[0]}" for n in names[1:])]
+    print("| " + " | ".join(header) + " |")
+    print("|---" * len(header) + "|")
     for case, by_name in times.items():
         med = {n: statistics.median(ts) for n, ts in by_name.items()}
-        print(f"| {case} | " + " | ".join(f"{med[n]:.3f}" for n in names) + " | "
-              + " | ".join(f"{med[n] / med[names[0]]:.2f}x" for n in names[1:]) + " |")
+        cells = [case, *(f"{med[n]:.3f}" for n in names), *(f"{med[n] / med[names[0]]:.2f}x" for n in names[1:])]
+        print("| " + " | ".join(cells) + " |")
     if args.json:
         args.json.write_text(json.dumps({"pythons": pythons, "load": load, "times": times}, indent=1))
     return 0

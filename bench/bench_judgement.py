@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import write_section
+from bench.common import judge_timed, write_section
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.faults import CASES, EXPECTED, broken_capture
 
@@ -51,31 +51,18 @@ def judged(case: str, seed: int, cameras: int) -> dict:
 
 
 def judging_share(repeats: int, cameras: int = 16, frames: int = 2500) -> tuple[float, float, float]:
-    """(median calibrate seconds, median seconds inside the judgement, median share) over
+    """(median calibrate CPU seconds, median CPU seconds inside the judgement, median share) over
     ``repeats`` in-process runs of the whole `calibrate` on a clean simulated rig (the Peers bench's
     16 x 2500), the judgement timed from inside the same runs."""
-    from wandcal.calib.run import calibrate as pipeline
     from wandcal.calib.sim.simulate import simulate_capture
-
-    inside = []
-    judge = pipeline.judge
-
-    def timed(*args, **kwargs):
-        start = time.perf_counter()
-        out = judge(*args, **kwargs)
-        inside.append(time.perf_counter() - start)
-        return out
 
     sim = simulate_capture(cameras, frames, 0.3, 0.0, True, 1)
     totals = []
-    pipeline.judge = timed
-    try:
+    with judge_timed() as (pipeline, inside):
         for _ in range(repeats):
-            start = time.perf_counter()
+            start = time.process_time()
             pipeline.calibrate(sim.rig, sim.wand, sim.static)
-            totals.append(time.perf_counter() - start)
-    finally:
-        pipeline.judge = judge
+            totals.append(time.process_time() - start)
     shares = np.array(inside) / np.array(totals)
     return float(np.median(totals)), float(np.median(inside)), float(np.median(shares))
 
@@ -154,7 +141,7 @@ def main() -> int:
                f"{totals['clear']}; the fault named correctly (kind and camera, and no other) in {totals['named']} of "
                f"{totals['broken']} broken simulated cases ({100 * totals['named'] / max(totals['broken'], 1):.0f}%).")
     total, inside, share = judging_share(args.speed_repeats)
-    speed = (f"Judging's cost: `calibrate` of a clean 16 x 2500 rig took {total:.2f} s (median of {args.speed_repeats}), "
+    speed = (f"Judging's cost: `calibrate` of a clean 16 x 2500 rig took {total:.2f} CPU s (median of {args.speed_repeats}), "
              f"{inside:.3f} s of it in the judgement: {100 * share:.1f}% (goal: at most 10%). A broken rig costs more: "
              "each suspect camera is solved again without it (the seconds column above).")
     text = "\n".join(lines) + "\n\n" + summary + "\n\n" + speed

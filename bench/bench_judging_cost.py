@@ -36,7 +36,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from bench.bench_against_base import namespace  # noqa: E402
-from bench.common import publish  # noqa: E402
+from bench.common import judge_timed, publish  # noqa: E402
 
 GOAL_SHARE = 0.10  # issue 31: judging adds at most this to calibrate
 SHARE = "share"
@@ -46,42 +46,20 @@ REAL_CASES = tuple((session, family, label) for session in ("brown1", "brown2")
                    for family, label in (("knock", "knocked"), ("focal", "focal +8%"), ("timing whole", "late 1")))
 
 
-def _timed_judge():
-    """(the run layer's module, a list the judge's CPU seconds are appended to): calibrate's judge
-    wrapped in place (restore with ``module.judge = original``)."""
-    from wandcal.calib.run import calibrate as pipeline
-
-    inside: list[float] = []
-    judge = pipeline.judge
-
-    def timed(*args, **kwargs):
-        start = time.process_time()
-        try:
-            return judge(*args, **kwargs)
-        finally:
-            inside.append(time.process_time() - start)
-
-    pipeline.judge = timed
-    return pipeline, judge, inside
-
-
 def clean_share(repeats: int) -> dict:
     """This process's tree on the clean 16 x 2500 rig: medians of ``repeats`` runs of calibrate CPU
     seconds, the judgement's and their ratio."""
     from wandcal.calib.sim.simulate import simulate_capture
 
     sim = simulate_capture(16, 2500, 0.3, 0.0, True, 1)
-    pipeline, judge, inside = _timed_judge()
     totals = []
-    try:
+    with judge_timed() as (pipeline, inside):
         pipeline.calibrate(sim.rig, sim.wand, sim.static)  # the judgement's modules imported, not timed
         inside.clear()
         for _ in range(repeats):
             start = time.process_time()
             pipeline.calibrate(sim.rig, sim.wand, sim.static)
             totals.append(time.process_time() - start)
-    finally:
-        pipeline.judge = judge
     return {"calibrate": float(np.median(totals)), "judge": float(np.median(inside)),
             "share": float(np.median(np.array(inside) / np.array(totals)))}
 
@@ -93,8 +71,7 @@ def real_broken(repeats: int) -> dict:
 
     out = {}
     sessions = {key: found[0] for key in sorted({key for key, _, _ in REAL_CASES}) if (found := rf.load_sessions([key]))}
-    pipeline, judge, inside = _timed_judge()
-    try:
+    with judge_timed() as (_, inside):
         for name, family, label in REAL_CASES:
             session = sessions.get(name)
             if session is None:
@@ -112,8 +89,6 @@ def real_broken(repeats: int) -> dict:
                 named = sorted(f"{f['kind']} {f['camera']}" for f in doc["verdict"]["faults"])
             out[f"{session.name}|{case.label}"] = {"cameras": len(session.rig.cameras), "calibrate": float(np.median(totals[1:])),
                                            "judge": float(np.median(judged[1:])), "named": named}
-    finally:
-        pipeline.judge = judge
     return out
 
 

@@ -36,6 +36,30 @@ def timed(fn, *args, **kwargs):
     return out, time.perf_counter() - start
 
 
+@contextlib.contextmanager
+def judge_timed(clock=time.process_time):
+    """``with judge_timed() as (pipeline, inside):`` the run layer's module (``pipeline.calibrate``)
+    with its judgement wrapped in place: each call's ``clock`` seconds (CPU by default: the machine
+    is shared) are appended to the list ``inside``. The judgement is restored on leaving."""
+    from wandcal.calib.run import calibrate as pipeline
+
+    inside: list[float] = []
+    judge = pipeline.judge
+
+    def timed(*args, **kwargs):
+        start = clock()
+        try:
+            return judge(*args, **kwargs)
+        finally:
+            inside.append(clock() - start)
+
+    pipeline.judge = timed
+    try:
+        yield pipeline, inside
+    finally:
+        pipeline.judge = judge
+
+
 def peak_rss_mb() -> float:
     """This process's peak resident set since it started or since :func:`reset_peak_rss`, MB (Linux)."""
     for line in Path("/proc/self/status").read_text().splitlines():

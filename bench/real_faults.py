@@ -26,35 +26,54 @@ the camera moved by no more than :data:`ABSORBED_SIGMAS` of its reported geometr
 faults are injected only where a camera's samples are consecutive frames (not on Ushichka,
 digitised every tenth frame or more: a one-frame shift cannot be made from its samples).
 
-Used by ``bench/bench_real_faults.py`` (the table in docs/benchmarks.md) and
-``tests/calib/judge/test_real_faults.py``.
+The injectors are bench/fault_injectors.py, the counting and the table bench/fault_scores.py (their
+names importable from here too). Used by ``bench/bench_real_faults.py`` (the table in
+docs/benchmarks.md) and ``tests/calib/judge/test_real_faults.py``.
 """
 
 from __future__ import annotations
 
 import time
 import zlib
-from collections import defaultdict
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from bench.common import aligned_centres_mm
+from bench.fault_injectors import (
+    K1_WHERE_NONE,
+    NOISE_FACTOR,
+    PRINCIPAL_SHIFT,
+    SUBSAMPLE_SHARE,
+    knocked,
+    late,
+    noisy,
+    subsample,
+    wand_off,
+    with_focal,
+    with_principal,
+    without_k1,
+)
+from bench.fault_scores import ABSORBED_SIGMAS, OUTCOMES, case_line, confusion_table, covered, sigma_coverage
 from bench.real_sessions import BROWN, BROWN_MAT, SHARED_DATA, SVOBODA, USHICHKA, USHICHKA_HEIGHT
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.geometry import distort_points, rotvec_to_matrix, undistort_points
 from wandcal.calib.rig import PointObservations, Rig, WandObservations
 from wandcal.calib.run.calibrate import calibrate
 
+# the suite's face: its own names and those of the modules split from it (bench/fault_injectors.py,
+# bench/fault_scores.py), importable from here as before the split
+__all__ = [
+    "ABSORBED_SIGMAS", "CAMERA_FAMILIES", "EXPECTED", "FAMILIES", "K1_WHERE_NONE", "LEVEL_ORDER", "LOADERS",
+    "NOISE_FACTOR", "OUTCOMES", "PRINCIPAL_SHIFT", "SHARED_DATA", "SUBSAMPLE_SHARE", "UNDETERMINABLE", "Case",
+    "Clean", "Outcome", "Session", "available", "calibrated", "case_line", "cases", "clean_run", "confusion_table",
+    "covered", "inject", "knocked", "late", "load_sessions", "noisy", "run_case", "run_suite", "sigma_coverage",
+    "subsample", "wand_off", "with_focal", "with_principal", "without_k1",
+]
+
 CPP_SAMPLE = "easywand_cpp_sample_3cam"
 CPP_WAND_M = 1.0  # the sample gives no wand length: its scale is arbitrary, a metre is as good as any
-PRINCIPAL_SHIFT = 0.02  # of the image's width: 51 px on Brown's 2560 px, 13 px on Ushichka's 640
-K1_WHERE_NONE = -0.15  # "k1 off" on a lens rig.json gives none: a moderate barrel distortion
 KNOCK_DEG = (0.3, 1.0)  # a knock's angle, drawn per case
-NOISE_FACTOR = 3.0  # the camera's noise in all, against its own
-SUBSAMPLE_SHARE = 0.6
 SUBSAMPLES = 3  # random subsamples per session
-ABSORBED_SIGMAS = 3.0  # a principal point the rotation absorbs moves the camera within this many sigma
 CONSECUTIVE_SHARE = 0.8  # a camera's samples are a track in time when this share of its gaps is one frame
 
 
@@ -170,168 +189,6 @@ def load_sessions(names: list[str] | None = None) -> list[Session]:
     return out
 
 
-# -- injectors: each returns the session with one fault in its inputs -------------------------
-
-def _with_camera(session: Session, c: int, **changes) -> Session:
-    cams = list(session.rig.cameras)
-    cams[c] = replace(cams[c], **changes)
-    return replace(session, rig=replace(session.rig, cameras=tuple(cams)))
-
-
-def with_focal(session: Session, c: int, factor: float) -> Session:
-    """rig.json gives camera c ``factor`` times its focal length (the images unchanged)."""
-    K = session.rig.cameras[c].K.copy()
-    K[0, 0] *= factor
-    K[1, 1] *= factor
-    return _with_camera(session, c, K=K)
-
-
-def without_k1(session: Session, c: int) -> Session:
-    """rig.json leaves camera c's k1 out (0), or gives it :data:`K1_WHERE_NONE` where it had none."""
-    dist = np.array(session.rig.cameras[c].dist, float)
-    dist[0] = 0.0 if abs(dist[0]) > 1e-9 else K1_WHERE_NONE
-    return _with_camera(session, c, dist=dist)
-
-
-def with_principal(session: Session, c: int, share: float = PRINCIPAL_SHIFT) -> Session:
-    """rig.json moves camera c's principal point by ``share`` of its width, right and down."""
-    cam = session.rig.cameras[c]
-    K = cam.K.copy()
-    K[0, 2] += share * cam.width
-    K[1, 2] += share * cam.width
-    return _with_camera(session, c, K=K)
-
-
-def _shift_rows(frame: np.ndarray, uv: np.ndarray, offset: float) -> tuple[np.ndarray, np.ndarray]:
-    """One camera's samples (frame (B,), uv (B, 2); one or two blobs a frame) as a camera
-    ``offset`` frames late would record them (docs/result-format.md's sign: its frame k exposed
-    at the others' k + offset): at frame k the blobs of time k + offset, linear between its own
-    samples at the frames around it (each blob paired with the nearer one of the next frame);
-    frames without both neighbours are left out."""
-    by_frame: dict[int, np.ndarray] = defaultdict(list)
-    for f, p in zip(frame.tolist(), uv):
-        by_frame[f].append(p)
-    frames_out, uv_out = [], []
-    lo_shift = int(np.floor(-offset))
-    w = -offset - lo_shift  # time k + offset lies between frames k - lo_shift - 1 and k - lo_shift
-    for k in sorted(by_frame):
-        a, b = by_frame.get(k - lo_shift - 1), by_frame.get(k - lo_shift)
-        if w == 0:
-            blobs = [np.asarray(p) for p in by_frame.get(k - lo_shift, [])]
-        elif a is None or b is None or len(a) != len(b):
-            continue
-        else:
-            blobs = []
-            for p in b:
-                q = min(a, key=lambda q: float(np.linalg.norm(np.asarray(q) - p)))
-                blobs.append((1 - w) * np.asarray(p) + w * np.asarray(q))  # w of the way back towards frame k-lo-1
-        for p in blobs:
-            frames_out.append(k)
-            uv_out.append(p)
-    return np.array(frames_out, np.int64), np.array(uv_out, float).reshape(-1, 2)
-
-
-def _replace_rows(obs, c: int, frame: np.ndarray, uv: np.ndarray):
-    other = obs.camera != c
-    merged = {"frame": np.concatenate([obs.frame[other], frame]),
-              "camera": np.concatenate([obs.camera[other], np.full(len(frame), c)]),
-              "uv": np.concatenate([obs.uv[other], uv])}
-    if isinstance(obs, PointObservations):
-        return PointObservations(**merged, point=None)
-    return WandObservations(**merged)
-
-
-def late(session: Session, c: int, offset: float) -> Session:
-    """Camera c ``offset`` frames late (negative: early; docs/result-format.md): its wand (and a
-    moving point's) samples at frame k are those of time k + offset (:func:`_shift_rows`). Only frames the shifted camera
-    still has in the original's range are kept."""
-    out = session
-    if len(session.wand):
-        mine = session.wand.camera == c
-        f, uv = _shift_rows(session.wand.frame[mine], session.wand.uv[mine], offset)
-        out = replace(out, wand=_replace_rows(session.wand, c, f, uv))
-    if session.moving_points and session.points is not None:
-        mine = session.points.camera == c
-        f, uv = _shift_rows(session.points.frame[mine], session.points.uv[mine], offset)
-        out = replace(out, points=_replace_rows(session.points, c, f, uv))
-    return out
-
-
-def _rotated(cam, uv: np.ndarray, Rk: np.ndarray) -> np.ndarray:
-    """(B, 2) raw pixels uv of camera ``cam`` after it turned by Rk (camera frame): each ray
-    undistorted, rotated, projected and distorted again."""
-    xy = undistort_points(cam, uv)
-    ray = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ Rk.T
-    return distort_points(cam, ray[:, :2] / ray[:, 2:])
-
-
-def knocked(session: Session, c: int, degrees: float, seed: int) -> Session:
-    """Camera c knocked by ``degrees`` about a random axis after the middle of its wand frames (or
-    of its moving point's): its later samples seen through the turned camera. Static background
-    points (digitised once) keep the pose before."""
-    rng = np.random.default_rng(seed)
-    axis = rng.normal(size=3)
-    Rk = rotvec_to_matrix(np.radians(degrees) * axis / np.linalg.norm(axis))
-    cam = session.rig.cameras[c]
-    out = session
-    timed = [("wand", session.wand)] if len(session.wand) else []
-    if session.moving_points and session.points is not None:
-        timed.append(("points", session.points))
-    at = None
-    for name, obs in timed:
-        mine = obs.camera == c
-        if at is None:
-            at = float(np.median(obs.frame[mine]))
-        after = mine & (obs.frame > at)
-        uv = obs.uv.copy()
-        uv[after] = _rotated(cam, obs.uv[after], Rk)
-        moved = PointObservations(obs.frame, obs.camera, uv, point=obs.point) if name == "points" else \
-            WandObservations(obs.frame, obs.camera, uv)
-        out = replace(out, **{name: moved})
-    return out
-
-
-def noisy(session: Session, c: int, noise_px: float, seed: int, factor: float = NOISE_FACTOR) -> Session:
-    """Camera c's observations (wand and points) with Gaussian noise added per axis so that its
-    noise in all is ``factor`` times its own ``noise_px``."""
-    rng = np.random.default_rng(seed)
-    extra = noise_px * np.sqrt(factor**2 - 1)
-    out = session
-    for name in ("wand", "points"):
-        obs = getattr(session, name)
-        if obs is None or not len(obs):
-            continue
-        uv = obs.uv.copy()
-        mine = obs.camera == c
-        uv[mine] += rng.normal(0, extra, (int(mine.sum()), 2))
-        changed = PointObservations(obs.frame, obs.camera, uv, point=obs.point) if name == "points" else \
-            WandObservations(obs.frame, obs.camera, uv)
-        out = replace(out, **{name: changed})
-    return out
-
-
-def wand_off(session: Session, factor: float) -> Session:
-    """rig.json gives the wand ``factor`` times its length."""
-    return replace(session, rig=replace(session.rig, wand_length=session.rig.wand_length * factor))
-
-
-def subsample(session: Session, seed: int, share: float = SUBSAMPLE_SHARE) -> Session:
-    """A random ``share`` of the wand's frames and of the points' frames (each a track)."""
-    rng = np.random.default_rng(seed)
-    out = session
-    for name in ("wand", "points"):
-        obs = getattr(session, name)
-        if obs is None or not len(obs):
-            continue
-        frames = np.unique(obs.frame)
-        kept = np.isin(obs.frame, frames[rng.random(len(frames)) < share])
-        changed = PointObservations(obs.frame[kept], obs.camera[kept], obs.uv[kept],
-                                    point=None if obs.point is None else obs.point[kept]) if name == "points" else \
-            WandObservations(obs.frame[kept], obs.camera[kept], obs.uv[kept])
-        out = replace(out, **{name: changed})
-    return out
-
-
 # -- the cases -------------------------------------------------------------------------------
 
 CAMERA_FAMILIES = ("focal", "k1", "principal", "timing whole", "timing fraction", "knock", "noise")
@@ -427,17 +284,18 @@ def clean_run(session: Session) -> Clean:
 
 
 LEVEL_ORDER = ("excellent", "good", "poor")
+# the families whose camera may be right without a fault named: a principal point (or a decentred
+# lens, bench/held_out_faults.py) its rotation takes up, within ABSORBED_SIGMAS of its sigma; a
+# focal length named as what limits the camera's position, within 3 honest sigma of it
+ABSORBABLE = frozenset({"principal", "principal y", "tangential"})
+LIMITABLE = frozenset({"focal", "focal subsample", "fy"})
 
 
-def covered(o: Outcome, sigmas: float = ABSORBED_SIGMAS) -> bool:
-    """The target camera's displacement is within ``sigmas`` of its honest sigma (the geometry
-    sigma with its focal length's, wandcal.calib.judge.intrinsic_limits)."""
-    return o.displacement_mm is not None and o.honest_sigma_mm is not None and o.displacement_mm <= sigmas * o.honest_sigma_mm
 
-
-def run_case(session: Session, clean: Clean, case: Case) -> Outcome:
-    """Calibrate the session with ``case``'s fault and score the verdict."""
-    broken = inject(session, case, clean.noise_px)
+def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outcome:
+    """Calibrate the session with ``case``'s fault and score the verdict; injector(session, case,
+    noise_px) puts the fault in (:func:`inject` by default; bench/held_out_faults.py has its own)."""
+    broken = (injector or inject)(session, case, clean.noise_px)
     start = time.perf_counter()
     try:
         result = calibrated(broken)
@@ -472,11 +330,11 @@ def run_case(session: Session, clean: Clean, case: Case) -> Outcome:
     hit = (case.expected, target) in named
     others = cams_named - {target}
     out.right = hit and not others
-    if case.family == "principal" and not out.right and not cams_named and out.level != "poor" \
+    if case.family in ABSORBABLE and not out.right and not cams_named and out.level != "poor" \
             and out.displacement_mm is not None and out.sigma_mm \
             and out.displacement_mm <= ABSORBED_SIGMAS * out.sigma_mm:
         out.right = out.absorbed = True
-    if case.family == "focal" and not out.right and not others and out.limited and covered(out):
+    if case.family in LIMITABLE and not out.right and not others and out.limited and covered(out):
         out.right = out.limited_right = True
     if out.right:
         out.outcome = "limited" if out.limited_right else "absorbed" if out.absorbed else "right"
@@ -490,78 +348,20 @@ def run_case(session: Session, clean: Clean, case: Case) -> Outcome:
 
 
 def run_suite(sessions: list[Session], families: tuple[str, ...] = FAMILIES, progress=None,
-              on_clean=None) -> list[Outcome]:
+              on_clean=None, cases_of=None, injector=None) -> list[Outcome]:
     """Every case of every session in ``families``; progress(outcome) after each, on_clean(session,
-    clean) after each session's clean run."""
+    clean) after each session's clean run. cases_of(session) and injector (:func:`run_case`): the
+    cases and how their faults are made (:func:`cases` and :func:`inject` by default)."""
     outcomes = []
     for session in sessions:
         clean = clean_run(session)
         if on_clean is not None:
             on_clean(session, clean)
-        for case in cases(session):
+        for case in (cases_of or cases)(session):
             if case.family not in families:
                 continue
-            out = run_case(session, clean, case)
+            out = run_case(session, clean, case, injector)
             outcomes.append(out)
             if progress is not None:
                 progress(out)
     return outcomes
-
-
-OUTCOMES = ("right", "absorbed", "limited", "missed", "wrong kind", "wrong camera", "called poor", "refused")
-
-
-def confusion_table(outcomes: list[Outcome]) -> str:
-    """The confusion table by fault family (markdown): runs, right, and what the wrong ones were;
-    the target camera's median displacement over its reported sigma."""
-    lines = ["| fault | runs | right | " + " | ".join(OUTCOMES[1:]) + " | displacement / sigma (median) | note |",
-             "|---|---|---|" + "---|" * (len(OUTCOMES) - 1) + "---|---|"]
-    total = right = 0
-    scored_total = scored_right = 0
-    for family in FAMILIES:
-        rows = [o for o in outcomes if o.case.family == family]
-        if not rows:
-            continue
-        counts = {k: sum(o.outcome == k for o in rows) for k in OUTCOMES}
-        ok = sum(o.right for o in rows)
-        ratio = [o.displacement_mm / o.sigma_mm for o in rows if o.displacement_mm is not None and o.sigma_mm]
-        median = f"{np.median(ratio):.1f}" if ratio else "-"
-        lines.append(f"| {family} | {len(rows)} | {ok} ({100 * ok / len(rows):.0f}%) | "
-                     + " | ".join(str(counts[k]) for k in OUTCOMES[1:]) + f" | {median} | {UNDETERMINABLE.get(family, '')} |")
-        total += len(rows)
-        right += ok
-        if family not in UNDETERMINABLE:
-            scored_total += len(rows)
-            scored_right += ok
-    lines.append(f"| **all** | {total} | {right} ({100 * right / max(total, 1):.0f}%) |" + " |" * (len(OUTCOMES) + 1))
-    lines.append(f"| **all determinable** | {scored_total} | {scored_right} ({100 * scored_right / max(scored_total, 1):.0f}%)"
-                 " | " + " |" * (len(OUTCOMES)))
-    return "\n".join(lines)
-
-
-def case_line(o: Outcome) -> str:
-    """One case as a line of text: session, label, outcome, verdict, faults, displacement and sigma."""
-    honest = f", honest {o.honest_sigma_mm:.2f}" if o.honest_sigma_mm is not None else ""
-    limited = " limit named" if o.limited else ""
-    disp = f" moved {o.displacement_mm:.1f} mm (sigma {o.sigma_mm:.2f}{honest}){limited}" if o.displacement_mm is not None and o.sigma_mm else ""
-    off = f" offset {o.offset_frames:+.2f}" if o.offset_frames is not None else ""
-    return f"{o.case.session:20s} {o.case.label:32s} {o.outcome:12s} {o.level:9s} {o.named}{disp}{off}"
-
-
-def sigma_coverage(outcomes: list[Outcome], max_error: float = 0.03) -> str:
-    """The honest sigma's coverage on the focal cases at most ``max_error`` off: the share of
-    target cameras whose displacement is within 1, 2 and 3 of their honest sigma (and of their
-    geometry sigma alone), and the share covered within 3 sigma or with the limiting focal length named."""
-    rows = [o for o in outcomes if o.case.family == "focal" and abs(o.case.size - 1) <= max_error + 1e-9
-            and o.displacement_mm is not None and o.honest_sigma_mm is not None]
-    if not rows:
-        return "no focal cases with an honest sigma"
-
-    def share(test) -> str:
-        n = sum(bool(test(o)) for o in rows)
-        return f"{n}/{len(rows)} ({100 * n / len(rows):.0f}%)"
-
-    parts = [f"within {k} sigma: honest {share(lambda o, k=k: covered(o, k))}, geometry alone "
-             f"{share(lambda o, k=k: o.sigma_mm and o.displacement_mm <= k * o.sigma_mm)}" for k in (1, 2, 3)]
-    return (f"Focal length within {100 * max_error:.0f}%, {len(rows)} target cameras: " + "; ".join(parts)
-            + f"; within 3 honest sigma or the focal length named as its limit: {share(lambda o: covered(o) or o.limited)}")

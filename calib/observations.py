@@ -134,6 +134,15 @@ class PointTracks:
         return PointTracks(new, camera[ok], self.xy[keep][ok], self.uv[keep][ok], self.frames[used], self.dropped,
                            labels)
 
+    def joined(self, other: PointTracks) -> PointTracks:
+        """These tracks and ``other``'s after them (its tracks numbered on from these); labels kept
+        where both have them, ``dropped`` these tracks'."""
+        labels = None if self.labels is None or other.labels is None else np.concatenate([self.labels, other.labels])
+        return PointTracks(np.concatenate([self.track, other.track + self.n_tracks]),
+                           np.concatenate([self.camera, other.camera]), np.concatenate([self.xy, other.xy]),
+                           np.concatenate([self.uv, other.uv]), np.concatenate([self.frames, other.frames]),
+                           self.dropped, labels)
+
 
 def point_tracks(rig: Rig, points: PointObservations) -> PointTracks:
     """Undistort point observations and keep the 3D points at least two cameras saw.

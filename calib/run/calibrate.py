@@ -362,13 +362,15 @@ def _refine(rig: Rig, obs: Observations, start: Start, sync: SyncState | None, o
     if options.reject_outliers:
         r = reject_outliers(r, method, options, tell, columns=columns)
     sync_doc = _sync_report(rig, r, sync, options, warnings)
-    marker_pairs = None
+    marker_pairs, every_track = None, obs.tracks
     if obs.blobs is not None:  # under sync every marker resampled to the reference instants, as the ends
         blobs = sync.blobs if sync is not None and sync.blobs is not None else obs.blobs
-        r, marker_pairs = _with_markers(rig, blobs, r, options, tell, warnings)
+        r, marker_pairs, interior = _with_markers(rig, blobs, r, options, tell, warnings)
+        # the interior markers are judged as points seen by the cameras that see them (issue 31)
+        every_track = interior if every_track is None else every_track.joined(interior)
     dropped = dict(obs.pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
     dropped |= {"outliers": r.outliers} | ({"point_outliers": r.point_outliers} if tracks is not None else {})
-    return Solved(r=r, every_track=obs.tracks, marker_pairs=marker_pairs, sync=sync_doc, dropped=dropped)
+    return Solved(r=r, every_track=every_track, marker_pairs=marker_pairs, sync=sync_doc, dropped=dropped)
 
 
 def _first_solve(rig: Rig, obs: Observations, start: Start, options: CalibrationOptions, tell: Progress,
@@ -492,12 +494,13 @@ def _marker_blobs(rig: Rig, wand: WandObservations) -> MarkerBlobs | None:
 
 
 def _with_markers(rig: Rig, blobs: MarkerBlobs, r: Refined, options: CalibrationOptions, tell: Progress,
-                  warnings: list[str]) -> tuple[Refined, list[dict]]:
+                  warnings: list[str]) -> tuple[Refined, list[dict], PointTracks]:
     """Label every marker at the refined poses and, with ``ba`` or ``lp``, refine again with the
-    interior markers' known positions in the wand model; the refinement and each marker pair's
-    lengths (wandcal.calib.solve.markerwand)."""
+    interior markers' known positions in the wand model; the refinement, each marker pair's
+    lengths (wandcal.calib.solve.markerwand) and the interior markers as point tracks
+    (wandcal.calib.start.markerlabels.interior_tracks, outliers included, for the judgement)."""
     from wandcal.calib.solve.markerwand import marker_model, marker_pair_lengths
-    from wandcal.calib.start.markerlabels import label_interior
+    from wandcal.calib.start.markerlabels import interior_tracks, label_interior
 
     method, markers = options.method, rig.wand_markers
     assert markers is not None  # blobs: a wand of three markers or more
@@ -524,7 +527,7 @@ def _with_markers(rig: Rig, blobs: MarkerBlobs, r: Refined, options: Calibration
     kept[pair_index] = True
     kept[rows[err[len(r.setup.problem.camera):] > limit]] = False
     return r, marker_pair_lengths(r.R, r.t, r.labelled.frame[kept], r.labelled.camera[kept], labels.xy[kept],
-                                  labels.marker[kept], markers)
+                                  labels.marker[kept], markers), interior_tracks(labels, r.labelled)
 
 
 def _refined_with_markers(r: Refined, model, options: CalibrationOptions, tell: Progress) -> tuple[Refined, np.ndarray]:

@@ -3,7 +3,8 @@ tested on (tests/calib/judge/, bench/bench_judgement.py).
 
 Each function takes a :class:`~wandcal.calib.sim.simulate.SimulatedCapture` and returns one with
 the named fault: a camera's intrinsics in rig.json off, a camera out of time, the wand length
-disagreeing with the static object, reflections or extra noise in one camera.
+disagreeing with the static object, reflections or extra noise in one camera, a camera knocked
+partway through.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from wandcal.calib.geometry import distort_points, project_normalized
+from wandcal.calib.geometry import distort_points, project_normalized, rotvec_to_matrix, undistort_points
 from wandcal.calib.rig import Camera, Rig, WandObservations
 from wandcal.calib.sim.simulate import SimulatedCapture
 
@@ -97,6 +98,22 @@ def noisy_camera(sim: SimulatedCapture, c: int, extra_px: float, seed: int) -> S
     mine = sim.wand.camera == c
     uv[mine] += rng.normal(0, extra_px, (int(mine.sum()), 2))
     return replace(sim, wand=WandObservations(sim.wand.frame, sim.wand.camera, uv))
+
+
+def knocked_camera(sim: SimulatedCapture, c: int, degrees: float, seed: int) -> SimulatedCapture:
+    """Camera c turned by ``degrees`` about a random axis through its centre (drawn from ``seed``)
+    after the middle of its wand frames: its later blobs are seen through the turned camera (each
+    undistorted, its ray rotated, projected and distorted again), every marker of any wand."""
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    Rk = rotvec_to_matrix(np.radians(degrees) * axis / np.linalg.norm(axis))
+    cam, obs = sim.rig.cameras[c], sim.wand
+    mine = obs.camera == c
+    after = mine & (obs.frame > np.median(obs.frame[mine]))
+    ray = np.concatenate([undistort_points(cam, obs.uv[after]), np.ones((int(after.sum()), 1))], axis=1) @ Rk.T
+    uv = obs.uv.copy()
+    uv[after] = distort_points(cam, ray[:, :2] / ray[:, 2:])
+    return replace(sim, wand=WandObservations(obs.frame, obs.camera, uv))
 
 
 def _replace_camera(wand: WandObservations, c: int, frame: np.ndarray, uv: np.ndarray) -> WandObservations:

@@ -31,7 +31,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import undistort_by_camera
-from wandcal.calib.observations import WandPairs, wand_pairs
+from wandcal.calib.observations import PointTracks, WandPairs, wand_pairs
 from wandcal.calib.rig import Rig, WandObservations
 from wandcal.calib.start.planarlabels import label_planar
 from wandcal.calib.triangulate import triangulate_points
@@ -192,6 +192,31 @@ def label_interior(rig: Rig, blobs: MarkerBlobs, labelled: WandPairs, R: np.ndar
     marker = np.where(rev[:, None], by_axis[::-1][None], by_axis[None])
     along = np.where(rev[:, None], along_b[None], along_a[None])
     return MarkerLabels(marker, xy, uv, along, reversed_)
+
+
+def interior_tracks(labels: MarkerLabels, labelled: WandPairs) -> PointTracks:
+    """A multi-marker wand's interior markers as point tracks: each (frame, marker) a 3D point seen
+    by the cameras whose row shows it, so that the judgement reads them as it reads any point
+    (calib/run/judgement.py, issue 31); the ends stay ``labelled``'s.
+
+    Args:
+        labels: :func:`label_interior`'s names of every blob, rows as ``labelled``'s (K >= 3 columns,
+            end 0 first, end 1 last).
+        labelled: the wand ends told apart: frame (P,) into ``frames`` (capture frame numbers), camera (P,).
+
+    Returns tracks whose ``frames`` are capture frame numbers and ``labels`` "wand marker m" (m the
+    layout index); points seen by one camera only are left out.
+    """
+    k = labels.marker.shape[1]
+    marker = labels.marker[:, 1:-1]
+    key = (labelled.frame[:, None] * k + marker).ravel()
+    camera = np.repeat(labelled.camera, k - 2)
+    order = np.lexsort((camera, key))
+    keys, track = np.unique(key[order], return_inverse=True)
+    names = np.array([f"wand marker {m}" for m in range(k)])
+    tracks = PointTracks(track, camera[order], labels.xy[:, 1:-1].reshape(-1, 2)[order],
+                         labels.uv[:, 1:-1].reshape(-1, 2)[order], labelled.frames[keys // k], labels=names[keys % k])
+    return tracks.subset(np.ones(len(track), bool))
 
 
 def _label_planar_at(rig: Rig, blobs: MarkerBlobs, R: np.ndarray, t: np.ndarray,

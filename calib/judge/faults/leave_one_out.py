@@ -9,7 +9,8 @@ more other views), with its pose refitted to them (:func:`wandcal.calib.judge.fa
 what remains is c's own. Two patterns of what remains name a fault:
 
 - **the lens** (:func:`wandcal.calib.judge.faults.screen._lens_fit`): a focal length, k1 or principal
-  point that the pose cannot take up;
+  point that the pose cannot take up, and fy alone (the aspect ratio) where that is significant
+  (decision 0058);
 - **a knock**: the camera turned by a rotation ``w`` after frame k, ``r ~ J_rot w`` on its
   observations after k and 0 before, with ``J_rot`` its projection's derivative in its own rotation:
   least squares of the residual on those three columns beside the pose's six, at every candidate
@@ -41,6 +42,12 @@ MIN_VIEWS = 20  # observations of c with two other views before c is judged
 # off or k1 left out gave F = 48-460 at 28-90%
 LENS_F = 40.0
 LENS_SHARE = 0.25
+# the lens pattern fits fy alone too: an aspect ratio off (fy 3% off on one camera of four) is
+# half a focal error and half a stretch along y that the camera's pose cannot take up; fitted
+# without it, the stretch spread through the points showed more strongly in another camera (F 97
+# there against 23 on the camera at fault, MultiCamSelfCal), which was named instead
+LENS_ASPECT = True
+MESSAGE_ASPECT = 0.005  # an aspect error the message names: half a per cent of fy
 # a knock: F of the three step columns at the best split, and their share: clean sessions stay
 # under F = 15 (the split's choice among STEP_SPLITS is a search, so the limit is well above 25)
 KNOCK_F = 40.0
@@ -160,7 +167,7 @@ def camera_patterns(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: P
         return CameraPatterns(c, int(keep.sum()), None, None)
     pose = _pose_columns(Rc, tc, held.X[keep])
     y = r[keep].ravel()
-    return CameraPatterns(c, int(keep.sum()), _lens_fit(y, pose, held.xy[keep]),
+    return CameraPatterns(c, int(keep.sum()), _lens_fit(y, pose, held.xy[keep], aspect=LENS_ASPECT),
                           _knock(y, pose, _turn_columns(Rc, tc, held.X[keep]), held.frame[keep], held.timed[keep]))
 
 
@@ -180,7 +187,8 @@ def _corrected(xy: np.ndarray, lens: Lens) -> np.ndarray:
     error ``lens`` taken out (``r = projected - observed ~ a x + dk1 |x|^2 x + p``, so the observed
     point moves by that)."""
     radius2 = np.sum(xy**2, axis=-1, keepdims=True)
-    return xy + lens.focal_error * xy + lens.k1_error * radius2 * xy + np.asarray(lens.principal_error)
+    return (xy + lens.focal_error * xy + lens.k1_error * radius2 * xy + np.asarray(lens.principal_error)
+            + lens.aspect_error * xy * [0.0, 1.0])
 
 
 def _with_lens_taken_out(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None, c: int,
@@ -261,10 +269,16 @@ def leave_one_out_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled:
     lens = best.lens
     assert lens is not None  # best was found, by its lens here (_lens_found > _knock_found >= 0)
     radial = abs(lens.k1_error) / 4 > abs(lens.focal_error)
+    stretched = abs(lens.aspect_error) >= MESSAGE_ASPECT and abs(lens.aspect_error) > max(abs(lens.focal_error),
+                                                                                         abs(lens.k1_error) / 4)
+    shape = "stretched along y" if stretched else "radial" if radial else "scaled"
+    aspect = f", fy {100 * lens.aspect_error:+.1f}% beyond that" if abs(lens.aspect_error) >= MESSAGE_ASPECT else ""
+    check = "fy (its aspect ratio) and focal length" if stretched else "focal length and distortion"
     return [{"kind": "intrinsics", "camera": cam, "evidence": {
         "intrinsics": {"focal_error": round(lens.focal_error, 5), "k1_error": round(lens.k1_error, 5),
+                       "aspect_error": round(lens.aspect_error, 5),
                        "explained_share": round(lens.explained, 3), "f_stat": round(lens.f_stat, 1)}},
         "message": f"{cam}'s intrinsics do not fit its images against the points the other cameras see: its residuals "
-                   f"are {'radial' if radial else 'scaled'} about the image centre (focal length "
-                   f"{100 * lens.focal_error:+.1f}% in rig.json against the data, k1 {lens.k1_error:+.3f}); check its "
-                   "focal length and distortion, or run with --refine-intrinsics focal,k1"}]
+                   f"are {shape} about the image centre (focal length "
+                   f"{100 * lens.focal_error:+.1f}% in rig.json against the data, k1 {lens.k1_error:+.3f}"
+                   f"{aspect}); check its {check}, or run with --refine-intrinsics focal,k1"}]

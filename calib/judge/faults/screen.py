@@ -38,6 +38,7 @@ TRIM_SIGMAS = 5.0  # residuals beyond this after a fit are outliers, left out of
 # noise (share ~0.5) doubles the camera's residual, the level at which it stands out of the rig.
 EXPLAINED_SHARE = 0.3
 MIN_T_STAT = 5.0  # and its coefficient is this many standard errors from zero
+ASPECT_F = MIN_T_STAT**2  # an aspect error (fy alone) joins the lens pattern at this F: 5 standard errors
 # A lens error can hide in a camera's pose: a k1 off by 0.17 on a camera whose samples covered a
 # fifth of its image moved it 5.8 mm while its residual's lens pattern held only 10% of the
 # variance (at F = 105, against F < 10 on every clean camera and F < 5 on easyWand's real
@@ -72,13 +73,15 @@ class TimingFault:
 class Lens:
     """focal_error: rig.json's focal length over the one the data suggest, minus one; k1_error,
     principal_error (2,) (normalised units) likewise; explained: the share of the residual
-    variance (beyond the camera's pose) they explain; f_stat: the F statistic of that."""
+    variance (beyond the camera's pose) they explain; f_stat: the F statistic of that;
+    aspect_error: rig.json's fy over the data's beyond the common focal error (0 where not fitted)."""
 
     focal_error: float
     k1_error: float
     principal_error: tuple[float, float]
     explained: float
     f_stat: float
+    aspect_error: float = 0.0
 
 
 def offset_text(offset: float, std: float) -> str:
@@ -268,15 +271,25 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
     return timing, _lens_fit(y, pose, xy[keep])
 
 
-def _lens_fit(y: np.ndarray, pose: np.ndarray, xy: np.ndarray) -> Lens:
+def _lens_fit(y: np.ndarray, pose: np.ndarray, xy: np.ndarray, aspect: bool = False) -> Lens:
     """The lens pattern of residuals y (2K,) beside the pose columns (2K, 6): a focal-length error
-    (r ~ a x), a k1 error (r ~ dk1 |x|^2 x) and a principal-point shift, at observations xy (K, 2)."""
+    (r ~ a x), a k1 error (r ~ dk1 |x|^2 x) and a principal-point shift, at observations xy (K, 2).
+    With ``aspect``, an error of fy alone too (r_y ~ b y: the aspect ratio, which neither the pose
+    nor a focal length common to both axes takes up), where it is significant beyond the other
+    four (its own F at least :data:`ASPECT_F`): a column that explains nothing would only dilute
+    the pattern's F, and a k1 left out would go unnamed."""
     K = len(xy)
     radius2 = np.sum(xy**2, axis=1, keepdims=True)
     columns = np.stack([xy.ravel(), (xy * radius2).ravel(), np.tile([1.0, 0.0], K), np.tile([0.0, 1.0], K)], axis=1)
     share, coef, f_stat = _share(y, pose, columns)
+    aspect_error = 0.0
+    if aspect:
+        stretch = (xy * [0.0, 1.0]).ravel()[:, None]
+        if _share(y, np.concatenate([pose, columns], axis=1), stretch)[2] >= ASPECT_F:
+            share, coef, f_stat = _share(y, pose, np.concatenate([columns, stretch], axis=1))
+            aspect_error = float(coef[4])
     return Lens(focal_error=float(coef[0]), k1_error=float(coef[1]), principal_error=(float(coef[2]), float(coef[3])),
-                explained=float(share), f_stat=f_stat)
+                explained=float(share), f_stat=f_stat, aspect_error=aspect_error)
 
 
 def classify(timing: TimingFault | None, lens: Lens | None) -> tuple[str, dict]:

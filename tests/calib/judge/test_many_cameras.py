@@ -1,4 +1,4 @@
-"""Each camera's own errors on a large rig (wandcal.calib.run.judgement.many_camera_faults): a
+"""Each camera's own errors on a large rig (wandcal.calib.run.rig_faults.many_camera_faults): a
 simulated 16-camera ring whose camera 4 is knocked halfway through the capture and whose camera 10
 is three times as noisy as the others. The moved camera is named moved (not "intrinsics", which
 the suspect screen alone calls its later views), the noisy one noise, and the step's full test

@@ -1,0 +1,358 @@
+"""The cameras at fault, by the rig's size: the paths of the judgement step
+(:mod:`wandcal.calib.run.judgement`) that name a camera.
+
+A rig of few cameras (:data:`wandcal.calib.judge.faults.leave_one_out.MAX_CAMERAS` or fewer) is
+judged by comparison (:func:`few_camera_faults`): a camera out of time from every pair of cameras,
+a lens by comparing each camera with the points the others triangulate, then a camera that moved
+and a camera whose own noise stands out, each with the points eliminated; else the suspect screen.
+A larger rig (:func:`many_camera_faults`) is screened for suspects first (a camera whose residuals
+stand out of the rig's, :func:`suspects`), each suspect judged against the rig solved without it
+(:func:`isolate`), then each camera's own errors at a bounded cost (:func:`own_faults`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.judge.faults.screen import Lens, TimingFault, analyse_camera, classify, lens_screen, offset_text
+from wandcal.calib.judge.quality import OUTLIER_SIGMAS
+from wandcal.calib.judge.residuals import Residuals, held_out
+from wandcal.calib.judge.verdict import NOISE_RATIO, share_std
+from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.rig import Rig
+
+SUSPECT_NOISE_RATIO = 1.5  # a camera this much noisier than the median camera is looked into
+SUSPECT_OUTLIER_SHARE = 0.03  # ... or with this share of its camera-frames gross outliers
+SUSPECT_OUTLIER_FACTOR = 3.0  # ... and that many times the median camera's share
+# a lens pattern in a camera's residuals (no re-solve) that sends it to be isolated: on clean
+# simulated rigs its share stays under 1% (F under 10); a camera whose focal length or k1 is
+# wrong shows 30-70% (F 400-1700) even when its pose absorbed the error and its residual is
+# hardly above the others'; real sessions (easyWand's) reach 15% on a few hundred points, F < 5;
+# a lens error hidden in a poorly covered camera's pose showed 10% at F = 105 (faults.LENS_STRONG_F)
+SCREEN_LENS_SHARE = 0.05
+SCREEN_F_STAT = 100.0
+MAX_SUSPECTS = 2  # the worst cameras looked into; more at fault at once is a rig-wide problem
+# a large rig's points seen by this many cameras or more keep a camera's noise with it in the
+# residuals (3x one camera's noise shows as 2x the others' at four views, 2.8x at sixteen): the
+# suspect screen names it, and the noise with the points eliminated is needed below only
+SPREAD_VIEWS = 4
+MIN_CAMERAS_TO_ISOLATE = 3  # two cameras left cannot say which of them is wrong
+
+
+
+def _median_share(figures: list[dict]) -> float:
+    shares = [f["outlier_share"] for f in figures if f["outlier_share"] is not None]
+    return float(np.median(shares)) if shares else 0.0
+
+
+def _concentrated(figures: list[dict], c: int, sure: bool = False) -> bool:
+    """Camera c holds far more of the gross outliers than the median camera; ``sure``: by more than
+    its share's standard error (binomial, over its observations), as a fault is named
+    (docs/verdict.md, "At the limit")."""
+    share = figures[c]["outlier_share"] or 0.0
+    std = share_std(share, figures[c].get("observations") or 0) if sure else 0.0
+    return share - std > SUSPECT_OUTLIER_SHARE and share - std > SUSPECT_OUTLIER_FACTOR * _median_share(figures)
+
+
+def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list[int]:
+    """Cameras whose residuals stand out of the rig's, or hold a lens pattern (``lens``, from
+    :func:`wandcal.calib.judge.faults.screen.lens_screen`), worst first."""
+    noise = np.array([f["noise_px"] if f["noise_px"] else np.nan for f in figures], float)
+    share = np.array([f["outlier_share"] if f["outlier_share"] is not None else np.nan for f in figures], float)
+    if np.isfinite(noise).sum() < MIN_CAMERAS_TO_ISOLATE:
+        return []
+    ratio = noise / np.nanmedian(noise)
+    patterned = np.zeros(len(figures))
+    for c, found in enumerate(lens or []):
+        if found is not None and found.f_stat >= SCREEN_F_STAT and found.explained >= SCREEN_LENS_SHARE:
+            patterned[c] = found.explained / SCREEN_LENS_SHARE
+    out = [c for c in range(len(figures)) if ratio[c] > SUSPECT_NOISE_RATIO or _concentrated(figures, c) or patterned[c]]
+    return sorted(out, key=lambda c: -max(ratio[c] / SUSPECT_NOISE_RATIO, share[c] / SUSPECT_OUTLIER_SHARE, patterned[c]))
+
+
+def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, out: list[int]):
+    """Every other camera's pose refined without the observations of the cameras ``out`` (theirs
+    as given)."""
+    from wandcal.calib.run.options import CalibrationOptions
+    from wandcal.calib.run.refine import build_problem, refine, up_direction
+
+    others = ~np.isin(labelled.camera, out)
+    keep = np.flatnonzero(~np.isin(np.arange(len(rig.cameras)), out))
+    index = np.full(len(rig.cameras), -1)
+    index[keep] = np.arange(len(keep))
+    sub = labelled.subset(others)
+    sub = WandPairs(sub.frame, index[sub.camera], sub.xy, sub.uv, sub.frames, sub.dropped)
+    sub_rig = replace(rig, cameras=tuple(rig.cameras[k] for k in keep))
+    setup = build_problem(sub_rig, sub, R[keep], t[keep], 0)
+    r = refine(sub_rig, sub, setup, None, None, "ba", CalibrationOptions(), lambda event: None, up_direction(sub_rig, R[keep], t[keep], setup),
+               final=False)
+    R2, t2 = R.copy(), t.copy()
+    R2[keep], t2[keep] = r.R, r.t
+    return R2, t2
+
+
+def isolate(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int,
+            at_fault: list[int] | None = None) -> tuple[TimingFault | None, Lens | None]:
+    """Camera c's timing and lens patterns against the rig solved without it, and without the
+    cameras already found ``at_fault`` (whose error would otherwise show in c's residuals)."""
+    out = [c, *(at_fault or [])]
+    if len(rig.cameras) - len(out) < 2 or rig.wand_length is None:
+        return None, None
+    try:
+        R2, t2 = _others_solved(rig, labelled, R, t, out)
+    except (CalibrationError, np.linalg.LinAlgError):  # the others alone may not solve: judge them as they are
+        R2, t2 = R, t
+    point, xy, X = held_out(R2, t2, labelled.subset(~np.isin(labelled.camera, at_fault or [])), c)
+    return analyse_camera(R2[c], t2[c], labelled.frames, X, point, xy)
+
+
+def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, figures: list[dict],
+                  res: Residuals) -> list[dict]:
+    """The cameras at fault, each ``{"kind", "camera", "message", "evidence"}``."""
+    faults: list[dict] = []
+    noise = np.array([f["noise_px"] or np.nan for f in figures], float)
+    median = float(np.nanmedian(noise)) if np.isfinite(noise).any() else np.nan
+    screened = [lens_screen(R, t, res, c) for c in range(len(rig.cameras))] if len(labelled) else None
+    for c in suspects(figures, screened)[:MAX_SUSPECTS]:
+        cam, fig = rig.cameras[c].id, figures[c]
+        ratio = fig["noise_px"] / median if median > 0 else np.inf
+        at_fault = [rig.index(f["camera"]) for f in faults]
+        timing, lens = isolate(rig, labelled, R, t, c, at_fault) if len(labelled) else (None, None)
+        kind, evidence = classify(timing, lens)
+        evidence |= {"noise_px": round(fig["noise_px"], 4), "rig_noise_px": round(median, 4),
+                     "outlier_share": round(fig["outlier_share"], 4)}
+        if kind == "timing" and timing is not None:
+            d = timing.offset_frames
+            message = (f"{cam} is out of time: its frames show the wand {offset_text(d, timing.offset_std_frames)} "
+                       f"against the other cameras (offset {d:+.2f}: positive is late); check its trigger cable and "
+                       f"settings (or calibrate with its offset, --sync auto)")
+        elif kind == "intrinsics" and lens is not None:
+            message = (f"{cam}'s intrinsics do not fit its images: its residuals are {'scaled' if abs(lens.focal_error) > abs(lens.k1_error) / 4 else 'radial'} about the "
+                       f"image centre (focal length {100 * lens.focal_error:+.1f}% in rig.json against the data, k1 "
+                       f"{lens.k1_error:+.3f}); check its focal length and distortion, or run with "
+                       "--refine-intrinsics focal,k1")
+        elif ratio > NOISE_RATIO[1]:
+            kind = "noise"
+            message = (f"{cam}'s blob centres are {ratio:.1f} times as noisy as the other cameras' "
+                       f"({fig['noise_px']:.2f} px against {median:.2f} px) with no timing or lens pattern: check "
+                       "its focus, exposure and the blob detection settings")
+        elif _concentrated(figures, c, sure=True):
+            kind = "outliers"
+            message = (f"{cam} has {100 * fig['outlier_share']:.1f}% of its camera-frames off by more than "
+                       f"{OUTLIER_SIGMAS:g} times the rig's noise while its other frames fit, against "
+                       f"{100 * _median_share(figures):.1f}% in the median camera: a reflection or a second bright "
+                       f"marker in its view; mask it (wandcal detect --mask) or cover the reflecting surface")
+        else:
+            continue  # no pattern, no concentrated outliers, and within the noise the verdict allows
+        faults.append({"kind": kind, "camera": cam, "message": message, "evidence": evidence})
+    return faults
+
+
+def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                      figures: list[dict], res: Residuals) -> list[dict]:
+    """The cameras at fault: in a rig of few cameras first a camera out of time, from every pair
+    of cameras (:func:`wandcal.calib.judge.faults.timing_pairs.timing_faults`), then a lens by comparing
+    every camera against the points the others triangulate
+    (:func:`wandcal.calib.judge.faults.leave_one_out.leave_one_out_faults`), then a camera that moved, then
+    cameras whose own noise stands out (:func:`own_faults`), else by the suspect screen
+    (:func:`camera_faults`). A larger rig: :func:`many_camera_faults`."""
+    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS, leave_one_out_faults
+    from wandcal.calib.judge.faults.timing_pairs import camera_timings, timing_faults, timing_instead
+
+    if len(rig.cameras) > MAX_CAMERAS:
+        return many_camera_faults(rig, labelled, tracks, R, t, figures, res)
+    noise_px, focal = [f["noise_px"] for f in figures], np.array([c.focal.mean() for c in rig.cameras])
+    timings = camera_timings(R, t, labelled, tracks, focal) if len(rig.cameras) >= 3 else []
+    timing = timing_faults(list(rig.ids), R, t, labelled, tracks, focal, noise_px, timings) if timings else []
+    if timing:
+        return timing + beside_timing(rig, labelled, tracks, R, t, timing[0])
+    lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks)
+    # a lens error bends a tracked marker's path: a step or noise there is its effect. A lens
+    # pattern that needed fy's own column is weaker: a camera out of time spreads a stretch along
+    # the wand's motion through the points, which that column fits in another camera (Brown 2,
+    # cam4 0.5 frame late: F 124 on cam2's aspect); a camera's own errors that its offset explains
+    # name the timing instead (decision 0058)
+    if lens and not lens[0]["evidence"]["intrinsics"].get("aspect_error"):
+        return lens
+    moved, noisy = own_faults(rig, labelled, tracks, R, t)
+    # a camera out of time is noisy in its own residuals too: its offset, where it explains them, names the kind
+    noisy = [timing_instead(list(rig.ids), timings, rig.index(f["camera"]), noise_px[rig.index(f["camera"])]) or f
+             for f in noisy]
+    if lens:
+        return [f for f in noisy if f["kind"] == "timing"][:1] or lens
+    return moved or noisy or _outliers_or_noise(rig, labelled, tracks, R, t, figures, res,
+                                                camera_faults(rig, labelled, R, t, figures, res))
+
+
+def in_time(labelled: WandPairs, n_cameras: int, c: int, offset: float) -> WandPairs:
+    """The wand pairs with camera c's brought to the others' time: its frame f sampled at f -
+    ``offset`` (docs/result-format.md's sign: c ``offset`` frames late), interpolated along its own
+    track (:func:`wandcal.calib.solve.sync.fit.resample`); its rows without the frames around that
+    time are left out."""
+    from wandcal.calib.solve.sync.fit import Timing, resample
+
+    phase = np.zeros(n_cameras)
+    phase[c] = offset
+    z = np.zeros(n_cameras)
+    timing = Timing(phase, z, z, np.zeros((n_cameras, 2, 2)), 0.0, np.zeros(n_cameras, np.int64))
+    return resample(labelled, timing)[0]
+
+
+def _solved_again(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Every camera's pose refined again (``ba``, robust, from R, t) on these wand pairs and the
+    point tracks: a sparse session's background points place its cameras as much as its wand."""
+    from wandcal.calib.run.options import CalibrationOptions
+    from wandcal.calib.run.refine import build_problem, refine, triangulated, up_direction
+
+    setup = build_problem(rig, labelled, R, t, 0)
+    X = None
+    if tracks is not None and len(tracks):
+        tracks, X = triangulated(R, t, tracks)
+    r = refine(rig, labelled, setup, tracks, X, "ba", CalibrationOptions(), lambda event: None,
+               up_direction(rig, R, t, setup), final=False)
+    return r.R, r.t
+
+
+def beside_timing(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                  timing: dict) -> list[dict]:
+    """The faults of the other cameras beside one out of time (``timing``, its fault): its samples
+    brought to the others' time (:func:`in_time`) and the rig solved again with them, then each
+    other camera's lens against the points the others triangulate, a camera that moved, and each
+    camera's own noise, as :func:`few_camera_faults` judges a rig in time. A camera out of time
+    bends the solve, so judged on the solve as it stands every camera would show its error. The
+    timed camera is not named again. Only with a wand (whose samples have a time)."""
+    c = rig.index(timing["camera"])
+    offset = timing["evidence"]["timing"]["offset_frames"]
+    if not len(labelled):
+        return []
+    synced = in_time(labelled, len(rig.cameras), c, offset)
+    if len(synced) < len(labelled) // 2:  # too few of its frames interpolate: the others stay unjudged
+        return []
+    try:
+        R2, t2 = _solved_again(rig, synced, tracks, R, t)
+    except (CalibrationError, np.linalg.LinAlgError):
+        return []
+    from wandcal.calib.judge.faults.leave_one_out import camera_patterns, leave_one_out_faults
+
+    found = leave_one_out_faults(list(rig.ids), R2, t2, synced, tracks, at_fault=(c,))
+    if found and found[0]["kind"] == "intrinsics":
+        # a lens error of its own stays when the timed camera is brought in time (it shows more
+        # clearly, the timing's spread gone); the timing's spread through the points shrinks: a
+        # pattern weaker now than on the solve as it stood is that spread, not a fault
+        before = camera_patterns(R, t, labelled, tracks, rig.index(found[0]["camera"])).lens
+        if before is not None and found[0]["evidence"]["intrinsics"]["f_stat"] < before.f_stat:
+            found = []
+    if not found:
+        moved, noisy = own_faults(rig, synced, tracks, R2, t2)
+        found = moved or noisy
+    return [f for f in found if f["camera"] != timing["camera"]]
+
+
+def _outliers_or_noise(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                       figures: list[dict], res: Residuals, faults: list[dict]) -> list[dict]:
+    """``faults`` with an ``outliers`` fault turned into ``noise`` where the camera's own noise
+    (the points eliminated, :func:`wandcal.calib.judge.faults.own_errors.camera_noise`) is above the
+    others' and its Gaussian tail explains its share of camera-frames beyond the rig's outlier
+    limit (``res.limit_px``) within two of that share's standard errors: in a rig of few cameras a
+    camera three times as noisy puts a fifth of its frames past a limit set by the others' noise,
+    all of them its own noise, not reflections."""
+    from wandcal.calib.judge.faults.own_errors import camera_noise, eliminate, noise_fault, views_of
+
+    if not any(f["kind"] == "outliers" for f in faults):
+        return faults
+    views = views_of(labelled, tracks)
+    if not len(views.point):
+        return faults
+    focal = np.array([c.focal.mean() for c in rig.cameras])
+    noise = camera_noise(eliminate(R, t, views), focal)
+    out = []
+    for fault in faults:
+        c = rig.index(fault["camera"]) if fault["kind"] == "outliers" else -1
+        n = noise[c] if c >= 0 else None
+        if n is not None and n.ratio > 1:
+            end = float(np.exp(-res.limit_px**2 / (2 * n.sigma_px**2)))  # a 2D Gaussian's radius beyond the limit
+            expected = 1 - (1 - end) ** 2  # a camera-frame is an outlier by its worse end
+            share = figures[c]["outlier_share"] or 0.0
+            if share <= expected + 2 * share_std(share, figures[c].get("observations") or 0):
+                noisy = noise_fault(fault["camera"], n)
+                out.append(noisy | {"evidence": fault["evidence"] | noisy["evidence"]
+                                    | {"expected_outlier_share": round(expected, 4)}})
+                continue
+        out.append(fault)
+    return out
+
+
+def many_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                       figures: list[dict], res: Residuals) -> list[dict]:
+    """The cameras at fault in a rig of more than a few cameras: the suspect screen
+    (:func:`camera_faults`: timing and a lens by isolating each suspect), then each camera's own
+    errors (:func:`own_faults`): a camera that moved replaces what the screen named on it (a
+    knock's later views look like a lens pattern), and a camera whose own noise stands out is
+    named where the screen named nothing on it."""
+    screened = camera_faults(rig, labelled, R, t, figures, res)
+    named = [rig.index(f["camera"]) for f in screened if f["camera"] is not None]
+    moved, noisy = own_faults(rig, labelled, tracks, R, t, named, res)
+    gone = {f["camera"] for f in moved}
+    kept = [f for f in screened if f["camera"] not in gone]
+    return moved + kept + [f for f in noisy if f["camera"] not in {g["camera"] for g in kept}]
+
+
+def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+               named: list[int] | None = None, res: Residuals | None = None) -> tuple[list[dict], list[dict]]:
+    """(a camera that moved, cameras whose own noise stands out), each camera judged with the
+    points eliminated (:mod:`wandcal.calib.judge.faults.own_errors`, :mod:`wandcal.calib.judge.faults.pose_steps`);
+    the moved camera is not also called noisy, nor are the cameras ``named`` at fault already.
+
+    A rig of more than a few cameras (:data:`wandcal.calib.judge.faults.leave_one_out.MAX_CAMERAS`;
+    ``res`` the judgement's residuals, needed then) is judged at a bounded cost: the step is tested
+    in full only on the cameras a screen of ``res`` suspects
+    (:func:`wandcal.calib.judge.faults.pose_steps.step_suspects`), the noise with the points eliminated
+    only where the median point has fewer than :data:`SPREAD_VIEWS` views (with more, a camera's
+    noise stays with it in ``res`` and the suspect screen names it), each on
+    :data:`wandcal.calib.judge.faults.own_errors.VIEWS_PER_CAMERA` views a camera. Fewer than three
+    cameras give none."""
+    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
+    from wandcal.calib.judge.faults.own_errors import (
+        VIEWS_PER_CAMERA,
+        capped,
+        eliminate,
+        noise_fault,
+        noisy_cameras,
+        views_of,
+    )
+    from wandcal.calib.judge.faults.pose_steps import moved_camera, moved_fault, step_suspects
+
+    if len(rig.cameras) < 3:
+        return [], []
+    large = len(rig.cameras) > MAX_CAMERAS
+    suspected, sparse = None, True
+    if large:
+        if res is None:
+            return [], []
+        suspected = step_suspects(res, tracks.frames if tracks is not None else None)
+        sparse = _median_views(res) < SPREAD_VIEWS
+        if not suspected and not sparse:
+            return [], []
+    views = views_of(labelled, tracks)
+    if large:
+        views = capped(views, VIEWS_PER_CAMERA * len(rig.cameras))
+    if not len(views.point):
+        return [], []
+    ids, focal = list(rig.ids), np.array([c.focal.mean() for c in rig.cameras])
+    el = eliminate(R, t, views, steps=1 if large else 3)
+    moved = moved_camera(R, t, views, el, suspected) if suspected is None or suspected else None
+    out = [*(named or []), *([] if moved is None else [moved[0]])]
+    noisy = noisy_cameras(R, t, views, el, focal, out) if sparse else []
+    return ([] if moved is None else [moved_fault(ids[moved[0]], moved[1])]), [noise_fault(ids[c], n) for c, n in noisy]
+
+
+def _median_views(res: Residuals) -> float:
+    """The median point's number of views in the judgement's residuals."""
+    if not len(res.point):
+        return 0.0
+    counts = np.bincount(res.point - res.point.min())
+    return float(np.median(counts[counts > 0]))
