@@ -70,10 +70,11 @@ def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames,
         fi, X, xy, info = _leave_one_out(R, t, focal, padded, tracks, f_of, c)
         seen[:, c] = np.bincount(f_of[(tracks.views >= 0).sum(1) - (tracks.views[:, c] >= 0) >= 2], minlength=n_f)
         J, r = whitened(*linearised(R[c], t[c], focal[c], X, xy), point_jacobian(R[c], t[c], focal[c], X), info)
-        keep, dev = _inliers(fi // WINDOW_FRAMES, J, r)
-        fi, J, r, dev = fi[keep], J[keep], r[keep], dev[keep]
-        g[:, c] = sum_by(fi, np.einsum("kpi,kp->ki", J, r), n_f)
-        H[:, c] = sum_by(fi, np.einsum("kpi,kpj->kij", J, J), n_f)
+        JJ, Jr = np.einsum("kpi,kpj->kij", J, J), np.einsum("kpi,kp->ki", J, r)  # each residual's H and g
+        keep, dev = _inliers(fi // WINDOW_FRAMES, J, r, JJ, Jr)
+        fi, dev = fi[keep], dev[keep]
+        g[:, c] = sum_by(fi, Jr[keep], n_f)
+        H[:, c] = sum_by(fi, JJ[keep], n_f)
         n[:, c] = np.bincount(fi, minlength=n_f)
         sse[:, c] = np.bincount(fi, (dev ** 2).sum(1), minlength=n_f)
         obs.append((padded.frames[fi], X[keep], xy[keep]))
@@ -93,9 +94,27 @@ def _leave_one_out(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks
     X = refine_points(R, t, p, cam, xy_obs, tracks.X[ok])  # from the point all cameras gave: close, so no DLT
     fi, xy, found = _nearest_blob(R[c], t[c], focal[c], padded, c, f_ok, X)
     p, cam = p[found[p]], cam[found[p]]  # the points c's blob was found for
-    Jv = point_jacobian(R[cam], t[cam], focal[cam], X[p])
-    info = sum_by(p, np.einsum("kai,kaj->kij", Jv, Jv), len(X))  # the others' information on each point, px^-2 m^2
-    return fi[found], X[found], xy[found], info[found]
+    X = X[found]
+    info = _information(R, t, focal, (np.cumsum(found) - 1)[p], cam, X)
+    return fi[found], X, xy[found], info
+
+
+def _information(R, t, focal: np.ndarray, p: np.ndarray, cam: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(P, 3, 3) ``sum J_v^T J_v`` over the views (point p (M,), camera cam (M,)) of points X (P, 3),
+    J_v (2, 3) the projection's derivative in the point, pixels a metre (:func:`point_jacobian`, by its
+    components: the six distinct entries summed a view at a time, as the triangulation's own)."""
+    table = np.concatenate([R.reshape(-1, 9), t, focal[:, None]], axis=1).T  # (13, C): R[3 i + j], t[i], focal
+    r, Xp = np.take(table, cam, axis=1), np.take(X.T, p, axis=1)
+    xc = [r[3 * i] * Xp[0] + r[3 * i + 1] * Xp[1] + r[3 * i + 2] * Xp[2] + r[9 + i] for i in range(3)]
+    fz = r[12] / xc[2]
+    u, v = xc[0] / xc[2], xc[1] / xc[2]
+    ax = [(r[j] - u * r[6 + j]) * fz for j in range(3)]  # d(f x/z)/dX
+    ay = [(r[3 + j] - v * r[6 + j]) * fz for j in range(3)]
+    info = np.empty((len(X), 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            info[:, i, j] = info[:, j, i] = np.bincount(p, ax[i] * ax[j] + ay[i] * ay[j], minlength=len(X))
+    return info
 
 
 def _nearest_blob(Rc, tc, focal: float, padded: PaddedFrames, c: int, f_idx, X):
@@ -155,25 +174,61 @@ def whitened(J: np.ndarray, r: np.ndarray, Jx: np.ndarray, info: np.ndarray) -> 
     error passes the blob's own (``LOOSE_POINT``) are weighted: where the others fix the point well
     the residual is left as it is (with 12 cameras nearly every one; weighting those too moved a clean
     simulated take's statistic past the threshold, decision 0056)."""
-    cov = np.eye(2) + Jx @ np.linalg.pinv(info, rcond=1e-12, hermitian=True) @ np.swapaxes(Jx, 1, 2)
-    vals, vecs = np.linalg.eigh(cov)
-    vals = np.where(vals > 1 + LOOSE_POINT, vals, 1.0)
-    W = vecs @ (vecs.transpose(0, 2, 1) / np.sqrt(vals)[:, :, None])  # cov^-1/2 where loose, symmetric
-    return W @ J, np.einsum("kab,kb->ka", W, r)
+    M = _projected_inverse(Jx, info)  # (k, 2, 2) Jx info^-1 Jx^T: the point's error in this camera
+    a, b, d = M[:, 0, 0], M[:, 1, 0], M[:, 1, 1]
+    half, h = (a - d) / 2, np.hypot((a - d) / 2, b)
+    big, small = 1 + (a + d) / 2 + h, 1 + (a + d) / 2 - h  # the covariance's eigenvalues
+    loose = np.flatnonzero(big > 1 + LOOSE_POINT)  # with many cameras few or none: the rest stay as they are
+    if not len(loose):
+        return J, r
+    # cov^-1/2 where loose, 1 elsewhere, from the two eigenvalues: W = w_small I + (w_big - w_small) P, with
+    # P = (cov - small I) / (big - small) the projector on the larger one's eigenvector (no eigen-decomposition)
+    w_big = 1 / np.sqrt(big[loose])
+    w_small = np.where(small[loose] > 1 + LOOSE_POINT, 1 / np.sqrt(small[loose]), 1.0)
+    hl = h[loose]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(hl > 0, (w_big - w_small) / (2 * hl), 0.0)  # equal eigenvalues: W = w I
+    W = np.empty((len(loose), 2, 2))
+    W[:, 0, 0] = w_small + scale * (half[loose] + hl)
+    W[:, 1, 1] = w_small + scale * (hl - half[loose])
+    W[:, 0, 1] = W[:, 1, 0] = scale * b[loose]
+    J, r = J.copy(), r.copy()
+    J[loose] = W @ J[loose]
+    r[loose] = np.einsum("kab,kb->ka", W, r[loose])
+    return J, r
 
 
-def _inliers(window: np.ndarray, J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _projected_inverse(Jx: np.ndarray, info: np.ndarray) -> np.ndarray:
+    """(k, 2, 2) ``Jx info^+ Jx^T`` of Jx (k, 2, 3) and symmetric info (k, 3, 3), by the adjugate; a
+    system whose smallest eigenvalue may be under 1e-9 of its largest by the pseudo-inverse (rcond 1e-12)."""
+    a, b, c = info[:, 0, 0], info[:, 0, 1], info[:, 0, 2]
+    d, e, f = info[:, 1, 1], info[:, 1, 2], info[:, 2, 2]
+    adj = np.empty_like(info)
+    adj[:, 0, 0], adj[:, 0, 1], adj[:, 0, 2] = d * f - e * e, c * e - b * f, b * e - c * d
+    adj[:, 1, 1], adj[:, 1, 2], adj[:, 2, 2] = a * f - c * c, b * c - a * e, a * d - b * b
+    adj[:, 1, 0], adj[:, 2, 0], adj[:, 2, 1] = adj[:, 0, 1], adj[:, 0, 2], adj[:, 1, 2]
+    det = a * adj[:, 0, 0] + b * adj[:, 0, 1] + c * adj[:, 0, 2]
+    trace = a + d + f
+    well = det > 1e-9 * trace ** 3  # then the smallest eigenvalue > det / trace^2 > 1e-9 of the largest
+    inv = np.empty_like(info)
+    inv[well] = adj[well] / det[well, None, None]
+    if not well.all():
+        inv[~well] = np.linalg.pinv(info[~well], rcond=1e-12, hermitian=True)
+    return Jx @ inv @ np.swapaxes(Jx, 1, 2)
+
+
+def _inliers(window: np.ndarray, J: np.ndarray, r: np.ndarray, JJ: np.ndarray,
+             Jr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(k,) residuals within :data:`OUTLIER_PX` of their window's least-squares pose change (fitted
-    twice: the second time without the first fit's outliers), and (k, 2) each residual about the fit."""
+    twice: the second time without the first fit's outliers), and (k, 2) each residual about the fit
+    (J (k, 2, 6), r (k, 2); JJ (k, 6, 6) and Jr (k, 6) each residual's J^T J and J^T r)."""
     keep = np.ones(len(r), bool)
     dev = r
     if not len(r):
         return keep, dev
     wins, w_of = np.unique(window, return_inverse=True)
     for _ in range(2):
-        Hs = sum_by(w_of[keep], np.einsum("kpi,kpj->kij", J[keep], J[keep]), len(wins))
-        gs = sum_by(w_of[keep], np.einsum("kpi,kp->ki", J[keep], r[keep]), len(wins))
-        p = solve_pose_change(Hs, gs)
+        p = solve_pose_change(sum_by(w_of[keep], JJ[keep], len(wins)), sum_by(w_of[keep], Jr[keep], len(wins)))
         dev = r - np.einsum("kpi,ki->kp", J, p[w_of])
         keep = np.hypot(dev[:, 0], dev[:, 1]) < OUTLIER_PX
     return keep, dev

@@ -28,6 +28,10 @@ not: neighbouring starts share data, so fewer). bench/bench_watch.py counts them
 Drift or knock: after an alarm the change's windows are fitted by a ramp from s to e and constant
 after it, ``d_w = a clip((w - s) / (e - s), 0, 1)`` over a grid of s and e (e = s is a step); a
 best fit longer than :data:`KNOCK_FRAMES` whose step fits worse by :data:`DRIFT_MARGIN` is a drift.
+s runs from :data:`GLR_WINDOWS` before the GLR's k to the alarm's window: a knock late in a window
+shows little there (its moved residuals fall outside that window's fit), the GLR's k may be that
+window, and a step held to start there lost to a ramp over it (a real camera turned 1 deg named as
+drifting; decision 0057a).
 """
 
 from __future__ import annotations
@@ -87,6 +91,7 @@ class CameraTest:
     peak: float = 0.0  # the largest S_k of a persistent change seen (a clean take's margin below the threshold)
     raw: float = 0.0  # the last :meth:`glr`'s largest S_k, persistent or not (which camera moved, when several alarm)
     _wander: np.ndarray | None = field(default=None, repr=False)  # :meth:`wander`, once the baseline is in
+    _base: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = field(default=None, repr=False)  # baseline + I_0^+
 
     def add(self, g: np.ndarray, H: np.ndarray, sse: float, n: float, start: int) -> None:
         self.g.append(g)
@@ -104,18 +109,25 @@ class CameraTest:
         for values in (self.g, self.H, self.sse, self.n, self.start):
             del values[windows:]
         if windows < BASELINE_WINDOWS:
-            self._wander = None
+            self._wander = self._base = None
 
     def baseline(self) -> tuple[np.ndarray, np.ndarray, float] | None:
         """(p_0 (6,), I_0 (6, 6) (px^-2 weighted information), sigma^2 px^2 pooled) once
         :data:`BASELINE_WINDOWS` windows are in."""
         if len(self.g) < BASELINE_WINDOWS:
             return None
-        s2 = self._pooled_variance(BASELINE_WINDOWS)
-        wt = self._weights(0, BASELINE_WINDOWS, s2)
-        I0 = np.einsum("w,wij->ij", wt, np.array(self.H[:BASELINE_WINDOWS]))
-        p0 = solve_pose_change(I0, np.einsum("w,wi->i", wt, np.array(self.g[:BASELINE_WINDOWS])))
-        return p0, I0, s2
+        if self._base is None:  # its windows do not change once in (but by :meth:`rewind`)
+            s2 = self._pooled_variance(BASELINE_WINDOWS)
+            wt = self._weights(0, BASELINE_WINDOWS, s2)
+            I0 = np.einsum("w,wij->ij", wt, np.array(self.H[:BASELINE_WINDOWS]))
+            p0 = solve_pose_change(I0, np.einsum("w,wi->i", wt, np.array(self.g[:BASELINE_WINDOWS])))
+            self._base = (p0, I0, s2, _pinv(I0))
+        return self._base[:3]
+
+    def _baseline_cov(self) -> np.ndarray:
+        """(6, 6) I_0^+ (once :meth:`baseline` is in)."""
+        assert self._base is not None
+        return self._base[3]
 
     def _pooled_variance(self, windows: int) -> float:
         n = np.array(self.n[:windows])
@@ -154,12 +166,12 @@ class CameraTest:
 
     def _change(self, first: int, end: int, base: tuple[np.ndarray, np.ndarray, float]) -> float:
         """S of the change since the baseline over windows first..end-1 alone."""
-        p0, I0, s2 = base
+        p0, _, s2 = base
         wt = self._weights(first, end, s2)
-        Iw = np.einsum("w,wij->ij", wt, np.array(self.H[first:end]))
-        d = solve_pose_change(Iw, np.einsum("w,wi->i", wt, np.array(self.g[first:end]))) - p0
-        cov = np.linalg.pinv(Iw, rcond=RCOND, hermitian=True) + np.linalg.pinv(I0, rcond=RCOND, hermitian=True) + self.wander(base)
-        return float(d @ np.linalg.pinv(cov, rcond=RCOND, hermitian=True) @ d)
+        Iw_inv = _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[first:end])))
+        d = np.einsum("ij,j->i", Iw_inv, np.einsum("w,wi->i", wt, np.array(self.g[first:end]))) - p0
+        cov = Iw_inv + self._baseline_cov() + self.wander(base)
+        return float(d @ _pinv(cov) @ d)
 
     def _persistent(self, k: int, end: int, base: tuple[np.ndarray, np.ndarray, float]) -> float:
         """The smaller S of the change since window k over its first half and its last half apart
@@ -177,13 +189,14 @@ class CameraTest:
         first = max(BASELINE_WINDOWS, end - GLR_WINDOWS)
         if base is None or end <= first:
             return 0.0, end, np.zeros(PARAMS)
-        p0, I0, s2 = base
+        p0, _, s2 = base
         wt = self._weights(first, end, s2)
         G = np.cumsum((np.array(self.g[first:end]) * wt[:, None])[::-1], axis=0)[::-1]  # G[k]: windows k.. summed
         Ik = np.cumsum((np.array(self.H[first:end]) * wt[:, None, None])[::-1], axis=0)[::-1]
-        d = solve_pose_change(Ik, G) - p0
-        cov = np.linalg.pinv(Ik, rcond=RCOND, hermitian=True) + np.linalg.pinv(I0, rcond=RCOND, hermitian=True) + self.wander(base)
-        S = np.einsum("ki,kij,kj->k", d, np.linalg.pinv(cov, rcond=RCOND, hermitian=True), d)
+        Ik_inv = _pinv(Ik)
+        d = np.einsum("kij,kj->ki", Ik_inv, G) - p0
+        cov = Ik_inv + self._baseline_cov() + self.wander(base)
+        S = np.einsum("ki,kij,kj->k", d, _pinv(cov), d)
         Hk = np.cumsum(np.array(self.H[first:end])[::-1], axis=0)[::-1]
         count = np.cumsum(np.array(self.n[first:end])[::-1])[::-1]  # residuals from each start on
         shift = np.sqrt(np.einsum("ki,kij,kj->k", d, Hk, d) / np.maximum(count, 1))  # rms image move, px
@@ -197,6 +210,11 @@ class CameraTest:
         return alarm, first + k, d[k]
 
 
+def _pinv(A: np.ndarray) -> np.ndarray:
+    """The pseudo-inverse of symmetric A (..., 6, 6), as :func:`solve_pose_change` takes it (rcond :data:`RCOND`)."""
+    return np.linalg.pinv(A, rcond=RCOND, hermitian=True)
+
+
 def classify(test: CameraTest, alarm: Alarm) -> tuple[str, int, int, np.ndarray]:
     """("knock" or "drift", first frame, frames the move took, (6,) the full change) of an alarmed
     camera, from every window it has (the module's note)."""
@@ -207,12 +225,15 @@ def classify(test: CameraTest, alarm: Alarm) -> tuple[str, int, int, np.ndarray]
     g = np.array(test.g[BASELINE_WINDOWS:])
     H = np.array(test.H[BASELINE_WINDOWS:])
     k_alarm = test.start.index(alarm.frame) - BASELINE_WINDOWS
+    # the window the alarm was raised in: a move starts no later, but may start after the GLR's k (a
+    # window the move began in late shows it little: its moved residuals fall outside the window's fit)
+    k_det = int(np.flatnonzero(np.array(test.start[BASELINE_WINDOWS:]) <= alarm.detected_frame)[-1])
     w = np.arange(n_w - BASELINE_WINDOWS, dtype=float)
     gd = g - np.einsum("wij,j->wi", H, p0)  # normal equations of the change since the baseline
     durations = np.unique(np.r_[0, np.round(np.geomspace(1, max(2 * len(w), 2), 16))]).astype(int)
     best: tuple[float, int, int, np.ndarray] = (-np.inf, 0, 0, np.zeros(PARAMS))
     best_step: float = -np.inf
-    for s in range(max(0, k_alarm - GLR_WINDOWS), k_alarm + 1):
+    for s in range(max(0, k_alarm - GLR_WINDOWS), max(k_alarm, k_det) + 1):
         for dur in durations:
             rho = np.clip((w - s + 1) / max(dur, 1), 0, 1) if dur else (w >= s).astype(float)
             A = np.einsum("w,wij->ij", rho ** 2, H)

@@ -28,7 +28,7 @@ from wandcal.calib.watch.sequential import (
     CameraTest,
     classify,
 )
-from wandcal.calib.watch.take import TakeBlobs, pad_frames
+from wandcal.calib.watch.take import PaddedFrames, TakeBlobs, pad_frames
 
 BATCH_FRAMES = 100  # a second at 100 fps: the unit a live take is processed in (whole windows)
 # frames a take needs before any camera can be judged: the baseline, then a change's two halves
@@ -150,6 +150,7 @@ class WatchStream:
         self.sums = np.zeros((len(rig.cameras), 3))  # sse, residuals, markers seen
         self.frames = self.tracks = 0
         self.obs: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
+        self._head: _Head | None = None  # what begin matched and measured, for the batches of the same frames
 
     @property
     def baseline_stop(self) -> int:
@@ -159,20 +160,31 @@ class WatchStream:
     def begin(self, blobs: TakeBlobs, rows: np.ndarray) -> None:
         """Name the cameras that disagree with the standing result from the take's start (``rows``:
         the blobs of the frames before :attr:`baseline_stop`)."""
-        for alarm in _off_from_start(self.rig, self.R, self.t, blobs, rows, self.first):
+        if not len(rows):
+            return
+        padded = pad_frames(self.rig, blobs, rows)
+        tracks = match_frames(self.rig, self.R, self.t, padded)
+        alarms, windows = _off_from_start(self.rig, self.R, self.t, padded, tracks, self.first, keep_obs=self.keep_obs)
+        for alarm in alarms:
             self.tests[alarm.camera].alarm = alarm
             self.before_take.add(alarm.camera)
             self.excluded.add(alarm.camera)
+        self._head = _Head(blobs.frame[rows], blobs.camera[rows], blobs.uv[rows], padded, tracks, windows,
+                           frozenset(self.excluded))
 
     def add(self, blobs: TakeBlobs, rows: np.ndarray) -> int:
         """Match one batch (``rows`` of ``blobs``: whole windows, later than any added) and add its
         windows to every camera's test. Returns its last frame."""
-        padded = pad_frames(self.rig, blobs, rows)
-        tracks = match_frames(self.rig, self.R, self.t, padded)
+        again = None if self._head is None else self._head.part(blobs, rows, self.excluded)
+        if again is None:
+            padded = pad_frames(self.rig, blobs, rows)
+            tracks, windows = match_frames(self.rig, self.R, self.t, padded), None
+        else:
+            padded, tracks, windows = again
         self.frames += len(padded.frames)
         self.tracks += len(tracks)
         windows = _test_batch(self.rig, self.R, self.t, padded, tracks, (self.tests, self.found), self.excluded,
-                              self.first, keep_obs=self.keep_obs)
+                              self.first, keep_obs=self.keep_obs, windows=windows)
         self.sums += np.stack([windows.sse.sum(0), windows.n.sum(0), windows.seen.sum(0)], 1)
         if self.keep_obs:
             self.obs.append(windows.obs or [])
@@ -199,20 +211,60 @@ class WatchStream:
         return report
 
 
-def _off_from_start(rig: Rig, R, t, blobs: TakeBlobs, rows: np.ndarray, first: int) -> list[Alarm]:
-    """Cameras that disagree with the standing result from the take's start: over the first
-    :data:`BASELINE_WINDOWS` windows, a pose change whose statistic passes the test's threshold and
-    that moves the camera's images :data:`START_SHIFT_PX` or more. Named one at a time, the largest
-    first, each left out of the others' markers before the next is looked for (its blobs pull them)."""
-    if not len(rows):
-        return []
-    padded = pad_frames(rig, blobs, rows)
-    tracks = match_frames(rig, R, t, padded)
+@dataclass(frozen=True, eq=False)
+class _Head:
+    """What :meth:`WatchStream.begin` matched and measured of the take's first frames, for the
+    batches that hold the same frames again: its blobs (frame, camera, uv of its rows), their
+    padding and tracks, and the windows measured with ``excluded`` left out (None if none were)."""
+
+    frame: np.ndarray
+    camera: np.ndarray
+    uv: np.ndarray
+    padded: PaddedFrames
+    tracks: Tracks
+    windows: CameraWindows | None
+    excluded: frozenset[int]
+
+    def part(self, blobs: TakeBlobs, rows: np.ndarray,
+             excluded: set[int]) -> tuple[PaddedFrames, Tracks, CameraWindows | None] | None:
+        """(padding, tracks, windows or None) of a batch (``rows`` of ``blobs``) whose blobs are exactly
+        the head's of the same frames; None for any other batch. The windows only where the batch
+        starts a window of the head's (they are fitted window by window) and leaves out the same cameras."""
+        frame = blobs.frame[rows]
+        if not len(frame):
+            return None
+        lo, hi = frame.min(), frame.max()
+        sel = (self.frame >= lo) & (self.frame <= hi)
+        if not (np.array_equal(self.frame[sel], frame) and np.array_equal(self.camera[sel], blobs.camera[rows])
+                and np.array_equal(self.uv[sel], blobs.uv[rows])):
+            return None
+        keep = (self.padded.frames >= lo) & (self.padded.frames <= hi)
+        padded = PaddedFrames(self.padded.frames[keep], self.padded.xy[keep], self.padded.row[keep])
+        mine = (self.tracks.frame >= lo) & (self.tracks.frame <= hi)
+        tracks = Tracks(self.tracks.frame[mine], self.tracks.views[mine], self.tracks.X[mine])
+        w = self.windows
+        if w is None or self.excluded != excluded or np.argmax(keep) % WINDOW_FRAMES:
+            return padded, tracks, None
+        obs = None if w.obs is None else [(f[(f >= lo) & (f <= hi)], X[(f >= lo) & (f <= hi)], xy[(f >= lo) & (f <= hi)])
+                                          for f, X, xy in w.obs]
+        return padded, tracks, CameraWindows(w.frames[keep], w.g[keep], w.H[keep], w.n[keep], w.seen[keep],
+                                             w.sse[keep], obs)
+
+
+def _off_from_start(rig: Rig, R, t, padded: PaddedFrames, tracks: Tracks, first: int, *,
+                    keep_obs: bool = False) -> tuple[list[Alarm], CameraWindows | None]:
+    """Cameras that disagree with the standing result from the take's start (``padded``, ``tracks``:
+    its first frames and their markers): over the first :data:`BASELINE_WINDOWS` windows, a pose
+    change whose statistic passes the test's threshold and that moves the camera's images
+    :data:`START_SHIFT_PX` or more. Named one at a time, the largest first, each left out of the
+    others' markers before the next is looked for (its blobs pull them). Returns them, and the windows
+    measured with all of them left out (None if the last were measured with fewer)."""
     alarms: list[Alarm] = []
+    w = None
     while len(alarms) < len(R) - 3:  # three cameras held at least: a marker is two views and a third
         views = tracks.views.copy()
         views[:, [a.camera for a in alarms]] = -1
-        w = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X))
+        w = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X), keep_obs=keep_obs)
         I0, g0, n0 = w.H.sum(0), w.g.sum(0), w.n.sum(0)
         p0 = solve_pose_change(I0, g0)
         fit = np.einsum("ci,cij,cj->c", p0, I0, p0)  # px^2 the change explains
@@ -223,9 +275,9 @@ def _off_from_start(rig: Rig, R, t, blobs: TakeBlobs, rows: np.ndarray, first: i
         S[[a.camera for a in alarms]] = 0
         c = int(np.argmax(np.where(shift >= START_SHIFT_PX, S, 0)))
         if S[c] <= GLR_THRESHOLD or shift[c] < START_SHIFT_PX:
-            break
+            return alarms, w
         alarms.append(Alarm(c, first, int(padded.frames[-1]), float(S[c]), p0[c]))
-    return alarms
+    return alarms, None
 
 
 def _fit_dof(n: np.ndarray) -> np.ndarray:
@@ -236,25 +288,27 @@ def _fit_dof(n: np.ndarray) -> np.ndarray:
 
 
 def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest], list[FoundTest]], excluded: set[int],
-                first: int, keep_obs: bool) -> CameraWindows:
+                first: int, keep_obs: bool, windows: CameraWindows | None = None) -> CameraWindows:
     """Add a batch's windows to every camera's test, window by window; when cameras alarm, the one
     with the largest statistic is named, left out of every other camera's markers, and the batch is
     tested again without it (a moved camera's blobs pull the markers it shares). A camera's pose and
-    found-share tests take each window together, so one mark rewinds both."""
+    found-share tests take each window together, so one mark rewinds both. ``windows``: the batch's,
+    if measured already with ``excluded`` left out."""
     blobs = np.isfinite(padded.xy[:, :, :, 0]).sum(2)  # each camera's blobs a frame, whoever is left out
     while True:
-        views = tracks.views.copy()
-        views[:, sorted(excluded)] = -1
-        windows = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X), keep_obs=keep_obs)
+        if windows is None:
+            views = tracks.views.copy()
+            views[:, sorted(excluded)] = -1
+            windows = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X), keep_obs=keep_obs)
         marks = [pose.mark() for pose in tests[0]]
         named = _add_windows(windows, blobs, tests, first)
         if named is None:
             return windows
         excluded.add(named)
-        for c, (pose, found) in enumerate(zip(*tests)):
-            if c != named:
-                pose.rewind(marks[c])
-                found.rewind(marks[c])
+        windows = None
+        for c, (pose, found) in enumerate(zip(*tests)):  # the named one too: it keeps its alarm, and the batch's
+            pose.rewind(marks[c])                          # windows come again (once, not twice: classify reads them)
+            found.rewind(marks[c])
 
 
 def _add_windows(windows: CameraWindows, blobs: np.ndarray, tests: tuple[list[CameraTest], list[FoundTest]],

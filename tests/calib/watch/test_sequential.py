@@ -5,7 +5,14 @@ leverage off together, as merged markers' images give in clean takes) is not."""
 import numpy as np
 
 from wandcal.calib.watch.health import WINDOW_FRAMES
-from wandcal.calib.watch.sequential import BASELINE_WINDOWS, GLR_THRESHOLD, PERSIST_WINDOWS, CameraTest
+from wandcal.calib.watch.sequential import (
+    BASELINE_WINDOWS,
+    GLR_THRESHOLD,
+    PERSIST_WINDOWS,
+    Alarm,
+    CameraTest,
+    classify,
+)
 
 NOISE_PX = 0.3
 RESIDUALS = 400  # a window of 40 markers' residuals
@@ -51,3 +58,20 @@ def test_a_one_window_burst_is_no_alarm():
     changes[burst] = CHANGE  # hundreds in chi-square units in one window, gone in the next
     for seed in range(3):
         assert _run(changes, seed) == (None, None)
+
+
+def test_a_step_after_the_tests_k_is_a_knock_at_its_window():
+    """The GLR's k may be the window before the move's (a knock late in a window shows there little):
+    the step is still found at its own window, named a knock, not a ramp over the two."""
+    step = BASELINE_WINDOWS + 10
+    changes = np.zeros((BASELINE_WINDOWS + 30, 6))
+    changes[step:] = CHANGE
+    rng = np.random.default_rng(7)
+    test = CameraTest()
+    for w, change in enumerate(changes):
+        test.add(*_window(rng, change), start=w * WINDOW_FRAMES)
+    alarm = Alarm(0, (step - 1) * WINDOW_FRAMES, (step + 4) * WINDOW_FRAMES - 1, GLR_THRESHOLD, CHANGE)
+    kind, frame, frames, change = classify(test, alarm)
+    assert (kind, frame, frames) == ("knock", step * WINDOW_FRAMES, 0)
+    # the change's rotation within 5 sigma of one window's noise (0.3 px over 400 residuals at 1100 px a radian)
+    assert abs(change[0] - CHANGE[0]) < 5 * NOISE_PX / 1100.0 / np.sqrt(RESIDUALS)
