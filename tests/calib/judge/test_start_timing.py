@@ -40,6 +40,18 @@ def test_resampling_a_linear_track_puts_each_end_where_it_was_then(shift):
     np.testing.assert_array_equal(moved.xy[other], pairs.xy[pairs.camera == 0])
 
 
+@pytest.mark.parametrize("drift", [1.0, -0.5])
+def test_resampling_with_a_drift_shifts_each_frame_in_proportion_through_the_cameras_frames(drift):
+    pairs = _linear_pairs()
+    moved = resampled(pairs, 1, 0.0, drift)
+    mine = moved.camera == 1
+    k = moved.frames[moved.frame[mine]].astype(float)
+    here = k + drift * k / 11  # its frames are 0..11: 0 at the first, ``drift`` at the last
+    np.testing.assert_allclose(moved.xy[mine, 1, 0], 0.01 * here, atol=1e-12)
+    np.testing.assert_allclose(moved.xy[mine, 0, 1], 0.02 * here, atol=1e-12)
+    assert np.all((here >= 0) & (here <= 11))  # only samples with both neighbours are kept
+
+
 @pytest.mark.parametrize("offset", [2, -1])
 def test_a_camera_whole_frames_out_of_time_is_named_with_its_shift(offset):
     offsets = np.zeros(4)
