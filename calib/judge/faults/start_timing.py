@@ -167,9 +167,10 @@ def out_of_time_refusal(error: CalibrationError, rig: Rig, pairs: WandPairs, sta
             if drift is None:
                 return error
             c, d = drift
-            named = (f"{ids[c]} is out of time, its clock running {'slow' if d > 0 else 'fast'}: its wand agrees with "
-                     f"the other cameras' only with its samples moved in time by an offset growing from 0 at its "
-                     f"first frame to about {abs(d):g} frame {'late' if d > 0 else 'early'} at its last (offset "
-                     f"{d:+g} there: positive is late)")
+            named = (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved in "
+                     f"time by an offset growing from 0 at its first frame to about {abs(d):g} frame "
+                     f"{'late' if d > 0 else 'early'} at its last (a clock running {'slow' if d > 0 else 'fast'}, or a "
+                     f"constant offset of a fraction of a frame, which the start cannot tell apart; offset {d:+g} at its "
+                     "last frame: positive is late)")
     return CalibrationError(f"{named}; calibrate with --sync auto, which finds and corrects each camera's offset, "
                             f"or check its trigger cable and settings. Without the shift the start failed: {error}")

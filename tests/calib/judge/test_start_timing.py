@@ -70,3 +70,31 @@ def test_a_refusal_of_cameras_in_time_is_left_as_it_was():
     sim = simulate_capture(4, 300, NOISE_PX, static=False, seed=5)
     refused = CalibrationError("camera 'cam2' cannot be placed")
     assert out_of_time_refusal(refused, sim.rig, wand_pairs(sim.rig, sim.wand), None, None) is refused
+
+
+def test_a_camera_whose_clock_drifts_is_named_where_only_the_drift_places_it(monkeypatch):
+    # the start places every camera only with camera 2's samples resampled by an offset growing to +1
+    # frame (as if it ran 1 frame early by its last): the refusal names it, with --sync auto
+    import wandcal.calib.judge.faults.start_timing as st
+
+    sim = simulate_capture(4, 300, NOISE_PX, static=False, seed=5)
+    monkeypatch.setattr(st, "whole_frame_shifts", lambda *a: {})
+    monkeypatch.setattr(st, "fractional_shift", lambda *a: None)
+    monkeypatch.setattr(st, "resampled", lambda pairs, c, shift, drift=0.0: (c, shift, drift))
+    monkeypatch.setattr(st, "_places", lambda rig, tried, static_poses, tracks: tried == (2, 0.0, 1.0))
+    refused = st.UnplacedCamera("camera 'cam2' cannot be placed", 2)
+    message = str(st.out_of_time_refusal(refused, sim.rig, wand_pairs(sim.rig, sim.wand), None, None))
+    cam = sim.rig.cameras[2].id
+    assert message.startswith(f"{cam} is out of time") and "1 frame early at its last" in message, message
+    assert "offset -1 at its last frame" in message and "--sync auto" in message and message.endswith(str(refused))
+
+
+def test_a_drift_that_places_the_camera_either_way_names_nothing(monkeypatch):
+    import wandcal.calib.judge.faults.start_timing as st
+
+    sim = simulate_capture(4, 300, NOISE_PX, static=False, seed=5)
+    monkeypatch.setattr(st, "whole_frame_shifts", lambda *a: {})
+    monkeypatch.setattr(st, "fractional_shift", lambda *a: None)
+    monkeypatch.setattr(st, "_places", lambda *a: True)
+    refused = st.UnplacedCamera("camera 'cam2' cannot be placed", 2)
+    assert st.out_of_time_refusal(refused, sim.rig, wand_pairs(sim.rig, sim.wand), None, None) is refused
