@@ -88,7 +88,7 @@ def sessions():
     if not rf.available():
         pytest.skip(f"third-party data not found at {rf.SHARED_DATA}")
     loaded = {}
-    for key in ("brown1", "brown2"):
+    for key in ("brown1", "brown2", "cpp"):
         session = rf.LOADERS[key]()
         loaded[key] = (session, rf.clean_run(session))
     return loaded
