@@ -107,9 +107,9 @@ def held_out_views(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         groups.append((point, camera, xy, 2 * len(labelled.frames), labelled.frames[point // 2], True))
     if tracks is not None and len(tracks):
         # a track has a time where it is in the wand's (every one without a wand), as own_errors times them
-        timed = in_wand_time(tracks.frames, labelled.frames[labelled.frame] if len(labelled) else np.zeros(0))
+        track_timed = in_wand_time(tracks.frames, labelled.frames[labelled.frame] if len(labelled) else np.zeros(0))
         groups.append((tracks.track, tracks.camera, tracks.xy, tracks.n_tracks, tracks.frames[tracks.track],
-                       timed[tracks.track]))
+                       track_timed[tracks.track]))
     Xs, xys, frames, timed = [], [], [], []
     for point, camera, xy, n, frame, has_time in groups:
         others = camera != c
