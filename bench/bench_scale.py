@@ -20,10 +20,13 @@ Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000. Part 5 ("Scal
 and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated. Part 6
 ("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`. Part 7
 (--parts costs, "Scale: judgement, guidance, check and sync"): those commands beside calibrate, --cost-rig.
+Part 8 (--parts where, "Scale: where the whole command's CPU goes (sparse shapes)"): each stage's CPU seconds
+in a whole process on --where-rigs, by timers around the stages' functions (bench/stage_timer.py), not cProfile.
 
 How a whole process is run, timed and profiled, and the captures it reads: bench/whole_process.py.
 
-Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance,methods] [--rigs 64x3000,128x3000]
+Usage: python bench/bench_scale.py [--repeats 3] [--parts peers,points,stages,guidance,methods,costs,where] [--rigs 64x3000,128x3000]
+    [--where-rigs ring:128x3000,tiers:128x3000]
     [--stage-cameras 16,32,64,128] [--stage-shape ring] [--colmap-repeats 1] [--base CHECKOUT] [--no-write]
     --rigs ring:64x3000,dome:128x3000 (SHAPE:CAMSxFRAMES): rigs of calib/sim/shapes.py, section "Scale: every shape beside COLMAP"
     e.g. git archive 3925791 | tar -x -C /tmp/base && python bench/bench_scale.py --parts regression --base /tmp/base
@@ -177,6 +180,44 @@ def part_stages(cameras_list: list[int], repeats: int, shape: str | None = None)
             "reports and the verdict). Growth exponent: the least-squares slope of "
             "log(seconds) on log(cameras); last doubling: the slope from the second-largest rig to the largest.\n\n"
             + "\n".join(rows) + "\n\nGoal (issue 22): every stage at most cameras^1.2.")
+
+
+def part_where(rigs: list[str], repeats: int) -> str:
+    """Where the whole command's CPU goes, stage by stage, on each rig: the process under
+    bench/stage_timer.py (each stage's CPU seconds by timers around its functions, no profiler),
+    medians of the repeats; the stages' shares of the whole process."""
+    import json
+    import os
+
+    from bench.stage_timer import STAGE_FUNCTIONS
+
+    per: dict[str, dict[str, float]] = {}
+    load = [os.getloadavg()[0]]
+    with tempfile.TemporaryDirectory() as tmp:
+        for rig in rigs:
+            shape, size = rig.split(":") if ":" in rig else (None, rig)
+            cameras, frames = (int(v) for v in size.split("x"))
+            folder, out = Path(tmp) / rig.replace(":", "-"), Path(tmp) / "stages.json"
+            simulate(folder, cameras, frames, shape=shape)
+            warm_bytecode()
+            runs = []
+            for _ in range(repeats):
+                subprocess.run([sys.executable, "-m", "bench.stage_timer", str(out), "calibrate", str(folder), "--quiet",
+                                "--out", str(Path(tmp) / "result.json")], check=True, capture_output=True, cwd=REPO,
+                               env=child_env())
+                runs.append(json.loads(out.read_text()))
+                load.append(os.getloadavg()[0])
+            per[rig] = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
+            print(rig, {k: round(v, 3) for k, v in per[rig].items()}, flush=True)
+    names = list(STAGE_FUNCTIONS) + ["other", "whole"]
+    rows = ["| stage | " + " | ".join(f"{rig}: CPU s (share)" for rig in rigs) + " |", "|---|" + "---|" * len(rigs)]
+    rows += [f"| {name} | " + " | ".join(f"{per[r][name]:.3f} ({per[r][name] / per[r]['whole']:.0%})" for r in rigs) + " |"
+             for name in names]
+    return ("Each rig a `wandcal simulate --shape` capture (0.3 px, 2% outliers, L-frame, seed 1), the whole `wandcal "
+            f"calibrate` process run {repeats} times with its stages timed in CPU seconds by timers around their "
+            "functions (bench/stage_timer.py: no profiler, whose cost per Python call inflates the Python-heavy stages "
+            "up to twentyfold); medians. \"other\": Python's start-up, the imports, the argument parsing and the "
+            f"summary. 1-minute load average {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} cores.\n\n" + "\n".join(rows))
 
 
 def part_guidance(cameras: int, frames: int, repeats: int) -> str:
@@ -335,6 +376,7 @@ def main() -> int:
                     help="CAMSxFRAMES:OUTLIERS,... for --parts regression")
     ap.add_argument("--method-cameras", default="64,128", help="rigs (cameras x 3000 frames) for --parts methods")
     ap.add_argument("--cost-rig", default="ring:128x3000", help="[SHAPE:]CAMSxFRAMES for --parts costs")
+    ap.add_argument("--where-rigs", default="ring:128x3000,tiers:128x3000", help="[SHAPE:]CAMSxFRAMES,... for --parts where")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     parts = args.parts.split(",")
@@ -357,6 +399,8 @@ def main() -> int:
         sections.append(("Scale: guidance", part_guidance(64, 3000, args.repeats)))
     if "costs" in parts:
         sections.append((f"Scale: judgement, guidance, check and sync ({args.cost_rig})", part_costs(args.cost_rig, args.repeats)))
+    if "where" in parts:
+        sections.append(("Scale: where the whole command's CPU goes (sparse shapes)", part_where(args.where_rigs.split(","), args.repeats)))
     if "stages" in parts:
         title = f"Scale: stages ({args.stage_shape})" if args.stage_shape else "Scale: stages"
         sections.append((title, part_stages([int(c) for c in args.stage_cameras.split(",")], args.repeats, args.stage_shape)))

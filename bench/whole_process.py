@@ -31,16 +31,18 @@ PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; fr
            "keep_freed_memory(); p = cProfile.Profile(time.process_time); "
            "code = p.runcall(main, sys.argv[2:]); p.dump_stats(sys.argv[1]); sys.exit(code)")
 # stage: (caller, callee) function names whose cumulative time (the callee's, called from that
-# caller) makes the stage; the rest of the process is "other" (imports, reports, the verdict)
+# caller) makes the stage; the rest of the process is "other" (start-up, imports, the summary). The
+# names are calib/run/calibrate.py's steps since issue 30 (before this session the table still
+# looked for the pre-issue-30 names and gave 0 s to every stage but read and write)
 STAGES = {
-    "read": [("run_calibrate", "read_capture"), ("_calibrated", "read_capture")],
-    "start": [("calibrate", "wand_pairs"), ("calibrate", "point_tracks"), ("calibrate", "check_capture"),
-              ("calibrate", "initial_poses")],
-    "labelling": [("calibrate", "label_ends")],
-    "static": [("calibrate", "solve_static"), ("calibrate", "world_frame")],
-    "refinement": [("calibrate", "build_problem"), ("calibrate", "triangulated"), ("calibrate", "refine"),
-                   ("calibrate", "reject_outliers")],
-    "uncertainty": [("calibrate", "uncertainty_reports")],
+    "read": [("_calibrated", "read_capture")],
+    "start": [("calibrate", "_observations"), ("_start", "_static_poses"), ("_start", "check_capture"),
+              ("_start", "initial_poses")],
+    "labelling": [("_start", "label_ends")],
+    "refinement": [("calibrate", "_refine")],
+    "world frame": [("calibrate", "_world")],
+    "reports": [("calibrate", "_figures")],
+    "judgement": [("calibrate", "_judgement")],
     "write": [("run_calibrate", "to_json"), ("run_calibrate", "_write_result")],
 }
 

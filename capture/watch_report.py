@@ -27,7 +27,7 @@ def check_fit(report: WatchReport, take: str, result: str) -> None:
 
 def report_json(report: WatchReport) -> dict:
     """Every camera's health: id, status (ok, moved, drifting), residual_px, matched (share); a moved
-    one's frames, kind, statistic and whether it was lost (moved too far to follow), and once re-solved its turn (deg), move (mm), their sigmas and fit."""
+    one's frames, kind, statistic and whether it was lost (moved too far to follow), and once re-solved its turn (deg), move (mm), their sigmas and fit, or why it was not (not_resolved)."""
     cameras = []
     for h in report.cameras:
         entry = {"id": h.id, "status": h.status, "residual_px": round(h.residual_px, 4), "matched": round(h.matched, 4)}
@@ -40,6 +40,8 @@ def report_json(report: WatchReport) -> dict:
                       "center_std_mm": round(h.resolved.center_std_mm, 3),
                       "rotation_std_deg": round(h.resolved.rotation_std_deg, 4), "resolved_rms_px": round(h.resolved.rms_px, 4),
                       "resolved_points": h.resolved.points}
+        elif h.alarm is not None:
+            entry["not_resolved"] = h.not_resolved or "not re-solved"
         cameras.append(entry)
     return {"frames": report.frames, "judged": report.judged, "markers": report.tracks, "first_frame": report.first_frame,
             "last_frame": report.last_frame, "cameras": cameras, "moved": [h.id for h in report.moved]}

@@ -36,21 +36,28 @@ from dataclasses import replace
 import numpy as np
 
 from wandcal.calib.geometry import camera_centers
-from wandcal.calib.solve.wandmodel import WandProblem
+from wandcal.calib.solve.wandmodel import WandModel, WandProblem
 
 # SciPy, threadpoolctl and HiGHS are imported where they are used: the command line imports this
 # module for its defaults, and they cost 0.3 s of start-up
 
 BOUND_M = 10.0  # the paper's box on every translation and point coordinate
 HEIGHT_CONSTRAINED_POINTS = 200  # the paper's choice: the wand starts low, below all cameras
-MAX_ROUNDS = 300  # a round takes ~0.35 s of CPU at 8 x 1500 (decisions 0033, 0045)
+MAX_ROUNDS = 300  # a round takes ~0.19 s of CPU at 8 x 1500 (decisions 0033, 0045, 0060)
 # Convergence. The rounds approach their fixed point linearly and slowly (each moves the cameras
 # ~2% of the way at 8 x 1500), so one round's move says little about the distance left, and the
 # LP's jumps between vertices make single moves noisy. The distance left is estimated from the
 # moves over two successive windows of rounds, as the tail of a geometric series.
-ROUND_TOL = 5e-6  # stop when the cameras are estimated this close (metres) to the fixed point
-WINDOW = 10  # rounds per window
+ROUND_TOL = 5e-6  # the least stop tolerance, metres: below it a window's move is the LP's jitter between vertices
+# Stop when every camera is estimated within this fraction of the smallest camera-centre standard
+# error (apart from the rig's placement, at the start) of the fixed point. At 8 x 1500 that sigma is
+# 200-240 um, and where the rounds stop on their creep already moves by ~75 um with the LP's
+# tolerance; the 5 um stop (ROUND_TOL alone) took 2-5x the rounds for a change in the cameras' errors
+# against the truth of 0.00-0.03 mm (decision 0060, measured there with these values)
+STOP_SIGMA = 0.1
+WINDOW = 5  # rounds per window (10 before decision 0060: jumps half as often)
 JUMP_CAP = 10.0  # the longest jump along the tail, in windows' moves (0: no jumps, the paper's plain rounds)
+LP_TOL = 1e-6  # each round's LP to this relative residual and gap (arrowlp.TOL, 1e-9, takes ~14 iterations, not 10)
 DEGENERATE_M = 1e-6  # a wand shorter than this after an LP means the LP collapsed it
 
 
@@ -241,7 +248,7 @@ def _arrow_step(R, t, X, problem: WandProblem, fixed, up, time_limit, heights, w
 
     deadline = None if time_limit is None else time.perf_counter() + time_limit
     res = solve(arrow_lp(R, t, X, problem, fixed, up, heights), warm if isinstance(warm, WarmStart) else None,
-                deadline)
+                deadline, LP_TOL)
     if not res:
         return (t, X, res) if res.status == "time_limit" else None
     G = int((~fixed).sum())
@@ -364,21 +371,21 @@ def _wand_rows(entries: _Entries, X: np.ndarray, length: float, formulation: str
     return length * (np.ones(F) if formulation == "per_frame" else np.array([F]))
 
 
-def _distance_left(centers: list[np.ndarray]) -> float:
+def _distance_left(centers: list[np.ndarray], settled: float = ROUND_TOL) -> float:
     """Estimated distance (metres, largest over cameras) from the last centres to the fixed point:
     with the last window's move ``a`` and the one before ``b``, the rate per window is a / b
     and the rest of the way a r / (1 - r). Infinite until two windows have run, and while the
-    moves do not shrink."""
-    return _tail(centers)[0]
+    moves do not shrink; ``a`` where it is under ``settled`` (metres)."""
+    return _tail(centers, settled)[0]
 
 
-def _tail(centers: list[np.ndarray]) -> tuple[float, float]:
+def _tail(centers: list[np.ndarray], settled: float = ROUND_TOL) -> tuple[float, float]:
     """(:func:`_distance_left`, the rate per window r, or nan where there is none)."""
     if len(centers) <= 2 * WINDOW:
         return np.inf, np.nan
     a = np.linalg.norm(centers[-1] - centers[-1 - WINDOW], axis=1).max()
     b = np.linalg.norm(centers[-1 - WINDOW] - centers[-1 - 2 * WINDOW], axis=1).max()
-    if a < ROUND_TOL:  # settled: what is left is the LP's jitter between neighbouring vertices
+    if a < settled:  # settled: what is left is the LP's jitter between neighbouring vertices
         return a, np.nan
     if a >= b:
         return np.inf, np.nan
@@ -425,11 +432,32 @@ def refine_paper(
     # second thread costs more in hand-offs than it gains (a 65k dot product took 0.68 ms of CPU
     # with two threads on a loaded machine, 0.016 ms with one; decision 0033)
     with threadpool_limits(limits=1, user_api="blas"):
-        return _rounds(R, t, wand, problem, fixed, up, formulation, max_rounds, time_limit, progress)
+        tol = stop_tolerance(R, t, wand, problem, fixed) if formulation == "anchored" else ROUND_TOL
+        return _rounds(R, t, wand, problem, fixed, up, formulation, max_rounds, time_limit, progress, tol=tol)
 
 
-def _rounds(R, t, wand, problem: WandProblem, fixed, up, formulation: str, max_rounds: int, time_limit, progress):
-    """:func:`refine_paper`'s rounds."""
+def stop_tolerance(R: np.ndarray, t: np.ndarray, wand: np.ndarray, problem: WandProblem, fixed: np.ndarray) -> float:
+    """The rounds' stop tolerance, metres: ``STOP_SIGMA`` times the smallest camera-centre standard
+    error apart from the rig's placement (the information of the wand model at the start poses
+    ``R`` (N, 3, 3), ``t`` (N, 3) and ``wand`` (F, 2, 3), its noise from the residuals there), and
+    at least ``ROUND_TOL``; ``ROUND_TOL`` where there is no such error (no wand frame)."""
+    if STOP_SIGMA <= 0 or not problem.n_frames:
+        return ROUND_TOL
+    from wandcal.calib.solve.ba import bundle_adjust_points
+    from wandcal.calib.solve.gauge_free import gauge_covariance, split_uncertainty
+
+    pc = bundle_adjust_points(WandModel(problem, R, t, wand, fixed), None, None, loss="linear", max_iter=0).covariance
+    if pc is None:
+        return ROUND_TOL
+    sigma = split_uncertainty(R, t, gauge_covariance(R, t, pc.free, pc.cov)).center_std
+    sigma = sigma[np.isfinite(sigma) & (sigma > 0)]
+    return max(ROUND_TOL, STOP_SIGMA * float(sigma.min())) if len(sigma) else ROUND_TOL
+
+
+def _rounds(R, t, wand, problem: WandProblem, fixed, up, formulation: str, max_rounds: int, time_limit, progress, *,
+            tol: float):
+    """:func:`refine_paper`'s rounds, until the cameras are estimated within ``tol`` (metres) of
+    the fixed point."""
     start = time.perf_counter()
     X = wand.reshape(-1, 3).copy()
     lp_seconds = 0.0
@@ -469,8 +497,8 @@ def _rounds(R, t, wand, problem: WandProblem, fixed, up, formulation: str, max_r
             break
         centers.append(camera_centers(R, t))
         turns.append(R)
-        left, rate = _tail(centers)
-        if move == 0.0 or left < ROUND_TOL:
+        left, rate = _tail(centers, tol)
+        if move == 0.0 or left < tol:
             status = "converged"
             break
         if JUMP_CAP > 0 and np.isfinite(rate):

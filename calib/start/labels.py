@@ -41,6 +41,15 @@ def wand_lengths(R: np.ndarray, t: np.ndarray, pairs: WandPairs) -> np.ndarray:
 def label_ends(
     R: np.ndarray, t: np.ndarray, pairs: WandPairs, known: np.ndarray, length: float | None = None
 ) -> tuple[WandPairs, np.ndarray]:
+    """Order each pair's ends consistently across the cameras whose pose is known (shapes and
+    returns: :func:`labelled_ends`, without its ends)."""
+    labelled, margin, _ = labelled_ends(R, t, pairs, known, length)
+    return labelled, margin
+
+
+def labelled_ends(
+    R: np.ndarray, t: np.ndarray, pairs: WandPairs, known: np.ndarray, length: float | None = None
+) -> tuple[WandPairs, np.ndarray, np.ndarray | None]:
     """Order each pair's ends consistently across the cameras whose pose is known.
 
     Args:
@@ -53,11 +62,15 @@ def label_ends(
 
     Returns:
         (labelled pairs of known cameras, (P_known,) margin in normalised units: how much worse
-        the other order fits; small margins are doubtful).
+        the other order fits; small margins are doubtful, and the wand ends (F, 2, 3), metres,
+        that :func:`triangulate_points` gives from those labelled pairs (:func:`flatten`, 2F
+        points), when the last reprojection round triangulated exactly them; else None). The
+        ends spare a caller that triangulates the labelled pairs the same triangulation again
+        (the start's resections: :func:`wandcal.calib.start.resection.placed_points`).
     """
     sub = pairs.subset(known[pairs.camera])
     if len(sub) == 0:
-        return sub, np.zeros(0)
+        return sub, np.zeros(0), None
     ranked = _Ranked(sub)  # swapping a pair's ends leaves its rank: one sort serves both passes
     # and one table of the essential matrices of the cameras these pairs come from: the start's
     # resections label a few cameras' frames at a time (at 256 cameras, the 65,536 pairs' table
@@ -67,10 +80,12 @@ def label_ends(
     sub = sub.swapped(_pairwise_consensus(R, t, sub, ranked, E_table))
     margin = np.zeros(len(sub))
     judged = np.ones(len(sub), bool)  # the pairs whose frames are triangulated again this round
+    current = None  # the ends of sub as it stands, while a round has triangulated every pair and flipped none
     for _ in range(RELABEL_ROUNDS):
         part = sub if judged.all() else sub.subset(judged)
         point, camera, xy = flatten(part)
         X = triangulate_points(R, t, point, camera, xy, 2 * len(sub.frames)).reshape(-1, 2, 3)
+        current = X if part is sub else None
         ends = X[part.frame]  # (P', 2, 3)
         Rc, tc = R[part.camera], t[part.camera]
         proj = np.stack([_project(Rc, tc, ends[:, e]) for e in range(2)], axis=1)
@@ -81,6 +96,7 @@ def label_ends(
         flip[np.flatnonzero(judged)[np.isfinite(other) & (other < same)]] = True
         if not flip.any():
             break
+        current = None
         sub = sub.swapped(flip)
         # only the frames where a pair flipped have new ends: the next round judges them alone (the
         # others' ends, projections and margins stay as they are), not every pair again
@@ -88,17 +104,19 @@ def label_ends(
         changed[sub.frame[flip]] = True
         judged = changed[sub.frame]
     if length is not None:
-        sub = _two_view_by_length(R, t, sub, length)
-    return sub, margin
+        swap = _two_view_swaps(R, t, sub, length)
+        if swap is not None and swap.any():
+            sub, current = sub.swapped(swap), None
+    return sub, margin, current
 
 
-def _two_view_by_length(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: float) -> WandPairs:
-    """In frames seen by exactly two cameras, swap the second camera's ends when that brings the
-    triangulated wand nearer ``length``."""
+def _two_view_swaps(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: float) -> np.ndarray | None:
+    """(P,) bool: in frames seen by exactly two cameras, the second camera's pairs whose ends,
+    swapped, bring the triangulated wand nearer ``length`` (None: no frame is seen by two)."""
     views = np.bincount(pairs.frame, minlength=len(pairs.frames))
     two = views[pairs.frame] == 2
     if not two.any():
-        return pairs
+        return None
     # the second pair of each two-view frame (pairs are grouped by frame in camera order)
     order = np.lexsort((pairs.camera, pairs.frame))
     second = np.zeros(len(pairs), bool)
@@ -115,7 +133,7 @@ def _two_view_by_length(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: 
     now = wand_lengths(R, t, part)
     alt = wand_lengths(R, t, part.swapped(candidate[rows]))
     better = np.abs(alt - length) < np.abs(now - length)
-    return pairs.swapped(candidate & better[pairs.frame])
+    return candidate & better[pairs.frame]
 
 
 def _project(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from wandcal.calib.errors import Failure
 from wandcal.calib.geometry import rotvec_to_matrix
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.start.chain import Views, spread
-from wandcal.calib.start.labels import flatten, label_ends
+from wandcal.calib.start.labels import flatten, labelled_ends
 from wandcal.calib.triangulate import triangulate_points
 
 MAX_RESECT_FRAMES = 100  # wand frames per resection (400 candidate matches): enough for a start
@@ -96,7 +96,9 @@ def _triangulate_ends(
         return np.zeros((0, 2, 3))
     local, rows = _first_views(table, rank)
     sub = WandPairs(local, pairs.camera[rows], pairs.xy[rows], pairs.uv[rows], np.arange(len(table)))
-    labelled, _ = label_ends(R, t, sub, rank != UNPLACED, wand_length)
+    labelled, _, ends = labelled_ends(R, t, sub, rank != UNPLACED, wand_length)
+    if ends is not None and len(labelled) == len(sub):  # the labelling's own triangulation of these pairs
+        return ends
     point, camera, xy = flatten(labelled)
     return triangulate_points(R, t, point, camera, xy, 2 * len(table)).reshape(-1, 2, 3)
 

@@ -1,26 +1,63 @@
 """A moved camera re-solved without a wand: its pose fitted to the take's markers as the cameras
 that did not move triangulate them. Scale and world frame are the standing calibration's: the
-points are in its frame and the other cameras are held."""
+points are in its frame and the other cameras are held.
+
+The markers are matched and triangulated again over the frames after the move with the moved
+cameras' blobs left out (they confirm no match), and the moved camera's views of them are found by
+a wide search (:mod:`wandcal.calib.watch.search`): a camera turned too far for the health test's
+12 px gate is re-solved as well as one that still finds its markers, and a view is not kept or
+dropped by how far the knock moved it (the 12 px gate at the standing pose kept the views that moved
+least, and took a 1 deg turn for 0.5-0.8 deg, bench_watch_real). With the pose that fits them, the
+markers are matched again with the camera among the held ones (:func:`confirmed_markers`): those two
+held cameras see and it confirms are added, placed by the held cameras alone (on Brown's sessions,
+20-30 markers become 45-85).
+
+Its sigma (decision 0061) is the fit's own, each residual weighted by its covariance in blobs'
+variances, ``I + Jx A^-1 Jx^T`` (its blob and the error of the point the held cameras triangulate,
+A their information on it), plus the pose's wander: the spread, beyond their own fits, of the same
+re-solve over spans of as many frames before the move, where the camera stood at its standing pose
+(:data:`WANDER_BLOCKS`). A camera model a little off shows as a pose that depends on where in the
+image the markers are, and the markers after a move are elsewhere than those the standing pose was
+fitted to: on the real takes that part is 1-6 times the fit's own. A camera moved before the take
+has no such span; its wander is the test's baseline's (:func:`wander_share`).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from wandcal.calib.geometry import camera_centers, rotvec_to_matrix
-from wandcal.calib.watch.health import PARAMS, linearised, solve_pose_change
+from wandcal.calib.geometry import camera_centers, matrix_to_rotvec, rotation_angle, rotvec_to_matrix
+from wandcal.calib.rig import Rig
+from wandcal.calib.triangulate import refine_points
+from wandcal.calib.watch.health import PARAMS, WINDOW_FRAMES, linearised, point_jacobian, solve_pose_change
+from wandcal.calib.watch.match import match_frames
+from wandcal.calib.watch.search import SEARCH_DEG, rays, search_views
+from wandcal.calib.watch.sequential import BASELINE_WINDOWS, CameraTest
+from wandcal.calib.watch.take import PaddedFrames, TakeBlobs, pad_frames
 
-STEPS = 5  # Gauss-Newton steps from the standing pose: a knock of a degree converges in three
-MIN_POINTS = 30  # fewer markers than this fix no pose worth writing (6 unknowns, noise 0.3 px)
+STEPS = 5  # Gauss-Newton steps from the search's turn: converges in three
+MIN_POINTS = 15  # 30 residuals for 6 unknowns; fewer fix no pose worth writing (its sigma says how well these do)
 OUTLIER_PX = 1.5  # as health's: 5 sigma of 0.3 px
+SETTLE_FRAMES = 5 * WINDOW_FRAMES  # the re-solve waits this long after a knock completes (and uses the rest)
+MIN_HELD = 3  # cameras that did not move: a marker is matched in two and confirmed in a third
+# A knock turns a camera about its mount far more than it moves its centre: the centre is held to the
+# standing one within this (1-sigma, each direction), and the turn fitted from few markers is not traded
+# for a move (bench_watch_real: 0.3-0.7 deg off on clean real takes with the centre free, decision 0061)
+CENTRE_PRIOR_MM = 2.0
+WANDER_BLOCKS = 2  # re-solves before the move, each over as many frames as the one after it, that measure its wander
 
 
 @dataclass(frozen=True, eq=False)
 class Resolved:
     """A camera's pose re-solved from a take. R (3, 3), t (3,) world->camera; points: markers
-    used; rms_px: their residual, pixels per axis (as health's); center_std_mm, rotation_std_deg: 1-sigma of the centre and the
-    orientation from the fit's covariance (sigma^2 H^-1); moved_mm, turned_deg: from the standing pose."""
+    used; rms_px: their residual, pixels per axis (unweighted); center_std_mm, rotation_std_deg:
+    1-sigma (root of the covariance's trace) of the centre and the orientation: the fit's own
+    (residuals weighted by their points' error) and the pose's wander, each also apart
+    (fit_rotation_std_deg, wander_rotation_std_deg); moved_mm, turned_deg: from the standing pose;
+    searched: (marker, blob) pairs the wide search weighed; fit_cov: the fit's own covariance;
+    model_blocks: the re-solves before the move that measured the wander (0: the test's baseline's)."""
 
     R: np.ndarray
     t: np.ndarray
@@ -30,30 +67,218 @@ class Resolved:
     rotation_std_deg: float
     moved_mm: float
     turned_deg: float
+    fit_rotation_std_deg: float = float("nan")
+    wander_rotation_std_deg: float = 0.0
+    searched: int = 0
+    fit_cov: np.ndarray | None = None  # (6, 6): omega rad (camera frame), dC m
+    model_blocks: int = 0
+
+    def with_wander(self, wander: np.ndarray, blocks: int) -> Resolved:
+        """The same re-solve, its covariance the fit's and ``wander`` (6, 6), measured over ``blocks``."""
+        assert self.fit_cov is not None
+        cov = self.fit_cov + wander
+        return replace(self, center_std_mm=float(np.sqrt(np.trace(cov[3:, 3:])) * 1000), rotation_std_deg=_deg(cov),
+                       wander_rotation_std_deg=_deg(wander), model_blocks=blocks)
 
 
-def resolve_camera(R0: np.ndarray, t0: np.ndarray, focal: float, X: np.ndarray, xy: np.ndarray) -> Resolved | None:
-    """Fit a camera's pose to markers X (k, 3), metres, seen at normalised xy (k, 2), starting from
-    its standing pose R0 (3, 3), t0 (3,); None with fewer than :data:`MIN_POINTS` markers."""
+@dataclass(frozen=True)
+class NotResolved:
+    """Why a moved camera was not re-solved, and what to do (falsy)."""
+
+    reason: str
+
+    def __bool__(self) -> bool:
+        return False
+
+
+def resolve_camera(R0: np.ndarray, t0: np.ndarray, focal: float, X: np.ndarray, xy: np.ndarray, *,
+                   start: np.ndarray | None = None, point_info: np.ndarray | None = None,
+                   wander: float = 0.0) -> Resolved | None:
+    """Fit a camera's pose to markers X (k, 3), metres, seen at normalised xy (k, 2), from its
+    standing pose R0 (3, 3), t0 (3,) turned by ``start`` (3, 3) about its centre (none: not turned);
+    None with fewer than :data:`MIN_POINTS` markers. point_info (k, 3, 3): the held cameras'
+    information on each marker (``sum J_v^T J_v``, px^-2 m^2 in blobs' variances; none: exact
+    markers). The centre is held near the standing one by a prior of :data:`CENTRE_PRIOR_MM` a
+    direction. wander: the pose's wander as a share of a residual's variance (lambda of
+    :func:`wander_share`), added to the fit's covariance as ``lambda k cov_fit`` (the module's note)."""
     if len(X) < MIN_POINTS:
         return None
-    R, C = R0.copy(), -R0.T @ t0
+    C0 = camera_centers(R0[None], t0[None])[0]
+    R, C = (R0 if start is None else start @ R0).copy(), C0.copy()
     keep = np.ones(len(X), bool)
+    s2 = 1.0  # px^2: the blobs' variance, as the fit finds it
     for step in range(STEPS):
-        J, r = linearised(R, -R @ C, focal, X, xy)
-        if step == 1:  # drop markers the first fit does not explain (a blob taken for another)
+        J, r = _weighted(R, C, focal, X, xy, point_info)
+        if step == 1:  # drop markers the first fit does not explain (a blob taken for another), weighted
             keep = np.hypot(r[:, 0], r[:, 1]) < OUTLIER_PX
-        H = np.einsum("kpi,kpj->ij", J[keep], J[keep])
-        p = solve_pose_change(H, np.einsum("kpi,kp->i", J[keep], r[keep]))
+        H, g = _prior(np.einsum("kpi,kpj->ij", J[keep], J[keep]), np.einsum("kpi,kp->i", J[keep], r[keep]), C - C0, s2)
+        p = solve_pose_change(H, g)
         R = rotvec_to_matrix(p[:3]) @ R
         C = C + p[3:]
-    J, r = linearised(R, -R @ C, focal, X, xy)
-    J, r = J[keep], r[keep]
-    H = np.einsum("kpi,kpj->ij", J, J)
+        s2 = max(float((r[keep] ** 2).sum() / max(2 * keep.sum() - PARAMS, 1)), 1e-6)
+    J, r = (v[keep] for v in _weighted(R, C, focal, X, xy, point_info))
+    raw = linearised(R, -R @ C, focal, X[keep], xy[keep])[1]
     s2 = float((r ** 2).sum() / max(2 * len(r) - PARAMS, 1))
-    cov = s2 * np.linalg.pinv(H, rcond=1e-10, hermitian=True)
+    H, _ = _prior(np.einsum("kpi,kpj->ij", J, J), np.zeros(PARAMS), C - C0, s2)
+    fit = s2 * np.linalg.pinv(H, rcond=1e-10, hermitian=True)
+    cov = fit * (1 + wander * len(r))
     t = -R @ C
-    turned = np.degrees(np.arccos(np.clip((np.trace(R @ R0.T) - 1) / 2, -1, 1)))
-    return Resolved(R, t, int(keep.sum()), float(np.sqrt((r ** 2).sum() / max(2 * len(r), 1))),
-                    float(np.sqrt(np.trace(cov[3:, 3:])) * 1000), float(np.degrees(np.sqrt(np.trace(cov[:3, :3])))),
-                    float(np.linalg.norm(C - camera_centers(R0[None], t0[None])[0]) * 1000), float(turned))
+    return Resolved(R, t, int(keep.sum()), float(np.sqrt((raw ** 2).sum() / max(2 * len(raw), 1))),
+                    float(np.sqrt(np.trace(cov[3:, 3:])) * 1000), _deg(cov), float(np.linalg.norm(C - C0) * 1000),
+                    float(np.degrees(rotation_angle(R, R0))), _deg(fit), _deg(cov - fit), fit_cov=fit)
+
+
+def _prior(H: np.ndarray, g: np.ndarray, dC: np.ndarray, s2: float) -> tuple[np.ndarray, np.ndarray]:
+    """Normal equations H (6, 6), g (6,) with the centre's prior (:data:`CENTRE_PRIOR_MM` a direction
+    about the standing centre, dC (3,) metres from it), in the units of residuals of variance s2 px^2."""
+    w = s2 / (CENTRE_PRIOR_MM / 1000) ** 2
+    H, g = H.copy(), g.copy()
+    H[3:, 3:] += w * np.eye(3)
+    g[3:] -= w * dC
+    return H, g
+
+
+def _deg(cov: np.ndarray) -> float:
+    return float(np.degrees(np.sqrt(max(np.trace(cov[:3, :3]), 0.0))))
+
+
+def _weighted(R, C, focal: float, X, xy, point_info) -> tuple[np.ndarray, np.ndarray]:
+    """J (k, 2, 6), r (k, 2) of :func:`~wandcal.calib.watch.health.linearised`, each whitened by its
+    covariance in blobs' variances, ``I + Jx A^-1 Jx^T`` (A: ``point_info``; none: I)."""
+    J, r = linearised(R, -R @ C, focal, X, xy)
+    if point_info is None:
+        return J, r
+    Jx = point_jacobian(R, -R @ C, focal, X)
+    cov = np.eye(2) + Jx @ np.linalg.pinv(point_info, rcond=1e-12, hermitian=True) @ np.swapaxes(Jx, 1, 2)
+    W = np.linalg.inv(np.linalg.cholesky(cov))  # W cov W^T = I
+    return W @ J, np.einsum("kab,kb->ka", W, r)
+
+
+def held_markers(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, rows: np.ndarray,
+                 moved: list[int]) -> tuple[PaddedFrames, np.ndarray, np.ndarray, np.ndarray]:
+    """The blobs ``rows`` padded (every camera's), and the markers the cameras not in ``moved``
+    match and triangulate among them: (padded, frame index (T,) into padded.frames, X (T, 3) metres,
+    the held cameras' information on each (T, 3, 3), px^-2 m^2 in blobs' variances)."""
+    padded = pad_frames(rig, blobs, rows)
+    xy, row = padded.xy.copy(), padded.row.copy()
+    xy[:, moved], row[:, moved] = np.nan, -1
+    tracks = match_frames(rig, R, t, PaddedFrames(padded.frames, xy, row))
+    p, cam = np.nonzero(tracks.views >= 0)
+    return padded, np.searchsorted(padded.frames, tracks.frame), tracks.X, _information(rig, R, t, p, cam, tracks.X)
+
+
+def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: int, since: int, moved: list[int], *,
+                  before: int | None = None, wander: float = 0.0) -> Resolved | NotResolved:
+    """Camera c re-solved from the take's frames ``since`` on (blobs sorted by frame, numbered by
+    rank), the cameras ``moved`` (c among them) left out of the markers; R (C, 3, 3), t (C, 3) the
+    standing poses. Its wander is measured by re-solving it the same way over up to
+    :data:`WANDER_BLOCKS` spans of as many frames (or all there are) before ``before`` (the frame it
+    moved at), where it stood at its standing pose; with none (moved before the take), ``wander`` (:func:`wander_share`)
+    is used. A :class:`NotResolved` says why not."""
+    if len(rig.cameras) - len(set(moved)) < MIN_HELD:
+        return NotResolved(f"only {len(rig.cameras) - len(set(moved))} cameras held still, and a marker the take "
+                           f"places needs {MIN_HELD}")
+    span = int(blobs.frame[-1]) + 1 - since if len(blobs) else 0
+    solved = _searched(rig, R, t, blobs, c, (since, since + span), moved, wander)
+    if not isinstance(solved, Resolved) or before is None:
+        return solved
+    length = max(min(span, before), 1)  # a take short before its move: one span of all it has
+    blocks = [_searched(rig, R, t, blobs, c, (before - (b + 1) * length, before - b * length), moved, 0.0)
+              for b in range(WANDER_BLOCKS) if before - (b + 1) * length >= 0]
+    devs = [(camera_pose_vector(R[c], t[c], r.R, r.t), r.fit_cov) for r in blocks
+            if isinstance(r, Resolved) and r.fit_cov is not None]
+    if not devs:
+        return solved
+    return solved.with_wander(_wander_cov(devs), len(devs))
+
+
+def _searched(rig: Rig, R, t, blobs: TakeBlobs, c: int, frames: tuple[int, int], moved: list[int],
+              wander: float) -> Resolved | NotResolved:
+    """Camera c re-solved from the frames ``frames`` (first, stop) by the wide search's views."""
+    cid = rig.cameras[c].id
+    rows = np.arange(*np.searchsorted(blobs.frame, frames))
+    padded, fi, X, info = held_markers(rig, R, t, blobs, rows, moved)
+    focal = float(rig.cameras[c].focal.mean())
+    b_frame, slot = np.nonzero(np.isfinite(padded.xy[:, c, :, 0]))
+    xy = _standing_xy(R[c], t[c], X)
+    ahead = np.flatnonzero(np.isfinite(xy[:, 0]))
+    views = search_views(rays(xy[ahead]), fi[ahead], padded.xy[b_frame, c, slot], b_frame, focal)
+    views = replace(views, point=ahead[views.point])
+    if len(views) < MIN_POINTS:
+        return NotResolved(f"{len(views)} of the {len(X)} markers the others triangulated after its move were found in "
+                           f"{cid}'s image (within {SEARCH_DEG:g} deg of where they were; {MIN_POINTS} needed): record "
+                           "a longer take it sees")
+    solved = resolve_camera(R[c], t[c], focal, X[views.point], views.xy, start=views.turn,
+                            point_info=info[views.point], wander=wander)
+    if solved is None:
+        return NotResolved(f"under {MIN_POINTS} markers fit {cid}'s re-solved pose")
+    X2, xy2, info2 = confirmed_markers(rig, R, t, padded, c, moved, (solved.R, solved.t))
+    again = resolve_camera(R[c], t[c], focal, X2, xy2, start=solved.R @ R[c].T, point_info=info2, wander=wander)
+    if again is not None and again.points > solved.points:
+        solved = again
+    return replace(solved, searched=views.candidates)
+
+
+def confirmed_markers(rig: Rig, R, t, padded: PaddedFrames, c: int, moved: list[int],
+                      pose: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The markers matched with camera c at its re-solved ``pose`` (R (3, 3), t (3,)) among the
+    cameras that did not move and c: those c and two held cameras or more see, triangulated by the
+    held ones alone (c confirms the match, its view does not place the point). (X (k, 3) metres,
+    c's blob (k, 2) normalised, the held cameras' information on each (k, 3, 3), as :func:`held_markers`.)"""
+    others_moved = [m for m in moved if m != c]
+    xy, row = padded.xy.copy(), padded.row.copy()
+    xy[:, others_moved], row[:, others_moved] = np.nan, -1
+    R2, t2 = R.copy(), t.copy()
+    R2[c], t2[c] = pose
+    tracks = match_frames(rig, R2, t2, PaddedFrames(padded.frames, xy, row))
+    held = tracks.views.copy()
+    held[:, c] = -1
+    ok = (tracks.views[:, c] >= 0) & ((held >= 0).sum(1) >= 2)
+    p, cam = np.nonzero(held[ok] >= 0)
+    X = refine_points(R, t, p, cam, padded.xy_of(held[ok][p, cam]), tracks.X[ok])
+    return X, padded.xy_of(tracks.views[ok, c]), _information(rig, R, t, p, cam, X)
+
+
+def _information(rig: Rig, R, t, p: np.ndarray, cam: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(P, 3, 3) the cameras' information on points X (P, 3) from the views (point p (k,), camera cam (k,)),
+    ``sum J_v^T J_v``, px^-2 m^2 in blobs' variances."""
+    focal = np.array([camera.focal.mean() for camera in rig.cameras])
+    Jv = point_jacobian(R[cam], t[cam], focal[cam], X[p])
+    info = np.zeros((len(X), 3, 3))
+    np.add.at(info, p, np.einsum("kai,kaj->kij", Jv, Jv))
+    return info
+
+
+def camera_pose_vector(R0: np.ndarray, t0: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(6,) the pose R, t (3, 3), (3,) from R0, t0: (omega (3,) radians, camera frame, ``R = exp(omega) R0``;
+    dC (3,) metres, the centre's move), the parametrisation of :mod:`wandcal.calib.watch.health`."""
+    C = camera_centers(np.stack([R0, R]), np.stack([t0, t]))
+    return np.concatenate([matrix_to_rotvec(R @ R0.T), C[1] - C[0]])
+
+
+def _wander_cov(devs: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """(6, 6) the spread of re-solves at the standing pose about it beyond their fits' own covariance
+    (each dev: (6,) the re-solve's pose from the standing one, (6, 6) its fit's covariance), the
+    negative part dropped."""
+    d = np.array([v for v, _ in devs])
+    extra = np.einsum("bi,bj->ij", d, d) / len(d) - np.mean([cov for _, cov in devs], axis=0)
+    vals, vecs = np.linalg.eigh((extra + extra.T) / 2)
+    return (vecs * np.maximum(vals, 0.0)) @ vecs.T
+
+
+def _standing_xy(Rc: np.ndarray, tc: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(T, 2) normalised projections of X (T, 3) at the pose Rc, tc (points behind it: NaN)."""
+    Xc = X @ Rc.T + tc
+    return Xc[:, :2] / np.where(Xc[:, 2:] > 0, Xc[:, 2:], np.nan)
+
+
+def wander_share(test: CameraTest) -> float:
+    """lambda: how far a camera's pose wandered over the take's baseline beyond its noise, as a share
+    of one residual's variance (the test's wander covariance is ``lambda (I_0 / n_0)^+``,
+    :meth:`wandcal.calib.watch.sequential.CameraTest.wander`); 0 before the baseline is in."""
+    base = test.baseline()
+    if base is None:
+        return 0.0
+    per = base[1] / max(float(np.sum(test.n[:BASELINE_WINDOWS])), 1.0)
+    rank = np.linalg.matrix_rank(per, hermitian=True)
+    return float(np.trace(per @ test.wander(base)) / max(rank, 1))

@@ -19,7 +19,7 @@ from wandcal.calib.watch.health import (
 )
 from wandcal.calib.watch.lost import LOST_THRESHOLD, FoundTest
 from wandcal.calib.watch.match import Tracks, match_frames
-from wandcal.calib.watch.recover import Resolved, resolve_camera
+from wandcal.calib.watch.recover import SETTLE_FRAMES, Resolved, resolve_moved, wander_share
 from wandcal.calib.watch.sequential import (
     BASELINE_WINDOWS,
     GLR_THRESHOLD,
@@ -34,7 +34,6 @@ BATCH_FRAMES = 100  # a second at 100 fps: the unit a live take is processed in 
 # frames a take needs before any camera can be judged: the baseline, then a change's two halves
 BASELINE_FRAMES = BASELINE_WINDOWS * WINDOW_FRAMES
 MIN_JUDGED_FRAMES = BASELINE_FRAMES + 2 * PERSIST_WINDOWS * WINDOW_FRAMES
-SETTLE_FRAMES = 5 * WINDOW_FRAMES  # the re-solve waits this long after a knock completes (and uses the rest)
 # A camera whose images are this far (rms) from the standing pose over the take's first windows moved
 # before the take: a standing result's own pose error moves them ~0.1 px; a 0.05 deg turn at f = 1100 px, 1 px
 START_SHIFT_PX = 1.0
@@ -59,6 +58,7 @@ class CameraHealth:
     drift_frames: int = 0
     change: np.ndarray | None = None
     resolved: Resolved | None = None
+    not_resolved: str = ""  # why a moved camera was not re-solved, and what to do
     before_take: bool = False  # it had moved already when the take began
     peak: float = 0.0  # the test's largest statistic over the take
 
@@ -101,7 +101,7 @@ def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, reso
     numbers, rank = np.unique(blobs.frame, return_inverse=True)
     ranked = TakeBlobs(rank.astype(np.int64), blobs.camera, blobs.uv)  # windows of frames held, not frame numbers
     last = len(numbers) - 1
-    stream = WatchStream(rig, R, t, 0, keep_obs=resolve)
+    stream = WatchStream(rig, R, t, 0, keep_obs=False)
     stream.begin(ranked, np.arange(0, int(np.searchsorted(ranked.frame, stream.baseline_stop))))
     bounds = np.searchsorted(ranked.frame, np.arange(0, last + BATCH_FRAMES + 1, BATCH_FRAMES))
     for b in range(len(bounds) - 1):
@@ -110,7 +110,10 @@ def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, reso
         done = stream.add(ranked, np.arange(bounds[b], bounds[b + 1]))
         if progress:
             progress(done + 1, last + 1)
-    return _numbered(stream.report(last, resolve=resolve), numbers)
+    report = stream.report(last)
+    if resolve:
+        _resolve(rig, R, t, ranked, report, stream.tests)
+    return _numbered(report, numbers)
 
 
 def _numbered(report: WatchReport, numbers: np.ndarray) -> WatchReport:
@@ -175,9 +178,8 @@ class WatchStream:
             self.obs.append(windows.obs or [])
         return int(padded.frames[-1])
 
-    def report(self, last: int, *, resolve: bool = False) -> WatchReport:
-        """Every camera's health so far (``last``: the last frame seen); with ``resolve``, the moved
-        cameras re-solved (needs ``keep_obs``)."""
+    def report(self, last: int) -> WatchReport:
+        """Every camera's health so far (``last``: the last frame seen)."""
         report = WatchReport([CameraHealth(cam.id) for cam in self.rig.cameras], frames=self.frames,
                              tracks=self.tracks, first_frame=self.first, last_frame=last, obs=self.obs)
         sums = self.sums
@@ -194,8 +196,6 @@ class WatchStream:
                 health.kind, health.moved_at, health.change = "knock", alarm.frame, alarm.change
             elif alarm is not None:
                 health.kind, health.moved_at, health.drift_frames, health.change = classify(self.tests[c], alarm)
-            if health.alarm is not None and resolve:
-                health.resolved = _resolve(self.rig, self.R, self.t, report, c, health)
         return report
 
 
@@ -289,13 +289,16 @@ def _add_windows(windows: CameraWindows, blobs: np.ndarray, tests: tuple[list[Ca
     return None
 
 
-def _resolve(rig: Rig, R, t, report: WatchReport, c: int, health: CameraHealth) -> Resolved | None:
-    """Camera c re-solved from the markers it saw once its move was complete."""
-    assert health.moved_at is not None
-    since = health.moved_at + health.drift_frames + SETTLE_FRAMES
-    parts = [batch[c] for batch in report.obs if batch]
-    frame = np.concatenate([p[0] for p in parts])
-    X = np.concatenate([p[1] for p in parts])
-    xy = np.concatenate([p[2] for p in parts])
-    after = frame >= since
-    return resolve_camera(R[c], t[c], rig.cameras[c].focal.mean(), X[after], xy[after])
+def _resolve(rig: Rig, R, t, blobs: TakeBlobs, report: WatchReport, tests: list[CameraTest]) -> None:
+    """Every moved camera re-solved from the frames after its move completed and settled (``blobs``:
+    the take by frame rank, as ``report``), with its pose's wander from its test's baseline; or why not."""
+    moved = [c for c, h in enumerate(report.cameras) if h.alarm is not None]
+    for c in moved:
+        health = report.cameras[c]
+        assert health.moved_at is not None
+        out = resolve_moved(rig, R, t, blobs, c, health.moved_at + health.drift_frames + SETTLE_FRAMES, moved,
+                            before=None if health.before_take else health.moved_at, wander=wander_share(tests[c]))
+        if isinstance(out, Resolved):
+            health.resolved = out
+        else:
+            health.not_resolved = out.reason

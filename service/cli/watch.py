@@ -68,14 +68,17 @@ def _print_report(report, args) -> None:
                if h.before_take else f"knocked at frame {h.moved_at}")
         print(f"{h.id}: {how}, named at frame {h.alarm.detected_frame}", end="")
         if h.lost:
-            print(f"; too far to follow: its blobs are no longer near the markers the others triangulate; re-solve it "
-                  f"from a wand capture: wandcal calibrate CAPTURE --from {args.result} --solve-only {h.id}")
-        elif h.resolved is not None:
+            print("; too far to follow (its blobs are no longer near the markers the others triangulate)", end="")
+        if h.resolved is not None:
             r = h.resolved
             print(f"; moved {r.moved_mm:.2f} mm (sigma {r.center_std_mm:.2f}) and turned {r.turned_deg:.3f} deg "
                   f"(sigma {r.rotation_std_deg:.3f}), re-solved from {r.points} markers at {r.rms_px:.2f} px")
+        elif h.not_resolved:
+            print(f"; not re-solved: {h.not_resolved}; or re-solve it from a wand capture: wandcal calibrate CAPTURE "
+                  f"--from {args.result} --solve-only {h.id}")
         else:
-            print("; too few markers after the move to re-solve it: record a longer take")
+            print(f"; not re-solved: re-solve it from a wand capture: wandcal calibrate CAPTURE --from {args.result} "
+                  f"--solve-only {h.id}")
     if not report.judged:
         from wandcal.calib.watch.watch import BASELINE_FRAMES, MIN_JUDGED_FRAMES
 

@@ -22,6 +22,7 @@ from threadpoolctl import threadpool_limits
 from wandcal.calib.geometry import camera_centers, matrix_to_euler
 from wandcal.calib.observations import PointTracks
 from wandcal.calib.solve.ba.levenberg import CAUCHY_SIGMAS, STOP_SE, LevenbergMarquardt
+from wandcal.calib.solve.backend import schur
 from wandcal.calib.solve.markerwand import PlanarWandTerm, planar_term
 from wandcal.calib.solve.reprojection import CAM_PARAMS, INTRINSICS, BundleState, PointTerm, TimeFit, WandTerm
 from wandcal.calib.solve.uncertainty import PoseCovariance
@@ -96,6 +97,15 @@ def _point_term(tracks: PointTracks, focal: np.ndarray, free: np.ndarray, n: int
     return PointTerm(tracks.camera, tracks.track, tracks.xy, focal[tracks.camera], tracks.n_tracks, free, n, raw, timed)
 
 
+def _load_wide_inverse(width: int) -> None:
+    """Load scipy's LAPACK when a reduced system ``width`` wide is inverted by it
+    (:func:`wandcal.calib.solve.backend.schur._spd_inverse`): before the solve's one-thread BLAS
+    limit, which holds only the BLAS libraries loaded when it starts (loaded inside, its BLAS ran on
+    both cores: 256 x 3000, 11.2 -> 13.0 CPU s for the whole command)."""
+    if width >= schur.LAPACK_INVERSE_WIDTH:
+        import scipy.linalg.lapack  # noqa: F401
+
+
 def bundle_adjust_points(
     model: WandModel,
     tracks: PointTracks | None,
@@ -166,6 +176,7 @@ def bundle_adjust_points(
     solver = LevenbergMarquardt(terms, free, loss, frozen, refine, stop_se, timing is not None, judge_frames=judge_frames)
     # the dense products here are small: a second BLAS thread costs more in hand-offs than it
     # gains (0.26 s against 0.42 s at 8 x 1500 on 2 cores, and no gain at 32 x 2000)
+    _load_wide_inverse(solver.n_free * solver.cam_size)
     with threadpool_limits(limits=1, user_api="blas"):
         state, info = solver.run(state, progress, max_iter)
         std = solver.standard_errors(state) if standard_errors else np.full((len(free), solver.cam_size), np.nan)

@@ -154,17 +154,19 @@ class ArrowResult:
         return self.status == "optimal"
 
 
-def solve(lp: ArrowLp, warm: WarmStart | None = None, deadline: float | None = None) -> ArrowResult:
+def solve(lp: ArrowLp, warm: WarmStart | None = None, deadline: float | None = None, tol: float = TOL) -> ArrowResult:
     """The LP's optimum: the vertex of ``warm``'s basis if it is still optimal, else the
     interior-point method's answer (from ``warm``'s iterate), as the vertex of the basis it names
-    where that is certified."""
+    where that is certified. ``tol``: the relative residuals and gap the interior point stops at
+    (``TOL``; ``--method paper`` passes a looser one, decision 0060)."""
     start = time.perf_counter()
     if warm is not None and warm.basis is not None:
         v = vertex(lp, warm.basis)
         if v is not None:
             return ArrowResult(v, "optimal", warm, 0, time.perf_counter() - start)
     blocks = _Blocks(lp, None if warm is None else warm.sums)
-    v, status, named, iterations, iterate = _interior_point(lp, blocks, deadline, None if warm is None else warm.iterate)
+    v, status, named, iterations, iterate = _interior_point(lp, blocks, deadline, None if warm is None else warm.iterate,
+                                                             tol)
     return ArrowResult(v, status, WarmStart(named, iterate, blocks.sums), iterations, time.perf_counter() - start)
 
 
@@ -376,7 +378,8 @@ class _Residuals:
         return cls(rp, ru, rd, rf, gap, near)
 
 
-def _interior_point(lp: ArrowLp, blocks: _Blocks, deadline: float | None, start: _Point | None = None):
+def _interior_point(lp: ArrowLp, blocks: _Blocks, deadline: float | None, start: _Point | None = None,
+                    tol: float = TOL):
     """Mehrotra's predictor-corrector (Wright 1997, ch. 10, with upper bounds) on the LP above,
     from ``start`` (an iterate of a like-shaped LP's solve) or a cold start. Returns (v (n,),
     status, the certified basis or None, iterations, the iterate to warm-start the next from).
@@ -400,7 +403,7 @@ def _interior_point(lp: ArrowLp, blocks: _Blocks, deadline: float | None, start:
             if v is not None:
                 return v, "optimal", named, it, saved
         best, worse = ((res.near, pt.lam), 0) if res.near < best[0] else (best, worse + 1)
-        if res.near <= TOL:
+        if res.near <= tol:
             status = "optimal"
             break
         if worse >= WORSE:

@@ -33,6 +33,13 @@ SPARSE_GRAM_PRODUCTS = 65_536  # block-pair products (c x c each) at a time: ~20
 CHUNK_GROUPS = 16_384  # observation groups linearised and summed at once: ~30 MB of temporaries
 MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagonal: a parameter no
 # residual touches would otherwise make the damped system singular
+# the reduced camera system's width (6 x cameras) from which its inverse comes from LAPACK's Cholesky
+# routines (potrf, potri: n^3 flops) rather than NumPy's Cholesky test and LU inverse (3 n^3), whose
+# import of scipy.linalg (0.2 CPU s) it then pays for: one BLAS thread, CPU s a solve, 768 wide
+# (128 cameras) 0.052 against 0.024 (4-10 solves a calibration: about the import), 1536 wide (256
+# cameras) 0.43 against 0.18 (docs/decisions/0059-wide-inverse.md). Narrower systems (every rig
+# up to 170 cameras, the acceptance rig's 48) keep NumPy's routines and their digits
+LAPACK_INVERSE_WIDTH = 1024
 
 
 DENSE_SUM_ROWS = 64  # sums into at most this many rows (cameras) go through a one-hot matrix product
@@ -246,16 +253,34 @@ def solve(normal: Normal, lam: float) -> Step | None:
         b -= _summed(s.pair_to_cam, np.einsum("kij,kj->ki", t.W, y[s.pair_pt]), n)
         _subtract_gram(S, t.W, LinvT, s)
         solved.append(Vinv)
-    # S is at most a few hundred wide: its inverse (whose diagonal gives the standard errors) is
-    # as cheap as a triangular solve, and numpy's own routines spare scipy.linalg's start-up
-    try:
-        np.linalg.cholesky(S)  # positive definite, or no step at this damping
-    except np.linalg.LinAlgError:
+    S_inv = _spd_inverse(S)  # its diagonal gives the standard errors
+    if S_inv is None:
         return None
-    S_inv = np.linalg.inv(S)
     dc = -(S_inv @ b.ravel()).reshape(n, c)
     return Step(dc, _back_substituted(normal, solved, dc), np.diag(S_inv).reshape(n, c).copy(),
                 [np.einsum("pii->pi", Vinv) for Vinv in solved], S_inv, solved, lam)
+
+
+def _spd_inverse(S: np.ndarray) -> np.ndarray | None:
+    """The inverse of the symmetric (n, n) ``S``; None when it is not positive definite (no step at
+    this damping). Up to :data:`LAPACK_INVERSE_WIDTH` NumPy's routines (its inverse as cheap as a
+    triangular solve there, and scipy.linalg's start-up spared); wider, LAPACK's from the Cholesky
+    factor, which is also the test."""
+    if len(S) < LAPACK_INVERSE_WIDTH:
+        try:
+            np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            return None
+        return np.linalg.inv(S)
+    from scipy.linalg.lapack import dpotrf, dpotri
+
+    factor, info = dpotrf(S, lower=False, clean=False)
+    if info != 0:
+        return None
+    upper, info = dpotri(factor, lower=False)
+    if info != 0:
+        return None
+    return np.triu(upper) + np.triu(upper, 1).T
 
 
 def solve_again(normal: Normal, factored: Step) -> Step:

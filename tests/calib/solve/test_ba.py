@@ -174,3 +174,31 @@ def test_the_reduction_by_each_frames_own_cameras_is_the_dense_one(cameras):
         schur._subtract_gram(dense, W, LinvT, structure)
     assert np.abs(dense).max() > 0
     assert np.allclose(sparse, dense, rtol=0, atol=1e-12 * np.abs(dense).max())
+
+
+def test_a_wide_reduced_system_is_solved_by_lapacks_cholesky_inverse_as_by_numpys(monkeypatch):
+    """A reduced camera system from :data:`schur.LAPACK_INVERSE_WIDTH` wide is inverted from its
+    Cholesky factor (LAPACK's potrf, potri): the same step and standard errors as NumPy's LU
+    inverse, to rounding; a system damped below positive definiteness gives no step either way."""
+    scene = prepared_scene(cameras=4, frames=120, noise_px=NOISE, seed=5)
+    model = perturbed_model(scene, degrees=0.5, metres=0.01, seed=5)
+    p = model.p
+    R, t = model.poses(model.x0())
+    wand = model.wand(model.x0())
+    d = wand[:, 1] - wand[:, 0]
+    state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), np.zeros((0, 3)), None, None, None)
+    term = WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, model.free, p.n_cams)
+    normal = schur.normal_equations(6, len(model.free), [(term.structure, lambda lo, hi: term.linearise_rows(state, slice(lo, hi)))])
+    narrow = schur.solve(normal, 1e-3)
+    monkeypatch.setattr(schur, "LAPACK_INVERSE_WIDTH", 1)
+    wide = schur.solve(normal, 1e-3)
+    assert narrow is not None and wide is not None
+    assert np.array_equal(wide.cam_cov, wide.cam_cov.T)
+    assert np.allclose(wide.cam_cov, narrow.cam_cov, rtol=0, atol=1e-12 * np.abs(narrow.cam_cov).max())
+    assert np.allclose(wide.dc, narrow.dc, rtol=0, atol=1e-12 * np.abs(narrow.dc).max())
+    assert np.allclose(wide.cam_var, narrow.cam_var, rtol=1e-10)
+    indefinite = np.eye(3)
+    indefinite[2, 2] = -1.0
+    assert schur._spd_inverse(indefinite) is None
+    monkeypatch.setattr(schur, "LAPACK_INVERSE_WIDTH", 1024)
+    assert schur._spd_inverse(indefinite) is None
