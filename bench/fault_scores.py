@@ -13,8 +13,23 @@ if TYPE_CHECKING:
     from bench.real_faults import Outcome
 
 ABSORBED_SIGMAS = 3.0  # a principal point the rotation absorbs moves the camera within this many sigma
-OUTCOMES = ("right", "absorbed", "limited", "missed", "wrong kind", "wrong camera", "called poor", "refused")
+OUTCOMES = ("right", "absorbed", "limited", "at the limit", "missed", "wrong kind", "wrong camera", "called poor", "refused")
 
+
+
+def at_limit_lines(verdict: dict) -> list[str]:
+    """The verdict's criteria at the limit of poor, each as the CLI summary says it ("cam1 own
+    noise against the other cameras' at the limit of poor (1.32 +- 0.11 x against 1.5 x)")."""
+    from wandcal.calib.judge.verdict import at_limit_text
+
+    return [f"{e['camera'] + ' ' if e.get('camera') else ''}{e['criterion']} {at_limit_text(e)}"
+            for e in verdict.get("at_limit") or [] if isinstance(e, dict) and e.get("levels", [None, None])[1] == "poor"]
+
+
+def noise_at_limit_named(o: Outcome, camera: str | None) -> bool:
+    """A noise case is *at the limit* (right) when the verdict says the target camera's noise is at
+    the limit of poor: a line of :func:`at_limit_lines` that names the camera and the noise."""
+    return camera is not None and any(line.startswith(camera + " ") and "noise" in line for line in o.at_limit)
 
 
 def covered(o: Outcome, sigmas: float = ABSORBED_SIGMAS) -> bool:

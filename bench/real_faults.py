@@ -54,7 +54,16 @@ from bench.fault_injectors import (
     with_principal,
     without_k1,
 )
-from bench.fault_scores import ABSORBED_SIGMAS, OUTCOMES, case_line, confusion_table, covered, sigma_coverage
+from bench.fault_scores import (
+    ABSORBED_SIGMAS,
+    OUTCOMES,
+    at_limit_lines,
+    case_line,
+    confusion_table,
+    covered,
+    noise_at_limit_named,
+    sigma_coverage,
+)
 from bench.real_sessions import BROWN, BROWN_MAT, SHARED_DATA, SVOBODA, USHICHKA, USHICHKA_HEIGHT
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import PointObservations, Rig, WandObservations
@@ -135,6 +144,8 @@ class Outcome:
     message: str = ""
     seconds: float = 0.0
     outcome: str = field(default="")
+    at_limit: list = field(default_factory=list)  # the verdict's criteria at the limit of poor (lines, fault_scores.at_limit_lines)
+    at_limit_right: bool = False
 
 
 # -- sessions --------------------------------------------------------------------------------
@@ -321,6 +332,7 @@ def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outco
         out.limited = ids[case.camera] in {limit["camera"] for limit in verdict.get("limits") or []}
     timing = [f["evidence"].get("timing", {}).get("offset_frames") for f in verdict["faults"] if f["kind"] == "timing"]
     out.offset_frames = timing[0] if timing else None
+    out.at_limit = at_limit_lines(verdict)
     cams_named = {cam for kind, cam in named if cam is not None and (kind, cam) not in clean.faults}
     if case.expected is None:  # a subsample of a clean session
         out.right = not cams_named and LEVEL_ORDER.index(out.level) <= LEVEL_ORDER.index(clean.level)
@@ -336,8 +348,11 @@ def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outco
         out.right = out.absorbed = True
     if case.family in LIMITABLE and not out.right and not others and out.limited and covered(out):
         out.right = out.limited_right = True
+    if case.expected == "noise" and not out.right and not cams_named and noise_at_limit_named(out, target):
+        out.right = out.at_limit_right = True
     if out.right:
-        out.outcome = "limited" if out.limited_right else "absorbed" if out.absorbed else "right"
+        out.outcome = ("limited" if out.limited_right else "absorbed" if out.absorbed
+                       else "at the limit" if out.at_limit_right else "right")
     elif others:
         out.outcome = "wrong camera"
     elif target in cams_named or (target is None and named):

@@ -33,6 +33,7 @@ from wandcal.calib.judge.residuals import (
 )
 from wandcal.calib.judge.verdict import (
     SCALE_FAULTS,
+    at_limit_text,
     camera_verdict,
     coverage_reports,
     placement_verdict,
@@ -50,7 +51,7 @@ from wandcal.calib.run.result import (
     WandReport,
     WorldFrame,
 )
-from wandcal.calib.run.rig_faults import few_camera_faults
+from wandcal.calib.run.rig_faults import few_camera_faults, noise_limits
 from wandcal.calib.solve.uncertainty import chi2_quantile
 
 # rays meeting at under 2 degrees put a point's depth at 1/tan(2 deg) ~ 29 baselines, known to
@@ -160,7 +161,8 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
                        "message": f"the cameras' rays meet at a median {np.degrees(angle):.2f} degrees: the points' depth "
                                   "is not determined and the rig has collapsed towards one spot; check the focal "
                                   "lengths (rig.json or --focal-px) and that the cameras see the volume from apart"})
-    out = [replace(cam, verdict=_camera_verdict(doc, cam_id, faults, extent if scaled else None, rig_noise))
+    near = noise_limits(rig, labelled, tracks, R, t, faults)
+    out = [replace(cam, verdict=_camera_verdict(doc, cam_id, faults, extent if scaled else None, rig_noise, near))
            for cam, doc, cam_id in zip(judged, docs, rig.ids)]
     named: list[dict[str, Any]] = [{"id": cam_id} | c.to_json() for cam_id, c in zip(rig.ids, out)]
     verdict = rig_verdict(named, wand_doc, faults, extent if scaled else None)
@@ -234,10 +236,19 @@ def _judged(cam: CameraFigures, fig: dict, cov: dict, extent: float | None) -> J
         geometry / extent if extent and geometry is not None else None)
 
 
-def _camera_verdict(doc: dict, cam_id: str, faults: list[dict], extent: float | None, rig_noise: float | None) -> dict:
+def _camera_verdict(doc: dict, cam_id: str, faults: list[dict], extent: float | None, rig_noise: float | None,
+                    near: list[dict] | None = None) -> dict:
     """A camera's verdict (:func:`camera_verdict`); a camera at fault, or in a rig whose scale is at
-    fault, is poor, whatever its figures say."""
+    fault, is poor, whatever its figures say. near: criteria judged elsewhere at the limit of poor
+    (:func:`wandcal.calib.run.rig_faults.noise_limits`); the camera's own are added to its ``at_limit``
+    and said in its reasons, its level left as it is."""
     verdict = camera_verdict(doc, cam_id, extent, rig_noise)
+    mine = [e for e in near or [] if e["camera"] == cam_id]
+    if mine:
+        verdict = verdict | {"at_limit": [*verdict.get("at_limit", []), *mine], "reasons": [*verdict["reasons"], *(
+            f"{cam_id}'s {e['criterion'].replace('own ', '')} is {at_limit_text(e)}: its blob centres "
+            f"({e['own_noise_px']:.2f} px against {e['others_noise_px']:.2f} px) may be noisier than the others'; "
+            "check its focus, exposure and the blob detection settings" for e in mine)]}
     for fault in faults:
         # a scale fault puts every length off, the camera's place and its sigma with it
         if fault["camera"] == cam_id or fault["kind"] in SCALE_FAULTS:

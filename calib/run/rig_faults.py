@@ -356,3 +356,22 @@ def _median_views(res: Residuals) -> float:
         return 0.0
     counts = np.bincount(res.point - res.point.min())
     return float(np.median(counts[counts > 0]))
+
+
+def noise_limits(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
+                 faults: list[dict]) -> list[dict]:
+    """The cameras whose own noise (the points eliminated) is at the limit of a noise fault
+    (:func:`wandcal.calib.judge.faults.own_errors.noise_at_limit`), for the verdict's ``at_limit``:
+    judged in a rig of few cameras (3 to :data:`wandcal.calib.judge.faults.leave_one_out.MAX_CAMERAS`,
+    where a camera's noise spreads over the points) and only where no camera is at fault (a camera
+    at fault bends the others' residuals, and its own fault says more than its noise)."""
+    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
+    from wandcal.calib.judge.faults.own_errors import camera_noise, eliminate, noise_at_limit, views_of
+
+    if not 3 <= len(rig.cameras) <= MAX_CAMERAS or any(f["camera"] is not None for f in faults):
+        return []
+    views = views_of(labelled, tracks)
+    if not len(views.point):
+        return []
+    noise = camera_noise(eliminate(R, t, views), np.array([c.focal.mean() for c in rig.cameras]))
+    return [e for e in (noise_at_limit(cam_id, n) for cam_id, n in zip(rig.ids, noise)) if e is not None]

@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.judge.faults.own_errors import in_wand_time
 from wandcal.calib.judge.faults.screen import POSE_STEP, Lens, _lens_fit, _pose_columns, _share, resect
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.start.labels import flatten
@@ -96,14 +97,19 @@ class CameraPatterns:
 
 def held_out_views(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None, c: int) -> HeldOut:
     """Camera c's wand ends and point-track observations, each against its point triangulated by
-    the other cameras alone (those with two other views). R, t: (N, 3, 3), (N, 3) poses."""
+    the other cameras alone (those with two other views). R, t: (N, 3, 3), (N, 3) poses. The
+    wand's ends have a time, and the point tracks in the wand's time
+    (:func:`wandcal.calib.judge.faults.own_errors.in_wand_time`: a multi-marker wand's interior markers,
+    a moving marker; all of them without a wand), so that they enter the knock test."""
     groups = []
     if len(labelled):
         point, camera, xy = flatten(labelled)
         groups.append((point, camera, xy, 2 * len(labelled.frames), labelled.frames[point // 2], True))
     if tracks is not None and len(tracks):
+        # a track has a time where it is in the wand's (every one without a wand), as own_errors times them
+        track_timed = in_wand_time(tracks.frames, labelled.frames[labelled.frame] if len(labelled) else np.zeros(0))
         groups.append((tracks.track, tracks.camera, tracks.xy, tracks.n_tracks, tracks.frames[tracks.track],
-                       not len(labelled)))
+                       track_timed[tracks.track]))
     Xs, xys, frames, timed = [], [], [], []
     for point, camera, xy, n, frame, has_time in groups:
         others = camera != c
@@ -115,7 +121,7 @@ def held_out_views(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         Xs.append(X[point[mine]])
         xys.append(xy[mine])
         frames.append(frame[mine])
-        timed.append(np.full(int(mine.sum()), has_time))
+        timed.append(np.broadcast_to(has_time, mine.shape)[mine])
     if not Xs:
         return HeldOut(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, bool))
     X = np.concatenate(Xs)

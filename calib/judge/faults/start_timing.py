@@ -31,20 +31,27 @@ MAX_SHIFT = 8  # whole frames searched either way (--sync auto's default search)
 # fractions of a frame tried either way: a camera off by 0.3 frame agrees at 0.25, one off by 0.5
 # at 0.5; the start tolerates the quarter frame left over (its RANSAC threshold is 2 px)
 FRACTIONS = (0.25, 0.5)
+# a clock's drift through the capture tried either way (offset at the camera's last frame): a
+# clock one frame slow by the end agrees at 1, half a frame at 0.5
+DRIFTS = (1.0, 0.5)
 MAX_FRACTION_CAMERAS = 5  # a start per camera and fraction: 4 per camera, ~0.3 s each on a digitised session
 
 
-def resampled(pairs: WandPairs, c: int, shift: float) -> WandPairs:
+def resampled(pairs: WandPairs, c: int, shift: float, drift: float = 0.0) -> WandPairs:
     """The pairs with camera c's samples at frame k taken from its own time k + ``shift`` (frames;
     linear between its samples at the two frames around it, each end paired with the nearer one);
-    its frames without both neighbours are left out. As if c were ``-shift`` frames late."""
+    its frames without both neighbours are left out. As if c were ``-shift`` frames late.
+    ``drift``: frames added to the shift in proportion through c's frames, from 0 at its first to
+    ``drift`` at its last (a clock running fast or slow)."""
     mine = np.flatnonzero(pairs.camera == c)
     number = pairs.frames[pairs.frame]
     row_of = {int(f): int(i) for f, i in zip(number[mine], mine)}
-    lo = int(np.floor(shift))
-    w = shift - lo
+    first, last = (int(number[mine].min()), int(number[mine].max())) if len(mine) else (0, 1)
     kept, xy, uv = [], [], []
     for i in mine:
+        here = shift + drift * (int(number[i]) - first) / max(last - first, 1)
+        lo = int(np.floor(here))
+        w = here - lo
         a, b = row_of.get(int(number[i]) + lo), row_of.get(int(number[i]) + lo + 1)
         if a is None or (w > 0 and b is None):
             continue
@@ -113,6 +120,19 @@ def fractional_shift(rig: Rig, pairs: WandPairs, static_poses: list | None, trac
     return found[0] if len(found) == 1 else None
 
 
+def drifting_clock(rig: Rig, pairs: WandPairs, static_poses: list | None, tracks: PointTracks | None,
+                   suspect: int | None) -> tuple[int, float] | None:
+    """(camera, its offset at its last frame, positive: late) of the camera the start could not
+    place (``suspect``) whose clock runs slow or fast: its samples resampled with an offset growing
+    from 0 at its first frame to :data:`DRIFTS` frames at its last let the start place every
+    camera; None where no drift does, or both signs do."""
+    if suspect is None or len(rig.cameras) > MAX_FRACTION_CAMERAS:
+        return None
+    found = [(suspect, -drift) for drift in (d * sign for d in DRIFTS for sign in (1, -1))
+             if _places(rig, resampled(pairs, suspect, 0.0, drift), static_poses, tracks)]
+    return found[0] if found and all(np.sign(d) == np.sign(found[0][1]) for _, d in found) else None
+
+
 def out_of_time_refusal(error: CalibrationError, rig: Rig, pairs: WandPairs, static_poses: list | None,
                         tracks: PointTracks | None) -> CalibrationError:
     """The start's refusal ``error`` with the camera out of time named first, where a shift of its
@@ -134,10 +154,23 @@ def out_of_time_refusal(error: CalibrationError, rig: Rig, pairs: WandPairs, sta
                                         error.camera if isinstance(error, UnplacedCamera) else None)
         except (np.linalg.LinAlgError, FloatingPointError, ValueError):
             fraction = None
-        if fraction is None:
-            return error
-        c, d = fraction
-        named = (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved in "
-                 f"time, about {abs(d):g} frame {'late' if d > 0 else 'early'} (offset {d:+g}: positive is late)")
+        if fraction is not None:
+            c, d = fraction
+            named = (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved "
+                     f"in time, about {abs(d):g} frame {'late' if d > 0 else 'early'} (offset {d:+g}: positive is late)")
+        else:
+            try:
+                drift = drifting_clock(rig, pairs, static_poses, tracks,
+                                       error.camera if isinstance(error, UnplacedCamera) else None)
+            except (np.linalg.LinAlgError, FloatingPointError, ValueError):
+                drift = None
+            if drift is None:
+                return error
+            c, d = drift
+            named = (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved in "
+                     f"time by an offset growing from 0 at its first frame to about {abs(d):g} frame "
+                     f"{'late' if d > 0 else 'early'} at its last (a clock running {'slow' if d > 0 else 'fast'}, or a "
+                     f"constant offset of a fraction of a frame, which the start cannot tell apart; offset {d:+g} at its "
+                     "last frame: positive is late)")
     return CalibrationError(f"{named}; calibrate with --sync auto, which finds and corrects each camera's offset, "
                             f"or check its trigger cable and settings. Without the shift the start failed: {error}")

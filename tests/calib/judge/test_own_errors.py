@@ -85,6 +85,16 @@ def test_noise_on_one_camera_stays_with_it():
     assert moved == [] and [f["camera"] for f in noisy] == ["cam2"]
 
 
+@pytest.mark.parametrize("ratio, at_limit", [(1.0, False), (1.35, True), (1.5, True), (1.69, True), (1.71, False)])
+def test_noise_within_two_standard_errors_of_its_limit_is_at_the_limit(ratio, at_limit):
+    # NOISE_LIMIT 1.5, NOISE_Z 2: with a standard error of 0.1 the band is 1.3-1.7; beyond it a fault is named
+    entry = oe.noise_at_limit("cam2", oe.Noise(ratio * 0.4, 0.4, ratio, 0.1, 500))
+    assert (entry is not None) == at_limit
+    if entry is not None:
+        assert entry["camera"] == "cam2" and "noise" in entry["criterion"] and entry["levels"] == ["good", "poor"]
+        assert entry["value"] == ratio and entry["limit"] == oe.NOISE_LIMIT and entry["std"] == 0.1
+
+
 @pytest.mark.parametrize("camera, degrees", [(1, 0.3), (3, 0.8)])
 def test_a_knocked_camera_is_named_with_its_frame_and_angle(camera, degrees):
     R, t = _rig()

@@ -40,6 +40,18 @@ def test_resampling_a_linear_track_puts_each_end_where_it_was_then(shift):
     np.testing.assert_array_equal(moved.xy[other], pairs.xy[pairs.camera == 0])
 
 
+@pytest.mark.parametrize("drift", [1.0, -0.5])
+def test_resampling_with_a_drift_shifts_each_frame_in_proportion_through_the_cameras_frames(drift):
+    pairs = _linear_pairs()
+    moved = resampled(pairs, 1, 0.0, drift)
+    mine = moved.camera == 1
+    k = moved.frames[moved.frame[mine]].astype(float)
+    here = k + drift * k / 11  # its frames are 0..11: 0 at the first, ``drift`` at the last
+    np.testing.assert_allclose(moved.xy[mine, 1, 0], 0.01 * here, atol=1e-12)
+    np.testing.assert_allclose(moved.xy[mine, 0, 1], 0.02 * here, atol=1e-12)
+    assert np.all((here >= 0) & (here <= 11))  # only samples with both neighbours are kept
+
+
 @pytest.mark.parametrize("offset", [2, -1])
 def test_a_camera_whole_frames_out_of_time_is_named_with_its_shift(offset):
     offsets = np.zeros(4)
@@ -58,3 +70,31 @@ def test_a_refusal_of_cameras_in_time_is_left_as_it_was():
     sim = simulate_capture(4, 300, NOISE_PX, static=False, seed=5)
     refused = CalibrationError("camera 'cam2' cannot be placed")
     assert out_of_time_refusal(refused, sim.rig, wand_pairs(sim.rig, sim.wand), None, None) is refused
+
+
+def test_a_camera_whose_clock_drifts_is_named_where_only_the_drift_places_it(monkeypatch):
+    # the start places every camera only with camera 2's samples resampled by an offset growing to +1
+    # frame (as if it ran 1 frame early by its last): the refusal names it, with --sync auto
+    import wandcal.calib.judge.faults.start_timing as st
+
+    sim = simulate_capture(4, 300, NOISE_PX, static=False, seed=5)
+    monkeypatch.setattr(st, "whole_frame_shifts", lambda *a: {})
+    monkeypatch.setattr(st, "fractional_shift", lambda *a: None)
+    monkeypatch.setattr(st, "resampled", lambda pairs, c, shift, drift=0.0: (c, shift, drift))
+    monkeypatch.setattr(st, "_places", lambda rig, tried, static_poses, tracks: tried == (2, 0.0, 1.0))
+    refused = st.UnplacedCamera("camera 'cam2' cannot be placed", 2)
+    message = str(st.out_of_time_refusal(refused, sim.rig, wand_pairs(sim.rig, sim.wand), None, None))
+    cam = sim.rig.cameras[2].id
+    assert message.startswith(f"{cam} is out of time") and "1 frame early at its last" in message, message
+    assert "offset -1 at its last frame" in message and "--sync auto" in message and message.endswith(str(refused))
+
+
+def test_a_drift_that_places_the_camera_either_way_names_nothing(monkeypatch):
+    import wandcal.calib.judge.faults.start_timing as st
+
+    sim = simulate_capture(4, 300, NOISE_PX, static=False, seed=5)
+    monkeypatch.setattr(st, "whole_frame_shifts", lambda *a: {})
+    monkeypatch.setattr(st, "fractional_shift", lambda *a: None)
+    monkeypatch.setattr(st, "_places", lambda *a: True)
+    refused = st.UnplacedCamera("camera 'cam2' cannot be placed", 2)
+    assert st.out_of_time_refusal(refused, sim.rig, wand_pairs(sim.rig, sim.wand), None, None) is refused
