@@ -63,10 +63,10 @@ HELD_OUT_BEFORE = """Before (at 2921c1b, the first run of these faults): 48 of 8
 6 of 10 (4 named on another camera: Brown 2 cam3 as "intrinsics, cam4", cam4 as "outliers, cam1"). The fy rows
 led to decision 0058 (the few-camera lens pattern fits fy alone where that is significant): those rows are no
 longer held out; the others were not tuned on. At bdd2d31 (after 0058): 52 of 83 (63%), 5 on the wrong camera.
-Then (decision 0057e2): a camera's own noise within two standard errors of the noise fault's limit is said to be
+Then (decision 0064): a camera's own noise within two standard errors of the noise fault's limit is said to be
 *at the limit* in the verdict (right when the line names the camera and the noise: noise 2x 3 -> 9 of 10), and a
 camera whose clock drifts is named when the start refuses it (slow clock 6 -> 7 of 8). k2 and the principal point
-in y are left: their rows are no longer held out either (measured in 0057e2, not tuned on)."""
+in y are left: their rows are no longer held out either (measured in 0064, not tuned on)."""
 
 
 SPREAD_FIRST_SEED = 100  # the suite's own subsamples are seeded by their names (bench/real_faults.py)

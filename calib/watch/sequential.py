@@ -31,7 +31,7 @@ best fit longer than :data:`KNOCK_FRAMES` whose step fits worse by :data:`DRIFT_
 s runs from :data:`GLR_WINDOWS` before the GLR's k to the alarm's window: a knock late in a window
 shows little there (its moved residuals fall outside that window's fit), the GLR's k may be that
 window, and a step held to start there lost to a ramp over it (a real camera turned 1 deg named as
-drifting; decision 0057a).
+drifting; decision 0063).
 """
 
 from __future__ import annotations
