@@ -40,8 +40,8 @@ def report_json(report: WatchReport) -> dict:
                       "center_std_mm": round(h.resolved.center_std_mm, 3),
                       "rotation_std_deg": round(h.resolved.rotation_std_deg, 4), "resolved_rms_px": round(h.resolved.rms_px, 4),
                       "resolved_points": h.resolved.points}
-        elif h.alarm is not None:
-            entry["not_resolved"] = h.not_resolved or "not re-solved"
+        elif h.not_resolved:  # a re-solve was tried and could not be made (a live take's is not tried)
+            entry["not_resolved"] = h.not_resolved
         cameras.append(entry)
     return {"frames": report.frames, "judged": report.judged, "markers": report.tracks, "first_frame": report.first_frame,
             "last_frame": report.last_frame, "cameras": cameras, "moved": [h.id for h in report.moved]}
