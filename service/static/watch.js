@@ -65,6 +65,9 @@ function renderResolve(w) {
     `${c.id}: moved ${c.translation_mm.toFixed(2)} mm (σ ${c.center_std_mm.toFixed(2)}) and turned `
     + `${c.rotation_deg.toFixed(3)}° (σ ${c.rotation_std_deg.toFixed(3)}), from ${c.resolved_points} markers at `
     + `${c.resolved_rms_px.toFixed(2)} px`));
-  box.replaceChildren(el("ul", {}, ...lines), el("a", { href: `/api/v1/watch/${w.id}/result`, target: "_blank",
+  // a moved camera the take could not re-solve says why and what to record (the report's not_resolved)
+  const unsolved = w.report.cameras.filter((c) => c.not_resolved).map((c) => el("li", { "data-not-resolved": c.id },
+    `${c.id}: not re-solved: ${c.not_resolved}`));
+  box.replaceChildren(el("ul", {}, ...lines, ...unsolved), el("a", { href: `/api/v1/watch/${w.id}/result`, target: "_blank",
     rel: "noopener", download: `wandcal-watch-${w.id.slice(0, 8)}.json` }, "the updated result (wandcal-result/1)"));
 }
