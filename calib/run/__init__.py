@@ -10,6 +10,7 @@
 | :mod:`~wandcal.calib.run.rig_faults` | the cameras at fault, by the rig's size: few cameras by comparison, many by the suspect screen |
 | :mod:`~wandcal.calib.run.camera_reports` | each camera's figures and the result's warnings |
 | :mod:`~wandcal.calib.run.options` | ``CalibrationOptions``: one frozen, checked set of options for the CLI, jobs and the worker |
-| :mod:`~wandcal.calib.run.result` | ``CalibrationResult`` and its typed figures, to and from ``wandcal-result/1`` |
+| :mod:`~wandcal.calib.run.result` | ``CalibrationResult``: the wand's, the solver's and the world frame's figures, to and from ``wandcal-result/1`` |
+| :mod:`~wandcal.calib.run.camera_figures` | ``CameraFigures``: a camera's pose sigmas, residuals, refined intrinsics and the judgement's reading |
 | :mod:`~wandcal.calib.run.guidance` | where to wave next, and whether the capture is enough |
 """

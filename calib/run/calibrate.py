@@ -27,6 +27,7 @@ from wandcal.calib.rig import (
     VerticalObservations,
     WandObservations,
 )
+from wandcal.calib.run.camera_figures import CameraFigures
 from wandcal.calib.run.camera_reports import (
     camera_reports,
     intrinsics_reports,
@@ -48,13 +49,7 @@ from wandcal.calib.run.refine import (
     triangulated,
     up_direction,
 )
-from wandcal.calib.run.result import (
-    CalibrationResult,
-    CameraFigures,
-    SolverReport,
-    WandReport,
-    WorldFrame,
-)
+from wandcal.calib.run.result import CalibrationResult, SolverReport, WandReport, WorldFrame
 from wandcal.calib.solve.sync import TimeColumns, Tracks, fit_timing, sync_report
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture

@@ -23,18 +23,16 @@ from wandcal.calib.rig import (
     folded,
     names_camera,
 )
-from wandcal.calib.run.refine import GAUGE_CAMERA, Refined, Setup
-from wandcal.calib.run.result import (
+from wandcal.calib.run.camera_figures import (
     CameraFigures,
     GeometryUncertainty,
-    Placement,
     PointFigures,
     PoseUncertainty,
     RefinedIntrinsics,
-    StaticFitNoise,
-    WorldFrame,
     WorstFrame,
 )
+from wandcal.calib.run.refine import GAUGE_CAMERA, Refined, Setup
+from wandcal.calib.run.result import Placement, StaticFitNoise, WorldFrame
 from wandcal.calib.solve.gauge_free import split_uncertainty
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.uncertainty import frame_noise, world_uncertainty

@@ -42,15 +42,8 @@ from wandcal.calib.judge.verdict import (
 )
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig, camera_list
-from wandcal.calib.run.result import (
-    CameraFigures,
-    FocalLimitFigures,
-    JudgedFigures,
-    Movement,
-    SolverReport,
-    WandReport,
-    WorldFrame,
-)
+from wandcal.calib.run.camera_figures import CameraFigures, FocalLimitFigures, JudgedFigures, Movement
+from wandcal.calib.run.result import SolverReport, WandReport, WorldFrame
 from wandcal.calib.run.rig_faults import few_camera_faults, noise_limits
 from wandcal.calib.solve.uncertainty import chi2_quantile
 

@@ -18,6 +18,7 @@ from wandcal.calib.errors import CalibrationError, Failure
 from wandcal.calib.judge import quality
 from wandcal.calib.observations import PointTracks, WandPairs, point_tracks
 from wandcal.calib.rig import PointObservations, Rig, WandObservations
+from wandcal.calib.run.camera_figures import CameraFigures, PoseUncertainty
 from wandcal.calib.run.camera_reports import camera_reports, summary_warnings, with_warnings
 from wandcal.calib.run.judgement import judge
 from wandcal.calib.run.options import CalibrationOptions
@@ -30,14 +31,7 @@ from wandcal.calib.run.refine import (
     triangulated,
     up_direction,
 )
-from wandcal.calib.run.result import (
-    CalibrationResult,
-    CameraFigures,
-    PoseUncertainty,
-    SolverReport,
-    WandReport,
-    WorldFrame,
-)
+from wandcal.calib.run.result import CalibrationResult, SolverReport, WandReport, WorldFrame
 from wandcal.calib.solve.uncertainty import world_uncertainty
 from wandcal.calib.start.initial import Initial
 from wandcal.calib.start.labels import flatten, label_ends

@@ -2,8 +2,8 @@
 them compactly, and each camera's entry keeps its own in full."""
 
 from wandcal.calib.rig import LISTED_CAMERAS
+from wandcal.calib.run.camera_figures import CameraFigures
 from wandcal.calib.run.camera_reports import camera_warnings, fold_camera_warnings, summary_warnings, with_warnings
-from wandcal.calib.run.result import CameraFigures
 
 AMBIGUOUS = ": static-object pose is ambiguous (planar flip); placed from the wand"
 CAPTURE_WIDE = "3674 camera-frames (2.0%) were gross outliers and were dropped"

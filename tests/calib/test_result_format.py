@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from tests.fixtures.results.cases import CASES, Case, run, written
-from wandcal.calib.run.result import CameraFigures, SolverReport, WorldFrame
+from wandcal.calib.run.camera_figures import CameraFigures
+from wandcal.calib.run.result import SolverReport, WorldFrame
 from wandcal.capture.result_file import read_result
 
 
@@ -56,7 +57,7 @@ def test_a_result_written_before_the_honest_sigma_reads_and_writes_the_same_byte
 
 
 def test_a_moved_entry_reads_back_typed_and_writes_the_same():
-    from wandcal.calib.run.result import CameraFigures, Movement
+    from wandcal.calib.run.camera_figures import CameraFigures, Movement
 
     entry = {"reprojection_rms_px": 1.0, "observations": 10, "frames_with_both_ends": 5, "worst_frames": [],
              "initial_pose": "chain", "moved": {"frame": 51, "degrees": 0.82, "degrees_std": 0.2, "centre_mm": 9.0,

@@ -20,8 +20,8 @@ from wandcal.calib.judge.verdict import (
     share_std,
 )
 from wandcal.calib.rig import Rig, camera_list
+from wandcal.calib.run.camera_figures import CameraFigures
 from wandcal.calib.run.judgement import acted_warnings, input_faults
-from wandcal.calib.run.result import CameraFigures
 from wandcal.calib.sim.simulate import simulate_capture
 
 EXTENT_M = 1.0
