@@ -18,7 +18,7 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError, Failure
 from wandcal.calib.geometry import undistort_by_camera
 from wandcal.calib.judge import quality
-from wandcal.calib.observations import PointTracks, WandPairs, point_tracks, robust_sigma, wand_pairs
+from wandcal.calib.observations import PointTracks, WandPairs, point_tracks, wand_pairs
 from wandcal.calib.rig import (
     AxisObservations,
     PointObservations,
@@ -36,6 +36,7 @@ from wandcal.calib.run.camera_reports import (
     with_warnings,
 )
 from wandcal.calib.run.judgement import acted_warnings, judge
+from wandcal.calib.run.marker_steps import aligned_markers, marker_blobs, with_markers
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import (
     GAUGE_CAMERA,
@@ -43,7 +44,6 @@ from wandcal.calib.run.refine import (
     Refined,
     build_problem,
     check_intrinsics_request,
-    labelled_rows,
     refine,
     reject_outliers,
     triangulated,
@@ -237,7 +237,7 @@ def _observations(rig: Rig, wand: WandObservations | None, points: PointObservat
                   has_wand: bool, method: str) -> Observations:
     """The wand's camera-frames and the point tracks, refused where they cannot calibrate the rig.
     ``wand``: None without a wand (``has_wand`` false)."""
-    blobs = _marker_blobs(rig, wand) if wand is not None else None
+    blobs = marker_blobs(rig, wand) if wand is not None else None
     if blobs is not None:
         pairs = blobs.ends()
     elif sync is not None:  # the pairs already grouped, renumbered
@@ -322,7 +322,7 @@ def _subframe_sync(rig: Rig, start: Start, sync: SyncState | None, options: Cali
         return start, None
     focal = np.array([c.focal for c in rig.cameras])
     tracks_in_time = Tracks(start.labelled, len(rig.cameras))
-    markers = _aligned_markers(blobs, start.labelled) if blobs is not None else None
+    markers = aligned_markers(blobs, start.labelled) if blobs is not None else None
     timing = fit_timing(start.init.R, start.init.t, start.labelled, focal, sync.whole.reference, options.sync_drift,
                         max_frames=BA_FIT_FRAMES if options.method == "ba" else MAX_FIT_FRAMES, poses=True,
                         tracks=tracks_in_time, markers=markers)
@@ -339,15 +339,6 @@ def _subframe_sync(rig: Rig, start: Start, sync: SyncState | None, options: Cali
     return start, replace(sync, columns=columns, refined=options.method == "ba", blobs=blobs)
 
 
-def _aligned_markers(blobs: MarkerBlobs, labelled: WandPairs) -> tuple[np.ndarray, np.ndarray]:
-    """(xy, uv) (P, K, 2) a multi-marker wand's rows with their end 0 first as the ends of
-    ``labelled`` (the same rows, their ends maybe swapped)."""
-    swapped = ~np.all(np.isclose(labelled.uv[:, 0], blobs.uv[:, 0]), axis=1)
-    xy, uv = blobs.xy.copy(), blobs.uv.copy()
-    xy[swapped], uv[swapped] = xy[swapped, ::-1], uv[swapped, ::-1]
-    return xy, uv
-
-
 def _refine(rig: Rig, obs: Observations, start: Start, sync: SyncState | None, options: CalibrationOptions,
             tell: Progress, warnings: list[str]) -> Solved:
     """The chosen method on the labelled ends and the point tracks, the outlier passes, the time
@@ -360,7 +351,7 @@ def _refine(rig: Rig, obs: Observations, start: Start, sync: SyncState | None, o
     marker_pairs, every_track = None, obs.tracks
     if obs.blobs is not None:  # under sync every marker resampled to the reference instants, as the ends
         blobs = sync.blobs if sync is not None and sync.blobs is not None else obs.blobs
-        r, marker_pairs, interior = _with_markers(rig, blobs, r, options, tell, warnings)
+        r, marker_pairs, interior = with_markers(rig, blobs, r, options, tell, warnings)
         # the interior markers are judged as points seen by the cameras that see them (issue 31)
         every_track = interior if every_track is None else every_track.joined(interior)
     dropped = dict(obs.pairs.dropped) | (dict(tracks.dropped) if tracks is not None else {})
@@ -476,72 +467,3 @@ def _judgement(solved: Solved, obs: Observations, placed: Placed, cameras: list[
     cameras, warnings[:] = acted_warnings(cameras, warnings, rig.ids)
     warnings += checks
     return cameras, verdict, solver
-
-
-def _marker_blobs(rig: Rig, wand: WandObservations) -> MarkerBlobs | None:
-    """A wand of three or more markers (rig.json ``wand.markers_m``): its camera-frames ordered
-    along the wand's image (wandcal.calib.start.markerlabels); None for two markers."""
-    if rig.wand_markers is None or len(rig.wand_markers) == 2:
-        return None
-    from wandcal.calib.start.markerlabels import order_markers
-
-    return order_markers(rig, wand)
-
-
-def _with_markers(rig: Rig, blobs: MarkerBlobs, r: Refined, options: CalibrationOptions, tell: Progress,
-                  warnings: list[str]) -> tuple[Refined, list[dict], PointTracks]:
-    """Label every marker at the refined poses and, with ``ba`` or ``lp``, refine again with the
-    interior markers' known positions in the wand model; the refinement, each marker pair's
-    lengths (wandcal.calib.solve.markerwand) and the interior markers as point tracks
-    (wandcal.calib.start.markerlabels.interior_tracks, outliers included, for the judgement)."""
-    from wandcal.calib.solve.markerwand import marker_model, marker_pair_lengths
-    from wandcal.calib.start.markerlabels import interior_tracks, label_interior
-
-    method, markers = options.method, rig.wand_markers
-    assert markers is not None  # blobs: a wand of three markers or more
-    labels = label_interior(rig, blobs, r.labelled, r.R, r.t, (r.setup.frames, r.wand))
-    pair_index = labelled_rows(r)
-    fit = labels if method != "lp" else labels.on_axis()  # lp's frames have no roll: the markers on the axis
-    model, rows = marker_model(r.setup.problem, pair_index, r.labelled.camera, fit.xy, fit.along, r.R, r.t,
-                               r.wand, r.setup.model.fixed, fit.across)
-    if fit.across is not None:  # a planar wand's ends as the labels at the solved rig name them
-        ends = np.where(r.setup.problem.end == 1, fit.xy.shape[1] - 1, 0)
-        r = replace(r, setup=replace(r.setup, problem=replace(r.setup.problem, xy=fit.xy[pair_index, ends]),
-                                     uv=fit.uv[pair_index, ends]))
-    x = model.x0()
-    if method == "paper" or r.info.get("refined_intrinsics"):
-        warnings.append(f"the wand's interior markers label its frames; only --method ba or lp without "
-                        f"--refine-intrinsics refines with them ({method} did not)")
-    else:
-        r, x = _refined_with_markers(r, model, options, tell)
-    # an interior blob the fit leaves far off is an outlier: its camera-frame stays out of the
-    # marker pairs' lengths, as the ends' outliers stay out of the wand's
-    err = np.linalg.norm(model.residuals(x).reshape(-1, 2), axis=1)
-    limit = max(quality.OUTLIER_SIGMAS * robust_sigma(err), quality.MIN_OUTLIER_PX)
-    kept = np.zeros(len(r.labelled), bool)
-    kept[pair_index] = True
-    kept[rows[err[len(r.setup.problem.camera):] > limit]] = False
-    return r, marker_pair_lengths(r.R, r.t, r.labelled.frame[kept], r.labelled.camera[kept], labels.xy[kept],
-                                  labels.marker[kept], markers), interior_tracks(labels, r.labelled)
-
-
-def _refined_with_markers(r: Refined, model, options: CalibrationOptions, tell: Progress) -> tuple[Refined, np.ndarray]:
-    """``ba`` or ``lp`` again on the wand model with every marker; the outcome and its parameters."""
-    from wandcal.calib.solve.ba import bundle_adjust_points
-
-    tell({"stage": "refine", "message": "refining with every wand marker"})
-    if options.method == "lp":
-        from wandcal.calib.solve.lp import refine_lp
-
-        x, lp_info = refine_lp(model, progress=tell, time_limit=options.time_limit)
-        out = bundle_adjust_points(model, None, None, x0=x, loss="linear", max_iter=0)  # its covariance only
-        out = replace(out, x=x, X=r.X, info=lp_info)
-    else:
-        out = bundle_adjust_points(model, r.tracks, r.X, progress=tell, loss=options.loss)
-    x = out.x
-    info = r.info | {"iterations": r.info.get("iterations", 0) + out.info.get("iterations", 0),
-                     "seconds": r.info.get("seconds", 0.0) + out.info.get("seconds", 0.0)}
-    R, t = model.poses(x)
-    r = replace(r, R=R, t=t, wand=model.wand(x), X=out.X, camera_std=out.camera_std, covariance=out.covariance,
-                info=info)
-    return r, x
