@@ -133,44 +133,54 @@ def drifting_clock(rig: Rig, pairs: WandPairs, static_poses: list | None, tracks
     return found[0] if found and all(np.sign(d) == np.sign(found[0][1]) for _, d in found) else None
 
 
+_SEARCH_ERRORS = (np.linalg.LinAlgError, FloatingPointError, ValueError)  # numbers too extreme for a search
+
+
+def _searched(search, *args):
+    """``search(*args)``, or None where its numbers are too extreme (a damaged rig.json)."""
+    try:
+        return search(*args)
+    except _SEARCH_ERRORS:
+        return None
+
+
+def _named_out_of_time(error: CalibrationError, rig: Rig, pairs: WandPairs, static_poses: list | None,
+                       tracks: PointTracks | None) -> str | None:
+    """The camera out of time and by how much, as a sentence: by whole frames, else a constant fraction
+    of a frame, else a drifting clock (the first search that places every camera); None if none does."""
+    ids = rig.ids
+    suspect = error.camera if isinstance(error, UnplacedCamera) else None
+    whole = _searched(whole_frame_shifts, rig, pairs, static_poses, tracks)
+    if whole is None:
+        return None  # the whole-frame search failed on the numbers: the start's own refusal stands
+    if whole:
+        return "; ".join(f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its frames "
+                         f"shifted, {abs(d)} frame{'s' if abs(d) != 1 else ''} {'late' if d > 0 else 'early'} "
+                         f"(offset {d:+d}: positive is late)" for c, d in whole.items())
+    fraction = _searched(fractional_shift, rig, pairs, static_poses, tracks, suspect)
+    if fraction is not None:
+        c, d = fraction
+        return (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved "
+                f"in time, about {abs(d):g} frame {'late' if d > 0 else 'early'} (offset {d:+g}: positive is late)")
+    drift = _searched(drifting_clock, rig, pairs, static_poses, tracks, suspect)
+    if drift is None:
+        return None
+    c, d = drift
+    return (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved in "
+            f"time by an offset growing from 0 at its first frame to about {abs(d):g} frame "
+            f"{'late' if d > 0 else 'early'} at its last (a clock running {'slow' if d > 0 else 'fast'}, or a "
+            f"constant offset of a fraction of a frame, which the start cannot tell apart; offset {d:+g} at its "
+            "last frame: positive is late)")
+
+
 def out_of_time_refusal(error: CalibrationError, rig: Rig, pairs: WandPairs, static_poses: list | None,
                         tracks: PointTracks | None) -> CalibrationError:
     """The start's refusal ``error`` with the camera out of time named first, where a shift of its
     frames lets every camera be placed (module docstring); ``error`` itself where none does."""
     if len(rig.cameras) < 3 or not len(pairs):
         return error  # two cameras cannot say which of them is out of time
-    ids = rig.ids
-    try:
-        whole = whole_frame_shifts(rig, pairs, static_poses, tracks)
-    except (np.linalg.LinAlgError, FloatingPointError, ValueError):
-        return error  # numbers too extreme for the search (a damaged rig.json): the start's own refusal stands
-    if whole:
-        named = "; ".join(f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its frames "
-                          f"shifted, {abs(d)} frame{'s' if abs(d) != 1 else ''} {'late' if d > 0 else 'early'} "
-                          f"(offset {d:+d}: positive is late)" for c, d in whole.items())
-    else:
-        try:
-            fraction = fractional_shift(rig, pairs, static_poses, tracks,
-                                        error.camera if isinstance(error, UnplacedCamera) else None)
-        except (np.linalg.LinAlgError, FloatingPointError, ValueError):
-            fraction = None
-        if fraction is not None:
-            c, d = fraction
-            named = (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved "
-                     f"in time, about {abs(d):g} frame {'late' if d > 0 else 'early'} (offset {d:+g}: positive is late)")
-        else:
-            try:
-                drift = drifting_clock(rig, pairs, static_poses, tracks,
-                                       error.camera if isinstance(error, UnplacedCamera) else None)
-            except (np.linalg.LinAlgError, FloatingPointError, ValueError):
-                drift = None
-            if drift is None:
-                return error
-            c, d = drift
-            named = (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved in "
-                     f"time by an offset growing from 0 at its first frame to about {abs(d):g} frame "
-                     f"{'late' if d > 0 else 'early'} at its last (a clock running {'slow' if d > 0 else 'fast'}, or a "
-                     f"constant offset of a fraction of a frame, which the start cannot tell apart; offset {d:+g} at its "
-                     "last frame: positive is late)")
+    named = _named_out_of_time(error, rig, pairs, static_poses, tracks)
+    if named is None:
+        return error
     return CalibrationError(f"{named}; calibrate with --sync auto, which finds and corrects each camera's offset, "
                             f"or check its trigger cable and settings. Without the shift the start failed: {error}")
