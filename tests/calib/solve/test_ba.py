@@ -137,8 +137,9 @@ def test_polish_takes_an_undamped_step_then_a_chord_step_and_reuses_its_inverse(
     assert np.all(diff[1:] < 4 * ba.STOP_SE * bound[1:])
 
 
-def test_solve_again_with_the_same_gradient_is_the_same_step():
-    """``solve_again`` reuses a solve's inverses: on that solve's own system it gives its step."""
+def _wand_normal_equations():
+    """The normal equations of a 4-camera, 120-frame wand problem (seed 5) at a start 0.5 deg / 1 cm
+    off its truth: the system a solve and its reuse are compared on."""
     scene = prepared_scene(cameras=4, frames=120, noise_px=NOISE, seed=5)
     model = perturbed_model(scene, degrees=0.5, metres=0.01, seed=5)
     p = model.p
@@ -147,7 +148,12 @@ def test_solve_again_with_the_same_gradient_is_the_same_step():
     d = wand[:, 1] - wand[:, 0]
     state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), np.zeros((0, 3)), None, None, None)
     term = WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, model.free, p.n_cams)
-    normal = schur.normal_equations(6, len(model.free), [(term.structure, lambda lo, hi: term.linearise_rows(state, slice(lo, hi)))])
+    return schur.normal_equations(6, len(model.free), [(term.structure, lambda lo, hi: term.linearise_rows(state, slice(lo, hi)))])
+
+
+def test_solve_again_with_the_same_gradient_is_the_same_step():
+    """``solve_again`` reuses a solve's inverses: on that solve's own system it gives its step."""
+    normal = _wand_normal_equations()
     step = schur.solve(normal, 0.0)
     again = schur.solve_again(normal, step)
     assert np.allclose(again.dc, step.dc, rtol=1e-9, atol=1e-12 * np.abs(step.dc).max())
@@ -180,15 +186,7 @@ def test_a_wide_reduced_system_is_solved_by_lapacks_cholesky_inverse_as_by_numpy
     """A reduced camera system from :data:`schur.LAPACK_INVERSE_WIDTH` wide is inverted from its
     Cholesky factor (LAPACK's potrf, potri): the same step and standard errors as NumPy's LU
     inverse, to rounding; a system damped below positive definiteness gives no step either way."""
-    scene = prepared_scene(cameras=4, frames=120, noise_px=NOISE, seed=5)
-    model = perturbed_model(scene, degrees=0.5, metres=0.01, seed=5)
-    p = model.p
-    R, t = model.poses(model.x0())
-    wand = model.wand(model.x0())
-    d = wand[:, 1] - wand[:, 0]
-    state = BundleState(R, t, wand.mean(axis=1), d / np.linalg.norm(d, axis=1, keepdims=True), np.zeros((0, 3)), None, None, None)
-    term = WandTerm(p.camera, p.frame, p.end, p.xy, p.focal[p.camera], p.length, p.n_frames, model.free, p.n_cams)
-    normal = schur.normal_equations(6, len(model.free), [(term.structure, lambda lo, hi: term.linearise_rows(state, slice(lo, hi)))])
+    normal = _wand_normal_equations()
     narrow = schur.solve(normal, 1e-3)
     monkeypatch.setattr(schur, "LAPACK_INVERSE_WIDTH", 1)
     wide = schur.solve(normal, 1e-3)
