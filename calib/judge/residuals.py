@@ -225,9 +225,13 @@ def ray_noise_factors(res: Residuals, n_cameras: int) -> list[float | None]:
     1.41 at three views, 2 at two (the unbiased ``RSS / (m - p)`` of a least-squares fit, by row).
     The camera's inliers, as ``ray_distance``; None without them."""
     inl = ~res.outlier
-    _, where, views = np.unique(res.point[inl], return_inverse=True, return_counts=True)
-    unknowns = np.where(res.point[inl] >= 0, WAND_END_UNKNOWNS, POINT_UNKNOWNS)
-    kept = 1.0 - unknowns / (2.0 * np.maximum(views[where], 2))
+    point = res.point[inl]
+    if not len(point):
+        return [None] * n_cameras
+    at = point - point.min()  # wand ends >= 0, tracks < 0: one count of both (a bincount, not a sort)
+    views = np.bincount(at)[at]
+    unknowns = np.where(point >= 0, WAND_END_UNKNOWNS, POINT_UNKNOWNS)
+    kept = 1.0 - unknowns / (2.0 * np.maximum(views, 2))
     square = row_norms(res.residual[inl]) ** 2
     out: list[float | None] = []
     for rows in camera_rows(res.camera[inl], n_cameras):
