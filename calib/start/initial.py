@@ -197,15 +197,18 @@ def _start_pair(st: _State) -> None:
         if links[a, b] < MIN_PAIR_MATCHES:
             continue
         pose = st.edge(a, b)
-        scale = _scale_of_start(st, pose) if pose else pose
-        if not pose or not scale:  # scale is the pose's Failure when there is no pose
+        if isinstance(pose, Failure):
+            reasons.append(f"{rig.cameras[a].id} and {rig.cameras[b].id}: {pose}")
+            continue
+        scale = _scale_of_start(st, pose)
+        if isinstance(scale, Failure):
             reasons.append(f"{rig.cameras[a].id} and {rig.cameras[b].id}: {scale}")
-            if pose and (unscaled is None or pose.inliers > unscaled.inliers):
+            if unscaled is None or pose.inliers > unscaled.inliers:
                 unscaled = pose
             continue
         _place_pair(st, pose, scale)
         return
-    if unscaled is not None:
+    if unscaled is not None and rig.wand_length is not None:
         st.provisional = st.scaled = True
         _place_pair(st, unscaled, 1.0)
         return
@@ -229,6 +232,8 @@ def _scale_by_the_wand(st: _State) -> None:
     """Every camera placed at a provisional scale: their wand frames (ends ordered with these poses,
     each end triangulated by every camera that saw it) give the scale, the wand's length over
     their median length. Raises when fewer than :data:`MIN_SCALE_FRAMES` frames triangulate."""
+    length = st.rig.wand_length
+    assert length is not None  # provisional only with a wand (_start_pair)
     labelled = label_ends(st.R, st.t, st.pairs, np.ones(st.views.n_cams, bool))[0]
     lengths = wand_lengths(st.R, st.t, labelled)
     lengths = lengths[np.isfinite(lengths) & (lengths > 0)]
@@ -237,7 +242,7 @@ def _scale_by_the_wand(st: _State) -> None:
             f"every camera was placed from what the cameras see together, but only {len(lengths)} wand frames are "
             f"seen by two or more cameras, {MIN_SCALE_FRAMES} needed for the scale; wave the wand where two or more "
             "cameras see it at the same time")
-    st.t *= st.rig.wand_length / float(np.median(lengths))
+    st.t *= length / float(np.median(lengths))
     st.notes.append(f"no pair of cameras shared {MIN_SCALE_FRAMES} wand frames: the cameras were placed from their "
                     f"shared point tracks and wand frames, and scaled by the wand's median length in {len(lengths)} frames")
 
