@@ -5,7 +5,10 @@ without a static object) are placed one at a time, best-linked first, as a spann
 over the camera graph (:mod:`wandcal.calib.start.chain`): a camera's links are the wand frames and single-point
 tracks it shares with the cameras already placed. With no camera placed yet, the best-linked
 pair whose wand frames can scale it starts: its essential matrix, scaled by the wand length
-(easyWand and Argus start the same way). Each further camera is placed by whichever is better
+(easyWand and Argus start the same way). Where no pair shares the wand frames its scale needs, the
+best-linked pair that can be placed starts at a unit baseline, the others follow with the scale
+the points carry, and the wand's median length over every camera scales the whole rig at the end
+(decision 0066b: a sparse capture's wand frames are seen two cameras at a time). Each further camera is placed by whichever is better
 constrained, counting two equations per resected point and one per epipolar correspondence:
 
 - resection (PnP inside RANSAC, :mod:`wandcal.calib.start.resection`) against the wand ends and point tracks
