@@ -137,7 +137,8 @@ def _refine_lp(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks 
 
 def _refine_ba(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks | None, X: np.ndarray | None,
                options: CalibrationOptions, tell: Progress, final: bool, columns: TimeColumns | None, *,
-               judge_frames: bool = WAND_FRAMES_IN_STOP) -> Refined:
+               judge_frames: bool | None = None) -> Refined:
+    # judge_frames None: WAND_FRAMES_IN_STOP, read here so that bench_shapes' reference can patch it
     model = setup.model
     names = tuple(name for name in INTRINSICS if name in options.refine_intrinsics)
     fit = None
@@ -147,7 +148,7 @@ def _refine_ba(rig: Rig, labelled: WandPairs, setup: Setup, tracks: PointTracks 
     # standard errors and the pose covariance cost one more linearisation and solve: final stage only
     out = bundle_adjust_points(model, tracks, X, progress=tell, loss=options.loss, intrinsics=fit,
                                stop_se=STOP_SE if final else ROBUST_STAGE_SE, standard_errors=final, timing=timing,
-                               judge_frames=judge_frames)
+                               judge_frames=WAND_FRAMES_IN_STOP if judge_frames is None else judge_frames)
     info = out.info | ({"refined_intrinsics": list(names)} if names else {})
     R, t = model.poses(out.x)
     refined = Refined(rig, setup, labelled, tracks, R, t, model.wand(out.x), out.X, info, out.camera_std, out.covariance,
