@@ -148,7 +148,7 @@ def knock_frame(obs, c: int) -> float:
     where no other camera shares one). Brown's cameras have blobs in 28-40 frames, of which only
     8-24 are shared: the middle of all of them (frame 15-70) put the knock before every shared
     frame but one, so that the wand's frames were all turned against the background points' pose
-    and nothing moved within the capture (decision 0066c)."""
+    and nothing moved within the capture (decision 0067)."""
     mine = obs.camera == c
     shared = mine & np.isin(obs.frame, obs.frame[~mine])
     return float(np.median(obs.frame[shared if shared.any() else mine]))

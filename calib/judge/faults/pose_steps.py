@@ -299,7 +299,7 @@ def _inflation(e: np.ndarray, own: np.ndarray, time: np.ndarray, point: np.ndarr
     Below 16 views sqrt(K) made fewer than four blocks, and the views were once taken as
     independent (dof inf): a camera of 12-15 views was tested at F(3, its timed dof), one of 16 at
     F(3, 3). Those are Brown's hand-digitised cameras of six or seven wand frames, whose clean
-    subsamples stepped at p 7.5e-6 (decision 0066c)."""
+    subsamples stepped at p 7.5e-6 (decision 0067)."""
     idx = np.flatnonzero(own)
     idx = idx[np.lexsort((point[idx], time[idx]))]
     n = len(idx)

@@ -41,7 +41,7 @@ def test_the_timed_views_dispersion_is_theirs_not_the_backgrounds():
 
 @pytest.mark.parametrize("n", [12, 15, 16, 40])
 def test_a_few_views_are_judged_in_batches_never_as_independent(n):
-    """Decision 0066c: 12-15 timed views (six or seven hand-digitised wand frames) made fewer than
+    """Decision 0067: 12-15 timed views (six or seven hand-digitised wand frames) made fewer than
     MIN_BLOCKS batches of sqrt(n) and were taken as independent (dof inf): now MIN_BLOCKS shorter
     batches. A misfit that stays for a batch (each batch's views alike) shows as inflation."""
     idx = np.arange(n)
@@ -79,7 +79,7 @@ def test_a_clean_subsample_names_no_moved_camera(brown2, brown1, share, seed):
     """Issue 31: these subsamples of Brown 2 and Brown 1 called cam4 (cam1) moved: a turn fitted to
     three or four hand-digitised wand frames, tested against the background points' scatter
     (p 7.8e-5 and 6.3e-5); Brown 2 40% seed 101 cam2 (p 7.5e-6), its 14 timed views then taken as
-    independent (decision 0066c)."""
+    independent (decision 0067)."""
     session = brown1 if seed == 110 else brown2
     doc = rf.calibrated(rf.subsample(session, seed, share)).to_json()
     assert [f for f in doc["verdict"]["faults"] if f["kind"] == "moved"] == []

@@ -51,7 +51,7 @@ CASES = [
     ("brown1", "focal +3% cam1"),  # right as "limited": the focal length named as what limits cam1's position
     ("brown2", "noise 3x cam3"),  # each camera's own noise, the points eliminated (own_errors)
     ("brown1", "noise 3x cam1"),
-    # knocked in the middle of its 24 shared frames (0066c): 0.82 +- 0.16 deg at F 71, but on 4 batch-means
+    # knocked in the middle of its 24 shared frames (0067): 0.82 +- 0.16 deg at F 71, but on 4 batch-means
     # blocks; it was named only while its knock came after the 4th of them and its 16 views were taken as independent
     pytest.param("brown1", "knocked 0.82 deg cam3", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     ("brown1", "late 1 frame cam1"),  # whole frames, from every pair of cameras (timing_pairs)
@@ -108,7 +108,7 @@ def test_a_late_camera_shows_the_track_of_time_k_plus_its_offset(offset):
 
 def test_a_knock_comes_in_the_middle_of_the_frames_another_camera_shares():
     """Brown's cameras have blobs in 28-40 frames of which 8-24 are shared: the knock after the
-    middle of all of them came before every shared frame but one (decision 0066c)."""
+    middle of all of them came before every shared frame but one (decision 0067)."""
     session = _track_session()
     wand = session.wand
     # camera 0 alone in 40 frames before the shared ones (0-19): its own median would be frame -11
