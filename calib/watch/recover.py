@@ -186,7 +186,7 @@ def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: i
     solved = _searched(rig, R, t, blobs, c, (since, end), moved, wander)
     if not isinstance(solved, Resolved) or before is None:
         return solved
-    start = settled_from(rig, R, t, blobs, c, moved, solved, (before, since))
+    start = settled_from(rig, R, t, blobs, c, moved, solved, (max(before, since - SETTLE_FRAMES), since))
     wider = _searched(rig, R, t, blobs, c, (start, end), moved, wander) if start < since else None
     if isinstance(wider, Resolved):
         solved, since = wider, start
