@@ -183,13 +183,10 @@ def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: i
         return NotResolved(f"only {len(rig.cameras) - len(set(moved))} cameras held still, and a marker the take "
                            f"places needs {MIN_HELD}")
     end = int(blobs.frame[-1]) + 1 if len(blobs) else since
-    solved = _searched(rig, R, t, blobs, c, (since, end), moved, wander)
+    completed = since if before is None else max(before, since - SETTLE_FRAMES)
+    solved, since = _settled_solve(rig, R, t, blobs, c, moved, wander, (completed, since, end))
     if not isinstance(solved, Resolved) or before is None:
         return solved
-    start = settled_from(rig, R, t, blobs, c, moved, solved, (max(before, since - SETTLE_FRAMES), since))
-    wider = _searched(rig, R, t, blobs, c, (start, end), moved, wander) if start < since else None
-    if isinstance(wider, Resolved):
-        solved, since = wider, start
     span = end - since
     length = max(min(span, before), 1)  # a take short before its move: one span of all it has
     blocks = [_searched(rig, R, t, blobs, c, (before - (b + 1) * length, before - b * length), moved, 0.0)
@@ -199,6 +196,27 @@ def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: i
     if not devs:
         return solved
     return solved.with_wander(_wander_cov(devs), len(devs))
+
+
+def _settled_solve(rig: Rig, R, t, blobs: TakeBlobs, c: int, moved: list[int], wander: float,
+                   frames: tuple[int, int, int]) -> tuple[Resolved | NotResolved, int]:
+    """Camera c re-solved from the frames (completed, since, end): from ``since`` (the move completed,
+    at ``completed``, and settled), then again from the first window after ``completed`` that fits
+    that pose better than the standing one (:func:`settled_from`). A take too short after ``since``
+    is re-solved from ``completed`` when every window up to ``since`` fits that pose better. (The
+    re-solve or why not, its first frame.)"""
+    completed, since, end = frames
+    solved = _searched(rig, R, t, blobs, c, (since, end), moved, wander)
+    if completed >= since:
+        return solved, since
+    if not isinstance(solved, Resolved):
+        early = _searched(rig, R, t, blobs, c, (completed, end), moved, wander)
+        if isinstance(early, Resolved) and settled_from(rig, R, t, blobs, c, moved, early, (completed, since)) == completed:
+            return early, completed
+        return solved, since
+    start = settled_from(rig, R, t, blobs, c, moved, solved, (completed, since))
+    wider = _searched(rig, R, t, blobs, c, (start, end), moved, wander) if start < since else None
+    return (wider, start) if isinstance(wider, Resolved) else (solved, since)
 
 
 def _searched(rig: Rig, R, t, blobs: TakeBlobs, c: int, frames: tuple[int, int], moved: list[int],
