@@ -222,10 +222,13 @@ def blocks_p_value(y: np.ndarray, base: np.ndarray, extra: np.ndarray, block: np
     if n_blocks < q + 2:
         return 1.0
     rows = np.repeat(block, 2)
-    G = np.zeros((n_blocks, A.shape[1], A.shape[1]))
-    b = np.zeros((n_blocks, A.shape[1]))
-    np.add.at(G, rows, A[:, :, None] * A[:, None, :])
-    np.add.at(b, rows, A * y[:, None])
+    order = np.argsort(rows, kind="stable")
+    starts = np.searchsorted(rows[order], np.arange(n_blocks + 1))
+    G = np.empty((n_blocks, A.shape[1], A.shape[1]))
+    b = np.empty((n_blocks, A.shape[1]))
+    for g in range(n_blocks):
+        Ag, yg = A[order[starts[g]:starts[g + 1]]], y[order[starts[g]:starts[g + 1]]]
+        G[g], b[g] = Ag.T @ Ag, Ag.T @ yg
     G_all, b_all = G.sum(axis=0), b.sum(axis=0)
     coef = np.linalg.lstsq(G_all, b_all, rcond=None)[0][k:]
     left = np.array([np.linalg.lstsq(G_all - G[g], b_all - b[g], rcond=None)[0][k:] for g in range(n_blocks)])
