@@ -10,7 +10,8 @@ what remains is c's own. Two patterns of what remains name a fault:
 
 - **the lens** (:func:`wandcal.calib.judge.faults.screen._lens_fit`): a focal length, k1 or principal
   point that the pose cannot take up, and fy alone (the aspect ratio) where that is significant
-  (decision 0058);
+  (decision 0058), named only where its coefficients stand out of their own scatter over blocks of
+  the capture (:func:`blocks_p_value`: residuals run on along a track, decision 0066a);
 - **a knock**: the camera turned by a rotation ``w`` after frame k, ``r ~ J_rot w`` on its
   observations after k and 0 before, with ``J_rot`` its projection's derivative in its own rotation:
   least squares of the residual on those three columns beside the pose's six, at every candidate
