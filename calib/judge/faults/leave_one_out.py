@@ -11,7 +11,7 @@ what remains is c's own. Two patterns of what remains name a fault:
 - **the lens** (:func:`wandcal.calib.judge.faults.screen._lens_fit`): a focal length, k1 or principal
   point that the pose cannot take up, and fy alone (the aspect ratio) where that is significant
   (decision 0058), named only where its coefficients stand out of their own scatter over blocks of
-  the capture (:func:`blocks_p_value`: residuals run on along a track, decision 0066a);
+  the capture (:func:`blocks_p_value`: residuals run on along a track, decision 0069);
 - **a knock**: the camera turned by a rotation ``w`` after frame k, ``r ~ J_rot w`` on its
   observations after k and 0 before, with ``J_rot`` its projection's derivative in its own rotation:
   least squares of the residual on those three columns beside the pose's six, at every candidate
@@ -49,7 +49,7 @@ LENS_SHARE = 0.25
 # (:func:`blocks_p_value`) at this level, the pose step's (pose_steps.STEP_ALPHA): real residuals run
 # on along a track, so the F's independent-rows null overstates it many times (MultiCamSelfCal's
 # Basler_21275577, a real +1.3% focal pattern: F 43-59 on subsamples, at p 0.007-0.04 against its
-# blocks; decision 0066a). About a thousand camera tests in bench_real_subsamples: 0.1 false expected
+# blocks; decision 0069). About a thousand camera tests in bench_real_subsamples: 0.1 false expected
 LENS_ALPHA = 1e-4
 # the lens pattern fits fy alone too: an aspect ratio off (fy 3% off on one camera of four) is
 # half a focal error and half a stretch along y that the camera's pose cannot take up; fitted
@@ -212,7 +212,7 @@ def blocks_p_value(y: np.ndarray, base: np.ndarray, extra: np.ndarray, block: np
     and Hotelling's T^2 = c^T V^-1 c, taken as (G - q) / (q (G - 1)) T^2 ~ F(q, G - q).
 
     Unlike :func:`wandcal.calib.judge.faults.screen._share`'s F, which takes rows as independent,
-    this holds its level where residuals run on along a track (decision 0066a). 1 where there are
+    this holds its level where residuals run on along a track (decision 0069). 1 where there are
     fewer than q + 2 blocks (too few to say). From each block's normal equations: G small solves."""
     both = np.concatenate([base, extra], axis=1)
     scale = np.linalg.norm(both, axis=0)

@@ -1,5 +1,5 @@
 """The few-camera lens pattern judged against its own scatter over blocks of the capture
-(calib/judge/faults/leave_one_out.py ``blocks_p_value``, decision 0066a): its level on residuals
+(calib/judge/faults/leave_one_out.py ``blocks_p_value``, decision 0069): its level on residuals
 that run on along a track, and on a real session (MultiCamSelfCal) a clean subsample that named
 ``intrinsics Basler_21275577`` before, and a focal length 3% off still named on its camera."""
 

@@ -47,7 +47,7 @@ CASES = [
     ("brown2", "subsample 60% seed 2"),  # cam1 1.02 mm: past 1e-3 of the volume, within its own rays' 1.19 mm (0049)
     # beside the session's own timing cam2 (brought in time, the rig solved again), cam1's lens pattern
     # on 87 observations: against its own scatter over 9 blocks (F(4, 5)) p 0.0055 and 0.001, short of
-    # 1e-4 (decision 0066a); named before by the independent-rows F
+    # 1e-4 (decision 0069); named before by the independent-rows F
     pytest.param("cpp", "focal +8% cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     pytest.param("cpp", "principal point +2% cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     ("cpp", "noise 3x cam3"),  # ... and each camera's own noise, cam2 in time
