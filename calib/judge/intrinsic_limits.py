@@ -26,11 +26,11 @@ is the advice, else a lens calibration.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from wandcal.calib.geometry import finite_rows, rotvec_to_matrix
+from wandcal.calib.geometry import distort_points, finite_rows, rotvec_to_matrix, undistort_points
 from wandcal.calib.judge.faults.screen import _pose_columns
 
 GIVEN_IN_RIG = "given"  # the source of a focal sigma the rig gives (the camera's focal_std_px); else "default"
@@ -47,6 +47,29 @@ LIMIT_RATIO = 2.0
 # under this share: refining it (--refine-intrinsics focal) is then the advice (the refined focal
 # length's own warning, wandcal.calib.run.camera_reports.FOCAL_REL_STD_WARN, is 0.5%)
 DETERMINED_REL_STD = 0.005
+# the given intrinsics beyond the focal length (OpenCV's names; a fisheye lens has no p1, p2), each
+# with its sigma where rig.json gives none. Measured on Brown's two calibrations of the same four
+# cameras on consecutive days, each day with its own lens profile: a parameter's differences
+# between the days, RMS over sqrt(2) (docs/decisions/0066d-every-given-intrinsic-in-the-honest-sigma.md;
+# four cameras: each figure is known to about a third of itself)
+LENS_PARAMETERS = {"pinhole": ("cx", "cy", "k1", "k2", "p1", "p2"), "fisheye": ("cx", "cy", "k1", "k2")}
+DIST_INDEX = {"k1": 0, "k2": 1, "p1": 2, "p2": 3}
+# the principal point's sigma, a share of the image's width (Brown: 0.28%, both axes, 8 differences)
+DEFAULT_PRINCIPAL_WIDTH_STD = 0.0028
+# a radial term's sigma as the share of the radius it moves a point at the image's corner
+# (k_n r_c^2n, r_c the corner's normalised radius; Brown: k1 1.66%, k2 2.40%): a share carries
+# over to lenses of other fields of view, a coefficient would not
+DEFAULT_RADIAL_CORNER_STD = {"k1": 0.0166, "k2": 0.0240}
+# p1, p2 (Brown's profiles give none): the RMS of the eight calibrated p's of MultiCamSelfCal's four
+# lenses, what a rig.json that gives 0 is off by on such a lens
+DEFAULT_TANGENTIAL_STD = 0.0007
+# the data determine a parameter when they would give it to this share of its sigma: the focal
+# length's DETERMINED_REL_STD at its default sigma (0.5% of 2%)
+DETERMINED_SHARE = 0.25
+# the parameters --refine-intrinsics refines (wandcal.calib.solve.reprojection.INTRINSICS)
+REFINABLE = {"cx": "principal", "cy": "principal", "k1": "k1"}
+WORDS = {"cx": "principal point's x (cx)", "cy": "principal point's y (cy)", "k1": "radial distortion k1",
+         "k2": "radial distortion k2", "p1": "tangential distortion p1", "p2": "tangential distortion p2"}
 MAX_ROWS = 1000  # observations per camera the fit uses: a first-order fit of seven columns needs no more
 MIN_ROWS = 12
 
@@ -105,12 +128,30 @@ def _focal_fit(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, resid
                usable: int, focal_rel_std: float, source: str) -> FocalLimit | None:
     """:func:`focal_limit` on the rows its fit uses (:func:`_fit_rows`: x (K, 2) projections, d (K,)
     depths, residual (K, 2), views (K,)) of the camera's ``usable`` ones."""
+    pose, share = _pose_and_share(R, t, x, d, views)
+    got = _response(R, t, pose, -(x * share[:, None]).ravel(), residual, len(x), usable)
+    if got is None:
+        return None
+    shift, data_std = got
+    return FocalLimit(shift, float(shift @ R[2]), focal_rel_std, source, data_std)
+
+
+def _pose_and_share(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, views: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(2K, 6) the pose's columns at the points of projections x (K, 2) and depths d (K,), and (K,)
+    the share of an error the pose takes up at a point of ``views`` cameras (1 - 1/n)."""
     X_cam = np.concatenate([x * d[:, None], d[:, None]], axis=1)
     X = (X_cam - t) @ R  # world points: R^T (X_cam - t)
     pose = _pose_columns(R, t, X, differences=True)  # the figures a result writes, as before
-    share = 1.0 - 1.0 / np.maximum(views, 2)
-    focal_col = -(x * share[:, None]).ravel()
-    both = np.concatenate([pose, focal_col[:, None]], axis=1)
+    return pose, 1.0 - 1.0 / np.maximum(views, 2)
+
+
+def _response(R: np.ndarray, t: np.ndarray, pose: np.ndarray, column: np.ndarray, residual: np.ndarray, rows: int,
+              usable: int) -> tuple[np.ndarray, float] | None:
+    """The centre's change (3,) when the observations move by ``column`` (2K,) (the pose's least
+    squares to it), and the standard error of the column's coefficient from the residuals' scatter
+    (residual (K, 2)) were it fitted beside the pose; the fit used ``rows`` of ``usable`` rows."""
+    both = np.concatenate([pose, column[:, None]], axis=1)
     scale = np.linalg.norm(both, axis=0)
     scale[scale == 0] = 1.0
     A = both / scale
@@ -126,8 +167,8 @@ def _focal_fit(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, resid
     r = residual.ravel()
     sigma = float(np.sqrt(np.mean(r[np.isfinite(r)] ** 2))) if np.isfinite(r).any() else 0.0
     # the fit used every k-th observation: all of them would give sqrt(k) times less
-    data_std = sigma * float(np.sqrt(max(cov[6, 6], 0.0) * len(x) / usable)) / scale[6]
-    return FocalLimit(shift, float(shift @ R[2]), focal_rel_std, source, data_std)
+    data_std = sigma * float(np.sqrt(max(cov[6, 6], 0.0) * rows / usable)) / scale[6]
+    return shift, data_std
 
 
 def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> list[FocalLimit | None]:
@@ -157,22 +198,153 @@ def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> l
     return out
 
 
-def limit_entry(limit: FocalLimit, geometry_std: float | None, scaled: bool) -> dict:
-    """A camera's report entries: ``geometry_std_honest_mm`` (the geometry sigma with the focal
-    length's, in quadrature; None without a scale) and ``focal_limit`` (mm per 1% along the axis
-    and in all, the sigma assumed and its source, the data's own)."""
+@dataclass(frozen=True)
+class LensLimit:
+    """One camera's centre against one given intrinsic beyond the focal length (``name`` of
+    :data:`LENS_PARAMETERS`). shift_m_per_sigma: (3,) the centre's change, metres (or the rig's
+    units), for the parameter off by its ``sigma`` (pixels for cx, cy; unitless else);
+    along_axis_m_per_sigma: its part along the optical axis; data_std: the parameter's standard
+    error from the camera's own residuals, in units of ``sigma`` (under :data:`DETERMINED_SHARE`:
+    the data determine it)."""
+
+    name: str
+    shift_m_per_sigma: np.ndarray
+    along_axis_m_per_sigma: float
+    sigma: float
+    data_std: float
+
+    @property
+    def std(self) -> float:
+        """The centre's sigma from this parameter alone (3D RMS), metres."""
+        return float(np.linalg.norm(self.shift_m_per_sigma))
+
+    @property
+    def determined(self) -> bool:
+        return bool(np.isfinite(self.data_std) and self.data_std < DETERMINED_SHARE)
+
+
+def lens_sigmas(cam) -> dict[str, float]:
+    """Camera ``cam``'s assumed sigma of each of :data:`LENS_PARAMETERS` (pixels for cx, cy)."""
+    cx, cy = cam.K[0, 2], cam.K[1, 2]
+    corner = float(np.hypot(max(cx, cam.width - cx) / cam.K[0, 0], max(cy, cam.height - cy) / cam.K[1, 1]))
+    if cam.model == "fisheye":
+        corner = float(np.arctan(corner))  # its radial terms are on the ray's angle
+    out = {"cx": DEFAULT_PRINCIPAL_WIDTH_STD * cam.width, "cy": DEFAULT_PRINCIPAL_WIDTH_STD * cam.width}
+    for name in LENS_PARAMETERS[cam.model][2:]:
+        out[name] = (DEFAULT_RADIAL_CORNER_STD[name] / corner ** (2 * (DIST_INDEX[name] + 1))
+                     if name in DEFAULT_RADIAL_CORNER_STD else DEFAULT_TANGENTIAL_STD)
+    return out
+
+
+def _perturbed(cam, name: str, delta: float):
+    K, dist = cam.K.copy(), cam.dist.copy()
+    if name == "cx":
+        K[0, 2] += delta
+    elif name == "cy":
+        K[1, 2] += delta
+    else:
+        dist[DIST_INDEX[name]] += delta
+    return replace(cam, K=K, dist=dist)
+
+
+def lens_columns(cam, xy: np.ndarray, sigmas: dict[str, float]) -> dict[str, np.ndarray]:
+    """(K, 2) how each observation's normalised coordinates xy (K, 2) move when the parameter
+    ``name`` of ``sigmas`` is off by its sigma: the same pixels undistorted with the parameter at
+    plus and minus its sigma, half the difference (central, for any lens model OpenCV undistorts)."""
+    uv = distort_points(cam, xy)
+    return {name: 0.5 * (undistort_points(_perturbed(cam, name, s), uv) - undistort_points(_perturbed(cam, name, -s), uv))
+            for name, s in sigmas.items()}
+
+
+def lens_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> list[list[LensLimit]]:
+    """Every camera's :class:`LensLimit` of each given parameter (none of those refined: cx, cy
+    with ``principal``, k1 with ``k1``; none with too few observations). res: the judgement's
+    :class:`wandcal.calib.judge.residuals.Residuals`."""
+    key = res.point - res.point.min() if len(res.point) else res.point
+    views = np.bincount(key)[key]
+    usable = np.isfinite(res.depth) & (res.depth > 0) & finite_rows(res.xy + res.residual) & ~res.outlier
+    out: list[list[LensLimit]] = []
+    for c, cam in enumerate(rig.cameras):
+        rows = res.rows_of(c)
+        rows = rows[usable[rows]]
+        sigmas = {k: v for k, v in lens_sigmas(cam).items() if REFINABLE.get(k) not in refined}
+        if len(rows) < MIN_ROWS or not sigmas:
+            out.append([])
+            continue
+        idx = _fit_rows(rows)
+        residual, xy = np.take(res.residual, idx, axis=0), np.take(res.xy, idx, axis=0)
+        pose, share = _pose_and_share(R[c], t[c], xy + residual, res.depth[idx], views[idx])
+        mine = []
+        for name, column in lens_columns(cam, xy, sigmas).items():
+            got = _response(R[c], t[c], pose, (column * share[:, None]).ravel(), residual, len(idx), len(rows))
+            if got is not None:
+                mine.append(LensLimit(name, got[0], float(got[0] @ R[c][2]), sigmas[name], got[1]))
+        out.append(mine)
+    return out
+
+
+def limit_entry(limit: FocalLimit | None, geometry_std: float | None, scaled: bool,
+                lens: list[LensLimit] | None = None) -> dict | None:
+    """A camera's report entries: ``geometry_std_honest_mm`` (the geometry sigma with every given
+    intrinsic's part, in quadrature; None without a scale), ``focal_limit`` (mm per 1% along the
+    axis and in all, the sigma assumed and its source, the data's own; where the focal length was
+    given) and ``lens_limits`` (each other given parameter's sigma, mm for that sigma along the
+    axis and in all, and the data's own standard error in sigmas); None with neither."""
+    lens = lens or []
+    if limit is None and not lens:
+        return None
     unit = 1000.0 if scaled else 1.0
+    entry: dict[str, object] = {}
+    if limit is not None:
+        entry["focal_limit"] = {
+            "mm_per_percent" if scaled else "per_percent": round(unit * 0.01 * float(np.linalg.norm(limit.shift_m_per_unit)), 4),
+            "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": round(unit * 0.01 * limit.along_axis_m_per_unit, 4),
+            "focal_std_percent": round(100 * limit.focal_rel_std, 3), "source": limit.source,
+            "data_focal_std_percent": round(100 * float(limit.data_rel_std), 3) if np.isfinite(limit.data_rel_std) else None}
+    if lens:
+        entry["lens_limits"] = {part.name: {
+            "sigma": float(f"{part.sigma:.4g}"), "unit": "px" if part.name in ("cx", "cy") else "", "source": "default",
+            "mm_per_sigma" if scaled else "per_sigma": round(unit * part.std, 4),
+            "along_axis_mm_per_sigma" if scaled else "along_axis_per_sigma": round(unit * part.along_axis_m_per_sigma, 4),
+            "data_std_sigmas": round(float(part.data_std), 4) if np.isfinite(part.data_std) else None} for part in lens}
     honest = None
     if geometry_std is not None:
-        honest = float(np.hypot(geometry_std, limit.std))
-    entry: dict[str, object] = {"focal_limit": {
-        "mm_per_percent" if scaled else "per_percent": round(unit * 0.01 * float(np.linalg.norm(limit.shift_m_per_unit)), 4),
-        "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": round(unit * 0.01 * limit.along_axis_m_per_unit, 4),
-        "focal_std_percent": round(100 * limit.focal_rel_std, 3), "source": limit.source,
-        "data_focal_std_percent": round(100 * float(limit.data_rel_std), 3) if np.isfinite(limit.data_rel_std) else None}}
+        parts = ([limit.std] if limit is not None else []) + [part.std for part in lens]
+        honest = float(np.hypot(geometry_std, np.sqrt(sum(x ** 2 for x in parts))))
     entry["geometry_std_honest_mm" if scaled else "geometry_std_honest"] = \
         (round(unit * honest, 4) if honest is not None else None)
     return entry
+
+
+def lens_limited(cam: str, lens: list[LensLimit], geo: float, scaled: bool) -> list[dict]:
+    """Camera ``cam``'s parameters beyond the focal length whose part of its honest sigma is
+    :data:`LIMIT_RATIO` times its geometry sigma ``geo`` or more, each a ``limits`` entry: how many
+    millimetres the camera moves for the parameter's assumed sigma, and what to do."""
+    out = []
+    k = 1000.0 if scaled else 1.0
+    unit = "mm" if scaled else "units"
+    for part in lens:
+        if part.std < LIMIT_RATIO * geo:
+            continue
+        size = f"{part.sigma:.2g} px" if part.name in ("cx", "cy") else f"{part.sigma:.2g}"
+        if part.name in REFINABLE and part.determined:
+            todo = (f"the data determine it to {part.data_std:.2f} of that: run with --refine-intrinsics "
+                    f"{REFINABLE[part.name]}, or give it from a lens calibration")
+        elif part.name in REFINABLE:
+            todo = "the data cannot determine it: give it from a lens calibration"
+        else:
+            todo = "give it from a lens calibration (wandcal does not refine it)"
+        out.append({"camera": cam, "parameter": part.name, "evidence": {
+            "sigma": float(f"{part.sigma:.4g}"), "unit": "px" if part.name in ("cx", "cy") else "",
+            "parameter_sigma_mm" if scaled else "parameter_sigma": round(part.std * k, 3),
+            "along_axis_mm" if scaled else "along_axis": round(part.along_axis_m_per_sigma * k, 3),
+            "geometry_sigma_mm" if scaled else "geometry_sigma": round(geo * k, 3),
+            "data_std_sigmas": round(float(part.data_std), 3) if np.isfinite(part.data_std) else None,
+            "determined": part.determined},
+            "message": f"{cam}'s position moves {part.std * k:.3g} {unit} for {size} of its {WORDS[part.name]} "
+                       f"(the uncertainty assumed, rig.json giving none), where the geometry alone knows it to "
+                       f"+-{geo * k:.3g} {unit}; {todo}"})
+    return out
 
 
 def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_std: list[float | None],
@@ -209,10 +381,17 @@ def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_st
 
 def intrinsic_limit_entries(rig, geometry_std: list[float | None], R: np.ndarray, t: np.ndarray, res, scaled: bool,
                             refined: tuple[str, ...]) -> tuple[list[dict | None], list[dict]]:
-    """Each camera's :func:`limit_entry` (None where its focal length was refined or it has too
-    few observations) and the cameras whose position hinges on their focal length
-    (:func:`limited_cameras`). geometry_std: (N,) each camera's geometry sigma, world units;
-    refined: the intrinsics the solve refined."""
+    """Each camera's :func:`limit_entry` (None where every intrinsic was refined or it has too few
+    observations) and the cameras whose position hinges on a given intrinsic, each named with the
+    intrinsic (:func:`limited_cameras`, :func:`lens_limited`). geometry_std: (N,) each camera's
+    geometry sigma, world units; refined: the intrinsics the solve refined."""
     limits = focal_limits(rig, R, t, res, set(refined))
-    entries = [limit_entry(limit, geo, scaled) if limit is not None else None for limit, geo in zip(limits, geometry_std)]
-    return entries, limited_cameras(list(rig.ids), limits, geometry_std, scaled)
+    lens = lens_limits(rig, R, t, res, set(refined))
+    entries = [limit_entry(limit, geo, scaled, parts) for limit, geo, parts in zip(limits, geometry_std, lens)]
+    named = limited_cameras(list(rig.ids), limits, geometry_std, scaled)
+    out = []
+    for cam, parts, geo in zip(rig.ids, lens, geometry_std):
+        out += [entry for entry in named if entry["camera"] == cam]
+        if geo is not None:
+            out += lens_limited(cam, parts, geo, scaled)
+    return entries, out
