@@ -128,7 +128,7 @@ def held_out(sessions: list[rf.Session], write: bool) -> int:
     start, cpu = time.strftime("%H:%M UTC", time.gmtime()), time.process_time()
     outcomes = ho.run_held_out(sessions, progress=lambda o: print(rf.case_line(o), flush=True))
     table = rf.confusion_table(outcomes, ho.HELD_OUT_FAMILIES, ho.NOTES)
-    coverage = rf.sigma_coverage(outcomes, families=LENS_FAMILIES)
+    coverage = rf.sigma_coverage(outcomes, families=LENS_FAMILIES) + "\n\n" + rf.before_line(outcomes, ho.HELD_OUT_FAMILIES)
     print()
     print(table)
     print(coverage)
@@ -178,7 +178,7 @@ def main() -> int:
     table = rf.confusion_table(outcomes, rf.FAMILIES, rf.UNDETERMINABLE)
     print()
     print(table)
-    coverage = rf.sigma_coverage(outcomes)
+    coverage = rf.sigma_coverage(outcomes) + "\n\n" + rf.before_line(outcomes, rf.FAMILIES)
     print(coverage)
     wrong = "\n".join(f"- {rf.case_line(o)}" for o in outcomes if not o.right)
     if not args.no_write:

@@ -98,3 +98,15 @@ def sigma_coverage(outcomes: list[Outcome], max_error: float = 0.03, families: t
     return (f"{what}, {len(rows)} target cameras: " + "; ".join(parts)
             + f"; within 3 honest sigma or the fault's intrinsic named as its limit: {share(lambda o: covered(o) or o.limited)}"
             + f"; within 3 honest sigma and named (limited): {share(lambda o: covered(o) and o.limited)}")
+
+
+def before_line(outcomes: list[Outcome], families: tuple[str, ...]) -> str:
+    """The families' right counts as session 15 scored them (``right_before``: absorbed only where
+    the rig is not poor and for principal points and tangential, limited only for the focal
+    families with the camera named in any limit), beside today's."""
+    parts = []
+    for family in families:
+        rows = [o for o in outcomes if o.case.family == family]
+        if rows:
+            parts.append(f"{family} {sum(o.right_before for o in rows)}/{len(rows)} (now {sum(o.right for o in rows)})")
+    return "Scored as in session 15, from the same runs: " + ", ".join(parts)

@@ -56,6 +56,11 @@ LENS_PARAMETERS = {"pinhole": ("cx", "cy", "k1", "k2", "p1", "p2"), "fisheye": (
 DIST_INDEX = {"k1": 0, "k2": 1, "p1": 2, "p2": 3}
 # the principal point's sigma, a share of the image's width (Brown: 0.28%, both axes, 8 differences)
 DEFAULT_PRINCIPAL_WIDTH_STD = 0.0028
+# a principal point given at the image's centre (within NOMINAL_PX) is nominal, not calibrated: its
+# sigma is how far real principal points lie from the centre, RMS over 16 axes of the eight
+# calibrated lenses we have (Brown 1's four, MultiCamSelfCal's four): 2.1% of the width
+DEFAULT_NOMINAL_PRINCIPAL_WIDTH_STD = 0.021
+NOMINAL_PX = 0.5
 # a radial term's sigma as the share of the radius it moves a point at the image's corner
 # (k_n r_c^2n, r_c the corner's normalised radius; Brown: k1 1.66%, k2 2.40%): a share carries
 # over to lenses of other fields of view, a coefficient would not
@@ -66,6 +71,7 @@ DEFAULT_TANGENTIAL_STD = 0.0007
 # the data determine a parameter when they would give it to this share of its sigma: the focal
 # length's DETERMINED_REL_STD at its default sigma (0.5% of 2%)
 DETERMINED_SHARE = 0.25
+WHY = {"nominal": " for a principal point given at the image's centre"}  # a limit message's words on its sigma
 # the parameters --refine-intrinsics refines (wandcal.calib.solve.reprojection.INTRINSICS)
 REFINABLE = {"cx": "principal", "cy": "principal", "k1": "k1"}
 WORDS = {"cx": "principal point's x (cx)", "cy": "principal point's y (cy)", "k1": "radial distortion k1",
@@ -212,6 +218,7 @@ class LensLimit:
     along_axis_m_per_sigma: float
     sigma: float
     data_std: float
+    source: str = "default"  # "nominal" for a principal point given at the image's centre
 
     @property
     def std(self) -> float:
@@ -229,11 +236,17 @@ def lens_sigmas(cam) -> dict[str, float]:
     corner = float(np.hypot(max(cx, cam.width - cx) / cam.K[0, 0], max(cy, cam.height - cy) / cam.K[1, 1]))
     if cam.model == "fisheye":
         corner = float(np.arctan(corner))  # its radial terms are on the ray's angle
-    out = {"cx": DEFAULT_PRINCIPAL_WIDTH_STD * cam.width, "cy": DEFAULT_PRINCIPAL_WIDTH_STD * cam.width}
+    share = DEFAULT_NOMINAL_PRINCIPAL_WIDTH_STD if nominal_principal(cam) else DEFAULT_PRINCIPAL_WIDTH_STD
+    out = {"cx": share * cam.width, "cy": share * cam.width}
     for name in LENS_PARAMETERS[cam.model][2:]:
         out[name] = (DEFAULT_RADIAL_CORNER_STD[name] / corner ** (2 * (DIST_INDEX[name] + 1))
                      if name in DEFAULT_RADIAL_CORNER_STD else DEFAULT_TANGENTIAL_STD)
     return out
+
+
+def nominal_principal(cam) -> bool:
+    """The camera's principal point is the image's centre (:data:`NOMINAL_PX`): nominal, not calibrated."""
+    return bool(abs(cam.K[0, 2] - cam.width / 2) <= NOMINAL_PX and abs(cam.K[1, 2] - cam.height / 2) <= NOMINAL_PX)
 
 
 def _perturbed(cam, name: str, delta: float):
@@ -278,7 +291,8 @@ def lens_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> li
         for name, column in lens_columns(cam, xy, sigmas).items():
             got = _response(R[c], t[c], pose, (column * share[:, None]).ravel(), residual, len(idx), len(rows))
             if got is not None:
-                mine.append(LensLimit(name, got[0], float(got[0] @ R[c][2]), sigmas[name], got[1]))
+                source = "nominal" if name in ("cx", "cy") and nominal_principal(cam) else "default"
+                mine.append(LensLimit(name, got[0], float(got[0] @ R[c][2]), sigmas[name], got[1], source))
         out.append(mine)
     return out
 
@@ -303,7 +317,7 @@ def limit_entry(limit: FocalLimit | None, geometry_std: float | None, scaled: bo
             "data_focal_std_percent": round(100 * float(limit.data_rel_std), 3) if np.isfinite(limit.data_rel_std) else None}
     if lens:
         entry["lens_limits"] = {part.name: {
-            "sigma": float(f"{part.sigma:.4g}"), "unit": "px" if part.name in ("cx", "cy") else "", "source": "default",
+            "sigma": float(f"{part.sigma:.4g}"), "unit": "px" if part.name in ("cx", "cy") else "", "source": part.source,
             "mm_per_sigma" if scaled else "per_sigma": round(unit * part.std, 4),
             "along_axis_mm_per_sigma" if scaled else "along_axis_per_sigma": round(unit * part.along_axis_m_per_sigma, 4),
             "data_std_sigmas": round(float(part.data_std), 4) if np.isfinite(part.data_std) else None} for part in lens}
@@ -342,7 +356,7 @@ def lens_limited(cam: str, lens: list[LensLimit], geo: float, scaled: bool) -> l
             "data_std_sigmas": round(float(part.data_std), 3) if np.isfinite(part.data_std) else None,
             "determined": part.determined},
             "message": f"{cam}'s position moves {part.std * k:.3g} {unit} for {size} of its {WORDS[part.name]} "
-                       f"(the uncertainty assumed, rig.json giving none), where the geometry alone knows it to "
+                       f"(the uncertainty assumed{WHY.get(part.source, '')}, rig.json giving none), where the geometry alone knows it to "
                        f"+-{geo * k:.3g} {unit}; {todo}"})
     return out
 

@@ -10,6 +10,7 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import rotvec_to_matrix
 from wandcal.calib.judge.intrinsic_limits import (
     DEFAULT_FOCAL_REL_STD,
+    DEFAULT_NOMINAL_PRINCIPAL_WIDTH_STD,
     DEFAULT_PRINCIPAL_WIDTH_STD,
     DEFAULT_RADIAL_CORNER_STD,
     DEFAULT_TANGENTIAL_STD,
@@ -98,9 +99,13 @@ def _lens_camera(dist=(0.0, 0.0, 0.0, 0.0, 0.0)) -> Camera:
 
 
 def test_the_default_sigmas_are_the_stated_shares_of_the_image():
-    cam = _lens_camera()
+    nominal = _lens_camera()  # its principal point at the image's centre: nominal, not calibrated
+    assert lens_sigmas(nominal)["cx"] == pytest.approx(DEFAULT_NOMINAL_PRINCIPAL_WIDTH_STD * 1280)
+    K = nominal.K.copy()
+    K[0, 2] = 646.0
+    cam = Camera("cam1", 1280, 960, K, np.zeros(5))
     sig = lens_sigmas(cam)
-    corner = np.hypot(0.64, 0.48)  # the corner's normalised radius
+    corner = np.hypot(646 / 1000, 0.48)  # the corner's normalised radius
     assert sig["cx"] == sig["cy"] == pytest.approx(DEFAULT_PRINCIPAL_WIDTH_STD * 1280)
     assert sig["k1"] * corner ** 2 == pytest.approx(DEFAULT_RADIAL_CORNER_STD["k1"])
     assert sig["k2"] * corner ** 4 == pytest.approx(DEFAULT_RADIAL_CORNER_STD["k2"])
