@@ -101,9 +101,8 @@ def sigma_coverage(outcomes: list[Outcome], max_error: float = 0.03, families: t
 
 
 def before_line(outcomes: list[Outcome], families: tuple[str, ...]) -> str:
-    """The families' right counts as session 15 scored them (``right_before``: absorbed only where
-    the rig is not poor and for principal points and tangential, limited only for the focal
-    families with the camera named in any limit), beside today's."""
+    """The families' right counts as session 15 scored them (``right_before``: limited only for the
+    focal families, with the camera named in any limit), beside today's."""
     parts = []
     for family in families:
         rows = [o for o in outcomes if o.case.family == family]

@@ -21,7 +21,7 @@ noise), then again with one fault put into its inputs:
 Each camera fault is put on two target cameras per session, one at a time. A run is right when the
 verdict names the expected kind on the target camera and no fault on another camera; a subsample
 is right when it names no camera and is not poorer than the clean run. A principal point the
-camera's rotation takes up is *absorbed* (right) when nothing is named, the rig is not poorer than the clean run and
+camera's rotation takes up is *absorbed* (right) when nothing is named, the rig is not poor and
 the camera moved by no more than :data:`ABSORBED_SIGMAS` of its reported geometry sigma. Timing
 faults are injected only where a camera's samples are consecutive frames (not on Ushichka,
 digitised every tenth frame or more: a one-frame shift cannot be made from its samples).
@@ -148,7 +148,6 @@ class Outcome:
     outcome: str = field(default="")
     at_limit: list = field(default_factory=list)  # the verdict's criteria at the limit of poor (lines, fault_scores.at_limit_lines)
     at_limit_right: bool = False
-    unscaled: bool = False  # a session without a scale: sigma_mm is its unit times 1000
     right_before: bool = False  # right as session 15 scored it (_right_before), for the tables' comparison
 
 
@@ -302,12 +301,9 @@ LEVEL_ORDER = ("excellent", "good", "poor")
 # the families whose camera may be right without a fault named: a principal point (or a decentred
 # lens, bench/held_out_faults.py) its rotation takes up, within ABSORBED_SIGMAS of its sigma; a
 # focal length named as what limits the camera's position, within 3 honest sigma of it
-# (since session 16 every intrinsic family, and "not poorer than the clean run" where it was "not
-# poor": the easyWand C++ sample's clean run is poor by its own cam2's timing, so none of its cases
-# could be absorbed; ABSORBABLE_BEFORE and right_before keep session 15's scoring beside it)
-ABSORBABLE = frozenset({"focal", "k1", "principal", "principal y", "tangential", "k2", "fy", "focal subsample"})
-ABSORBABLE_BEFORE = frozenset({"principal", "principal y", "tangential"})
-LIMITABLE_BEFORE = frozenset({"focal", "focal subsample", "fy"})
+# (as fixed before the held-out faults were first run, decision 0058: not widened after the fact)
+ABSORBABLE = frozenset({"principal", "principal y", "tangential"})
+LIMITABLE_BEFORE = frozenset({"focal", "focal subsample", "fy"})  # session 15's limited: the camera named for any limit
 # an intrinsic fault is *limited* (right) when the verdict's limits name the target camera with the
 # intrinsic the fault put off and its displacement is within 3 honest sigma (session 16: before,
 # the focal families only, with the camera named for any intrinsic)
@@ -340,13 +336,8 @@ def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outco
                   message=next((f["message"] for f in verdict["faults"]), ""))
     if case.camera is not None:
         out.displacement_mm = float(aligned_centres_mm(np.asarray(result.centers), clean.centres)[case.camera])
-        entry = doc["cameras"][case.camera]
-        # without a scale (MultiCamSelfCal) the centres and their sigmas are in the rig's unit, times 1000 alike
-        unscaled = 1000.0 if entry.get("geometry_std_mm") is None else None
-        out.unscaled = unscaled is not None
-        out.sigma_mm = entry.get("geometry_std_mm") if unscaled is None else _times(entry.get("geometry_std"), unscaled)
-        out.honest_sigma_mm = (entry.get("geometry_std_honest_mm") if unscaled is None
-                               else _times(entry.get("geometry_std_honest"), unscaled))
+        out.sigma_mm = doc["cameras"][case.camera].get("geometry_std_mm")
+        out.honest_sigma_mm = doc["cameras"][case.camera].get("geometry_std_honest_mm")
         out.limited_by = [limit["parameter"] for limit in verdict.get("limits") or [] if limit["camera"] == ids[case.camera]]
         out.limited = bool(LIMITABLE.get(case.family, set()) & set(out.limited_by))
     timing = [f["evidence"].get("timing", {}).get("offset_frames") for f in verdict["faults"] if f["kind"] == "timing"]
@@ -356,14 +347,13 @@ def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outco
     if case.expected is None:  # a subsample of a clean session
         out.right = not cams_named and LEVEL_ORDER.index(out.level) <= LEVEL_ORDER.index(clean.level)
         out.outcome = "right" if out.right else ("wrong camera" if cams_named else "called poor")
+        out.right_before = out.right
         return out
     target = ids[case.camera] if case.camera is not None else None
     hit = (case.expected, target) in named
     others = cams_named - {target}
     out.right = hit and not others
-    not_poorer = LEVEL_ORDER.index(out.level) <= LEVEL_ORDER.index(clean.level)
-    before = out.right or _right_before(out, case, cams_named, others)
-    if case.family in ABSORBABLE and not out.right and not cams_named and not_poorer \
+    if case.family in ABSORBABLE and not out.right and not cams_named and out.level != "poor" \
             and out.displacement_mm is not None and out.sigma_mm \
             and out.displacement_mm <= ABSORBED_SIGMAS * out.sigma_mm:
         out.right = out.absorbed = True
@@ -371,7 +361,7 @@ def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outco
         out.right = out.limited_right = True
     if case.expected == "noise" and not out.right and not cams_named and noise_at_limit_named(out, target):
         out.right = out.at_limit_right = True
-    out.right_before = before
+    out.right_before = _right_before(out, others)
     if out.right:
         out.outcome = ("limited" if out.limited_right else "absorbed" if out.absorbed
                        else "at the limit" if out.at_limit_right else "right")
@@ -384,18 +374,12 @@ def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outco
     return out
 
 
-def _times(value: float | None, k: float) -> float | None:
-    return None if value is None else k * value
-
-
-def _right_before(out: Outcome, case: Case, cams_named: set, others: set) -> bool:
-    """The case scored as session 15 did: absorbed (:data:`ABSORBABLE_BEFORE`) only where the rig is
-    not poor, limited (:data:`LIMITABLE_BEFORE`) with the camera named in any limit."""
-    if case.family in ABSORBABLE_BEFORE and not cams_named and out.level != "poor" and not out.unscaled \
-            and out.displacement_mm is not None \
-            and out.sigma_mm and out.displacement_mm <= ABSORBED_SIGMAS * out.sigma_mm:
+def _right_before(out: Outcome, others: set) -> bool:
+    """The case scored as session 15 did: as today but for *limited*, then only for the focal
+    families (:data:`LIMITABLE_BEFORE`) and with the camera named in any limit."""
+    if out.right and not out.limited_right:
         return True
-    return case.family in LIMITABLE_BEFORE and not others and bool(out.limited_by) and covered(out)
+    return out.case.family in LIMITABLE_BEFORE and not others and bool(out.limited_by) and covered(out)
 
 
 def run_suite(sessions: list[Session], families: tuple[str, ...] = FAMILIES, progress=None,
