@@ -326,6 +326,7 @@ def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outco
         out = Outcome(case, right, "refused", [("timing", session.rig.cameras[case.camera].id)] if named else [],
                       message=str(exc), seconds=time.perf_counter() - start)
         out.outcome = "right" if right else "refused"
+        out.right_before = right
         return out
     seconds = time.perf_counter() - start
     doc = result.to_json()
