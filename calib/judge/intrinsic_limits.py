@@ -1,4 +1,4 @@
-"""How far a camera's position hinges on a focal length that was given, not refined: the honest sigma.
+"""How far a camera's position hinges on the intrinsics that were given, not refined: the honest sigma.
 
 The geometry sigma of a solve (:mod:`wandcal.calib.solve.gauge_free`) treats the intrinsics in
 rig.json as exact. Real ones are not: a nominal lens focal length, or one from a calibration of
@@ -22,16 +22,36 @@ focal length to 0.1-0.2%.
 The same fit with the focal column beside the pose's says whether the data could determine the
 focal length (its standard error from the residual's scatter): then ``--refine-intrinsics focal``
 is the advice, else a lens calibration.
+
+Every other intrinsic given (cx, cy, k1, k2, p1, p2: :mod:`wandcal.calib.judge.lens_sigmas`) enters the same way
+(:func:`lens_limits`): its column is how the observations' normalised coordinates move with the
+parameter off by its assumed sigma (:func:`lens_columns`, the pixels undistorted again), its part of
+the honest sigma the centre's change for that sigma, and whether the data determine it its standard
+error beside the pose, in sigmas (under a quarter of it: determined). The sigmas assumed are measured
+(:func:`lens_sigmas`; docs/verdict.md, "The honest sigma").
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.geometry import distort_points, finite_rows, rotvec_to_matrix, undistort_points
+from wandcal.calib.geometry import finite_rows, rotvec_to_matrix
 from wandcal.calib.judge.faults.screen import _pose_columns
+from wandcal.calib.judge.lens_sigmas import (  # noqa: F401  (the honest sigma's names, importable from here)
+    DEFAULT_NOMINAL_PRINCIPAL_WIDTH_STD,
+    DEFAULT_PRINCIPAL_WIDTH_STD,
+    DEFAULT_RADIAL_CORNER_STD,
+    DEFAULT_TANGENTIAL_STD,
+    REFINABLE,
+    WHY,
+    WORDS,
+    LensLimit,
+    lens_columns,
+    lens_sigmas,
+    nominal_principal,
+)
 
 GIVEN_IN_RIG = "given"  # the source of a focal sigma the rig gives (the camera's focal_std_px); else "default"
 
@@ -47,35 +67,6 @@ LIMIT_RATIO = 2.0
 # under this share: refining it (--refine-intrinsics focal) is then the advice (the refined focal
 # length's own warning, wandcal.calib.run.camera_reports.FOCAL_REL_STD_WARN, is 0.5%)
 DETERMINED_REL_STD = 0.005
-# the given intrinsics beyond the focal length (OpenCV's names; a fisheye lens has no p1, p2), each
-# with its sigma where rig.json gives none. Measured on Brown's two calibrations of the same four
-# cameras on consecutive days, each day with its own lens profile: a parameter's differences
-# between the days, RMS over sqrt(2) (docs/decisions/0066d-every-given-intrinsic-in-the-honest-sigma.md;
-# four cameras: each figure is known to about a third of itself)
-LENS_PARAMETERS = {"pinhole": ("cx", "cy", "k1", "k2", "p1", "p2"), "fisheye": ("cx", "cy", "k1", "k2")}
-DIST_INDEX = {"k1": 0, "k2": 1, "p1": 2, "p2": 3}
-# the principal point's sigma, a share of the image's width (Brown: 0.28%, both axes, 8 differences)
-DEFAULT_PRINCIPAL_WIDTH_STD = 0.0028
-# a principal point given at the image's centre (within NOMINAL_PX) is nominal, not calibrated: its
-# sigma is how far real principal points lie from the centre, RMS over 16 axes of the eight
-# calibrated lenses we have (Brown 1's four, MultiCamSelfCal's four): 2.1% of the width
-DEFAULT_NOMINAL_PRINCIPAL_WIDTH_STD = 0.021
-NOMINAL_PX = 0.5
-# a radial term's sigma as the share of the radius it moves a point at the image's corner
-# (k_n r_c^2n, r_c the corner's normalised radius; Brown: k1 1.66%, k2 2.40%): a share carries
-# over to lenses of other fields of view, a coefficient would not
-DEFAULT_RADIAL_CORNER_STD = {"k1": 0.0166, "k2": 0.0240}
-# p1, p2 (Brown's profiles give none): the RMS of the eight calibrated p's of MultiCamSelfCal's four
-# lenses, what a rig.json that gives 0 is off by on such a lens
-DEFAULT_TANGENTIAL_STD = 0.0007
-# the data determine a parameter when they would give it to this share of its sigma: the focal
-# length's DETERMINED_REL_STD at its default sigma (0.5% of 2%)
-DETERMINED_SHARE = 0.25
-WHY = {"nominal": " for a principal point given at the image's centre"}  # a limit message's words on its sigma
-# the parameters --refine-intrinsics refines (wandcal.calib.solve.reprojection.INTRINSICS)
-REFINABLE = {"cx": "principal", "cy": "principal", "k1": "k1"}
-WORDS = {"cx": "principal point's x (cx)", "cy": "principal point's y (cy)", "k1": "radial distortion k1",
-         "k2": "radial distortion k2", "p1": "tangential distortion p1", "p2": "tangential distortion p2"}
 MAX_ROWS = 1000  # observations per camera the fit uses: a first-order fit of seven columns needs no more
 MIN_ROWS = 12
 
@@ -202,71 +193,6 @@ def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> l
         out.append(_focal_fit(R[c], t[c], np.take(res.xy, idx, axis=0) + residual, res.depth[idx], residual, views[idx],
                               len(rows), rel, source))
     return out
-
-
-@dataclass(frozen=True)
-class LensLimit:
-    """One camera's centre against one given intrinsic beyond the focal length (``name`` of
-    :data:`LENS_PARAMETERS`). shift_m_per_sigma: (3,) the centre's change, metres (or the rig's
-    units), for the parameter off by its ``sigma`` (pixels for cx, cy; unitless else);
-    along_axis_m_per_sigma: its part along the optical axis; data_std: the parameter's standard
-    error from the camera's own residuals, in units of ``sigma`` (under :data:`DETERMINED_SHARE`:
-    the data determine it)."""
-
-    name: str
-    shift_m_per_sigma: np.ndarray
-    along_axis_m_per_sigma: float
-    sigma: float
-    data_std: float
-    source: str = "default"  # "nominal" for a principal point given at the image's centre
-
-    @property
-    def std(self) -> float:
-        """The centre's sigma from this parameter alone (3D RMS), metres."""
-        return float(np.linalg.norm(self.shift_m_per_sigma))
-
-    @property
-    def determined(self) -> bool:
-        return bool(np.isfinite(self.data_std) and self.data_std < DETERMINED_SHARE)
-
-
-def lens_sigmas(cam) -> dict[str, float]:
-    """Camera ``cam``'s assumed sigma of each of :data:`LENS_PARAMETERS` (pixels for cx, cy)."""
-    cx, cy = cam.K[0, 2], cam.K[1, 2]
-    corner = float(np.hypot(max(cx, cam.width - cx) / cam.K[0, 0], max(cy, cam.height - cy) / cam.K[1, 1]))
-    if cam.model == "fisheye":
-        corner = float(np.arctan(corner))  # its radial terms are on the ray's angle
-    share = DEFAULT_NOMINAL_PRINCIPAL_WIDTH_STD if nominal_principal(cam) else DEFAULT_PRINCIPAL_WIDTH_STD
-    out = {"cx": share * cam.width, "cy": share * cam.width}
-    for name in LENS_PARAMETERS[cam.model][2:]:
-        out[name] = (DEFAULT_RADIAL_CORNER_STD[name] / corner ** (2 * (DIST_INDEX[name] + 1))
-                     if name in DEFAULT_RADIAL_CORNER_STD else DEFAULT_TANGENTIAL_STD)
-    return out
-
-
-def nominal_principal(cam) -> bool:
-    """The camera's principal point is the image's centre (:data:`NOMINAL_PX`): nominal, not calibrated."""
-    return bool(abs(cam.K[0, 2] - cam.width / 2) <= NOMINAL_PX and abs(cam.K[1, 2] - cam.height / 2) <= NOMINAL_PX)
-
-
-def _perturbed(cam, name: str, delta: float):
-    K, dist = cam.K.copy(), cam.dist.copy()
-    if name == "cx":
-        K[0, 2] += delta
-    elif name == "cy":
-        K[1, 2] += delta
-    else:
-        dist[DIST_INDEX[name]] += delta
-    return replace(cam, K=K, dist=dist)
-
-
-def lens_columns(cam, xy: np.ndarray, sigmas: dict[str, float]) -> dict[str, np.ndarray]:
-    """(K, 2) how each observation's normalised coordinates xy (K, 2) move when the parameter
-    ``name`` of ``sigmas`` is off by its sigma: the same pixels undistorted with the parameter at
-    plus and minus its sigma, half the difference (central, for any lens model OpenCV undistorts)."""
-    uv = distort_points(cam, xy)
-    return {name: 0.5 * (undistort_points(_perturbed(cam, name, s), uv) - undistort_points(_perturbed(cam, name, -s), uv))
-            for name, s in sigmas.items()}
 
 
 def lens_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> list[list[LensLimit]]:
