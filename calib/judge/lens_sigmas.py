@@ -14,13 +14,17 @@ from wandcal.calib.geometry import distort_points, undistort_points
 
 # the given intrinsics beyond the focal length (OpenCV's names; a fisheye lens has no p1, p2), each
 # with its sigma where rig.json gives none. Measured on Brown's two calibrations of the same four
-# cameras on consecutive days, each day with its own lens profile: a parameter's differences
-# between the days, RMS over sqrt(2) (docs/decisions/0066d-every-given-intrinsic-in-the-honest-sigma.md;
-# four cameras: each figure is known to about a third of itself)
+# cameras on consecutive days, each day with its own lens profile (a parameter's differences
+# between the days, RMS over sqrt(2)), and on the published eWand session (its yaml files against
+# what its own tracks give); docs/decisions/0066d-every-given-intrinsic-in-the-honest-sigma.md.
+# Four cameras a session: each figure is known to about a third of itself
 LENS_PARAMETERS = {"pinhole": ("cx", "cy", "k1", "k2", "p1", "p2"), "fisheye": ("cx", "cy", "k1", "k2")}
 DIST_INDEX = {"k1": 0, "k2": 1, "p1": 2, "p2": 3}
-# the principal point's sigma, a share of the image's width (Brown: 0.28%, both axes, 8 differences)
-DEFAULT_PRINCIPAL_WIDTH_STD = 0.0028
+# the principal point's sigma, a share of the image's width: RMS over 16 axes of Brown's day-to-day
+# differences over sqrt(2) (0.28%) and of the published eWand session's yaml principal points
+# against those its own tracks give with --refine-intrinsics focal,principal,k1 (1.13%: 2-22 px,
+# each to 1.1-1.6 px)
+DEFAULT_PRINCIPAL_WIDTH_STD = 0.0082
 # a principal point given at the image's centre (within NOMINAL_PX) is nominal, not calibrated: its
 # sigma is how far real principal points lie from the centre, RMS over 16 axes of the eight
 # calibrated lenses we have (Brown 1's four, MultiCamSelfCal's four): 2.1% of the width
