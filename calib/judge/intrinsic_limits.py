@@ -133,13 +133,13 @@ def _focal_fit(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, resid
     return FocalLimit(shift, float(shift @ R[2]), focal_rel_std, source, data_std)
 
 
-def _pose_and_share(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, views: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def _pose_and_share(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, views: np.ndarray,
+                    differences: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """(2K, 6) the pose's columns at the points of projections x (K, 2) and depths d (K,), and (K,)
     the share of an error the pose takes up at a point of ``views`` cameras (1 - 1/n)."""
     X_cam = np.concatenate([x * d[:, None], d[:, None]], axis=1)
     X = (X_cam - t) @ R  # world points: R^T (X_cam - t)
-    pose = _pose_columns(R, t, X, differences=True)  # the figures a result writes, as before
+    pose = _pose_columns(R, t, X, differences=differences)  # the focal figures by differences, as before
     return pose, 1.0 - 1.0 / np.maximum(views, 2)
 
 
@@ -168,15 +168,23 @@ def _response(R: np.ndarray, t: np.ndarray, pose: np.ndarray, column: np.ndarray
     return shift, data_std
 
 
-def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> list[FocalLimit | None]:
+def _views_and_usable(res) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) how many cameras see each observation's point, and (M,) the observations the fits may
+    use (in front, finite, no gross outlier), for every camera at once: only the rows a fit uses
+    are gathered."""
+    key = res.point - res.point.min() if len(res.point) else res.point
+    views = np.bincount(key)[key]
+    usable = np.isfinite(res.depth) & (res.depth > 0) & finite_rows(res.xy + res.residual) & ~res.outlier
+    return views, usable
+
+
+def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str],
+                 shared: tuple[np.ndarray, np.ndarray] | None = None) -> list[FocalLimit | None]:
     """Every camera's :class:`FocalLimit` (None where its focal length was refined, or it has too
     few observations). res: the judgement's :class:`wandcal.calib.judge.residuals.Residuals`;
     refined: the intrinsics the solve refined (``focal`` among them: none is given)."""
     out: list[FocalLimit | None] = []
-    key = res.point - res.point.min() if len(res.point) else res.point
-    views = np.bincount(key)[key]
-    # the rows focal_limit would keep, for every camera at once: only the rows its fit uses are gathered
-    usable = np.isfinite(res.depth) & (res.depth > 0) & finite_rows(res.xy + res.residual) & ~res.outlier
+    views, usable = shared if shared is not None else _views_and_usable(res)
     for c, cam in enumerate(rig.cameras):
         if "focal" in refined:
             out.append(None)
@@ -195,13 +203,12 @@ def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> l
     return out
 
 
-def lens_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> list[list[LensLimit]]:
+def lens_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str],
+                shared: tuple[np.ndarray, np.ndarray] | None = None) -> list[list[LensLimit]]:
     """Every camera's :class:`LensLimit` of each given parameter (none of those refined: cx, cy
     with ``principal``, k1 with ``k1``; none with too few observations). res: the judgement's
     :class:`wandcal.calib.judge.residuals.Residuals`."""
-    key = res.point - res.point.min() if len(res.point) else res.point
-    views = np.bincount(key)[key]
-    usable = np.isfinite(res.depth) & (res.depth > 0) & finite_rows(res.xy + res.residual) & ~res.outlier
+    views, usable = shared if shared is not None else _views_and_usable(res)
     out: list[list[LensLimit]] = []
     for c, cam in enumerate(rig.cameras):
         rows = res.rows_of(c)
@@ -212,15 +219,40 @@ def lens_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> li
             continue
         idx = _fit_rows(rows)
         residual, xy = np.take(res.residual, idx, axis=0), np.take(res.xy, idx, axis=0)
-        pose, share = _pose_and_share(R[c], t[c], xy + residual, res.depth[idx], views[idx])
-        mine = []
-        for name, column in lens_columns(cam, xy, sigmas).items():
-            got = _response(R[c], t[c], pose, (column * share[:, None]).ravel(), residual, len(idx), len(rows))
-            if got is not None:
-                source = "nominal" if name in ("cx", "cy") and nominal_principal(cam) else "default"
-                mine.append(LensLimit(name, got[0], float(got[0] @ R[c][2]), sigmas[name], got[1], source))
-        out.append(mine)
+        pose, share = _pose_and_share(R[c], t[c], xy + residual, res.depth[idx], views[idx], differences=False)
+        columns = lens_columns(cam, xy, sigmas)
+        got = _responses(R[c], t[c], pose, np.stack([(columns[n] * share[:, None]).ravel() for n in sigmas], axis=1),
+                         residual, len(idx), len(rows))
+        source = "nominal" if nominal_principal(cam) else "default"
+        out.append([] if got is None else [
+            LensLimit(n, shift, float(shift @ R[c][2]), sigmas[n], float(std), source if n in ("cx", "cy") else "default")
+            for n, shift, std in zip(sigmas, *got)])
     return out
+
+
+def _responses(R: np.ndarray, t: np.ndarray, pose: np.ndarray, columns: np.ndarray, residual: np.ndarray, rows: int,
+               usable: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_response` of P columns at once (columns (2K, P)): (P, 3) the centre's changes, (P,)
+    each column's standard error beside the pose alone (its Schur complement: 1 / (G_jj - G_jp
+    G_pp^-1 G_pj))."""
+    both = np.concatenate([pose, columns], axis=1)
+    scale = np.linalg.norm(both, axis=0)
+    scale[scale == 0] = 1.0
+    A = both / scale
+    G = A.T @ A
+    try:
+        across = np.linalg.solve(G[:6, :6], G[:6, 6:])  # (6, P): each column's pose step, scaled
+    except np.linalg.LinAlgError:
+        return None
+    steps = across * scale[6:] / scale[:6, None]
+    C0 = _centre(R, t)
+    shifts = np.array([_centre(rotvec_to_matrix(st[:3]) @ R, t + st[3:]) - C0 for st in steps.T])
+    left = np.diag(G[6:, 6:]) - np.einsum("pj,pj->j", G[:6, 6:], across)
+    r = residual.ravel()
+    sigma = float(np.sqrt(np.mean(r[np.isfinite(r)] ** 2))) if np.isfinite(r).any() else 0.0
+    with np.errstate(divide="ignore"):
+        var = np.where(left > 0, 1.0 / np.maximum(left, 1e-300), np.inf)
+    return shifts, sigma * np.sqrt(var * rows / usable) / scale[6:]
 
 
 def limit_entry(limit: FocalLimit | None, geometry_std: float | None, scaled: bool,
@@ -325,8 +357,9 @@ def intrinsic_limit_entries(rig, geometry_std: list[float | None], R: np.ndarray
     observations) and the cameras whose position hinges on a given intrinsic, each named with the
     intrinsic (:func:`limited_cameras`, :func:`lens_limited`). geometry_std: (N,) each camera's
     geometry sigma, world units; refined: the intrinsics the solve refined."""
-    limits = focal_limits(rig, R, t, res, set(refined))
-    lens = lens_limits(rig, R, t, res, set(refined))
+    shared = _views_and_usable(res)
+    limits = focal_limits(rig, R, t, res, set(refined), shared)
+    lens = lens_limits(rig, R, t, res, set(refined), shared)
     entries = [limit_entry(limit, geo, scaled, parts) for limit, geo, parts in zip(limits, geometry_std, lens)]
     named = limited_cameras(list(rig.ids), limits, geometry_std, scaled)
     out = []
