@@ -169,3 +169,32 @@ def test_a_result_keeps_its_lens_limits_through_json():
     cam = CameraFigures.from_json(doc)
     assert cam.focal_limit is not None and cam.focal_limit.focal_limit is None
     assert cam.to_json() == doc
+
+
+def test_a_distorted_pinhole_lens_columns_agree_with_undistorting_the_same_pixels_again():
+    # first order (the columns) against central differences through OpenCV's iterative undistortion:
+    # they differ by the second order, (the parameter's share of the radius at the corner, <= 2.4%)^2
+    # times a few, so 2% of a column's size bounds it
+    from dataclasses import replace
+
+    from wandcal.calib.geometry import distort_points, undistort_points
+    from wandcal.calib.judge.lens_sigmas import _perturbed
+
+    cam = replace(_lens_camera(), dist=np.array([-0.17, 0.14, 0.0005, -0.0007, 0.01]))
+    xy = np.random.default_rng(5).uniform(-0.55, 0.55, (200, 2))
+    sig = lens_sigmas(cam)
+    cols = lens_columns(cam, xy, sig)
+    uv = distort_points(cam, xy)
+    for name, s in sig.items():
+        numeric = 0.5 * (undistort_points(_perturbed(cam, name, s), uv) - undistort_points(_perturbed(cam, name, -s), uv))
+        assert np.abs(cols[name] - numeric).max() <= 0.02 * np.abs(numeric).max(), name
+
+
+def test_a_fisheye_lens_has_its_radial_terms_and_no_tangential_ones():
+    K = np.array([[600.0, 0, 640], [0, 600.0, 480], [0, 0, 1]])
+    cam = Camera("cam1", 1280, 960, K, np.array([0.05, 0.01, 0.0, 0.0]), model="fisheye")
+    sig = lens_sigmas(cam)
+    assert set(sig) == {"cx", "cy", "k1", "k2"}
+    xy = np.random.default_rng(6).uniform(-0.8, 0.8, (50, 2))
+    cols = lens_columns(cam, xy, sig)
+    assert all(np.all(np.isfinite(c)) and np.abs(c).max() > 0 for c in cols.values())
