@@ -314,7 +314,7 @@ def lens_limited(cam: str, lens: list[LensLimit], geo: float, scaled: bool) -> l
             "data_std_sigmas": round(float(part.data_std), 3) if np.isfinite(part.data_std) else None,
             "determined": part.determined},
             "message": f"{cam}'s position moves {part.std * k:.3g} {unit} for {size} of its {WORDS[part.name]} "
-                       f"(the uncertainty assumed{WHY.get(part.source, '')}, rig.json giving none), where the geometry alone knows it to "
+                       f"(the uncertainty assumed{WHY.get(part.source, '')}: docs/verdict.md, \"The honest sigma\"), where the geometry alone knows it to "
                        f"+-{geo * k:.3g} {unit}; {todo}"})
     return out
 
