@@ -172,12 +172,15 @@ def _lens_limit_lines(limits: list[dict]) -> list[str]:
         if len(mine) == 1 or any(mm is None for _, mm, _, _ in figures):
             out += [f"  limit ({cam}): {limit['message']}" for limit in mine]
             continue
-        refine = sorted({word for limit in mine for word in ("principal", "k1")
-                         if f"--refine-intrinsics {word}" in limit["message"]})
-        todo = (f"refine {'them' if len(refine) > 1 else 'it'} (--refine-intrinsics {','.join(refine)}) and give the others "
-                "from a lens calibration" if refine else "give them from a lens calibration")
+        refinable = [limit for limit in mine if "--refine-intrinsics" in limit["message"]]
+        refine = [word for word in ("principal", "k1") if any(f"--refine-intrinsics {word}" in limit["message"]
+                                                              for limit in refinable)]
+        todo = ("give them from a lens calibration" if not refine else
+                f"refine them (--refine-intrinsics {','.join(refine)}) or give them from a lens calibration"
+                if len(refinable) == len(mine) else
+                f"refine {','.join(refine)} (--refine-intrinsics {','.join(refine)}) and give the others from a lens calibration")
         out.append(f"  limit ({cam}): its position also hinges on its lens's "
-                   + ", ".join(f"{name} ({mm:.3g} mm for {sigma:g}{' ' + unit if unit else ''})" for name, mm, sigma, unit in figures)
+                   + ", ".join(f"{name} ({mm:.3g} mm for {sigma:.3g}{' ' + unit if unit else ''})" for name, mm, sigma, unit in figures)
                    + f", the uncertainties assumed: {todo} (the result's verdict.limits has the figures)")
     return out
 
