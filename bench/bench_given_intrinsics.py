@@ -1,5 +1,5 @@
 """How far a published session's given intrinsics lie from what its own tracks give, in units of
-the honest sigma's defaults (calib/judge/lens_sigmas.py, docs/decisions/0066d): the measurement
+the honest sigma's defaults (calib/judge/lens_sigmas.py, docs/decisions/0070): the measurement
 behind the principal point's default sigma.
 
 The session is the eWand paper's test data (github.com/cogsys-tuebingen/ewand,

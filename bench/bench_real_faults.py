@@ -33,7 +33,7 @@ from bench.common import write_section
 TITLE = "Judgement on real sessions with injected faults"
 # the held-out lens faults whose honest sigma's coverage is reported (issue 31: >= 80% covered)
 LENS_FAMILIES = ("k2", "principal y", "tangential")
-# how *limited* is scored since session 16 (docs/decisions/0066d): said with both tables
+# how *limited* is scored since session 16 (docs/decisions/0070): said with both tables
 SCORING = ("since session 16 the limit must name the fault's own intrinsic (focal length, k1, cx/cy, k2, p1/p2), "
            "where before a focal case was limited with the camera named for its focal length and no other family "
            "could be; the other columns are scored as before")
@@ -74,7 +74,7 @@ Then (decision 0064): a camera's own noise within two standard errors of the noi
 camera whose clock drifts is named when the start refuses it (slow clock 6 -> 7 of 8). k2 and the principal point
 in y are left: their rows are no longer held out either (measured in 0064, not tuned on). Session 15 (at
 32b2d96): 59 of 83 (71%); k2 2, tangential 7, principal y 3 of 10, *limited* then the focal families' only, with
-the camera named for any limit (decision 0066d: the fault's own intrinsic named since; the line above the
+the camera named for any limit (decision 0070: the fault's own intrinsic named since; the line above the
 wrong ones gives this run scored both ways)."""
 
 

@@ -16,7 +16,7 @@ from wandcal.calib.geometry import distort_points, undistort_points
 # with its sigma where rig.json gives none. Measured on Brown's two calibrations of the same four
 # cameras on consecutive days, each day with its own lens profile (a parameter's differences
 # between the days, RMS over sqrt(2)), and on the published eWand session (its yaml files against
-# what its own tracks give); docs/decisions/0066d-every-given-intrinsic-in-the-honest-sigma.md.
+# what its own tracks give); docs/decisions/0070-every-given-intrinsic-in-the-honest-sigma.md.
 # Four cameras a session: each figure is known to about a third of itself
 LENS_PARAMETERS = {"pinhole": ("cx", "cy", "k1", "k2", "p1", "p2"), "fisheye": ("cx", "cy", "k1", "k2")}
 DIST_INDEX = {"k1": 0, "k2": 1, "p1": 2, "p2": 3}
