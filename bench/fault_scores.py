@@ -71,20 +71,23 @@ def confusion_table(outcomes: list[Outcome], families: tuple[str, ...], notes: d
 def case_line(o: Outcome) -> str:
     """One case as a line of text: session, label, outcome, verdict, faults, displacement and sigma."""
     honest = f", honest {o.honest_sigma_mm:.2f}" if o.honest_sigma_mm is not None else ""
-    limited = " limit named" if o.limited else ""
+    limited = f" limits: {', '.join(o.limited_by)}" if o.limited_by else ""
     disp = f" moved {o.displacement_mm:.1f} mm (sigma {o.sigma_mm:.2f}{honest}){limited}" if o.displacement_mm is not None and o.sigma_mm else ""
     off = f" offset {o.offset_frames:+.2f}" if o.offset_frames is not None else ""
     return f"{o.case.session:20s} {o.case.label:32s} {o.outcome:12s} {o.level:9s} {o.named}{disp}{off}"
 
 
-def sigma_coverage(outcomes: list[Outcome], max_error: float = 0.03) -> str:
-    """The honest sigma's coverage on the focal cases at most ``max_error`` off: the share of
-    target cameras whose displacement is within 1, 2 and 3 of their honest sigma (and of their
-    geometry sigma alone), and the share covered within 3 sigma or with the limiting focal length named."""
-    rows = [o for o in outcomes if o.case.family == "focal" and abs(o.case.size - 1) <= max_error + 1e-9
+def sigma_coverage(outcomes: list[Outcome], max_error: float = 0.03, families: tuple[str, ...] = ("focal",)) -> str:
+    """The honest sigma's coverage on the cases of ``families`` (the focal ones at most ``max_error``
+    off): the share of target cameras whose displacement is within 1, 2 and 3 of their honest sigma
+    (and of their geometry sigma alone), and the share covered within 3 sigma or with the fault's
+    intrinsic named as its limit."""
+    rows = [o for o in outcomes if o.case.family in families
+            and (o.case.family != "focal" or abs(o.case.size - 1) <= max_error + 1e-9)
             and o.displacement_mm is not None and o.honest_sigma_mm is not None]
+    what = (f"Focal length within {100 * max_error:.0f}%" if families == ("focal",) else ", ".join(families))
     if not rows:
-        return "no focal cases with an honest sigma"
+        return f"{what}: no cases with an honest sigma"
 
     def share(test) -> str:
         n = sum(bool(test(o)) for o in rows)
@@ -92,5 +95,17 @@ def sigma_coverage(outcomes: list[Outcome], max_error: float = 0.03) -> str:
 
     parts = [f"within {k} sigma: honest {share(lambda o, k=k: covered(o, k))}, geometry alone "
              f"{share(lambda o, k=k: o.sigma_mm and o.displacement_mm <= k * o.sigma_mm)}" for k in (1, 2, 3)]
-    return (f"Focal length within {100 * max_error:.0f}%, {len(rows)} target cameras: " + "; ".join(parts)
-            + f"; within 3 honest sigma or the focal length named as its limit: {share(lambda o: covered(o) or o.limited)}")
+    return (f"{what}, {len(rows)} target cameras: " + "; ".join(parts)
+            + f"; within 3 honest sigma or the fault's intrinsic named as its limit: {share(lambda o: covered(o) or o.limited)}"
+            + f"; within 3 honest sigma and named (limited): {share(lambda o: covered(o) and o.limited)}")
+
+
+def before_line(outcomes: list[Outcome], families: tuple[str, ...]) -> str:
+    """The families' right counts as session 15 scored them (``right_before``: limited only for the
+    focal families, with the camera named in any limit), beside today's."""
+    parts = []
+    for family in families:
+        rows = [o for o in outcomes if o.case.family == family]
+        if rows:
+            parts.append(f"{family} {sum(o.right_before for o in rows)}/{len(rows)} (now {sum(o.right for o in rows)})")
+    return "Scored as in session 15, from the same runs: " + ", ".join(parts)

@@ -238,7 +238,7 @@ def run_held_out_case(session: rf.Session, clean: rf.Clean, case: rf.Case) -> rf
     ids = [cam.id for cam in session.rig.cameras]
     pair = {ids[case.camera], ids[int(case.size)]}
     named = {cam for kind, cam in out.named if cam is not None and (kind, cam) not in clean.faults}
-    out.right = bool(named) and named <= pair
+    out.right = out.right_before = bool(named) and named <= pair
     out.outcome = "right" if out.right else ("wrong camera" if named - pair else "missed")
     return out
 

@@ -1,4 +1,4 @@
-"""How far a camera's position hinges on a focal length that was given, not refined: the honest sigma.
+"""How far a camera's position hinges on the intrinsics that were given, not refined: the honest sigma.
 
 The geometry sigma of a solve (:mod:`wandcal.calib.solve.gauge_free`) treats the intrinsics in
 rig.json as exact. Real ones are not: a nominal lens focal length, or one from a calibration of
@@ -22,6 +22,13 @@ focal length to 0.1-0.2%.
 The same fit with the focal column beside the pose's says whether the data could determine the
 focal length (its standard error from the residual's scatter): then ``--refine-intrinsics focal``
 is the advice, else a lens calibration.
+
+Every other intrinsic given (cx, cy, k1, k2, p1, p2: :mod:`wandcal.calib.judge.lens_sigmas`) enters the same way
+(:func:`lens_limits`): its column is how the observations' normalised coordinates move with the
+parameter off by its assumed sigma (:func:`lens_columns`, the pixels undistorted again), its part of
+the honest sigma the centre's change for that sigma, and whether the data determine it its standard
+error beside the pose, in sigmas (under a quarter of it: determined). The sigmas assumed are measured
+(:func:`lens_sigmas`; docs/verdict.md, "The honest sigma").
 """
 
 from __future__ import annotations
@@ -32,6 +39,19 @@ import numpy as np
 
 from wandcal.calib.geometry import finite_rows, rotvec_to_matrix
 from wandcal.calib.judge.faults.screen import _pose_columns
+from wandcal.calib.judge.lens_sigmas import (  # noqa: F401  (the honest sigma's names, importable from here)
+    DEFAULT_NOMINAL_PRINCIPAL_WIDTH_STD,
+    DEFAULT_PRINCIPAL_WIDTH_STD,
+    DEFAULT_RADIAL_CORNER_STD,
+    DEFAULT_TANGENTIAL_STD,
+    REFINABLE,
+    WHY,
+    WORDS,
+    LensLimit,
+    lens_columns,
+    lens_sigmas,
+    nominal_principal,
+)
 
 GIVEN_IN_RIG = "given"  # the source of a focal sigma the rig gives (the camera's focal_std_px); else "default"
 
@@ -105,12 +125,30 @@ def _focal_fit(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, resid
                usable: int, focal_rel_std: float, source: str) -> FocalLimit | None:
     """:func:`focal_limit` on the rows its fit uses (:func:`_fit_rows`: x (K, 2) projections, d (K,)
     depths, residual (K, 2), views (K,)) of the camera's ``usable`` ones."""
+    pose, share = _pose_and_share(R, t, x, d, views)
+    got = _response(R, t, pose, -(x * share[:, None]).ravel(), residual, len(x), usable)
+    if got is None:
+        return None
+    shift, data_std = got
+    return FocalLimit(shift, float(shift @ R[2]), focal_rel_std, source, data_std)
+
+
+def _pose_and_share(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, views: np.ndarray,
+                    differences: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(2K, 6) the pose's columns at the points of projections x (K, 2) and depths d (K,), and (K,)
+    the share of an error the pose takes up at a point of ``views`` cameras (1 - 1/n)."""
     X_cam = np.concatenate([x * d[:, None], d[:, None]], axis=1)
     X = (X_cam - t) @ R  # world points: R^T (X_cam - t)
-    pose = _pose_columns(R, t, X, differences=True)  # the figures a result writes, as before
-    share = 1.0 - 1.0 / np.maximum(views, 2)
-    focal_col = -(x * share[:, None]).ravel()
-    both = np.concatenate([pose, focal_col[:, None]], axis=1)
+    pose = _pose_columns(R, t, X, differences=differences)  # the focal figures by differences, as before
+    return pose, 1.0 - 1.0 / np.maximum(views, 2)
+
+
+def _response(R: np.ndarray, t: np.ndarray, pose: np.ndarray, column: np.ndarray, residual: np.ndarray, rows: int,
+              usable: int) -> tuple[np.ndarray, float] | None:
+    """The centre's change (3,) when the observations move by ``column`` (2K,) (the pose's least
+    squares to it), and the standard error of the column's coefficient from the residuals' scatter
+    (residual (K, 2)) were it fitted beside the pose; the fit used ``rows`` of ``usable`` rows."""
+    both = np.concatenate([pose, column[:, None]], axis=1)
     scale = np.linalg.norm(both, axis=0)
     scale[scale == 0] = 1.0
     A = both / scale
@@ -126,19 +164,27 @@ def _focal_fit(R: np.ndarray, t: np.ndarray, x: np.ndarray, d: np.ndarray, resid
     r = residual.ravel()
     sigma = float(np.sqrt(np.mean(r[np.isfinite(r)] ** 2))) if np.isfinite(r).any() else 0.0
     # the fit used every k-th observation: all of them would give sqrt(k) times less
-    data_std = sigma * float(np.sqrt(max(cov[6, 6], 0.0) * len(x) / usable)) / scale[6]
-    return FocalLimit(shift, float(shift @ R[2]), focal_rel_std, source, data_std)
+    data_std = sigma * float(np.sqrt(max(cov[6, 6], 0.0) * rows / usable)) / scale[6]
+    return shift, data_std
 
 
-def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> list[FocalLimit | None]:
+def _views_and_usable(res) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) how many cameras see each observation's point, and (M,) the observations the fits may
+    use (in front, finite, no gross outlier), for every camera at once: only the rows a fit uses
+    are gathered."""
+    key = res.point - res.point.min() if len(res.point) else res.point
+    views = np.bincount(key)[key]
+    usable = np.isfinite(res.depth) & (res.depth > 0) & finite_rows(res.xy + res.residual) & ~res.outlier
+    return views, usable
+
+
+def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str],
+                 shared: tuple[np.ndarray, np.ndarray] | None = None) -> list[FocalLimit | None]:
     """Every camera's :class:`FocalLimit` (None where its focal length was refined, or it has too
     few observations). res: the judgement's :class:`wandcal.calib.judge.residuals.Residuals`;
     refined: the intrinsics the solve refined (``focal`` among them: none is given)."""
     out: list[FocalLimit | None] = []
-    key = res.point - res.point.min() if len(res.point) else res.point
-    views = np.bincount(key)[key]
-    # the rows focal_limit would keep, for every camera at once: only the rows its fit uses are gathered
-    usable = np.isfinite(res.depth) & (res.depth > 0) & finite_rows(res.xy + res.residual) & ~res.outlier
+    views, usable = shared if shared is not None else _views_and_usable(res)
     for c, cam in enumerate(rig.cameras):
         if "focal" in refined:
             out.append(None)
@@ -157,22 +203,120 @@ def focal_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str]) -> l
     return out
 
 
-def limit_entry(limit: FocalLimit, geometry_std: float | None, scaled: bool) -> dict:
-    """A camera's report entries: ``geometry_std_honest_mm`` (the geometry sigma with the focal
-    length's, in quadrature; None without a scale) and ``focal_limit`` (mm per 1% along the axis
-    and in all, the sigma assumed and its source, the data's own)."""
+def lens_limits(rig, R: np.ndarray, t: np.ndarray, res, refined: set[str],
+                shared: tuple[np.ndarray, np.ndarray] | None = None) -> list[list[LensLimit]]:
+    """Every camera's :class:`LensLimit` of each given parameter (none of those refined: cx, cy
+    with ``principal``, k1 with ``k1``; none with too few observations). res: the judgement's
+    :class:`wandcal.calib.judge.residuals.Residuals`."""
+    views, usable = shared if shared is not None else _views_and_usable(res)
+    out: list[list[LensLimit]] = []
+    for c, cam in enumerate(rig.cameras):
+        rows = res.rows_of(c)
+        rows = rows[usable[rows]]
+        sigmas = {k: v for k, v in lens_sigmas(cam).items() if REFINABLE.get(k) not in refined}
+        if len(rows) < MIN_ROWS or not sigmas:
+            out.append([])
+            continue
+        idx = _fit_rows(rows)
+        residual, xy = np.take(res.residual, idx, axis=0), np.take(res.xy, idx, axis=0)
+        pose, share = _pose_and_share(R[c], t[c], xy + residual, res.depth[idx], views[idx], differences=False)
+        columns = lens_columns(cam, xy, sigmas)
+        got = _responses(R[c], t[c], pose, np.stack([(columns[n] * share[:, None]).ravel() for n in sigmas], axis=1),
+                         residual, len(idx), len(rows))
+        source = "nominal" if nominal_principal(cam) else "default"
+        out.append([] if got is None else [
+            LensLimit(n, shift, float(shift @ R[c][2]), sigmas[n], float(std), source if n in ("cx", "cy") else "default")
+            for n, shift, std in zip(sigmas, *got)])
+    return out
+
+
+def _responses(R: np.ndarray, t: np.ndarray, pose: np.ndarray, columns: np.ndarray, residual: np.ndarray, rows: int,
+               usable: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_response` of P columns at once (columns (2K, P)): (P, 3) the centre's changes, (P,)
+    each column's standard error beside the pose alone (its Schur complement: 1 / (G_jj - G_jp
+    G_pp^-1 G_pj))."""
+    both = np.concatenate([pose, columns], axis=1)
+    scale = np.linalg.norm(both, axis=0)
+    scale[scale == 0] = 1.0
+    A = both / scale
+    G = A.T @ A
+    try:
+        across = np.linalg.solve(G[:6, :6], G[:6, 6:])  # (6, P): each column's pose step, scaled
+    except np.linalg.LinAlgError:
+        return None
+    steps = across * scale[6:] / scale[:6, None]
+    C0 = _centre(R, t)
+    shifts = np.array([_centre(rotvec_to_matrix(st[:3]) @ R, t + st[3:]) - C0 for st in steps.T])
+    left = np.diag(G[6:, 6:]) - np.einsum("pj,pj->j", G[:6, 6:], across)
+    r = residual.ravel()
+    sigma = float(np.sqrt(np.mean(r[np.isfinite(r)] ** 2))) if np.isfinite(r).any() else 0.0
+    with np.errstate(divide="ignore"):
+        var = np.where(left > 0, 1.0 / np.maximum(left, 1e-300), np.inf)
+    return shifts, sigma * np.sqrt(var * rows / usable) / scale[6:]
+
+
+def limit_entry(limit: FocalLimit | None, geometry_std: float | None, scaled: bool,
+                lens: list[LensLimit] | None = None) -> dict | None:
+    """A camera's report entries: ``geometry_std_honest_mm`` (the geometry sigma with every given
+    intrinsic's part, in quadrature; None without a scale), ``focal_limit`` (mm per 1% along the
+    axis and in all, the sigma assumed and its source, the data's own; where the focal length was
+    given) and ``lens_limits`` (each other given parameter's sigma, mm for that sigma along the
+    axis and in all, and the data's own standard error in sigmas); None with neither."""
+    lens = lens or []
+    if limit is None and not lens:
+        return None
     unit = 1000.0 if scaled else 1.0
+    entry: dict[str, object] = {}
+    if limit is not None:
+        entry["focal_limit"] = {
+            "mm_per_percent" if scaled else "per_percent": round(unit * 0.01 * float(np.linalg.norm(limit.shift_m_per_unit)), 4),
+            "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": round(unit * 0.01 * limit.along_axis_m_per_unit, 4),
+            "focal_std_percent": round(100 * limit.focal_rel_std, 3), "source": limit.source,
+            "data_focal_std_percent": round(100 * float(limit.data_rel_std), 3) if np.isfinite(limit.data_rel_std) else None}
+    if lens:
+        entry["lens_limits"] = {part.name: {
+            "sigma": float(f"{part.sigma:.4g}"), "unit": "px" if part.name in ("cx", "cy") else "", "source": part.source,
+            "mm_per_sigma" if scaled else "per_sigma": round(unit * part.std, 4),
+            "along_axis_mm_per_sigma" if scaled else "along_axis_per_sigma": round(unit * part.along_axis_m_per_sigma, 4),
+            "data_std_sigmas": round(float(part.data_std), 4) if np.isfinite(part.data_std) else None} for part in lens}
     honest = None
     if geometry_std is not None:
-        honest = float(np.hypot(geometry_std, limit.std))
-    entry: dict[str, object] = {"focal_limit": {
-        "mm_per_percent" if scaled else "per_percent": round(unit * 0.01 * float(np.linalg.norm(limit.shift_m_per_unit)), 4),
-        "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": round(unit * 0.01 * limit.along_axis_m_per_unit, 4),
-        "focal_std_percent": round(100 * limit.focal_rel_std, 3), "source": limit.source,
-        "data_focal_std_percent": round(100 * float(limit.data_rel_std), 3) if np.isfinite(limit.data_rel_std) else None}}
+        parts = ([limit.std] if limit is not None else []) + [part.std for part in lens]
+        honest = float(np.hypot(geometry_std, np.sqrt(sum(x ** 2 for x in parts))))
     entry["geometry_std_honest_mm" if scaled else "geometry_std_honest"] = \
         (round(unit * honest, 4) if honest is not None else None)
     return entry
+
+
+def lens_limited(cam: str, lens: list[LensLimit], geo: float, scaled: bool) -> list[dict]:
+    """Camera ``cam``'s parameters beyond the focal length whose part of its honest sigma is
+    :data:`LIMIT_RATIO` times its geometry sigma ``geo`` or more, each a ``limits`` entry: how many
+    millimetres the camera moves for the parameter's assumed sigma, and what to do."""
+    out = []
+    k = 1000.0 if scaled else 1.0
+    unit = "mm" if scaled else "units"
+    for part in lens:
+        if part.std < LIMIT_RATIO * geo:
+            continue
+        size = f"{part.sigma:.2g} px" if part.name in ("cx", "cy") else f"{part.sigma:.2g}"
+        if part.name in REFINABLE and part.determined:
+            todo = (f"the data determine it to {part.data_std:.2f} of that: run with --refine-intrinsics "
+                    f"{REFINABLE[part.name]}, or give it from a lens calibration")
+        elif part.name in REFINABLE:
+            todo = "the data cannot determine it: give it from a lens calibration"
+        else:
+            todo = "give it from a lens calibration (wandcal does not refine it)"
+        out.append({"camera": cam, "parameter": part.name, "evidence": {
+            "sigma": float(f"{part.sigma:.4g}"), "unit": "px" if part.name in ("cx", "cy") else "",
+            "parameter_sigma_mm" if scaled else "parameter_sigma": round(part.std * k, 3),
+            "along_axis_mm" if scaled else "along_axis": round(part.along_axis_m_per_sigma * k, 3),
+            "geometry_sigma_mm" if scaled else "geometry_sigma": round(geo * k, 3),
+            "data_std_sigmas": round(float(part.data_std), 3) if np.isfinite(part.data_std) else None,
+            "determined": part.determined},
+            "message": f"{cam}'s position moves {part.std * k:.3g} {unit} for {size} of its {WORDS[part.name]} "
+                       f"(the uncertainty assumed{WHY.get(part.source, '')}: docs/verdict.md, \"The honest sigma\"), where the geometry alone knows it to "
+                       f"+-{geo * k:.3g} {unit}; {todo}"})
+    return out
 
 
 def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_std: list[float | None],
@@ -209,10 +353,18 @@ def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_st
 
 def intrinsic_limit_entries(rig, geometry_std: list[float | None], R: np.ndarray, t: np.ndarray, res, scaled: bool,
                             refined: tuple[str, ...]) -> tuple[list[dict | None], list[dict]]:
-    """Each camera's :func:`limit_entry` (None where its focal length was refined or it has too
-    few observations) and the cameras whose position hinges on their focal length
-    (:func:`limited_cameras`). geometry_std: (N,) each camera's geometry sigma, world units;
-    refined: the intrinsics the solve refined."""
-    limits = focal_limits(rig, R, t, res, set(refined))
-    entries = [limit_entry(limit, geo, scaled) if limit is not None else None for limit, geo in zip(limits, geometry_std)]
-    return entries, limited_cameras(list(rig.ids), limits, geometry_std, scaled)
+    """Each camera's :func:`limit_entry` (None where every intrinsic was refined or it has too few
+    observations) and the cameras whose position hinges on a given intrinsic, each named with the
+    intrinsic (:func:`limited_cameras`, :func:`lens_limited`). geometry_std: (N,) each camera's
+    geometry sigma, world units; refined: the intrinsics the solve refined."""
+    shared = _views_and_usable(res)
+    limits = focal_limits(rig, R, t, res, set(refined), shared)
+    lens = lens_limits(rig, R, t, res, set(refined), shared)
+    entries = [limit_entry(limit, geo, scaled, parts) for limit, geo, parts in zip(limits, geometry_std, lens)]
+    named = limited_cameras(list(rig.ids), limits, geometry_std, scaled)
+    out = []
+    for cam, parts, geo in zip(rig.ids, lens, geometry_std):
+        out += [entry for entry in named if entry["camera"] == cam]
+        if geo is not None:
+            out += lens_limited(cam, parts, geo, scaled)
+    return entries, out

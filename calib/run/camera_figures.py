@@ -111,17 +111,25 @@ class JudgedFigures:
 
 @dataclass(frozen=True)
 class FocalLimitFigures:
-    """How far a camera's position hinges on a focal length that was given, not refined
-    (:mod:`wandcal.calib.judge.intrinsic_limits`): ``focal_limit`` its figures (mm per 1%, the
-    sigma assumed and its source, the data's own), ``honest_std_mm`` the geometry sigma with the
-    focal length's (``honest_std`` in the result's units without a scale)."""
+    """How far a camera's position hinges on intrinsics that were given, not refined
+    (:mod:`wandcal.calib.judge.intrinsic_limits`): ``focal_limit`` the focal length's figures (mm
+    per 1%, the sigma assumed and its source, the data's own; None where it was refined),
+    ``honest_std_mm`` the geometry sigma with every given intrinsic's part (``honest_std`` in the
+    result's units without a scale), ``lens_limits`` each other given parameter's figures (cx, cy,
+    k1, k2, p1, p2: its sigma, mm for it, the data's own standard error in sigmas; None in a result
+    written before them)."""
 
-    focal_limit: Mapping[str, Any]
+    focal_limit: Mapping[str, Any] | None
     honest_std_mm: float | None = None
     honest_std: float | None = None
+    lens_limits: Mapping[str, Any] | None = None
 
     def to_json(self) -> Json:
-        out: Json = {"focal_limit": dict(self.focal_limit)}
+        out: Json = {}
+        if self.focal_limit is not None:
+            out["focal_limit"] = dict(self.focal_limit)
+        if self.lens_limits is not None:
+            out["lens_limits"] = {k: dict(v) for k, v in self.lens_limits.items()}
         if self.honest_std_mm is not None:
             out["geometry_std_honest_mm"] = self.honest_std_mm
         if self.honest_std is not None:
@@ -130,7 +138,9 @@ class FocalLimitFigures:
 
     @classmethod
     def from_json(cls, doc: Mapping[str, Any]) -> FocalLimitFigures:
-        return cls(doc["focal_limit"], doc.get("geometry_std_honest_mm"), doc.get("geometry_std_honest"))
+        focal, lens = doc.get("focal_limit"), doc.get("lens_limits")
+        return cls(focal if isinstance(focal, Mapping) else None, doc.get("geometry_std_honest_mm"),
+                   doc.get("geometry_std_honest"), lens if isinstance(lens, Mapping) else None)
 
 
 @dataclass(frozen=True)
@@ -236,6 +246,7 @@ class CameraFigures:
             tuple(WorstFrame(w.get("frame"), w.get("error_px")) for w in doc.get("worst_frames") or ()), doc.get("initial_pose"),
             points, uncertainty, RefinedIntrinsics.from_json(intrinsics) if isinstance(intrinsics, Mapping) else None,
             tuple(warnings) if isinstance(warnings, list) else None, judged, doc.get("verdict"),
-            FocalLimitFigures.from_json(doc) if isinstance(doc.get("focal_limit"), Mapping) else None,
+            FocalLimitFigures.from_json(doc) if any(isinstance(doc.get(k), Mapping) for k in ("focal_limit", "lens_limits"))
+            else None,
             Movement.from_json(doc["moved"]) if isinstance(doc.get("moved"), Mapping) else None,
         )

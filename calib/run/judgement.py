@@ -211,8 +211,9 @@ def _movements(rig: Rig, cameras: list[CameraFigures], faults: list[dict]) -> li
 
 def _focal_limits(rig: Rig, cameras: list[CameraFigures], R: np.ndarray, t: np.ndarray, res: Residuals, scaled: bool,
                   refined: tuple[str, ...]) -> tuple[list[CameraFigures], list[dict]]:
-    """The cameras' figures with how far each position hinges on a focal length that was given
-    (:func:`wandcal.calib.judge.intrinsic_limits.intrinsic_limit_entries`), and the verdict's ``limits``."""
+    """The cameras' figures with how far each position hinges on the intrinsics that were given
+    (the focal length, the principal point, the distortion:
+    :func:`wandcal.calib.judge.intrinsic_limits.intrinsic_limit_entries`), and the verdict's ``limits``."""
     geometry = [c.uncertainty.geometry.std if c.uncertainty is not None and c.uncertainty.geometry is not None else None
                 for c in cameras]
     entries, limits = intrinsic_limit_entries(rig, geometry, R, t, res, scaled, refined)

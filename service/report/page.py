@@ -97,6 +97,11 @@ def _summary(data: ReportData) -> list[str]:
              f"{_e(f.get('message', ''))}" for f in faults or [] if isinstance(f, dict)]
     out.append('<p id="rig-faults">Faults: ' + (DASH if faults is None else "none found" if not words else "")
                + ('<ul>' + "".join(f"<li>{w}</li>" for w in words) + "</ul>" if words else "") + "</p>")
+    limits = [f"{lim['camera']}, {lim.get('parameter', 'focal length')}: {lim.get('message', '')}"
+              for lim in v.get("limits") or [] if isinstance(lim, dict) and lim.get("camera")]
+    if limits:  # the intrinsics given, not refined, that a camera's position hinges on (not faults)
+        out.append('<div id="rig-limits">What limits the cameras\' positions (intrinsics given, not refined):'
+                   + _items(limits) + "</div>")
     if _advice_of(v):
         out.append('<div id="rig-advice">What to do:' + _items(_advice_of(v)) + "</div>")
     placement = world.get("placement")

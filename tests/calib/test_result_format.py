@@ -66,3 +66,15 @@ def test_a_moved_entry_reads_back_typed_and_writes_the_same():
     assert cam.moved == Movement(51, 0.82, 0.2, 9.0, 5.0)
     assert cam.to_json() == entry
     assert CameraFigures.from_json({k: v for k, v in entry.items() if k != "moved"}).moved is None
+
+
+BEFORE_LENS = sorted((Path(__file__).resolve().parents[1] / "fixtures" / "results" / "before_lens").glob("*.json"))
+
+
+@pytest.mark.parametrize("path", BEFORE_LENS, ids=lambda p: p.stem)
+def test_a_result_written_before_the_lens_limits_reads_and_writes_the_same_bytes(path: Path):
+    """tests/fixtures/results/before_lens/: the kept results as written before each camera carried
+    its other given intrinsics' limits (lens_limits; the honest sigma of the focal length alone)."""
+    got = read_result(path)
+    assert written(got.result.to_json()) == path.read_bytes()
+    assert all(cam.focal_limit is None or cam.focal_limit.lens_limits is None for cam in got.result.cameras)

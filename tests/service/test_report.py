@@ -398,3 +398,19 @@ def test_the_report_says_the_criteria_at_the_limit_and_no_placement_without_a_re
     text = " ".join(Page(render_page(analyse(read_result(tmp_path / "result.json"), None), {})).text)
     assert f"{doc['cameras'][0]['id']} geometry at the limit of poor (0.75 +- 0.082 mm against 0.805 mm)" in text
     assert f"World frame: {NO_REFERENCE}" in text and "World frame placement" not in text
+
+
+def test_the_report_lists_the_intrinsics_that_limit_the_cameras(sim_report, tmp_path):
+    """The verdict's limits (intrinsics given, not refined, that a camera's position hinges on) are
+    listed by camera and intrinsic with their message."""
+    from wandcal.service.report.analysis import analyse
+    from wandcal.service.report.page import render_page
+
+    tmp, _, _ = sim_report
+    doc = json.loads((tmp / "result.json").read_text())
+    cam = doc["cameras"][0]["id"]
+    doc["verdict"]["limits"] = [{"camera": cam, "parameter": "cy", "evidence": {},
+                                 "message": f"{cam}'s position moves 1.2 mm for 21 px of its principal point's y (cy)"}]
+    (tmp_path / "result.json").write_text(json.dumps(doc))
+    text = " ".join(Page(render_page(analyse(read_result(tmp_path / "result.json"), None), {})).text)
+    assert f"{cam}, cy: {cam}'s position moves 1.2 mm for 21 px of its principal point's y (cy)" in text

@@ -69,6 +69,25 @@ def test_the_cameras_a_focal_length_limits_are_said_on_one_line():
     assert _limit_lines([], 4) == []
 
 
+def test_a_cameras_other_limiting_intrinsics_are_said_on_one_line_after_the_focal_lengths():
+    from wandcal.service.cli.support.summary import _limit_lines
+
+    focal = {"camera": "cam3", "parameter": "focal length", "message": "cam3's focal ...",
+             "evidence": {"along_axis_mm_per_percent": 4.3, "focal_sigma_mm": 8.8, "focal_std_percent": 2.0}}
+
+    def lens(name: str, mm: float, sigma: float, unit: str, todo: str) -> dict:
+        return {"camera": "cam3", "parameter": name, "message": f"cam3's position moves ... {todo}",
+                "evidence": {"parameter_sigma_mm": mm, "sigma": sigma, "unit": unit}}
+
+    cy = lens("cy", 1.2, 21.0, "px", "run with --refine-intrinsics principal, or ...")
+    k2 = lens("k2", 1.3, 0.038, "", "give it from a lens calibration (wandcal does not refine it)")
+    lines = _limit_lines([focal, cy, k2], 4)
+    assert lines[0] == "  limit (cam3): cam3's focal ..."
+    assert lines[1].startswith("  limit (cam3): its position also hinges on its lens's cy (1.2 mm for 21 px), k2 (1.3 mm for 0.038)")
+    assert "--refine-intrinsics principal" in lines[1] and len(lines) == 2
+    assert _limit_lines([k2], 4) == ["  limit (cam3): cam3's position moves ... give it from a lens calibration (wandcal does not refine it)"]
+
+
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "results"
 
 

@@ -271,6 +271,18 @@ def analyse_camera(R: np.ndarray, t: np.ndarray, frames: np.ndarray, X: np.ndarr
     return timing, _lens_fit(y, pose, xy[keep])
 
 
+def lens_columns(xy: np.ndarray, aspect: bool = False) -> np.ndarray:
+    """(2K, 4) the lens pattern's columns at observations xy (K, 2), normalised: a focal-length
+    error (r ~ a x), a k1 error (r ~ dk1 |x|^2 x), the principal point's two; with ``aspect`` a
+    fifth, fy alone (r_y ~ b y): (2K, 5). Rows x0, y0, x1, y1, ... as :func:`_pose_columns`."""
+    K = len(xy)
+    radius2 = np.sum(xy**2, axis=1, keepdims=True)
+    columns = np.stack([xy.ravel(), (xy * radius2).ravel(), np.tile([1.0, 0.0], K), np.tile([0.0, 1.0], K)], axis=1)
+    if aspect:
+        return np.concatenate([columns, (xy * [0.0, 1.0]).ravel()[:, None]], axis=1)
+    return columns
+
+
 def _lens_fit(y: np.ndarray, pose: np.ndarray, xy: np.ndarray, aspect: bool = False) -> Lens:
     """The lens pattern of residuals y (2K,) beside the pose columns (2K, 6): a focal-length error
     (r ~ a x), a k1 error (r ~ dk1 |x|^2 x) and a principal-point shift, at observations xy (K, 2).
@@ -278,15 +290,13 @@ def _lens_fit(y: np.ndarray, pose: np.ndarray, xy: np.ndarray, aspect: bool = Fa
     nor a focal length common to both axes takes up), where it is significant beyond the other
     four (its own F at least :data:`ASPECT_F`): a column that explains nothing would only dilute
     the pattern's F, and a k1 left out would go unnamed."""
-    K = len(xy)
-    radius2 = np.sum(xy**2, axis=1, keepdims=True)
-    columns = np.stack([xy.ravel(), (xy * radius2).ravel(), np.tile([1.0, 0.0], K), np.tile([0.0, 1.0], K)], axis=1)
+    columns = lens_columns(xy)
     share, coef, f_stat = _share(y, pose, columns)
     aspect_error = 0.0
     if aspect:
         stretch = (xy * [0.0, 1.0]).ravel()[:, None]
         if _share(y, np.concatenate([pose, columns], axis=1), stretch)[2] >= ASPECT_F:
-            share, coef, f_stat = _share(y, pose, np.concatenate([columns, stretch], axis=1))
+            share, coef, f_stat = _share(y, pose, lens_columns(xy, aspect=True))
             aspect_error = float(coef[4])
     return Lens(focal_error=float(coef[0]), k1_error=float(coef[1]), principal_error=(float(coef[2]), float(coef[3])),
                 explained=float(share), f_stat=f_stat, aspect_error=aspect_error)

@@ -137,8 +137,15 @@ def _moved_lines(cameras: list[dict]) -> list[str]:
 
 
 def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
-    """The cameras whose position hinges on a focal length that was given (the verdict's
-    ``limits``, wandcal.calib.judge.intrinsic_limits): one's message in full, several on one line."""
+    """The cameras whose position hinges on an intrinsic that was given (the verdict's ``limits``,
+    wandcal.calib.judge.intrinsic_limits): the focal lengths' (one's message in full, several on one
+    line), then each camera's other intrinsics on one line a camera."""
+    focal = [limit for limit in limits if limit.get("parameter", "focal length") == "focal length"]
+    return _focal_limit_lines(focal, n_cameras) + _lens_limit_lines([limit for limit in limits if limit not in focal])
+
+
+def _focal_limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
+    """The focal-length limits: one's message in full, several on one line."""
     if len(limits) <= 1:
         return [f"  limit ({limit['camera']}): {limit['message']}" for limit in limits]
     per = [limit["evidence"].get("along_axis_mm_per_percent") for limit in limits]
@@ -151,6 +158,31 @@ def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
             f"known to {limits[0]['evidence'].get('focal_std_percent', 2):g}%: "
             + ("refine them (--refine-intrinsics focal) or give them from a lens calibration" if refine
                else "give them from a lens calibration (the result's verdict.limits has each camera's figures)")]
+
+
+def _lens_limit_lines(limits: list[dict]) -> list[str]:
+    """The other intrinsics' limits, one line a camera: "cam3's position also hinges on k1 (2.2 mm
+    for 0.021), k2 (1.3 mm for 0.038): ..."; one limit alone in its message's words."""
+    cams = list(dict.fromkeys(limit["camera"] for limit in limits))
+    out = []
+    for cam in cams:
+        mine = [limit for limit in limits if limit["camera"] == cam]
+        figures = [(limit["parameter"], limit["evidence"].get("parameter_sigma_mm"), limit["evidence"].get("sigma"),
+                    limit["evidence"].get("unit", "")) for limit in mine]
+        if len(mine) == 1 or any(mm is None for _, mm, _, _ in figures):
+            out += [f"  limit ({cam}): {limit['message']}" for limit in mine]
+            continue
+        refinable = [limit for limit in mine if "--refine-intrinsics" in limit["message"]]
+        refine = [word for word in ("principal", "k1") if any(f"--refine-intrinsics {word}" in limit["message"]
+                                                              for limit in refinable)]
+        todo = ("give them from a lens calibration" if not refine else
+                f"refine them (--refine-intrinsics {','.join(refine)}) or give them from a lens calibration"
+                if len(refinable) == len(mine) else
+                f"refine {','.join(refine)} (--refine-intrinsics {','.join(refine)}) and give the others from a lens calibration")
+        out.append(f"  limit ({cam}): its position also hinges on its lens's "
+                   + ", ".join(f"{name} ({mm:.3g} mm for {sigma:.3g}{' ' + unit if unit else ''})" for name, mm, sigma, unit in figures)
+                   + f", the uncertainties assumed: {todo} (the result's verdict.limits has the figures)")
+    return out
 
 
 def _number(value, fmt: str, width: int) -> str:
