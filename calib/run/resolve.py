@@ -28,7 +28,6 @@ from wandcal.calib.run.judgement import judge
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import (
     ROBUST_STAGE_SE,
-    WAND_FRAMES_IN_STOP,
     Progress,
     Refined,
     build_problem,
@@ -203,8 +202,9 @@ def without_cameras(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray,
     """(R, t) (N, 3, 3), (N, 3): every camera but ``out`` refined without the observations of the
     cameras ``out`` (theirs returned as given), from the full solution R, t: robust ``ba`` (the
     default loss, as the calibration's first stage; the first of the other cameras holds the
-    gauge), at most ``steps`` Levenberg-Marquardt steps (:data:`WITHOUT_STEPS`), then the wand
-    frames brought to their optimum at those poses.
+    gauge), at most ``steps`` Levenberg-Marquardt steps (:data:`WITHOUT_STEPS`). Only the poses
+    are returned, so the wand frames are not brought to their optimum after the steps (a pass that
+    holds the poses, and cost as much as the step).
 
     Raises:
         CalibrationError, numpy.linalg.LinAlgError: the others alone do not solve.
@@ -217,9 +217,10 @@ def without_cameras(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray,
     sub = WandPairs(sub.frame, index[sub.camera], sub.xy, sub.uv, sub.frames, sub.dropped)
     sub_rig = replace(rig, cameras=tuple(rig.cameras[k] for k in keep))
     setup = build_problem(sub_rig, sub, R[keep], t[keep], 0)
-    # refine()'s robust ba of a first stage (final=False: no standard errors), its steps bounded
+    # refine()'s robust ba of a first stage (final=False: no standard errors), its steps bounded;
+    # the stop judges the frames too (judge_frames): no pass after it settles them
     solved = bundle_adjust_points(setup.model, None, None, loss=DEFAULT_LOSS, max_iter=steps, stop_se=ROBUST_STAGE_SE,
-                                  standard_errors=False, judge_frames=WAND_FRAMES_IN_STOP)
+                                  standard_errors=False, judge_frames=True)
     R2, t2 = R.copy(), t.copy()
     R2[keep], t2[keep] = setup.model.poses(solved.x)
     return R2, t2
