@@ -142,10 +142,22 @@ def _rotated(cam, uv: np.ndarray, Rk: np.ndarray) -> np.ndarray:
     return distort_points(cam, ray[:, :2] / ray[:, 2:])
 
 
+def knock_frame(obs, c: int) -> float:
+    """Where camera c is knocked: the middle of its frames (obs: its wand's or moving point's
+    observations) that another camera sees too, those a calibration can use (all of its frames
+    where no other camera shares one). Brown's cameras have blobs in 28-40 frames, of which only
+    8-24 are shared: the middle of all of them (frame 15-70) put the knock before every shared
+    frame but one, so that the wand's frames were all turned against the background points' pose
+    and nothing moved within the capture (decision 0067)."""
+    mine = obs.camera == c
+    shared = mine & np.isin(obs.frame, obs.frame[~mine])
+    return float(np.median(obs.frame[shared if shared.any() else mine]))
+
+
 def knocked(session: Session, c: int, degrees: float, seed: int) -> Session:
     """Camera c knocked by ``degrees`` about a random axis after the middle of its wand frames (or
-    of its moving point's): its later samples seen through the turned camera. Static background
-    points (digitised once) keep the pose before."""
+    of its moving point's) that another camera sees too (:func:`knock_frame`): its later samples
+    seen through the turned camera. Static background points (digitised once) keep the pose before."""
     rng = np.random.default_rng(seed)
     axis = rng.normal(size=3)
     Rk = rotvec_to_matrix(np.radians(degrees) * axis / np.linalg.norm(axis))
@@ -155,7 +167,7 @@ def knocked(session: Session, c: int, degrees: float, seed: int) -> Session:
     for name, obs in timed_observations(session):
         mine = obs.camera == c
         if at is None:
-            at = float(np.median(obs.frame[mine]))
+            at = knock_frame(obs, c)
         after = mine & (obs.frame > at)
         uv = obs.uv.copy()
         uv[after] = _rotated(cam, obs.uv[after], Rk)

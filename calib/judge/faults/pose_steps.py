@@ -29,7 +29,7 @@ from wandcal.calib.judge.residuals import Residuals
 MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone
 MAX_SPLITS = 60  # candidate splits, evenly spaced in the camera's timed observations
 TRIM_ROUNDS = 2  # outliers trimmed under the step's model, then the split searched again
-MIN_BLOCKS = 4  # batch means of the residuals in time: fewer blocks say nothing of their correlation
+MIN_BLOCKS = 4  # batch means of the residuals in time: fewer blocks say nothing of their correlation (shorter blocks then)
 # a step is named at this family-wise false-alarm rate per camera (Bonferroni over the splits): a
 # clean camera is called moved once in 10,000 (the clean real sessions: p >= 0.002; the knocks found: p <= 5e-5)
 STEP_ALPHA = 1e-4
@@ -290,15 +290,22 @@ def _inflation(e: np.ndarray, own: np.ndarray, time: np.ndarray, point: np.ndarr
     freedom that estimate has: (inflation, dof). A tracked marker's misfit (the lens model's, where
     it crosses the image) is alike from one frame to the next, so an F test that takes views as
     independent would see steps in a clean camera. Batch means: camera c's timed views ``own`` (K,)
-    in time order, in blocks of about sqrt(K); a level's long-run variance is the block length
-    times the block means' variance, over the views' own (1 for independent views; never taken
-    below 1). e: (K, 2) residuals; the dof is the number of blocks less one."""
+    in time order, in blocks of about sqrt(K), and never fewer than :data:`MIN_BLOCKS` (shorter
+    blocks then); a level's long-run variance is the block length times the block means' variance,
+    over the views' own (1 for independent views; never taken below 1). e: (K, 2) residuals; the
+    dof is the number of blocks less one. Fewer than 2 :data:`MIN_BLOCKS` views (two a block) say
+    nothing of their correlation: (1, inf).
+
+    Below 16 views sqrt(K) made fewer than four blocks, and the views were once taken as
+    independent (dof inf): a camera of 12-15 views was tested at F(3, its timed dof), one of 16 at
+    F(3, 3). Those are Brown's hand-digitised cameras of six or seven wand frames, whose clean
+    subsamples stepped at p 7.5e-6 (decision 0067)."""
     idx = np.flatnonzero(own)
     idx = idx[np.lexsort((point[idx], time[idx]))]
     n = len(idx)
-    blocks = n // max(int(np.ceil(np.sqrt(n))), 1)
-    if blocks < MIN_BLOCKS:
+    if n < 2 * MIN_BLOCKS:
         return 1.0, np.inf
+    blocks = max(n // max(int(np.ceil(np.sqrt(n))), 1), MIN_BLOCKS)
     size = n // blocks
     a = e[idx[: blocks * size]].reshape(blocks, size, 2)
     long_run = size * float(np.mean(np.sum(a.mean(axis=1) ** 2, axis=1)))

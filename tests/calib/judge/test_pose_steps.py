@@ -10,7 +10,7 @@ import pytest
 from bench import bench_real_subsamples as brs
 from bench import real_faults as rf
 from wandcal.calib.judge.faults import pose_steps
-from wandcal.calib.judge.faults.pose_steps import Step, _timed_dispersion
+from wandcal.calib.judge.faults.pose_steps import MIN_BLOCKS, Step, _inflation, _timed_dispersion
 
 
 def _columns(rng: np.random.Generator, k: int, n: int) -> np.ndarray:
@@ -39,6 +39,29 @@ def test_the_timed_views_dispersion_is_theirs_not_the_backgrounds():
     assert s2_all == pytest.approx(float(np.sum(e**2)) / (2 * len(timed) - n))
 
 
+@pytest.mark.parametrize("n", [12, 15, 16, 40])
+def test_a_few_views_are_judged_in_batches_never_as_independent(n):
+    """Decision 0067: 12-15 timed views (six or seven hand-digitised wand frames) made fewer than
+    MIN_BLOCKS batches of sqrt(n) and were taken as independent (dof inf): now MIN_BLOCKS shorter
+    batches. A misfit that stays for a batch (each batch's views alike) shows as inflation."""
+    idx = np.arange(n)
+    blocks = max(n // int(np.ceil(np.sqrt(n))), MIN_BLOCKS)
+    size = n // blocks
+    assert _inflation(np.ones((n, 2)), np.ones(n, bool), idx, idx)[1] == blocks - 1 < np.inf
+    # a level per batch, +-1 in turn: every batch mean is the views' own size, so the long-run
+    # variance is the batch length times theirs
+    level = np.repeat(np.resize([1.0, -1.0], blocks), size)
+    e = np.zeros((n, 2))
+    e[: blocks * size, 0] = level
+    e[blocks * size:, 0] = 1.0
+    inflation, dof = _inflation(e, np.ones(n, bool), idx, idx)
+    assert dof == blocks - 1
+    assert inflation == pytest.approx(size * 1.0 / float(np.mean(e[: blocks * size, 0] ** 2)))
+    # too few views to say anything of their correlation
+    few = np.arange(2 * MIN_BLOCKS - 1)
+    assert _inflation(np.ones((len(few), 2)), np.ones(len(few), bool), few, few) == (1.0, np.inf)
+
+
 @pytest.fixture(scope="module")
 def brown2():
     if not rf.available():
@@ -51,12 +74,13 @@ def brown1(brown2):
     return rf.LOADERS["brown1"]()
 
 
-@pytest.mark.parametrize("share, seed", [(0.6, 107), (0.8, 110)])
+@pytest.mark.parametrize("share, seed", [(0.6, 107), (0.8, 110), (0.4, 101)])
 def test_a_clean_subsample_names_no_moved_camera(brown2, brown1, share, seed):
     """Issue 31: these subsamples of Brown 2 and Brown 1 called cam4 (cam1) moved: a turn fitted to
     three or four hand-digitised wand frames, tested against the background points' scatter
-    (p 7.8e-5 and 6.3e-5)."""
-    session = brown2 if seed == 107 else brown1
+    (p 7.8e-5 and 6.3e-5); Brown 2 40% seed 101 cam2 (p 7.5e-6), its 14 timed views then taken as
+    independent (decision 0067)."""
+    session = brown1 if seed == 110 else brown2
     doc = rf.calibrated(rf.subsample(session, seed, share)).to_json()
     assert [f for f in doc["verdict"]["faults"] if f["kind"] == "moved"] == []
 
