@@ -273,13 +273,13 @@ def camera_noise(el: Eliminated, focal: np.ndarray) -> list[Noise | None]:
     n = len(el.sigma)
     runs, starts, counts = _sorted_by_camera(unit_squares(np.sum(el.r**2, axis=1), el.rho), v.camera, n)
     rel = np.full(n, np.nan)  # each camera's sigma^2's relative standard error
-    for c in np.flatnonzero(counts >= MIN_NOISE_OBSERVATIONS):
-        mine = runs[starts[c] : starts[c] + counts[c]]
+    for cam in np.flatnonzero(counts >= MIN_NOISE_OBSERVATIONS):
+        mine = runs[starts[cam] : starts[cam] + counts[cam]]
         m = len(mine)
         # the median's standard error from the order statistics a standard error either side of it
         lo, hi = int(np.floor(m / 2 - np.sqrt(m) / 2)), int(np.ceil(m / 2 + np.sqrt(m) / 2))
         median = float(_run_medians(mine, np.zeros(1, np.int64), np.array([m]))[0])
-        rel[c] = (mine[min(hi, m - 1)] - mine[max(lo, 0)]) / 2 / max(median, 1e-12)
+        rel[cam] = (mine[min(hi, m - 1)] - mine[max(lo, 0)]) / 2 / max(median, 1e-12)
     px = el.sigma * focal
     views_per = np.bincount(v.camera, minlength=n)
     out: list[Noise | None] = []
