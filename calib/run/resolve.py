@@ -5,10 +5,6 @@ A camera knocked overnight need not mean recalibrating everything: the cameras t
 named ones are placed again by resection against the wand ends (any kind of wand: its end
 markers) and the point tracks that the held cameras triangulate, then refined by ``ba`` with the
 held cameras fixed, the point tracks as free points (as ``calibrate`` takes them).
-
-The judgement's re-solve of a rig without some cameras (:func:`without_cameras`, each suspect
-judged against the others solved without it) is here too: the other way round, the named cameras
-left out and every other one refined.
 """
 
 from __future__ import annotations
@@ -27,7 +23,6 @@ from wandcal.calib.run.camera_reports import camera_reports, summary_warnings, w
 from wandcal.calib.run.judgement import judge
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.run.refine import (
-    ROBUST_STAGE_SE,
     Progress,
     Refined,
     build_problem,
@@ -37,7 +32,6 @@ from wandcal.calib.run.refine import (
     up_direction,
 )
 from wandcal.calib.run.result import CalibrationResult, SolverReport, WandReport, WorldFrame
-from wandcal.calib.solve.ba import DEFAULT_LOSS, bundle_adjust_points
 from wandcal.calib.solve.uncertainty import world_uncertainty
 from wandcal.calib.start.initial import Initial
 from wandcal.calib.start.labels import flatten, label_ends
@@ -46,13 +40,6 @@ from wandcal.calib.start.resection import resect_camera
 from wandcal.calib.triangulate import triangulate_points
 
 MIN_HELD = 2  # the held cameras must triangulate the wand: two at least
-# the judgement's re-solve without a suspect camera (:func:`without_cameras`) starts at the full
-# solution, which the suspect's observations (1/N of the rig's) pulled off the optimum without it
-# by a perturbation of that order: Gauss-Newton's first step takes its linear part, and what is
-# left is second order in it. Measured (docs/decisions/0066f): one step leaves the suspect's time
-# offset within 0.01-0.07 of its standard error of the converged re-solve's (4 steps) on every
-# shape at 128 cameras (0.2-0.3 on 8), its lens pattern's strength within 0.2, at a quarter of the cost
-WITHOUT_STEPS = 1
 
 
 def solve_only(rig: Rig, wand: WandObservations | None, R0: np.ndarray, t0: np.ndarray, solve: list[str],
@@ -195,32 +182,3 @@ def _placed_against_held(rig: Rig, pairs: WandPairs, tracks: PointTracks | None,
         R[c], t[c] = pose
         source[c] = f"{what} resection against the held cameras"
     return Initial(R, t, source)
-
-
-def without_cameras(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, out: list[int],
-                    steps: int = WITHOUT_STEPS) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t) (N, 3, 3), (N, 3): every camera but ``out`` refined without the observations of the
-    cameras ``out`` (theirs returned as given), from the full solution R, t: robust ``ba`` (the
-    default loss, as the calibration's first stage; the first of the other cameras holds the
-    gauge), at most ``steps`` Levenberg-Marquardt steps (:data:`WITHOUT_STEPS`). Only the poses
-    are returned, so the wand frames are not brought to their optimum after the steps (a pass that
-    holds the poses, and cost as much as the step).
-
-    Raises:
-        CalibrationError, numpy.linalg.LinAlgError: the others alone do not solve.
-    """
-    others = ~np.isin(labelled.camera, out)
-    keep = np.flatnonzero(~np.isin(np.arange(len(rig.cameras)), out))
-    index = np.full(len(rig.cameras), -1)
-    index[keep] = np.arange(len(keep))
-    sub = labelled.subset(others)
-    sub = WandPairs(sub.frame, index[sub.camera], sub.xy, sub.uv, sub.frames, sub.dropped)
-    sub_rig = replace(rig, cameras=tuple(rig.cameras[k] for k in keep))
-    setup = build_problem(sub_rig, sub, R[keep], t[keep], 0)
-    # refine()'s robust ba of a first stage (final=False: no standard errors), its steps bounded;
-    # the stop judges the frames too (judge_frames): no pass after it settles them
-    solved = bundle_adjust_points(setup.model, None, None, loss=DEFAULT_LOSS, max_iter=steps, stop_se=ROBUST_STAGE_SE,
-                                  standard_errors=False, judge_frames=True)
-    R2, t2 = R.copy(), t.copy()
-    R2[keep], t2[keep] = setup.model.poses(solved.x)
-    return R2, t2

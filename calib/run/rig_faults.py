@@ -73,8 +73,8 @@ def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list
 
 def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, out: list[int]):
     """Every other camera's pose refined without the observations of the cameras ``out`` (theirs
-    as given): :func:`wandcal.calib.run.resolve.without_cameras` (its steps bounded, issue 33)."""
-    from wandcal.calib.run.resolve import without_cameras
+    as given): :func:`wandcal.calib.run.refine.without.without_cameras` (its steps bounded, issue 33)."""
+    from wandcal.calib.run.refine.without import without_cameras
 
     return without_cameras(rig, labelled, R, t, out)
 

@@ -1,4 +1,4 @@
-"""The judgement's re-solve of a rig without a suspect camera (``resolve.without_cameras``): one
+"""The judgement's re-solve of a rig without a suspect camera (``refine.without.without_cameras``): one
 Levenberg-Marquardt step from the full solution judges the suspect as the converged re-solve does
 (issue 33, docs/decisions/0066f)."""
 
@@ -8,7 +8,7 @@ import pytest
 from wandcal.calib.judge.faults.screen import analyse_camera, classify
 from wandcal.calib.judge.residuals import held_out
 from wandcal.calib.run.calibrate import calibrate
-from wandcal.calib.run.resolve import without_cameras
+from wandcal.calib.run.refine.without import without_cameras
 from wandcal.calib.sim.faults import late_camera, wrong_focal
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.start.labels import label_ends
