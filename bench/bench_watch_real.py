@@ -99,22 +99,24 @@ def turn_of(turn_deg: float, seed: int = 1) -> np.ndarray:
     return rotvec_to_matrix(np.radians(turn_deg) * axis / np.linalg.norm(axis))
 
 
-def _turned_uv(take: RealTake, obs: WandObservations, camera: int, turn_deg: float, frame: int) -> np.ndarray:
-    """(B, 2) the blobs ``obs`` with ``camera``'s from ``frame`` on as the camera turned by ``turn_deg`` sees them."""
+def _turned_uv(take: RealTake, obs: WandObservations, camera: int, turn_deg: float, frame: int,
+               seed: int = 1) -> np.ndarray:
+    """(B, 2) the blobs ``obs`` with ``camera``'s from ``frame`` on as the camera turned by ``turn_deg``
+    (about the axis of ``seed``, :func:`turn_of`) sees them."""
     uv = obs.uv.copy()
     sel = (obs.camera == camera) & (obs.frame >= frame)
     cam = take.rig.cameras[camera]
-    rays = np.column_stack([undistort_points(cam, uv[sel]), np.ones(int(sel.sum()))]) @ turn_of(turn_deg).T
+    rays = np.column_stack([undistort_points(cam, uv[sel]), np.ones(int(sel.sum()))]) @ turn_of(turn_deg, seed).T
     uv[sel] = distort_points(cam, rays[:, :2] / rays[:, 2:])
     return uv
 
 
-def knocked(take: RealTake, camera: int, turn_deg: float, frame: int) -> TakeBlobs:
-    """The take with ``camera`` turned by ``turn_deg`` about a random axis through its centre from ``frame`` on."""
-    return TakeBlobs(take.blobs.frame, take.blobs.camera, _turned_uv(take, take.blobs, camera, turn_deg, frame))
+def knocked(take: RealTake, camera: int, turn_deg: float, frame: int, seed: int = 1) -> TakeBlobs:
+    """The take with ``camera`` turned by ``turn_deg`` about a random axis (``seed``) through its centre from ``frame`` on."""
+    return TakeBlobs(take.blobs.frame, take.blobs.camera, _turned_uv(take, take.blobs, camera, turn_deg, frame, seed))
 
 
-def wand_resolve_error(take: RealTake, camera: int, turn_deg: float, frame: int) -> float | str:
+def wand_resolve_error(take: RealTake, camera: int, turn_deg: float, frame: int, seed: int = 1) -> float | str:
     """The error, deg, of ``--solve-only`` of the knocked camera from the session's labelled wand blobs
     and point tracks of the frames from ``frame`` on (the knock's), the other cameras held; or why none."""
     parts = []
@@ -123,7 +125,7 @@ def wand_resolve_error(take: RealTake, camera: int, turn_deg: float, frame: int)
             parts.append(None)
             continue
         sel = obs.frame >= frame
-        uv = _turned_uv(take, obs, camera, turn_deg, frame)[sel]
+        uv = _turned_uv(take, obs, camera, turn_deg, frame, seed)[sel]
         if isinstance(obs, PointObservations):
             parts.append(PointObservations(obs.frame[sel], obs.camera[sel], uv, None if obs.point is None else obs.point[sel]))
         else:
@@ -135,12 +137,13 @@ def wand_resolve_error(take: RealTake, camera: int, turn_deg: float, frame: int)
                          list(take.result.cameras), points=parts[1])
     except CalibrationError as e:
         return str(e)
-    return float(np.degrees(rotation_angle(out.R[camera], turn_of(turn_deg) @ take.R[camera])))
+    return float(np.degrees(rotation_angle(out.R[camera], turn_of(turn_deg, seed) @ take.R[camera])))
 
 
-def knock_frame(take: RealTake) -> int:
+def knock_frame(take: RealTake, at: float = KNOCK_AT) -> int:
+    """The frame at share ``at`` of the take's frames."""
     frames = np.unique(take.blobs.frame)
-    return int(frames[int(KNOCK_AT * (len(frames) - 1))])
+    return int(frames[int(at * (len(frames) - 1))])
 
 
 def verdict(report: WatchReport, camera: int | None, frame: int | None, turn_deg: float | None,
@@ -166,20 +169,22 @@ def verdict(report: WatchReport, camera: int | None, frame: int | None, turn_deg
     return row
 
 
-def run(takes: list[RealTake]) -> list[dict]:
+def run(takes: list[RealTake], seed: int = 1, knock_at: float = KNOCK_AT) -> list[dict]:
+    """The table's rows: each take clean, and each camera turned by each of TURNS_DEG about the axis of
+    ``seed`` at share ``knock_at`` of its frames."""
     rows = []
     for take in takes:
         frames = np.unique(take.blobs.frame)
         start = time.process_time()
         row = verdict(watch_take(take.rig, take.R, take.t, take.blobs), None, None, None)
         rows.append({"take": take.name, "frames": len(frames), "fault": "clean", "cpu": time.process_time() - start, **row})
-        at = knock_frame(take)
+        at = knock_frame(take, knock_at)
         for c, cam in enumerate(take.rig.cameras):
             for turn in TURNS_DEG:
-                report = watch_take(take.rig, take.R, take.t, knocked(take, c, turn, at))
-                row = verdict(report, c, at, turn, turn_of(turn) @ take.R[c])
+                report = watch_take(take.rig, take.R, take.t, knocked(take, c, turn, at, seed))
+                row = verdict(report, c, at, turn, turn_of(turn, seed) @ take.R[c])
                 if take.wand is not None and report.judged:
-                    row["wand"] = wand_resolve_error(take, c, turn, at)
+                    row["wand"] = wand_resolve_error(take, c, turn, at, seed)
                 rows.append({"take": take.name, "frames": len(frames), "fault": f"{cam.id} turned {turn:g} deg at frame {at}",
                              **row})
         print(f"{take.name}: done", file=sys.stderr, flush=True)
@@ -240,12 +245,15 @@ def _resolve_summary(knocks: list[dict]) -> str:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--write-docs", action="store_true", help="put the table into docs/benchmarks.md")
+    parser.add_argument("--seed", type=int, default=1, help="the knocks' axes (default 1, the table's)")
+    parser.add_argument("--knock-at", type=float, default=KNOCK_AT,
+                        help=f"the knock's place in the take, a share of its frames (default {KNOCK_AT})")
     args = parser.parse_args()
     takes = real_takes()
     if not takes:
         print(f"no real sessions under {SHARED_DATA}", file=sys.stderr)
         return 2
-    return publish("Watch on real takes (issue 36)", table(run(takes)), args.write_docs)
+    return publish("Watch on real takes (issue 36)", table(run(takes, args.seed, args.knock_at)), args.write_docs)
 
 
 if __name__ == "__main__":

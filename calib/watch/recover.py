@@ -33,13 +33,16 @@ from wandcal.calib.rig import Rig
 from wandcal.calib.triangulate import refine_points
 from wandcal.calib.watch.health import PARAMS, WINDOW_FRAMES, linearised, point_jacobian, solve_pose_change
 from wandcal.calib.watch.match import match_frames
-from wandcal.calib.watch.search import SEARCH_DEG, rays, search_views
+from wandcal.calib.watch.search import GATE_PX, SEARCH_DEG, rays, search_views
 from wandcal.calib.watch.sequential import BASELINE_WINDOWS, CameraTest
 from wandcal.calib.watch.take import PaddedFrames, TakeBlobs, pad_frames
 
 STEPS = 5  # Gauss-Newton steps from the search's turn: converges in three
 MIN_POINTS = 15  # 30 residuals for 6 unknowns; fewer fix no pose worth writing (its sigma says how well these do)
 OUTLIER_PX = 1.5  # as health's: 5 sigma of 0.3 px
+# or 5 of the blobs' sigma as the first fit finds it (the real takes' ~1 px of model error), if more:
+# P(chi2_2 > 25) = 4e-6, a view past it is a blob taken for another
+OUTLIER_SIGMAS = 5.0
 SETTLE_FRAMES = 5 * WINDOW_FRAMES  # the re-solve waits this long after a knock completes (and uses the rest)
 MIN_HELD = 3  # cameras that did not move: a marker is matched in two and confirmed in a third
 # A knock turns a camera about its mount far more than it moves its centre: the centre is held to the
@@ -110,7 +113,8 @@ def resolve_camera(R0: np.ndarray, t0: np.ndarray, focal: float, X: np.ndarray, 
     for step in range(STEPS):
         J, r = _weighted(R, C, focal, X, xy, point_info)
         if step == 1:  # drop markers the first fit does not explain (a blob taken for another), weighted
-            keep = np.hypot(r[:, 0], r[:, 1]) < OUTLIER_PX
+            d2 = (r ** 2).sum(1)  # a blob's sigma a coordinate from the median: |r|^2 ~ sigma^2 chi2_2, median 2 ln 2
+            keep = d2 < max(OUTLIER_PX ** 2, OUTLIER_SIGMAS ** 2 * float(np.median(d2)) / (2 * np.log(2)))
         H, g = _prior(np.einsum("kpi,kpj->ij", J[keep], J[keep]), np.einsum("kpi,kp->i", J[keep], r[keep]), C - C0, s2)
         p = solve_pose_change(H, g)
         R = rotvec_to_matrix(p[:3]) @ R
@@ -178,10 +182,12 @@ def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: i
     if len(rig.cameras) - len(set(moved)) < MIN_HELD:
         return NotResolved(f"only {len(rig.cameras) - len(set(moved))} cameras held still, and a marker the take "
                            f"places needs {MIN_HELD}")
-    span = int(blobs.frame[-1]) + 1 - since if len(blobs) else 0
-    solved = _searched(rig, R, t, blobs, c, (since, since + span), moved, wander)
+    end = int(blobs.frame[-1]) + 1 if len(blobs) else since
+    completed = since if before is None else max(before, since - SETTLE_FRAMES)
+    solved, since = _settled_solve(rig, R, t, blobs, c, moved, wander, (completed, since, end))
     if not isinstance(solved, Resolved) or before is None:
         return solved
+    span = end - since
     length = max(min(span, before), 1)  # a take short before its move: one span of all it has
     blocks = [_searched(rig, R, t, blobs, c, (before - (b + 1) * length, before - b * length), moved, 0.0)
               for b in range(WANDER_BLOCKS) if before - (b + 1) * length >= 0]
@@ -190,6 +196,27 @@ def resolve_moved(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, c: i
     if not devs:
         return solved
     return solved.with_wander(_wander_cov(devs), len(devs))
+
+
+def _settled_solve(rig: Rig, R, t, blobs: TakeBlobs, c: int, moved: list[int], wander: float,
+                   frames: tuple[int, int, int]) -> tuple[Resolved | NotResolved, int]:
+    """Camera c re-solved from the frames (completed, since, end): from ``since`` (the move completed,
+    at ``completed``, and settled), then again from the first window after ``completed`` that fits
+    that pose better than the standing one (:func:`settled_from`). A take too short after ``since``
+    is re-solved from ``completed`` when every window up to ``since`` fits that pose better. (The
+    re-solve or why not, its first frame.)"""
+    completed, since, end = frames
+    solved = _searched(rig, R, t, blobs, c, (since, end), moved, wander)
+    if completed >= since:
+        return solved, since
+    if not isinstance(solved, Resolved):
+        early = _searched(rig, R, t, blobs, c, (completed, end), moved, wander)
+        if isinstance(early, Resolved) and settled_from(rig, R, t, blobs, c, moved, early, (completed, since)) == completed:
+            return early, completed
+        return solved, since
+    start = settled_from(rig, R, t, blobs, c, moved, solved, (completed, since))
+    wider = _searched(rig, R, t, blobs, c, (start, end), moved, wander) if start < since else None
+    return (wider, start) if isinstance(wider, Resolved) else (solved, since)
 
 
 def _searched(rig: Rig, R, t, blobs: TakeBlobs, c: int, frames: tuple[int, int], moved: list[int],
@@ -225,6 +252,12 @@ def confirmed_markers(rig: Rig, R, t, padded: PaddedFrames, c: int, moved: list[
     cameras that did not move and c: those c and two held cameras or more see, triangulated by the
     held ones alone (c confirms the match, its view does not place the point). (X (k, 3) metres,
     c's blob (k, 2) normalised, the held cameras' information on each (k, 3, 3), as :func:`held_markers`.)"""
+    return confirmed_views(rig, R, t, padded, c, moved, pose)[:3]
+
+
+def confirmed_views(rig: Rig, R, t, padded: PaddedFrames, c: int, moved: list[int],
+                    pose: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`confirmed_markers` and each marker's frame (k,)."""
     others_moved = [m for m in moved if m != c]
     xy, row = padded.xy.copy(), padded.row.copy()
     xy[:, others_moved], row[:, others_moved] = np.nan, -1
@@ -236,7 +269,39 @@ def confirmed_markers(rig: Rig, R, t, padded: PaddedFrames, c: int, moved: list[
     ok = (tracks.views[:, c] >= 0) & ((held >= 0).sum(1) >= 2)
     p, cam = np.nonzero(held[ok] >= 0)
     X = refine_points(R, t, p, cam, padded.xy_of(held[ok][p, cam]), tracks.X[ok])
-    return X, padded.xy_of(tracks.views[ok, c]), _information(rig, R, t, p, cam, X)
+    return X, padded.xy_of(tracks.views[ok, c]), _information(rig, R, t, p, cam, X), tracks.frame[ok]
+
+
+def settled_from(rig: Rig, R, t, blobs: TakeBlobs, c: int, moved: list[int], solved: Resolved,
+                 frames: tuple[int, int]) -> int:
+    """The first frame of ``frames`` (moved_at, since) from which camera c stood at its re-solved
+    pose (``solved``, fitted to the frames from ``since`` on) rather than its standing one: the
+    earliest window (:data:`~wandcal.calib.watch.health.WINDOW_FRAMES`) from which every window up
+    to ``since`` that holds a marker fits the re-solved pose better. A window's fit to a pose is
+    the sum over the markers the held cameras place in it of the squared distance, pixels, from the
+    marker's projection to c's nearest blob in its frame, capped at the search's gate
+    (:data:`~wandcal.calib.watch.search.GATE_PX`; a marker with no blob there costs the cap): the
+    log-likelihood of blobs with Gaussian noise and outliers spread evenly, so the comparison is the
+    likelihood ratio of the two poses with even odds. Not a test against the re-solved pose's own
+    scatter: a pose fitted to markers in one part of the image misses those elsewhere by several
+    times the noise on the real takes (bench_watch_real's MultiCamSelfCal: 0.1 px about the fit,
+    0.2-0.9 px in the windows before), far less than a knock the watch names moves them."""
+    lo, since = frames
+    rows = np.arange(*np.searchsorted(blobs.frame, frames))
+    padded, fi, X, _ = held_markers(rig, R, t, blobs, rows, moved)
+    focal = float(rig.cameras[c].focal.mean())
+    blob_xy = padded.xy[fi, c]  # (T, S, 2): c's blobs in each marker's frame
+    cost = [np.minimum(np.nanmin(np.sum((blob_xy - _standing_xy(Rc, tc, X)[:, None]) ** 2, axis=2), axis=1,
+                                 initial=np.inf) * focal ** 2, GATE_PX ** 2)
+             for Rc, tc in ((solved.R, solved.t), (R[c], t[c]))]
+    frame = padded.frames[fi]
+    start = since
+    for w0 in range(since - WINDOW_FRAMES, lo - WINDOW_FRAMES, -WINDOW_FRAMES):
+        sel = (frame >= max(w0, lo)) & (frame < w0 + WINDOW_FRAMES)
+        if cost[0][sel].sum() > cost[1][sel].sum():  # a tie (no blob near either: no evidence) goes on
+            break
+        start = max(w0, lo)
+    return start
 
 
 def _information(rig: Rig, R, t, p: np.ndarray, cam: np.ndarray, X: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ import pytest
 from bench.bench_watch_real import knock_frame, knocked, real_takes, turn_of
 from wandcal.calib.geometry import camera_centers, rotation_angle, rotvec_to_matrix
 from wandcal.calib.sim.takes import CameraMove, simulate_take
-from wandcal.calib.watch.recover import MIN_POINTS, SETTLE_FRAMES, NotResolved, Resolved, resolve_moved
+from wandcal.calib.watch.recover import MIN_POINTS, SETTLE_FRAMES, NotResolved, Resolved, resolve_moved, settled_from
 from wandcal.calib.watch.search import GATE_PX, rays, search_views
 from wandcal.calib.watch.watch import watch_take
 
@@ -62,10 +62,27 @@ def test_a_knocked_camera_is_re_solved_near_or_far(deg):
     assert abs(solved.rms_px - NOISE_PX) < 0.1
 
 
+def test_the_frames_waited_out_after_a_knock_are_taken_back_from_the_knock_on():
+    """A camera turned 1 deg at frame 200 of a take that ends 100 frames later: the re-solve from
+    frame 250 takes back the frames from 200 on (each window fits the re-solved pose better than the
+    standing one), not those before the knock (dated 30 frames early, they fit the standing pose),
+    and has more markers than without them."""
+    move = CameraMove(2, 200, 1.0, 0.0)
+    sim = simulate_take(6, 300, markers=20, noise_px=NOISE_PX, moves=(move,), seed=7)
+    since = move.frame + SETTLE_FRAMES
+    late = resolve_moved(sim.rig, sim.truth.R, sim.truth.t, sim.blobs, 2, since, [2])
+    assert isinstance(late, Resolved), late
+    assert settled_from(sim.rig, sim.truth.R, sim.truth.t, sim.blobs, 2, [2], late, (move.frame - 30, since)) == move.frame
+    solved = resolve_moved(sim.rig, sim.truth.R, sim.truth.t, sim.blobs, 2, since, [2], before=move.frame)
+    assert isinstance(solved, Resolved), solved
+    assert solved.points > late.points
+
+
 def test_a_camera_that_cannot_be_re_solved_says_why():
-    """Too few frames after the move: not a pose from a handful of markers, but the reason and what to do."""
+    """Too few markers after the move (10 in its 5 frames, the settling ones taken back too): not a pose
+    from a handful of markers, but the reason and what to do."""
     move = CameraMove(2, 300, 1.0, 0.0)
-    sim = simulate_take(6, 305, markers=5, noise_px=NOISE_PX, moves=(move,), seed=7)
+    sim = simulate_take(6, 305, markers=2, noise_px=NOISE_PX, moves=(move,), seed=7)
     out = resolve_moved(sim.rig, sim.truth.R, sim.truth.t, sim.blobs, 2, 304, [2], before=300)
     assert isinstance(out, NotResolved) and not out
     assert "record a longer take" in out.reason and "cam3" in out.reason
