@@ -179,6 +179,17 @@ class CameraTest:
         mid = k + (end - k) // 2
         return min(self._change(k, mid, base), self._change(mid, end, base))
 
+    def statistic_of(self, change: np.ndarray, first: int) -> float:
+        """The statistic a pose change ``change`` (6,) alone would give over windows ``first``.. (noise-free:
+        the non-centrality of :meth:`glr`'s S at start ``first``, with its covariance; an unnamed move
+        below the threshold by this is below what the camera's noise and wander let the test see)."""
+        base = self.baseline()
+        if base is None or first >= len(self.g):
+            return 0.0
+        wt = self._weights(first, len(self.g), base[2])
+        cov = _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[first:]))) + self._baseline_cov() + self.wander(base)
+        return float(change @ _pinv(cov) @ change)
+
     def glr(self, last: int | None = None) -> tuple[float, int, np.ndarray]:
         """(the largest S_k of a persistent change, the k of the largest S_k, d_k (6,)) over the
         starts before window ``last`` (all windows by default); the module's note."""

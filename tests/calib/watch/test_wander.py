@@ -42,3 +42,25 @@ def test_no_wander_is_none_and_a_few_residuals_add_none():
     sizes = [50] * 40 + [2] * 20
     Ib, gb, per = _blocks(np.random.default_rng(3), sizes, 0.0)
     assert between_blocks(Ib, gb, per) < 4 * _standard_error(0.0, sizes[:40])
+
+
+def test_a_changes_own_statistic_is_what_the_test_scores_for_it():
+    """A step of a known change after the baseline: the test's S at the step's window scatters about the
+    change's own (noise-free) statistic plus its 6 degrees of freedom, within 4 of its standard deviations."""
+    from wandcal.calib.watch.health import WINDOW_FRAMES
+    from wandcal.calib.watch.sequential import BASELINE_WINDOWS, CameraTest
+
+    rng = np.random.default_rng(4)
+    change = np.array([8e-5, 0.0, 0.0, 0.0, 0.0, 0.0])  # 0.09 px at 1100 px: a statistic of ~450 over 10 windows
+    test = CameraTest()
+    for w in range(BASELINE_WINDOWS + 10):
+        J = rng.normal(0.0, SCALE, (400, 2, PARAMS))
+        r = J @ (change if w >= BASELINE_WINDOWS else 0 * change) + rng.normal(0.0, 0.3, (400, 2))
+        H, g = np.einsum("kpi,kpj->ij", J, J), np.einsum("kpi,kp->i", J, r)
+        test.add(g, H, float(((r - J @ np.linalg.solve(H, g)) ** 2).sum()), 400.0, w * WINDOW_FRAMES)
+    own = test.statistic_of(change, BASELINE_WINDOWS)
+    test.glr()
+    base = test.baseline()
+    assert base is not None
+    scored = test._change(BASELINE_WINDOWS, len(test.g), base)
+    assert abs(scored - (own + PARAMS)) < 4 * np.sqrt(2 * (PARAMS + 2 * own))
