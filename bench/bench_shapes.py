@@ -30,7 +30,7 @@ TITLE = "Rigs of every shape: ba's iterations (issue 33, decision 0032)"
 def one(shape: RigShape, frames: int, seed: int, reference: bool) -> tuple[int, float, float]:
     """(iterations, seconds, aligned centre RMS error in mm) of ba's whole pipeline on the shape."""
     sim = simulate_shape(shape, frames=frames, seed=seed)
-    with mock.patch("wandcal.calib.run.refine.WAND_FRAMES_IN_STOP", reference):
+    with mock.patch("wandcal.calib.run.refine.methods.WAND_FRAMES_IN_STOP", reference):
         result, seconds = timed(calibrate, sim.rig, sim.wand, sim.static, options=CalibrationOptions(method="ba"))
     return int(result.solver.iterations), seconds, aligned_rms_mm(result.centers, sim.truth.centers)
 

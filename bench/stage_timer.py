@@ -22,11 +22,11 @@ from collections import defaultdict
 # stage: (module, attribute) of the functions that make it, each called by that name there
 STAGE_FUNCTIONS = {
     "read": [("wandcal.capture.folder", "read_capture")],
-    "observations": [("wandcal.calib.run.calibrate", "_whole_frame_sync"), ("wandcal.calib.run.calibrate", "_observations")],
-    "static object": [("wandcal.calib.run.calibrate", "_static_poses")],
-    "start": [("wandcal.calib.run.calibrate", "check_capture"), ("wandcal.calib.run.calibrate", "initial_poses"),
-              ("wandcal.calib.run.calibrate", "_subframe_sync")],
-    "labelling": [("wandcal.calib.run.calibrate", "label_ends")],
+    "observations": [("wandcal.calib.run.calibrate", "whole_frame_sync"), ("wandcal.calib.run.calibrate", "observations")],
+    "static object": [("wandcal.calib.run.start_steps", "static_object_poses")],
+    "start": [("wandcal.calib.run.start_steps", "check_capture"), ("wandcal.calib.run.start_steps", "initial_poses"),
+              ("wandcal.calib.run.calibrate", "subframe_sync")],
+    "labelling": [("wandcal.calib.run.start_steps", "label_ends")],
     "refinement": [("wandcal.calib.run.calibrate", "_refine")],
     "world frame": [("wandcal.calib.run.calibrate", "_world")],
     "reports": [("wandcal.calib.run.calibrate", "_figures")],

@@ -33,12 +33,13 @@ PROFILE = ("import cProfile, sys, time; from wandcal.service.cli import main; fr
 # stage: (caller, callee) function names whose cumulative time (the callee's, called from that
 # caller) makes the stage; the rest of the process is "other" (start-up, imports, the summary). The
 # names are calib/run/calibrate.py's steps since issue 30 (before this session the table still
-# looked for the pre-issue-30 names and gave 0 s to every stage but read and write)
+# looked for the pre-issue-30 names and gave 0 s to every stage but read and write); the first
+# steps' names are calib/run/start_steps.py's since that module was split from calibrate.py
 STAGES = {
     "read": [("_calibrated", "read_capture")],
-    "start": [("calibrate", "_observations"), ("_start", "_static_poses"), ("_start", "check_capture"),
-              ("_start", "initial_poses")],
-    "labelling": [("_start", "label_ends")],
+    "start": [("calibrate", "observations"), ("refinement_start", "static_object_poses"),
+              ("refinement_start", "check_capture"), ("refinement_start", "initial_poses")],
+    "labelling": [("refinement_start", "label_ends")],
     "refinement": [("calibrate", "_refine")],
     "world frame": [("calibrate", "_world")],
     "reports": [("calibrate", "_figures")],

@@ -5,7 +5,7 @@
 | :mod:`~wandcal.calib.run.calibrate` | ``calibrate``: observations, sync, start, refine, world frame, figures, judgement |
 | :mod:`~wandcal.calib.run.marker_steps` | a wand of three markers or more: its blobs ordered, every marker labelled, the refinement with the wand model |
 | :mod:`~wandcal.calib.run.sparse_offsets` | ``--sync auto`` on sparse rigs: each camera's whole-frame offset against the wand the others triangulate |
-| :mod:`~wandcal.calib.run.refine` | the chosen method's refinement and outlier rejection over a built problem |
+| :mod:`~wandcal.calib.run.refine` | the chosen method's refinement and outlier rejection over a built problem (``problem``, ``methods``, ``outliers``) |
 | :mod:`~wandcal.calib.run.resolve` | ``solve_only``: re-solve some cameras of a result, the rest held |
 | :mod:`~wandcal.calib.run.judgement` | the verdict of a run, from the judge stage's criteria and faults |
 | :mod:`~wandcal.calib.run.rig_faults` | the cameras at fault, by the rig's size: few cameras by comparison, many by the suspect screen |

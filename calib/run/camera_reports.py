@@ -56,7 +56,7 @@ def camera_reports(rig: Rig, setup: Setup, R: np.ndarray, t: np.ndarray, wand_pt
     """Each camera's residual figures at the final poses, and the warnings they raise.
 
     Args:
-        rig: the cameras; setup: the refinement's wand problem and frames (calib/run/refine.py);
+        rig: the cameras; setup: the refinement's wand problem and frames (calib/run/refine/problem.py);
         R, t: (N, 3, 3), (N, 3) final world->camera poses, metres; wand_pts: (F, 2, 3) wand ends,
             world frame; init: the start (what placed each camera);
         tracks: the point tracks the refinement used, with X: (T, 3) their points, or None;

@@ -4,7 +4,8 @@
 |---|---|
 | :mod:`~wandcal.calib.solve.ba` | ``--method ba``: Schur-complement Levenberg-Marquardt with the wand length built in (its entry points, and its loop) |
 | :mod:`~wandcal.calib.solve.lp` | ``--method lp``: sequential LP with a robust piecewise-linear loss |
-| :mod:`~wandcal.calib.solve.paper` | ``--method paper``: the seed paper's Euler-angle LM plus least-absolute-error LP |
+| :mod:`~wandcal.calib.solve.paper` | ``--method paper``: the seed paper's rounds (rotation step, then the LP) and their stop |
+| :mod:`~wandcal.calib.solve.paper_lp` | the paper's least-absolute-error LP of eq. (Li): its set-up, solve and stop tolerance |
 | :mod:`~wandcal.calib.solve.paper_fixed_point` | the plain paper rounds' fixed point on one LP basis, certified (a measuring tool, decision 0052) |
 | :mod:`~wandcal.calib.solve.wandmodel` | the wand reprojection model every method shares |
 | :mod:`~wandcal.calib.solve.reprojection` | pixel residuals and their analytic Jacobians |

@@ -115,9 +115,9 @@ def refine_lp(
             only, the scheme before; the same estimator, kept to check the other against).
         certify: with ``scheme="irls"``, False stops at the last phase's IRLS point, near the
             optimum but not on it, without the LP that certifies it (the first phase's, and a
-            solve that only tells outliers; calib/run/refine.py now uses a robust ba for that,
+            solve that only tells outliers; calib/run/refine/ now uses a robust ba for that,
             decision 0024).
-        warm: x0 is the solution of nearly the same problem (an outlier pass, calib/run/refine.py): no
+        warm: x0 is the solution of nearly the same problem (an outlier pass, calib/run/refine/): no
             first phase on a subset, and the phase linearises once at its start (no Gauss-Newton
             step to refit frames fitted to other cameras).
 
@@ -137,7 +137,7 @@ def refine_lp(
 def refine_lp_covariance(model: WandModel, n_wand_frames: int, progress=None, time_limit: float | None = None,
                          warm: bool = False) -> tuple[np.ndarray, dict, PoseCovariance]:
     """:func:`refine_lp` to its certified optimum, and the pose covariance there (what
-    calib/run/refine.py reports for ``lp``): from the reduced system the last step was taken on, whose
+    calib/run/refine/ reports for ``lp``): from the reduced system the last step was taken on, whose
     Schur complement the phase has already formed for its standard errors, so it costs no other
     linearisation (at 128 x 3000 a separate one, ``ba``'s information matrix, took 1.3-1.6 s CPU;
     decision 0027). The first ``n_wand_frames`` frames are the wand's (the rest point tracks).

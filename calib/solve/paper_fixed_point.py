@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from wandcal.calib.solve.paper import arrow_lp, exp_turn, rotation_step
+from wandcal.calib.solve.paper import exp_turn, rotation_step
+from wandcal.calib.solve.paper_lp import arrow_lp
 from wandcal.calib.solve.wandmodel import WandProblem
 
 FIXED_POINT_STEPS = 8  # Newton steps on one basis: 1-2 are taken from a state on it (decision 0052)

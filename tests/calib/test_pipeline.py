@@ -170,7 +170,7 @@ def test_one_camera_missing_the_static_object_is_placed_from_the_wand():
 
 @pytest.mark.parametrize("outliers, reject", [(0.0, True), (0.08, True), (0.08, False)])
 def test_lp_ends_on_a_certified_step_with_its_pose_uncertainty(outliers, reject):
-    """The solve before the outlier pass stops short of the LP (calib/run/refine.py): the outcome is
+    """The solve before the outlier pass stops short of the LP (calib/run/refine/): the outcome is
     still the one the last solve certified, with the pose covariance at its poses; with no outlier
     pass, the one solve is the final one."""
     sim = simulate_capture(4, 200, NOISE, outliers=outliers, seed=33)
@@ -194,7 +194,7 @@ def test_paper_takes_its_pose_uncertainty_once_after_the_outlier_passes():
 def test_paper_judges_outliers_as_ba_and_keeps_every_camera():
     """paper's least-squares rotation step is not robust: started from the initial poses on a
     capture with 5% gross outliers it once called 96% of cam1's camera-frames outliers and lost
-    it (20% dropped in all). Its first solve is now ba's robust pass (calib/run/refine.py), so it
+    it (20% dropped in all). Its first solve is now ba's robust pass (calib/run/refine/), so it
     drops what ba drops and places every camera near where ba does."""
     sim = simulate_capture(6, 300, 0.3, outliers=0.05, seed=1)
     paper = calibrate(sim.rig, sim.wand, sim.static, options=CalibrationOptions(method="paper", max_rounds=10))

@@ -172,7 +172,7 @@ def test_the_answer_is_a_fixed_point_of_the_lp_step(seed):
 
 def test_lp_covariance_is_the_information_matrix_at_its_solution():
     """``lp``'s pose covariance comes from the reduced system its last step was taken on; it is
-    ``ba``'s information matrix at lp's solution (calib/run/refine.py's `_information`, which cost one
+    ``ba``'s information matrix at lp's solution (calib/run/refine/methods.py's `paper_covariance`, which cost one
     more linearisation). The two linearisations lie the LP's last steps apart (a few standard
     errors, ~1e-4 of the rig's depth), and the reduced system leaves out only rows beyond
     REJECT_SIGMAS (6 sigma: a Gaussian share of 2e-9), so on a capture without gross outliers (the

@@ -93,10 +93,10 @@ def _first_paper_round():
 
 
 def test_paper_lp_warm_start_reaches_the_cold_optimum(monkeypatch):
-    from wandcal.calib.solve import paper
+    from wandcal.calib.solve import paper_lp
 
     # the interior point to its own tolerance (the paper's rounds stop it at LP_TOL, looser)
-    monkeypatch.setattr(paper, "LP_TOL", TOL)
+    monkeypatch.setattr(paper_lp, "LP_TOL", TOL)
     setup, m, up, X, heights, R1, (t1, X1, first) = _first_paper_round()
     assert first.status == "optimal" and first.basis is not None
     # the next round: new rotations change the LP's coefficients, not its shape
@@ -165,7 +165,7 @@ def test_paper_stops_within_a_fraction_of_sigma_of_the_plain_rounds_fixed_point(
     at, found and certified on its LP basis (decision 0052), after 32 rounds (the 5 um stop before:
     365 um, after 190), and the rig's aligned RMS error against the truth is 0.17 sigma below that
     point's. Asserted: 1.5 sigma, and 0.3 of one."""
-    from wandcal.calib.solve import paper
+    from wandcal.calib.solve import paper, paper_lp
 
     sc = prepared(cameras=4, frames=300, noise_px=NOISE, seed=1)
     p, m = sc.setup.problem, sc.setup.model
@@ -175,8 +175,9 @@ def test_paper_stops_within_a_fraction_of_sigma_of_the_plain_rounds_fixed_point(
     R, t, _, info = refine_paper(m.R0, m.t0, start, p, m.fixed, up)
     assert info["status"] == "converged", info
     # the exact plain rounds, run on to their lock-in (by round 205 here, decision 0052)
-    for name, value in (("JUMP_CAP", 0.0), ("ROUND_TOL", 0.0), ("STOP_SIGMA", 0.0), ("LP_TOL", TOL)):
+    for name, value in (("JUMP_CAP", 0.0), ("ROUND_TOL", 0.0), ("STOP_SIGMA", 0.0)):
         monkeypatch.setattr(paper, name, value)
+    monkeypatch.setattr(paper_lp, "LP_TOL", TOL)
     R_p, t_p, W_p, _ = refine_paper(m.R0, m.t0, start, p, m.fixed, up, max_rounds=220)
     found = fixed_point_on_basis(R_p, t_p, W_p.reshape(-1, 3), p, m.fixed, up,
                                  height_pairs(m.R0, m.t0, start.reshape(-1, 3), up))
@@ -197,7 +198,7 @@ def test_the_fixed_point_on_a_basis_is_where_the_plain_rounds_stay(monkeypatch):
     """Where the plain rounds' LP basis has settled (the "lock-in" of decision 0045), Newton's
     method on that basis finds the rounds' fixed point: rounds started there stay there, to the
     interior point's accuracy. While the basis still changes from round to round, it finds none."""
-    from wandcal.calib.solve import paper
+    from wandcal.calib.solve import paper, paper_lp
 
     sc = prepared(cameras=3, frames=100, noise_px=NOISE, seed=1)
     p, m = sc.setup.problem, sc.setup.model
@@ -205,7 +206,7 @@ def test_the_fixed_point_on_a_basis_is_where_the_plain_rounds_stay(monkeypatch):
     monkeypatch.setattr(paper, "JUMP_CAP", 0.0)
     monkeypatch.setattr(paper, "ROUND_TOL", 0.0)  # the plain rounds, run on
     monkeypatch.setattr(paper, "STOP_SIGMA", 0.0)
-    monkeypatch.setattr(paper, "LP_TOL", TOL)  # each LP to the interior point's own tolerance, as measured
+    monkeypatch.setattr(paper_lp, "LP_TOL", TOL)  # each LP to the interior point's own tolerance, as measured
     start = m.wand(m.x0())
     heights = height_pairs(m.R0, m.t0, start.reshape(-1, 3), up)
     R, t, W, _ = refine_paper(m.R0, m.t0, start, p, m.fixed, up, max_rounds=30)
