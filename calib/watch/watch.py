@@ -61,7 +61,7 @@ class CameraHealth:
     not_resolved: str = ""  # why a moved camera was not re-solved, and what to do
     before_take: bool = False  # it had moved already when the take began
     peak: float = 0.0  # the test's largest statistic over the take
-    test: CameraTest | None = field(default=None, repr=False)  # its pose test, for what a given move would score
+    test: CameraTest | None = field(default=None, repr=False, compare=False)  # its pose test: what a given move would score
 
     @property
     def lost(self) -> bool:
