@@ -33,11 +33,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import publish
 from bench.real_sessions import BROWN, BROWN_MAT, SHARED_DATA, SVOBODA, USHICHKA, USHICHKA_HEIGHT
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.geometry import distort_points, rotation_angle, rotvec_to_matrix, undistort_points
+from wandcal.calib.geometry import distort_points, matrix_to_rotvec, rotation_angle, rotvec_to_matrix, undistort_points
 from wandcal.calib.rig import PointObservations, Rig, WandObservations
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.resolve import solve_only
 from wandcal.calib.run.result import CalibrationResult
+from wandcal.calib.watch.sequential import GLR_THRESHOLD
 from wandcal.calib.watch.take import TakeBlobs
 from wandcal.calib.watch.watch import WatchReport, watch_take
 
@@ -169,6 +170,17 @@ def verdict(report: WatchReport, camera: int | None, frame: int | None, turn_deg
     return row
 
 
+def own_statistic(report: WatchReport, camera: int, turn_deg: float, rank: int, seed: int = 1) -> float:
+    """What the injected turn alone would score in the knocked camera's test (noise-free, over the windows
+    from the first whole one after the knock, ``rank``: its frame's rank in the take), against the threshold."""
+    test = report.cameras[camera].test
+    if test is None:
+        return float("nan")
+    first = int(np.searchsorted(np.array(test.start), rank))
+    omega = matrix_to_rotvec(turn_of(turn_deg, seed))  # the turn in the camera's frame: the test's omega
+    return test.statistic_of(np.r_[omega, np.zeros(3)], first)
+
+
 def run(takes: list[RealTake], seed: int = 1, knock_at: float = KNOCK_AT) -> list[dict]:
     """The table's rows: each take clean, and each camera turned by each of TURNS_DEG about the axis of
     ``seed`` at share ``knock_at`` of its frames."""
@@ -183,6 +195,8 @@ def run(takes: list[RealTake], seed: int = 1, knock_at: float = KNOCK_AT) -> lis
             for turn in TURNS_DEG:
                 report = watch_take(take.rig, take.R, take.t, knocked(take, c, turn, at, seed))
                 row = verdict(report, c, at, turn, turn_of(turn, seed) @ take.R[c])
+                if row["right"] is False:
+                    row["expected"] = own_statistic(report, c, turn, int(np.searchsorted(frames, at)), seed)
                 if take.wand is not None and report.judged:
                     row["wand"] = wand_resolve_error(take, c, turn, at, seed)
                 rows.append({"take": take.name, "frames": len(frames), "fault": f"{cam.id} turned {turn:g} deg at frame {at}",
@@ -215,7 +229,8 @@ def table(rows: list[dict]) -> str:
     for r in rows:
         right = "-" if r["right"] is None else "yes" if r["right"] else "no"
         cells = " | ".join(_resolve_cells(r))
-        lines.append(f"| {r['take']} | {r['frames']} | {r['fault']} | {r['named']} | {right} | {cells} |")
+        named = r["named"] + (f" (the turn alone: {r['expected']:.1f} against {GLR_THRESHOLD:g})" if "expected" in r else "")
+        lines.append(f"| {r['take']} | {r['frames']} | {r['fault']} | {named} | {right} | {cells} |")
     judged = [r for r in rows if r["right"] is not None]
     clean = [r for r in judged if r["fault"] == "clean"]
     knocks = [r for r in judged if r["fault"] != "clean"]

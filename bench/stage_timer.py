@@ -19,7 +19,8 @@ import sys
 import time
 from collections import defaultdict
 
-# stage: (module, attribute) of the functions that make it, each called by that name there
+# stage: (module, attribute) of the functions that make it, each called by that name there (since
+# calibrate.py's split, the start's steps from calib/run/start_steps.py)
 STAGE_FUNCTIONS = {
     "read": [("wandcal.capture.folder", "read_capture")],
     "observations": [("wandcal.calib.run.calibrate", "whole_frame_sync"), ("wandcal.calib.run.calibrate", "observations")],

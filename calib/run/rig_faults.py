@@ -12,8 +12,6 @@ stand out of the rig's, :func:`suspects`), each suspect judged against the rig s
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
@@ -75,23 +73,10 @@ def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list
 
 def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, out: list[int]):
     """Every other camera's pose refined without the observations of the cameras ``out`` (theirs
-    as given)."""
-    from wandcal.calib.run.options import CalibrationOptions
-    from wandcal.calib.run.refine import build_problem, refine, up_direction
+    as given): :func:`wandcal.calib.run.refine.without.without_cameras` (its steps bounded, issue 33)."""
+    from wandcal.calib.run.refine.without import without_cameras
 
-    others = ~np.isin(labelled.camera, out)
-    keep = np.flatnonzero(~np.isin(np.arange(len(rig.cameras)), out))
-    index = np.full(len(rig.cameras), -1)
-    index[keep] = np.arange(len(keep))
-    sub = labelled.subset(others)
-    sub = WandPairs(sub.frame, index[sub.camera], sub.xy, sub.uv, sub.frames, sub.dropped)
-    sub_rig = replace(rig, cameras=tuple(rig.cameras[k] for k in keep))
-    setup = build_problem(sub_rig, sub, R[keep], t[keep], 0)
-    r = refine(sub_rig, sub, setup, None, None, "ba", CalibrationOptions(), lambda event: None, up_direction(sub_rig, R[keep], t[keep], setup),
-               final=False)
-    R2, t2 = R.copy(), t.copy()
-    R2[keep], t2[keep] = r.R, r.t
-    return R2, t2
+    return without_cameras(rig, labelled, R, t, out)
 
 
 def isolate(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int,

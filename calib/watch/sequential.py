@@ -131,7 +131,7 @@ class CameraTest:
 
     def _pooled_variance(self, windows: int) -> float:
         n = np.array(self.n[:windows])
-        dof = max(float((2 * n - PARAMS * (n > 0)).sum()), 1.0)
+        dof = max(float(np.maximum(2 * n - PARAMS, 0).sum()), 1.0)  # a window its fit takes whole leaves none
         return float(np.sum(self.sse[:windows]) / dof)
 
     def _weights(self, first: int, end: int, s2: float) -> np.ndarray:
@@ -155,12 +155,10 @@ class CameraTest:
             H, g = np.array(self.H[:BASELINE_WINDOWS]) * wt[:, None, None], np.array(self.g[:BASELINE_WINDOWS]) * wt[:, None]
             blocks = np.arange(BASELINE_WINDOWS) // WANDER_BLOCK
             Ib = np.array([H[blocks == b].sum(0) for b in np.unique(blocks)])
-            pb = solve_pose_change(Ib, np.array([g[blocks == b].sum(0) for b in np.unique(blocks)]))
+            gb = np.array([g[blocks == b].sum(0) for b in np.unique(blocks)])
             n0 = max(float(np.sum(self.n[:BASELINE_WINDOWS])), 1.0)
             per = I0 / n0  # information of one residual, px^-2 (weighted)
-            spread = np.einsum("bi,ij,bj->b", pb - p0, per, pb - p0)  # px^2 of image shift, each block
-            noise = np.einsum("ij,bji->b", per, np.linalg.pinv(Ib, rcond=RCOND, hermitian=True))  # what noise gives
-            lam = max(float(np.mean(spread - noise)) / PARAMS * len(pb) / max(len(pb) - 1, 1), 0.0)
+            lam = between_blocks(Ib, gb, per)
             self._wander = lam * np.linalg.pinv(per, rcond=RCOND, hermitian=True)
         return self._wander
 
@@ -180,6 +178,17 @@ class CameraTest:
             return 0.0
         mid = k + (end - k) // 2
         return min(self._change(k, mid, base), self._change(mid, end, base))
+
+    def statistic_of(self, change: np.ndarray, first: int) -> float:
+        """The statistic a pose change ``change`` (6,) alone would give over windows ``first``.. (noise-free:
+        the non-centrality of :meth:`glr`'s S at start ``first``, with its covariance; an unnamed move
+        below the threshold by this is below what the camera's noise and wander let the test see)."""
+        base = self.baseline()
+        if base is None or first >= len(self.g):
+            return 0.0
+        wt = self._weights(first, len(self.g), base[2])
+        cov = _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[first:]))) + self._baseline_cov() + self.wander(base)
+        return float(change @ _pinv(cov) @ change)
 
     def glr(self, last: int | None = None) -> tuple[float, int, np.ndarray]:
         """(the largest S_k of a persistent change, the k of the largest S_k, d_k (6,)) over the
@@ -208,6 +217,41 @@ class CameraTest:
                     default=0.0)
         self.peak = max(self.peak, alarm)
         return alarm, first + k, d[k]
+
+
+def between_blocks(Ib: np.ndarray, gb: np.ndarray, per: np.ndarray) -> float:
+    """lambda >= 0: the variance between blocks' poses beyond their noise, as the image shift of one
+    residual (``lambda per^+``), by the Paule-Mandel (Q-profile) moment estimator: the lambda at which
+    the blocks' scatter about their mean, each block weighted by the inverse of its noise and the
+    wander, ``(Ib^+ + lambda per^+)^-1``, equals its degrees of freedom (the blocks' ranks less
+    :data:`PARAMS`); 0 when their noise explains it all. Ib (B, 6, 6), gb (B, 6): the blocks'
+    weighted normal equations; per (6, 6): one residual's information. A block with a few residuals
+    (a rank-deficient Ib) counts for what it fixes: its weight is ``Ib - Ib (Ib + per / lambda)^-1 Ib``."""
+    scale = np.abs(Ib).max(axis=(1, 2), initial=0.0)
+    ranks = [int((np.linalg.eigvalsh(block) > RCOND * m).sum()) if m > 0 else 0 for block, m in zip(Ib, scale)]
+    dof = sum(ranks) - PARAMS
+    if dof <= 0:
+        return 0.0
+    base = float(np.einsum("bi,bij,bj->", gb, _pinv(Ib), gb))  # sum of gb Ib^+ gb
+
+    def scatter(lam: float) -> float:  # the weighted scatter Q(lambda)
+        M = _pinv(Ib + per / lam) if lam > 0 else np.zeros_like(Ib)
+        V = Ib - Ib @ M @ Ib  # each block's weight
+        u = gb - np.einsum("bij,bjk,bk->bi", Ib, M, gb)  # V_b p_b
+        mean = _pinv(V.sum(0)) @ u.sum(0)
+        return base - float(np.einsum("bi,bij,bj->", gb, M, gb)) - 2 * mean @ u.sum(0) + mean @ V.sum(0) @ mean
+
+    if scatter(0.0) <= dof:
+        return 0.0
+    lo, hi = 0.0, 1.0
+    for _ in range(60):  # Q falls with lambda: bracket, then bisect
+        if scatter(hi) <= dof:
+            break
+        lo, hi = hi, 4 * hi
+    for _ in range(50):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if scatter(mid) > dof else (lo, mid)
+    return hi
 
 
 def _pinv(A: np.ndarray) -> np.ndarray:

@@ -61,6 +61,7 @@ class CameraHealth:
     not_resolved: str = ""  # why a moved camera was not re-solved, and what to do
     before_take: bool = False  # it had moved already when the take began
     peak: float = 0.0  # the test's largest statistic over the take
+    test: CameraTest | None = field(default=None, repr=False, compare=False)  # its pose test: what a given move would score
 
     @property
     def lost(self) -> bool:
@@ -201,6 +202,7 @@ class WatchStream:
             health.matched = float(sums[c, 1] / max(sums[c, 2], 1))
             health.alarm = self.tests[c].alarm
             health.peak = self.tests[c].peak
+            health.test = self.tests[c]
             alarm = health.alarm
             if alarm is not None and health.before_take:
                 health.kind, health.moved_at, health.change = "knock", self.first, alarm.change

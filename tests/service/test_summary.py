@@ -70,6 +70,7 @@ def test_the_cameras_a_focal_length_limits_are_said_on_one_line():
 
 
 def test_a_cameras_other_limiting_intrinsics_are_said_on_one_line_after_the_focal_lengths():
+    """One form for one limit and for several: a lab user reads the same words for each camera."""
     from wandcal.service.cli.support.summary import _limit_lines
 
     focal = {"camera": "cam3", "parameter": "focal length", "message": "cam3's focal ...",
@@ -85,7 +86,9 @@ def test_a_cameras_other_limiting_intrinsics_are_said_on_one_line_after_the_foca
     assert lines[0] == "  limit (cam3): cam3's focal ..."
     assert lines[1].startswith("  limit (cam3): its position also hinges on its lens's cy (1.2 mm for 21 px), k2 (1.3 mm for 0.038)")
     assert "--refine-intrinsics principal" in lines[1] and len(lines) == 2
-    assert _limit_lines([k2], 4) == ["  limit (cam3): cam3's position moves ... give it from a lens calibration (wandcal does not refine it)"]
+    assert _limit_lines([k2], 4) == ["  limit (cam3): its position also hinges on its lens's k2 (1.3 mm for 0.038), "
+                                     "the uncertainty assumed: give it from a lens calibration "
+                                     "(the result's verdict.limits has the figures)"]
 
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "results"

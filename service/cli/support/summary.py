@@ -161,28 +161,35 @@ def _focal_limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
 
 
 def _lens_limit_lines(limits: list[dict]) -> list[str]:
-    """The other intrinsics' limits, one line a camera: "cam3's position also hinges on k1 (2.2 mm
-    for 0.021), k2 (1.3 mm for 0.038): ..."; one limit alone in its message's words."""
-    cams = list(dict.fromkeys(limit["camera"] for limit in limits))
+    """The other intrinsics' limits, one line a camera in one form: "cam3: its position also hinges
+    on its lens's k1 (2.2 mm for 0.021), k2 (1.3 mm for 0.038), the uncertainties assumed: ..."."""
     out = []
-    for cam in cams:
+    for cam in dict.fromkeys(limit["camera"] for limit in limits):
         mine = [limit for limit in limits if limit["camera"] == cam]
         figures = [(limit["parameter"], limit["evidence"].get("parameter_sigma_mm"), limit["evidence"].get("sigma"),
                     limit["evidence"].get("unit", "")) for limit in mine]
-        if len(mine) == 1 or any(mm is None for _, mm, _, _ in figures):
+        if any(mm is None for _, mm, _, _ in figures):
             out += [f"  limit ({cam}): {limit['message']}" for limit in mine]
             continue
-        refinable = [limit for limit in mine if "--refine-intrinsics" in limit["message"]]
-        refine = [word for word in ("principal", "k1") if any(f"--refine-intrinsics {word}" in limit["message"]
-                                                              for limit in refinable)]
-        todo = ("give them from a lens calibration" if not refine else
-                f"refine them (--refine-intrinsics {','.join(refine)}) or give them from a lens calibration"
-                if len(refinable) == len(mine) else
-                f"refine {','.join(refine)} (--refine-intrinsics {','.join(refine)}) and give the others from a lens calibration")
-        out.append(f"  limit ({cam}): its position also hinges on its lens's "
-                   + ", ".join(f"{name} ({mm:.3g} mm for {sigma:.3g}{' ' + unit if unit else ''})" for name, mm, sigma, unit in figures)
-                   + f", the uncertainties assumed: {todo} (the result's verdict.limits has the figures)")
+        listed = ", ".join(f"{name} ({mm:.3g} mm for {sigma:.3g}{' ' + unit if unit else ''})"
+                           for name, mm, sigma, unit in figures)
+        out.append(f"  limit ({cam}): its position also hinges on its lens's {listed}, "
+                   f"{_lens_todo(mine)} (the result's verdict.limits has the figures)")
     return out
+
+
+def _lens_todo(mine: list[dict]) -> str:
+    """What to do about one camera's lens limits: refine what the data determine, give the rest."""
+    one = len(mine) == 1
+    refine = [word for word in ("principal", "k1")
+              if any(f"--refine-intrinsics {word}" in limit["message"] for limit in mine)]
+    assumed = "the uncertainty assumed" if one else "the uncertainties assumed"
+    if not refine:
+        return f"{assumed}: give {'it' if one else 'them'} from a lens calibration"
+    flag = f"--refine-intrinsics {','.join(refine)}"
+    if all("--refine-intrinsics" in limit["message"] for limit in mine):
+        return f"{assumed}: refine {'it' if one else 'them'} ({flag}) or give {'it' if one else 'them'} from a lens calibration"
+    return f"{assumed}: refine {','.join(refine)} ({flag}) and give the others from a lens calibration"
 
 
 def _number(value, fmt: str, width: int) -> str:
