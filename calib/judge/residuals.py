@@ -208,7 +208,7 @@ def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
     return out
 
 
-# the unknowns a point takes up from its views' 2 n residuals (decision 0066b): a point track's
+# the unknowns a point takes up from its views' 2 n residuals (decision 0073): a point track's
 # three coordinates; a wand end's two and a half (a frame's two ends are six, less the length)
 POINT_UNKNOWNS = 3.0
 WAND_END_UNKNOWNS = 2.5

@@ -134,7 +134,7 @@ def at_limit_text(entry: dict) -> str:
 
 def geometry_limits(report: dict, obs: int) -> tuple[tuple[float, float], float, bool]:
     """A camera's geometry sigma's (excellent, good) limits over the volume's size, the good
-    limit's own standard error, and whether that limit is the camera's own rays' (decisions 0049, 0066b).
+    limit's own standard error, and whether that limit is the camera's own rays' (decisions 0049, 0073).
 
     The good limit is :data:`GEOMETRY_OF_VOLUME`'s, or the noise of the camera's own rays at its
     points where that is larger, up to the residual's own good limit: a place known to within the

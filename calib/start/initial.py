@@ -8,7 +8,7 @@ pair whose wand frames can scale it starts: its essential matrix, scaled by the 
 (easyWand and Argus start the same way). Where no pair shares the wand frames its scale needs, the
 best-linked pair that can be placed starts at a unit baseline, the others follow with the scale
 the points carry, and the wand's median length over every camera scales the whole rig at the end
-(decision 0066b: a sparse capture's wand frames are seen two cameras at a time). Each further camera is placed by whichever is better
+(decision 0073: a sparse capture's wand frames are seen two cameras at a time). Each further camera is placed by whichever is better
 constrained, counting two equations per resected point and one per epipolar correspondence:
 
 - resection (PnP inside RANSAC, :mod:`wandcal.calib.start.resection`) against the wand ends and point tracks

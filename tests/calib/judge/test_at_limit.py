@@ -84,7 +84,7 @@ def test_the_geometry_sigmas_good_limit_is_the_cameras_own_rays_miss_where_that_
 
 @pytest.mark.parametrize("factor, level", [(1.0, "poor"), (np.sqrt(2.0), "good")])
 def test_the_geometry_limit_is_the_rays_noise_not_their_fitted_miss(factor, level):
-    """Brown 2's cam1 on 40% of its frames (decision 0066b): placed to 1.36 mm, its rays 1.17 mm off
+    """Brown 2's cam1 on 40% of its frames (decision 0073): placed to 1.36 mm, its rays 1.17 mm off
     the points they were fitted to. At three views a point takes up half of each ray's noise's
     square, so the rays' noise is 1.17 x sqrt(2) = 1.65 mm: a place known to 1.36 mm is good."""
     entry = camera(1.36, observations=83) | {"residual_of_volume": 1.17e-3 / EXTENT_M, "ray_noise_factor": factor}

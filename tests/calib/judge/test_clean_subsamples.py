@@ -1,4 +1,4 @@
-"""Clean real subsamples judged as what they are (decision 0066b; bench/bench_real_subsamples.py is
+"""Clean real subsamples judged as what they are (decision 0073; bench/bench_real_subsamples.py is
 the whole table): a 40% subsample of Brown 2 whose cam1 is placed to 1.36 mm, past 1e-3 of the
 volume and past its rays' fitted miss but within their noise, is good; a 40% subsample of Brown 1
 whose wand frames no pair of cameras shares three of is placed from the point tracks and scaled by
