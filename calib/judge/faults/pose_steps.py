@@ -4,14 +4,15 @@
 The camera's views with a time (the wand's ends; point tracks in the wand's time,
 or all of them where there is no wand: :func:`wandcal.calib.judge.faults.own_errors.in_wand_time`)
 are split at frame k, and its turn after k (three columns: a rotation about its centre) is
-fitted beside its pose (six columns) and its lens (four), all with the points projected out; views
-without a time (background points from another recording) have a turn of their own. An F test of one pose
-against two at the best k (:func:`pose_step`), outliers trimmed under the two-pose model, the F
+fitted beside its pose (six columns) and every camera's lens (four each, on that camera's views:
+:func:`_every_lens`; another camera's lens error is a pattern in space, not a knock), all with the
+points projected out; views without a time (background points from another recording) have a
+turn of their own. An F test of one pose against two at the best k (:func:`pose_step`), outliers trimmed under the two-pose model, the F
 measured against the timed views' own scatter (:func:`_timed_dispersion`) and divided by the
 residuals' long-run variance in time (batch means), its p-value multiplied by the number of splits
 tried (Bonferroni, the search's multiple testing). A camera is named only when leaving it out
 leaves no other camera stepping (:func:`moved_camera`): else its step is another camera's spread
-through the points. docs/verdict.md gives the limits, docs/decisions/0035 and 0062 how they
+through the points. docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0074l how they
 were measured.
 """
 
@@ -132,7 +133,7 @@ def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
 
     Why: a lens error of any camera bends the points as a function of where they are; where the
     marker drifts through the volume in time (MultiCamSelfCal's one LED), that bend reaches the
-    other cameras' residuals as a change in time, and the step read it as a knock (decision 0074).
+    other cameras' residuals as a change in time, and the step read it as a knock (decision 0074l).
     With these columns in the step's base the F test's null is "no step, whatever lens error any
     camera has" (an exact linear F test with nuisance columns): a knock is a step in time at any
     place, which no camera's lens pattern explains. The camera's own four columns are those the
