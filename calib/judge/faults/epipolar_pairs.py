@@ -76,24 +76,14 @@ def camera_track(s: Samples, c: int) -> Track:
         at = np.clip(found, 0, len(uf) - 1)
         has = uf[at] == uf + (1 if side == "after" else -1)
         cand = pad[at]  # (F, 2, 2): the neighbour's blobs
-        blob = _matched(pad, cand, (count == 2) & (count[at] == 2))
+        dist = np.linalg.norm(pad[:, :, None, :] - cand[:, None, :, :], axis=3)  # (F, blob, neighbour blob)
+        pick = np.argmin(dist, axis=2)
+        blob = np.take_along_axis(cand, pick[:, :, None], axis=1)
         near[side] = np.where(has[:, None, None], blob, np.nan)
     both = (near["after"] - near["before"]) / 2
     one_after, one_before = near["after"] - pad, pad - near["before"]
     v = np.where(np.isfinite(both), both, np.where(np.isfinite(one_after), one_after, one_before))
     return Track(uf, count, pad, v)
-
-
-def _matched(pad: np.ndarray, cand: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-    """(F, 2, 2) the neighbour frame's blob that continues each of pad's (F, 2, 2) blobs: where both
-    frames hold the wand's two ends (``pairs``, (F,)) the assignment of the two ends to the two with the
-    smaller total distance (a wand a frame moves by as much as its own length in the image on Brown's
-    sessions, and each end's nearest blob there is often the same one); else each blob's nearest."""
-    dist = np.linalg.norm(pad[:, :, None, :] - cand[:, None, :, :], axis=3)  # (F, blob, neighbour blob)
-    pick = np.argmin(dist, axis=2)
-    crossed = dist[:, 0, 1] + dist[:, 1, 0] < dist[:, 0, 0] + dist[:, 1, 1]
-    pick = np.where(pairs[:, None], np.where(crossed[:, None], [[1, 0]], [[0, 1]]), pick)
-    return np.take_along_axis(cand, pick[:, :, None], axis=1)
 
 
 def _essential_rows(E: np.ndarray, xc: np.ndarray, xd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

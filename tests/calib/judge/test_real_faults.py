@@ -59,12 +59,7 @@ CASES = [
     pytest.param("brown1", "knocked 0.82 deg cam3", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
     ("brown1", "late 1 frame cam1"),  # whole frames, from every pair of cameras (timing_pairs)
     ("svoboda", "late 0.3 frame Basler_21275577"),  # a fraction, by the marker's speed
-    # cam1 shares 8 frames (92-99) with another camera, the wand 190-530 px long there moving 190-1000 px a
-    # frame: its ends' continuation is aliased. Named (t 37) while the judgement continued each end to its
-    # nearest blob, the injector's own rule (both ends to one blob); with the ends continued together
-    # (decision 0073k) -0.34 +- 0.14 frame, t 2.5: short of 5 standard errors
-    pytest.param("brown1", "early 0.5 frame cam1", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
-    ("brown2", "early 0.5 frame cam3"),  # a fraction, the wand's ends continued together (0073k): t 5.4, at the edge
+    ("brown1", "early 0.5 frame cam1"),  # a fraction, each pair of cameras weighted by its own scatter
     ("brown1", "early 0.3 frame cam3"),
     ("cpp", "late 1 frame cam3"),  # digitised: the start refused; named by --sync auto's whole-frame search
     ("cpp", "early 0.3 frame cam3"),  # ... or by the refused camera resampled by a fraction of a frame

@@ -109,16 +109,3 @@ def test_a_camera_at_fault_is_named_out_of_time_at_three_standard_errors_not_noi
     noisy = late[:3] + [CameraTiming(3, 0, -0.007, 0.005, 0.05, 2.5, 24)]
     assert timing_instead(ids, noisy, 3, 3.0) is None
     assert timing_instead(ids, late, 2, 2.0) is None
-
-
-def test_a_fast_wand_keeps_its_ends_apart():
-    """A wand 150 px long moving 100 px a frame along itself: its leading end's nearest blob a frame
-    later is the trailing end (50 px away, against 100), so each end's own nearest would give both ends
-    one neighbour. Both ends continued together (the smaller total distance) move 100 px a frame."""
-    from wandcal.calib.judge.faults.epipolar_pairs import Samples, camera_track
-
-    frames = np.repeat(np.arange(6), 2)
-    xy = np.stack([100.0 * frames + np.tile([0.0, 150.0], 6), np.zeros(12)], axis=1)
-    track = camera_track(Samples(np.zeros(12, np.int64), frames, xy), 0)
-    np.testing.assert_allclose(track.v[:, :, 0], 100.0)  # exact: no noise
-    np.testing.assert_allclose(track.v[:, :, 1], 0.0)
