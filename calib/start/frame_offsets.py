@@ -145,6 +145,8 @@ def frame_offsets(
     against = np.full(n, -1, np.int64)
     share = np.ones(n)
     search = _Search(rig, pairs, table, start, reference, max_offset)
+    if fail_fast:
+        _refuse_untimeable(search, steps, table)
     for b, partners in (_risk_first(steps, table, start) if fail_fast else steps):
         offsets[b], share[b] = search.time(b, partners, offsets)
         against[b] = partners[0]
@@ -199,6 +201,23 @@ def _risk_first(steps: list[tuple[int, list[int]]], table: np.ndarray, start: np
     return out
 
 
+def _refuse_untimeable(search: _Search, steps: list[tuple[int, list[int]]], table: np.ndarray) -> None:
+    """Raise TooFewShared for the first camera of ``steps`` that shares fewer than
+    ``MIN_TIMING_FRAMES`` frames with its first partner at the start's offsets and that
+    :meth:`_Search.cannot_time` proves the search cannot time (a proof, so the search would fail
+    too; which cameras are tried only bounds its cost: one RANSAC a lag, 4 x max_offset - 1 lags)."""
+    for b, partners in steps:
+        a = partners[0]
+        lag = int(search.start[b] - search.start[a])
+        if _shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES and search.cannot_time(b, a):
+            rig = search.rig
+            raise TooFewShared(
+                f"camera {rig.cameras[b].id!r} cannot be timed against {rig.cameras[a].id}: at no offset of "
+                f"{rig.cameras[a].id}'s within +-{search.max_offset} frames does its wand agree with "
+                f"{rig.cameras[a].id}'s at a shift within +-{search.max_offset} frames; check that it recorded the same "
+                "session and the same wand, or search wider (sync_max_offset)")
+
+
 def _unlinked_error(rig: Rig, b: int, steps: list[tuple[int, list[int]]], reference: int, max_offset: int,
                     ) -> CalibrationError:
     """The error for camera b, which shares no wand frame with the cameras timed before it (the
@@ -247,6 +266,33 @@ class _Search:
                 f"(+-{max_offset} frames around {guess}); the offset may lie beyond it: search wider (sync_max_offset)"
             )
         return best, score
+
+    def cannot_time(self, b: int, a: int) -> bool:
+        """Whether camera b's search against ``a`` as its first partner fails whatever offset a's
+        own search finds: a is the reference (offset 0), or its offset lies strictly inside its
+        window (at the edge its search raises), and at each such offset b's frames are too few to
+        judge, or few enough that one RANSAC a shift judges them (:func:`_sparse_best_shift`) and
+        no shift is accepted. False as soon as one offset of a might let b pass, or would judge b
+        by the midpoint scores (which the other partners' offsets enter)."""
+        w = self.max_offset
+        guess = int(self.start[b] - self.start[self.reference])
+        shifts = np.arange(guess - w, guess + w + 1)
+        near = int(self.start[a] - self.start[self.reference])
+        shares: dict[int, float] = {}  # by lag: a's offsets share most of their lags
+        for offset_a in [0] if a == self.reference else range(near - w + 1, near + w):
+            lags = offset_a - shifts
+            counts = np.minimum(_shared_counts(self.table, a, b, lags), TIMING_FRAMES)  # as _best_shift's
+            if counts.max() < MIN_TIMING_FRAMES:
+                continue
+            if counts.max() >= FEW_FRAMES:
+                return False
+            for lag in lags:
+                if int(lag) not in shares:
+                    shares[int(lag)] = _lag_share(self.pairs, self.table, a, b, int(lag), self.rig)
+            best, score = _sparse_pick(shifts, np.array([shares[int(lag)] for lag in lags]))
+            if score >= MIN_FIT_SHARE and abs(best - guess) < w:
+                return False
+        return True
 
 
 def _table(pairs: WandPairs, n: int) -> np.ndarray:
@@ -385,8 +431,19 @@ def _sparse_best_shift(pairs: WandPairs, table: np.ndarray, partner: tuple[int, 
     frames are too few, or too far apart in time, for the midpoint scores: each shift's own RANSAC
     pose, the best share kept when it beats every shift two or more away by ``SPARSE_MARGIN``."""
     a, offset_a = partner
-    found = [_pose_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]
-    shares = np.array([_share(pairs, table, a, b, offset_a - s, rig, *f)[0] if f else 0.0 for s, f in zip(shifts, found)])
+    return _sparse_pick(shifts, np.array([_lag_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]))
+
+
+def _lag_share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig) -> float:
+    """The share of a's frames k and b's k + lag whose ends fit the pose RANSAC fits to them (0 with
+    too few frames or no pose)."""
+    found = _pose_share(pairs, table, a, b, lag, rig)
+    return _share(pairs, table, a, b, lag, rig, *found)[0] if found else 0.0
+
+
+def _sparse_pick(shifts: np.ndarray, shares: np.ndarray) -> tuple[int, float]:
+    """(shift, share) of the best of ``shifts`` (S,) by their ``shares`` (S,), the share 0 unless it
+    beats every shift two or more away by ``SPARSE_MARGIN``."""
     best = int(np.argmax(shares))
     rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
     return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0
