@@ -40,8 +40,13 @@ SESSIONS = ("brown1", "brown2", "ushichka", "svoboda")
 SHARES = (0.4, 0.6, 0.8)
 SEEDS = 20
 FIRST_SEED = 100  # the suite's own subsamples are seeds 0-2 (bench/real_faults.py); decision 0049 read 100-115
-# the table's last row at 2921c1b, before the step test measured a step against the timed views' own scatter (0062)
-BEFORE = ("Before decision 0062 (at 2921c1b, the same command, 16:47 UTC, load 8.4): 240 runs, 15 poor, 3 refused, "
+# the table's last rows before decision 0073 (at 32b2d96) and before decision 0062 (at 2921c1b, before the step
+# test measured a step against the timed views' own scatter)
+BEFORE = ("Before decision 0073 (at 32b2d96, the same command, 17:47 UTC, load 8.4): 240 runs, **13 poor** (Brown 1 40%: "
+          "2, seeds 100 and 117; Brown 2 40%: 7, five of them for cam1's or cam2's geometry sigma against its rays' fitted "
+          "miss, no fault named; MultiCamSelfCal: 4), **3 refused** (Brown 1 40% seeds 112, 113, 116: \"no two cameras can "
+          "be placed\"), 6 naming a fault, 1 naming `moved`.\n\n"
+          "Before decision 0062 (at 2921c1b, the same command, 16:47 UTC, load 8.4): 240 runs, 15 poor, 3 refused, "
           "8 naming a fault, **3 naming `moved`** (Brown 1 80% seed 110 cam1, p 6.3e-5; Brown 2 40% seed 101 cam2, "
           "p 3.9e-5; Brown 2 60% seed 107 cam4, p 7.8e-5: each a turn fitted to three or four wand frames, tested "
           "against the background points' scatter); the knock cases as now but Brown 1 cam3 at p 1.7e-29 and "

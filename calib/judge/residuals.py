@@ -208,6 +208,38 @@ def camera_figures(res: Residuals, n_cameras: int, scaled: bool) -> list[dict]:
     return out
 
 
+# the unknowns a point takes up from its views' 2 n residuals (decision 0073): a point track's
+# three coordinates; a wand end's two and a half (a frame's two ends are six, less the length)
+POINT_UNKNOWNS = 3.0
+WAND_END_UNKNOWNS = 2.5
+
+
+def ray_noise_factors(res: Residuals, n_cameras: int) -> list[float | None]:
+    """Per camera: its rays' own noise over their fitted miss (``ray_distance``), >= 1.
+
+    The miss is measured at points fitted to the same rays, which take up part of each ray's error:
+    an observation of a point of n views keeps ``1 - h`` of its noise's square on average, with
+    ``h = p / (2 n)`` its leverage (p the point's unknowns, :data:`POINT_UNKNOWNS`,
+    :data:`WAND_END_UNKNOWNS`; the hat matrix's trace p shared by the 2 n residuals), so the ray's
+    noise is the miss's mean of ``angle^2 / (1 - h)`` over the mean of ``angle^2``, square-rooted:
+    1.41 at three views, 2 at two (the unbiased ``RSS / (m - p)`` of a least-squares fit, by row).
+    The camera's inliers, as ``ray_distance``; None without them."""
+    inl = ~res.outlier
+    point = res.point[inl]
+    if not len(point):
+        return [None] * n_cameras
+    at = point - point.min()  # wand ends >= 0, tracks < 0: one count of both (a bincount, not a sort)
+    views = np.bincount(at)[at]
+    unknowns = np.where(point >= 0, WAND_END_UNKNOWNS, POINT_UNKNOWNS)
+    kept = 1.0 - unknowns / (2.0 * np.maximum(views, 2))
+    square = row_norms(res.residual[inl]) ** 2
+    out: list[float | None] = []
+    for rows in camera_rows(res.camera[inl], n_cameras):
+        total = float(np.sum(square[rows]))
+        out.append(float(np.sqrt(np.sum(square[rows] / kept[rows]) / total)) if len(rows) and total > 0 else None)
+    return out
+
+
 def held_out(R: np.ndarray, t: np.ndarray, pairs: WandPairs, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Camera c against wand ends triangulated by the other cameras alone (frames two of them saw),
     so a camera at fault cannot pull the points towards itself.

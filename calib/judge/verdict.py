@@ -134,18 +134,22 @@ def at_limit_text(entry: dict) -> str:
 
 def geometry_limits(report: dict, obs: int) -> tuple[tuple[float, float], float, bool]:
     """A camera's geometry sigma's (excellent, good) limits over the volume's size, the good
-    limit's own standard error, and whether that limit is the camera's own rays' (decision 0049).
+    limit's own standard error, and whether that limit is the camera's own rays' (decisions 0049, 0073).
 
-    The good limit is :data:`GEOMETRY_OF_VOLUME`'s, or the camera's RMS ray distance at its points
-    (``residual_of_volume``) where that is larger, up to the residual's own good limit: a place
-    known to within the miss of the camera's own rays adds less to a reconstructed point than each
-    of its observations' noise does already, and more frames would shrink the sigma, not the miss.
-    A sigma grows as 1/sqrt(data), the miss does not: against a fixed 1e-3 a sparse, hand-digitised
-    session (rays 1.0-1.4e-3 of its volume off) turned poor on 60% of its frames. The residual's
-    standard error (an RMS's, of ``obs`` observations) counts with the sigma's where it is the limit.
+    The good limit is :data:`GEOMETRY_OF_VOLUME`'s, or the noise of the camera's own rays at its
+    points where that is larger, up to the residual's own good limit: a place known to within the
+    noise of the camera's own rays adds less to a reconstructed point than each of its observations
+    does already, and more frames would shrink the sigma, not the noise. The noise is the RMS ray
+    distance at the points (``residual_of_volume``) times ``ray_noise_factor``
+    (:func:`wandcal.calib.judge.residuals.ray_noise_factors`): the miss is measured at points fitted
+    to the same rays, which take up a share of their error (half of it at two views), while the
+    solver's sigma is scaled by the unbiased noise. A sigma grows as 1/sqrt(data), the noise does
+    not: against a fixed 1e-3 a sparse, hand-digitised session (rays 1.0-1.4e-3 of its volume off)
+    turned poor on 60% of its frames. The noise's standard error (an RMS's, of ``obs``
+    observations) counts with the sigma's where it is the limit.
     """
     got = report.get("residual_of_volume")
-    rel = float(got) if got is not None else float("nan")
+    rel = float(got) * float(report.get("ray_noise_factor") or 1.0) if got is not None else float("nan")
     if not rel > GEOMETRY_OF_VOLUME[1]:  # NaN too
         return GEOMETRY_OF_VOLUME, 0.0, False
     limit = min(rel, RESIDUAL_OF_VOLUME[1])
@@ -275,7 +279,7 @@ def _place_checks(checks: _Checks, report: dict, cam_id: str, extent_m: float | 
             coverage_advice = f"wave the wand in {where} of {cam_id}'s image"
     if geo_rel is not None:
         geo = report.get("geometry_std_mm")
-        rays = ", its rays' own miss at the points" if own else ""
+        rays = ", its rays' own noise at the points" if own else ""
         if geo is not None and extent_m:
             text = (f"{cam_id}: its place among the other cameras is known to {geo:.2f} mm (1 sigma), {{level}} "
                     f"(excellent <= {limits[0] * 1000 * extent_m:.2f} mm, good <= "

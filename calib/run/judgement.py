@@ -30,6 +30,7 @@ from wandcal.calib.judge.residuals import (
     median_ray_angle,
     observation_residuals,
     place_sigma_errors,
+    ray_noise_factors,
 )
 from wandcal.calib.judge.verdict import (
     SCALE_FAULTS,
@@ -146,7 +147,9 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     judged = [replace(cam, judged=_judged(cam, fig, cov, extent))
               for cam, fig, cov in zip(cameras, figures, coverage_reports(rig, *seen))]
     # each camera's sigma's own standard error, for the verdict's "at the limit" (not written)
-    docs = [c.to_json() | {"geometry_std_rel_se": se} for c, se in zip(judged, place_sigma_errors(R, res, len(rig.cameras)))]
+    # and its rays' own noise over their fitted miss, for its geometry's good limit (neither written)
+    docs = [c.to_json() | {"geometry_std_rel_se": se, "ray_noise_factor": k} for c, se, k in
+            zip(judged, place_sigma_errors(R, res, len(rig.cameras)), ray_noise_factors(res, len(rig.cameras)))]
     faults = few_camera_faults(rig, labelled, tracks, R, t, figures, res) + input_faults(rig, world_doc, solver_doc, docs)
     angle = median_ray_angle(R, res)
     if angle is not None and angle < np.radians(MIN_RAY_ANGLE_DEG):

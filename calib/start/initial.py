@@ -5,7 +5,10 @@ without a static object) are placed one at a time, best-linked first, as a spann
 over the camera graph (:mod:`wandcal.calib.start.chain`): a camera's links are the wand frames and single-point
 tracks it shares with the cameras already placed. With no camera placed yet, the best-linked
 pair whose wand frames can scale it starts: its essential matrix, scaled by the wand length
-(easyWand and Argus start the same way). Each further camera is placed by whichever is better
+(easyWand and Argus start the same way). Where no pair shares the wand frames its scale needs, the
+best-linked pair that can be placed starts at a unit baseline, the others follow with the scale
+the points carry, and the wand's median length over every camera scales the whole rig at the end
+(decision 0073: a sparse capture's wand frames are seen two cameras at a time). Each further camera is placed by whichever is better
 constrained, counting two equations per resected point and one per epipolar correspondence:
 
 - resection (PnP inside RANSAC, :mod:`wandcal.calib.start.resection`) against the wand ends and point tracks
@@ -41,6 +44,7 @@ from wandcal.calib.start.chain import (
     points_scale,
     wand_scale,
 )
+from wandcal.calib.start.labels import label_ends, wand_lengths
 from wandcal.calib.start.resection import (
     MAX_RESECT_FRAMES,
     MAX_RESECT_TRACKS,
@@ -89,6 +93,7 @@ class _State:
     source: list[str]
     notes: list[str] = field(default_factory=list)
     scaled: bool = False
+    provisional: bool = False  # a unit baseline stands for the wand's scale until every camera is placed
     edges: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -113,7 +118,8 @@ class _State:
 
     def seen_points(self, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What the placed cameras triangulate of what camera c sees (:func:`wandcal.calib.start.resection.placed_points`)."""
-        return placed_points(self.pairs, self.points, self.views, self.R, self.t, self.rank, c, self.rig.wand_length)
+        length = None if self.provisional else self.rig.wand_length  # no metres to settle two-view frames by yet
+        return placed_points(self.pairs, self.points, self.views, self.R, self.t, self.rank, c, length)
 
 
 def initial_poses(
@@ -157,6 +163,8 @@ def initial_poses(
         _start_pair(st)
     while not st.placed.all():
         _place_next(st)
+    if st.provisional:
+        _scale_by_the_wand(st)
     return Initial(R=st.R, t=st.t, source=st.source, notes=st.notes)
 
 
@@ -172,7 +180,11 @@ def shared_frames(pairs: WandPairs, n_cams: int) -> np.ndarray:
 
 def _start_pair(st: _State) -> None:
     """Place the best-linked pair that can be placed: the first camera at the origin, the second
-    from their essential matrix, scaled by the wand (baseline 1 without one)."""
+    from their essential matrix, scaled by the wand (baseline 1 without one). Where no pair shares
+    the wand frames its scale needs but one can be placed (from point tracks, or points and the
+    wand), it starts with a unit baseline that :func:`_scale_by_the_wand` turns into metres once
+    every camera is placed: a sparse capture's wand frames are seen two cameras at a time, by
+    different pairs (Brown's 40% subsamples: 0-2 fitting frames a pair, 131-144 shared tracks)."""
     rig, n = st.rig, st.views.n_cams
     links = st.links.copy()
     np.fill_diagonal(links, 0)
@@ -182,19 +194,26 @@ def _start_pair(st: _State) -> None:
     priority = links + (links.max() + 1) * scalable
     ia, ib = np.triu_indices(n, 1)
     reasons = []
+    unscaled: PairPose | None = None  # the best-linked pair placed without its scale
     for k in np.argsort(-priority[ia, ib], kind="stable"):
         a, b = int(ia[k]), int(ib[k])
         if links[a, b] < MIN_PAIR_MATCHES:
             continue
         pose = st.edge(a, b)
-        scale = _scale_of_start(st, pose) if pose else pose
-        if not pose or not scale:  # scale is the pose's Failure when there is no pose
-            reasons.append(f"{rig.cameras[a].id} and {rig.cameras[b].id}: {scale}")
+        if isinstance(pose, Failure):
+            reasons.append(f"{rig.cameras[a].id} and {rig.cameras[b].id}: {pose}")
             continue
-        st.mark(a)
-        st.mark(b)
-        st.R[b], st.t[b] = pose.R, scale * pose.u
-        st.source[a] = st.source[b] = "essential matrix"
+        scale = _scale_of_start(st, pose)
+        if isinstance(scale, Failure):
+            reasons.append(f"{rig.cameras[a].id} and {rig.cameras[b].id}: {scale}")
+            if unscaled is None or pose.inliers > unscaled.inliers:
+                unscaled = pose
+            continue
+        _place_pair(st, pose, scale)
+        return
+    if unscaled is not None and rig.wand_length is not None:
+        st.provisional = st.scaled = True
+        _place_pair(st, unscaled, 1.0)
         return
     a, b = map(int, np.unravel_index(np.argmax(links), links.shape))
     raise CalibrationError(
@@ -203,6 +222,32 @@ def _start_pair(st: _State) -> None:
         + (f"; {'; '.join(reasons[:3])}" if reasons else f", {MIN_PAIR_MATCHES} correspondences needed")
         + "); wave the wand where several cameras see it at the same time"
     )
+
+
+def _place_pair(st: _State, pose: PairPose, scale: float) -> None:
+    st.mark(pose.a)
+    st.mark(pose.b)
+    st.R[pose.b], st.t[pose.b] = pose.R, scale * pose.u
+    st.source[pose.a] = st.source[pose.b] = "essential matrix"
+
+
+def _scale_by_the_wand(st: _State) -> None:
+    """Every camera placed at a provisional scale: their wand frames (ends ordered with these poses,
+    each end triangulated by every camera that saw it) give the scale, the wand's length over
+    their median length. Raises when fewer than :data:`MIN_SCALE_FRAMES` frames triangulate."""
+    length = st.rig.wand_length
+    assert length is not None  # provisional only with a wand (_start_pair)
+    labelled = label_ends(st.R, st.t, st.pairs, np.ones(st.views.n_cams, bool))[0]
+    lengths = wand_lengths(st.R, st.t, labelled)
+    lengths = lengths[np.isfinite(lengths) & (lengths > 0)]
+    if len(lengths) < MIN_SCALE_FRAMES:
+        raise CalibrationError(
+            f"every camera was placed from what the cameras see together, but only {len(lengths)} wand frames are "
+            f"seen by two or more cameras, {MIN_SCALE_FRAMES} needed for the scale; wave the wand where two or more "
+            "cameras see it at the same time")
+    st.t *= length / float(np.median(lengths))
+    st.notes.append(f"no pair of cameras shared {MIN_SCALE_FRAMES} wand frames: the cameras were placed from their "
+                    f"shared point tracks and wand frames, and scaled by the wand's median length in {len(lengths)} frames")
 
 
 def _scale_of_start(st: _State, pose: PairPose) -> float | Failure:
@@ -277,7 +322,9 @@ def _chain_scale(st: _State, pose: PairPose) -> float | Failure:
     """The baseline of a pair whose first camera is placed: from their own wand frames, else
     from points the placed cameras triangulated, else (nothing scaled yet) 1."""
     rig = st.rig
-    by_wand = wand_scale(st.pairs, st.views, pose, rig.wand_length) if rig.wand_length is not None else Failure("no wand")
+    # at a provisional scale a pair's own metres would not match the others': the points carry it
+    by_wand = (wand_scale(st.pairs, st.views, pose, rig.wand_length) if rig.wand_length is not None and not st.provisional
+               else Failure("no wand" if rig.wand_length is None else "the scale is provisional"))
     if by_wand:
         st.scaled = True
         return by_wand

@@ -73,13 +73,25 @@ def test_the_geometry_sigmas_good_limit_is_the_cameras_own_rays_miss_where_that_
     assert v["short_of_excellent"]["geometry"] == level
     [text] = [r for r in v["reasons"] if "its place among" in r]
     assert f"good <= {limit_mm:.2f} mm in this volume" in text
-    assert ("its rays' own miss" in text) == (limit_mm > LIMIT_MM)
+    assert ("its rays' own noise" in text) == (limit_mm > LIMIT_MM)
     # the limit's own standard error (an RMS of 120 observations) counts with the sigma's
     near = camera_verdict(entry | {"geometry_of_volume": 1.001 * limit_mm / (1000 * EXTENT_M)}, "cam1", EXTENT_M, 0.3)
     [held] = [e for e in near["at_limit"] if e["criterion"] == "geometry"]
     sigma_se = SIGMA_REL_SE * 1.001 * limit_mm
     own_se = rms_std(limit_mm, 120) if LIMIT_MM < limit_mm < 2.5 else 0.0
     assert held["std"] == pytest.approx(np.hypot(sigma_se, own_se), rel=1e-3)
+
+
+@pytest.mark.parametrize("factor, level", [(1.0, "poor"), (np.sqrt(2.0), "good")])
+def test_the_geometry_limit_is_the_rays_noise_not_their_fitted_miss(factor, level):
+    """Brown 2's cam1 on 40% of its frames (decision 0073): placed to 1.36 mm, its rays 1.17 mm off
+    the points they were fitted to. At three views a point takes up half of each ray's noise's
+    square, so the rays' noise is 1.17 x sqrt(2) = 1.65 mm: a place known to 1.36 mm is good."""
+    entry = camera(1.36, observations=83) | {"residual_of_volume": 1.17e-3 / EXTENT_M, "ray_noise_factor": factor}
+    v = camera_verdict(entry, "cam1", EXTENT_M, 0.3)
+    assert v["short_of_excellent"]["geometry"] == level
+    [text] = [r for r in v["reasons"] if "its place among" in r]
+    assert f"good <= {1.17 * factor:.2f} mm in this volume, its rays' own noise" in text
 
 
 def test_the_wand_spreads_standard_error_is_that_of_a_standard_deviation_of_its_frames():

@@ -172,3 +172,42 @@ def test_brown_wind_tunnel_sessions_are_placed(shared_data, session):
     assert err.max() < BROWN_TOL_M, err
     assert ang.max() < ANGLE_TOL_DEG, ang
     assert abs(s - 1) < 0.02  # the wand sets the scale: ~0.2 %, plus easyWand's own
+
+
+def _thin_wand(sim, rng, per_pair: int) -> WandObservations:
+    """The pairwise wand with at most ``per_pair`` frames kept per pair of cameras (every frame
+    seen by exactly two): no pair's own wand frames can scale it (3 needed)."""
+    wand = pairwise_wand(sim, rng, third=0.0)
+    pair: dict[tuple, list] = {}
+    for f in np.unique(wand.frame):
+        cams = tuple(sorted(set(wand.camera[wand.frame == f].tolist())))
+        pair.setdefault(cams, []).append(f)
+    kept = [f for fs in pair.values() for f in fs[:per_pair]]
+    sel = np.isin(wand.frame, kept)
+    return WandObservations(wand.frame[sel], wand.camera[sel], wand.uv[sel])
+
+
+def test_a_wand_too_thin_for_any_pair_is_scaled_over_the_whole_rig():
+    """Brown 1's 40% subsamples: 0-2 wand frames fit a pair, 130-145 point tracks shared. The
+    cameras are placed from the tracks at a unit baseline and scaled by the median wand of every
+    frame (2 x 6 ring pairs = 12 frames of ~0.4% each: ~0.15%, chained over the tracks)."""
+    sim = simulate_capture(6, 600, NOISE_PX, static=False, seed=5)
+    rng = np.random.default_rng(5)
+    pairs = wand_pairs(sim.rig, _thin_wand(sim, rng, 2))
+    tracks = point_tracks(sim.rig, pairwise_points(sim, 1500, rng))
+    init = initial_poses(sim.rig, pairs, points=tracks)
+    err, ang, s = _aligned_errors(init.R, init.t, sim.truth.R, sim.truth.t)
+    assert err.max() < CENTRE_TOL_M and ang.max() < ANGLE_TOL_DEG, (err, ang)
+    assert abs(s - 1) < 0.01
+    assert any("scaled by the wand's median length in" in n for n in init.notes), init.notes
+
+
+def test_a_wand_too_thin_for_the_scale_is_refused_saying_what_is_missing():
+    sim = simulate_capture(6, 600, NOISE_PX, static=False, seed=5)
+    rng = np.random.default_rng(5)
+    wand = _thin_wand(sim, rng, 2)
+    first_two = np.isin(wand.frame, np.unique(wand.frame)[:2])
+    pairs = wand_pairs(sim.rig, WandObservations(wand.frame[first_two], wand.camera[first_two], wand.uv[first_two]))
+    tracks = point_tracks(sim.rig, pairwise_points(sim, 1500, rng))
+    with pytest.raises(CalibrationError, match="only 2 wand frames are seen by two or more cameras, 3 needed for the scale"):
+        initial_poses(sim.rig, pairs, points=tracks)
