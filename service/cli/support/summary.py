@@ -168,7 +168,9 @@ def _folded_lens_line(limits: list[dict], n_cameras: int) -> list[str]:
     cams = list(dict.fromkeys(limit["camera"] for limit in limits))
     if len(cams) < 2 or any(limit["evidence"].get("parameter_sigma_mm") is None for limit in limits):
         return []
-    names = list(dict.fromkeys(limit["parameter"] for limit in limits))
+    order = ("cx", "cy", "k1", "k2", "p1", "p2")
+    names = sorted(dict.fromkeys(limit["parameter"] for limit in limits),
+                   key=lambda name: order.index(name) if name in order else len(order))
     parts = []
     for name in names:
         mine = [limit["evidence"] for limit in limits if limit["parameter"] == name]
