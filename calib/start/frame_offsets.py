@@ -105,7 +105,7 @@ def shift_pairs(pairs: WandPairs, offsets: np.ndarray) -> WandPairs:
 
 def frame_offsets(
     rig: Rig, pairs: WandPairs, max_offset: int = DEFAULT_MAX_OFFSET, start: np.ndarray | None = None,
-    reference: int | None = None,
+    reference: int | None = None, *, fail_fast: bool = False,
 ) -> FrameOffsets:
     """Each camera's whole-frame offset (see module docstring).
 
@@ -117,6 +117,12 @@ def frame_offsets(
             default zeros.
         reference: the camera of offset 0; default the rig's first camera, or the best-linked
             one when the first has less than half its links.
+        fail_fast: for a caller that needs only whether the search succeeds, not which camera
+            stops it: the cameras most likely to fail (fewest frames shared with their partner at
+            the start's offsets) are timed first, each after the cameras it is timed against. The
+            offsets found are the same (each camera's search sees only its partners' offsets); a
+            search that fails may raise for another camera, or another kind of failure, than
+            the default order would.
 
     Raises:
         CalibrationError: a camera's wand agrees with no timed camera's at any shift searched
@@ -132,29 +138,118 @@ def frame_offsets(
     if reference is None:  # the rig's first camera, as users number them, unless it is poorly linked
         total = links.sum(1)
         reference = 0 if total[0] >= REFERENCE_LINKS * total.max() else int(np.argmax(total))
+    steps, unlinked = _plan(links, reference)
+    if unlinked is not None and fail_fast:  # the search cannot time this camera whatever the others give
+        raise _unlinked_error(rig, unlinked, steps, reference, max_offset)
     offsets = np.zeros(n, np.int64)
     against = np.full(n, -1, np.int64)
     share = np.ones(n)
+    search = _Search(rig, pairs, table, start, reference, max_offset)
+    if fail_fast:
+        _refuse_untimeable(search, steps, table)
+    for b, partners in (_risk_first(steps, table, start) if fail_fast else steps):
+        offsets[b], share[b] = search.time(b, partners, offsets)
+        against[b] = partners[0]
+    if unlinked is not None:
+        raise _unlinked_error(rig, unlinked, steps, reference, max_offset)
+    return FrameOffsets(offsets=offsets, reference=reference, timed_against=against, share=share, notes=[])
+
+
+def _plan(links: np.ndarray, reference: int) -> tuple[list[tuple[int, list[int]]], int | None]:
+    """The order the cameras are timed in and the timed cameras each is timed against (at most
+    ``PARTNERS``, best linked first): from ``reference``, always the untimed camera best linked to
+    a timed one (``links`` (N, N), :func:`_links`). It depends on the links alone, not on the
+    offsets found. Also the first camera linked to none timed before it (None: every camera is
+    reached); the cameras after it are not planned."""
+    n = len(links)
     timed = np.zeros(n, bool)
     timed[reference] = True
-    notes: list[str] = []
+    steps: list[tuple[int, list[int]]] = []
     while not timed.all():
         strength = np.where(timed[:, None] & ~timed[None, :], links, -1)
         ia, ib = np.unravel_index(np.argmax(strength), strength.shape)
-        a, b = int(ia), int(ib)
-        if strength[a, b] <= 0:
-            b = int(np.flatnonzero(~timed)[0])
-            raise CalibrationError(
-                f"camera {rig.cameras[b].id!r} shares no wand frames with the cameras timed so far "
-                f"({', '.join(rig.cameras[c].id for c in np.flatnonzero(timed))}) at any offset within +-{max_offset} "
-                f"frames; wave the wand where {rig.cameras[b].id} and the others see it at the same time"
-            )
-        guess = int(start[b] - start[reference])
-        shifts = np.arange(guess - max_offset, guess + max_offset + 1)
+        b = int(ib)
+        if strength[int(ia), b] <= 0:
+            return steps, int(np.flatnonzero(~timed)[0])
         # against the best-linked timed cameras together: one pair's geometry may barely tell the
         # shifts apart (the wand moving along their epipolar lines), several rarely do
         partners = [int(c) for c in np.argsort(-strength[:, b], kind="stable")[:PARTNERS] if strength[c, b] > 0]
-        best, score = _best_shift(pairs, table, [(a, int(offsets[a])) for a in partners], b, shifts, rig)
+        steps.append((b, partners))
+        timed[b] = True
+    return steps, None
+
+
+def _risk_first(steps: list[tuple[int, list[int]]], table: np.ndarray, start: np.ndarray) -> list[tuple[int, list[int]]]:
+    """``steps`` reordered for a search that should fail early: the camera sharing the fewest frames
+    with its first partner at the start's offsets first, each after the cameras it is timed against
+    (and theirs); ties in the planned order. Only the order changes, so each camera's search sees
+    the same partners' offsets as in the planned order."""
+    index = {b: i for i, (b, _) in enumerate(steps)}
+    shared = [int(_shared_counts(table, p[0], b, np.array([int(start[b] - start[p[0]])]))[0]) for b, p in steps]
+    done: set[int] = set()
+    out: list[tuple[int, list[int]]] = []
+    for i in np.argsort(shared, kind="stable"):
+        needed, stack = set(), [int(i)]
+        while stack:  # the step and every step it depends on, not yet taken
+            j = stack.pop()
+            if j in done or j in needed:
+                continue
+            needed.add(j)
+            stack += [index[p] for p in steps[j][1] if p in index]
+        out += [steps[j] for j in sorted(needed)]  # the planned order: partners before the cameras timed against them
+        done |= needed
+    return out
+
+
+def _refuse_untimeable(search: _Search, steps: list[tuple[int, list[int]]], table: np.ndarray) -> None:
+    """Raise TooFewShared for the first camera of ``steps`` that shares fewer than
+    ``MIN_TIMING_FRAMES`` frames with its first partner at the start's offsets and that
+    :meth:`_Search.cannot_time` proves the search cannot time (a proof, so the search would fail
+    too; which cameras are tried only bounds its cost: one RANSAC a lag, 4 x max_offset - 1 lags)."""
+    for b, partners in steps:
+        a = partners[0]
+        lag = int(search.start[b] - search.start[a])
+        if _shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES and search.cannot_time(b, a):
+            rig = search.rig
+            raise TooFewShared(
+                f"camera {rig.cameras[b].id!r} cannot be timed against {rig.cameras[a].id}: at no offset of "
+                f"{rig.cameras[a].id}'s within +-{search.max_offset} frames does its wand agree with "
+                f"{rig.cameras[a].id}'s at a shift within +-{search.max_offset} frames; check that it recorded the same "
+                "session and the same wand, or search wider (sync_max_offset)")
+
+
+def _unlinked_error(rig: Rig, b: int, steps: list[tuple[int, list[int]]], reference: int, max_offset: int,
+                    ) -> CalibrationError:
+    """The error for camera b, which shares no wand frame with the cameras timed before it (the
+    reference and the cameras of ``steps``)."""
+    timed = sorted([reference, *(c for c, _ in steps)])
+    return CalibrationError(
+        f"camera {rig.cameras[b].id!r} shares no wand frames with the cameras timed so far "
+        f"({', '.join(rig.cameras[c].id for c in timed)}) at any offset within +-{max_offset} "
+        f"frames; wave the wand where {rig.cameras[b].id} and the others see it at the same time"
+    )
+
+
+@dataclass(frozen=True)
+class _Search:
+    """What every camera's search shares: the rig, the pairs and their (span, N) ``table``, the
+    start (N,) int, the reference camera and the frames searched either side."""
+
+    rig: Rig
+    pairs: WandPairs
+    table: np.ndarray
+    start: np.ndarray
+    reference: int
+    max_offset: int
+
+    def time(self, b: int, partners: list[int], offsets: np.ndarray) -> tuple[int, float]:
+        """Camera b's offset and share against ``partners`` (timed, best linked first; their
+        ``offsets`` (N,) found), or raise CalibrationError (:class:`TooFewShared` where the
+        frames are too few to tell)."""
+        rig, table, max_offset = self.rig, self.table, self.max_offset
+        guess = int(self.start[b] - self.start[self.reference])
+        shifts = np.arange(guess - max_offset, guess + max_offset + 1)
+        best, score = _best_shift(self.pairs, table, [(c, int(offsets[c])) for c in partners], b, shifts, rig)
         a = partners[0]
         if best is None or score < MIN_FIT_SHARE:
             what = (f"at best {score:.0%} of the frames they share fit one relative pose" if best is not None
@@ -170,10 +265,34 @@ def frame_offsets(
                 f"camera {rig.cameras[b].id!r}: its best time offset, {best} frames, is at the edge of the search "
                 f"(+-{max_offset} frames around {guess}); the offset may lie beyond it: search wider (sync_max_offset)"
             )
-        offsets[b], against[b], share[b] = best, a, score
-        timed[b] = True
-    return FrameOffsets(offsets=offsets, reference=reference, timed_against=against, share=share,
-                        notes=notes)
+        return best, score
+
+    def cannot_time(self, b: int, a: int) -> bool:
+        """Whether camera b's search against ``a`` as its first partner fails whatever offset a's
+        own search finds: a is the reference (offset 0), or its offset lies strictly inside its
+        window (at the edge its search raises), and at each such offset b's frames are too few to
+        judge, or few enough that one RANSAC a shift judges them (:func:`_sparse_best_shift`) and
+        no shift is accepted. False as soon as one offset of a might let b pass, or would judge b
+        by the midpoint scores (which the other partners' offsets enter)."""
+        w = self.max_offset
+        guess = int(self.start[b] - self.start[self.reference])
+        shifts = np.arange(guess - w, guess + w + 1)
+        near = int(self.start[a] - self.start[self.reference])
+        shares: dict[int, float] = {}  # by lag: a's offsets share most of their lags
+        for offset_a in [0] if a == self.reference else range(near - w + 1, near + w):
+            lags = offset_a - shifts
+            counts = np.minimum(_shared_counts(self.table, a, b, lags), TIMING_FRAMES)  # as _best_shift's
+            if counts.max() < MIN_TIMING_FRAMES:
+                continue
+            if counts.max() >= FEW_FRAMES:
+                return False
+            for lag in lags:
+                if int(lag) not in shares:
+                    shares[int(lag)] = _lag_share(self.pairs, self.table, a, b, int(lag), self.rig)
+            best, score = _sparse_pick(shifts, np.array([shares[int(lag)] for lag in lags]))
+            if score >= MIN_FIT_SHARE and abs(best - guess) < w:
+                return False
+        return True
 
 
 def _table(pairs: WandPairs, n: int) -> np.ndarray:
@@ -312,8 +431,19 @@ def _sparse_best_shift(pairs: WandPairs, table: np.ndarray, partner: tuple[int, 
     frames are too few, or too far apart in time, for the midpoint scores: each shift's own RANSAC
     pose, the best share kept when it beats every shift two or more away by ``SPARSE_MARGIN``."""
     a, offset_a = partner
-    found = [_pose_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]
-    shares = np.array([_share(pairs, table, a, b, offset_a - s, rig, *f)[0] if f else 0.0 for s, f in zip(shifts, found)])
+    return _sparse_pick(shifts, np.array([_lag_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]))
+
+
+def _lag_share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig) -> float:
+    """The share of a's frames k and b's k + lag whose ends fit the pose RANSAC fits to them (0 with
+    too few frames or no pose)."""
+    found = _pose_share(pairs, table, a, b, lag, rig)
+    return _share(pairs, table, a, b, lag, rig, *found)[0] if found else 0.0
+
+
+def _sparse_pick(shifts: np.ndarray, shares: np.ndarray) -> tuple[int, float]:
+    """(shift, share) of the best of ``shifts`` (S,) by their ``shares`` (S,), the share 0 unless it
+    beats every shift two or more away by ``SPARSE_MARGIN``."""
     best = int(np.argmax(shares))
     rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
     return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0

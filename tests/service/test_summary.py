@@ -132,3 +132,19 @@ def test_a_moved_camera_is_named_under_the_verdict_with_its_frame_and_turn():
                                      "pose is neither: re-solve it from the frames after (--from RESULT --solve-only cam3) "
                                      "or calibrate again")
 
+
+
+def test_several_cameras_lens_limits_fold_into_one_line_with_each_parameters_range():
+    """Sixteen cameras' lens limits are one line, not sixteen: each parameter with its range and, where
+    not every camera has it, the cameras that do."""
+    from wandcal.service.cli.support.summary import _limit_lines
+
+    def lens(cam: str, name: str, mm: float) -> dict:
+        todo = "run with --refine-intrinsics k1, or ..." if name == "k1" else "give it from a lens calibration"
+        return {"camera": cam, "parameter": name, "message": f"{cam} ... {todo}",
+                "evidence": {"parameter_sigma_mm": mm, "sigma": 0.02, "unit": ""}}
+
+    lines = _limit_lines([lens("cam1", "k1", 1.6), lens("cam2", "k1", 1.9), lens("cam2", "k2", 1.0)], 4)
+    assert lines == ["  limit: cam1 and cam2 also hinge on their lenses' k1 (1.6-1.9 mm for 0.02), k2 (1 mm for 0.02, cam2), "
+                     "the uncertainties assumed: refine k1 (--refine-intrinsics k1) and give the others from a lens "
+                     "calibration (the result's verdict.limits has each camera's figures)"]

@@ -171,7 +171,8 @@ def _whole_frames(rig: Rig, pairs: WandPairs, window: int) -> FrameOffsets | Non
     if not np.isfinite(pairs.xy).all():  # grouped without undistorting (guidance's pairs): undistort here
         pairs = replace(pairs, xy=undistort_by_camera(rig.cameras, pairs.camera, pairs.uv))
     try:
-        return frame_offsets(rig, pairs, window)
+        # only whether it succeeds matters here, not which camera stops it: the likeliest to fail first
+        return frame_offsets(rig, pairs, window, fail_fast=True)
     except CalibrationError:
         return None
 

@@ -141,7 +141,9 @@ def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
     wandcal.calib.judge.intrinsic_limits): the focal lengths' (one's message in full, several on one
     line), then each camera's other intrinsics on one line a camera."""
     focal = [limit for limit in limits if limit.get("parameter", "focal length") == "focal length"]
-    return _focal_limit_lines(focal, n_cameras) + _lens_limit_lines([limit for limit in limits if limit not in focal])
+    lens = [limit for limit in limits if limit not in focal]
+    folded = _folded_lens_line(lens, n_cameras)
+    return _focal_limit_lines(focal, n_cameras) + (folded if folded else _lens_limit_lines(lens))
 
 
 def _focal_limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
@@ -158,6 +160,30 @@ def _focal_limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
             f"known to {limits[0]['evidence'].get('focal_std_percent', 2):g}%: "
             + ("refine them (--refine-intrinsics focal) or give them from a lens calibration" if refine
                else "give them from a lens calibration (the result's verdict.limits has each camera's figures)")]
+
+
+def _folded_lens_line(limits: list[dict], n_cameras: int) -> list[str]:
+    """Several cameras' other intrinsics on one line, each parameter with its range over the cameras
+    ("cx (0.61-1.98 mm for 10.5 px)"); empty for one camera or a limit without its figures."""
+    cams = list(dict.fromkeys(limit["camera"] for limit in limits))
+    if len(cams) < 2 or any(limit["evidence"].get("parameter_sigma_mm") is None for limit in limits):
+        return []
+    order = ("cx", "cy", "k1", "k2", "p1", "p2")
+    names = sorted(dict.fromkeys(limit["parameter"] for limit in limits),
+                   key=lambda name: order.index(name) if name in order else len(order))
+    parts = []
+    for name in names:
+        mine = [limit["evidence"] for limit in limits if limit["parameter"] == name]
+        mm = [ev["parameter_sigma_mm"] for ev in mine]
+        sigma = [ev.get("sigma") for ev in mine]
+        unit = mine[0].get("unit", "")
+        of = (f" for {min(sigma):.3g}{'-' + format(max(sigma), '.3g') if max(sigma) > min(sigma) else ''}"
+              f"{' ' + unit if unit else ''}") if None not in sigma else ""
+        parts.append(f"{name} ({min(mm):.2g}{'-' + format(max(mm), '.2g') if len(mm) > 1 else ''} mm{of}"
+                     f"{'' if len(mine) == len(cams) else ', ' + camera_list([lim['camera'] for lim in limits if lim['parameter'] == name], n_cameras)})")
+    todo = _lens_todo(limits).replace("refine it ", "refine them ").replace("give it ", "give them ")
+    return [f"  limit: {camera_list(cams, n_cameras)} also hinge on their lenses' {', '.join(parts)}, "
+            f"{todo} (the result's verdict.limits has each camera's figures)"]
 
 
 def _lens_limit_lines(limits: list[dict]) -> list[str]:
