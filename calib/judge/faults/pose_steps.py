@@ -4,14 +4,15 @@
 The camera's views with a time (the wand's ends; point tracks in the wand's time,
 or all of them where there is no wand: :func:`wandcal.calib.judge.faults.own_errors.in_wand_time`)
 are split at frame k, and its turn after k (three columns: a rotation about its centre) is
-fitted beside its pose (six columns) and its lens (four), all with the points projected out; views
-without a time (background points from another recording) have a turn of their own. An F test of one pose
-against two at the best k (:func:`pose_step`), outliers trimmed under the two-pose model, the F
+fitted beside its pose (six columns) and every camera's lens (four each, on that camera's views:
+:func:`_every_lens`; another camera's lens error is a pattern in space, not a knock), all with the
+points projected out; views without a time (background points from another recording) have a
+turn of their own. An F test of one pose against two at the best k (:func:`pose_step`), outliers trimmed under the two-pose model, the F
 measured against the timed views' own scatter (:func:`_timed_dispersion`) and divided by the
 residuals' long-run variance in time (batch means), its p-value multiplied by the number of splits
 tried (Bonferroni, the search's multiple testing). A camera is named only when leaving it out
 leaves no other camera stepping (:func:`moved_camera`): else its step is another camera's spread
-through the points. docs/verdict.md gives the limits, docs/decisions/0035 and 0062 how they
+through the points. docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0074l how they
 were measured.
 """
 
@@ -124,13 +125,32 @@ def _betacf(a: float, b: float, x: float) -> float:
     return h
 
 
-def _lens_columns(el: Eliminated, c: int, rows: np.ndarray, own: np.ndarray, proj) -> np.ndarray:
-    """(K, 2, 4) camera c's lens columns (focal length, k1, principal point) with the points projected out."""
-    xy = el.Xc[own][:, :2] / el.Xc[own][:, 2:]
+def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
+    """(K, 2, 4 N) every camera's lens columns (focal length, k1, principal point) over ``rows``
+    (every view of the points one camera sees: :func:`_rows_of`), whitened, each camera's four
+    nonzero on its own views only, the points projected out (``G_i - J_i Ainv J_p^T G_p``, the sums
+    over each point's views); the columns of cameras without a view among ``rows`` dropped.
+
+    Why: a lens error of any camera bends the points as a function of where they are; where the
+    marker drifts through the volume in time (MultiCamSelfCal's one LED), that bend reaches the
+    other cameras' residuals as a change in time, and the step read it as a knock (decision 0074l).
+    With these columns in the step's base the F test's null is "no step, whatever lens error any
+    camera has" (an exact linear F test with nuisance columns): a knock is a step in time at any
+    place, which no camera's lens pattern explains. The camera's own four columns are those the
+    test fitted before; k2 is left out as it was (k1 takes most of a k2 error over the image)."""
+    v = el.views
+    cam, pt = v.camera[rows], v.point[rows]
+    xy = el.Xc[rows][:, :2] / el.Xc[rows][:, 2:]
     r2 = np.sum(xy**2, axis=1, keepdims=True)
     G = np.stack([xy, xy * r2, np.broadcast_to([1.0, 0.0], xy.shape), np.broadcast_to([0.0, 1.0], xy.shape)],
-                 axis=2) / el.sigma[c]
-    return proj(G)
+                 axis=2) / el.sigma[cam][:, None, None]
+    present = np.unique(cam)
+    full = np.zeros((len(rows), 2, 4 * len(present)))
+    for j, d in enumerate(present):
+        full[cam == d, :, 4 * j : 4 * j + 4] = G[cam == d]
+    u = np.zeros((v.n_points, 3, full.shape[2]))
+    np.add.at(u, pt, np.einsum("kmi,kmj->kij", el.J[rows], full))
+    return full - np.einsum("kmi,kij,kjl->kml", el.J[rows], el.Ainv[pt], u[pt])
 
 
 def pose_step(el: Eliminated, c: int) -> Step | None:
@@ -138,7 +158,7 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
     v = el.views
     rows, own, proj = _rows_of(el, c)
     turn, shift = _pose_columns(el, c, rows, own, proj)
-    lens = _lens_columns(el, c, rows, own, proj)
+    lens = _every_lens(el, rows)
     y = el.r[rows]
     mine = v.camera[rows] == c
     time, timed = v.time[rows], v.timed[rows]
@@ -146,7 +166,7 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
     if len(times) < 2 * MIN_SIDE:
         return None
     n_rows = 2 * len(rows)
-    base = [turn.reshape(n_rows, 3), shift.reshape(n_rows, 3), lens.reshape(n_rows, 4)]
+    base = [turn.reshape(n_rows, 3), shift.reshape(n_rows, 3), lens.reshape(n_rows, lens.shape[2])]
     if (~timed[mine]).sum() >= MIN_SIDE:  # a pose of their own for the views without a time (see above)
         base.append(turn.reshape(n_rows, 3) * np.repeat(~timed, 2)[:, None])
     base_cols = np.concatenate(base, axis=1)
