@@ -12,7 +12,7 @@ measured against the timed views' own scatter (:func:`_timed_dispersion`) and di
 residuals' long-run variance in time (batch means), its p-value multiplied by the number of splits
 tried (Bonferroni, the search's multiple testing). A camera is named only when leaving it out
 leaves no other camera stepping (:func:`moved_camera`): else its step is another camera's spread
-through the points. docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0074l how they
+through the points. docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0076 how they
 were measured.
 """
 
@@ -133,7 +133,7 @@ def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
 
     Why: a lens error of any camera bends the points as a function of where they are; where the
     marker drifts through the volume in time (MultiCamSelfCal's one LED), that bend reaches the
-    other cameras' residuals as a change in time, and the step read it as a knock (decision 0074l).
+    other cameras' residuals as a change in time, and the step read it as a knock (decision 0076).
     With these columns in the step's base the F test's null is "no step, whatever lens error any
     camera has" (an exact linear F test with nuisance columns): a knock is a step in time at any
     place, which no camera's lens pattern explains. The camera's own four columns are those the
