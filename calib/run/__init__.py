@@ -3,6 +3,7 @@
 | module or package | holds |
 |---|---|
 | :mod:`~wandcal.calib.run.calibrate` | ``calibrate``: observations, sync, start, refine, world frame, figures, judgement |
+| :mod:`~wandcal.calib.run.start_steps` | ``calibrate``'s steps up to the refinement's start: observations, whole-frame sync, the start with the static object's poses, sub-frame sync |
 | :mod:`~wandcal.calib.run.marker_steps` | a wand of three markers or more: its blobs ordered, every marker labelled, the refinement with the wand model |
 | :mod:`~wandcal.calib.run.sparse_offsets` | ``--sync auto`` on sparse rigs: each camera's whole-frame offset against the wand the others triangulate |
 | :mod:`~wandcal.calib.run.refine` | the chosen method's refinement and outlier rejection over a built problem (``problem``, ``methods``, ``outliers``) |

@@ -6,6 +6,7 @@ chosen method on it, the outlier cleanup, and back to poses (and refined intrins
 | :mod:`~wandcal.calib.run.refine.problem` | the problem: wand pairs triangulated into the wand model, restricted, point tracks as frames, world up |
 | :mod:`~wandcal.calib.run.refine.methods` | the chosen method (``ba``, ``lp``, ``paper``) on it, the pose covariance, refined intrinsics |
 | :mod:`~wandcal.calib.run.refine.outliers` | the outlier passes: gross outliers dropped or relabelled, the method run again |
+| :mod:`~wandcal.calib.run.refine.without` | the judgement's re-solve of the rig without its suspect cameras: one Levenberg-Marquardt step from the full solution |
 
 Every name below was imported from ``wandcal.calib.run.refine`` when it was one module, and still is.
 """
