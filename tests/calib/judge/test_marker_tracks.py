@@ -60,12 +60,19 @@ def _faults(sim, ends_only: bool) -> set:
     return {(f["kind"], f["camera"]) for f in doc["verdict"]["faults"]}
 
 
-@pytest.mark.parametrize("seed, camera", [(300, 1), (302, 0)])
+@pytest.mark.parametrize("seed, camera", [
+    (300, 1),
+    # decision 0076 (every camera's lens beside the step) costs this 4 x 40 capture its knock: on
+    # bench_marker_judgement's 160 sparse cases, every marker 84 -> 83 right, one wrong-camera `moved` fewer
+    pytest.param(302, 0, marks=pytest.mark.xfail(strict=True, reason="the knock missed since decision 0076 (issue 31)")),
+])
 def test_a_knock_on_a_sparse_three_marker_capture_is_found_by_its_interior_markers(seed, camera):
     # 4 cameras, 40 frames, each marker hidden from a camera one time in five: each camera sees the
     # whole wand with two others in ~10 frames, as the real hand-digitised sessions do (2-8)
     sim = simulate_capture(4, 40, 0.3, 0.0, True, seed, wand_markers=THREE_M, occlusion=0.2)
     sim = knocked_camera(sim, camera, 0.5, seed)
     cam = sim.rig.cameras[camera].id
-    assert ("moved", cam) not in _faults(sim, ends_only=True)  # the ends alone are too few to tell
+    # the ends alone were too few to tell it a knock before decision 0076; they may tell more now (a fault
+    # of some kind on the knocked camera), but never name another camera
+    assert {camera for _, camera in _faults(sim, ends_only=True)} <= {cam}
     assert _faults(sim, ends_only=False) == {("moved", cam)}
