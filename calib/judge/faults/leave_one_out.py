@@ -31,8 +31,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.judge.faults.f_distribution import f_survival
 from wandcal.calib.judge.faults.own_errors import in_wand_time
-from wandcal.calib.judge.faults.pose_steps import _fdtrc
 from wandcal.calib.judge.faults.screen import POSE_STEP, Lens, _lens_fit, _pose_columns, _share, lens_columns, resect
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.start.labels import flatten
@@ -236,7 +236,7 @@ def blocks_p_value(y: np.ndarray, base: np.ndarray, extra: np.ndarray, block: np
     d = left - left.mean(axis=0)
     V = (n_blocks - 1) / n_blocks * d.T @ d
     t2 = float(coef @ np.linalg.lstsq(V, coef, rcond=None)[0])
-    return _fdtrc(q, n_blocks - q, t2 * (n_blocks - q) / (q * (n_blocks - 1)))
+    return f_survival(q, n_blocks - q, t2 * (n_blocks - q) / (q * (n_blocks - 1)))
 
 
 def _lens_found(p: CameraPatterns) -> float:

@@ -1,0 +1,37 @@
+"""The F distribution's upper tail, for the judgement's F and Hotelling tests (the pose step's,
+its screen's, the lens pattern's against its own scatter), without loading SciPy into calibrate."""
+
+from __future__ import annotations
+
+import math
+
+
+def f_survival(q: int, dof: float, f: float) -> float:
+    """P(F(q, dof) > f): the regularised incomplete beta I_x(dof/2, q/2), x = dof / (dof + q f), by
+    its continued fraction (Numerical Recipes' betacf); scipy is not loaded by calibrate."""
+    if f <= 0:
+        return 1.0
+    a, b, x = dof / 2, q / 2, dof / (dof + q * f)
+    if x <= 0:
+        return 0.0
+    front = math.exp(math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x))
+    if x > (a + 1) / (a + b + 2):  # the fraction converges fast on this side only: I_x(a, b) = 1 - I_{1-x}(b, a)
+        return 1.0 - front * _betacf(b, a, 1 - x) / b
+    return front * _betacf(a, b, x) / a
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    tiny = 1e-300
+    c, d = 1.0, 1 - (a + b) * x / (a + 1)
+    d = 1 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 300):
+        for num in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)), -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):
+            d = 1 + num * d
+            d = 1 / (d if abs(d) > tiny else tiny)
+            c = 1 + num / c
+            c = c if abs(c) > tiny else tiny
+            h *= d * c
+        if abs(d * c - 1) < 1e-14:
+            break
+    return h
