@@ -71,23 +71,18 @@ def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list
     return sorted(out, key=lambda c: -max(ratio[c] / SUSPECT_NOISE_RATIO, share[c] / SUSPECT_OUTLIER_SHARE, patterned[c]))
 
 
-def _others_solved(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, out: list[int]):
-    """Every other camera's pose refined without the observations of the cameras ``out`` (theirs
-    as given): :func:`wandcal.calib.run.refine.without.without_cameras` (its steps bounded, issue 33)."""
-    from wandcal.calib.run.refine.without import without_cameras
-
-    return without_cameras(rig, labelled, R, t, out)
-
-
 def isolate(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, c: int,
             at_fault: list[int] | None = None) -> tuple[TimingFault | None, Lens | None]:
     """Camera c's timing and lens patterns against the rig solved without it, and without the
-    cameras already found ``at_fault`` (whose error would otherwise show in c's residuals)."""
+    cameras already found ``at_fault`` (whose error would otherwise show in c's residuals): the others
+    refined without them, :func:`wandcal.calib.run.refine.without.without_cameras` (its steps bounded)."""
+    from wandcal.calib.run.refine.without import without_cameras
+
     out = [c, *(at_fault or [])]
     if len(rig.cameras) - len(out) < 2 or rig.wand_length is None:
         return None, None
     try:
-        R2, t2 = _others_solved(rig, labelled, R, t, out)
+        R2, t2 = without_cameras(rig, labelled, R, t, out)
     except (CalibrationError, np.linalg.LinAlgError):  # the others alone may not solve: judge them as they are
         R2, t2 = R, t
     point, xy, X = held_out(R2, t2, labelled.subset(~np.isin(labelled.camera, at_fault or [])), c)
