@@ -11,8 +11,8 @@ scored 21 on its own camera).
 The hypotheses "camera h moved" are compared by what each leaves unexplained: if h moved, the markers
 triangulated without h are where they were, and no other camera's test, measured against them, shows
 a change; if another moved, it still pulls them and still shows its own move. For each candidate h
-(the alarming camera, and every other whose largest statistic passes
-:data:`~wandcal.calib.watch.sequential.PEAK_FLOOR` at the alarm's window) the other cameras' tests
+(every camera not named already: the moved one's own statistic may be far below the floor a
+statistic is looked at from, 14.5 on a simulated one-marker take) the other cameras' tests
 are measured again over the frames the test looks back on (:data:`RECENT_BATCHES` batches) with h
 left out of their markers, and the sum of their largest statistics is h's score: the camera whose
 leaving-out leaves the least is named. Each hypothesis frees the same six parameters (h's pose), so
@@ -29,7 +29,7 @@ import numpy as np
 from wandcal.calib.rig import Rig
 from wandcal.calib.watch.health import WINDOW_FRAMES, camera_windows
 from wandcal.calib.watch.match import Tracks
-from wandcal.calib.watch.sequential import GLR_WINDOWS, PEAK_FLOOR, CameraTest
+from wandcal.calib.watch.sequential import BASELINE_WINDOWS, GLR_WINDOWS, CameraTest
 from wandcal.calib.watch.take import PaddedFrames
 
 Batch = tuple[PaddedFrames, Tracks]
@@ -43,8 +43,7 @@ def which_moved(rig: Rig, R: np.ndarray, t: np.ndarray, recent: list[Batch], tes
     last; tests: every camera's, holding the windows up to the alarm's (each non-alarmed one's
     :meth:`~CameraTest.glr` taken there); excluded: cameras left out of the markers already; first:
     the take's first frame (windows count from it)."""
-    candidates = [alarmed] + [c for c, test in enumerate(tests)
-                              if c != alarmed and c not in excluded and test.alarm is None and test.raw > PEAK_FLOOR]
+    candidates = [alarmed] + [c for c, test in enumerate(tests) if c != alarmed and c not in excluded and test.alarm is None]
     if len(candidates) < 2 or not recent:
         return alarmed
     scores = [_unexplained(rig, R, t, recent, tests, excluded | {h}, first, detected) for h in candidates]
@@ -54,29 +53,44 @@ def which_moved(rig: Rig, R: np.ndarray, t: np.ndarray, recent: list[Batch], tes
 def _unexplained(rig: Rig, R, t, recent: list[Batch], tests: list[CameraTest], left_out: set[int], first: int,
                  detected: int) -> float:
     """The sum of the largest statistics of the tests of the cameras not ``left_out``, their windows
-    from the first of ``recent`` to the one ending ``detected`` measured again with ``left_out`` out
-    of their markers (the tests themselves are not changed)."""
-    span = int(recent[0][0].frames[0])
+    after the baseline from the first of ``recent`` to the one ending ``detected`` measured again with
+    ``left_out`` out of their markers (the tests themselves are not changed)."""
     copies = {c: _clone(test) for c, test in enumerate(tests) if c not in left_out}
+    remeasure(rig, R, t, recent, copies, left_out, first=first, until=detected)
+    total = 0.0
     for test in copies.values():
-        test.rewind(int(np.searchsorted(np.array(test.start), span)))
-    for padded, tracks in recent:
+        test.glr()
+        total += test.raw
+    return total
+
+
+def remeasure(rig: Rig, R, t, batches: list[Batch], tests: dict[int, CameraTest], left_out: set[int], *, first: int,
+              until: int | None = None) -> None:
+    """Measure the windows of ``batches`` (the tests' last ones, in order) again with ``left_out`` out of
+    the markers, in the ``tests`` given (camera: its test), up to the window starting at ``until`` (a
+    frame; all by default). The baseline's windows are kept: nothing had moved in them."""
+    if not batches or not tests:
+        return
+    span = int(batches[0][0].frames[0])
+    cut = {}
+    for c, test in tests.items():
+        k = max(int(np.searchsorted(np.array(test.start), span)), BASELINE_WINDOWS)
+        cut[c] = test.start[k] if k < len(test.start) else None
+        test.rewind(k)
+    for padded, tracks in batches:
         views = tracks.views.copy()
         views[:, sorted(left_out)] = -1
         w = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X))
         w_of = (w.frames - first) // WINDOW_FRAMES
         for win in np.unique(w_of):
             start = first + int(win) * WINDOW_FRAMES
-            if start > detected:
-                break
+            if until is not None and start > until:
+                return
             sel = w_of == win
-            for c, test in copies.items():
-                test.add(w.g[sel, c].sum(0), w.H[sel, c].sum(0), float(w.sse[sel, c].sum()), float(w.n[sel, c].sum()), start)
-    total = 0.0
-    for test in copies.values():
-        test.glr()
-        total += test.raw
-    return total
+            for c, test in tests.items():
+                if cut[c] is not None and start >= cut[c]:
+                    test.add(w.g[sel, c].sum(0), w.H[sel, c].sum(0), float(w.sse[sel, c].sum()),
+                             float(w.n[sel, c].sum()), start)
 
 
 def _clone(test: CameraTest) -> CameraTest:

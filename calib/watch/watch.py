@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from wandcal.calib.rig import Rig
-from wandcal.calib.watch.attribute import RECENT_BATCHES_OF, Batch, which_moved
+from wandcal.calib.watch.attribute import RECENT_BATCHES_OF, Batch, remeasure, which_moved
 from wandcal.calib.watch.health import (
     PARAMS,
     WINDOW_FRAMES,
@@ -368,6 +368,10 @@ def _attribute(rig: Rig, R, t, recent: list[Batch], poses: list[CameraTest], exc
         _, k, d = poses[moved].glr()
         poses[moved].alarm = Alarm(moved, poses[moved].start[k], alarm.detected_frame, alarm.statistic, d)
         poses[named].alarm = None
+    # the others' windows of the batches before this one, measured again without it (it pulled their markers;
+    # this batch's are measured again by the caller)
+    others = {c: test for c, test in enumerate(poses) if c not in excluded and c != moved}
+    remeasure(rig, R, t, recent[:-1], others, excluded | {moved}, first=first)
     return moved
 
 
