@@ -33,6 +33,7 @@ from wandcal.calib.watch.sequential import BASELINE_WINDOWS, GLR_WINDOWS, Camera
 from wandcal.calib.watch.take import PaddedFrames
 
 Batch = tuple[PaddedFrames, Tracks]
+MIN_LEFT = 3  # cameras left when a candidate is left out: each then tests against markers two others place
 
 
 def which_moved(rig: Rig, R: np.ndarray, t: np.ndarray, recent: list[Batch], tests: list[CameraTest],
@@ -44,7 +45,7 @@ def which_moved(rig: Rig, R: np.ndarray, t: np.ndarray, recent: list[Batch], tes
     :meth:`~CameraTest.glr` taken there); excluded: cameras left out of the markers already; first:
     the take's first frame (windows count from it)."""
     candidates = [alarmed] + [c for c, test in enumerate(tests) if c != alarmed and c not in excluded and test.alarm is None]
-    if len(candidates) < 2 or not recent:
+    if len(candidates) < 2 or not recent or len(tests) - len(excluded) - 1 < MIN_LEFT:
         return alarmed
     scores = [_unexplained(rig, R, t, recent, tests, excluded | {h}, first, detected) for h in candidates]
     return candidates[int(np.argmin(scores))]
