@@ -80,10 +80,10 @@ def remeasure(rig: Rig, R, t, batches: list[Batch], tests: dict[int, CameraTest]
     if not batches or not tests:
         return
     span = int(batches[0][0].frames[0])
-    cut = {}
+    cut: dict[int, float] = {}  # each test's first window measured again (inf: none)
     for c, test in tests.items():
         k = max(int(np.searchsorted(np.array(test.start), span)), BASELINE_WINDOWS)
-        cut[c] = test.start[k] if k < len(test.start) else None
+        cut[c] = test.start[k] if k < len(test.start) else np.inf
         test.rewind(k)
     for padded, tracks in batches:
         views = tracks.views.copy()
@@ -96,7 +96,7 @@ def remeasure(rig: Rig, R, t, batches: list[Batch], tests: dict[int, CameraTest]
                 return
             sel = w_of == win
             for c, test in tests.items():
-                if cut[c] is not None and start >= cut[c]:
+                if start >= cut[c]:
                     test.add(w.g[sel, c].sum(0), w.H[sel, c].sum(0), float(w.sse[sel, c].sum()),
                              float(w.n[sel, c].sum()), start)
 
