@@ -102,7 +102,7 @@ def spread_z(std: float, limit: float, n: int) -> float:
     ``(s - limit) / (s / sqrt(2k))`` it holds for a few frames, where the SD's distribution is
     skewed. +-inf for fewer than two samples (no sampling error known)."""
     if n < 2 or not limit > 0:
-        return float(np.sign(std - limit) * np.inf) if std != limit else 0.0
+        return np.inf if std > limit else -np.inf  # past it or not, and never at the limit
     k = n - 1
     v = 2.0 / (9.0 * k)
     return float(((n * std**2 / (k * limit**2)) ** (1.0 / 3.0) - (1.0 - v)) / np.sqrt(v))

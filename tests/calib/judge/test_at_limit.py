@@ -196,3 +196,5 @@ def test_the_wand_spreads_one_sided_level_holds_for_few_frames():
     past = np.mean([spread_z(s, 1.0, n) > SPREAD_Z for s in sds])
     level = 0.02275  # P(N(0, 1) > 2)
     assert past == pytest.approx(level, abs=4 * np.sqrt(level * (1 - level) / draws))
+    # without frames to sample from there is no sampling error: past the limit or not, never at it
+    assert spread_z(1.1, 1.0, 1) == np.inf and spread_z(1.0, 1.0, 0) == -np.inf
