@@ -191,34 +191,6 @@ class CameraTest:
         cov = _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[first:]))) + self._baseline_cov() + self.wander(base)
         return float(change @ _pinv(cov) @ change)
 
-    def fit_since(self, k: int) -> tuple[float, np.ndarray]:
-        """(twice the log-likelihood ratio of "this camera's pose stepped at window k" against "it did not"
-        (noise only): the step ``d = p_after - p_before``, the pose fitted to windows k.. less the one
-        fitted to the :data:`GLR_WINDOWS` windows before k (or the baseline's, when k is the baseline's
-        end), weighed by its information, ``d^T (I_after^+ + I_before^+)^+ d``, in units of the windows'
-        own residual variance. The pose before k is fitted, not taken as the baseline's: on a real take
-        the apparent pose wanders from the baseline (:meth:`wander`), and a step measured from the
-        baseline takes that wander for the move; the change since the baseline (6,), as :meth:`glr`'s d_k).
-        (0, zeros) before the baseline or past the last window."""
-        base = self.baseline()
-        if base is None or not BASELINE_WINDOWS <= k < len(self.g):
-            return 0.0, np.zeros(PARAMS)
-        p0, _, s2 = base
-        after, I_after = self._fitted(k, len(self.g), s2)
-        if k > BASELINE_WINDOWS:
-            before, I_before = self._fitted(max(BASELINE_WINDOWS, k - GLR_WINDOWS), k, s2)
-        else:
-            before, I_before = p0, self._base[1] if self._base is not None else np.zeros((PARAMS, PARAMS))
-        d = after - before
-        return float(d @ _pinv(_pinv(I_after) + _pinv(I_before)) @ d), after - p0
-
-    def _fitted(self, first: int, end: int, s2: float) -> tuple[np.ndarray, np.ndarray]:
-        """(p (6,), I (6, 6)): the pose change fitted to windows first..end-1, each weighted by
-        :meth:`_weights`, and its information."""
-        wt = self._weights(first, end, s2)
-        info = np.einsum("w,wij->ij", wt, np.array(self.H[first:end]))
-        return solve_pose_change(info, np.einsum("w,wi->i", wt, np.array(self.g[first:end]))), info
-
     def smallest_turn_deg(self) -> float:
         """Degrees: the smallest turn about the camera's centre, along its worst axis, that the test names
         as often as not over the take's last :data:`GLR_WINDOWS` windows: the turn whose non-centrality
