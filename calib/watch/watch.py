@@ -9,7 +9,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from wandcal.calib.rig import Rig
-from wandcal.calib.watch.attribute import RECENT_BATCHES_OF, Batch, remeasure, which_moved
 from wandcal.calib.watch.health import (
     PARAMS,
     WINDOW_FRAMES,
@@ -32,7 +31,6 @@ from wandcal.calib.watch.sequential import (
 from wandcal.calib.watch.take import PaddedFrames, TakeBlobs, pad_frames
 
 BATCH_FRAMES = 100  # a second at 100 fps: the unit a live take is processed in (whole windows)
-RECENT_BATCHES = -(-RECENT_BATCHES_OF // BATCH_FRAMES)  # batches kept to tell which camera moved (the test's span)
 # frames a take needs before any camera can be judged: the baseline, then a change's two halves
 BASELINE_FRAMES = BASELINE_WINDOWS * WINDOW_FRAMES
 MIN_JUDGED_FRAMES = BASELINE_FRAMES + 2 * PERSIST_WINDOWS * WINDOW_FRAMES
@@ -156,7 +154,6 @@ class WatchStream:
         self.frames = self.tracks = 0
         self.obs: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
         self._head: _Head | None = None  # what begin matched and measured, for the batches of the same frames
-        self.recent: list[Batch] = []  # the last batches, to tell which camera moved when a test alarms
 
     @property
     def baseline_stop(self) -> int:
@@ -189,9 +186,8 @@ class WatchStream:
             padded, tracks, windows = again
         self.frames += len(padded.frames)
         self.tracks += len(tracks)
-        self.recent = [*self.recent[-(RECENT_BATCHES - 1):], (padded, tracks)] if RECENT_BATCHES > 1 else [(padded, tracks)]
         windows = _test_batch(self.rig, self.R, self.t, padded, tracks, (self.tests, self.found), self.excluded,
-                              self.first, keep_obs=self.keep_obs, windows=windows, recent=self.recent)
+                              self.first, keep_obs=self.keep_obs, windows=windows)
         self.sums += np.stack([windows.sse.sum(0), windows.n.sum(0), windows.seen.sum(0)], 1)
         if self.keep_obs:
             self.obs.append(windows.obs or [])
@@ -297,14 +293,12 @@ def _fit_dof(n: np.ndarray) -> np.ndarray:
 
 
 def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest], list[FoundTest]], excluded: set[int],
-                first: int, keep_obs: bool, windows: CameraWindows | None = None,
-                recent: list[Batch] | None = None) -> CameraWindows:
+                first: int, keep_obs: bool, windows: CameraWindows | None = None) -> CameraWindows:
     """Add a batch's windows to every camera's test, window by window; when cameras alarm, the one
     with the largest statistic is named, left out of every other camera's markers, and the batch is
     tested again without it (a moved camera's blobs pull the markers it shares). A camera's pose and
     found-share tests take each window together, so one mark rewinds both. ``windows``: the batch's,
-    if measured already with ``excluded`` left out; ``recent``: the batches the tests' last windows came
-    from, this one last (:mod:`wandcal.calib.watch.attribute` names the camera that moved from them)."""
+    if measured already with ``excluded`` left out."""
     blobs = np.isfinite(padded.xy[:, :, :, 0]).sum(2)  # each camera's blobs a frame, whoever is left out
     while True:
         if windows is None:
@@ -315,8 +309,6 @@ def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest]
         named = _add_windows(windows, blobs, tests, first)
         if named is None:
             return windows
-        if recent:
-            named = _attribute(rig, R, t, recent, tests[0], excluded, first, named)
         excluded.add(named)
         windows = None
         for c, (pose, found) in enumerate(zip(*tests)):  # the named one too: it keeps its alarm, and the batch's
@@ -354,25 +346,6 @@ def _add_windows(windows: CameraWindows, blobs: np.ndarray, tests: tuple[list[Ca
             poses[c].alarm = Alarm(c, frame, int(windows.frames[sel].max()), raw, d)
             return c
     return None
-
-
-def _attribute(rig: Rig, R, t, recent: list[Batch], poses: list[CameraTest], excluded: set[int], first: int,
-               named: int) -> int:
-    """The camera that moved when ``named``'s pose test alarmed (:func:`~wandcal.calib.watch.attribute.which_moved`):
-    if another, the alarm moves to it (the alarm's statistic and window, its own start and change)."""
-    alarm = poses[named].alarm
-    if alarm is None or not np.isfinite(alarm.change).all() or alarm.frame < first:
-        return named  # a lost camera's (its blobs left its markers) is its own
-    moved = which_moved(rig, R, t, recent, poses, excluded, first=first, alarmed=named, detected=alarm.detected_frame)
-    if moved != named:
-        _, k, d = poses[moved].glr()
-        poses[moved].alarm = Alarm(moved, poses[moved].start[k], alarm.detected_frame, alarm.statistic, d)
-        poses[named].alarm = None
-    # the others' windows of the batches before this one, measured again without it (it pulled their markers;
-    # this batch's are measured again by the caller)
-    others = {c: test for c, test in enumerate(poses) if c not in excluded and c != moved}
-    remeasure(rig, R, t, recent[:-1], others, excluded | {moved}, first=first)
-    return moved
 
 
 def _resolve(rig: Rig, R, t, blobs: TakeBlobs, report: WatchReport, tests: list[CameraTest]) -> None:
