@@ -93,7 +93,7 @@ def whole_frame_sync(rig: Rig, wand: WandObservations | None, options: Calibrati
     unshifted = end_pairs(rig, wand)  # every kind of wand: its end markers
     start = np.asarray(options.sync_start) if options.sync_start is not None else None
     try:
-        timed = frame_offsets(rig, unshifted, options.sync_max_offset, start)
+        timed = frame_offsets(rig, unshifted, options.sync_max_offset, start, prove_sparse=True)
     except TooFewShared:  # a sparse rig: no two cameras share enough frames, all of them together do
         from wandcal.calib.run.sparse_offsets import offsets_by_triangulation
 

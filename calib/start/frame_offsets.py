@@ -105,7 +105,7 @@ def shift_pairs(pairs: WandPairs, offsets: np.ndarray) -> WandPairs:
 
 def frame_offsets(
     rig: Rig, pairs: WandPairs, max_offset: int = DEFAULT_MAX_OFFSET, start: np.ndarray | None = None,
-    reference: int | None = None, *, fail_fast: bool = False,
+    reference: int | None = None, *, fail_fast: bool = False, prove_sparse: bool = False,
 ) -> FrameOffsets:
     """Each camera's whole-frame offset (see module docstring).
 
@@ -122,7 +122,15 @@ def frame_offsets(
             the start's offsets) are timed first, each after the cameras it is timed against. The
             offsets found are the same (each camera's search sees only its partners' offsets); a
             search that fails may raise for another camera, or another kind of failure, than
-            the default order would.
+            the default order would. Implies ``prove_sparse``.
+        prove_sparse: for a caller that falls back on :class:`TooFewShared` (calibrate's sync):
+            before timing anyone, try to prove that the planned search would raise TooFewShared
+            (:func:`_refuse_untimeable`), and raise it at once; otherwise the planned search, as by
+            default. The answer is the default's on every input but one kind (decision 0077f): a
+            camera planned before the one proved, in the sparse regime (fewer than ``FEW_FRAMES``
+            frames shared with its first partner at any lag), whose best shift is at the edge of
+            its search: the default refuses it ("at the edge of the search"), this raises
+            TooFewShared.
 
     Raises:
         CalibrationError: a camera's wand agrees with no timed camera's at any shift searched
@@ -145,7 +153,7 @@ def frame_offsets(
     against = np.full(n, -1, np.int64)
     share = np.ones(n)
     search = _Search(rig, pairs, table, start, reference, max_offset)
-    if fail_fast:
+    if fail_fast or prove_sparse:
         _refuse_untimeable(search, steps, table)
     for b, partners in (_risk_first(steps, table, start) if fail_fast else steps):
         offsets[b], share[b] = search.time(b, partners, offsets)
@@ -202,14 +210,21 @@ def _risk_first(steps: list[tuple[int, list[int]]], table: np.ndarray, start: np
 
 
 def _refuse_untimeable(search: _Search, steps: list[tuple[int, list[int]]], table: np.ndarray) -> None:
-    """Raise TooFewShared for the first camera of ``steps`` that shares fewer than
+    """Raise TooFewShared for the first camera b of ``steps`` that shares fewer than
     ``MIN_TIMING_FRAMES`` frames with its first partner at the start's offsets and that
-    :meth:`_Search.cannot_time` proves the search cannot time (a proof, so the search would fail
-    too; which cameras are tried only bounds its cost: one RANSAC a lag, 4 x max_offset - 1 lags)."""
-    for b, partners in steps:
+    :meth:`_Search.cannot_time` proves the search would refuse with TooFewShared, provided every
+    camera planned before b can refuse with nothing else but the edge of its search
+    (:meth:`_Search.sparse_everywhere`: the midpoint scores' other refusals need ``FEW_FRAMES``
+    frames). Which cameras are tried only bounds the cost (one RANSAC a lag, 4 x max_offset - 1
+    lags); the proofs are exact."""
+    for i, (b, partners) in enumerate(steps):
         a = partners[0]
         lag = int(search.start[b] - search.start[a])
-        if _shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES and search.cannot_time(b, a):
+        if _shared_counts(table, a, b, np.array([lag]))[0] >= MIN_TIMING_FRAMES:
+            continue
+        if not all(search.sparse_everywhere(c, p[0]) for c, p in steps[:i]):
+            return  # an earlier camera might be refused otherwise: the planned search tells
+        if search.cannot_time(b, a):
             rig = search.rig
             raise TooFewShared(
                 f"camera {rig.cameras[b].id!r} cannot be timed against {rig.cameras[a].id}: at no offset of "
@@ -267,19 +282,38 @@ class _Search:
             )
         return best, score
 
-    def cannot_time(self, b: int, a: int) -> bool:
-        """Whether camera b's search against ``a`` as its first partner fails whatever offset a's
-        own search finds: a is the reference (offset 0), or its offset lies strictly inside its
-        window (at the edge its search raises), and at each such offset b's frames are too few to
-        judge, or few enough that one RANSAC a shift judges them (:func:`_sparse_best_shift`) and
-        no shift is accepted. False as soon as one offset of a might let b pass, or would judge b
-        by the midpoint scores (which the other partners' offsets enter)."""
-        w = self.max_offset
-        guess = int(self.start[b] - self.start[self.reference])
-        shifts = np.arange(guess - w, guess + w + 1)
+    def partner_offsets(self, a: int) -> range:
+        """Every offset camera a can have when a camera timed against it is searched: 0 for the
+        reference, else strictly inside a's own window (at its edge a's search raises)."""
+        if a == self.reference:
+            return range(0, 1)
         near = int(self.start[a] - self.start[self.reference])
+        return range(near - self.max_offset + 1, near + self.max_offset)
+
+    def shifts(self, b: int) -> np.ndarray:
+        """(2 max_offset + 1,) the shifts camera b's search tries."""
+        guess = int(self.start[b] - self.start[self.reference])
+        return np.arange(guess - self.max_offset, guess + self.max_offset + 1)
+
+    def sparse_everywhere(self, b: int, a: int) -> bool:
+        """Whether camera b, timed against ``a`` first, shares fewer than ``FEW_FRAMES`` frames
+        with it at every lag any offset of a gives: then its search is judged by one RANSAC a
+        shift (or finds too few frames) and refuses only with TooFewShared or at the edge of its
+        search."""
+        lags = np.unique(np.subtract.outer(np.array(self.partner_offsets(a)), self.shifts(b)))
+        return bool(_shared_counts(self.table, a, b, lags).max() < FEW_FRAMES)
+
+    def cannot_time(self, b: int, a: int) -> bool:
+        """Whether camera b's search against ``a`` as its first partner raises TooFewShared
+        whatever offset a's own search finds (:meth:`partner_offsets`): at each such offset b's
+        frames are too few to judge, or few enough that one RANSAC a shift judges them
+        (:func:`_sparse_best_shift`) and no shift reaches ``MIN_FIT_SHARE`` (a shift that does
+        is accepted, or refused at the edge of the search: not TooFewShared). False as soon as
+        one offset of a might let b pass or be refused otherwise, or would judge b by the
+        midpoint scores (which the other partners' offsets enter)."""
+        shifts = self.shifts(b)
         shares: dict[int, float] = {}  # by lag: a's offsets share most of their lags
-        for offset_a in [0] if a == self.reference else range(near - w + 1, near + w):
+        for offset_a in self.partner_offsets(a):
             lags = offset_a - shifts
             counts = np.minimum(_shared_counts(self.table, a, b, lags), TIMING_FRAMES)  # as _best_shift's
             if counts.max() < MIN_TIMING_FRAMES:
@@ -289,8 +323,7 @@ class _Search:
             for lag in lags:
                 if int(lag) not in shares:
                     shares[int(lag)] = _lag_share(self.pairs, self.table, a, b, int(lag), self.rig)
-            best, score = _sparse_pick(shifts, np.array([shares[int(lag)] for lag in lags]))
-            if score >= MIN_FIT_SHARE and abs(best - guess) < w:
+            if _sparse_pick(shifts, np.array([shares[int(lag)] for lag in lags]))[1] >= MIN_FIT_SHARE:
                 return False
         return True
 
