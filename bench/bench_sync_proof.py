@@ -5,7 +5,8 @@ search, whatever the message), or the same refusal message; and the CPU seconds 
 
 Inputs: bench_sync's 16 x 2500 (in time, and +-5 frames plus fractions), bench_sync_accuracy's
 16 x 2500 and 8 x 1500 (seeds 1-6), bench_sync_markers' 5 x 600 three-marker wand (seeds 4-6),
-bench_scale's shapes (ring, dome, tiers, hallway) at 32 and 128 cameras x 3000, tests/calib/
+bench_scale's shapes (ring, dome, tiers, hallway) at 32 and 128 cameras x 3000 (and the hallway with four
+cameras 1-2 frames out), tests/calib/
 test_sparse_offsets.py's 64-camera ring, and the real sessions with a wand (Brown 1 and 2 as
 recorded and with cam3 two frames out, the easyWand C++ sample, Ushichka); each at +-8 (calibrate's
 default) and +-3 frames.
@@ -57,6 +58,12 @@ def _inputs():
     for kind in ("ring", "dome", "tiers", "hallway"):
         for n in (32, 128):
             yield f"{kind} {n}x3000", lambda k=kind, n=n: sim(simulate_shape(RigShape(k, n, default_size(k)), 3000, 0.3, 0.02, 1))
+    def hallway_late():  # 4 cameras 1-2 frames out: the pairs the sync meets on a hallway without a trigger
+        s = simulate_shape(RigShape("hallway", 128, default_size("hallway")), 3000, 0.3, 0.02, 1)
+        true = np.zeros(128, np.int64)
+        true[[10, 45, 80, 115]] = [1, 2, -1, -2]
+        return s.rig, end_pairs(s.rig, WandObservations(s.wand.frame - true[s.wand.camera], s.wand.camera, s.wand.uv))
+    yield "hallway 128x3000, 4 cameras 1-2 frames out", hallway_late
     if DATA.exists():
         from wandcal.capture.importers.easywand import read_easywand_mat
 
