@@ -86,7 +86,7 @@ def _inputs():
 
 def _outcome(rig, pairs, window: int, **kw) -> tuple[str, float]:
     from wandcal.calib.errors import CalibrationError
-    from wandcal.calib.start.frame_offsets import TooFewShared, frame_offsets
+    from wandcal.calib.start.offsets.whole_frames import TooFewShared, frame_offsets
 
     t = time.process_time()
     try:

@@ -20,9 +20,15 @@ from wandcal.calib.run.refine import Progress
 from wandcal.calib.solve.sync import TimeColumns, Tracks, fit_timing
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture
-from wandcal.calib.start.frame_offsets import FrameOffsets, TooFewShared, frame_offsets, shift_frames, shift_pairs
 from wandcal.calib.start.initial import Initial, initial_poses
 from wandcal.calib.start.labels import label_ends
+from wandcal.calib.start.offsets.whole_frames import (
+    FrameOffsets,
+    TooFewShared,
+    frame_offsets,
+    shift_frames,
+    shift_pairs,
+)
 from wandcal.calib.start.static import StaticPose, solve_static
 
 if TYPE_CHECKING:
