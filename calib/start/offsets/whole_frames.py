@@ -213,20 +213,18 @@ def _refuse_untimeable(search: _Search, steps: list[tuple[int, list[int]]], tabl
     (:meth:`_Search.sparse_everywhere`: the midpoint scores' other refusals need ``FEW_FRAMES``
     frames). Which cameras are tried only bounds the cost (one RANSAC a lag, 4 x max_offset - 1
     lags); the proofs are exact."""
-    for i, (b, partners) in enumerate(steps):
+    for b, partners in steps:
         a = partners[0]
         lag = int(search.start[b] - search.start[a])
-        if shared_counts(table, a, b, np.array([lag]))[0] >= MIN_TIMING_FRAMES:
-            continue
-        if not all(search.sparse_everywhere(c, p[0]) for c, p in steps[:i]):
-            return  # an earlier camera might be refused otherwise: the planned search tells
-        if search.cannot_time(b, a):
+        if shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES and search.cannot_time(b, a):
             rig = search.rig
             raise TooFewShared(
                 f"camera {rig.cameras[b].id!r} cannot be timed against {rig.cameras[a].id}: at no offset of "
                 f"{rig.cameras[a].id}'s within +-{search.max_offset} frames does its wand agree with "
                 f"{rig.cameras[a].id}'s at a shift within +-{search.max_offset} frames; check that it recorded the same "
                 "session and the same wand, or search wider (sync_max_offset)")
+        if not search.sparse_everywhere(b, a):
+            return  # b might be refused otherwise than TooFewShared: the planned search tells
 
 
 def _unlinked_error(rig: Rig, b: int, steps: list[tuple[int, list[int]]], reference: int, max_offset: int,
