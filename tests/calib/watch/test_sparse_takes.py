@@ -82,4 +82,3 @@ def test_a_real_take_with_a_camera_turned_one_degree_names_it_at_its_frame(name,
     report = watch_take(take.rig, take.R, take.t, knocked(take, camera, 1.0, at))
     row = verdict(report, camera, at, 1.0)
     assert row["right"], f"turned {take.rig.cameras[camera].id} at {at}: named {row['named']} (slack {FRAME_SLACK})"
-
