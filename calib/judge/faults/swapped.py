@@ -226,10 +226,16 @@ def swapped_pair(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: n
     n = len(rig.cameras)
     if not 3 <= n <= MAX_CAMERAS:
         return None
-    focal = np.array([c.focal for c in rig.cameras])
-    given = observation_residuals(R, t, labelled, tracks, focal)
+    pairs = screened_pairs(rig, R, t, labelled, tracks)
+    if not pairs:
+        return None
+    try:  # the given intrinsics solved again the same way, so that the two fits differ by the exchange alone
+        R0, t0 = solve(rig, labelled, tracks, R, t)
+    except (CalibrationError, np.linalg.LinAlgError):
+        return None
+    given = observation_residuals(R0, t0, labelled, tracks, np.array([c.focal for c in rig.cameras]))
     best = None
-    for a, b in screened_pairs(rig, R, t, labelled, tracks):
+    for a, b in pairs:
         rig2, lab2, tr2 = exchanged(rig, labelled, tracks, a, b)
         try:
             R2, t2 = solve(rig2, lab2, tr2, R, t)
