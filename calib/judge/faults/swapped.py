@@ -51,6 +51,14 @@ from wandcal.calib.rig import Rig
 # bench_real_subsamples' 240 clean runs try at most six pairs each; where intrinsics differ the
 # given labels' expected gain is negative, not zero, and each camera's own gain must be positive too
 SWAP_ALPHA = 1e-4
+# ... and takes this share of the pair's squared residual away: the lens pattern's (leave_one_out.
+# LENS_SHARE). Any change of intrinsics that leans the way of another fault gains a little, and
+# consistently: Ushichka's cam2 and cam3 (k1 0.003 apart) exchanged beside cam1's fy 3% off gained
+# t 4.5 for 1% of their residual; the swaps found take 40-90% of it
+SWAP_SHARE = 0.25
+# a half of the exchange that loses by this many standard errors (one-sided 2.3%) speaks against a
+# swap: MultiCamSelfCal's true swap has one half at t -0.8 (the other camera still bends the solve)
+HALF_LOSS_T = 2.0
 MIN_BLOCKS = 4  # blocks of the capture before the jackknife's error is taken as an error
 
 # a solve of the rig again: (rig, labelled, tracks, R, t) -> (R, t), the caller's refinement (the
@@ -83,7 +91,8 @@ class Gain:
 
 @dataclass(frozen=True)
 class Swap:
-    """A pair judged by the re-solve: cameras a, b; the whole rig's gain and each camera's own."""
+    """A pair judged by the re-solve: cameras a, b; the whole rig's gain and each camera's own;
+    ``halves``: the rig's gain with a given b's intrinsics alone, and b a's alone (None: not tried)."""
 
     a: int
     b: int
@@ -92,10 +101,22 @@ class Swap:
     own_b: Gain
     rms_given_px: tuple[float, float]  # a's and b's RMS residual as given, and exchanged below
     rms_exchanged_px: tuple[float, float]
+    explained: float = 0.0  # the share of the pair's squared residual the exchange takes away
+    halves: tuple[Gain, Gain] | None = None
+
+    @property
+    def significant(self) -> bool:
+        """The whole exchange fits the rig better at :data:`SWAP_ALPHA` and explains
+        :data:`SWAP_SHARE` of the pair's squared residual."""
+        return self.rig.p < SWAP_ALPHA and self.explained >= SWAP_SHARE
 
     @property
     def found(self) -> bool:
-        return self.rig.p < SWAP_ALPHA and self.own_a.mean_px2 > 0 and self.own_b.mean_px2 > 0
+        """Significant, and neither half of the exchange loses by more than :data:`HALF_LOSS_T` of
+        its standard errors: one camera's lens fault gains from the half that corrects it, and loses
+        from the half that gives its wrong intrinsics to its partner; in a swap each half corrects
+        one camera (its gain may be small: the other still bends the solve)."""
+        return self.significant and self.halves is not None and min(h.t for h in self.halves) > -HALF_LOSS_T
 
 
 def block_gain(g: np.ndarray, block: np.ndarray) -> Gain:
@@ -111,14 +132,16 @@ def block_gain(g: np.ndarray, block: np.ndarray) -> Gain:
     return Gain(total / n, float(np.sqrt((G - 1) / G * float(d @ d))), G, int(n))
 
 
-def exchanged(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, a: int, b: int
+def exchanged(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, a: int, b: int, both: bool = True
               ) -> tuple[Rig, WandPairs, PointTracks | None]:
-    """The rig with cameras a's and b's intrinsics (K, distortion, model) exchanged, and the
-    observations normalised again from their raw pixels with them."""
+    """The rig with cameras a's and b's intrinsics (K, distortion, model) exchanged (``both``), or
+    a given b's alone (half the exchange), and the observations normalised again from their raw
+    pixels with them."""
     cams = list(rig.cameras)
     ca, cb = rig.cameras[a], rig.cameras[b]
     cams[a] = replace(ca, K=cb.K, dist=cb.dist, model=cb.model)
-    cams[b] = replace(cb, K=ca.K, dist=ca.dist, model=ca.model)
+    if both:
+        cams[b] = replace(cb, K=ca.K, dist=ca.dist, model=ca.model)
     out = replace(rig, cameras=tuple(cams))
     labelled = replace(labelled, xy=undistort_by_camera(out.cameras, labelled.camera, labelled.uv))
     if tracks is not None and len(tracks):
@@ -214,8 +237,10 @@ def judge_swap(given: Residuals, swapped: Residuals, labelled: WandPairs, tracks
     def rms(e: np.ndarray, c: int) -> float:
         m = ok & (given.camera == c)
         return float(np.sqrt(np.mean(e[m] ** 2))) if m.any() else float("nan")
+    pair = ok & np.isin(given.camera, (a, b))
+    explained = float(g[pair].sum() / (e0[pair] ** 2).sum()) if pair.any() and (e0[pair] ** 2).sum() > 0 else 0.0
     return Swap(a, b, gain(ok), gain(ok & (given.camera == a)), gain(ok & (given.camera == b)),
-                (rms(e0, a), rms(e0, b)), (rms(e1, a), rms(e1, b)))
+                (rms(e0, a), rms(e0, b)), (rms(e1, a), rms(e1, b)), explained)
 
 
 def swapped_pair(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
@@ -236,16 +261,30 @@ def swapped_pair(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: n
     given = observation_residuals(R0, t0, labelled, tracks, np.array([c.focal for c in rig.cameras]))
     best = None
     for a, b in pairs:
-        rig2, lab2, tr2 = exchanged(rig, labelled, tracks, a, b)
-        try:
-            R2, t2 = solve(rig2, lab2, tr2, R, t)
-        except (CalibrationError, np.linalg.LinAlgError):
+        found = _judged(rig, labelled, tracks, R, t, solve, given, a, b)
+        if found is None or not found.significant:
             continue
-        found = judge_swap(given, observation_residuals(R2, t2, lab2, tr2, np.array([c.focal for c in rig2.cameras])),
-                           labelled, tracks, a, b)
+        first = _judged(rig, labelled, tracks, R, t, solve, given, a, b, both=False)
+        second = _judged(rig, labelled, tracks, R, t, solve, given, b, a, both=False)
+        if first is None or second is None:
+            continue
+        found = replace(found, halves=(first.rig, second.rig))
         if found.found and (best is None or found.rig.t > best.rig.t):
             best = found
     return best
+
+
+def _judged(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray, solve: Solve,
+            given: Residuals, a: int, b: int, both: bool = True) -> Swap | None:
+    """:func:`judge_swap` of the rig solved again with a's and b's intrinsics :func:`exchanged`
+    (``both``, else a given b's alone); None where that solve fails."""
+    rig2, lab2, tr2 = exchanged(rig, labelled, tracks, a, b, both)
+    try:
+        R2, t2 = solve(rig2, lab2, tr2, R, t)
+    except (CalibrationError, np.linalg.LinAlgError):
+        return None
+    return judge_swap(given, observation_residuals(R2, t2, lab2, tr2, np.array([c.focal for c in rig2.cameras])),
+                      labelled, tracks, a, b)
 
 
 def swap_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
@@ -261,7 +300,8 @@ def swap_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np
     evidence = {"swap": {"cameras": ids, "rms_given_px": [round(x, 3) for x in found.rms_given_px],
                          "rms_exchanged_px": [round(x, 3) for x in found.rms_exchanged_px],
                          "gain_px2": round(g.mean_px2, 4), "gain_std_px2": round(g.std_px2, 4),
-                         "t": round(g.t, 2), "p": float(f"{g.p:.3g}"), "blocks": g.blocks}}
+                         "t": round(g.t, 2), "p": float(f"{g.p:.3g}"), "blocks": g.blocks,
+                         "explained_share": round(found.explained, 3)}}
     out = []
     for k, cam in enumerate(ids):
         other = ids[1 - k]
