@@ -111,3 +111,23 @@ def test_the_block_jackknife_error_of_a_mean_is_the_usual_one_on_independent_blo
 def test_a_negative_gain_never_passes():
     assert Gain(-1.0, 0.01, 30, 300).p == 1.0
     assert Gain(1.0, 0.1, 30, 300).p < 1e-6  # t = 10 on 29 degrees of freedom
+
+
+@pytest.mark.shared_data
+def test_multicamselfcals_two_cameras_swapped_are_named_and_its_clean_run_is_not():
+    """MultiCamSelfCal's Basler_21275577 and Basler_21283677 (focal lengths 3% and principal points
+    29 px apart) swapped: before, "good" with nothing named; both named now, and nothing on the
+    clean session (decision 0077c)."""
+    from bench import held_out_faults as ho
+    from bench import real_faults as rf
+
+    if not rf.available():
+        pytest.skip(f"third-party data not found at {rf.SHARED_DATA}")
+    session = rf.LOADERS["svoboda"]()
+    clean = rf.clean_run(session)
+    assert not any(kind == "intrinsics" for kind, _ in clean.faults)
+    case = next(c for c in ho.held_out_cases(session) if c.family == "swapped")
+    out = ho.run_held_out_case(session, clean, case)
+    ids = {session.rig.cameras[case.camera].id, session.rig.cameras[int(case.size)].id}
+    assert set(out.named) == {("intrinsics", cam) for cam in ids}, rf.case_line(out)
+    assert "look swapped" in out.message
