@@ -166,7 +166,7 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     dragged = [c["id"] for c in named if c["id"] not in at_fault and c["verdict"]["level"] == "poor"]
     if at_fault and dragged:  # one camera at fault bends the whole solve: the others are judged again after
         verdict["reasons"].insert(len(faults), f"{camera_list(dragged, len(named))} {'is' if len(dragged) == 1 else 'are'} poor in "
-                                  f"this solve because {camera_list([i for i in rig.ids if i in at_fault], len(named))} bent it: fix "
+                                  f"this solve, which {camera_list([i for i in rig.ids if i in at_fault], len(named))} may have bent: fix "
                                   f"{'it' if len(at_fault) == 1 else 'them'} and calibrate again before judging the others")
     verdict["placement"] = placement_verdict(world_doc, extent if scaled else None, faults)
     verdict["faults"] = faults
