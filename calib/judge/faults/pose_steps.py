@@ -40,7 +40,9 @@ class Step:
     """A step in a camera's pose: after capture frame ``frame`` it
     turned by ``degrees`` (+- degrees_std) and its centre moved ``mm`` (+- mm_std, with the turn
     fitted beside it); f_stat at the best split, p_value with the split search accounted for;
-    explained: the share of the camera's residual beyond its pose the step explains."""
+    explained: the share of the camera's residual beyond its pose the step explains;
+    detectable_deg: the smallest turn at this split that the test would name (:func:`detectable_turn`):
+    a knock below it is one the data cannot tell from the camera's own scatter in time."""
 
     frame: int
     degrees: float
@@ -50,6 +52,7 @@ class Step:
     f_stat: float
     p_value: float
     explained: float
+    detectable_deg: float = float("nan")
 
 
 def _rows_of(el: Eliminated, c: int):
@@ -161,7 +164,40 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
                       dof - 3)
     mm, mm_std = 1000 * np.linalg.norm(coef[nb + 3:]), 1000 * np.sqrt(np.trace(cov[nb + 3:, nb + 3:]) / 3)
     return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
-                float(1 - rss1 / rss0) if rss0 > 0 else 0.0)
+                float(1 - rss1 / rss0) if rss0 > 0 else 0.0,
+                detectable_turn(float(deg), float(f), len(candidates), min(dof, dof_f, inflation[1])))
+
+
+def critical_f(q: int, dof: float, alpha: float) -> float:
+    """The F(q, dof) value whose upper tail is ``alpha``: bisection of :func:`f_survival` on log F
+    (it falls monotonically in F); 1e9 where even that is not rare enough."""
+    lo, hi = 0.0, 1e9
+    if f_survival(q, dof, hi) > alpha:
+        return hi
+    for _ in range(200):
+        mid = np.sqrt(max(lo, 1e-12) * hi)
+        if f_survival(q, dof, mid) > alpha:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo < 1e-9 * hi:
+            break
+    return hi
+
+
+def detectable_turn(degrees: float, f_stat: float, splits: int, dof: float, alpha: float = STEP_ALPHA) -> float:
+    """The turn, degrees, about the step's own axis that the step test names at its split
+    (noise-free, 50% power): the turn whose F equals the critical value F* of F(3, dof) at
+    ``alpha`` / ``splits`` (Bonferroni over the splits searched). The step's F (with the timed
+    scatter and the batch-means inflation the test applies) is its Wald statistic over three,
+    ``w^T Cov^-1 w / 3``, quadratic in the turn w: a turn theta about w's axis scores
+    ``f_stat (theta / degrees)^2``, so it reaches F* at ``theta = degrees sqrt(F* / f_stat)``. Along
+    the axis, not the rms: a camera's turn about its optical axis is often far less certain than
+    across it. With Brown's 7-24 shared wand frames the inflation's dof is 3 (four batches) and F*
+    of F(3, 3) at 1e-5 is ~ 3000: the bound is ~ 100 standard deviations (decision 0077h)."""
+    if not (np.isfinite(degrees) and np.isfinite(f_stat)) or f_stat <= 0 or degrees <= 0 or splits < 1:
+        return float("nan")
+    return float(degrees * np.sqrt(critical_f(3, dof, alpha / splits) / f_stat))
 
 
 def _timed_dispersion(A: np.ndarray, e: np.ndarray, keep: np.ndarray, timed: np.ndarray, rho: np.ndarray) -> tuple[float, float]:

@@ -1,0 +1,142 @@
+"""Knocks on real sessions against what the step test can tell (issue 31, decision 0077h).
+
+For each knock the judgement's own step test on the knocked camera (its first test in ``calibrate``,
+:func:`wandcal.calib.judge.faults.pose_steps.pose_step`) gives the turn it estimates, its standard
+deviation and ``detectable_deg``: the turn the test names at that split (noise-free, 50% power,
+:func:`wandcal.calib.judge.faults.pose_steps.detectable_turn`). A knock is *determinable* when its
+turn is at least that bound; the table counts the knocks named on their camera among the determinable
+and the others, and every ``moved`` named on another camera.
+
+Cases: ``--listed`` the real-faults bench's knock rows (bench/real_faults.py: the middle of the shared
+frames, 0.47 and 0.82 deg); by default the held-out grid: every camera of each session, the turns of
+``--degrees`` about the axis of each ``--seeds``, at the shares ``--at`` of the camera's shared frames.
+
+    python bench/bench_knock_bound.py --listed
+    python bench/bench_knock_bound.py [--sessions brown1,...] [--degrees 0.3,0.6,1,2] [--at 0.35,0.65] [--seeds 7]
+
+Prints only: docs/benchmarks.md is not written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import real_faults as rf
+from bench.bench_real_subsamples import StepRecorder
+from bench.fault_injectors import _rotated, timed_observations
+from wandcal.calib.errors import CalibrationError
+from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.rig import PointObservations, WandObservations
+
+
+def knock_at(obs, c: int, share: float) -> float:
+    """The frame at ``share`` of camera c's frames that another camera sees too (all its frames where none is)."""
+    mine = obs.camera == c
+    shared = mine & np.isin(obs.frame, obs.frame[~mine])
+    frames = np.unique(obs.frame[shared if shared.any() else mine])
+    return float(frames[min(int(share * len(frames)), len(frames) - 1)]) + 0.5
+
+
+def knocked(session: rf.Session, c: int, degrees: float, seed: int, share: float) -> rf.Session:
+    """Camera c turned by ``degrees`` about a random axis (``seed``) after ``share`` of its shared
+    frames (as bench/fault_injectors.knocked, which knocks at their middle)."""
+    axis = np.random.default_rng(seed).normal(size=3)
+    Rk = rotvec_to_matrix(np.radians(degrees) * axis / np.linalg.norm(axis))
+    out, at = session, None
+    for name, obs in timed_observations(session):
+        at = knock_at(obs, c, share) if at is None else at
+        uv = obs.uv.copy()
+        after = (obs.camera == c) & (obs.frame > at)
+        uv[after] = _rotated(session.rig.cameras[c], obs.uv[after], Rk)
+        moved = PointObservations(obs.frame, obs.camera, uv, point=obs.point) if name == "points" else \
+            WandObservations(obs.frame, obs.camera, uv)
+        out = replace(out, **{name: moved})
+    return out
+
+
+def run_one(session: rf.Session, c: int, label: str, knocked_session: rf.Session, degrees: float,
+            recorder: StepRecorder) -> dict:
+    """One knock judged: the camera's first step test and every ``moved`` named."""
+    recorder.take()
+    try:
+        doc = rf.calibrated(knocked_session).to_json()
+    except CalibrationError as e:
+        return {"session": session.name, "label": label, "degrees": degrees, "refused": str(e)[:60]}
+    steps = dict(recorder.take())
+    ids = [cam.id for cam in session.rig.cameras]
+    moved = [f["camera"] for f in doc["verdict"]["faults"] if f["kind"] == "moved"]
+    s = steps.get(c)
+    return {"session": session.name, "label": label, "degrees": degrees, "step": s,
+            "named": ids[c] in moved, "other": [m for m in moved if m != ids[c]]}
+
+
+def cases(session: rf.Session, listed: bool, degrees: list[float], shares: list[float], seeds: list[int]):
+    """(camera, label, knocked session, degrees) of each case."""
+    if listed:
+        for case in rf.cases(session):
+            if case.family == "knock":
+                yield case.camera, case.label, rf.inject(session, case, []), case.size
+        return
+    for c, cam in enumerate(session.rig.cameras):
+        for d in degrees:
+            for share in shares:
+                for seed in seeds:
+                    yield c, f"{cam.id} {d:g} deg at {share:g} seed {seed}", knocked(session, c, d, seed, share), d
+
+
+def line(r: dict) -> str:
+    if "refused" in r:
+        return f"{r['session']:<20} {r['label']:<34} refused: {r['refused']}"
+    s = r["step"]
+    if s is None:
+        return f"{r['session']:<20} {r['label']:<34} no step test (too few timed views)  named {r['named']} other {r['other']}"
+    return (f"{r['session']:<20} {r['label']:<34} step {s.degrees:.2f} +- {s.degrees_std:.2f} deg at {s.frame}, p {s.p_value:.2g}, "
+            f"detectable {s.detectable_deg:.2f} deg: {'above' if r['degrees'] >= s.detectable_deg else 'below'}; "
+            f"named {r['named']}{'; other ' + ','.join(r['other']) if r['other'] else ''}")
+
+
+def summary(rows: list[dict]) -> str:
+    ok = [r for r in rows if "refused" not in r]
+    det = [r for r in ok if r["step"] is not None and r["degrees"] >= r["step"].detectable_deg]
+    und = [r for r in ok if r not in det]
+    return (f"knocks {len(rows)} (refused {len(rows) - len(ok)}): named on their camera {sum(r['named'] for r in ok)}; "
+            f"determinable {len(det)}, named {sum(r['named'] for r in det)}; below the bound (or untested) {len(und)}, "
+            f"named {sum(r['named'] for r in und)}; moved named on another camera {sum(len(r['other']) for r in ok)}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sessions", default="brown1,brown2,ushichka,svoboda,cpp")
+    ap.add_argument("--listed", action="store_true", help="the real-faults bench's knock rows")
+    ap.add_argument("--degrees", default="0.3,0.6,1,2")
+    ap.add_argument("--at", default="0.35,0.65", help="shares of the camera's shared frames")
+    ap.add_argument("--seeds", default="7")
+    a = ap.parse_args()
+    if not rf.available():
+        print(f"no data at {rf.SHARED_DATA}")
+        return 0
+    degrees = [float(x) for x in a.degrees.split(",")]
+    shares = [float(x) for x in a.at.split(",")]
+    seeds = [int(x) for x in a.seeds.split(",")]
+    rows: list[dict] = []
+    start = time.process_time()
+    with StepRecorder() as rec:
+        for session in rf.load_sessions(a.sessions.split(",")):
+            for c, label, k, d in cases(session, a.listed, degrees, shares, seeds):
+                rows.append(run_one(session, c, label, k, d, rec))
+                print(line(rows[-1]), flush=True)
+    print(summary(rows))
+    print(f"CPU {time.process_time() - start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
