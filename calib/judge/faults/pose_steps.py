@@ -18,7 +18,7 @@ were measured.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,8 +41,9 @@ class Step:
     turned by ``degrees`` (+- degrees_std) and its centre moved ``mm`` (+- mm_std, with the turn
     fitted beside it); f_stat at the best split, p_value with the split search accounted for;
     explained: the share of the camera's residual beyond its pose the step explains;
-    detectable_deg: the smallest turn at this split that the test would name (:func:`detectable_turn`):
-    a knock below it is one the data cannot tell from the camera's own scatter in time."""
+    test_dof: the F's denominator degrees of freedom, splits: the splits searched (the p-value's
+    Bonferroni factor); turn (3,), deg, and turn_cov (3, 3), deg^2: the turn in the camera's frame
+    and its covariance as the test scales it (what :attr:`detectable_deg` reads)."""
 
     frame: int
     degrees: float
@@ -52,7 +53,26 @@ class Step:
     f_stat: float
     p_value: float
     explained: float
-    detectable_deg: float = float("nan")
+    test_dof: float = float("inf")
+    splits: int = 0
+    turn: np.ndarray | None = field(default=None, compare=False, repr=False)
+    turn_cov: np.ndarray | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def critical_f(self) -> float:
+        """The F the test names at: F(3, test_dof)'s upper STEP_ALPHA / splits point (nan without splits)."""
+        return critical_f(3, self.test_dof, STEP_ALPHA / self.splits) if self.splits else float("nan")
+
+    def detectable_along(self, axis: np.ndarray) -> float:
+        """The turn, degrees, about ``axis`` (3,) (camera frame) that the test names at this split
+        (:func:`detectable_turn`)."""
+        return detectable_turn(self.turn_cov, axis, self.critical_f)
+
+    @property
+    def detectable_deg(self) -> float:
+        """The turn about the step's own axis that the test names at this split: a knock below it
+        is one the data cannot tell from the camera's own scatter in time (decision 0077h)."""
+        return float("nan") if self.turn is None else self.detectable_along(self.turn)
 
 
 def _rows_of(el: Eliminated, c: int):
@@ -160,12 +180,13 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
     cov = cov * (ratio * inflation[0])
     p = min(1.0, len(candidates) * f_survival(3, min(dof, dof_f, inflation[1]), f))
     deg, deg_std = np.degrees(np.linalg.norm(coef[nb:])), np.degrees(np.sqrt(np.trace(cov[nb:, nb:]) / 3))
+    w_hat, turn_cov = np.degrees(coef[nb:]), np.degrees(np.degrees(cov[nb:, nb:]))
     coef, cov = _coef(np.concatenate([base_cols, step * mask, shift.reshape(n_rows, 3) * mask], axis=1)[k2], yv[k2],
                       dof - 3)
     mm, mm_std = 1000 * np.linalg.norm(coef[nb + 3:]), 1000 * np.sqrt(np.trace(cov[nb + 3:, nb + 3:]) / 3)
     return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
-                float(1 - rss1 / rss0) if rss0 > 0 else 0.0,
-                detectable_turn(float(deg), float(f), len(candidates), min(dof, dof_f, inflation[1])))
+                float(1 - rss1 / rss0) if rss0 > 0 else 0.0, float(min(dof, dof_f, inflation[1])), len(candidates),
+                w_hat, turn_cov)
 
 
 def critical_f(q: int, dof: float, alpha: float) -> float:
@@ -185,19 +206,22 @@ def critical_f(q: int, dof: float, alpha: float) -> float:
     return hi
 
 
-def detectable_turn(degrees: float, f_stat: float, splits: int, dof: float, alpha: float = STEP_ALPHA) -> float:
-    """The turn, degrees, about the step's own axis that the step test names at its split
-    (noise-free, 50% power): the turn whose F equals the critical value F* of F(3, dof) at
-    ``alpha`` / ``splits`` (Bonferroni over the splits searched). The step's F (with the timed
-    scatter and the batch-means inflation the test applies) is its Wald statistic over three,
-    ``w^T Cov^-1 w / 3``, quadratic in the turn w: a turn theta about w's axis scores
-    ``f_stat (theta / degrees)^2``, so it reaches F* at ``theta = degrees sqrt(F* / f_stat)``. Along
-    the axis, not the rms: a camera's turn about its optical axis is often far less certain than
-    across it. With Brown's 7-24 shared wand frames the inflation's dof is 3 (four batches) and F*
-    of F(3, 3) at 1e-5 is ~ 3000: the bound is ~ 100 standard deviations (decision 0077h)."""
-    if not (np.isfinite(degrees) and np.isfinite(f_stat)) or f_stat <= 0 or degrees <= 0 or splits < 1:
+def detectable_turn(cov: np.ndarray | None, axis: np.ndarray, f_crit: float) -> float:
+    """The turn, degrees, about ``axis`` (3,) that the step test names at its split (noise-free,
+    50% power): the step's F is its Wald statistic over three, ``w^T Cov^-1 w / 3`` (with the timed
+    scatter and the batch-means inflation the test applies), so a turn theta about the unit axis a
+    reaches the critical F* (``f_crit``: F(3, dof) at STEP_ALPHA over the splits searched) at
+    ``theta = sqrt(3 F* / a^T Cov^-1 a)``. cov: (3, 3) the turn's covariance, deg^2. Per axis, not
+    the rms: a camera's turn about its optical axis is often far less certain than across it.
+    With Brown's 7-24 shared wand frames the inflation's dof is 3 (four batches) and F* of F(3, 3)
+    at 1e-5 is ~ 3000: the bound is ~ 100 standard deviations (decision 0077h). nan without a
+    covariance or an axis."""
+    a = np.asarray(axis, float)
+    if cov is None or not np.isfinite(f_crit) or not np.linalg.norm(a) > 0:
         return float("nan")
-    return float(degrees * np.sqrt(critical_f(3, dof, alpha / splits) / f_stat))
+    a = a / np.linalg.norm(a)
+    info = float(a @ np.linalg.pinv(cov) @ a)
+    return float(np.sqrt(3 * f_crit / info)) if info > 0 else float("inf")
 
 
 def _timed_dispersion(A: np.ndarray, e: np.ndarray, keep: np.ndarray, timed: np.ndarray, rho: np.ndarray) -> tuple[float, float]:
