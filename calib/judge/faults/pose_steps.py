@@ -43,7 +43,9 @@ class Step:
     explained: the share of the camera's residual beyond its pose the step explains;
     test_dof: the F's denominator degrees of freedom, splits: the splits searched (the p-value's
     Bonferroni factor); turn (3,), deg, and turn_cov (3, 3), deg^2: the turn in the camera's frame
-    and its covariance as the test scales it (what :attr:`detectable_deg` reads)."""
+    and its covariance as the test scales it (what :attr:`detectable_deg` reads); inflation and
+    views_dof: the batch-means factor in turn_cov and the dof the views would have were they
+    independent (test_dof is the smaller of it and the batches')."""
 
     frame: int
     degrees: float
@@ -57,6 +59,8 @@ class Step:
     splits: int = 0
     turn: np.ndarray | None = field(default=None, compare=False, repr=False)
     turn_cov: np.ndarray | None = field(default=None, compare=False, repr=False)
+    inflation: float = 1.0
+    views_dof: float = float("inf")
 
     @property
     def critical_f(self) -> float:
@@ -186,7 +190,7 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
     mm, mm_std = 1000 * np.linalg.norm(coef[nb + 3:]), 1000 * np.sqrt(np.trace(cov[nb + 3:, nb + 3:]) / 3)
     return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
                 float(1 - rss1 / rss0) if rss0 > 0 else 0.0, float(min(dof, dof_f, inflation[1])), len(candidates),
-                w_hat, turn_cov)
+                w_hat, turn_cov, float(inflation[0]), float(min(dof, dof_f)))
 
 
 def critical_f(q: int, dof: float, alpha: float) -> float:
