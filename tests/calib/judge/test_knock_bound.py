@@ -52,3 +52,19 @@ def test_a_step_is_named_exactly_when_it_passes_its_bound(seed, degrees):
     # and the knock's own axis: a turn well above its bound is named (noise moves F by ~ its sqrt(2 x 3) / 3)
     if degrees > 2 * step.detectable_along(axis):
         assert step.p_value < STEP_ALPHA
+
+
+def test_the_benchs_knock_is_placed_among_the_frames_another_camera_shares():
+    """bench/bench_knock_bound.py knocks after a share of the camera's *shared* frames (those a
+    calibration can use), as bench/fault_injectors.knocked does at their middle (decision 0067)."""
+    from types import SimpleNamespace
+
+    from bench.bench_knock_bound import knock_at
+
+    # camera 0 sees frames 0-9 alone and 10-19 with camera 1
+    frame = np.r_[np.arange(20), np.arange(10, 20)]
+    camera = np.r_[np.zeros(20, int), np.ones(10, int)]
+    obs = SimpleNamespace(frame=frame, camera=camera)
+    assert knock_at(obs, 0, 0.35) == 13.5  # the 4th of its 10 shared frames, 10-19
+    assert knock_at(obs, 0, 0.0) == 10.5
+    assert knock_at(obs, 1, 0.5) == 15.5
