@@ -94,7 +94,7 @@ def block_against_rate(rejected: np.ndarray, frames: np.ndarray, q: float) -> Re
     n = len(rejected)
     if n < 2 or not rejected.any():
         return None
-    best = (2.0, True, 0)
+    best: tuple[float, bool, int] = (2.0, True, 0)
     factor = 2 * (n - 1)
     for tail, seq in ((True, rejected[::-1]), (False, rejected)):
         x = np.cumsum(seq)[:-1].astype(float)
@@ -104,8 +104,8 @@ def block_against_rate(rejected: np.ndarray, frames: np.ndarray, q: float) -> Re
             kl = (np.where(share > 0, share * np.log(share / q), 0.0)
                   + np.where(share < 1, (1 - share) * np.log((1 - share) / (1 - q)), 0.0))
         bound = np.where((share > q) & (x > 0), np.exp(-L * kl), 1.0)
-        for k in np.flatnonzero(bound * factor < STEP_ALPHA):
-            bound[k] = binomial_sf(int(x[k]), k + 1, q)
+        for j in np.flatnonzero(bound * factor < STEP_ALPHA).tolist():
+            bound[j] = binomial_sf(int(x[j]), j + 1, q)
         k = int(np.argmin(bound))
         if bound[k] < best[0]:
             best = (float(bound[k]), tail, k + 1)
