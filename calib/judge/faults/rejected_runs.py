@@ -34,6 +34,11 @@ from wandcal.calib.judge.residuals import Residuals
 from wandcal.calib.triangulate import triangulate_points
 
 TURN_STEPS = 4  # Gauss-Newton steps of the block's turn, before and after leaving out what stays beyond the limit
+# a rejected block is the candidate's own only where, any one other camera left out too (the one
+# that might have moved instead, its knocked pose followed by the solve), two cameras still place
+# its points: N - 2 >= 2. In a rig of three the outlier pass may reject the unmoved camera of a
+# pair (the seed-11 grid: easyWand sample cam2 5 deg named on cam1), which the data cannot undo
+MIN_CAMERAS = 4
 MIN_PLACED = 3  # block frames the others place: a turn (three columns) fitted to fewer is not tested
 FITS_LEVEL = 0.01  # the turned block is as the rig when its camera-frames left beyond the limit are this likely at its rate
 
@@ -210,7 +215,10 @@ def turned_back(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, run: Rejec
 def rejected_moved(ids: list[str], res: Residuals, R: np.ndarray, t: np.ndarray) -> list[dict]:
     """A ``moved`` fault on the camera whose rejected camera-frames bunch at one end of its time
     beyond the rig's rate at p under :data:`STEP_ALPHA` and which one turn of the camera brings
-    back (:func:`turned_back`); the smallest p where several do; [] where none does."""
+    back (:func:`turned_back`); the smallest p where several do; [] where none does, and in a rig
+    of fewer than :data:`MIN_CAMERAS`."""
+    if len(ids) < MIN_CAMERAS:
+        return []
     found = sorted((rq[0].p_value, c, rq) for c, rq in enumerate(camera_runs(res, len(ids)))
                    if rq is not None and rq[0].p_value < STEP_ALPHA)
     for _, c, (r, q) in found:

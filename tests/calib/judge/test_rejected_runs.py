@@ -102,3 +102,13 @@ def test_gross_outliers_spread_in_time_name_nothing(seed):
     R, t = _rig()
     rng = np.random.default_rng(seed)
     assert _named(_wand(R, t, rng, outliers=0.1), R, t) == []
+
+
+def test_a_rig_of_three_names_nothing_from_its_rejects():
+    """With three cameras the outlier pass may reject the unmoved camera of a pair: the rejects
+    do not say which camera moved, and nothing is named from them."""
+    R, t = _rig(3)
+    rng = np.random.default_rng(7)
+    axis = rng.normal(size=3)
+    wand = _wand(R, t, rng, (1, 20, np.radians(5.0) * axis / np.linalg.norm(axis)))
+    assert _named(wand, R, t) == []
