@@ -38,7 +38,7 @@ from wandcal.calib.rig import PointObservations, Rig, WandObservations
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.resolve import solve_only
 from wandcal.calib.run.result import CalibrationResult
-from wandcal.calib.watch.sequential import GLR_THRESHOLD
+from wandcal.calib.watch.sequential import GLR_THRESHOLD, median_detected
 from wandcal.calib.watch.take import TakeBlobs
 from wandcal.calib.watch.watch import WatchReport, watch_take
 
@@ -188,7 +188,10 @@ def run(takes: list[RealTake], seed: int = 1, knock_at: float = KNOCK_AT) -> lis
     for take in takes:
         frames = np.unique(take.blobs.frame)
         start = time.process_time()
-        row = verdict(watch_take(take.rig, take.R, take.t, take.blobs), None, None, None)
+        clean = watch_take(take.rig, take.R, take.t, take.blobs)
+        row = verdict(clean, None, None, None)
+        if clean.judged:
+            row["sees"] = [(h.id, h.detectable_turn_deg) for h in clean.cameras]
         rows.append({"take": take.name, "frames": len(frames), "fault": "clean", "cpu": time.process_time() - start, **row})
         at = knock_frame(take, knock_at)
         for c, cam in enumerate(take.rig.cameras):
@@ -197,6 +200,8 @@ def run(takes: list[RealTake], seed: int = 1, knock_at: float = KNOCK_AT) -> lis
                 row = verdict(report, c, at, turn, turn_of(turn, seed) @ take.R[c])
                 if row["right"] is False:
                     row["expected"] = own_statistic(report, c, turn, int(np.searchsorted(frames, at)), seed)
+                    row["sees"] = (turn * np.sqrt(median_detected() / max(row["expected"], 1e-12)),
+                                   report.cameras[c].detectable_turn_deg)
                 if take.wand is not None and report.judged:
                     row["wand"] = wand_resolve_error(take, c, turn, at, seed)
                 rows.append({"take": take.name, "frames": len(frames), "fault": f"{cam.id} turned {turn:g} deg at frame {at}",
@@ -229,7 +234,7 @@ def table(rows: list[dict]) -> str:
     for r in rows:
         right = "-" if r["right"] is None else "yes" if r["right"] else "no"
         cells = " | ".join(_resolve_cells(r))
-        named = r["named"] + (f" (the turn alone: {r['expected']:.1f} against {GLR_THRESHOLD:g})" if "expected" in r else "")
+        named = r["named"] + _sees(r)
         lines.append(f"| {r['take']} | {r['frames']} | {r['fault']} | {named} | {right} | {cells} |")
     judged = [r for r in rows if r["right"] is not None]
     clean = [r for r in judged if r["fault"] == "clean"]
@@ -240,6 +245,19 @@ def table(rows: list[dict]) -> str:
               f"{sum(r['right'] for r in knocks)} of {len(knocks)}; other cameras named beside a knock: "
               f"{sum(r['false'] for r in knocks)}.", "", _resolve_summary(knocks)]
     return "\n".join(lines)
+
+
+def _sees(r: dict) -> str:
+    """What the take lets the test see: on a clean row each camera's smallest turn named as often as not
+    (its worst axis); on a missed knock the turn alone's statistic against the threshold, and the
+    turn named as often as not along the knock's axis and along the camera's worst."""
+    if "expected" in r:
+        axis, worst = r["sees"]
+        return (f" (the turn alone: {r['expected']:.1f} against {GLR_THRESHOLD:g}; named as often as not from "
+                f"{axis:.2f} deg on its axis, {worst:.2f} on the worst)")
+    if "sees" in r:
+        return " (sees turns from " + ", ".join(f"{cid} {deg:.2f}" for cid, deg in r["sees"]) + " deg)"
+    return ""
 
 
 def _resolve_summary(knocks: list[dict]) -> str:

@@ -188,10 +188,13 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     cameras whose own noise stands out (:func:`own_faults`), else by the suspect screen
     (:func:`camera_faults`). A larger rig: :func:`many_camera_faults`."""
     from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS, leave_one_out_faults
+    from wandcal.calib.judge.faults.swapped import swap_faults
     from wandcal.calib.judge.faults.timing_pairs import camera_timings, timing_faults, timing_instead
 
     if len(rig.cameras) > MAX_CAMERAS:
         return many_camera_faults(rig, labelled, tracks, R, t, figures, res)
+    if swapped := swap_faults(rig, labelled, tracks, R, t, _solved_again):  # two cameras' columns exchanged
+        return swapped
     noise_px, focal = [f["noise_px"] for f in figures], np.array([c.focal.mean() for c in rig.cameras])
     timings = camera_timings(R, t, labelled, tracks, focal) if len(rig.cameras) >= 3 else []
     timing = timing_faults(list(rig.ids), R, t, labelled, tracks, focal, noise_px, timings) if timings else []

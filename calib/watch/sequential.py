@@ -36,6 +36,7 @@ drifting; decision 0063).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -190,6 +191,26 @@ class CameraTest:
         cov = _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[first:]))) + self._baseline_cov() + self.wander(base)
         return float(change @ _pinv(cov) @ change)
 
+    def smallest_turn_deg(self) -> float:
+        """Degrees: the smallest turn about the camera's centre, along its worst axis, that the test names
+        as often as not over the take's last :data:`GLR_WINDOWS` windows: the turn whose non-centrality
+        (:meth:`statistic_of`, the smaller of the whole span's and each half's, as the alarm needs each
+        to pass) is :func:`median_detected`. "This take can see turns of X deg or more on this camera";
+        a smaller one is below what its noise and wander let any test at this false-alarm rate see.
+        NaN before the test has a span after its baseline of :data:`PERSIST_WINDOWS` windows a half."""
+        base = self.baseline()
+        end = len(self.g)
+        first = max(BASELINE_WINDOWS, end - GLR_WINDOWS)
+        if base is None or end - first < 2 * PERSIST_WINDOWS:
+            return float("nan")
+        mid = first + (end - first) // 2
+        weakest = np.inf
+        for lo, hi in ((first, end), (first, mid), (mid, end)):
+            wt = self._weights(lo, hi, base[2])
+            cov = _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[lo:hi]))) + self._baseline_cov() + self.wander(base)
+            weakest = min(weakest, float(np.linalg.eigvalsh(_pinv(cov)[:3, :3])[0]))  # per rad^2, the worst axis
+        return float(np.degrees(np.sqrt(median_detected() / weakest))) if weakest > 0 else float("inf")
+
     def glr(self, last: int | None = None) -> tuple[float, int, np.ndarray]:
         """(the largest S_k of a persistent change, the k of the largest S_k, d_k (6,)) over the
         starts before window ``last`` (all windows by default); the module's note."""
@@ -254,6 +275,17 @@ def between_blocks(Ib: np.ndarray, gb: np.ndarray, per: np.ndarray) -> float:
     return hi
 
 
+@functools.cache
+def median_detected() -> float:
+    """The non-centrality at which S, non-central chi-square with :data:`PARAMS` degrees of freedom,
+    passes :data:`GLR_THRESHOLD` half the time (~44.8): a move whose own statistic is below it is
+    missed more often than named, at the false-alarm rate the threshold holds."""
+    from scipy.optimize import brentq
+    from scipy.stats import ncx2
+
+    return float(brentq(lambda nc: ncx2.sf(GLR_THRESHOLD, PARAMS, nc) - 0.5, 1e-6, 10 * GLR_THRESHOLD))
+
+
 def _pinv(A: np.ndarray) -> np.ndarray:
     """The pseudo-inverse of symmetric A (..., 6, 6), as :func:`solve_pose_change` takes it (rcond :data:`RCOND`)."""
     return np.linalg.pinv(A, rcond=RCOND, hermitian=True)
@@ -276,7 +308,7 @@ def classify(test: CameraTest, alarm: Alarm) -> tuple[str, int, int, np.ndarray]
     gd = g - np.einsum("wij,j->wi", H, p0)  # normal equations of the change since the baseline
     durations = np.unique(np.r_[0, np.round(np.geomspace(1, max(2 * len(w), 2), 16))]).astype(int)
     best: tuple[float, int, int, np.ndarray] = (-np.inf, 0, 0, np.zeros(PARAMS))
-    best_step: float = -np.inf
+    step = best
     for s in range(max(0, k_alarm - GLR_WINDOWS), max(k_alarm, k_det) + 1):
         for dur in durations:
             rho = np.clip((w - s + 1) / max(dur, 1), 0, 1) if dur else (w >= s).astype(float)
@@ -286,10 +318,30 @@ def classify(test: CameraTest, alarm: Alarm) -> tuple[str, int, int, np.ndarray]
             gain = float(a @ b)  # the fit's reduction of the residual sum of squares, px^2
             if gain > best[0]:
                 best = (gain, s, int(dur), a)
-            if dur == 0:
-                best_step = max(best_step, gain)
-    s2 = base[2]
+            if dur == 0 and gain > step[0]:
+                step = (gain, s, 0, a)
     gain, s, dur, a = best
     frames = dur * WINDOW_FRAMES
-    drift = frames > KNOCK_FRAMES and (gain - best_step) / s2 > DRIFT_MARGIN
+    drift = frames > KNOCK_FRAMES and (gain - step[0]) / _scatter(base[2], H, gd, step[0]) > DRIFT_MARGIN
+    if frames > KNOCK_FRAMES and not drift:  # a knock: when it moved and by how much, the best step's
+        _, s, dur, a = step
     return ("drift" if drift else "knock"), test.start[BASELINE_WINDOWS + s], frames if drift else 0, a
+
+
+def _scatter(s2: float, H: np.ndarray, gd: np.ndarray, explained: float) -> float:
+    """px^2: the variance a model of the windows' pose changes is judged against: the residuals' own
+    ``s2``, scaled by the windows' scatter about the model when they scatter more (the reduced
+    chi-square of the lack of fit, as in a quasi-likelihood or Birge-ratio test). ``H`` (W, 6, 6),
+    ``gd`` (W, 6): each window's normal equations of the change since the baseline; ``explained``: the
+    model's gain, px^2. Each window's own fit gains ``gd_w^T H_w^+ gd_w``; what the model leaves of
+    their sum, over the windows' ranks less :data:`PARAMS`, is the scatter per degree of freedom. On a
+    real take the camera's apparent pose wanders window to window beyond the blobs' noise (a camera
+    model a little off, :meth:`CameraTest.wander`), and a ramp bent to that wander beat a step by
+    more than :data:`DRIFT_MARGIN` noise units (a real camera turned 0.3 deg named as drifting from
+    the baseline's end, decision 0077d); in a simulated take the ratio is ~1 and nothing changes."""
+    per_window = float(np.einsum("wi,wij,wj->", gd, _pinv(H), gd))
+    scale = np.abs(H).max(axis=(1, 2), initial=0.0)
+    dof = sum(int((np.linalg.eigvalsh(h) > RCOND * m).sum()) for h, m in zip(H, scale) if m > 0) - PARAMS
+    if dof <= 0:
+        return s2
+    return s2 * max((per_window - explained) / s2 / dof, 1.0)

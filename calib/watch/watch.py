@@ -61,6 +61,8 @@ class CameraHealth:
     not_resolved: str = ""  # why a moved camera was not re-solved, and what to do
     before_take: bool = False  # it had moved already when the take began
     peak: float = 0.0  # the test's largest statistic over the take
+    # degrees: the smallest turn (its worst axis) the test names as often as not over the take's last windows
+    detectable_turn_deg: float = float("nan")
     test: CameraTest | None = field(default=None, repr=False, compare=False)  # its pose test: what a given move would score
 
     @property
@@ -202,6 +204,7 @@ class WatchStream:
             health.matched = float(sums[c, 1] / max(sums[c, 2], 1))
             health.alarm = self.tests[c].alarm
             health.peak = self.tests[c].peak
+            health.detectable_turn_deg = self.tests[c].smallest_turn_deg()
             health.test = self.tests[c]
             alarm = health.alarm
             if alarm is not None and health.before_take:

@@ -8,6 +8,7 @@ put what they find in order.
 |---|---|
 | :mod:`~wandcal.calib.judge.faults.screen` | why one camera disagrees: its timing (:class:`TimingFault`), its lens, or else |
 | :mod:`~wandcal.calib.judge.faults.leave_one_out` | rigs of 3-5 cameras: each camera against the points the others triangulate (lens) |
+| :mod:`~wandcal.calib.judge.faults.swapped` | rigs of 3-5 cameras: two cameras whose observations fit better with each other's intrinsics (columns swapped) |
 | :mod:`~wandcal.calib.judge.faults.own_errors` | the points eliminated: each camera's own noise (rigs of any size; a large one on a bounded number of views) |
 | :mod:`~wandcal.calib.judge.faults.pose_steps` | the points eliminated: a step in a camera's pose (moved), tested in full |
 | :mod:`~wandcal.calib.judge.faults.rejected_runs` | a knock the outlier pass rejected: a camera's rejected camera-frames bunched at one end of its time, one turn bringing them back |

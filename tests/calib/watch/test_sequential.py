@@ -75,3 +75,48 @@ def test_a_step_after_the_tests_k_is_a_knock_at_its_window():
     assert (kind, frame, frames) == ("knock", step * WINDOW_FRAMES, 0)
     # the change's rotation within 5 sigma of one window's noise (0.3 px over 400 residuals at 1100 px a radian)
     assert abs(change[0] - CHANGE[0]) < 5 * NOISE_PX / 1100.0 / np.sqrt(RESIDUALS)
+
+
+def test_the_smallest_detectable_turn_scores_what_the_test_names_half_the_time():
+    """The turn :meth:`CameraTest.smallest_turn_deg` reports, along the camera's worst axis, has the
+    non-centrality at which S passes the threshold half the time, over the whole span and each half
+    (the smaller of the three); along any other axis the same turn scores more."""
+    from wandcal.calib.watch.sequential import GLR_WINDOWS, median_detected
+
+    rng = np.random.default_rng(5)
+    test = CameraTest()
+    for w in range(BASELINE_WINDOWS + GLR_WINDOWS):
+        test.add(*_window(rng, np.zeros(6)), start=w * WINDOW_FRAMES)
+    turn = np.radians(test.smallest_turn_deg())
+    first, end = BASELINE_WINDOWS, len(test.g)
+    mid = first + (end - first) // 2
+    axes = np.linalg.qr(rng.normal(size=(3, 3)))[0].T
+    scores = []
+    for axis in [*axes, np.array([1.0, 0.0, 0.0])]:
+        change = np.r_[turn * axis, np.zeros(3)]
+        scores.append(min(_statistic_over(test, change, lo, hi) for lo, hi in ((first, end), (first, mid), (mid, end))))
+    assert min(scores) >= median_detected() * (1 - 1e-9)
+
+
+def _statistic_over(test, change, lo, hi):
+    """A change's noise-free statistic over windows lo..hi-1 (``statistic_of`` over lo.. of the first hi)."""
+    part = CameraTest()
+    for w in range(hi):
+        part.add(test.g[w], test.H[w], test.sse[w], test.n[w], test.start[w])
+    return part.statistic_of(change, lo)
+
+
+def test_a_step_among_windows_that_wander_is_a_knock_at_its_window():
+    """A real camera's apparent pose wanders window to window far beyond its blobs' noise (its model a
+    little off): a ramp bent to that wander must not be taken for a drift; the step is a knock."""
+    step = BASELINE_WINDOWS + 10
+    rng = np.random.default_rng(11)
+    wander = rng.normal(0.0, 3e-5, (BASELINE_WINDOWS + 30, 6)) * [1, 1, 1, 0, 0, 0]  # ~10x the noise's pose scatter
+    changes = wander.copy()
+    changes[step:] += 3 * CHANGE
+    test = CameraTest()
+    for w, change in enumerate(changes):
+        test.add(*_window(rng, change), start=w * WINDOW_FRAMES)
+    alarm = Alarm(0, step * WINDOW_FRAMES, (step + 6) * WINDOW_FRAMES - 1, GLR_THRESHOLD, CHANGE)
+    kind, frame, frames, _ = classify(test, alarm)
+    assert (kind, frame, frames) == ("knock", step * WINDOW_FRAMES, 0)
