@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
+from wandcal.calib.judge.faults.rejected_runs import rejected_moved
 from wandcal.calib.judge.faults.screen import Lens, TimingFault, analyse_camera, classify, lens_screen, offset_text
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
 from wandcal.calib.judge.residuals import Residuals, held_out
@@ -208,6 +209,7 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     if lens and not lens[0]["evidence"]["intrinsics"].get("aspect_error"):
         return lens
     moved, noisy = own_faults(rig, labelled, tracks, R, t)
+    moved = moved or rejected_moved(list(rig.ids), res, R, t)  # a knock whose later views the outlier pass rejected
     # a camera out of time is noisy in its own residuals too: its offset, where it explains them, names the kind
     noisy = [timing_instead(list(rig.ids), timings, rig.index(f["camera"]), noise_px[rig.index(f["camera"])]) or f
              for f in noisy]
@@ -326,6 +328,7 @@ def many_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None
     screened = camera_faults(rig, labelled, R, t, figures, res)
     named = [rig.index(f["camera"]) for f in screened if f["camera"] is not None]
     moved, noisy = own_faults(rig, labelled, tracks, R, t, named, res)
+    moved = moved or rejected_moved(list(rig.ids), res, R, t)  # a knock whose later views the outlier pass rejected
     gone = {f["camera"] for f in moved}
     kept = [f for f in screened if f["camera"] not in gone]
     return moved + kept + [f for f in noisy if f["camera"] not in {g["camera"] for g in kept}]

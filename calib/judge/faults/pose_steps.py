@@ -18,13 +18,14 @@ were measured.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from wandcal.calib.geometry import projection_derivative
 from wandcal.calib.judge.faults.f_distribution import f_survival
 from wandcal.calib.judge.faults.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
+from wandcal.calib.judge.faults.step_bound import critical_f, detectable_turn
 
 MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone
 MAX_SPLITS = 60  # candidate splits, evenly spaced in the camera's timed observations
@@ -40,7 +41,12 @@ class Step:
     """A step in a camera's pose: after capture frame ``frame`` it
     turned by ``degrees`` (+- degrees_std) and its centre moved ``mm`` (+- mm_std, with the turn
     fitted beside it); f_stat at the best split, p_value with the split search accounted for;
-    explained: the share of the camera's residual beyond its pose the step explains."""
+    explained: the share of the camera's residual beyond its pose the step explains;
+    test_dof: the F's denominator degrees of freedom, splits: the splits searched (the p-value's
+    Bonferroni factor); turn (3,), deg, and turn_cov (3, 3), deg^2: the turn in the camera's frame
+    and its covariance as the test scales it (what :attr:`detectable_deg` reads); inflation and
+    views_dof: the batch-means factor in turn_cov and the dof the views would have were they
+    independent (test_dof is the smaller of it and the batches')."""
 
     frame: int
     degrees: float
@@ -50,6 +56,28 @@ class Step:
     f_stat: float
     p_value: float
     explained: float
+    test_dof: float = float("inf")
+    splits: int = 0
+    turn: np.ndarray | None = field(default=None, compare=False, repr=False)
+    turn_cov: np.ndarray | None = field(default=None, compare=False, repr=False)
+    inflation: float = 1.0
+    views_dof: float = float("inf")
+
+    @property
+    def critical_f(self) -> float:
+        """The F the test names at: F(3, test_dof)'s upper STEP_ALPHA / splits point (nan without splits)."""
+        return critical_f(3, self.test_dof, STEP_ALPHA / self.splits) if self.splits else float("nan")
+
+    def detectable_along(self, axis: np.ndarray) -> float:
+        """The turn, degrees, about ``axis`` (3,) (camera frame) that the test names at this split
+        (:func:`detectable_turn`)."""
+        return detectable_turn(self.turn_cov, axis, self.critical_f)
+
+    @property
+    def detectable_deg(self) -> float:
+        """The turn about the step's own axis that the test names at this split: a knock below it
+        is one the data cannot tell from the camera's own scatter in time (decision 0077h)."""
+        return float("nan") if self.turn is None else self.detectable_along(self.turn)
 
 
 def _rows_of(el: Eliminated, c: int):
@@ -157,11 +185,13 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
     cov = cov * (ratio * inflation[0])
     p = min(1.0, len(candidates) * f_survival(3, min(dof, dof_f, inflation[1]), f))
     deg, deg_std = np.degrees(np.linalg.norm(coef[nb:])), np.degrees(np.sqrt(np.trace(cov[nb:, nb:]) / 3))
+    w_hat, turn_cov = np.degrees(coef[nb:]), np.degrees(np.degrees(cov[nb:, nb:]))
     coef, cov = _coef(np.concatenate([base_cols, step * mask, shift.reshape(n_rows, 3) * mask], axis=1)[k2], yv[k2],
                       dof - 3)
     mm, mm_std = 1000 * np.linalg.norm(coef[nb + 3:]), 1000 * np.sqrt(np.trace(cov[nb + 3:, nb + 3:]) / 3)
     return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
-                float(1 - rss1 / rss0) if rss0 > 0 else 0.0)
+                float(1 - rss1 / rss0) if rss0 > 0 else 0.0, float(min(dof, dof_f, inflation[1])), len(candidates),
+                w_hat, turn_cov, float(inflation[0]), float(min(dof, dof_f)))
 
 
 def _timed_dispersion(A: np.ndarray, e: np.ndarray, keep: np.ndarray, timed: np.ndarray, rho: np.ndarray) -> tuple[float, float]:

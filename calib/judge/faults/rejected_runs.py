@@ -1,0 +1,241 @@
+"""A camera knocked so far that the outlier pass rejected its views after the knock: its rejected
+camera-frames bunched at one end of its time (issue 31, decision 0077i).
+
+A knock of a degree or more on a sparse camera puts its later wand views beyond the rig's outlier
+limit: the outlier pass drops them, and the step test (:mod:`wandcal.calib.judge.faults.pose_steps`),
+which trims what lies beyond that limit, never sees the step. What was rejected says it instead.
+The judgement's residuals mark the same camera-frames (``Residuals.outlier``: beyond the rig's
+limit at the solver's points, which the rejected views did not pull: the outlier pass's rule).
+
+The test, per camera, on its wand camera-frames another camera shares, in capture order. Under the
+null (no knock) a camera-frame is rejected at the rig's rate (reflections and mis-detections, spread
+in time), bounded above by the other cameras' share (Clopper-Pearson 97.5%, the frames of the
+camera's block left out: a knock rejects its partners' views in the frames they share with it).
+A knock makes a block at one end of the camera's time (after the knock; or before it, where the
+solve kept the later pose) rejected far beyond that rate: the smallest binomial tail P(Bin(L, q) >=
+rejected of the last or first L) times the 2 (n - 1) blocks tried (Bonferroni) is the p-value,
+named at :data:`~wandcal.calib.judge.faults.pose_steps.STEP_ALPHA`, the step test's own rate. A
+camera whose rejects are its own noise or a reflection would pass that too where they crowd one
+end, so the block must also be a pose: one turn of the camera about its centre, fitted to the
+block's views against the points the other cameras place without it, brings them back within the
+limit (no more left beyond it than the rate explains, :func:`turned_back`). Only a camera's own
+rejected views count, and the camera of smallest p that turns back is the one named.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.geometry import projection_derivative, rotvec_to_matrix
+from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA
+from wandcal.calib.judge.residuals import Residuals
+from wandcal.calib.triangulate import triangulate_points
+
+TURN_STEPS = 4  # Gauss-Newton steps of the block's turn, before and after leaving out what stays beyond the limit
+# a rejected block is the candidate's own only where, any one other camera left out too (the one
+# that might have moved instead, its knocked pose followed by the solve), two cameras still place
+# its points: N - 2 >= 2. In a rig of three the outlier pass may reject the unmoved camera of a
+# pair (the seed-11 grid: easyWand sample cam2 5 deg named on cam1), which the data cannot undo
+MIN_CAMERAS = 4
+MIN_PLACED = 3  # block frames the others place: a turn (three columns) fitted to fewer is not tested
+FITS_LEVEL = 0.01  # the turned block is as the rig when its camera-frames left beyond the limit are this likely at its rate
+
+
+@dataclass(frozen=True)
+class RejectedRun:
+    """A camera's rejected camera-frames bunched at one end of its time: after capture frame
+    ``frame`` (``tail``; else before it and up to it) ``rejected`` of the ``block`` camera-frames
+    were rejected, against ``total_rejected`` of its ``frames`` in all; p_value: the hypergeometric
+    tail probability times the blocks tried."""
+
+    frame: int
+    tail: bool
+    block: int
+    rejected: int
+    frames: int
+    total_rejected: int
+    p_value: float
+
+
+def _log_comb(log_fact: np.ndarray, n: np.ndarray | int, k: np.ndarray) -> np.ndarray:
+    """log C(n, k) from the table ``log_fact`` (log k! for k = 0 .. its length - 1)."""
+    return log_fact[n] - log_fact[k] - log_fact[n - k]
+
+
+def binomial_upper(k: int, n: int, alpha: float = 0.025) -> float:
+    """The Clopper-Pearson upper bound of a rate seen k times in n: the q at which k or fewer
+    happen with probability ``alpha`` (1 with n = 0)."""
+    if n == 0 or k >= n:
+        return 1.0
+    lo, hi = k / n, 1.0
+    for _ in range(60):
+        q = (lo + hi) / 2
+        lo, hi = (q, hi) if binomial_sf(k + 1, n, q) < 1 - alpha else (lo, q)
+    return hi
+
+
+def binomial_sf(x: int, n: int, q: float) -> float:
+    """P(Bin(n, q) >= x)."""
+    if x <= 0:
+        return 1.0
+    if x > n or q <= 0:
+        return 0.0
+    if q >= 1:
+        return 1.0
+    j = np.arange(x, n + 1)
+    lf = np.concatenate([[0.0], np.cumsum(np.log(np.arange(1, n + 1)))])
+    return float(min(np.exp(_log_comb(lf, n, j) + j * np.log(q) + (n - j) * np.log1p(-q)).sum(), 1.0))
+
+
+def block_against_rate(rejected: np.ndarray, frames: np.ndarray, q: float) -> RejectedRun | None:
+    """The block at either end of one camera's time (``rejected`` (n,) bool, ``frames`` (n,), in
+    capture order) whose rejected count is least likely were each camera-frame rejected at the
+    rig's rate ``q`` alone: P(Bin(L, q) >= its count), times the 2 (n - 1) blocks tried. None
+    without a rejected frame. The tail is summed exactly only where its Chernoff bound
+    exp(-L KL(x / L, q)) could reach :data:`STEP_ALPHA` after the factor; elsewhere the bound (above
+    the exact tail) stands for it."""
+    n = len(rejected)
+    if n < 2 or not rejected.any():
+        return None
+    best: tuple[float, bool, int] = (2.0, True, 0)
+    factor = 2 * (n - 1)
+    for tail, seq in ((True, rejected[::-1]), (False, rejected)):
+        x = np.cumsum(seq)[:-1].astype(float)
+        L = np.arange(1, n, dtype=float)
+        share = x / L
+        with np.errstate(divide="ignore", invalid="ignore"):
+            kl = (np.where(share > 0, share * np.log(share / q), 0.0)
+                  + np.where(share < 1, (1 - share) * np.log((1 - share) / (1 - q)), 0.0))
+        bound = np.where((share > q) & (x > 0), np.exp(-L * kl), 1.0)
+        for j in np.flatnonzero(bound * factor < STEP_ALPHA).tolist():
+            bound[j] = binomial_sf(int(x[j]), j + 1, q)
+        k = int(np.argmin(bound))
+        if bound[k] < best[0]:
+            best = (float(bound[k]), tail, k + 1)
+    p, tail, L_best = best
+    if L_best == 0:
+        return None
+    block = rejected[n - L_best:] if tail else rejected[:L_best]
+    frame = int(frames[n - L_best - 1] if tail else frames[L_best - 1])
+    return RejectedRun(frame, tail, L_best, int(block.sum()), n, int(rejected.sum()), float(min(p * factor, 1.0)))
+
+
+def _camera_frames(res: Residuals, c: int) -> tuple[np.ndarray, np.ndarray]:
+    """Camera c's wand camera-frames another camera sees too, with a finite residual, in capture
+    order: (their residuals' rows of the first end (K,), rejected (K,) bool)."""
+    wand = (res.point >= 0) & (res.point % 2 == 0) & np.all(np.isfinite(res.residual), axis=1)
+    views = np.bincount(res.point[wand] // 2, minlength=len(res.frames))
+    rows = np.flatnonzero(wand & (res.camera == c))
+    rows = rows[views[res.point[rows] // 2] >= 2]
+    rows = rows[np.argsort(res.frames[res.point[rows] // 2], kind="stable")]
+    return rows, res.outlier[rows]
+
+
+def camera_runs(res: Residuals, n_cameras: int) -> list[tuple[RejectedRun, float] | None]:
+    """Each camera's :func:`block_against_rate` on its wand camera-frames (a point track's
+    observations have no time the wand's shares) that another camera sees too, and the rate it was
+    judged at: the upper 97.5% bound (:func:`binomial_upper`) of the other cameras' rejected share
+    in the frames outside the camera's block (a knock rejects its partners' views in the frames they
+    share with it too: in a frame of two views the error is split), the block found at the others'
+    whole rate first, then again at that rate."""
+    per = [_camera_frames(res, c) for c in range(n_cameras)]
+    frame_of = [res.point[rows] // 2 for rows, _ in per]
+    all_frames = np.concatenate(frame_of) if per else np.zeros(0, np.int64)
+    all_out = np.concatenate([o for _, o in per]) if per else np.zeros(0, bool)
+    rejected_in = np.bincount(all_frames, all_out, minlength=len(res.frames))  # every camera's, per frame
+    seen_in = np.bincount(all_frames, minlength=len(res.frames)).astype(float)
+    runs: list[tuple[RejectedRun, float] | None] = []
+    for c, (_, out) in enumerate(per):
+        frames, inside = res.frames[frame_of[c]], np.zeros(len(out), bool)
+        run, q = None, 1.0
+        for _ in range(2):
+            block = frame_of[c][inside]  # the others' camera-frames outside c's block
+            k = rejected_in.sum() - out.sum() - (rejected_in[block].sum() - out[inside].sum())
+            n = seen_in.sum() - len(out) - (seen_in[block].sum() - inside.sum())
+            q = binomial_upper(int(round(k)), int(round(n)))
+            run = block_against_rate(out, frames, q) if q < 1 else None
+            if run is None:
+                break
+            inside = frames > run.frame if run.tail else frames <= run.frame
+        runs.append(None if run is None else (run, q))
+    return runs
+
+
+def turned_back(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, run: RejectedRun, q: float) -> bool:
+    """Whether one turn of camera c about its centre brings its block's camera-frames back: after
+    the turn (least squares on the block's views, the ones still beyond the limit then left out and
+    fitted once more) no more of them stay beyond the rig's limit than its rate ``q`` would put
+    there (P(Bin(block, q) >= those left) >= :data:`FITS_LEVEL`). A reflection or a second marker
+    is not a pose: one turn does not explain it."""
+    rows, _ = _camera_frames(res, c)
+    frames = res.frames[res.point[rows] // 2]
+    inside = frames > run.frame if run.tail else frames <= run.frame
+    pts = res.point[rows[inside]]
+    placed = np.zeros(len(res.frames), bool)
+    ends = np.isin(res.point, np.r_[pts, pts + 1]) & (res.point >= 0)
+    views = np.flatnonzero(ends & (res.camera == c))
+    # the block's points as the other cameras' kept views place them (two views or more)
+    others = np.flatnonzero(ends & (res.camera != c) & ~res.outlier)
+    seen = np.bincount(res.point[others], minlength=2 * len(res.frames))
+    others = others[seen[res.point[others]] >= 2]
+    if not len(others):
+        return True  # the others do not place the block: the rate's test stands alone
+    X = triangulate_points(R, t, res.point[others], res.camera[others], res.xy[others], 2 * len(res.frames))
+    X = X[res.point[views]]
+    ok = np.all(np.isfinite(X), axis=1) & (seen[res.point[views]] >= 2)
+    views, X = views[ok], X[ok]
+    if len(np.unique(res.point[views] // 2)) < MIN_PLACED:
+        return True  # too few of the block's frames placed without it to tell a turn from a reflection
+    Xc0 = X @ R[c].T + t[c]
+    w, use = np.zeros(3), np.ones(len(views), bool)
+    for k in range(2 * TURN_STEPS):
+        Xc = Xc0 @ rotvec_to_matrix(w).T
+        err = (Xc[:, :2] / Xc[:, 2:] - res.xy[views]) * res.focal[views, None]
+        if k == TURN_STEPS:  # the views the first fit leaves beyond the limit are left out of the second
+            use = np.linalg.norm(err, axis=1) <= res.limit_px
+            if use.sum() < 3:
+                break
+        cross = np.zeros((len(Xc), 3, 3))
+        cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 0] = Xc[:, 2], -Xc[:, 1], -Xc[:, 2]
+        cross[:, 1, 2], cross[:, 2, 0], cross[:, 2, 1] = Xc[:, 0], Xc[:, 1], -Xc[:, 0]
+        J = np.einsum("kij,kjl->kil", projection_derivative(Xc), cross) * res.focal[views, None, None]
+        A = np.einsum("kmi,kmj->ij", J[use], J[use])
+        w = w - np.linalg.lstsq(A, np.einsum("kmi,km->i", J[use], err[use]), rcond=None)[0]
+    Xc = Xc0 @ rotvec_to_matrix(w).T
+    err = np.linalg.norm((Xc[:, :2] / Xc[:, 2:] - res.xy[views]) * res.focal[views, None], axis=1)
+    beyond = np.zeros(len(res.frames), bool)
+    np.logical_or.at(beyond, res.point[views] // 2, err > res.limit_px)
+    placed[res.point[views] // 2] = True
+    left = int(beyond.sum())
+    return binomial_sf(left, int(placed.sum()), q) >= FITS_LEVEL
+
+
+def rejected_moved(ids: list[str], res: Residuals, R: np.ndarray, t: np.ndarray) -> list[dict]:
+    """A ``moved`` fault on the camera whose rejected camera-frames bunch at one end of its time
+    beyond the rig's rate at p under :data:`STEP_ALPHA` and which one turn of the camera brings
+    back (:func:`turned_back`); the smallest p where several do; [] where none does, and in a rig
+    of fewer than :data:`MIN_CAMERAS`."""
+    if len(ids) < MIN_CAMERAS:
+        return []
+    found = sorted((rq[0].p_value, c, rq) for c, rq in enumerate(camera_runs(res, len(ids)))
+                   if rq is not None and rq[0].p_value < STEP_ALPHA)
+    for _, c, (r, q) in found:
+        if turned_back(res, R, t, c, r, q):
+            return [rejected_fault(ids[c], r)]
+    return []
+
+
+def rejected_fault(cam: str, r: RejectedRun) -> dict:
+    """The ``moved`` fault of a camera whose rejected views bunch (:class:`RejectedRun`)."""
+    when = f"after frame {r.frame}" if r.tail else f"up to frame {r.frame}"
+    other = "before" if r.tail else "after"
+    return {"kind": "moved", "camera": cam, "evidence": {
+        "frame": r.frame, "rejected_block": r.rejected, "block_frames": r.block, "rejected": r.total_rejected,
+        "frames": r.frames, "p_value": float(f"{r.p_value:.3g}"), "rejected_views": True},
+        "message": f"{cam} moved during the capture: {r.rejected} of its {r.block} camera-frames {when} are gross "
+                   f"outliers against {r.total_rejected - r.rejected} of its {r.frames - r.block} {other} (p "
+                   f"{r.p_value:.2g}), too far off for the outlier pass to keep, where the other cameras agree; "
+                   f"fix its mount and calibrate again, or re-solve it from the frames on one side of {r.frame} alone "
+                   f"(calibrate --from RESULT --solve-only {cam})"}

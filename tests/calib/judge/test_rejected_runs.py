@@ -1,0 +1,114 @@
+"""A camera's rejected camera-frames bunched at one end of its time (calib/judge/faults/rejected_runs.py,
+decision 0077i): the block test's arithmetic is the binomial's, its false-alarm rate at the rig's
+outlier rate is at most its level, and on a seeded four-camera wand rig a camera knocked
+5 degrees (its later views all beyond the outlier limit) is named moved at its frame while gross
+outliers spread in time name nothing."""
+
+from __future__ import annotations
+
+from math import comb
+
+import numpy as np
+import pytest
+
+from tests.calib.judge.test_own_errors import FOCAL_PX, NOISE_PX, _rig
+from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA
+from wandcal.calib.judge.faults.rejected_runs import binomial_sf, binomial_upper, block_against_rate, rejected_moved
+from wandcal.calib.judge.residuals import observation_residuals
+from wandcal.calib.observations import WandPairs
+
+WAND_FRAMES = 60
+
+
+def test_the_binomial_tail_and_bound_are_exact():
+    for x, n, q in [(3, 10, 0.1), (14, 14, 0.3), (1, 5, 0.02)]:
+        exact = sum(comb(n, j) * q**j * (1 - q) ** (n - j) for j in range(x, n + 1))
+        assert binomial_sf(x, n, q) == pytest.approx(exact, rel=1e-9)
+    # the Clopper-Pearson upper bound: k or fewer of n at that rate with probability 2.5%
+    for k, n in [(0, 30), (5, 46), (14, 46)]:
+        q = binomial_upper(k, n)
+        assert 1 - binomial_sf(k + 1, n, q) == pytest.approx(0.025, abs=1e-6)
+    assert binomial_upper(0, 30) == pytest.approx(1 - 0.025 ** (1 / 30), rel=1e-6)
+
+
+def test_a_block_names_the_frame_it_ends_at():
+    rejected = np.r_[np.ones(10, bool), np.zeros(20, bool)]
+    run = block_against_rate(rejected, 2 * np.arange(30), 0.1)
+    assert run is not None and not run.tail and run.frame == 18 and run.rejected == run.block == 10
+    assert run.p_value == pytest.approx(2 * 29 * 0.1**10, rel=1e-9)  # q^10, times 2 (n - 1) blocks
+    run = block_against_rate(rejected[::-1], 2 * np.arange(30), 0.1)
+    assert run is not None and run.tail and run.frame == 38
+    assert block_against_rate(np.zeros(5, bool), np.arange(5), 0.1) is None
+
+
+@pytest.mark.parametrize("n, rate", [(20, 0.1), (40, 0.3), (200, 0.02)])
+def test_outliers_at_the_rigs_rate_raise_alarms_at_most_at_the_level(n, rate):
+    """Under the null every camera-frame is rejected at the rate: the Bonferroni p is
+    conservative, so at a level of 1% at most 1% of 500 seeded sequences fall under it (plus two
+    of the count's binomial standard errors)."""
+    rng = np.random.default_rng(n)
+    runs = [block_against_rate(rng.random(n) < rate, np.arange(n), rate) for _ in range(500)]
+    alarms = sum(r is not None and r.p_value < 0.01 for r in runs)
+    assert alarms <= 500 * 0.01 + 2 * np.sqrt(500 * 0.01 * 0.99)
+
+
+def _wand(R, t, rng, knock=None, outliers=0.0) -> tuple[WandPairs, np.ndarray]:
+    """WAND_FRAMES frames of a 0.5 m wand seen by every camera, NOISE_PX; ``outliers`` of the
+    camera-frames with one end 20-40 px off (spread in time); knock: (camera, frame, rotation
+    vector) turns that camera after that frame."""
+    n = len(R)
+    mid = rng.uniform(-0.5, 0.5, (WAND_FRAMES, 3))
+    d = rng.normal(size=(WAND_FRAMES, 3))
+    ends = mid[:, None] + 0.25 * np.array([-1.0, 1.0])[None, :, None] * (d / np.linalg.norm(d, axis=1, keepdims=True))[:, None]
+    frame, camera, xy = [], [], []
+    for f in range(WAND_FRAMES):
+        for c in range(n):
+            Xc = ends[f] @ R[c].T + t[c]
+            if knock is not None and knock[0] == c and f > knock[1]:
+                Xc = Xc @ rotvec_to_matrix(knock[2]).T
+            p = Xc[:, :2] / Xc[:, 2:] + rng.normal(0, NOISE_PX / FOCAL_PX, (2, 2))
+            if rng.random() < outliers:
+                p[0] += rng.uniform(20, 40) / FOCAL_PX * np.sign(rng.normal(size=2))
+            frame.append(f)
+            camera.append(c)
+            xy.append(p)
+    xy = np.array(xy)
+    return WandPairs(np.array(frame), np.array(camera), xy, xy * FOCAL_PX, np.arange(WAND_FRAMES) * 3), ends
+
+
+def _named(wand: tuple[WandPairs, np.ndarray], R, t) -> list[dict]:
+    """The faults rejected_moved names, the wand's true ends standing for the solver's (which the
+    outlier pass kept free of the rejected views)."""
+    labelled, ends = wand
+    res = observation_residuals(R, t, labelled, None, np.full((len(R), 2), FOCAL_PX), (labelled.frames, ends))
+    return rejected_moved([f"cam{k}" for k in range(len(R))], res, R, t)
+
+
+@pytest.mark.parametrize("camera, at", [(1, 20), (3, 40)])
+def test_a_camera_whose_later_views_are_all_rejected_is_named_at_its_frame(camera, at):
+    R, t = _rig()
+    rng = np.random.default_rng(40 + camera)
+    axis = rng.normal(size=3)
+    knock = (camera, at, np.radians(5.0) * axis / np.linalg.norm(axis))
+    found = _named(_wand(R, t, rng, knock, outliers=0.02), R, t)
+    assert [f["camera"] for f in found] == [f"cam{camera}"]
+    ev = found[0]["evidence"]
+    assert ev["frame"] == 3 * at and ev["p_value"] < STEP_ALPHA
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_gross_outliers_spread_in_time_name_nothing(seed):
+    R, t = _rig()
+    rng = np.random.default_rng(seed)
+    assert _named(_wand(R, t, rng, outliers=0.1), R, t) == []
+
+
+def test_a_rig_of_three_names_nothing_from_its_rejects():
+    """With three cameras the outlier pass may reject the unmoved camera of a pair: the rejects
+    do not say which camera moved, and nothing is named from them."""
+    R, t = _rig(3)
+    rng = np.random.default_rng(7)
+    axis = rng.normal(size=3)
+    wand = _wand(R, t, rng, (1, 20, np.radians(5.0) * axis / np.linalg.norm(axis)))
+    assert _named(wand, R, t) == []
