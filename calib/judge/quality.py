@@ -15,6 +15,10 @@ HIGH_RMS_PX = 1.0  # well above blob noise: intrinsics or labels may be off
 OUTLIER_SIGMAS = 5.0  # a camera-frame this many robust sigmas off is a gross outlier, not noise
 MIN_FRAMES_FOR_LENGTH_TEST = 10  # fewer frames give no stable robust spread of wand lengths
 MIN_OUTLIER_PX = 1.0  # never call a residual under a pixel an outlier, however clean the rest
+# a wand-length spread is past a limit only where its own frames say so at one-sided 2.3%: two
+# standard errors, as a camera's noise past its limit (own_errors.NOISE_Z, decision 0064); a spread
+# of n frames within that of a limit, either side, is at the limit (decision 0077a)
+SPREAD_Z = 2.0
 
 
 def pixel_errors(R: np.ndarray, t: np.ndarray, wand: np.ndarray, problem: WandProblem) -> np.ndarray:
@@ -86,6 +90,22 @@ def free_wand_lengths(R: np.ndarray, t: np.ndarray, problem: WandProblem) -> np.
     X = triangulate_points(R, t, problem.point, problem.camera, problem.xy, 2 * problem.n_frames).reshape(-1, 2, 3)
     lengths = np.linalg.norm(X[:, 1] - X[:, 0], axis=1)
     return lengths[np.isfinite(lengths)]
+
+
+def spread_z(std: float, limit: float, n: int) -> float:
+    """How many standard errors a standard deviation ``std`` of ``n`` Gaussian samples stands above
+    ``limit`` (negative: below), were the true spread the limit. ``std`` is the samples' SD about
+    their mean divided by n, as the result's ``length_std_m`` is (``lengths.std()``): n s^2 / limit^2
+    is then chi-square with k = n - 1 degrees of freedom, and its k-th part's cube root close to
+    normal with mean 1 - 2 / (9k) and variance 2 / (9k) (Wilson and Hilferty 1931: at 2 standard
+    errors within 0.002 of chi-square's own one-sided 2.3% point from k = 5). Unlike
+    ``(s - limit) / (s / sqrt(2k))`` it holds for a few frames, where the SD's distribution is
+    skewed. +-inf for fewer than two samples (no sampling error known)."""
+    if n < 2 or not limit > 0:
+        return np.inf if std > limit else -np.inf  # past it or not, and never at the limit
+    k = n - 1
+    v = 2.0 / (9.0 * k)
+    return float(((n * std**2 / (k * limit**2)) ** (1.0 / 3.0) - (1.0 - v)) / np.sqrt(v))
 
 
 def camera_report(errors_px: np.ndarray, problem: WandProblem, frames: np.ndarray, camera: int) -> dict:

@@ -17,6 +17,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.coverage import coverage_grids, covered_fraction, empty_regions
+from wandcal.calib.judge.quality import SPREAD_Z, spread_z
 from wandcal.calib.rig import LISTED_CAMERAS, Rig, camera_list, folded
 
 LEVELS = ("excellent", "good", "poor")
@@ -353,15 +354,15 @@ def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict
         pct = 100 * wand_report["length_std_m"] / wand_report["length_mean_m"]
         n = int(wand_report.get("frames_used") or 0)
         checks = _Checks(None)
-        checks.add("wand spread", pct, WAND_STD_PERCENT,
-                   f"{pct:.2f}% of its length (easyWand's wand score; open tools call <= "
-                   f"{WAND_STD_PERCENT[1]:g}% good): {{level}}", "", std=rms_std(pct, n), shown=(1.0, "%"))
+        _spread_check(checks, pct, WAND_STD_PERCENT, n,
+                      f"{pct:.2f}% of its length (easyWand's wand score; open tools call <= "
+                      f"{WAND_STD_PERCENT[1]:g}% good): {{level}}", (1.0, "%"))
         if extent_m:
-            checks.add("wand spread", std_mm / (1000 * extent_m), WAND_STD_OF_VOLUME,
-                       f"{std_mm:.2f} mm in a {extent_m:.2f} m volume (excellent <= "
-                       f"{WAND_STD_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
-                       f"{WAND_STD_OF_VOLUME[1] * 1000 * extent_m:.2f} mm, from Qualisys's 1-2 mm on a full-body volume): "
-                       "{level}", "", std=rms_std(std_mm / (1000 * extent_m), n), shown=(1000.0 * extent_m, "mm"))
+            _spread_check(checks, std_mm / (1000 * extent_m), WAND_STD_OF_VOLUME, n,
+                          f"{std_mm:.2f} mm in a {extent_m:.2f} m volume (excellent <= "
+                          f"{WAND_STD_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
+                          f"{WAND_STD_OF_VOLUME[1] * 1000 * extent_m:.2f} mm, from Qualisys's 1-2 mm on a full-body "
+                          "volume): {level}", (1000.0 * extent_m, "mm"))
         at_limit += checks.at_limit
         for _, grade, text, _ in checks.rows:
             if grade:
@@ -384,6 +385,26 @@ def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict
                            + " (each camera's verdict says why)")
     advice += fold_advice([(c["id"], text) for c in cameras for text in c["verdict"].get("advice", [])], len(cameras))
     return {"level": LEVELS[level], "reasons": reasons, "advice": list(dict.fromkeys(advice)), "at_limit": at_limit}
+
+
+def _spread_check(checks: _Checks, value: float, limits: tuple[float, float], n: int, text: str,
+                  shown: tuple[float, str]) -> None:
+    """The wand-length spread (a standard deviation of ``n`` frames' lengths) graded against
+    ``limits`` by its own sampling error (decision 0077a): past a limit only where it stands
+    :data:`~wandcal.calib.judge.quality.SPREAD_Z` standard errors above it (one-sided 2.3%, by
+    :func:`~wandcal.calib.judge.quality.spread_z`), at the limit within that of it either side;
+    the entry shows the spread's standard error (:func:`rms_std`). Added to ``checks`` as a row."""
+    z = [spread_z(value, limit, n) for limit in limits]
+    grade = sum(zk > SPREAD_Z for zk in z)
+    near = next((k for k, zk in enumerate(z) if abs(zk) <= SPREAD_Z), None)
+    if near is not None:
+        factor, unit = shown
+        entry = {"criterion": "wand spread", "camera": None, "value": _round(factor * value),
+                 "limit": _round(factor * limits[near]), "std": _round(factor * rms_std(value, n)), "unit": unit,
+                 "levels": [LEVELS[near], LEVELS[near + 1]]}
+        checks.at_limit.append(entry)
+        text = text.replace("{level}", "{level}, " + at_limit_text(entry))
+    checks.rows.append(("wand spread", grade, text, ""))
 
 
 def fold_advice(advice: list[tuple[str, str]], rig_cameras: int) -> list[str]:

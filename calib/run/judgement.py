@@ -4,7 +4,7 @@ verdicts given. Where a calibration went wrong is found before anything is calle
 The same observations are judged for every method (the labelled wand pairs and the point tracks,
 outliers included, :mod:`wandcal.calib.judge.residuals`). A camera whose residuals stand out of
 the rig's (its noise :data:`~wandcal.calib.run.rig_faults.SUSPECT_NOISE_RATIO` times the median camera's, or a share of gross
-outliers well above the others') is a suspect. A camera at fault also bends every other camera's
+outliers well above the others' and beyond their binomial scatter) is a suspect. A camera at fault also bends every other camera's
 pose, so each suspect is judged against the rig solved without it: the others are refined
 without its observations, and its own pose is refitted against the wand ends they triangulate, at
 every whole-frame shift (:func:`wandcal.calib.judge.faults.screen.analyse_camera`); the paths that

@@ -18,7 +18,7 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.solve.ba import DEFAULT_LOSS, LOSSES
 from wandcal.calib.solve.reprojection import INTRINSICS
 from wandcal.calib.solve.sync import DEFAULT_SYNC, SYNC_MODES
-from wandcal.calib.start.frame_offsets import DEFAULT_MAX_OFFSET
+from wandcal.calib.start.offsets.whole_frames import DEFAULT_MAX_OFFSET
 
 METHODS = ("ba", "lp", "paper")
 DEFAULT_METHOD = "ba"  # docs/decisions/0002-default-method.md

@@ -12,6 +12,8 @@ stand out of the rig's, :func:`suspects`), each suspect judged against the rig s
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
@@ -33,6 +35,12 @@ SUSPECT_OUTLIER_FACTOR = 3.0  # ... and that many times the median camera's shar
 SCREEN_LENS_SHARE = 0.05
 SCREEN_F_STAT = 100.0
 MAX_SUSPECTS = 2  # the worst cameras looked into; more at fault at once is a rig-wide problem
+# ... and its outlier share more than binomial scatter about the median camera's explains: its
+# outlier camera-frames' binomial upper tail under the median share below this level, shared out
+# over the rig's cameras (Bonferroni), so that a clean rig has a camera looked into for its
+# outliers alone once in twenty (a clean 128-camera rig's largest shares, 5-8 of 40-80 camera-
+# frames against ~3%, lie at 1e-3-1e-2: binomial scatter; decision 0077e)
+SUSPECT_OUTLIER_LEVEL = 0.05
 # a large rig's points seen by this many cameras or more keep a camera's noise with it in the
 # residuals (3x one camera's noise shows as 2x the others' at four views, 2.8x at sixteen): the
 # suspect screen names it, and the noise with the points eliminated is needed below only
@@ -55,9 +63,44 @@ def _concentrated(figures: list[dict], c: int, sure: bool = False) -> bool:
     return share - std > SUSPECT_OUTLIER_SHARE and share - std > SUSPECT_OUTLIER_FACTOR * _median_share(figures)
 
 
-def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list[int]:
+def camera_frames(res: Residuals, n_cameras: int) -> tuple[np.ndarray, np.ndarray]:
+    """(outliers (N,), camera-frames (N,)) each camera's camera-frames that are gross outliers, of
+    all it has, as independent trials: a wand frame's two ends in a camera are one (flagged together,
+    :func:`wandcal.calib.judge.residuals.observation_residuals`), a point track's observation one."""
+    weight = np.where(res.point >= 0, 0.5, 1.0)  # wand ends (point >= 0) come in pairs
+    total = np.bincount(res.camera, weight, n_cameras)
+    bad = np.bincount(res.camera, weight * res.outlier, n_cameras)
+    return np.ceil(bad - 1e-9).astype(np.int64), np.ceil(total - 1e-9).astype(np.int64)
+
+
+def binomial_tail(k: int, n: int, p: float) -> float:
+    """P(X >= k), X ~ Binomial(n, p), summed in logs (a calibration loads no scipy)."""
+    if k <= 0:
+        return 1.0
+    if k > n or p <= 0.0:
+        return 0.0
+    if p >= 1.0:
+        return 1.0
+    i = np.arange(k + 1, n + 1, dtype=float)
+    head = math.lgamma(n + 1) - math.lgamma(k + 1) - math.lgamma(n - k + 1) + k * math.log(p) + (n - k) * math.log1p(-p)
+    logs = head + np.concatenate([[0.0], np.cumsum(np.log((n - i + 1) / i) + math.log(p) - math.log1p(-p))])
+    top = float(logs.max())
+    return min(1.0, math.exp(top) * float(np.exp(logs - top).sum()))
+
+
+def _scattered(figures: list[dict], c: int, frames: tuple[np.ndarray, np.ndarray], n_cameras: int) -> bool:
+    """Camera c's outlier camera-frames within the binomial scatter of the median camera's share
+    (:data:`SUSPECT_OUTLIER_LEVEL`, over ``n_cameras``)."""
+    bad, total = frames
+    return binomial_tail(int(bad[c]), int(total[c]), _median_share(figures)) >= SUSPECT_OUTLIER_LEVEL / max(n_cameras, 1)
+
+
+def suspects(figures: list[dict], lens: list[Lens | None] | None = None,
+             frames: tuple[np.ndarray, np.ndarray] | None = None) -> list[int]:
     """Cameras whose residuals stand out of the rig's, or hold a lens pattern (``lens``, from
-    :func:`wandcal.calib.judge.faults.screen.lens_screen`), worst first."""
+    :func:`wandcal.calib.judge.faults.screen.lens_screen`), worst first. frames: each camera's
+    outlier camera-frames and camera-frames (:func:`camera_frames`); given, a share of outliers makes
+    a suspect only beyond the binomial scatter of the median camera's (:data:`SUSPECT_OUTLIER_LEVEL`)."""
     noise = np.array([f["noise_px"] if f["noise_px"] else np.nan for f in figures], float)
     share = np.array([f["outlier_share"] if f["outlier_share"] is not None else np.nan for f in figures], float)
     if np.isfinite(noise).sum() < MIN_CAMERAS_TO_ISOLATE:
@@ -67,7 +110,11 @@ def suspects(figures: list[dict], lens: list[Lens | None] | None = None) -> list
     for c, found in enumerate(lens or []):
         if found is not None and found.f_stat >= SCREEN_F_STAT and found.explained >= SCREEN_LENS_SHARE:
             patterned[c] = found.explained / SCREEN_LENS_SHARE
-    out = [c for c in range(len(figures)) if ratio[c] > SUSPECT_NOISE_RATIO or _concentrated(figures, c) or patterned[c]]
+    judged = int(np.isfinite(noise).sum())
+
+    def outlying(c: int) -> bool:
+        return _concentrated(figures, c) and (frames is None or not _scattered(figures, c, frames, judged))
+    out = [c for c in range(len(figures)) if ratio[c] > SUSPECT_NOISE_RATIO or patterned[c] or outlying(c)]
     return sorted(out, key=lambda c: -max(ratio[c] / SUSPECT_NOISE_RATIO, share[c] / SUSPECT_OUTLIER_SHARE, patterned[c]))
 
 
@@ -96,7 +143,7 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
     noise = np.array([f["noise_px"] or np.nan for f in figures], float)
     median = float(np.nanmedian(noise)) if np.isfinite(noise).any() else np.nan
     screened = [lens_screen(R, t, res, c) for c in range(len(rig.cameras))] if len(labelled) else None
-    for c in suspects(figures, screened)[:MAX_SUSPECTS]:
+    for c in suspects(figures, screened, camera_frames(res, len(rig.cameras)))[:MAX_SUSPECTS]:
         cam, fig = rig.cameras[c].id, figures[c]
         ratio = fig["noise_px"] / median if median > 0 else np.inf
         at_fault = [rig.index(f["camera"]) for f in faults]

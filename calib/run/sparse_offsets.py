@@ -1,6 +1,6 @@
 """Whole-frame time offsets on a sparse rig, from every camera's triangulations together.
 
-:func:`wandcal.calib.start.frame_offsets.frame_offsets` times each camera against a few partners,
+:func:`wandcal.calib.start.offsets.whole_frames.frame_offsets` times each camera against a few partners,
 one pair's epipolar geometry at a time, and needs ``MIN_TIMING_FRAMES`` frames shared with one of
 them. Where each frame is seen by only 2-4 of a hundred cameras, any two share a frame or two:
 no pair can tell a shift. All the cameras together still see the wand in most frames, so here a
@@ -35,9 +35,10 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import rotvec_to_matrix
 from wandcal.calib.observations import WandPairs, camera_rows
 from wandcal.calib.rig import Rig
-from wandcal.calib.start.frame_offsets import MAX_CONTRAST, MIN_TIMING_FRAMES, FrameOffsets, shift_pairs
 from wandcal.calib.start.initial import Initial, UnplacedCamera, initial_poses
 from wandcal.calib.start.labels import flatten, label_ends
+from wandcal.calib.start.offsets.pair_fit import MIN_TIMING_FRAMES
+from wandcal.calib.start.offsets.whole_frames import MAX_CONTRAST, FrameOffsets, shift_pairs
 from wandcal.calib.triangulate import triangulate_left_out, triangulate_points
 
 FIT_STEPS = 3  # Gauss-Newton steps of each camera's pose at each shift, from the start's
@@ -60,7 +61,7 @@ def offsets_by_triangulation(rig: Rig, pairs: WandPairs, max_offset: int, start:
                              reference: int = 0, *, static_poses: list | None = None,
                              ) -> tuple[FrameOffsets, SparseStart | None]:
     """Each camera's whole-frame offset (see module docstring), as
-    :func:`wandcal.calib.start.frame_offsets.frame_offsets` gives them, and the start at those
+    :func:`wandcal.calib.start.offsets.whole_frames.frame_offsets` gives them, and the start at those
     offsets (None when the last round still moved an offset).
 
     Args:

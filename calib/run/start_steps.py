@@ -20,9 +20,15 @@ from wandcal.calib.run.refine import Progress
 from wandcal.calib.solve.sync import TimeColumns, Tracks, fit_timing
 from wandcal.calib.solve.sync.fit import BA_FIT_FRAMES, MAX_FIT_FRAMES
 from wandcal.calib.start.degenerate import check_capture
-from wandcal.calib.start.frame_offsets import FrameOffsets, TooFewShared, frame_offsets, shift_frames, shift_pairs
 from wandcal.calib.start.initial import Initial, initial_poses
 from wandcal.calib.start.labels import label_ends
+from wandcal.calib.start.offsets.whole_frames import (
+    FrameOffsets,
+    TooFewShared,
+    frame_offsets,
+    shift_frames,
+    shift_pairs,
+)
 from wandcal.calib.start.static import StaticPose, solve_static
 
 if TYPE_CHECKING:
@@ -93,7 +99,7 @@ def whole_frame_sync(rig: Rig, wand: WandObservations | None, options: Calibrati
     unshifted = end_pairs(rig, wand)  # every kind of wand: its end markers
     start = np.asarray(options.sync_start) if options.sync_start is not None else None
     try:
-        timed = frame_offsets(rig, unshifted, options.sync_max_offset, start)
+        timed = frame_offsets(rig, unshifted, options.sync_max_offset, start, prove_sparse=True)
     except TooFewShared:  # a sparse rig: no two cameras share enough frames, all of them together do
         from wandcal.calib.run.sparse_offsets import offsets_by_triangulation
 

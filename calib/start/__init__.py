@@ -2,8 +2,7 @@
 
 | module | holds |
 |---|---|
-| :mod:`~wandcal.calib.start.frame_offsets` | whole-frame time offsets of untriggered cameras, from the wand itself |
-| :mod:`~wandcal.calib.start.timestamps` | whole-frame offsets from timestamps on a shared clock: where that search starts |
+| :mod:`~wandcal.calib.start.offsets` | whole-frame time offsets of untriggered cameras, from the wand itself and from timestamps |
 | :mod:`~wandcal.calib.start.markerlabels` | the blobs of a collinear multi-marker wand labelled |
 | :mod:`~wandcal.calib.start.planarlabels` | the blobs of a planar wand (a T) labelled from its layout |
 | :mod:`~wandcal.calib.start.static` | the static object (L-frame) identified in each camera, its pose by PnP |

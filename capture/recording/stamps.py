@@ -3,7 +3,7 @@
 
 sync.csv is parsed by its one reader, :func:`wandcal.drivers.imagefolder.read_sync`; this module
 turns its rows into each camera's (frame, timestamp) pairs and the whole-frame offsets
-:func:`wandcal.calib.start.timestamps.timestamp_offsets` finds from them. Errors name the file,
+:func:`wandcal.calib.start.offsets.timestamps.timestamp_offsets` finds from them. Errors name the file,
 and the line or field (before: numpy's ``genfromtxt`` read sync.csv, and a missing column, a
 cell of text or a duplicated frame ended ``wandcal calibrate --sync auto`` in a traceback).
 """
@@ -77,7 +77,7 @@ def timestamp_start(folder: Path, rig: Rig, rate_hz: float | None) -> np.ndarray
     """Whole-frame offsets (N,) from sync.csv's camera timestamps when no trigger stamped it
     (docs/sync.md), else None; a contradiction in them is refused naming sync.csv."""
     from wandcal.calib.errors import CalibrationError
-    from wandcal.calib.start.timestamps import timestamp_offsets
+    from wandcal.calib.start.offsets.timestamps import timestamp_offsets
 
     stamps = camera_stamps(folder, rig)
     if stamps is None:

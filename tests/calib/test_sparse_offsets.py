@@ -8,8 +8,8 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import WandObservations
 from wandcal.calib.run.sparse_offsets import offsets_by_triangulation
 from wandcal.calib.sim.shapes import RigShape, default_size, simulate_shape
-from wandcal.calib.start.frame_offsets import TooFewShared, frame_offsets
 from wandcal.calib.start.markerlabels import end_pairs
+from wandcal.calib.start.offsets.whole_frames import TooFewShared, frame_offsets
 from wandcal.calib.start.static import solve_static
 
 

@@ -7,7 +7,7 @@ placed". What helps the user then is the camera and its shift, not the wand's le
 start has refused, :func:`out_of_time_refusal` looks for a shift that makes the data agree:
 
 - **whole frames**: each camera's whole-frame offset by ``--sync auto``'s own search
-  (:func:`wandcal.calib.start.frame_offsets.frame_offsets`, +-:data:`MAX_SHIFT` frames). The
+  (:func:`wandcal.calib.start.offsets.whole_frames.frame_offsets`, +-:data:`MAX_SHIFT` frames). The
   cameras whose offset differs from the majority's are out of time by that difference;
 - **a fraction of a frame** (no whole shift found): each camera's wand samples resampled, linear
   between its consecutive frames, at :data:`FRACTIONS` of a frame either way (a few starts of a
@@ -86,7 +86,7 @@ def whole_frame_shifts(rig: Rig, pairs: WandPairs, static_poses: list | None,
                        tracks: PointTracks | None) -> dict[int, int]:
     """{camera: offset in whole frames (positive: late)} of the cameras out of time against the
     majority, when shifting them lets the start place every camera; empty otherwise."""
-    from wandcal.calib.start.frame_offsets import frame_offsets, shift_pairs
+    from wandcal.calib.start.offsets.whole_frames import frame_offsets, shift_pairs
 
     try:
         found = frame_offsets(rig, pairs, MAX_SHIFT)

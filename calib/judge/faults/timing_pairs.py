@@ -172,6 +172,10 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
     A, y, first, second = A[keep], y[keep], first[keep], second[keep]
     sigma = float(np.sqrt(np.mean((y - A @ delta) ** 2)))
     reference = float(np.median(delta))  # the cameras on time are the majority
+    # each camera's own offset variance, its column's least squares: every camera with rows is in
+    # the reference, judged (MIN_PAIRS) or not (decision 0077a)
+    gram_all = (A**2).sum(axis=0)
+    own_var = np.where(gram_all > 0, sigma**2 / np.maximum(gram_all, 1e-300), np.nan)
     found = {}
     for c in range(n):
         mine = (first == c) | (second == c)
@@ -188,9 +192,10 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         found[c] = (own, sigma / np.sqrt(gram), 1 - after / before if before > 0 else 0.0, int(mine.sum()))
     out = []
     for c, (own, own_std, explained, pairs) in found.items():
-        # against the reference (the others' median), whose own error adds: the variance of a mean of the others
-        others = [v[1] ** 2 for d, v in found.items() if d != c]
-        std = float(np.sqrt(own_std**2 + (np.mean(others) / len(others) if others else 0.0)))
+        # against the reference (the others' median), whose own error adds: the variance of a mean of
+        # the others, every other camera with rows, judged or not: the reference is theirs too
+        others = own_var[np.isfinite(own_var) & (np.arange(n) != c)]
+        std = float(np.sqrt(own_std**2 + (np.mean(others) / len(others) if len(others) else 0.0)))
         # docs/result-format.md's sign: the pairs matched c's frame k + shift with the others' k, so
         # c's frame k was exposed at the others' k - shift - own
         offset = -float(shifts[c] + own)

@@ -16,14 +16,9 @@ from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
 from wandcal.calib.rig import PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.run.guidance.document import Seen, guidance_document
 from wandcal.calib.run.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
-from wandcal.calib.start.frame_offsets import (
-    DEFAULT_MAX_OFFSET,
-    FrameOffsets,
-    confirmed_offsets,
-    frame_offsets,
-    shift_pairs,
-)
 from wandcal.calib.start.initial import shared_frames
+from wandcal.calib.start.offsets.confirm import confirmed_offsets
+from wandcal.calib.start.offsets.whole_frames import DEFAULT_MAX_OFFSET, FrameOffsets, frame_offsets, shift_pairs
 
 NO_WAND_YET = "no wand frames yet: wave the wand through the volume, where several cameras see it"
 # Cameras left out, weakest first, when the fast solve cannot place them all; the rest are solved.
@@ -166,7 +161,7 @@ def points_guidance(rig: Rig, points: PointObservations, settings: GuidanceSetti
 
 def _whole_frames(rig: Rig, pairs: WandPairs, window: int) -> FrameOffsets | None:
     """The cameras' whole-frame offsets within +-``window`` (docs/sync.md's search,
-    wandcal.calib.start.frame_offsets.frame_offsets), or None while the frames so far cannot tell them
+    wandcal.calib.start.offsets.whole_frames.frame_offsets), or None while the frames so far cannot tell them
     (too few, or a camera that sees no wand with the others yet)."""
     if not np.isfinite(pairs.xy).all():  # grouped without undistorting (guidance's pairs): undistort here
         pairs = replace(pairs, xy=undistort_by_camera(rig.cameras, pairs.camera, pairs.uv))

@@ -1,6 +1,6 @@
 """Cameras without a common trigger: each camera's sub-frame time offset (and drift) fitted with
 the poses, by resampling its own wand track in time (docs/sync.md). The whole-frame search that
-starts it is :mod:`wandcal.calib.start.frame_offsets`.
+starts it is :mod:`wandcal.calib.start.offsets.whole_frames`.
 
 | module | holds |
 |---|---|

@@ -1,6 +1,6 @@
 """Sub-frame time offsets and rate differences (drift) of cameras without a trigger.
 
-After the whole-frame search (:mod:`wandcal.calib.start.frame_offsets`) each camera's frames are on the
+After the whole-frame search (:mod:`wandcal.calib.start.offsets.whole_frames`) each camera's frames are on the
 reference camera's clock to within a frame. What is left is modelled per camera c as
 
     phi_c(f) = phase_c + drift_c (f - centre_c)        (frames)

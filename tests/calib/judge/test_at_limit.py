@@ -162,3 +162,39 @@ def test_a_pixel_warning_stays_only_where_the_verdict_gives_something_to_do():
     out_cams, kept = acted_warnings(cams, warnings, ["cam1", "cam2"])
     assert kept == [warnings[1], warnings[3]]
     assert out_cams[0].warnings == ()
+
+
+def test_a_wand_spread_past_its_limit_by_less_than_its_sampling_error_is_at_the_limit_not_poor():
+    """Brown 1's 40% subsample, seed 117 (decision 0077a): 1.36 mm over 12 frames against a 1.02 mm
+    limit, where the same frames spread 1.44 mm at the whole session's poses. Were the true spread
+    the limit, 12 frames would spread that far once in 33 (z 1.88 < SPREAD_Z, one-sided 2.3%): good,
+    at the limit of poor. Twice the limit over the same frames is past it (z 4.6): poor."""
+    from wandcal.calib.judge.quality import SPREAD_Z, spread_z
+
+    extent = 1.02 / (1000 * WAND_STD_OF_VOLUME[1])  # the volume whose good limit is 1.02 mm
+    cams = [{"id": "cam1", "verdict": {"level": "good", "reasons": [], "advice": []}}]
+    wand = {"length_m": 0.2, "length_mean_m": 0.2, "length_std_m": 1.36e-3, "frames_used": 12}
+    v = rig_verdict(cams, wand, [], extent)
+    assert spread_z(1.36, 1.02, 12) < SPREAD_Z < spread_z(2 * 1.02, 1.02, 12)
+    assert v["level"] == "good"
+    [entry] = [e for e in v["at_limit"] if e["unit"] == "mm"]
+    assert entry["levels"] == ["good", "poor"] and entry["std"] == pytest.approx(rms_std(1.36, 12), rel=1e-3)
+    assert any("good, at the limit of poor (1.36 +- 0.29 mm against 1.02 mm)" in r for r in v["reasons"])
+    past = rig_verdict(cams, wand | {"length_std_m": 2 * 1.02e-3}, [], extent)
+    assert past["level"] == "poor" and not [e for e in past["at_limit"] if e["unit"] == "mm"]
+
+
+def test_the_wand_spreads_one_sided_level_holds_for_few_frames():
+    """SDs of 12 Gaussian lengths whose true spread is the limit: the share called past it
+    (spread_z > SPREAD_Z) is the one-sided 2.3% of two standard errors, within 4 binomial standard
+    errors of 20,000 draws; the old rule (past by one standard error of the SD itself) called 8.8%."""
+    from wandcal.calib.judge.quality import SPREAD_Z, spread_z
+
+    rng = np.random.default_rng(5)
+    draws, n = 20000, 12
+    sds = rng.normal(0, 1.0, (draws, n)).std(axis=1)  # about their mean, over n: as the result writes it
+    past = np.mean([spread_z(s, 1.0, n) > SPREAD_Z for s in sds])
+    level = 0.02275  # P(N(0, 1) > 2)
+    assert past == pytest.approx(level, abs=4 * np.sqrt(level * (1 - level) / draws))
+    # without frames to sample from there is no sampling error: past the limit or not, never at it
+    assert spread_z(1.1, 1.0, 1) == np.inf and spread_z(1.0, 1.0, 0) == -np.inf

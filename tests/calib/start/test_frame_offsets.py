@@ -1,4 +1,4 @@
-"""Whole-frame time offsets from the wand (calib/start/frame_offsets.py), their bad input, and a real
+"""Whole-frame time offsets from the wand (calib/start/offsets/whole_frames.py), their bad input, and a real
 session with one camera shifted by whole frames."""
 
 import json
@@ -12,8 +12,8 @@ from wandcal.calib.rig import WandObservations
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.options import CalibrationOptions
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.calib.start.frame_offsets import frame_offsets, shift_frames
-from wandcal.calib.start.timestamps import timestamp_offsets
+from wandcal.calib.start.offsets.timestamps import timestamp_offsets
+from wandcal.calib.start.offsets.whole_frames import frame_offsets, shift_frames
 from wandcal.capture.folder import write_capture
 from wandcal.service.cli import main
 

@@ -1,4 +1,4 @@
-"""The whole-frame search's fail-fast order (calib/start/frame_offsets.py, ``fail_fast``, what
+"""The whole-frame search's fail-fast order (calib/start/offsets/whole_frames.py, ``fail_fast``, what
 guidance asks for): the same offsets where the search succeeds, a failure where it fails, and on a
 sparse rig the failure proved from one camera's pair without timing the cameras before it."""
 
@@ -10,8 +10,9 @@ from wandcal.calib.observations import wand_pairs
 from wandcal.calib.rig import WandObservations
 from wandcal.calib.sim.shapes import RigShape, default_size, simulate_shape
 from wandcal.calib.sim.simulate import simulate_capture
-from wandcal.calib.start import frame_offsets as fo
 from wandcal.calib.start.markerlabels import end_pairs
+from wandcal.calib.start.offsets import pair_fit
+from wandcal.calib.start.offsets import whole_frames as fo
 
 BROWN = "easywand_brown_windtunnel_4cam/calibration{}/extrinsicCalib_20230228_easyWandData.mat"
 
@@ -49,8 +50,8 @@ def test_a_sparse_rig_fails_fast_with_few_ransacs(monkeypatch):
     ring = simulate_shape(RigShape("ring", 64, default_size("ring")), 1500, 0.3, 0.02, seed=3)
     pairs = end_pairs(ring.rig, ring.wand)
     calls = []
-    real = fo._pose_share
-    monkeypatch.setattr(fo, "_pose_share", lambda *a: calls.append(a[2:5]) or real(*a))
+    real = pair_fit.pose_share
+    monkeypatch.setattr(pair_fit, "pose_share", lambda *a: calls.append(a[2:5]) or real(*a))
     with pytest.raises(fo.TooFewShared, match="cannot be timed against"):
         fo.frame_offsets(ring.rig, pairs, 3, fail_fast=True)
     pairs_tried = {(a, b) for a, b, _ in calls}
@@ -69,3 +70,72 @@ def test_fail_fast_raises_where_the_default_order_raises():
         fo.frame_offsets(sim.rig, pairs)
     with pytest.raises(CalibrationError, match="cam4"):
         fo.frame_offsets(sim.rig, pairs, fail_fast=True)
+
+
+@pytest.fixture(scope="module")
+def sparse_ring():
+    ring = simulate_shape(RigShape("ring", 64, default_size("ring")), 1500, 0.3, 0.02, seed=3)
+    return ring.rig, end_pairs(ring.rig, ring.wand)
+
+
+def test_prove_sparse_refuses_as_the_default_does_with_few_ransacs(sparse_ring, monkeypatch):
+    """calibrate's sync (``prove_sparse``): the default search refuses this ring with TooFewShared
+    (tests/calib/test_sparse_offsets.py), and so does the proof, from one pair's 4 x 8 - 1 = 31 lags
+    at calibrate's +-8 frames, without timing the cameras planned before it."""
+    rig, pairs = sparse_ring
+    calls = []
+    real = pair_fit.pose_share
+    monkeypatch.setattr(pair_fit, "pose_share", lambda *a: calls.append(a[2:5]) or real(*a))
+    with pytest.raises(fo.TooFewShared, match="cannot be timed against"):
+        fo.frame_offsets(rig, pairs, 8, prove_sparse=True)
+    pairs_tried = {(a, b) for a, b, _ in calls}
+    assert len(pairs_tried) <= 3 and len(calls) <= 31 * len(pairs_tried)
+
+
+def _proved(rig, pairs, window: int) -> tuple[fo._Search, int, int]:
+    """The search over ``pairs`` and the (camera, first partner) the proof refuses."""
+    table = fo.frame_table(pairs, len(rig.cameras))
+    steps, _ = fo._plan(fo._links(table >= 0, window), 0)
+    search = fo._Search(rig, pairs, table, np.zeros(len(rig.cameras), np.int64), 0, window)
+    with pytest.raises(fo.TooFewShared, match="cannot be timed against") as refused:
+        fo._refuse_untimeable(search, steps, table)
+    b = next(c for c, cam in enumerate(rig.cameras) if refused.value.args[0].startswith(f"camera {cam.id!r}"))
+    return search, b, dict(steps)[b][0]
+
+
+def test_a_shift_accepted_at_the_edge_is_no_proof(sparse_ring, monkeypatch):
+    """Where one offset of the partner would let the camera's best shift pass at the edge of its
+    search, the search refuses it there with "at the edge of the search", not TooFewShared: the
+    proof must not claim it (the caller falls back on TooFewShared, and refuses on the other)."""
+    rig, pairs = sparse_ring
+    search, b, a = _proved(rig, pairs, 8)
+    assert search.cannot_time(b, a)
+    offset_a = search.partner_offsets(a)[0]
+    # an edge shift of b's where the pair shares enough frames to be judged (cam57's first, against cam1)
+    edge_lag = max((offset_a - int(s) for s in search.shifts(b)[[0, -1]]),
+                   key=lambda lag: fo.shared_counts(search.table, a, b, np.array([lag]))[0])
+    assert fo.shared_counts(search.table, a, b, np.array([edge_lag]))[0] >= fo.MIN_TIMING_FRAMES
+    # b's wand fits a's at that lag alone, by far: the default search accepts the shift, at the edge
+    monkeypatch.setattr(fo, "lag_share", lambda pairs, table, a_, b_, lag, rig: 0.9 if lag == edge_lag else 0.0)
+    best, score = fo._sparse_best_shift(pairs, search.table, (a, offset_a), b, search.shifts(b), rig)
+    assert score >= fo.MIN_FIT_SHARE and abs(best) == search.max_offset
+    assert not search.cannot_time(b, a)
+
+
+def test_no_proof_while_a_camera_planned_before_is_not_sparse(sparse_ring, monkeypatch):
+    """A camera planned before the one proved that shares ``FEW_FRAMES`` frames with its partner at
+    some lag is judged by the midpoint scores, which may refuse it otherwise than TooFewShared: then
+    the planned search decides, as by default."""
+    rig, pairs = sparse_ring
+    table = fo.frame_table(pairs, len(rig.cameras))
+    steps, _ = fo._plan(fo._links(table >= 0, 8), 0)
+    search = fo._Search(rig, pairs, table, np.zeros(len(rig.cameras), np.int64), 0, 8)
+    few = [i for i, (b, p) in enumerate(steps) if fo.shared_counts(table, p[0], b, np.zeros(1, np.int64))[0]
+           < fo.MIN_TIMING_FRAMES]
+    later = steps[few[1]][0]  # a camera the proof tries, planned after others
+    monkeypatch.setattr(fo._Search, "cannot_time", lambda self, b, a: b == later)
+    with pytest.raises(fo.TooFewShared, match=f"'{rig.cameras[later].id}'"):
+        fo._refuse_untimeable(search, steps, table)  # every camera before it sparse (the ring's are)
+    earlier = steps[few[1] - 1][0]
+    monkeypatch.setattr(fo._Search, "sparse_everywhere", lambda self, c, a: c != earlier)
+    fo._refuse_untimeable(search, steps, table)  # no proof: returns

@@ -1,5 +1,5 @@
 """Whole-frame offsets from frame timestamps on a clock the cameras share (a host's monotonic
-clock): the start of :func:`wandcal.calib.start.frame_offsets.frame_offsets`'s search (docs/sync.md)."""
+clock): the start of :func:`wandcal.calib.start.offsets.whole_frames.frame_offsets`'s search (docs/sync.md)."""
 
 from __future__ import annotations
 

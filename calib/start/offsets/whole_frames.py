@@ -11,33 +11,37 @@ a camera already timed. Cameras are timed one at a time, best linked first, from
 camera, so a rig whose cameras overlap only pairwise is timed too.
 
 The sub-frame part of the offset, and a rate difference, are refined afterwards with the poses
-known (:mod:`wandcal.calib.solve.sync`). The model and its limits: docs/sync.md.
+known (:mod:`wandcal.calib.solve.sync`). The model and its limits: docs/sync.md. Each pair's scores at
+a shift: :mod:`wandcal.calib.start.offsets.pair_fit`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import WandPairs
 from wandcal.calib.rig import Rig, WandObservations
-from wandcal.calib.start.chain import ESSENTIAL_CONFIDENCE, ESSENTIAL_THRESHOLD_PX, _sampson, spread
+from wandcal.calib.start.offsets.pair_fit import (
+    MIN_TIMING_FRAMES,
+    TIMING_FRAMES,
+    fit_share,
+    frame_table,
+    lag_share,
+    midpoint_scores,
+    pose_share,
+    shared_counts,
+)
 
 REFERENCE_LINKS = 0.5  # the first camera is the reference when it has half the best-linked camera's links
 DEFAULT_MAX_OFFSET = 8  # frames searched either side: the issue's +-5 and fractions, with room to see the best stand out
-TIMING_FRAMES = 60  # shared frames per shift given to RANSAC (240 candidate matches): enough to tell, 2 ms a shift
-MIN_TIMING_FRAMES = 8  # shared frames a shift needs to be judged: five fix the essential matrix, three confirm
 # a shift is accepted when both ends of at least this share of its frames fit one relative pose
 # within the RANSAC threshold: 0.27-1.0 on simulated rigs (a half-frame offset moves fast frames
 # off by more than the threshold), 0 for a camera that saw another motion; what rejects the latter
 # first is MAX_CONTRAST
 MIN_FIT_SHARE = 0.15
-# a frame fits when both its ends lie this close to their epipolar lines: looser than RANSAC's 2 px,
-# since a camera still off by half a frame moves a 3 m/s wand ~5 px from them
-SHARE_THRESHOLD_PX = 6.0
 # the best shift's midpoint score against the median shift's: 0.02-0.3 on simulated rigs, whose
 # fractional offsets blur the best; a camera that saw another motion has no shift that stands out
 MAX_CONTRAST = 0.5
@@ -52,16 +56,8 @@ FEW_FRAMES = 60
 # 0.57-0.90 against at most 0.25 on the Brown wind-tunnel sessions
 SPARSE_MARGIN = 0.25
 POSE_PASSES = 2
-# an offset is confirmed when the shared frames' ends fit their own relative pose at none this many
-# times worse (median squared Sampson distance) than at the offset: a camera a whole frame out of
-# time fits 100-10,000 times worse at none (motion against noise), one in time fits best at none,
-# and a fractional offset f is confirmed from f = 2/3 of a frame ((f / (1 - f))^2 >= 4)
-CONFIRM_RATIO = 4.0
 CONTRAST_SPAN = 6  # frames either side the midpoint scores are judged over, however narrow the search
 PARTNERS = 3  # timed cameras a camera is tried against, best linked first, before it is judged out of step  # a pose from a shift one frame off picks the right neighbour; its own RANSAC confirms it
-MIDPOINT_FRAMES = 100  # a partner's frames per shift for the midpoint score: a 9x9 eigenproblem each
-TRIM_PASSES = 3  # linear fits of the midpoint score, each on the best TRIM_KEEP of the last one's frames
-TRIM_KEEP = 0.8  # drops digitising slips and reflections (a few %) with room to spare
 
 
 class TooFewShared(CalibrationError):
@@ -105,7 +101,7 @@ def shift_pairs(pairs: WandPairs, offsets: np.ndarray) -> WandPairs:
 
 def frame_offsets(
     rig: Rig, pairs: WandPairs, max_offset: int = DEFAULT_MAX_OFFSET, start: np.ndarray | None = None,
-    reference: int | None = None, *, fail_fast: bool = False,
+    reference: int | None = None, *, fail_fast: bool = False, prove_sparse: bool = False,
 ) -> FrameOffsets:
     """Each camera's whole-frame offset (see module docstring).
 
@@ -122,7 +118,15 @@ def frame_offsets(
             the start's offsets) are timed first, each after the cameras it is timed against. The
             offsets found are the same (each camera's search sees only its partners' offsets); a
             search that fails may raise for another camera, or another kind of failure, than
-            the default order would.
+            the default order would. Implies ``prove_sparse``.
+        prove_sparse: for a caller that falls back on :class:`TooFewShared` (calibrate's sync):
+            before timing anyone, try to prove that the planned search would raise TooFewShared
+            (:func:`_refuse_untimeable`), and raise it at once; otherwise the planned search, as by
+            default. The answer is the default's on every input but one kind (decision 0077f): a
+            camera planned before the one proved, in the sparse regime (fewer than ``FEW_FRAMES``
+            frames shared with its first partner at any lag), whose best shift is at the edge of
+            its search: the default refuses it ("at the edge of the search"), this raises
+            TooFewShared.
 
     Raises:
         CalibrationError: a camera's wand agrees with no timed camera's at any shift searched
@@ -131,7 +135,7 @@ def frame_offsets(
     """
     n = len(rig.cameras)
     start = np.zeros(n, np.int64) if start is None else np.asarray(start, dtype=np.int64)
-    table = _table(pairs, n)
+    table = frame_table(pairs, n)
     seen = table >= 0
     _check_range(rig, seen, max_offset, start)
     links = _links(seen, max_offset)
@@ -145,7 +149,7 @@ def frame_offsets(
     against = np.full(n, -1, np.int64)
     share = np.ones(n)
     search = _Search(rig, pairs, table, start, reference, max_offset)
-    if fail_fast:
+    if fail_fast or prove_sparse:
         _refuse_untimeable(search, steps, table)
     for b, partners in (_risk_first(steps, table, start) if fail_fast else steps):
         offsets[b], share[b] = search.time(b, partners, offsets)
@@ -185,7 +189,7 @@ def _risk_first(steps: list[tuple[int, list[int]]], table: np.ndarray, start: np
     (and theirs); ties in the planned order. Only the order changes, so each camera's search sees
     the same partners' offsets as in the planned order."""
     index = {b: i for i, (b, _) in enumerate(steps)}
-    shared = [int(_shared_counts(table, p[0], b, np.array([int(start[b] - start[p[0]])]))[0]) for b, p in steps]
+    shared = [int(shared_counts(table, p[0], b, np.array([int(start[b] - start[p[0]])]))[0]) for b, p in steps]
     done: set[int] = set()
     out: list[tuple[int, list[int]]] = []
     for i in np.argsort(shared, kind="stable"):
@@ -202,20 +206,25 @@ def _risk_first(steps: list[tuple[int, list[int]]], table: np.ndarray, start: np
 
 
 def _refuse_untimeable(search: _Search, steps: list[tuple[int, list[int]]], table: np.ndarray) -> None:
-    """Raise TooFewShared for the first camera of ``steps`` that shares fewer than
+    """Raise TooFewShared for the first camera b of ``steps`` that shares fewer than
     ``MIN_TIMING_FRAMES`` frames with its first partner at the start's offsets and that
-    :meth:`_Search.cannot_time` proves the search cannot time (a proof, so the search would fail
-    too; which cameras are tried only bounds its cost: one RANSAC a lag, 4 x max_offset - 1 lags)."""
+    :meth:`_Search.cannot_time` proves the search would refuse with TooFewShared, provided every
+    camera planned before b can refuse with nothing else but the edge of its search
+    (:meth:`_Search.sparse_everywhere`: the midpoint scores' other refusals need ``FEW_FRAMES``
+    frames). Which cameras are tried only bounds the cost (one RANSAC a lag, 4 x max_offset - 1
+    lags); the proofs are exact."""
     for b, partners in steps:
         a = partners[0]
         lag = int(search.start[b] - search.start[a])
-        if _shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES and search.cannot_time(b, a):
+        if shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES and search.cannot_time(b, a):
             rig = search.rig
             raise TooFewShared(
                 f"camera {rig.cameras[b].id!r} cannot be timed against {rig.cameras[a].id}: at no offset of "
                 f"{rig.cameras[a].id}'s within +-{search.max_offset} frames does its wand agree with "
                 f"{rig.cameras[a].id}'s at a shift within +-{search.max_offset} frames; check that it recorded the same "
                 "session and the same wand, or search wider (sync_max_offset)")
+        if not search.sparse_everywhere(b, a):
+            return  # b might be refused otherwise than TooFewShared: the planned search tells
 
 
 def _unlinked_error(rig: Rig, b: int, steps: list[tuple[int, list[int]]], reference: int, max_offset: int,
@@ -254,7 +263,7 @@ class _Search:
         if best is None or score < MIN_FIT_SHARE:
             what = (f"at best {score:.0%} of the frames they share fit one relative pose" if best is not None
                     else f"they share fewer than {MIN_TIMING_FRAMES} frames at every shift")
-            thin = best is None or _shared_counts(table, a, b, int(offsets[a]) - shifts).max() < FEW_FRAMES
+            thin = best is None or shared_counts(table, a, b, int(offsets[a]) - shifts).max() < FEW_FRAMES
             raise (TooFewShared if thin else CalibrationError)(
                 f"camera {rig.cameras[b].id!r} does not move with the others: at no offset within +-{max_offset} frames "
                 f"of {guess} does its wand agree with {rig.cameras[a].id}'s ({what}); check that it recorded the same "
@@ -267,74 +276,50 @@ class _Search:
             )
         return best, score
 
-    def cannot_time(self, b: int, a: int) -> bool:
-        """Whether camera b's search against ``a`` as its first partner fails whatever offset a's
-        own search finds: a is the reference (offset 0), or its offset lies strictly inside its
-        window (at the edge its search raises), and at each such offset b's frames are too few to
-        judge, or few enough that one RANSAC a shift judges them (:func:`_sparse_best_shift`) and
-        no shift is accepted. False as soon as one offset of a might let b pass, or would judge b
-        by the midpoint scores (which the other partners' offsets enter)."""
-        w = self.max_offset
-        guess = int(self.start[b] - self.start[self.reference])
-        shifts = np.arange(guess - w, guess + w + 1)
+    def partner_offsets(self, a: int) -> range:
+        """Every offset camera a can have when a camera timed against it is searched: 0 for the
+        reference, else strictly inside a's own window (at its edge a's search raises)."""
+        if a == self.reference:
+            return range(0, 1)
         near = int(self.start[a] - self.start[self.reference])
+        return range(near - self.max_offset + 1, near + self.max_offset)
+
+    def shifts(self, b: int) -> np.ndarray:
+        """(2 max_offset + 1,) the shifts camera b's search tries."""
+        guess = int(self.start[b] - self.start[self.reference])
+        return np.arange(guess - self.max_offset, guess + self.max_offset + 1)
+
+    def sparse_everywhere(self, b: int, a: int) -> bool:
+        """Whether camera b, timed against ``a`` first, shares fewer than ``FEW_FRAMES`` frames
+        with it at every lag any offset of a gives: then its search is judged by one RANSAC a
+        shift (or finds too few frames) and refuses only with TooFewShared or at the edge of its
+        search."""
+        lags = np.unique(np.subtract.outer(np.array(self.partner_offsets(a)), self.shifts(b)))
+        return bool(shared_counts(self.table, a, b, lags).max() < FEW_FRAMES)
+
+    def cannot_time(self, b: int, a: int) -> bool:
+        """Whether camera b's search against ``a`` as its first partner raises TooFewShared
+        whatever offset a's own search finds (:meth:`partner_offsets`): at each such offset b's
+        frames are too few to judge, or few enough that one RANSAC a shift judges them
+        (:func:`_sparse_best_shift`) and no shift reaches ``MIN_FIT_SHARE`` (a shift that does
+        is accepted, or refused at the edge of the search: not TooFewShared). False as soon as
+        one offset of a might let b pass or be refused otherwise, or would judge b by the
+        midpoint scores (which the other partners' offsets enter)."""
+        shifts = self.shifts(b)
         shares: dict[int, float] = {}  # by lag: a's offsets share most of their lags
-        for offset_a in [0] if a == self.reference else range(near - w + 1, near + w):
+        for offset_a in self.partner_offsets(a):
             lags = offset_a - shifts
-            counts = np.minimum(_shared_counts(self.table, a, b, lags), TIMING_FRAMES)  # as _best_shift's
+            counts = np.minimum(shared_counts(self.table, a, b, lags), TIMING_FRAMES)  # as _best_shift's
             if counts.max() < MIN_TIMING_FRAMES:
                 continue
             if counts.max() >= FEW_FRAMES:
                 return False
             for lag in lags:
                 if int(lag) not in shares:
-                    shares[int(lag)] = _lag_share(self.pairs, self.table, a, b, int(lag), self.rig)
-            best, score = _sparse_pick(shifts, np.array([shares[int(lag)] for lag in lags]))
-            if score >= MIN_FIT_SHARE and abs(best - guess) < w:
+                    shares[int(lag)] = lag_share(self.pairs, self.table, a, b, int(lag), self.rig)
+            if _sparse_pick(shifts, np.array([shares[int(lag)] for lag in lags]))[1] >= MIN_FIT_SHARE:
                 return False
         return True
-
-
-def _table(pairs: WandPairs, n: int) -> np.ndarray:
-    """(span, N) each frame's pair row for each camera, -1 where it saw no wand; frames from the first."""
-    first = int(pairs.frames.min()) if len(pairs.frames) else 0
-    span = int(pairs.frames.max()) - first + 1 if len(pairs.frames) else 0
-    table = np.full((span, n), -1, np.int64)
-    table[pairs.frames[pairs.frame] - first, pairs.camera] = np.arange(len(pairs))
-    return table
-
-
-def confirmed_offsets(rig: Rig, pairs: WandPairs, found: FrameOffsets) -> dict[int, int]:
-    """{camera: whole frames} of the cameras of ``found`` with an offset that both wand ends
-    confirm against none at all: what a live warning may say (docs/sync.md).
-
-    The midpoint scores that :func:`frame_offsets` takes without an essential matrix can leave a
-    neighbouring shift ahead when the wand moves little between frames (in a few hundred frames of
-    a synchronised recording, 16 of 144 short captures had a camera one frame "off"). Here each
-    camera with an offset is matched, by both ends, against the reference camera (or, when they
-    share under half of ``TIMING_FRAMES``, the camera in time it shares most frames with), at none and at the offset and its neighbours, each lag with its own
-    RANSAC pose: the best of the neighbours is the offset, and it stands when none fits
-    ``CONFIRM_RATIO`` times worse. Cameras with no camera in time to compare with are left out.
-    """
-    table = _table(pairs, len(rig.cameras))
-    # the reference first (the offsets are its clock's), else the camera in time sharing most frames
-    in_time = [found.reference, *(int(c) for c in np.flatnonzero(found.offsets == 0) if c != found.reference)]
-    out: dict[int, int] = {}
-    for b in np.flatnonzero(found.offsets != 0):
-        counts = np.array([_shared_counts(table, a, int(b), np.zeros(1, np.int64))[0] for a in in_time])
-        enough = np.flatnonzero(counts >= TIMING_FRAMES // 2)
-        if not len(enough):
-            continue
-        a = in_time[0] if enough[0] == 0 else in_time[int(np.argmax(counts))]
-        s = int(found.offsets[b])
-        errors = {}
-        for shift in (0, s - 1, s, s + 1):
-            pose = _pose_share(pairs, table, a, int(b), -shift, rig)
-            errors[shift] = _share(pairs, table, a, int(b), -shift, rig, *pose)[1] if pose else np.inf
-        best = min((s - 1, s, s + 1), key=lambda k: errors[k])
-        if best != 0 and errors[0] >= CONFIRM_RATIO * errors[best]:
-            out[int(b)] = best
-    return out
 
 
 def _check_range(rig: Rig, seen: np.ndarray, max_offset: int, start: np.ndarray) -> None:
@@ -382,7 +367,7 @@ def _best_shift(
     whose pose picks between the best shift and its neighbours by both ends.
     """
     a, offset_a = partners[0]
-    counts = np.minimum(_shared_counts(table, a, b, offset_a - shifts), TIMING_FRAMES)  # what _shared would give
+    counts = np.minimum(shared_counts(table, a, b, offset_a - shifts), TIMING_FRAMES)  # what shared_rows would give
     if counts.max() < MIN_TIMING_FRAMES:
         return None, 0.0
     if counts.max() < FEW_FRAMES:  # a sparse session: every shift can afford its own RANSAC
@@ -390,7 +375,7 @@ def _best_shift(
     # a narrow search is judged against shifts beyond it too: its own median is the best's neighbours'
     pad = max(CONTRAST_SPAN - len(shifts) // 2, 0)
     wide = np.arange(shifts[0] - pad, shifts[-1] + pad + 1)
-    each = [_midpoint_scores(pairs, table, c, b, offset_c - wide) for c, offset_c in partners]
+    each = [midpoint_scores(pairs, table, c, b, offset_c - wide) for c, offset_c in partners]
     # each partner's scores relative to its own median shift's, their geometric mean: a partner
     # whose scores barely tell the shifts apart does not outvote one that does (the arithmetic
     # mean put 12 of 99 cameras on 12 simulated rigs off the nearest whole frame, both synchronised
@@ -412,11 +397,11 @@ def _best_shift(
         return int(shifts[best]), 1.0  # stands out beyond doubt: the sub-frame fit settles the neighbour
     share = 0.0
     for _ in range(POSE_PASSES):
-        found = _pose_share(pairs, table, a, b, offset_a - shifts[best], rig)
+        found = pose_share(pairs, table, a, b, offset_a - shifts[best], rig)
         if found is None:
             return int(shifts[best]), 0.0
         near = [k for k in (best - 1, best, best + 1) if 0 <= k < len(shifts)]
-        fits = [_share(pairs, table, a, b, offset_a - shifts[k], rig, *found) for k in near]
+        fits = [fit_share(pairs, table, a, b, offset_a - shifts[k], rig, *found) for k in near]
         pick = int(np.argmin([err for _, err in fits]))  # the closest fit: shares saturate near the right shift
         share = fits[pick][0]
         if near[pick] == best:
@@ -431,14 +416,7 @@ def _sparse_best_shift(pairs: WandPairs, table: np.ndarray, partner: tuple[int, 
     frames are too few, or too far apart in time, for the midpoint scores: each shift's own RANSAC
     pose, the best share kept when it beats every shift two or more away by ``SPARSE_MARGIN``."""
     a, offset_a = partner
-    return _sparse_pick(shifts, np.array([_lag_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]))
-
-
-def _lag_share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig) -> float:
-    """The share of a's frames k and b's k + lag whose ends fit the pose RANSAC fits to them (0 with
-    too few frames or no pose)."""
-    found = _pose_share(pairs, table, a, b, lag, rig)
-    return _share(pairs, table, a, b, lag, rig, *found)[0] if found else 0.0
+    return _sparse_pick(shifts, np.array([lag_share(pairs, table, a, b, offset_a - s, rig) for s in shifts]))
 
 
 def _sparse_pick(shifts: np.ndarray, shares: np.ndarray) -> tuple[int, float]:
@@ -447,104 +425,3 @@ def _sparse_pick(shifts: np.ndarray, shares: np.ndarray) -> tuple[int, float]:
     best = int(np.argmax(shares))
     rival = np.max(np.where(np.abs(shifts - shifts[best]) >= 2, shares, 0.0))
     return int(shifts[best]), float(shares[best]) if shares[best] - rival >= SPARSE_MARGIN else 0.0
-
-
-def _shared_counts(table: np.ndarray, a: int, b: int, lags: np.ndarray) -> np.ndarray:
-    """(S,) how many frames k a saw the wand in with b at k + lag, for each lag (S,)."""
-    span = len(table)
-    seen_a, seen_b = table[:, a] >= 0, table[:, b] >= 0
-    out = np.zeros(len(lags), np.int64)
-    for i, lag in enumerate(lags):
-        lo, hi = max(0, -lag), min(span, span - lag)
-        out[i] = np.count_nonzero(seen_a[lo:hi] & seen_b[lo + lag : hi + lag]) if hi > lo else 0
-    return out
-
-
-def _shared(table: np.ndarray, a: int, b: int, lag: int, most: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of the pairs of a's frame k and b's frame k + lag where both saw both ends, at most
-    ``most`` of them spread over the recording."""
-    span = len(table)
-    k = np.flatnonzero(table[:, a] >= 0)
-    kb = k + lag
-    ok = (kb >= 0) & (kb < span)
-    k, kb = k[ok], kb[ok]
-    k, kb = k[table[kb, b] >= 0], kb[table[kb, b] >= 0]
-    pick = spread(np.arange(len(k)), most)
-    return table[k[pick], a], table[kb[pick], b]
-
-
-def _midpoint_scores(pairs: WandPairs, table: np.ndarray, a: int, b: int, lags: np.ndarray) -> np.ndarray:
-    """(S,) for each lag, the median Sampson distance (normalised units) of the wand midpoints of
-    a's frame k and b's frame k + lag to a linear fundamental matrix fitted through them (refitted
-    twice on the best 80%); NaN where fewer than ``MIN_TIMING_FRAMES`` frames are shared. All lags
-    at once: a's frames (at most ``MIDPOINT_FRAMES``, spread) against b's at every lag."""
-    span = len(table)
-    k = spread(np.flatnonzero(table[:, a] >= 0), MIDPOINT_FRAMES)
-    kb = k[None, :] + lags[:, None]  # (S, K)
-    rows_b = np.where((kb >= 0) & (kb < span), table[np.clip(kb, 0, span - 1), b], -1)
-    valid = rows_b >= 0
-    h1 = np.concatenate([pairs.xy[table[k, a]].mean(1), np.ones((len(k), 1))], 1)  # (K, 3)
-    h2 = np.concatenate([pairs.xy[np.maximum(rows_b, 0)].mean(2), np.ones((*rows_b.shape, 1))], 2)  # (S, K, 3)
-    rows = (h2[:, :, :, None] * h1[None, :, None, :]).reshape(*rows_b.shape, 9)
-    keep = valid.copy()
-    dist = np.zeros(rows_b.shape)
-    for _ in range(TRIM_PASSES):
-        w = rows * keep[..., None]
-        _, vecs = np.linalg.eigh(np.matmul(w.transpose(0, 2, 1), rows))
-        F = vecs[:, :, 0].reshape(-1, 3, 3)
-        Fx = np.matmul(h1, F.transpose(0, 2, 1))  # (S, K, 3): F x1 for each frame
-        Fty = np.matmul(h2, F)
-        num = np.einsum("ski,ski->sk", h2, Fx) ** 2
-        den = np.maximum(Fx[..., 0] ** 2 + Fx[..., 1] ** 2 + Fty[..., 0] ** 2 + Fty[..., 1] ** 2, 1e-300)
-        dist = np.where(valid, np.sqrt(num / den), np.inf)
-        keep = valid & (dist <= _row_quantile(dist, valid, TRIM_KEEP)[:, None])
-    score = _row_quantile(dist, valid, 0.5)
-    return np.where(valid.sum(1) >= MIN_TIMING_FRAMES, score, np.nan)
-
-
-def _row_quantile(values: np.ndarray, valid: np.ndarray, q: float) -> np.ndarray:
-    """(S,) each row's q-quantile (nearest rank) of ``values`` (S, K) where ``valid``; inf for an empty row."""
-    ordered = np.sort(np.where(valid, values, np.inf), axis=1)
-    count = valid.sum(1)
-    return ordered[np.arange(len(values)), np.clip(np.floor(q * (count - 1)).astype(np.int64), 0, values.shape[1] - 1)]
-
-
-def _pose_share(pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig):
-    """(R, u) of the essential matrix that RANSAC fits to both matchings of the shared frames'
-    ends at this lag, or None."""
-    ra, rb = _shared(table, a, b, lag, TIMING_FRAMES)
-    if len(ra) < MIN_TIMING_FRAMES:
-        return None
-    xa, xb = pairs.xy[ra], pairs.xy[rb]
-    p1 = np.concatenate([xa[:, 0], xa[:, 1], xa[:, 0], xa[:, 1]])
-    p2 = np.concatenate([xb[:, 0], xb[:, 1], xb[:, 1], xb[:, 0]])
-    threshold = ESSENTIAL_THRESHOLD_PX / _focal(rig, a, b)
-    E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.USAC_DEFAULT, ESSENTIAL_CONFIDENCE, threshold)
-    if E is None or E.shape[1:] != (3,) or len(E) < 3:
-        return None
-    best: tuple | None = None
-    for j in range(len(E) // 3):
-        n_front, R, u, _ = cv2.recoverPose(E[3 * j : 3 * j + 3], p1, p2, np.eye(3), mask=mask.copy())
-        if best is None or n_front > best[0]:
-            best = (n_front, R, u.ravel())
-    return (best[1], best[2]) if best is not None else None
-
-
-def _share(
-    pairs: WandPairs, table: np.ndarray, a: int, b: int, lag: int, rig: Rig, R: np.ndarray, u: np.ndarray
-) -> tuple[float, float]:
-    """Share of the shared frames at this lag whose both ends fit the relative pose (R, u), and
-    the median of their worse end's squared Sampson distance (normalised units)."""
-    ra, rb = _shared(table, a, b, lag, TIMING_FRAMES)
-    if len(ra) < MIN_TIMING_FRAMES:
-        return 0.0, float("inf")
-    xa, xb = pairs.xy[ra], pairs.xy[rb]
-    threshold = SHARE_THRESHOLD_PX / _focal(rig, a, b)
-    same = np.maximum(_sampson(R, u, xa[:, 0], xb[:, 0]), _sampson(R, u, xa[:, 1], xb[:, 1]))
-    cross = np.maximum(_sampson(R, u, xa[:, 0], xb[:, 1]), _sampson(R, u, xa[:, 1], xb[:, 0]))
-    worse = np.minimum(same, cross)
-    return float(np.mean(worse < threshold**2)), float(np.median(worse))
-
-
-def _focal(rig: Rig, a: int, b: int) -> float:
-    return float(0.5 * (rig.cameras[a].focal.mean() + rig.cameras[b].focal.mean()))
