@@ -9,7 +9,7 @@ from typing import TypeGuard
 from wandcal.calib.judge.verdict import NO_REFERENCE, NO_SCALE, at_limit_text
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list, names_camera
 from wandcal.service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
-from wandcal.service.report.figures import AXIS_POINTS, FRAME_DOTS, OUTLIER_CROSSES, POINT_DOTS, WAND_DOTS
+from wandcal.service.report.figure_style import AXIS_POINTS, FRAME_DOTS, OUTLIER_CROSSES, POINT_DOTS, WAND_DOTS
 
 DASH = "\u2014"  # what a field an older result lacks shows
 FAULT_WORDS = {"intrinsics": "intrinsics", "timing": "timing", "wand_scale": "wand scale", "outliers": "outliers",
