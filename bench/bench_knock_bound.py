@@ -1,4 +1,4 @@
-"""Knocks on real sessions against what the step test can tell (issue 31, decision 0077h).
+"""Knocks on real sessions against what the step test can tell (issue 31, decision 0083).
 
 For each knock the judgement's own step test on the knocked camera (its first test in ``calibrate``,
 :func:`wandcal.calib.judge.faults.pose_steps.pose_step`) gives the turn it estimates, its standard

@@ -1,5 +1,5 @@
 """Whether ``frame_offsets(..., prove_sparse=True)`` (what ``calibrate --sync auto`` calls, decision
-0077f) gives the default search's answer on the inputs the sync tests and benches use: the same
+0081) gives the default search's answer on the inputs the sync tests and benches use: the same
 offsets, TooFewShared where the default raises it (calibrate then falls back to the triangulation
 search, whatever the message), or the same refusal message; and the CPU seconds of each.
 

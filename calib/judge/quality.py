@@ -17,7 +17,7 @@ MIN_FRAMES_FOR_LENGTH_TEST = 10  # fewer frames give no stable robust spread of 
 MIN_OUTLIER_PX = 1.0  # never call a residual under a pixel an outlier, however clean the rest
 # a wand-length spread is past a limit only where its own frames say so at one-sided 2.3%: two
 # standard errors, as a camera's noise past its limit (own_errors.NOISE_Z, decision 0064); a spread
-# of n frames within that of a limit, either side, is at the limit (decision 0077a)
+# of n frames within that of a limit, either side, is at the limit (decision 0077)
 SPREAD_Z = 2.0
 
 

@@ -390,7 +390,7 @@ def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict
 def _spread_check(checks: _Checks, value: float, limits: tuple[float, float], n: int, text: str,
                   shown: tuple[float, str]) -> None:
     """The wand-length spread (a standard deviation of ``n`` frames' lengths) graded against
-    ``limits`` by its own sampling error (decision 0077a): past a limit only where it stands
+    ``limits`` by its own sampling error (decision 0077): past a limit only where it stands
     :data:`~wandcal.calib.judge.quality.SPREAD_Z` standard errors above it (one-sided 2.3%, by
     :func:`~wandcal.calib.judge.quality.spread_z`), at the limit within that of it either side;
     the entry shows the spread's standard error (:func:`rms_std`). Added to ``checks`` as a row."""

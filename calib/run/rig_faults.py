@@ -40,7 +40,7 @@ MAX_SUSPECTS = 2  # the worst cameras looked into; more at fault at once is a ri
 # outlier camera-frames' binomial upper tail under the median share below this level, shared out
 # over the rig's cameras (Bonferroni), so that a clean rig has a camera looked into for its
 # outliers alone once in twenty (a clean 128-camera rig's largest shares, 5-8 of 40-80 camera-
-# frames against ~3%, lie at 1e-3-1e-2: binomial scatter; decision 0077e)
+# frames against ~3%, lie at 1e-3-1e-2: binomial scatter; decision 0080)
 SUSPECT_OUTLIER_LEVEL = 0.05
 # a large rig's points seen by this many cameras or more keep a camera's noise with it in the
 # residuals (3x one camera's noise shows as 2x the others' at four views, 2.8x at sixteen): the

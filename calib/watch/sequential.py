@@ -338,7 +338,7 @@ def _scatter(s2: float, H: np.ndarray, gd: np.ndarray, explained: float) -> floa
     real take the camera's apparent pose wanders window to window beyond the blobs' noise (a camera
     model a little off, :meth:`CameraTest.wander`), and a ramp bent to that wander beat a step by
     more than :data:`DRIFT_MARGIN` noise units (a real camera turned 0.3 deg named as drifting from
-    the baseline's end, decision 0077d); in a simulated take the ratio is ~1 and nothing changes."""
+    the baseline's end, decision 0079); in a simulated take the ratio is ~1 and nothing changes."""
     per_window = float(np.einsum("wi,wij,wj->", gd, _pinv(H), gd))
     scale = np.abs(H).max(axis=(1, 2), initial=0.0)
     dof = sum(int((np.linalg.eigvalsh(h) > RCOND * m).sum()) for h, m in zip(H, scale) if m > 0) - PARAMS

@@ -76,7 +76,7 @@ class Step:
     @property
     def detectable_deg(self) -> float:
         """The turn about the step's own axis that the test names at this split: a knock below it
-        is one the data cannot tell from the camera's own scatter in time (decision 0077h)."""
+        is one the data cannot tell from the camera's own scatter in time (decision 0083)."""
         return float("nan") if self.turn is None else self.detectable_along(self.turn)
 
 

@@ -1,5 +1,5 @@
 """A camera knocked so far that the outlier pass rejected its views after the knock: its rejected
-camera-frames bunched at one end of its time (issue 31, decision 0077i).
+camera-frames bunched at one end of its time (issue 31, decision 0084).
 
 A knock of a degree or more on a sparse camera puts its later wand views beyond the rig's outlier
 limit: the outlier pass drops them, and the step test (:mod:`wandcal.calib.judge.faults.pose_steps`),

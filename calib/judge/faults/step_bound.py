@@ -1,5 +1,5 @@
 """The turn a camera's pose-step test can name (:func:`wandcal.calib.judge.faults.pose_steps.pose_step`):
-the F distribution's critical value, and the turn about an axis whose F reaches it (decision 0077h)."""
+the F distribution's critical value, and the turn about an axis whose F reaches it (decision 0083)."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def detectable_turn(cov: np.ndarray | None, axis: np.ndarray, f_crit: float) -> 
     ``theta = sqrt(3 F* / a^T Cov^-1 a)``. cov: (3, 3) the turn's covariance, deg^2. Per axis, not
     the rms: a camera's turn about its optical axis is often far less certain than across it.
     With Brown's 7-24 shared wand frames the inflation's dof is 3 (four batches) and F* of F(3, 3)
-    at 1e-5 is ~ 3000: the bound is ~ 100 standard deviations (decision 0077h). nan without a
+    at 1e-5 is ~ 3000: the bound is ~ 100 standard deviations (decision 0083). nan without a
     covariance or an axis."""
     a = np.asarray(axis, float)
     if cov is None or not np.isfinite(f_crit) or not np.linalg.norm(a) > 0:

@@ -173,7 +173,7 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
     sigma = float(np.sqrt(np.mean((y - A @ delta) ** 2)))
     reference = float(np.median(delta))  # the cameras on time are the majority
     # each camera's own offset variance, its column's least squares: every camera with rows is in
-    # the reference, judged (MIN_PAIRS) or not (decision 0077a)
+    # the reference, judged (MIN_PAIRS) or not (decision 0077)
     gram_all = (A**2).sum(axis=0)
     own_var = np.where(gram_all > 0, sigma**2 / np.maximum(gram_all, 1e-300), np.nan)
     found = {}

@@ -122,7 +122,7 @@ def frame_offsets(
         prove_sparse: for a caller that falls back on :class:`TooFewShared` (calibrate's sync):
             before timing anyone, try to prove that the planned search would raise TooFewShared
             (:func:`_refuse_untimeable`), and raise it at once; otherwise the planned search, as by
-            default. The answer is the default's on every input but one kind (decision 0077f): a
+            default. The answer is the default's on every input but one kind (decision 0081): a
             camera planned before the one proved, in the sparse regime (fewer than ``FEW_FRAMES``
             frames shared with its first partner at any lag), whose best shift is at the edge of
             its search: the default refuses it ("at the edge of the search"), this raises

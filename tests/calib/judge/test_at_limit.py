@@ -165,7 +165,7 @@ def test_a_pixel_warning_stays_only_where_the_verdict_gives_something_to_do():
 
 
 def test_a_wand_spread_past_its_limit_by_less_than_its_sampling_error_is_at_the_limit_not_poor():
-    """Brown 1's 40% subsample, seed 117 (decision 0077a): 1.36 mm over 12 frames against a 1.02 mm
+    """Brown 1's 40% subsample, seed 117 (decision 0077): 1.36 mm over 12 frames against a 1.02 mm
     limit, where the same frames spread 1.44 mm at the whole session's poses. Were the true spread
     the limit, 12 frames would spread that far once in 33 (z 1.88 < SPREAD_Z, one-sided 2.3%): good,
     at the limit of poor. Twice the limit over the same frames is past it (z 4.6): poor."""

@@ -1,4 +1,4 @@
-"""The turn a camera's step test can name (calib/judge/faults/pose_steps.py, decision 0077h):
+"""The turn a camera's step test can name (calib/judge/faults/pose_steps.py, decision 0083):
 the F distribution's critical value, the bound's arithmetic, and on a seeded rig a step is named
 exactly when its turn passes the bound the test gives it (the F is the turn's Wald statistic)."""
 

@@ -1,5 +1,5 @@
 """A camera's rejected camera-frames bunched at one end of its time (calib/judge/faults/rejected_runs.py,
-decision 0077i): the block test's arithmetic is the binomial's, its false-alarm rate at the rig's
+decision 0084): the block test's arithmetic is the binomial's, its false-alarm rate at the rig's
 outlier rate is at most its level, and on a seeded four-camera wand rig a camera knocked
 5 degrees (its later views all beyond the outlier limit) is named moved at its frame while gross
 outliers spread in time name nothing."""

@@ -1,6 +1,6 @@
 """The suspect screen's share of gross outliers (wandcal.calib.run.rig_faults.suspects): a camera is
 looked into for its outliers only beyond the binomial scatter of the median camera's share, its
-camera-frames the trials (decision 0077e)."""
+camera-frames the trials (decision 0080)."""
 
 from __future__ import annotations
 

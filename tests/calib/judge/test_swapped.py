@@ -117,7 +117,7 @@ def test_a_negative_gain_never_passes():
 def test_multicamselfcals_two_cameras_swapped_are_named_and_its_clean_run_is_not():
     """MultiCamSelfCal's Basler_21275577 and Basler_21283677 (focal lengths 3% and principal points
     29 px apart) swapped: before, "good" with nothing named; both named now, and nothing on the
-    clean session (decision 0077c)."""
+    clean session (decision 0078)."""
     from bench import held_out_faults as ho
     from bench import real_faults as rf
 

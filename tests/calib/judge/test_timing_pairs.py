@@ -111,7 +111,7 @@ def test_a_camera_at_fault_is_named_out_of_time_at_three_standard_errors_not_noi
     assert timing_instead(ids, late, 2, 2.0) is None
 
 
-# Brown 2's 40% subsample, seed 114 (decision 0077a): one camera judged (16 pair rows), the others
+# Brown 2's 40% subsample, seed 114 (decision 0077): one camera judged (16 pair rows), the others
 # under MIN_PAIRS, two of them linked only where the wand hardly moves. The reference (the cameras'
 # median offset) is then theirs, known poorly: its error must count though they are not judged.
 SPARSE_SEEN = {0: [range(10, 18)], 1: [range(10, 18), range(50, 54), range(70, 74)],
