@@ -74,8 +74,9 @@ def kabsch_turns(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _projected(Q: np.ndarray, a: np.ndarray) -> np.ndarray:
     """(..., k, 2) normalised projections of rays a (k, 3) turned by Q (..., 3, 3)."""
-    v = np.einsum("...ij,kj->...ki", Q, a)
-    return v[..., :2] / np.where(v[..., 2:] > 1e-9, v[..., 2:], np.nan)
+    v = (Q.reshape(-1, 3) @ a.T).reshape(*Q.shape[:-2], 3, len(a))  # one matrix product for every turn
+    z = np.where(v[..., 2, :] > 1e-9, v[..., 2, :], np.nan)
+    return np.stack([v[..., 0, :] / z, v[..., 1, :] / z], axis=-1)
 
 
 def best_turn(a: np.ndarray, b: np.ndarray, point: np.ndarray, gate: float) -> tuple[np.ndarray, int]:
@@ -90,8 +91,8 @@ def best_turn(a: np.ndarray, b: np.ndarray, point: np.ndarray, gate: float) -> t
     bxy = b[:, :2] / b[:, 2:]
     best, score = np.eye(3), -1
     for chunk in np.array_split(np.arange(len(turns)), max(1, len(turns) * len(a) // 2_000_000)):
-        d = np.linalg.norm(_projected(turns[chunk], a) - bxy, axis=-1)
-        counts = (d < gate).sum(1)
+        e = _projected(turns[chunk], a) - bxy
+        counts = (np.einsum("tkc,tkc->tk", e, e) < gate**2).sum(1)  # within the gate, no square root
         k = int(np.argmax(counts))
         if counts[k] > score:
             best, score = turns[chunk][k], int(counts[k])
