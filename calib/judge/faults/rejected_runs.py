@@ -70,9 +70,12 @@ def binomial_upper(k: int, n: int, alpha: float = 0.025) -> float:
     if n == 0 or k >= n:
         return 1.0
     lo, hi = k / n, 1.0
+    j = np.arange(k + 1)
+    log_comb = np.concatenate([[0.0], np.cumsum(np.log((n - j[1:] + 1) / j[1:]))])  # log C(n, j), j <= k
     for _ in range(60):
         q = (lo + hi) / 2
-        lo, hi = (q, hi) if binomial_sf(k + 1, n, q) < 1 - alpha else (lo, q)
+        cdf = float(np.exp(log_comb + j * np.log(q) + (n - j) * np.log1p(-q)).sum())  # P(Bin(n, q) <= k)
+        lo, hi = (q, hi) if cdf > alpha else (lo, q)
     return hi
 
 
