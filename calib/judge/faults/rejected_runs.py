@@ -125,13 +125,20 @@ def block_against_rate(rejected: np.ndarray, frames: np.ndarray, q: float) -> Re
     return RejectedRun(frame, tail, L_best, int(block.sum()), n, int(rejected.sum()), float(min(p * factor, 1.0)))
 
 
-def _camera_frames(res: Residuals, c: int) -> tuple[np.ndarray, np.ndarray]:
-    """Camera c's wand camera-frames another camera sees too, with a finite residual, in capture
-    order: (their residuals' rows of the first end (K,), rejected (K,) bool)."""
+def _shared_wand_rows(res: Residuals) -> np.ndarray:
+    """The rows of wand camera-frames another camera sees too, with a finite residual (first ends)."""
     wand = (res.point >= 0) & (res.point % 2 == 0) & np.all(np.isfinite(res.residual), axis=1)
     views = np.bincount(res.point[wand] // 2, minlength=len(res.frames))
-    rows = np.flatnonzero(wand & (res.camera == c))
-    rows = rows[views[res.point[rows] // 2] >= 2]
+    rows = np.flatnonzero(wand)
+    return rows[views[res.point[rows] // 2] >= 2]
+
+
+def _camera_frames(res: Residuals, c: int, shared: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Camera c's wand camera-frames another camera sees too, with a finite residual, in capture
+    order: (their residuals' rows of the first end (K,), rejected (K,) bool); ``shared`` the rows
+    of :func:`_shared_wand_rows`, where already found."""
+    rows = _shared_wand_rows(res) if shared is None else shared
+    rows = rows[res.camera[rows] == c]
     rows = rows[np.argsort(res.frames[res.point[rows] // 2], kind="stable")]
     return rows, res.outlier[rows]
 
@@ -143,7 +150,8 @@ def camera_runs(res: Residuals, n_cameras: int) -> list[tuple[RejectedRun, float
     in the frames outside the camera's block (a knock rejects its partners' views in the frames they
     share with it too: in a frame of two views the error is split), the block found at the others'
     whole rate first, then again at that rate."""
-    per = [_camera_frames(res, c) for c in range(n_cameras)]
+    shared = _shared_wand_rows(res)
+    per = [_camera_frames(res, c, shared) for c in range(n_cameras)]
     frame_of = [res.point[rows] // 2 for rows, _ in per]
     all_frames = np.concatenate(frame_of) if per else np.zeros(0, np.int64)
     all_out = np.concatenate([o for _, o in per]) if per else np.zeros(0, bool)
