@@ -12,11 +12,10 @@ stand out of the rig's, :func:`suspects`), each suspect judged against the rig s
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
+from wandcal.calib.judge.faults.f_distribution import binomial_tail
 from wandcal.calib.judge.faults.rejected_runs import rejected_moved
 from wandcal.calib.judge.faults.screen import Lens, TimingFault, analyse_camera, classify, lens_screen, offset_text
 from wandcal.calib.judge.quality import OUTLIER_SIGMAS
@@ -72,21 +71,6 @@ def camera_frames(res: Residuals, n_cameras: int) -> tuple[np.ndarray, np.ndarra
     total = np.bincount(res.camera, weight, n_cameras)
     bad = np.bincount(res.camera, weight * res.outlier, n_cameras)
     return np.ceil(bad - 1e-9).astype(np.int64), np.ceil(total - 1e-9).astype(np.int64)
-
-
-def binomial_tail(k: int, n: int, p: float) -> float:
-    """P(X >= k), X ~ Binomial(n, p), summed in logs (a calibration loads no scipy)."""
-    if k <= 0:
-        return 1.0
-    if k > n or p <= 0.0:
-        return 0.0
-    if p >= 1.0:
-        return 1.0
-    i = np.arange(k + 1, n + 1, dtype=float)
-    head = math.lgamma(n + 1) - math.lgamma(k + 1) - math.lgamma(n - k + 1) + k * math.log(p) + (n - k) * math.log1p(-p)
-    logs = head + np.concatenate([[0.0], np.cumsum(np.log((n - i + 1) / i) + math.log(p) - math.log1p(-p))])
-    top = float(logs.max())
-    return min(1.0, math.exp(top) * float(np.exp(logs - top).sum()))
 
 
 def _scattered(figures: list[dict], c: int, frames: tuple[np.ndarray, np.ndarray], n_cameras: int) -> bool:

@@ -1,9 +1,12 @@
 """The F distribution's upper tail, for the judgement's F and Hotelling tests (the pose step's,
-its screen's, the lens pattern's against its own scatter), without loading SciPy into calibrate."""
+its screen's, the lens pattern's against its own scatter), and the binomial's (outlier shares, rejected
+views), without loading SciPy into calibrate."""
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 
 def f_survival(q: int, dof: float, f: float) -> float:
@@ -35,3 +38,18 @@ def _betacf(a: float, b: float, x: float) -> float:
         if abs(d * c - 1) < 1e-14:
             break
     return h
+
+
+def binomial_tail(k: int, n: int, p: float) -> float:
+    """P(X >= k), X ~ Binomial(n, p), summed in logs (a calibration loads no scipy)."""
+    if k <= 0:
+        return 1.0
+    if k > n or p <= 0.0:
+        return 0.0
+    if p >= 1.0:
+        return 1.0
+    i = np.arange(k + 1, n + 1, dtype=float)
+    head = math.lgamma(n + 1) - math.lgamma(k + 1) - math.lgamma(n - k + 1) + k * math.log(p) + (n - k) * math.log1p(-p)
+    logs = head + np.concatenate([[0.0], np.cumsum(np.log((n - i + 1) / i) + math.log(p) - math.log1p(-p))])
+    top = float(logs.max())
+    return min(1.0, math.exp(top) * float(np.exp(logs - top).sum()))

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.geometry import projection_derivative, rotvec_to_matrix
+from wandcal.calib.judge.faults.f_distribution import binomial_tail
 from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA
 from wandcal.calib.judge.residuals import Residuals
 from wandcal.calib.triangulate import triangulate_points
@@ -59,11 +60,6 @@ class RejectedRun:
     p_value: float
 
 
-def _log_comb(log_fact: np.ndarray, n: np.ndarray | int, k: np.ndarray) -> np.ndarray:
-    """log C(n, k) from the table ``log_fact`` (log k! for k = 0 .. its length - 1)."""
-    return log_fact[n] - log_fact[k] - log_fact[n - k]
-
-
 def binomial_upper(k: int, n: int, alpha: float = 0.025) -> float:
     """The Clopper-Pearson upper bound of a rate seen k times in n: the q at which k or fewer
     happen with probability ``alpha`` (1 with n = 0)."""
@@ -77,19 +73,6 @@ def binomial_upper(k: int, n: int, alpha: float = 0.025) -> float:
         cdf = float(np.exp(log_comb + j * np.log(q) + (n - j) * np.log1p(-q)).sum())  # P(Bin(n, q) <= k)
         lo, hi = (q, hi) if cdf > alpha else (lo, q)
     return hi
-
-
-def binomial_sf(x: int, n: int, q: float) -> float:
-    """P(Bin(n, q) >= x)."""
-    if x <= 0:
-        return 1.0
-    if x > n or q <= 0:
-        return 0.0
-    if q >= 1:
-        return 1.0
-    j = np.arange(x, n + 1)
-    lf = np.concatenate([[0.0], np.cumsum(np.log(np.arange(1, n + 1)))])
-    return float(min(np.exp(_log_comb(lf, n, j) + j * np.log(q) + (n - j) * np.log1p(-q)).sum(), 1.0))
 
 
 def block_against_rate(rejected: np.ndarray, frames: np.ndarray, q: float) -> RejectedRun | None:
@@ -113,7 +96,7 @@ def block_against_rate(rejected: np.ndarray, frames: np.ndarray, q: float) -> Re
                   + np.where(share < 1, (1 - share) * np.log((1 - share) / (1 - q)), 0.0))
         bound = np.where((share > q) & (x > 0), np.exp(-L * kl), 1.0)
         for j in np.flatnonzero(bound * factor < STEP_ALPHA).tolist():
-            bound[j] = binomial_sf(int(x[j]), j + 1, q)
+            bound[j] = binomial_tail(int(x[j]), j + 1, q)
         k = int(np.argmin(bound))
         if bound[k] < best[0]:
             best = (float(bound[k]), tail, k + 1)
@@ -220,7 +203,7 @@ def turned_back(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, run: Rejec
     np.logical_or.at(beyond, res.point[views] // 2, err > res.limit_px)
     placed[res.point[views] // 2] = True
     left = int(beyond.sum())
-    return binomial_sf(left, int(placed.sum()), q) >= FITS_LEVEL
+    return binomial_tail(left, int(placed.sum()), q) >= FITS_LEVEL
 
 
 def rejected_moved(ids: list[str], res: Residuals, R: np.ndarray, t: np.ndarray) -> list[dict]:

@@ -13,8 +13,9 @@ import pytest
 
 from tests.calib.judge.test_own_errors import FOCAL_PX, NOISE_PX, _rig
 from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.judge.faults.f_distribution import binomial_tail as binomial_sf
 from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA
-from wandcal.calib.judge.faults.rejected_runs import binomial_sf, binomial_upper, block_against_rate, rejected_moved
+from wandcal.calib.judge.faults.rejected_runs import binomial_upper, block_against_rate, rejected_moved
 from wandcal.calib.judge.residuals import observation_residuals
 from wandcal.calib.observations import WandPairs
 
