@@ -4,6 +4,8 @@ and the moved cameras' entries of the updated result (:func:`wandcal.capture.tak
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
@@ -26,11 +28,14 @@ def check_fit(report: WatchReport, take: str, result: str) -> None:
 
 
 def report_json(report: WatchReport) -> dict:
-    """Every camera's health: id, status (ok, moved, drifting), residual_px, matched (share); a moved
+    """Every camera's health: id, status (ok, moved, drifting), residual_px, matched (share), detectable_turn_deg (the
+    smallest turn, its worst axis, the take lets the test name as often as not); a moved
     one's frames, kind, statistic and whether it was lost (moved too far to follow), and once re-solved its turn (deg), move (mm), their sigmas and fit, or why it was not (not_resolved)."""
     cameras = []
     for h in report.cameras:
         entry = {"id": h.id, "status": h.status, "residual_px": round(h.residual_px, 4), "matched": round(h.matched, 4)}
+        if math.isfinite(h.detectable_turn_deg):  # the smallest turn the take lets the test name, as often as not
+            entry["detectable_turn_deg"] = round(h.detectable_turn_deg, 3)
         if h.alarm is not None:
             entry |= {"moved_at_frame": h.moved_at, "detected_at_frame": h.alarm.detected_frame, "kind": h.kind,
                       "drift_frames": h.drift_frames, "before_take": h.before_take,

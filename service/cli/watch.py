@@ -4,6 +4,7 @@ calibration; a moved or drifting camera named (when, how much) and re-solved fro
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -59,9 +60,10 @@ def run_watch(args) -> int:
 def _print_report(report, args) -> None:
     print(f"{report.frames} frames ({report.first_frame}-{report.last_frame}), {report.tracks} markers matched "
           f"({report.tracks / max(report.frames, 1):.1f} a frame)")
-    print(f"{'camera':<16} {'status':<9} {'residual px':>11} {'matched':>8}")
+    print(f"{'camera':<16} {'status':<9} {'residual px':>11} {'matched':>8} {'sees turns of':>13}")
     for h in report.cameras:
-        print(f"{h.id:<16} {h.status:<9} {h.residual_px:>11.3f} {h.matched:>8.1%}")
+        sees = f"{h.detectable_turn_deg:.2f} deg" if math.isfinite(h.detectable_turn_deg) else "-"
+        print(f"{h.id:<16} {h.status:<9} {h.residual_px:>11.3f} {h.matched:>8.1%} {sees:>13}")
     for h in report.moved:
         how = (f"drifting over {h.drift_frames} frames from frame {h.moved_at}" if h.kind == "drift"
                else f"moved before the take began (it disagrees with {args.result} from frame {h.moved_at})"
