@@ -6,6 +6,8 @@
 | :mod:`~wandcal.calib.judge.coverage` | where in each image the wand was seen |
 | :mod:`~wandcal.calib.judge.residuals` | every camera's residuals on the same observations, whichever method solved |
 | :mod:`~wandcal.calib.judge.verdict` | the verdict per camera and for the rig, with reasons and advice |
+| :mod:`~wandcal.calib.judge.placement` | the world frame's verdict: its placement against the volume, its object's faults |
+| :mod:`~wandcal.calib.judge.sanity` | the checks every method's result must pass before it is written |
 | :mod:`~wandcal.calib.judge.faults` | the fault finders: which camera is at fault and how (timing, lens, noise, a move during the capture) |
 | :mod:`~wandcal.calib.judge.evaluate` | fixed cameras judged against a capture: residuals, wand lengths, points (the report) |
 | :mod:`~wandcal.calib.judge.bumps` | did a camera move? each one against a fresh capture's wand ends and points (``wandcal check``), a knock told from another rig |

@@ -1,5 +1,6 @@
-"""Is this calibration good? A verdict per camera, for the rig's geometry, and for the world's
-placement, and the checks every method's result must pass before it is written.
+"""Is this calibration good? A verdict per camera and for the rig's geometry (the world's placement:
+:mod:`wandcal.calib.judge.placement`; the checks every method's result must pass:
+:mod:`wandcal.calib.judge.sanity`).
 
 Verdicts are ``excellent``, ``good`` or ``poor``: the worst of the criteria below. Each criterion
 that is not excellent gives a reason with the number that fell short; each poor one also gives
@@ -15,7 +16,6 @@ import re
 
 import numpy as np
 
-from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.coverage import coverage_grids, covered_fraction, empty_regions
 from wandcal.calib.judge.quality import SPREAD_Z, spread_z
 from wandcal.calib.rig import LISTED_CAMERAS, Rig, camera_list, folded
@@ -48,9 +48,6 @@ COVERAGE = (0.5, 0.15)
 # 0.5 mm in a 2 m volume, sub-millimetre; 1e-3 is 2 mm there. The good limit is the camera's own
 # ray distance at the points instead where that is larger (:func:`geometry_limits`)
 GEOMETRY_OF_VOLUME = (2.5e-4, 1e-3)
-# the world's placement: its origin's 1-sigma, and half its axes' angle (the displacement they
-# cause at the volume's edge), over the volume's size; the same limits as the geometry
-PLACEMENT_OF_VOLUME = (2.5e-4, 1e-3)
 # wand-length spread, % of the length (easyWand's "wand score"): open tools call <= 1% good
 WAND_STD_PERCENT = (0.5, 1.0)
 # wand-length spread over the volume's size: Qualisys asks for an SD of 1-2 mm or better on a
@@ -62,9 +59,6 @@ WAND_STD_OF_VOLUME = (3e-4, 1e-3)
 # noise-level estimate alone would say 1-5%: a camera's sigma hinges on its few best-placed frames
 SIGMA_REL_SE = 0.11
 MAD_SIGMA_REL_SE = 1.166  # over sqrt(n): the MAD-based sigma's asymptotic standard error (Gaussian)
-# sanity checks every method's result must pass
-WAND_LENGTH_TOLERANCE = 0.05  # the free wand's mean length within 5% of the given length
-BELOW_FLOOR_M = 0.0  # a camera centre under the floor (z < 0 in a static object's or axis frame)
 PLACEMENT_FAULTS = ("wand_scale", "static_markers")  # faults of the object that places the world
 SCALE_FAULTS = ("wand_scale",)  # ... of which these put the whole rig's scale in doubt too
 WAND_SPREAD_ADVICE = "look for a bent wand or loose markers, and check the cameras' intrinsics"
@@ -73,13 +67,6 @@ FAULT_ADVICE = {
     "wand_scale": "measure the wand's length (wand.length_m) and the L-frame's marker spacing (static_object.markers_m) "
                   "again and correct rig.json; then calibrate again",
     "static_markers": "check static_object.markers_m in rig.json against the L-frame, and that it is flat and not bent",
-}
-PLACEMENT_ADVICE = {
-    "static_object": "record more static frames with the L-frame seen by more cameras, or use a larger L-frame",
-    "axis": "digitise the axis points in more cameras and frames, or space them further apart",
-    "floor": "digitise more floor points in more cameras, spread wider over the floor",
-    "gravity": "record a longer drop seen by two or more cameras (more frames, a higher start), or drop it again",
-    "wand_volume": "place an L-frame (static object) in the volume, seen by several cameras, to fix the world frame",
 }
 
 
@@ -116,9 +103,12 @@ def stability_entry(criterion: str, camera: str | None, value: float, limits: tu
     "camera", "value", "limit", "std", "unit", "levels"}, ``levels`` the two it lies between (it
     takes the better one); None when it is clear of both limits."""
     k = _at_limit(value, limits, std)
-    if k is None:
-        return None
-    return {"criterion": criterion, "camera": camera, "value": _round(value), "limit": _round(limits[k]),
+    return None if k is None else limit_entry(criterion, camera, value, limits[k], k, std, unit)
+
+
+def limit_entry(criterion: str, camera: str | None, value: float, limit: float, k: int, std: float, unit: str) -> dict:
+    """The verdict's ``at_limit`` entry of a criterion at ``limit``, the k-th (between LEVELS[k] and LEVELS[k + 1])."""
+    return {"criterion": criterion, "camera": camera, "value": _round(value), "limit": _round(limit),
             "std": _round(std), "unit": unit, "levels": [LEVELS[k], LEVELS[k + 1]]}
 
 
@@ -169,7 +159,7 @@ def _limits(limits: tuple[float, ...], fmt: str, higher: bool = False) -> str:
     return f"excellent {op} {format(limits[0], fmt)}, good {op} {format(limits[1], fmt)}"
 
 
-class _Checks:
+class Checks:
     """A verdict's criteria as they are graded: (criterion, grade, reason with ``{level}``, advice)
     and the ones within their standard error of a limit (:func:`stability_entry`)."""
 
@@ -208,7 +198,7 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
     (None without a scale);
     rig_noise_px: the median camera's noise.
     """
-    checks = _Checks(cam_id)
+    checks = Checks(cam_id)
     obs = report.get("observations", 0) + report.get("point_observations", 0)
     rel = report.get("residual_of_volume")
     if rel is not None:
@@ -251,7 +241,7 @@ def camera_verdict(report: dict, cam_id: str, extent_m: float | None, rig_noise_
             "at_limit": checks.at_limit}
 
 
-def _place_checks(checks: _Checks, report: dict, cam_id: str, extent_m: float | None, obs: int) -> str | None:
+def _place_checks(checks: Checks, report: dict, cam_id: str, extent_m: float | None, obs: int) -> str | None:
     """:func:`camera_verdict`'s observations, coverage and geometry criteria, added to ``checks``;
     returns the coverage advice a camera under the good coverage gets (not poor on its own)."""
     coverage_advice = None
@@ -295,47 +285,6 @@ def _place_checks(checks: _Checks, report: dict, cam_id: str, extent_m: float | 
     return coverage_advice
 
 
-NO_REFERENCE = ("no world reference (no static.csv with an L-frame, no axis points): the world is the wand volume's "
-                "own frame, so the poses are exported in an arbitrary frame; add static.csv (an L-frame seen by several "
-                "cameras) where a floor and axes are needed")
-NO_SCALE = ("no world reference and no scale: a capture of point tracks only (no wand) is calibrated up to scale, in "
-            "an arbitrary frame")
-
-
-def placement_verdict(world: dict, extent_m: float | None, faults: list[dict]) -> dict:
-    """The world frame's placement: its origin's and axes' 1-sigma against the volume, and any
-    fault of the object that set it. A frame no object set (the wand volume's own, or a capture
-    without a scale) has no placement to grade: ``level`` None, and the reason says so."""
-    if world.get("scale") == "arbitrary":
-        return {"level": None, "reasons": [NO_SCALE], "advice": []}
-    if world.get("frame") == "wand_volume":
-        return {"level": None, "reasons": [NO_REFERENCE], "advice": []}
-    placement = world.get("placement") or {}
-    origin, axes = placement.get("origin_std_mm"), placement.get("axes_std_deg")
-    reasons, advice, level, at_limit = [], [], 0, []
-    if extent_m and origin is not None and axes is not None:
-        rel = max(origin / (1000 * extent_m), np.radians(axes) / 2)
-        checks = _Checks(None)
-        level = checks.add("placement", rel, PLACEMENT_OF_VOLUME, "", "", std=SIGMA_REL_SE * rel,
-                           shown=(1000.0 * extent_m, "mm"))
-        at_limit = checks.at_limit
-        near = f", {at_limit_text(at_limit[0])}" if at_limit else ""
-        if level:
-            reasons.append(f"the world frame ({world.get('frame')}) is placed to {origin:.2f} mm and {axes:.3f} degrees "
-                           f"(1 sigma), {LEVELS[level]}{near} for a {extent_m:.2f} m volume (excellent <= "
-                           f"{PLACEMENT_OF_VOLUME[0] * 1000 * extent_m:.2f} mm, good <= "
-                           f"{PLACEMENT_OF_VOLUME[1] * 1000 * extent_m:.2f} mm at its edge)")
-        if level == 2:
-            advice.append(PLACEMENT_ADVICE.get(str(world.get("frame")), PLACEMENT_ADVICE["static_object"]))
-    placement_faults = [fault for fault in faults if fault["kind"] in PLACEMENT_FAULTS]
-    for fault in placement_faults:
-        level = 2
-        reasons.append(fault["message"])
-    if placement_faults:  # the sigma is the fault's, not the static frames': what fixes it is the fault's
-        advice = [FAULT_ADVICE[fault["kind"]] for fault in placement_faults]
-    return {"level": LEVELS[level], "reasons": reasons, "advice": advice, "at_limit": at_limit}
-
-
 def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict], extent_m: float | None) -> dict:
     """The rig's geometry verdict: its worst camera's, the wand-length spread's, and any fault's
     (every fault but the world's placement makes the rig poor); ``at_limit``: every criterion of
@@ -353,7 +302,7 @@ def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict
         std_mm = 1000 * wand_report["length_std_m"]
         pct = 100 * wand_report["length_std_m"] / wand_report["length_mean_m"]
         n = int(wand_report.get("frames_used") or 0)
-        checks = _Checks(None)
+        checks = Checks(None)
         _spread_check(checks, pct, WAND_STD_PERCENT, n,
                       f"{pct:.2f}% of its length (easyWand's wand score; open tools call <= "
                       f"{WAND_STD_PERCENT[1]:g}% good): {{level}}", (1.0, "%"))
@@ -387,7 +336,7 @@ def rig_verdict(cameras: list[dict], wand_report: dict | None, faults: list[dict
     return {"level": LEVELS[level], "reasons": reasons, "advice": list(dict.fromkeys(advice)), "at_limit": at_limit}
 
 
-def _spread_check(checks: _Checks, value: float, limits: tuple[float, float], n: int, text: str,
+def _spread_check(checks: Checks, value: float, limits: tuple[float, float], n: int, text: str,
                   shown: tuple[float, str]) -> None:
     """The wand-length spread (a standard deviation of ``n`` frames' lengths) graded against
     ``limits`` by its own sampling error (decision 0077): past a limit only where it stands
@@ -399,9 +348,7 @@ def _spread_check(checks: _Checks, value: float, limits: tuple[float, float], n:
     near = next((k for k, zk in enumerate(z) if abs(zk) <= SPREAD_Z), None)
     if near is not None:
         factor, unit = shown
-        entry = {"criterion": "wand spread", "camera": None, "value": _round(factor * value),
-                 "limit": _round(factor * limits[near]), "std": _round(factor * rms_std(value, n)), "unit": unit,
-                 "levels": [LEVELS[near], LEVELS[near + 1]]}
+        entry = limit_entry("wand spread", None, factor * value, factor * limits[near], near, factor * rms_std(value, n), unit)
         checks.at_limit.append(entry)
         text = text.replace("{level}", "{level}, " + at_limit_text(entry))
     checks.rows.append(("wand spread", grade, text, ""))
@@ -423,31 +370,3 @@ def fold_advice(advice: list[tuple[str, str]], rig_cameras: int) -> list[str]:
     return folded(lines, lambda ids: len(ids) > LISTED_CAMERAS, line)
 
 
-def sanity_check(method: str, rig: Rig, cameras: list[dict], wand_report: dict | None, world: dict,
-                 centers: np.ndarray) -> list[str]:
-    """The checks every method's result must pass. Raises :class:`CalibrationError` when the
-    result is not a calibration (a camera left without observations, a wand of the wrong
-    length); returns warnings for what may be wrong but is not sure to be (cameras under the
-    floor: a mirrored or flipped world hides behind a low reprojection error)."""
-    other = "" if method == "ba" else "; try --method ba"
-    ids = rig.ids
-    empty = [ids[k] for k, c in enumerate(cameras) if c.get("observations", 0) + c.get("point_observations", 0) == 0]
-    if empty:
-        raise CalibrationError(f"method {method!r} ended with {camera_list(empty, len(ids))} holding no observations (all were "
-                               f"dropped as outliers), so those poses are not calibrated{other}")
-    if wand_report is not None and rig.wand_length:
-        off = wand_report["length_mean_m"] / rig.wand_length - 1
-        if abs(off) > WAND_LENGTH_TOLERANCE:
-            raise CalibrationError(
-                f"method {method!r} ended with a wand of {1000 * wand_report['length_mean_m']:.1f} +- "
-                f"{1000 * wand_report['length_std_m']:.1f} mm against the given {1000 * rig.wand_length:.1f} mm "
-                f"({off:+.0%}): the cameras do not agree on the wand{other}; check wand.length_m and the intrinsics")
-    warnings = []
-    if world.get("frame") in ("static_object", "axis"):
-        below = [ids[k] for k, C in enumerate(centers) if C[2] < BELOW_FLOOR_M]
-        if below:
-            what = "the static object's" if world["frame"] == "static_object" else "the axis points'"
-            warnings.append(f"{camera_list(below, len(ids))} {'is' if len(below) == 1 else 'are'} below the floor (z < 0) of "
-                            f"{what} frame: the world may be mirrored or upside down; check the order of the "
-                            "markers in rig.json (z must point up, towards the cameras)")
-    return warnings

@@ -24,6 +24,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.judge.intrinsic_limits import intrinsic_limit_entries
+from wandcal.calib.judge.placement import placement_verdict
 from wandcal.calib.judge.residuals import (
     Residuals,
     camera_figures,
@@ -32,14 +33,13 @@ from wandcal.calib.judge.residuals import (
     place_sigma_errors,
     ray_noise_factors,
 )
+from wandcal.calib.judge.sanity import sanity_check
 from wandcal.calib.judge.verdict import (
     SCALE_FAULTS,
     at_limit_text,
     camera_verdict,
     coverage_reports,
-    placement_verdict,
     rig_verdict,
-    sanity_check,
 )
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig, camera_list

@@ -6,7 +6,8 @@ import html
 import math
 from typing import TypeGuard
 
-from wandcal.calib.judge.verdict import NO_REFERENCE, NO_SCALE, at_limit_text
+from wandcal.calib.judge.placement import NO_REFERENCE, NO_SCALE
+from wandcal.calib.judge.verdict import at_limit_text
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list, names_camera
 from wandcal.service.report.analysis import COVERAGE_GOAL, CameraSummary, ReportData
 from wandcal.service.report.figure_style import AXIS_POINTS, FRAME_DOTS, OUTLIER_CROSSES, POINT_DOTS, WAND_DOTS

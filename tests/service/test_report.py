@@ -385,7 +385,7 @@ def test_each_camera_section_shows_its_own_warning_when_the_result_folds_them(si
 def test_the_report_says_the_criteria_at_the_limit_and_no_placement_without_a_reference(sim_report, tmp_path):
     """A criterion within one standard error of the limit of poor is said beside the rig's verdict;
     a world the wand volume set (no L-frame, no axis points) is said to have no reference, ungraded."""
-    from wandcal.calib.judge.verdict import NO_REFERENCE
+    from wandcal.calib.judge.placement import NO_REFERENCE
     from wandcal.service.report.analysis import analyse
     from wandcal.service.report.page import render_page
 

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from wandcal.calib.judge.verdict import NO_REFERENCE, NO_SCALE, rig_verdict
+from wandcal.calib.judge.placement import NO_REFERENCE, NO_SCALE
+from wandcal.calib.judge.verdict import rig_verdict
 from wandcal.calib.rig import LISTED_CAMERAS
 from wandcal.service.cli.support.summary import format_summary
 

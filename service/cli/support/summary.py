@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.geometry import kabsch, rotation_angle
-from wandcal.calib.judge.verdict import NO_REFERENCE, NO_SCALE, at_limit_text
+from wandcal.calib.judge.placement import NO_REFERENCE, NO_SCALE
+from wandcal.calib.judge.verdict import at_limit_text
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list
 from wandcal.calib.run.result import camera_observations
 

@@ -7,14 +7,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from wandcal.calib.judge.placement import NO_REFERENCE, NO_SCALE, placement_verdict
 from wandcal.calib.judge.verdict import (
     GEOMETRY_OF_VOLUME,
-    NO_REFERENCE,
-    NO_SCALE,
     SIGMA_REL_SE,
     WAND_STD_OF_VOLUME,
     camera_verdict,
-    placement_verdict,
     rig_verdict,
     rms_std,
     share_std,

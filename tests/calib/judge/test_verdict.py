@@ -5,13 +5,13 @@ import pytest
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import distort_points, project_normalized
+from wandcal.calib.judge.sanity import sanity_check
 from wandcal.calib.judge.verdict import (
     LISTED_CAMERAS,
     RESIDUAL_OF_VOLUME,
     camera_list,
     camera_verdict,
     rig_verdict,
-    sanity_check,
 )
 from wandcal.calib.rig import AxisObservations, Rig
 from wandcal.calib.run.calibrate import calibrate
