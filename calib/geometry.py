@@ -179,6 +179,15 @@ def projection_derivative(Xc: np.ndarray) -> np.ndarray:
     return D
 
 
+def turn_response(Xc: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) the derivative of the turned point exp(w) Xc in the turn w at w = 0, -[Xc]x, at the
+    camera-frame points Xc (K, 3): with :func:`projection_derivative`, a camera's turn columns."""
+    cross = np.zeros((len(Xc), 3, 3))
+    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 0] = Xc[:, 2], -Xc[:, 1], -Xc[:, 2]
+    cross[:, 1, 2], cross[:, 2, 0], cross[:, 2, 1] = Xc[:, 0], Xc[:, 1], -Xc[:, 0]
+    return cross
+
+
 def undistort_points(camera: Camera, uv: np.ndarray) -> np.ndarray:
     """Raw pixels -> normalised, undistorted image coordinates.
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from wandcal.calib.geometry import projection_derivative
+from wandcal.calib.geometry import projection_derivative, turn_response
 from wandcal.calib.judge.faults.f_distribution import f_survival
 from wandcal.calib.judge.faults.own_errors import TRIM_SIGMAS, Eliminated, Views, eliminate, unit_squares
 from wandcal.calib.judge.faults.step_bound import critical_f, detectable_turn
@@ -105,11 +105,8 @@ def _pose_columns(el: Eliminated, c: int, rows: np.ndarray, own: np.ndarray, pro
     """Camera c's pose columns over ``rows`` (:func:`_rows_of`), whitened, the points projected out:
     (turn (K, 2, 3) about its centre, shift (K, 2, 3) of its position in its own frame)."""
     Xc = el.Xc[own]
-    cross = np.zeros((len(own), 3, 3))  # d(exp(w) Xc)/dw = -[Xc]x
-    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 0] = Xc[:, 2], -Xc[:, 1], -Xc[:, 2]
-    cross[:, 1, 2], cross[:, 2, 0], cross[:, 2, 1] = Xc[:, 0], Xc[:, 1], -Xc[:, 0]
     D = projection_derivative(Xc) / el.sigma[c]
-    return proj(np.einsum("kij,kjl->kil", D, cross)), proj(D)
+    return proj(np.einsum("kij,kjl->kil", D, turn_response(Xc))), proj(D)
 
 
 def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:

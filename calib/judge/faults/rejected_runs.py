@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wandcal.calib.geometry import projection_derivative, rotvec_to_matrix
+from wandcal.calib.geometry import projection_derivative, rotvec_to_matrix, turn_response
 from wandcal.calib.judge.faults.f_distribution import binomial_tail
 from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA
 from wandcal.calib.judge.residuals import Residuals
@@ -191,10 +191,7 @@ def turned_back(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, run: Rejec
             use = np.linalg.norm(err, axis=1) <= res.limit_px
             if use.sum() < 3:
                 break
-        cross = np.zeros((len(Xc), 3, 3))
-        cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 0] = Xc[:, 2], -Xc[:, 1], -Xc[:, 2]
-        cross[:, 1, 2], cross[:, 2, 0], cross[:, 2, 1] = Xc[:, 0], Xc[:, 1], -Xc[:, 0]
-        J = np.einsum("kij,kjl->kil", projection_derivative(Xc), cross) * res.focal[views, None, None]
+        J = np.einsum("kij,kjl->kil", projection_derivative(Xc), turn_response(Xc)) * res.focal[views, None, None]
         A = np.einsum("kmi,kmj->ij", J[use], J[use])
         w = w - np.linalg.lstsq(A, np.einsum("kmi,km->i", J[use], err[use]), rcond=None)[0]
     Xc = Xc0 @ rotvec_to_matrix(w).T
