@@ -187,9 +187,14 @@ class CameraTest:
         base = self.baseline()
         if base is None or first >= len(self.g):
             return 0.0
-        wt = self._weights(first, len(self.g), base[2])
-        cov = _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[first:]))) + self._baseline_cov() + self.wander(base)
+        cov = self._change_cov(first, len(self.g), base)
         return float(change @ _pinv(cov) @ change)
+
+    def _change_cov(self, first: int, end: int, base: tuple[np.ndarray, np.ndarray, float]) -> np.ndarray:
+        """(6, 6) the covariance of a change since the baseline fitted over windows first..end-1: that
+        fit's own, the baseline's and the pose's wander (as :meth:`_change` adds them)."""
+        wt = self._weights(first, end, base[2])
+        return _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[first:end]))) + self._baseline_cov() + self.wander(base)
 
     def smallest_turn_deg(self) -> float:
         """Degrees: the smallest turn about the camera's centre, along its worst axis, that the test names
@@ -206,8 +211,7 @@ class CameraTest:
         mid = first + (end - first) // 2
         weakest = np.inf
         for lo, hi in ((first, end), (first, mid), (mid, end)):
-            wt = self._weights(lo, hi, base[2])
-            cov = _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[lo:hi]))) + self._baseline_cov() + self.wander(base)
+            cov = self._change_cov(lo, hi, base)
             weakest = min(weakest, float(np.linalg.eigvalsh(_pinv(cov)[:3, :3])[0]))  # per rad^2, the worst axis
         return float(np.degrees(np.sqrt(median_detected() / weakest))) if weakest > 0 else float("inf")
 
