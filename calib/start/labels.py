@@ -104,15 +104,20 @@ def labelled_ends(
         changed[sub.frame[flip]] = True
         judged = changed[sub.frame]
     if length is not None:
-        swap = _two_view_swaps(R, t, sub, length)
+        swap = _two_view_swaps(R, t, sub, length, current)
         if swap is not None and swap.any():
             sub, current = sub.swapped(swap), None
     return sub, margin, current
 
 
-def _two_view_swaps(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: float) -> np.ndarray | None:
+def _two_view_swaps(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: float,
+                    ends: np.ndarray | None = None) -> np.ndarray | None:
     """(P,) bool: in frames seen by exactly two cameras, the second camera's pairs whose ends,
-    swapped, bring the triangulated wand nearer ``length`` (None: no frame is seen by two)."""
+    swapped, bring the triangulated wand nearer ``length`` (None: no frame is seen by two).
+    ``ends``: (F, 2, 3) metres, the pairs' own triangulation as they stand when the caller has it
+    (:func:`labelled_ends`' last round), which then gives the wands' present lengths: a point's
+    triangulation does not depend on the others triangulated with it, so the digits are those of
+    triangulating the frames in play again (a third of the start's resections' labelling)."""
     views = np.bincount(pairs.frame, minlength=len(pairs.frames))
     two = views[pairs.frame] == 2
     if not two.any():
@@ -130,7 +135,7 @@ def _two_view_swaps(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: floa
     in_play[pairs.frame[candidate]] = True
     rows = in_play[pairs.frame]
     part = pairs.subset(rows)
-    now = wand_lengths(R, t, part)
+    now = wand_lengths(R, t, part) if ends is None else np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
     alt = wand_lengths(R, t, part.swapped(candidate[rows]))
     better = np.abs(alt - length) < np.abs(now - length)
     return candidate & better[pairs.frame]
