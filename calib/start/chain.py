@@ -29,6 +29,7 @@ MIN_SCALE_POINTS = 3  # already-triangulated points that fix a pair's scale (med
 # NumPy steps per counted pair of co_seen's sparse count against one multiply-add of the dense
 # product: above it the product is cheaper (an 8-camera rig whose every frame is in all 8)
 SPARSE_COST = 16
+MAX_SPARSE_PAIRS = 2_000_000  # the sparse count's index arrays stay near 100 MB; past it the product (its F x N floats)
 REFINE_STEPS = 5  # Gauss-Newton steps on the Sampson error; the RANSAC pose is within a degree
 
 
@@ -77,14 +78,15 @@ def co_seen(seen: np.ndarray) -> np.ndarray:
     Where each row holds few of the N columns (a sparse rig's frame is in 2-4 of 128 cameras), the
     pairs of each row's columns are counted, sum(k^2) of them for rows of k: at 128 x 3000 about
     30,000, against the product's F N^2 = 49M multiply-adds (35-60 CPU ms with BLAS's threads, and
-    the start made three: 0.17-0.22 CPU s). Dense tables take the product, in floating point, exact
-    to 2^53 (NumPy's integer product is a plain loop). Both count the same integers.
+    the start made three: 0.17-0.22 CPU s). Dense tables, and tables whose pairs would not fit in
+    :data:`MAX_SPARSE_PAIRS`, take the product, in floating point, exact to 2^53 (NumPy's integer
+    product is a plain loop). Both count the same integers.
     """
     F, N = seen.shape
     rows, cols = np.nonzero(seen)  # row-major: each row's columns together
     per = np.bincount(rows, minlength=F)
     pairs = int(per @ per)
-    if pairs * SPARSE_COST > F * N * N:
+    if pairs * SPARSE_COST > F * N * N or pairs > MAX_SPARSE_PAIRS:
         w = seen.astype(float)
         return (w.T @ w).astype(np.int64)
     first = np.cumsum(per) - per  # each row's first entry in (rows, cols)
