@@ -26,7 +26,7 @@ def _crb_ratio(scene, model, x):
 
 def test_working_set_lp_is_the_full_lp():
     """The step from the small, exact working set equals the step of the LP with every row and
-    every breakpoint (the claim in calib/solve/lp.py's docstring)."""
+    every breakpoint (the claim in calib/solve/lp/'s docstring)."""
     scene = prepared_scene(cameras=4, frames=60, noise_px=NOISE, seed=11)
     model = scene.setup.model
     system = ReducedSystem(model, model.x0())
