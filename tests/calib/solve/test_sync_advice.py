@@ -121,3 +121,22 @@ def test_the_easywand_cpp_sample_is_told_it_cannot_be_synchronised_from_the_wand
     timing = [f["message"] for f in result.verdict.get("faults", []) if f.get("kind") == "timing"]
     timing += [r for r in result.verdict.get("reasons", []) if "out of time" in r]
     assert all("calibrate with its offset" not in m for m in timing)
+
+
+def test_the_start_refusing_a_fraction_of_a_frame_on_the_cpp_sample_does_not_send_to_sync_auto(shared_data):
+    """cam1 half a frame early on the C++ sample (~0.5 s): the start refuses it, naming the offset;
+    ``--sync auto`` refuses it too (it holds every camera at whole frames), so the refusal says what
+    else to do."""
+    from bench import real_faults as rf
+    from bench.fault_injectors import late
+    from wandcal.calib.errors import CalibrationError
+    from wandcal.calib.run.calibrate import calibrate
+
+    if not (shared_data / rf.CPP_SAMPLE).is_dir():
+        pytest.skip("the easyWand C++ sample is absent")
+    session = late(rf.LOADERS["cpp"](), 0, -0.5)
+    with pytest.raises(CalibrationError) as refused:
+        calibrate(session.rig, session.wand, None, points=session.points, axis=session.axis)
+    message = str(refused.value)
+    assert message.startswith("cam1 is out of time") and "whole frames only" in message and NO_SYNC_ADVICE in message
+    assert "calibrate with --sync auto" not in message
