@@ -5,7 +5,7 @@ about the current state, eliminates every wand frame's 5 parameters per frame (p
 independent once the cameras are known; calib/solve/reduced.py), and solves one LP (an interior-point
 method whose basis HiGHS's simplex confirms; calib/solve/backend/ipm.py, calib/solve/backend/highs.py) for the step ``d`` of all
 free cameras (3 rotation increments and 3 translations each) inside a trust region
-(calib/solve/lpstep.py):
+(calib/solve/lp/step.py):
 
     minimise  sum_i rho(a_i . d + b_i)   subject to  |d_j| <= radius_j,
 
@@ -40,6 +40,7 @@ the measurements behind each choice: docs/decisions/0004-lp-method.md.
 | :mod:`~wandcal.calib.solve.lp.refine` | the entry points, and the first phase on a subset of frames |
 | :mod:`~wandcal.calib.solve.lp.phase` | one phase: its start, its LP steps and its stop |
 | :mod:`~wandcal.calib.solve.lp.irls` | the IRLS steps that bring a phase near the optimum the LP certifies |
+| :mod:`~wandcal.calib.solve.lp.step` | one trust-region LP step: its small exact working set, solved and certified |
 | :mod:`~wandcal.calib.solve.lp.settings` | the trust region, stops and IRLS settings, with the measurements behind them |
 """
 

@@ -19,7 +19,7 @@ from wandcal.calib.solve.lp.settings import (
     STEP_TOL,
     T_RADIUS,
 )
-from wandcal.calib.solve.lpstep import GUARD_SE, solve_step
+from wandcal.calib.solve.lp.step import GUARD_SE, solve_step
 from wandcal.calib.solve.reduced import ReducedSystem, residual_cost, robust_scale
 from wandcal.calib.solve.robustloss import REJECT_SIGMAS
 from wandcal.calib.solve.wandmodel import CAM_PARAMS, WandModel
@@ -148,7 +148,7 @@ class _LpTally:
     uncertified: int = 0
 
     def add(self, lp_info: dict) -> None:
-        """Count one step's info (:func:`wandcal.calib.solve.lpstep.solve_step`)."""
+        """Count one step's info (:func:`wandcal.calib.solve.lp.step.solve_step`)."""
         self.seconds += lp_info["seconds"]
         self.rows.append(lp_info["rows"])
         self.log.append((lp_info["rows"], lp_info["rounds"], lp_info["iterations"], round(lp_info["seconds"], 3)))

@@ -28,7 +28,7 @@ RELINEARISE_SE = 20.0
 IRLS_GUARD_SE = 0.25  # the guard of an LP written about an IRLS point (IRLS stalls ~0.1 SE from the optimum)
 # a row this many sigmas from a breakpoint at the IRLS point starts in the LP: 0.01 gave 8.4k
 # pairs (1.4 s) at 32 x 2000 with outliers, 0.003 2.6k (0.6-0.9 s), 0.001 2.8-3.9k after more rounds.
-# Since a round after the first also models the breakpoints near its point (lpstep.WIDEN_NEAR),
+# Since a round after the first also models the breakpoints near its point (step.WIDEN_NEAR),
 # 0.002 takes 2 rounds on six 32-128 x 3000 captures, with 27-31% fewer pairs than 0.003 (11.0-11.3k
 # at 128 cameras); 0.0015 took 3 rounds on two of them, 0.001 on four (decision 0029)
 IRLS_NEAR_BREAK = 0.002

@@ -7,9 +7,9 @@ import scipy.sparse as sp
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
 from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 from wandcal.calib.solve import lp as slp
-from wandcal.calib.solve import lpstep
 from wandcal.calib.solve.ba import bundle_adjust
 from wandcal.calib.solve.backend.highs import solve_lp
+from wandcal.calib.solve.lp import step as lpstep
 from wandcal.calib.solve.reduced import ReducedSystem
 from wandcal.calib.solve.robustloss import EFFICIENT
 
