@@ -294,6 +294,11 @@ def limit_entry(limit: FocalLimit | None, geometry_std: float | None, scaled: bo
     return entry
 
 
+def _length(x: float, scaled: bool) -> float:
+    """A limit's length for its evidence: mm to 3 decimals, or (no scale) the rig's units to 4 figures."""
+    return round(x, 3) if scaled else float(f"{x:.4g}")
+
+
 def lens_limited(cam: str, lens: list[LensLimit], geo: float, scaled: bool) -> list[dict]:
     """Camera ``cam``'s parameters beyond the focal length whose part of its honest sigma is
     material (:data:`LIMIT_RATIO` times its geometry sigma ``geo`` or more), each a ``limits`` entry:
@@ -313,13 +318,13 @@ def lens_limited(cam: str, lens: list[LensLimit], geo: float, scaled: bool) -> l
         elif part.name in REFINABLE:
             head, todo = f"{cam}'s {words} cannot be determined from this capture", "give it from a lens calibration"
         else:
-            head = f"{cam}'s {words} cannot be determined from this capture (wandcal does not refine it)"
+            head = f"{cam}'s {words} is not determined from this capture (wandcal does not refine it)"
             todo = "give it from a lens calibration"
         out.append({"camera": cam, "parameter": part.name, "evidence": {
             "sigma": float(f"{part.sigma:.4g}"), "unit": "px" if part.name in ("cx", "cy") else "",
-            "parameter_sigma_mm" if scaled else "parameter_sigma": round(part.std * k, 3),
-            "along_axis_mm" if scaled else "along_axis": round(part.along_axis_m_per_sigma * k, 3),
-            "geometry_sigma_mm" if scaled else "geometry_sigma": round(geo * k, 3),
+            "parameter_sigma_mm" if scaled else "parameter_sigma": _length(part.std * k, scaled),
+            "along_axis_mm" if scaled else "along_axis": _length(part.along_axis_m_per_sigma * k, scaled),
+            "geometry_sigma_mm" if scaled else "geometry_sigma": _length(geo * k, scaled),
             "data_std_sigmas": round(float(part.data_std), 3) if np.isfinite(part.data_std) else None,
             "determined": part.determined},
             "message": f"{head}: off by its assumed uncertainty ({size}{WHY.get(part.source, '')}: docs/verdict.md, "
@@ -350,11 +355,11 @@ def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_st
             why = f"assumed, rig.json giving no focal_std_px for {cam}"
         k = 1000.0 if scaled else 1.0
         out.append({"camera": cam, "parameter": "focal length", "evidence": {
-            "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": round(per, 3),
+            "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": _length(per, scaled),
             "focal_std_percent": round(100 * limit.focal_rel_std, 3),
-            "focal_sigma_mm" if scaled else "focal_sigma": round(limit.std * k, 3),
-            "geometry_sigma_mm" if scaled else "geometry_sigma": round(geo * k, 3)},
-            "message": f"{cam}'s distance along its axis moves {per:.1f} {unit} for each 1% of its focal length: with "
+            "focal_sigma_mm" if scaled else "focal_sigma": _length(limit.std * k, scaled),
+            "geometry_sigma_mm" if scaled else "geometry_sigma": _length(geo * k, scaled)},
+            "message": f"{cam}'s distance along its axis moves {per:.2g} {unit} for each 1% of its focal length: with "
                        f"the focal length known to {100 * limit.focal_rel_std:.2g}% ({why}) that moves the camera "
                        f"+-{limit.std * k:.2g} {unit}, where the geometry alone places it to +-{geo * k:.2g} {unit}; {todo}"})
     return out
