@@ -359,9 +359,9 @@ def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_st
             "focal_std_percent": round(100 * limit.focal_rel_std, 3),
             "focal_sigma_mm" if scaled else "focal_sigma": _length(limit.std * k, scaled),
             "geometry_sigma_mm" if scaled else "geometry_sigma": _length(geo * k, scaled)},
-            "message": f"{cam}'s distance along its axis moves {per:.2g} {unit} for each 1% of its focal length: with "
+            "message": f"{cam}'s distance along its axis moves {per:{'.1f' if scaled else '.2g'}} {unit} for each 1% of its focal length: with "
                        f"the focal length known to {100 * limit.focal_rel_std:.2g}% ({why}) that moves the camera "
-                       f"+-{limit.std * k:.2g} {unit}, where the geometry alone places it to +-{geo * k:.2g} {unit}; {todo}"})
+                       f"+-{limit.std * k:.3g} {unit}, where the geometry alone places it to +-{geo * k:.3g} {unit}; {todo}"})
     return out
 
 

@@ -149,7 +149,7 @@ def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
 def _span(values: list[float], fmt: str = ".2g") -> str:
     """A range of figures, "0.68-1.7", or one figure where they print alike."""
     low, high = format(min(values), fmt), format(max(values), fmt)
-    return low if low == high else f"{low}-{high}"
+    return low if low == high and fmt.endswith("g") else f"{low}-{high}"
 
 
 def _figure(evidence: dict, name: str) -> tuple[float | None, str]:
@@ -169,9 +169,10 @@ def _focal_limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
     if None in per or None in sigma:
         return [f"  limit ({limit['camera']}): {limit['message']}" for limit in limits]
     unit = _figure(limits[0]["evidence"], "focal_sigma")[1]
+    fmt = ".1f" if unit == "mm" else ".2g"
     refine = all("--refine-intrinsics" in limit["message"] for limit in limits)
-    return [f"  limit: {camera_list([limit['camera'] for limit in limits], n_cameras)} move {_span(per)} "
-            f"{unit} along their axes for each 1% of focal length, +-{_span(sigma)} {unit} with the focal "
+    return [f"  limit: {camera_list([limit['camera'] for limit in limits], n_cameras)} move {_span(per, fmt)} "
+            f"{unit} along their axes for each 1% of focal length, +-{_span(sigma, fmt)} {unit} with the focal "
             f"lengths known to {limits[0]['evidence'].get('focal_std_percent', 2):g}%: "
             + ("refine them (--refine-intrinsics focal) or give them from a lens calibration" if refine
                else "give them from a lens calibration (the result's verdict.limits has each camera's figures)")]
