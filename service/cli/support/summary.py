@@ -146,8 +146,8 @@ def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
     return _focal_limit_lines(focal, n_cameras) + _lens_limit_lines(lens, n_cameras)
 
 
-def _span(values: list[float], fmt: str = ".2g") -> str:
-    """A range of figures, "0.68-1.7", or one figure where they print alike."""
+def _span(values: list, fmt: str = ".2g") -> str:
+    """A range of figures (none of them None), "0.68-1.7", or one figure where they print alike."""
     low, high = format(min(values), fmt), format(max(values), fmt)
     return low if low == high and fmt.endswith("g") else f"{low}-{high}"
 
@@ -226,7 +226,7 @@ def _lens_clauses(limits: list[dict], cams: list[str], n_cameras: int) -> list[s
         it = "it" if one else "them"
         figures = _figures(group, mine, n_cameras)
         if not _determined(group[0]):
-            mm = max(_figure(limit["evidence"], "parameter_sigma")[0] for limit in group)
+            mm = max(_figure(limit["evidence"], "parameter_sigma")[0] or 0.0 for limit in group)
             length = _figure(group[0]["evidence"], "parameter_sigma")[1]
             sigma = group[0]["evidence"].get("sigma")
             why = (f"for {sigma:.3g}{' ' + group[0]['evidence']['unit'] if group[0]['evidence'].get('unit') else ''}, its "
