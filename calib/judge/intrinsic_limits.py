@@ -29,6 +29,10 @@ parameter off by its assumed sigma (:func:`lens_columns`, the pixels undistorted
 the honest sigma the centre's change for that sigma, and whether the data determine it its standard
 error beside the pose, in sigmas (under a quarter of it: determined). The sigmas assumed are measured
 (:func:`lens_sigmas`; docs/verdict.md, "The honest sigma").
+
+An intrinsic is named as what limits the camera (the verdict's ``limits``) where its part is
+material: it raises the geometry sigma past that sigma's own standard error (:data:`LIMIT_RATIO`,
+decision 0085c), with whether this capture determines it and what to do.
 """
 
 from __future__ import annotations
