@@ -414,10 +414,13 @@ def _subtract_gram_sparse(S: np.ndarray, W: np.ndarray, LinvT: np.ndarray, s: Te
     edges = np.unique(np.r_[0, np.searchsorted(total, np.arange(SPARSE_GRAM_PRODUCTS, total[-1], SPARSE_GRAM_PRODUCTS),
                                                 side="right"), len(per_pair)])
     Z = W @ LinvT[s.pair_pt]  # (K, c, p)
+    ZT = np.ascontiguousarray(np.swapaxes(Z, 1, 2))  # (K, p, c): each Z_j^T gathered whole
     for lo, hi in zip(edges[:-1], edges[1:]):
         i = np.repeat(np.arange(lo, hi), per_pair[lo:hi])
         # j runs over the block's pairs: its first pair plus 0, 1, ..., count - 1
         j = starts[s.pair_pt[i]] + np.arange(len(i)) - np.repeat(np.cumsum(per_pair[lo:hi]) - per_pair[lo:hi], per_pair[lo:hi])
-        G = np.einsum("kcp,kdp->kcd", Z[i], Z[j])
+        # batched matmul, not einsum's loop over the tiny (c, p) x (p, c) products: a third of the
+        # time at hallway:128x3000 (25,662 products, 4 against 13 ms), equal to 2e-16 relative
+        G = Z[i] @ ZT[j]
         at = (s.pair_cam[i] * c * n * c + s.pair_cam[j] * c)[:, None, None] + within
         flat -= np.bincount(at.ravel(), G.ravel(), minlength=flat.size)
