@@ -34,11 +34,12 @@ CHUNK_GROUPS = 16_384  # observation groups linearised and summed at once: ~30 M
 MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagonal: a parameter no
 # residual touches would otherwise make the damped system singular
 # the reduced camera system's width (6 x cameras) from which its inverse comes from LAPACK's Cholesky
-# routines (potrf, potri: n^3 flops) rather than NumPy's Cholesky test and LU inverse (3 n^3), whose
-# import of scipy.linalg (0.2 CPU s) it then pays for: one BLAS thread, CPU s a solve, 768 wide
-# (128 cameras) 0.052 against 0.024 (4-10 solves a calibration: about the import), 1536 wide (256
-# cameras) 0.43 against 0.18 (docs/decisions/0059-wide-inverse.md). Narrower systems (every rig
-# up to 170 cameras, the acceptance rig's 48) keep NumPy's routines and their digits
+# routines (potrf, potri: n^3 flops), whose import of scipy.linalg (0.2 CPU s) it then pays for
+# (docs/decisions/0059-wide-inverse.md: 1536 wide, 256 cameras, 0.43 against 0.18 CPU s a solve for
+# NumPy's Cholesky test and LU inverse). Narrower systems (every rig up to 170 cameras) keep NumPy:
+# its Cholesky factor and the factor's inverse by halves in matrix products (n^3 flops with the
+# test), the whole inverse formed only for the covariance (decision 0085e2: 768 wide, 0.024 against
+# the LU inverse's 0.068 CPU s a solve)
 LAPACK_INVERSE_WIDTH = 1024
 
 
