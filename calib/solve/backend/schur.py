@@ -38,7 +38,7 @@ MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagon
 # (docs/decisions/0059-wide-inverse.md: 1536 wide, 256 cameras, 0.43 against 0.18 CPU s a solve for
 # NumPy's Cholesky test and LU inverse). Narrower systems (every rig up to 170 cameras) keep NumPy:
 # its Cholesky factor and the factor's inverse by halves in matrix products (n^3 flops with the
-# test), the whole inverse formed only for the covariance (decision 0085e2: 768 wide, 0.024 against
+# test), the whole inverse formed only for the covariance (decision 0088: 768 wide, 0.024 against
 # the LU inverse's 0.068 CPU s a solve)
 LAPACK_INVERSE_WIDTH = 1024
 
