@@ -1,0 +1,137 @@
+"""Which camera moved, when a pose test alarms and others' tests are raised too: each candidate's move
+fitted and every camera's residuals taken under it, the hypotheses compared by Vuong's test
+(decision 0085g, issue 36).
+
+One marker a frame (MultiCamSelfCal's LED): each camera is tested against the point the others place,
+and a turned camera moves the point the others are tested against; the camera whose own statistic
+passes first may be one it pulled (decision 0079). So when the alarming camera's test is not alone
+(another camera's largest statistic is past :data:`~wandcal.calib.watch.sequential.PEAK_FLOOR`), each
+candidate h is taken in turn as the one that moved: its change since the alarm's start k is its own
+test's fit over windows k.. (from markers the others triangulate, :meth:`CameraTest.change_since`),
+its pose is moved by that change, and every camera's residuals against the markers the others place
+(:func:`~wandcal.calib.watch.health.camera_windows`) are measured over the windows from k on with that
+pose. Window w's log-likelihood under h is ``l_h(w) = -1/2 sum_c RSS_c(w) / s_c^2`` (RSS: camera c's
+squared residuals at the hypothesis' poses, whitened by their points' error; s_c^2: its baseline's
+residual variance), a composite likelihood whose expectation is largest at the true poses.
+
+The hypotheses each have six parameters and are not nested, so they are compared by Vuong's test: the
+mean of the log-likelihood differences over their standard error. The frames are not independent: on a
+real take the camera's model error shows as a pose that wanders with where the markers are, so
+neighbouring frames' differences move together. The standard error is therefore taken from batch means:
+the differences summed over batches of :data:`BATCH_WINDOWS` windows (30 frames, the persistence span
+and about the wander's time scale), the batches taken as independent, and the mean over its standard
+error referred to Student's t with (batches - 1) degrees of freedom. The best candidate (largest mean
+log-likelihood) is named when it beats every other at one-sided level :data:`LEVEL` / (candidates - 1)
+(Bonferroni over the comparisons); else the candidates it does not beat and it are reported as "one of
+A or B moved at frame N", and neither is re-solved: a coin toss is never made.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wandcal.calib.geometry import camera_centers, rotvec_to_matrix
+from wandcal.calib.rig import Rig
+from wandcal.calib.watch.health import WINDOW_FRAMES, camera_windows, sum_by
+from wandcal.calib.watch.match import Tracks
+from wandcal.calib.watch.take import PaddedFrames
+
+LEVEL = 0.01  # the chance of naming one camera when the take cannot tell it from another (one-sided, all pairs)
+BATCH_WINDOWS = 2  # windows a batch of the batch means: 20 frames (the module's note)
+MIN_BATCHES = 3  # fewer batches leave the standard error unknown (2 degrees of freedom at least)
+
+
+@dataclass(frozen=True)
+class Attribution:
+    """Which of the candidates moved. named: the camera indices left, best first (one: it moved;
+    several: one of them moved, the take cannot tell which); t: the leader's smallest Vuong t against
+    another candidate (inf with one candidate); critical: the t it had to pass; batches: the batch means' count."""
+
+    named: tuple[int, ...]
+    t: float = float("inf")
+    critical: float = float("nan")
+    batches: int = 0
+
+
+def moved_pose(R: np.ndarray, t: np.ndarray, c: int, change: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Poses R (C, 3, 3), t (C, 3) with camera c moved by ``change`` (6,): omega radians in its
+    camera frame (``R_c' = exp(omega) R_c``), dC metres its centre's move (the watch's parametrisation)."""
+    R2, t2 = R.copy(), t.copy()
+    C = camera_centers(R[c][None], t[c][None])[0] + change[3:]
+    R2[c] = rotvec_to_matrix(change[:3]) @ R[c]
+    t2[c] = -R2[c] @ C
+    return R2, t2
+
+
+def window_loglik(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[PaddedFrames, Tracks]],
+                  excluded: set[int], s2: np.ndarray, windows: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(W,) each window's log-likelihood at poses R, t over windows (first_frame, w0, w1): window w
+    holds frames ``first_frame + w * WINDOW_FRAMES`` on, w0 <= w < w1. ``pieces``: the take's padded
+    frames and tracks (tracks matched at the standing poses) covering them; cameras ``excluded`` left
+    out of the markers and the sum; s2 (C,): each camera's residual variance, px^2. Also (W,) the
+    residuals each window holds (a window with none says nothing)."""
+    first, w0, w1 = windows
+    rss, n = np.zeros((w1 - w0, len(R))), np.zeros((w1 - w0, len(R)))
+    keep = np.array([c not in excluded for c in range(len(R))])
+    for padded, tracks in pieces:
+        w_of = (padded.frames - first) // WINDOW_FRAMES - w0
+        sel = (w_of >= 0) & (w_of < w1 - w0)
+        if not sel.any():
+            continue
+        part = PaddedFrames(padded.frames[sel], padded.xy[sel], padded.row[sel])
+        mine = np.isin(tracks.frame, part.frames)
+        views = tracks.views[mine].copy()
+        views[:, sorted(excluded)] = -1
+        cw = camera_windows(rig, R, t, part, Tracks(tracks.frame[mine], views, tracks.X[mine]))
+        g, H = sum_by(w_of[sel], cw.g, w1 - w0), sum_by(w_of[sel], cw.H, w1 - w0)
+        fit = np.einsum("wci,wcij,wcj->wc", g, np.linalg.pinv(H, rcond=1e-10, hermitian=True), g)
+        rss += sum_by(w_of[sel], cw.sse, w1 - w0) + fit  # about the window's fit, and what the fit took
+        n += sum_by(w_of[sel], cw.n, w1 - w0)
+    return -0.5 * (rss[:, keep] / s2[keep]).sum(1), n[:, keep].sum(1)
+
+
+def vuong(diff: np.ndarray) -> tuple[float, int]:
+    """(t, batches): the mean over its standard error of windows' log-likelihood differences ``diff``
+    (W,), by batch means of :data:`BATCH_WINDOWS` windows (a last partial batch joins the one before)."""
+    n = len(diff) // BATCH_WINDOWS
+    if n < 2:
+        return 0.0, n
+    sums = np.add.reduceat(diff, np.arange(n) * BATCH_WINDOWS)
+    se = np.std(sums, ddof=1) / np.sqrt(n)
+    mean = float(np.mean(sums))
+    return (mean / se if se > 0 else np.sign(mean) * np.inf), n
+
+
+def critical_t(batches: int, comparisons: int) -> float:
+    """The one-sided Student t quantile at :data:`LEVEL` / ``comparisons`` with ``batches - 1`` degrees of freedom."""
+    from scipy.stats import t as student
+
+    return float(student.ppf(1 - LEVEL / max(comparisons, 1), batches - 1))
+
+
+def attribute(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[PaddedFrames, Tracks]], excluded: set[int],
+              candidates: dict[int, np.ndarray], s2: np.ndarray, windows: tuple[int, int, int]) -> Attribution:
+    """Which of ``candidates`` (camera -> its change since the alarm's start (6,)) moved, over
+    ``windows`` (:func:`window_loglik`'s); the module's note."""
+    cams = list(candidates)
+    if len(cams) == 1:
+        return Attribution((cams[0],))
+    each = [window_loglik(rig, *moved_pose(R, t, c, candidates[c]), pieces, excluded, s2, windows) for c in cams]
+    held = np.all([n > 0 for _, n in each], axis=0)  # windows with residuals under every hypothesis
+    ll = np.array([v[held] for v, _ in each])
+    order = np.argsort(-ll.sum(1), kind="stable")
+    best = int(order[0])
+    tests = [vuong(ll[best] - ll[j]) for j in order[1:]]
+    batches = tests[0][1]
+    if batches < MIN_BATCHES:
+        return Attribution(tuple(cams[i] for i in order), 0.0, float("nan"), batches)
+    crit = critical_t(batches, len(cams) - 1)
+    import os
+    if os.environ.get("WANDCAL_DEBUG_ATTR"):
+        d = ll[best] - ll[order[1]]
+        print("ATTR", cams, "order", [cams[i] for i in order], "sum", np.round(ll.sum(1) - ll.sum(1).max(), 1), "t", [round(tv, 2) for tv, _ in tests],
+              "crit", round(crit, 2), "B", batches, "W", len(d), "d", np.round(d, 1), "ac1", round(float(np.corrcoef(d[:-1], d[1:])[0, 1]), 2))
+    left = [cams[best]] + [cams[j] for j, (tv, _) in zip(order[1:], tests) if not tv > crit]
+    return Attribution(tuple(left), min(tv for tv, _ in tests), crit, batches)
