@@ -94,6 +94,7 @@ class CameraTest:
     alarm: Alarm | None = None
     peak: float = 0.0  # the largest S_k of a persistent change seen (a clean take's margin below the threshold)
     raw: float = 0.0  # the last :meth:`glr`'s largest S_k, persistent or not (which camera moved, when several alarm)
+    since: int = 0  # the first window a change may start at (a camera cleared by the attribution: after its windows then)
     _wander: np.ndarray | None = field(default=None, repr=False)  # :meth:`wander`, once the baseline is in
     _base: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = field(default=None, repr=False)  # baseline + I_0^+
 
@@ -233,7 +234,7 @@ class CameraTest:
         starts before window ``last`` (all windows by default); the module's note."""
         base = self.baseline()
         end = len(self.g) if last is None else last
-        first = max(BASELINE_WINDOWS, end - GLR_WINDOWS)
+        first = max(BASELINE_WINDOWS, end - GLR_WINDOWS, self.since)
         if base is None or end <= first:
             return 0.0, end, np.zeros(PARAMS)
         p0, _, s2 = base

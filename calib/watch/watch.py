@@ -130,6 +130,7 @@ def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, reso
         done = stream.add(ranked, np.arange(bounds[b], bounds[b + 1]))
         if progress:
             progress(done + 1, last + 1)
+    stream.close()
     report = stream.report(last)
     if resolve:
         _resolve(rig, R, t, ranked, report, stream.tests)
@@ -171,6 +172,7 @@ class WatchStream:
         self.frames = self.tracks = 0
         self.obs: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
         self.recent: list[tuple[PaddedFrames, Tracks]] = []  # the batches a change's start may lie in (attribution)
+        self.pending: list[_Group] = []  # "one of" moves awaiting the attribution's second look
         self._head: _Head | None = None  # what begin matched and measured, for the batches of the same frames
 
     @property
@@ -205,13 +207,45 @@ class WatchStream:
         self.frames += len(padded.frames)
         self.tracks += len(tracks)
         windows = _test_batch(self.rig, self.R, self.t, padded, tracks, (self.tests, self.found), self.excluded,
-                              self.first, keep_obs=self.keep_obs, windows=windows, earlier=self.recent)
-        oldest = int(padded.frames[-1]) - (GLR_WINDOWS + 1) * WINDOW_FRAMES  # no change starts before it
-        self.recent = [piece for piece in self.recent if piece[0].frames[-1] >= oldest] + [(padded, tracks)]
+                              self.first, keep_obs=self.keep_obs, windows=windows, earlier=self.recent,
+                              pending=self.pending)
+        self.recent.append((padded, tracks))
+        last = int(padded.frames[-1])
+        self._second_looks(lambda group: (last - self.first) // WINDOW_FRAMES + 1 >= group.w0 + GLR_WINDOWS)
+        oldest = min([last - (GLR_WINDOWS + 1) * WINDOW_FRAMES]  # no change starts before it, nor a pending move
+                     + [self.first + g.w0 * WINDOW_FRAMES for g in self.pending])
+        self.recent = [piece for piece in self.recent if piece[0].frames[-1] >= oldest]
         self.sums += np.stack([windows.sse.sum(0), windows.n.sum(0), windows.seen.sum(0)], 1)
         if self.keep_obs:
             self.obs.append(windows.obs or [])
         return int(padded.frames[-1])
+
+    def close(self) -> None:
+        """The take has ended: the attribution's second look at every "one of" move still pending."""
+        self._second_looks(lambda group: True)
+
+    def _second_looks(self, due: Callable[[_Group], bool]) -> None:
+        """The attribution's second look (:mod:`wandcal.calib.watch.attribute`) at each pending "one of" move
+        that is ``due``, over every window from its start that the stream holds: a camera named becomes the
+        move, the others go back to being watched (in their markers, tested from the next window on)."""
+        if not self.recent:
+            return
+        stop = (int(self.recent[-1][0].frames[-1]) - self.first) // WINDOW_FRAMES + 1
+        for group in [g for g in self.pending if due(g)]:
+            self.pending.remove(group)
+            tests = self.tests
+            out = attribute(self.rig, self.R, self.t, self.recent, set(group.excluded), list(group.cams), _baselines(tests),
+                            (self.first, group.w0, min(stop, group.w0 + GLR_WINDOWS)))
+            if len(out.named) > 1:
+                continue
+            for m in group.cams:
+                alarm = tests[m].alarm
+                assert alarm is not None
+                if m == out.named[0]:
+                    tests[m].alarm = replace(alarm, one_of=(), change=out.changes.get(m, alarm.change))
+                else:
+                    tests[m].alarm, tests[m].since = None, len(tests[m].g)
+                    self.excluded.discard(m)
 
     def report(self, last: int) -> WatchReport:
         """Every camera's health so far (``last``: the last frame seen)."""
@@ -237,6 +271,24 @@ class WatchStream:
                 health.one_of = [self.rig.cameras[m].id for m in alarm.one_of]
                 health.moved_at, health.drift_frames = alarm.frame, 0  # the move they share: the alarm's start
         return report
+
+
+@dataclass(frozen=True)
+class _Group:
+    """A "one of" move awaiting the attribution's second look: its candidates (camera indices), its
+    start's window number w0 (from the take's first frame), the cameras left out of the markers before it."""
+
+    cams: tuple[int, ...]
+    w0: int
+    excluded: frozenset[int]
+
+
+def _baselines(tests: list[CameraTest]) -> tuple[np.ndarray, np.ndarray]:
+    """Every camera's baseline: p_0 (C, 6), its reference pose change, and s^2 (C,) px^2, its residual
+    variance (zeros and 1 before its baseline is in)."""
+    bases = [test.baseline() for test in tests]
+    return (np.array([np.zeros(PARAMS) if b is None else b[0] for b in bases]),
+            np.array([1.0 if b is None else b[2] for b in bases]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -317,18 +369,21 @@ def _fit_dof(n: np.ndarray) -> np.ndarray:
 
 def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest], list[FoundTest]], excluded: set[int],
                 first: int, keep_obs: bool, windows: CameraWindows | None = None,
-                earlier: list[tuple[PaddedFrames, Tracks]] | None = None) -> CameraWindows:
+                earlier: list[tuple[PaddedFrames, Tracks]] | None = None, pending: list[_Group] | None = None) -> CameraWindows:
     """Add a batch's windows to every camera's test, window by window; when cameras alarm, the one
     that moved is named (:func:`_add_windows`; or the ones the take cannot tell apart), left out of
     every other camera's markers, and the batch is tested again without it (a moved camera's blobs
     pull the markers it shares). A camera's pose and found-share tests take each window together, so
     one mark rewinds both. ``windows``: the batch's, if measured already with ``excluded`` left out;
-    ``earlier``: the batches before it that a change's start may lie in (padded frames, tracks)."""
+    ``earlier``: the batches before it that a change's start may lie in (padded frames, tracks);
+    ``pending``: where a "one of" move is put for the attribution's second look."""
     pieces = [*(earlier or []), (padded, tracks)]
 
-    def judge(candidates: dict[int, np.ndarray], span: tuple[int, int, int]) -> Attribution:
-        s2 = np.array([test.baseline()[2] if test.baseline() is not None else 1.0 for test in tests[0]])
-        return attribute(rig, R, t, pieces, excluded, candidates, s2, span)
+    def judge(candidates: list[int], span: tuple[int, int, int]) -> Attribution:
+        out = attribute(rig, R, t, pieces, excluded, candidates, _baselines(tests[0]), span)
+        if len(out.named) > 1 and pending is not None:
+            pending.append(_Group(out.named, span[1], frozenset(excluded)))
+        return out
 
     blobs = np.isfinite(padded.xy[:, :, :, 0]).sum(2)  # each camera's blobs a frame, whoever is left out
     while True:
@@ -348,7 +403,7 @@ def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest]
 
 
 def _add_windows(windows: CameraWindows, blobs: np.ndarray, tests: tuple[list[CameraTest], list[FoundTest]],
-                 first: int, judge: Callable[[dict[int, np.ndarray], tuple[int, int, int]], Attribution]) -> list[int]:
+                 first: int, judge: Callable[[list[int], tuple[int, int, int]], Attribution]) -> list[int]:
     """Add each window in turn; at the first window where cameras alarm, name the one that moved (or
     the ones the take cannot tell apart) and return them (the others' tests are then run again by the
     caller); none when none alarms. A camera whose blobs left its markers
@@ -388,23 +443,21 @@ def _pose_alarm(poses: list[CameraTest], tested: list[tuple[float, float, int, i
     k, d_k) at window ending at frame ``detected``): the alarming one is the one with the largest
     statistic, persistent or not (a moved camera's blobs pull the markers another is tested against,
     and the other's change may persist first). Alone when no other camera's largest statistic is past
-    :data:`PEAK_FLOOR`; else it and those raised are the candidates, each one's change since the alarm's
-    start k fitted by its own test, and :func:`~wandcal.calib.watch.attribute.attribute` names the one
-    that moved over the windows from k to ``span``'s end, or the ones it cannot tell apart (each given the
-    alarm, with the others as ``one_of``)."""
+    :data:`PEAK_FLOOR`; else it and those raised are the candidates, and
+    :func:`~wandcal.calib.watch.attribute.attribute` names the one that moved over the windows from the
+    alarm's start k to ``span``'s end, or the ones it cannot tell apart (each given the alarm, with the
+    others as ``one_of``)."""
     _, raw, c, k, d = max(tested, key=lambda x: x[1])
     frame = poses[c].start[k]
     raised = {m: r for _, r, m, _, _ in tested if m == c or r > PEAK_FLOOR}
     if len(raised) == 1:
         poses[c].alarm = Alarm(c, frame, detected, raw, d)
         return [c]
-    end = len(poses[c].g)
-    changes = {m: poses[m].change_since(k, end) for m in raised}
     first, _, stop = span
-    named = judge(changes, (first, (frame - first) // WINDOW_FRAMES, stop)).named
-    for m in named:
-        poses[m].alarm = Alarm(m, frame, detected, raised[m], changes[m], tuple(x for x in named if x != m))
-    return list(named)
+    out = judge(list(raised), (first, (frame - first) // WINDOW_FRAMES, stop))
+    for m in out.named:
+        poses[m].alarm = Alarm(m, frame, detected, raised[m], out.changes[m], tuple(x for x in out.named if x != m))
+    return list(out.named)
 
 
 def _resolve(rig: Rig, R, t, blobs: TakeBlobs, report: WatchReport, tests: list[CameraTest]) -> None:
