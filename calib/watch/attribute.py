@@ -6,11 +6,11 @@ One marker a frame (MultiCamSelfCal's LED): each camera is tested against the po
 and a turned camera moves the point the others are tested against; the camera whose own statistic
 passes first may be one it pulled (decision 0079). So when the alarming camera's test is not alone
 (another camera's largest statistic is past :data:`~wandcal.calib.watch.sequential.PEAK_FLOOR`), each
-candidate h is taken in turn as the one that moved: its change since the alarm's start k is its own
-test's fit over windows k.. (from markers the others triangulate, :meth:`CameraTest.change_since`),
-its pose is moved by that change, and every camera's residuals against the markers the others place
-(:func:`~wandcal.calib.watch.health.camera_windows`) are measured over the windows from k on with that
-pose. Window w's log-likelihood under h is ``l_h(w) = -1/2 sum_c RSS_c(w) / s_c^2`` (RSS: camera c's
+candidate h is taken in turn as the one that moved: its change since the alarm's start k is fitted over
+the windows from k on from its residuals at the standing poses (against the markers the others
+triangulate, less its baseline's reference change p_0, as its test's change), its pose is moved by that
+change, and every camera's residuals against the markers the others place
+(:func:`~wandcal.calib.watch.health.camera_windows`) are measured over the same windows with that pose. Window w's log-likelihood under h is ``l_h(w) = -1/2 sum_c RSS_c(w) / s_c^2`` (RSS: camera c's
 squared residuals at the hypothesis' poses, whitened by their points' error; s_c^2: its baseline's
 residual variance), a composite likelihood whose expectation is largest at the true poses.
 
@@ -150,7 +150,7 @@ def attribute(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[PaddedF
     tests = [vuong(ll[best] - ll[j]) for j in order[1:]]
     batches = tests[0][1]
     if batches < MIN_BATCHES:
-        return Attribution(tuple(cams[i] for i in order), 0.0, float("nan"), batches)
+        return Attribution(tuple(cams[i] for i in order), 0.0, float("nan"), batches, changes)
     crit = critical_t(batches, len(cams) - 1)
     import os
     if os.environ.get("WANDCAL_DEBUG_ATTR"):

@@ -64,7 +64,8 @@ class Alarm:
     frame: the first frame of the window it moved in; statistic: max_k S_k; change: (6,) the pose
     change since it moved (omega radians, dC metres); detected_frame: the last frame of the alarm's window;
     one_of: the other cameras the take cannot tell from this one as the one that moved (none: it is named
-    alone; :mod:`wandcal.calib.watch.attribute`)."""
+    alone; :mod:`wandcal.calib.watch.attribute`); settled: named by the attribution's second look (its test
+    has no markers of the group it was weighed with from the alarm on, so its knock is dated at ``frame``)."""
 
     camera: int
     frame: int
@@ -72,6 +73,7 @@ class Alarm:
     statistic: float
     change: np.ndarray
     one_of: tuple[int, ...] = ()
+    settled: bool = False
 
     @property
     def rotation_deg(self) -> float:
@@ -183,16 +185,6 @@ class CameraTest:
             return 0.0
         mid = k + (end - k) // 2
         return min(self._change(k, mid, base), self._change(mid, end, base))
-
-    def change_since(self, first: int, end: int) -> np.ndarray:
-        """(6,) the change since the baseline fitted over windows first..end-1 (as :meth:`_change`);
-        zeros before the baseline is in."""
-        base = self.baseline()
-        if base is None or end <= first:
-            return np.zeros(PARAMS)
-        wt = self._weights(first, end, base[2])
-        G = np.einsum("w,wi->i", wt, np.array(self.g[first:end]))
-        return _pinv(np.einsum("w,wij->ij", wt, np.array(self.H[first:end]))) @ G - base[0]
 
     def statistic_of(self, change: np.ndarray, first: int) -> float:
         """The statistic a pose change ``change`` (6,) alone would give over windows ``first``.. (noise-free:

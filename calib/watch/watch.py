@@ -43,6 +43,11 @@ START_SHIFT_PX = 1.0
 # and is tested only on this many degrees of freedom about the windows' fits (a 40-marker take's first window
 # holds ~800): a sparse take's first windows (one marker a frame in three cameras) may hold a handful
 MIN_START_DOF = 60
+# cameras weighed as the one that moved when several tests are raised: the alarming one and the others with the
+# largest statistics. Each costs a pass over the move's windows (every camera's residuals); with 12 cameras and
+# 40 markers a knock raises all of them (each is pulled), and twelve passes cost ~5 s CPU once. A camera whose
+# test is not among the four most raised is taken not to be the mover (every camera of a 4-camera rig is weighed)
+MAX_CANDIDATES = 4
 ONE_OF_ADVICE = ("the take cannot tell which (none beats the others by Vuong's test at its level), so none was re-solved: "
                  "wave the wand briefly and run wandcal check, or re-solve the one found moved: wandcal calibrate CAPTURE "
                  "--from RESULT --solve-only CAM")
@@ -242,7 +247,7 @@ class WatchStream:
                 alarm = tests[m].alarm
                 assert alarm is not None
                 if m == out.named[0]:
-                    tests[m].alarm = replace(alarm, one_of=(), change=out.changes.get(m, alarm.change))
+                    tests[m].alarm = replace(alarm, one_of=(), change=out.changes.get(m, alarm.change), settled=True)
                 else:
                     tests[m].alarm, tests[m].since = None, len(tests[m].g)
                     self.excluded.discard(m)
@@ -267,6 +272,8 @@ class WatchStream:
                 health.kind, health.moved_at, health.change = "knock", alarm.frame, alarm.change
             elif alarm is not None:
                 health.kind, health.moved_at, health.drift_frames, health.change = classify(self.tests[c], alarm)
+            if alarm is not None and alarm.settled and health.kind == "knock":
+                health.moved_at = alarm.frame  # its test lost the group's markers from the alarm on (Alarm.settled)
             if alarm is not None and alarm.one_of:
                 health.one_of = [self.rig.cameras[m].id for m in alarm.one_of]
                 health.moved_at, health.drift_frames = alarm.frame, 0  # the move they share: the alarm's start
@@ -443,13 +450,14 @@ def _pose_alarm(poses: list[CameraTest], tested: list[tuple[float, float, int, i
     k, d_k) at window ending at frame ``detected``): the alarming one is the one with the largest
     statistic, persistent or not (a moved camera's blobs pull the markers another is tested against,
     and the other's change may persist first). Alone when no other camera's largest statistic is past
-    :data:`PEAK_FLOOR`; else it and those raised are the candidates, and
+    :data:`PEAK_FLOOR`; else it and those raised (the :data:`MAX_CANDIDATES` largest) are the candidates, and
     :func:`~wandcal.calib.watch.attribute.attribute` names the one that moved over the windows from the
     alarm's start k to ``span``'s end, or the ones it cannot tell apart (each given the alarm, with the
     others as ``one_of``)."""
     _, raw, c, k, d = max(tested, key=lambda x: x[1])
     frame = poses[c].start[k]
-    raised = {m: r for _, r, m, _, _ in tested if m == c or r > PEAK_FLOOR}
+    top = sorted(((r, m) for _, r, m, _, _ in tested if m != c and r > PEAK_FLOOR), reverse=True)[:MAX_CANDIDATES - 1]
+    raised = {c: raw} | {m: r for r, m in top}
     if len(raised) == 1:
         poses[c].alarm = Alarm(c, frame, detected, raw, d)
         return [c]
