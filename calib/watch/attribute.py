@@ -152,11 +152,6 @@ def attribute(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[PaddedF
     if batches < MIN_BATCHES:
         return Attribution(tuple(cams[i] for i in order), 0.0, float("nan"), batches, changes)
     crit = critical_t(batches, len(cams) - 1)
-    import os
-    if os.environ.get("WANDCAL_DEBUG_ATTR"):
-        d = ll[best] - ll[order[1]]
-        print("ATTR", cams, "order", [cams[i] for i in order], "sum", np.round(ll.sum(1) - ll.sum(1).max(), 1), "t", [round(tv, 2) for tv, _ in tests],
-              "crit", round(crit, 2), "B", batches, "W", len(d), "d", np.round(d, 1), "ac1", round(float(np.corrcoef(d[:-1], d[1:])[0, 1]), 2))
     left = [cams[best]] + [cams[j] for j, (tv, _) in zip(order[1:], tests) if not tv > crit]
     named = tuple(left)
     return Attribution(named, min(tv for tv, _ in tests), crit, batches, {c: changes[c] for c in named})
