@@ -172,7 +172,7 @@ def verdict(report: WatchReport, camera: int | None, frame: int | None, turn_deg
 
 
 def outcome(named: list, camera: int, right: bool) -> str:
-    """A knocked take's outcome (decision 0085g): "right" (the camera alone, as moved, dated), "one of" (the
+    """A knocked take's outcome (decision 0089): "right" (the camera alone, as moved, dated), "one of" (the
     take could not tell it from others: every camera named is in a "one of" move, the knocked one among them),
     "other" (another camera named as moved or drifting), "missed" (none named), or "late" (the camera alone,
     but dated or called wrong)."""
@@ -259,7 +259,7 @@ def table(rows: list[dict]) -> str:
               f"Knocks named right (the camera alone, as moved, within {FRAME_SLACK} frames): "
               f"{sum(r['right'] for r in knocks)} of {len(knocks)}; other cameras named beside a knock: "
               f"{sum(r['false'] for r in knocks)}.",
-              "", "Knocks by outcome (decision 0085g): " + ", ".join(
+              "", "Knocks by outcome (decision 0089): " + ", ".join(
                   f"{kind} {sum(r.get('outcome') == kind for r in knocks)}" for kind in ("right", "one of", "other", "missed", "late"))
               + ".", "", _resolve_summary(knocks)]
     return "\n".join(lines)

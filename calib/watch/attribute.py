@@ -1,6 +1,6 @@
 """Which camera moved, when a pose test alarms and others' tests are raised too: each candidate's move
 fitted and every camera's residuals taken under it, the hypotheses compared by Vuong's test
-(decision 0085g, issue 36).
+(decision 0089, issue 36).
 
 One marker a frame (MultiCamSelfCal's LED): each camera is tested against the point the others place,
 and a turned camera moves the point the others are tested against; the camera whose own statistic

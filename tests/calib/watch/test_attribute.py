@@ -1,5 +1,5 @@
 """calib.watch.attribute: which of several raised cameras moved, by Vuong's test on batch means, and a
-"one of" move as the report, the CLI's JSON and its message say it (decision 0085g)."""
+"one of" move as the report, the CLI's JSON and its message say it (decision 0089)."""
 
 import numpy as np
 from scipy.stats import t as student

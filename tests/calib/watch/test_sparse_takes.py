@@ -86,7 +86,7 @@ def test_a_real_take_with_a_camera_turned_one_degree_names_it_at_its_frame(name,
 
 def test_a_real_one_led_take_does_not_name_the_camera_a_turned_one_pulled():
     """MultiCamSelfCal, one LED a frame: Basler_21275577 turned 0.3 deg pulls the point Basler_21283677 is
-    tested against, whose test passes first (decision 0079). The attribution (decision 0085g) names the turned
+    tested against, whose test passes first (decision 0079). The attribution (decision 0089) names the turned
     camera, or says "one of" with it among them; never the pulled one alone."""
     take = _take("MultiCamSelfCal")
     at = knock_frame(take)
