@@ -146,6 +146,15 @@ def _camera_frames(res: Residuals, c: int, shared: np.ndarray | None = None) -> 
     return rows, res.outlier[rows]
 
 
+def _every_cameras_frames(res: Residuals, n_cameras: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`_camera_frames` of every camera from one stable sort of the shared rows by (camera,
+    capture frame): the rows in the order each camera's own stable sort by frame gives them."""
+    rows = _shared_wand_rows(res)
+    rows = rows[np.lexsort((res.frames[res.point[rows] // 2], res.camera[rows]))]
+    bounds = np.searchsorted(res.camera[rows], np.arange(n_cameras + 1))
+    return [(r, res.outlier[r]) for r in (rows[bounds[c]:bounds[c + 1]] for c in range(n_cameras))]
+
+
 def camera_runs(res: Residuals, n_cameras: int) -> list[tuple[RejectedRun, float] | None]:
     """Each camera's :func:`block_against_rate` on its wand camera-frames (a point track's
     observations have no time the wand's shares) that another camera sees too, and the rate it was
@@ -153,8 +162,7 @@ def camera_runs(res: Residuals, n_cameras: int) -> list[tuple[RejectedRun, float
     in the frames outside the camera's block (a knock rejects its partners' views in the frames they
     share with it too: in a frame of two views the error is split), the block found at the others'
     whole rate first, then again at that rate."""
-    shared = _shared_wand_rows(res)
-    per = [_camera_frames(res, c, shared) for c in range(n_cameras)]
+    per = _every_cameras_frames(res, n_cameras)
     frame_of = [res.point[rows] // 2 for rows, _ in per]
     all_frames = np.concatenate(frame_of) if per else np.zeros(0, np.int64)
     all_out = np.concatenate([o for _, o in per]) if per else np.zeros(0, bool)
