@@ -208,7 +208,7 @@ def _fit(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray, sigma: np.nd
     (X, Xc, whitened r, whitened J, Ainv, rho: (M,) each view's redundancy)."""
     w = 1 / sigma[views.camera]
     Rv = R[views.camera]
-    rows = tuple(np.ascontiguousarray(Rv[:, i]) for i in range(3))
+    rows = (np.ascontiguousarray(Rv[:, 0]), np.ascontiguousarray(Rv[:, 1]), np.ascontiguousarray(Rv[:, 2]))
     for k in range(rounds + 1):
         Xc, r, proj = _project(R, t, views, X, Rv)
         J = _whitened_jacobian(rows, proj, Xc[:, 2], w)
