@@ -233,11 +233,12 @@ def ray_noise_factors(res: Residuals, n_cameras: int) -> list[float | None]:
     unknowns = np.where(point >= 0, WAND_END_UNKNOWNS, POINT_UNKNOWNS)
     kept = 1.0 - unknowns / (2.0 * np.maximum(views, 2))
     square = row_norms(res.residual[inl]) ** 2
-    out: list[float | None] = []
-    for rows in camera_rows(res.camera[inl], n_cameras):
-        total = float(np.sum(square[rows]))
-        out.append(float(np.sqrt(np.sum(square[rows] / kept[rows]) / total)) if len(rows) and total > 0 else None)
-    return out
+    # every camera's two sums in one pass each (bincount's running sums, not a sort and np.sum's
+    # pairwise sums per camera: the same sums to ~1e-15 relative, rounding's order)
+    camera = res.camera[inl]
+    total = np.bincount(camera, weights=square, minlength=n_cameras)[:n_cameras]
+    noise = np.bincount(camera, weights=square / kept, minlength=n_cameras)[:n_cameras]
+    return [float(np.sqrt(s / m)) if m > 0 else None for s, m in zip(noise.tolist(), total.tolist())]
 
 
 def held_out(R: np.ndarray, t: np.ndarray, pairs: WandPairs, c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
