@@ -294,7 +294,10 @@ def _place_rows(R: np.ndarray, res: Residuals, rows: np.ndarray, views: np.ndarr
         J[:, a, 0] = D[:, a, 2] * y - D[:, a, 1] * z
         J[:, a, 1] = D[:, a, 0] * z - D[:, a, 2] * x
         J[:, a, 2] = D[:, a, 1] * x - D[:, a, 0] * y
-    J[:, :, 3:] = -np.einsum("kab,kbj->kaj", D, np.take(R, c, axis=0))
+    Rc = np.take(R, c, axis=0)
+    for a in (0, 1):  # -(D R) written out: einsum's three-term sums in the same order (the same bits), at a third of its cost
+        for j in range(3):
+            J[:, a, 3 + j] = -(D[:, a, 0] * Rc[:, 0, j] + D[:, a, 1] * Rc[:, 1, j] + D[:, a, 2] * Rc[:, 2, j])
     J *= np.sqrt(1.0 - 1.0 / np.maximum(views, 2))[:, None, None]
     return J
 
