@@ -67,7 +67,7 @@ def binomial_upper(k: int, n: int, alpha: float = 0.025) -> float:
     Newton's method on the exact sum, whose derivative in q is -(n - k) C(n, k) q^k (1 - q)^(n - k - 1),
     from Wilson's upper bound, each step kept inside the bracket the sum's signs leave (a bisection
     step where it would leave it): the 60-step bisection's root within 1e-13 relative in 4-8 sums
-    (decision 0085d)."""
+    (decision 0090)."""
     if n == 0 or k >= n:
         return 1.0
     j = np.arange(k + 1)

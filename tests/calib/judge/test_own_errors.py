@@ -200,7 +200,7 @@ def test_a_large_rigs_screen_times_the_tracks_in_the_wands_time():
 
 
 def test_the_refits_written_out_products_are_the_dense_ones():
-    # the elimination's refit (decision 0085d): J, the normal matrices, their inverses and the
+    # the elimination's refit (decision 0090): J, the normal matrices, their inverses and the
     # redundancies as the dense products give them, on random views of random points
     rng = np.random.default_rng(3)
     M, P = 200, 60
