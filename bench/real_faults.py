@@ -337,8 +337,7 @@ def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outco
                   message=next((f["message"] for f in verdict["faults"]), ""))
     if case.camera is not None:
         out.displacement_mm = float(aligned_centres_mm(np.asarray(result.centers), clean.centres)[case.camera])
-        out.sigma_mm = doc["cameras"][case.camera].get("geometry_std_mm")
-        out.honest_sigma_mm = doc["cameras"][case.camera].get("geometry_std_honest_mm")
+        out.sigma_mm, out.honest_sigma_mm = _sigmas_mm(doc["cameras"][case.camera])
         out.limited_by = [limit["parameter"] for limit in verdict.get("limits") or [] if limit["camera"] == ids[case.camera]]
         out.limited = bool(LIMITABLE.get(case.family, set()) & set(out.limited_by))
     timing = [f["evidence"].get("timing", {}).get("offset_frames") for f in verdict["faults"] if f["kind"] == "timing"]
@@ -373,6 +372,18 @@ def run_case(session: Session, clean: Clean, case: Case, injector=None) -> Outco
     else:
         out.outcome = "missed"
     return out
+
+
+def _sigmas_mm(camera: dict) -> tuple[float | None, float | None]:
+    """The camera's geometry sigma and honest sigma in the units of :func:`aligned_centres_mm`'s
+    displacement: mm, or, for a result without a scale (no wand: MultiCamSelfCal), its rig units
+    times 1000, as the displacement of a rig aligned onto the clean run's units is (session 18: the
+    scale-less sigmas were read as absent, so such a camera could be neither absorbed nor limited)."""
+    def pick(mm_key: str, rig_key: str) -> float | None:
+        if camera.get(mm_key) is not None:
+            return camera[mm_key]
+        return 1000 * camera[rig_key] if camera.get(rig_key) is not None else None
+    return pick("geometry_std_mm", "geometry_std"), pick("geometry_std_honest_mm", "geometry_std_honest")
 
 
 def _right_before(out: Outcome, others: set) -> bool:
