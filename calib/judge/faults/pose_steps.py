@@ -169,10 +169,11 @@ def _partner_columns(el: Eliminated, rows: np.ndarray, d: int, frame: int) -> np
     return _projected(el, rows, full).reshape(2 * len(rows), -1)
 
 
-def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None) -> Step | None:
+def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None, at: int | None = None) -> Step | None:
     """Camera c's best step in its pose (see the module's docstring); None with too few timed views.
     given: (camera d, frame) puts d's two poses, split at that frame, into the base
-    (:func:`_partner_columns`): c's step beyond what d's move explains (:func:`explained_by`)."""
+    (:func:`_partner_columns`): c's step beyond what d's move explains (:func:`explained_by`);
+    at: the one split tested (no search, so no Bonferroni factor), a capture frame of c's."""
     v = el.views
     rows, own, proj = _rows_of(el, c)
     turn, shift = _pose_columns(el, c, rows, own, proj)
@@ -195,6 +196,8 @@ def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None) -> S
     candidates = np.unique(times[MIN_SIDE - 1 : len(times) - MIN_SIDE])
     if len(candidates) > MAX_SPLITS:
         candidates = candidates[np.linspace(0, len(candidates) - 1, MAX_SPLITS).astype(int)]
+    if at is not None:
+        candidates = np.array([at])
     keep = np.ones(len(rows), bool)
     for _ in range(TRIM_ROUNDS):
         best = _best_split(base_cols, step, yv, time, timed, candidates, keep, el.rho[rows])
@@ -443,26 +446,27 @@ def _others_step_without(R: np.ndarray, t: np.ndarray, views: Views, trimmed: El
 
 def explained_by(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated, c: int, step: Step,
                  steps: list[Step | None]) -> list[int]:
-    """The other cameras whose own move explains camera c's step ``step``: c's step test again (the
-    same views, the same splits searched and its Bonferroni factor) with camera d's two poses in its
-    base (:func:`pose_step` ``given``), split at d's own best split and at c's, and c's step no
-    longer significant at :data:`NAME_ALPHA` over the tests made. steps: every camera's step
+    """The other cameras whose own move explains camera c's step ``step``: c's step at its frame
+    tested again with camera d's two poses in its base (:func:`pose_step` ``given`` and ``at``), d
+    split at the same frame, and at d's own best split where that differs; c's step no longer
+    significant at :data:`NAME_ALPHA` (Bonferroni over the tests made). steps: every camera's step
     (:func:`_steps`; None where untested, and those are not tried).
 
-    Why: a nested F test. Where camera d moved, the points d shares with c are placed off after
-    d's split, and c's residuals step there too; leaving c out cannot tell (in a rig of three the
-    pair left has nothing to test against). Naming c needs the alternative "d moved" rejected for
-    every d, where d's move is placed where it explains c's step best (at c's split) and where d's
-    own views put it: c's step must stand beside d's two poses. Were d alone moved, c is named
-    with a chance of at most NAME_ALPHA (Bonferroni over the alternatives and c's splits): the
-    rate of a wrong camera among the moves found (decision 0085b)."""
+    Why: a nested F test, F(3, the step's dof) of c's step beside d's. Where camera d moved, the
+    points d shares with c are placed off after d's move, and c's residuals step there too;
+    leaving c out cannot tell (in a rig of three the pair left has nothing to test against).
+    Naming c needs the alternative "d moved at that frame" rejected for every d: c's step must
+    stand beside d's two poses. The frame is the step test's, common to both hypotheses and taken
+    as known (a change point's estimate converges at the rate n, faster than the turns' sqrt n:
+    the turns' tests hold as at a known split). Were d alone moved, c is named with a chance of at
+    most NAME_ALPHA: the rate of a wrong camera among the moves found (decision 0085b)."""
     mine = views.camera == c
     el = eliminate(R, t, views.without(~(trimmed.kept | mine)), trimmed.sigma, trim=False)
     tests = [(d, k) for d, s in enumerate(steps) if d != c and s is not None and (el.views.camera == d).any()
              for k in sorted({s.frame, step.frame})]
     out = []
     for d, k in tests:
-        again = _given_step(el, c, given=(d, k))
+        again = _given_step(el, c, given=(d, k), at=step.frame)
         if (again is None or again.p_value >= NAME_ALPHA / len(tests)) and d not in out:
             out.append(d)
     return out
