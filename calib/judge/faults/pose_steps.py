@@ -414,19 +414,26 @@ def _found(step: Step | None) -> bool:
 
 
 def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated,
-                 cameras: list[int] | None = None) -> tuple[int, Step] | None:
+                 cameras: list[int] | None = None, unsure: list | None = None) -> tuple[int, Step] | None:
     """The camera that moved during the capture, and its step; None when no camera's step is
     significant, or none explains the others' (with its views left out, another still steps), or
     its step is explained by another camera's move (:func:`explained_by`).
     trimmed: :func:`eliminate` of ``views``; cameras: those to test (every camera when None; in a
     large rig :func:`step_suspects`, and only those of them that step are tested again without
-    the one named)."""
+    the one named). unsure: where given and no camera is named, the first camera whose step passed
+    the leave-one-out check but another's move explains is appended as ``([c, d, ...], c's step)``:
+    one of them moved at that frame, the data cannot say which (:func:`unattributed_fault`)."""
     steps = _steps(R, t, views, trimmed, cameras)
     found = sorted((s.p_value, c, s) for c, s in enumerate(steps) if s is not None and _found(s))
+    doubt: list = []
     for _, c, step in found:
-        if not _others_step_without(R, t, views, trimmed, c, steps, cameras) and \
-                not explained_by(R, t, views, trimmed, c, step, steps):
+        if _others_step_without(R, t, views, trimmed, c, steps, cameras):
+            continue
+        if not (by := explained_by(R, t, views, trimmed, c, step, steps)):
             return c, step
+        doubt = doubt or [([c, *by], step)]
+    if unsure is not None:
+        unsure += doubt
     return None
 
 
@@ -482,3 +489,16 @@ def moved_fault(cam: str, s: Step) -> dict:
                    f"where the other cameras agree; fix its mount and calibrate again, or re-solve it from the frames "
                    f"after {s.frame} alone (keep only those of {cam}'s rows and run calibrate --from RESULT "
                    f"--solve-only {cam})"}
+
+
+def unattributed_fault(cams: list[str], s: Step) -> dict:
+    """A step one of ``cams`` made, each one's move explaining the first one's (:func:`moved_camera`
+    ``unsure``): a fault of the rig (no camera named), with the frame and the step as the first
+    camera's test measured it."""
+    which = ", ".join(cams[:-1]) + f" or {cams[-1]}"
+    return {"kind": "moved", "camera": None, "evidence": {
+        "cameras": list(cams), "frame": s.frame, "degrees": round(s.degrees, 3), "p_value": float(f"{s.p_value:.3g}")},
+        "message": f"one of {which} moved during the capture, after frame {s.frame} (a step of {s.degrees:.2f} degrees in "
+                   f"{cams[0]}'s views, which a move of {' or '.join(cams[1:])} explains as well: these views cannot say "
+                   f"which); check their mounts, then wave the wand again and calibrate, or calibrate from the frames "
+                   f"up to {s.frame} alone"}
