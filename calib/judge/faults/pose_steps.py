@@ -12,7 +12,9 @@ measured against the timed views' own scatter (:func:`_timed_dispersion`) and di
 residuals' long-run variance in time (batch means), its p-value multiplied by the number of splits
 tried (Bonferroni, the search's multiple testing). A camera is named only when leaving it out
 leaves no other camera stepping (:func:`moved_camera`): else its step is another camera's spread
-through the points. docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0076 how they
+through the points; and only when its step stands beside every other camera's move at that frame
+(:func:`explained_by`, a nested F test): else one of them moved and the views cannot say which, a
+fault of the rig (:func:`unattributed_fault`; decision 0085b). docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0076 how they
 were measured.
 """
 
