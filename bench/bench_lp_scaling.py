@@ -11,7 +11,8 @@ log(cameras).
 
 Usage: python bench/bench_lp_scaling.py [--cameras 8,16,32] [--frames 2000] [--seeds 2] [--repeats 3]
        [--methods lp,ba] [--json out.json] [--no-write]
-``--module PATH`` times the ``refine_lp`` of another copy of calib/solve/lp.py (for before/after tables).
+``--module PATH`` times the ``refine_lp`` of another file (for before/after tables): a copy of the one-file
+``lp.py`` of before the calib/solve/lp/ package, or of calib/solve/lp/refine.py (which runs the installed package's phases).
 """
 
 from __future__ import annotations

@@ -38,7 +38,8 @@ from wandcal.calib.rig import Rig
 from wandcal.calib.start.initial import Initial, UnplacedCamera, initial_poses
 from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.start.offsets.pair_fit import MIN_TIMING_FRAMES
-from wandcal.calib.start.offsets.whole_frames import MAX_CONTRAST, FrameOffsets, shift_pairs
+from wandcal.calib.start.offsets.shift_search import MAX_CONTRAST
+from wandcal.calib.start.offsets.whole_frames import FrameOffsets, shift_pairs
 from wandcal.calib.triangulate import triangulate_left_out, triangulate_points
 
 FIT_STEPS = 3  # Gauss-Newton steps of each camera's pose at each shift, from the start's

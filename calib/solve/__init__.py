@@ -10,7 +10,6 @@
 | :mod:`~wandcal.calib.solve.wandmodel` | the wand reprojection model every method shares |
 | :mod:`~wandcal.calib.solve.reprojection` | pixel residuals and their analytic Jacobians |
 | :mod:`~wandcal.calib.solve.reduced` | residuals with every wand frame projected out (the LP method's rows) |
-| :mod:`~wandcal.calib.solve.lpstep` | one trust-region LP step of the LP method |
 | :mod:`~wandcal.calib.solve.robustloss` | the LP method's piecewise-linear M-estimator loss |
 | :mod:`~wandcal.calib.solve.uncertainty` | pose covariances from the solver's information matrix |
 | :mod:`~wandcal.calib.solve.gauge_free` | the rig's geometry uncertainty apart from the world's placement |

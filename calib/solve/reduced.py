@@ -4,7 +4,7 @@ At one state of a :class:`wandcal.calib.solve.wandmodel.WandModel`, each frame's
 by least squares on its kept rows (points are independent once the cameras are known), which
 leaves each residual row an affine function of the free cameras' parameters only:
 ``z_i(d) = a_i . d + b_i``, d (6 per free camera: 3 rotation increments, 3 translations). Row i
-touches every camera that sees its frame. The LP method (calib/solve/lp.py) steps on these rows.
+touches every camera that sees its frame. The LP method (calib/solve/lp/) steps on these rows.
 """
 
 from __future__ import annotations

@@ -124,7 +124,7 @@ ALLOWED = {
     # the solvers pin BLAS to one thread for their own run; in the server that is a no-op, as the
     # server set one thread at its start, so concurrent solves cannot leave the count changed
     ("calib/solve/ba/adjust.py", "threadpool_limits("),
-    ("calib/solve/lp.py", "threadpool_limits("),
+    ("calib/solve/lp/refine.py", "threadpool_limits("),
     ("calib/solve/paper.py", "threadpool_limits("),
     # the memory policy of a command that computes once and exits, taken by the CLI's own process
     # only (service/cli/__init__.py: never by the server, a worker or an in-process caller)

@@ -25,6 +25,8 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig
+from wandcal.calib.solve.sync.fit import smoothness
+from wandcal.calib.solve.sync.report import sync_advice
 from wandcal.calib.start.initial import UnplacedCamera, initial_poses
 
 MAX_SHIFT = 8  # whole frames searched either way (--sync auto's default search)
@@ -145,9 +147,11 @@ def _searched(search, *args):
 
 
 def _named_out_of_time(error: CalibrationError, rig: Rig, pairs: WandPairs, static_poses: list | None,
-                       tracks: PointTracks | None) -> str | None:
+                       tracks: PointTracks | None) -> tuple[str, int | None] | None:
     """The camera out of time and by how much, as a sentence: by whole frames, else a constant fraction
-    of a frame, else a drifting clock (the first search that places every camera); None if none does."""
+    of a frame, else a drifting clock (the first search that places every camera), and the camera
+    whose fraction of a frame ``--sync auto`` would have to fit (None for whole frames); None if
+    no search places every camera."""
     ids = rig.ids
     suspect = error.camera if isinstance(error, UnplacedCamera) else None
     whole = _searched(whole_frame_shifts, rig, pairs, static_poses, tracks)
@@ -156,12 +160,12 @@ def _named_out_of_time(error: CalibrationError, rig: Rig, pairs: WandPairs, stat
     if whole:
         return "; ".join(f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its frames "
                          f"shifted, {abs(d)} frame{'s' if abs(d) != 1 else ''} {'late' if d > 0 else 'early'} "
-                         f"(offset {d:+d}: positive is late)" for c, d in whole.items())
+                         f"(offset {d:+d}: positive is late)" for c, d in whole.items()), None
     fraction = _searched(fractional_shift, rig, pairs, static_poses, tracks, suspect)
     if fraction is not None:
         c, d = fraction
         return (f"{ids[c]} is out of time: its wand agrees with the other cameras' only with its samples moved "
-                f"in time, about {abs(d):g} frame {'late' if d > 0 else 'early'} (offset {d:+g}: positive is late)")
+                f"in time, about {abs(d):g} frame {'late' if d > 0 else 'early'} (offset {d:+g}: positive is late)"), c
     drift = _searched(drifting_clock, rig, pairs, static_poses, tracks, suspect)
     if drift is None:
         return None
@@ -170,7 +174,7 @@ def _named_out_of_time(error: CalibrationError, rig: Rig, pairs: WandPairs, stat
             f"time by an offset growing from 0 at its first frame to about {abs(d):g} frame "
             f"{'late' if d > 0 else 'early'} at its last (a clock running {'slow' if d > 0 else 'fast'}, or a "
             f"constant offset of a fraction of a frame, which the start cannot tell apart; offset {d:+g} at its "
-            "last frame: positive is late)")
+            "last frame: positive is late)"), c
 
 
 def out_of_time_refusal(error: CalibrationError, rig: Rig, pairs: WandPairs, static_poses: list | None,
@@ -179,8 +183,13 @@ def out_of_time_refusal(error: CalibrationError, rig: Rig, pairs: WandPairs, sta
     frames lets every camera be placed (module docstring); ``error`` itself where none does."""
     if len(rig.cameras) < 3 or not len(pairs):
         return error  # two cameras cannot say which of them is out of time
-    named = _named_out_of_time(error, rig, pairs, static_poses, tracks)
-    if named is None:
+    found = _named_out_of_time(error, rig, pairs, static_poses, tracks)
+    if found is None:
         return error
-    return CalibrationError(f"{named}; calibrate with --sync auto, which finds and corrects each camera's offset, "
-                            f"or check its trigger cable and settings. Without the shift the start failed: {error}")
+    named, fraction = found
+    fix = ("calibrate with --sync auto, which finds and corrects each camera's offset, or check its trigger cable "
+           "and settings")
+    why = "" if fraction is None else smoothness(pairs, np.array([cam.focal for cam in rig.cameras])).why_not(fraction)
+    if why:  # --sync auto would hold it at whole frames (its own test): not the fix
+        fix = f"check its trigger cable and settings{sync_advice(why)}"
+    return CalibrationError(f"{named}; {fix}. Without the shift the start failed: {error}")

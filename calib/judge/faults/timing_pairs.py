@@ -36,6 +36,8 @@ import numpy as np
 from wandcal.calib.judge.faults.epipolar_pairs import PairRows, Track, camera_track, pair_rows, timed_samples
 from wandcal.calib.judge.faults.screen import MIN_T_STAT, offset_text
 from wandcal.calib.observations import PointTracks, WandPairs
+from wandcal.calib.solve.sync.fit import smoothness
+from wandcal.calib.solve.sync.report import sync_advice
 
 MAX_SHIFT = 3  # whole frames searched either way
 MIN_PAIRS = 10  # pair samples of a camera before its timing is judged
@@ -66,7 +68,8 @@ class CameraTiming:
     """A camera's offset against the others, frames (docs/result-format.md: positive is late, its
     frame k exposed at the others' frame k + offset, as ``--sync auto`` reports it): ``whole`` the
     whole-frame part, ``offset`` in all, ``std`` its standard error; ``explained`` the share of its pairs' residual the offset explains;
-    ``effect_px`` how far the offset moves its blobs at the median speed; ``pairs`` samples."""
+    ``effect_px`` how far the offset moves its blobs at the median speed; ``pairs`` samples;
+    ``untimeable`` why ``--sync auto`` cannot fit a fraction of a frame to its wand track ("" where it can)."""
 
     camera: int
     whole: int
@@ -75,6 +78,7 @@ class CameraTiming:
     explained: float
     effect_px: float
     pairs: int
+    untimeable: str = ""
 
 
 
@@ -191,6 +195,7 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         before, after = float(other @ other), float(((other - col * own) ** 2).sum())
         found[c] = (own, sigma / np.sqrt(gram), 1 - after / before if before > 0 else 0.0, int(mine.sum()))
     out = []
+    untimeable = _untimeable(labelled, focal) if found else []
     for c, (own, own_std, explained, pairs) in found.items():
         # against the reference (the others' median), whose own error adds: the variance of a mean of
         # the others, every other camera with rows, judged or not: the reference is theirs too
@@ -200,8 +205,17 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         # c's frame k was exposed at the others' k - shift - own
         offset = -float(shifts[c] + own)
         out.append(CameraTiming(c, -int(shifts[c]), offset, std, explained,
-                                abs(offset) * _speed(by_camera[c]) * float(focal[c]), pairs))
+                                abs(offset) * _speed(by_camera[c]) * float(focal[c]), pairs, untimeable[c]))
     return out
+
+
+def _untimeable(labelled: WandPairs, focal: np.ndarray) -> list[str]:
+    """(N,) why ``--sync auto`` would hold each camera at its whole-frame offset ("" where it can fit
+    a fraction): its own test (:func:`wandcal.calib.solve.sync.fit.smoothness`); focal (N,) pixels."""
+    if not len(labelled):  # point tracks only: --sync auto times the wand
+        return [""] * len(focal)
+    smooth = smoothness(labelled, np.asarray(focal, float)[:, None])
+    return [smooth.why_not(c) for c in range(len(focal))]
 
 
 def _t(timing: CameraTiming) -> float:
@@ -257,8 +271,8 @@ def timing_fault(ids: list[str], best: CameraTiming) -> dict:
         "explained_share": round(best.explained, 3), "effect_px": round(best.effect_px, 2), "pairs": best.pairs}},
         "message": f"{cam} is out of time: its samples match the other cameras' {offset_text(d, best.std)}{whole} "
                    f"(offset {d:+.2f}: positive is late), which moves its blobs "
-                   f"{best.effect_px:.1f} px at the wand's median speed; check its trigger cable and settings, or "
-                   f"calibrate with its offset (--sync auto)"}
+                   f"{best.effect_px:.1f} px at the wand's median speed; check its trigger cable and settings"
+                   f"{sync_advice(best.untimeable, fraction=not best.whole or abs(d - best.whole) > 3 * best.std)}"}
 
 
 def timing_refusal(error: Exception, ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPairs,

@@ -1,5 +1,5 @@
 """A primal-dual interior-point method for the LP step's dual form, the simplex basis it
-points to, and that basis's certificate of optimality (calib/solve/lpstep.py).
+points to, and that basis's certificate of optimality (calib/solve/lp/step.py).
 
 The LP step's dual has one row per camera parameter (n) and one dense column per (row,
 breakpoint) pair (k of them, each touching every camera of its frame). HiGHS's dual simplex
@@ -114,7 +114,7 @@ def solve_dual_form(A: np.ndarray, c: np.ndarray, jump: np.ndarray, c_lo: np.nda
         deadline: ``time.perf_counter()`` value to give up at, or None.
         leave: optional callable(duals (n,)) -> bool, asked at the first iterate within
             ``LEAVE_TOL`` of the optimum: True stops there with status "left" (the caller knows the LP must
-            change whatever its optimum: calib/solve/lpstep.py).
+            change whatever its optimum: calib/solve/lp/step.py).
 
     From ``CERTIFY_TOL`` on, the basis each iterate names is certified (:func:`certified_duals`),
     and the method stops at the first that passes, with its vertex's duals (``certified``).

@@ -34,7 +34,7 @@ import numpy as np
 
 from wandcal.calib.observations import WandPairs
 from wandcal.calib.solve.sync.normal import normal_equations
-from wandcal.calib.solve.sync.tracks import SMALL, Tracks, interpolable
+from wandcal.calib.solve.sync.tracks import SMALL, Tracks, TrackSmoothness, track_smoothness
 
 MAX_ITERATIONS = 8  # Gauss-Newton steps; from within a frame it settles in 3-4
 STEP_TOLERANCE = 1e-4  # frames: a twentieth of the smallest standard error at 0.3 px and 1-4 m/s
@@ -89,6 +89,7 @@ class Timing:
     R: np.ndarray | None = None  # (N, 3, 3) the poses refined with the offsets (fit_timing(poses=True)), else None
     t: np.ndarray | None = None  # (N, 3)
     held: np.ndarray | None = None  # (N,) bool: held at phi = 0 (the reference; cameras whose frames are too sparse)
+    smoothness: TrackSmoothness | None = None  # why the cameras held for their tracks were (fit_timing's judgement)
 
     def offset_at(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N,) phi_c(f[c]) and its standard error, frames, at frame numbers f (N,)."""
@@ -101,6 +102,21 @@ class Timing:
 def zero_timing(n: int, pairs: WandPairs) -> Timing:
     """No sub-frame offset or drift; centres at each camera's mean frame."""
     return Timing(np.zeros(n), np.zeros(n), _centres(pairs, n), np.zeros((n, 2, 2)), 0.0, np.zeros(n, np.int64))
+
+
+def fit_rows(pairs: WandPairs, max_frames: int = MAX_FIT_FRAMES) -> np.ndarray:
+    """The pair rows :func:`fit_timing` fits: those of ``max_frames`` wand frames spread over the
+    recording (indices into ``pairs``)."""
+    return np.flatnonzero(np.isin(pairs.frame, spread_frames(len(pairs.frames), max_frames)))
+
+
+def smoothness(pairs: WandPairs, focal: np.ndarray, tracks: Tracks | None = None,
+               max_frames: int = MAX_FIT_FRAMES) -> TrackSmoothness:
+    """Each camera's wand track judged on the rows :func:`fit_timing` uses, as it judges them: a
+    camera whose track is not interpolable is held at its whole-frame offset (focal (N, 2) or
+    (N, 1) pixels). What a message advising ``--sync auto`` checks first."""
+    n = len(focal)
+    return track_smoothness(pairs, focal, tracks or Tracks(pairs, n), fit_rows(pairs, max_frames))
 
 
 def fit_timing(
@@ -136,11 +152,12 @@ def fit_timing(
     k = 2 if drift else 1
     width = POSE + k if poses else k  # each camera's columns: [rotation, translation,] phase[, drift]
     tracks = tracks or Tracks(pairs, n)
-    rows = np.flatnonzero(np.isin(pairs.frame, spread_frames(len(pairs.frames), max_frames)))
-    held = ~interpolable(pairs, focal, tracks, rows)
+    rows = fit_rows(pairs, max_frames)
+    smooth = track_smoothness(pairs, focal, tracks, rows)
+    held = ~smooth.interpolable
     held[reference] = True
     if held.all():  # no camera's timing can be fitted (a digitised session): nothing to refine
-        return replace(model, R=R if poses else None, t=t if poses else None, held=held)
+        return replace(model, R=R if poses else None, t=t if poses else None, held=held, smoothness=smooth)
     free = np.ones((n, width), bool)
     free[held, width - k :] = False
     cols = np.flatnonzero(free.ravel())
@@ -169,7 +186,7 @@ def fit_timing(
             at = c * width + width - k
             cov[c, :k, :k] = cov_full[at : at + k, at : at + k]
         model = Timing(model.phase + time_step[:, 0], model.drift + (time_step[:, 1] if drift else 0.0), model.centre,
-                       cov, sigma, used, iteration, R if poses else None, t if poses else None, held)
+                       cov, sigma, used, iteration, R if poses else None, t if poses else None, held, smooth)
         # the offsets settle with the poses (their steps are solved together)
         se = np.sqrt(np.maximum(cov[:, np.arange(k), np.arange(k)], 0.0))
         if np.all(np.abs(time_step) <= np.maximum(STEP_TOLERANCE, STEP_SHARE_OF_SE * se)):

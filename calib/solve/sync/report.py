@@ -37,6 +37,10 @@ def sync_report(
     at_zero, std = timing.offset_at(whole.astype(float))  # phi at each camera's own frame 0 (renumbered to whole)
     offset = whole + at_zero
     cameras, warnings = [], []
+    held = timing.held if timing.held is not None else np.zeros(n, bool)
+    every_held = n > 1 and bool(np.all(held | (np.arange(n) == reference)))
+    if every_held:
+        warnings.append(not_synchronised(ids, reference, timing))
     for c in range(n):
         whole_only = timing.held is not None and timing.held[c] and c != reference
         entry = {
@@ -49,9 +53,8 @@ def sync_report(
         }
         cameras.append(entry)
         gap = offset[c] - start[c]
-        if whole_only:
-            warnings.append(f"{ids[c]}: its wand frames are too sparse or too far apart in time to interpolate, so its "
-                            "time offset is found in whole frames only")
+        if whole_only and not every_held:
+            warnings.append(f"{ids[c]}: its time offset is found in whole frames only: {_why_held(timing, c)}")
         entry["out_of_time"] = bool(c != reference and abs(gap) > max(OUT_OF_TIME_SIGMAS * std[c], OUT_OF_TIME_FRAMES))
         if entry["out_of_time"]:
             said = "its timestamps" if np.any(start) else "its frame numbers"
@@ -62,3 +65,36 @@ def sync_report(
     doc = {"mode": "auto", "reference": ids[reference], "rate_hz": rate_hz, "residual_sigma_px": timing.sigma_px,
            "cameras": cameras}
     return doc, warnings
+
+
+# what to do where the wand cannot time the cameras to a fraction of a frame
+NO_SYNC_ADVICE = ("trigger the cameras from one hardware signal, or wave the wand slower or record at a higher frame "
+                  "rate, so that it moves a few pixels from one frame to the next")
+
+
+def _why_held(timing: Timing, c: int) -> str:
+    """Why camera c was held at its whole-frame offset, its figure beside the limit."""
+    why = timing.smoothness.why_not(c) if timing.smoothness is not None else ""
+    return why or "its wand frames are too sparse or too far apart in time to interpolate"
+
+
+def not_synchronised(ids: list[str], reference: int, timing: Timing) -> str:
+    """The warning of ``--sync auto`` when it held every camera at its whole-frame offset (ids
+    (N,), the reference camera's index): no camera's wand track can be interpolated in time, each
+    camera's figure beside its limit, and what to do."""
+    each = "; ".join(f"{ids[c]}: {_why_held(timing, c)}" for c in range(len(ids)) if c != reference)
+    return (f"--sync auto could not time any camera to a fraction of a frame, only in whole frames, because no "
+            f"camera's wand can be followed from frame to frame ({each}); for sub-frame timing, {NO_SYNC_ADVICE}")
+
+
+def sync_advice(why_not: str, fraction: bool = True) -> str:
+    """The end of a timing fault's advice, after "check its trigger cable and settings": ``--sync
+    auto`` where it can fix the offset, or why it cannot and what to do. ``why_not``: why the
+    camera's wand track cannot be interpolated in time (:meth:`TrackSmoothness.why_not
+    <wandcal.calib.solve.sync.tracks.TrackSmoothness.why_not>`, the test :func:`~wandcal.calib.solve.sync.fit.fit_timing`
+    holds a camera by; "" where it can); ``fraction``: the offset has a fraction of a frame to fit
+    (a whole-frame shift alone needs no track: the whole-frame search times it)."""
+    if not (fraction and why_not):
+        return ", or calibrate with its offset (--sync auto)"
+    return (f"; the wand cannot time it to a fraction of a frame, as {why_not}, so --sync auto would shift it by "
+            f"whole frames only: {NO_SYNC_ADVICE}")

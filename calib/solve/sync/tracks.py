@@ -8,6 +8,8 @@ the reference camera's instants.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from wandcal.calib.observations import WandPairs
@@ -27,16 +29,44 @@ ROUGH_PX = 5.0
 MATCH_MARGIN = 2.0
 
 
-def interpolable(pairs: WandPairs, focal: np.ndarray, tracks: Tracks | None = None,
-                 rows: np.ndarray | None = None) -> np.ndarray:
-    """(N,) bool: whether each camera's wand track can be interpolated in time. At least
-    ``DENSE_SHARE`` of its frames must have a frame on either side, and the track must be smooth:
-    the median distance of an end from the cubic through its four neighbouring frames
-    ((-p[-2] + 4 p[-1] + 4 p[1] - p[2]) / 6) must be under ``ROUGH_PX``.
+@dataclass(frozen=True, eq=False)
+class TrackSmoothness:
+    """Each camera's wand track judged for interpolation in time (what ``--sync auto`` needs to fit
+    a fraction of a frame): ``dense_share`` (N,) the share of its frames with a frame on either side,
+    ``rough_px`` (N,) the median distance, pixels, of an end from the cubic through its four
+    neighbouring frames ((-p[-2] + 4 p[-1] + 4 p[1] - p[2]) / 6; NaN where no frame has all four)."""
+
+    dense_share: np.ndarray
+    rough_px: np.ndarray
+
+    @property
+    def interpolable(self) -> np.ndarray:
+        """(N,) bool: at least ``DENSE_SHARE`` of the frames between two others and a track smoother
+        than ``ROUGH_PX``."""
+        with np.errstate(invalid="ignore"):
+            return (self.dense_share >= DENSE_SHARE) & (self.rough_px < ROUGH_PX)
+
+    def why_not(self, c: int) -> str:
+        """Why camera c's track cannot be interpolated, with its figure beside the limit ("" where it can)."""
+        if self.dense_share[c] < DENSE_SHARE:
+            return (f"only {self.dense_share[c]:.0%} of its wand frames have a frame on either side (it needs "
+                    f"{DENSE_SHARE:.0%}): the wand was digitised or seen in frames too far apart")
+        if not self.rough_px[c] < ROUGH_PX:
+            if not np.isfinite(self.rough_px[c]):
+                return "none of its wand frames has two frames on either side to follow the wand through"
+            return (f"its wand moves too far between frames to follow: an end lies {self.rough_px[c]:.1f} px from "
+                    f"the curve through its neighbouring frames (median; the limit is {ROUGH_PX:g} px)")
+        return ""
+
+
+def track_smoothness(pairs: WandPairs, focal: np.ndarray, tracks: Tracks | None = None,
+                     rows: np.ndarray | None = None) -> TrackSmoothness:
+    """Each camera's :class:`TrackSmoothness`: the test by which ``--sync auto`` holds a camera at its
+    whole-frame offset (:func:`wandcal.calib.solve.sync.fit.fit_timing`).
 
     Args:
-        pairs: labelled wand pairs; focal: (N, 2) pixels; tracks: their tracks, when already built;
-        rows: the pair rows judged (default all; a fit judges the frames it uses).
+        pairs: labelled wand pairs; focal: (N, 2) pixels (or (N, 1)); tracks: their tracks, when
+        already built; rows: the pair rows judged (default all; a fit judges the frames it uses).
     """
     n = len(focal)
     tracks = tracks or Tracks(pairs, n)
@@ -51,7 +81,7 @@ def interpolable(pairs: WandPairs, focal: np.ndarray, tracks: Tracks | None = No
     window = np.where(inside, tracks.table[np.clip(idx, 0, span - 1), pairs.camera[:, None]], -1)
     between = (window[:, 1] >= 0) & (window[:, 2] >= 0)
     count = np.maximum(np.bincount(pairs.camera, minlength=n), 1)
-    dense = np.bincount(pairs.camera, between, minlength=n) / count >= DENSE_SHARE
+    dense_share = np.bincount(pairs.camera, between, minlength=n) / count
     full: np.ndarray = np.all(window >= 0, axis=1)
     err = np.zeros(len(pairs))
     for e in range(2):
@@ -59,9 +89,9 @@ def interpolable(pairs: WandPairs, focal: np.ndarray, tracks: Tracks | None = No
         pts = np.where(full[:, None, None], tracks.track(window, end, every), 0.0)
         pred = (-pts[:, 0] + 4 * pts[:, 1] + 4 * pts[:, 2] - pts[:, 3]) / 6
         err = np.maximum(err, np.linalg.norm((pred - pairs.xy[:, e]) * focal[pairs.camera], axis=1))
-    smooth = np.array([np.median(err[full & (pairs.camera == c)]) < ROUGH_PX if (full & (pairs.camera == c)).any()
-                       else False for c in range(n)])
-    return dense & smooth
+    rough = np.array([np.median(err[full & (pairs.camera == c)]) if (full & (pairs.camera == c)).any() else np.nan
+                      for c in range(n)])
+    return TrackSmoothness(dense_share, rough)
 
 
 class Tracks:

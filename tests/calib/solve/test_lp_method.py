@@ -7,9 +7,9 @@ import scipy.sparse as sp
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
 from wandcal.calib.sim.scenes import perturbed_model, prepared_scene
 from wandcal.calib.solve import lp as slp
-from wandcal.calib.solve import lpstep
 from wandcal.calib.solve.ba import bundle_adjust
 from wandcal.calib.solve.backend.highs import solve_lp
+from wandcal.calib.solve.lp import step as lpstep
 from wandcal.calib.solve.reduced import ReducedSystem
 from wandcal.calib.solve.robustloss import EFFICIENT
 
@@ -26,7 +26,7 @@ def _crb_ratio(scene, model, x):
 
 def test_working_set_lp_is_the_full_lp():
     """The step from the small, exact working set equals the step of the LP with every row and
-    every breakpoint (the claim in calib/solve/lp.py's docstring)."""
+    every breakpoint (the claim in calib/solve/lp/'s docstring)."""
     scene = prepared_scene(cameras=4, frames=60, noise_px=NOISE, seed=11)
     model = scene.setup.model
     system = ReducedSystem(model, model.x0())

@@ -12,6 +12,7 @@ from wandcal.calib.sim.shapes import RigShape, default_size, simulate_shape
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.calib.start.markerlabels import end_pairs
 from wandcal.calib.start.offsets import pair_fit
+from wandcal.calib.start.offsets import shift_search as ss
 from wandcal.calib.start.offsets import whole_frames as fo
 
 BROWN = "easywand_brown_windtunnel_4cam/calibration{}/extrinsicCalib_20230228_easyWandData.mat"
@@ -92,11 +93,11 @@ def test_prove_sparse_refuses_as_the_default_does_with_few_ransacs(sparse_ring, 
     assert len(pairs_tried) <= 3 and len(calls) <= 31 * len(pairs_tried)
 
 
-def _proved(rig, pairs, window: int) -> tuple[fo._Search, int, int]:
+def _proved(rig, pairs, window: int) -> tuple[ss.ShiftSearch, int, int]:
     """The search over ``pairs`` and the (camera, first partner) the proof refuses."""
     table = fo.frame_table(pairs, len(rig.cameras))
     steps, _ = fo._plan(fo._links(table >= 0, window), 0)
-    search = fo._Search(rig, pairs, table, np.zeros(len(rig.cameras), np.int64), 0, window)
+    search = ss.ShiftSearch(rig, pairs, table, np.zeros(len(rig.cameras), np.int64), 0, window)
     with pytest.raises(fo.TooFewShared, match="cannot be timed against") as refused:
         fo._refuse_untimeable(search, steps, table)
     b = next(c for c, cam in enumerate(rig.cameras) if refused.value.args[0].startswith(f"camera {cam.id!r}"))
@@ -116,9 +117,9 @@ def test_a_shift_accepted_at_the_edge_is_no_proof(sparse_ring, monkeypatch):
                    key=lambda lag: fo.shared_counts(search.table, a, b, np.array([lag]))[0])
     assert fo.shared_counts(search.table, a, b, np.array([edge_lag]))[0] >= fo.MIN_TIMING_FRAMES
     # b's wand fits a's at that lag alone, by far: the default search accepts the shift, at the edge
-    monkeypatch.setattr(fo, "lag_share", lambda pairs, table, a_, b_, lag, rig: 0.9 if lag == edge_lag else 0.0)
-    best, score = fo._sparse_best_shift(pairs, search.table, (a, offset_a), b, search.shifts(b), rig)
-    assert score >= fo.MIN_FIT_SHARE and abs(best) == search.max_offset
+    monkeypatch.setattr(ss, "lag_share", lambda pairs, table, a_, b_, lag, rig: 0.9 if lag == edge_lag else 0.0)
+    best, score = ss.sparse_best_shift(pairs, search.table, (a, offset_a), b, search.shifts(b), rig)
+    assert score >= ss.MIN_FIT_SHARE and abs(best) == search.max_offset
     assert not search.cannot_time(b, a)
 
 
@@ -129,13 +130,13 @@ def test_no_proof_while_a_camera_planned_before_is_not_sparse(sparse_ring, monke
     rig, pairs = sparse_ring
     table = fo.frame_table(pairs, len(rig.cameras))
     steps, _ = fo._plan(fo._links(table >= 0, 8), 0)
-    search = fo._Search(rig, pairs, table, np.zeros(len(rig.cameras), np.int64), 0, 8)
+    search = ss.ShiftSearch(rig, pairs, table, np.zeros(len(rig.cameras), np.int64), 0, 8)
     few = [i for i, (b, p) in enumerate(steps) if fo.shared_counts(table, p[0], b, np.zeros(1, np.int64))[0]
            < fo.MIN_TIMING_FRAMES]
     later = steps[few[1]][0]  # a camera the proof tries, planned after others
-    monkeypatch.setattr(fo._Search, "cannot_time", lambda self, b, a: b == later)
+    monkeypatch.setattr(ss.ShiftSearch, "cannot_time", lambda self, b, a: b == later)
     with pytest.raises(fo.TooFewShared, match=f"'{rig.cameras[later].id}'"):
         fo._refuse_untimeable(search, steps, table)  # every camera before it sparse (the ring's are)
     earlier = steps[few[1] - 1][0]
-    monkeypatch.setattr(fo._Search, "sparse_everywhere", lambda self, c, a: c != earlier)
+    monkeypatch.setattr(ss.ShiftSearch, "sparse_everywhere", lambda self, c, a: c != earlier)
     fo._refuse_untimeable(search, steps, table)  # no proof: returns

@@ -59,7 +59,7 @@ def solve_step(state: ReducedSystem, rho: np.ndarray, time_limit, loss, guard_se
     where the solution touches it. The answer is exact once it lies inside the box and every row
     stays among its modelled pieces; until then rows that left get the breakpoints they crossed.
 
-    Given ``d_pred`` (an IRLS solution of the same rows, calib/solve/lp.py), the LP is instead written
+    Given ``d_pred`` (an IRLS solution of the same rows, calib/solve/lp/irls.py), the LP is instead written
     about it, in the step's change ``d - d_pred``: the rows start in the intervals of their
     predicted residuals, so only rows within ``near`` of a breakpoint there (and those the
     solves push across) enter the LP. The answer is the same LP's optimum, certified the same way
