@@ -21,7 +21,8 @@ and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, 
 ("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`. Part 7
 (--parts costs, "Scale: judgement, guidance, check and sync on every shape"): those commands beside calibrate, --cost-rigs.
 Part 8 (--parts where, "Scale: where the whole command's CPU goes (sparse shapes)"): each stage's CPU seconds
-in a whole process on --where-rigs, by timers around the stages' functions (bench/stage_timer.py), not cProfile.
+in a whole process on --where-rigs, by timers around the stages' functions (bench/stage_timer.py), not cProfile;
+with --base CHECKOUT, that checkout's process beside this one's, alternated run by run on the same capture.
 
 How a whole process is run, timed and profiled, and the captures it reads: bench/whole_process.py.
 
@@ -182,42 +183,62 @@ def part_stages(cameras_list: list[int], repeats: int, shape: str | None = None)
             + "\n".join(rows) + "\n\nGoal (issue 22): every stage at most cameras^1.2.")
 
 
-def part_where(rigs: list[str], repeats: int) -> str:
+def part_where(rigs: list[str], repeats: int, base: Path | None = None) -> str:
     """Where the whole command's CPU goes, stage by stage, on each rig: the process under
     bench/stage_timer.py (each stage's CPU seconds by timers around its functions, no profiler),
-    medians of the repeats; the stages' shares of the whole process."""
-    import json
+    medians of the repeats; the stages' shares of the whole process. With ``base`` (another
+    checkout), its process and this one's alternated run by run on the same capture, before and
+    after side by side."""
     import os
 
     from bench.stage_timer import STAGE_FUNCTIONS
 
-    per: dict[str, dict[str, float]] = {}
+    variants: dict[str, Path | None] = {"": None}
     load = [os.getloadavg()[0]]
     with tempfile.TemporaryDirectory() as tmp:
+        if base is not None:
+            variants = {"before": checkout_view(base, Path(tmp) / "view"), "after": None}
+        per: dict[tuple[str, str], dict[str, float]] = {}
         for rig in rigs:
             shape, size = rig.split(":") if ":" in rig else (None, rig)
             cameras, frames = (int(v) for v in size.split("x"))
-            folder, out = Path(tmp) / rig.replace(":", "-"), Path(tmp) / "stages.json"
+            folder = Path(tmp) / rig.replace(":", "-")
             simulate(folder, cameras, frames, shape=shape)
-            warm_bytecode()
-            runs = []
+            for view in variants.values():
+                warm_bytecode(view)
+            runs: dict[str, list[dict[str, float]]] = {name: [] for name in variants}
             for _ in range(repeats):
-                subprocess.run([sys.executable, "-m", "bench.stage_timer", str(out), "calibrate", str(folder), "--quiet",
-                                "--out", str(Path(tmp) / "result.json")], check=True, capture_output=True, cwd=REPO,
-                               env=child_env())
-                runs.append(json.loads(out.read_text()))
-                load.append(os.getloadavg()[0])
-            per[rig] = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
-            print(rig, {k: round(v, 3) for k, v in per[rig].items()}, flush=True)
+                for name, view in variants.items():
+                    runs[name].append(_stage_run(folder, Path(tmp), view))
+                    load.append(os.getloadavg()[0])
+            for name in variants:
+                per[(rig, name)] = {k: float(np.median([r[k] for r in runs[name]])) for k in runs[name][0]}
+                print(rig, name, {k: round(v, 3) for k, v in per[(rig, name)].items()}, flush=True)
     names = list(STAGE_FUNCTIONS) + ["other", "whole"]
-    rows = ["| stage | " + " | ".join(f"{rig}: CPU s (share)" for rig in rigs) + " |", "|---|" + "---|" * len(rigs)]
-    rows += [f"| {name} | " + " | ".join(f"{per[r][name]:.3f} ({per[r][name] / per[r]['whole']:.0%})" for r in rigs) + " |"
-             for name in names]
+    cols = [(rig, name) for rig in rigs for name in variants]
+    rows = ["| stage | " + " | ".join(f"{rig}{': ' + name if name else ''}: CPU s (share)" for rig, name in cols) + " |",
+            "|---|" + "---|" * len(cols)]
+    rows += [f"| {stage} | " + " | ".join(f"{per[c][stage]:.3f} ({per[c][stage] / per[c]['whole']:.0%})" for c in cols) + " |"
+             for stage in names]
+    against = (" Before: the checkout given by --base, on PYTHONPATH; after: this one; alternated process by process on the "
+               "same capture." if base is not None else "")
     return ("Each rig a `wandcal simulate --shape` capture (0.3 px, 2% outliers, L-frame, seed 1), the whole `wandcal "
             f"calibrate` process run {repeats} times with its stages timed in CPU seconds by timers around their "
             "functions (bench/stage_timer.py: no profiler, whose cost per Python call inflates the Python-heavy stages "
             "up to twentyfold); medians. \"other\": Python's start-up, the imports, the argument parsing and the "
-            f"summary. 1-minute load average {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} cores.\n\n" + "\n".join(rows))
+            f"summary.{against} 1-minute load average {min(load):.1f}-{max(load):.1f} on {os.cpu_count()} cores.\n\n"
+            + "\n".join(rows))
+
+
+def _stage_run(folder: Path, tmp: Path, view: Path | None) -> dict[str, float]:
+    """One whole `wandcal calibrate` process on ``folder`` under bench/stage_timer.py: each stage's
+    CPU seconds (``view``: another checkout's, first on the path; None: this one)."""
+    import json
+
+    out = tmp / "stages.json"
+    subprocess.run([sys.executable, "-m", "bench.stage_timer", str(out), "calibrate", str(folder), "--quiet",
+                    "--out", str(tmp / "result.json")], check=True, capture_output=True, cwd=REPO, env=child_env(view))
+    return json.loads(out.read_text())
 
 
 def part_guidance(cameras: int, frames: int, repeats: int) -> str:
@@ -394,7 +415,8 @@ def main() -> int:
     ap.add_argument("--stage-cameras", default="16,32,64,128")
     ap.add_argument("--stage-shape", default=None, help="rigs of calib/sim/shapes.py (ring, dome, tiers, hallway) for --parts stages")
     ap.add_argument("--colmap-repeats", type=int, default=1, help="COLMAP solves per rig (0: none)")
-    ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression")
+    ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression (and beside this "
+                    "one in --parts where)")
     ap.add_argument("--regression-rigs", default=REGRESSION_RIGS,
                     help="CAMSxFRAMES:OUTLIERS,... for --parts regression")
     ap.add_argument("--method-cameras", default="64,128", help="rigs (cameras x 3000 frames) for --parts methods")
@@ -425,7 +447,8 @@ def main() -> int:
                  else f"Scale: judgement, guidance, check and sync ({args.cost_rigs})")
         sections.append((title, part_costs(args.cost_rigs.split(","), args.repeats)))
     if "where" in parts:
-        sections.append(("Scale: where the whole command's CPU goes (sparse shapes)", part_where(args.where_rigs.split(","), args.repeats)))
+        sections.append(("Scale: where the whole command's CPU goes (sparse shapes)",
+                         part_where(args.where_rigs.split(","), args.repeats, args.base)))
     if "stages" in parts:
         title = f"Scale: stages ({args.stage_shape})" if args.stage_shape else "Scale: stages"
         sections.append((title, part_stages([int(c) for c in args.stage_cameras.split(",")], args.repeats, args.stage_shape)))

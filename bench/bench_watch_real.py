@@ -161,6 +161,7 @@ def verdict(report: WatchReport, camera: int | None, frame: int | None, turn_deg
         hit = report.cameras[camera]
         dated = hit.alarm is not None and hit.moved_at is not None and abs(hit.moved_at - frame) <= FRAME_SLACK
         row["right"] = dated and hit.status == "moved" and not wrong
+        row["outcome"] = outcome(named, camera, bool(row["right"]))
         if hit.resolved is not None:
             row["turned"] = (hit.resolved.turned_deg, hit.resolved.rotation_std_deg, turn_deg)
             if truth is not None:
@@ -168,6 +169,20 @@ def verdict(report: WatchReport, camera: int | None, frame: int | None, turn_deg
         elif hit.alarm is not None:
             row["not_resolved"] = hit.not_resolved
     return row
+
+
+def outcome(named: list, camera: int, right: bool) -> str:
+    """A knocked take's outcome (decision 0089): "right" (the camera alone, as moved, dated), "one of" (the
+    take could not tell it from others: every camera named is in a "one of" move, the knocked one among them),
+    "other" (another camera named as moved or drifting), "missed" (none named), or "late" (the camera alone,
+    but dated or called wrong)."""
+    if right:
+        return "right"
+    if not named:
+        return "missed"
+    if all(h.status == "one_of" for _, h in named) and camera in [i for i, _ in named]:
+        return "one of"
+    return "late" if [i for i, _ in named] == [camera] else "other"
 
 
 def own_statistic(report: WatchReport, camera: int, turn_deg: float, rank: int, seed: int = 1) -> float:
@@ -243,7 +258,10 @@ def table(rows: list[dict]) -> str:
               f"Clean takes named nothing: {sum(r['right'] for r in clean)} of {len(clean)}. "
               f"Knocks named right (the camera alone, as moved, within {FRAME_SLACK} frames): "
               f"{sum(r['right'] for r in knocks)} of {len(knocks)}; other cameras named beside a knock: "
-              f"{sum(r['false'] for r in knocks)}.", "", _resolve_summary(knocks)]
+              f"{sum(r['false'] for r in knocks)}.",
+              "", "Knocks by outcome (decision 0089): " + ", ".join(
+                  f"{kind} {sum(r.get('outcome') == kind for r in knocks)}" for kind in ("right", "one of", "other", "missed", "late"))
+              + ".", "", _resolve_summary(knocks)]
     return "\n".join(lines)
 
 

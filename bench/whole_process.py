@@ -162,8 +162,11 @@ def stage_seconds(profile: Path) -> dict[str, float]:
 
 def checkout_view(checkout: Path, into: Path) -> Path:
     """A directory that imports ``wandcal`` from another checkout (its four folders under
-    wandcal/), ahead of this one's editable install when put on PYTHONPATH."""
+    wandcal/), ahead of this one's editable install when put on PYTHONPATH. The folder holds an
+    ``__init__.py``: without one it is only a namespace portion, which the editable install's finder
+    outranks, and the "other checkout" ran this one's code (as bench_against_base.namespace does)."""
     (into / "wandcal").mkdir(parents=True, exist_ok=True)
+    (into / "wandcal" / "__init__.py").touch()
     for top in ("calib", "capture", "drivers", "service"):
         link = into / "wandcal" / top
         if not link.exists():

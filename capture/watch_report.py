@@ -28,7 +28,8 @@ def check_fit(report: WatchReport, take: str, result: str) -> None:
 
 
 def report_json(report: WatchReport) -> dict:
-    """Every camera's health: id, status (ok, moved, drifting), residual_px, matched (share), detectable_turn_deg (the
+    """Every camera's health: id, status (ok, moved, drifting, or one_of: it or one of the cameras listed in
+    ``one_of`` moved and the take cannot tell which, said in ``message``), residual_px, matched (share), detectable_turn_deg (the
     smallest turn, its worst axis, the take lets the test name as often as not); a moved
     one's frames, kind, statistic and whether it was lost (moved too far to follow), and once re-solved its turn (deg), move (mm), their sigmas and fit, or why it was not (not_resolved)."""
     cameras = []
@@ -40,6 +41,8 @@ def report_json(report: WatchReport) -> dict:
             entry |= {"moved_at_frame": h.moved_at, "detected_at_frame": h.alarm.detected_frame, "kind": h.kind,
                       "drift_frames": h.drift_frames, "before_take": h.before_take,
                       "statistic": round(h.alarm.statistic, 1), "lost": h.lost}
+        if h.one_of:
+            entry |= {"one_of": list(h.one_of), "message": h.message}
         if h.resolved is not None:
             entry |= {"rotation_deg": round(h.resolved.turned_deg, 4), "translation_mm": round(h.resolved.moved_mm, 3),
                       "center_std_mm": round(h.resolved.center_std_mm, 3),

@@ -143,6 +143,8 @@ class LiveWatch:
                 fed = True
             self._next = stop
         if fed or ended:
+            if ended:
+                stream.close()  # the attribution's last look at a "one of" move, as ``wandcal watch`` takes it
             report = stream.report(min(last, self._next - 1))
             doc = report_json(report)
             for entry, health in zip(doc["cameras"], report.cameras):

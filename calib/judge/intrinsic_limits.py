@@ -29,6 +29,10 @@ parameter off by its assumed sigma (:func:`lens_columns`, the pixels undistorted
 the honest sigma the centre's change for that sigma, and whether the data determine it its standard
 error beside the pose, in sigmas (under a quarter of it: determined). The sigmas assumed are measured
 (:func:`lens_sigmas`; docs/verdict.md, "The honest sigma").
+
+An intrinsic is named as what limits the camera (the verdict's ``limits``) where its part is
+material: it raises the geometry sigma past that sigma's own standard error (:data:`LIMIT_RATIO`,
+decision 0086), with whether this capture determines it and what to do.
 """
 
 from __future__ import annotations
@@ -52,6 +56,7 @@ from wandcal.calib.judge.lens_sigmas import (  # noqa: F401  (the honest sigma's
     lens_sigmas,
     nominal_principal,
 )
+from wandcal.calib.judge.verdict import SIGMA_REL_SE
 
 GIVEN_IN_RIG = "given"  # the source of a focal sigma the rig gives (the camera's focal_std_px); else "default"
 
@@ -60,9 +65,14 @@ GIVEN_IN_RIG = "given"  # the source of a focal sigma the rig gives (the camera'
 # a calibration of another day with the focus touched keeps it to 1-3% (the eWand session's yaml
 # focal lengths sit 1.2-2.6% below those its own wand data give); docs/verdict.md
 DEFAULT_FOCAL_REL_STD = 0.02
-# a camera's position hinges on its focal length when the focal part of its honest sigma passes
-# its geometry sigma this many times: it is then named, with the millimetres per 1%
-LIMIT_RATIO = 2.0
+# a given intrinsic limits a camera's position when its part of the honest sigma is *material*: added
+# to the geometry sigma in quadrature it raises that sigma by more than the sigma's own standard error
+# (SIGMA_REL_SE, 11%: what a camera's sigma varies by between random halves of a session, the same
+# figure that puts a verdict "at the limit"), i.e. sqrt(geo^2 + part^2) > (1 + SE) geo, so
+# part > sqrt((1 + SE)^2 - 1) geo = 0.48 geo. Under it the part is lost in the sigma's own scatter:
+# giving that intrinsic exactly would not change what the result can say about the camera. One rule
+# for the focal length and every other intrinsic (docs/decisions/0086)
+LIMIT_RATIO = float(np.sqrt((1.0 + SIGMA_REL_SE) ** 2 - 1.0))
 # the data determine the focal length when its standard error from the camera's own residuals is
 # under this share: refining it (--refine-intrinsics focal) is then the advice (the refined focal
 # length's own warning, wandcal.calib.run.camera_reports.FOCAL_REL_STD_WARN, is 0.5%)
@@ -288,10 +298,16 @@ def limit_entry(limit: FocalLimit | None, geometry_std: float | None, scaled: bo
     return entry
 
 
+def _length(x: float, scaled: bool) -> float:
+    """A limit's length for its evidence: mm to 3 decimals, or (no scale) the rig's units to 4 figures."""
+    return round(x, 3) if scaled else float(f"{x:.4g}")
+
+
 def lens_limited(cam: str, lens: list[LensLimit], geo: float, scaled: bool) -> list[dict]:
     """Camera ``cam``'s parameters beyond the focal length whose part of its honest sigma is
-    :data:`LIMIT_RATIO` times its geometry sigma ``geo`` or more, each a ``limits`` entry: how many
-    millimetres the camera moves for the parameter's assumed sigma, and what to do."""
+    material (:data:`LIMIT_RATIO` times its geometry sigma ``geo`` or more), each a ``limits`` entry:
+    whether this capture determines it, how many millimetres the camera moves for the parameter's
+    assumed sigma, and what to do."""
     out = []
     k = 1000.0 if scaled else 1.0
     unit = "mm" if scaled else "units"
@@ -299,30 +315,32 @@ def lens_limited(cam: str, lens: list[LensLimit], geo: float, scaled: bool) -> l
         if part.std < LIMIT_RATIO * geo:
             continue
         size = f"{part.sigma:.2g} px" if part.name in ("cx", "cy") else f"{part.sigma:.2g}"
+        words = WORDS[part.name]
         if part.name in REFINABLE and part.determined:
-            todo = (f"the data determine it to {part.data_std:.2f} of that: run with --refine-intrinsics "
-                    f"{REFINABLE[part.name]}, or give it from a lens calibration")
+            head = f"{cam}'s {words} is determined by this capture (to {part.data_std:.2f} of its assumed uncertainty)"
+            todo = f"run with --refine-intrinsics {REFINABLE[part.name]}, or give it from a lens calibration"
         elif part.name in REFINABLE:
-            todo = "the data cannot determine it: give it from a lens calibration"
+            head, todo = f"{cam}'s {words} cannot be determined from this capture", "give it from a lens calibration"
         else:
-            todo = "give it from a lens calibration (wandcal does not refine it)"
+            head = f"{cam}'s {words} is not determined from this capture (wandcal does not refine it)"
+            todo = "give it from a lens calibration"
         out.append({"camera": cam, "parameter": part.name, "evidence": {
             "sigma": float(f"{part.sigma:.4g}"), "unit": "px" if part.name in ("cx", "cy") else "",
-            "parameter_sigma_mm" if scaled else "parameter_sigma": round(part.std * k, 3),
-            "along_axis_mm" if scaled else "along_axis": round(part.along_axis_m_per_sigma * k, 3),
-            "geometry_sigma_mm" if scaled else "geometry_sigma": round(geo * k, 3),
+            "parameter_sigma_mm" if scaled else "parameter_sigma": _length(part.std * k, scaled),
+            "along_axis_mm" if scaled else "along_axis": _length(part.along_axis_m_per_sigma * k, scaled),
+            "geometry_sigma_mm" if scaled else "geometry_sigma": _length(geo * k, scaled),
             "data_std_sigmas": round(float(part.data_std), 3) if np.isfinite(part.data_std) else None,
             "determined": part.determined},
-            "message": f"{cam}'s position moves {part.std * k:.3g} {unit} for {size} of its {WORDS[part.name]} "
-                       f"(the uncertainty assumed{WHY.get(part.source, '')}: docs/verdict.md, \"The honest sigma\"), where the geometry alone knows it to "
-                       f"+-{geo * k:.3g} {unit}; {todo}"})
+            "message": f"{head}: off by its assumed uncertainty ({size}{WHY.get(part.source, '')}: docs/verdict.md, "
+                       f"\"The honest sigma\") it moves the camera {part.std * k:.3g} {unit}, where the geometry alone "
+                       f"places it to +-{geo * k:.3g} {unit}; {todo}"})
     return out
 
 
 def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_std: list[float | None],
                     scaled: bool) -> list[dict]:
     """The cameras whose position hinges on their focal length (its part of the honest sigma
-    :data:`LIMIT_RATIO` times the geometry sigma or more), each ``{"camera", "parameter",
+    material: :data:`LIMIT_RATIO` times the geometry sigma or more), each ``{"camera", "parameter",
     "message", "evidence"}``: how many millimetres along its axis each 1% moves it, and what to do."""
     out = []
     for cam, limit, geo in zip(ids, limits, geometry_std):
@@ -341,13 +359,13 @@ def limited_cameras(ids: list[str], limits: list[FocalLimit | None], geometry_st
             why = f"assumed, rig.json giving no focal_std_px for {cam}"
         k = 1000.0 if scaled else 1.0
         out.append({"camera": cam, "parameter": "focal length", "evidence": {
-            "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": round(per, 3),
+            "along_axis_mm_per_percent" if scaled else "along_axis_per_percent": _length(per, scaled),
             "focal_std_percent": round(100 * limit.focal_rel_std, 3),
-            "focal_sigma_mm" if scaled else "focal_sigma": round(limit.std * k, 3),
-            "geometry_sigma_mm" if scaled else "geometry_sigma": round(geo * k, 3)},
-            "message": f"{cam}'s distance along its axis moves {per:.1f} {unit} for each 1% of its focal length: with "
-                       f"the focal length known to {100 * limit.focal_rel_std:.2g}% ({why}) its position is known "
-                       f"to +-{limit.std * k:.1f} {unit}, not the +-{geo * k:.2f} {unit} of the geometry alone; {todo}"})
+            "focal_sigma_mm" if scaled else "focal_sigma": _length(limit.std * k, scaled),
+            "geometry_sigma_mm" if scaled else "geometry_sigma": _length(geo * k, scaled)},
+            "message": f"{cam}'s distance along its axis moves {per:{'.1f' if scaled else '.2g'}} {unit} for each 1% of its focal length: with "
+                       f"the focal length known to {100 * limit.focal_rel_std:.2g}% ({why}) that moves the camera "
+                       f"+-{limit.std * k:.3g} {unit}, where the geometry alone places it to +-{geo * k:.3g} {unit}; {todo}"})
     return out
 
 

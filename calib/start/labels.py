@@ -81,10 +81,11 @@ def labelled_ends(
     margin = np.zeros(len(sub))
     judged = np.ones(len(sub), bool)  # the pairs whose frames are triangulated again this round
     current = None  # the ends of sub as it stands, while a round has triangulated every pair and flipped none
+    two_view = _two_view_candidates(sub) if length is not None else None  # the end order does not change them
+    swapped = None  # with current: the two-view frames' ends with their candidates swapped
     for _ in range(RELABEL_ROUNDS):
         part = sub if judged.all() else sub.subset(judged)
-        point, camera, xy = flatten(part)
-        X = triangulate_points(R, t, point, camera, xy, 2 * len(sub.frames)).reshape(-1, 2, 3)
+        X, swapped = _triangulated(R, t, sub, part, two_view)
         current = X if part is sub else None
         ends = X[part.frame]  # (P', 2, 3)
         Rc, tc = R[part.camera], t[part.camera]
@@ -104,15 +105,34 @@ def labelled_ends(
         changed[sub.frame[flip]] = True
         judged = changed[sub.frame]
     if length is not None:
-        swap = _two_view_swaps(R, t, sub, length)
+        swap = _two_view_swaps(R, t, sub, length, current, swapped if current is not None else None)
         if swap is not None and swap.any():
             sub, current = sub.swapped(swap), None
     return sub, margin, current
 
 
-def _two_view_swaps(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: float) -> np.ndarray | None:
-    """(P,) bool: in frames seen by exactly two cameras, the second camera's pairs whose ends,
-    swapped, bring the triangulated wand nearer ``length`` (None: no frame is seen by two)."""
+def _triangulated(R: np.ndarray, t: np.ndarray, sub: WandPairs, part: WandPairs,
+                  two_view: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """The ends (F, 2, 3) of the pairs ``part`` of ``sub`` (NaN for frames without them), metres,
+    and, when ``part`` is all of ``sub`` and ``two_view`` (:func:`_two_view_candidates`) is given,
+    the ends (F, 2, 3) of its frames in play with their candidates swapped, for
+    :func:`_two_view_swaps`, in the same call: a point's triangulation does not depend on the
+    others triangulated with it, so both are the digits of triangulating each on its own (and the
+    start's resections, ~50 pairs each, pay one call's overhead, not two)."""
+    F = len(sub.frames)
+    point, camera, xy = flatten(part)
+    if two_view is None or part is not sub:
+        return triangulate_points(R, t, point, camera, xy, 2 * F).reshape(-1, 2, 3), None
+    candidate, rows = two_view
+    p2, c2, xy2 = flatten(sub.subset(rows).swapped(candidate[rows]))
+    X = triangulate_points(R, t, np.concatenate([point, p2 + 2 * F]), np.concatenate([camera, c2]),
+                           np.concatenate([xy, xy2]), 4 * F).reshape(-1, 2, 3)
+    return X[:F], X[F:]
+
+
+def _two_view_candidates(pairs: WandPairs) -> tuple[np.ndarray, np.ndarray] | None:
+    """In frames seen by exactly two cameras, the second camera's pairs (P,) bool, and the pairs
+    of those frames (P,) bool (None: no frame is seen by two)."""
     views = np.bincount(pairs.frame, minlength=len(pairs.frames))
     two = views[pairs.frame] == 2
     if not two.any():
@@ -123,15 +143,30 @@ def _two_view_swaps(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: floa
     sorted_frames = pairs.frame[order]
     second[order[1:]] = sorted_frames[1:] == sorted_frames[:-1]
     candidate = second & two
+    in_play = np.zeros(len(pairs.frames), bool)
+    in_play[pairs.frame[candidate]] = True
+    return candidate, in_play[pairs.frame]
+
+
+def _two_view_swaps(R: np.ndarray, t: np.ndarray, pairs: WandPairs, length: float,
+                    ends: np.ndarray | None = None, swapped: np.ndarray | None = None) -> np.ndarray | None:
+    """(P,) bool: in frames seen by exactly two cameras, the second camera's pairs whose ends,
+    swapped, bring the triangulated wand nearer ``length`` (None: no frame is seen by two).
+    ``ends``: (F, 2, 3) metres, the pairs' own triangulation as they stand, and ``swapped`` (F, 2,
+    3) the same with the candidates swapped (:func:`_triangulated`), when the caller has them
+    (:func:`labelled_ends`' last round): a point's triangulation does not depend on the others
+    triangulated with it, so their lengths are the digits of triangulating the frames in play again."""
+    two_view = _two_view_candidates(pairs)
+    if two_view is None:
+        return None
+    candidate, rows = two_view
     # only the frames with a candidate can change: their wands alone are triangulated, both ways
     # (a point's triangulation does not depend on the others triangulated with it; the whole
     # capture twice was most of `wandcal check`'s labelling at 128 cameras of 2-4 a frame)
-    in_play = np.zeros(len(pairs.frames), bool)
-    in_play[pairs.frame[candidate]] = True
-    rows = in_play[pairs.frame]
     part = pairs.subset(rows)
-    now = wand_lengths(R, t, part)
-    alt = wand_lengths(R, t, part.swapped(candidate[rows]))
+    now = wand_lengths(R, t, part) if ends is None else np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+    alt = (wand_lengths(R, t, part.swapped(candidate[rows])) if swapped is None
+           else np.linalg.norm(swapped[:, 1] - swapped[:, 0], axis=1))
     better = np.abs(alt - length) < np.abs(now - length)
     return candidate & better[pairs.frame]
 

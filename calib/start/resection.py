@@ -30,7 +30,7 @@ UNPLACED = np.iinfo(np.int64).max
 
 def placed_points(
     pairs: WandPairs, points: PointTracks | None, views: Views, R: np.ndarray, t: np.ndarray, rank: np.ndarray, c: int,
-    wand_length: float | None,
+    wand_length: float | None, *, placed_views: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points the placed cameras triangulate that camera c sees (capped subsamples).
 
@@ -40,19 +40,21 @@ def placed_points(
         rank: (N,) order in which the cameras were placed, ``UNPLACED`` for the others.
         c: the camera.
         wand_length: metres, to settle two-view wand frames (:func:`wandcal.calib.start.labels.label_ends`), or None.
+        placed_views: how many placed cameras see each wand frame (F,) and track (T,), when the
+            caller keeps the counts (else counted here).
 
     Returns:
         Wand ends (S, 2, 3) metres with c's blobs of those frames (S, 2, 2) in arbitrary order,
         and track points (K, 3) metres with c's observations (K, 2); finite points only.
     """
     placed = rank != UNPLACED
-    seen_w = views.wand >= 0
-    frames = spread(np.flatnonzero(seen_w[:, c] & (seen_w[:, placed].sum(1) >= 2)), MAX_RESECT_FRAMES)
+    seen_w, seen_t = views.wand >= 0, views.track >= 0
+    views_w, views_t = placed_views if placed_views is not None else (seen_w[:, placed].sum(1), seen_t[:, placed].sum(1))
+    frames = spread(np.flatnonzero(seen_w[:, c] & (views_w >= 2)), MAX_RESECT_FRAMES)
     ends = _triangulate_ends(pairs, views.wand[frames], R, t, rank, wand_length)
     ends_xy = pairs.xy[views.wand[frames, c]]
     keep = np.all(np.isfinite(ends), axis=(1, 2))
-    seen_t = views.track >= 0
-    tracks = spread(np.flatnonzero(seen_t[:, c] & (seen_t[:, placed].sum(1) >= 2)), MAX_RESECT_TRACKS)
+    tracks = spread(np.flatnonzero(seen_t[:, c] & (views_t >= 2)), MAX_RESECT_TRACKS)
     if points is None or len(tracks) == 0:  # no tracks without points (camera_views)
         return ends[keep], ends_xy[keep], np.zeros((0, 3)), np.zeros((0, 2))
     local, rows = _first_views(views.track[tracks], rank)

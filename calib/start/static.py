@@ -120,14 +120,14 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
     normal, lines = _object_shape(np.ascontiguousarray(markers, dtype=np.float64).tobytes(), m)
     # SQPnP on every possible labelling screens them; the survivors also get every P3P start (a
     # planar object's mirror pose, which SQPnP does not return)
-    screened: list[tuple[float, np.ndarray]] = []  # (best SQPnP rms in pixels, labels)
+    screened: list[tuple[float, np.ndarray, list]] = []  # (best SQPnP rms in pixels, labels, SQPnP's poses)
     for perm in itertools.permutations(range(m), k):
         labels = np.array(perm)
         if lines and not _keeps_lines(labels, xy, lines):
             continue
         sqpnp = _pnp_starts(markers[labels], xy, p3p=False)
         rms_each = [_rms_px(markers[labels], xy, R, t, focal_px) for R, t in sqpnp]
-        screened.append((min(rms_each, default=np.inf), labels))
+        screened.append((min(rms_each, default=np.inf), labels, sqpnp))
     if not screened:
         return Failure(
             f"{where}: the static-object markers cannot be identified: no labelling of its blobs puts the "
@@ -136,9 +136,9 @@ def identify_and_solve(markers: np.ndarray, xy: np.ndarray, focal_px: float, cam
         )
     screen = max(SCREEN_RATIO * min((f[0] for f in screened), default=0.0), SCREEN_PX)
     starts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (R, t, labels)
-    for screened_rms, labels in screened:
-        if screened_rms <= screen:
-            starts += [(R, t, labels) for R, t in _pnp_starts(markers[labels], xy)]
+    for screened_rms, labels, sqpnp in screened:
+        if screened_rms <= screen:  # the screen's SQPnP poses, then P3P's (not SQPnP again)
+            starts += [(R, t, labels) for R, t in sqpnp + _pnp_starts(markers[labels], xy, sqpnp=False)]
     fits = []
     for R0, t0, labels in starts:
         R, t = _refined(markers[labels], xy, R0, t0)
@@ -215,16 +215,18 @@ def _rms_px(obj: np.ndarray, xy: np.ndarray, R: np.ndarray, t: np.ndarray, focal
     return float(np.sqrt(np.mean(np.sum(err**2, 1)))) * focal_px
 
 
-def _pnp_starts(obj: np.ndarray, xy: np.ndarray, p3p: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Poses that may explain ``xy`` (k, 2) from ``obj`` (k, 3): SQPnP's, and every P3P solution on
-    the least collinear triple (a planar object has two nearly equal poses, and SQPnP returns one)."""
+def _pnp_starts(obj: np.ndarray, xy: np.ndarray, p3p: bool = True, sqpnp: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Poses that may explain ``xy`` (k, 2) from ``obj`` (k, 3): SQPnP's (with ``sqpnp``), and every
+    P3P solution on the least collinear triple (with ``p3p``; a planar object has two nearly equal
+    poses, and SQPnP returns one)."""
     obj = np.ascontiguousarray(obj, dtype=np.float64)
     img = np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 1, 2)
     K = np.eye(3)
     starts = []
     try:
-        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP)
-        starts += list(zip(rvecs, tvecs))[:n]
+        if sqpnp:
+            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, K, None, flags=cv2.SOLVEPNP_SQPNP)
+            starts += list(zip(rvecs, tvecs))[:n]
     except cv2.error:
         pass
     if p3p:

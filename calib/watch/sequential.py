@@ -62,13 +62,18 @@ RCOND = 1e-10
 class Alarm:
     """A camera found moved. camera: its index; window: the test's window index of the alarm;
     frame: the first frame of the window it moved in; statistic: max_k S_k; change: (6,) the pose
-    change since it moved (omega radians, dC metres); detected_frame: the last frame of the alarm's window."""
+    change since it moved (omega radians, dC metres); detected_frame: the last frame of the alarm's window;
+    one_of: the other cameras the take cannot tell from this one as the one that moved (none: it is named
+    alone; :mod:`wandcal.calib.watch.attribute`); settled: named by the attribution's second look (its test
+    has no markers of the group it was weighed with from the alarm on, so its knock is dated at ``frame``)."""
 
     camera: int
     frame: int
     detected_frame: int
     statistic: float
     change: np.ndarray
+    one_of: tuple[int, ...] = ()
+    settled: bool = False
 
     @property
     def rotation_deg(self) -> float:
@@ -91,6 +96,7 @@ class CameraTest:
     alarm: Alarm | None = None
     peak: float = 0.0  # the largest S_k of a persistent change seen (a clean take's margin below the threshold)
     raw: float = 0.0  # the last :meth:`glr`'s largest S_k, persistent or not (which camera moved, when several alarm)
+    since: int = 0  # the first window a change may start at (a camera cleared by the attribution: after its windows then)
     _wander: np.ndarray | None = field(default=None, repr=False)  # :meth:`wander`, once the baseline is in
     _base: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = field(default=None, repr=False)  # baseline + I_0^+
 
@@ -220,7 +226,7 @@ class CameraTest:
         starts before window ``last`` (all windows by default); the module's note."""
         base = self.baseline()
         end = len(self.g) if last is None else last
-        first = max(BASELINE_WINDOWS, end - GLR_WINDOWS)
+        first = max(BASELINE_WINDOWS, end - GLR_WINDOWS, self.since)
         if base is None or end <= first:
             return 0.0, end, np.zeros(PARAMS)
         p0, _, s2 = base

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from wandcal.calib.rig import Rig
+from wandcal.calib.watch.attribute import Attribution, attribute
 from wandcal.calib.watch.health import (
     PARAMS,
     WINDOW_FRAMES,
@@ -23,6 +24,8 @@ from wandcal.calib.watch.recover import SETTLE_FRAMES, Resolved, resolve_moved, 
 from wandcal.calib.watch.sequential import (
     BASELINE_WINDOWS,
     GLR_THRESHOLD,
+    GLR_WINDOWS,
+    PEAK_FLOOR,
     PERSIST_WINDOWS,
     Alarm,
     CameraTest,
@@ -40,6 +43,14 @@ START_SHIFT_PX = 1.0
 # and is tested only on this many degrees of freedom about the windows' fits (a 40-marker take's first window
 # holds ~800): a sparse take's first windows (one marker a frame in three cameras) may hold a handful
 MIN_START_DOF = 60
+# cameras weighed as the one that moved when several tests are raised: the alarming one and the others with the
+# largest statistics. Each costs a pass over the move's windows (every camera's residuals); with 12 cameras and
+# 40 markers a knock raises all of them (each is pulled), and twelve passes cost ~5 s CPU once. A camera whose
+# test is not among the four most raised is taken not to be the mover (every camera of a 4-camera rig is weighed)
+MAX_CANDIDATES = 4
+ONE_OF_ADVICE = ("the take cannot tell which (none beats the others by Vuong's test at its level), so none was re-solved: "
+                 "wave the wand briefly and run wandcal check, or re-solve the one found moved: wandcal calibrate CAPTURE "
+                 "--from RESULT --solve-only CAM")
 
 
 @dataclass
@@ -60,6 +71,7 @@ class CameraHealth:
     resolved: Resolved | None = None
     not_resolved: str = ""  # why a moved camera was not re-solved, and what to do
     before_take: bool = False  # it had moved already when the take began
+    one_of: list[str] = field(default_factory=list)  # the other cameras the take cannot tell from it as the one that moved
     peak: float = 0.0  # the test's largest statistic over the take
     # degrees: the smallest turn (its worst axis) the test names as often as not over the take's last windows
     detectable_turn_deg: float = float("nan")
@@ -72,7 +84,17 @@ class CameraHealth:
 
     @property
     def status(self) -> str:
-        return "ok" if self.alarm is None else ("drifting" if self.kind == "drift" else "moved")
+        """ok, moved, drifting, or one_of: it or one of :attr:`one_of` moved, the take cannot tell which."""
+        if self.alarm is None:
+            return "ok"
+        return "one_of" if self.one_of else "drifting" if self.kind == "drift" else "moved"
+
+    @property
+    def message(self) -> str:
+        """For a camera in a "one of" move: what happened and what to do ("" otherwise)."""
+        if not self.one_of:
+            return ""
+        return f"one of {' or '.join([self.id, *self.one_of])} moved at frame {self.moved_at}: {ONE_OF_ADVICE}"
 
 
 @dataclass
@@ -113,6 +135,7 @@ def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, reso
         done = stream.add(ranked, np.arange(bounds[b], bounds[b + 1]))
         if progress:
             progress(done + 1, last + 1)
+    stream.close()
     report = stream.report(last)
     if resolve:
         _resolve(rig, R, t, ranked, report, stream.tests)
@@ -153,6 +176,8 @@ class WatchStream:
         self.sums = np.zeros((len(rig.cameras), 3))  # sse, residuals, markers seen
         self.frames = self.tracks = 0
         self.obs: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
+        self.recent: list[tuple[PaddedFrames, Tracks]] = []  # the batches a change's start may lie in (attribution)
+        self.pending: list[_Group] = []  # "one of" moves awaiting the attribution's second look
         self._head: _Head | None = None  # what begin matched and measured, for the batches of the same frames
 
     @property
@@ -187,11 +212,45 @@ class WatchStream:
         self.frames += len(padded.frames)
         self.tracks += len(tracks)
         windows = _test_batch(self.rig, self.R, self.t, padded, tracks, (self.tests, self.found), self.excluded,
-                              self.first, keep_obs=self.keep_obs, windows=windows)
+                              self.first, keep_obs=self.keep_obs, windows=windows, earlier=self.recent,
+                              pending=self.pending)
+        self.recent.append((padded, tracks))
+        last = int(padded.frames[-1])
+        self._second_looks(lambda group: (last - self.first) // WINDOW_FRAMES + 1 >= group.w0 + GLR_WINDOWS)
+        oldest = min([last - (GLR_WINDOWS + 1) * WINDOW_FRAMES]  # no change starts before it, nor a pending move
+                     + [self.first + g.w0 * WINDOW_FRAMES for g in self.pending])
+        self.recent = [piece for piece in self.recent if piece[0].frames[-1] >= oldest]
         self.sums += np.stack([windows.sse.sum(0), windows.n.sum(0), windows.seen.sum(0)], 1)
         if self.keep_obs:
             self.obs.append(windows.obs or [])
         return int(padded.frames[-1])
+
+    def close(self) -> None:
+        """The take has ended: the attribution's second look at every "one of" move still pending."""
+        self._second_looks(lambda group: True)
+
+    def _second_looks(self, due: Callable[[_Group], bool]) -> None:
+        """The attribution's second look (:mod:`wandcal.calib.watch.attribute`) at each pending "one of" move
+        that is ``due``, over every window from its start that the stream holds: a camera named becomes the
+        move, the others go back to being watched (in their markers, tested from the next window on)."""
+        if not self.recent:
+            return
+        stop = (int(self.recent[-1][0].frames[-1]) - self.first) // WINDOW_FRAMES + 1
+        for group in [g for g in self.pending if due(g)]:
+            self.pending.remove(group)
+            tests = self.tests
+            out = attribute(self.rig, self.R, self.t, self.recent, set(group.excluded), list(group.cams), _baselines(tests),
+                            (self.first, group.w0, min(stop, group.w0 + GLR_WINDOWS)))
+            if len(out.named) > 1:
+                continue
+            for m in group.cams:
+                alarm = tests[m].alarm
+                assert alarm is not None
+                if m == out.named[0]:
+                    tests[m].alarm = replace(alarm, one_of=(), change=out.changes.get(m, alarm.change), settled=True)
+                else:
+                    tests[m].alarm, tests[m].since = None, len(tests[m].g)
+                    self.excluded.discard(m)
 
     def report(self, last: int) -> WatchReport:
         """Every camera's health so far (``last``: the last frame seen)."""
@@ -213,7 +272,30 @@ class WatchStream:
                 health.kind, health.moved_at, health.change = "knock", alarm.frame, alarm.change
             elif alarm is not None:
                 health.kind, health.moved_at, health.drift_frames, health.change = classify(self.tests[c], alarm)
+            if alarm is not None and alarm.settled and health.kind == "knock":
+                health.moved_at = alarm.frame  # its test lost the group's markers from the alarm on (Alarm.settled)
+            if alarm is not None and alarm.one_of:
+                health.one_of = [self.rig.cameras[m].id for m in alarm.one_of]
+                health.moved_at, health.drift_frames = alarm.frame, 0  # the move they share: the alarm's start
         return report
+
+
+@dataclass(frozen=True)
+class _Group:
+    """A "one of" move awaiting the attribution's second look: its candidates (camera indices), its
+    start's window number w0 (from the take's first frame), the cameras left out of the markers before it."""
+
+    cams: tuple[int, ...]
+    w0: int
+    excluded: frozenset[int]
+
+
+def _baselines(tests: list[CameraTest]) -> tuple[np.ndarray, np.ndarray]:
+    """Every camera's baseline: p_0 (C, 6), its reference pose change, and s^2 (C,) px^2, its residual
+    variance (zeros and 1 before its baseline is in)."""
+    bases = [test.baseline() for test in tests]
+    return (np.array([np.zeros(PARAMS) if b is None else b[0] for b in bases]),
+            np.array([1.0 if b is None else b[2] for b in bases]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -293,12 +375,23 @@ def _fit_dof(n: np.ndarray) -> np.ndarray:
 
 
 def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest], list[FoundTest]], excluded: set[int],
-                first: int, keep_obs: bool, windows: CameraWindows | None = None) -> CameraWindows:
+                first: int, keep_obs: bool, windows: CameraWindows | None = None,
+                earlier: list[tuple[PaddedFrames, Tracks]] | None = None, pending: list[_Group] | None = None) -> CameraWindows:
     """Add a batch's windows to every camera's test, window by window; when cameras alarm, the one
-    with the largest statistic is named, left out of every other camera's markers, and the batch is
-    tested again without it (a moved camera's blobs pull the markers it shares). A camera's pose and
-    found-share tests take each window together, so one mark rewinds both. ``windows``: the batch's,
-    if measured already with ``excluded`` left out."""
+    that moved is named (:func:`_add_windows`; or the ones the take cannot tell apart), left out of
+    every other camera's markers, and the batch is tested again without it (a moved camera's blobs
+    pull the markers it shares). A camera's pose and found-share tests take each window together, so
+    one mark rewinds both. ``windows``: the batch's, if measured already with ``excluded`` left out;
+    ``earlier``: the batches before it that a change's start may lie in (padded frames, tracks);
+    ``pending``: where a "one of" move is put for the attribution's second look."""
+    pieces = [*(earlier or []), (padded, tracks)]
+
+    def judge(candidates: list[int], span: tuple[int, int, int]) -> Attribution:
+        out = attribute(rig, R, t, pieces, excluded, candidates, _baselines(tests[0]), span)
+        if len(out.named) > 1 and pending is not None:
+            pending.append(_Group(out.named, span[1], frozenset(excluded)))
+        return out
+
     blobs = np.isfinite(padded.xy[:, :, :, 0]).sum(2)  # each camera's blobs a frame, whoever is left out
     while True:
         if windows is None:
@@ -306,10 +399,10 @@ def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest]
             views[:, sorted(excluded)] = -1
             windows = camera_windows(rig, R, t, padded, Tracks(tracks.frame, views, tracks.X), keep_obs=keep_obs)
         marks = [pose.mark() for pose in tests[0]]
-        named = _add_windows(windows, blobs, tests, first)
-        if named is None:
+        named = _add_windows(windows, blobs, tests, first, judge)
+        if not named:
             return windows
-        excluded.add(named)
+        excluded.update(named)
         windows = None
         for c, (pose, found) in enumerate(zip(*tests)):  # the named one too: it keeps its alarm, and the batch's
             pose.rewind(marks[c])                          # windows come again (once, not twice: classify reads them)
@@ -317,13 +410,13 @@ def _test_batch(rig, R, t, padded, tracks: Tracks, tests: tuple[list[CameraTest]
 
 
 def _add_windows(windows: CameraWindows, blobs: np.ndarray, tests: tuple[list[CameraTest], list[FoundTest]],
-                 first: int) -> int | None:
-    """Add each window in turn; at the first window where cameras alarm, name one and return it (the
-    others' tests are then run again by the caller); None when none alarms. A camera whose blobs left
-    its markers (:mod:`wandcal.calib.watch.lost`) goes first: its pose test has lost its residuals.
-    Else the one with the largest statistic, persistent or not (a moved camera's blobs pull the
-    markers another is tested against, and the other's change may persist first). ``blobs`` (F, C):
-    each camera's blobs a frame."""
+                 first: int, judge: Callable[[list[int], tuple[int, int, int]], Attribution]) -> list[int]:
+    """Add each window in turn; at the first window where cameras alarm, name the one that moved (or
+    the ones the take cannot tell apart) and return them (the others' tests are then run again by the
+    caller); none when none alarms. A camera whose blobs left its markers
+    (:mod:`wandcal.calib.watch.lost`) goes first: its pose test has lost its residuals. Else
+    :func:`_pose_alarm`. ``blobs`` (F, C): each camera's blobs a frame; ``judge``: the attribution of
+    a move among candidates (:func:`wandcal.calib.watch.attribute.attribute` over the take's windows)."""
     poses, founds = tests
     w_of = (windows.frames - first) // WINDOW_FRAMES
     for w in np.unique(w_of):
@@ -340,12 +433,39 @@ def _add_windows(windows: CameraWindows, blobs: np.ndarray, tests: tuple[list[Ca
                 S_lost, frame = found.glr()
                 if S_lost > LOST_THRESHOLD:
                     lost.append((S_lost, S_lost, c, frame, np.full(PARAMS, np.nan)))
-        if lost or any(S > GLR_THRESHOLD for S, *_ in tested):
-            _, raw, c, k, d = max(lost or tested, key=lambda x: x[1])
-            frame = k if lost else poses[c].start[k]  # a lost camera's is its frame already; a pose test's, its window
-            poses[c].alarm = Alarm(c, frame, int(windows.frames[sel].max()), raw, d)
-            return c
-    return None
+        detected = int(windows.frames[sel].max())
+        if lost:
+            _, raw, c, frame, d = max(lost, key=lambda x: x[1])  # a lost camera's frame is its frame already
+            poses[c].alarm = Alarm(c, frame, detected, raw, d)
+            return [c]
+        if any(S > GLR_THRESHOLD for S, *_ in tested):
+            span = (first, 0, int(w_of.max()) + 1)
+            return _pose_alarm(poses, tested, detected, span, judge)
+    return []
+
+
+def _pose_alarm(poses: list[CameraTest], tested: list[tuple[float, float, int, int, np.ndarray]], detected: int,
+                span: tuple[int, int, int], judge) -> list[int]:
+    """The cameras named when pose tests alarm (``tested``: each untested-yet camera's (S, raw S, camera,
+    k, d_k) at window ending at frame ``detected``): the alarming one is the one with the largest
+    statistic, persistent or not (a moved camera's blobs pull the markers another is tested against,
+    and the other's change may persist first). Alone when no other camera's largest statistic is past
+    :data:`PEAK_FLOOR`; else it and those raised (the :data:`MAX_CANDIDATES` largest) are the candidates, and
+    :func:`~wandcal.calib.watch.attribute.attribute` names the one that moved over the windows from the
+    alarm's start k to ``span``'s end, or the ones it cannot tell apart (each given the alarm, with the
+    others as ``one_of``)."""
+    _, raw, c, k, d = max(tested, key=lambda x: x[1])
+    frame = poses[c].start[k]
+    top = sorted(((r, m) for _, r, m, _, _ in tested if m != c and r > PEAK_FLOOR), reverse=True)[:MAX_CANDIDATES - 1]
+    raised = {c: raw} | {m: r for r, m in top}
+    if len(raised) == 1:
+        poses[c].alarm = Alarm(c, frame, detected, raw, d)
+        return [c]
+    first, _, stop = span
+    out = judge(list(raised), (first, (frame - first) // WINDOW_FRAMES, stop))
+    for m in out.named:
+        poses[m].alarm = Alarm(m, frame, detected, raised[m], out.changes[m], tuple(x for x in out.named if x != m))
+    return list(out.named)
 
 
 def _resolve(rig: Rig, R, t, blobs: TakeBlobs, report: WatchReport, tests: list[CameraTest]) -> None:
@@ -355,6 +475,9 @@ def _resolve(rig: Rig, R, t, blobs: TakeBlobs, report: WatchReport, tests: list[
     for c in moved:
         health = report.cameras[c]
         assert health.moved_at is not None
+        if health.one_of:  # which of them moved the take cannot tell: neither is re-solved (a coin toss is not made)
+            health.not_resolved = ONE_OF_ADVICE
+            continue
         out = resolve_moved(rig, R, t, blobs, c, health.moved_at + health.drift_frames + SETTLE_FRAMES, moved,
                             before=None if health.before_take else health.moved_at, wander=wander_share(tests[c]))
         if isinstance(out, Resolved):

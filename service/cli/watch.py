@@ -15,7 +15,7 @@ EXIT_UNJUDGED = 3  # the take is too short to judge any camera (as check's "coul
 def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None:
     p = sub.add_parser("watch", help="watch a take with a standing result: each camera's health, any moved camera "
                        "named and re-solved without a wand",
-                       epilog="exit status: 0 every camera healthy; 1 a camera moved or drifts (named); 3 the take is too short to judge; 2 bad input (a take "
+                       epilog="exit status: 0 every camera healthy; 1 a camera moved or drifts (named), or one of several moved (status one_of: the take cannot tell which); 3 the take is too short to judge; 2 bad input (a take "
                        "with no blobs, blobs in fewer than three cameras, a take of another rig)")
     p.set_defaults(run=run_watch)
     if arguments:
@@ -64,7 +64,13 @@ def _print_report(report, args) -> None:
     for h in report.cameras:
         sees = f"{h.detectable_turn_deg:.2f} deg" if math.isfinite(h.detectable_turn_deg) else "-"
         print(f"{h.id:<16} {h.status:<9} {h.residual_px:>11.3f} {h.matched:>8.1%} {sees:>13}")
+    told: set[str] = set()
     for h in report.moved:
+        if h.one_of:  # a move the take cannot pin on one camera: said once for them all, none re-solved
+            if h.id not in told:
+                print(h.message.replace("RESULT", str(args.result)))
+                told.update([h.id, *h.one_of])
+            continue
         how = (f"drifting over {h.drift_frames} frames from frame {h.moved_at}" if h.kind == "drift"
                else f"moved before the take began (it disagrees with {args.result} from frame {h.moved_at})"
                if h.before_take else f"knocked at frame {h.moved_at}")

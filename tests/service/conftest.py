@@ -136,6 +136,19 @@ def big_capture(tmp_path_factory):
     return simulated_capture(tmp_path_factory.mktemp("big") / "capture", cameras=8, frames=1500, noise_px=0.3, seed=5)
 
 
+@pytest.fixture(scope="session")
+def watch_standing(tmp_path_factory) -> Path:
+    """The watch tests' standing result (test_cli_watch, test_live_take, test_page_watch): ``wandcal
+    simulate --cameras 6 --frames 600 --seed 7`` calibrated by the command line, once a worker (each
+    of them made the same file itself). Read it, or copy it before writing beside it."""
+    root = tmp_path_factory.mktemp("watch_standing")
+    for args in (("simulate", root / "wand", "--cameras", 6, "--frames", 600, "--seed", 7),
+                 ("calibrate", root / "wand", "--out", root / "standing.json", "--quiet")):
+        r = wandcal(*args)
+        assert r.returncode == 0, r.stderr
+    return root / "standing.json"
+
+
 def wait_job(client: httpx.Client, job_id: str, timeout_s: float = JOB_TIMEOUT_S, until=("done", "failed", "cancelled")):
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:

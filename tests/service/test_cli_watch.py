@@ -3,6 +3,7 @@ moved camera named, 0 for a clean take, 2 with a clear message for a take that c
 
 import functools
 import json
+import shutil
 
 import pytest
 
@@ -13,11 +14,10 @@ wandcal = functools.partial(run_wandcal, timeout=900)  # a take's watch: the slo
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory):
+def root(tmp_path_factory, watch_standing):
     root = tmp_path_factory.mktemp("watch")
-    for args in (("simulate", root / "wand", "--cameras", 6, "--frames", 600, "--seed", 7),
-                 ("calibrate", root / "wand", "--out", root / "result.json", "--quiet"),
-                 ("simulate", root / "clean", "--take", "--cameras", 6, "--frames", 400, "--seed", 7),
+    shutil.copyfile(watch_standing, root / "result.json")  # 6 cameras, seed 7, calibrated (tests/service/conftest.py)
+    for args in (("simulate", root / "clean", "--take", "--cameras", 6, "--frames", 400, "--seed", 7),
                  ("simulate", root / "knock", "--take", "--cameras", 6, "--frames", 600, "--seed", 7,
                   "--move", "cam2:300:0.3:2"),
                  ("simulate", root / "after", "--take", "--cameras", 6, "--frames", 300, "--seed", 7,

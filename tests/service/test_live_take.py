@@ -17,7 +17,6 @@ from urllib.parse import parse_qsl, urlsplit
 import numpy as np
 import pytest
 
-from tests.service.conftest import wandcal
 from wandcal.calib.detect import CameraDetector
 from wandcal.calib.watch.take import TakeBlobs
 from wandcal.calib.watch.watch import watch_take
@@ -86,14 +85,9 @@ def _rendered_take(url: str, frames: int) -> TakeBlobs:
 
 
 @pytest.fixture(scope="module")
-def standing(tmp_path_factory):
-    """The page test's standing result: ``wandcal simulate --cameras 6 --seed 7`` calibrated."""
-    root = tmp_path_factory.mktemp("live_take")
-    for args in (("simulate", root / "wand", "--cameras", "6", "--frames", "600", "--seed", "7"),
-                 ("calibrate", root / "wand", "--out", root / "standing.json", "--quiet")):
-        r = wandcal(*args)
-        assert r.returncode == 0, r.stderr
-    return root / "standing.json"
+def standing(watch_standing):
+    """The page test's standing result: ``wandcal simulate --cameras 6 --seed 7`` calibrated (tests/service/conftest.py)."""
+    return watch_standing
 
 
 @pytest.mark.slow

@@ -9,7 +9,6 @@ import time
 import pytest
 
 from tests.service.browser import Browser
-from tests.service.conftest import wandcal
 from tests.service.test_page import CHROMIUM, artefact
 from wandcal.drivers.trigger_emulator import EmulatorProcess
 
@@ -25,12 +24,8 @@ def rows(browser) -> dict:
                       "[r.dataset.watchCamera, r.dataset.status]))")
 
 
-def test_the_live_panel_shows_each_cameras_health_and_offers_the_resolve(make_server, tmp_path):
-    for args in (("simulate", str(tmp_path / "wand"), "--cameras", "6", "--frames", "600", "--seed", "7"),
-                 ("calibrate", str(tmp_path / "wand"), "--out", str(tmp_path / "standing.json"), "--quiet")):
-        r = wandcal(*args)
-        assert r.returncode == 0, r.stderr
-    standing = json.loads((tmp_path / "standing.json").read_text())
+def test_the_live_panel_shows_each_cameras_health_and_offers_the_resolve(make_server, tmp_path, watch_standing):
+    standing = json.loads(watch_standing.read_text())  # 6 cameras, seed 7, calibrated (tests/service/conftest.py)
     server = make_server(workers=1).start()
     # triggered, as a lab's rig: every camera exposes on the same pulse, so a set is one instant
     with EmulatorProcess() as emu, server.client() as c, Browser(CHROMIUM, tmp_path / "profile") as browser:

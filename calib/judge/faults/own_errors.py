@@ -145,41 +145,80 @@ def capped(views: Views, max_views: int) -> Views:
     return views.without(~keep[views.point])
 
 
-def _project(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray):
-    """(Xc (M, 3), residual (M, 2) projected minus observed, D (M, 2, 3) the projection's derivative
-    in the camera-frame point)."""
-    Xc = np.einsum("mij,mj->mi", R[views.camera], X[views.point]) + t[views.camera]
-    z = Xc[:, 2]
-    proj = Xc[:, :2] / z[:, None]
-    D = np.zeros((len(z), 2, 3))
-    D[:, 0, 0] = D[:, 1, 1] = 1 / z
-    D[:, :, 2] = -proj / z[:, None]
-    return Xc, proj - views.xy, D
+def _project(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray, Rv: np.ndarray | None = None):
+    """(Xc (M, 3), residual (M, 2) projected minus observed, proj (M, 2) the projection). Rv:
+    (M, 3, 3) each view's rotation ``R[views.camera]``, where already gathered."""
+    Rv = R[views.camera] if Rv is None else Rv
+    Xc = np.einsum("mij,mj->mi", Rv, X[views.point]) + t[views.camera]
+    proj = Xc[:, :2] / Xc[:, 2:]
+    return Xc, proj - views.xy, proj
+
+
+def _whitened_jacobian(rows: tuple[np.ndarray, np.ndarray, np.ndarray], proj: np.ndarray, z: np.ndarray,
+                       w: np.ndarray) -> np.ndarray:
+    """(M, 2, 3) the point's columns times the weights w (M,): the projection's derivative in the
+    camera-frame point, (I_2 | -proj) / z, times the rotation (its ``rows`` R[0], R[1], R[2], each
+    (M, 3)); row k is (R[k] - proj_k R[2]) / z."""
+    s = (w / z)[:, None]
+    J = np.empty((len(z), 2, 3))
+    J[:, 0] = (rows[0] - proj[:, :1] * rows[2]) * s
+    J[:, 1] = (rows[1] - proj[:, 1:] * rows[2]) * s
+    return J
+
+
+_UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # a symmetric 3 x 3's six entries
+_FULL = (0, 1, 2, 1, 3, 4, 2, 4, 5)  # its nine, row by row, as indices into the six
 
 
 def _normal(J: np.ndarray, r: np.ndarray, point: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each point's normal matrix (P, 3, 3) and gradient (P, 3) from whitened J (M, 2, 3), r (M, 2)."""
-    JtJ = np.einsum("mki,mkj->mij", J, J).reshape(len(J), 9)
-    Jtr = np.einsum("mki,mk->mi", J, r)
-    A = np.stack([np.bincount(point, JtJ[:, k], n) for k in range(9)], axis=1).reshape(n, 3, 3)
-    b = np.stack([np.bincount(point, Jtr[:, k], n) for k in range(3)], axis=1)
-    return A, b
+    """Each point's normal matrix (P, 3, 3) and gradient (P, 3) from whitened J (M, 2, 3), r (M, 2):
+    the six distinct entries of each view's J^T J summed by point, then mirrored."""
+    A = np.stack([np.bincount(point, J[:, 0, i] * J[:, 0, j] + J[:, 1, i] * J[:, 1, j], n) for i, j in _UPPER], axis=1)
+    b = np.stack([np.bincount(point, J[:, 0, i] * r[:, 0] + J[:, 1, i] * r[:, 1], n) for i in range(3)], axis=1)
+    return A[:, _FULL].reshape(n, 3, 3), b
+
+
+def _symmetric_inverse(A: np.ndarray) -> np.ndarray:
+    """(P, 3, 3) the inverses of symmetric positive (semi)definite A (P, 3, 3) by cofactors over the
+    determinant (the same inverse as an LU's to rounding where A is well conditioned; the ridge
+    :func:`_fit` adds keeps it finite where it is not)."""
+    a, b_, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
+    d, e, f = A[:, 1, 1], A[:, 1, 2], A[:, 2, 2]
+    c00, c01, c02 = d * f - e * e, c * e - b_ * f, b_ * e - c * d
+    c11, c12, c22 = a * f - c * c, b_ * c - a * e, a * d - b_ * b_
+    inv_det = 1 / (a * c00 + b_ * c01 + c * c02)
+    six = np.stack([c00, c01, c02, c11, c12, c22], axis=1) * inv_det[:, None]
+    return six[:, _FULL].reshape(len(A), 3, 3)
+
+
+def _redundancy(J: np.ndarray, Ainv: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """(M,) each view's redundancy 2 - trace(J Ainv J^T), J (M, 2, 3) whitened, Ainv (P, 3, 3) the
+    points' inverse normal matrices (symmetric: v^T Ainv v from its six entries), point (M,)."""
+    six = Ainv.reshape(len(Ainv), 9)[:, [0, 1, 2, 4, 5, 8]][point]
+    trace = np.zeros(len(J))
+    for k in range(2):
+        v0, v1, v2 = J[:, k, 0], J[:, k, 1], J[:, k, 2]
+        trace += (six[:, 0] * v0 * v0 + six[:, 3] * v1 * v1 + six[:, 5] * v2 * v2
+                  + 2 * (six[:, 1] * v0 * v1 + six[:, 2] * v0 * v2 + six[:, 4] * v1 * v2))
+    return 2 - trace
 
 
 def _fit(R: np.ndarray, t: np.ndarray, views: Views, X: np.ndarray, sigma: np.ndarray, rounds: int = 3):
     """The points X (P, 3) refitted to all their views, weighted by 1/sigma: Gauss-Newton. Returns
     (X, Xc, whitened r, whitened J, Ainv, rho: (M,) each view's redundancy)."""
     w = 1 / sigma[views.camera]
+    Rv = R[views.camera]
+    rows = (np.ascontiguousarray(Rv[:, 0]), np.ascontiguousarray(Rv[:, 1]), np.ascontiguousarray(Rv[:, 2]))
     for k in range(rounds + 1):
-        Xc, r, D = _project(R, t, views, X)
-        J = np.einsum("mij,mjk->mik", D, R[views.camera]) * w[:, None, None]
+        Xc, r, proj = _project(R, t, views, X, Rv)
+        J = _whitened_jacobian(rows, proj, Xc[:, 2], w)
         r = r * w[:, None]
         A, b = _normal(J, r, views.point, views.n_points)
         # a point's normal matrix is well conditioned where two rays meet at an angle; the ridge
         # keeps a nearly parallel pair finite (it is then hardly tested, as it should be)
-        Ainv = np.linalg.inv(A + 1e-9 * np.trace(A, axis1=1, axis2=2)[:, None, None] * np.eye(3))
+        Ainv = _symmetric_inverse(A + 1e-9 * np.trace(A, axis1=1, axis2=2)[:, None, None] * np.eye(3))
         if k == rounds:
-            return X, Xc, r, J, Ainv, 2 - np.einsum("mki,mij,mkj->m", J, Ainv[views.point], J)
+            return X, Xc, r, J, Ainv, _redundancy(J, Ainv, views.point)
         X = X - np.einsum("pij,pj->pi", Ainv, b)
     raise AssertionError("unreachable")
 

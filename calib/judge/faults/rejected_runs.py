@@ -24,6 +24,7 @@ rejected views count, and the camera of smallest p that turns back is the one na
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,17 +63,36 @@ class RejectedRun:
 
 def binomial_upper(k: int, n: int, alpha: float = 0.025) -> float:
     """The Clopper-Pearson upper bound of a rate seen k times in n: the q at which k or fewer
-    happen with probability ``alpha`` (1 with n = 0)."""
+    happen with probability ``alpha`` (1 with n = 0). The root of P(Bin(n, q) <= k) = alpha by
+    Newton's method on the exact sum, whose derivative in q is -(n - k) C(n, k) q^k (1 - q)^(n - k - 1),
+    from Wilson's upper bound, each step kept inside the bracket the sum's signs leave (a bisection
+    step where it would leave it): the 60-step bisection's root within 1e-13 relative in 4-8 sums
+    (decision 0090)."""
     if n == 0 or k >= n:
         return 1.0
-    lo, hi = k / n, 1.0
     j = np.arange(k + 1)
     log_comb = np.concatenate([[0.0], np.cumsum(np.log((n - j[1:] + 1) / j[1:]))])  # log C(n, j), j <= k
-    for _ in range(60):
-        q = (lo + hi) / 2
-        cdf = float(np.exp(log_comb + j * np.log(q) + (n - j) * np.log1p(-q)).sum())  # P(Bin(n, q) <= k)
-        lo, hi = (q, hi) if cdf > alpha else (lo, q)
-    return hi
+    log_slope = math.log(n - k) + float(log_comb[-1])  # log (n - k) C(n, k)
+    lo, hi = k / n, 1.0
+    q = _wilson_upper(k, n)
+    q = q if lo < q < hi else (lo + hi) / 2
+    for _ in range(100):
+        lq, l1q = math.log(q), math.log1p(-q)
+        f = float(np.exp(log_comb + j * lq + (n - j) * l1q).sum()) - alpha  # P(Bin(n, q) <= k) - alpha
+        lo, hi = (q, hi) if f > 0 else (lo, q)
+        slope = math.exp(log_slope + k * lq + (n - k - 1) * l1q)  # -f'(q), 0 where it underflows
+        nxt = q + f / slope if slope > 0 and lo < q + f / slope < hi else (lo + hi) / 2
+        if abs(nxt - q) <= 1e-15 * q or hi - lo <= 1e-15 * hi:
+            return nxt
+        q = nxt
+    return q
+
+
+def _wilson_upper(k: int, n: int, z: float = 1.959963984540054) -> float:
+    """Wilson's score bound of a rate seen k times in n (the normal approximation's, two-sided 95%):
+    the start of :func:`binomial_upper`'s Newton steps."""
+    p = k / n
+    return (p + z * z / (2 * n) + z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))) / (1 + z * z / n)
 
 
 def block_against_rate(rejected: np.ndarray, frames: np.ndarray, q: float) -> RejectedRun | None:
@@ -126,6 +146,15 @@ def _camera_frames(res: Residuals, c: int, shared: np.ndarray | None = None) -> 
     return rows, res.outlier[rows]
 
 
+def _every_cameras_frames(res: Residuals, n_cameras: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`_camera_frames` of every camera from one stable sort of the shared rows by (camera,
+    capture frame): the rows in the order each camera's own stable sort by frame gives them."""
+    rows = _shared_wand_rows(res)
+    rows = rows[np.lexsort((res.frames[res.point[rows] // 2], res.camera[rows]))]
+    bounds = np.searchsorted(res.camera[rows], np.arange(n_cameras + 1))
+    return [(r, res.outlier[r]) for r in (rows[bounds[c]:bounds[c + 1]] for c in range(n_cameras))]
+
+
 def camera_runs(res: Residuals, n_cameras: int) -> list[tuple[RejectedRun, float] | None]:
     """Each camera's :func:`block_against_rate` on its wand camera-frames (a point track's
     observations have no time the wand's shares) that another camera sees too, and the rate it was
@@ -133,8 +162,7 @@ def camera_runs(res: Residuals, n_cameras: int) -> list[tuple[RejectedRun, float
     in the frames outside the camera's block (a knock rejects its partners' views in the frames they
     share with it too: in a frame of two views the error is split), the block found at the others'
     whole rate first, then again at that rate."""
-    shared = _shared_wand_rows(res)
-    per = [_camera_frames(res, c, shared) for c in range(n_cameras)]
+    per = _every_cameras_frames(res, n_cameras)
     frame_of = [res.point[rows] // 2 for rows, _ in per]
     all_frames = np.concatenate(frame_of) if per else np.zeros(0, np.int64)
     all_out = np.concatenate([o for _, o in per]) if per else np.zeros(0, bool)

@@ -204,17 +204,22 @@ def _share(y: np.ndarray, base: np.ndarray, extra: np.ndarray) -> tuple[float, n
     scale = np.sqrt(np.add.reduce(both * both, axis=0))  # np.linalg.norm(both, axis=0) without its copy
     scale[scale == 0] = 1.0
     A = both / scale
-    G, b, yy = A.T @ A, A.T @ y, float(y @ y)
-    k = base.shape[1]
+    return _normal_share(A.T @ A, A.T @ y, float(y @ y), scale, base.shape[1], len(y))
+
+
+def _normal_share(G: np.ndarray, b: np.ndarray, yy: float, scale: np.ndarray, k: int, rows: int
+                  ) -> tuple[float, np.ndarray, float]:
+    """:func:`_share` from the scaled columns' normal equations: G (n, n) = A^T A, b (n,) = A^T y,
+    yy = y^T y, scale (n,) the columns' norms, the first ``k`` columns the base, ``rows`` y's length."""
 
     def fit(n: int) -> tuple[np.ndarray, float]:
         x = np.linalg.lstsq(G[:n, :n], b[:n], rcond=None)[0]  # a tiny system: lstsq for a rank-poor one
         return x, max(yy - float(b[:n] @ x), 0.0)
 
     _, rss0 = fit(k)
-    coef, rss1 = fit(A.shape[1])
-    dof = max(len(y) - both.shape[1], 1)
-    f_stat = ((rss0 - rss1) / extra.shape[1]) / max(rss1 / dof, 1e-300)
+    coef, rss1 = fit(len(G))
+    dof = max(rows - len(G), 1)
+    f_stat = ((rss0 - rss1) / (len(G) - k)) / max(rss1 / dof, 1e-300)
     return (1 - rss1 / rss0 if rss0 > 0 else 0.0), (coef / scale)[k:], float(f_stat)
 
 
@@ -340,4 +345,35 @@ def lens_screen(R: np.ndarray, t: np.ndarray, res, c: int) -> Lens | None:
     ok = finite_rows(X)
     if not ok.all():
         X, xy, r = X[ok], xy[ok], r[ok]
-    return _lens_fit(r.ravel(), _pose_columns(R[c], t[c], X), xy)
+    return _screen_fit(r.ravel(), R[c], t[c], X, xy)
+
+
+def _screen_fit(y: np.ndarray, R: np.ndarray, t: np.ndarray, X: np.ndarray, xy: np.ndarray) -> Lens:
+    """:func:`_lens_fit` of y (2K,) on :func:`_pose_columns` at X (K, 3) and :func:`lens_columns` at
+    xy (K, 2), its ten columns written into one (2K, 10) array and its normal matrix scaled after
+    the product (the columns' norms from its diagonal), not before: no copies of the rows (half
+    the screen's time). The same columns bit for bit and the same least squares; only the normal
+    matrix's rounding differs from :func:`_share`'s, by which the share and F moved by at most
+    2.1e-11 relative (every camera of simulated 16 x 2500, 8 x 1500, 6 x 800 and 4 x 300 rigs):
+    the screen's suspects change only for a statistic that close to its limit. Nothing of it is
+    written."""
+    RX = X @ R.T
+    Xc = RX + t
+    z = Xc[:, 2]
+    x, yn = Xc[:, 0] / z, Xc[:, 1] / z
+    M = np.zeros((len(X), 2, 10))  # rows x0, y0, x1, y1, ...: the pose's six, then the lens's four
+    M[:, 0, 0], M[:, 0, 1], M[:, 0, 2], M[:, 0, 3], M[:, 0, 5] = (
+        -(x * RX[:, 1]) / z, (RX[:, 2] + x * RX[:, 0]) / z, -RX[:, 1] / z, 1.0 / z, -x / z)
+    M[:, 1, 0], M[:, 1, 1], M[:, 1, 2], M[:, 1, 4], M[:, 1, 5] = (
+        (-RX[:, 2] - yn * RX[:, 1]) / z, (yn * RX[:, 0]) / z, RX[:, 0] / z, 1.0 / z, -yn / z)
+    radius2 = np.einsum("ki,ki->k", xy, xy)
+    M[:, :, 6] = xy
+    M[:, :, 7] = xy * radius2[:, None]
+    M[:, 0, 8] = M[:, 1, 9] = 1.0
+    A = M.reshape(-1, 10)
+    G, b = A.T @ A, A.T @ y
+    scale = np.sqrt(np.diag(G).copy())
+    scale[scale == 0] = 1.0
+    share, coef, f_stat = _normal_share(G / np.outer(scale, scale), b / scale, float(y @ y), scale, 6, len(y))
+    return Lens(focal_error=float(coef[0]), k1_error=float(coef[1]), principal_error=(float(coef[2]), float(coef[3])),
+                explained=float(share), f_stat=f_stat)

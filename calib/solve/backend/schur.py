@@ -34,11 +34,12 @@ CHUNK_GROUPS = 16_384  # observation groups linearised and summed at once: ~30 M
 MIN_DIAGONAL = 1e-9  # floor of the damping's diagonal, as Ceres's min_lm_diagonal: a parameter no
 # residual touches would otherwise make the damped system singular
 # the reduced camera system's width (6 x cameras) from which its inverse comes from LAPACK's Cholesky
-# routines (potrf, potri: n^3 flops) rather than NumPy's Cholesky test and LU inverse (3 n^3), whose
-# import of scipy.linalg (0.2 CPU s) it then pays for: one BLAS thread, CPU s a solve, 768 wide
-# (128 cameras) 0.052 against 0.024 (4-10 solves a calibration: about the import), 1536 wide (256
-# cameras) 0.43 against 0.18 (docs/decisions/0059-wide-inverse.md). Narrower systems (every rig
-# up to 170 cameras, the acceptance rig's 48) keep NumPy's routines and their digits
+# routines (potrf, potri: n^3 flops), whose import of scipy.linalg (0.2 CPU s) it then pays for
+# (docs/decisions/0059-wide-inverse.md: 1536 wide, 256 cameras, 0.43 against 0.18 CPU s a solve for
+# NumPy's Cholesky test and LU inverse). Narrower systems (every rig up to 170 cameras) keep NumPy:
+# its Cholesky factor and the factor's inverse by halves in matrix products (n^3 flops with the
+# test), the whole inverse formed only for the covariance (decision 0088: 768 wide, 0.024 against
+# the LU inverse's 0.068 CPU s a solve)
 LAPACK_INVERSE_WIDTH = 1024
 
 
@@ -214,20 +215,59 @@ def _damped(blocks: np.ndarray, lam: float) -> np.ndarray:
     return out
 
 
+TRIANGULAR_BLOCK = 96  # widths up to which a triangular factor is inverted by NumPy's inverse
+# whole; wider, by halves (:func:`_lower_inverse`), whose products are BLAS's
+
+
+class ReducedInverse:
+    """The inverse of the reduced camera system S (n, n), kept as what made it: either the
+    inverse itself (``full``) or the inverse of S's Cholesky factor, ``factor`` = L^-1 (lower
+    triangular), S^-1 = L^-T L^-1. A step needs S^-1 b and diag(S^-1), each O(n^2) from the
+    factor; the whole inverse (one symmetric product, n^3 flops) is formed only when asked for,
+    by the pose covariance."""
+
+    def __init__(self, *, full: np.ndarray | None = None, factor: np.ndarray | None = None):
+        self._full, self._factor = full, factor
+
+    def diagonal(self) -> np.ndarray:
+        """diag(S^-1) (n,): the squared columns of L^-1 summed."""
+        if self._factor is None:
+            return np.diag(self.full()).copy()
+        return np.einsum("ij,ij->j", self._factor, self._factor)
+
+    def times(self, b: np.ndarray) -> np.ndarray:
+        """S^-1 b for b (n,)."""
+        if self._factor is None:
+            return self.full() @ b
+        return self._factor.T @ (self._factor @ b)
+
+    def full(self) -> np.ndarray:
+        """S^-1 (n, n), symmetric; formed once."""
+        if self._full is None:
+            assert self._factor is not None
+            self._full = self._factor.T @ self._factor  # NumPy's matmul of a matrix by its own transpose: BLAS's syrk
+        return self._full
+
+
 @dataclass(eq=False)
 class Step:
     """A solved step: dc (N, c) for the cameras, dp per term (P, p), and, for standard errors,
     the diagonal of the reduced camera system's inverse (N, c) and of each V^-1 (P, p); the
-    whole inverse (N c, N c) and the V^-1 blocks are kept for the pose covariance (and for
-    :func:`solve_again`)."""
+    reduced system's inverse (:class:`ReducedInverse`; ``cam_cov`` its whole (N c, N c)) and the
+    V^-1 blocks are kept for the pose covariance (and for :func:`solve_again`)."""
 
     dc: np.ndarray
     dp: list[np.ndarray]
     cam_var: np.ndarray
     pt_var: list[np.ndarray]
-    cam_cov: np.ndarray
+    inverse: ReducedInverse
     pt_inv: list[np.ndarray]
     lam: float = 0.0  # the damping it was solved at
+
+    @property
+    def cam_cov(self) -> np.ndarray:
+        """The reduced camera system's inverse (N c, N c)."""
+        return self.inverse.full()
 
 
 def solve(normal: Normal, lam: float) -> Step | None:
@@ -256,22 +296,23 @@ def solve(normal: Normal, lam: float) -> Step | None:
     S_inv = _spd_inverse(S)  # its diagonal gives the standard errors
     if S_inv is None:
         return None
-    dc = -(S_inv @ b.ravel()).reshape(n, c)
-    return Step(dc, _back_substituted(normal, solved, dc), np.diag(S_inv).reshape(n, c).copy(),
+    dc = -S_inv.times(b.ravel()).reshape(n, c)
+    return Step(dc, _back_substituted(normal, solved, dc), S_inv.diagonal().reshape(n, c),
                 [np.einsum("pii->pi", Vinv) for Vinv in solved], S_inv, solved, lam)
 
 
-def _spd_inverse(S: np.ndarray) -> np.ndarray | None:
+def _spd_inverse(S: np.ndarray) -> ReducedInverse | None:
     """The inverse of the symmetric (n, n) ``S``; None when it is not positive definite (no step at
-    this damping). Up to :data:`LAPACK_INVERSE_WIDTH` NumPy's routines (its inverse as cheap as a
-    triangular solve there, and scipy.linalg's start-up spared); wider, LAPACK's from the Cholesky
-    factor, which is also the test."""
+    this damping). Up to :data:`LAPACK_INVERSE_WIDTH` from NumPy's Cholesky factor L (also the
+    test) and its triangular inverse (:func:`_lower_inverse`): 1/3 + 2/3 n^3 flops, not the LU
+    inverse's 8/3 after the test (CPU s a solve, one BLAS thread, 768 wide: 0.024 against 0.068),
+    and scipy.linalg's start-up spared; wider, LAPACK's potrf and potri, the whole inverse."""
     if len(S) < LAPACK_INVERSE_WIDTH:
         try:
-            np.linalg.cholesky(S)
+            L = np.linalg.cholesky(S)
         except np.linalg.LinAlgError:
             return None
-        return np.linalg.inv(S)
+        return ReducedInverse(factor=_lower_inverse(L))
     from scipy.linalg.lapack import dpotrf, dpotri
 
     factor, info = dpotrf(S, lower=False, clean=False)
@@ -280,7 +321,22 @@ def _spd_inverse(S: np.ndarray) -> np.ndarray | None:
     upper, info = dpotri(factor, lower=False)
     if info != 0:
         return None
-    return np.triu(upper) + np.triu(upper, 1).T
+    return ReducedInverse(full=np.triu(upper) + np.triu(upper, 1).T)
+
+
+def _lower_inverse(L: np.ndarray) -> np.ndarray:
+    """The inverse of the lower-triangular (n, n) ``L`` (nonzero diagonal), lower triangular: by
+    halves, [[A, 0], [B, C]]^-1 = [[A^-1, 0], [-C^-1 B A^-1, C^-1]], down to
+    :data:`TRIANGULAR_BLOCK` wide blocks inverted whole (2/3 n^3 flops in matrix products)."""
+    n = len(L)
+    if n <= TRIANGULAR_BLOCK:
+        return np.linalg.inv(L)
+    h = n // 2
+    A_inv, C_inv = _lower_inverse(L[:h, :h]), _lower_inverse(L[h:, h:])
+    out = np.zeros_like(L)
+    out[:h, :h], out[h:, h:] = A_inv, C_inv
+    out[h:, :h] = -(C_inv @ (L[h:, :h] @ A_inv))
+    return out
 
 
 def solve_again(normal: Normal, factored: Step) -> Step:
@@ -292,7 +348,7 @@ def solve_again(normal: Normal, factored: Step) -> Step:
     for t, Vinv in zip(normal.terms, factored.pt_inv):
         s = t.structure
         b -= _summed(s.pair_to_cam, np.einsum("kij,kj->ki", t.W, np.einsum("pij,pj->pi", Vinv, t.gp)[s.pair_pt]), n)
-    dc = -(factored.cam_cov @ b.ravel()).reshape(n, c)
+    dc = -factored.inverse.times(b.ravel()).reshape(n, c)
     return replace(factored, dc=dc, dp=_back_substituted(normal, factored.pt_inv, dc))
 
 
@@ -359,10 +415,13 @@ def _subtract_gram_sparse(S: np.ndarray, W: np.ndarray, LinvT: np.ndarray, s: Te
     edges = np.unique(np.r_[0, np.searchsorted(total, np.arange(SPARSE_GRAM_PRODUCTS, total[-1], SPARSE_GRAM_PRODUCTS),
                                                 side="right"), len(per_pair)])
     Z = W @ LinvT[s.pair_pt]  # (K, c, p)
+    ZT = np.ascontiguousarray(np.swapaxes(Z, 1, 2))  # (K, p, c): each Z_j^T gathered whole
     for lo, hi in zip(edges[:-1], edges[1:]):
         i = np.repeat(np.arange(lo, hi), per_pair[lo:hi])
         # j runs over the block's pairs: its first pair plus 0, 1, ..., count - 1
         j = starts[s.pair_pt[i]] + np.arange(len(i)) - np.repeat(np.cumsum(per_pair[lo:hi]) - per_pair[lo:hi], per_pair[lo:hi])
-        G = np.einsum("kcp,kdp->kcd", Z[i], Z[j])
+        # batched matmul, not einsum's loop over the tiny (c, p) x (p, c) products: a third of the
+        # time at hallway:128x3000 (25,662 products, 4 against 13 ms), equal to 2e-16 relative
+        G = Z[i] @ ZT[j]
         at = (s.pair_cam[i] * c * n * c + s.pair_cam[j] * c)[:, None, None] + within
         flat -= np.bincount(at.ravel(), G.ravel(), minlength=flat.size)

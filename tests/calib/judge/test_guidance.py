@@ -212,6 +212,21 @@ def test_the_subsample_is_nested_as_the_capture_grows(covered):
     assert np.all(per_camera >= 100 * 0.7), per_camera  # about the cap for each camera
 
 
+def test_the_links_count_as_the_start_counts_them():
+    # the guidance counts each frame's camera pairs (sparse); the start's table is frames x cameras:
+    # the same integers on a sparse capture with repeated camera-frames and a camera that saw nothing
+    from wandcal.calib.observations import WandPairs
+    from wandcal.calib.run.guidance.update import _shared_frames
+    from wandcal.calib.start.initial import shared_frames
+
+    rng = np.random.default_rng(3)
+    frame = rng.integers(0, 40, 300)
+    camera = rng.integers(0, 6, 300)  # camera 6 of 7 never seen; some (frame, camera) rows twice
+    pairs = WandPairs(frame, camera, np.zeros((300, 2, 2)), np.zeros((300, 2, 2)), np.arange(40))
+    np.testing.assert_array_equal(_shared_frames(pairs, 7), shared_frames(pairs, 7))
+    assert _shared_frames(WandPairs.empty(), 3).shape == (3, 3)
+
+
 def test_a_warm_start_gives_the_cold_answer(covered):
     rig, wand, static, _ = covered
     cold = wanding_guidance(rig, first_frames(wand, 800), static)

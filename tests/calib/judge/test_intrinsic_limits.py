@@ -23,6 +23,7 @@ from wandcal.calib.judge.intrinsic_limits import (
     limit_entry,
     limited_cameras,
 )
+from wandcal.calib.judge.verdict import SIGMA_REL_SE
 from wandcal.calib.rig import Camera
 
 
@@ -135,15 +136,30 @@ def test_a_k1_off_moves_an_observation_by_k1_r2_times_its_radius():
 def test_a_parameter_is_named_where_it_outweighs_the_geometry_with_what_to_do():
     shift = np.array([0.003, 0.0, 0.0])
     cy = LensLimit("cy", shift, 0.0, 2.7, 0.1)  # 3 mm for 2.7 px, the data give it to 0.1 sigma
-    k2 = LensLimit("k2", shift / 10, 0.0, 0.03, 2.0)  # 0.3 mm: under twice a 0.5 mm geometry sigma
+    k2 = LensLimit("k2", shift / 20, 0.0, 0.03, 2.0)  # 0.15 mm: under a 0.5 mm geometry sigma's material share
     p1 = LensLimit("p1", shift, 0.0, 0.0007, 0.1)
     named = lens_limited("cam4", [cy, k2, p1], 0.0005, scaled=True)
     assert [n["parameter"] for n in named] == ["cy", "p1"]
-    assert named[0]["message"].startswith("cam4's position moves 3 mm for 2.7 px of its principal point's y (cy)")
+    assert named[0]["message"].startswith("cam4's principal point's y (cy) is determined by this capture (to 0.10 of its")
+    assert "(2.7 px: docs/verdict.md" in named[0]["message"] and "it moves the camera 3 mm" in named[0]["message"]
     assert "--refine-intrinsics principal" in named[0]["message"] and named[0]["evidence"]["determined"]
     assert "wandcal does not refine it" in named[1]["message"]
     undetermined = lens_limited("cam4", [LensLimit("cy", shift, 0.0, 2.7, 0.9)], 0.0005, scaled=True)
-    assert "the data cannot determine it" in undetermined[0]["message"]
+    assert undetermined[0]["message"].startswith("cam4's principal point's y (cy) cannot be determined from this capture: ")
+    assert undetermined[0]["message"].endswith("; give it from a lens calibration")
+
+
+def test_a_part_is_material_where_it_raises_the_geometry_sigma_past_its_own_standard_error():
+    """The one rule for every intrinsic: named where sqrt(geo^2 + part^2) passes (1 + SIGMA_REL_SE) geo."""
+    geo = 0.0005
+    at = np.sqrt((1 + SIGMA_REL_SE) ** 2 - 1) * geo  # the part that raises the 0.5 mm sigma by exactly 11%
+    for part, named in ((0.99 * at, False), (1.01 * at, True)):
+        assert bool(lens_limited("cam4", [LensLimit("k2", np.array([part, 0.0, 0.0]), 0.0, 0.03, 2.0)], geo, True)) is named
+        assert np.hypot(geo, part) > (1 + SIGMA_REL_SE) * geo if named else np.hypot(geo, part) < (1 + SIGMA_REL_SE) * geo
+    R, t, xy, d, r = _camera_view(3.0)
+    focal = focal_limit(R, t, xy, d, r, np.full(len(d), 10**9), 0.02, "default")
+    assert [n["camera"] for n in limited_cameras(["a", "b"], [focal, focal], [focal.std / LIMIT_RATIO * 1.01,
+                                                                             focal.std / LIMIT_RATIO * 0.99], True)] == ["b"]
 
 
 def test_the_honest_sigma_adds_every_given_intrinsics_part():

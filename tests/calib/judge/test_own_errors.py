@@ -197,3 +197,36 @@ def test_a_large_rigs_screen_times_the_tracks_in_the_wands_time():
     rig = Rig(tuple(Camera(f"cam{k}", 1280, 960, K, np.zeros(5)) for k in range(6)), 0.5)
     moved, _ = own_faults(rig, labelled, tracks, R, t, [], res)
     assert [f["camera"] for f in moved] == ["cam4"]
+
+
+def test_the_refits_written_out_products_are_the_dense_ones():
+    # the elimination's refit (decision 0090): J, the normal matrices, their inverses and the
+    # redundancies as the dense products give them, on random views of random points
+    rng = np.random.default_rng(3)
+    M, P = 200, 60
+    R = np.stack([rotvec_to_matrix(rng.normal(0, 0.3, 3)) for _ in range(4)])
+    camera, point = rng.integers(0, 4, M), rng.integers(0, P, M)
+    Xc = rng.normal(0, 1, (M, 3)) + [0, 0, 5]
+    proj, z, w = Xc[:, :2] / Xc[:, 2:], Xc[:, 2], rng.uniform(0.5, 2, M)
+    D = np.zeros((M, 2, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1 / z
+    D[:, :, 2] = -proj / z[:, None]
+    dense = np.einsum("mij,mjk->mik", D, R[camera]) * w[:, None, None]
+    J = oe._whitened_jacobian(tuple(R[camera][:, i] for i in range(3)), proj, z, w)
+    np.testing.assert_allclose(J, dense, rtol=1e-12, atol=1e-15)
+    r = rng.normal(0, 1, (M, 2))
+    A, b = oe._normal(J, r, point, P)
+    np.testing.assert_allclose(A, np.stack([sum(J[m].T @ J[m] for m in np.flatnonzero(point == p)) if (point == p).any()
+                                            else np.zeros((3, 3)) for p in range(P)]), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(b, np.stack([sum((J[m].T @ r[m] for m in np.flatnonzero(point == p)), np.zeros(3))
+                                            for p in range(P)]), rtol=1e-12, atol=1e-14)
+    A = A + 1e-9 * np.trace(A, axis1=1, axis2=2)[:, None, None] * np.eye(3) + np.eye(3) * (np.trace(A, axis1=1, axis2=2) == 0)[:, None, None]
+    Ainv = oe._symmetric_inverse(A)
+    # where two views or more meet at an angle to the rounding of either; one view's (the ridge's
+    # condition number 1e9) to that times the machine's epsilon
+    two = np.bincount(point, minlength=P) >= 2
+    np.testing.assert_allclose(Ainv[two], np.linalg.inv(A[two]), rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(Ainv, np.linalg.inv(A), rtol=1e-6)
+    rho, dense_rho = oe._redundancy(J, Ainv, point), 2 - np.einsum("mki,mij,mkj->m", J, Ainv[point], J)
+    np.testing.assert_allclose(rho[two[point]], dense_rho[two[point]], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(rho, dense_rho, atol=1e-6)  # a lone view's 0 less 1e9 times epsilon

@@ -33,6 +33,13 @@ def test_the_binomial_tail_and_bound_are_exact():
     assert binomial_upper(0, 30) == pytest.approx(1 - 0.025 ** (1 / 30), rel=1e-6)
 
 
+def test_the_bounds_newton_steps_land_on_the_binomial_sums_root_at_large_counts():
+    # a 128-camera rig's others: hundreds rejected of thousands; Newton's root of the exact sum
+    for k, n in [(244, 8000), (3000, 90000), (0, 300000), (7, 12)]:
+        q = binomial_upper(k, n)
+        assert 1 - binomial_sf(k + 1, n, q) == pytest.approx(0.025, abs=1e-10)
+
+
 def test_a_block_names_the_frame_it_ends_at():
     rejected = np.r_[np.ones(10, bool), np.zeros(20, bool)]
     run = block_against_rate(rejected, 2 * np.arange(30), 0.1)

@@ -200,3 +200,24 @@ def test_a_wide_reduced_system_is_solved_by_lapacks_cholesky_inverse_as_by_numpy
     assert schur._spd_inverse(indefinite) is None
     monkeypatch.setattr(schur, "LAPACK_INVERSE_WIDTH", 1024)
     assert schur._spd_inverse(indefinite) is None
+
+
+def test_the_reduced_systems_inverse_from_its_cholesky_factor_is_the_inverse():
+    """Below :data:`schur.LAPACK_INVERSE_WIDTH` the reduced system's inverse is kept as the inverse
+    of its Cholesky factor, that inverse taken by halves (:func:`schur._lower_inverse`) once wider
+    than :data:`schur.TRIANGULAR_BLOCK`: S^-1 b, diag(S^-1) and S^-1 itself are the inverse's to
+    rounding. A backward-stable inverse is off by at most about n eps cond(S) relative; the bound
+    asserted is ten times that."""
+    rng = np.random.default_rng(3)
+    n = 2 * schur.TRIANGULAR_BLOCK + 37  # two levels of halves, odd widths
+    A = rng.normal(size=(n, n))
+    S = A @ A.T + n * np.diag(rng.uniform(0.5, 2.0, n))
+    b = rng.normal(size=n)
+    inverse = schur._spd_inverse(S)
+    assert inverse is not None and inverse._factor is not None  # kept as the factor's inverse
+    truth = np.linalg.inv(S)
+    bound = 10 * n * np.finfo(float).eps * np.linalg.cond(S)
+    assert np.allclose(inverse.times(b), truth @ b, rtol=0, atol=bound * np.abs(truth @ b).max())
+    assert np.allclose(inverse.diagonal(), np.diag(truth), rtol=bound)
+    assert np.allclose(inverse.full(), truth, rtol=0, atol=bound * np.abs(truth).max())
+    assert np.allclose(np.tril(inverse._factor), inverse._factor)  # lower triangular, as L^-1 is

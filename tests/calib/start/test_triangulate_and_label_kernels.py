@@ -82,3 +82,38 @@ def test_labels_do_not_depend_on_the_cost_chunk(scene, monkeypatch):
     monkeypatch.setattr(labels, "COST_CHUNK", 50)
     chunked, _ = label_ends(R, t, shuffled, known, scene.sim.rig.wand_length)
     assert np.array_equal(whole.xy, chunked.xy)
+
+
+def test_two_view_frames_judged_from_the_rounds_triangulation_as_from_their_own(scene, monkeypatch):
+    # frames left in two cameras (both matchings fit the epipolar geometry there: the wand's length
+    # decides), and their swapped wands triangulated in the reprojection round's call: the same
+    # labels, margins and ends to the last digit as triangulating them in calls of their own
+    pairs, R, t = scene.pairs, scene.init.R, scene.init.t
+    two = (pairs.frame % 2 == 0) & (pairs.camera >= 2)  # every other frame keeps cameras 0 and 1 only
+    shuffled = pairs.subset(~two).swapped(np.random.default_rng(3).random(int((~two).sum())) < 0.5)
+    known = np.ones(len(R), bool)
+    assert labels._two_view_candidates(shuffled) is not None
+    together = labels.labelled_ends(R, t, shuffled, known, scene.sim.rig.wand_length)
+    own = labels._triangulated
+    monkeypatch.setattr(labels, "_triangulated", lambda R, t, sub, part, two_view: (own(R, t, sub, part, None)[0], None))
+    apart = labels.labelled_ends(R, t, shuffled, known, scene.sim.rig.wand_length)
+    assert np.array_equal(together[0].xy, apart[0].xy)
+    assert np.array_equal(together[1], apart[1])
+    assert (together[2] is None) == (apart[2] is None)
+    if together[2] is not None:
+        assert np.array_equal(together[2], apart[2], equal_nan=True)
+
+
+@pytest.mark.parametrize("dense", [False, True])
+def test_shared_frames_counted_pair_by_pair_are_the_products(dense, monkeypatch):
+    from wandcal.calib.start import chain
+
+    rng = np.random.default_rng(5)
+    for frames, cameras, most in [(400, 40, 4), (300, 8, 8), (0, 5, 2)]:
+        seen = np.zeros((frames, cameras), bool)
+        for f in range(frames):
+            seen[f, rng.choice(cameras, rng.integers(0, most + 1), replace=False)] = True
+        if dense:
+            monkeypatch.setattr(chain, "MAX_SPARSE_PAIRS", -1)
+        w = seen.astype(np.int64)
+        assert np.array_equal(chain.co_seen(seen), w.T @ w)
