@@ -125,7 +125,7 @@ def line(r: dict) -> str:
     return (f"{r['session']:<20} {r['label']:<34} step {s.degrees:.2f} +- {s.degrees_std:.2f} deg at {s.frame}, p {s.p_value:.2g}, "
             f"detectable about the knock's axis {r['bound']:.2f} deg (its own {s.detectable_deg:.2f}): "
             f"{'above' if r['degrees'] >= r['bound'] else 'below'}; independent views {r['oracle']:.2f}; "
-            f"named {r['named']}{'; other ' + ','.join(r['other']) if r['other'] else ''}; faults {', '.join(r['faults']) or '-'}")
+            f"named {r['named']}{'; other ' + ','.join(str(m) for m in r['other']) if r['other'] else ''}; faults {', '.join(r['faults']) or '-'}")
 
 
 def summary(rows: list[dict]) -> str:

@@ -350,7 +350,7 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
         noisy_cameras,
         views_of,
     )
-    from wandcal.calib.judge.faults.pose_steps import moved_camera, moved_fault
+    from wandcal.calib.judge.faults.pose_steps import moved_camera, moved_fault, unattributed_fault
     from wandcal.calib.judge.faults.step_screen import step_suspects
 
     if len(rig.cameras) < 3:
@@ -371,10 +371,13 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
         return [], []
     ids, focal = list(rig.ids), np.array([c.focal.mean() for c in rig.cameras])
     el = eliminate(R, t, views, steps=1 if large else 3)
-    moved = moved_camera(R, t, views, el, suspected) if suspected is None or suspected else None
+    unsure: list = []  # one of two or more cameras moved, the data cannot say which
+    moved = moved_camera(R, t, views, el, suspected, unsure) if suspected is None or suspected else None
     out = [*(named or []), *([] if moved is None else [moved[0]])]
     noisy = noisy_cameras(R, t, views, el, focal, out) if sparse else []
-    return ([] if moved is None else [moved_fault(ids[moved[0]], moved[1])]), [noise_fault(ids[c], n) for c, n in noisy]
+    found = [moved_fault(ids[moved[0]], moved[1])] if moved is not None else \
+        [unattributed_fault([ids[c] for c in unsure[0][0]], unsure[0][1])] if unsure else []
+    return found, [noise_fault(ids[c], n) for c, n in noisy]
 
 
 def _median_views(res: Residuals) -> float:

@@ -12,7 +12,9 @@ measured against the timed views' own scatter (:func:`_timed_dispersion`) and di
 residuals' long-run variance in time (batch means), its p-value multiplied by the number of splits
 tried (Bonferroni, the search's multiple testing). A camera is named only when leaving it out
 leaves no other camera stepping (:func:`moved_camera`): else its step is another camera's spread
-through the points. docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0076 how they
+through the points; and only when its step stands beside every other camera's move at that frame
+(:func:`explained_by`, a nested F test): else one of them moved and the views cannot say which, a
+fault of the rig (:func:`unattributed_fault`; decision 0085b). docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0076 how they
 were measured.
 """
 
@@ -34,6 +36,10 @@ MIN_BLOCKS = 4  # batch means of the residuals in time: fewer blocks say nothing
 # a step is named at this family-wise false-alarm rate per camera (Bonferroni over the splits): a
 # clean camera is called moved once in 10,000 (the clean real sessions: p >= 0.002; the knocks found: p <= 5e-5)
 STEP_ALPHA = 1e-4
+# a step is named on its camera c only where, for every other camera d, c's step stands beside d
+# having moved (explained_by): were d the one that moved, c is named at most at this rate (the
+# conventional 1%, Bonferroni over the alternatives tried; the wrong camera among the moves found)
+NAME_ALPHA = 1e-2
 
 
 @dataclass(frozen=True)
@@ -123,7 +129,7 @@ def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
     place, which no camera's lens pattern explains. The camera's own four columns are those the
     test fitted before; k2 is left out as it was (k1 takes most of a k2 error over the image)."""
     v = el.views
-    cam, pt = v.camera[rows], v.point[rows]
+    cam = v.camera[rows]
     xy = el.Xc[rows][:, :2] / el.Xc[rows][:, 2:]
     r2 = np.sum(xy**2, axis=1, keepdims=True)
     G = np.stack([xy, xy * r2, np.broadcast_to([1.0, 0.0], xy.shape), np.broadcast_to([0.0, 1.0], xy.shape)],
@@ -132,13 +138,44 @@ def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
     full = np.zeros((len(rows), 2, 4 * len(present)))
     for j, d in enumerate(present):
         full[cam == d, :, 4 * j : 4 * j + 4] = G[cam == d]
-    u = np.zeros((v.n_points, 3, full.shape[2]))
+    return _projected(el, rows, full)
+
+
+def _projected(el: Eliminated, rows: np.ndarray, full: np.ndarray) -> np.ndarray:
+    """Columns full (K, 2, n) over ``rows`` (every view of each of their points: :func:`_rows_of`),
+    whitened, with the points projected out: ``G_i - J_i Ainv J_p^T G_p``, the sums over each
+    point's views (what fitting each point again takes away)."""
+    pt = el.views.point[rows]
+    u = np.zeros((el.views.n_points, 3, full.shape[2]))
     np.add.at(u, pt, np.einsum("kmi,kmj->kij", el.J[rows], full))
     return full - np.einsum("kmi,kij,kjl->kml", el.J[rows], el.Ainv[pt], u[pt])
 
 
-def pose_step(el: Eliminated, c: int) -> Step | None:
-    """Camera c's best step in its pose (see the module's docstring); None with too few timed views."""
+def _partner_columns(el: Eliminated, rows: np.ndarray, d: int, frame: int) -> np.ndarray:
+    """(2K, 9 or 12) camera d's two poses over ``rows`` (:func:`_rows_of` of another camera),
+    whitened, the points projected out: its turn and shift (six columns), its turn after capture
+    frame ``frame`` on its timed views (three: d's own step at its split), and a turn of their own for
+    its views without a time where it has :data:`MIN_SIDE` of them (as :func:`pose_step` gives d).
+    With these in a camera's step test its null is "camera d moved at ``frame``" (:func:`explained_by`)."""
+    v = el.views
+    on = v.camera[rows] == d
+    Xc = el.Xc[rows][on]
+    D = projection_derivative(Xc) / el.sigma[d]
+    T = np.einsum("kij,kjl->kil", D, turn_response(Xc))
+    timed = v.timed[rows][on]
+    cols = [T, D, T * (timed & (v.time[rows][on] > frame))[:, None, None]]
+    if (~timed).sum() >= MIN_SIDE:
+        cols.append(T * (~timed)[:, None, None])
+    full = np.zeros((len(rows), 2, 3 * len(cols)))
+    full[on] = np.concatenate(cols, axis=2)
+    return _projected(el, rows, full).reshape(2 * len(rows), -1)
+
+
+def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None, at: int | None = None) -> Step | None:
+    """Camera c's best step in its pose (see the module's docstring); None with too few timed views.
+    given: (camera d, frame) puts d's two poses, split at that frame, into the base
+    (:func:`_partner_columns`): c's step beyond what d's move explains (:func:`explained_by`);
+    at: the one split tested (no search, so no Bonferroni factor), a capture frame of c's."""
     v = el.views
     rows, own, proj = _rows_of(el, c)
     turn, shift = _pose_columns(el, c, rows, own, proj)
@@ -153,12 +190,16 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
     base = [turn.reshape(n_rows, 3), shift.reshape(n_rows, 3), lens.reshape(n_rows, lens.shape[2])]
     if (~timed[mine]).sum() >= MIN_SIDE:  # a pose of their own for the views without a time (see above)
         base.append(turn.reshape(n_rows, 3) * np.repeat(~timed, 2)[:, None])
+    if given is not None:
+        base.append(_partner_columns(el, rows, *given))
     base_cols = np.concatenate(base, axis=1)
     step = turn.reshape(n_rows, 3)
     yv = y.ravel()
     candidates = np.unique(times[MIN_SIDE - 1 : len(times) - MIN_SIDE])
     if len(candidates) > MAX_SPLITS:
         candidates = candidates[np.linspace(0, len(candidates) - 1, MAX_SPLITS).astype(int)]
+    if at is not None:
+        candidates = np.array([at])
     keep = np.ones(len(rows), bool)
     for _ in range(TRIM_ROUNDS):
         best = _best_split(base_cols, step, yv, time, timed, candidates, keep, el.rho[rows])
@@ -189,6 +230,11 @@ def pose_step(el: Eliminated, c: int) -> Step | None:
     return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
                 float(1 - rss1 / rss0) if rss0 > 0 else 0.0, float(min(dof, dof_f, inflation[1])), len(candidates),
                 w_hat, turn_cov, float(inflation[0]), float(min(dof, dof_f)))
+
+
+# explained_by's tests, bound here so that a bench wrapping pose_step (bench_real_subsamples.StepRecorder:
+# each camera's own tests) does not take them for a camera's own
+_given_step = pose_step
 
 
 def _timed_dispersion(A: np.ndarray, e: np.ndarray, keep: np.ndarray, timed: np.ndarray, rho: np.ndarray) -> tuple[float, float]:
@@ -370,25 +416,69 @@ def _found(step: Step | None) -> bool:
 
 
 def moved_camera(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated,
-                 cameras: list[int] | None = None) -> tuple[int, Step] | None:
+                 cameras: list[int] | None = None, unsure: list | None = None) -> tuple[int, Step] | None:
     """The camera that moved during the capture, and its step; None when no camera's step is
-    significant, or none explains the others' (with its views left out, another still steps).
+    significant, or none explains the others' (with its views left out, another still steps), or
+    its step is explained by another camera's move (:func:`explained_by`).
     trimmed: :func:`eliminate` of ``views``; cameras: those to test (every camera when None; in a
     large rig :func:`step_suspects`, and only those of them that step are tested again without
-    the one named)."""
+    the one named). unsure: where given and no camera is named, the first camera whose step passed
+    the leave-one-out check but another's move explains is appended as ``([c, d, ...], c's step)``:
+    one of them moved at that frame, the data cannot say which (:func:`unattributed_fault`)."""
     steps = _steps(R, t, views, trimmed, cameras)
     found = sorted((s.p_value, c, s) for c, s in enumerate(steps) if s is not None and _found(s))
+    doubt: list = []
     for _, c, step in found:
-        again = None if cameras is None else [k for k in cameras if k != c and _found(steps[k])]
-        if again == []:
+        if _others_step_without(R, t, views, trimmed, c, steps, cameras):
+            continue
+        if not (by := explained_by(R, t, views, trimmed, c, step, steps)):
             return c, step
-        rest = views.without(views.camera == c)
-        seen = np.bincount(rest.point, minlength=rest.n_points)
-        rest = rest.without(seen[rest.point] < 2)
-        if not any(_found(s) for k, s in enumerate(_steps(R, t, rest, eliminate(R, t, rest, trimmed.sigma), again))
-                   if k != c):
-            return c, step
+        doubt = doubt or [([c, *by], step)]
+    if unsure is not None:
+        unsure += doubt
     return None
+
+
+def _others_step_without(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated, c: int,
+                         steps: list[Step | None], cameras: list[int] | None) -> bool:
+    """Whether, with camera c's views left out, another camera still steps (of those ``cameras``
+    that stepped with them, where given)."""
+    again = None if cameras is None else [k for k in cameras if k != c and _found(steps[k])]
+    if again == []:
+        return False
+    rest = views.without(views.camera == c)
+    seen = np.bincount(rest.point, minlength=rest.n_points)
+    rest = rest.without(seen[rest.point] < 2)
+    return any(_found(s) for k, s in enumerate(_steps(R, t, rest, eliminate(R, t, rest, trimmed.sigma), again))
+               if k != c)
+
+
+def explained_by(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated, c: int, step: Step,
+                 steps: list[Step | None]) -> list[int]:
+    """The other cameras whose own move explains camera c's step ``step``: c's step at its frame
+    tested again with camera d's two poses in its base (:func:`pose_step` ``given`` and ``at``), d
+    split at the same frame, and at d's own best split where that differs; c's step no longer
+    significant at :data:`NAME_ALPHA` (Bonferroni over the tests made). steps: every camera's step
+    (:func:`_steps`; None where untested, and those are not tried).
+
+    Why: a nested F test, F(3, the step's dof) of c's step beside d's. Where camera d moved, the
+    points d shares with c are placed off after d's move, and c's residuals step there too;
+    leaving c out cannot tell (in a rig of three the pair left has nothing to test against).
+    Naming c needs the alternative "d moved at that frame" rejected for every d: c's step must
+    stand beside d's two poses. The frame is the step test's, common to both hypotheses and taken
+    as known (a change point's estimate converges at the rate n, faster than the turns' sqrt n:
+    the turns' tests hold as at a known split). Were d alone moved, c is named with a chance of at
+    most NAME_ALPHA: the rate of a wrong camera among the moves found (decision 0085b)."""
+    mine = views.camera == c
+    el = eliminate(R, t, views.without(~(trimmed.kept | mine)), trimmed.sigma, trim=False)
+    tests = [(d, k) for d, s in enumerate(steps) if d != c and s is not None and (el.views.camera == d).any()
+             for k in sorted({s.frame, step.frame})]
+    out = []
+    for d, k in tests:
+        again = _given_step(el, c, given=(d, k), at=step.frame)
+        if (again is None or again.p_value >= NAME_ALPHA / len(tests)) and d not in out:
+            out.append(d)
+    return out
 
 
 def moved_fault(cam: str, s: Step) -> dict:
@@ -401,3 +491,16 @@ def moved_fault(cam: str, s: Step) -> dict:
                    f"where the other cameras agree; fix its mount and calibrate again, or re-solve it from the frames "
                    f"after {s.frame} alone (keep only those of {cam}'s rows and run calibrate --from RESULT "
                    f"--solve-only {cam})"}
+
+
+def unattributed_fault(cams: list[str], s: Step) -> dict:
+    """A step one of ``cams`` made, each one's move explaining the first one's (:func:`moved_camera`
+    ``unsure``): a fault of the rig (no camera named), with the frame and the step as the first
+    camera's test measured it."""
+    which = ", ".join(cams[:-1]) + f" or {cams[-1]}"
+    return {"kind": "moved", "camera": None, "evidence": {
+        "cameras": list(cams), "frame": s.frame, "degrees": round(s.degrees, 3), "p_value": float(f"{s.p_value:.3g}")},
+        "message": f"one of {which} moved during the capture, after frame {s.frame} (a step of {s.degrees:.2f} degrees in "
+                   f"{cams[0]}'s views, which a move of {' or '.join(cams[1:])} explains as well: these views cannot say "
+                   f"which); check their mounts, then wave the wand again and calibrate, or calibrate from the frames "
+                   f"up to {s.frame} alone"}
