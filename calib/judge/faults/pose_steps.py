@@ -14,7 +14,7 @@ tried (Bonferroni, the search's multiple testing). A camera is named only when l
 leaves no other camera stepping (:func:`moved_camera`): else its step is another camera's spread
 through the points; and only when its step stands beside every other camera's move at that frame
 (:func:`explained_by`, a nested F test): else one of them moved and the views cannot say which, a
-fault of the rig (:func:`unattributed_fault`; decision 0085b). docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0076 how they
+fault of the rig (:func:`unattributed_fault`; decision 0092). docs/verdict.md gives the limits, docs/decisions/0035, 0062 and 0076 how they
 were measured.
 """
 
@@ -468,7 +468,7 @@ def explained_by(R: np.ndarray, t: np.ndarray, views: Views, trimmed: Eliminated
     stand beside d's two poses. The frame is the step test's, common to both hypotheses and taken
     as known (a change point's estimate converges at the rate n, faster than the turns' sqrt n:
     the turns' tests hold as at a known split). Were d alone moved, c is named with a chance of at
-    most NAME_ALPHA: the rate of a wrong camera among the moves found (decision 0085b)."""
+    most NAME_ALPHA: the rate of a wrong camera among the moves found (decision 0092)."""
     mine = views.camera == c
     el = eliminate(R, t, views.without(~(trimmed.kept | mine)), trimmed.sigma, trim=False)
     tests = [(d, k) for d, s in enumerate(steps) if d != c and s is not None and (el.views.camera == d).any()

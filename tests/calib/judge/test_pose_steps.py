@@ -186,7 +186,7 @@ def test_every_cameras_lens_columns_have_the_points_projected_out():
     assert np.abs(after).max() < 1e-6 * np.abs(before).max()
 
 
-# -- a three-camera rig: the camera whose step another's move explains is not named (decision 0085b) --
+# -- a three-camera rig: the camera whose step another's move explains is not named (decision 0092) --
 
 @pytest.mark.parametrize("session, camera, degrees, wrong", [("ushichka", "cam2", 0.6, "cam3"), ("cpp", "cam3", 5.0, "cam1")])
 def test_a_knock_on_a_three_camera_rig_is_never_named_on_another_camera(session, camera, degrees, wrong):
