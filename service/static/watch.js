@@ -3,7 +3,7 @@
 // a moved camera (POST /watch/live/resolve) once the take is stored.
 import { $, el } from "./dom.js";
 
-const STATUS_WORDS = { ok: "ok", moved: "moved", drifting: "drifting" };
+const STATUS_WORDS = { ok: "ok", moved: "moved", drifting: "drifting", one_of: "moved (or another)" };
 
 // The test's statistic as a bar: full at the threshold, red past it.
 function statisticBar(value, threshold) {
@@ -15,6 +15,7 @@ function statisticBar(value, threshold) {
 
 function movedText(c) {
   if (c.status === "ok") return "";
+  if (c.status === "one_of") return c.message || `one of ${c.one_of.join(", ")} moved; the take cannot tell which`;
   const how = c.kind === "drift" ? `drifting over ${c.drift_frames} frames from frame ${c.moved_at_frame}`
     : c.before_take ? "moved before the take began" : `knocked at frame ${c.moved_at_frame}`;
   return `${how}, named at frame ${c.detected_at_frame}`;
