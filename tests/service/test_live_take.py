@@ -33,7 +33,7 @@ KNOCK = "sim://?cameras=4&seed=3&take=12&move=cam2:30:0.5:3"
 CENTROID_TOL_PX = 0.2
 ISOLATED_PX = 20.0  # a spot with no other within this is one blob, whole (a 2.5 px spot's window is 6 sigma)
 PAGE_TAKE = "sim://?cameras=6&seed=7&take=40"  # the page test's rig and take
-PAGE_SETS, PAGE_KNOCK = 800, 300
+PAGE_SETS, PAGE_KNOCK = 600, 300
 FRAME_TOL = 10  # the test's window: a knock is dated to the window it falls in
 
 

@@ -14,7 +14,7 @@ from wandcal.drivers.trigger_emulator import EmulatorProcess
 
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install -y chromium)")
 TAKE_URL = "sim://?cameras=6&seed=7&take=40&move=cam3:300:0.3:2"  # the rig of `wandcal simulate --cameras 6 --seed 7`
-TAKE_SETS = 800  # the knock at 300, named within ~10 sets; the re-solve takes the sets from 350 on
+TAKE_SETS = 600  # the knock at 300, named within ~10 sets; the re-solve takes the 250 sets from 350 on
 RATE_HZ = 100.0
 WATCH_TIMEOUT_S = 300.0
 
