@@ -18,7 +18,7 @@ The hypotheses each have six parameters and are not nested, so they are compared
 mean of the log-likelihood differences over their standard error. The frames are not independent: on a
 real take the camera's model error shows as a pose that wanders with where the markers are, so
 neighbouring frames' differences move together. The standard error is therefore taken from batch means:
-the differences summed over batches of :data:`BATCH_WINDOWS` windows (30 frames, the persistence span
+the differences summed over batches of :data:`BATCH_WINDOWS` windows (20 frames, about the persistence span
 and about the wander's time scale), the batches taken as independent, and the mean over its standard
 error referred to Student's t with (batches - 1) degrees of freedom. The best candidate (largest mean
 log-likelihood) is named when it beats every other at one-sided level :data:`LEVEL` / (:data:`LOOKS`
