@@ -89,11 +89,20 @@ def co_seen(seen: np.ndarray) -> np.ndarray:
     if pairs * SPARSE_COST > F * N * N or pairs > MAX_SPARSE_PAIRS:
         w = seen.astype(float)
         return (w.T @ w).astype(np.int64)
+    return row_pairs(rows, cols, N)
+
+
+def row_pairs(rows: np.ndarray, cols: np.ndarray, n: int) -> np.ndarray:
+    """(n, n) int64: for each pair of columns, the rows holding both (the diagonal: each column's
+    rows), from the table's True entries (rows, cols) (E,), sorted by row, each (row, col) once:
+    the pairs of each row's columns counted, sum(k^2) of them for rows of k (:func:`co_seen`'s
+    sparse count; guidance counts its camera pairs with it from the wand's camera-frames)."""
+    per = np.bincount(rows)
     first = np.cumsum(per) - per  # each row's first entry in (rows, cols)
     k = per[rows]
     a = np.repeat(np.arange(len(rows)), k)  # each entry against every entry of its row
-    b = np.repeat(first[rows] - np.cumsum(k) + k, k) + np.arange(pairs)
-    return np.bincount(cols[a] * N + cols[b], minlength=N * N).reshape(N, N).astype(np.int64)
+    b = np.repeat(first[rows] - np.cumsum(k) + k, k) + np.arange(int(k.sum()))
+    return np.bincount(cols[a] * n + cols[b], minlength=n * n).reshape(n, n).astype(np.int64)
 
 
 def camera_groups(linked: np.ndarray, keep: np.ndarray | None = None) -> list[list[int]]:

@@ -16,6 +16,7 @@ from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
 from wandcal.calib.rig import PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.run.guidance.document import Seen, guidance_document
 from wandcal.calib.run.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
+from wandcal.calib.start.chain import row_pairs
 from wandcal.calib.start.offsets.confirm import confirmed_offsets
 from wandcal.calib.start.offsets.whole_frames import DEFAULT_MAX_OFFSET, FrameOffsets, frame_offsets, shift_pairs
 
@@ -197,15 +198,10 @@ def _seen(n: int, pairs: WandPairs) -> Seen:
 def _shared_frames(pairs: WandPairs, n: int) -> np.ndarray:
     """(N, N) int64 frames in which both cameras saw both wand ends (the diagonal: each camera's
     frames), as :func:`wandcal.calib.start.initial.shared_frames` counts them, from each frame's
-    own cameras: a frame seen by k cameras adds its k^2 ordered pairs, so the work grows with the
-    camera-frames (sum of k^2), not with frames x cameras^2 (at 128 x 3000: 2 against 25 ms)."""
-    key = np.unique(pairs.frame.astype(np.int64) * n + pairs.camera)  # one row per camera-frame
-    frame, camera = key // n, key % n
-    size = np.bincount(frame)[frame]  # (R,) cameras in the row's frame
-    first = np.searchsorted(frame, frame)  # (R,) the frame's first row (key is sorted by frame)
-    row = np.repeat(np.arange(len(key)), size)  # each row once per camera of its frame ...
-    partner = first[row] + np.arange(len(row)) - np.repeat(np.cumsum(size) - size, size)  # ... paired with each
-    return np.bincount(camera[row] * n + camera[partner], minlength=n * n).reshape(n, n)
+    own cameras (:func:`wandcal.calib.start.chain.row_pairs`): the work grows with the camera-frames
+    (sum of k^2), not with frames x cameras^2 (at 128 x 3000: 2 against 25 ms)."""
+    key = np.unique(pairs.frame.astype(np.int64) * n + pairs.camera)  # one row per camera-frame, by frame
+    return row_pairs(key // n, key % n, n)
 
 
 def _solve_set(seen: Seen) -> np.ndarray:
