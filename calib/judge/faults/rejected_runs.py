@@ -136,11 +136,10 @@ def _shared_wand_rows(res: Residuals) -> np.ndarray:
     return rows[views[res.point[rows] // 2] >= 2]
 
 
-def _camera_frames(res: Residuals, c: int, shared: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _camera_frames(res: Residuals, c: int) -> tuple[np.ndarray, np.ndarray]:
     """Camera c's wand camera-frames another camera sees too, with a finite residual, in capture
-    order: (their residuals' rows of the first end (K,), rejected (K,) bool); ``shared`` the rows
-    of :func:`_shared_wand_rows`, where already found."""
-    rows = _shared_wand_rows(res) if shared is None else shared
+    order: (their residuals' rows of the first end (K,), rejected (K,) bool)."""
+    rows = _shared_wand_rows(res)
     rows = rows[res.camera[rows] == c]
     rows = rows[np.argsort(res.frames[res.point[rows] // 2], kind="stable")]
     return rows, res.outlier[rows]
