@@ -23,7 +23,7 @@ from wandcal.calib.judge.residuals import Residuals, held_out
 from wandcal.calib.judge.verdict import NOISE_RATIO, share_std
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig
-from wandcal.calib.solve.sync.fit import smoothness
+from wandcal.calib.solve.sync.fit import why_untimeable
 from wandcal.calib.solve.sync.report import sync_advice
 
 SUSPECT_NOISE_RATIO = 1.5  # a camera this much noisier than the median camera is looked into
@@ -142,7 +142,7 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
             d = timing.offset_frames
             message = (f"{cam} is out of time: its frames show the wand {offset_text(d, timing.offset_std_frames)} "
                        f"against the other cameras (offset {d:+.2f}: positive is late); check its trigger cable and "
-                       f"settings{_sync_advice(rig, labelled, c)}")
+                       f"settings{sync_advice(why_untimeable(labelled, rig, c))}")
         elif kind == "intrinsics" and lens is not None:
             message = (f"{cam}'s intrinsics do not fit its images: its residuals are {'scaled' if abs(lens.focal_error) > abs(lens.k1_error) / 4 else 'radial'} about the "
                        f"image centre (focal length {100 * lens.focal_error:+.1f}% in rig.json against the data, k1 "
@@ -164,13 +164,6 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
         faults.append({"kind": kind, "camera": cam, "message": message, "evidence": evidence})
     return faults
 
-
-
-def _sync_advice(rig: Rig, labelled: WandPairs, c: int) -> str:
-    """The end of camera c's timing advice: ``--sync auto``, or why its wand cannot time it and what
-    to do (:func:`wandcal.calib.solve.sync.report.sync_advice`, by ``--sync auto``'s own test)."""
-    focal = np.array([cam.focal for cam in rig.cameras], float).reshape(len(rig.cameras), -1)
-    return sync_advice(smoothness(labelled, focal).why_not(c))
 
 def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
                       figures: list[dict], res: Residuals) -> list[dict]:

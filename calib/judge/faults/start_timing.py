@@ -25,7 +25,7 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig
-from wandcal.calib.solve.sync.fit import smoothness
+from wandcal.calib.solve.sync.fit import why_untimeable
 from wandcal.calib.solve.sync.report import sync_advice
 from wandcal.calib.start.initial import UnplacedCamera, initial_poses
 
@@ -189,7 +189,7 @@ def out_of_time_refusal(error: CalibrationError, rig: Rig, pairs: WandPairs, sta
     named, fraction = found
     fix = ("calibrate with --sync auto, which finds and corrects each camera's offset, or check its trigger cable "
            "and settings")
-    why = "" if fraction is None else smoothness(pairs, np.array([cam.focal for cam in rig.cameras])).why_not(fraction)
+    why = "" if fraction is None else why_untimeable(pairs, rig, fraction)
     if why:  # --sync auto would hold it at whole frames (its own test): not the fix
         fix = f"check its trigger cable and settings{sync_advice(why)}"
     return CalibrationError(f"{named}; {fix}. Without the shift the start failed: {error}")

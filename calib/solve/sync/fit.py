@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from wandcal.calib.observations import WandPairs
+from wandcal.calib.rig import Rig
 from wandcal.calib.solve.sync.normal import normal_equations
 from wandcal.calib.solve.sync.tracks import SMALL, Tracks, TrackSmoothness, track_smoothness
 
@@ -117,6 +118,12 @@ def smoothness(pairs: WandPairs, focal: np.ndarray, tracks: Tracks | None = None
     (N, 1) pixels). What a message advising ``--sync auto`` checks first."""
     n = len(focal)
     return track_smoothness(pairs, focal, tracks or Tracks(pairs, n), fit_rows(pairs, max_frames))
+
+
+def why_untimeable(pairs: WandPairs, rig: Rig, c: int) -> str:
+    """Why ``--sync auto`` would hold camera c at its whole-frame offset, its figure beside the limit
+    ("" where it can fit a fraction): :func:`smoothness` with the rig's focal lengths (fx, fy)."""
+    return smoothness(pairs, np.array([cam.focal for cam in rig.cameras], float).reshape(len(rig.cameras), -1)).why_not(c)
 
 
 def fit_timing(
