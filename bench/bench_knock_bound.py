@@ -34,8 +34,8 @@ from bench.bench_real_subsamples import StepRecorder
 from bench.fault_injectors import _rotated, timed_observations
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import rotvec_to_matrix
-from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA
-from wandcal.calib.judge.faults.step_bound import critical_f, detectable_turn
+from wandcal.calib.judge.faults.f_distribution import critical_f
+from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA, detectable_turn
 from wandcal.calib.rig import PointObservations, WandObservations
 
 

@@ -70,7 +70,7 @@ class Run:
 
 class StepRecorder:
     """Records each pose_step (c, Step) while installed (pose_steps.pose_step is looked up at call
-    time by pose_steps._steps); :meth:`take` returns the first test of each camera since the last take."""
+    time by moved._steps); :meth:`take` returns the first test of each camera since the last take."""
 
     def __init__(self) -> None:
         self.calls: list[tuple[int, pose_steps.Step]] = []

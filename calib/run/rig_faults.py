@@ -335,6 +335,7 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
     :data:`wandcal.calib.judge.faults.own_errors.VIEWS_PER_CAMERA` views a camera. Fewer than three
     cameras give none."""
     from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
+    from wandcal.calib.judge.faults.moved import moved_camera, moved_fault, unattributed_fault
     from wandcal.calib.judge.faults.own_errors import (
         VIEWS_PER_CAMERA,
         capped,
@@ -343,7 +344,6 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
         noisy_cameras,
         views_of,
     )
-    from wandcal.calib.judge.faults.pose_steps import moved_camera, moved_fault, unattributed_fault
     from wandcal.calib.judge.faults.step_screen import step_suspects
 
     if len(rig.cameras) < 3:

@@ -53,3 +53,20 @@ def binomial_tail(k: int, n: int, p: float) -> float:
     logs = head + np.concatenate([[0.0], np.cumsum(np.log((n - i + 1) / i) + math.log(p) - math.log1p(-p))])
     top = float(logs.max())
     return min(1.0, math.exp(top) * float(np.exp(logs - top).sum()))
+
+
+def critical_f(q: int, dof: float, alpha: float) -> float:
+    """The F(q, dof) value whose upper tail is ``alpha``: bisection of :func:`f_survival` on log F
+    (it falls monotonically in F); 1e9 where even that is not rare enough."""
+    lo, hi = 0.0, 1e9
+    if f_survival(q, dof, hi) > alpha:
+        return hi
+    for _ in range(200):
+        mid = np.sqrt(max(lo, 1e-12) * hi)
+        if f_survival(q, dof, mid) > alpha:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo < 1e-9 * hi:
+            break
+    return hi

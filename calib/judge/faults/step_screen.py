@@ -1,5 +1,5 @@
 """A cheap screen for a step in each camera's pose in a large rig, so that only its few suspects get
-the full test (:func:`wandcal.calib.judge.faults.pose_steps.moved_camera`).
+the full test (:func:`wandcal.calib.judge.faults.moved.moved_camera`).
 """
 
 from __future__ import annotations

@@ -9,9 +9,8 @@ import pytest
 
 from tests.calib.judge.test_own_errors import _rig, _tracks
 from wandcal.calib.judge.faults import own_errors as oe
-from wandcal.calib.judge.faults.f_distribution import f_survival
-from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA, Step, pose_step
-from wandcal.calib.judge.faults.step_bound import critical_f, detectable_turn
+from wandcal.calib.judge.faults.f_distribution import critical_f, f_survival
+from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA, Step, detectable_turn, pose_step
 from wandcal.calib.observations import WandPairs
 
 
