@@ -160,7 +160,7 @@ def _todo(members: list[tuple[str, list[dict], list[dict]]], names: list[str], u
         it = "it" if len(known) == 1 else "them"
         flags = ",".join(dict.fromkeys(FLAGS[n] for n in known if n in FLAGS))
         std = ", with its focal_std_px" if FOCAL in known else ""
-        said.append(f"refine {_nouns(known) if len(known) > 1 else it} (--refine-intrinsics {flags}: this "
+        said.append(f"refine {_nouns(known) if len(known) > 1 or unknown else it} (--refine-intrinsics {flags}: this "
                     f"capture determines {it}) or give {it} from a lens calibration{std}")
     if unknown:
         it = "it" if len(unknown) == 1 else "them"
