@@ -125,28 +125,39 @@ def _group_lines(members: list[tuple[str, list[dict], list[dict]]], n_cameras: i
     return [head, "    to do: " + _todo(members, names, unit)]
 
 
+def _evidence(limits: list[dict], *names: str) -> list[float] | None:
+    """Each limit's first evidence figure of ``names`` present, or None where one has none."""
+    out = []
+    for lim in limits:
+        evidence = lim.get("evidence") or {}
+        value = next((evidence[n] for n in names if evidence.get(n) is not None), None)
+        if value is None:
+            return None
+        out.append(float(value))
+    return out
+
+
 def _clause(name: str, limits: list[dict], unit: str) -> str:
     """One dominant intrinsic with its part over the group's cameras and what its sigma is:
     "the focal length, +-55-61 mm (27-30 mm along the axis for each 1%; rig.json gives no
     focal_std_px: 2% assumed)"."""
     parts = _span([part(lim) or 0.0 for lim in limits])
     if name == FOCAL:
-        evidence = [lim.get("evidence") or {} for lim in limits]
-        per = [e.get("along_axis_mm_per_percent", e.get("along_axis_per_percent")) for e in evidence]
-        known = [e.get("focal_std_percent") for e in evidence]
+        per = _evidence(limits, "along_axis_mm_per_percent", "along_axis_per_percent")
+        known = _evidence(limits, "focal_std_percent")
         assumed = sum(ASSUMED in str(lim.get("message", "")) for lim in limits)
-        along = f"{_span([abs(p) for p in per])} {unit} along the axis for each 1%; " if None not in per else ""
-        if None in known:
+        along = f"{_span([abs(p) for p in per])} {unit} along the axis for each 1%; " if per is not None else ""
+        if known is None:
             sigma = "off by its assumed uncertainty"
         elif assumed == len(limits):
             sigma = f"rig.json gives no focal_std_px: {_span(known, 'g')}% assumed"
         else:
             sigma = f"known to {_span(known, 'g')}%, rig.json's focal_std_px{' or assumed' if assumed else ''}"
         return f"the focal length, +-{parts} {unit} ({along}{sigma})"
-    sigma = [(lim.get("evidence") or {}).get("sigma") for lim in limits]
+    sigmas = _evidence(limits, "sigma")
     px = " px" if (limits[0].get("evidence") or {}).get("unit") == "px" else ""
-    of = f" for {_span(sigma, '.2g')}{px}, its assumed uncertainty" if None not in sigma else ""
-    return f"{name}, +-{parts} {unit}{of and ' (' + of.strip() + ')'}"
+    of = f" (for {_span(sigmas, '.2g')}{px}, its assumed uncertainty)" if sigmas is not None else ""
+    return f"{name}, +-{parts} {unit}{of}"
 
 
 def _todo(members: list[tuple[str, list[dict], list[dict]]], names: list[str], unit: str) -> str:
