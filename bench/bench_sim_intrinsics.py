@@ -8,7 +8,7 @@ camera's displacement is its centre's distance from the truth after the best sim
 sigma drawn from is the judgement's default 2% unless ``--focal-std`` writes it into rig.json.
 
 Usage: python bench/bench_sim_intrinsics.py [--cameras 6,8,16] [--focal 1,2,3] [--seeds 1,2,3]
-       [--principal PX] [--distortion K] [--focal-std] [--frames N]
+       [--principal PX] [--distortion K] [--tangential P] [--focal-std] [--frames N]
 """
 
 from __future__ import annotations
@@ -49,7 +49,8 @@ def main() -> int:
     ap.add_argument("--focal", default="1,2,3", help="focal sigmas drawn from, per cent")
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--principal", type=float, default=0.0, help="principal point sigma drawn from, px")
-    ap.add_argument("--distortion", type=float, default=0.0, help="k1, k2, p1, p2 sigma drawn from")
+    ap.add_argument("--distortion", type=float, default=0.0, help="k1, k2 sigma drawn from")
+    ap.add_argument("--tangential", type=float, default=None, help="p1, p2 sigma drawn from (default --distortion)")
     ap.add_argument("--focal-std", action="store_true", help="write focal_std_px as the sigma drawn from")
     ap.add_argument("--frames", type=int, default=1500)
     args = ap.parse_args()
@@ -60,7 +61,7 @@ def main() -> int:
     for n in map(int, args.cameras.split(",")):
         for pct in map(float, args.focal.split(",")):
             for seed in map(int, args.seeds.split(",")):
-                got = run(n, args.frames, IntrinsicsError(pct / 100, args.principal, args.distortion, args.focal_std), seed)
+                got = run(n, args.frames, IntrinsicsError(pct / 100, args.principal, args.distortion, args.focal_std, args.tangential), seed)
                 d, g, h, named = (np.array(x, dtype=float) for x in zip(*got["rows"]))
                 within = [int(np.sum(d <= k * h)) for k in (1, 2, 3)]
                 totals += [len(d), *within, int(named.sum())]

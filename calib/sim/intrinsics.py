@@ -25,19 +25,22 @@ class IntrinsicsError:
     """The sigmas each camera's given intrinsics are drawn off the truth by (1 sigma, Gaussian).
 
     focal_rel: the focal length's relative sigma (0.02 is 2%; fx and fy move together, as a lens's
-    focal length does); principal_px: each of cx, cy, pixels; distortion: k1, k2 and (pinhole) p1,
-    p2, absolute; write_std: also write each camera's ``focal_std_px`` as ``focal_rel`` times its
-    given focal length (the sigma it was drawn from), as a lens calibration would state it."""
+    focal length does); principal_px: each of cx, cy, pixels; distortion: k1 and k2, absolute;
+    tangential: (pinhole) p1 and p2, absolute, None: ``distortion`` too (real lenses' p1, p2 are
+    known to some 0.0007, their k1, k2 to 0.02-0.08: docs/verdict.md, "The honest sigma");
+    write_std: also write each camera's ``focal_std_px`` as ``focal_rel`` times its given focal
+    length (the sigma it was drawn from), as a lens calibration would state it."""
 
     focal_rel: float = 0.0
     principal_px: float = 0.0
     distortion: float = 0.0
     write_std: bool = False
+    tangential: float | None = None
 
     @property
     def any(self) -> bool:
         """Whether anything is drawn off the truth (or a sigma written)."""
-        return bool(self.focal_rel or self.principal_px or self.distortion or self.write_std)
+        return bool(self.focal_rel or self.principal_px or self.distortion or self.tangential or self.write_std)
 
 
 def off_camera(cam: Camera, error: IntrinsicsError, rng: np.random.Generator) -> Camera:
@@ -52,8 +55,10 @@ def off_camera(cam: Camera, error: IntrinsicsError, rng: np.random.Generator) ->
     K[0, 1] *= scale
     K[:2, 2] += error.principal_px * centre
     d = np.array(cam.dist, dtype=float)
-    terms = 4 if cam.model == PINHOLE else 2  # pinhole k1, k2, p1, p2; fisheye k1, k2
-    d[:terms] += error.distortion * dist[:terms]
+    tangential = error.distortion if error.tangential is None else error.tangential
+    d[:2] += error.distortion * dist[:2]  # k1, k2 (a fisheye's too)
+    if cam.model == PINHOLE:
+        d[2:4] += tangential * dist[2:4]  # p1, p2
     std = float(error.focal_rel * K[0, 0]) if error.write_std and error.focal_rel > 0 else cam.focal_std_px
     return replace(cam, K=K, dist=d, focal_std_px=std)
 

@@ -65,6 +65,15 @@ def arg_percent(text: str) -> float:
     return arg_number(0, MAX_INTRINSICS_ERROR_PCT)(text.strip().removesuffix("%"))
 
 
+def arg_distortion(text: str) -> tuple[float, float | None]:
+    """K or K,P: the radial and (default K) tangential distortion sigmas, each 0 to :data:`MAX_DISTORTION_ERROR`."""
+    number = arg_number(0, MAX_DISTORTION_ERROR)
+    parts = text.split(",")
+    if len(parts) > 2:
+        raise argparse.ArgumentTypeError(f"{text!r}: give K or K,P (e.g. 0.01 or 0.01,0.001)")
+    return number(parts[0]), number(parts[1]) if len(parts) == 2 else None
+
+
 def intrinsics_args(p: argparse.ArgumentParser) -> None:
     """``--intrinsics-error`` and its companions: rig.json's intrinsics off the truth, as real ones
     are (calib/sim/intrinsics.py); truth.json keeps the true ones."""
@@ -74,8 +83,9 @@ def intrinsics_args(p: argparse.ArgumentParser) -> None:
                    "and dist")
     p.add_argument("--principal-error", type=arg_number(0, MAX_PRINCIPAL_ERROR_PX), default=0.0, metavar="PX",
                    help="also the principal point (cx, cy) off by draws of this sigma, pixels (default 0)")
-    p.add_argument("--distortion-error", type=arg_number(0, MAX_DISTORTION_ERROR), default=0.0, metavar="K",
-                   help="also k1, k2, p1 and p2 off by draws of this sigma, absolute (default 0)")
+    p.add_argument("--distortion-error", type=arg_distortion, default=(0.0, None), metavar="K[,P]",
+                   help="also k1, k2 off by draws of sigma K, and p1, p2 of sigma P (default K), absolute; real "
+                   "lenses' p1, p2 are known to some 0.0007 (default 0)")
     p.add_argument("--focal-std", action="store_true",
                    help="with --intrinsics-error: write each camera's focal_std_px as the sigma its focal length was "
                    "drawn from (as a lens calibration states it; docs/capture-format.md); default: left out, the "
@@ -126,8 +136,9 @@ def simulated(args):
     its rig's intrinsics off the truth where :func:`intrinsics_args`' ask for it."""
     from wandcal.calib.sim.intrinsics import IntrinsicsError, with_intrinsics_error
 
+    radial, tangential = getattr(args, "distortion_error", (0.0, None))
     error = IntrinsicsError(getattr(args, "intrinsics_error", 0.0) / 100.0, getattr(args, "principal_error", 0.0),
-                            getattr(args, "distortion_error", 0.0), getattr(args, "focal_std", False))
+                            radial, getattr(args, "focal_std", False), tangential)
     if error.write_std and not error.focal_rel:
         from wandcal.calib.errors import CalibrationError
 
