@@ -11,7 +11,8 @@ exactly would not change what the result can say while the largest stays. The re
 clause ("matter less"), their figures in the result's ``verdict.limits`` (and each camera's
 ``focal_limit`` / ``lens_limits``).
 
-Cameras with the same dominant intrinsics (and the same advice) share a line pair::
+Cameras with the same dominant intrinsics (and the same advice) share a line pair, the pair of the
+largest part first::
 
     limit (cam1, cam2 and cam3): their positions hinge on the focal length, +-55-61 mm (27-30 mm along
       the axis for each 1%; rig.json gives no focal_std_px: 2% assumed), against +-0.34-0.47 mm from
@@ -81,10 +82,12 @@ def limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
         dominant, rest = ranked([lim for lim in limits if lim["camera"] == cam])
         key = tuple(sorted(((parameter(lim), determined(lim)) for lim in dominant), key=lambda k: _rank(k[0])))
         groups.setdefault(key, []).append((cam, dominant, rest))
+    # the group of the largest part first: a big rig's lines past MAX_GROUPS are its smallest limits
+    order = sorted(groups.values(), key=lambda members: -max(part(lim) or 0.0 for _, d, _ in members for lim in d))
     out: list[str] = []
-    for members in list(groups.values())[:MAX_GROUPS]:
+    for members in order[:MAX_GROUPS]:
         out += _group_lines(members, n_cameras)
-    left = [cam for members in list(groups.values())[MAX_GROUPS:] for cam, _, _ in members]
+    left = [cam for members in order[MAX_GROUPS:] for cam, _, _ in members]
     if left:
         out.append(f"  limit ({camera_list(left, n_cameras)}): given intrinsics limit these cameras' positions too "
                    "(the result's verdict.limits has each camera's figures and what to do)")
@@ -170,12 +173,13 @@ def _todo(members: list[tuple[str, list[dict], list[dict]]], names: list[str], u
     if known:
         it = "it" if len(known) == 1 else "them"
         flags = ",".join(dict.fromkeys(FLAGS[n] for n in known if n in FLAGS))
-        std = ", with its focal_std_px" if FOCAL in known else ""
+        std = (", with its focal_std_px" if len(known) == 1 else ", with the focal length's focal_std_px") if FOCAL in known else ""
         said.append(f"refine {_nouns(known) if len(known) > 1 or unknown else it} (--refine-intrinsics {flags}: this "
                     f"capture determines {it}) or give {it} from a lens calibration{std}")
     if unknown:
         it = "it" if len(unknown) == 1 else "them"
-        std = ", with its focal_std_px" if FOCAL in unknown else ""
+        std = (", with its focal_std_px" if len(unknown) == 1 else ", with the focal length's focal_std_px") \
+            if FOCAL in unknown else ""
         said.append(f"give {_nouns(unknown) if known or len(unknown) > 1 else it} from a lens "
                     f"calibration{std} (this capture does not determine {it})")
     rest = [lim for _, _, r in members for lim in r]
