@@ -224,6 +224,9 @@ def _run_take(args) -> int:
 
     if args.shape is not None or args.cameras > MAX_SIM_CAMERAS:
         raise CalibrationError(f"--take: takes are of the default ring of 3 to {MAX_SIM_CAMERAS} cameras; leave out --shape")
+    if args.intrinsics_error or args.principal_error or any(args.distortion_error) or args.focal_std:
+        raise CalibrationError("--take writes the rig's true intrinsics (a take is checked against a result, which holds "
+                               "its own); leave out --intrinsics-error, --principal-error, --distortion-error and --focal-std")
     rig = take_rig(args.cameras, args.seed)[0]
     moves = () if args.move is None else (_parse_move(args.move, args.drift, rig),)
     sim = simulate_take(args.cameras, args.frames, markers=args.markers, noise_px=args.noise, dropped=args.dropped,

@@ -48,6 +48,8 @@ def test_simulate_writes_them_and_refuses_a_sigma_without_a_draw(tmp_path, capsy
     assert f != f_true and abs(rig["cameras"][0]["focal_std_px"] - 0.02 * f) < 1e-9
     assert main(["simulate", str(tmp_path / "b"), "--cameras", "3", "--frames", "20", "--focal-std"]) == 2
     assert "--intrinsics-error" in capsys.readouterr().err
+    assert main(["simulate", str(tmp_path / "c"), "--take", "--frames", "20", "--intrinsics-error", "2"]) == 2
+    assert "--take writes the rig's true intrinsics" in capsys.readouterr().err
 
 
 def test_the_honest_sigma_covers_a_focal_length_off_by_its_stated_sigma():
