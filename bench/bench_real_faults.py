@@ -175,6 +175,9 @@ def fresh(sessions: list[rf.Session], seeds: list[int]) -> int:
         rows = [o for o in outcomes if o.case.label.startswith(f"s{seed} ") and o.case.family not in ff.NOTES]
         print(f"seed {seed}: {sum(o.right for o in rows)}/{len(rows)} determinable right, "
               f"{sum(o.outcome == 'wrong camera' for o in rows)} wrong camera, {sum(o.outcome == 'called poor' for o in rows)} called poor")
+    for session in sessions:
+        rows = [o for o in outcomes if o.case.session == session.name and o.case.family not in ff.NOTES]
+        print(f"{session.name}: {sum(o.right for o in rows)}/{len(rows)} determinable right")
     print("\nThe wrong ones (with the verdict's first message):")
     for o in outcomes:
         if not o.right:

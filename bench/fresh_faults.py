@@ -40,7 +40,7 @@ Rules for the new rows, fixed before the first run, from what issue 31 calls rig
   third camera. The rig may be poor (the faults make it so): the single rule's "not poor" for an
   absorbed principal point is dropped here. A refusal is wrong (one camera out of time does not
   account for the other fault). *wrong camera*: a third camera named; *wrong kind*: a target named
-  with another kind; else *missed*.
+  with another kind than its own fault's; else *missed*.
 """
 
 from __future__ import annotations
@@ -244,9 +244,7 @@ def _target_right(case: FreshCase, doc: dict, named: list, centres: np.ndarray, 
 
 
 def run_pair(session: rf.Session, clean: rf.Clean, case: FreshCase) -> rf.Outcome:
-    """Calibrate the session with a pair's two faults and score it (module docstring's rule)."""
-    assert case.second is not None
-    ids = [c.id for c in session.rig.cameras]
+    """Calibrate the session with a pair's two faults and score it (:func:`score_pair`)."""
     start = time.perf_counter()
     try:
         result = rf.calibrated(inject_fresh(session, case, clean.noise_px))
@@ -254,21 +252,30 @@ def run_pair(session: rf.Session, clean: rf.Clean, case: FreshCase) -> rf.Outcom
         out = rf.Outcome(case, False, "refused", [], message=str(exc), seconds=time.perf_counter() - start)
         out.outcome = "refused"
         return out
-    doc = result.to_json()
+    out = score_pair(case, result.to_json(), np.asarray(result.centers), clean, [c.id for c in session.rig.cameras])
+    out.seconds = time.perf_counter() - start
+    return out
+
+
+def score_pair(case: FreshCase, doc: dict, centres: np.ndarray, clean: rf.Clean, ids: list[str]) -> rf.Outcome:
+    """A pair's outcome from its result's JSON ``doc`` and camera centres (N, 3), by the module
+    docstring's rule: each target right by its own family's rule, no third camera named."""
+    assert case.second is not None
     named = [(f["kind"], f["camera"]) for f in doc["verdict"]["faults"]]
-    centres = np.asarray(result.centers)
     ways = [_target_right(part, doc, named, centres, clean, ids) for part in (case, case.second)]
     targets = {ids[case.camera], ids[case.second.camera]}
     cams_named = {cam for kind, cam in named if cam is not None and (kind, cam) not in clean.faults}
     out = rf.Outcome(case, all(ways) and not cams_named - targets, doc["verdict"]["level"], named,
-                     seconds=time.perf_counter() - start, message=next((f["message"] for f in doc["verdict"]["faults"]), ""))
+                     message=next((f["message"] for f in doc["verdict"]["faults"]), ""))
     out.displacement_mm = float(aligned_centres_mm(centres, clean.centres)[case.camera])
     out.sigma_mm, out.honest_sigma_mm = rf._sigmas_mm(doc["cameras"][case.camera])
     if out.right:
         out.outcome = next((w for w in ("limited", "absorbed", "at the limit") if w in ways), "right")
         out.limited_right = out.outcome == "limited"
     else:
-        out.outcome = ("wrong camera" if cams_named - targets else "wrong kind" if cams_named & targets else "missed")
+        expected = {ids[part.camera]: part.expected for part in (case, case.second)}
+        other_kind = any(cam in expected and kind != expected[cam] for kind, cam in named if (kind, cam) not in clean.faults)
+        out.outcome = "wrong camera" if cams_named - targets else "wrong kind" if other_kind else "missed"
     return out
 
 
