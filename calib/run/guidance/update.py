@@ -16,7 +16,7 @@ from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
 from wandcal.calib.rig import PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.run.guidance.document import Seen, guidance_document
 from wandcal.calib.run.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
-from wandcal.calib.start.chain import row_pairs
+from wandcal.calib.start.chain import camera_groups, row_pairs
 from wandcal.calib.start.offsets.confirm import confirmed_offsets
 from wandcal.calib.start.offsets.whole_frames import DEFAULT_MAX_OFFSET, FrameOffsets, frame_offsets, shift_pairs
 
@@ -206,23 +206,13 @@ def _shared_frames(pairs: WandPairs, n: int) -> np.ndarray:
 
 def _solve_set(seen: Seen) -> np.ndarray:
     """(N,) bool: the largest group of cameras linked by at least ``MIN_SOLVE_FRAMES`` shared
-    frames, each with that many frames shared with the others."""
-    n = len(seen.frames)
+    frames, each with that many frames shared with the others (the start's grouping,
+    :func:`wandcal.calib.start.chain.camera_groups`: ties to the group of the lowest camera)."""
     ok = seen.shared >= MIN_SOLVE_FRAMES
-    edges = (seen.linked >= MIN_SOLVE_FRAMES) & ok[:, None] & ok[None, :]
-    best = np.zeros(n, bool)
-    unvisited = ok.copy()
-    while unvisited.any():
-        group = np.zeros(n, bool)
-        group[np.argmax(unvisited)] = True
-        while True:
-            grown = group | edges[group].any(0)
-            if (grown == group).all():
-                break
-            group = grown
-        unvisited &= ~group
-        if group.sum() > best.sum():
-            best = group
+    best = np.zeros(len(seen.frames), bool)
+    groups = camera_groups(seen.linked >= MIN_SOLVE_FRAMES, ok)
+    if groups:
+        best[groups[0]] = True
     return best
 
 
