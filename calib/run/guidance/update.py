@@ -98,7 +98,7 @@ def wanding_guidance(rig: Rig, wand: WandObservations | None, static: StaticObse
             offsets = found.offsets
             pairs = shift_pairs(pairs, offsets)
     seen = _seen(len(rig.cameras), pairs)
-    solve_set = _solve_set(seen)
+    solve_set = _solve_set(seen, _whole_static(rig, static))
     n = len(rig.cameras)
     center = np.full(n, np.nan)
     rotation = np.full(n, np.nan)
@@ -146,7 +146,7 @@ def points_guidance(rig: Rig, points: PointObservations, settings: GuidanceSetti
     pairs = WandPairs(tracks.track, tracks.camera, np.stack([tracks.xy, tracks.xy], axis=1), both,
                       np.arange(tracks.n_tracks), dict(tracks.dropped))
     seen = _seen(len(rig.cameras), pairs)
-    solve_set = _solve_set(seen)
+    solve_set = _solve_set(seen, grow=False)
     n = len(rig.cameras)
     linked = int(solve_set.sum()) >= 2
     info: dict[str, Any] = {
@@ -204,16 +204,50 @@ def _shared_frames(pairs: WandPairs, n: int) -> np.ndarray:
     return row_pairs(key // n, key % n, n)
 
 
-def _solve_set(seen: Seen) -> np.ndarray:
-    """(N,) bool: the largest group of cameras linked by at least ``MIN_SOLVE_FRAMES`` shared
+def _solve_set(seen: Seen, seed: np.ndarray | None = None, *, grow: bool = True) -> np.ndarray:
+    """(N,) bool: the cameras the fast solve can place, as the start places them.
+
+    The group: the largest set of cameras linked pairwise by at least ``MIN_SOLVE_FRAMES`` shared
     frames, each with that many frames shared with the others (the start's grouping,
-    :func:`wandcal.calib.start.chain.camera_groups`: ties to the group of the lowest camera)."""
+    :func:`wandcal.calib.start.chain.camera_groups`: ties to the group of the lowest camera), or
+    ``seed`` (N,) bool (the cameras that see the whole static object), those of them with that
+    many shared frames, when they are more. Then
+    every camera joins that has ``MIN_SOLVE_FRAMES`` frames in which two cameras of the group see
+    the wand too (:func:`_grown`): the frames the start's resection triangulates to place it. A
+    sparse rig, each frame seen by 2-4 of 128 cameras, has no pair sharing 10 frames, yet every
+    camera is placed this way (decision 0093c). ``grow`` False: the pairwise group alone (a
+    points-only rig's links)."""
     ok = seen.shared >= MIN_SOLVE_FRAMES
     best = np.zeros(len(seen.frames), bool)
     groups = camera_groups(seen.linked >= MIN_SOLVE_FRAMES, ok)
     if groups:
         best[groups[0]] = True
-    return best
+    if seed is not None and (seed & ok).sum() > best.sum():  # the seed's cameras that have wand frames to solve by
+        best = seed & ok
+    return _grown(seen.pairs, best) if grow and best.sum() >= 2 else best
+
+
+def _whole_static(rig: Rig, static: StaticObservations | None) -> np.ndarray | None:
+    """(N,) bool: the cameras that see every marker of the static object (the start places them
+    by its PnP), or None without one."""
+    if static is None or rig.static_markers is None:
+        return None
+    return np.bincount(static.camera, minlength=len(rig.cameras)) >= len(rig.static_markers)
+
+
+def _grown(pairs: WandPairs, group: np.ndarray) -> np.ndarray:
+    """``group`` (N,) bool with every camera added, as long as any can be, that sees the wand in at
+    least ``MIN_SOLVE_FRAMES`` frames that two cameras of the group see too (each pass over the
+    camera-frames: the work grows with the captured pairs, not frames x cameras)."""
+    group = group.copy()
+    frames = len(pairs.frames)
+    while True:
+        in_group = np.bincount(pairs.frame, weights=group[pairs.camera], minlength=frames)
+        rows = in_group[pairs.frame] - group[pairs.camera] >= 2  # two other group cameras see the frame
+        joins = (np.bincount(pairs.camera[rows], minlength=len(group)) >= MIN_SOLVE_FRAMES) & ~group
+        if not joins.any():
+            return group
+        group |= joins
 
 
 def subsample(pairs: WandPairs, frames_per_camera: int) -> np.ndarray:
