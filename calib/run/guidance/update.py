@@ -239,12 +239,14 @@ def _grown(pairs: WandPairs, group: np.ndarray) -> np.ndarray:
     """``group`` (N,) bool with every camera added, as long as any can be, that sees the wand in at
     least ``MIN_SOLVE_FRAMES`` frames that two cameras of the group see too (each pass over the
     camera-frames: the work grows with the captured pairs, not frames x cameras)."""
+    n, frames = len(group), len(pairs.frames)
+    key = np.unique(pairs.frame.astype(np.int64) * n + pairs.camera)  # one row per camera-frame
+    frame, camera = key // n, key % n
     group = group.copy()
-    frames = len(pairs.frames)
     while True:
-        in_group = np.bincount(pairs.frame, weights=group[pairs.camera], minlength=frames)
-        rows = in_group[pairs.frame] - group[pairs.camera] >= 2  # two other group cameras see the frame
-        joins = (np.bincount(pairs.camera[rows], minlength=len(group)) >= MIN_SOLVE_FRAMES) & ~group
+        in_group = np.bincount(frame, weights=group[camera], minlength=frames)
+        rows = in_group[frame] - group[camera] >= 2  # two other group cameras see the frame
+        joins = (np.bincount(camera[rows], minlength=n) >= MIN_SOLVE_FRAMES) & ~group
         if not joins.any():
             return group
         group |= joins

@@ -273,3 +273,41 @@ def test_a_points_only_rig_is_advised_in_its_points_not_the_wand():
                                points.uv[points.camera != 3])  # cam3 saw none of the points the others saw
     words = next(c["advice"] for c in wanding_guidance(rig, None, points=silent).document["cameras"] if c["id"] == rig.ids[3])
     assert "points" in words and "wand" not in words, words
+
+
+def _triples(extra_of_last: int = 0):
+    """Wand pairs of a sparse 12-camera rig: cameras 0-4 see the wand together, and each later camera
+    c sees it in MIN_SOLVE_FRAMES frames (``extra_of_last`` more or fewer for the last), each with its
+    own pair of cameras placed before it, so no two cameras share MIN_SOLVE_FRAMES frames but c's."""
+    from wandcal.calib.observations import WandPairs
+    from wandcal.calib.run.guidance import MIN_SOLVE_FRAMES
+
+    rng = np.random.default_rng(7)
+    rows = [(f, c) for f in range(2) for c in range(5)]  # 2 frames of the five first cameras
+    frame = 2
+    for c in range(5, 12):
+        earlier = [(a, b) for a in range(c) for b in range(a + 1, c)]
+        for i in rng.permutation(len(earlier))[:MIN_SOLVE_FRAMES + (extra_of_last if c == 11 else 0)]:
+            rows += [(frame, c), (frame, earlier[i][0]), (frame, earlier[i][1])]
+            frame += 1
+    f, c = np.array(rows).T
+    return WandPairs(f, c, np.zeros((len(f), 2, 2)), np.zeros((len(f), 2, 2)), np.arange(frame))
+
+
+def test_a_sparse_rig_is_solved_by_its_group_links_not_its_pairs():
+    # no pair of cameras shares MIN_SOLVE_FRAMES frames, yet each camera has that many frames two
+    # cameras placed before it also see: the start's resection places it, so the solve takes it
+    from wandcal.calib.run.guidance import MIN_SOLVE_FRAMES
+    from wandcal.calib.run.guidance.update import _seen, _solve_set
+
+    seed = np.arange(12) < 5  # the cameras that see the whole static object
+    seen = _seen(12, _triples())
+    off_diagonal = seen.linked[~np.eye(12, dtype=bool)]
+    assert off_diagonal.max() < MIN_SOLVE_FRAMES  # the pairwise rule alone solves nothing
+    assert _solve_set(seen).sum() < 2 and _solve_set(seen, seed, grow=False).sum() == 5
+    assert _solve_set(seen, seed).all()
+    # one frame short, the last camera stays out; a camera-frame recorded twice counts once
+    short = _triples(extra_of_last=-1)
+    twice = short.subset(np.concatenate([np.arange(len(short)), np.flatnonzero(short.camera == 11)]))
+    for pairs in (short, twice):
+        assert _solve_set(_seen(12, pairs), seed).tolist() == [True] * 11 + [False]
