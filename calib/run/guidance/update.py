@@ -280,9 +280,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     # the solver loads when a solve runs: the command line reads this module's defaults at start-up
     from wandcal.calib.run.options import CalibrationOptions
     from wandcal.calib.run.refine import GAUGE_CAMERA, build_problem, refine, up_direction
-    from wandcal.calib.start.initial import initial_poses
     from wandcal.calib.start.labels import label_ends
-    from wandcal.calib.start.static import solve_static
     cams = np.flatnonzero(solve_set)
     index = np.full(len(rig.cameras), -1)
     index[cams] = np.arange(len(cams))
@@ -301,12 +299,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     if start is not None and warm:
         R, t = start.R, start.t
     else:
-        static_poses = None
-        if static is not None and rig.static_markers is not None:
-            mask = solve_set[static.camera]
-            static_poses = solve_static(sub, StaticObservations(index[static.camera[mask]], static.uv[mask]))
-        init = initial_poses(sub, kept, static_poses)
-        R, t = init.R, init.t
+        R, t = _start_poses(rig, sub, kept, cams, static, start)
     labelled = label_ends(R, t, kept, np.ones(len(cams), bool), sub.wand_length)[0]
     setup = build_problem(sub, labelled, R, t, GAUGE_CAMERA)
     r = refine(sub, labelled, setup, None, None, "ba", CalibrationOptions(), lambda event: None, up_direction(sub, R, t, setup))
@@ -326,6 +319,39 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     info = {"frames_used": int(setup.problem.n_frames), "cameras": len(cams), "warm_start": bool(warm),
             "iterations": int(r.info.get("iterations", 0))}
     return Solution(ids, r.R, r.t), center, rotation, info
+
+
+def _start_poses(rig: Rig, sub: Rig, kept: WandPairs, cams: np.ndarray, static: StaticObservations | None,
+                 start: Solution | None) -> tuple[np.ndarray, np.ndarray]:
+    """The start's poses (K, 3, 3), (K, 3) of the solve's cameras ``cams`` (indices into ``rig``).
+
+    Where the last update's :class:`Solution` holds at least two of them (the solve set grew or
+    shrank since), those keep their solved poses, as the static object's PnP would place them, and
+    the start places only the others (a live update at 128 cameras places the cameras that joined,
+    not all 128); where that start fails, or without such a solution, the cold start from the
+    static object and the wand."""
+    from wandcal.calib.start.initial import initial_poses
+    from wandcal.calib.start.static import StaticPose, solve_static
+
+    if start is not None:
+        known = {cid: k for k, cid in enumerate(start.ids)}
+        prior = [known.get(cid) for cid in sub.ids]
+        if sum(k is not None for k in prior) >= 2:
+            placed = [None if k is None else StaticPose(start.R[k], start.t[k], np.zeros(0, np.int64), 0.0, np.inf)
+                      for k in prior]
+            try:
+                init = initial_poses(sub, kept, placed)
+                return init.R, init.t
+            except CalibrationError:
+                pass  # a camera the solved ones cannot place: start afresh
+    static_poses = None
+    if static is not None and rig.static_markers is not None:
+        index = np.full(len(rig.cameras), -1)
+        index[cams] = np.arange(len(cams))
+        mask = index[static.camera] >= 0
+        static_poses = solve_static(sub, StaticObservations(index[static.camera[mask]], static.uv[mask]))
+    init = initial_poses(sub, kept, static_poses)
+    return init.R, init.t
 
 
 def relative_uncertainty(R: np.ndarray, t: np.ndarray, covariance) -> tuple[np.ndarray, np.ndarray]:

@@ -227,16 +227,31 @@ def test_the_links_count_as_the_start_counts_them():
     assert _shared_frames(WandPairs.empty(), 3).shape == (3, 3)
 
 
-def test_a_warm_start_gives_the_cold_answer(covered):
+def test_a_warm_start_gives_the_cold_answer(covered, monkeypatch):
+    import wandcal.calib.start.static as static_module
+
     rig, wand, static, _ = covered
     cold = wanding_guidance(rig, first_frames(wand, 800), static)
     warm = wanding_guidance(rig, wand, static, start=cold.solution)
     again = wanding_guidance(rig, wand, static)
     assert warm.document["solve"]["warm_start"] and not again.document["solve"]["warm_start"]
-    for a, b in zip(warm.document["cameras"], again.document["cameras"]):
-        # both solves stop within wandcal.calib.solve.ba.STOP_SE (0.05) standard errors of the optimum, where the
+    # a camera that joins since the last solve: the start places it from the seven solved, with
+    # no static object's PnP, and the solve gives the cold answer as well
+    early = first_frames(wand, 800)
+    others = early.camera != rig.index("cam8")
+    seven = WandObservations(early.frame[others], early.camera[others], early.uv[others])
+    last = wanding_guidance(rig, seven, static).solution
+    assert last is not None and "cam8" not in last.ids and len(last.ids) == 7
+    pnp = []
+    real = static_module.solve_static
+    monkeypatch.setattr(static_module, "solve_static", lambda *args: pnp.append(1) or real(*args))
+    joined = wanding_guidance(rig, wand, static, start=last)
+    assert not pnp and not joined.document["solve"]["warm_start"]
+    for a, b, c in zip(warm.document["cameras"], again.document["cameras"], joined.document["cameras"]):
+        # the solves stop within wandcal.calib.solve.ba.STOP_SE (0.05) standard errors of the optimum, where the
         # noise scale, a median of the residuals, differs by a fraction of a percent
         assert a["center_std_mm"] == pytest.approx(b["center_std_mm"], rel=1e-2)
+        assert c["center_std_mm"] == pytest.approx(b["center_std_mm"], rel=1e-2)
 
 
 def test_bad_settings_and_a_rig_without_wand_are_refused(covered):
