@@ -214,7 +214,7 @@ def _solve_set(seen: Seen, seed: np.ndarray | None = None, *, grow: bool = True)
     many shared frames, when they are more. Then every camera joins that has ``MIN_SOLVE_FRAMES``
     frames in which two cameras of the group see the wand too (:func:`_grown`): the frames the
     start's resection triangulates to place it. A sparse rig, each frame seen by 2-4 of 128
-    cameras, has no pair sharing 10 frames, yet every camera is placed this way (decision 0093c).
+    cameras, has no pair sharing 10 frames, yet every camera is placed this way (decision 0095).
     ``grow`` False: the pairwise group alone (a points-only rig's links)."""
     ok = seen.shared >= MIN_SOLVE_FRAMES
     best = np.zeros(len(seen.frames), bool)
