@@ -173,20 +173,23 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     (:func:`wandcal.calib.judge.faults.leave_one_out.leave_one_out_faults`), then a camera that moved, then
     cameras whose own noise stands out (:func:`own_faults`), else by the suspect screen
     (:func:`camera_faults`). A larger rig: :func:`many_camera_faults`."""
-    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS, leave_one_out_faults
+    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS, held_out_views, leave_one_out_faults
     from wandcal.calib.judge.faults.swapped import swap_faults
     from wandcal.calib.judge.faults.timing_pairs import camera_timings, timing_faults, timing_instead
 
     if len(rig.cameras) > MAX_CAMERAS:
         return many_camera_faults(rig, labelled, tracks, R, t, figures, res)
-    if swapped := swap_faults(rig, labelled, tracks, R, t, _solved_again):  # two cameras' columns exchanged
+    # every camera against the points the others triangulate: the swap screen's and the lens comparison's
+    held = [held_out_views(R, t, labelled, tracks, c) for c in range(len(rig.cameras))] \
+        if len(rig.cameras) >= 3 else None
+    if swapped := swap_faults(rig, labelled, tracks, R, t, _solved_again, held):  # two cameras' columns exchanged
         return swapped
     noise_px, focal = [f["noise_px"] for f in figures], np.array([c.focal.mean() for c in rig.cameras])
     timings = camera_timings(R, t, labelled, tracks, focal) if len(rig.cameras) >= 3 else []
     timing = timing_faults(list(rig.ids), R, t, labelled, tracks, focal, noise_px, timings) if timings else []
     if timing:
         return timing + beside_timing(rig, labelled, tracks, R, t, timing[0])
-    lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks)
+    lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks, held=held)
     # a lens error bends a tracked marker's path: a step or noise there is its effect. A lens
     # pattern that needed fy's own column is weaker: a camera out of time spreads a stretch along
     # the wand's motion through the points, which that column fits in another camera (Brown 2,
@@ -335,7 +338,7 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
     :data:`wandcal.calib.judge.faults.own_errors.VIEWS_PER_CAMERA` views a camera. Fewer than three
     cameras give none."""
     from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
-    from wandcal.calib.judge.faults.moved import moved_camera, moved_fault, unattributed_fault
+    from wandcal.calib.judge.faults.moved import Moved, moved_camera, moved_fault, unattributed_fault
     from wandcal.calib.judge.faults.own_errors import (
         VIEWS_PER_CAMERA,
         capped,
@@ -364,12 +367,11 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
         return [], []
     ids, focal = list(rig.ids), np.array([c.focal.mean() for c in rig.cameras])
     el = eliminate(R, t, views, steps=1 if large else 3)
-    unsure: list = []  # one of two or more cameras moved, the data cannot say which
-    moved = moved_camera(R, t, views, el, suspected, unsure) if suspected is None or suspected else None
-    out = [*(named or []), *([] if moved is None else [moved[0]])]
+    moved = moved_camera(R, t, views, el, suspected) if suspected is None or suspected else Moved()
+    out = [*(named or []), *([] if moved.camera is None else [moved.camera])]
     noisy = noisy_cameras(R, t, views, el, focal, out) if sparse else []
-    found = [moved_fault(ids[moved[0]], moved[1])] if moved is not None else \
-        [unattributed_fault([ids[c] for c in unsure[0][0]], unsure[0][1])] if unsure else []
+    found = [moved_fault(ids[moved.camera], moved.step)] if moved.camera is not None and moved.step is not None else \
+        [unattributed_fault([ids[c] for c in moved.unsure[0]], moved.unsure[1])] if moved.unsure else []
     return found, [noise_fault(ids[c], n) for c, n in noisy]
 
 
