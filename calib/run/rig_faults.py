@@ -281,15 +281,15 @@ def _outliers_or_noise(rig: Rig, labelled: WandPairs, tracks: PointTracks | None
     limit (``res.limit_px``) within two of that share's standard errors: in a rig of few cameras a
     camera three times as noisy puts a fifth of its frames past a limit set by the others' noise,
     all of them its own noise, not reflections."""
-    from wandcal.calib.judge.faults.own_errors import camera_noise, eliminate, noise_fault, views_of
+    from wandcal.calib.judge.faults.own_errors import camera_noise, noise_fault
 
     if not any(f["kind"] == "outliers" for f in faults):
         return faults
-    views = views_of(labelled, tracks)
-    if not len(views.point):
+    el = points_eliminated(R, t, labelled, tracks)[1]
+    if el is None:
         return faults
     focal = np.array([c.focal.mean() for c in rig.cameras])
-    noise = camera_noise(eliminate(R, t, views), focal)
+    noise = camera_noise(el, focal)
     out = []
     for fault in faults:
         c = rig.index(fault["camera"]) if fault["kind"] == "outliers" else -1
@@ -360,19 +360,43 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
         sparse = _median_views(res) < SPREAD_VIEWS
         if not suspected and not sparse:
             return [], []
-    views = views_of(labelled, tracks)
     if large:
-        views = capped(views, VIEWS_PER_CAMERA * len(rig.cameras))
-    if not len(views.point):
+        views = capped(views_of(labelled, tracks), VIEWS_PER_CAMERA * len(rig.cameras))
+        el = eliminate(R, t, views, steps=1) if len(views.point) else None
+    else:
+        views, el = points_eliminated(R, t, labelled, tracks)
+    if el is None:
         return [], []
     ids, focal = list(rig.ids), np.array([c.focal.mean() for c in rig.cameras])
-    el = eliminate(R, t, views, steps=1 if large else 3)
     moved = moved_camera(R, t, views, el, suspected) if suspected is None or suspected else Moved()
     out = [*(named or []), *([] if moved.camera is None else [moved.camera])]
     noisy = noisy_cameras(R, t, views, el, focal, out) if sparse else []
     found = [moved_fault(ids[moved.camera], moved.step)] if moved.camera is not None and moved.step is not None else \
         [unattributed_fault([ids[c] for c in moved.unsure[0]], moved.unsure[1])] if moved.unsure else []
     return found, [noise_fault(ids[c], n) for c, n in noisy]
+
+
+# points_eliminated's last answer, [(R, t, labelled, tracks, views, eliminated)], the inputs compared by identity
+_last_eliminated: list[tuple] = []
+
+
+def points_eliminated(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None):
+    """(views, eliminated): every wand end and point-track observation
+    (:func:`wandcal.calib.judge.faults.own_errors.views_of`) and their points fitted to all cameras,
+    each camera's noise and outliers (:func:`wandcal.calib.judge.faults.own_errors.eliminate`,
+    three steps; eliminated None without views). One judgement reads it three times on the same
+    poses and observations (:func:`own_faults` of a few cameras, :func:`noise_limits`,
+    :func:`_outliers_or_noise`): the last answer is kept and given again for the very same objects
+    (``is``, which the judgement does not change in place): the same input, the same numbers."""
+    from wandcal.calib.judge.faults.own_errors import eliminate, views_of
+
+    for last in _last_eliminated:
+        if all(a is b for a, b in zip(last[:4], (R, t, labelled, tracks), strict=True)):
+            return last[4], last[5]
+    views = views_of(labelled, tracks)
+    el = eliminate(R, t, views) if len(views.point) else None
+    _last_eliminated[:] = [(R, t, labelled, tracks, views, el)]
+    return views, el
 
 
 def _median_views(res: Residuals) -> float:
@@ -391,12 +415,12 @@ def noise_limits(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: n
     where a camera's noise spreads over the points) and only where no camera is at fault (a camera
     at fault bends the others' residuals, and its own fault says more than its noise)."""
     from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
-    from wandcal.calib.judge.faults.own_errors import camera_noise, eliminate, noise_at_limit, views_of
+    from wandcal.calib.judge.faults.own_errors import camera_noise, noise_at_limit
 
     if not 3 <= len(rig.cameras) <= MAX_CAMERAS or any(f["camera"] is not None for f in faults):
         return []
-    views = views_of(labelled, tracks)
-    if not len(views.point):
+    el = points_eliminated(R, t, labelled, tracks)[1]
+    if el is None:
         return []
-    noise = camera_noise(eliminate(R, t, views), np.array([c.focal.mean() for c in rig.cameras]))
+    noise = camera_noise(el, np.array([c.focal.mean() for c in rig.cameras]))
     return [e for e in (noise_at_limit(cam_id, n) for cam_id, n in zip(rig.ids, noise)) if e is not None]

@@ -18,6 +18,7 @@ were measured.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -120,18 +121,41 @@ def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
     With these columns in the step's base the F test's null is "no step, whatever lens error any
     camera has" (an exact linear F test with nuisance columns): a knock is a step in time at any
     place, which no camera's lens pattern explains. The camera's own four columns are those the
-    test fitted before; k2 is left out as it was (k1 takes most of a k2 error over the image)."""
-    v = el.views
-    cam = v.camera[rows]
-    xy = el.Xc[rows][:, :2] / el.Xc[rows][:, 2:]
-    r2 = np.sum(xy**2, axis=1, keepdims=True)
-    G = np.stack([xy, xy * r2, np.broadcast_to([1.0, 0.0], xy.shape), np.broadcast_to([0.0, 1.0], xy.shape)],
-                 axis=2) / el.sigma[cam][:, None, None]
-    present = np.unique(cam)
-    full = np.zeros((len(rows), 2, 4 * len(present)))
-    for j, d in enumerate(present):
-        full[cam == d, :, 4 * j : 4 * j + 4] = G[cam == d]
-    return _projected(el, rows, full)
+    test fitted before; k2 is left out as it was (k1 takes most of a k2 error over the image).
+
+    Made once for every view of ``el`` (:func:`_lens_of_every_view`) and read at ``rows``: ``rows``
+    holds every view of each of its points, so each point's sums are those over all its views, in
+    the same order; a camera without a view among ``rows`` has zero columns there (none of its
+    points' sums holds it), which are dropped. Every camera's step test on one fit (a clean rig's:
+    :class:`wandcal.calib.judge.faults.moved._Refits`) shares them."""
+    full, cameras = _lens_of_every_view(el)
+    present = np.unique(el.views.camera[rows])
+    cols = (4 * np.searchsorted(cameras, present)[:, None] + np.arange(4)).ravel()
+    return full[rows][:, :, cols]
+
+
+# _lens_of_every_view's answers, while their Eliminated lives
+_lens_made: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _lens_of_every_view(el: Eliminated) -> tuple[np.ndarray, np.ndarray]:
+    """(every view's lens columns (M, 2, 4 C), the C cameras with views, ascending): as
+    :func:`_every_lens` describes them, over all of ``el``'s views; made once for each ``el``."""
+    made = _lens_made.get(el)
+    if made is None:
+        v = el.views
+        rows = np.arange(len(v.point))
+        cam = v.camera
+        xy = el.Xc[:, :2] / el.Xc[:, 2:]
+        r2 = np.sum(xy**2, axis=1, keepdims=True)
+        G = np.stack([xy, xy * r2, np.broadcast_to([1.0, 0.0], xy.shape), np.broadcast_to([0.0, 1.0], xy.shape)],
+                     axis=2) / el.sigma[cam][:, None, None]
+        present = np.unique(cam)
+        full = np.zeros((len(rows), 2, 4 * len(present)))
+        for j, d in enumerate(present):
+            full[cam == d, :, 4 * j : 4 * j + 4] = G[cam == d]
+        made = _lens_made[el] = (_projected(el, rows, full), present)
+    return made
 
 
 def _projected(el: Eliminated, rows: np.ndarray, full: np.ndarray) -> np.ndarray:
@@ -277,9 +301,13 @@ def _best_split(base: np.ndarray, step: np.ndarray, y: np.ndarray, time: np.ndar
     rows = np.stack([2 * at, 2 * at + 1], axis=1).ravel()
     Sr = step[rows]
     # per view (summed over its two rows): step^T [base | step | y], then suffix sums in time order
-    prod = np.einsum("ri,rj->rij", Sr, np.concatenate([base[rows], Sr, y[rows, None]], axis=1))
-    prod = prod.reshape(len(at), 2, 3, nb + 4).sum(axis=1)
-    suffix = np.concatenate([np.cumsum(prod[::-1], axis=0)[::-1], np.zeros((1, 3, nb + 4))])
+    # (the two rows' products added in one einsum, the sums run along the last, contiguous axis:
+    # the same additions in the same order as a sum over the rows and a cumsum down the views)
+    both = np.concatenate([base[rows], Sr, y[rows, None]], axis=1)
+    prod = np.einsum("vmi,vmj->ijv", Sr.reshape(len(at), 2, 3), both.reshape(len(at), 2, nb + 4))
+    suffix = np.zeros((3, nb + 4, len(at) + 1))
+    np.cumsum(prod[:, :, ::-1], axis=2, out=suffix[:, :, : len(at)][:, :, ::-1])
+    suffix = suffix.transpose(2, 0, 1)
     first = np.searchsorted(time[at], candidates, side="right")
     rss1 = _split_rss(G00, b0, yy, suffix[first], nb)
     f = ((rss0 - rss1) / 3) / np.maximum(rss1 / dof, 1e-300)
