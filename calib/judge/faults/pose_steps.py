@@ -217,13 +217,22 @@ def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None, at: 
         candidates = candidates[np.linspace(0, len(candidates) - 1, MAX_SPLITS).astype(int)]
     if at is not None:
         candidates = np.array([at])
+    # each round's split search depends on the views kept alone, and its trim on the split found alone:
+    # a round that finds the split of the one before keeps the same views, and is that round again
+    searched: dict[bytes, tuple | None] = {}
+    trimmed: dict[int, np.ndarray] = {}
     keep = np.ones(len(rows), bool)
     for _ in range(TRIM_ROUNDS):
-        best = _best_split(base_cols, step, yv, time, timed, candidates, keep, el.rho[rows])
+        best = _search_once(searched, keep, lambda kept: _best_split(base_cols, step, yv, time, timed, candidates,
+                                                                     kept, el.rho[rows]))
         if best is None:
             return None
-        keep = _kept(np.concatenate([base_cols, step * best[3]], axis=1), yv, el.rho[rows], v.point[rows])
-    best = _best_split(base_cols, step, yv, time, timed, candidates, keep, el.rho[rows])
+        if best[1] not in trimmed:
+            trimmed[best[1]] = _kept(np.concatenate([base_cols, step * best[3]], axis=1), yv, el.rho[rows],
+                                     v.point[rows])
+        keep = trimmed[best[1]]
+    best = _search_once(searched, keep, lambda kept: _best_split(base_cols, step, yv, time, timed, candidates, kept,
+                                                                 el.rho[rows]))
     if best is None:
         return None
     f, k, rss1, mask, rss0, dof = best
@@ -247,6 +256,15 @@ def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None, at: 
     return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
                 float(1 - rss1 / rss0) if rss0 > 0 else 0.0, float(min(dof, dof_f, inflation[1])), len(candidates),
                 w_hat, turn_cov, float(inflation[0]), float(min(dof, dof_f)))
+
+
+def _search_once(searched: dict, keep: np.ndarray, search) -> tuple | None:
+    """``search(keep)`` (:func:`_best_split` on the views ``keep`` (K,)), made once for each set of
+    views kept: ``searched`` holds the answers by ``keep``'s bytes."""
+    key = keep.tobytes()
+    if key not in searched:
+        searched[key] = search(keep)
+    return searched[key]
 
 
 # moved.explained_by's tests, bound here so that a bench wrapping pose_step (bench_real_subsamples.StepRecorder:
