@@ -238,12 +238,13 @@ def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None, at: 
     f, k, rss1, mask, rss0, dof = best
     nb = base_cols.shape[1]
     k2 = np.repeat(keep, 2)
-    coef, cov = _coef(np.concatenate([base_cols, step * mask], axis=1)[k2], yv[k2], dof)
-    e = (yv - np.concatenate([base_cols, step * mask], axis=1) @ _coef_full(base_cols, step * mask, yv, k2)).reshape(-1, 2)
+    model = np.concatenate([base_cols, step * mask], axis=1)
+    coef, cov = _coef(model[k2], yv[k2], dof)
+    e = (yv - model @ _solve(model[k2], yv[k2])).reshape(-1, 2)
     inflation = _inflation(e, mine & timed & keep, time, v.point[rows])
     ratio, dof_f = 1.0, dof
     if (keep & ~timed).any():  # the step is measured against the timed views' own scatter
-        s2t, dof_f = _timed_dispersion(np.concatenate([base_cols, step * mask], axis=1), e, keep, timed, el.rho[rows])
+        s2t, dof_f = _timed_dispersion(model, e, keep, timed, el.rho[rows])
         ratio = s2t / max(rss1 / dof, 1e-300)
     f /= ratio * inflation[0]
     cov = cov * (ratio * inflation[0])
@@ -371,11 +372,6 @@ def _kept(A: np.ndarray, y: np.ndarray, rho: np.ndarray, point: np.ndarray) -> n
     scale = float(np.nanmedian(u)) if np.isfinite(u).any() else 1.0
     bad = e2 > TRIM_SIGMAS**2 * np.maximum(rho, 1e-3) * scale
     return ~np.isin(point, point[bad])
-
-
-def _coef_full(base: np.ndarray, step: np.ndarray, y: np.ndarray, k2: np.ndarray) -> np.ndarray:
-    """The coefficients of y on [base | step] fitted on the rows k2 (2K,)."""
-    return _solve(np.concatenate([base, step], axis=1)[k2], y[k2])
 
 
 def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:
