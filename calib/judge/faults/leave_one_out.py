@@ -158,6 +158,8 @@ def seen_again(held: HeldOut, labelled: WandPairs, tracks: PointTracks | None) -
     camera's lens: :func:`wandcal.calib.judge.faults.swapped.screened_pairs`), and only camera c's
     changed. The points the other cameras triangulate do not read c's views, so they are held's as
     they are: what :func:`held_out_views` of these observations gives, without triangulating again."""
+    if held.picks is None:
+        raise ValueError("seen_again reads the rows held_out_views picked: give it held_out_views' answer")
     mines, ok = held.picks
     xys = [xy[mine] for (_, _, xy, *_), mine in zip(_groups(labelled, tracks), mines, strict=True) if mine.any()]
     xy = np.concatenate(xys)[ok] if xys else np.zeros((0, 2))
