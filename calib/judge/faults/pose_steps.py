@@ -123,11 +123,16 @@ def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
     place, which no camera's lens pattern explains. The camera's own four columns are those the
     test fitted before; k2 is left out as it was (k1 takes most of a k2 error over the image).
 
-    Made once for every view of ``el`` (:func:`_lens_of_every_view`) and read at ``rows``: ``rows``
-    holds every view of each of its points, so each point's sums are those over all its views, in
-    the same order; a camera without a view among ``rows`` has zero columns there (none of its
-    points' sums holds it), which are dropped. Every camera's step test on one fit (a clean rig's:
-    :class:`wandcal.calib.judge.faults.moved._Refits`) shares them."""
+    Where ``rows`` are half of ``el``'s views or more (a rig of few cameras, each seeing most
+    points), made once for every view of ``el`` (:func:`_lens_of_every_view`) and read at ``rows``:
+    ``rows`` holds every view of each of its points, so each point's sums are those over all its
+    views, in the same order; a camera without a view among ``rows`` has zero columns there (none of
+    its points' sums holds it), which are dropped. Every camera's step test on one fit (a clean
+    rig's: :class:`wandcal.calib.judge.faults.moved._Refits`) shares them. In a larger rig a camera
+    sees a small part of the views and every camera's columns over all of them would be large: made
+    over ``rows`` alone (the same numbers)."""
+    if 2 * len(rows) < len(el.views.point):
+        return _lens_columns(el, rows)[0]
     full, cameras = _lens_of_every_view(el)
     present = np.unique(el.views.camera[rows])
     cols = (4 * np.searchsorted(cameras, present)[:, None] + np.arange(4)).ravel()
@@ -143,19 +148,23 @@ def _lens_of_every_view(el: Eliminated) -> tuple[np.ndarray, np.ndarray]:
     :func:`_every_lens` describes them, over all of ``el``'s views; made once for each ``el``."""
     made = _lens_made.get(el)
     if made is None:
-        v = el.views
-        rows = np.arange(len(v.point))
-        cam = v.camera
-        xy = el.Xc[:, :2] / el.Xc[:, 2:]
-        r2 = np.sum(xy**2, axis=1, keepdims=True)
-        G = np.stack([xy, xy * r2, np.broadcast_to([1.0, 0.0], xy.shape), np.broadcast_to([0.0, 1.0], xy.shape)],
-                     axis=2) / el.sigma[cam][:, None, None]
-        present = np.unique(cam)
-        full = np.zeros((len(rows), 2, 4 * len(present)))
-        for j, d in enumerate(present):
-            full[cam == d, :, 4 * j : 4 * j + 4] = G[cam == d]
-        made = _lens_made[el] = (_projected(el, rows, full), present)
+        made = _lens_made[el] = _lens_columns(el, np.arange(len(el.views.point)))
     return made
+
+
+def _lens_columns(el: Eliminated, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the lens columns over ``rows`` (K, 2, 4 C), the C cameras with a view among them, ascending):
+    :func:`_every_lens`'s columns, made over ``rows``."""
+    cam = el.views.camera[rows]
+    xy = el.Xc[rows][:, :2] / el.Xc[rows][:, 2:]
+    r2 = np.sum(xy**2, axis=1, keepdims=True)
+    G = np.stack([xy, xy * r2, np.broadcast_to([1.0, 0.0], xy.shape), np.broadcast_to([0.0, 1.0], xy.shape)],
+                 axis=2) / el.sigma[cam][:, None, None]
+    present = np.unique(cam)
+    full = np.zeros((len(rows), 2, 4 * len(present)))
+    for j, d in enumerate(present):
+        full[cam == d, :, 4 * j : 4 * j + 4] = G[cam == d]
+    return _projected(el, rows, full), present
 
 
 def _projected(el: Eliminated, rows: np.ndarray, full: np.ndarray) -> np.ndarray:
