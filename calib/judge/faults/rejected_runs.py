@@ -184,24 +184,6 @@ def camera_runs(res: Residuals, n_cameras: int) -> list[tuple[RejectedRun, float
     return runs
 
 
-def _placed_by_others(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, pts: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Camera c's views of the wand ends of the points ``pts`` (first ends) and those ends as the
-    other cameras' kept views place them (two views or more): (its residuals' rows (K,), X (K, 3));
-    None where the others place none."""
-    ends = np.isin(res.point, np.r_[pts, pts + 1]) & (res.point >= 0)
-    views = np.flatnonzero(ends & (res.camera == c))
-    others = np.flatnonzero(ends & (res.camera != c) & ~res.outlier)
-    seen = np.bincount(res.point[others], minlength=2 * len(res.frames))
-    others = others[seen[res.point[others]] >= 2]
-    if not len(others):
-        return None
-    X = triangulate_points(R, t, res.point[others], res.camera[others], res.xy[others], 2 * len(res.frames))
-    X = X[res.point[views]]
-    ok = np.all(np.isfinite(X), axis=1) & (seen[res.point[views]] >= 2)
-    return views[ok], X[ok]
-
-
 def turned_back(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, run: RejectedRun, q: float) -> bool:
     """Whether one turn of camera c about its centre brings its block's camera-frames back: after
     the turn (least squares on the block's views, the ones still beyond the limit then left out and
@@ -211,11 +193,20 @@ def turned_back(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, run: Rejec
     rows, _ = _camera_frames(res, c)
     frames = res.frames[res.point[rows] // 2]
     inside = frames > run.frame if run.tail else frames <= run.frame
+    pts = res.point[rows[inside]]
     placed = np.zeros(len(res.frames), bool)
-    found = _placed_by_others(res, R, t, c, res.point[rows[inside]])
-    if found is None:
+    ends = np.isin(res.point, np.r_[pts, pts + 1]) & (res.point >= 0)
+    views = np.flatnonzero(ends & (res.camera == c))
+    # the block's points as the other cameras' kept views place them (two views or more)
+    others = np.flatnonzero(ends & (res.camera != c) & ~res.outlier)
+    seen = np.bincount(res.point[others], minlength=2 * len(res.frames))
+    others = others[seen[res.point[others]] >= 2]
+    if not len(others):
         return True  # the others do not place the block: the rate's test stands alone
-    views, X = found
+    X = triangulate_points(R, t, res.point[others], res.camera[others], res.xy[others], 2 * len(res.frames))
+    X = X[res.point[views]]
+    ok = np.all(np.isfinite(X), axis=1) & (seen[res.point[views]] >= 2)
+    views, X = views[ok], X[ok]
     if len(np.unique(res.point[views] // 2)) < MIN_PLACED:
         return True  # too few of the block's frames placed without it to tell a turn from a reflection
     Xc0 = X @ R[c].T + t[c]
@@ -239,50 +230,6 @@ def turned_back(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, run: Rejec
     return binomial_tail(left, int(placed.sum()), q) >= FITS_LEVEL
 
 
-def _lens_errors(p: np.ndarray, Xc0: np.ndarray, xy: np.ndarray, focal: np.ndarray) -> np.ndarray:
-    """(K, 2) pixels, the camera's views ``xy`` (K, 2 normalised) against the camera-frame points
-    Xc0 (K, 3) turned by p[:3], moved by p[3:6] and seen through a lens scaled by 1 + p[6] with a
-    radial term p[7] r^2 (r^2 normalised): its pose and its focal length and k1 refitted."""
-    Xc = Xc0 @ rotvec_to_matrix(p[:3]).T + p[3:6]
-    x = Xc[:, :2] / Xc[:, 2:]
-    return ((1 + p[6]) * x * (1 + p[7] * (x * x).sum(axis=1, keepdims=True)) - xy) * focal[:, None]
-
-
-def lens_explains(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, q: float) -> bool:
-    """Whether camera c's rejected camera-frames are its lens's, not a move's: its pose, focal
-    length and k1 refitted to all its wand views against the points the other cameras place
-    without it (Gauss-Newton, the views still beyond the limit then left out and fitted once more,
-    as :func:`turned_back`) leave no more of its camera-frames beyond the rig's limit than its rate
-    ``q`` would put there (P(Bin(placed, q) >= those left) >= :data:`FITS_LEVEL`). A focal length a
-    few per cent off puts a camera's views beyond the limit where the wand went (its error grows
-    with the point's distance from the image centre and from the depth the pose absorbed), which a
-    run in time may follow by chance; one lens for all its frames cannot bring back a block that a
-    knock turned and leave the frames before it where they were."""
-    rows, _ = _camera_frames(res, c)
-    found = _placed_by_others(res, R, t, c, res.point[rows])
-    if found is None:
-        return False
-    views, X = found
-    if len(np.unique(res.point[views] // 2)) < MIN_PLACED:
-        return False
-    Xc0, xy, focal = X @ R[c].T + t[c], res.xy[views], res.focal[views]
-    p, use, h = np.zeros(8), np.ones(len(views), bool), 1e-7
-    for k in range(2 * TURN_STEPS):
-        err = _lens_errors(p, Xc0, xy, focal)
-        if k == TURN_STEPS:  # the views the first fit leaves beyond the limit are left out of the second
-            use = np.linalg.norm(err, axis=1) <= res.limit_px
-            if use.sum() < len(p):
-                break
-        J = np.stack([(_lens_errors(p + h * e, Xc0, xy, focal) - err) / h for e in np.eye(len(p))], axis=2)
-        A = np.einsum("kmi,kmj->ij", J[use], J[use])
-        p = p - np.linalg.lstsq(A, np.einsum("kmi,km->i", J[use], err[use]), rcond=None)[0]
-    err = np.linalg.norm(_lens_errors(p, Xc0, xy, focal), axis=1)
-    beyond, placed = np.zeros(len(res.frames), bool), np.zeros(len(res.frames), bool)
-    np.logical_or.at(beyond, res.point[views] // 2, err > res.limit_px)
-    placed[res.point[views] // 2] = True
-    return binomial_tail(int(beyond.sum()), int(placed.sum()), q) >= FITS_LEVEL
-
-
 def rejected_moved(ids: list[str], res: Residuals, R: np.ndarray, t: np.ndarray) -> list[dict]:
     """A ``moved`` fault on the camera whose rejected camera-frames bunch at one end of its time
     beyond the rig's rate at p under :data:`STEP_ALPHA` and which one turn of the camera brings
@@ -293,7 +240,7 @@ def rejected_moved(ids: list[str], res: Residuals, R: np.ndarray, t: np.ndarray)
     found = sorted((rq[0].p_value, c, rq) for c, rq in enumerate(camera_runs(res, len(ids)))
                    if rq is not None and rq[0].p_value < STEP_ALPHA)
     for _, c, (r, q) in found:
-        if turned_back(res, R, t, c, r, q) and not lens_explains(res, R, t, c, q):
+        if turned_back(res, R, t, c, r, q):
             return [rejected_fault(ids[c], r)]
     return []
 
