@@ -8,8 +8,9 @@ import pytest
 from bench.bench_watch_real import FRAME_SLACK, knock_frame, knocked, outcome, real_takes, verdict
 from wandcal.calib.sim.takes import CameraMove, simulate_take
 from wandcal.calib.watch.health import WINDOW_FRAMES, whitened
+from wandcal.calib.watch.report import MIN_JUDGED_FRAMES
+from wandcal.calib.watch.stream import watch_take
 from wandcal.calib.watch.take import TakeBlobs
-from wandcal.calib.watch.watch import MIN_JUDGED_FRAMES, watch_take
 
 NOISE_PX = 0.3
 

@@ -9,8 +9,8 @@ from wandcal.calib.geometry import camera_centers, rotation_angle
 from wandcal.calib.sim.takes import CameraMove, simulate_take
 from wandcal.calib.watch.health import WINDOW_FRAMES
 from wandcal.calib.watch.match import match_frames
+from wandcal.calib.watch.stream import watch_take
 from wandcal.calib.watch.take import TakeBlobs, check_take, pad_frames
-from wandcal.calib.watch.watch import watch_take
 
 NOISE_PX = 0.3
 DETECT_FRAMES = 300  # the goal: named within 300 frames of the move
