@@ -1,10 +1,11 @@
 """What a take's watch reports: each camera's health (:class:`CameraHealth`: residual, matched share,
 its alarm, knock or drift, when, how much, re-solved or why not, the "one of" advice) and the take's
-(:class:`WatchReport`), read by the CLI, the service and the written result (issue 36)."""
+(:class:`WatchReport`), read by the CLI, the service and the written result; :func:`numbered`, a report
+watched by frame rank given the take's own frame numbers (issue 36)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -84,3 +85,22 @@ class WatchReport:
         """Whether the take outlasted the test's baseline by a change's shortest span: a shorter one
         was matched and measured, but no camera's change over it could be tested."""
         return self.frames >= MIN_JUDGED_FRAMES
+
+
+def numbered(report: WatchReport, numbers: np.ndarray) -> WatchReport:
+    """The report of a take watched by frame rank, with the take's own frame numbers (``numbers``:
+    the frame number of each rank). A digitised take keeps every n-th frame, or only some: its test
+    windows are ten frames it holds, whatever their numbers."""
+    def number(rank: int) -> int:
+        return int(numbers[min(max(rank, 0), len(numbers) - 1)])
+
+    for h in report.cameras:
+        if h.alarm is not None:
+            h.alarm = replace(h.alarm, frame=number(h.alarm.frame), detected_frame=number(h.alarm.detected_frame))
+        if h.moved_at is not None:
+            end = number(h.moved_at + h.drift_frames)
+            h.moved_at = number(h.moved_at)
+            h.drift_frames = end - h.moved_at
+    report.first_frame, report.last_frame = number(report.first_frame), number(report.last_frame)
+    report.obs = [[(numbers[f], X, xy) for f, X, xy in batch] for batch in report.obs]
+    return report

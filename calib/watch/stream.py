@@ -22,7 +22,7 @@ from wandcal.calib.watch.health import (
 from wandcal.calib.watch.lost import LOST_THRESHOLD, FoundTest
 from wandcal.calib.watch.match import Tracks, match_frames
 from wandcal.calib.watch.recover import SETTLE_FRAMES, Resolved, resolve_moved, wander_share
-from wandcal.calib.watch.report import ONE_OF_ADVICE, CameraHealth, WatchReport
+from wandcal.calib.watch.report import ONE_OF_ADVICE, CameraHealth, WatchReport, numbered
 from wandcal.calib.watch.sequential import (
     BASELINE_WINDOWS,
     GLR_THRESHOLD,
@@ -68,26 +68,7 @@ def watch_take(rig: Rig, R: np.ndarray, t: np.ndarray, blobs: TakeBlobs, *, reso
     report = stream.report(last)
     if resolve:
         _resolve(rig, R, t, ranked, report, stream.tests)
-    return _numbered(report, numbers)
-
-
-def _numbered(report: WatchReport, numbers: np.ndarray) -> WatchReport:
-    """The report of a take watched by frame rank, with the take's own frame numbers (``numbers``:
-    the frame number of each rank). A digitised take keeps every n-th frame, or only some: its test
-    windows are ten frames it holds, whatever their numbers."""
-    def number(rank: int) -> int:
-        return int(numbers[min(max(rank, 0), len(numbers) - 1)])
-
-    for h in report.cameras:
-        if h.alarm is not None:
-            h.alarm = replace(h.alarm, frame=number(h.alarm.frame), detected_frame=number(h.alarm.detected_frame))
-        if h.moved_at is not None:
-            end = number(h.moved_at + h.drift_frames)
-            h.moved_at = number(h.moved_at)
-            h.drift_frames = end - h.moved_at
-    report.first_frame, report.last_frame = number(report.first_frame), number(report.last_frame)
-    report.obs = [[(numbers[f], X, xy) for f, X, xy in batch] for batch in report.obs]
-    return report
+    return numbered(report, numbers)
 
 
 class WatchStream:
