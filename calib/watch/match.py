@@ -241,10 +241,10 @@ def _associate(model: CameraModel, focal, trees: list[tuple[np.ndarray, cKDTree]
     xy = model.project(X)  # (P, C, 2)
     out = np.full(xy.shape[:2], -1)
     for c in range(xy.shape[1]):
-        ahead = np.isfinite(xy[:, c, 0])
-        if trees[c] is None or not ahead.any():
+        ahead, free_c = np.isfinite(xy[:, c, 0]), trees[c]
+        if free_c is None or not ahead.any():
             continue
-        k, tree = trees[c]
+        k, tree = free_c
         q = np.flatnonzero(ahead)
         proj = xy[q, c] * focal[c]
         d, j = tree.query(np.column_stack([proj, f_idx[q] * FRAME_GAP_PX]), k=2,
