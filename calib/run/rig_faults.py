@@ -399,6 +399,12 @@ def points_eliminated(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks:
     return views, el
 
 
+def forget_eliminated() -> None:
+    """Drop :func:`points_eliminated`'s kept answer: the judgement calls it before and after its
+    reads, so no answer outlives one judgement (arrays a caller changes in place later, memory)."""
+    _last_eliminated.clear()
+
+
 def _median_views(res: Residuals) -> float:
     """The median point's number of views in the judgement's residuals."""
     if not len(res.point):
