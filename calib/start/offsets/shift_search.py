@@ -110,6 +110,16 @@ class ShiftSearch:
         lags = np.unique(np.subtract.outer(np.array(self.partner_offsets(a)), self.shifts(b)))
         return bool(shared_counts(self.table, a, b, lags).max() < FEW_FRAMES)
 
+    def proof_cost(self, b: int, a: int) -> int | None:
+        """The RANSACs :meth:`cannot_time` (b, a) runs at most: the lags any offset of a gives where
+        the pair shares ``MIN_TIMING_FRAMES`` frames; None where it returns False on the frame
+        counts alone (some offset of a would judge b by the midpoint scores)."""
+        lags = np.unique(np.subtract.outer(np.array(self.partner_offsets(a)), self.shifts(b)))
+        counts = shared_counts(self.table, a, b, lags)
+        if counts.max() >= FEW_FRAMES:
+            return None
+        return int(np.count_nonzero(counts >= MIN_TIMING_FRAMES))
+
     def cannot_time(self, b: int, a: int) -> bool:
         """Whether camera b's search against ``a`` as its first partner raises TooFewShared
         whatever offset a's own search finds (:meth:`partner_offsets`): at each such offset b's
