@@ -36,7 +36,7 @@ from wandcal.calib.geometry import rotvec_to_matrix
 from wandcal.calib.observations import WandPairs
 from wandcal.calib.rig import Rig
 from wandcal.calib.start.initial import Initial, UnplacedCamera, initial_poses
-from wandcal.calib.start.labels import flatten, labelled_ends
+from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.start.offsets.pair_fit import MIN_TIMING_FRAMES
 from wandcal.calib.start.offsets.shift_search import MAX_CONTRAST
 from wandcal.calib.start.offsets.whole_frames import FrameOffsets, shift_pairs
@@ -98,8 +98,8 @@ def offsets_by_triangulation(rig: Rig, pairs: WandPairs, max_offset: int, start:
                 f"first camera's it fits no pose against the wand the others triangulate, and no two cameras share "
                 "enough frames to time it by itself; check that it recorded the same session and the same wand (a "
                 "camera more than a frame or two out of time on so sparse a rig needs timestamps to start from)") from None
-        labelled, _, ends = labelled_ends(init.R, init.t, shifted, np.ones(n, bool), rig.wand_length)
-        scores = shift_scores(init.R, init.t, labelled, shifts, np.array([c.focal for c in rig.cameras], float), ends)
+        labelled = label_ends(init.R, init.t, shifted, np.ones(n, bool), rig.wand_length)[0]
+        scores = shift_scores(init.R, init.t, labelled, shifts, np.array([c.focal for c in rig.cameras], float))
         with np.errstate(all="ignore"):
             typical = np.nanmedian(scores, axis=1)
         best = np.array([int(np.nanargmin(row)) if np.isfinite(row).any() else max_offset for row in scores])
@@ -137,17 +137,15 @@ def _refuse_unclear(rig: Rig, unclear: np.ndarray, best_px: np.ndarray, contrast
             "that it recorded the same session and the same wand, or search wider (sync_max_offset)")
 
 
-def shift_scores(R: np.ndarray, t: np.ndarray, labelled: WandPairs, shifts: np.ndarray, focal: np.ndarray,
-                 ends: np.ndarray | None = None) -> np.ndarray:
+def shift_scores(R: np.ndarray, t: np.ndarray, labelled: WandPairs, shifts: np.ndarray, focal: np.ndarray) -> np.ndarray:
     """(N, S) each camera's median error, px, with its frame k matched to the others' frame
     k + shift (``shifts`` (S,) int): its two ends against the ends the other cameras triangulate
     in that frame, projected with its pose, the nearer matching; NaN for a shift with fewer than
     :data:`MIN_TIMING_FRAMES` such frames. R (N, 3, 3), t (N, 3) world->camera, metres; focal
-    (N,) or (N, 2) px; ``ends`` (F, 2, 3), metres: every frame's ends triangulated from all the
-    labelled pairs, as :func:`wandcal.calib.start.labels.labelled_ends` hands them on (None: here)."""
+    (N,) or (N, 2) px."""
     n, F = len(R), len(labelled.frames)
     point, camera, xy = flatten(labelled)
-    X_all = triangulate_points(R, t, point, camera, xy, 2 * F).reshape(F, 2, 3) if ends is None else ends
+    X_all = triangulate_points(R, t, point, camera, xy, 2 * F).reshape(F, 2, 3)
     X_out, _, _ = triangulate_left_out(R, t, point, camera, xy, 2 * F)
     P = len(labelled)
     X_own = np.stack([X_out[:P], X_out[P:]], axis=1)  # (P, 2, 3) each pair's ends without its camera
@@ -160,10 +158,10 @@ def shift_scores(R: np.ndarray, t: np.ndarray, labelled: WandPairs, shifts: np.n
         at = np.searchsorted(labelled.frames, number + s)
         exists = (at < F) & (labelled.frames[np.minimum(at, F - 1)] == number + s)
         at = np.where(exists, at, 0)
-        ends_s = np.where(exists[:, None, None], X_all[at], np.nan)
+        ends = np.where(exists[:, None, None], X_all[at], np.nan)
         # a frame the camera saw itself: the others' ends alone, never its own sighting's
         mine = row_of[at, labelled.camera]
-        each.append(np.where((exists & (mine >= 0))[:, None, None], X_own[np.maximum(mine, 0)], ends_s))
+        each.append(np.where((exists & (mine >= 0))[:, None, None], X_own[np.maximum(mine, 0)], ends))
     scale = FIT_SCALE_PX / focal_px
     scores = _medians(labelled.camera, np.stack([_pair_errors(R[labelled.camera], t[labelled.camera], e, labelled.xy)
                                                  for e in each]), n)
