@@ -186,12 +186,11 @@ def _refuse_untimeable(search: ShiftSearch, steps: list[tuple[int, list[int]]], 
     for i, (b, partners) in enumerate(steps):
         a = partners[0]
         lag = int(search.start[b] - search.start[a])
+        cost = search.proof_cost(b, a)
+        if cost is None:
+            break  # b might be refused otherwise than TooFewShared (not sparse everywhere), and cannot_time refutes it
         if shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES:
-            cost = search.proof_cost(b, a)
-            if cost is not None:
-                tried.append((cost, i, b, a))
-        if not search.sparse_everywhere(b, a):
-            break  # b might be refused otherwise than TooFewShared: no camera planned after it is proved
+            tried.append((cost, i, b, a))
     for _, _, b, a in sorted(tried):
         if search.cannot_time(b, a):
             rig = search.rig
