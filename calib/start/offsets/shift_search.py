@@ -109,13 +109,11 @@ class ShiftSearch:
         search."""
         return bool(shared_counts(self.table, a, b, self._partner_lags(b, a)).max() < FEW_FRAMES)
 
-    def proof_cost(self, b: int, a: int) -> int | None:
-        """The RANSACs :meth:`cannot_time` (b, a) runs at most: the lags any offset of a gives where
-        the pair shares ``MIN_TIMING_FRAMES`` frames; None where it returns False on the frame
-        counts alone, that is where b is not :meth:`sparse_everywhere` (some offset of a would
-        judge b by the midpoint scores)."""
-        counts = shared_counts(self.table, a, b, self._partner_lags(b, a))
-        return int(np.count_nonzero(counts >= MIN_TIMING_FRAMES)) if counts.max() < FEW_FRAMES else None
+    def proof_cost(self, b: int, a: int) -> int:
+        """The RANSACs :meth:`cannot_time` (b, a) runs at most where b is :meth:`sparse_everywhere`
+        (elsewhere it runs fewer and refutes the proof): the lags any offset of a gives where the
+        pair shares ``MIN_TIMING_FRAMES`` frames."""
+        return int(np.count_nonzero(shared_counts(self.table, a, b, self._partner_lags(b, a)) >= MIN_TIMING_FRAMES))
 
     def _partner_lags(self, b: int, a: int) -> np.ndarray:
         """(L,) every lag between b and ``a`` that an offset of a's (:meth:`partner_offsets`) and a

@@ -180,17 +180,16 @@ def _refuse_untimeable(search: ShiftSearch, steps: list[tuple[int, list[int]]], 
     midpoint scores' other refusals need ``FEW_FRAMES`` frames). Whether it raises does not depend
     on the order the cameras are tried in, only what it costs and which camera the message names:
     the cheapest proofs first (:meth:`ShiftSearch.proof_cost`, one RANSAC a lag; ties in the planned
-    order), and none that the frame counts already refute. Which cameras are tried only bounds the
-    cost; the proofs are exact."""
+    order), and none that the frame counts already refute (a camera not sparse everywhere). Which
+    cameras are tried only bounds the cost; the proofs are exact."""
     tried = []  # (RANSACs, planned index, b, a)
     for i, (b, partners) in enumerate(steps):
         a = partners[0]
         lag = int(search.start[b] - search.start[a])
-        cost = search.proof_cost(b, a)
-        if cost is None:
-            break  # b might be refused otherwise than TooFewShared (not sparse everywhere), and cannot_time refutes it
+        if not search.sparse_everywhere(b, a):
+            break  # b might be refused otherwise than TooFewShared, and cannot_time refutes it on the counts alone
         if shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES:
-            tried.append((cost, i, b, a))
+            tried.append((search.proof_cost(b, a), i, b, a))
     for _, _, b, a in sorted(tried):
         if search.cannot_time(b, a):
             rig = search.rig
