@@ -8,12 +8,16 @@ With ``--held-out`` it runs instead the faults the issue does not list (bench/he
 and writes their table to its own section ("Judgement on real sessions with held-out faults"), so
 that the listed table stays comparable.
 
+With ``--fresh SEEDS`` (e.g. ``101,102``) it runs instead faults whose sizes and target cameras are
+drawn from those seeds (bench/fresh_faults.py), a table nobody tuned on, and prints it with every
+miss and each session's clean run beside its published figures; it writes nothing.
+
 With ``--sigma-spread N`` it prints instead how each camera's geometry sigma varies over N more
 random 60% subsamples of each session (seeds from 100), beside what its own standard error predicts
 (decision 0049), and writes nothing.
 
 Usage: python bench/bench_real_faults.py [--sessions brown1,brown2,ushichka,svoboda,cpp]
-       [--families focal,k1,...] [--no-write] [--held-out] [--sigma-spread N]
+       [--families focal,k1,...] [--no-write] [--held-out] [--fresh SEEDS] [--sigma-spread N]
 """
 
 from __future__ import annotations
@@ -150,12 +154,47 @@ def held_out(sessions: list[rf.Session], write: bool) -> int:
     return 0
 
 
+def fresh(sessions: list[rf.Session], seeds: list[int]) -> int:
+    """The fresh faults' cases, table and misses (bench/fresh_faults.py), printed only."""
+    import time
+
+    from bench import fresh_faults as ff
+
+    start, cpu = time.strftime("%H:%M UTC", time.gmtime()), time.process_time()
+    for session in sessions:
+        print(ff.published_line(session), flush=True)
+    outcomes = ff.run_fresh(sessions, seeds, progress=lambda o: print(rf.case_line(o), flush=True),
+                            on_clean=lambda s, c: print(f"clean {s.name}: {c.level}, faults named: {sorted(c.faults) or 'none'}"))
+    print(f"\nSeeds {', '.join(map(str, seeds))}; {ff.DRAWS} draws a family, session and seed.\n")
+    print(rf.confusion_table(outcomes, ff.FRESH_FAMILIES, ff.NOTES))
+    right = [o for o in outcomes if o.right and o.case.family not in ff.NOTES]
+    ways = {k: sum(o.outcome == k for o in right) for k in ("right", "limited", "absorbed", "at the limit")}
+    print(f"\nRight by a named fault {ways['right']}, only as limited {ways['limited']}, absorbed {ways['absorbed']}, "
+          f"at the limit {ways['at the limit']} (of {len(right)} right, determinable rows)")
+    for seed in seeds:
+        rows = [o for o in outcomes if o.case.label.startswith(f"s{seed} ") and o.case.family not in ff.NOTES]
+        print(f"seed {seed}: {sum(o.right for o in rows)}/{len(rows)} determinable right, "
+              f"{sum(o.outcome == 'wrong camera' for o in rows)} wrong camera, {sum(o.outcome == 'called poor' for o in rows)} called poor")
+    for session in sessions:
+        rows = [o for o in outcomes if o.case.session == session.name and o.case.family not in ff.NOTES]
+        print(f"{session.name}: {sum(o.right for o in rows)}/{len(rows)} determinable right")
+    print("\nThe wrong ones (with the verdict's first message):")
+    for o in outcomes:
+        if not o.right:
+            print(f"- {rf.case_line(o)}\n    {o.message[:300]}")
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"\nRun from {start} to {time.strftime('%H:%M UTC', time.gmtime())}, {time.process_time() - cpu:.0f} s CPU, load {load}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sessions", default=",".join(rf.LOADERS))
     ap.add_argument("--families", default=",".join(rf.FAMILIES))
     ap.add_argument("--no-write", action="store_true")
     ap.add_argument("--held-out", action="store_true", help="the faults the issue does not list (bench/held_out_faults.py)")
+    ap.add_argument("--fresh", default="", metavar="SEEDS",
+                    help="faults drawn from these seeds (comma-separated; bench/fresh_faults.py), printed only")
     ap.add_argument("--sigma-spread", type=int, default=0, metavar="N",
                     help="print how each camera's geometry sigma varies over N random 60%% subsamples instead")
     args = ap.parse_args()
@@ -169,6 +208,8 @@ def main() -> int:
         return 0
     if args.held_out:
         return held_out(sessions, not args.no_write)
+    if args.fresh:
+        return fresh(sessions, [int(x) for x in args.fresh.split(",")])
     cleans = []
 
     def on_clean(session, clean) -> None:
