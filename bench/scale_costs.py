@@ -79,7 +79,9 @@ def part_costs(rigs: list[str], repeats: int, base: Path | None = None) -> str:
     with tempfile.TemporaryDirectory() as tmp:
         variants: dict[str, Path | None] = {"": None}
         if base is not None:
-            variants = {"before": checkout_view(base, Path(tmp) / "view"), "after": None}
+            # after: this bench's own checkout on the path too (not whatever the editable install maps), so a
+            # frozen copy of a branch can be measured while its worktree moves on
+            variants = {"before": checkout_view(base, Path(tmp) / "view"), "after": checkout_view(REPO, Path(tmp) / "head")}
         folders = {}
         for rig in rigs:
             shape, size = rig.split(":") if ":" in rig else (None, rig)
