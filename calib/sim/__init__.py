@@ -4,6 +4,7 @@
 |---|---|
 | :mod:`~wandcal.calib.sim.simulate` | rigs, wand paths and static objects with their truth (``wandcal simulate``, the demo) |
 | :mod:`~wandcal.calib.sim.shapes` | rigs of the shapes real rigs have (ring, dome, two tiers, hallway; 8-256 cameras, sparse views; ``simulate --shape``) |
+| :mod:`~wandcal.calib.sim.intrinsics` | given intrinsics a few per cent off the truth, as real ones are (``simulate --intrinsics-error``) |
 | :mod:`~wandcal.calib.sim.render` | marker spots rendered as a camera records them |
 | :mod:`~wandcal.calib.sim.scenes` | scenes taken part-way through the pipeline, for tests and benchmarks |
 | :mod:`~wandcal.calib.sim.references` | world references besides the L-frame: floor points and a dropped ball (``simulate --floor``, ``--drop``) |

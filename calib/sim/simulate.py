@@ -25,12 +25,15 @@ BORDER_PX = 4  # blobs closer than this to the image edge are cut off by the det
 class Truth:
     """Ground truth of a simulated capture.
 
-    R: (N, 3, 3), t: (N, 3) world->camera poses; wand: (F, 2, 3) marker positions, metres.
+    R: (N, 3, 3), t: (N, 3) world->camera poses; wand: (F, 2, 3) marker positions, metres;
+    cameras: the true intrinsics where rig.json gives them off (``simulate --intrinsics-error``,
+    :mod:`wandcal.calib.sim.intrinsics`), else None (rig.json's are the truth).
     """
 
     R: np.ndarray
     t: np.ndarray
     wand: np.ndarray
+    cameras: tuple[Camera, ...] | None = None
 
     @property
     def centers(self) -> np.ndarray:
@@ -41,6 +44,7 @@ class Truth:
             "format": "wandcal-truth/1",
             "cameras": [
                 {"id": cam.id, "R": self.R[i].tolist(), "t": self.t[i].tolist(), "center": self.centers[i].tolist()}
+                | ({} if self.cameras is None else {"K": self.cameras[i].K.tolist(), "dist": self.cameras[i].dist.tolist()})
                 for i, cam in enumerate(rig.cameras)
             ],
             "wand_points_m": self.wand.tolist(),

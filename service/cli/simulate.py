@@ -17,6 +17,10 @@ MAX_SIM_FRAMES = 100_000
 MAX_NOISE_PX = 100.0  # blob noise past this hides the wand in any image
 MAX_TAKE_MARKERS = 200  # a full marker suit has ~50; a few people and props stay under this
 MAX_REFERENCE_POINTS = 10_000  # floor points or drop frames: far more than any lab digitises
+# simulate --intrinsics-error: a lens's nominal focal length is marked to 5%; 20% is a wrong lens, not an error
+MAX_INTRINSICS_ERROR_PCT = 20.0
+MAX_PRINCIPAL_ERROR_PX = 200.0  # a principal point tens of pixels off is common; hundreds is another sensor crop
+MAX_DISTORTION_ERROR = 0.5  # the simulator's k1 is -0.15 to -0.05 (shapes: up to 0.1)
 # the wands simulate --wand films (rig.json wand.markers_m, metres): an asymmetric split tells a
 # collinear wand's ends apart (OptiTrack CW-500-like), an asymmetric bar a planar T's (Vicon-like)
 WANDS = {
@@ -52,7 +56,42 @@ def register(sub: argparse._SubParsersAction, *, arguments: bool = True) -> None
         vertical.add_argument("--drop", type=arg_whole(5, MAX_REFERENCE_POINTS), default=None, metavar="N",
                               help="also write drop.csv: a ball dropped through the volume, N frames at 100 fps, "
                               "gravity as the world's vertical (use with --no-static; default: none)")
+        intrinsics_args(p)
         take_args(p)
+
+
+def arg_percent(text: str) -> float:
+    """A per cent from 0 to :data:`MAX_INTRINSICS_ERROR_PCT`, "2" or "2%"."""
+    return arg_number(0, MAX_INTRINSICS_ERROR_PCT)(text.strip().removesuffix("%"))
+
+
+def arg_distortion(text: str) -> tuple[float, float | None]:
+    """K or K,P: the radial and (default K) tangential distortion sigmas, each 0 to :data:`MAX_DISTORTION_ERROR`."""
+    number = arg_number(0, MAX_DISTORTION_ERROR)
+    parts = text.split(",")
+    if len(parts) > 2:
+        raise argparse.ArgumentTypeError(f"{text!r}: give K or K,P (e.g. 0.01 or 0.01,0.001)")
+    return number(parts[0]), number(parts[1]) if len(parts) == 2 else None
+
+
+def intrinsics_args(p: argparse.ArgumentParser) -> None:
+    """``--intrinsics-error`` and its companions: rig.json's intrinsics off the truth, as real ones
+    are (calib/sim/intrinsics.py); truth.json keeps the true ones."""
+    p.add_argument("--intrinsics-error", type=arg_percent, default=0.0, metavar="PCT",
+                   help="write each camera's focal length into rig.json off the truth by a random draw of this sigma, "
+                   "per cent (e.g. 2%%; fx and fy together; default 0: exact); truth.json keeps each camera's true K "
+                   "and dist")
+    p.add_argument("--principal-error", type=arg_number(0, MAX_PRINCIPAL_ERROR_PX), default=0.0, metavar="PX",
+                   help="also the principal point (cx, cy) off by draws of this sigma, pixels (default 0)")
+    p.add_argument("--distortion-error", type=arg_distortion, default=(0.0, None), metavar="K[,P]",
+                   help="also k1, k2 off by draws of sigma K, and p1, p2 of sigma P (default K), absolute; real "
+                   "lenses' p1, p2 are known to some 0.0007 (default 0)")
+    p.add_argument("--focal-std", action="store_true",
+                   help="with --intrinsics-error: write each camera's focal_std_px as the sigma its focal length was "
+                   "drawn from (as a lens calibration states it; docs/capture-format.md); default: left out, the "
+                   "judgement assumes 2%%")
+    p.add_argument("--intrinsics-seed", type=arg_whole(0, MAX_SEED), default=None, metavar="SEED",
+                   help="the draws' seed (default: --seed); another seed draws other errors for the same capture")
 
 
 def take_args(p: argparse.ArgumentParser) -> None:
@@ -93,7 +132,23 @@ def sim_args(p: argparse.ArgumentParser, cameras: int, frames: int, shapes: bool
 
 
 def simulated(args):
-    """The scene :func:`sim_args`' options ask for (a :class:`wandcal.calib.sim.simulate.SimulatedCapture`)."""
+    """The scene :func:`sim_args`' options ask for (a :class:`wandcal.calib.sim.simulate.SimulatedCapture`),
+    its rig's intrinsics off the truth where :func:`intrinsics_args`' ask for it."""
+    from wandcal.calib.sim.intrinsics import IntrinsicsError, with_intrinsics_error
+
+    radial, tangential = getattr(args, "distortion_error", (0.0, None))
+    error = IntrinsicsError(getattr(args, "intrinsics_error", 0.0) / 100.0, getattr(args, "principal_error", 0.0),
+                            radial, getattr(args, "focal_std", False), tangential)
+    if error.write_std and not error.focal_rel:
+        from wandcal.calib.errors import CalibrationError
+
+        raise CalibrationError("simulate --focal-std writes the sigma --intrinsics-error draws the focal lengths "
+                               "from: give --intrinsics-error PCT too (e.g. --intrinsics-error 2%)")
+    seed = getattr(args, "intrinsics_seed", None)
+    return with_intrinsics_error(_simulated(args), error, args.seed if seed is None else seed)
+
+
+def _simulated(args):
     from wandcal.calib.errors import CalibrationError
     from wandcal.calib.sim.simulate import simulate_capture  # simulate and demo only: calibrate does not pay for it
 
@@ -169,6 +224,9 @@ def _run_take(args) -> int:
 
     if args.shape is not None or args.cameras > MAX_SIM_CAMERAS:
         raise CalibrationError(f"--take: takes are of the default ring of 3 to {MAX_SIM_CAMERAS} cameras; leave out --shape")
+    if args.intrinsics_error or args.principal_error or any(args.distortion_error) or args.focal_std:
+        raise CalibrationError("--take writes the rig's true intrinsics (a take is checked against a result, which holds "
+                               "its own); leave out --intrinsics-error, --principal-error, --distortion-error and --focal-std")
     rig = take_rig(args.cameras, args.seed)[0]
     moves = () if args.move is None else (_parse_move(args.move, args.drift, rig),)
     sim = simulate_take(args.cameras, args.frames, markers=args.markers, noise_px=args.noise, dropped=args.dropped,

@@ -6,6 +6,7 @@ import html
 import math
 from typing import TypeGuard
 
+from wandcal.calib.judge.limit_words import limit_lines
 from wandcal.calib.judge.placement import NO_REFERENCE, NO_SCALE
 from wandcal.calib.judge.verdict import at_limit_text
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list, names_camera
@@ -98,8 +99,7 @@ def _summary(data: ReportData) -> list[str]:
              f"{_e(f.get('message', ''))}" for f in faults or [] if isinstance(f, dict)]
     out.append('<p id="rig-faults">Faults: ' + (DASH if faults is None else "none found" if not words else "")
                + ('<ul>' + "".join(f"<li>{w}</li>" for w in words) + "</ul>" if words else "") + "</p>")
-    limits = [f"{lim['camera']}, {lim.get('parameter', 'focal length')}: {lim.get('message', '')}"
-              for lim in v.get("limits") or [] if isinstance(lim, dict) and lim.get("camera")]
+    limits = _limit_items(v.get("limits") or [], len(doc.get("cameras") or []))
     if limits:  # the intrinsics given, not refined, that a camera's position hinges on (not faults)
         out.append('<div id="rig-limits">What limits the cameras\' positions (intrinsics given, not refined):'
                    + _items(limits) + "</div>")
@@ -116,6 +116,18 @@ def _summary(data: ReportData) -> list[str]:
                + (f" \u2014 {_verdict_html(p_word)}" + (f" ({_e('; '.join(p_reasons))})" if p_reasons else "")
                   if p_word else "") + "</p>")
     return out
+
+
+def _limit_items(limits: list, n_cameras: int) -> list[str]:
+    """The verdict's limits as the CLI summary says them (:func:`wandcal.calib.judge.limit_words.limit_lines`),
+    each group's "to do" in its own item."""
+    items: list[str] = []
+    for line in limit_lines(limits, n_cameras):
+        if line.startswith("    to do:") and items:
+            items[-1] += " \u2014 " + line.strip()
+        else:
+            items.append(line.strip())
+    return items
 
 
 def _advice_of(value) -> list[str]:

@@ -402,15 +402,21 @@ def test_the_report_says_the_criteria_at_the_limit_and_no_placement_without_a_re
 
 def test_the_report_lists_the_intrinsics_that_limit_the_cameras(sim_report, tmp_path):
     """The verdict's limits (intrinsics given, not refined, that a camera's position hinges on) are
-    listed by camera and intrinsic with their message."""
+    said as the CLI summary says them (the dominant intrinsics and what to do); an older result's
+    without figures by camera with their message."""
+    from wandcal.service.cli.support.summary import _limit_lines
     from wandcal.service.report.analysis import analyse
     from wandcal.service.report.page import render_page
 
     tmp, _, _ = sim_report
     doc = json.loads((tmp / "result.json").read_text())
+    said = _limit_lines(doc["verdict"]["limits"], len(doc["cameras"]))
+    assert said and "hinge" in said[0]
+    page = " ".join(Page(render_page(analyse(read_result(tmp / "result.json"), None), {})).text)
+    assert all(line.strip() in page for line in said)
     cam = doc["cameras"][0]["id"]
     doc["verdict"]["limits"] = [{"camera": cam, "parameter": "cy", "evidence": {},
                                  "message": f"{cam}'s position moves 1.2 mm for 21 px of its principal point's y (cy)"}]
     (tmp_path / "result.json").write_text(json.dumps(doc))
     text = " ".join(Page(render_page(analyse(read_result(tmp_path / "result.json"), None), {})).text)
-    assert f"{cam}, cy: {cam}'s position moves 1.2 mm for 21 px of its principal point's y (cy)" in text
+    assert f"limit ({cam}): {cam}'s position moves 1.2 mm for 21 px of its principal point's y (cy)" in text

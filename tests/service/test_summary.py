@@ -56,42 +56,59 @@ def test_a_small_rigs_summary_is_as_before():
     ]
 
 
-def test_the_cameras_a_focal_length_limits_are_said_on_one_line():
+def _focal(cam: str, per: float, sigma: float, geo: float = 0.5, refine: bool = True) -> dict:
+    todo = "run with --refine-intrinsics focal, ..." if refine else "give it from a lens calibration"
+    return {"camera": cam, "parameter": "focal length",
+            "message": f"{cam}'s ... (assumed, rig.json giving no focal_std_px for {cam}) ...; {todo}",
+            "evidence": {"along_axis_mm_per_percent": per, "focal_sigma_mm": sigma, "focal_std_percent": 2.0,
+                         "geometry_sigma_mm": geo}}
+
+
+def _lens(cam: str, name: str, mm: float, sigma: float, unit: str = "", refine: bool = False, geo: float = 0.5) -> dict:
+    todo = "run with --refine-intrinsics principal, or ..." if refine else "give it from a lens calibration"
+    return {"camera": cam, "parameter": name, "message": f"{cam}'s ... {todo}",
+            "evidence": {"parameter_sigma_mm": mm, "sigma": sigma, "unit": unit, "geometry_sigma_mm": geo}}
+
+
+def test_a_cameras_dominant_limit_is_said_plainly_and_the_rest_in_one_clause():
+    """The focal length's part (8.8 mm) dwarfs cy's and k2's (1.2, 1.3 mm: under 0.48 of it): it is
+    what the user reads, with what to do; the others are one clause."""
     from wandcal.service.cli.support.summary import _limit_lines
 
-    def limit(cam: str, per: float, sigma: float) -> dict:
-        return {"camera": cam, "parameter": "focal length", "message": f"{cam}'s ... run with --refine-intrinsics focal, ...",
-                "evidence": {"along_axis_mm_per_percent": per, "focal_sigma_mm": sigma, "focal_std_percent": 2.0}}
-
-    one = _limit_lines([limit("cam4", 3.1, 6.2)], 4)
-    assert one == ["  limit (cam4): cam4's ... run with --refine-intrinsics focal, ..."]
-    (line,) = _limit_lines([limit("cam1", 4.4, 9.1), limit("cam2", 5.6, 11.5)], 4)
-    assert "cam1 and cam2 move 4.4-5.6 mm" in line and "+-9.1-11.5 mm" in line and "--refine-intrinsics focal" in line
+    lines = _limit_lines([_focal("cam3", 4.3, 8.8), _lens("cam3", "cy", 1.2, 21.0, "px", refine=True),
+                          _lens("cam3", "k2", 1.3, 0.038)], 4)
+    assert lines == [
+        "  limit (cam3): its position hinges on the focal length, +-8.8 mm (4.3 mm along the axis for each 1%; rig.json "
+        "gives no focal_std_px: 2% assumed), against +-0.5 mm from the geometry alone",
+        "    to do: refine it (--refine-intrinsics focal: this capture determines it) or give it from a lens calibration, "
+        "with its focal_std_px; cy and k2 matter less (up to 1.3 mm: the result's verdict.limits)"]
     assert _limit_lines([], 4) == []
 
 
-def test_a_cameras_other_limiting_intrinsics_are_said_on_one_line_after_the_focal_lengths():
-    """One form for one limit and for several: a lab user reads the same words for each camera."""
+def test_intrinsics_of_comparable_parts_are_each_said_and_cameras_alike_share_a_line():
+    """k2 (1.3 mm) and cy (0.9 mm, over 0.48 of it) both dominate on cam1 and cam2: one pair for both
+    cameras, each intrinsic with its range and what to do (cy refined, k2 from a lens calibration);
+    cam4's focal length (6 mm), the largest part, comes first."""
     from wandcal.service.cli.support.summary import _limit_lines
 
-    focal = {"camera": "cam3", "parameter": "focal length", "message": "cam3's focal ...",
-             "evidence": {"along_axis_mm_per_percent": 4.3, "focal_sigma_mm": 8.8, "focal_std_percent": 2.0}}
+    lines = _limit_lines([_lens("cam1", "k2", 1.3, 0.038), _lens("cam1", "cy", 0.9, 21.0, "px", refine=True),
+                          _lens("cam2", "k2", 1.1, 0.033), _lens("cam2", "cy", 0.8, 21.0, "px", refine=True),
+                          _focal("cam4", 3.0, 6.0, refine=False)], 4)
+    assert lines[2:] + lines[:2] == [
+        "  limit (cam1 and cam2): their positions hinge on cy, +-0.8-0.9 mm (for 21 px, its assumed uncertainty) and k2, "
+        "+-1.1-1.3 mm (for 0.033-0.038, its assumed uncertainty), against +-0.5 mm from the geometry alone",
+        "    to do: refine cy (--refine-intrinsics principal: this capture determines it) or give it from a lens "
+        "calibration; give k2 from a lens calibration (this capture does not determine it)",
+        "  limit (cam4): its position hinges on the focal length, +-6 mm (3 mm along the axis for each 1%; rig.json gives "
+        "no focal_std_px: 2% assumed), against +-0.5 mm from the geometry alone",
+        "    to do: give it from a lens calibration, with its focal_std_px (this capture does not determine it)"]
 
-    def lens(name: str, mm: float, sigma: float, unit: str, todo: str) -> dict:
-        return {"camera": "cam3", "parameter": name, "message": f"cam3's position moves ... {todo}",
-                "evidence": {"parameter_sigma_mm": mm, "sigma": sigma, "unit": unit}}
 
-    cy = lens("cy", 1.2, 21.0, "px", "run with --refine-intrinsics principal, or ...")
-    k2 = lens("k2", 1.3, 0.038, "", "give it from a lens calibration (wandcal does not refine it)")
-    lines = _limit_lines([focal, cy, k2], 4)
-    assert lines[0] == "  limit (cam3): cam3's focal ..."
-    assert lines[1] == ("  limit (cam3): cam3's k2 cannot be determined from this capture: it moves the camera up to 1.3 mm "
-                        "(for 0.038, its assumed uncertainty); give it from a lens calibration; cam3's cy is determined by "
-                        "this capture (cy 1.2 mm for 21 px): refine it (--refine-intrinsics principal) or give it from a "
-                        "lens calibration")
-    assert len(lines) == 2
-    assert _limit_lines([k2], 4) == ["  limit (cam3): cam3's k2 cannot be determined from this capture: it moves the camera "
-                                     "up to 1.3 mm (for 0.038, its assumed uncertainty); give it from a lens calibration"]
+def test_an_older_results_limits_without_figures_print_their_messages():
+    from wandcal.service.cli.support.summary import _limit_lines
+
+    old = {"camera": "cam2", "parameter": "cy", "evidence": {}, "message": "cam2's position moves 1.2 mm for 21 px"}
+    assert _limit_lines([old], 4) == ["  limit (cam2): cam2's position moves 1.2 mm for 21 px"]
 
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "results"
@@ -135,22 +152,3 @@ def test_a_moved_camera_is_named_under_the_verdict_with_its_frame_and_turn():
                                      "pose is neither: re-solve it from the frames after (--from RESULT --solve-only cam3) "
                                      "or calibrate again")
 
-
-
-def test_several_cameras_lens_limits_fold_into_one_line_with_each_parameters_range():
-    """Sixteen cameras' lens limits are one line, not sixteen: each parameter with its range and, where
-    not every camera has it, the cameras that do."""
-    from wandcal.service.cli.support.summary import _limit_lines
-
-    def lens(cam: str, name: str, mm: float) -> dict:
-        todo = "run with --refine-intrinsics k1, or ..." if name == "k1" else "give it from a lens calibration"
-        return {"camera": cam, "parameter": name, "message": f"{cam} ... {todo}",
-                "evidence": {"parameter_sigma_mm": mm, "sigma": 0.02, "unit": ""}}
-
-    lines = _limit_lines([lens("cam1", "k1", 1.6), lens("cam2", "k1", 1.9), lens("cam2", "k2", 1.0), lens("cam1", "p1", 0.5),
-                          lens("cam2", "p1", 0.6)], 4)
-    assert lines == ["  limit (cam1 and cam2): their k2 and p1 cannot be determined from this capture: they move the cameras "
-                     "up to 1 mm (k2 1 mm for 0.02 (cam2), p1 0.5-0.6 mm for 0.02, each off by its assumed uncertainty); "
-                     "give them from a lens calibration; their k1 is determined by this capture (k1 1.6-1.9 mm for 0.02): "
-                     "refine it (--refine-intrinsics k1) or give it from a lens calibration (the result's verdict.limits "
-                     "has each camera's figures)"]

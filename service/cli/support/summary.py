@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.geometry import kabsch, rotation_angle
+from wandcal.calib.judge.limit_words import limit_lines
 from wandcal.calib.judge.placement import NO_REFERENCE, NO_SCALE
 from wandcal.calib.judge.verdict import at_limit_text
 from wandcal.calib.rig import LISTED_CAMERAS, camera_list
@@ -138,121 +139,10 @@ def _moved_lines(cameras: list[dict]) -> list[str]:
 
 
 def _limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
-    """The cameras whose position hinges on an intrinsic that was given (the verdict's ``limits``,
-    wandcal.calib.judge.intrinsic_limits): the focal lengths' (one's message in full, several on one
-    line), then the other intrinsics, on one line (:func:`_lens_limit_lines`)."""
-    focal = [limit for limit in limits if limit.get("parameter", "focal length") == "focal length"]
-    lens = [limit for limit in limits if limit not in focal]
-    return _focal_limit_lines(focal, n_cameras) + _lens_limit_lines(lens, n_cameras)
-
-
-def _span(values: list, fmt: str = ".2g") -> str:
-    """A range of figures (none of them None), "0.68-1.7", or one figure where they print alike."""
-    low, high = format(min(values), fmt), format(max(values), fmt)
-    return low if low == high and fmt.endswith("g") else f"{low}-{high}"
-
-
-def _figure(evidence: dict, name: str) -> tuple[float | None, str]:
-    """A limit's figure ``name`` (the ``_mm`` form of a scaled result, else the rig's units) and its unit."""
-    if evidence.get(f"{name}_mm") is not None:
-        return evidence[f"{name}_mm"], "mm"
-    return evidence.get(name), "units"
-
-
-def _focal_limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
-    """The focal-length limits: one's message in full, several on one line."""
-    if len(limits) <= 1:
-        return [f"  limit ({limit['camera']}): {limit['message']}" for limit in limits]
-    per = [limit["evidence"].get("along_axis_mm_per_percent", limit["evidence"].get("along_axis_per_percent"))
-           for limit in limits]
-    sigma = [_figure(limit["evidence"], "focal_sigma")[0] for limit in limits]
-    if None in per or None in sigma:
-        return [f"  limit ({limit['camera']}): {limit['message']}" for limit in limits]
-    unit = _figure(limits[0]["evidence"], "focal_sigma")[1]
-    fmt = ".1f" if unit == "mm" else ".2g"
-    refine = all("--refine-intrinsics" in limit["message"] for limit in limits)
-    return [f"  limit: {camera_list([limit['camera'] for limit in limits], n_cameras)} move {_span(per, fmt)} "
-            f"{unit} along their axes for each 1% of focal length, +-{_span(sigma, fmt)} {unit} with the focal "
-            f"lengths known to {limits[0]['evidence'].get('focal_std_percent', 2):g}%: "
-            + ("refine them (--refine-intrinsics focal) or give them from a lens calibration" if refine
-               else "give them from a lens calibration (the result's verdict.limits has each camera's figures)")]
-
-
-LENS_ORDER = ("cx", "cy", "k1", "k2", "p1", "p2")
-
-
-def _determined(limit: dict) -> bool:
-    """This capture determines the limit's intrinsic (its message says to refine it)."""
-    return "--refine-intrinsics" in limit["message"]
-
-
-def _names(limits: list[dict]) -> list[str]:
-    """The parameters of ``limits``, once each, in OpenCV's order."""
-    return sorted(dict.fromkeys(limit["parameter"] for limit in limits),
-                  key=lambda name: LENS_ORDER.index(name) if name in LENS_ORDER else len(LENS_ORDER))
-
-
-def _figures(limits: list[dict], cams: list[str], n_cameras: int) -> str:
-    """Each parameter of ``limits`` with the millimetres it moves its cameras for its assumed
-    uncertainty, the range over ``cams`` and, where not every one of them has it, which do:
-    "k2 0.77 mm for 0.033, cy 0.64 mm for 21 px (cam2)"."""
-    parts = []
-    for name in _names(limits):
-        mine = [limit for limit in limits if limit["parameter"] == name]
-        mm = [_figure(limit["evidence"], "parameter_sigma")[0] for limit in mine]
-        length = _figure(mine[0]["evidence"], "parameter_sigma")[1]
-        sigma = [limit["evidence"].get("sigma") for limit in mine]
-        unit = mine[0]["evidence"].get("unit", "")
-        of = f" for {_span(sigma, '.3g')}{' ' + unit if unit else ''}" if None not in sigma else ""
-        who = "" if len(mine) == len(cams) else f" ({camera_list([limit['camera'] for limit in mine], n_cameras)})"
-        parts.append(f"{name} {_span(mm)} {length}{of}{who}")
-    return ", ".join(parts)
-
-
-def _lens_clauses(limits: list[dict], cams: list[str], n_cameras: int) -> list[str]:
-    """What a lab user can act on about ``cams``' lens limits: the intrinsics this capture cannot
-    determine, with how far each moves the camera off by its assumed uncertainty (give them from a
-    lens calibration), then those it determines (refine them)."""
-    out = []
-    for group in ([limit for limit in limits if not _determined(limit)], [limit for limit in limits if _determined(limit)]):
-        if not group:
-            continue
-        mine = [cam for cam in cams if any(limit["camera"] == cam for limit in group)]
-        several = len(mine) > 1
-        whose = "their" if mine == cams and several else f"{camera_list(mine, n_cameras)}'s"
-        names = _names(group)
-        one = len(names) == 1
-        listed = names[0] if one else ", ".join(names[:-1]) + " and " + names[-1]
-        it = "it" if one else "them"
-        figures = _figures(group, mine, n_cameras)
-        if not _determined(group[0]):
-            mm = max(_figure(limit["evidence"], "parameter_sigma")[0] or 0.0 for limit in group)
-            length = _figure(group[0]["evidence"], "parameter_sigma")[1]
-            sigma = group[0]["evidence"].get("sigma")
-            why = (f"for {sigma:.3g}{' ' + group[0]['evidence']['unit'] if group[0]['evidence'].get('unit') else ''}, its "
-                   "assumed uncertainty") if len(group) == 1 and sigma is not None else f"{figures}, each off by its assumed uncertainty"
-            out.append(f"{whose} {listed} cannot be determined from this capture: {'it moves' if one else 'they move'} "
-                       f"the camera{'s' if several else ''} up to {mm:.2g} {length} ({why}); give {it} from a lens calibration")
-        else:
-            flags = [word for word in ("principal", "k1") if any(f"--refine-intrinsics {word}" in limit["message"] for limit in group)]
-            out.append(f"{whose} {listed} {'is' if one else 'are'} determined by this capture ({figures}): refine {it} "
-                       f"(--refine-intrinsics {','.join(flags)}) or give {it} from a lens calibration")
-    return out
-
-
-def _lens_limit_lines(limits: list[dict], n_cameras: int) -> list[str]:
-    """The intrinsics beyond the focal length that limit the cameras' positions, on one line, in
-    words a lab user can act on ("limit (cam4): cam4's k2 cannot be determined from this capture: it
-    moves the camera up to 3 mm (for 0.033, its assumed uncertainty); give it from a lens
-    calibration"), each parameter with its range over several cameras; each limit's own message
-    where the figures are absent (an older result)."""
-    cams = list(dict.fromkeys(limit["camera"] for limit in limits))
-    if not cams:
-        return []
-    if any(_figure(limit["evidence"], "parameter_sigma")[0] is None for limit in limits):
-        return [f"  limit ({limit['camera']}): {limit['message']}" for limit in limits]
-    line = f"  limit ({camera_list(cams, n_cameras)}): " + "; ".join(_lens_clauses(limits, cams, n_cameras))
-    return [line + (" (the result's verdict.limits has each camera's figures)" if len(cams) > 1 else "")]
+    """The cameras whose position hinges on an intrinsic that was given (the verdict's ``limits``):
+    each group's dominant intrinsics and what to do (:func:`wandcal.calib.judge.limit_words.limit_lines`,
+    the report's page says the same)."""
+    return limit_lines(limits, n_cameras)
 
 
 def _number(value, fmt: str, width: int) -> str:
