@@ -136,7 +136,7 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
         from wandcal.calib.judge.faults.timing_pairs import timing_refusal
 
         raise timing_refusal(exc, list(rig.ids), R, t, labelled, tracks,
-                             np.array([c.focal.mean() for c in rig.cameras])) from None
+                             np.array([c.focal for c in rig.cameras], float)) from None  # (fx, fy), as rig_faults
     scaled = wand_report is not None
     focal = np.array([c.focal for c in rig.cameras], float)
     res = observation_residuals(R, t, labelled, tracks, focal, known)

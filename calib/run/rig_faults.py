@@ -209,7 +209,7 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
         if len(rig.cameras) >= 3 else None
     if swapped := swap_faults(rig, labelled, tracks, R, t, _solved_again, held):  # two cameras' columns exchanged
         return swapped
-    noise_px, focal = [f["noise_px"] for f in figures], np.array([c.focal.mean() for c in rig.cameras])
+    noise_px, focal = [f["noise_px"] for f in figures], np.array([c.focal for c in rig.cameras], float)  # (fx, fy)
     timings = camera_timings(R, t, labelled, tracks, focal) if len(rig.cameras) >= 3 else []
     timing = timing_faults(list(rig.ids), R, t, labelled, tracks, focal, noise_px, timings) if timings else []
     if timing:
