@@ -36,7 +36,9 @@ SUSPECT_OUTLIER_FACTOR = 3.0  # ... and that many times the median camera's shar
 # a lens error hidden in a poorly covered camera's pose showed 10% at F = 105 (faults.LENS_STRONG_F)
 SCREEN_LENS_SHARE = 0.05
 SCREEN_F_STAT = 100.0
-MAX_SUSPECTS = 2  # the worst cameras looked into; more at fault at once is a rig-wide problem
+# the worst cameras looked into, each at the cost of a re-solve without it; more at fault at once
+# is a rig-wide problem, said in one line (:func:`also_patterned`) at no further cost (decision 0093b2)
+MAX_SUSPECTS = 2
 # ... and its outlier share more than binomial scatter about the median camera's explains: its
 # outlier camera-frames' binomial upper tail under the median share below this level, shared out
 # over the rig's cameras (Bonferroni), so that a clean rig has a camera looked into for its
@@ -130,7 +132,8 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
     noise = np.array([f["noise_px"] or np.nan for f in figures], float)
     median = float(np.nanmedian(noise)) if np.isfinite(noise).any() else np.nan
     screened = [lens_screen(R, t, res, c) for c in range(len(rig.cameras))] if len(labelled) else None
-    for c in suspects(figures, screened, camera_frames(res, len(rig.cameras)))[:MAX_SUSPECTS]:
+    suspected = suspects(figures, screened, camera_frames(res, len(rig.cameras)))
+    for c in suspected[:MAX_SUSPECTS]:
         cam, fig = rig.cameras[c].id, figures[c]
         ratio = fig["noise_px"] / median if median > 0 else np.inf
         at_fault = [rig.index(f["camera"]) for f in faults]
@@ -162,7 +165,29 @@ def camera_faults(rig: Rig, labelled: WandPairs, R: np.ndarray, t: np.ndarray, f
         else:
             continue  # no pattern, no concentrated outliers, and within the noise the verdict allows
         faults.append({"kind": kind, "camera": cam, "message": message, "evidence": evidence})
-    return faults
+    return also_patterned(faults, [rig.cameras[c].id for c in suspected[MAX_SUSPECTS:]
+                                   if screened is not None and _patterned(screened[c])])
+
+
+def _patterned(lens: Lens | None) -> bool:
+    """The lens screen's pattern strong enough to make a suspect (:data:`SCREEN_F_STAT`, :data:`SCREEN_LENS_SHARE`)."""
+    return lens is not None and lens.f_stat >= SCREEN_F_STAT and lens.explained >= SCREEN_LENS_SHARE
+
+
+def also_patterned(faults: list[dict], more: list[str]) -> list[dict]:
+    """The faults with the suspects beyond :data:`MAX_SUSPECTS` whose own residuals hold a lens
+    pattern (``more``, not re-solved without them) said in one rig-wide line on the first
+    intrinsics fault: several cameras' given intrinsics off at once is the rig's lens
+    calibration, and one instruction fixes them all."""
+    first = next((f for f in faults if f["kind"] == "intrinsics"), None)
+    if first is None or not more:
+        return faults
+    names = ", ".join(more[:-1]) + (" and " if len(more) > 1 else "") + more[-1]
+    line = (f"; {names} {'shows' if len(more) == 1 else 'show'} the same lens pattern too: the given intrinsics "
+            "of several cameras do not fit, so calibrate with --refine-intrinsics focal,k1 or give them from a lens "
+            "calibration")
+    return [f | {"message": f["message"] + line, "evidence": f["evidence"] | {"also_patterned": more}}
+            if f is first else f for f in faults]
 
 
 def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,

@@ -94,3 +94,19 @@ def test_the_lens_screens_fit_is_the_lens_fit_of_the_same_columns():
     for name in ("focal_error", "k1_error", "explained", "f_stat"):
         assert getattr(fast, name) == pytest.approx(getattr(full, name), rel=1e-9), name
     assert fast.focal_error == pytest.approx(-0.02 / 1.02, abs=1e-3)
+
+
+def test_lens_patterned_suspects_beyond_the_cap_are_said_in_one_rig_wide_line():
+    """The suspects left after MAX_SUSPECTS whose residuals hold a lens pattern join the first
+    intrinsics fault's message and evidence (decision 0093b2); no fault is added or dropped."""
+    from wandcal.calib.run.rig_faults import also_patterned
+
+    faults = [{"kind": "noise", "camera": "cam0", "message": "m0", "evidence": {}},
+              {"kind": "intrinsics", "camera": "cam3", "message": "m3", "evidence": {"focal_error": 0.02}}]
+    out = also_patterned(faults, ["cam1", "cam5"])
+    assert [f["camera"] for f in out] == ["cam0", "cam3"] and out[0] == faults[0]
+    assert out[1]["evidence"] == {"focal_error": 0.02, "also_patterned": ["cam1", "cam5"]}
+    assert "cam1 and cam5 show the same lens pattern" in out[1]["message"]
+    assert "--refine-intrinsics focal,k1" in out[1]["message"]
+    assert also_patterned(faults[:1], ["cam1"]) == faults[:1]  # no intrinsics fault: nothing to join
+    assert also_patterned(faults, []) == faults
