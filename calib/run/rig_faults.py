@@ -37,7 +37,7 @@ SUSPECT_OUTLIER_FACTOR = 3.0  # ... and that many times the median camera's shar
 SCREEN_LENS_SHARE = 0.05
 SCREEN_F_STAT = 100.0
 # the worst cameras looked into, each at the cost of a re-solve without it; more at fault at once
-# is a rig-wide problem, said in one line (:func:`also_patterned`) at no further cost (decision 0093b2)
+# is a rig-wide problem, said in one line (:func:`also_patterned`) at no further cost (decision 0100)
 MAX_SUSPECTS = 2
 # ... and its outlier share more than binomial scatter about the median camera's explains: its
 # outlier camera-frames' binomial upper tail under the median share below this level, shared out

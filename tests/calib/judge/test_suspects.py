@@ -98,7 +98,7 @@ def test_the_lens_screens_fit_is_the_lens_fit_of_the_same_columns():
 
 def test_lens_patterned_suspects_beyond_the_cap_are_said_in_one_rig_wide_line():
     """The suspects left after MAX_SUSPECTS whose residuals hold a lens pattern join the first
-    intrinsics fault's message and evidence (decision 0093b2); no fault is added or dropped."""
+    intrinsics fault's message and evidence (decision 0100); no fault is added or dropped."""
     from wandcal.calib.run.rig_faults import also_patterned
 
     faults = [{"kind": "noise", "camera": "cam0", "message": "m0", "evidence": {}},
