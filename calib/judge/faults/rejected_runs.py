@@ -268,9 +268,10 @@ def turn_against_partners(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, 
     times the 2 (n - 1) blocks of :func:`block_against_rate` (Bonferroni: the block was chosen from
     the same views). A knock's later views are all off by one turn however few they are, which
     the count of rejects cannot show under a few camera-frames. (False, 1) with fewer than
-    :data:`MIN_PLACED` block frames or three distances outside it; p_value 1 where the kept
-    distances are all against one partner (that camera's turn fits them as well: the data cannot
-    say which of the two moved)."""
+    :data:`MIN_PLACED` block frames or three reference frames. Were a partner the one that moved,
+    the distances against it would carry the turn: p_value is the largest of the test's with each
+    partner's distances left out in turn (1 with one partner alone: the pair cannot say which of
+    the two moved)."""
     rows, normals, frames, partner = _epipolar_pairs(res, R, t, c, first)
     inside = frames > run.frame if run.tail else frames <= run.frame
     ref = np.abs(_epipolar_px(res, rows[~inside], normals[~inside], np.zeros(3)))
@@ -281,26 +282,40 @@ def turn_against_partners(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, 
     rows, normals, frames, partner = rows[inside], normals[inside], frames[inside], partner[inside]
     if len(np.unique(frames)) < MIN_PLACED or ref_views < 3:
         return False, 1.0
+    e0, e, use = _turned(res, rows, normals)
+    beyond = np.unique(frames[np.abs(e) > res.limit_px])
+    back = binomial_tail(len(beyond), len(np.unique(frames)), q) >= FITS_LEVEL
+    s2 = max(float(np.mean(ref**2)), 1e-300)
+    left = float(np.sum(e[use] ** 2)) / max(int(use.sum()) - 3, 1) / s2  # what the turn leaves, against the same scatter
+    fits = int(use.sum()) <= 3 or f_survival(int(use.sum()) - 3, ref_views, left) >= FITS_LEVEL
+    # were a partner d the camera that moved, the distances against d would carry the whole turn: the
+    # turn must stand out with each partner's distances left out as well (the largest p; with one
+    # partner alone nothing is left: the pair cannot say which of them moved)
+    p = 0.0
+    for d in (None, *np.unique(partner).tolist()):
+        keep = partner != d
+        e0_d, e_d, use_d = _turned(res, rows[keep], normals[keep]) if d is not None else (e0, e, use)
+        f = float(np.sum(e0_d[use_d] ** 2) - np.sum(e_d[use_d] ** 2)) / 3 / s2 if use_d.sum() > 3 else 0.0
+        p = max(p, min(1.0, 2 * (run.frames - 1) * f_survival(3, ref_views, f)))
+    return back and fits, p
+
+
+def _turned(res: Residuals, rows: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One turn of the camera fitted to its views' distances from their epipolar lines (``rows``,
+    ``normals``: :func:`_epipolar_pairs`), Gauss-Newton, what is beyond the rig's limit at both
+    poses (the first fit's and the solve's) left out of the second fit: (distances before (K,),
+    after (K,), pixels, kept (K,) bool)."""
     e0 = _epipolar_px(res, rows, normals, np.zeros(3))
     w, use, h = np.zeros(3), np.ones(len(rows), bool), 1e-6
     for k in range(2 * TURN_STEPS):
         e = _epipolar_px(res, rows, normals, w)
-        if k == TURN_STEPS:  # what is beyond the limit at both poses (the first fit's and the solve's) is left out
+        if k == TURN_STEPS:
             use = (np.abs(e) <= res.limit_px) | (np.abs(e0) <= res.limit_px)
-            if use.sum() < 3:
-                break
+        if use.sum() <= 3:
+            return e0, e, use
         J = np.stack([(_epipolar_px(res, rows[use], normals[use], w + h * np.eye(3)[i]) - e[use]) / h for i in range(3)], 1)
         w = w - np.linalg.lstsq(J, e[use], rcond=None)[0]
-    e = _epipolar_px(res, rows, normals, w)
-    beyond = np.unique(frames[np.abs(e) > res.limit_px])
-    back = binomial_tail(len(beyond), len(np.unique(frames)), q) >= FITS_LEVEL
-    if use.sum() < 3 or len(np.unique(partner[use])) < 2:
-        return back, 1.0  # against one partner alone its turn would do as well: the pair cannot say which moved
-    s2 = max(float(np.mean(ref**2)), 1e-300)
-    f = float(np.sum(e0[use] ** 2) - np.sum(e[use] ** 2)) / 3 / s2
-    left = float(np.sum(e[use] ** 2)) / max(int(use.sum()) - 3, 1) / s2  # what the turn leaves, against the same scatter
-    fits = int(use.sum()) == 3 or f_survival(int(use.sum()) - 3, ref_views, left) >= FITS_LEVEL
-    return back and fits, min(1.0, 2 * (run.frames - 1) * f_survival(3, ref_views, f))
+    return e0, _epipolar_px(res, rows, normals, w), use
 
 
 def rejected_moved(ids: list[str], res: Residuals, R: np.ndarray, t: np.ndarray) -> list[dict]:
