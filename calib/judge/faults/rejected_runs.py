@@ -297,6 +297,8 @@ def turn_against_partners(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, 
         e0_d, e_d, use_d = _turned(res, rows[keep], normals[keep]) if d is not None else (e0, e, use)
         f = float(np.sum(e0_d[use_d] ** 2) - np.sum(e_d[use_d] ** 2)) / 3 / s2 if use_d.sum() > 3 else 0.0
         p = max(p, min(1.0, 2 * (run.frames - 1) * f_survival(3, ref_views, f)))
+        if p >= STEP_ALPHA or not (back and fits):
+            break  # named by none of them: the rest cannot lower the largest
     return back and fits, p
 
 
