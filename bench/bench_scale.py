@@ -19,7 +19,8 @@ twice) and its growth exponent: the least-squares slope of log(seconds) against 
 Part 4 ("Scale: guidance"): the live guidance update at 64 x 3000. Part 5 ("Scale: small rigs before
 and after", only with --base): 8 x 1500 and 16 x 2500 against another checkout, alternated. Part 6
 ("Scale: lp beside ba", --parts methods): the whole process with `--method lp` and `--method ba`. Part 7
-(--parts costs, "Scale: judgement, guidance, check and sync on every shape"): those commands beside calibrate, --cost-rigs.
+(--parts costs, "Scale: judgement, guidance, check and sync on every shape"): those commands beside calibrate, --cost-rigs
+(bench/scale_costs.py; with --base CHECKOUT, that checkout's beside this one's).
 Part 8 (--parts where, "Scale: where the whole command's CPU goes (sparse shapes)"): each stage's CPU seconds
 in a whole process on --where-rigs, by timers around the stages' functions (bench/stage_timer.py), not cProfile;
 with --base CHECKOUT, that checkout's process beside this one's, alternated run by run on the same capture.
@@ -49,6 +50,7 @@ sys.path.insert(0, str(REPO))
 
 from bench.bench_peers import run_ba, run_colmap, scene  # noqa: E402
 from bench.common import write_section  # noqa: E402
+from bench.scale_costs import EVERY_SHAPE_128, part_costs  # noqa: E402
 from bench.whole_process import (  # noqa: E402
     OUTLIERS,
     STAGES,
@@ -66,7 +68,6 @@ from bench.whole_process import (  # noqa: E402
 STAGE_FRAMES = 3000
 REGRESSION_RIGS = "8x1500:0,8x1500:0.08,16x2500:0"  # the Peers bench's whole-command rigs
 POINT_RIG = (12, 1500, 15000)  # cameras, wand frames, point frames
-EVERY_SHAPE_128 = "ring:128x3000,dome:128x3000,tiers:128x3000,hallway:128x3000"  # issue 33's judging-cost rigs
 
 
 def colmap_cauchy(cameras: int, frames: int, shape: str | None = None) -> tuple[float, float, str, float]:
@@ -328,85 +329,6 @@ def part_regression(base: Path, repeats: int, rigs: str) -> str:
                "\n\nGoal (issue 22): accuracy within 1.05x of before."))
 
 
-def _costs_round(folder: Path, tmp: Path, failed: dict[str, str]) -> dict[str, float]:
-    """One round of :func:`part_costs` on one capture: CPU seconds (user + system) of calibrate
-    under bench/stage_timer.py (the whole process, and its judgement), then `check` of its result,
-    `guidance`, and `calibrate --sync auto` less this round's calibrate. A command that refuses the
-    capture (exit 2) gives NaN and its reason in ``failed``."""
-    import json
-    import resource
-
-    out, stages = tmp / "result.json", tmp / "stages.json"
-
-    def cpu(*argv: str, module: str = "wandcal.service.cli") -> float:
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        done = subprocess.run([sys.executable, "-m", module, *argv], capture_output=True, text=True, cwd=REPO,
-                              env=child_env(), check=False)
-        if done.returncode == 2:  # refused: the run measured nothing, and the row says why
-            failed[" ".join(argv[:1] + argv[-2:])] = done.stderr.strip().splitlines()[-1]
-            return float("nan")
-        if done.returncode != 0:
-            raise RuntimeError(f"{argv}: exit {done.returncode}: {done.stderr[-2000:]}")
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-
-    run: dict[str, float] = {}
-    run["calibrate"] = cpu(str(stages), "calibrate", str(folder), "--quiet", "--out", str(out), module="bench.stage_timer")
-    run["judgement"] = float(json.loads(stages.read_text())["judgement"])
-    run["check"] = cpu("check", str(out), str(folder))
-    run["guidance"] = cpu("guidance", str(folder))
-    run["sync auto"] = cpu("calibrate", str(folder), "--quiet", "--out", str(tmp / "sync.json"), "--sync", "auto") - run["calibrate"]
-    return run
-
-
-def part_costs(rigs: list[str], repeats: int) -> str:
-    """The commands that follow or accompany a calibration, each a whole process beside `wandcal
-    calibrate` of the same capture, alternated run by run, CPU seconds (the machine is shared), on
-    each rig: `wandcal check` of the result against the capture, `wandcal guidance`, `calibrate
-    --sync auto` (its cost: the difference), and the judgement inside calibrate (bench/stage_timer.py's
-    timer around it, in the same process as the calibrate timed). Medians of the rounds, each share
-    of that round's calibrate."""
-    import os
-
-    per: dict[str, dict[str, list[float]]] = {}
-    load = [os.getloadavg()[0]]
-    failed: dict[str, str] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        folders = {}
-        for rig in rigs:
-            shape, size = rig.split(":") if ":" in rig else (None, rig)
-            cameras, frames = (int(v) for v in size.split("x"))
-            folders[rig] = Path(tmp) / rig.replace(":", "-")
-            simulate(folders[rig], cameras, frames, shape=shape)
-            per[rig] = {name: [] for name in ("calibrate", "judgement", "check", "guidance", "sync auto")}
-        warm_bytecode()
-        for _ in range(repeats):
-            for rig in rigs:  # the rigs alternated too: the load drifts over a run
-                for name, value in _costs_round(folders[rig], Path(tmp), failed).items():
-                    per[rig][name].append(value)
-                load.append(os.getloadavg()[0])
-                print(rig, {k: round(v[-1], 2) for k, v in per[rig].items()}, flush=True)
-    rows = ["| command or part | " + " | ".join(f"{rig}: CPU s (share)" for rig in rigs) + " |", "|---|" + "---|" * len(rigs)]
-    for name in per[rigs[0]]:
-        cells = []
-        for rig in rigs:
-            values = per[rig][name]
-            shares = [v / c for v, c in zip(values, per[rig]["calibrate"])]
-            cells.append(f"{np.median(values):.2f} ({np.median(shares):.0%}; max {max(shares):.0%})")
-        rows.append(f"| {name} | " + " | ".join(cells) + " |")
-    runs = "\n".join(f"- {rig}: " + "; ".join(f"{k} {', '.join(f'{v:.2f}' for v in vs)}" for k, vs in per[rig].items())
-                     for rig in rigs)
-    return (f"Each rig a `wandcal simulate --shape` capture (0.3 px, 2% outliers, L-frame, seed 1); each command a whole "
-            f"process (Python start-up included), the commands and the rigs alternated, {repeats} rounds; CPU seconds, "
-            f"user + system, because the machine is shared (1-minute load average {min(load):.1f}-{max(load):.1f} on its "
-            f"{os.cpu_count()} cores). calibrate: the whole process under bench/stage_timer.py; judgement: that process's "
-            "`_judgement` step (its timer, no profiler); check: the result against the capture it came from; sync auto: "
-            "`calibrate --sync auto` less plain `calibrate` of the same round. Share: of the same round's calibrate, "
-            "the median over the rounds, and the largest.\n\n" + "\n".join(rows)
-            + "\n\nGoal (issue 33): each at most 20% of the calibrate time.\n\nThe runs (CPU s):\n\n" + runs
-            + "".join(f"\n\n`wandcal {k}` refused the capture: {v}" for k, v in failed.items()))
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
@@ -416,7 +338,7 @@ def main() -> int:
     ap.add_argument("--stage-shape", default=None, help="rigs of calib/sim/shapes.py (ring, dome, tiers, hallway) for --parts stages")
     ap.add_argument("--colmap-repeats", type=int, default=1, help="COLMAP solves per rig (0: none)")
     ap.add_argument("--base", type=Path, help="a checkout of the code before, for --parts regression (and beside this "
-                    "one in --parts where)")
+                    "one in --parts where and costs)")
     ap.add_argument("--regression-rigs", default=REGRESSION_RIGS,
                     help="CAMSxFRAMES:OUTLIERS,... for --parts regression")
     ap.add_argument("--method-cameras", default="64,128", help="rigs (cameras x 3000 frames) for --parts methods")
@@ -445,7 +367,7 @@ def main() -> int:
     if "costs" in parts:
         title = ("Scale: judgement, guidance, check and sync on every shape (issue 33)" if args.cost_rigs == EVERY_SHAPE_128
                  else f"Scale: judgement, guidance, check and sync ({args.cost_rigs})")
-        sections.append((title, part_costs(args.cost_rigs.split(","), args.repeats)))
+        sections.append((title, part_costs(args.cost_rigs.split(","), args.repeats, args.base)))
     if "where" in parts:
         sections.append(("Scale: where the whole command's CPU goes (sparse shapes)",
                          part_where(args.where_rigs.split(","), args.repeats, args.base)))

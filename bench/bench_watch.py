@@ -34,8 +34,8 @@ from wandcal.calib.sim.takes import CameraMove, simulate_take  # noqa: E402
 from wandcal.calib.watch.health import WINDOW_FRAMES, camera_windows, solve_pose_change  # noqa: E402
 from wandcal.calib.watch.match import match_frames  # noqa: E402
 from wandcal.calib.watch.sequential import GLR_THRESHOLD  # noqa: E402
+from wandcal.calib.watch.stream import watch_take  # noqa: E402
 from wandcal.calib.watch.take import pad_frames  # noqa: E402
-from wandcal.calib.watch.watch import watch_take  # noqa: E402
 from wandcal.capture.folder import write_capture  # noqa: E402
 
 CAMERAS, MARKERS, NOISE = 12, 40, 0.3

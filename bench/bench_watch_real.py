@@ -38,9 +38,10 @@ from wandcal.calib.rig import PointObservations, Rig, WandObservations
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.run.resolve import solve_only
 from wandcal.calib.run.result import CalibrationResult
+from wandcal.calib.watch.report import WatchReport
 from wandcal.calib.watch.sequential import GLR_THRESHOLD, median_detected
+from wandcal.calib.watch.stream import watch_take
 from wandcal.calib.watch.take import TakeBlobs
-from wandcal.calib.watch.watch import WatchReport, watch_take
 
 TURNS_DEG = (0.3, 1.0)  # issue 31's knocks; issue 36's 0.2 deg is its simulated takes' (f = 1100 px)
 KNOCK_AT = 0.6  # the knock's place in the take, as a share of its frames

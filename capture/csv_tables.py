@@ -81,8 +81,11 @@ def _frame_table_fast(text: str, rig: Rig, columns: tuple[str, ...]):
     frame, uv, cams = table["frame"], np.stack([table["u"], table["v"]], axis=1), table["camera"]
     if not (np.all(np.isfinite(frame)) and np.all(np.isfinite(uv)) and np.all(frame == np.round(frame)) and frame.min() >= 0 and frame.max() <= MAX_FRAME):
         return None
-    ids, index = np.unique(np.char.strip(cams), return_inverse=True)
+    # each distinct cell stripped on its own (str.strip, as np.char.strip does), not the column: the
+    # same camera per row, without importing numpy.char (a `wandcal check` imported it for this alone)
+    cells, index = np.unique(cams, return_inverse=True)
     lookup = {cid: i for i, cid in enumerate(rig.ids)}
+    ids = [str(cell).strip() for cell in cells]
     if any(cid not in lookup for cid in ids):
         return None
     return frame.astype(np.int64), np.array([lookup[cid] for cid in ids], dtype=np.int64)[index], uv

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.watch.watch import WatchReport
+from wandcal.calib.watch.report import WatchReport
 
 # Markers triangulated by two cameras that the others see: ~95% on a healthy rig (blobs dropped, views
 # beside another marker's image left out); under half for most cameras is not a bumped camera but a

@@ -3,7 +3,7 @@ updated every :data:`UPDATE_S`.
 
 A thread reads the recording's ``blobs.csv`` (every blob of every set, flushed with each set:
 capture/recording/centroids.py) as it grows and feeds whole batches of
-:data:`~wandcal.calib.watch.watch.BATCH_FRAMES` sets to a :class:`~wandcal.calib.watch.watch.WatchStream`,
+:data:`~wandcal.calib.watch.stream.BATCH_FRAMES` sets to a :class:`~wandcal.calib.watch.stream.WatchStream`,
 the same batches ``wandcal watch`` cuts: once the capture ends, the live report is the one
 ``wandcal watch RESULT`` gives on the recording. The re-solve of a moved camera is a watch job
 (:mod:`wandcal.service.jobs.watch_job`) on the stored recording, started from the page.
@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from wandcal.calib.rig import Rig
+from wandcal.calib.watch.stream import BATCH_FRAMES, WatchStream
 from wandcal.calib.watch.take import TakeBlobs
-from wandcal.calib.watch.watch import BATCH_FRAMES, WatchStream
 from wandcal.capture.watch_report import report_json
 
 UPDATE_S = 0.5  # the page polls once a second: a batch of 100 sets at 100 fps lands within it

@@ -24,7 +24,6 @@ from wandcal.calib.observations import PointTracks, WandPairs, point_tracks
 from wandcal.calib.rig import PointObservations, Rig, WandObservations
 from wandcal.calib.start.labels import flatten, label_ends
 from wandcal.calib.start.markerlabels import end_pairs
-from wandcal.calib.start.resection import resect_camera
 from wandcal.calib.triangulate import reprojection_errors, triangulate_left_out, triangulate_points
 
 MOVED_FACTOR = 3.0  # a camera whose leave-one-out error is 3x what is expected of it has moved
@@ -195,8 +194,10 @@ def _extra_errors(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarr
     focal = np.asarray(focal, float).reshape(len(R), -1).mean(axis=1)
     J = _projection_jacobians(R, t, of, seen.camera[mate], X)
     weight = (focal[seen.camera[mate]] ** 2) / np.maximum(rms_px[seen.camera[mate]] ** 2 / 2, 1e-12)
-    info = np.zeros((len(X), 3, 3))
-    np.add.at(info, of, weight[:, None, None] * np.einsum("kai,kaj->kij", J, J))
+    JtJ = weight[:, None, None] * np.einsum("kai,kaj->kij", J, J)  # symmetric to the bit (a product commutes)
+    info = np.empty((len(X), 3, 3))
+    for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):  # np.add.at's sums, in its order: one bincount an entry
+        info[:, i, j] = info[:, j, i] = np.bincount(of, JtJ[:, i, j], minlength=len(X))
     Jc = _projection_jacobians(R, t, own, seen.camera[own], X) * focal[seen.camera[own]][:, None, None]
     with np.errstate(all="ignore"):
         cov = np.linalg.pinv(info[own])
@@ -300,6 +301,8 @@ def _placed_again(check: CameraCheck, R: np.ndarray, t: np.ndarray, seen: Sighti
                   trusted: np.ndarray, limit: float) -> tuple[CameraCheck, str]:
     """A moved camera c resected against the points the trusted cameras triangulate: the check
     with how far it turned and shifted, and why it is no knock ('' when it is one)."""
+    from wandcal.calib.start.resection import resect_camera  # only for a moved camera: a clean check never imports it
+
     others = trusted & (np.arange(len(R)) != c)
     use = others[seen.camera]
     X = triangulate_points(R, t, seen.point[use], seen.camera[use], seen.xy[use], seen.n_points)

@@ -45,7 +45,7 @@ from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig, camera_list
 from wandcal.calib.run.camera_figures import CameraFigures, FocalLimitFigures, JudgedFigures, Movement
 from wandcal.calib.run.result import SolverReport, WandReport, WorldFrame
-from wandcal.calib.run.rig_faults import few_camera_faults, noise_limits
+from wandcal.calib.run.rig_faults import few_camera_faults, forget_eliminated, noise_limits
 from wandcal.calib.solve.uncertainty import chi2_quantile
 
 # rays meeting at under 2 degrees put a point's depth at 1/tan(2 deg) ~ 29 baselines, known to
@@ -136,7 +136,7 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
         from wandcal.calib.judge.faults.timing_pairs import timing_refusal
 
         raise timing_refusal(exc, list(rig.ids), R, t, labelled, tracks,
-                             np.array([c.focal.mean() for c in rig.cameras])) from None
+                             np.array([c.focal for c in rig.cameras], float)) from None  # (fx, fy), as rig_faults
     scaled = wand_report is not None
     focal = np.array([c.focal for c in rig.cameras], float)
     res = observation_residuals(R, t, labelled, tracks, focal, known)
@@ -150,6 +150,7 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
     # and its rays' own noise over their fitted miss, for its geometry's good limit (neither written)
     docs = [c.to_json() | {"geometry_std_rel_se": se, "ray_noise_factor": k} for c, se, k in
             zip(judged, place_sigma_errors(R, res, len(rig.cameras)), ray_noise_factors(res, len(rig.cameras)))]
+    forget_eliminated()
     faults = few_camera_faults(rig, labelled, tracks, R, t, figures, res) + input_faults(rig, world_doc, solver_doc, docs)
     angle = median_ray_angle(R, res)
     if angle is not None and angle < np.radians(MIN_RAY_ANGLE_DEG):
@@ -158,6 +159,7 @@ def judge(method: str, rig: Rig, cameras: list[CameraFigures], wand_report: Wand
                                   "is not determined and the rig has collapsed towards one spot; check the focal "
                                   "lengths (rig.json or --focal-px) and that the cameras see the volume from apart"})
     near = noise_limits(rig, labelled, tracks, R, t, faults)
+    forget_eliminated()
     out = [replace(cam, verdict=_camera_verdict(doc, cam_id, faults, extent if scaled else None, rig_noise, near))
            for cam, doc, cam_id in zip(judged, docs, rig.ids)]
     named: list[dict[str, Any]] = [{"id": cam_id} | c.to_json() for cam_id, c in zip(rig.ids, out)]

@@ -173,20 +173,23 @@ def few_camera_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None,
     (:func:`wandcal.calib.judge.faults.leave_one_out.leave_one_out_faults`), then a camera that moved, then
     cameras whose own noise stands out (:func:`own_faults`), else by the suspect screen
     (:func:`camera_faults`). A larger rig: :func:`many_camera_faults`."""
-    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS, leave_one_out_faults
+    from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS, held_out_views, leave_one_out_faults
     from wandcal.calib.judge.faults.swapped import swap_faults
     from wandcal.calib.judge.faults.timing_pairs import camera_timings, timing_faults, timing_instead
 
     if len(rig.cameras) > MAX_CAMERAS:
         return many_camera_faults(rig, labelled, tracks, R, t, figures, res)
-    if swapped := swap_faults(rig, labelled, tracks, R, t, _solved_again):  # two cameras' columns exchanged
+    # every camera against the points the others triangulate: the swap screen's and the lens comparison's
+    held = [held_out_views(R, t, labelled, tracks, c) for c in range(len(rig.cameras))] \
+        if len(rig.cameras) >= 3 else None
+    if swapped := swap_faults(rig, labelled, tracks, R, t, _solved_again, held):  # two cameras' columns exchanged
         return swapped
-    noise_px, focal = [f["noise_px"] for f in figures], np.array([c.focal.mean() for c in rig.cameras])
+    noise_px, focal = [f["noise_px"] for f in figures], np.array([c.focal for c in rig.cameras], float)  # (fx, fy)
     timings = camera_timings(R, t, labelled, tracks, focal) if len(rig.cameras) >= 3 else []
     timing = timing_faults(list(rig.ids), R, t, labelled, tracks, focal, noise_px, timings) if timings else []
     if timing:
         return timing + beside_timing(rig, labelled, tracks, R, t, timing[0])
-    lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks)
+    lens = leave_one_out_faults(list(rig.ids), R, t, labelled, tracks, held=held)
     # a lens error bends a tracked marker's path: a step or noise there is its effect. A lens
     # pattern that needed fy's own column is weaker: a camera out of time spreads a stretch along
     # the wand's motion through the points, which that column fits in another camera (Brown 2,
@@ -278,15 +281,15 @@ def _outliers_or_noise(rig: Rig, labelled: WandPairs, tracks: PointTracks | None
     limit (``res.limit_px``) within two of that share's standard errors: in a rig of few cameras a
     camera three times as noisy puts a fifth of its frames past a limit set by the others' noise,
     all of them its own noise, not reflections."""
-    from wandcal.calib.judge.faults.own_errors import camera_noise, eliminate, noise_fault, views_of
+    from wandcal.calib.judge.faults.own_errors import camera_noise, noise_fault
 
     if not any(f["kind"] == "outliers" for f in faults):
         return faults
-    views = views_of(labelled, tracks)
-    if not len(views.point):
+    el = points_eliminated(R, t, labelled, tracks)[1]
+    if el is None:
         return faults
     focal = np.array([c.focal.mean() for c in rig.cameras])
-    noise = camera_noise(eliminate(R, t, views), focal)
+    noise = camera_noise(el, focal)
     out = []
     for fault in faults:
         c = rig.index(fault["camera"]) if fault["kind"] == "outliers" else -1
@@ -335,7 +338,7 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
     :data:`wandcal.calib.judge.faults.own_errors.VIEWS_PER_CAMERA` views a camera. Fewer than three
     cameras give none."""
     from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
-    from wandcal.calib.judge.faults.moved import moved_camera, moved_fault, unattributed_fault
+    from wandcal.calib.judge.faults.moved import Moved, moved_camera, moved_fault, unattributed_fault
     from wandcal.calib.judge.faults.own_errors import (
         VIEWS_PER_CAMERA,
         capped,
@@ -357,20 +360,49 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
         sparse = _median_views(res) < SPREAD_VIEWS
         if not suspected and not sparse:
             return [], []
-    views = views_of(labelled, tracks)
     if large:
-        views = capped(views, VIEWS_PER_CAMERA * len(rig.cameras))
-    if not len(views.point):
+        views = capped(views_of(labelled, tracks), VIEWS_PER_CAMERA * len(rig.cameras))
+        el = eliminate(R, t, views, steps=1) if len(views.point) else None
+    else:
+        views, el = points_eliminated(R, t, labelled, tracks)
+    if el is None:
         return [], []
     ids, focal = list(rig.ids), np.array([c.focal.mean() for c in rig.cameras])
-    el = eliminate(R, t, views, steps=1 if large else 3)
-    unsure: list = []  # one of two or more cameras moved, the data cannot say which
-    moved = moved_camera(R, t, views, el, suspected, unsure) if suspected is None or suspected else None
-    out = [*(named or []), *([] if moved is None else [moved[0]])]
+    moved = moved_camera(R, t, views, el, suspected) if suspected is None or suspected else Moved()
+    out = [*(named or []), *([] if moved.camera is None else [moved.camera])]
     noisy = noisy_cameras(R, t, views, el, focal, out) if sparse else []
-    found = [moved_fault(ids[moved[0]], moved[1])] if moved is not None else \
-        [unattributed_fault([ids[c] for c in unsure[0][0]], unsure[0][1])] if unsure else []
+    found = [moved_fault(ids[moved.camera], moved.step)] if moved.camera is not None and moved.step is not None else \
+        [unattributed_fault([ids[c] for c in moved.unsure[0]], moved.unsure[1])] if moved.unsure else []
     return found, [noise_fault(ids[c], n) for c, n in noisy]
+
+
+# points_eliminated's last answer, [(R, t, labelled, tracks, views, eliminated)], the inputs compared by identity
+_last_eliminated: list[tuple] = []
+
+
+def points_eliminated(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None):
+    """(views, eliminated): every wand end and point-track observation
+    (:func:`wandcal.calib.judge.faults.own_errors.views_of`) and their points fitted to all cameras,
+    each camera's noise and outliers (:func:`wandcal.calib.judge.faults.own_errors.eliminate`,
+    three steps; eliminated None without views). One judgement reads it three times on the same
+    poses and observations (:func:`own_faults` of a few cameras, :func:`noise_limits`,
+    :func:`_outliers_or_noise`): the last answer is kept and given again for the very same objects
+    (``is``, which the judgement does not change in place): the same input, the same numbers."""
+    from wandcal.calib.judge.faults.own_errors import eliminate, views_of
+
+    for last in _last_eliminated:
+        if all(a is b for a, b in zip(last[:4], (R, t, labelled, tracks), strict=True)):
+            return last[4], last[5]
+    views = views_of(labelled, tracks)
+    el = eliminate(R, t, views) if len(views.point) else None
+    _last_eliminated[:] = [(R, t, labelled, tracks, views, el)]
+    return views, el
+
+
+def forget_eliminated() -> None:
+    """Drop :func:`points_eliminated`'s kept answer: the judgement calls it before and after its
+    reads, so no answer outlives one judgement (arrays a caller changes in place later, memory)."""
+    _last_eliminated.clear()
 
 
 def _median_views(res: Residuals) -> float:
@@ -389,12 +421,12 @@ def noise_limits(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: n
     where a camera's noise spreads over the points) and only where no camera is at fault (a camera
     at fault bends the others' residuals, and its own fault says more than its noise)."""
     from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
-    from wandcal.calib.judge.faults.own_errors import camera_noise, eliminate, noise_at_limit, views_of
+    from wandcal.calib.judge.faults.own_errors import camera_noise, noise_at_limit
 
     if not 3 <= len(rig.cameras) <= MAX_CAMERAS or any(f["camera"] is not None for f in faults):
         return []
-    views = views_of(labelled, tracks)
-    if not len(views.point):
+    el = points_eliminated(R, t, labelled, tracks)[1]
+    if el is None:
         return []
-    noise = camera_noise(eliminate(R, t, views), np.array([c.focal.mean() for c in rig.cameras]))
+    noise = camera_noise(el, np.array([c.focal.mean() for c in rig.cameras]))
     return [e for e in (noise_at_limit(cam_id, n) for cam_id, n in zip(rig.ids, noise)) if e is not None]

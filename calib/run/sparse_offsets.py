@@ -33,7 +33,7 @@ import numpy as np
 
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import rotvec_to_matrix
-from wandcal.calib.observations import WandPairs, camera_rows
+from wandcal.calib.observations import WandPairs
 from wandcal.calib.rig import Rig
 from wandcal.calib.start.initial import Initial, UnplacedCamera, initial_poses
 from wandcal.calib.start.labels import flatten, label_ends
@@ -45,17 +45,21 @@ from wandcal.calib.triangulate import triangulate_left_out, triangulate_points
 FIT_STEPS = 3  # Gauss-Newton steps of each camera's pose at each shift, from the start's
 REFIT_SHIFTS = 3  # shifts a camera's pose is fitted again at: its best ones with the start's pose
 FIT_SCALE_PX = 2.0  # the Cauchy loss's scale there: the noise and the wand's motion left in a frame
+_ROW, _COL = np.triu_indices(6)  # a 6x6 symmetric matrix's distinct entries
 ROUNDS = 4  # poses found again with the offsets found, until none moves: cameras out of time spoil the first poses
 
 
 @dataclass(frozen=True, eq=False)
 class SparseStart:
     """The start the offsets were found with: ``static_poses`` (as
-    :func:`wandcal.calib.start.static.solve_static` gives them, or None) and ``init``, the first
-    poses at the offsets found; calibrate's start takes them instead of finding them again."""
+    :func:`wandcal.calib.start.static.solve_static` gives them, or None), ``init``, the first
+    poses at the offsets found, and ``labelled``, the pairs renumbered by those offsets with their
+    ends labelled at those poses (:func:`wandcal.calib.start.labels.label_ends`); calibrate's start
+    takes them instead of finding them again."""
 
     static_poses: list | None
     init: Initial
+    labelled: WandPairs
 
 
 def offsets_by_triangulation(rig: Rig, pairs: WandPairs, max_offset: int, start: np.ndarray | None = None,
@@ -107,7 +111,7 @@ def offsets_by_triangulation(rig: Rig, pairs: WandPairs, max_offset: int, start:
         found -= found[reference]
         if (found == offsets).all():
             _refuse_unclear(rig, ~clear, scores[np.arange(n), best], contrast, offsets, max_offset)
-            found_at = SparseStart(static_poses, init)  # the start at the offsets returned
+            found_at = SparseStart(static_poses, init, labelled)  # the start at the offsets returned
             break
         offsets = found
     else:
@@ -149,7 +153,6 @@ def shift_scores(R: np.ndarray, t: np.ndarray, labelled: WandPairs, shifts: np.n
     row_of[labelled.frame, labelled.camera] = np.arange(P)
     number = labelled.frames[labelled.frame]  # (P,) each pair's frame number
     focal_px = np.asarray(focal, float).reshape(n, -1).mean(axis=1)
-    by_camera = camera_rows(labelled.camera, n)
     each = []  # (P, 2, 3) the others' ends each pair meets at each shift
     for s in shifts:
         at = np.searchsorted(labelled.frames, number + s)
@@ -160,33 +163,52 @@ def shift_scores(R: np.ndarray, t: np.ndarray, labelled: WandPairs, shifts: np.n
         mine = row_of[at, labelled.camera]
         each.append(np.where((exists & (mine >= 0))[:, None, None], X_own[np.maximum(mine, 0)], ends))
     scale = FIT_SCALE_PX / focal_px
-    scores = _medians(by_camera, [_pair_errors(R[labelled.camera], t[labelled.camera], ends, labelled.xy) for ends in each])
+    scores = _medians(labelled.camera, np.stack([_pair_errors(R[labelled.camera], t[labelled.camera], e, labelled.xy)
+                                                 for e in each]), n)
     # each camera's pose fitted again to the others' ends at its best few shifts: the start fitted
     # it at the offsets so far, and a camera out of time kept the pose that fits it best there
     with np.errstate(invalid="ignore"):
         rank = np.argsort(np.argsort(np.where(np.isfinite(scores), scores, np.inf), axis=1), axis=1)
-    refitted = []
-    for j, ends in enumerate(each):
-        rows = (rank[:, j] < REFIT_SHIFTS)[labelled.camera]
-        Rs, ts = refit_poses(R, t, labelled.camera[rows], ends[rows], labelled.xy[rows], scale)
-        e = np.full(len(labelled), np.nan)
-        e[rows] = _pair_errors(Rs[labelled.camera[rows]], ts[labelled.camera[rows]], ends[rows], labelled.xy[rows])
-        refitted.append(e)
-    again = _medians(by_camera, refitted)
+    again = _medians(labelled.camera, _refitted_errors(R, t, labelled, each, rank < REFIT_SHIFTS, scale), n)
     scores = np.where(np.isfinite(again), again, scores) * focal_px[:, None]
     return scores
 
 
-def _medians(by_camera: list[np.ndarray], errors: list[np.ndarray]) -> np.ndarray:
-    """(N, S) each camera's median of each shift's errors (S lists of (P,)), NaN where it has
-    fewer than :data:`MIN_TIMING_FRAMES` finite ones."""
-    out = np.full((len(by_camera), len(errors)), np.nan)
-    for j, e in enumerate(errors):
-        for c, rows in enumerate(by_camera):
-            v = e[rows][np.isfinite(e[rows])]
-            if len(v) >= MIN_TIMING_FRAMES:
-                out[c, j] = float(np.median(v))
+def _refitted_errors(R: np.ndarray, t: np.ndarray, labelled: WandPairs, each: list[np.ndarray], refit: np.ndarray,
+                     scale: np.ndarray) -> np.ndarray:
+    """(S, P) each pair's error (as :func:`_pair_errors`) against the others' ends it meets at each
+    shift (``each``: S of (P, 2, 3)), its camera's pose first fitted again to them (:func:`refit_poses`)
+    where ``refit`` (N, S) bool, else NaN. One fit for every shift: camera c at shift j is
+    pose c + N j of one stack (each pose's normal equations sum its own rows, in their order, so
+    the digits are those of one fit a shift)."""
+    n, S, P = len(R), len(each), len(labelled)
+    rows = refit[labelled.camera].T  # (S, P)
+    which, pair = np.nonzero(rows)  # shift-major, each shift's pairs in their order
+    stacked = np.stack(each)[which, pair]
+    cam = labelled.camera[pair] + n * which
+    Rs, ts = refit_poses(np.tile(R, (S, 1, 1)), np.tile(t, (S, 1)), cam, stacked, labelled.xy[pair], np.tile(scale, S))
+    out = np.full((S, P), np.nan)
+    out[which, pair] = _pair_errors(Rs[cam], ts[cam], stacked, labelled.xy[pair])
     return out
+
+
+def _medians(camera: np.ndarray, errors: np.ndarray, n: int) -> np.ndarray:
+    """(N, S) each camera's median of each shift's errors (``errors`` (S, P), ``camera`` (P,)
+    each pair's), NaN where it has fewer than :data:`MIN_TIMING_FRAMES` finite ones. The median
+    is NumPy's: the mean of the two middle values of the finite ones, sorted (the one middle
+    value for an odd count)."""
+    S, P = errors.shape
+    finite = np.isfinite(errors)
+    key = np.where(finite, errors, np.inf)
+    order = np.lexsort((key, np.broadcast_to(camera, (S, P))), axis=-1)  # by camera, then value: the finite first
+    ordered = np.take_along_axis(key, order, axis=1)
+    first = np.concatenate([[0], np.cumsum(np.bincount(camera, minlength=n))[:-1]])  # (N,) each camera's first row
+    count = np.stack([np.bincount(camera[f], minlength=n) for f in finite])  # (S, N) finite errors
+    lo, hi = first + (count - 1) // 2, first + count // 2
+    with np.errstate(invalid="ignore"):
+        middle = (np.take_along_axis(ordered, np.clip(lo, 0, P - 1), axis=1)
+                  + np.take_along_axis(ordered, np.clip(hi, 0, P - 1), axis=1)) / 2
+    return np.where(count >= MIN_TIMING_FRAMES, middle, np.nan).T
 
 
 def refit_poses(R: np.ndarray, t: np.ndarray, camera: np.ndarray, ends: np.ndarray, xy: np.ndarray,
@@ -215,8 +237,9 @@ def refit_poses(R: np.ndarray, t: np.ndarray, camera: np.ndarray, ends: np.ndarr
         skew -= np.swapaxes(skew, 1, 2)
         J = np.concatenate([-dp @ skew, dp], axis=2)  # (2P, 2, 6)
         w = 1.0 / (1.0 + (r**2).sum(1) / scale[cam2] ** 2)
-        # each camera's normal equations, every entry summed by one bincount (np.add.at was most of it)
-        H = _sum_by(cam2, w[:, None, None] * np.einsum("kai,kaj->kij", J, J), n)
+        # each camera's normal equations, every entry summed by one bincount (np.add.at was most of it);
+        # the 21 distinct entries of J^T J only (the sums einsum "kai,kaj->kij" forms, term by term)
+        H = _normal_matrices(J, w, cam2, n)
         g = _sum_by(cam2, w[:, None] * np.einsum("kai,ka->ki", J, r), n)
         damp = 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(6) + 1e-12 * np.eye(6)
         step = -np.linalg.solve(H + damp, g[..., None])[..., 0]
@@ -224,6 +247,20 @@ def refit_poses(R: np.ndarray, t: np.ndarray, camera: np.ndarray, ends: np.ndarr
             rot = rotvec_to_matrix(step[c, :3])
             R[c], t[c] = rot @ R[c], rot @ t[c] + step[c, 3:]
     return R, t
+
+
+def _normal_matrices(J: np.ndarray, w: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+    """(n, 6, 6) the sums of w J^T J over the rows of each ``group`` (K,) in [0, n); J (K, 2, 6), w (K,).
+    Its 21 distinct entries only, each row's product as einsum "kai,kaj->kij" forms it (two terms)
+    and summed by one bincount in the rows' order: the digits of summing the whole products."""
+    Jt = np.ascontiguousarray(J.transpose(1, 2, 0))  # (2, 6, K): each entry's products contiguous
+    products = (Jt[0, _ROW] * Jt[0, _COL] + Jt[1, _ROW] * Jt[1, _COL]) * w  # (21, K)
+    index = (np.arange(len(_ROW))[:, None] * n + group).ravel()
+    upper = np.bincount(index, products.ravel(), minlength=len(_ROW) * n).reshape(len(_ROW), n).T
+    H = np.empty((n, 6, 6))
+    H[:, _ROW, _COL] = upper
+    H[:, _COL, _ROW] = upper
+    return H
 
 
 def _sum_by(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

@@ -58,7 +58,7 @@ class SyncState:
     ``ba`` refines the offsets again, over every frame (``columns`` then its columns); blobs: a
     multi-marker wand's camera-frames with every marker resampled to those instants too; found_at:
     on a sparse rig, the start the offsets were found with (the static object's poses and the
-    first poses at those offsets), which the start step takes as they are."""
+    first poses at those offsets, the pairs labelled at them), which the start step takes as they are."""
 
     whole: FrameOffsets
     unshifted: WandPairs
@@ -165,7 +165,9 @@ def refinement_start(rig: Rig, obs: Observations, static: StaticObservations | N
     tell({"stage": "labels", "message": "telling the wand ends apart"})
     planar = obs.blobs is not None and obs.blobs.fit_px is not None  # a planar wand's rows come labelled from the layout
     labelled = obs.pairs
-    if obs.has_wand and not planar:
+    if obs.has_wand and not planar and found_at is not None:  # the sync labelled these pairs at these poses
+        labelled = found_at.labelled
+    elif obs.has_wand and not planar:
         labelled = label_ends(init.R, init.t, obs.pairs, np.ones(len(rig.cameras), bool), rig.wand_length)[0]
     return Start(static_poses=static_poses, init=init, labelled=labelled)
 

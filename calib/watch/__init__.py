@@ -10,6 +10,7 @@
 | :mod:`~wandcal.calib.watch.lost` | a camera knocked too far to follow: the share of its markers it finds, against its baseline |
 | :mod:`~wandcal.calib.watch.recover` | a moved camera re-solved from the take's markers, the others held |
 | :mod:`~wandcal.calib.watch.search` | a moved camera's views of the markers found again, however far it turned (RANSAC on a turn) |
-| :mod:`~wandcal.calib.watch.watch` | all of it over a take (``wandcal watch``) |
+| :mod:`~wandcal.calib.watch.report` | what a watch reports: each camera's health, the take's, the "one of" advice; its frames numbered as the take's |
+| :mod:`~wandcal.calib.watch.stream` | all of it over a take as it streams in, batch by batch (``wandcal watch``, the live take) |
 | :mod:`~wandcal.calib.watch.refracted` | the matcher's camera model for cameras behind a flat window into water (decision 0048) |
 """

@@ -29,7 +29,7 @@ Two looks: the first when the alarm is raised (the windows from k to the end of 
 only 6-12 windows, 3-6 batches), the second once the windows from k span the test's look-back
 (:data:`~wandcal.calib.watch.sequential.GLR_WINDOWS`, 300 frames) or the take ends, over all of them. A
 group the second look still cannot tell apart stays "one of"; one it names becomes that camera's move, and
-the others go back to being watched (:class:`~wandcal.calib.watch.watch.WatchStream`).
+the others go back to being watched (:class:`~wandcal.calib.watch.stream.WatchStream`).
 """
 
 from __future__ import annotations

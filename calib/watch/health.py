@@ -66,8 +66,9 @@ def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames,
     obs = []
     f_of = np.searchsorted(padded.frames, tracks.frame)
     focal = np.array([cam.focal.mean() for cam in rig.cameras])
+    every = _all_views(R, t, focal, padded, tracks)
     for c in range(n_c):
-        fi, X, xy, info = _leave_one_out(R, t, focal, padded, tracks, f_of, c)
+        fi, X, xy, info = _leave_one_out(R, t, focal, padded, tracks, f_of, c, every)
         seen[:, c] = np.bincount(f_of[(tracks.views >= 0).sum(1) - (tracks.views[:, c] >= 0) >= 2], minlength=n_f)
         J, r = whitened(*linearised(R[c], t[c], focal[c], X, xy), point_jacobian(R[c], t[c], focal[c], X), info)
         JJ, Jr = np.einsum("kpi,kpj->kij", J, J), np.einsum("kpi,kp->ki", J, r)  # each residual's H and g
@@ -81,22 +82,54 @@ def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames,
     return CameraWindows(padded.frames, g, H, n, seen, sse, obs if keep_obs else None)
 
 
-def _leave_one_out(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks, f_of, c: int):
+@dataclass(frozen=True, eq=False)
+class _AllViews:
+    """Every track of two views or more triangulated from all its views, as :func:`_leave_one_out`
+    triangulates it for each camera that does not see it (the same views in the same order, from the
+    same start): X (T, 3) metres, NaN for a track of fewer views; info (T, 3, 3) its views'
+    ``sum J_v^T J_v`` (:func:`_information`), pixels^2 a metre^2."""
+
+    X: np.ndarray
+    info: np.ndarray
+
+
+def _all_views(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks) -> _AllViews:
+    """:class:`_AllViews` of a batch's tracks: one triangulation shared by every camera that does not
+    see a track (about half the cameras a track; each triangulated it apart before)."""
+    X = np.full((len(tracks), 3), np.nan)
+    info = np.full((len(tracks), 3, 3), np.nan)
+    ok = np.flatnonzero((tracks.views >= 0).sum(1) >= 2)
+    p, cam = np.nonzero(tracks.views[ok] >= 0)
+    X[ok] = refine_points(R, t, p, cam, padded.xy_of(tracks.views[ok][p, cam]), tracks.X[ok])
+    info[ok] = _information(R, t, focal, p, cam, X[ok])
+    return _AllViews(X, info)
+
+
+def _leave_one_out(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks, f_of, c: int, every: _AllViews):
     """(frame index (k,), X (k, 3), c's blob xy (k, 2), the others' information on X (k, 3, 3)) of
     the tracks two other cameras saw, triangulated without c, and c's blob found near their
-    projection; focal (C,): each camera's mean focal length, pixels."""
+    projection; focal (C,): each camera's mean focal length, pixels. A track c does not see is
+    ``every``'s (its views are all the others'); only the ones c sees are triangulated again."""
     others = tracks.views.copy()
     others[:, c] = -1
     ok = (others >= 0).sum(1) >= 2
-    p, cam = np.nonzero(others[ok] >= 0)
-    f_ok = f_of[ok]
-    xy_obs = padded.xy_of(others[ok][p, cam])
-    X = refine_points(R, t, p, cam, xy_obs, tracks.X[ok])  # from the point all cameras gave: close, so no DLT
-    fi, xy, found = _nearest_blob(R[c], t[c], focal[c], padded, c, f_ok, X)
-    p, cam = p[found[p]], cam[found[p]]  # the points c's blob was found for
-    X = X[found]
-    info = _information(R, t, focal, (np.cumsum(found) - 1)[p], cam, X)
-    return fi[found], X, xy[found], info
+    again = ok & (tracks.views[:, c] >= 0)  # c's view is left out of these
+    X = every.X.copy()
+    X[again] = _triangulated(R, t, padded, others[again], tracks.X[again])
+    rows = np.flatnonzero(ok)
+    fi, xy, found = _nearest_blob(R[c], t[c], focal[c], padded, c, f_of[ok], X[ok])
+    rows = rows[found]  # the tracks c's blob was found for
+    info = every.info[rows]
+    mine = again[rows]
+    p, cam = np.nonzero(others[rows[mine]] >= 0)
+    info[mine] = _information(R, t, focal, p, cam, X[rows[mine]])
+    return fi[found], X[rows], xy[found], info
+
+
+def _triangulated(R, t, padded: PaddedFrames, views: np.ndarray, X0: np.ndarray) -> np.ndarray:
+    """(P, 3) tracks of views (P, C) (blob rows, -1 where none) triangulated from X0 (P, 3)."""
+    p, cam = np.nonzero(views >= 0)
+    return refine_points(R, t, p, cam, padded.xy_of(views[p, cam]), X0)
 
 
 def _information(R, t, focal: np.ndarray, p: np.ndarray, cam: np.ndarray, X: np.ndarray) -> np.ndarray:

@@ -21,13 +21,16 @@ through a window), the two-ray point, projection, and triangulation from a candi
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from wandcal.calib.rig import Rig
 from wandcal.calib.triangulate import refine_points, reprojection_errors
 from wandcal.calib.watch.take import PaddedFrames
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 EPIPOLAR_PX = 2.0  # a blob's distance from the epipolar line: 0.3 px noise in two images and a standing
 #                    calibration's ~0.1 px, with room for a camera moved a little (a knock is found by health)
@@ -194,7 +197,8 @@ def _candidates(model: CameraModel, tol: Tolerances, focal, padded: PaddedFrames
     if not len(f_idx):
         return None
     X = model.two_ray_points(a, b, xa[f_idx, i], xb[f_idx, j])
-    slots = _associate(model, focal, padded, free, f_idx, X, tol.associate_px)
+    trees = _free_trees(focal, padded, free)  # both passes below look among the same free blobs
+    slots = _associate(model, focal, trees, f_idx, X, tol.associate_px)
     slots[:, a], slots[:, b] = i, j
     keep = (slots >= 0).sum(1) >= MIN_VIEWS
     if not keep.any():
@@ -203,7 +207,7 @@ def _candidates(model: CameraModel, tol: Tolerances, focal, padded: PaddedFrames
     X, _ = _triangulate(model, focal, padded, f_idx, slots, X[keep])
     # again from the point of every view: each camera's nearest free blob within the gate, unless
     # a second blob is nearly as near (that view is ambiguous and left out, not the marker)
-    slots = _associate(model, focal, padded, free, f_idx, X, tol.gate_px, counts)
+    slots = _associate(model, focal, trees, f_idx, X, tol.gate_px, counts)
     keep = (slots >= 0).sum(1) >= MIN_VIEWS
     f_idx, slots = f_idx[keep], slots[keep]
     if not len(f_idx):
@@ -217,21 +221,30 @@ def _candidates(model: CameraModel, tol: Tolerances, focal, padded: PaddedFrames
     return f_idx, slots, X, rms
 
 
-def _associate(model: CameraModel, focal, padded: PaddedFrames, free, f_idx, X, radius: float,
-               counts: MatchCounts | None = None) -> np.ndarray:
-    """(P, C) each camera's free blob nearest the point's projection within ``radius`` px and
-    :data:`CLEAR_RATIO` times nearer than any other, -1 if none (a k-d tree a camera, frames kept
-    apart by :data:`FRAME_GAP_PX`)."""
+def _free_trees(focal, padded: PaddedFrames, free) -> list[tuple[np.ndarray, cKDTree] | None]:
+    """Per camera, (its free blobs' slots (B,), a k-d tree of them in pixels, frames kept apart by
+    :data:`FRAME_GAP_PX`), None where it has none: what :func:`_associate` looks among."""
     from scipy.spatial import cKDTree
 
+    trees: list[tuple[np.ndarray, cKDTree] | None] = []
+    for c in range(free.shape[1]):
+        fi, k = np.nonzero(free[:, c])
+        trees.append((k, cKDTree(np.column_stack([padded.xy[fi, c, k] * focal[c], fi * FRAME_GAP_PX])))
+                     if len(fi) else None)
+    return trees
+
+
+def _associate(model: CameraModel, focal, trees: list[tuple[np.ndarray, cKDTree] | None], f_idx, X, radius: float,
+               counts: MatchCounts | None = None) -> np.ndarray:
+    """(P, C) each camera's free blob nearest the point's projection within ``radius`` px and
+    :data:`CLEAR_RATIO` times nearer than any other, -1 if none (``trees``: :func:`_free_trees`)."""
     xy = model.project(X)  # (P, C, 2)
     out = np.full(xy.shape[:2], -1)
     for c in range(xy.shape[1]):
-        fi, k = np.nonzero(free[:, c])
-        ahead = np.isfinite(xy[:, c, 0])
-        if not len(fi) or not ahead.any():
+        ahead, free_c = np.isfinite(xy[:, c, 0]), trees[c]
+        if free_c is None or not ahead.any():
             continue
-        tree = cKDTree(np.column_stack([padded.xy[fi, c, k] * focal[c], fi * FRAME_GAP_PX]))
+        k, tree = free_c
         q = np.flatnonzero(ahead)
         proj = xy[q, c] * focal[c]
         d, j = tree.query(np.column_stack([proj, f_idx[q] * FRAME_GAP_PX]), k=2,

@@ -113,7 +113,8 @@ def _calibrated(args, progress):
     from wandcal.calib.run.calibrate import calibrate
     from wandcal.calib.run.options import options_from
     from wandcal.capture.folder import read_capture
-    from wandcal.service.cli.support.inputs import capture_rate, points_level, timestamp_start
+    from wandcal.capture.recording.stamps import capture_rate, timestamp_start
+    from wandcal.service.cli.support.inputs import points_level
 
     folder = points_level(args.capture, progress)
     cap = read_capture(folder)

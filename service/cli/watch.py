@@ -39,7 +39,7 @@ def run_watch(args) -> int:
 
         raise CalibrationError(f"--write {args.write}: is the standing result; write the updated result to another file")
     standing, rig, R, t, _ = result_for(args.result, take)
-    from wandcal.calib.watch.watch import watch_take
+    from wandcal.calib.watch.stream import watch_take
 
     with ProgressLine(quiet=args.json) as progress:
         report = watch_take(rig, R, t, take.blobs,
@@ -88,7 +88,7 @@ def _print_report(report, args) -> None:
             print(f"; not re-solved: re-solve it from a wand capture: wandcal calibrate CAPTURE --from {args.result} "
                   f"--solve-only {h.id}")
     if not report.judged:
-        from wandcal.calib.watch.watch import BASELINE_FRAMES, MIN_JUDGED_FRAMES
+        from wandcal.calib.watch.report import BASELINE_FRAMES, MIN_JUDGED_FRAMES
 
         print(f"too short to judge: the take holds {report.frames} frames with markers, and the test needs "
               f"{MIN_JUDGED_FRAMES} (its first {BASELINE_FRAMES} learn each camera's baseline); record a longer take")

@@ -31,7 +31,7 @@ def run_watch(files: Mapping[str, str | None], options: dict, progress: Callable
     ``take_name`` and ``standing_name`` (how the report and the updated result name them).
     Raises CalibrationError for a take that cannot be watched (the job fails with its message)."""
     from wandcal.calib.errors import CalibrationError
-    from wandcal.calib.watch.watch import watch_take
+    from wandcal.calib.watch.stream import watch_take
     from wandcal.capture.take_file import read_take, updated_result
     from wandcal.capture.watch_report import check_fit, report_json, resolved_cameras
     from wandcal.service.cli.support.inputs import result_for

@@ -8,8 +8,9 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.rig import WandObservations
 from wandcal.calib.run.sparse_offsets import offsets_by_triangulation
 from wandcal.calib.sim.shapes import RigShape, default_size, simulate_shape
+from wandcal.calib.start.labels import label_ends
 from wandcal.calib.start.markerlabels import end_pairs
-from wandcal.calib.start.offsets.whole_frames import TooFewShared, frame_offsets
+from wandcal.calib.start.offsets.whole_frames import TooFewShared, frame_offsets, shift_pairs
 from wandcal.calib.start.static import solve_static
 
 
@@ -30,6 +31,11 @@ def test_a_sparse_rig_in_time_is_timed_by_all_the_cameras_together(ring):
     found, start = offsets_by_triangulation(ring.rig, pairs, 8, static_poses=solve_static(ring.rig, ring.static))
     assert not found.offsets.any()
     assert start is not None and np.isfinite(start.init.R).all()
+    # calibrate's start takes the sync's labels: the pairs at the offsets found, labelled at its poses
+    R, t, known = start.init.R, start.init.t, np.ones(len(ring.rig.cameras), bool)
+    again = label_ends(R, t, shift_pairs(pairs, found.offsets), known, ring.rig.wand_length)[0]
+    for field in ("frames", "frame", "camera", "xy"):
+        assert np.array_equal(getattr(start.labelled, field), getattr(again, field))
 
 
 def test_cameras_a_frame_or_two_out_of_time_are_found(ring):

@@ -115,6 +115,24 @@ def test_fast_and_row_readers_agree(folder):
         assert np.array_equal(a, b)
 
 
+def test_camera_ids_padded_with_spaces_are_the_cameras_the_row_reader_names(folder):
+    """The fast reader strips each distinct id cell (a camera written " cam2" in some rows and "cam2 "
+    in others is one camera), as the row reader does."""
+    from wandcal.capture.csv_tables import _frame_table_fast, csv_rows, frame_rows
+    from wandcal.capture.folder import WAND_COLUMNS
+
+    rig = read_capture(folder).rig
+    lines = (folder / "wand.csv").read_text().splitlines()
+    padded = [lines[0]] + [line.replace(",cam2,", ", cam2," if k % 2 else ",cam2 ,") for k, line in enumerate(lines[1:])]
+    text = "\n".join(padded) + "\n"
+    fast = _frame_table_fast(text, rig, WAND_COLUMNS)
+    assert fast is not None
+    assert (fast[1] == 1).sum() == sum(",cam2," in line for line in lines[1:]) > 0
+    slow = frame_rows(csv_rows(text, WAND_COLUMNS, "wand.csv"), rig, "wand.csv")
+    for a, b in zip(fast, slow):
+        assert np.array_equal(a, b)
+
+
 @pytest.mark.parametrize("frame", ["99999999999999999999", "-3", "1.5"])
 def test_frame_numbers_out_of_range_name_the_line(folder, frame):
     with open(folder / "wand.csv", "a") as fh:

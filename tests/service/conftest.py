@@ -149,6 +149,21 @@ def watch_standing(tmp_path_factory) -> Path:
     return root / "standing.json"
 
 
+WATCH_KNOCK = ("--take", "--cameras", 6, "--frames", 600, "--seed", 7, "--move", "cam2:300:0.3:2")
+
+
+@pytest.fixture(scope="session")
+def watch_knock(watch_standing) -> tuple[Path, subprocess.CompletedProcess]:
+    """The watch tests' knocked take (test_cli_watch, test_watch_api): ``wandcal simulate --take``
+    of :data:`WATCH_KNOCK` beside :func:`watch_standing` (its folder), and ``wandcal watch STANDING
+    KNOCK --json --write knock_updated.json`` run on it once a worker (each file ran the same command)."""
+    knock = watch_standing.parent / "knock"
+    r = wandcal("simulate", knock, *WATCH_KNOCK)
+    assert r.returncode == 0, r.stderr
+    return knock, wandcal("watch", watch_standing, knock, "--json", "--write", knock.parent / "knock_updated.json",
+                          timeout=900)
+
+
 def wait_job(client: httpx.Client, job_id: str, timeout_s: float = JOB_TIMEOUT_S, until=("done", "failed", "cancelled")):
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:

@@ -14,12 +14,11 @@ wandcal = functools.partial(run_wandcal, timeout=900)  # a take's watch: the slo
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory, watch_standing):
+def root(tmp_path_factory, watch_standing, watch_knock):
     root = tmp_path_factory.mktemp("watch")
     shutil.copyfile(watch_standing, root / "result.json")  # 6 cameras, seed 7, calibrated (tests/service/conftest.py)
+    shutil.copytree(watch_knock[0], root / "knock")  # cam2 knocked at 300 (tests/service/conftest.py)
     for args in (("simulate", root / "clean", "--take", "--cameras", 6, "--frames", 400, "--seed", 7),
-                 ("simulate", root / "knock", "--take", "--cameras", 6, "--frames", 600, "--seed", 7,
-                  "--move", "cam2:300:0.3:2"),
                  ("simulate", root / "after", "--take", "--cameras", 6, "--frames", 300, "--seed", 7,
                   "--move", "cam2:0:0.3:2")):
         r = wandcal(*args)
@@ -27,7 +26,7 @@ def root(tmp_path_factory, watch_standing):
     return root
 
 
-def test_a_knocked_camera_is_named_and_resolved(root):
+def test_a_knocked_camera_is_named_and_resolved(root, watch_knock):
     r = wandcal("watch", root / "result.json", root / "knock", "--write", root / "updated.json")
     assert r.returncode == 1, r.stderr
     assert "cam2: knocked at frame 3" in r.stdout
@@ -38,9 +37,9 @@ def test_a_knocked_camera_is_named_and_resolved(root):
     r = wandcal("watch", root / "updated.json", root / "after", "--json")  # it reads back, and explains the moved rig
     assert r.returncode == 0, r.stdout + r.stderr
     assert json.loads(r.stdout)["moved"] == []
-    r = wandcal("watch", root / "result.json", root / "knock", "--json", "--write", root / "again.json")
+    knock, r = watch_knock  # the same result and take, --json --write (tests/service/conftest.py)
     assert r.returncode == 1 and json.loads(r.stdout)["moved"], r.stderr  # stdout stays the JSON report alone
-    assert f"wrote {root / 'again.json'}" in r.stderr
+    assert f"wrote {knock.parent / 'knock_updated.json'}" in r.stderr
 
 
 def test_a_clean_take_exits_0(root):

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from wandcal.calib.detect import CameraDetector
+from wandcal.calib.watch.stream import watch_take
 from wandcal.calib.watch.take import TakeBlobs
-from wandcal.calib.watch.watch import watch_take
 from wandcal.capture.take_file import read_take
 from wandcal.drivers.sim import open_sim
 from wandcal.drivers.trigger_emulator import EmulatorProcess

@@ -4,6 +4,7 @@ job, gives the figures ``wandcal watch`` gives on the same files; bad input is a
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -18,14 +19,15 @@ WATCH_TIMEOUT_S = 300.0  # a 600-frame take of 6 cameras is seconds of CPU; the 
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory):
+def root(tmp_path_factory, watch_standing, watch_knock):
+    """wand: the capture ``standing.json`` was calibrated from; knock: cam2 knocked at 300 (both
+    tests/service/conftest.py, shared with the other watch tests); other: a take of another rig."""
     root = tmp_path_factory.mktemp("watch_api")
-    for args in (("simulate", root / "wand", "--cameras", "6", "--frames", "600", "--seed", "7"),
-                 ("simulate", root / "knock", "--take", "--cameras", "6", "--frames", "600", "--seed", "7",
-                  "--move", "cam2:300:0.3:2"),
-                 ("simulate", root / "other", "--take", "--cameras", "6", "--frames", "200", "--seed", "8")):
-        r = wandcal(*map(str, args))
-        assert r.returncode == 0, r.stderr
+    shutil.copytree(watch_standing.parent / "wand", root / "wand")
+    shutil.copyfile(watch_standing, root / "standing.json")
+    shutil.copytree(watch_knock[0], root / "knock")
+    r = wandcal("simulate", str(root / "other"), "--take", "--cameras", "6", "--frames", "200", "--seed", "8")
+    assert r.returncode == 0, r.stderr
     return root
 
 
@@ -74,9 +76,7 @@ def test_watch_over_http_gives_the_cli_figures(make_server, root, tmp_path):
 
 def test_bad_input_is_a_4xx_naming_the_part(make_server, root, tmp_path):
     server = make_server(workers=1).start()
-    standing = (tmp_path / "standing.json")
-    r = wandcal("calibrate", str(root / "wand"), "--out", str(standing), "--quiet")
-    assert r.returncode == 0, r.stderr
+    standing = root / "standing.json"  # `wandcal calibrate` of the wand capture (tests/service/conftest.py)
     result = {"result.json": ("result.json", standing.read_bytes(), "application/json")}
     lines = (root / "knock" / TAKE_FILE).read_text().splitlines()
     with server.client() as c:
@@ -107,15 +107,15 @@ def test_bad_input_is_a_4xx_naming_the_part(make_server, root, tmp_path):
     assert len(list((tmp_path / "data" / "takes").iterdir())) == 1  # a refused take leaves nothing behind
 
 
-def test_watch_on_an_rq_worker(make_server, root, tmp_path):
-    """The same take watched by an rq worker that never sees the data folder: the same report."""
+def test_watch_on_an_rq_worker(make_server, root, tmp_path, watch_knock):
+    """The same take watched by an rq worker that never sees the data folder: the report
+    ``wandcal watch --json`` printed of the same result and take (tests/service/conftest.py)."""
     pytest.importorskip("rq", reason="pip install 'wandcal[redis]' to test the Redis queue")
     from tests.service.test_redis import REDIS_SERVER, _wait_for_redis
 
     if REDIS_SERVER is None:
         pytest.skip("redis-server is not installed")
-    standing = tmp_path / "standing.json"
-    assert wandcal("calibrate", str(root / "wand"), "--out", str(standing), "--quiet").returncode == 0
+    standing = root / "standing.json"
     port = free_port()
     redis = subprocess.Popen([REDIS_SERVER, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--appendonly", "no",
                               "--dir", str(tmp_path)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -138,6 +138,6 @@ def test_watch_on_an_rq_worker(make_server, root, tmp_path):
         redis.terminate()
         redis.wait(10)
     assert watch["state"] == "done", watch["error"]
-    cli = wandcal("watch", str(standing), str(root / "knock"), "--json")
+    cli = watch_knock[1]
     assert cli.returncode == 1, cli.stderr
     assert watch["report"] == json.loads(cli.stdout)

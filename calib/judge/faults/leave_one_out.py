@@ -26,7 +26,7 @@ through the points; a tie names nobody. docs/verdict.md gives the limits.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -74,12 +74,15 @@ COMPARE_MARGIN = 1.5
 class HeldOut:
     """Camera c's observations of points the others triangulated: X (K, 3) the points (world
     frame), xy (K, 2) observed, normalised; frame (K,) capture frame numbers; timed (K,) bool,
-    the observations that have a time (see the module's docstring)."""
+    the observations that have a time (see the module's docstring); picks: which of the wand's and
+    the point tracks' observations these are (each group's rows of c with two other views, then the
+    finite points among them), so that :func:`seen_again` reads c's observations again."""
 
     X: np.ndarray
     xy: np.ndarray
     frame: np.ndarray
     timed: np.ndarray
+    picks: tuple | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -112,6 +115,31 @@ def held_out_views(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
     wand's ends have a time, and the point tracks in the wand's time
     (:func:`wandcal.calib.judge.faults.own_errors.in_wand_time`: a multi-marker wand's interior markers,
     a moving marker; all of them without a wand), so that they enter the knock test."""
+    Xs, xys, frames, timed, mines = [], [], [], [], []
+    for point, camera, xy, n, frame, has_time in _groups(labelled, tracks):
+        others = camera != c
+        views = np.bincount(point[others], minlength=n)
+        mine = (camera == c) & (views[point] >= 2)
+        mines.append(mine)
+        if not mine.any():
+            continue
+        X = triangulate_points(R, t, point[others], camera[others], xy[others], n)
+        Xs.append(X[point[mine]])
+        xys.append(xy[mine])
+        frames.append(frame[mine])
+        timed.append(np.broadcast_to(has_time, mine.shape)[mine])
+    if not Xs:
+        return HeldOut(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, bool), (tuple(mines), None))
+    X = np.concatenate(Xs)
+    ok = np.all(np.isfinite(X), axis=1)
+    return HeldOut(X[ok], np.concatenate(xys)[ok], np.concatenate(frames)[ok], np.concatenate(timed)[ok],
+                   (tuple(mines), ok))
+
+
+def _groups(labelled: WandPairs, tracks: PointTracks | None) -> list[tuple]:
+    """The observations :func:`held_out_views` reads, in its order: the wand's ends, then the point
+    tracks, each as (point (M,), camera (M,), xy (M, 2), points, capture frame (M,), has a time
+    (bool, or (M,) bool))."""
     groups = []
     if len(labelled):
         point, camera, xy = flatten(labelled)
@@ -121,23 +149,21 @@ def held_out_views(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         track_timed = in_wand_time(tracks.frames, labelled.frames[labelled.frame] if len(labelled) else np.zeros(0))
         groups.append((tracks.track, tracks.camera, tracks.xy, tracks.n_tracks, tracks.frames[tracks.track],
                        track_timed[tracks.track]))
-    Xs, xys, frames, timed = [], [], [], []
-    for point, camera, xy, n, frame, has_time in groups:
-        others = camera != c
-        views = np.bincount(point[others], minlength=n)
-        mine = (camera == c) & (views[point] >= 2)
-        if not mine.any():
-            continue
-        X = triangulate_points(R, t, point[others], camera[others], xy[others], n)
-        Xs.append(X[point[mine]])
-        xys.append(xy[mine])
-        frames.append(frame[mine])
-        timed.append(np.broadcast_to(has_time, mine.shape)[mine])
-    if not Xs:
-        return HeldOut(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, bool))
-    X = np.concatenate(Xs)
-    ok = np.all(np.isfinite(X), axis=1)
-    return HeldOut(X[ok], np.concatenate(xys)[ok], np.concatenate(frames)[ok], np.concatenate(timed)[ok])
+    return groups
+
+
+def seen_again(held: HeldOut, labelled: WandPairs, tracks: PointTracks | None) -> HeldOut:
+    """``held`` (:func:`held_out_views` of camera c) with c's observations read again from
+    ``labelled`` and ``tracks``: the same observations of the same points, normalised otherwise (another
+    camera's lens: :func:`wandcal.calib.judge.faults.swapped.screened_pairs`), and only camera c's
+    changed. The points the other cameras triangulate do not read c's views, so they are held's as
+    they are: what :func:`held_out_views` of these observations gives, without triangulating again."""
+    if held.picks is None:
+        raise ValueError("seen_again reads the rows held_out_views picked: give it held_out_views' answer")
+    mines, ok = held.picks
+    xys = [xy[mine] for (_, _, xy, *_), mine in zip(_groups(labelled, tracks), mines, strict=True) if mine.any()]
+    xy = np.concatenate(xys)[ok] if xys else np.zeros((0, 2))
+    return replace(held, xy=xy)
 
 
 def _turn_columns(R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -174,9 +200,10 @@ def _knock(y: np.ndarray, pose: np.ndarray, turn: np.ndarray, frame: np.ndarray,
 
 
 def camera_patterns(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None,
-                    c: int) -> CameraPatterns:
-    """Camera c's lens and knock patterns against the points the others triangulate, its pose refitted."""
-    held = held_out_views(R, t, labelled, tracks, c)
+                    c: int, held: HeldOut | None = None) -> CameraPatterns:
+    """Camera c's lens and knock patterns against the points the others triangulate, its pose
+    refitted. held: :func:`held_out_views` of these R, t, observations and c, where already made."""
+    held = held_out_views(R, t, labelled, tracks, c) if held is None else held
     if len(held.X) < MIN_VIEWS:
         return CameraPatterns(c, len(held.X), None, None)
     Rc, tc, r, keep = resect(R[c], t[c], held.X, held.xy)
@@ -310,16 +337,18 @@ def by_correction(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Poi
 
 
 def leave_one_out_faults(ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPairs,
-                         tracks: PointTracks | None, at_fault: tuple[int, ...] = ()) -> list[dict]:
+                         tracks: PointTracks | None, at_fault: tuple[int, ...] = (),
+                         held: list[HeldOut] | None = None) -> list[dict]:
     """The camera at fault in a rig of at most :data:`MAX_CAMERAS` cameras, by comparison of every
     camera's patterns against the others (``{"kind", "camera", "message", "evidence"}``; at most
     one: the others' patterns are its error spread through the points). Empty when no camera's
     pattern names a fault, or the rig is larger (the suspect screen judges it). ``at_fault``: cameras
     already named (a camera out of time, brought in time): left out of the comparison, their own
-    error is no evidence against another camera."""
+    error is no evidence against another camera. held: every camera's :func:`held_out_views` of
+    these R, t and observations, where already made (the swap screen's: one triangulation each)."""
     if not 3 <= len(ids) <= MAX_CAMERAS:
         return []
-    patterns = [camera_patterns(R, t, labelled, tracks, c) for c in range(len(ids))]
+    patterns = [camera_patterns(R, t, labelled, tracks, c, None if held is None else held[c]) for c in range(len(ids))]
     strongest = [0.0 if c in at_fault else max(p.lens.f_stat if p.lens else 0.0, p.knock.f_stat if p.knock else 0.0)
                  for c, p in enumerate(patterns)]
     found = [p for p in patterns if p.camera not in at_fault and max(_lens_found(p), _knock_found(p)) > 0]

@@ -18,6 +18,7 @@ were measured.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -120,9 +121,41 @@ def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
     With these columns in the step's base the F test's null is "no step, whatever lens error any
     camera has" (an exact linear F test with nuisance columns): a knock is a step in time at any
     place, which no camera's lens pattern explains. The camera's own four columns are those the
-    test fitted before; k2 is left out as it was (k1 takes most of a k2 error over the image)."""
-    v = el.views
-    cam = v.camera[rows]
+    test fitted before; k2 is left out as it was (k1 takes most of a k2 error over the image).
+
+    Where ``rows`` are half of ``el``'s views or more (a rig of few cameras, each seeing most
+    points), made once for every view of ``el`` (:func:`_lens_of_every_view`) and read at ``rows``:
+    ``rows`` holds every view of each of its points, so each point's sums are those over all its
+    views, in the same order; a camera without a view among ``rows`` has zero columns there (none of
+    its points' sums holds it), which are dropped. Every camera's step test on one fit (a clean
+    rig's: :class:`wandcal.calib.judge.faults.moved._Refits`) shares them. In a larger rig a camera
+    sees a small part of the views and every camera's columns over all of them would be large: made
+    over ``rows`` alone (the same numbers)."""
+    if 2 * len(rows) < len(el.views.point):
+        return _lens_columns(el, rows)[0]
+    full, cameras = _lens_of_every_view(el)
+    present = np.unique(el.views.camera[rows])
+    cols = (4 * np.searchsorted(cameras, present)[:, None] + np.arange(4)).ravel()
+    return full[rows][:, :, cols]
+
+
+# _lens_of_every_view's answers, while their Eliminated lives
+_lens_made: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _lens_of_every_view(el: Eliminated) -> tuple[np.ndarray, np.ndarray]:
+    """(every view's lens columns (M, 2, 4 C), the C cameras with views, ascending): as
+    :func:`_every_lens` describes them, over all of ``el``'s views; made once for each ``el``."""
+    made = _lens_made.get(el)
+    if made is None:
+        made = _lens_made[el] = _lens_columns(el, np.arange(len(el.views.point)))
+    return made
+
+
+def _lens_columns(el: Eliminated, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the lens columns over ``rows`` (K, 2, 4 C), the C cameras with a view among them, ascending):
+    :func:`_every_lens`'s columns, made over ``rows``."""
+    cam = el.views.camera[rows]
     xy = el.Xc[rows][:, :2] / el.Xc[rows][:, 2:]
     r2 = np.sum(xy**2, axis=1, keepdims=True)
     G = np.stack([xy, xy * r2, np.broadcast_to([1.0, 0.0], xy.shape), np.broadcast_to([0.0, 1.0], xy.shape)],
@@ -131,7 +164,7 @@ def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
     full = np.zeros((len(rows), 2, 4 * len(present)))
     for j, d in enumerate(present):
         full[cam == d, :, 4 * j : 4 * j + 4] = G[cam == d]
-    return _projected(el, rows, full)
+    return _projected(el, rows, full), present
 
 
 def _projected(el: Eliminated, rows: np.ndarray, full: np.ndarray) -> np.ndarray:
@@ -193,24 +226,34 @@ def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None, at: 
         candidates = candidates[np.linspace(0, len(candidates) - 1, MAX_SPLITS).astype(int)]
     if at is not None:
         candidates = np.array([at])
+    # each round's split search depends on the views kept alone, and its trim on the split found alone:
+    # a round that finds the split of the one before keeps the same views, and is that round again
+    searched: dict[bytes, tuple | None] = {}
+    trimmed: dict[int, np.ndarray] = {}
     keep = np.ones(len(rows), bool)
     for _ in range(TRIM_ROUNDS):
-        best = _best_split(base_cols, step, yv, time, timed, candidates, keep, el.rho[rows])
+        best = _search_once(searched, keep, lambda kept: _best_split(base_cols, step, yv, time, timed, candidates,
+                                                                     kept, el.rho[rows]))
         if best is None:
             return None
-        keep = _kept(np.concatenate([base_cols, step * best[3]], axis=1), yv, el.rho[rows], v.point[rows])
-    best = _best_split(base_cols, step, yv, time, timed, candidates, keep, el.rho[rows])
+        if best[1] not in trimmed:
+            trimmed[best[1]] = _kept(np.concatenate([base_cols, step * best[3]], axis=1), yv, el.rho[rows],
+                                     v.point[rows])
+        keep = trimmed[best[1]]
+    best = _search_once(searched, keep, lambda kept: _best_split(base_cols, step, yv, time, timed, candidates, kept,
+                                                                 el.rho[rows]))
     if best is None:
         return None
     f, k, rss1, mask, rss0, dof = best
     nb = base_cols.shape[1]
     k2 = np.repeat(keep, 2)
-    coef, cov = _coef(np.concatenate([base_cols, step * mask], axis=1)[k2], yv[k2], dof)
-    e = (yv - np.concatenate([base_cols, step * mask], axis=1) @ _coef_full(base_cols, step * mask, yv, k2)).reshape(-1, 2)
+    model = np.concatenate([base_cols, step * mask], axis=1)
+    coef, cov = _coef(model[k2], yv[k2], dof)
+    e = (yv - model @ _solve(model[k2], yv[k2])).reshape(-1, 2)
     inflation = _inflation(e, mine & timed & keep, time, v.point[rows])
     ratio, dof_f = 1.0, dof
     if (keep & ~timed).any():  # the step is measured against the timed views' own scatter
-        s2t, dof_f = _timed_dispersion(np.concatenate([base_cols, step * mask], axis=1), e, keep, timed, el.rho[rows])
+        s2t, dof_f = _timed_dispersion(model, e, keep, timed, el.rho[rows])
         ratio = s2t / max(rss1 / dof, 1e-300)
     f /= ratio * inflation[0]
     cov = cov * (ratio * inflation[0])
@@ -223,6 +266,15 @@ def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None, at: 
     return Step(k, float(deg), float(deg_std), float(mm), float(mm_std), float(f), float(p),
                 float(1 - rss1 / rss0) if rss0 > 0 else 0.0, float(min(dof, dof_f, inflation[1])), len(candidates),
                 w_hat, turn_cov, float(inflation[0]), float(min(dof, dof_f)))
+
+
+def _search_once(searched: dict, keep: np.ndarray, search) -> tuple | None:
+    """``search(keep)`` (:func:`_best_split` on the views ``keep`` (K,)), made once for each set of
+    views kept: ``searched`` holds the answers by ``keep``'s bytes."""
+    key = keep.tobytes()
+    if key not in searched:
+        searched[key] = search(keep)
+    return searched[key]
 
 
 # moved.explained_by's tests, bound here so that a bench wrapping pose_step (bench_real_subsamples.StepRecorder:
@@ -277,9 +329,13 @@ def _best_split(base: np.ndarray, step: np.ndarray, y: np.ndarray, time: np.ndar
     rows = np.stack([2 * at, 2 * at + 1], axis=1).ravel()
     Sr = step[rows]
     # per view (summed over its two rows): step^T [base | step | y], then suffix sums in time order
-    prod = np.einsum("ri,rj->rij", Sr, np.concatenate([base[rows], Sr, y[rows, None]], axis=1))
-    prod = prod.reshape(len(at), 2, 3, nb + 4).sum(axis=1)
-    suffix = np.concatenate([np.cumsum(prod[::-1], axis=0)[::-1], np.zeros((1, 3, nb + 4))])
+    # (the two rows' products added in one einsum, the sums run along the last, contiguous axis:
+    # the same additions in the same order as a sum over the rows and a cumsum down the views)
+    both = np.concatenate([base[rows], Sr, y[rows, None]], axis=1)
+    prod = np.einsum("vmi,vmj->ijv", Sr.reshape(len(at), 2, 3), both.reshape(len(at), 2, nb + 4))
+    suffix = np.zeros((3, nb + 4, len(at) + 1))
+    np.cumsum(prod[:, :, ::-1], axis=2, out=suffix[:, :, : len(at)][:, :, ::-1])
+    suffix = suffix.transpose(2, 0, 1)
     first = np.searchsorted(time[at], candidates, side="right")
     rss1 = _split_rss(G00, b0, yy, suffix[first], nb)
     f = ((rss0 - rss1) / 3) / np.maximum(rss1 / dof, 1e-300)
@@ -325,11 +381,6 @@ def _kept(A: np.ndarray, y: np.ndarray, rho: np.ndarray, point: np.ndarray) -> n
     scale = float(np.nanmedian(u)) if np.isfinite(u).any() else 1.0
     bad = e2 > TRIM_SIGMAS**2 * np.maximum(rho, 1e-3) * scale
     return ~np.isin(point, point[bad])
-
-
-def _coef_full(base: np.ndarray, step: np.ndarray, y: np.ndarray, k2: np.ndarray) -> np.ndarray:
-    """The coefficients of y on [base | step] fitted on the rows k2 (2K,)."""
-    return _solve(np.concatenate([base, step], axis=1)[k2], y[k2])
 
 
 def _solve(A: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -41,7 +41,14 @@ import numpy as np
 from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import undistort_by_camera, undistort_points
 from wandcal.calib.judge.faults.f_distribution import f_survival
-from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS, MIN_VIEWS, HeldOut, capture_blocks, held_out_views
+from wandcal.calib.judge.faults.leave_one_out import (
+    MAX_CAMERAS,
+    MIN_VIEWS,
+    HeldOut,
+    capture_blocks,
+    held_out_views,
+    seen_again,
+)
 from wandcal.calib.judge.faults.screen import resect
 from wandcal.calib.judge.residuals import Residuals, observation_residuals
 from wandcal.calib.observations import PointTracks, WandPairs
@@ -176,12 +183,15 @@ def _resected_ms(R: np.ndarray, t: np.ndarray, held: HeldOut, focal: float) -> f
     return float(np.mean(np.sum((r[keep] * focal) ** 2, axis=1))) if keep.sum() >= MIN_VIEWS else np.inf
 
 
-def screened_pairs(rig: Rig, R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None
-                   ) -> list[tuple[int, int]]:
+def screened_pairs(rig: Rig, R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None,
+                   held: list[HeldOut] | None = None) -> list[tuple[int, int]]:
     """Pairs (a < b) of cameras with intrinsics that differ where the exchange lowers either
-    camera's mean squared residual against the points the others triangulate, its pose refitted."""
+    camera's mean squared residual against the points the others triangulate, its pose refitted.
+    held: every camera's :func:`held_out_views` of these R, t and observations, where already made.
+    The points the others triangulate do not read camera c's views, so c seen through another
+    lens is judged against c's own held-out points (:func:`seen_again`): one triangulation a camera."""
     n = len(rig.cameras)
-    views = [held_out_views(R, t, labelled, tracks, c) for c in range(n)]
+    views = [held_out_views(R, t, labelled, tracks, c) for c in range(n)] if held is None else held
     own = [_resected_ms(R[c], t[c], views[c], float(rig.cameras[c].focal.mean())) if len(views[c].X) >= MIN_VIEWS
            else np.inf for c in range(n)]
     out = []
@@ -192,8 +202,9 @@ def screened_pairs(rig: Rig, R: np.ndarray, t: np.ndarray, labelled: WandPairs, 
             for c, d in ((a, b), (b, a)):
                 if not np.isfinite(own[c]):
                     continue
-                held = held_out_views(R, t, *_seen_through(labelled, tracks, c, rig.cameras[d]), c)
-                if len(held.X) >= MIN_VIEWS and _resected_ms(R[c], t[c], held, float(rig.cameras[d].focal.mean())) < own[c]:
+                through = seen_again(views[c], *_seen_through(labelled, tracks, c, rig.cameras[d]))
+                if len(through.X) >= MIN_VIEWS and _resected_ms(R[c], t[c], through,
+                                                                float(rig.cameras[d].focal.mean())) < own[c]:
                     out.append((a, b))
                     break
     return out
@@ -244,14 +255,15 @@ def judge_swap(given: Residuals, swapped: Residuals, labelled: WandPairs, tracks
 
 
 def swapped_pair(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
-                 solve: Solve) -> Swap | None:
+                 solve: Solve, held: list[HeldOut] | None = None) -> Swap | None:
     """The pair of cameras whose observations look swapped (:class:`Swap`, ``found``), the most
     significant of the screened pairs (:func:`screened_pairs`), each solved again with ``solve``;
-    None where none is found or the rig is not of 3 to :data:`MAX_CAMERAS` cameras."""
+    None where none is found or the rig is not of 3 to :data:`MAX_CAMERAS` cameras. held: as
+    :func:`screened_pairs` takes it."""
     n = len(rig.cameras)
     if not 3 <= n <= MAX_CAMERAS:
         return None
-    pairs = screened_pairs(rig, R, t, labelled, tracks)
+    pairs = screened_pairs(rig, R, t, labelled, tracks, held)
     if not pairs:
         return None
     try:  # the given intrinsics solved again the same way, so that the two fits differ by the exchange alone
@@ -288,11 +300,11 @@ def _judged(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.nda
 
 
 def swap_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.ndarray, t: np.ndarray,
-                solve: Solve) -> list[dict]:
+                solve: Solve, held: list[HeldOut] | None = None) -> list[dict]:
     """The swapped pair (:func:`swapped_pair`) as two ``intrinsics`` faults, one on each camera,
     whose message says that their observations look swapped (``{"kind", "camera", "message",
-    "evidence"}``, evidence ``swap``); empty where none is found."""
-    found = swapped_pair(rig, labelled, tracks, R, t, solve)
+    "evidence"}``, evidence ``swap``); empty where none is found. held: as :func:`screened_pairs` takes it."""
+    found = swapped_pair(rig, labelled, tracks, R, t, solve, held)
     if found is None:
         return []
     ids = [rig.cameras[found.a].id, rig.cameras[found.b].id]

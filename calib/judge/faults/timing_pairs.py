@@ -154,7 +154,7 @@ def _pair_scales(first: np.ndarray, second: np.ndarray, A: np.ndarray, y: np.nda
 def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: PointTracks | None,
                    focal: np.ndarray) -> list[CameraTiming]:
     """Every camera's offset against the others (whole frames, then the fraction by the velocity
-    fit). R, t: (N, 3, 3), (N, 3) poses; focal: (N,) focal lengths, pixels. Empty where the
+    fit). R, t: (N, 3, 3), (N, 3) poses; focal: (N, 2) focal lengths (fx, fy), or (N,), pixels. Empty where the
     samples are too few to judge."""
     n = len(R)
     s = timed_samples(labelled, tracks)
@@ -205,16 +205,17 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         # c's frame k was exposed at the others' k - shift - own
         offset = -float(shifts[c] + own)
         out.append(CameraTiming(c, -int(shifts[c]), offset, std, explained,
-                                abs(offset) * _speed(by_camera[c]) * float(focal[c]), pairs, untimeable[c]))
+                                abs(offset) * _speed(by_camera[c]) * float(np.mean(focal[c])), pairs, untimeable[c]))
     return out
 
 
 def _untimeable(labelled: WandPairs, focal: np.ndarray) -> list[str]:
     """(N,) why ``--sync auto`` would hold each camera at its whole-frame offset ("" where it can fit
-    a fraction): its own test (:func:`wandcal.calib.solve.sync.fit.smoothness`); focal (N,) pixels."""
+    a fraction): its own test with the focal lengths it takes, (N, 2) (fx, fy) pixels as
+    :func:`wandcal.calib.solve.sync.fit.why_untimeable` gives them (or (N,))."""
     if not len(labelled):  # point tracks only: --sync auto times the wand
         return [""] * len(focal)
-    smooth = smoothness(labelled, np.asarray(focal, float)[:, None])
+    smooth = smoothness(labelled, np.asarray(focal, float).reshape(len(focal), -1))
     return [smooth.why_not(c) for c in range(len(focal))]
 
 

@@ -19,9 +19,10 @@ DEFAULT_MIN_COVERAGE = 0.5
 # Frames per camera in the fast solve: at 400 the scaled sigma is within 3% of the full solve's
 # and an update of 16 cameras takes ~0.15 s (docs/decisions/0010-guidance-uncertainty.md).
 DEFAULT_FRAMES_PER_CAMERA = 400
-# A camera enters the solve with this many frames shared with others: with fewer its pose is the
-# initial guess of a handful of correspondences, not a measurement (wandcal.calib.start.chain needs 10
-# correspondences, i.e. 5 frames, to place a pair at all).
+# A camera enters the solve with this many frames shared with another camera, or seen by two
+# cameras already in the solve (decision 0095): with fewer its pose is the initial guess of a handful
+# of correspondences, not a measurement (wandcal.calib.start.chain needs 10 correspondences, i.e. 5
+# frames, to place a pair at all).
 MIN_SOLVE_FRAMES = 10
 
 

@@ -16,7 +16,7 @@ from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
 from wandcal.calib.rig import PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.run.guidance.document import Seen, guidance_document
 from wandcal.calib.run.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
-from wandcal.calib.start.chain import row_pairs
+from wandcal.calib.start.chain import camera_groups, row_pairs
 from wandcal.calib.start.offsets.confirm import confirmed_offsets
 from wandcal.calib.start.offsets.whole_frames import DEFAULT_MAX_OFFSET, FrameOffsets, frame_offsets, shift_pairs
 
@@ -98,7 +98,7 @@ def wanding_guidance(rig: Rig, wand: WandObservations | None, static: StaticObse
             offsets = found.offsets
             pairs = shift_pairs(pairs, offsets)
     seen = _seen(len(rig.cameras), pairs)
-    solve_set = _solve_set(seen)
+    solve_set = _solve_set(seen, _whole_static(rig, static))
     n = len(rig.cameras)
     center = np.full(n, np.nan)
     rotation = np.full(n, np.nan)
@@ -146,7 +146,7 @@ def points_guidance(rig: Rig, points: PointObservations, settings: GuidanceSetti
     pairs = WandPairs(tracks.track, tracks.camera, np.stack([tracks.xy, tracks.xy], axis=1), both,
                       np.arange(tracks.n_tracks), dict(tracks.dropped))
     seen = _seen(len(rig.cameras), pairs)
-    solve_set = _solve_set(seen)
+    solve_set = _solve_set(seen, grow=False)
     n = len(rig.cameras)
     linked = int(solve_set.sum()) >= 2
     info: dict[str, Any] = {
@@ -204,26 +204,51 @@ def _shared_frames(pairs: WandPairs, n: int) -> np.ndarray:
     return row_pairs(key // n, key % n, n)
 
 
-def _solve_set(seen: Seen) -> np.ndarray:
-    """(N,) bool: the largest group of cameras linked by at least ``MIN_SOLVE_FRAMES`` shared
-    frames, each with that many frames shared with the others."""
-    n = len(seen.frames)
+def _solve_set(seen: Seen, seed: np.ndarray | None = None, *, grow: bool = True) -> np.ndarray:
+    """(N,) bool: the cameras the fast solve can place, as the start places them.
+
+    The group: the largest set of cameras linked pairwise by at least ``MIN_SOLVE_FRAMES`` shared
+    frames, each with that many frames shared with the others (the start's grouping,
+    :func:`wandcal.calib.start.chain.camera_groups`: ties to the group of the lowest camera), or
+    ``seed`` (N,) bool (the cameras that see the whole static object), those of them with that
+    many shared frames, when they are more. Then every camera joins that has ``MIN_SOLVE_FRAMES``
+    frames in which two cameras of the group see the wand too (:func:`_grown`): the frames the
+    start's resection triangulates to place it. A sparse rig, each frame seen by 2-4 of 128
+    cameras, has no pair sharing 10 frames, yet every camera is placed this way (decision 0095).
+    ``grow`` False: the pairwise group alone (a points-only rig's links)."""
     ok = seen.shared >= MIN_SOLVE_FRAMES
-    edges = (seen.linked >= MIN_SOLVE_FRAMES) & ok[:, None] & ok[None, :]
-    best = np.zeros(n, bool)
-    unvisited = ok.copy()
-    while unvisited.any():
-        group = np.zeros(n, bool)
-        group[np.argmax(unvisited)] = True
-        while True:
-            grown = group | edges[group].any(0)
-            if (grown == group).all():
-                break
-            group = grown
-        unvisited &= ~group
-        if group.sum() > best.sum():
-            best = group
-    return best
+    best = np.zeros(len(seen.frames), bool)
+    groups = camera_groups(seen.linked >= MIN_SOLVE_FRAMES, ok)
+    if groups:
+        best[groups[0]] = True
+    if seed is not None and (seed & ok).sum() > best.sum():  # the seed's cameras that have wand frames to solve by
+        best = seed & ok
+    return _grown(seen.pairs, best) if grow and best.sum() >= 2 else best
+
+
+def _whole_static(rig: Rig, static: StaticObservations | None) -> np.ndarray | None:
+    """(N,) bool: the cameras that see every marker of the static object (the start places them
+    by its PnP), or None without one."""
+    if static is None or rig.static_markers is None:
+        return None
+    return np.bincount(static.camera, minlength=len(rig.cameras)) >= len(rig.static_markers)
+
+
+def _grown(pairs: WandPairs, group: np.ndarray) -> np.ndarray:
+    """``group`` (N,) bool with every camera added, as long as any can be, that sees the wand in at
+    least ``MIN_SOLVE_FRAMES`` frames that two cameras of the group see too (each pass over the
+    camera-frames: the work grows with the captured pairs, not frames x cameras)."""
+    n, frames = len(group), len(pairs.frames)
+    key = np.unique(pairs.frame.astype(np.int64) * n + pairs.camera)  # one row per camera-frame
+    frame, camera = key // n, key % n
+    group = group.copy()
+    while True:
+        in_group = np.bincount(frame, weights=group[camera], minlength=frames)
+        rows = in_group[frame] - group[camera] >= 2  # two other group cameras see the frame
+        joins = (np.bincount(camera[rows], minlength=n) >= MIN_SOLVE_FRAMES) & ~group
+        if not joins.any():
+            return group
+        group |= joins
 
 
 def subsample(pairs: WandPairs, frames_per_camera: int) -> np.ndarray:
@@ -254,9 +279,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     # the solver loads when a solve runs: the command line reads this module's defaults at start-up
     from wandcal.calib.run.options import CalibrationOptions
     from wandcal.calib.run.refine import GAUGE_CAMERA, build_problem, refine, up_direction
-    from wandcal.calib.start.initial import initial_poses
     from wandcal.calib.start.labels import label_ends
-    from wandcal.calib.start.static import solve_static
     cams = np.flatnonzero(solve_set)
     index = np.full(len(rig.cameras), -1)
     index[cams] = np.arange(len(cams))
@@ -275,12 +298,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     if start is not None and warm:
         R, t = start.R, start.t
     else:
-        static_poses = None
-        if static is not None and rig.static_markers is not None:
-            mask = solve_set[static.camera]
-            static_poses = solve_static(sub, StaticObservations(index[static.camera[mask]], static.uv[mask]))
-        init = initial_poses(sub, kept, static_poses)
-        R, t = init.R, init.t
+        R, t = _start_poses(rig, sub, kept, cams, static, start)
     labelled = label_ends(R, t, kept, np.ones(len(cams), bool), sub.wand_length)[0]
     setup = build_problem(sub, labelled, R, t, GAUGE_CAMERA)
     r = refine(sub, labelled, setup, None, None, "ba", CalibrationOptions(), lambda event: None, up_direction(sub, R, t, setup))
@@ -300,6 +318,39 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     info = {"frames_used": int(setup.problem.n_frames), "cameras": len(cams), "warm_start": bool(warm),
             "iterations": int(r.info.get("iterations", 0))}
     return Solution(ids, r.R, r.t), center, rotation, info
+
+
+def _start_poses(rig: Rig, sub: Rig, kept: WandPairs, cams: np.ndarray, static: StaticObservations | None,
+                 start: Solution | None) -> tuple[np.ndarray, np.ndarray]:
+    """The start's poses (K, 3, 3), (K, 3) of the solve's cameras ``cams`` (indices into ``rig``).
+
+    Where the last update's :class:`Solution` holds at least two of them (the solve set grew or
+    shrank since), those keep their solved poses, as the static object's PnP would place them, and
+    the start places only the others (a live update at 128 cameras places the cameras that joined,
+    not all 128); where that start fails, or without such a solution, the cold start from the
+    static object and the wand."""
+    from wandcal.calib.start.initial import initial_poses
+    from wandcal.calib.start.static import StaticPose, solve_static
+
+    if start is not None:
+        known = {cid: k for k, cid in enumerate(start.ids)}
+        prior = [known.get(cid) for cid in sub.ids]
+        if sum(k is not None for k in prior) >= 2:
+            placed = [None if k is None else StaticPose(start.R[k], start.t[k], np.zeros(0, np.int64), 0.0, np.inf)
+                      for k in prior]
+            try:
+                init = initial_poses(sub, kept, placed)
+                return init.R, init.t
+            except CalibrationError:
+                pass  # a camera the solved ones cannot place: start afresh
+    static_poses = None
+    if static is not None and rig.static_markers is not None:
+        index = np.full(len(rig.cameras), -1)
+        index[cams] = np.arange(len(cams))
+        mask = index[static.camera] >= 0
+        static_poses = solve_static(sub, StaticObservations(index[static.camera[mask]], static.uv[mask]))
+    init = initial_poses(sub, kept, static_poses)
+    return init.R, init.t
 
 
 def relative_uncertainty(R: np.ndarray, t: np.ndarray, covariance) -> tuple[np.ndarray, np.ndarray]:

@@ -32,14 +32,13 @@ def frame_table(pairs: WandPairs, n: int) -> np.ndarray:
 
 
 def shared_counts(table: np.ndarray, a: int, b: int, lags: np.ndarray) -> np.ndarray:
-    """(S,) how many frames k a saw the wand in with b at k + lag, for each lag (S,)."""
+    """(S,) how many frames k a saw the wand in with b at k + lag, for each lag (S,): every lag at
+    once, a's frames looked up in b's column."""
     span = len(table)
-    seen_a, seen_b = table[:, a] >= 0, table[:, b] >= 0
-    out = np.zeros(len(lags), np.int64)
-    for i, lag in enumerate(lags):
-        lo, hi = max(0, -lag), min(span, span - lag)
-        out[i] = np.count_nonzero(seen_a[lo:hi] & seen_b[lo + lag : hi + lag]) if hi > lo else 0
-    return out
+    k = np.flatnonzero(table[:, a] >= 0)
+    kb = k[None, :] + np.asarray(lags, np.int64).reshape(-1, 1)  # (S, K)
+    hit = (kb >= 0) & (kb < span) & (table[np.clip(kb, 0, max(span - 1, 0)), b] >= 0)
+    return np.count_nonzero(hit, axis=1).astype(np.int64)
 
 
 def shared_rows(table: np.ndarray, a: int, b: int, lag: int, most: int) -> tuple[np.ndarray, np.ndarray]:

@@ -107,8 +107,19 @@ class ShiftSearch:
         with it at every lag any offset of a gives: then its search is judged by one RANSAC a
         shift (or finds too few frames) and refuses only with TooFewShared or at the edge of its
         search."""
-        lags = np.unique(np.subtract.outer(np.array(self.partner_offsets(a)), self.shifts(b)))
-        return bool(shared_counts(self.table, a, b, lags).max() < FEW_FRAMES)
+        return bool(shared_counts(self.table, a, b, self._partner_lags(b, a)).max() < FEW_FRAMES)
+
+    def proof_cost(self, b: int, a: int) -> int:
+        """The RANSACs :meth:`cannot_time` (b, a) runs at most where b is :meth:`sparse_everywhere`
+        (elsewhere it runs fewer and refutes the proof): the lags any offset of a gives where the
+        pair shares ``MIN_TIMING_FRAMES`` frames."""
+        return int(np.count_nonzero(shared_counts(self.table, a, b, self._partner_lags(b, a)) >= MIN_TIMING_FRAMES))
+
+    def _partner_lags(self, b: int, a: int) -> np.ndarray:
+        """(L,) every lag between b and ``a`` that an offset of a's (:meth:`partner_offsets`) and a
+        shift of b's give, ascending: both are runs of whole numbers, so their differences are one run."""
+        offsets, shifts = self.partner_offsets(a), self.shifts(b)
+        return np.arange(offsets[0] - shifts[-1], offsets[-1] - shifts[0] + 1)
 
     def cannot_time(self, b: int, a: int) -> bool:
         """Whether camera b's search against ``a`` as its first partner raises TooFewShared

@@ -173,25 +173,31 @@ def _risk_first(steps: list[tuple[int, list[int]]], table: np.ndarray, start: np
 
 
 def _refuse_untimeable(search: ShiftSearch, steps: list[tuple[int, list[int]]], table: np.ndarray) -> None:
-    """Raise TooFewShared for the first camera b of ``steps`` that shares fewer than
-    ``MIN_TIMING_FRAMES`` frames with its first partner at the start's offsets and that
-    :meth:`ShiftSearch.cannot_time` proves the search would refuse with TooFewShared, provided every
-    camera planned before b can refuse with nothing else but the edge of its search
-    (:meth:`ShiftSearch.sparse_everywhere`: the midpoint scores' other refusals need ``FEW_FRAMES``
-    frames). Which cameras are tried only bounds the cost (one RANSAC a lag, 4 x max_offset - 1
-    lags); the proofs are exact."""
-    for b, partners in steps:
+    """Raise TooFewShared if :meth:`ShiftSearch.cannot_time` proves that the search would refuse
+    some camera b of ``steps`` with TooFewShared, b sharing fewer than ``MIN_TIMING_FRAMES`` frames
+    with its first partner at the start's offsets, provided every camera planned before b can refuse
+    with nothing else but the edge of its search (:meth:`ShiftSearch.sparse_everywhere`: the
+    midpoint scores' other refusals need ``FEW_FRAMES`` frames). Whether it raises does not depend
+    on the order the cameras are tried in, only what it costs and which camera the message names:
+    the cheapest proofs first (:meth:`ShiftSearch.proof_cost`, one RANSAC a lag; ties in the planned
+    order), and none that the frame counts already refute (a camera not sparse everywhere). Which
+    cameras are tried only bounds the cost; the proofs are exact."""
+    tried = []  # (RANSACs, planned index, b, a)
+    for i, (b, partners) in enumerate(steps):
         a = partners[0]
         lag = int(search.start[b] - search.start[a])
-        if shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES and search.cannot_time(b, a):
+        if not search.sparse_everywhere(b, a):
+            break  # b might be refused otherwise than TooFewShared, and cannot_time refutes it on the counts alone
+        if shared_counts(table, a, b, np.array([lag]))[0] < MIN_TIMING_FRAMES:
+            tried.append((search.proof_cost(b, a), i, b, a))
+    for _, _, b, a in sorted(tried):
+        if search.cannot_time(b, a):
             rig = search.rig
             raise TooFewShared(
                 f"camera {rig.cameras[b].id!r} cannot be timed against {rig.cameras[a].id}: at no offset of "
                 f"{rig.cameras[a].id}'s within +-{search.max_offset} frames does its wand agree with "
                 f"{rig.cameras[a].id}'s at a shift within +-{search.max_offset} frames; check that it recorded the same "
                 "session and the same wand, or search wider (sync_max_offset)")
-        if not search.sparse_everywhere(b, a):
-            return  # b might be refused otherwise than TooFewShared: the planned search tells
 
 
 def _unlinked_error(rig: Rig, b: int, steps: list[tuple[int, list[int]]], reference: int, max_offset: int,

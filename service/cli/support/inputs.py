@@ -1,12 +1,12 @@
-"""What ``wandcal calibrate`` and ``wandcal check`` read beside the capture's blobs: its frame rate and
-camera timestamps (for ``--sync auto``), its points level (detected first from images), and a
-previous result's cameras in the capture's order."""
+"""What ``wandcal calibrate`` and ``wandcal check`` read beside the capture's blobs: its points level
+(detected first from images), and a previous result's cameras in the capture's order. (The frame
+rate and camera timestamps ``--sync auto`` reads are wandcal.capture.recording.stamps's: `check`
+does not import them.)"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from wandcal.capture.recording.stamps import capture_rate, timestamp_start  # noqa: F401  (read here before)
 from wandcal.drivers.capture_files import WAND_FILE
 
 

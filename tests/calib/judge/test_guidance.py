@@ -227,16 +227,31 @@ def test_the_links_count_as_the_start_counts_them():
     assert _shared_frames(WandPairs.empty(), 3).shape == (3, 3)
 
 
-def test_a_warm_start_gives_the_cold_answer(covered):
+def test_a_warm_start_gives_the_cold_answer(covered, monkeypatch):
+    import wandcal.calib.start.static as static_module
+
     rig, wand, static, _ = covered
     cold = wanding_guidance(rig, first_frames(wand, 800), static)
     warm = wanding_guidance(rig, wand, static, start=cold.solution)
     again = wanding_guidance(rig, wand, static)
     assert warm.document["solve"]["warm_start"] and not again.document["solve"]["warm_start"]
-    for a, b in zip(warm.document["cameras"], again.document["cameras"]):
-        # both solves stop within wandcal.calib.solve.ba.STOP_SE (0.05) standard errors of the optimum, where the
+    # a camera that joins since the last solve: the start places it from the seven solved, with
+    # no static object's PnP, and the solve gives the cold answer as well
+    early = first_frames(wand, 800)
+    others = early.camera != rig.index("cam8")
+    seven = WandObservations(early.frame[others], early.camera[others], early.uv[others])
+    last = wanding_guidance(rig, seven, static).solution
+    assert last is not None and "cam8" not in last.ids and len(last.ids) == 7
+    pnp = []
+    real = static_module.solve_static
+    monkeypatch.setattr(static_module, "solve_static", lambda *args: pnp.append(1) or real(*args))
+    joined = wanding_guidance(rig, wand, static, start=last)
+    assert not pnp and not joined.document["solve"]["warm_start"]
+    for a, b, c in zip(warm.document["cameras"], again.document["cameras"], joined.document["cameras"]):
+        # the solves stop within wandcal.calib.solve.ba.STOP_SE (0.05) standard errors of the optimum, where the
         # noise scale, a median of the residuals, differs by a fraction of a percent
         assert a["center_std_mm"] == pytest.approx(b["center_std_mm"], rel=1e-2)
+        assert c["center_std_mm"] == pytest.approx(b["center_std_mm"], rel=1e-2)
 
 
 def test_bad_settings_and_a_rig_without_wand_are_refused(covered):
@@ -273,3 +288,41 @@ def test_a_points_only_rig_is_advised_in_its_points_not_the_wand():
                                points.uv[points.camera != 3])  # cam3 saw none of the points the others saw
     words = next(c["advice"] for c in wanding_guidance(rig, None, points=silent).document["cameras"] if c["id"] == rig.ids[3])
     assert "points" in words and "wand" not in words, words
+
+
+def _triples(extra_of_last: int = 0):
+    """Wand pairs of a sparse 12-camera rig: cameras 0-4 see the wand together, and each later camera
+    c sees it in MIN_SOLVE_FRAMES frames (``extra_of_last`` more or fewer for the last), each with its
+    own pair of cameras placed before it, so no two cameras share MIN_SOLVE_FRAMES frames but c's."""
+    from wandcal.calib.observations import WandPairs
+    from wandcal.calib.run.guidance import MIN_SOLVE_FRAMES
+
+    rng = np.random.default_rng(7)
+    rows = [(f, c) for f in range(2) for c in range(5)]  # 2 frames of the five first cameras
+    frame = 2
+    for c in range(5, 12):
+        earlier = [(a, b) for a in range(c) for b in range(a + 1, c)]
+        for i in rng.permutation(len(earlier))[:MIN_SOLVE_FRAMES + (extra_of_last if c == 11 else 0)]:
+            rows += [(frame, c), (frame, earlier[i][0]), (frame, earlier[i][1])]
+            frame += 1
+    f, c = np.array(rows).T
+    return WandPairs(f, c, np.zeros((len(f), 2, 2)), np.zeros((len(f), 2, 2)), np.arange(frame))
+
+
+def test_a_sparse_rig_is_solved_by_its_group_links_not_its_pairs():
+    # no pair of cameras shares MIN_SOLVE_FRAMES frames, yet each camera has that many frames two
+    # cameras placed before it also see: the start's resection places it, so the solve takes it
+    from wandcal.calib.run.guidance import MIN_SOLVE_FRAMES
+    from wandcal.calib.run.guidance.update import _seen, _solve_set
+
+    seed = np.arange(12) < 5  # the cameras that see the whole static object
+    seen = _seen(12, _triples())
+    off_diagonal = seen.linked[~np.eye(12, dtype=bool)]
+    assert off_diagonal.max() < MIN_SOLVE_FRAMES  # the pairwise rule alone solves nothing
+    assert _solve_set(seen).sum() < 2 and _solve_set(seen, seed, grow=False).sum() == 5
+    assert _solve_set(seen, seed).all()
+    # one frame short, the last camera stays out; a camera-frame recorded twice counts once
+    short = _triples(extra_of_last=-1)
+    twice = short.subset(np.concatenate([np.arange(len(short)), np.flatnonzero(short.camera == 11)]))
+    for pairs in (short, twice):
+        assert _solve_set(_seen(12, pairs), seed).tolist() == [True] * 11 + [False]

@@ -131,3 +131,20 @@ def test_multicamselfcals_two_cameras_swapped_are_named_and_its_clean_run_is_not
     ids = {session.rig.cameras[case.camera].id, session.rig.cameras[int(case.size)].id}
     assert set(out.named) == {("intrinsics", cam) for cam in ids}, rf.case_line(out)
     assert "look swapped" in out.message
+
+
+def test_a_camera_seen_through_another_lens_keeps_the_points_the_others_triangulate(sim):
+    """The swap screen reads camera c through another camera's lens against c's own held-out points
+    (leave_one_out.seen_again, issue 31's cost): the very numbers held_out_views gives when it
+    triangulates the others' views again, since they do not change."""
+    from wandcal.calib.judge.faults.leave_one_out import held_out_views, seen_again
+    from wandcal.calib.judge.faults.swapped import _seen_through
+
+    rig = sim.rig
+    pairs, R, t = _given(sim, rig)
+    for c, d in ((0, 1), (2, 3)):
+        lab, tracks = _seen_through(pairs, None, c, rig.cameras[d])
+        again, shared = held_out_views(R, t, lab, tracks, c), seen_again(held_out_views(R, t, pairs, None, c), lab, tracks)
+        assert len(again.X) > 100 and not np.array_equal(again.xy, held_out_views(R, t, pairs, None, c).xy)
+        for name in ("X", "xy", "frame", "timed"):
+            assert np.array_equal(getattr(again, name), getattr(shared, name)), name

@@ -91,6 +91,11 @@ def test_a_timing_fault_sends_to_sync_auto_only_where_it_can_fit_the_fraction():
     R, t, pairs, focal = _capture(FAST_PERIOD, late=0.3)
     found = camera_timings(R, t, pairs, None, focal[:, 0])
     assert found and all(o.untimeable == smoothness(pairs, focal).why_not(o.camera) for o in found)
+    # with (fx, fy) apart, the verdict judges each camera with both, as --sync auto does
+    fxy = focal * np.array([1.0, 1.3])
+    apart = camera_timings(R, t, pairs, None, fxy)
+    assert apart and all(o.untimeable == smoothness(pairs, fxy).why_not(o.camera) for o in apart)
+    assert np.allclose([o.effect_px for o in apart], [1.15 * o.effect_px for o in found], rtol=1e-12)  # the mean focal
     rough = next(o for o in found if o.camera == 2)
     message = timing_fault(["a", "b", "c"], CameraTiming(2, 0, 0.3, 0.01, 0.9, 40.0, 100, rough.untimeable))["message"]
     assert "whole frames only" in message and NO_SYNC_ADVICE in message and "calibrate with its offset" not in message

@@ -94,14 +94,21 @@ def test_prove_sparse_refuses_as_the_default_does_with_few_ransacs(sparse_ring, 
 
 
 def _proved(rig, pairs, window: int) -> tuple[ss.ShiftSearch, int, int]:
-    """The search over ``pairs`` and the (camera, first partner) the proof refuses."""
+    """The search over ``pairs`` (which the proof refuses) and the first planned (camera, first
+    partner) that :meth:`ShiftSearch.cannot_time` proves (cam57 against cam1, with 8 frames at an
+    edge lag; the proof itself names the cheapest it proves)."""
     table = fo.frame_table(pairs, len(rig.cameras))
     steps, _ = fo._plan(fo._links(table >= 0, window), 0)
     search = ss.ShiftSearch(rig, pairs, table, np.zeros(len(rig.cameras), np.int64), 0, window)
     with pytest.raises(fo.TooFewShared, match="cannot be timed against") as refused:
         fo._refuse_untimeable(search, steps, table)
-    b = next(c for c, cam in enumerate(rig.cameras) if refused.value.args[0].startswith(f"camera {cam.id!r}"))
-    return search, b, dict(steps)[b][0]
+    named = next(c for c, cam in enumerate(rig.cameras) if refused.value.args[0].startswith(f"camera {cam.id!r}"))
+    b, a = next((b, p[0]) for b, p in steps if fo.shared_counts(table, p[0], b, np.zeros(1, np.int64))[0]
+                < fo.MIN_TIMING_FRAMES and search.cannot_time(b, p[0]))
+    # the camera named is one the search proves too, at no more RANSACs than the first planned
+    assert search.cannot_time(named, dict(steps)[named][0])
+    assert search.proof_cost(named, dict(steps)[named][0]) <= search.proof_cost(b, a)
+    return search, b, a
 
 
 def test_a_shift_accepted_at_the_edge_is_no_proof(sparse_ring, monkeypatch):

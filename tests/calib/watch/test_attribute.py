@@ -5,8 +5,8 @@ import numpy as np
 from scipy.stats import t as student
 
 from wandcal.calib.watch.attribute import BATCH_WINDOWS, LEVEL, LOOKS, critical_t, moved_pose, vuong
+from wandcal.calib.watch.report import ONE_OF_ADVICE, CameraHealth, WatchReport
 from wandcal.calib.watch.sequential import Alarm
-from wandcal.calib.watch.watch import ONE_OF_ADVICE, CameraHealth, WatchReport
 from wandcal.capture.watch_report import report_json
 
 

@@ -10,7 +10,7 @@ from wandcal.calib.geometry import camera_centers, rotation_angle, rotvec_to_mat
 from wandcal.calib.sim.takes import CameraMove, simulate_take
 from wandcal.calib.watch.recover import MIN_POINTS, SETTLE_FRAMES, NotResolved, Resolved, resolve_moved, settled_from
 from wandcal.calib.watch.search import GATE_PX, rays, search_views
-from wandcal.calib.watch.watch import watch_take
+from wandcal.calib.watch.stream import watch_take
 
 NOISE_PX = 0.3
 SIGMAS = 4  # the re-solve's error against the truth, in its own sigmas (as test_watch's)
