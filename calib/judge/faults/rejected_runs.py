@@ -20,6 +20,12 @@ end, so the block must also be a pose: one turn of the camera about its centre, 
 block's views against the points the other cameras place without it, brings them back within the
 limit (no more left beyond it than the rate explains, :func:`turned_back`). Only a camera's own
 rejected views count, and the camera of smallest p that turns back is the one named.
+
+Where the count names nothing, a block too short for it (a camera of 8-24 camera-frames, most
+with one partner: Brown's) is judged by the size of its errors (:func:`turn_against_partners`,
+decision 0093g2): one turn of the camera fitted to its block's distances from its partners'
+epipolar lines, an F test against its own scatter before, at the same rate, with each partner's
+distances left out in turn (that partner may be the one that moved).
 """
 
 from __future__ import annotations
@@ -264,7 +270,8 @@ def turn_against_partners(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, 
     out and fitted again); back: no more of the block's frames left beyond the limit than the rig's
     rate ``q`` explains (P(Bin(frames, q) >= left) >= :data:`FITS_LEVEL`); p_value: the turn's F
     test, what it takes off the kept distances' squares over its three columns against the mean
-    square of c's distances outside the block within the limit (one dof each), P(F(3, dof) > F)
+    square of c's distances outside the block within the limit, P(F(3, dof) > F) with dof the
+    camera-frames those come from (a frame's distances share its views' errors),
     times the 2 (n - 1) blocks of :func:`block_against_rate` (Bonferroni: the block was chosen from
     the same views). A knock's later views are all off by one turn however few they are, which
     the count of rejects cannot show under a few camera-frames. (False, 1) with fewer than
