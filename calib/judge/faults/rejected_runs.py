@@ -20,6 +20,12 @@ end, so the block must also be a pose: one turn of the camera about its centre, 
 block's views against the points the other cameras place without it, brings them back within the
 limit (no more left beyond it than the rate explains, :func:`turned_back`). Only a camera's own
 rejected views count, and the camera of smallest p that turns back is the one named.
+
+Where the count names nothing, a block too short for it (a camera of 8-24 camera-frames, most
+with one partner: Brown's) is judged by the size of its errors (:func:`turn_against_partners`,
+decision 0093g2): one turn of the camera fitted to its block's distances from its partners'
+epipolar lines, an F test against its own scatter before, at the same rate, with each partner's
+distances left out in turn (that partner may be the one that moved).
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.geometry import projection_derivative, rotvec_to_matrix, turn_response
-from wandcal.calib.judge.faults.f_distribution import binomial_tail
+from wandcal.calib.judge.faults.f_distribution import binomial_tail, f_survival
 from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA
 from wandcal.calib.judge.residuals import Residuals
 from wandcal.calib.triangulate import triangulate_points
@@ -230,25 +236,132 @@ def turned_back(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, run: Rejec
     return binomial_tail(left, int(placed.sum()), q) >= FITS_LEVEL
 
 
+def _epipolar_pairs(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, first: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Camera c's wand views (both ends of its frames another camera shares: ``first``, their first
+    ends' rows, :func:`_camera_frames`) against every other
+    camera's view of the same end: (rows (K,) c's residual rows, one a pair, normals (K, 3) of the
+    plane through c's centre and the other camera's ray, in c's frame, frames (K,) capture frames,
+    partners (K,) the other camera).
+    c's view lies on that plane, up to noise, wherever c has not moved (the epipolar line)."""
+    mine = np.flatnonzero(np.isin(res.point, np.r_[res.point[first], res.point[first] + 1]) & (res.camera == c))
+    at = np.full(2 * len(res.frames), -1)
+    at[res.point[mine]] = mine
+    other = np.flatnonzero((res.point >= 0) & (res.camera != c) & np.all(np.isfinite(res.residual), axis=1))
+    other = other[at[res.point[other]] >= 0]
+    d = res.camera[other]
+    centre = -np.einsum("nji,nj->ni", R, t)  # (N, 3) camera centres, world
+    ray = np.einsum("kji,kj->ki", R[d], np.c_[res.xy[other], np.ones(len(other))])  # the other camera's rays, world
+    normals = np.cross(centre[d] - centre[c], ray) @ R[c].T
+    return at[res.point[other]], normals, res.frames[res.point[other] // 2], d
+
+
+def _epipolar_px(res: Residuals, rows: np.ndarray, normals: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(K,) c's views' distances from their epipolar lines, pixels, after c turns by w (3,)."""
+    n = normals @ rotvec_to_matrix(w).T
+    return np.einsum("ki,ki->k", n, np.c_[res.xy[rows], np.ones(len(rows))]) / np.hypot(n[:, 0], n[:, 1]) * res.focal[rows]
+
+
+def turn_against_partners(res: Residuals, R: np.ndarray, t: np.ndarray, c: int, run: RejectedRun, q: float,
+                          first: np.ndarray) -> tuple[bool, float]:
+    """Camera c's block (``run``) against the rays of every camera that shares its frames, where the
+    others place too few of them for :func:`turned_back` (Brown's cameras share most wand frames
+    with one other): (back, p_value). One turn of c about its centre is fitted to its block's
+    distances from their epipolar lines (least squares; those still beyond the rig's limit then left
+    out and fitted again); back: no more of the block's frames left beyond the limit than the rig's
+    rate ``q`` explains (P(Bin(frames, q) >= left) >= :data:`FITS_LEVEL`); p_value: the turn's F
+    test, what it takes off the kept distances' squares over its three columns against the mean
+    square of c's distances outside the block within the limit, P(F(3, dof) > F) with dof the
+    camera-frames those come from (a frame's distances share its views' errors),
+    times the 2 (n - 1) blocks of :func:`block_against_rate` (Bonferroni: the block was chosen from
+    the same views). A knock's later views are all off by one turn however few they are, which
+    the count of rejects cannot show under a few camera-frames. (False, 1) with fewer than
+    :data:`MIN_PLACED` block frames or three reference frames. Were a partner the one that moved,
+    the distances against it would carry the turn: p_value is the largest of the test's with each
+    partner's distances left out in turn (1 with one partner alone: the pair cannot say which of
+    the two moved)."""
+    rows, normals, frames, partner = _epipolar_pairs(res, R, t, c, first)
+    inside = frames > run.frame if run.tail else frames <= run.frame
+    ref = np.abs(_epipolar_px(res, rows[~inside], normals[~inside], np.zeros(3)))
+    # the dof: the camera-frames (the count's unit), not the distances: a frame's distances share its
+    # views' errors (both ends detected in one image at one instant, each against every partner)
+    ref_views = len(np.unique(frames[~inside][ref <= res.limit_px]))
+    ref = ref[ref <= res.limit_px]
+    rows, normals, frames, partner = rows[inside], normals[inside], frames[inside], partner[inside]
+    if len(np.unique(frames)) < MIN_PLACED or ref_views < 3:
+        return False, 1.0
+    e0, e, use = _turned(res, rows, normals)
+    beyond = np.unique(frames[np.abs(e) > res.limit_px])
+    back = binomial_tail(len(beyond), len(np.unique(frames)), q) >= FITS_LEVEL
+    s2 = max(float(np.mean(ref**2)), 1e-300)
+    left = float(np.sum(e[use] ** 2)) / max(int(use.sum()) - 3, 1) / s2  # what the turn leaves, against the same scatter
+    fits = int(use.sum()) <= 3 or f_survival(int(use.sum()) - 3, ref_views, left) >= FITS_LEVEL
+    # were a partner d the camera that moved, the distances against d would carry the whole turn: the
+    # turn must stand out with each partner's distances left out as well (the largest p; with one
+    # partner alone nothing is left: the pair cannot say which of them moved)
+    p = 0.0
+    for d in (None, *np.unique(partner).tolist()):
+        keep = partner != d
+        e0_d, e_d, use_d = _turned(res, rows[keep], normals[keep]) if d is not None else (e0, e, use)
+        f = float(np.sum(e0_d[use_d] ** 2) - np.sum(e_d[use_d] ** 2)) / 3 / s2 if use_d.sum() > 3 else 0.0
+        p = max(p, min(1.0, 2 * (run.frames - 1) * f_survival(3, ref_views, f)))
+        if p >= STEP_ALPHA or not (back and fits):
+            break  # named by none of them: the rest cannot lower the largest
+    return back and fits, p
+
+
+def _turned(res: Residuals, rows: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One turn of the camera fitted to its views' distances from their epipolar lines (``rows``,
+    ``normals``: :func:`_epipolar_pairs`), Gauss-Newton, what is beyond the rig's limit at both
+    poses (the first fit's and the solve's) left out of the second fit: (distances before (K,),
+    after (K,), pixels, kept (K,) bool)."""
+    e0 = _epipolar_px(res, rows, normals, np.zeros(3))
+    w, use, h = np.zeros(3), np.ones(len(rows), bool), 1e-6
+    for k in range(2 * TURN_STEPS):
+        e = _epipolar_px(res, rows, normals, w)
+        if k == TURN_STEPS:
+            use = (np.abs(e) <= res.limit_px) | (np.abs(e0) <= res.limit_px)
+        if use.sum() <= 3:
+            return e0, e, use
+        J = np.stack([(_epipolar_px(res, rows[use], normals[use], w + h * np.eye(3)[i]) - e[use]) / h for i in range(3)], 1)
+        w = w - np.linalg.lstsq(J, e[use], rcond=None)[0]
+    return e0, _epipolar_px(res, rows, normals, w), use
+
+
 def rejected_moved(ids: list[str], res: Residuals, R: np.ndarray, t: np.ndarray) -> list[dict]:
     """A ``moved`` fault on the camera whose rejected camera-frames bunch at one end of its time
     beyond the rig's rate at p under :data:`STEP_ALPHA` and which one turn of the camera brings
-    back (:func:`turned_back`); the smallest p where several do; [] where none does, and in a rig
-    of fewer than :data:`MIN_CAMERAS`."""
+    back (:func:`turned_back`); the smallest p where several do. Else, on the camera whose block
+    one turn brings back to its partners' rays and whose turn stands out of its own scatter at p
+    under :data:`STEP_ALPHA` (:func:`turn_against_partners`: a block too short for the count), the
+    smallest such p; [] where none does, and in a rig of fewer than :data:`MIN_CAMERAS`."""
     if len(ids) < MIN_CAMERAS:
         return []
-    found = sorted((rq[0].p_value, c, rq) for c, rq in enumerate(camera_runs(res, len(ids)))
-                   if rq is not None and rq[0].p_value < STEP_ALPHA)
-    for _, c, (r, q) in found:
+    runs = [(c, rq) for c, rq in enumerate(camera_runs(res, len(ids))) if rq is not None]
+    for _, c, (r, q) in sorted((rq[0].p_value, c, rq) for c, rq in runs if rq[0].p_value < STEP_ALPHA):
         if turned_back(res, R, t, c, r, q):
             return [rejected_fault(ids[c], r)]
-    return []
+    per = _every_cameras_frames(res, len(ids)) if runs else []
+    turns = [(p, c, r) for c, (r, q) in runs for back, p in [turn_against_partners(res, R, t, c, r, q, per[c][0])]
+             if back and p < STEP_ALPHA]
+    if not turns:
+        return []
+    p, c, r = min(turns, key=lambda x: (x[0], x[1]))
+    return [rejected_fault(ids[c], r, turn_p=p)]
 
 
-def rejected_fault(cam: str, r: RejectedRun) -> dict:
-    """The ``moved`` fault of a camera whose rejected views bunch (:class:`RejectedRun`)."""
+def rejected_fault(cam: str, r: RejectedRun, turn_p: float | None = None) -> dict:
+    """The ``moved`` fault of a camera whose rejected views bunch (:class:`RejectedRun`); turn_p:
+    the p-value of :func:`turn_against_partners` where that named it (given in place of the count's)."""
     when = f"after frame {r.frame}" if r.tail else f"up to frame {r.frame}"
     other = "before" if r.tail else "after"
+    if turn_p is not None:
+        return {"kind": "moved", "camera": cam, "evidence": {
+            "frame": r.frame, "rejected_block": r.rejected, "block_frames": r.block, "rejected": r.total_rejected,
+            "frames": r.frames, "p_value": float(f"{turn_p:.3g}"), "rejected_views": True, "turn_against_partners": True},
+            "message": f"{cam} moved during the capture: its {r.block} camera-frames {when} are off the other cameras' "
+                       f"rays by one turn of it about its centre ({r.rejected} of them gross outliers; p {turn_p:.2g}), "
+                       f"where its camera-frames {other} agree with them; fix its mount and calibrate again, or re-solve "
+                       f"it from the frames on one side of {r.frame} alone (calibrate --from RESULT --solve-only {cam})"}
     return {"kind": "moved", "camera": cam, "evidence": {
         "frame": r.frame, "rejected_block": r.rejected, "block_frames": r.block, "rejected": r.total_rejected,
         "frames": r.frames, "p_value": float(f"{r.p_value:.3g}"), "rejected_views": True},

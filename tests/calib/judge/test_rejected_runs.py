@@ -120,3 +120,35 @@ def test_a_rig_of_three_names_nothing_from_its_rejects():
     axis = rng.normal(size=3)
     wand = _wand(R, t, rng, (1, 20, np.radians(5.0) * axis / np.linalg.norm(axis)))
     assert _named(wand, R, t) == []
+
+
+PAIRS = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]  # each wand frame seen by two cameras, in turn
+
+
+def _in_pairs(wand: tuple[WandPairs, np.ndarray]) -> tuple[WandPairs, np.ndarray]:
+    """The wand with each frame kept in one pair of cameras only (Brown's sparse sessions): the
+    other cameras never place a frame without the one judged, so only its partners' rays test it."""
+    labelled, ends = wand
+    pair = np.array(PAIRS)[labelled.frame % len(PAIRS)]
+    return labelled.subset((pair == labelled.camera[:, None]).any(axis=1)), ends
+
+
+def test_a_knocked_camera_seen_in_pairs_is_named_by_its_turn_against_its_partners():
+    """Camera 1 turned 2 degrees for the last 6 frames (three of its camera-frames, each with
+    another partner): three rejects are too few for the count's level (q^3 times the blocks), but
+    one turn of it brings them back to its partners' rays, far beyond its own scatter before (the
+    F test of turn_against_partners)."""
+    R, t = _rig()
+    rng = np.random.default_rng(5)
+    axis = rng.normal(size=3)
+    found = _named(_in_pairs(_wand(R, t, rng, (1, 53, np.radians(2.0) * axis / np.linalg.norm(axis)))), R, t)
+    assert [f["camera"] for f in found] == ["cam1"]
+    ev = found[0]["evidence"]
+    assert ev["turn_against_partners"] and ev["p_value"] < STEP_ALPHA and 3 * 52 <= ev["frame"] < 3 * 54  # its last camera-frame before the knock
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_gross_outliers_in_a_rig_seen_in_pairs_name_nothing(seed):
+    R, t = _rig()
+    rng = np.random.default_rng(seed)
+    assert _named(_in_pairs(_wand(R, t, rng, outliers=0.1)), R, t) == []
