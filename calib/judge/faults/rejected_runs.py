@@ -23,7 +23,7 @@ rejected views count, and the camera of smallest p that turns back is the one na
 
 Where the count names nothing, a block too short for it (a camera of 8-24 camera-frames, most
 with one partner: Brown's) is judged by the size of its errors (:func:`turn_against_partners`,
-decision 0093g2): one turn of the camera fitted to its block's distances from its partners'
+decision 0101): one turn of the camera fitted to its block's distances from its partners'
 epipolar lines, an F test against its own scatter before, at the same rate, with each partner's
 distances left out in turn (that partner may be the one that moved).
 """
