@@ -10,6 +10,7 @@
 | :mod:`~wandcal.calib.run.resolve` | ``solve_only``: re-solve some cameras of a result, the rest held |
 | :mod:`~wandcal.calib.run.judgement` | the verdict of a run, from the judge stage's criteria and faults |
 | :mod:`~wandcal.calib.run.rig_faults` | the cameras at fault, by the rig's size: few cameras by comparison, many by the suspect screen |
+| :mod:`~wandcal.calib.run.own_error_faults` | each camera's own errors with the points eliminated: a camera that moved, a noisy camera, the noise at the limit |
 | :mod:`~wandcal.calib.run.camera_reports` | each camera's figures and the result's warnings |
 | :mod:`~wandcal.calib.run.options` | ``CalibrationOptions``: one frozen, checked set of options for the CLI, jobs and the worker |
 | :mod:`~wandcal.calib.run.result` | ``CalibrationResult``: the wand's, the solver's and the world frame's figures, to and from ``wandcal-result/1`` |

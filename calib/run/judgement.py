@@ -44,8 +44,9 @@ from wandcal.calib.judge.verdict import (
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Rig, camera_list
 from wandcal.calib.run.camera_figures import CameraFigures, FocalLimitFigures, JudgedFigures, Movement
+from wandcal.calib.run.own_error_faults import forget_eliminated, noise_limits
 from wandcal.calib.run.result import SolverReport, WandReport, WorldFrame
-from wandcal.calib.run.rig_faults import few_camera_faults, forget_eliminated, noise_limits
+from wandcal.calib.run.rig_faults import few_camera_faults
 from wandcal.calib.solve.uncertainty import chi2_quantile
 
 # rays meeting at under 2 degrees put a point's depth at 1/tan(2 deg) ~ 29 baselines, known to
@@ -239,7 +240,7 @@ def _camera_verdict(doc: dict, cam_id: str, faults: list[dict], extent: float | 
                     near: list[dict] | None = None) -> dict:
     """A camera's verdict (:func:`camera_verdict`); a camera at fault, or in a rig whose scale is at
     fault, is poor, whatever its figures say. near: criteria judged elsewhere at the limit of poor
-    (:func:`wandcal.calib.run.rig_faults.noise_limits`); the camera's own are added to its ``at_limit``
+    (:func:`wandcal.calib.run.own_error_faults.noise_limits`); the camera's own are added to its ``at_limit``
     and said in its reasons, its level left as it is."""
     verdict = camera_verdict(doc, cam_id, extent, rig_noise)
     mine = [e for e in near or [] if e["camera"] == cam_id]

@@ -1,5 +1,5 @@
 """Each camera's own errors with the points eliminated (wandcal.calib.judge.faults.own_errors and
-pose_steps, composed by wandcal.calib.run.rig_faults.own_faults), on a
+pose_steps, composed by wandcal.calib.run.own_error_faults.own_faults), on a
 seeded four-camera rig tracking one marker (timed point tracks, as MultiCamSelfCal's): noise put
 on one camera stays with it, a knocked camera is named with its frame and angle, a clean rig names
 nothing. Tolerances come from the injected noise: the estimates' own standard errors."""
@@ -14,7 +14,7 @@ from wandcal.calib.judge.faults import own_errors as oe
 from wandcal.calib.judge.faults.pose_steps import MAX_SPLITS
 from wandcal.calib.observations import PointTracks, WandPairs
 from wandcal.calib.rig import Camera, Rig
-from wandcal.calib.run.rig_faults import own_faults
+from wandcal.calib.run.own_error_faults import own_faults
 
 FOCAL_PX = 1000.0
 NOISE_PX = 0.5
