@@ -54,9 +54,9 @@ CASES = [
     ("brown1", "focal +3% cam1"),  # right as "limited": the focal length named as what limits cam1's position
     ("brown2", "noise 3x cam3"),  # each camera's own noise, the points eliminated (own_errors)
     ("brown1", "noise 3x cam1"),
-    # knocked in the middle of its 24 shared frames (0067): 0.82 +- 0.16 deg at F 71, but on 4 batch-means
-    # blocks; it was named only while its knock came after the 4th of them and its 16 views were taken as independent
-    pytest.param("brown1", "knocked 0.82 deg cam3", marks=pytest.mark.xfail(strict=True, reason=TODAY_WRONG)),
+    # knocked in the middle of its 24 shared frames (0067): the step test's 4 batch-means blocks cannot name it;
+    # its rejected block's turn against its partners, each left out in turn, does (decision 0101)
+    ("brown1", "knocked 0.82 deg cam3"),
     ("brown1", "late 1 frame cam1"),  # whole frames, from every pair of cameras (timing_pairs)
     ("svoboda", "late 0.3 frame Basler_21275577"),  # a fraction, by the marker's speed
     ("brown1", "early 0.5 frame cam1"),  # a fraction, each pair of cameras weighted by its own scatter
