@@ -28,13 +28,13 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
     A rig of more than a few cameras (:data:`wandcal.calib.judge.faults.leave_one_out.MAX_CAMERAS`;
     ``res`` the judgement's residuals, needed then) is judged at a bounded cost: the step is tested
     in full only on the cameras a screen of ``res`` suspects
-    (:func:`wandcal.calib.judge.faults.step_screen.step_suspects`), the noise with the points eliminated
+    (:func:`wandcal.calib.judge.faults.moved.step_suspects`), the noise with the points eliminated
     only where the median point has fewer than :data:`SPREAD_VIEWS` views (with more, a camera's
     noise stays with it in ``res`` and the suspect screen names it), each on
     :data:`wandcal.calib.judge.faults.own_errors.VIEWS_PER_CAMERA` views a camera. Fewer than three
     cameras give none."""
     from wandcal.calib.judge.faults.leave_one_out import MAX_CAMERAS
-    from wandcal.calib.judge.faults.moved import Moved, moved_camera, moved_fault, unattributed_fault
+    from wandcal.calib.judge.faults.moved import Moved, moved_camera, moved_fault, step_suspects, unattributed_fault
     from wandcal.calib.judge.faults.own_errors import (
         VIEWS_PER_CAMERA,
         capped,
@@ -43,7 +43,6 @@ def own_faults(rig: Rig, labelled: WandPairs, tracks: PointTracks | None, R: np.
         noisy_cameras,
         views_of,
     )
-    from wandcal.calib.judge.faults.step_screen import step_suspects
 
     if len(rig.cameras) < 3:
         return [], []

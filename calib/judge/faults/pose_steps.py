@@ -5,7 +5,7 @@ The camera's views with a time (the wand's ends; point tracks in the wand's time
 or all of them where there is no wand: :func:`wandcal.calib.judge.faults.own_errors.in_wand_time`)
 are split at frame k, and its turn after k (three columns: a rotation about its centre) is
 fitted beside its pose (six columns) and every camera's lens (four each, on that camera's views:
-:func:`_every_lens`; another camera's lens error is a pattern in space, not a knock), all with the
+:func:`wandcal.calib.judge.faults.step_columns.every_lens`; another camera's lens error is a pattern in space, not a knock), all with the
 points projected out; views without a time (background points from another recording) have a
 turn of their own. An F test of one pose against two at the best k (:func:`pose_step`), outliers trimmed under the two-pose model, the F
 measured against the timed views' own scatter (:func:`_timed_dispersion`) and divided by the
@@ -18,16 +18,14 @@ were measured.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from wandcal.calib.geometry import projection_derivative, turn_response
 from wandcal.calib.judge.faults.f_distribution import critical_f, f_survival
 from wandcal.calib.judge.faults.own_errors import TRIM_SIGMAS, Eliminated, unit_squares
+from wandcal.calib.judge.faults.step_columns import MIN_SIDE, every_lens, partner_columns, pose_columns, rows_of
 
-MIN_SIDE = 6  # timed views of the camera on either side of a split: three wand frames, more than the step's three columns can fit alone
 MAX_SPLITS = 60  # candidate splits, evenly spaced in the camera's timed observations
 TRIM_ROUNDS = 2  # outliers trimmed under the step's model, then the split searched again
 MIN_BLOCKS = 4  # batch means of the residuals in time: fewer blocks say nothing of their correlation (shorter blocks then)
@@ -80,132 +78,15 @@ class Step:
         return float("nan") if self.turn is None else self.detectable_along(self.turn)
 
 
-def _rows_of(el: Eliminated, c: int):
-    """Every view of the points camera c sees: (rows (K,) view indices, own (K,) c's view of each
-    row's point, proj) where proj(G) takes c's columns G (K, 2, n) (whitened, zero where the row is
-    not c's) to the same with the points projected out: ``G_i [i is c's] - J_i Ainv J_c^T G_c``,
-    what fitting each point again takes away."""
-    v = el.views
-    mine = np.flatnonzero(v.camera == c)
-    at = np.full(v.n_points, -1)
-    at[v.point[mine]] = mine
-    rows = np.flatnonzero(at[v.point] >= 0)
-    own = at[v.point[rows]]
-    is_own = rows == own
-
-    def proj(G: np.ndarray) -> np.ndarray:
-        u = np.einsum("kmi,kmj->kij", el.J[own], G)
-        out = -np.einsum("kmi,kij,kjl->kml", el.J[rows], el.Ainv[v.point[rows]], u)
-        out[is_own] += G[is_own]
-        return out
-    return rows, own, proj
-
-
-def _pose_columns(el: Eliminated, c: int, rows: np.ndarray, own: np.ndarray, proj) -> tuple[np.ndarray, np.ndarray]:
-    """Camera c's pose columns over ``rows`` (:func:`_rows_of`), whitened, the points projected out:
-    (turn (K, 2, 3) about its centre, shift (K, 2, 3) of its position in its own frame)."""
-    Xc = el.Xc[own]
-    D = projection_derivative(Xc) / el.sigma[c]
-    return proj(np.einsum("kij,kjl->kil", D, turn_response(Xc))), proj(D)
-
-
-def _every_lens(el: Eliminated, rows: np.ndarray) -> np.ndarray:
-    """(K, 2, 4 N) every camera's lens columns (focal length, k1, principal point) over ``rows``
-    (every view of the points one camera sees: :func:`_rows_of`), whitened, each camera's four
-    nonzero on its own views only, the points projected out (``G_i - J_i Ainv J_p^T G_p``, the sums
-    over each point's views); the columns of cameras without a view among ``rows`` dropped.
-
-    Why: a lens error of any camera bends the points as a function of where they are; where the
-    marker drifts through the volume in time (MultiCamSelfCal's one LED), that bend reaches the
-    other cameras' residuals as a change in time, and the step read it as a knock (decision 0076).
-    With these columns in the step's base the F test's null is "no step, whatever lens error any
-    camera has" (an exact linear F test with nuisance columns): a knock is a step in time at any
-    place, which no camera's lens pattern explains. The camera's own four columns are those the
-    test fitted before; k2 is left out as it was (k1 takes most of a k2 error over the image).
-
-    Where ``rows`` are half of ``el``'s views or more (a rig of few cameras, each seeing most
-    points), made once for every view of ``el`` (:func:`_lens_of_every_view`) and read at ``rows``:
-    ``rows`` holds every view of each of its points, so each point's sums are those over all its
-    views, in the same order; a camera without a view among ``rows`` has zero columns there (none of
-    its points' sums holds it), which are dropped. Every camera's step test on one fit (a clean
-    rig's: :class:`wandcal.calib.judge.faults.moved._Refits`) shares them. In a larger rig a camera
-    sees a small part of the views and every camera's columns over all of them would be large: made
-    over ``rows`` alone (the same numbers)."""
-    if 2 * len(rows) < len(el.views.point):
-        return _lens_columns(el, rows)[0]
-    full, cameras = _lens_of_every_view(el)
-    present = np.unique(el.views.camera[rows])
-    cols = (4 * np.searchsorted(cameras, present)[:, None] + np.arange(4)).ravel()
-    return full[rows][:, :, cols]
-
-
-# _lens_of_every_view's answers, while their Eliminated lives
-_lens_made: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def _lens_of_every_view(el: Eliminated) -> tuple[np.ndarray, np.ndarray]:
-    """(every view's lens columns (M, 2, 4 C), the C cameras with views, ascending): as
-    :func:`_every_lens` describes them, over all of ``el``'s views; made once for each ``el``."""
-    made = _lens_made.get(el)
-    if made is None:
-        made = _lens_made[el] = _lens_columns(el, np.arange(len(el.views.point)))
-    return made
-
-
-def _lens_columns(el: Eliminated, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(the lens columns over ``rows`` (K, 2, 4 C), the C cameras with a view among them, ascending):
-    :func:`_every_lens`'s columns, made over ``rows``."""
-    cam = el.views.camera[rows]
-    xy = el.Xc[rows][:, :2] / el.Xc[rows][:, 2:]
-    r2 = np.sum(xy**2, axis=1, keepdims=True)
-    G = np.stack([xy, xy * r2, np.broadcast_to([1.0, 0.0], xy.shape), np.broadcast_to([0.0, 1.0], xy.shape)],
-                 axis=2) / el.sigma[cam][:, None, None]
-    present = np.unique(cam)
-    full = np.zeros((len(rows), 2, 4 * len(present)))
-    for j, d in enumerate(present):
-        full[cam == d, :, 4 * j : 4 * j + 4] = G[cam == d]
-    return _projected(el, rows, full), present
-
-
-def _projected(el: Eliminated, rows: np.ndarray, full: np.ndarray) -> np.ndarray:
-    """Columns full (K, 2, n) over ``rows`` (every view of each of their points: :func:`_rows_of`),
-    whitened, with the points projected out: ``G_i - J_i Ainv J_p^T G_p``, the sums over each
-    point's views (what fitting each point again takes away)."""
-    pt = el.views.point[rows]
-    u = np.zeros((el.views.n_points, 3, full.shape[2]))
-    np.add.at(u, pt, np.einsum("kmi,kmj->kij", el.J[rows], full))
-    return full - np.einsum("kmi,kij,kjl->kml", el.J[rows], el.Ainv[pt], u[pt])
-
-
-def _partner_columns(el: Eliminated, rows: np.ndarray, d: int, frame: int) -> np.ndarray:
-    """(2K, 9 or 12) camera d's two poses over ``rows`` (:func:`_rows_of` of another camera),
-    whitened, the points projected out: its turn and shift (six columns), its turn after capture
-    frame ``frame`` on its timed views (three: d's own step at its split), and a turn of their own for
-    its views without a time where it has :data:`MIN_SIDE` of them (as :func:`pose_step` gives d).
-    With these in a camera's step test its null is "camera d moved at ``frame``" (:func:`explained_by`)."""
-    v = el.views
-    on = v.camera[rows] == d
-    Xc = el.Xc[rows][on]
-    D = projection_derivative(Xc) / el.sigma[d]
-    T = np.einsum("kij,kjl->kil", D, turn_response(Xc))
-    timed = v.timed[rows][on]
-    cols = [T, D, T * (timed & (v.time[rows][on] > frame))[:, None, None]]
-    if (~timed).sum() >= MIN_SIDE:
-        cols.append(T * (~timed)[:, None, None])
-    full = np.zeros((len(rows), 2, 3 * len(cols)))
-    full[on] = np.concatenate(cols, axis=2)
-    return _projected(el, rows, full).reshape(2 * len(rows), -1)
-
-
 def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None, at: int | None = None) -> Step | None:
     """Camera c's best step in its pose (see the module's docstring); None with too few timed views.
     given: (camera d, frame) puts d's two poses, split at that frame, into the base
-    (:func:`_partner_columns`): c's step beyond what d's move explains (:func:`explained_by`);
+    (:func:`partner_columns`): c's step beyond what d's move explains (:func:`explained_by`);
     at: the one split tested (no search, so no Bonferroni factor), a capture frame of c's."""
     v = el.views
-    rows, own, proj = _rows_of(el, c)
-    turn, shift = _pose_columns(el, c, rows, own, proj)
-    lens = _every_lens(el, rows)
+    rows, own, proj = rows_of(el, c)
+    turn, shift = pose_columns(el, c, rows, own, proj)
+    lens = every_lens(el, rows)
     y = el.r[rows]
     mine = v.camera[rows] == c
     time, timed = v.time[rows], v.timed[rows]
@@ -217,7 +98,7 @@ def pose_step(el: Eliminated, c: int, given: tuple[int, int] | None = None, at: 
     if (~timed[mine]).sum() >= MIN_SIDE:  # a pose of their own for the views without a time (see above)
         base.append(turn.reshape(n_rows, 3) * np.repeat(~timed, 2)[:, None])
     if given is not None:
-        base.append(_partner_columns(el, rows, *given))
+        base.append(partner_columns(el, rows, *given))
     base_cols = np.concatenate(base, axis=1)
     step = turn.reshape(n_rows, 3)
     yv = y.ravel()

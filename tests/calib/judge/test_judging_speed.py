@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from wandcal.calib.geometry import rotvec_to_matrix
-from wandcal.calib.judge.faults import step_screen
+from wandcal.calib.judge.faults import moved
 from wandcal.calib.judge.faults.screen import POSE_STEP, _pose_columns
 from wandcal.calib.judge.residuals import _rows_by_camera
 from wandcal.calib.observations import camera_rows
@@ -79,10 +79,10 @@ def test_the_step_screens_views_chosen_first_are_chosen_again():
     for k in (50, 1999, 2000, 2001, 7000):
         time = rng.integers(0, 3000, k)
         xy, r = rng.normal(size=(k, 2)), 1e-3 * rng.normal(size=(k, 2))
-        pick = step_screen.screen_views(time)
-        assert np.array_equal(step_screen.screen_views(time[pick]), np.arange(len(pick)))
-        assert step_screen.step_screen(xy[pick], r[pick], time[pick]) == step_screen.step_screen(xy, r, time)
-    for k in range(0, 2 * step_screen.SCREEN_VIEWS, 7):  # the views as np.linspace spaced them, every k
+        pick = moved.screen_views(time)
+        assert np.array_equal(moved.screen_views(time[pick]), np.arange(len(pick)))
+        assert moved.step_screen(xy[pick], r[pick], time[pick]) == moved.step_screen(xy, r, time)
+    for k in range(0, 2 * moved.SCREEN_VIEWS, 7):  # the views as np.linspace spaced them, every k
         order = np.argsort(time := rng.integers(0, 500, k), kind="stable")
-        want = order[np.linspace(0, k - 1, min(k, step_screen.SCREEN_VIEWS)).astype(np.int64)]
-        assert np.array_equal(step_screen.screen_views(time), want)
+        want = order[np.linspace(0, k - 1, min(k, moved.SCREEN_VIEWS)).astype(np.int64)]
+        assert np.array_equal(moved.screen_views(time), want)

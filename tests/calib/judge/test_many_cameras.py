@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from wandcal.calib.geometry import distort_points, rotvec_to_matrix, undistort_points
-from wandcal.calib.judge.faults import pose_steps, step_screen
+from wandcal.calib.judge.faults import moved, pose_steps
 from wandcal.calib.rig import WandObservations
 from wandcal.calib.run.calibrate import calibrate
 from wandcal.calib.sim.simulate import simulate_capture
@@ -83,5 +83,5 @@ def test_the_full_step_test_runs_on_a_few_suspects_only(judged):
     _, _, _, tested = judged
     assert KNOCKED in tested
     # the screen's suspects, and each of them found stepping tested again without the one named
-    assert len(set(tested)) <= step_screen.MAX_STEP_SUSPECTS
-    assert len(tested) <= step_screen.MAX_STEP_SUSPECTS * (1 + step_screen.MAX_STEP_SUSPECTS)
+    assert len(set(tested)) <= moved.MAX_STEP_SUSPECTS
+    assert len(tested) <= moved.MAX_STEP_SUSPECTS * (1 + moved.MAX_STEP_SUSPECTS)

@@ -179,9 +179,9 @@ def test_a_camera_knocked_under_a_sparse_wand_is_named_from_its_point_tracks_in_
 
 
 def test_a_large_rigs_screen_times_the_tracks_in_the_wands_time():
-    """More than five cameras: the step screen (step_screen.step_suspects) reads the point tracks
+    """More than five cameras: the step screen (moved.step_suspects) reads the point tracks
     in the wand's time as timed views, and the knocked camera is suspected and named."""
-    from wandcal.calib.judge.faults.step_screen import step_suspects
+    from wandcal.calib.judge.faults.moved import step_suspects
     from wandcal.calib.judge.residuals import observation_residuals
 
     R, t = _rig(6)

@@ -9,7 +9,7 @@ import pytest
 
 from bench import bench_real_subsamples as brs
 from bench import real_faults as rf
-from wandcal.calib.judge.faults import pose_steps
+from wandcal.calib.judge.faults import pose_steps, step_columns
 from wandcal.calib.judge.faults.pose_steps import MIN_BLOCKS, Step, _inflation, _timed_dispersion
 
 
@@ -164,8 +164,8 @@ def test_every_cameras_lens_columns_have_the_points_projected_out():
     R, t = _rig()
     el = oe.eliminate(R, t, oe.views_of(WandPairs.empty(), _tracks(R, t, np.random.default_rng(5))))
     c = 1
-    rows, own, proj = pose_steps._rows_of(el, c)
-    lens = pose_steps._every_lens(el, rows)
+    rows, own, proj = step_columns.rows_of(el, c)
+    lens = step_columns.every_lens(el, rows)
     assert lens.shape == (len(rows), 2, 4 * len(R))
     xy = el.Xc[own][:, :2] / el.Xc[own][:, 2:]
     r2 = np.sum(xy**2, axis=1, keepdims=True)
