@@ -131,13 +131,6 @@ def sightings(rig: Rig, R: np.ndarray, t: np.ndarray, wand: WandObservations | N
     return Sightings.of(pairs, tracks)
 
 
-def leave_one_out_errors(R: np.ndarray, t: np.ndarray, seen: Sightings, focal: np.ndarray, c: int,
-                         others: np.ndarray) -> np.ndarray:
-    """(K,) camera c's errors, pixels, against points triangulated by the ``others`` (N,) bool
-    cameras alone, over the points c and at least two of them saw."""
-    return everyone_left_out(R, t, seen, focal, others)[0][c]
-
-
 def _projection_jacobians(R: np.ndarray, t: np.ndarray, point: np.ndarray, camera: np.ndarray,
                           X: np.ndarray) -> np.ndarray:
     """(K, 2, 3) derivatives of each sighting's normalised image point by its 3D point."""
