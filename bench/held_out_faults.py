@@ -228,10 +228,24 @@ def inject_held_out(session: rf.Session, case: rf.Case, noise_px: list[float]) -
     raise ValueError(f"unknown held-out fault family {family!r}")
 
 
+def swapped_clean(session: rf.Session, clean: rf.Clean, a: int, b: int) -> rf.Clean:
+    """The clean run with its own faults on cameras a and b exchanged: a swap moves a camera's
+    observations, and a fault the published data carry in them (a camera out of time), to its
+    partner's name (docs/decisions/01EA-swaps-below-what-the-data-tell.md). Before, the easyWand
+    sample's cam1/cam2 swap was *wrong camera* for naming its own cam2 timing fault on cam1."""
+    ids = [cam.id for cam in session.rig.cameras]
+    other = {ids[a]: ids[b], ids[b]: ids[a]}
+    return replace(clean, faults=frozenset((kind, other.get(cam, cam)) for kind, cam in clean.faults))
+
+
 def run_held_out_case(session: rf.Session, clean: rf.Clean, case: rf.Case) -> rf.Outcome:
     """:func:`bench.real_faults.run_case` on a held-out case, a swap scored as a swap: where the two
     cameras' intrinsics differ, right when a fault is named on one or both of them and on no other
-    camera; where they agree, right when nothing is named and the rig is not poorer (cannot tell)."""
+    camera; where they agree, right when nothing is named and the rig is not poorer (cannot tell).
+    The clean run's own faults (the easyWand sample's cam2 out of time) follow the observations
+    that carry them to the other camera's name (:func:`swapped_clean`)."""
+    if case.family == "swapped":
+        clean = swapped_clean(session, clean, case.camera, int(case.size))
     out = rf.run_case(session, clean, case, inject_held_out)
     if case.family != "swapped" or same_intrinsics(session, case.camera, int(case.size)) or out.level == "refused":
         return out

@@ -94,6 +94,17 @@ def sessions():
     return loaded
 
 
+
+def test_a_swap_carries_the_clean_runs_own_faults_to_the_partners_name():
+    # the published data's own fault (a camera out of time) is in its observations: swapped, it is
+    # the partner's name that carries it, and naming it there is not a fault on another camera
+    session = _track_session()
+    clean = rf.Clean(np.zeros((2, 3)), [1.0, 1.0], "poor", frozenset({("timing", "cam1"), ("noise", None)}))
+    moved = ho.swapped_clean(session, clean, 0, 1)
+    assert moved.faults == frozenset({("timing", "cam0"), ("noise", None)})
+    assert ho.swapped_clean(session, moved, 1, 0).faults == clean.faults
+
+
 HELD_OUT_CASES = [
     ("brown2", "fy +3% cam3"),  # fy alone: the lens pattern's aspect column keeps it on its camera (not cam4)
     ("brown2", "fy +3% cam4"),  # ... not "outliers, cam1", the session's weakest camera
