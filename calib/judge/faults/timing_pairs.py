@@ -195,7 +195,7 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         before, after = float(other @ other), float(((other - col * own) ** 2).sum())
         found[c] = (own, sigma / np.sqrt(gram), 1 - after / before if before > 0 else 0.0, int(mine.sum()))
     out = []
-    untimeable = _untimeable(labelled, focal) if found else []
+    untimeable = _untimeable(labelled, focal) if found or shifts.any() else []
     for c, (own, own_std, explained, pairs) in found.items():
         # against the reference (the others' median), whose own error adds: the variance of a mean of
         # the others, every other camera with rows, judged or not: the reference is theirs too
@@ -206,7 +206,19 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         offset = -float(shifts[c] + own)
         out.append(CameraTiming(c, -int(shifts[c]), offset, std, explained,
                                 abs(offset) * _speed(by_camera[c]) * float(np.mean(focal[c])), pairs, untimeable[c]))
-    return out
+    return out + [_whole_only(c, int(shifts[c]), by_camera[c], focal[c], untimeable[c])
+                  for c in np.flatnonzero(shifts) if c not in found]
+
+
+def _whole_only(c: int, shift: int, track: Track, focal: np.ndarray, untimeable: str) -> CameraTiming:
+    """Camera c out of time by whole frames (``shift``, found by :func:`whole_shifts` from at least
+    :data:`MIN_PAIRS` pair samples) whose samples, shifted, are too few with a velocity on both sides
+    to fit the fraction of a frame: its whole shift alone, the fraction unmeasured (``std`` NaN).
+    On a hand-digitised session the shift leaves a camera few frames that it shares with another
+    (Brown 2's cam1, 1.6 frames slow by the end: 12 pair samples a frame early against 14 in time,
+    the median product halved; then 0 with both velocities), and the shift is what to fix."""
+    return CameraTiming(c, -shift, -float(shift), float("nan"), 0.0,
+                        abs(shift) * _speed(track) * float(np.mean(focal)), 0, untimeable)
 
 
 def _untimeable(labelled: WandPairs, focal: np.ndarray) -> list[str]:
@@ -266,6 +278,8 @@ def timing_instead(ids: list[str], timings: list[CameraTiming], c: int, noise_px
 def timing_fault(ids: list[str], best: CameraTiming) -> dict:
     """A camera's offset as a fault: ``{"kind": "timing", "camera", "message", "evidence"}``."""
     cam, d = ids[best.camera], best.offset
+    if not np.isfinite(best.std):  # a whole shift whose fraction could not be fitted (_whole_only)
+        return _whole_fault(cam, best)
     whole = f" ({best.whole:+d} whole frames and the rest by the wand's speed)" if best.whole and abs(d - best.whole) > 3 * best.std else ""
     return {"kind": "timing", "camera": cam, "evidence": {"timing": {
         "offset_frames": round(d, 4), "offset_std_frames": round(best.std, 4), "whole_frames": best.whole,
@@ -274,6 +288,19 @@ def timing_fault(ids: list[str], best: CameraTiming) -> dict:
                    f"(offset {d:+.2f}: positive is late), which moves its blobs "
                    f"{best.effect_px:.1f} px at the wand's median speed; check its trigger cable and settings"
                    f"{sync_advice(best.untimeable, fraction=not best.whole or abs(d - best.whole) > 3 * best.std)}"}
+
+
+def _whole_fault(cam: str, best: CameraTiming) -> dict:
+    """A camera out of time by whole frames, its fraction of a frame unmeasured (:func:`_whole_only`), as a fault."""
+    n = abs(best.whole)
+    return {"kind": "timing", "camera": cam, "evidence": {"timing": {
+        "offset_frames": float(best.whole), "offset_std_frames": None, "whole_frames": best.whole,
+        "explained_share": None, "effect_px": round(best.effect_px, 2), "pairs": best.pairs}},
+        "message": f"{cam} is out of time: its samples match the other cameras' best about {n} frame{'s' if n != 1 else ''} "
+                   f"{'late' if best.whole > 0 else 'early'} (offset {best.whole:+d}: positive is late; too few of its "
+                   f"frames pair with the others' once shifted to measure the fraction of a frame), which moves its blobs "
+                   f"{best.effect_px:.1f} px at the wand's median speed; check its trigger cable and settings"
+                   f"{sync_advice(best.untimeable, fraction=True)}"}
 
 
 def timing_refusal(error: Exception, ids: list[str], R: np.ndarray, t: np.ndarray, labelled: WandPairs,

@@ -150,3 +150,18 @@ def test_the_reference_of_cameras_too_sparse_to_judge_counts_its_error():
         assert timing_faults(["a", "b", "c", "d"], R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX),
                              [FAST_NOISE_PX] * 4, timings) == []
     assert np.std(z) < 1 + 3 / np.sqrt(2 * SPARSE_SEEDS)
+
+
+def test_a_whole_shift_is_named_where_the_shifted_samples_have_no_velocity_to_fit_a_fraction():
+    # camera 2 two frames late and digitised every other frame: its samples pair with the others'
+    # at a shift of 2 (the whole-frame search finds it), but none has a neighbour to give its image
+    # velocity, so the fraction of a frame cannot be fitted; its whole shift is still what to fix
+    R, t, tracks = _rig_and_tracks({2: 2.0})
+    keep = (tracks.camera != 2) | (tracks.frames[tracks.track] % 2 == 0)
+    tracks = PointTracks(tracks.track[keep], tracks.camera[keep], tracks.xy[keep], tracks.uv[keep], tracks.frames)
+    timings = {o.camera: o for o in camera_timings(R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX))}
+    assert timings[2].whole == 2 and timings[2].offset == 2.0 and np.isnan(timings[2].std)
+    faults = timing_faults(["a", "b", "c", "d"], R, t, WandPairs.empty(), tracks, np.full(4, FOCAL_PX), [NOISE_PX] * 4)
+    assert [(f["kind"], f["camera"]) for f in faults] == [("timing", "c")]
+    assert faults[0]["evidence"]["timing"]["offset_frames"] == 2.0
+    assert "about 2 frames late" in faults[0]["message"]
