@@ -48,6 +48,9 @@ LEVEL = 0.01  # the chance of naming one camera when the take cannot tell it fro
 LOOKS = 2  # the attribution's looks at one move (the module's note), each at LEVEL / LOOKS
 BATCH_WINDOWS = 2  # windows a batch of the batch means: 20 frames (the module's note)
 MIN_BATCHES = 3  # fewer batches leave the standard error unknown (2 degrees of freedom at least)
+# a marker triangulated without a camera by one step from the all-view point (camera_windows' method): every
+# hypothesis re-measures every camera, and the refined triangulations were 60% of that (decision 01AA)
+TRIANGULATION = "downdated"
 
 
 @dataclass(frozen=True)
@@ -75,13 +78,15 @@ def moved_pose(R: np.ndarray, t: np.ndarray, c: int, change: np.ndarray) -> tupl
 
 
 def window_sums(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[PaddedFrames, Tracks]],
-                excluded: set[int], windows: tuple[int, int, int]) -> tuple[np.ndarray, ...]:
+                excluded: set[int], windows: tuple[int, int, int], cams: list[int] | None = None) -> tuple[np.ndarray, ...]:
     """Every camera's residuals at poses R, t, window by window over windows (first_frame, w0, w1): window
     w holds frames ``first_frame + w * WINDOW_FRAMES`` on, w0 <= w < w1. ``pieces``: the take's padded
     frames and tracks (tracks matched at the standing poses) covering them; cameras ``excluded`` left out
     of the markers. Returns g (W, C, 6), H (W, C, 6, 6) (the normal equations in each camera's pose),
     rss (W, C) px^2 (squared residuals at these poses: about the window's fit and what the fit took)
-    and n (W, C) the residuals kept (:func:`~wandcal.calib.watch.health.camera_windows`)."""
+    and n (W, C) the residuals kept (:func:`~wandcal.calib.watch.health.camera_windows`, its markers
+    triangulated without each camera by one down-dated step: :data:`TRIANGULATION`). ``cams``: the
+    cameras measured (the others' rows zero); all when None."""
     first, w0, w1 = windows
     n_c = len(R)
     g, H = np.zeros((w1 - w0, n_c, 6)), np.zeros((w1 - w0, n_c, 6, 6))
@@ -95,7 +100,8 @@ def window_sums(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[Padde
         mine = np.isin(tracks.frame, part.frames)
         views = tracks.views[mine].copy()
         views[:, sorted(excluded)] = -1
-        cw = camera_windows(rig, R, t, part, Tracks(tracks.frame[mine], views, tracks.X[mine]))
+        cw = camera_windows(rig, R, t, part, Tracks(tracks.frame[mine], views, tracks.X[mine]), cams=cams,
+                            method=TRIANGULATION)
         g += sum_by(w_of[sel], cw.g, w1 - w0)
         H += sum_by(w_of[sel], cw.H, w1 - w0)
         rss += sum_by(w_of[sel], cw.sse, w1 - w0)
@@ -140,7 +146,7 @@ def attribute(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[PaddedF
     if len(cams) == 1:
         return Attribution((cams[0],))
     p0, s2 = base
-    g, H = window_sums(rig, R, t, pieces, excluded, windows)[:2]
+    g, H = window_sums(rig, R, t, pieces, excluded, windows, cams)[:2]  # only the candidates' changes are fitted
     changes = {c: solve_pose_change(H[:, c].sum(0), g[:, c].sum(0)) - p0[c] for c in cams}
     each = [window_sums(rig, *moved_pose(R, t, c, changes[c]), pieces, excluded, windows)[2:] for c in cams]
     held = np.all([n[:, [c for c in range(len(R)) if c not in excluded]].sum(1) > 0 for _, n in each], axis=0)

@@ -22,7 +22,7 @@ import numpy as np
 
 from wandcal.calib.geometry import projection_derivative
 from wandcal.calib.rig import Rig
-from wandcal.calib.triangulate import refine_points
+from wandcal.calib.triangulate import DAMPING, refine_points, solve_symmetric_3x3
 from wandcal.calib.watch.match import CLEAR_RATIO, FRAME_GAP_PX, Tracks
 from wandcal.calib.watch.take import PaddedFrames
 
@@ -54,9 +54,14 @@ class CameraWindows:
 
 
 def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames, tracks: Tracks, *,
-                   keep_obs: bool = False) -> CameraWindows:
+                   keep_obs: bool = False, cams: list[int] | None = None, method: str = "refined") -> CameraWindows:
     """The residuals of every camera of a batch of frames against ``tracks`` (from
-    :func:`wandcal.calib.watch.match.match_frames` over the same frames), at poses R (C, 3, 3), t (C, 3)."""
+    :func:`wandcal.calib.watch.match.match_frames` over the same frames), at poses R (C, 3, 3), t (C, 3).
+    ``cams``: the cameras measured (the others' rows left zero); all when None. ``method``: how a track
+    a camera sees is triangulated without it: "refined", Gauss-Newton steps of its other views from the
+    track's start (the watch's tests); "downdated", one step from the all-view point with that camera's
+    own terms taken out of the normal equations summed once over every view (:func:`_downdated`: the
+    attribution's hypotheses, decision 01AA)."""
     n_f, n_c = len(padded.frames), len(R)
     g = np.zeros((n_f, n_c, PARAMS))
     H = np.zeros((n_f, n_c, PARAMS, PARAMS))
@@ -66,8 +71,8 @@ def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames,
     obs = []
     f_of = np.searchsorted(padded.frames, tracks.frame)
     focal = np.array([cam.focal.mean() for cam in rig.cameras])
-    every = _all_views(R, t, focal, padded, tracks)
-    for c in range(n_c):
+    every = _all_views(R, t, focal, padded, tracks, terms=method == "downdated")
+    for c in range(n_c) if cams is None else cams:
         fi, X, xy, info = _leave_one_out(R, t, focal, padded, tracks, f_of, c, every)
         seen[:, c] = np.bincount(f_of[(tracks.views >= 0).sum(1) - (tracks.views[:, c] >= 0) >= 2], minlength=n_f)
         J, r = whitened(*linearised(R[c], t[c], focal[c], X, xy), point_jacobian(R[c], t[c], focal[c], X), info)
@@ -91,18 +96,87 @@ class _AllViews:
 
     X: np.ndarray
     info: np.ndarray
+    terms: _ViewTerms | None = None
 
 
-def _all_views(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks) -> _AllViews:
+@dataclass(frozen=True, eq=False)
+class _ViewTerms:
+    """Each view's terms of a track's Gauss-Newton normal equations at :class:`_AllViews`' point (its
+    reprojection error in normalised coordinates, as :func:`~wandcal.calib.triangulate.refine_points`'),
+    to be summed once and taken out one camera at a time (:func:`_downdated`). view (T, C): the index of
+    track T's view in camera C (-1: none); A (M, 6): J_v^T J_v's distinct entries (00, 01, 02, 11, 12,
+    22), metre^-2; g (M, 3): J_v^T r_v, metre^-1; their sums over each track's views A_sum (T, 6),
+    g_sum (T, 3); focal2 (M,): the view's camera's focal length squared, pixels^2 (A in pixels)."""
+
+    view: np.ndarray
+    A: np.ndarray
+    g: np.ndarray
+    A_sum: np.ndarray
+    g_sum: np.ndarray
+    focal2: np.ndarray
+
+
+def _all_views(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks, *, terms: bool = False) -> _AllViews:
     """:class:`_AllViews` of a batch's tracks: one triangulation shared by every camera that does not
-    see a track (about half the cameras a track; each triangulated it apart before)."""
+    see a track (about half the cameras a track; each triangulated it apart before); with ``terms``, each
+    view's :class:`_ViewTerms` at it."""
     X = np.full((len(tracks), 3), np.nan)
     info = np.full((len(tracks), 3, 3), np.nan)
     ok = np.flatnonzero((tracks.views >= 0).sum(1) >= 2)
     p, cam = np.nonzero(tracks.views[ok] >= 0)
-    X[ok] = refine_points(R, t, p, cam, padded.xy_of(tracks.views[ok][p, cam]), tracks.X[ok])
-    info[ok] = _information(R, t, focal, p, cam, X[ok])
-    return _AllViews(X, info)
+    xy = padded.xy_of(tracks.views[ok][p, cam])
+    X[ok] = refine_points(R, t, p, cam, xy, tracks.X[ok])
+    if not terms:
+        info[ok] = _information(R, t, focal, p, cam, X[ok])
+        return _AllViews(X, info)
+    A, g = _view_terms(R, t, p, cam, xy, X[ok])
+    focal2 = focal[cam] ** 2
+    info[ok] = _symmetric(sum_by(p, A * focal2[:, None], len(ok)))  # _information's, from the same terms
+    view = np.full(tracks.views.shape, -1)
+    view[ok[p], cam] = np.arange(len(p))
+    A_sum, g_sum = np.zeros((len(tracks), 6)), np.zeros((len(tracks), 3))
+    A_sum[ok], g_sum[ok] = sum_by(p, A, len(ok)), sum_by(p, g, len(ok))
+    return _AllViews(X, info, _ViewTerms(view, A, g, A_sum, g_sum, focal2))
+
+
+def _view_terms(R, t, p: np.ndarray, cam: np.ndarray, xy: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M, 6) J_v^T J_v's distinct entries and (M, 3) J_v^T r_v of each view (point p (M,), camera cam
+    (M,), normalised blob xy (M, 2)) of points X (P, 3): refine_points' normal equations, a view at a time."""
+    Rv, Xp = R[cam], X[p]
+    xc = np.einsum("mij,mj->mi", Rv, Xp) + t[cam]
+    iz = 1.0 / xc[:, 2]
+    u, v = xc[:, 0] * iz, xc[:, 1] * iz
+    ax = (Rv[:, 0] - u[:, None] * Rv[:, 2]) * iz[:, None]  # d(x/z)/dX (M, 3)
+    ay = (Rv[:, 1] - v[:, None] * Rv[:, 2]) * iz[:, None]
+    pairs = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+    A = np.column_stack([ax[:, i] * ax[:, j] + ay[:, i] * ay[:, j] for i, j in pairs])
+    g = ax * (u - xy[:, 0])[:, None] + ay * (v - xy[:, 1])[:, None]
+    return A, g
+
+
+def _downdated(every: _AllViews, rows: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray]:
+    """(k, 3) the tracks ``rows`` (k,) (each seen by camera c and two others) triangulated without c by
+    one Gauss-Newton step from the all-view point, with c's terms taken out of the summed normal
+    equations; (k, 3, 3) the others' information on them (pixels^2 a metre^2), at the all-view point.
+    The all-view point is within a blob's error of the leave-one-out point, so the step's error is
+    second order in that shift: about 1e-5 px on the residuals (decision 01AA), against the refined
+    triangulation's 1e-9."""
+    terms = every.terms
+    assert terms is not None
+    v = terms.view[rows, c]
+    A = terms.A_sum[rows] - terms.A[v]
+    g = terms.g_sum[rows] - terms.g[v]
+    a00, a01, a02, a11, a12, a22 = A.T
+    damp = DAMPING * (a00 + a11 + a22) + 1e-300
+    step = solve_symmetric_3x3(a00 + damp, a01, a02, a11 + damp, a12, a22 + damp, *g.T).T
+    X = every.X[rows] - np.where(np.isfinite(step).all(1, keepdims=True), step, 0.0)
+    info = every.info[rows] - _symmetric(terms.A[v] * terms.focal2[v, None])
+    return X, info
+
+
+def _symmetric(A: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) of the distinct entries (k, 6) (00, 01, 02, 11, 12, 22)."""
+    return A[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
 
 
 def _leave_one_out(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks, f_of, c: int, every: _AllViews):
@@ -115,10 +189,16 @@ def _leave_one_out(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks
     ok = (others >= 0).sum(1) >= 2
     again = ok & (tracks.views[:, c] >= 0)  # c's view is left out of these
     X = every.X.copy()
-    X[again] = _triangulated(R, t, padded, others[again], tracks.X[again])
+    if every.terms is None:
+        X[again] = _triangulated(R, t, padded, others[again], tracks.X[again])
+    else:
+        loo_info = every.info.copy()
+        X[again], loo_info[again] = _downdated(every, np.flatnonzero(again), c)
     rows = np.flatnonzero(ok)
     fi, xy, found = _nearest_blob(R[c], t[c], focal[c], padded, c, f_of[ok], X[ok])
     rows = rows[found]  # the tracks c's blob was found for
+    if every.terms is not None:
+        return fi[found], X[rows], xy[found], loo_info[rows]
     info = every.info[rows]
     mine = again[rows]
     p, cam = np.nonzero(others[rows[mine]] >= 0)
