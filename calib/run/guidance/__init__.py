@@ -17,7 +17,9 @@ Fast and honest: each camera keeps about ``frames_per_camera`` of its frames (dr
 at every update, so the estimate does not jitter) and its sigma is scaled by
 sqrt(kept / all) -- information adds up over frames, so the full capture's sigma is the
 subsample's shrunk by that ratio (measured within 3% at 8 x 1500 and 16 x 2500, in the decision).
-The last solution starts the next solve (:class:`Solution`), which skips the initial poses; when
+The solve takes at most ``SOLVE_STEPS`` (3) Levenberg-Marquardt steps and reads the information there:
+a sigma needs poses near the optimum, not converged ones (within 2% of the converged solve's at
+128 x 3000, decision 01FF). The last solution starts the next solve (:class:`Solution`), which skips the initial poses; when
 cameras joined the solve since, the start places only them. A camera joins the solve with 10 frames
 shared with another camera, or seen by two cameras already in it (decision 0095).
 """

@@ -15,7 +15,7 @@ from wandcal.calib.judge.coverage import POINTS
 from wandcal.calib.observations import WandPairs, point_tracks, wand_pairs
 from wandcal.calib.rig import PointObservations, Rig, StaticObservations, WandObservations
 from wandcal.calib.run.guidance.document import Seen, guidance_document
-from wandcal.calib.run.guidance.settings import MIN_SOLVE_FRAMES, GuidanceSettings
+from wandcal.calib.run.guidance.settings import MIN_SOLVE_FRAMES, SOLVE_STEPS, GuidanceSettings
 from wandcal.calib.start.chain import camera_groups, row_pairs
 from wandcal.calib.start.offsets.confirm import confirmed_offsets
 from wandcal.calib.start.offsets.whole_frames import DEFAULT_MAX_OFFSET, FrameOffsets, frame_offsets, shift_pairs
@@ -277,8 +277,8 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     """The fast solve over the cameras of ``solve_set`` and their predicted sigmas (N,), metres
     and radians (NaN for the others)."""
     # the solver loads when a solve runs: the command line reads this module's defaults at start-up
-    from wandcal.calib.run.options import CalibrationOptions
-    from wandcal.calib.run.refine import GAUGE_CAMERA, build_problem, refine, up_direction
+    from wandcal.calib.run.refine import GAUGE_CAMERA, build_problem
+    from wandcal.calib.solve.ba import DEFAULT_LOSS, bundle_adjust_points
     from wandcal.calib.start.labels import label_ends
     cams = np.flatnonzero(solve_set)
     index = np.full(len(rig.cameras), -1)
@@ -301,14 +301,17 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
         R, t = _start_poses(rig, sub, kept, cams, static, start)
     labelled = label_ends(R, t, kept, np.ones(len(cams), bool), sub.wand_length)[0]
     setup = build_problem(sub, labelled, R, t, GAUGE_CAMERA)
-    r = refine(sub, labelled, setup, None, None, "ba", CalibrationOptions(), lambda event: None, up_direction(sub, R, t, setup))
-    if not (np.all(np.isfinite(r.R)) and np.all(np.isfinite(r.t))):
+    # calibrate's ba (Cauchy, the cameras' stop, judge_frames=False as WAND_FRAMES_IN_STOP) for at most
+    # SOLVE_STEPS steps: the sigma needs the information at a near estimate, not the converged poses
+    r = bundle_adjust_points(setup.model, None, None, loss=DEFAULT_LOSS, max_iter=SOLVE_STEPS, judge_frames=False)
+    R, t = setup.model.poses(r.x)
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
         raise CalibrationError(f"the fast solve diverged ({r.info.get('status')}); keep waving where several "
                                "cameras see the wand")
     if r.covariance is None:
         raise CalibrationError("the frames so far leave a camera's pose undetermined (a singular information "
                                "matrix); keep waving through the whole volume")
-    center_k, rotation_k = relative_uncertainty(r.R, r.t, r.covariance)
+    center_k, rotation_k = relative_uncertainty(R, t, r.covariance)
     used = np.bincount(setup.problem.camera, minlength=len(cams)) / 2  # two ends per camera-frame
     scale = np.sqrt(np.minimum(used / np.maximum(all_rows, 1), 1.0))
     center = np.full(len(rig.cameras), np.nan)
@@ -317,7 +320,7 @@ def _solve(rig: Rig, seen: Seen, solve_set: np.ndarray, static, settings: Guidan
     rotation[cams] = rotation_k * scale
     info = {"frames_used": int(setup.problem.n_frames), "cameras": len(cams), "warm_start": bool(warm),
             "iterations": int(r.info.get("iterations", 0))}
-    return Solution(ids, r.R, r.t), center, rotation, info
+    return Solution(ids, R, t), center, rotation, info
 
 
 def _start_poses(rig: Rig, sub: Rig, kept: WandPairs, cams: np.ndarray, static: StaticObservations | None,
