@@ -206,7 +206,7 @@ def camera_timings(R: np.ndarray, t: np.ndarray, labelled: WandPairs, tracks: Po
         offset = -float(shifts[c] + own)
         out.append(CameraTiming(c, -int(shifts[c]), offset, std, explained,
                                 abs(offset) * _speed(by_camera[c]) * float(np.mean(focal[c])), pairs, untimeable[c]))
-    return out + [_whole_only(c, int(shifts[c]), by_camera[c], focal[c], untimeable[c])
+    return out + [_whole_only(int(c), int(shifts[c]), by_camera[c], focal[c], untimeable[c])
                   for c in np.flatnonzero(shifts) if c not in found]
 
 
