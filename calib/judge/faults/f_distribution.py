@@ -70,3 +70,37 @@ def critical_f(q: int, dof: float, alpha: float) -> float:
         if hi - lo < 1e-9 * hi:
             break
     return hi
+
+
+def binomial_upper(k: int, n: int, alpha: float = 0.025) -> float:
+    """The Clopper-Pearson upper bound of a rate seen k times in n: the q at which k or fewer
+    happen with probability ``alpha`` (1 with n = 0). The root of P(Bin(n, q) <= k) = alpha by
+    Newton's method on the exact sum, whose derivative in q is -(n - k) C(n, k) q^k (1 - q)^(n - k - 1),
+    from Wilson's upper bound, each step kept inside the bracket the sum's signs leave (a bisection
+    step where it would leave it): the 60-step bisection's root within 1e-13 relative in 4-8 sums
+    (decision 0090)."""
+    if n == 0 or k >= n:
+        return 1.0
+    j = np.arange(k + 1)
+    log_comb = np.concatenate([[0.0], np.cumsum(np.log((n - j[1:] + 1) / j[1:]))])  # log C(n, j), j <= k
+    log_slope = math.log(n - k) + float(log_comb[-1])  # log (n - k) C(n, k)
+    lo, hi = k / n, 1.0
+    q = _wilson_upper(k, n)
+    q = q if lo < q < hi else (lo + hi) / 2
+    for _ in range(100):
+        lq, l1q = math.log(q), math.log1p(-q)
+        f = float(np.exp(log_comb + j * lq + (n - j) * l1q).sum()) - alpha  # P(Bin(n, q) <= k) - alpha
+        lo, hi = (q, hi) if f > 0 else (lo, q)
+        slope = math.exp(log_slope + k * lq + (n - k - 1) * l1q)  # -f'(q), 0 where it underflows
+        nxt = q + f / slope if slope > 0 and lo < q + f / slope < hi else (lo + hi) / 2
+        if abs(nxt - q) <= 1e-15 * q or hi - lo <= 1e-15 * hi:
+            return nxt
+        q = nxt
+    return q
+
+
+def _wilson_upper(k: int, n: int, z: float = 1.959963984540054) -> float:
+    """Wilson's score bound of a rate seen k times in n (the normal approximation's, two-sided 95%):
+    the start of :func:`binomial_upper`'s Newton steps."""
+    p = k / n
+    return (p + z * z / (2 * n) + z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))) / (1 + z * z / n)

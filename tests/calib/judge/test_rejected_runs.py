@@ -14,8 +14,15 @@ import pytest
 from tests.calib.judge.test_own_errors import FOCAL_PX, NOISE_PX, _rig
 from wandcal.calib.geometry import rotvec_to_matrix
 from wandcal.calib.judge.faults.f_distribution import binomial_tail as binomial_sf
+from wandcal.calib.judge.faults.f_distribution import binomial_upper
 from wandcal.calib.judge.faults.pose_steps import STEP_ALPHA
-from wandcal.calib.judge.faults.rejected_runs import binomial_upper, block_against_rate, rejected_moved
+from wandcal.calib.judge.faults.rejected_runs import (
+    MIN_LENS_FRAMES,
+    block_against_rate,
+    camera_runs,
+    lens_predicts_block,
+    rejected_moved,
+)
 from wandcal.calib.judge.residuals import observation_residuals
 from wandcal.calib.observations import WandPairs
 
@@ -61,12 +68,16 @@ def test_outliers_at_the_rigs_rate_raise_alarms_at_most_at_the_level(n, rate):
     assert alarms <= 500 * 0.01 + 2 * np.sqrt(500 * 0.01 * 0.99)
 
 
-def _wand(R, t, rng, knock=None, outliers=0.0) -> tuple[WandPairs, np.ndarray]:
+def _wand(R, t, rng, knock=None, outliers=0.0, lens=None) -> tuple[WandPairs, np.ndarray]:
     """WAND_FRAMES frames of a 0.5 m wand seen by every camera, NOISE_PX; ``outliers`` of the
     camera-frames with one end 20-40 px off (spread in time); knock: (camera, frame, rotation
-    vector) turns that camera after that frame."""
+    vector) turns that camera after that frame; lens: (camera, scale) that camera's views scaled
+    about its image centre (its focal length off), the wand moving outwards from the rig's centre
+    in time (so its views beyond the limit bunch late)."""
     n = len(R)
     mid = rng.uniform(-0.5, 0.5, (WAND_FRAMES, 3))
+    if lens is not None:
+        mid = mid[np.argsort(np.linalg.norm(mid, axis=1))]
     d = rng.normal(size=(WAND_FRAMES, 3))
     ends = mid[:, None] + 0.25 * np.array([-1.0, 1.0])[None, :, None] * (d / np.linalg.norm(d, axis=1, keepdims=True))[:, None]
     frame, camera, xy = [], [], []
@@ -75,7 +86,8 @@ def _wand(R, t, rng, knock=None, outliers=0.0) -> tuple[WandPairs, np.ndarray]:
             Xc = ends[f] @ R[c].T + t[c]
             if knock is not None and knock[0] == c and f > knock[1]:
                 Xc = Xc @ rotvec_to_matrix(knock[2]).T
-            p = Xc[:, :2] / Xc[:, 2:] + rng.normal(0, NOISE_PX / FOCAL_PX, (2, 2))
+            scale = lens[1] if lens is not None and lens[0] == c else 1.0
+            p = Xc[:, :2] / Xc[:, 2:] * scale + rng.normal(0, NOISE_PX / FOCAL_PX, (2, 2))
             if rng.random() < outliers:
                 p[0] += rng.uniform(20, 40) / FOCAL_PX * np.sign(rng.normal(size=2))
             frame.append(f)
@@ -152,3 +164,50 @@ def test_gross_outliers_in_a_rig_seen_in_pairs_name_nothing(seed):
     R, t = _rig()
     rng = np.random.default_rng(seed)
     assert _named(_in_pairs(_wand(R, t, rng, outliers=0.1)), R, t) == []
+
+
+def _run_and_lens(wand: tuple[WandPairs, np.ndarray], R, t, camera: int) -> tuple[float, bool]:
+    """(camera's rejected-run p-value, whether the lens fitted outside its block predicts the block)."""
+    labelled, ends = wand
+    res = observation_residuals(R, t, labelled, None, np.full((len(R), 2), FOCAL_PX), (labelled.frames, ends))
+    found = camera_runs(res, len(R))[camera]
+    assert found is not None
+    return found[0].p_value, lens_predicts_block(res, R, t, camera, *found)
+
+
+@pytest.mark.parametrize("camera, scale, seed", [(0, 0.99, 0), (1, 0.99, 0), (2, 0.99, 0)])
+def test_rejects_that_grow_with_where_the_wand_went_are_the_lens_not_a_move(camera, scale, seed):
+    """A focal length 1% off puts the views far from the image centre beyond the limit; the wand
+    moving outwards in time bunches them late, a run in time as strong as a knock's. The lens fitted
+    to the frames before the block alone predicts the block (decision 0100's open row): not moved."""
+    R, t = _rig()
+    wand = _wand(R, t, np.random.default_rng(seed), lens=(camera, scale))
+    p, lens = _run_and_lens(wand, R, t, camera)
+    assert p < STEP_ALPHA and lens
+    assert _named(wand, R, t) == []
+
+
+@pytest.mark.parametrize("degrees, seed", [(5.0, 41), (1.0, 42)])
+def test_a_knocks_block_is_not_predicted_by_the_lens_before_it(degrees, seed):
+    """The knock's later views: the pose, focal length and k1 fitted to the frames before it leave
+    the block turned (a change in time), so the camera is still named moved."""
+    R, t = _rig()
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    wand = _wand(R, t, rng, (1, 50, np.radians(degrees) * axis / np.linalg.norm(axis)))
+    p, lens = _run_and_lens(wand, R, t, 1)
+    assert p < STEP_ALPHA and not lens
+    assert [f["camera"] for f in _named(wand, R, t)] == ["cam1"]
+
+
+def test_the_lens_is_not_fitted_to_fewer_frames_than_it_can_hold():
+    """Where fewer than MIN_LENS_FRAMES camera-frames lie outside the block, the lens is not trusted
+    to predict it (eight columns over a handful of frames absorb a knock): the move stands."""
+    R, t = _rig()
+    rng = np.random.default_rng(41)
+    axis = rng.normal(size=3)
+    at = MIN_LENS_FRAMES // 2
+    wand = _wand(R, t, rng, (1, at, np.radians(5.0) * axis / np.linalg.norm(axis)))
+    p, lens = _run_and_lens(wand, R, t, 1)
+    assert p < STEP_ALPHA and not lens
+    assert [f["camera"] for f in _named(wand, R, t)] == ["cam1"]
