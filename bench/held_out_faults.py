@@ -231,7 +231,7 @@ def inject_held_out(session: rf.Session, case: rf.Case, noise_px: list[float]) -
 def swapped_clean(session: rf.Session, clean: rf.Clean, a: int, b: int) -> rf.Clean:
     """The clean run with its own faults on cameras a and b exchanged: a swap moves a camera's
     observations, and a fault the published data carry in them (a camera out of time), to its
-    partner's name (docs/decisions/01EA-swaps-below-what-the-data-tell.md). Before, the easyWand
+    partner's name (docs/decisions/0106-swaps-below-what-the-data-tell.md). Before, the easyWand
     sample's cam1/cam2 swap was *wrong camera* for naming its own cam2 timing fault on cam1."""
     ids = [cam.id for cam in session.rig.cameras]
     other = {ids[a]: ids[b], ids[b]: ids[a]}

@@ -49,7 +49,7 @@ LOOKS = 2  # the attribution's looks at one move (the module's note), each at LE
 BATCH_WINDOWS = 2  # windows a batch of the batch means: 20 frames (the module's note)
 MIN_BATCHES = 3  # fewer batches leave the standard error unknown (2 degrees of freedom at least)
 # a marker triangulated without a camera by one step from the all-view point (camera_windows' method): every
-# hypothesis re-measures every camera, and the refined triangulations were 60% of that (decision 01AA)
+# hypothesis re-measures every camera, and the refined triangulations were 60% of that (decision 0102)
 TRIANGULATION = "downdated"
 
 

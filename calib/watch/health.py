@@ -61,7 +61,7 @@ def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames,
     a camera sees is triangulated without it: "refined", Gauss-Newton steps of its other views from the
     track's start (the watch's tests); "downdated", one step from the all-view point with that camera's
     own terms taken out of the normal equations summed once over every view (:func:`_downdated`: the
-    attribution's hypotheses, decision 01AA)."""
+    attribution's hypotheses, decision 0102)."""
     n_f, n_c = len(padded.frames), len(R)
     g = np.zeros((n_f, n_c, PARAMS))
     H = np.zeros((n_f, n_c, PARAMS, PARAMS))
@@ -159,7 +159,7 @@ def _downdated(every: _AllViews, rows: np.ndarray, c: int) -> tuple[np.ndarray, 
     one Gauss-Newton step from the all-view point, with c's terms taken out of the summed normal
     equations; (k, 3, 3) the others' information on them (pixels^2 a metre^2), at the all-view point.
     The all-view point is within a blob's error of the leave-one-out point, so the step's error is
-    second order in that shift: about 1e-5 px on the residuals (decision 01AA), against the refined
+    second order in that shift: about 1e-5 px on the residuals (decision 0102), against the refined
     triangulation's 1e-9."""
     terms = every.terms
     assert terms is not None

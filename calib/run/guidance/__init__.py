@@ -19,7 +19,7 @@ sqrt(kept / all) -- information adds up over frames, so the full capture's sigma
 subsample's shrunk by that ratio (measured within 3% at 8 x 1500 and 16 x 2500, in the decision).
 The solve takes at most ``SOLVE_STEPS`` (3) Levenberg-Marquardt steps and reads the information there:
 a sigma needs poses near the optimum, not converged ones (within 2% of the converged solve's at
-128 x 3000, decision 01FF). The last solution starts the next solve (:class:`Solution`), which skips the initial poses; when
+128 x 3000, decision 0107). The last solution starts the next solve (:class:`Solution`), which skips the initial poses; when
 cameras joined the solve since, the start places only them. A camera joins the solve with 10 frames
 shared with another camera, or seen by two cameras already in it (decision 0095).
 """

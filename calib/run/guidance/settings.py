@@ -28,7 +28,7 @@ MIN_SOLVE_FRAMES = 10
 # the predicted sigma is the information at the estimate, which needs the poses near the optimum,
 # not converged to STOP_SE. At 128 x 3000 (ring, hallway, dome, tiers) calibrate's ba takes 10
 # steps; after 3 each camera's sigma is within 2% of the converged solve's and as close to
-# calibrate's as that (decision 01FF); after 2 it is 3.5% off (after 1, 11%).
+# calibrate's as that (decision 0107); after 2 it is 3.5% off (after 1, 11%).
 SOLVE_STEPS = 3
 
 

@@ -62,7 +62,7 @@ def test_a_one_of_move_is_reported_as_such():
 
 
 def test_the_downdated_markers_are_the_refined_ones_within_a_hundredth_of_the_blob_noise():
-    """The attribution's markers triangulated without each camera by one down-dated step (decision 01AA)
+    """The attribution's markers triangulated without each camera by one down-dated step (decision 0102)
     against the watch's refined ones: the same residuals kept, each marker within 1% of the injected 0.3 px
     blob noise once projected into the camera left out, and the windows' normal equations alike."""
     from wandcal.calib.sim.takes import simulate_take
