@@ -169,6 +169,19 @@ def finite_rows(a: np.ndarray) -> np.ndarray:
     return ok
 
 
+def sum_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
+    """(size, ...) the sums of ``values`` (k, ...) by ``index`` (k,) in 0..size-1 (ufunc.at's result,
+    by one sort and ``np.add.reduceat``: several times faster)."""
+    out = np.zeros((size, *values.shape[1:]))
+    if not len(index):
+        return out
+    order = np.argsort(index, kind="stable")
+    idx = index[order]
+    starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
+    out[idx[starts]] = np.add.reduceat(values[order], starts, axis=0)
+    return out
+
+
 def projection_derivative(Xc: np.ndarray) -> np.ndarray:
     """(K, 2, 3) the derivative of the normalised projection (x/z, y/z) in the camera-frame point Xc (K, 3)."""
     z = Xc[:, 2]

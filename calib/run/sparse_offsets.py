@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wandcal.calib.errors import CalibrationError
-from wandcal.calib.geometry import rotvec_to_matrix
+from wandcal.calib.geometry import rotvec_to_matrix, sum_by
 from wandcal.calib.observations import WandPairs
 from wandcal.calib.rig import Rig
 from wandcal.calib.start.initial import Initial, UnplacedCamera, initial_poses
@@ -240,7 +240,7 @@ def refit_poses(R: np.ndarray, t: np.ndarray, camera: np.ndarray, ends: np.ndarr
         # each camera's normal equations, every entry summed by one bincount (np.add.at was most of it);
         # the 21 distinct entries of J^T J only (the sums einsum "kai,kaj->kij" forms, term by term)
         H = _normal_matrices(J, w, cam2, n)
-        g = _sum_by(cam2, w[:, None] * np.einsum("kai,ka->ki", J, r), n)
+        g = sum_by(cam2, w[:, None] * np.einsum("kai,ka->ki", J, r), n)
         damp = 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(6) + 1e-12 * np.eye(6)
         step = -np.linalg.solve(H + damp, g[..., None])[..., 0]
         for c in np.flatnonzero(np.isfinite(step).all(1) & (np.abs(step).sum(1) > 0)):
@@ -262,12 +262,6 @@ def _normal_matrices(J: np.ndarray, w: np.ndarray, group: np.ndarray, n: int) ->
     H[:, _COL, _ROW] = upper
     return H
 
-
-def _sum_by(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """(n, ...) the sums of ``values`` (K, ...) over the rows of each ``group`` (K,) in [0, n)."""
-    width = int(np.prod(values.shape[1:]))
-    index = (group[:, None] * width + np.arange(width)).ravel()
-    return np.bincount(index, values.reshape(-1), minlength=n * width).reshape((n, *values.shape[1:]))
 
 
 def _pair_errors(R: np.ndarray, t: np.ndarray, ends: np.ndarray, xy: np.ndarray) -> np.ndarray:

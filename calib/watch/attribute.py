@@ -38,9 +38,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from wandcal.calib.geometry import camera_centers, rotvec_to_matrix
+from wandcal.calib.geometry import camera_centers, rotvec_to_matrix, sum_by
 from wandcal.calib.rig import Rig
-from wandcal.calib.watch.health import WINDOW_FRAMES, camera_windows, solve_pose_change, sum_by
+from wandcal.calib.watch.health import WINDOW_FRAMES, Triangulation, camera_windows, solve_pose_change
 from wandcal.calib.watch.match import Tracks
 from wandcal.calib.watch.take import PaddedFrames
 
@@ -50,7 +50,7 @@ BATCH_WINDOWS = 2  # windows a batch of the batch means: 20 frames (the module's
 MIN_BATCHES = 3  # fewer batches leave the standard error unknown (2 degrees of freedom at least)
 # a marker triangulated without a camera by one step from the all-view point (camera_windows' method): every
 # hypothesis re-measures every camera, and the refined triangulations were 60% of that (decision 0102)
-TRIANGULATION = "downdated"
+TRIANGULATION: Triangulation = "downdated"
 
 
 @dataclass(frozen=True)

@@ -17,10 +17,11 @@ two cameras fix a marker loosely, its error in this camera is not taken for this
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
-from wandcal.calib.geometry import projection_derivative
+from wandcal.calib.geometry import projection_derivative, sum_by
 from wandcal.calib.rig import Rig
 from wandcal.calib.triangulate import DAMPING, refine_points, solve_symmetric_3x3
 from wandcal.calib.watch.match import CLEAR_RATIO, FRAME_GAP_PX, Tracks
@@ -30,6 +31,8 @@ HEALTH_PX = 12.0  # a camera turned by 0.5 deg (f = 1100 px) still finds its blo
 OUTLIER_PX = 1.5  # 5 sigma of 0.3 px blob noise about the window's own fit
 WINDOW_FRAMES = 10  # 0.1 s at 100 fps: ~400 residuals of a 40-marker take, the test's time step
 PARAMS = 6  # omega (3) and dC (3)
+# how a track a camera sees is triangulated without it (camera_windows' method)
+Triangulation = Literal["refined", "downdated"]
 LOOSE_POINT = 1.0  # a point's own error (variance, in blobs' variances) past which a residual is weighted down
 
 
@@ -54,7 +57,8 @@ class CameraWindows:
 
 
 def camera_windows(rig: Rig, R: np.ndarray, t: np.ndarray, padded: PaddedFrames, tracks: Tracks, *,
-                   keep_obs: bool = False, cams: list[int] | None = None, method: str = "refined") -> CameraWindows:
+                   keep_obs: bool = False, cams: list[int] | None = None,
+                   method: Triangulation = "refined") -> CameraWindows:
     """The residuals of every camera of a batch of frames against ``tracks`` (from
     :func:`wandcal.calib.watch.match.match_frames` over the same frames), at poses R (C, 3, 3), t (C, 3).
     ``cams``: the cameras measured (the others' rows left zero); all when None. ``method``: how a track
@@ -154,15 +158,13 @@ def _view_terms(R, t, p: np.ndarray, cam: np.ndarray, xy: np.ndarray, X: np.ndar
     return A, g
 
 
-def _downdated(every: _AllViews, rows: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray]:
+def _downdated(every: _AllViews, terms: _ViewTerms, rows: np.ndarray, c: int) -> tuple[np.ndarray, np.ndarray]:
     """(k, 3) the tracks ``rows`` (k,) (each seen by camera c and two others) triangulated without c by
     one Gauss-Newton step from the all-view point, with c's terms taken out of the summed normal
     equations; (k, 3, 3) the others' information on them (pixels^2 a metre^2), at the all-view point.
     The all-view point is within a blob's error of the leave-one-out point, so the step's error is
     second order in that shift: about 1e-5 px on the residuals (decision 0102), against the refined
     triangulation's 1e-9."""
-    terms = every.terms
-    assert terms is not None
     v = terms.view[rows, c]
     A = terms.A_sum[rows] - terms.A[v]
     g = terms.g_sum[rows] - terms.g[v]
@@ -189,15 +191,16 @@ def _leave_one_out(R, t, focal: np.ndarray, padded: PaddedFrames, tracks: Tracks
     ok = (others >= 0).sum(1) >= 2
     again = ok & (tracks.views[:, c] >= 0)  # c's view is left out of these
     X = every.X.copy()
-    if every.terms is None:
+    terms = every.terms
+    if terms is None:
         X[again] = _triangulated(R, t, padded, others[again], tracks.X[again])
     else:
         loo_info = every.info.copy()
-        X[again], loo_info[again] = _downdated(every, np.flatnonzero(again), c)
+        X[again], loo_info[again] = _downdated(every, terms, np.flatnonzero(again), c)
     rows = np.flatnonzero(ok)
     fi, xy, found = _nearest_blob(R[c], t[c], focal[c], padded, c, f_of[ok], X[ok])
     rows = rows[found]  # the tracks c's blob was found for
-    if every.terms is not None:
+    if terms is not None:
         return fi[found], X[rows], xy[found], loo_info[rows]
     info = every.info[rows]
     mine = again[rows]
@@ -346,18 +349,6 @@ def _inliers(window: np.ndarray, J: np.ndarray, r: np.ndarray, JJ: np.ndarray,
         keep = np.hypot(dev[:, 0], dev[:, 1]) < OUTLIER_PX
     return keep, dev
 
-
-def sum_by(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
-    """(size, ...) the sums of ``values`` (k, ...) by ``index`` (k,) in 0..size-1 (ufunc.at's result,
-    by one sort and ``np.add.reduceat``: several times faster)."""
-    out = np.zeros((size, *values.shape[1:]))
-    if not len(index):
-        return out
-    order = np.argsort(index, kind="stable")
-    idx = index[order]
-    starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
-    out[idx[starts]] = np.add.reduceat(values[order], starts, axis=0)
-    return out
 
 
 def solve_pose_change(H: np.ndarray, g: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from wandcal.calib.geometry import sum_by
 from wandcal.calib.rig import Rig
 from wandcal.calib.watch.attribute import Attribution, attribute
 from wandcal.calib.watch.health import (
@@ -17,7 +18,6 @@ from wandcal.calib.watch.health import (
     CameraWindows,
     camera_windows,
     solve_pose_change,
-    sum_by,
 )
 from wandcal.calib.watch.lost import LOST_THRESHOLD, FoundTest
 from wandcal.calib.watch.match import Tracks, match_frames
