@@ -174,13 +174,19 @@ def test_paper_stops_within_a_fraction_of_sigma_of_the_plain_rounds_fixed_point(
     sigma = paper.stop_tolerance(m.R0, m.t0, start, p, m.fixed) / paper.STOP_SIGMA
     R, t, _, info = refine_paper(m.R0, m.t0, start, p, m.fixed, up)
     assert info["status"] == "converged", info
-    # the exact plain rounds, run on to their lock-in (by round 205 here, decision 0052)
+    # the exact plain rounds, run on to their lock-in (decision 0052)
     for name, value in (("JUMP_CAP", 0.0), ("ROUND_TOL", 0.0), ("STOP_SIGMA", 0.0)):
         monkeypatch.setattr(paper, name, value)
     monkeypatch.setattr(paper_lp, "LP_TOL", TOL)
-    R_p, t_p, W_p, _ = refine_paper(m.R0, m.t0, start, p, m.fixed, up, max_rounds=220)
-    found = fixed_point_on_basis(R_p, t_p, W_p.reshape(-1, 3), p, m.fixed, up,
-                                 height_pairs(m.R0, m.t0, start.reshape(-1, 3), up))
+    # The rounds' path from basis to basis turns on a float's last bits: numpy 1.x locked in by round
+    # 205, numpy 2.4 by 260. So they run on in steps until a fixed point is found on their basis.
+    heights = height_pairs(m.R0, m.t0, start.reshape(-1, 3), up)
+    R_p, t_p, W_p, found = m.R0, m.t0, start, None
+    for rounds in (220, 60, 60, 60):
+        R_p, t_p, W_p, _ = refine_paper(R_p, t_p, W_p, p, m.fixed, up, max_rounds=rounds)
+        found = fixed_point_on_basis(R_p, t_p, W_p.reshape(-1, 3), p, m.fixed, up, heights)
+        if found is not None:
+            break
     assert found is not None
     assert np.linalg.norm(camera_centers(R, t) - camera_centers(found[0], found[1]), axis=1).max() < 1.5 * sigma
     # the rig's error against the truth: the RMS of the centres' after the best rigid alignment
