@@ -263,7 +263,6 @@ def _normal_matrices(J: np.ndarray, w: np.ndarray, group: np.ndarray, n: int) ->
     return H
 
 
-
 def _pair_errors(R: np.ndarray, t: np.ndarray, ends: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """(P,) the mean distance, normalised, between each pair's blobs xy (P, 2, 2) and its ends
     (P, 2, 3) projected with R (P, 3, 3), t (P, 3), the nearer of the two matchings."""

@@ -350,7 +350,6 @@ def _inliers(window: np.ndarray, J: np.ndarray, r: np.ndarray, JJ: np.ndarray,
     return keep, dev
 
 
-
 def solve_pose_change(H: np.ndarray, g: np.ndarray) -> np.ndarray:
     """(..., 6) least-squares pose changes of normal equations H (..., 6, 6), g (..., 6); a
     direction the markers do not fix (too few of them) gets no change (pseudo-inverse)."""
