@@ -9,7 +9,6 @@ import pytest
 from wandcal.calib.run.guidance import GuidanceSettings
 from wandcal.capture.folder import read_capture
 from wandcal.capture.images import detect_capture
-from wandcal.capture.recording import framesets
 from wandcal.capture.recording.centroids import STILL_WINDOW_SETS
 from wandcal.capture.recording.live_guidance import LiveGuidance
 from wandcal.capture.recording.record import ImagePolicy
@@ -21,13 +20,7 @@ FRAMES, STATIC = 240, 20
 SIM = f"sim://?cameras=4&seed=3&frames={FRAMES}&static={STATIC}"
 FAST_HZ = 2000.0  # free-running simulated cameras: as fast as they render
 
-
-@pytest.fixture(autouse=True)
-def _patient_stall_limit(monkeypatch):
-    """A camera silent for STALL_S (2 s) stops holding back sets, right for a rig; but on a loaded
-    2-core machine a simulated camera's reader thread can be starved that long, and a set then goes
-    out without it (stop 45's CI). These tests are not about stalls (test_sync.py's are)."""
-    monkeypatch.setattr(framesets, "STALL_S", 30.0)
+pytestmark = pytest.mark.usefixtures("patient_stall_limit")
 
 
 def capture(tmp_path, name: str, url: str = SIM, images: str = "all", **kwargs):

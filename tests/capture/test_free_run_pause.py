@@ -10,7 +10,6 @@ import time
 import numpy as np
 import pytest
 
-from wandcal.capture.recording import framesets
 from wandcal.capture.recording.session import record
 from wandcal.drivers.camera import CameraDriver
 from wandcal.drivers.registry import open_cameras
@@ -20,13 +19,7 @@ STATIC, FRAMES, RATE_HZ = 5, 40, 200.0
 PAUSE_S = 0.5  # the operator's pause: 100 frame periods at 200 Hz
 PERIOD_US = 1e6 / RATE_HZ
 
-
-@pytest.fixture(autouse=True)
-def _patient_stall_limit(monkeypatch):
-    """A camera silent for STALL_S (2 s) stops holding back sets, right for a rig; but on a loaded
-    2-core machine a simulated camera's reader thread can be starved that long, and a set then goes
-    out without it (stop 45's CI). These tests are not about stalls (test_sync.py's are)."""
-    monkeypatch.setattr(framesets, "STALL_S", 30.0)
+pytestmark = pytest.mark.usefixtures("patient_stall_limit")
 
 
 class _StreamingCamera(SimCamera):
