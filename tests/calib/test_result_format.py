@@ -14,10 +14,10 @@ from wandcal.calib.run.camera_figures import CameraFigures
 from wandcal.calib.run.result import SolverReport, WorldFrame
 from wandcal.capture.result_file import read_result
 
-# A fresh install takes the newest numpy, SciPy and OpenCV, whose LAPACK builds move a float's last
-# bits; the uncertainty's inverse of the gauge-fixed normal matrix amplifies them (6e-8 relative at
-# worst over the kept cases, numpy 2.4.6 / SciPy 1.17.1 / OpenCV 5.0 against the versions that wrote
-# them). The format is still pinned exactly: every key in its order, every string, integer and flag.
+# A fresh install takes the newest numpy and SciPy, which move a float's last bits (the same with
+# OpenCV 4.14 or 5.0); the uncertainty's inverse of the gauge-fixed normal matrix amplifies them (6e-8
+# relative at worst over the kept cases, decision 0108). The format is still pinned exactly: every
+# key in its order, every string, integer and flag.
 RELATIVE = 1e-6
 
 
