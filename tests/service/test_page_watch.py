@@ -29,21 +29,26 @@ def test_the_live_panel_shows_each_cameras_health_and_offers_the_resolve(make_se
     server = make_server(workers=1).start()
     # triggered, as a lab's rig: every camera exposes on the same pulse, so a set is one instant
     with EmulatorProcess() as emu, server.client() as c, Browser(CHROMIUM, tmp_path / "profile") as browser:
+        # the page is loaded first: on a busy machine its load outlasted the take (decision 0109)
+        browser.open(server.url + "/")
+        browser.wait_for("document.readyState === 'complete' && document.querySelector('#live-watch') !== null", WATCH_TIMEOUT_S)
         r = c.post("/capture/start", json={"cameras": [TAKE_URL], "trigger": emu.url, "frames": TAKE_SETS,
                                            "rate_hz": RATE_HZ, "guidance": False, "images": "none"})
         assert r.status_code == 202, r.text
         assert c.post("/watch/live", json={"result": standing}).status_code == 202
-        browser.open(server.url + "/")
         browser.wait_for("document.querySelectorAll('#watch-table tbody tr').length === 6", WATCH_TIMEOUT_S)
-        # updated as the take runs: the page's frame count grows while the capture records
+        # updated as the take runs: the page's frame count grows while the watch follows the recording (on a
+        # busy machine the watch ends after the capture: it counts what was recorded, decision 0109)
         seen, deadline = [], time.monotonic() + WATCH_TIMEOUT_S
-        while time.monotonic() < deadline and c.get("/capture").json()["state"] == "running":
+        while time.monotonic() < deadline and c.get("/watch/live").json()["state"] == "watching":
             frames = browser.js("document.querySelector('#watch-summary').textContent.split(' ')[0]")
             if not seen or seen[-1] != frames:
                 seen.append(frames)
             time.sleep(0.2)
         browser.wait_for("document.querySelector('#live-watch').dataset.state === 'done'", WATCH_TIMEOUT_S)
-        assert len(seen) >= 3, seen  # at least three different counts shown while it recorded
+        seen.append(browser.js("document.querySelector('#watch-summary').textContent.split(' ')[0]"))
+        # a part of the take shown while it was watched, then more: the page follows it, not only its end
+        assert seen[0] and int(seen[0]) < TAKE_SETS and int(seen[-1]) > int(seen[0]), seen
         health = rows(browser)
         # only the knocked camera is named, as moved (tests/service/test_live_take.py: at its frame, and
         # nothing on the clean take; decisions 0054 and 0055)

@@ -271,7 +271,9 @@ def test_while_redis_is_stopped_reads_answer_from_sqlite_and_the_queue_answers_5
         try:
             started = time.monotonic()
             assert c.get(f"/jobs/{job_id}").json()["state"] == "queued"  # from SQLite
-            assert time.monotonic() - started < REDIS_TIMEOUT_S + 1.0
+            # bounded by the Redis client's timeout, not held while Redis hangs; the 3 s beside it are a busy
+            # 2-core machine's request overhead (CI measured 3.1 s against the 3 s it had, decision 0109)
+            assert time.monotonic() - started < REDIS_TIMEOUT_S + 3.0
             refused = c.post("/jobs", json={"capture_id": capture_id})
             cancel = c.delete(f"/jobs/{job_id}")
             listed = c.get("/jobs").json()["jobs"]
