@@ -30,6 +30,7 @@ def sync_rows(folder):
         return list(csv.DictReader(fh))
 
 
+@pytest.mark.long
 def test_pty_capture_detect_and_calibrate_recover_the_rig(tmp_path, capsys):
     out = tmp_path / "cap"
     with EmulatorProcess() as emu:

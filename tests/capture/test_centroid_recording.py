@@ -32,6 +32,7 @@ def capture(tmp_path, name: str, url: str = SIM, images: str = "all", **kwargs):
     return out, result
 
 
+@pytest.mark.long
 def test_the_points_level_written_as_it_goes_is_what_detection_of_the_images_gives(tmp_path):
     with_images, result = capture(tmp_path, "all")
     assert result.error is None and result.frame_sets == FRAMES

@@ -33,6 +33,7 @@ SHORT = Plan(jobs=20, workers=3, worker_kills=3, whole_worker_every=0, redis_res
 # record is a compare-and-set, JobStore.set_outcome). Since then 35 of 36 runs passed: 21 of 22 at a
 # load of 17-36 (the one failure's output was lost) and 14 of 14 in a row at a load of 8-21
 # (2026-11-28, 11:25-11:59 UTC). It gates again; each assertion's message carries the run's report.
+@pytest.mark.long
 def test_every_accepted_job_ends_exactly_once_under_chaos(tmp_path):
     report = run(SHORT, tmp_path)
     why = "\n" + table(SHORT, report)  # the run's whole report beside any failed assertion

@@ -1,6 +1,7 @@
 """Refinement against seeded rigs; tolerances come from the Cramér-Rao bound of the injected noise."""
 
 import numpy as np
+import pytest
 
 from wandcal.calib.geometry import camera_centers, kabsch
 from wandcal.calib.judge.crb import gauge_errors, pose_crb
@@ -157,6 +158,7 @@ def test_paper_method_runs_to_a_fixed_point():
     # bench/bench_acceptance.py measures it at 8 x 1500.
 
 
+@pytest.mark.long
 def test_paper_stops_within_a_fraction_of_sigma_of_the_plain_rounds_fixed_point(monkeypatch):
     """The default rounds (jumps along the tail, each LP to LP_TOL) stop where they estimate the
     cameras within STOP_SIGMA of their smallest standard error from the fixed point (decision 0060).

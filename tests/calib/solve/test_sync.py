@@ -59,7 +59,7 @@ def test_offsets_found_within_a_twentieth_of_a_frame_and_the_rig_as_good_as_sync
     assert np.sqrt(np.mean(np.square(errors))) <= RIG_RATIO * np.sqrt(np.mean(np.square(synced)))
 
 
-@pytest.mark.parametrize("frames", [600, 1500])
+@pytest.mark.parametrize("frames", [600, pytest.param(1500, marks=pytest.mark.long)])
 def test_predicted_standard_error_matches_the_spread_over_seeds(frames):
     """sum of z^2 over independent seeds (one camera each: offsets share the reference's noise)
     lies within the chi^2 bounds of that many degrees of freedom, for a short recording and a

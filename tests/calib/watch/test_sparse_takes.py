@@ -15,6 +15,7 @@ from wandcal.calib.watch.take import TakeBlobs
 NOISE_PX = 0.3
 
 
+@pytest.mark.long
 def test_a_camera_knocked_too_far_to_follow_is_named_at_its_frame():
     """1.5 deg at f ~ 1100 px moves its images ~30 px, past the 12 px its blobs are looked for in:
     it finds none of its markers from then on, and is named moved there (lost), not left "ok"."""
@@ -27,6 +28,7 @@ def test_a_camera_knocked_too_far_to_follow_is_named_at_its_frame():
     assert abs(health.moved_at - move.frame) <= WINDOW_FRAMES
 
 
+@pytest.mark.long
 def test_frame_numbers_with_gaps_are_windows_of_the_frames_held():
     """A digitised take keeps every n-th frame: the same take numbered 0, 7, 14, ... names the same
     camera at the same frame of its own numbering."""

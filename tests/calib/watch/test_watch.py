@@ -38,6 +38,7 @@ def test_matches_are_the_markers():
     assert abs(len(tracks) - 40 * 100) <= 0.02 * 40 * 100  # one track a marker and frame, few split
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("deg, mm", [(0.2, 0.0), (0.0, 2.0)])
 def test_a_knock_is_named_with_its_frame(deg, mm):
     """Knocked after the test's 200-frame baseline and a clean stretch; the take runs on past the knock by
@@ -60,6 +61,7 @@ def test_a_knock_is_named_with_its_frame(deg, mm):
     assert abs(solved.rms_px - NOISE_PX) < 0.1  # the markers fit it as well as the noise allows
 
 
+@pytest.mark.long
 def test_a_camera_moved_before_the_take_is_named():
     move = CameraMove(9, 0, 0.2, 1.0)
     sim = simulate_take(12, 500, noise_px=NOISE_PX, moves=(move,), seed=6)
@@ -73,6 +75,7 @@ def test_a_camera_moved_before_the_take_is_named():
     assert err_mm < 4 * solved.center_std_mm, (err_mm, solved.center_std_mm)
 
 
+@pytest.mark.long
 def test_a_drift_is_told_from_a_knock():
     move = CameraMove(7, 300, 0.3, 0.0, drift_frames=400)
     sim = simulate_take(12, 1200, noise_px=NOISE_PX, moves=(move,), seed=3)
@@ -84,6 +87,7 @@ def test_a_drift_is_told_from_a_knock():
     assert 0.5 * move.drift_frames <= health.drift_frames <= 2 * move.drift_frames
 
 
+@pytest.mark.long
 def test_a_clean_take_raises_no_alarm():
     """80 windows past the 20-window baseline, each tested as the end of the test's 30-window span (the
     false-alarm rate itself is bench_watch's count over 100,000 frames); each camera's residual rms rests on
