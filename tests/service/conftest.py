@@ -55,7 +55,7 @@ class Server:
 
     def client(self, **kwargs) -> httpx.Client:
         headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
-        return httpx.Client(base_url=self.url + "/api/v1", headers=headers, timeout=30.0, **kwargs)
+        return httpx.Client(base_url=self.url + "/api/v1", headers=headers, timeout=120.0, **kwargs)  # a first report is drawn on the GET: >30 s on a busy machine
 
     def start(self, timeout_s: float = STARTUP_TIMEOUT_S) -> Server:
         with open(self.log, "ab") as log:  # the server writes through its own copy of the descriptor

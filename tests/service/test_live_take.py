@@ -91,7 +91,8 @@ def standing(watch_standing):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("move", [f"&move=cam3:{PAGE_KNOCK}:0.3:2", ""], ids=["knock", "clean"])
+@pytest.mark.parametrize("move", [pytest.param(f"&move=cam3:{PAGE_KNOCK}:0.3:2", id="knock"),
+                                  pytest.param("", id="clean", marks=pytest.mark.long)])
 def test_the_live_take_names_only_the_knocked_camera_at_its_frame(standing, move):
     url = PAGE_TAKE + move
     cameras = _scene(url, PAGE_SETS)

@@ -24,6 +24,7 @@ def rows(browser) -> dict:
                       "[r.dataset.watchCamera, r.dataset.status]))")
 
 
+@pytest.mark.long
 def test_the_live_panel_shows_each_cameras_health_and_offers_the_resolve(make_server, tmp_path, watch_standing):
     standing = json.loads(watch_standing.read_text())  # 6 cameras, seed 7, calibrated (tests/service/conftest.py)
     server = make_server(workers=1).start()

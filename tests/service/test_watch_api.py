@@ -45,6 +45,7 @@ def take_part(folder, text: str | None = None) -> dict:
     return {TAKE_FILE: (TAKE_FILE, text if text is not None else (folder / TAKE_FILE).read_bytes(), "text/csv")}
 
 
+@pytest.mark.long
 def test_watch_over_http_gives_the_cli_figures(make_server, root, tmp_path):
     server = make_server(workers=1).start()
     with server.client() as c:
@@ -107,6 +108,7 @@ def test_bad_input_is_a_4xx_naming_the_part(make_server, root, tmp_path):
     assert len(list((tmp_path / "data" / "takes").iterdir())) == 1  # a refused take leaves nothing behind
 
 
+@pytest.mark.long
 def test_watch_on_an_rq_worker(make_server, root, tmp_path, watch_knock):
     """The same take watched by an rq worker that never sees the data folder: the report
     ``wandcal watch --json`` printed of the same result and take (tests/service/conftest.py)."""

@@ -75,6 +75,7 @@ def _solve(seed, cameras=6, frames=400):
     return sim, labels, _mislabelled(sim, blobs, labels), blobs.frame, setup.model.poses(x), model.poses(x2), truth_model
 
 
+@pytest.mark.long
 def test_t_wand_labels_and_accuracy_against_the_bound_and_the_ends_alone():
     def runs():
         for seed in range(6):
