@@ -132,7 +132,7 @@ def _record(args) -> int:
     with ProgressLine(quiet=args.quiet) as status, guidance or contextlib.nullcontext():
         result = record(cameras, trigger, args.out, rig, frames=args.frames, static_frames=args.static_frames,
                         rate_hz=args.rate, progress=_shown_on(status), between=between,
-                        events=lambda m: print(f"\n{m}", file=sys.stderr), images=args.images, guidance=guidance,
+                        events=lambda m: _tell(f"\n{m}"), images=args.images, guidance=guidance,
                         until=until, detect=detect)
         interrupted = result.error == STOPPED_BY_USER
         final = _final_guidance(guidance) if guidance is not None else None
@@ -144,6 +144,14 @@ def _record(args) -> int:
         status.done(f"recorded {result.frame_sets} wand sets and {result.static_sets} static sets into "
                     f"{result.folder}; {result.complete_sets} of {total} have every camera's frame")
     return _print_recorded(result, final, interrupted=interrupted)
+
+
+def _tell(line: str) -> None:
+    """A line on stderr while recording. A terminal that hung up fails the write (EIO) before its
+    SIGHUP reaches the handler: that is no error, the SIGHUP stops the capture with its files
+    written (an OSError here had left no capture.json, the interrupt landing in the clean-up)."""
+    with contextlib.suppress(OSError):
+        print(line, file=sys.stderr)
 
 
 def _final_guidance(guidance) -> dict:
@@ -249,7 +257,7 @@ def _shown_on(status):
             advice = p.guidance["advice"][0] if p.guidance["advice"] else "enough: you can stop"
             if advice != told[0] and p.guidance["frames"]:
                 told[0] = advice
-                print(f"\nguidance: {advice}", file=sys.stderr)
+                _tell(f"\nguidance: {advice}")
         status.update(text)
 
     return show

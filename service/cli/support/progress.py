@@ -100,8 +100,11 @@ class ProgressLine:
 
     def _draw(self, now: float) -> None:
         self.last_draw = now
-        self.stream.write("\r\033[K" + f"[{now - self.start:6.1f} s] {self.text}"[:self._width()])
-        self.stream.flush()
+        try:
+            self.stream.write("\r\033[K" + f"[{now - self.start:6.1f} s] {self.text}"[:self._width()])
+            self.stream.flush()
+        except OSError:  # the terminal hung up (EIO): a progress line is not worth failing the work for
+            self.quiet = True
 
     def _tick(self) -> None:
         while not self._stop.wait(TICK_S):
