@@ -19,6 +19,11 @@ RATE_HZ = 100.0
 WATCH_TIMEOUT_S = 300.0
 
 
+def shown_count(browser) -> str:
+    """The frame count the live panel's summary starts with."""
+    return browser.js("document.querySelector('#watch-summary').textContent.split(' ')[0]")
+
+
 def rows(browser) -> dict:
     return browser.js("Object.fromEntries([...document.querySelectorAll('#watch-table tbody tr')].map((r) => "
                       "[r.dataset.watchCamera, r.dataset.status]))")
@@ -42,12 +47,12 @@ def test_the_live_panel_shows_each_cameras_health_and_offers_the_resolve(make_se
         # busy machine the watch ends after the capture: it counts what was recorded, decision 0109)
         seen, deadline = [], time.monotonic() + WATCH_TIMEOUT_S
         while time.monotonic() < deadline and c.get("/watch/live").json()["state"] == "watching":
-            frames = browser.js("document.querySelector('#watch-summary').textContent.split(' ')[0]")
+            frames = shown_count(browser)
             if not seen or seen[-1] != frames:
                 seen.append(frames)
             time.sleep(0.2)
         browser.wait_for("document.querySelector('#live-watch').dataset.state === 'done'", WATCH_TIMEOUT_S)
-        seen.append(browser.js("document.querySelector('#watch-summary').textContent.split(' ')[0]"))
+        seen.append(shown_count(browser))
         # a part of the take shown while it was watched, then more: the page follows it, not only its end
         assert seen[0] and int(seen[0]) < TAKE_SETS and int(seen[-1]) > int(seen[0]), seen
         health = rows(browser)
