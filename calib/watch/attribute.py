@@ -77,20 +77,23 @@ def moved_pose(R: np.ndarray, t: np.ndarray, c: int, change: np.ndarray) -> tupl
     return R2, t2
 
 
-def window_sums(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[PaddedFrames, Tracks]],
-                excluded: set[int], windows: tuple[int, int, int], cams: list[int] | None = None) -> tuple[np.ndarray, ...]:
-    """Every camera's residuals at poses R, t, window by window over windows (first_frame, w0, w1): window
-    w holds frames ``first_frame + w * WINDOW_FRAMES`` on, w0 <= w < w1. ``pieces``: the take's padded
-    frames and tracks (tracks matched at the standing poses) covering them; cameras ``excluded`` left out
-    of the markers. Returns g (W, C, 6), H (W, C, 6, 6) (the normal equations in each camera's pose),
-    rss (W, C) px^2 (squared residuals at these poses: about the window's fit and what the fit took)
-    and n (W, C) the residuals kept (:func:`~wandcal.calib.watch.health.camera_windows`, its markers
-    triangulated without each camera by one down-dated step: :data:`TRIANGULATION`). ``cams``: the
-    cameras measured (the others' rows zero); all when None."""
+@dataclass(frozen=True, eq=False)
+class _Part:
+    """One piece's frames in the attribution's windows: w (F,) each frame's window from w0, padded its
+    frames, tracks its tracks with the excluded cameras' views taken out. Cut once and measured under
+    every hypothesis (each hypothesis cut them again before, and built their blob trees again)."""
+
+    w: np.ndarray
+    padded: PaddedFrames
+    tracks: Tracks
+
+
+def window_parts(pieces: list[tuple[PaddedFrames, Tracks]], excluded: set[int],
+                 windows: tuple[int, int, int]) -> list[_Part]:
+    """The pieces' frames and tracks in ``windows`` (first_frame, w0, w1): window w holds frames
+    ``first_frame + w * WINDOW_FRAMES`` on, w0 <= w < w1; cameras ``excluded`` left out of the tracks."""
     first, w0, w1 = windows
-    n_c = len(R)
-    g, H = np.zeros((w1 - w0, n_c, 6)), np.zeros((w1 - w0, n_c, 6, 6))
-    rss, n = np.zeros((w1 - w0, n_c)), np.zeros((w1 - w0, n_c))
+    parts = []
     for padded, tracks in pieces:
         w_of = (padded.frames - first) // WINDOW_FRAMES - w0
         sel = (w_of >= 0) & (w_of < w1 - w0)
@@ -100,12 +103,28 @@ def window_sums(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[Padde
         mine = np.isin(tracks.frame, part.frames)
         views = tracks.views[mine].copy()
         views[:, sorted(excluded)] = -1
-        cw = camera_windows(rig, R, t, part, Tracks(tracks.frame[mine], views, tracks.X[mine]), cams=cams,
-                            method=TRIANGULATION)
-        g += sum_by(w_of[sel], cw.g, w1 - w0)
-        H += sum_by(w_of[sel], cw.H, w1 - w0)
-        rss += sum_by(w_of[sel], cw.sse, w1 - w0)
-        n += sum_by(w_of[sel], cw.n, w1 - w0)
+        parts.append(_Part(w_of[sel], part, Tracks(tracks.frame[mine], views, tracks.X[mine])))
+    return parts
+
+
+def window_sums(rig: Rig, R: np.ndarray, t: np.ndarray, parts: list[_Part], n_windows: int,
+                cams: list[int] | None = None) -> tuple[np.ndarray, ...]:
+    """Every camera's residuals at poses R, t, window by window over the ``n_windows`` windows of
+    ``parts`` (:func:`window_parts`: the take's padded frames and tracks matched at the standing poses).
+    Returns g (W, C, 6), H (W, C, 6, 6) (the normal equations in each camera's pose), rss (W, C) px^2
+    (squared residuals at these poses: about the window's fit and what the fit took) and n (W, C) the
+    residuals kept (:func:`~wandcal.calib.watch.health.camera_windows`, its markers triangulated without
+    each camera by one down-dated step: :data:`TRIANGULATION`). ``cams``: the cameras measured (the
+    others' rows zero); all when None."""
+    n_c = len(R)
+    g, H = np.zeros((n_windows, n_c, 6)), np.zeros((n_windows, n_c, 6, 6))
+    rss, n = np.zeros((n_windows, n_c)), np.zeros((n_windows, n_c))
+    for part in parts:
+        cw = camera_windows(rig, R, t, part.padded, part.tracks, cams=cams, method=TRIANGULATION)
+        g += sum_by(part.w, cw.g, n_windows)
+        H += sum_by(part.w, cw.H, n_windows)
+        rss += sum_by(part.w, cw.sse, n_windows)
+        n += sum_by(part.w, cw.n, n_windows)
     rss += np.einsum("wci,wcij,wcj->wc", g, np.linalg.pinv(H, rcond=1e-10, hermitian=True), g)
     return g, H, rss, n
 
@@ -139,16 +158,17 @@ def critical_t(batches: int, comparisons: int) -> float:
 
 def attribute(rig: Rig, R: np.ndarray, t: np.ndarray, pieces: list[tuple[PaddedFrames, Tracks]], excluded: set[int],
               cams: list[int], base: tuple[np.ndarray, np.ndarray], windows: tuple[int, int, int]) -> Attribution:
-    """Which of the cameras ``cams`` moved over ``windows`` (:func:`window_sums`'), the module's note.
+    """Which of the cameras ``cams`` moved over ``windows`` (:func:`window_parts`'), the module's note.
     base: each camera's baseline (p_0 (C, 6), its test's reference pose change; s^2 (C,) px^2). Each
     candidate's change is fitted over all the windows from its residuals at the standing poses (the
     markers the others place), less its p_0."""
     if len(cams) == 1:
         return Attribution((cams[0],))
     p0, s2 = base
-    g, H = window_sums(rig, R, t, pieces, excluded, windows, cams)[:2]  # only the candidates' changes are fitted
+    parts, n_windows = window_parts(pieces, excluded, windows), windows[2] - windows[1]
+    g, H = window_sums(rig, R, t, parts, n_windows, cams)[:2]  # only the candidates' changes are fitted
     changes = {c: solve_pose_change(H[:, c].sum(0), g[:, c].sum(0)) - p0[c] for c in cams}
-    each = [window_sums(rig, *moved_pose(R, t, c, changes[c]), pieces, excluded, windows)[2:] for c in cams]
+    each = [window_sums(rig, *moved_pose(R, t, c, changes[c]), parts, n_windows)[2:] for c in cams]
     held = np.all([n[:, [c for c in range(len(R)) if c not in excluded]].sum(1) > 0 for _, n in each], axis=0)
     ll = np.array([window_loglik(rss, s2, excluded)[held] for rss, _ in each])  # windows with residuals under all
     order = np.argsort(-ll.sum(1), kind="stable")

@@ -236,16 +236,13 @@ def _information(R, t, focal: np.ndarray, p: np.ndarray, cam: np.ndarray, X: np.
 def _nearest_blob(Rc, tc, focal: float, padded: PaddedFrames, c: int, f_idx, X):
     """c's blob nearest each point's projection within :data:`HEALTH_PX`, clearly the nearest:
     (frame index (P,), blob xy (P, 2), found (P,) bool)."""
-    from scipy.spatial import cKDTree
-
     Xc = X @ Rc.T + tc
     found = np.zeros(len(X), bool)
     xy = np.full((len(X), 2), np.nan)
-    fi, k = np.nonzero(np.isfinite(padded.xy[:, c, :, 0]))
+    fi, k, tree = padded.blob_tree(c, focal)
     ahead = np.isfinite(Xc[:, 2]) & (Xc[:, 2] > 0)
-    if not len(fi) or not ahead.any():
+    if tree is None or not ahead.any():
         return f_idx, xy, found
-    tree = cKDTree(np.column_stack([padded.xy[fi, c, k] * focal, fi * FRAME_GAP_PX]))
     q = np.flatnonzero(ahead)
     proj = Xc[q, :2] / Xc[q, 2:3] * focal
     d, j = tree.query(np.column_stack([proj, f_idx[q] * FRAME_GAP_PX]), k=2, distance_upper_bound=CLEAR_RATIO * HEALTH_PX)

@@ -27,7 +27,7 @@ import numpy as np
 
 from wandcal.calib.rig import Rig
 from wandcal.calib.triangulate import refine_points, reprojection_errors
-from wandcal.calib.watch.take import PaddedFrames
+from wandcal.calib.watch.take import FRAME_GAP_PX, PaddedFrames
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -37,7 +37,6 @@ EPIPOLAR_PX = 2.0  # a blob's distance from the epipolar line: 0.3 px noise in t
 ASSOCIATE_PX = 6.0  # a third camera's blob this near the pair's projected point confirms it (the two-ray
 #                     point's own error projects to ~1 px; blobs of a 40-marker take lie ~150 px apart)
 GATE_PX = 3.0  # after the full triangulation a view this far from its point is dropped (10 sigma at 0.3 px)
-FRAME_GAP_PX = 1e7  # frames side by side in one k-d tree, this far apart: past any image's size
 MIN_VIEWS = 3  # a pair and one camera that confirms it
 CLEAR_RATIO = 2.0  # a camera's nearest blob must be this much nearer than its second to be the marker's view
 SEED_ANGLE_DEG = 60.0  # a seed pair's optical axes this far apart: wide enough to triangulate, close enough to share markers

@@ -12,6 +12,8 @@ from wandcal.calib.errors import CalibrationError
 from wandcal.calib.geometry import undistort_by_camera
 from wandcal.calib.rig import Rig, WandObservations
 
+FRAME_GAP_PX = 1e7  # frames side by side in one k-d tree, this far apart: past any image's size
+
 
 @dataclass(frozen=True, eq=False)
 class TakeBlobs(WandObservations):
@@ -53,6 +55,23 @@ class PaddedFrames:
         """(..., 2) the normalised coordinates of blob ``rows`` (any shape) of this batch."""
         first, table = self._by_row
         return table[np.asarray(rows) - first]
+
+    def blob_tree(self, c: int, focal: float):
+        """(frame index (B,), slot (B,), a k-d tree of (x, y) in pixels and the frame index times
+        :data:`FRAME_GAP_PX`) of camera c's blobs, built once a camera (focal:
+        its focal length, pixels)."""
+        key = (c, float(focal))
+        if key not in self._trees:
+            from scipy.spatial import cKDTree
+
+            fi, k = np.nonzero(np.isfinite(self.xy[:, c, :, 0]))
+            tree = cKDTree(np.column_stack([self.xy[fi, c, k] * focal, fi * FRAME_GAP_PX])) if len(fi) else None
+            self._trees[key] = (fi, k, tree)
+        return self._trees[key]
+
+    @cached_property
+    def _trees(self) -> dict:
+        return {}
 
     @cached_property
     def _by_row(self) -> tuple[int, np.ndarray]:
