@@ -61,7 +61,8 @@ class LiveWatch:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._doc: dict = {"state": "watching", "capture_id": capture_id, "standing": standing, "report": None,
-                           "updated": time.time(), "error": None}
+                           "updated": time.time(), "error": None,
+                           "batch_frames": BATCH_FRAMES}
         self._next = 0  # the first frame of the next batch
         self._begun = False  # the stream has its baseline
         self._baseline = TakeBlobs(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2)))  # not yet fed
@@ -104,6 +105,7 @@ class LiveWatch:
                 self._parse(lines, rows)
                 if rows.frame:
                     last = max(last, *rows.frame)
+                    self._set(recorded_frame=last)  # how far the recording is: the page shows how far behind the watch is
                 stream = self._feed(rows, stream, last, ended)
                 if ended or self._stop.is_set():
                     break
@@ -120,7 +122,8 @@ class LiveWatch:
             rows.uv.append((float(u), float(v)))
 
     def _feed(self, rows: _Rows, stream: WatchStream | None, last: int, ended: bool) -> WatchStream | None:
-        """Feed every whole batch (all of them once the capture ended) and publish the report."""
+        """Feed every whole batch (all of them once the capture ended), the report published after each: a
+        watch that trails the recording (a busy machine) still shows each batch as it is done."""
         if stream is None:
             if not rows.frame:
                 return None
@@ -134,23 +137,24 @@ class LiveWatch:
             stream.begin(blobs, idx)
             self._baseline = blobs
             self._begun = True
-        fed = False
         while self._next + BATCH_FRAMES <= last or (ended and self._next <= last):
             stop = self._next + BATCH_FRAMES
             blobs, idx = self._batch(rows, stop)
+            self._next = stop
             if len(blobs):
                 stream.add(blobs, idx)
-                fed = True
-            self._next = stop
-        if fed or ended:
-            if ended:
-                stream.close()  # the attribution's last look at a "one of" move, as ``wandcal watch`` takes it
-            report = stream.report(min(last, self._next - 1))
-            doc = report_json(report)
-            for entry, health in zip(doc["cameras"], report.cameras):
-                entry["peak"] = round(health.peak, 1)  # the test's largest statistic so far, for the page's bar
-            self._set(report=doc, frames=stream.frames)
+                self._publish(stream, min(last, stop - 1))
+        if ended:
+            stream.close()  # the attribution's last look at a "one of" move, as ``wandcal watch`` takes it
+            self._publish(stream, min(last, self._next - 1))
         return stream
+
+    def _publish(self, stream: WatchStream, last: int) -> None:
+        report = stream.report(last)
+        doc = report_json(report)
+        for entry, health in zip(doc["cameras"], report.cameras):
+            entry["peak"] = round(health.peak, 1)  # the test's largest statistic so far, for the page's bar
+        self._set(report=doc, frames=stream.frames)
 
     def _batch(self, rows: _Rows, stop: int) -> tuple[TakeBlobs, np.ndarray]:
         """The blobs of frames before ``stop``: the baseline's first, then the rows read."""

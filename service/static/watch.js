@@ -37,7 +37,8 @@ export function renderWatch(doc, liveState, shownJob, resolve) {
   if (!report) { $("#watch-summary").textContent = doc.state === "watching" ? "waiting for the first 200 frames…" : ""; }
   else {
     $("#watch-summary").textContent = `${report.frames} frames (${report.first_frame}–${report.last_frame}), `
-      + `${(report.markers / Math.max(1, report.frames)).toFixed(1)} markers a frame; against ${doc.standing}`;
+      + `${(report.markers / Math.max(1, report.frames)).toFixed(1)} markers a frame; against ${doc.standing}`
+      + behindText(doc, report);
     $("#watch-table tbody").replaceChildren(...report.cameras.map((c) => el("tr",
       { "data-watch-camera": c.id, "data-status": c.status },
       el("td", {}, c.id), el("td", { class: "health-" + c.status }, STATUS_WORDS[c.status] || c.status),
@@ -53,6 +54,13 @@ export function renderWatch(doc, liveState, shownJob, resolve) {
   $("#watch-resolve").hidden = !(moved.length && doc.state === "done") || !!resolve;
   $("#watch-resolve").textContent = `Re-solve ${moved.join(", ")}`;
   renderResolve(resolve);
+}
+
+// a watch that trails the recording by more than the batch it waits to fill says by how much: on a busy
+// machine it catches up batch by batch
+function behindText(doc, report) {
+  const behind = (doc.recorded_frame ?? report.last_frame) - report.last_frame;
+  return doc.state === "watching" && behind > doc.batch_frames ? `; ${behind} frames behind the recording` : "";
 }
 
 function renderResolve(w) {
