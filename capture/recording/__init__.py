@@ -12,4 +12,5 @@ as they arrive, and the live guidance computed while it runs.
 | :mod:`~wandcal.capture.recording.stamps` | a recording's camera timestamps (``sync.csv``) and frame rate (``capture.json``), read and checked |
 | :mod:`~wandcal.capture.recording.camera_rig` | the rig of the cameras a capture opens (rig.json or the simulated scene's) |
 | :mod:`~wandcal.capture.recording.live_guidance` | the guidance recomputed in the background while recording |
+| :mod:`~wandcal.capture.recording.missed` | what to do about the sets the cameras missed |
 """

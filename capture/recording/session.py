@@ -25,6 +25,7 @@ from pathlib import Path
 from wandcal.calib.detect import CameraDetector, DetectConfig
 from wandcal.calib.rig import Rig
 from wandcal.capture.recording.framesets import Assembler, FrameSet
+from wandcal.capture.recording.missed import missed_advice
 from wandcal.capture.recording.readers import END, FrameDetector, Readers
 from wandcal.capture.recording.record import ImagePolicy, Recorder
 from wandcal.capture.recording.writer import ImageWriter
@@ -156,6 +157,8 @@ def record(cameras: list[CameraDriver], trigger: SerialTrigger | None, out: Path
         finally:
             readers.join()
             per_camera = _per_camera(assembler, ids, say)
+            for line in missed_advice(per_camera, recorder.static_sets + recorder.frame_sets):
+                say(line)  # kept in capture.json, told as it ends (the CLI's stderr, the service's live status)
             result = CaptureResult(out, recorder.static_sets, recorder.frame_sets, loop.complete, per_camera,
                                    messages, error, writer.high_water, writer.max_queued)
             recorder.close({"state": "partial" if error else "complete", "static_sets": result.static_sets,

@@ -62,9 +62,10 @@ def test_live_capture_over_http_then_calibrate(make_server, tmp_path):
     server = make_server(workers=1).start()
     with server.client() as c:
         assert c.get("/capture").json()["state"] == "idle"
-        # a scripted run asks for no pause after the static object
+        # a scripted run asks for no pause after the static object; 50 sets a second, which three simulated cameras
+        # keep up with on a busy 2-core machine (at 200 one dropped 12 of 70 frames there, session 23)
         r = c.post("/capture/start", json={"cameras": [SIM_URL], "trigger": None, "frames": WAND_SETS,
-                                           "static_frames": STATIC_SETS, "rate_hz": 200, "pause_after_static": False})
+                                           "static_frames": STATIC_SETS, "rate_hz": 50, "pause_after_static": False})
         assert r.status_code == 202, r.text
         started = r.json()
         assert started["state"] == "running" and started["capture_id"] and started["id"]
