@@ -4,6 +4,7 @@ falling behind the rate; one camera alone, its trigger input or link."""
 from __future__ import annotations
 
 import json
+import re
 
 from wandcal.capture.recording.missed import MISSED_SHARE, missed_advice
 from wandcal.drivers.trigger_emulator import EmulatorProcess
@@ -40,7 +41,8 @@ def test_a_camera_that_drops_half_its_frames_is_named(tmp_path, capsys):
                      "--out", str(tmp_path / "cap")])
     out, err = capsys.readouterr()
     assert code == 0, err
-    assert "cam2: " in out and "20 missed" not in out.split("cam2: ")[0]
+    missed = int(re.search(r"^cam2: \d+ frames? delivered, (\d+) missed", out, re.M).group(1))
+    assert missed >= 20  # the 20 dropped, and any a busy machine's start lost
     # cam2 named whatever the others missed at the start on a busy machine, and kept in capture.json
     assert "\ncam2 missed " in err and "check its trigger input" in err
     log = json.loads((tmp_path / "cap" / "capture.json").read_text())
