@@ -1,7 +1,14 @@
 import os
+import sys
 from pathlib import Path
 
 import pytest
+
+# Bytecode is kept even where the environment says not to (PYTHONDONTWRITEBYTECODE=1 on this machine's image):
+# every test module's assertion rewrite and every `wandcal` subprocess's import otherwise compiles its
+# source again (the collection spent 95 of its 196 s compiling and rewriting, session 24).
+sys.dont_write_bytecode = False
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("WANDCAL_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -36,3 +43,10 @@ def pytest_terminal_summary(terminalreporter):
     if _WORKER_SECONDS:
         terminalreporter.write_line("seconds in tests by xdist worker: " + ", ".join(
             f"{w} {s:.0f}" for w, s in sorted(_WORKER_SECONDS.items())))
+
+
+def long_except(values, keep, ids=None) -> list:
+    """``values`` as parameters, each but those in ``keep`` marked ``long`` (decision 0111): the default
+    suite runs one or two cases of a path, ``-m long`` the rest. ``ids``: a function naming a value."""
+    name = ids or str
+    return [pytest.param(v, id=name(v), marks=() if name(v) in keep else pytest.mark.long) for v in values]

@@ -198,6 +198,7 @@ def check_line(argv: list[str], r: subprocess.CompletedProcess, cwd: Path) -> No
         assert (cwd / folder / "wand.csv").is_file()
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 @pytest.mark.slow
 def test_readme_tour_runs_top_to_bottom(tmp_path, shared_data_or_none):
     lines = [fast(argv) for argv in tour_lines()]
@@ -245,6 +246,7 @@ def shared_data_or_none():
     return root if (root / SESSION).is_file() else None
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 @pytest.mark.slow
 def test_readme_capture_example_as_written(tmp_path):
     """The tour's capture line at its full size (3000 wand sets after 100 of the L-frame), with the

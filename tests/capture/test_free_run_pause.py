@@ -80,3 +80,25 @@ def test_no_pause_records_the_wand_right_after_the_static_sets(tmp_path):
     result = _record(cams, tmp_path / "cap", None)
     assert result.error is None and result.frame_sets == FRAMES
     assert np.allclose(_sequences(cams, tmp_path / "cap")[0], STATIC, atol=0.01)
+
+
+def test_a_starved_reader_still_sees_the_clock_run_through_the_pause():
+    # a busy host drains a camera only a few times in the pause: the first wand frame still carries the
+    # time its free-running clock reached, not a period per grab (a CI run drained 13 of 100, session 23)
+    now = [0.0]
+    base = open_cameras("sim://?cameras=2&seed=3")[0]
+    cam = SimCamera(base.camera_id, base.url, base.scene, base.index, clock=lambda: now[0],
+                    sleep=lambda s: now.__setitem__(0, now[0] + s))
+    cam.script(STATIC, FRAMES)
+    cam.open()
+    cam.configure(fps=RATE_HZ)
+    stamps = [cam.read(timeout=1.0).timestamp_us for _ in range(STATIC)]
+    for _ in range(3):  # three grabs thrown away while the operator takes 0.5 s
+        cam.discard(timeout=1.0)
+    now[0] += PAUSE_S
+    first = cam.read(timeout=1.0)
+    assert first.sequence == STATIC  # the scene held
+    periods = (first.timestamp_us - stamps[-1]) / cam._clock_scale / PERIOD_US
+    assert periods >= PAUSE_S * RATE_HZ, periods
+    second = cam.read(timeout=1.0)
+    assert second.timestamp_us - first.timestamp_us == pytest.approx(PERIOD_US * cam._clock_scale, abs=1)

@@ -55,6 +55,9 @@ class Server:
 
     def client(self, **kwargs) -> httpx.Client:
         headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
+        # a connection per request: httpx does not resend a request on a kept-alive connection that the
+        # server closed as it was sent (a browser does), and on a starved CI box that race lost a test
+        kwargs.setdefault("limits", httpx.Limits(max_keepalive_connections=0))
         return httpx.Client(base_url=self.url + "/api/v1", headers=headers, timeout=120.0, **kwargs)  # a first report is drawn on the GET: >30 s on a busy machine
 
     def start(self, timeout_s: float = STARTUP_TIMEOUT_S) -> Server:
@@ -153,13 +156,20 @@ WATCH_KNOCK = ("--take", "--cameras", 6, "--frames", 600, "--seed", 7, "--move",
 
 
 @pytest.fixture(scope="session")
-def watch_knock(watch_standing) -> tuple[Path, subprocess.CompletedProcess]:
+def watch_knock_take(watch_standing) -> Path:
     """The watch tests' knocked take (test_cli_watch, test_watch_api): ``wandcal simulate --take``
-    of :data:`WATCH_KNOCK` beside :func:`watch_standing` (its folder), and ``wandcal watch STANDING
-    KNOCK --json --write knock_updated.json`` run on it once a worker (each file ran the same command)."""
+    of :data:`WATCH_KNOCK` beside :func:`watch_standing` (its folder)."""
     knock = watch_standing.parent / "knock"
     r = wandcal("simulate", knock, *WATCH_KNOCK)
     assert r.returncode == 0, r.stderr
+    return knock
+
+
+@pytest.fixture(scope="session")
+def watch_knock(watch_standing, watch_knock_take) -> tuple[Path, subprocess.CompletedProcess]:
+    """:func:`watch_knock_take`, and ``wandcal watch STANDING KNOCK --json --write knock_updated.json``
+    run on it once a worker (each file ran the same command): minutes here, so only the long tests ask."""
+    knock = watch_knock_take
     return knock, wandcal("watch", watch_standing, knock, "--json", "--write", knock.parent / "knock_updated.json",
                           timeout=900)
 

@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 
 def wandcal(*args, cwd=None):
@@ -43,6 +44,7 @@ def test_bad_input_exits_2_with_a_message(tmp_path):
     assert "wand.length_m" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_calibrate_an_image_level_capture_detects_first(tmp_path):
     out = tmp_path / "cap"
     r = wandcal("capture", "--camera", "sim://?cameras=3&seed=4&frames=120&static=10", "--frames", "120",

@@ -14,10 +14,10 @@ wandcal = functools.partial(run_wandcal, timeout=900)  # a take's watch: the slo
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory, watch_standing, watch_knock):
+def root(tmp_path_factory, watch_standing, watch_knock_take):
     root = tmp_path_factory.mktemp("watch")
     shutil.copyfile(watch_standing, root / "result.json")  # 6 cameras, seed 7, calibrated (tests/service/conftest.py)
-    shutil.copytree(watch_knock[0], root / "knock")  # cam2 knocked at 300 (tests/service/conftest.py)
+    shutil.copytree(watch_knock_take, root / "knock")  # cam2 knocked at 300 (tests/service/conftest.py)
     for args in (("simulate", root / "clean", "--take", "--cameras", 6, "--frames", 400, "--seed", 7),
                  ("simulate", root / "after", "--take", "--cameras", 6, "--frames", 300, "--seed", 7,
                   "--move", "cam2:0:0.3:2")):
@@ -26,6 +26,7 @@ def root(tmp_path_factory, watch_standing, watch_knock):
     return root
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_a_knocked_camera_is_named_and_resolved(root, watch_knock):
     r = wandcal("watch", root / "result.json", root / "knock", "--write", root / "updated.json")
     assert r.returncode == 1, r.stderr

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from tests.service.test_api import _frameset_files, app_client, upload  # noqa: F401 (app_client: a fixture)
 from wandcal.calib.sim.simulate import simulate_capture
 from wandcal.capture.folder import rig_to_json
@@ -34,6 +36,7 @@ def test_guidance_of_an_uploaded_capture(app_client, small_capture):  # noqa: F8
     assert r.status_code == 404
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_guidance_of_a_streamed_capture_follows_the_frame_sets(app_client):  # noqa: F811 (the fixture imported above)
     sim = simulate_capture(cameras=3, frames=STREAMED_SETS, noise_px=0.3, seed=2, occlusion=0.0)
     # no wait between updates, so each request sees the frame sets sent before it

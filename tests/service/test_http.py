@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from tests.service.conftest import REPO, capture_files, server_env, wait_job
 from wandcal.calib.geometry import kabsch
@@ -54,6 +55,7 @@ def test_upload_solve_and_compare_with_truth(make_server, small_capture):
     assert np.linalg.norm(centers @ R.T + t - truth, axis=1).max() < SHAPE_TOL_M
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_sigkill_mid_job_requeues_once_and_finishes(make_server, big_capture):
     folder, sim = big_capture
     server = make_server(workers=1).start()

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.conftest import long_except
 from tests.service.conftest import wandcal
 from tests.service.test_api import app_client  # noqa: F401 (a fixture)
 from wandcal.calib.rig import WandObservations
@@ -103,7 +104,7 @@ def cli_check(result: Path, capture: Path) -> tuple[int, dict]:
     return r.returncode, json.loads(r.stdout)
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", long_except(KINDS, {"lframe", "three_marker"}))
 def test_check_over_http_answers_as_the_command_line(kind, kinds, app_client):  # noqa: F811 (the fixture)
     folder = _folder(kinds, kind)
     app, c = app_client()
@@ -130,7 +131,7 @@ def test_check_over_http_answers_as_the_command_line(kind, kinds, app_client):  
     assert exported.status_code == 200 and exported.text == r.stdout, exported.text
 
 
-@pytest.mark.parametrize("kind", ["lframe", "three_marker", "planar"])
+@pytest.mark.parametrize("kind", long_except(["lframe", "three_marker", "planar"], {"three_marker"}))
 def test_a_knock_is_named_and_re_solved_over_http_as_on_the_command_line(kind, kinds, app_client, tmp_path):  # noqa: F811
     folder, knocked = kinds[kind], kinds[kind].with_name(kind + "-knocked")
     app, c = app_client()
@@ -162,7 +163,7 @@ def test_a_knock_is_named_and_re_solved_over_http_as_on_the_command_line(kind, k
     assert after["exit_code"] == 0, after
 
 
-@pytest.mark.parametrize("kind", ["wand_points", "points_only", "sparse_digitised"])
+@pytest.mark.parametrize("kind", long_except(["wand_points", "points_only", "sparse_digitised"], {"points_only"}))
 def test_a_re_solve_from_point_tracks_over_http_is_the_command_lines(kind, kinds, app_client, tmp_path):  # noqa: F811
     """--solve-only with the capture's point tracks (and no wand at all for points only), against the
     capture the standing result came from: the HTTP job gives the command line's result."""

@@ -137,6 +137,7 @@ def test_capture_pauses_after_the_static_object_until_continue(make_server):
         assert capture["has_static"] and 0 < capture["frames"] <= WAND_SETS
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_free_running_cameras_pause_until_continue_too(make_server):
     server = make_server(workers=0).start()
     with server.client() as c:
@@ -271,6 +272,7 @@ def watch_guidance(c, capture_id: str, updates: int = GUIDANCE_UPDATES) -> list[
     return seen
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_guidance_changes_over_http_while_recording_and_can_end_the_capture(make_server):
     server = make_server(workers=0, guidance=json.dumps(LOOSE_GUIDANCE)).start()
     with EmulatorProcess() as emu, server.client() as c:

@@ -91,7 +91,7 @@ def standing(watch_standing):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("move", [pytest.param(f"&move=cam3:{PAGE_KNOCK}:0.3:2", id="knock"),
+@pytest.mark.parametrize("move", [pytest.param(f"&move=cam3:{PAGE_KNOCK}:0.3:2", id="knock", marks=pytest.mark.long),
                                   pytest.param("", id="clean", marks=pytest.mark.long)])
 def test_the_live_take_names_only_the_knocked_camera_at_its_frame(standing, move):
     url = PAGE_TAKE + move

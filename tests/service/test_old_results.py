@@ -3,6 +3,7 @@ without their capture) and export in every format."""
 
 import pytest
 
+from tests.conftest import long_except
 from tests.fixtures.results.cases import CAPTURES, CASES, Case, capture
 from wandcal.calib.rig import WandObservations
 from wandcal.capture.folder import read_capture, write_capture
@@ -11,7 +12,7 @@ from wandcal.capture.result_file import read_result
 from wandcal.service.report import INDEX, write_report
 
 
-@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+@pytest.mark.parametrize("case", long_except(CASES, {"solve_only", "points_only"}, ids=lambda c: c.name))
 def test_an_old_result_reports_and_exports(case: Case, tmp_path):
     got = read_result(case.path)
     sim, rig, inputs = capture(CAPTURES.get(case.name, case.name))

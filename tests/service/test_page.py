@@ -34,6 +34,7 @@ VIRTUAL_TIME_BUDGET_MS = 5000
 # the page trusts its own clock within 2 s of the server's (CLOCK_SLACK_S in app.js; virtual time lags
 # while fetches wait), and the Date header it compares with has whole seconds
 PAGE_CLOCK_SLACK_S = 2 + 1
+CHROMIUM_TIMEOUT_S = 90  # a page drawn with 5 s of virtual time; a run that passes takes well under this
 
 
 def artefact(tmp_path, name: str) -> Path:
@@ -46,12 +47,19 @@ def artefact(tmp_path, name: str) -> Path:
 
 
 def chromium(url: str, profile, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         f"--user-data-dir={profile}", f"--virtual-time-budget={VIRTUAL_TIME_BUDGET_MS}", *args, url],
-        capture_output=True, text=True, timeout=120, check=False,
-    )
+    """Chromium's command line on ``url``. Its --virtual-time-budget run now and then never ends on a
+    loaded box (once in CI's 59 minutes, session 24): a run past CHROMIUM_TIMEOUT_S is tried once more."""
+    def run(user_data: Path) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+             f"--user-data-dir={user_data}", f"--virtual-time-budget={VIRTUAL_TIME_BUDGET_MS}", *args, url],
+            capture_output=True, text=True, timeout=CHROMIUM_TIMEOUT_S, check=False)
+
+    try:
+        return run(Path(profile))
+    except subprocess.TimeoutExpired:
+        return run(Path(f"{profile}-again"))  # the killed run's profile may still hold its lock
 
 
 def test_page_shows_captures_jobs_and_the_solved_rig(make_server, small_capture, tmp_path):
@@ -81,6 +89,7 @@ def test_page_shows_captures_jobs_and_the_solved_rig(make_server, small_capture,
     assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_the_rig_panel_shows_the_time_offsets_of_a_capture_out_of_time(make_server, tmp_path):
     """A job with ``"sync": "auto"`` on a capture whose cam3 is two and a half frames late: the
     panel's offsets table gives each camera's offset and standard error (frames; the service's
@@ -121,6 +130,7 @@ def live_prompt(panel: str) -> str:
     return re.search(r'<p id="live-prompt">(.*?)</p>', panel).group(1)
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_page_shows_a_live_capture_waiting_for_the_wand_until_continue(make_server, tmp_path):
     server = make_server(workers=0).start()
     with EmulatorProcess() as emu, server.client() as c:
@@ -160,6 +170,7 @@ def test_page_shows_a_live_capture_waiting_for_the_wand_until_continue(make_serv
     assert f'data-capture-id="{started["capture_id"]}"' in html  # the stored capture, ready to calibrate
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_page_shows_the_guidance_filling_in_and_when_it_is_enough(make_server, tmp_path):
     server = make_server(workers=0, guidance=json.dumps(LOOSE_GUIDANCE)).start()
     with EmulatorProcess() as emu, server.client() as c:
@@ -271,6 +282,7 @@ def wait_newest_job(client, older: str) -> dict:
     raise AssertionError(f"no job newer than {older} finished in {JOB_TIMEOUT_S} s")
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_the_rig_view_turns_zooms_keeps_its_labels_apart_and_follows_the_newest_job(make_server, small_capture,
                                                                                       tmp_path):
     folder, sim = small_capture

@@ -89,6 +89,7 @@ def test_jobs_run_on_an_rq_worker(make_server, small_capture, redis_url, tmp_pat
     assert np.linalg.norm(centers - sim.truth.centers, axis=1).max() < 0.010
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_a_points_only_capture_and_a_re_solve_run_on_an_rq_worker(make_server, redis_url, tmp_path):
     """Issue 32: every input kind and --solve-only on the Redis queue too: the payload carries
     points.csv (a capture without a wand) and a re-solve's standing result."""
@@ -171,6 +172,7 @@ def kill_horse_mid_job(worker: RqWorker, job: dict) -> None:
     os.kill(worker.horse(), signal.SIGKILL)
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_a_job_whose_worker_dies_is_requeued_once_then_failed(make_server, big_capture, redis_url, tmp_path):
     from redis import Redis
     from rq.registry import StartedJobRegistry

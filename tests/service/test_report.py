@@ -238,6 +238,7 @@ def test_report_of_the_real_easywand_session(tmp_path):
     assert len(data.points) > 300 and all(len(c.point_uv) for c in data.cameras)
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_report_over_http(make_server, small_capture, tmp_path):
     folder, sim = small_capture
     server = make_server(workers=1, token="lab-token").start()
@@ -335,6 +336,7 @@ def test_the_report_shows_the_judgement(sim_report, tmp_path):
     assert "World frame placement: origin \u00b1 \u2014, axes \u00b1 \u2014" in text and "Faults: \u2014" in text
 
 
+@pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
 def test_the_report_shows_the_time_offsets(tmp_path):
     """A result of ``--sync auto`` (cam3 two and a half frames late): the page's "Time offsets"
     table gives each camera's offset and standard error in frames and ms, and marks cam3 out of

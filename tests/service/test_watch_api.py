@@ -19,13 +19,13 @@ WATCH_TIMEOUT_S = 300.0  # a 600-frame take of 6 cameras is seconds of CPU; the 
 
 
 @pytest.fixture(scope="module")
-def root(tmp_path_factory, watch_standing, watch_knock):
+def root(tmp_path_factory, watch_standing, watch_knock_take):
     """wand: the capture ``standing.json`` was calibrated from; knock: cam2 knocked at 300 (both
     tests/service/conftest.py, shared with the other watch tests); other: a take of another rig."""
     root = tmp_path_factory.mktemp("watch_api")
     shutil.copytree(watch_standing.parent / "wand", root / "wand")
     shutil.copyfile(watch_standing, root / "standing.json")
-    shutil.copytree(watch_knock[0], root / "knock")
+    shutil.copytree(watch_knock_take, root / "knock")
     r = wandcal("simulate", str(root / "other"), "--take", "--cameras", "6", "--frames", "200", "--seed", "8")
     assert r.returncode == 0, r.stderr
     return root

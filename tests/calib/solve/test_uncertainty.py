@@ -53,7 +53,7 @@ def _spread_bounds() -> tuple[float, float]:
     return float(np.sqrt(lo)), float(np.sqrt(hi))
 
 
-@pytest.mark.parametrize("static", [True, False], ids=["static-object frame", "wand-only frame"])
+@pytest.mark.parametrize("static", [True, pytest.param(False, marks=pytest.mark.long)], ids=["static-object frame", "wand-only frame"])
 def test_predicted_uncertainty_matches_the_real_error_spread(static):
     centre_ratios, rotation_ratios = [], []
     for seed in range(SEEDS):
