@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import faulthandler
+import io
 import json
+import logging
 import os
 import signal
 import socket
@@ -187,10 +191,46 @@ def wait_job(client: httpx.Client, job_id: str, timeout_s: float = JOB_TIMEOUT_S
 EMPTY_CAMERA = 1  # cam2: the camera whose left third of the image the wand never reaches
 
 
-def wandcal(*args, timeout: float = 600) -> subprocess.CompletedProcess:
-    """``wandcal ARGS...`` as a user runs it (arguments may be paths or numbers), from the repository."""
-    return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=REPO, timeout=timeout, check=False)
+# commands whose claims are about the process itself (signals, its exit, a terminal): always a subprocess
+PROCESS_COMMANDS = {"serve", "capture"}
+
+
+def wandcal(*args, timeout: float = 600, process: bool = False) -> subprocess.CompletedProcess:
+    """``wandcal ARGS...`` as a user runs it (arguments may be paths or numbers), from the repository.
+
+    A batch command runs in this process (``wandcal.service.cli.main``, its output captured): a
+    subprocess spent 4-13 s of this machine's CPU importing NumPy, SciPy and OpenCV again before its
+    first line (decision 0111). ``process=True``, or a command of :data:`PROCESS_COMMANDS`, starts
+    ``python -m wandcal.service.cli`` instead. A run in process past ``timeout`` ends the worker with
+    every thread's stack on stderr (faulthandler), as a subprocess past it would fail the test."""
+    argv = [str(a) for a in args]
+    if process or (argv and argv[0] in PROCESS_COMMANDS):
+        return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *argv], capture_output=True, text=True,
+                              cwd=REPO, timeout=timeout, check=False)
+    return _in_process(argv, timeout)
+
+
+def _in_process(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
+    from wandcal.service.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    # a subprocess writes an unhandled logger's warnings to its stderr (logging's last resort): so here
+    said = logging.StreamHandler(err)
+    said.setLevel(logging.WARNING)
+    logging.getLogger().addHandler(said)
+    faulthandler.dump_traceback_later(timeout, exit=True)
+    try:
+        with contextlib.chdir(REPO), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = main(argv)
+            except SystemExit as exc:  # argparse's usage errors and --help
+                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+                if isinstance(exc.code, str):
+                    print(exc.code, file=sys.stderr)
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+        logging.getLogger().removeHandler(said)
+    return subprocess.CompletedProcess(["wandcal", *argv], code, out.getvalue(), err.getvalue())
 
 
 def left_third_px(width: int) -> float:

@@ -62,6 +62,21 @@ def chromium(url: str, profile, *args: str) -> subprocess.CompletedProcess:
         return run(Path(f"{profile}-again"))  # the killed run's profile may still hold its lock
 
 
+def screenshot(url: str, profile: Path, shot: Path, size: tuple[int, int], ready: str) -> Path:
+    """``url`` drawn into ``shot`` once the script ``ready`` is true, over the DevTools protocol:
+    chromium's ``--screenshot`` with a virtual-time budget hung past 90 s twice in a row on the live
+    capture's waiting page here, and once in CI on the solved rig (session 24), where ``--dump-dom``
+    of the same page had just passed."""
+    with Browser(CHROMIUM, profile) as browser:
+        browser.send("Emulation.setDeviceMetricsOverride", width=size[0], height=size[1], deviceScaleFactor=1,
+                     mobile=False)
+        browser.open(url)
+        browser.wait_for(ready)
+        browser.screenshot(shot)
+        assert not browser.errors, browser.errors
+    return shot
+
+
 def test_page_shows_captures_jobs_and_the_solved_rig(make_server, small_capture, tmp_path):
     folder, sim = small_capture
     server = make_server(workers=1).start()
@@ -84,9 +99,9 @@ def test_page_shows_captures_jobs_and_the_solved_rig(make_server, small_capture,
     assert f'verdict: {job["result"]["verdict"]["level"]}' in html
     assert 'id="result-section" hidden' not in html
 
-    shot = artefact(tmp_path, "page-solved-rig.png")
-    run = chromium(server.url + "/", tmp_path / "profile2", f"--screenshot={shot}", "--window-size=1280,1100")
-    assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr
+    shot = screenshot(server.url + "/", tmp_path / "profile2", artefact(tmp_path, "page-solved-rig.png"), (1280, 1100),
+                      f"document.querySelector('#result-section')?.dataset.drawn === '{job_id}'")
+    assert shot.stat().st_size > 10_000
 
 
 @pytest.mark.long  # decision 0111: a shorter test of the same path stays in the default suite
@@ -152,9 +167,9 @@ def test_page_shows_a_live_capture_waiting_for_the_wand_until_continue(make_serv
         assert '<div id="live-guidance" hidden=""' in panel and "check that it is on" not in panel
         guidance = c.get(f"/captures/{started['capture_id']}/guidance").json()
         assert not any("check that it is on" in a for a in guidance["advice"]), guidance["advice"]
-        shot = artefact(tmp_path, "page-waiting-for-the-wand.png")
-        run = chromium(server.url + "/", tmp_path / "profile-shot", f"--screenshot={shot}", "--window-size=1280,900")
-        assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr
+        shot = screenshot(server.url + "/", tmp_path / "profile-shot", artefact(tmp_path, "page-waiting-for-the-wand.png"),
+                          (1280, 900), "document.querySelector('#live[data-state=\"waiting_for_wand\"]') !== null")
+        assert shot.stat().st_size > 10_000
 
         assert c.post("/capture/continue").status_code == 202
         status = wait_capture(c)
@@ -187,13 +202,13 @@ def test_page_shows_the_guidance_filling_in_and_when_it_is_enough(make_server, t
         status = wait_capture(c)
         assert status["state"] == "done" and status["enough"], status["error"]
         html = chromium(server.url + "/", tmp_path / "profile2", "--dump-dom").stdout
-        shot = artefact(tmp_path, "page-live-guidance-enough.png")
-        run = chromium(server.url + "/", tmp_path / "profile3", f"--screenshot={shot}", "--window-size=1280,1400")
+        shot = screenshot(server.url + "/", tmp_path / "profile3", artefact(tmp_path, "page-live-guidance-enough.png"),
+                          (1280, 1400), "document.querySelector('#live-guidance')?.dataset.enough === 'true'")
     panel = live_panel(html)
     assert '<div id="live-guidance" data-enough="true">' in panel
     assert '<p id="live-enough" class="enough">Enough: you can stop waving.</p>' in panel
     assert panel.count("✓") == len(started["cameras"])  # no camera needs anything
-    assert run.returncode == 0 and shot.stat().st_size > 10_000, run.stderr
+    assert shot.stat().st_size > 10_000
 
 
 # -- the 3D rig view, driven over the DevTools protocol ---------------------------------------
