@@ -61,7 +61,7 @@ def test_pty_capture_detect_and_calibrate_recover_the_rig(tmp_path, capsys):
     assert err.max() < CENTRE_TOLERANCE_M, err
 
 
-def test_trigger_port_vanishing_stops_cleanly_and_keeps_the_data(tmp_path, capsys):
+def test_trigger_port_vanishing_stops_cleanly_and_keeps_the_data(tmp_path, capsys, patient_stall_limit):
     out = tmp_path / "cap"
     with EmulatorProcess("--vanish-after", "60") as emu:
         code = main(["capture", "--camera", "sim://?cameras=3&seed=2&frames=200", "--trigger", emu.url,
