@@ -9,6 +9,8 @@ import pytest
 from wandcal.drivers.trigger_emulator import EmulatorProcess
 from wandcal.service.cli import main
 
+pytestmark = pytest.mark.usefixtures("patient_stall_limit")  # in-process recordings on a loaded box
+
 WAND_SETS, STATIC = 3000, 20
 SIM = f"sim://?cameras=4&seed=3&frames={WAND_SETS}&static={STATIC}"
 # The simulated wand path covers about a quarter of each view (a smooth path through the middle

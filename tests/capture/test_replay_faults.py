@@ -12,6 +12,8 @@ from wandcal.capture.recording.session import record
 from wandcal.drivers.registry import open_cameras
 from wandcal.service.cli import main
 
+pytestmark = pytest.mark.usefixtures("patient_stall_limit")  # in-process recordings on a loaded box
+
 FRAMES = 40
 
 

@@ -8,6 +8,8 @@ from wandcal.capture.recording.session import record
 from wandcal.drivers.errors import DriverError, FrameError
 from wandcal.drivers.registry import open_cameras
 
+pytestmark = pytest.mark.usefixtures("patient_stall_limit")  # in-process recordings on a loaded box
+
 
 @pytest.fixture
 def recorded(tmp_path):

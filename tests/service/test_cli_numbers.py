@@ -12,6 +12,8 @@ import pytest
 
 from wandcal.service.cli import build_parser, main
 
+pytestmark = pytest.mark.usefixtures("patient_stall_limit")  # in-process recordings on a loaded box
+
 # the arguments each command needs besides the option under test
 BASE = {
     "simulate": ["simulate", "out"],

@@ -26,6 +26,8 @@ from wandcal.drivers.trigger_emulator import EmulatorProcess
 from wandcal.service.cli import main
 from wandcal.service.cli.support.inputs import result_for
 
+pytestmark = pytest.mark.usefixtures("patient_stall_limit")  # in-process recordings on a loaded box
+
 SETS = 60
 KNOCK = "sim://?cameras=4&seed=3&take=12&move=cam2:30:0.5:3"
 # read noise of 2 grey levels on spots of sigma 1.5-2.5 px: ~0.01-0.05 px of centroid noise; a marker

@@ -15,6 +15,8 @@ from wandcal.capture.folder import read_capture
 from wandcal.service.cli import main
 from wandcal.service.cli.support.summary import format_summary
 
+pytestmark = pytest.mark.usefixtures("patient_stall_limit")  # in-process recordings on a loaded box
+
 CAMERAS = 4
 
 
