@@ -4,8 +4,6 @@ from pathlib import Path
 
 import pytest
 
-from wandcal.capture.recording import framesets
-
 # Bytecode is kept even where the environment says not to (PYTHONDONTWRITEBYTECODE=1 on this machine's image):
 # every test module's assertion rewrite and every `wandcal` subprocess's import otherwise compiles its
 # source again (the collection spent 95 of its 196 s compiling and rewriting, session 24).
@@ -61,4 +59,6 @@ def patient_stall_limit(monkeypatch):
     out without it (stop 45's CI, decision 0108; this session's suite, cam3 of test_capture_pty and
     cam2 of test_replay). For the in-process recordings that are not about stalls (test_sync.py's and
     test_faults.py's stalled camera are)."""
+    from wandcal.capture.recording import framesets  # here: the package is imported after the bytecode switch
+
     monkeypatch.setattr(framesets, "STALL_S", 30.0)
