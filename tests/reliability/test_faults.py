@@ -279,7 +279,7 @@ def test_a_full_disk_answers_507_and_loses_nothing(small_disk, capture_folder, c
 
 
 # -- devices ----------------------------------------------------------------------------------
-def test_the_trigger_vanishing_during_a_live_capture_keeps_what_was_recorded(tmp_path):
+def test_the_trigger_vanishing_during_a_live_capture_keeps_what_was_recorded(tmp_path, patient_stall_limit):
     from wandcal.drivers.trigger_emulator import EmulatorProcess
 
     app = create_app(Settings(data_dir=tmp_path / "data", workers=0))
@@ -296,7 +296,7 @@ def test_the_trigger_vanishing_during_a_live_capture_keeps_what_was_recorded(tmp
         assert [int(r.split(",")[1]) for r in rows] == list(range(40))  # every pulse the board sent is a set
 
 
-def test_a_live_recording_that_cannot_be_registered_keeps_its_sets(tmp_path, monkeypatch):
+def test_a_live_recording_that_cannot_be_registered_keeps_its_sets(tmp_path, monkeypatch, patient_stall_limit):
     """The recording ends but cannot become a capture (here its registration fails as on a disk
     that just filled): its sets and images are moved to recovered/<id>, as a crash's are, and the
     status says where and what to run."""
