@@ -195,16 +195,16 @@ EMPTY_CAMERA = 1  # cam2: the camera whose left third of the image the wand neve
 PROCESS_COMMANDS = {"serve", "capture"}
 
 
-def wandcal(*args, timeout: float = 600, process: bool = False) -> subprocess.CompletedProcess:
+def wandcal(*args, timeout: float = 600) -> subprocess.CompletedProcess:
     """``wandcal ARGS...`` as a user runs it (arguments may be paths or numbers), from the repository.
 
     A batch command runs in this process (``wandcal.service.cli.main``, its output captured): a
     subprocess spent 4-13 s of this machine's CPU importing NumPy, SciPy and OpenCV again before its
-    first line (decision 0111). ``process=True``, or a command of :data:`PROCESS_COMMANDS`, starts
-    ``python -m wandcal.service.cli`` instead. A run in process past ``timeout`` ends the worker with
+    first line (decision 0111). A command of :data:`PROCESS_COMMANDS` starts ``python -m
+    wandcal.service.cli`` instead. A run in process past ``timeout`` ends the worker with
     every thread's stack on stderr (faulthandler), as a subprocess past it would fail the test."""
     argv = [str(a) for a in args]
-    if process or (argv and argv[0] in PROCESS_COMMANDS):
+    if argv and argv[0] in PROCESS_COMMANDS:
         return subprocess.run([sys.executable, "-m", "wandcal.service.cli", *argv], capture_output=True, text=True,
                               cwd=REPO, timeout=timeout, check=False)
     return _in_process(argv, timeout)
@@ -224,9 +224,9 @@ def _in_process(argv: list[str], timeout: float) -> subprocess.CompletedProcess:
             try:
                 code = main(argv)
             except SystemExit as exc:  # argparse's usage errors and --help
-                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-                if isinstance(exc.code, str):
+                if isinstance(exc.code, str):  # a message: printed, exit 1, as the interpreter does
                     print(exc.code, file=sys.stderr)
+                code = exc.code if isinstance(exc.code, int) else int(exc.code is not None)
     finally:
         faulthandler.cancel_dump_traceback_later()
         logging.getLogger().removeHandler(said)
